@@ -1,0 +1,92 @@
+"""pyrtu: a Modbus RTU toolkit whose hot path is C.
+
+The backend is chosen once, here: the C core when it is built, else the
+pure-Python twin.  ``PYRTU_PURE=1`` forces the twin; ``PYRTU_REQUIRE_C=1`` makes
+the import fail when the C core is missing.  ``pyrtu.BACKEND`` says which runs;
+``pyrtu.backend(name)`` returns either one (both expose the same names).
+"""
+
+from __future__ import annotations
+
+import os
+from types import ModuleType
+
+from . import _pure
+from .ascii import decode_ascii, encode_ascii
+from .frames import ErrorReason, Frame, FrameKind, FrameList
+from .rules import BONFIGLIOLI, CV100, LengthRule
+from .timing import Timing
+
+__version__ = "0.1.0"
+
+
+def _load_c() -> ModuleType | None:
+    try:
+        from . import _cext
+    except ImportError as exc:
+        if os.environ.get("PYRTU_REQUIRE_C") == "1":
+            raise ImportError(
+                f"PYRTU_REQUIRE_C=1 but the pyrtu C core is not built ({exc}); "
+                "reinstall with a C compiler (pip install .)"
+            ) from exc
+        return None
+    return _cext
+
+
+_C = _load_c()
+_active: ModuleType = _pure if os.environ.get("PYRTU_PURE") == "1" or _C is None else _C
+
+BACKEND: str = _active.BACKEND
+crc16 = _active.crc16
+add_crc = _active.add_crc
+check_crc = _active.check_crc
+lrc = _active.lrc
+crc16_paths = _active.crc16_paths
+crc16_path = _active.crc16_path
+char_timing = _active.char_timing
+Framer = _active.Framer
+parse_stream = _active.parse_stream
+
+
+def backend(name: str | None = None) -> ModuleType:
+    """The backend module named ``"c"`` or ``"python"`` (None: the active one)."""
+    if name is None:
+        return _active
+    if name == "python":
+        return _pure
+    if name == "c":
+        if _C is None:
+            raise ImportError("the pyrtu C core is not built")
+        return _C
+    raise ValueError(f"backend must be 'c' or 'python', not {name!r}")
+
+
+def available_backends() -> tuple[str, ...]:
+    """The backends that can run here."""
+    return ("c", "python") if _C is not None else ("python",)
+
+
+__all__ = [
+    "BACKEND",
+    "BONFIGLIOLI",
+    "CV100",
+    "ErrorReason",
+    "Frame",
+    "FrameKind",
+    "FrameList",
+    "Framer",
+    "LengthRule",
+    "Timing",
+    "add_crc",
+    "available_backends",
+    "backend",
+    "char_timing",
+    "check_crc",
+    "crc16",
+    "crc16_path",
+    "crc16_paths",
+    "decode_ascii",
+    "encode_ascii",
+    "lrc",
+    "parse_stream",
+]

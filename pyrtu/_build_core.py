@@ -1,0 +1,35 @@
+"""cffi build script for the C core (build time only; never imported at run time).
+
+Developers: `python setup.py build_ext --inplace` (or `pip install -e .`).
+
+Compiles every csrc/*.c into the extension module ``pyrtu._rtu_core``.  The
+declarations cffi needs live in pyrtu/_cdef.h.  PYRTU_SANITIZE=1 builds with
+AddressSanitizer and UBSan (for the CI sanitizer run).
+"""
+
+import os
+import pathlib
+
+from cffi import FFI
+
+HERE = pathlib.Path(__file__).resolve().parent
+CSRC = HERE.parent / "csrc"
+
+ffibuilder = FFI()
+ffibuilder.cdef((HERE / "_cdef.h").read_text())
+
+_flags = ["-std=c99", "-O2", "-Wall", "-Wextra", "-Werror"]
+_link: list[str] = []
+if os.environ.get("PYRTU_SANITIZE") == "1":
+    _san = ["-fsanitize=address,undefined", "-fno-sanitize-recover=undefined", "-fno-omit-frame-pointer", "-g"]
+    _flags += _san
+    _link += _san
+
+ffibuilder.set_source(
+    "pyrtu._rtu_core",
+    '#include "rtu.h"\n',
+    sources=[os.path.relpath(p, HERE.parent) for p in sorted(CSRC.glob("*.c"))],
+    include_dirs=[os.path.relpath(CSRC, HERE.parent)],
+    extra_compile_args=_flags,
+    extra_link_args=_link,
+)

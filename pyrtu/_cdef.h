@@ -1,0 +1,109 @@
+/* cffi declarations of the C core (csrc/rtu.h, csrc/rtu_crc.h): the one place
+ * the Python side learns the C API.  Read by pyrtu/_build_core.py. */
+
+#define RTU_OK ...
+#define RTU_EINVAL ...
+#define RTU_EUNSUPPORTED ...
+#define RTU_ENOSPC ...
+
+#define RTU_CRC_BYTEWISE ...
+#define RTU_CRC_SLICE8 ...
+#define RTU_CRC_CLMUL ...
+#define RTU_CRC_VCLMUL ...
+
+#define RTU_TIMING_MODBUS ...
+#define RTU_TIMING_WEG ...
+#define RTU_RULE_NONE ...
+#define RTU_RULE_FIXED ...
+#define RTU_RULE_COUNT ...
+#define RTU_RULE_MEI ...
+#define RTU_DIR_REQUEST ...
+#define RTU_DIR_RESPONSE ...
+#define RTU_MAX_ADU_LIMIT ...
+
+extern const uint8_t rtu_auchCRCHi[256];
+extern const uint8_t rtu_auchCRCLo[256];
+uint16_t rtu_crc16(const uint8_t *data, size_t len, uint16_t crc);
+int rtu_crc16_path_available(int path);
+int rtu_crc16_path(int path, const uint8_t *data, size_t len, uint16_t crc, uint16_t *out);
+void rtu_crc_noop(void);
+
+uint8_t rtu_lrc(const uint8_t *data, size_t len);
+
+typedef struct {
+    int64_t char_us;
+    int64_t t15_us;
+    int64_t t35_us;
+} rtu_timing;
+int rtu_timing_init(rtu_timing *t, uint32_t baudrate, unsigned bits_per_char, int rule);
+
+typedef struct {
+    uint8_t type;
+    uint8_t off;
+    uint8_t width;
+    uint8_t mul;
+    int16_t add;
+} rtu_rule;
+typedef struct { ...; } rtu_rules;
+
+typedef struct {
+    uint64_t offset;
+    uint32_t length;
+    uint8_t kind;
+    uint8_t error;
+    int64_t start_us;
+    int64_t end_us;
+    ...;
+} rtu_event;
+
+typedef struct {
+    uint64_t pos;
+    uint32_t flags;
+    ...;
+} rtu_mark;
+
+typedef struct {
+    int role;
+    int strict;
+    uint32_t max_adu;
+    rtu_timing timing;
+    int64_t flush_us;
+    rtu_rules rules;
+} rtu_config;
+
+typedef struct {
+    uint64_t frames[4];
+    uint64_t discarded[6];
+    uint64_t discard_events;
+} rtu_counters;
+
+int rtu_config_init(rtu_config *c, int role, uint32_t baudrate, unsigned bits_per_char, int rule);
+int rtu_rules_set(rtu_rules *r, int direction, unsigned function, rtu_rule rule);
+
+typedef struct {
+    rtu_config cfg;
+    rtu_counters counters;
+    rtu_event event;
+    ...;
+} rtu_framer;
+
+int rtu_framer_init(rtu_framer *f, const rtu_config *cfg);
+void rtu_framer_reset(rtu_framer *f);
+size_t rtu_framer_feed(rtu_framer *f, const uint8_t *data, size_t len, int64_t now_us);
+void rtu_framer_handle_timer(rtu_framer *f, int64_t now_us);
+int64_t rtu_framer_deadline(const rtu_framer *f);
+int rtu_framer_poll(rtu_framer *f);
+const uint8_t *rtu_framer_event_data(const rtu_framer *f);
+void rtu_framer_sent(rtu_framer *f, const uint8_t *adu, size_t len);
+
+typedef struct {
+    rtu_counters counters;
+    ...;
+} rtu_parser;
+
+int rtu_marks_from_chunks(const rtu_timing *t, const uint64_t *offsets, const int64_t *times,
+                          size_t nchunks, uint64_t total, rtu_mark *out, size_t *nout);
+int rtu_parser_init(rtu_parser *p, const rtu_config *cfg);
+int rtu_parse(rtu_parser *p, const uint8_t *data, size_t len, const rtu_mark *marks, size_t nmarks,
+              const uint64_t *offsets, const int64_t *times, size_t nchunks, rtu_event *out,
+              size_t cap, size_t *nout);

@@ -1,0 +1,273 @@
+"""The C backend: the names of the pure-Python twin over the cffi module.
+
+Imported only by pyrtu/__init__.py's backend selection; ImportError when the
+extension was not built.  Buffers reach C through ``ffi.from_buffer`` (no copy).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from typing import Any
+
+from ._framing import Event, FramerBase, as_bytes, counters_dict, stream_times
+from ._rtu_core import ffi, lib
+from ._types import BytesLike
+from .config import CoreOptions, core_options, flush_us_for
+from .frames import FrameList
+from .rules import RuleTable
+from .timing import Timing, bits_per_char
+
+BACKEND = "c"
+NO_TIME = -(2**63)
+INT64_MAX = 2**63 - 1
+
+__all__ = [
+    "BACKEND",
+    "Framer",
+    "add_crc",
+    "char_timing",
+    "check_crc",
+    "crc16",
+    "crc16_path",
+    "crc16_paths",
+    "ffi",
+    "lib",
+    "lrc",
+    "parse_stream",
+]
+
+_PATHS = {
+    "bytewise": lib.RTU_CRC_BYTEWISE,
+    "slice8": lib.RTU_CRC_SLICE8,
+    "clmul": lib.RTU_CRC_CLMUL,
+    "vclmul": lib.RTU_CRC_VCLMUL,
+}
+
+
+def _buffer(data: BytesLike, name: str) -> Any:
+    try:
+        return ffi.from_buffer("uint8_t[]", data)
+    except TypeError:
+        raise TypeError(f"{name} must be a bytes-like object, not {type(data).__name__}") from None
+
+
+def _seed(crc: int) -> int:
+    if isinstance(crc, bool) or not isinstance(crc, int) or not 0 <= crc <= 0xFFFF:
+        raise ValueError(f"crc must be an integer 0..0xFFFF, not {crc!r}")
+    return crc
+
+
+def crc16(data: BytesLike, crc: int = 0xFFFF) -> int:
+    """CRC-16/MODBUS of ``data``, continuing from ``crc`` (0xFFFF to start)."""
+    buf = _buffer(data, "data")
+    return int(lib.rtu_crc16(buf, len(buf), _seed(crc)))
+
+
+def add_crc(data: BytesLike) -> bytes:
+    """``data`` with its CRC appended, low byte first (CFW100 4.2.4)."""
+    raw = as_bytes(data)
+    crc = lib.rtu_crc16(raw, len(raw), 0xFFFF)
+    return raw + bytes((crc & 0xFF, crc >> 8))
+
+
+def check_crc(adu: BytesLike) -> bool:
+    """True when the last two bytes of ``adu`` are the CRC of the rest."""
+    buf = _buffer(adu, "adu")
+    n = len(buf)
+    if n < 3:
+        return False
+    crc = lib.rtu_crc16(buf, n - 2, 0xFFFF)
+    return bool(buf[n - 2] == crc & 0xFF and buf[n - 1] == crc >> 8)
+
+
+def lrc(data: BytesLike) -> int:
+    """LRC of ASCII mode: two's complement of the 8-bit byte sum (seed 004, 6.7.2.3)."""
+    buf = _buffer(data, "data")
+    return int(lib.rtu_lrc(buf, len(buf)))
+
+
+def crc16_paths() -> tuple[str, ...]:
+    """The CRC implementations this CPU runs."""
+    return tuple(name for name, code in _PATHS.items() if lib.rtu_crc16_path_available(code))
+
+
+def crc16_path(path: str, data: BytesLike, crc: int = 0xFFFF) -> int:
+    """CRC through one named implementation (for tests and benchmarks)."""
+    if path not in _PATHS:
+        raise ValueError(f"crc16_path: unknown path {path!r} (known: {', '.join(_PATHS)})")
+    buf = _buffer(data, "data")
+    out = ffi.new("uint16_t *")
+    status = lib.rtu_crc16_path(_PATHS[path], buf, len(buf), _seed(crc), out)
+    if status == lib.RTU_EUNSUPPORTED:
+        raise ValueError(f"crc16_path: this CPU cannot run the {path!r} path")
+    if status != lib.RTU_OK:
+        raise ValueError(f"crc16_path: rtu_crc16_path failed with status {status}")
+    return int(out[0])
+
+
+def char_timing(
+    baudrate: int,
+    parity: str = "E",
+    stopbits: float = 1,
+    bytesize: int = 8,
+    timing: str = "modbus",
+    t15: float | None = None,
+    t35: float | None = None,
+) -> Timing:
+    """Character time, t1.5 and t3.5 for a baud rate and byte format (computed in C)."""
+    options = core_options(
+        "master", baudrate=baudrate, parity=parity, stopbits=stopbits, bytesize=bytesize,
+        timing=timing, t15=t15, t35=t35,
+    )
+    cfg = _config(options)
+    return Timing(int(cfg.timing.char_us), int(cfg.timing.t15_us), int(cfg.timing.t35_us))
+
+
+def _config(options: CoreOptions) -> Any:
+    cfg = ffi.new("rtu_config *")
+    status = lib.rtu_config_init(cfg, options.role, options.baudrate, options.bits, options.rule)
+    if status != lib.RTU_OK:
+        raise ValueError(f"cannot configure the framer (status {status}) for {options}")
+    if options.t15_us is not None:
+        cfg.timing.t15_us = options.t15_us
+    if options.t35_us is not None:
+        cfg.timing.t35_us = options.t35_us
+    cfg.flush_us = flush_us_for(options, int(cfg.timing.t35_us))
+    cfg.strict = int(options.strict)
+    cfg.max_adu = options.max_adu
+    for fc, pair in options.rules.items():
+        for direction, rule in enumerate(pair):
+            if rule is None:
+                continue
+            c_rule = ffi.new("rtu_rule *", (rule.type, rule.offset, rule.width, rule.scale, rule.add))
+            if lib.rtu_rules_set(ffi.addressof(cfg, "rules"), direction, fc, c_rule[0]) != lib.RTU_OK:
+                raise ValueError(f"rules[{fc}]: the C core refuses {rule!r}")
+    return cfg
+
+
+class _Core:
+    def __init__(self, options: CoreOptions) -> None:
+        self.f = ffi.new("rtu_framer *")
+        if lib.rtu_framer_init(self.f, _config(options)) != lib.RTU_OK:
+            raise ValueError(f"cannot initialise the framer for {options}")
+
+    def feed(self, data: bytes, now_us: int) -> int:
+        return int(lib.rtu_framer_feed(self.f, data, len(data), now_us))
+
+    def poll(self) -> Event | None:
+        f = self.f
+        if not lib.rtu_framer_poll(f):
+            return None
+        e = f.event
+        adu = ffi.unpack(ffi.cast("char *", lib.rtu_framer_event_data(f)), e.length)
+        return (e.offset, e.length, e.kind, e.error, e.start_us, e.end_us, adu)
+
+    def handle_timer(self, now_us: int) -> None:
+        lib.rtu_framer_handle_timer(self.f, now_us)
+
+    def deadline(self) -> int | None:
+        deadline = int(lib.rtu_framer_deadline(self.f))
+        return None if deadline == INT64_MAX else deadline
+
+    def sent(self, adu: bytes) -> None:
+        lib.rtu_framer_sent(self.f, adu, len(adu))
+
+    def reset(self) -> None:
+        lib.rtu_framer_reset(self.f)
+
+    def counts(self) -> tuple[Sequence[int], Sequence[int], int]:
+        c = self.f.counters
+        return list(c.frames), list(c.discarded), int(c.discard_events)
+
+
+class Framer(FramerBase):
+    __doc__ = FramerBase.__doc__
+    BACKEND = BACKEND
+
+    def _make_core(self, options: CoreOptions) -> _Core:
+        return _Core(options)
+
+
+class CFrameList(FrameList):
+    """Entries live in C arrays (blocks of rtu_event); frames are built on access."""
+
+    def __init__(self, data: bytes, blocks: list[tuple[Any, int]], counters: dict[str, int]) -> None:
+        super().__init__(data, sum(n for _, n in blocks))
+        self._blocks = blocks
+        self._starts: list[int] = []
+        total = 0
+        for _, n in blocks:
+            self._starts.append(total)
+            total += n
+        self.counters = counters
+
+    def _entry(self, i: int) -> tuple[int, int, int, int, int | None, int | None]:
+        b = len(self._starts) - 1
+        while self._starts[b] > i:
+            b -= 1
+        e = self._blocks[b][0][i - self._starts[b]]
+        return (
+            e.offset,
+            e.length,
+            e.kind,
+            e.error,
+            None if e.start_us == NO_TIME else e.start_us,
+            None if e.end_us == NO_TIME else e.end_us,
+        )
+
+
+def parse_stream(
+    data: BytesLike,
+    role: str = "monitor",
+    *,
+    times: Iterable[float] | None = None,
+    chunks: Iterable[tuple[int, float]] | None = None,
+    baudrate: int = 19200,
+    parity: str = "E",
+    stopbits: float = 1,
+    bytesize: int = 8,
+    timing: str = "modbus",
+    t15: float | None = None,
+    t35: float | None = None,
+    strict: bool = False,
+    max_adu: int = 256,
+    rules: RuleTable | None = None,
+) -> CFrameList:
+    """Every frame and discard run in ``data`` (a capture), as a lazy sequence."""
+    options = core_options(
+        role, baudrate=baudrate, parity=parity, stopbits=stopbits, bytesize=bytesize,
+        timing=timing, t15=t15, t35=t35, strict=strict, max_adu=max_adu, rules=rules,
+    )
+    raw = as_bytes(data)
+    offsets, us = stream_times(len(raw), times, chunks)
+    cfg = _config(options)
+    n_chunks = len(offsets)
+    c_offsets = ffi.new("uint64_t[]", offsets) if n_chunks else ffi.NULL
+    c_times = ffi.new("int64_t[]", us) if n_chunks else ffi.NULL
+    marks = ffi.new("rtu_mark[]", max(n_chunks, 1))
+    n_marks = ffi.new("size_t *")
+    status = lib.rtu_marks_from_chunks(
+        ffi.addressof(cfg, "timing"), c_offsets, c_times, n_chunks, len(raw), marks, n_marks
+    )
+    if status != lib.RTU_OK:
+        raise ValueError(f"parse_stream: chunk times rejected (status {status})")
+    parser = ffi.new("rtu_parser *")
+    lib.rtu_parser_init(parser, cfg)
+    blocks: list[tuple[Any, int]] = []
+    cap = max(64, len(raw) // 8)
+    n_out = ffi.new("size_t *")
+    while True:
+        out = ffi.new("rtu_event[]", cap)
+        status = lib.rtu_parse(
+            parser, raw, len(raw), marks, n_marks[0], c_offsets, c_times, n_chunks, out, cap, n_out
+        )
+        if n_out[0]:
+            blocks.append((out, int(n_out[0])))
+        if status == lib.RTU_OK:
+            break
+        if status != lib.RTU_ENOSPC:
+            raise ValueError(f"parse_stream: rtu_parse failed with status {status}")
+        cap = min(cap * 2, 1 << 22)
+    c = parser.counters
+    counters = counters_dict(list(c.frames), list(c.discarded), int(c.discard_events))
+    return CFrameList(raw, blocks, counters)

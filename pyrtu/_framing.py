@@ -1,0 +1,194 @@
+"""The Python face of the framer and of parse_stream, shared by both backends.
+
+A backend supplies a *core*: ``feed(data, now_us) -> int``, ``poll() -> event``,
+``handle_timer(now_us)``, ``deadline() -> int | None``, ``sent(adu)``,
+``reset()`` and ``counts() -> (frames[4], discarded[6], discard_events)``.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Iterable, Sequence
+from typing import Protocol
+
+from ._types import BytesLike
+from .config import CoreOptions, core_options, to_microseconds
+from .frames import ERROR_BY_CODE, Frame, FrameKind, event_counters_template
+from .rules import RuleTable
+
+# (offset, length, kind, error, start_us, end_us, adu)
+Event = tuple[int, int, int, int, int, int, bytes]
+
+
+class FramerCore(Protocol):
+    def feed(self, data: bytes, now_us: int) -> int: ...
+    def poll(self) -> Event | None: ...
+    def handle_timer(self, now_us: int) -> None: ...
+    def deadline(self) -> int | None: ...
+    def sent(self, adu: bytes) -> None: ...
+    def reset(self) -> None: ...
+    def counts(self) -> tuple[Sequence[int], Sequence[int], int]: ...
+
+
+def as_bytes(data: BytesLike, name: str = "data") -> bytes:
+    if isinstance(data, bytes):
+        return data
+    try:
+        return memoryview(data).cast("B").tobytes()  # type: ignore[arg-type]
+    except TypeError:
+        raise TypeError(f"{name} must be a bytes-like object, not {type(data).__name__}") from None
+
+
+def event_to_frame(ev: Event) -> Frame:
+    offset, length, kind, error, start_us, end_us, adu = ev
+    return Frame(
+        kind=FrameKind(kind),
+        adu=adu,
+        offset=offset,
+        start=start_us / 1e6,
+        end=end_us / 1e6,
+        error=ERROR_BY_CODE[error],
+    )
+
+
+def counters_dict(frames: Sequence[int], discarded: Sequence[int], events: int) -> dict[str, int]:
+    out = event_counters_template()
+    for kind in (FrameKind.REQUEST, FrameKind.RESPONSE, FrameKind.EXCEPTION, FrameKind.UNKNOWN):
+        out[str(kind)] = int(frames[kind])
+    for code, reason in enumerate(ERROR_BY_CODE):
+        if reason is not None:
+            out[f"discarded_{reason.value}"] = int(discarded[code])
+    out["discard_events"] = int(events)
+    return out
+
+
+class FramerBase:
+    """A sans-I/O Modbus RTU connection (in the spirit of h11).
+
+    Feed bytes with ``receive_data(data, now)`` (``now``: seconds on a monotonic
+    clock), pull ``Frame`` events with ``next_event()`` until it returns None,
+    and call ``handle_timer(now)`` when ``timer()`` says, so that silences end
+    frames.  ``send(adu)`` tells the framer what the local side transmitted.
+    """
+
+    BACKEND = ""
+
+    def __init__(
+        self,
+        role: str = "master",
+        *,
+        baudrate: int = 19200,
+        parity: str = "E",
+        stopbits: float = 1,
+        bytesize: int = 8,
+        timing: str = "modbus",
+        t15: float | None = None,
+        t35: float | None = None,
+        strict: bool = False,
+        max_adu: int = 256,
+        rules: RuleTable | None = None,
+        flush_timeout: float | None = None,
+    ) -> None:
+        self.options = core_options(
+            role,
+            baudrate=baudrate,
+            parity=parity,
+            stopbits=stopbits,
+            bytesize=bytesize,
+            timing=timing,
+            t15=t15,
+            t35=t35,
+            strict=strict,
+            max_adu=max_adu,
+            rules=rules,
+            flush_timeout=flush_timeout,
+        )
+        self.role = role
+        self._core = self._make_core(self.options)
+        self._events: deque[Frame] = deque()
+
+    def _make_core(self, options: CoreOptions) -> FramerCore:
+        raise NotImplementedError
+
+    def _drain(self) -> None:
+        while (ev := self._core.poll()) is not None:
+            self._events.append(event_to_frame(ev))
+
+    def receive_data(self, data: BytesLike, now: float) -> None:
+        """Bytes that arrived (were read) at ``now`` seconds."""
+        raw = as_bytes(data)
+        now_us = to_microseconds(now)
+        pos = 0
+        stalled = 0
+        while pos < len(raw):
+            took = self._core.feed(raw[pos:], now_us)
+            self._drain()  # a silence before the new bytes may end what is buffered
+            pos += took
+            stalled = stalled + 1 if took == 0 else 0
+            if stalled > 2:
+                raise RuntimeError("framer made no progress (internal error)")
+
+    def next_event(self) -> Frame | None:
+        """The next frame or discard event, or None when there is none yet."""
+        return self._events.popleft() if self._events else None
+
+    def events(self) -> list[Frame]:
+        """All events available now."""
+        out = list(self._events)
+        self._events.clear()
+        return out
+
+    def timer(self) -> float | None:
+        """When ``handle_timer`` must run (seconds), or None when no timer is needed."""
+        deadline = self._core.deadline()
+        return None if deadline is None else deadline / 1e6
+
+    def handle_timer(self, now: float) -> None:
+        """Let the silence up to ``now`` end what it ends."""
+        self._core.handle_timer(to_microseconds(now))
+        self._drain()
+
+    def send(self, adu: BytesLike) -> bytes:
+        """Record that ``adu`` is transmitted by this side; returns the bytes to write."""
+        raw = as_bytes(adu, "adu")
+        self._core.sent(raw)
+        return raw
+
+    def reset(self) -> None:
+        """Drop buffered bytes (counted as truncated) and the request context."""
+        self._core.reset()
+        self._events.clear()
+
+    @property
+    def counters(self) -> dict[str, int]:
+        """Frames by kind and discarded bytes by reason, since creation."""
+        return counters_dict(*self._core.counts())
+
+
+def stream_times(
+    length: int,
+    times: Iterable[float] | None,
+    chunks: Iterable[tuple[int, float]] | None,
+) -> tuple[list[int], list[int]]:
+    """Chunk offsets and times (us) from per-byte ``times`` or ``chunks``, checked."""
+    if times is not None and chunks is not None:
+        raise ValueError("parse_stream: give times= or chunks=, not both")
+    if times is not None:
+        us = [to_microseconds(t) for t in times]
+        if len(us) != length:
+            raise ValueError(f"parse_stream: times has {len(us)} entries for {length} bytes")
+        return list(range(length)), us
+    if chunks is None:
+        return [], []
+    offsets: list[int] = []
+    us = []
+    for offset, t in chunks:
+        if not isinstance(offset, int) or offset < 0 or offset > length:
+            raise ValueError(f"parse_stream: chunk offset {offset!r} is outside the data (0..{length})")
+        if offsets and offset < offsets[-1]:
+            raise ValueError(f"parse_stream: chunk offsets must ascend ({offset} after {offsets[-1]})")
+        offsets.append(offset)
+        us.append(to_microseconds(t))
+    if offsets and offsets[0] != 0:
+        raise ValueError("parse_stream: the first chunk must start at offset 0")
+    return offsets, us

@@ -1,0 +1,136 @@
+"""The pure-Python backend: the same names and behaviour as the C core."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+
+from .._framing import Event, FramerBase, as_bytes, counters_dict, stream_times
+from .._types import BytesLike
+from ..config import CoreOptions, core_options, flush_us_for
+from ..frames import FrameList
+from ..rules import RuleTable
+from ..timing import Timing, apply_overrides, bits_per_char, compute_timing
+from .crc import add_crc, check_crc, crc16, crc16_path, crc16_paths, lrc
+from .framer import CoreFramer
+from .head import Config
+from .predict import make_rules
+from .stream import CoreParser, Entry
+
+BACKEND = "python"
+
+__all__ = [
+    "BACKEND",
+    "Framer",
+    "add_crc",
+    "char_timing",
+    "check_crc",
+    "crc16",
+    "crc16_path",
+    "crc16_paths",
+    "lrc",
+    "parse_stream",
+]
+
+
+def char_timing(
+    baudrate: int,
+    parity: str = "E",
+    stopbits: float = 1,
+    bytesize: int = 8,
+    timing: str = "modbus",
+    t15: float | None = None,
+    t35: float | None = None,
+) -> Timing:
+    """Character time, t1.5 and t3.5 for a baud rate and byte format."""
+    base = compute_timing(baudrate, bits_per_char(parity, stopbits, bytesize), timing)
+    return apply_overrides(base, t15, t35)
+
+
+def _config(options: CoreOptions) -> Config:
+    base = compute_timing(options.baudrate, options.bits, ("modbus", "weg")[options.rule])
+    t15 = base.t15_us if options.t15_us is None else options.t15_us
+    t35 = base.t35_us if options.t35_us is None else options.t35_us
+    return Config(
+        role=options.role,
+        strict=options.strict,
+        max_adu=options.max_adu,
+        char_us=base.char_us,
+        t15_us=t15,
+        t35_us=t35,
+        flush_us=flush_us_for(options, t35),
+        rules=make_rules(options.rules),
+    )
+
+
+class _Core:
+    def __init__(self, options: CoreOptions) -> None:
+        self.f = CoreFramer(_config(options))
+
+    def feed(self, data: bytes, now_us: int) -> int:
+        return self.f.feed(data, now_us)
+
+    def poll(self) -> Event | None:
+        return self.f.poll()
+
+    def handle_timer(self, now_us: int) -> None:
+        self.f.handle_timer(now_us)
+
+    def deadline(self) -> int | None:
+        return self.f.deadline()
+
+    def sent(self, adu: bytes) -> None:
+        self.f.sent(adu)
+
+    def reset(self) -> None:
+        self.f.reset()
+
+    def counts(self) -> tuple[Sequence[int], Sequence[int], int]:
+        return self.f.frames, self.f.discarded, self.f.discard_events
+
+
+class Framer(FramerBase):
+    __doc__ = FramerBase.__doc__
+    BACKEND = BACKEND
+
+    def _make_core(self, options: CoreOptions) -> _Core:
+        return _Core(options)
+
+
+class PyFrameList(FrameList):
+    def __init__(self, data: bytes, entries: list[Entry], counters: dict[str, int]) -> None:
+        super().__init__(data, len(entries))
+        self._entries = entries
+        self.counters = counters
+
+    def _entry(self, i: int) -> Entry:
+        return self._entries[i]
+
+
+def parse_stream(
+    data: BytesLike,
+    role: str = "monitor",
+    *,
+    times: Iterable[float] | None = None,
+    chunks: Iterable[tuple[int, float]] | None = None,
+    baudrate: int = 19200,
+    parity: str = "E",
+    stopbits: float = 1,
+    bytesize: int = 8,
+    timing: str = "modbus",
+    t15: float | None = None,
+    t35: float | None = None,
+    strict: bool = False,
+    max_adu: int = 256,
+    rules: RuleTable | None = None,
+) -> PyFrameList:
+    """Every frame and discard run in ``data`` (a capture), as a lazy sequence."""
+    options = core_options(
+        role, baudrate=baudrate, parity=parity, stopbits=stopbits, bytesize=bytesize,
+        timing=timing, t15=t15, t35=t35, strict=strict, max_adu=max_adu, rules=rules,
+    )
+    raw = as_bytes(data)
+    offsets, us = stream_times(len(raw), times, chunks)
+    parser = CoreParser(_config(options))
+    entries = parser.parse(raw, offsets, us)
+    counters = counters_dict(parser.frames, parser.discarded, parser.discard_events)
+    return PyFrameList(raw, entries, counters)

@@ -1,0 +1,175 @@
+"""Resolving the head of the unresolved bytes: the twin of csrc/rtu_head.c.
+
+Candidates in order: predicted lengths (expected direction first), then the
+silence-delimited lengths (Modbus over Serial Line 2.5.1.1).  The first whose
+CRC checks is the frame; if none, wait when one may still complete, else
+discard one byte so the caller slides to the next frame start.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .crc import crc16
+from .predict import DIR_REQUEST, DIR_RESPONSE, PRED_NEED, PRED_UNKNOWN, RULE_NONE, Rule, predict
+
+KIND_REQUEST, KIND_RESPONSE, KIND_EXCEPTION, KIND_UNKNOWN, KIND_DISCARD = range(5)
+ERR_NONE, ERR_CRC, ERR_T15, ERR_OVERFLOW, ERR_UNKNOWN_FUNCTION, ERR_TRUNCATED = range(6)
+ROLE_MASTER, ROLE_SLAVE, ROLE_MONITOR = range(3)
+MARK_T15, MARK_T35 = 1, 2
+ACT_WAIT, ACT_FRAME, ACT_DISCARD = range(3)
+
+NOTE_CRC, NOTE_T15, NOTE_OVERFLOW, NOTE_TRUNCATED, NOTE_UNKNOWN = 1, 2, 4, 8, 16
+
+
+@dataclass
+class Config:
+    role: int
+    strict: bool
+    max_adu: int
+    char_us: int
+    t15_us: int
+    t35_us: int
+    flush_us: int
+    rules: tuple[list[Rule], list[Rule]]
+
+
+@dataclass
+class Context:
+    pending: bool = False
+    address: int = 0
+    function: int = 0
+
+    def matches(self, adu: bytes) -> bool:
+        return self.pending and adu[0] == self.address and (adu[1] & 0x7F) == self.function
+
+    def update(self, kind: int, adu: bytes) -> None:
+        if kind == KIND_REQUEST and adu[0] != 0:
+            self.pending, self.address, self.function = True, adu[0], adu[1]
+        else:
+            self.pending = False
+
+
+@dataclass
+class View:
+    data: bytes  # the window, starting at the head byte
+    base: int  # stream position of data[0]
+    marks: list[tuple[int, int]]  # (pos, flags), ascending
+    mi: int  # first mark with pos > base
+    silent_end: bool
+    closed: bool
+    timed: bool
+
+
+def _crc_ok(adu: bytes, length: int) -> bool:
+    crc = crc16(adu[: length - 2])
+    return adu[length - 2] == crc & 0xFF and adu[length - 1] == crc >> 8
+
+
+def _has_gap(v: View, length: int) -> bool:
+    for pos, flags in v.marks[v.mi :]:
+        rel = pos - v.base
+        if rel >= length:
+            break
+        if rel > 0 and flags & MARK_T15:
+            return True
+    return False
+
+
+def _silence_kind(cfg: Config, ctx: Context, adu: bytes) -> int:
+    if adu[1] & 0x80:
+        return KIND_EXCEPTION
+    if cfg.role == ROLE_MASTER or ctx.matches(adu):
+        return KIND_RESPONSE
+    if cfg.role == ROLE_SLAVE or cfg.rules[DIR_REQUEST][adu[1]][0] != RULE_NONE:
+        return KIND_REQUEST
+    return KIND_UNKNOWN
+
+
+def _pick_error(notes: int) -> int:
+    for note, err in (
+        (NOTE_T15, ERR_T15),
+        (NOTE_CRC, ERR_CRC),
+        (NOTE_OVERFLOW, ERR_OVERFLOW),
+        (NOTE_TRUNCATED, ERR_TRUNCATED),
+        (NOTE_UNKNOWN, ERR_UNKNOWN_FUNCTION),
+    ):
+        if notes & note:
+            return err
+    return ERR_TRUNCATED
+
+
+def _check(cfg: Config, v: View, length: int) -> int:
+    """0 when data[:length] is a frame, else the NOTE_* that rules it out."""
+    if length < 4:
+        return NOTE_TRUNCATED
+    if not _crc_ok(v.data, length):
+        return NOTE_CRC
+    if cfg.strict and _has_gap(v, length):
+        return NOTE_T15
+    return 0
+
+
+def try_head(cfg: Config, ctx: Context, v: View, allow_skip: bool) -> tuple[int, int, int]:
+    """(ACT_*, length, kind-or-error)."""
+    d = v.data
+    n = len(d)
+    notes = 0
+    can_wait = False
+    if n < 2:
+        return (ACT_DISCARD, 1, ERR_TRUNCATED) if v.closed else (ACT_WAIT, 0, 0)
+
+    if d[1] & 0x80 or cfg.role == ROLE_MASTER:
+        kinds: tuple[int, ...] = (KIND_RESPONSE,)
+    elif ctx.matches(d):
+        kinds = (KIND_RESPONSE, KIND_REQUEST)
+    else:
+        kinds = (KIND_REQUEST, KIND_RESPONSE)
+    for kind in kinds:
+        direction = DIR_REQUEST if kind == KIND_REQUEST else DIR_RESPONSE
+        status, length = predict(cfg.rules, direction, d, n)
+        if status == PRED_UNKNOWN:
+            notes |= NOTE_UNKNOWN
+            continue
+        if length > cfg.max_adu:
+            notes |= NOTE_OVERFLOW
+            continue
+        if status == PRED_NEED or length > n:
+            can_wait = True
+            notes |= NOTE_TRUNCATED
+            continue
+        note = _check(cfg, v, length)
+        if not note:
+            return ACT_FRAME, length, KIND_EXCEPTION if d[1] & 0x80 else kind
+        notes |= note
+
+    # Silence-delimited lengths: each t3.5 boundary (strict: the first), then the end.
+    boundaries = [
+        pos - v.base
+        for pos, flags in v.marks[v.mi :]
+        if flags & MARK_T35 and 0 < pos - v.base < n
+    ]
+    if v.silent_end:
+        boundaries.append(n)
+    for p in boundaries:
+        note = _check(cfg, v, p)
+        if not note:
+            return ACT_FRAME, p, _silence_kind(cfg, ctx, d)
+        notes |= note
+        if cfg.strict:
+            break
+
+    if not v.closed and (can_wait or (v.timed and not v.silent_end and n < cfg.max_adu)):
+        if allow_skip:
+            for i in range(v.mi, len(v.marks)):
+                pos, flags = v.marks[i]
+                rel = pos - v.base
+                if rel >= n:
+                    break
+                if rel == 0 or not flags & MARK_T35:
+                    continue
+                sub = View(d[rel:], pos, v.marks, i + 1, v.silent_end, v.closed, v.timed)
+                if try_head(cfg, ctx, sub, False)[0] == ACT_FRAME:
+                    return ACT_DISCARD, rel, ERR_TRUNCATED
+        return ACT_WAIT, 0, 0
+    return ACT_DISCARD, 1, _pick_error(notes)

@@ -1,0 +1,156 @@
+"""Frames and discard events, shared by both backends."""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from typing import overload
+
+
+class FrameKind(enum.IntEnum):
+    """What a frame is: the values are the C core's RTU_KIND_* codes."""
+
+    REQUEST = 0
+    RESPONSE = 1
+    EXCEPTION = 2
+    UNKNOWN = 3  # CRC checks, direction unknown (monitor role, unknown function)
+    DISCARD = 4  # bytes thrown away; see Frame.error
+
+    def __str__(self) -> str:
+        return self.name.lower()
+
+
+class ErrorReason(str, enum.Enum):
+    """Why bytes were discarded."""
+
+    CRC = "crc"
+    T15 = "t1.5"
+    OVERFLOW = "overflow"
+    UNKNOWN_FUNCTION = "unknown_function"
+    TRUNCATED = "truncated"
+
+    def __str__(self) -> str:
+        return self.value
+
+
+#: C error codes (RTU_ERR_*) in order; index 0 is "no error".
+ERROR_BY_CODE: tuple[ErrorReason | None, ...] = (
+    None,
+    ErrorReason.CRC,
+    ErrorReason.T15,
+    ErrorReason.OVERFLOW,
+    ErrorReason.UNKNOWN_FUNCTION,
+    ErrorReason.TRUNCATED,
+)
+CODE_BY_ERROR = {reason: code for code, reason in enumerate(ERROR_BY_CODE) if reason}
+
+
+@dataclass(frozen=True, slots=True)
+class Frame:
+    """A frame (CRC checked) or a discard event (``error`` set) from the framer.
+
+    ``adu`` is the whole frame as on the wire (address, PDU, CRC); ``pdu`` is
+    the function code and data.  ``start``/``end`` are seconds on the clock of
+    the times given to the framer (None when no times were given).  ``offset``
+    is the position of the first byte in the byte stream.
+    """
+
+    kind: FrameKind
+    adu: bytes
+    offset: int = 0
+    start: float | None = None
+    end: float | None = None
+    error: ErrorReason | None = None
+
+    @property
+    def address(self) -> int:
+        return self.adu[0] if self.adu else -1
+
+    @property
+    def function(self) -> int:
+        return self.adu[1] if len(self.adu) > 1 else -1
+
+    @property
+    def pdu(self) -> bytes:
+        return self.adu[1:-2] if self.error is None else b""
+
+    @property
+    def exception_code(self) -> int | None:
+        """The exception code of an exception response, else None."""
+        return self.adu[2] if self.kind is FrameKind.EXCEPTION else None
+
+    def __bool__(self) -> bool:
+        return True
+
+    def __repr__(self) -> str:
+        what = f"error={self.error}" if self.error else f"address={self.address}"
+        return (
+            f"Frame({self.kind}, {what}, function={self.function}, "
+            f"adu={self.adu.hex(' ')}, offset={self.offset})"
+        )
+
+
+def event_counters_template() -> dict[str, int]:
+    """The keys of a framer's ``counters`` dict, all zero."""
+    keys = [str(k) for k in FrameKind if k is not FrameKind.DISCARD]
+    keys += ["discard_events"] + [f"discarded_{r.value}" for r in ErrorReason]
+    return dict.fromkeys(keys, 0)
+
+
+class FrameList(Sequence[Frame]):
+    """A lazy sequence of the frames parse_stream found.
+
+    Backed by compact arrays (offset, length, kind, error, start, end per
+    entry); ``len()`` is immediate and Frame objects are built only when an
+    item is read.  Subclasses provide ``_entry(i)``.
+    """
+
+    def __init__(self, data: bytes | memoryview, count: int) -> None:
+        self._data = data
+        self._count = count
+
+    def __len__(self) -> int:
+        return self._count
+
+    def _entry(self, i: int) -> tuple[int, int, int, int, int | None, int | None]:
+        raise NotImplementedError
+
+    def _make(self, i: int) -> Frame:
+        offset, length, kind, error, start, end = self._entry(i)
+        return Frame(
+            kind=FrameKind(kind),
+            adu=bytes(self._data[offset : offset + length]),
+            offset=offset,
+            start=None if start is None else start / 1e6,
+            end=None if end is None else end / 1e6,
+            error=ERROR_BY_CODE[error],
+        )
+
+    @overload
+    def __getitem__(self, i: int) -> Frame: ...
+    @overload
+    def __getitem__(self, i: slice) -> list[Frame]: ...
+    def __getitem__(self, i: int | slice) -> Frame | list[Frame]:
+        if isinstance(i, slice):
+            return [self._make(j) for j in range(*i.indices(self._count))]
+        if i < 0:
+            i += self._count
+        if not 0 <= i < self._count:
+            raise IndexError(f"FrameList index {i} out of range ({self._count} entries)")
+        return self._make(i)
+
+    def __iter__(self) -> Iterator[Frame]:
+        for i in range(self._count):
+            yield self._make(i)
+
+    def frames(self) -> Iterator[Frame]:
+        """The good frames only (no discard events)."""
+        return (f for f in self if f.error is None)
+
+    def errors(self) -> Iterator[Frame]:
+        """The discard events only."""
+        return (f for f in self if f.error is not None)
+
+    def __repr__(self) -> str:
+        return f"<FrameList of {self._count} entries>"

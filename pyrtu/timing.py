@@ -1,0 +1,81 @@
+"""Character timing: character time, t1.5 and t3.5 from baud rate and byte format.
+
+Modbus over Serial Line V1.02, 2.5.1.1: silences of 1.5 and 3.5 character times;
+above 19200 baud the fixed values 750 us and 1750 us.  The WEG manuals (CFW100
+4.2.5, table 4.1) keep the 19200-baud values above 19200: T11bits = 573 us and
+T3.5 = 2.005 ms (t1.5 = 1.5 x 573 us = 860 us).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+TIMING_RULES = ("modbus", "weg")
+PARITIES = ("N", "E", "O", "M", "S")
+
+
+@dataclass(frozen=True, slots=True)
+class Timing:
+    """Integer microseconds, as the C core uses them."""
+
+    char_us: int
+    t15_us: int
+    t35_us: int
+
+    @property
+    def char(self) -> float:
+        return self.char_us / 1e6
+
+    @property
+    def t15(self) -> float:
+        return self.t15_us / 1e6
+
+    @property
+    def t35(self) -> float:
+        return self.t35_us / 1e6
+
+
+def bits_per_char(parity: str = "E", stopbits: float = 1, bytesize: int = 8) -> int:
+    """Start bit + data bits + parity bit + stop bits (11 for 8E1, 8O1, 8N2; 10 for 8N1)."""
+    parity = parity.upper()[:1]
+    if parity not in PARITIES:
+        raise ValueError(f"parity must be one of {', '.join(PARITIES)}, not {parity!r}")
+    if bytesize not in (7, 8):
+        raise ValueError(f"bytesize must be 7 or 8, not {bytesize!r}")
+    if stopbits not in (1, 1.5, 2):
+        raise ValueError(f"stopbits must be 1, 1.5 or 2, not {stopbits!r}")
+    return 1 + bytesize + (0 if parity == "N" else 1) + int(stopbits + 0.5)
+
+
+def _div_round(num: int, den: int) -> int:
+    return (2 * num + den) // (2 * den)
+
+
+def compute_timing(baudrate: int, bits: int, rule: str = "modbus") -> Timing:
+    """The pure-Python twin of rtu_timing_init (same integer arithmetic)."""
+    if not isinstance(baudrate, int) or baudrate <= 0:
+        raise ValueError(f"baudrate must be a positive integer, not {baudrate!r}")
+    if rule not in TIMING_RULES:
+        raise ValueError(f"timing must be 'modbus' or 'weg', not {rule!r}")
+    if not 7 <= bits <= 12:
+        raise ValueError(f"bits per character must be 7..12, not {bits}")
+    bits_us = bits * 1_000_000
+    char_us = _div_round(bits_us, baudrate)
+    if baudrate <= 19200:
+        return Timing(char_us, _div_round(bits_us * 3, baudrate * 2), _div_round(bits_us * 7, baudrate * 2))
+    if rule == "modbus":
+        return Timing(char_us, 750, 1750)
+    return Timing(char_us, 860, 2005)
+
+
+def seconds_to_us(value: float, name: str) -> int:
+    """A duration in seconds as integer microseconds, checked."""
+    if isinstance(value, bool) or not isinstance(value, int | float) or value != value or value < 0:
+        raise ValueError(f"{name} must be a non-negative number of seconds, not {value!r}")
+    return round(value * 1_000_000)
+
+
+def apply_overrides(base: Timing, t15: float | None, t35: float | None) -> Timing:
+    t15_us = base.t15_us if t15 is None else seconds_to_us(t15, "t15")
+    t35_us = base.t35_us if t35 is None else seconds_to_us(t35, "t35")
+    return Timing(base.char_us, t15_us, t35_us)
