@@ -63,16 +63,18 @@ static int rtu_silence_kind(const rtu_config *cfg, const rtu_context *ctx, const
     return RTU_KIND_UNKNOWN;
 }
 
+/* The strongest evidence first: a CRC that checks across a gap, a length
+ * field past the limit, a failing CRC, too few bytes, an unknown function. */
 static int rtu_pick_error(unsigned notes)
 {
     if (notes & NOTE_T15) {
         return RTU_ERR_T15;
     }
-    if (notes & NOTE_CRC) {
-        return RTU_ERR_CRC;
-    }
     if (notes & NOTE_OVERFLOW) {
         return RTU_ERR_OVERFLOW;
+    }
+    if (notes & NOTE_CRC) {
+        return RTU_ERR_CRC;
     }
     if (notes & NOTE_TRUNCATED) {
         return RTU_ERR_TRUNCATED;
@@ -112,7 +114,8 @@ rtu_verdict rtu_try_head(const rtu_config *cfg, const rtu_context *ctx, const rt
 {
     const size_t n = v->n;
     const uint8_t *d = v->data;
-    unsigned notes = 0;
+    unsigned pnotes[2] = {0, 0}; /* why each predicted candidate failed */
+    unsigned notes = 0;          /* why the silence-delimited candidates failed */
     int can_wait = 0;
 
     if (n < 2) {
@@ -142,19 +145,19 @@ rtu_verdict rtu_try_head(const rtu_config *cfg, const rtu_context *ctx, const rt
         size_t len = 0;
         const int st = rtu_predict(&cfg->rules, dir, d, n, &len);
         if (st == RTU_PRED_UNKNOWN) {
-            notes |= NOTE_UNKNOWN;
+            pnotes[k] = NOTE_UNKNOWN;
             continue;
         }
         if (len > cfg->max_adu) {
-            notes |= NOTE_OVERFLOW;
+            pnotes[k] = NOTE_OVERFLOW;
             continue;
         }
         if (st == RTU_PRED_NEED || len > n) {
             can_wait = 1;
-            notes |= NOTE_TRUNCATED;
+            pnotes[k] = NOTE_TRUNCATED;
             continue;
         }
-        if (rtu_check(cfg, v, len, &notes)) {
+        if (rtu_check(cfg, v, len, &pnotes[k])) {
             const int kind = (d[1] & 0x80) ? RTU_KIND_EXCEPTION : kinds[k];
             return rtu_verdict_of(RTU_ACT_FRAME, len, kind, 0);
         }
@@ -208,7 +211,9 @@ rtu_verdict rtu_try_head(const rtu_config *cfg, const rtu_context *ctx, const rt
         }
         return rtu_verdict_of(RTU_ACT_WAIT, 0, 0, 0);
     }
-    return rtu_verdict_of(RTU_ACT_DISCARD, 1, 0, rtu_pick_error(notes));
+    /* The predicted candidates give the reason; the silence's only without them. */
+    const unsigned reason = (pnotes[0] | pnotes[1]) ? (pnotes[0] | pnotes[1]) : notes;
+    return rtu_verdict_of(RTU_ACT_DISCARD, 1, 0, rtu_pick_error(reason));
 }
 
 void rtu_context_update(rtu_context *ctx, int kind, const uint8_t *adu)

@@ -89,8 +89,8 @@ def _silence_kind(cfg: Config, ctx: Context, adu: bytes) -> int:
 def _pick_error(notes: int) -> int:
     for note, err in (
         (NOTE_T15, ERR_T15),
-        (NOTE_CRC, ERR_CRC),
         (NOTE_OVERFLOW, ERR_OVERFLOW),
+        (NOTE_CRC, ERR_CRC),
         (NOTE_TRUNCATED, ERR_TRUNCATED),
         (NOTE_UNKNOWN, ERR_UNKNOWN_FUNCTION),
     ):
@@ -114,7 +114,8 @@ def try_head(cfg: Config, ctx: Context, v: View, allow_skip: bool) -> tuple[int,
     """(ACT_*, length, kind-or-error)."""
     d = v.data
     n = len(d)
-    notes = 0
+    pnotes = [0, 0]  # why each predicted candidate failed
+    notes = 0  # why the silence-delimited candidates failed
     can_wait = False
     if n < 2:
         return (ACT_DISCARD, 1, ERR_TRUNCATED) if v.closed else (ACT_WAIT, 0, 0)
@@ -125,23 +126,23 @@ def try_head(cfg: Config, ctx: Context, v: View, allow_skip: bool) -> tuple[int,
         kinds = (KIND_RESPONSE, KIND_REQUEST)
     else:
         kinds = (KIND_REQUEST, KIND_RESPONSE)
-    for kind in kinds:
+    for k, kind in enumerate(kinds):
         direction = DIR_REQUEST if kind == KIND_REQUEST else DIR_RESPONSE
         status, length = predict(cfg.rules, direction, d, n)
         if status == PRED_UNKNOWN:
-            notes |= NOTE_UNKNOWN
+            pnotes[k] = NOTE_UNKNOWN
             continue
         if length > cfg.max_adu:
-            notes |= NOTE_OVERFLOW
+            pnotes[k] = NOTE_OVERFLOW
             continue
         if status == PRED_NEED or length > n:
             can_wait = True
-            notes |= NOTE_TRUNCATED
+            pnotes[k] = NOTE_TRUNCATED
             continue
         note = _check(cfg, v, length)
         if not note:
             return ACT_FRAME, length, KIND_EXCEPTION if d[1] & 0x80 else kind
-        notes |= note
+        pnotes[k] = note
 
     # Silence-delimited lengths: each t3.5 boundary (strict: the first), then the end.
     boundaries = [
@@ -172,4 +173,5 @@ def try_head(cfg: Config, ctx: Context, v: View, allow_skip: bool) -> tuple[int,
                 if try_head(cfg, ctx, sub, False)[0] == ACT_FRAME:
                     return ACT_DISCARD, rel, ERR_TRUNCATED
         return ACT_WAIT, 0, 0
-    return ACT_DISCARD, 1, _pick_error(notes)
+    # The predicted candidates give the reason; the silence's only without them.
+    return ACT_DISCARD, 1, _pick_error((pnotes[0] | pnotes[1]) or notes)
