@@ -21,7 +21,12 @@ ffibuilder.cdef((HERE / "_cdef.h").read_text())
 _flags = ["-std=c99", "-O2", "-Wall", "-Wextra", "-Werror"]
 _link: list[str] = []
 if os.environ.get("PYRTU_SANITIZE") == "1":
-    _san = ["-fsanitize=address,undefined", "-fno-sanitize-recover=undefined", "-fno-omit-frame-pointer", "-g"]
+    _san = [
+        "-fsanitize=address,undefined",
+        "-fno-sanitize-recover=undefined",
+        "-fno-omit-frame-pointer",
+        "-g",
+    ]
     _flags += _san
     _link += _san
 

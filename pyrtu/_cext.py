@@ -15,7 +15,7 @@ from ._types import BytesLike
 from .config import CoreOptions, core_options, flush_us_for
 from .frames import FrameList
 from .rules import RuleTable
-from .timing import Timing, bits_per_char
+from .timing import Timing
 
 BACKEND = "c"
 NO_TIME = -(2**63)
@@ -116,8 +116,14 @@ def char_timing(
 ) -> Timing:
     """Character time, t1.5 and t3.5 for a baud rate and byte format (computed in C)."""
     options = core_options(
-        "master", baudrate=baudrate, parity=parity, stopbits=stopbits, bytesize=bytesize,
-        timing=timing, t15=t15, t35=t35,
+        "master",
+        baudrate=baudrate,
+        parity=parity,
+        stopbits=stopbits,
+        bytesize=bytesize,
+        timing=timing,
+        t15=t15,
+        t35=t35,
     )
     cfg = _config(options)
     return Timing(int(cfg.timing.char_us), int(cfg.timing.t15_us), int(cfg.timing.t35_us))
@@ -139,8 +145,13 @@ def _config(options: CoreOptions) -> Any:
         for direction, rule in enumerate(pair):
             if rule is None:
                 continue
-            c_rule = ffi.new("rtu_rule *", (rule.type, rule.offset, rule.width, rule.scale, rule.add))
-            if lib.rtu_rules_set(ffi.addressof(cfg, "rules"), direction, fc, c_rule[0]) != lib.RTU_OK:
+            c_rule = ffi.new(
+                "rtu_rule *", (rule.type, rule.offset, rule.width, rule.scale, rule.add)
+            )
+            if (
+                lib.rtu_rules_set(ffi.addressof(cfg, "rules"), direction, fc, c_rule[0])
+                != lib.RTU_OK
+            ):
                 raise ValueError(f"rules[{fc}]: the C core refuses {rule!r}")
     return cfg
 
@@ -191,7 +202,9 @@ class Framer(FramerBase):
 class CFrameList(FrameList):
     """Entries live in C arrays (blocks of rtu_event); frames are built on access."""
 
-    def __init__(self, data: bytes, blocks: list[tuple[Any, int]], counters: dict[str, int]) -> None:
+    def __init__(
+        self, data: bytes, blocks: list[tuple[Any, int]], counters: dict[str, int]
+    ) -> None:
         super().__init__(data, sum(n for _, n in blocks))
         self._blocks = blocks
         self._starts: list[int] = []
@@ -235,8 +248,17 @@ def parse_stream(
 ) -> CFrameList:
     """Every frame and discard run in ``data`` (a capture), as a lazy sequence."""
     options = core_options(
-        role, baudrate=baudrate, parity=parity, stopbits=stopbits, bytesize=bytesize,
-        timing=timing, t15=t15, t35=t35, strict=strict, max_adu=max_adu, rules=rules,
+        role,
+        baudrate=baudrate,
+        parity=parity,
+        stopbits=stopbits,
+        bytesize=bytesize,
+        timing=timing,
+        t15=t15,
+        t35=t35,
+        strict=strict,
+        max_adu=max_adu,
+        rules=rules,
     )
     raw = as_bytes(data)
     offsets, us = stream_times(len(raw), times, chunks)

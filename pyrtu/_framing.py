@@ -34,13 +34,13 @@ def as_bytes(data: BytesLike, name: str = "data") -> bytes:
     if isinstance(data, bytes):
         return data
     try:
-        return memoryview(data).cast("B").tobytes()  # type: ignore[arg-type]
+        return memoryview(data).cast("B").tobytes()
     except TypeError:
         raise TypeError(f"{name} must be a bytes-like object, not {type(data).__name__}") from None
 
 
 def event_to_frame(ev: Event) -> Frame:
-    offset, length, kind, error, start_us, end_us, adu = ev
+    offset, _length, kind, error, start_us, end_us, adu = ev
     return Frame(
         kind=FrameKind(kind),
         adu=adu,
@@ -184,9 +184,13 @@ def stream_times(
     us = []
     for offset, t in chunks:
         if not isinstance(offset, int) or offset < 0 or offset > length:
-            raise ValueError(f"parse_stream: chunk offset {offset!r} is outside the data (0..{length})")
+            raise ValueError(
+                f"parse_stream: chunk offset {offset!r} is outside the data (0..{length})"
+            )
         if offsets and offset < offsets[-1]:
-            raise ValueError(f"parse_stream: chunk offsets must ascend ({offset} after {offsets[-1]})")
+            raise ValueError(
+                f"parse_stream: chunk offsets must ascend ({offset} after {offsets[-1]})"
+            )
         offsets.append(offset)
         us.append(to_microseconds(t))
     if offsets and offsets[0] != 0:

@@ -26,7 +26,7 @@ def _lrc(data: bytes) -> int:
 
 def encode_ascii(message: BytesLike) -> bytes:
     """The ASCII frame of ``message`` (address + PDU, no checksum)."""
-    raw = memoryview(message).cast("B").tobytes()  # type: ignore[arg-type]
+    raw = memoryview(message).cast("B").tobytes()
     if len(raw) < 2:
         raise ValueError(f"encode_ascii: a message has an address and a function, got {raw!r}")
     body = raw + bytes((_lrc(raw),))
@@ -35,7 +35,7 @@ def encode_ascii(message: BytesLike) -> bytes:
 
 def decode_ascii(frame: BytesLike) -> bytes:
     """Address + PDU from an ASCII frame; ValueError naming what is wrong."""
-    raw = memoryview(frame).cast("B").tobytes()  # type: ignore[arg-type]
+    raw = memoryview(frame).cast("B").tobytes()
     if not raw.startswith(b":"):
         raise ValueError(f"decode_ascii: frame must start with ':', got {raw[:1]!r}")
     if not raw.endswith(b"\r\n"):
@@ -81,7 +81,14 @@ class AsciiFramer:
         if not raw:
             return
         self.counters["discarded_bytes"] += len(raw)
-        frame = Frame(FrameKind.DISCARD, raw, self._offset - len(raw), self._start_us / 1e6, end_us / 1e6, reason)
+        frame = Frame(
+            FrameKind.DISCARD,
+            raw,
+            self._offset - len(raw),
+            self._start_us / 1e6,
+            end_us / 1e6,
+            reason,
+        )
         self._events.append((frame, None))
 
     def _kind(self, message: bytes) -> FrameKind:
@@ -96,9 +103,13 @@ class AsciiFramer:
 
     def receive_data(self, data: BytesLike, now: float) -> None:
         now_us = to_microseconds(now)
-        for byte in memoryview(data).cast("B").tobytes():  # type: ignore[arg-type]
+        for byte in memoryview(data).cast("B").tobytes():
             self._offset += 1
-            if self._in_frame and self._last_us is not None and now_us - self._last_us > self.inter_char_us:
+            if (
+                self._in_frame
+                and self._last_us is not None
+                and now_us - self._last_us > self.inter_char_us
+            ):
                 self._discard(bytes(self._buf), ErrorReason.T15, self._last_us)
                 self._buf.clear()
                 self._in_frame = False
@@ -150,7 +161,11 @@ class AsciiFramer:
 
     def handle_timer(self, now: float) -> None:
         now_us = to_microseconds(now)
-        if self._in_frame and self._last_us is not None and now_us - self._last_us > self.inter_char_us:
+        if (
+            self._in_frame
+            and self._last_us is not None
+            and now_us - self._last_us > self.inter_char_us
+        ):
             self._discard(bytes(self._buf), ErrorReason.T15, self._last_us)
             self._buf.clear()
             self._in_frame = False

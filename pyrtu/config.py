@@ -49,7 +49,11 @@ def core_options(
         raise ValueError(f"baudrate must be a positive integer, not {baudrate!r}")
     if timing not in TIMING_RULES:
         raise ValueError(f"timing must be 'modbus' or 'weg', not {timing!r}")
-    if isinstance(max_adu, bool) or not isinstance(max_adu, int) or not 4 <= max_adu <= MAX_ADU_LIMIT:
+    if (
+        isinstance(max_adu, bool)
+        or not isinstance(max_adu, int)
+        or not 4 <= max_adu <= MAX_ADU_LIMIT
+    ):
         raise ValueError(f"max_adu must be 4..{MAX_ADU_LIMIT} bytes, not {max_adu!r}")
     return CoreOptions(
         role=ROLES[role],

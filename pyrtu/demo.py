@@ -80,7 +80,8 @@ def demo_capture() -> tuple[bytes, list[tuple[int, float]]]:
 def run_core_demo() -> int:
     data, chunks = demo_capture()
     frames = pyrtu.parse_stream(data, "monitor", chunks=chunks, rules=pyrtu.BONFIGLIOLI)
-    print(f"pyrtu {pyrtu.__version__}, backend: {pyrtu.BACKEND}, CRC paths: {', '.join(pyrtu.crc16_paths())}")
+    paths = ", ".join(pyrtu.crc16_paths())
+    print(f"pyrtu {pyrtu.__version__}, backend: {pyrtu.BACKEND}, CRC paths: {paths}")
     print(f"decoding a {len(data)}-byte capture of a 19200 baud bus (monitor role):")
     t0 = frames[0].start if frames and frames[0].start is not None else 0.0
     for f in frames:
@@ -89,17 +90,21 @@ def run_core_demo() -> int:
             print(f"  {at}  DISCARD   {len(f.adu)} bytes ({f.error}): {f.adu.hex(' ')}")
             continue
         detail = f"code {f.exception_code}" if f.kind is FrameKind.EXCEPTION else f.pdu[1:].hex(" ")
-        print(f"  {at}  {f.kind.name:<9} slave {f.address:3d}  {function_name(f.function):<40} {detail}")
+        name = function_name(f.function)
+        print(f"  {at}  {f.kind.name:<9} slave {f.address:3d}  {name:<40} {detail}")
     counts = frames.counters
+    discarded = sum(v for k, v in counts.items() if k.startswith("discarded_"))
     print(
-        f"{counts['request']} requests, {counts['response']} responses, {counts['exception']} exceptions, "
-        f"{sum(v for k, v in counts.items() if k.startswith('discarded_'))} bytes discarded"
+        f"{counts['request']} requests, {counts['response']} responses, "
+        f"{counts['exception']} exceptions, {discarded} bytes discarded"
     )
     return 0
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--core", action="store_true", help="only the core demonstration (decode a capture)")
+    parser.add_argument(
+        "--core", action="store_true", help="only the core demonstration (decode a capture)"
+    )
 
 
 def run(args: argparse.Namespace) -> int:

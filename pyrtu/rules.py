@@ -41,7 +41,9 @@ class LengthRule:
     @classmethod
     def counted(cls, offset: int, width: int = 1, scale: int = 1, tail: int = 2) -> LengthRule:
         if not isinstance(offset, int) or not 2 <= offset <= 250:
-            raise ValueError(f"count offset must be 2..250 (after address and function), not {offset!r}")
+            raise ValueError(
+                f"count offset must be 2..250 (after address and function), not {offset!r}"
+            )
         if width not in (1, 2):
             raise ValueError(f"count width must be 1 or 2 bytes, not {width!r}")
         if not isinstance(scale, int) or not 1 <= scale <= 255:

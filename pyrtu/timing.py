@@ -62,7 +62,9 @@ def compute_timing(baudrate: int, bits: int, rule: str = "modbus") -> Timing:
     bits_us = bits * 1_000_000
     char_us = _div_round(bits_us, baudrate)
     if baudrate <= 19200:
-        return Timing(char_us, _div_round(bits_us * 3, baudrate * 2), _div_round(bits_us * 7, baudrate * 2))
+        return Timing(
+            char_us, _div_round(bits_us * 3, baudrate * 2), _div_round(bits_us * 7, baudrate * 2)
+        )
     if rule == "modbus":
         return Timing(char_us, 750, 1750)
     return Timing(char_us, 860, 2005)

@@ -9,23 +9,40 @@ from hypothesis import strategies as st
 
 from pyrtu import BONFIGLIOLI
 
-SETTINGS = settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+SETTINGS = settings(
+    max_examples=300, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
 
 
 def _frames(b: ModuleType) -> st.SearchStrategy[bytes]:
     """Plausible frames (valid CRC), noise, and frames with a flipped bit."""
     pdus = st.sampled_from(
         [
-            "0103000a0002", "01030401020304", "0206000100ff", "0a10000100020400010002",
-            "0a1000010002", "05830200", "0b0f00000010020f00", "0b01020f00", "07550102",
-            "01640001", "016400000001", "01650001000000020", "002b0e0100",
-            "012b0e01010000010003414243", "030800000000", "0117000000020000000102000a",
+            "0103000a0002",
+            "01030401020304",
+            "0206000100ff",
+            "0a10000100020400010002",
+            "0a1000010002",
+            "05830200",
+            "0b0f00000010020f00",
+            "0b01020f00",
+            "07550102",
+            "01640001",
+            "016400000001",
+            "01650001000000020",
+            "002b0e0100",
+            "012b0e01010000010003414243",
+            "030800000000",
+            "0117000000020000000102000a",
         ]
     ).map(lambda h: bytes.fromhex(h if len(h) % 2 == 0 else h + "0"))
     good = pdus.map(b.add_crc)
     noise = st.binary(min_size=1, max_size=12)
     flipped = st.tuples(good, st.integers(0, 10_000)).map(
-        lambda gf: bytes(x ^ (1 << (gf[1] % 8)) if i == (gf[1] // 8) % len(gf[0]) else x for i, x in enumerate(gf[0]))
+        lambda gf: bytes(
+            x ^ (1 << (gf[1] % 8)) if i == (gf[1] // 8) % len(gf[0]) else x
+            for i, x in enumerate(gf[0])
+        )
     )
     return st.one_of(good, good, noise, flipped)
 
@@ -45,7 +62,9 @@ def streams(draw: st.DrawFn, b: ModuleType) -> tuple[bytes, list[tuple[int, floa
     return data, chunks
 
 
-def _events(mod: ModuleType, data: bytes, chunks: list[tuple[int, float]], **kw: object) -> list[tuple[object, ...]]:
+def _events(
+    mod: ModuleType, data: bytes, chunks: list[tuple[int, float]], **kw: object
+) -> list[tuple[object, ...]]:
     f = mod.Framer(**kw)
     bounds = [o for o, _ in chunks] + [len(data)]
     for (o, t), end in zip(chunks, bounds[1:], strict=True):
@@ -59,7 +78,9 @@ def _events(mod: ModuleType, data: bytes, chunks: list[tuple[int, float]], **kw:
     return out
 
 
-def _bulk(mod: ModuleType, data: bytes, chunks: list[tuple[int, float]] | None, **kw: object) -> list[tuple[object, ...]]:
+def _bulk(
+    mod: ModuleType, data: bytes, chunks: list[tuple[int, float]] | None, **kw: object
+) -> list[tuple[object, ...]]:
     r = mod.parse_stream(data, chunks=chunks, **kw)
     out = [(e.kind, e.adu, e.offset, e.error, e.start, e.end) for e in r]
     out.append(tuple(sorted(r.counters.items())))
@@ -86,12 +107,16 @@ def test_timing_agrees(both: tuple[ModuleType, ModuleType], data: st.DataObject)
     parity = data.draw(st.sampled_from("NEO"))
     stop = data.draw(st.sampled_from([1, 2]))
     rule = data.draw(st.sampled_from(["modbus", "weg"]))
-    assert c.char_timing(baud, parity, stop, timing=rule) == py.char_timing(baud, parity, stop, timing=rule)
+    assert c.char_timing(baud, parity, stop, timing=rule) == py.char_timing(
+        baud, parity, stop, timing=rule
+    )
 
 
 @given(data=st.data())
 @SETTINGS
-def test_framer_agrees_on_random_streams(both: tuple[ModuleType, ModuleType], data: st.DataObject) -> None:
+def test_framer_agrees_on_random_streams(
+    both: tuple[ModuleType, ModuleType], data: st.DataObject
+) -> None:
     c, py = both
     stream, chunks = data.draw(streams(c))
     role = data.draw(st.sampled_from(["master", "slave", "monitor"]))
@@ -100,7 +125,7 @@ def test_framer_agrees_on_random_streams(both: tuple[ModuleType, ModuleType], da
     kw = {"role": role, "strict": strict, "max_adu": max_adu, "rules": BONFIGLIOLI}
     got_c = _events(c, stream, chunks, **kw)
     assert got_c == _events(py, stream, chunks, **kw)
-    for kind, adu, _o, error, *_ in got_c[:-1]:
+    for _kind, adu, _o, error, *_ in got_c[:-1]:
         if error is None:
             assert c.check_crc(adu), "a frame with a bad CRC was returned"
 

@@ -177,7 +177,10 @@ def test_slave_sizes_other_slaves_responses(backend: ModuleType) -> None:
     f = backend.Framer("slave", baudrate=19200)
     f.receive_data(request + response, 1.0)  # one USB burst, no gap at all
     events = f.events()
-    assert [(e.kind, e.address) for e in events] == [(FrameKind.REQUEST, 5), (FrameKind.RESPONSE, 5)]
+    assert [(e.kind, e.address) for e in events] == [
+        (FrameKind.REQUEST, 5),
+        (FrameKind.RESPONSE, 5),
+    ]
     assert events[1].adu == response
 
 
@@ -327,7 +330,9 @@ def test_send_returns_bytes_and_frame_times(backend: ModuleType) -> None:
         ({"rules": {100: (6, 8)}}, "LengthRule"),
     ],
 )
-def test_bad_arguments_raise_value_error(backend: ModuleType, kwargs: dict[str, object], message: str) -> None:
+def test_bad_arguments_raise_value_error(
+    backend: ModuleType, kwargs: dict[str, object], message: str
+) -> None:
     with pytest.raises(ValueError, match=message):
         backend.Framer(**kwargs)
 

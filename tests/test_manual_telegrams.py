@@ -16,7 +16,11 @@ import pyrtu
 from pyrtu import BONFIGLIOLI, CV100, FrameKind
 
 VENDOR_RULES = {**BONFIGLIOLI, **CV100}
-KINDS = {"request": FrameKind.REQUEST, "response": FrameKind.RESPONSE, "exception": FrameKind.EXCEPTION}
+KINDS = {
+    "request": FrameKind.REQUEST,
+    "response": FrameKind.RESPONSE,
+    "exception": FrameKind.EXCEPTION,
+}
 
 
 def _ids(ts: tuple[Telegram, ...]) -> list[str]:

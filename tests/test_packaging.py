@@ -24,7 +24,9 @@ def no_compiler_venv(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """pyrtu installed with no working C compiler (CC=false)."""
     base = tmp_path_factory.mktemp("nocc")
     src = base / "src"
-    shutil.copytree(ROOT, src, ignore=shutil.ignore_patterns(".venv", "build", "*.so", ".git", "__pycache__"))
+    shutil.copytree(
+        ROOT, src, ignore=shutil.ignore_patterns(".venv", "build", "*.so", ".git", "__pycache__")
+    )
     venv = base / "venv"
     subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", str(venv)], check=True)
     py = venv / "bin" / "python"
@@ -40,7 +42,14 @@ def no_compiler_venv(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def test_install_without_compiler_gives_the_twin(no_compiler_venv: Path, tmp_path: Path) -> None:
-    out = _run([str(no_compiler_venv), "-c", "import pyrtu; print(pyrtu.BACKEND, pyrtu.crc16(b'123456789'))"], tmp_path)
+    out = _run(
+        [
+            str(no_compiler_venv),
+            "-c",
+            "import pyrtu; print(pyrtu.BACKEND, pyrtu.crc16(b'123456789'))",
+        ],
+        tmp_path,
+    )
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["python", str(0x4B37)]
 

@@ -62,7 +62,7 @@ def test_chunk_times_and_strict_gaps(backend: ModuleType) -> None:
     char = 11 / 9600
     chunks = [(0, 1.0), (8, 1.1), (12, 1.1 + 4 * char + 3 * char)]
     strict = backend.parse_stream(data, chunks=chunks, baudrate=9600, strict=True)
-    assert [f.error for f in strict][0] is None
+    assert strict[0].error is None
     assert all(f.error for f in strict[1:])
     assert strict[1].error == ErrorReason.T15
     lenient = backend.parse_stream(data, chunks=chunks, baudrate=9600)

@@ -125,8 +125,17 @@ def parse_stream(
 ) -> PyFrameList:
     """Every frame and discard run in ``data`` (a capture), as a lazy sequence."""
     options = core_options(
-        role, baudrate=baudrate, parity=parity, stopbits=stopbits, bytesize=bytesize,
-        timing=timing, t15=t15, t35=t35, strict=strict, max_adu=max_adu, rules=rules,
+        role,
+        baudrate=baudrate,
+        parity=parity,
+        stopbits=stopbits,
+        bytesize=bytesize,
+        timing=timing,
+        t15=t15,
+        t35=t35,
+        strict=strict,
+        max_adu=max_adu,
+        rules=rules,
     )
     raw = as_bytes(data)
     offsets, us = stream_times(len(raw), times, chunks)

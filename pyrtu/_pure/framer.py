@@ -88,7 +88,9 @@ class CoreFramer:
                 silence = at - char - self.last_us
                 if cfg.t35_us > 0 and silence >= cfg.t35_us:
                     closes = cfg.strict or silence >= cfg.flush_us
-                    if len(self.buf) > self.head and (not self.silent or (closes and not self.final)):
+                    if len(self.buf) > self.head and (
+                        not self.silent or (closes and not self.final)
+                    ):
                         self.silent = True
                         self.final = closes
                         return i

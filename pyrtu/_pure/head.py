@@ -10,8 +10,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ..rules import RULE_NONE
 from .crc import crc16
-from .predict import DIR_REQUEST, DIR_RESPONSE, PRED_NEED, PRED_UNKNOWN, RULE_NONE, Rule, predict
+from .predict import DIR_REQUEST, DIR_RESPONSE, PRED_NEED, PRED_UNKNOWN, Rule, predict
 
 KIND_REQUEST, KIND_RESPONSE, KIND_EXCEPTION, KIND_UNKNOWN, KIND_DISCARD = range(5)
 ERR_NONE, ERR_CRC, ERR_T15, ERR_OVERFLOW, ERR_UNKNOWN_FUNCTION, ERR_TRUNCATED = range(6)
@@ -146,9 +147,7 @@ def try_head(cfg: Config, ctx: Context, v: View, allow_skip: bool) -> tuple[int,
 
     # Silence-delimited lengths: each t3.5 boundary (strict: the first), then the end.
     boundaries = [
-        pos - v.base
-        for pos, flags in v.marks[v.mi :]
-        if flags & MARK_T35 and 0 < pos - v.base < n
+        pos - v.base for pos, flags in v.marks[v.mi :] if flags & MARK_T35 and 0 < pos - v.base < n
     ]
     if v.silent_end:
         boundaries.append(n)

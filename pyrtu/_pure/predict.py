@@ -75,7 +75,9 @@ def _predict_mei_response(adu: bytes, n: int) -> tuple[int, int]:
     return PRED_LENGTH, pos + 2
 
 
-def predict(rules: tuple[list[Rule], list[Rule]], direction: int, adu: bytes, n: int) -> tuple[int, int]:
+def predict(
+    rules: tuple[list[Rule], list[Rule]], direction: int, adu: bytes, n: int
+) -> tuple[int, int]:
     """(PRED_*, length) for the first n bytes of adu."""
     if n < 2:
         return PRED_NEED, 2
