@@ -11,12 +11,16 @@
  *
  * Paths (all compute the standard CRC value, incrementally):
  *   bytewise  the Appendix B byte loop, two 256-byte tables;
- *   slice8    slicing-by-8 (8 x 256 uint16 tables, 8 bytes per step);
+ *   slice8    table slicing, 16 bytes per step (16 x 256 uint16 tables; the
+ *             API keeps the name of the slicing-by-8 it started as);
  *   clmul     PCLMULQDQ folding of 128-bit lanes (Intel, "Fast CRC Computation
  *             for Generic Polynomials Using PCLMULQDQ Instruction", 2009, in
  *             the bit-reflected form used by Linux and zlib-ng), adapted to a
  *             16-bit polynomial, Barrett reduction at the end;
- *   vclmul    the same with 512-bit VPCLMULQDQ (AVX-512), 4 zmm accumulators.
+ *   vclmul    the same with 512-bit VPCLMULQDQ (AVX-512), 4 zmm accumulators,
+ *             masked loads for the unaligned head.
+ * The two folding paths are x86-only (GCC target attributes, so the file
+ * builds with plain -std=c99 -O2); elsewhere they are the slicing code.
  * rtu_crc16() dispatches on length and on the CPU (__builtin_cpu_supports,
  * detected once).
  *
@@ -82,9 +86,10 @@ const uint8_t rtu_auchCRCLo[256] = {
     0x44, 0x84, 0x85, 0x45, 0x87, 0x47, 0x46, 0x86, 0x82, 0x42, 0x43, 0x83, 0x41, 0x81, 0x80, 0x40
 };
 
-/* Slicing-by-8: rtu_crc_slice[0] = T, rtu_crc_slice[k][i] = T[k-1][i] advanced over
- * one zero byte: (T[k-1][i] >> 8) ^ T[T[k-1][i] & 0xFF]. */
-static const uint16_t rtu_crc_slice[8][256] = {
+/* Slicing tables: rtu_crc_slice[0] = T, rtu_crc_slice[k][i] = T[k-1][i] advanced over
+ * one zero byte: (T[k-1][i] >> 8) ^ T[T[k-1][i] & 0xFF]; i.e. rtu_crc_slice[k][i] is
+ * the CRC (init 0) of byte i followed by k zero bytes. */
+static const uint16_t rtu_crc_slice[16][256] = {
   { /* 0 */
     0x0000, 0xC0C1, 0xC181, 0x0140, 0xC301, 0x03C0, 0x0280, 0xC241, 0xC601, 0x06C0, 0x0780, 0xC741,
     0x0500, 0xC5C1, 0xC481, 0x0440, 0xCC01, 0x0CC0, 0x0D80, 0xCD41, 0x0F00, 0xCFC1, 0xCE81, 0x0E40,
@@ -276,35 +281,257 @@ static const uint16_t rtu_crc_slice[8][256] = {
     0xBB0F, 0x77CE, 0x628E, 0xAE4F, 0xEE0F, 0x22CE, 0x378E, 0xFB4F, 0x1D0E, 0xD1CF, 0xC48F, 0x084E,
     0x440F, 0x88CE, 0x9D8E, 0x514F, 0xB70E, 0x7BCF, 0x6E8F, 0xA24E, 0xE20E, 0x2ECF, 0x3B8F, 0xF74E,
     0x110F, 0xDDCE, 0xC88E, 0x044F
+  },
+  { /* 8 */
+    0x0000, 0x900D, 0x6019, 0xF014, 0xC032, 0x503F, 0xA02B, 0x3026, 0xC067, 0x506A, 0xA07E, 0x3073,
+    0x0055, 0x9058, 0x604C, 0xF041, 0xC0CD, 0x50C0, 0xA0D4, 0x30D9, 0x00FF, 0x90F2, 0x60E6, 0xF0EB,
+    0x00AA, 0x90A7, 0x60B3, 0xF0BE, 0xC098, 0x5095, 0xA081, 0x308C, 0xC199, 0x5194, 0xA180, 0x318D,
+    0x01AB, 0x91A6, 0x61B2, 0xF1BF, 0x01FE, 0x91F3, 0x61E7, 0xF1EA, 0xC1CC, 0x51C1, 0xA1D5, 0x31D8,
+    0x0154, 0x9159, 0x614D, 0xF140, 0xC166, 0x516B, 0xA17F, 0x3172, 0xC133, 0x513E, 0xA12A, 0x3127,
+    0x0101, 0x910C, 0x6118, 0xF115, 0xC331, 0x533C, 0xA328, 0x3325, 0x0303, 0x930E, 0x631A, 0xF317,
+    0x0356, 0x935B, 0x634F, 0xF342, 0xC364, 0x5369, 0xA37D, 0x3370, 0x03FC, 0x93F1, 0x63E5, 0xF3E8,
+    0xC3CE, 0x53C3, 0xA3D7, 0x33DA, 0xC39B, 0x5396, 0xA382, 0x338F, 0x03A9, 0x93A4, 0x63B0, 0xF3BD,
+    0x02A8, 0x92A5, 0x62B1, 0xF2BC, 0xC29A, 0x5297, 0xA283, 0x328E, 0xC2CF, 0x52C2, 0xA2D6, 0x32DB,
+    0x02FD, 0x92F0, 0x62E4, 0xF2E9, 0xC265, 0x5268, 0xA27C, 0x3271, 0x0257, 0x925A, 0x624E, 0xF243,
+    0x0202, 0x920F, 0x621B, 0xF216, 0xC230, 0x523D, 0xA229, 0x3224, 0xC661, 0x566C, 0xA678, 0x3675,
+    0x0653, 0x965E, 0x664A, 0xF647, 0x0606, 0x960B, 0x661F, 0xF612, 0xC634, 0x5639, 0xA62D, 0x3620,
+    0x06AC, 0x96A1, 0x66B5, 0xF6B8, 0xC69E, 0x5693, 0xA687, 0x368A, 0xC6CB, 0x56C6, 0xA6D2, 0x36DF,
+    0x06F9, 0x96F4, 0x66E0, 0xF6ED, 0x07F8, 0x97F5, 0x67E1, 0xF7EC, 0xC7CA, 0x57C7, 0xA7D3, 0x37DE,
+    0xC79F, 0x5792, 0xA786, 0x378B, 0x07AD, 0x97A0, 0x67B4, 0xF7B9, 0xC735, 0x5738, 0xA72C, 0x3721,
+    0x0707, 0x970A, 0x671E, 0xF713, 0x0752, 0x975F, 0x674B, 0xF746, 0xC760, 0x576D, 0xA779, 0x3774,
+    0x0550, 0x955D, 0x6549, 0xF544, 0xC562, 0x556F, 0xA57B, 0x3576, 0xC537, 0x553A, 0xA52E, 0x3523,
+    0x0505, 0x9508, 0x651C, 0xF511, 0xC59D, 0x5590, 0xA584, 0x3589, 0x05AF, 0x95A2, 0x65B6, 0xF5BB,
+    0x05FA, 0x95F7, 0x65E3, 0xF5EE, 0xC5C8, 0x55C5, 0xA5D1, 0x35DC, 0xC4C9, 0x54C4, 0xA4D0, 0x34DD,
+    0x04FB, 0x94F6, 0x64E2, 0xF4EF, 0x04AE, 0x94A3, 0x64B7, 0xF4BA, 0xC49C, 0x5491, 0xA485, 0x3488,
+    0x0404, 0x9409, 0x641D, 0xF410, 0xC436, 0x543B, 0xA42F, 0x3422, 0xC463, 0x546E, 0xA47A, 0x3477,
+    0x0451, 0x945C, 0x6448, 0xF445
+  },
+  { /* 9 */
+    0x0000, 0xC551, 0xCAA1, 0x0FF0, 0xD541, 0x1010, 0x1FE0, 0xDAB1, 0xEA81, 0x2FD0, 0x2020, 0xE571,
+    0x3FC0, 0xFA91, 0xF561, 0x3030, 0x9501, 0x5050, 0x5FA0, 0x9AF1, 0x4040, 0x8511, 0x8AE1, 0x4FB0,
+    0x7F80, 0xBAD1, 0xB521, 0x7070, 0xAAC1, 0x6F90, 0x6060, 0xA531, 0x6A01, 0xAF50, 0xA0A0, 0x65F1,
+    0xBF40, 0x7A11, 0x75E1, 0xB0B0, 0x8080, 0x45D1, 0x4A21, 0x8F70, 0x55C1, 0x9090, 0x9F60, 0x5A31,
+    0xFF00, 0x3A51, 0x35A1, 0xF0F0, 0x2A41, 0xEF10, 0xE0E0, 0x25B1, 0x1581, 0xD0D0, 0xDF20, 0x1A71,
+    0xC0C0, 0x0591, 0x0A61, 0xCF30, 0xD402, 0x1153, 0x1EA3, 0xDBF2, 0x0143, 0xC412, 0xCBE2, 0x0EB3,
+    0x3E83, 0xFBD2, 0xF422, 0x3173, 0xEBC2, 0x2E93, 0x2163, 0xE432, 0x4103, 0x8452, 0x8BA2, 0x4EF3,
+    0x9442, 0x5113, 0x5EE3, 0x9BB2, 0xAB82, 0x6ED3, 0x6123, 0xA472, 0x7EC3, 0xBB92, 0xB462, 0x7133,
+    0xBE03, 0x7B52, 0x74A2, 0xB1F3, 0x6B42, 0xAE13, 0xA1E3, 0x64B2, 0x5482, 0x91D3, 0x9E23, 0x5B72,
+    0x81C3, 0x4492, 0x4B62, 0x8E33, 0x2B02, 0xEE53, 0xE1A3, 0x24F2, 0xFE43, 0x3B12, 0x34E2, 0xF1B3,
+    0xC183, 0x04D2, 0x0B22, 0xCE73, 0x14C2, 0xD193, 0xDE63, 0x1B32, 0xE807, 0x2D56, 0x22A6, 0xE7F7,
+    0x3D46, 0xF817, 0xF7E7, 0x32B6, 0x0286, 0xC7D7, 0xC827, 0x0D76, 0xD7C7, 0x1296, 0x1D66, 0xD837,
+    0x7D06, 0xB857, 0xB7A7, 0x72F6, 0xA847, 0x6D16, 0x62E6, 0xA7B7, 0x9787, 0x52D6, 0x5D26, 0x9877,
+    0x42C6, 0x8797, 0x8867, 0x4D36, 0x8206, 0x4757, 0x48A7, 0x8DF6, 0x5747, 0x9216, 0x9DE6, 0x58B7,
+    0x6887, 0xADD6, 0xA226, 0x6777, 0xBDC6, 0x7897, 0x7767, 0xB236, 0x1707, 0xD256, 0xDDA6, 0x18F7,
+    0xC246, 0x0717, 0x08E7, 0xCDB6, 0xFD86, 0x38D7, 0x3727, 0xF276, 0x28C7, 0xED96, 0xE266, 0x2737,
+    0x3C05, 0xF954, 0xF6A4, 0x33F5, 0xE944, 0x2C15, 0x23E5, 0xE6B4, 0xD684, 0x13D5, 0x1C25, 0xD974,
+    0x03C5, 0xC694, 0xC964, 0x0C35, 0xA904, 0x6C55, 0x63A5, 0xA6F4, 0x7C45, 0xB914, 0xB6E4, 0x73B5,
+    0x4385, 0x86D4, 0x8924, 0x4C75, 0x96C4, 0x5395, 0x5C65, 0x9934, 0x5604, 0x9355, 0x9CA5, 0x59F4,
+    0x8345, 0x4614, 0x49E4, 0x8CB5, 0xBC85, 0x79D4, 0x7624, 0xB375, 0x69C4, 0xAC95, 0xA365, 0x6634,
+    0xC305, 0x0654, 0x09A4, 0xCCF5, 0x1644, 0xD315, 0xDCE5, 0x19B4, 0x2984, 0xECD5, 0xE325, 0x2674,
+    0xFCC5, 0x3994, 0x3664, 0xF335
+  },
+  { /* 10 */
+    0x0000, 0xFC04, 0xB80B, 0x440F, 0x3015, 0xCC11, 0x881E, 0x741A, 0x602A, 0x9C2E, 0xD821, 0x2425,
+    0x503F, 0xAC3B, 0xE834, 0x1430, 0xC054, 0x3C50, 0x785F, 0x845B, 0xF041, 0x0C45, 0x484A, 0xB44E,
+    0xA07E, 0x5C7A, 0x1875, 0xE471, 0x906B, 0x6C6F, 0x2860, 0xD464, 0xC0AB, 0x3CAF, 0x78A0, 0x84A4,
+    0xF0BE, 0x0CBA, 0x48B5, 0xB4B1, 0xA081, 0x5C85, 0x188A, 0xE48E, 0x9094, 0x6C90, 0x289F, 0xD49B,
+    0x00FF, 0xFCFB, 0xB8F4, 0x44F0, 0x30EA, 0xCCEE, 0x88E1, 0x74E5, 0x60D5, 0x9CD1, 0xD8DE, 0x24DA,
+    0x50C0, 0xACC4, 0xE8CB, 0x14CF, 0xC155, 0x3D51, 0x795E, 0x855A, 0xF140, 0x0D44, 0x494B, 0xB54F,
+    0xA17F, 0x5D7B, 0x1974, 0xE570, 0x916A, 0x6D6E, 0x2961, 0xD565, 0x0101, 0xFD05, 0xB90A, 0x450E,
+    0x3114, 0xCD10, 0x891F, 0x751B, 0x612B, 0x9D2F, 0xD920, 0x2524, 0x513E, 0xAD3A, 0xE935, 0x1531,
+    0x01FE, 0xFDFA, 0xB9F5, 0x45F1, 0x31EB, 0xCDEF, 0x89E0, 0x75E4, 0x61D4, 0x9DD0, 0xD9DF, 0x25DB,
+    0x51C1, 0xADC5, 0xE9CA, 0x15CE, 0xC1AA, 0x3DAE, 0x79A1, 0x85A5, 0xF1BF, 0x0DBB, 0x49B4, 0xB5B0,
+    0xA180, 0x5D84, 0x198B, 0xE58F, 0x9195, 0x6D91, 0x299E, 0xD59A, 0xC2A9, 0x3EAD, 0x7AA2, 0x86A6,
+    0xF2BC, 0x0EB8, 0x4AB7, 0xB6B3, 0xA283, 0x5E87, 0x1A88, 0xE68C, 0x9296, 0x6E92, 0x2A9D, 0xD699,
+    0x02FD, 0xFEF9, 0xBAF6, 0x46F2, 0x32E8, 0xCEEC, 0x8AE3, 0x76E7, 0x62D7, 0x9ED3, 0xDADC, 0x26D8,
+    0x52C2, 0xAEC6, 0xEAC9, 0x16CD, 0x0202, 0xFE06, 0xBA09, 0x460D, 0x3217, 0xCE13, 0x8A1C, 0x7618,
+    0x6228, 0x9E2C, 0xDA23, 0x2627, 0x523D, 0xAE39, 0xEA36, 0x1632, 0xC256, 0x3E52, 0x7A5D, 0x8659,
+    0xF243, 0x0E47, 0x4A48, 0xB64C, 0xA27C, 0x5E78, 0x1A77, 0xE673, 0x9269, 0x6E6D, 0x2A62, 0xD666,
+    0x03FC, 0xFFF8, 0xBBF7, 0x47F3, 0x33E9, 0xCFED, 0x8BE2, 0x77E6, 0x63D6, 0x9FD2, 0xDBDD, 0x27D9,
+    0x53C3, 0xAFC7, 0xEBC8, 0x17CC, 0xC3A8, 0x3FAC, 0x7BA3, 0x87A7, 0xF3BD, 0x0FB9, 0x4BB6, 0xB7B2,
+    0xA382, 0x5F86, 0x1B89, 0xE78D, 0x9397, 0x6F93, 0x2B9C, 0xD798, 0xC357, 0x3F53, 0x7B5C, 0x8758,
+    0xF342, 0x0F46, 0x4B49, 0xB74D, 0xA37D, 0x5F79, 0x1B76, 0xE772, 0x9368, 0x6F6C, 0x2B63, 0xD767,
+    0x0303, 0xFF07, 0xBB08, 0x470C, 0x3316, 0xCF12, 0x8B1D, 0x7719, 0x6329, 0x9F2D, 0xDB22, 0x2726,
+    0x533C, 0xAF38, 0xEB37, 0x1733
+  },
+  { /* 11 */
+    0x0000, 0xC3FD, 0xC7F9, 0x0404, 0xCFF1, 0x0C0C, 0x0808, 0xCBF5, 0xDFE1, 0x1C1C, 0x1818, 0xDBE5,
+    0x1010, 0xD3ED, 0xD7E9, 0x1414, 0xFFC1, 0x3C3C, 0x3838, 0xFBC5, 0x3030, 0xF3CD, 0xF7C9, 0x3434,
+    0x2020, 0xE3DD, 0xE7D9, 0x2424, 0xEFD1, 0x2C2C, 0x2828, 0xEBD5, 0xBF81, 0x7C7C, 0x7878, 0xBB85,
+    0x7070, 0xB38D, 0xB789, 0x7474, 0x6060, 0xA39D, 0xA799, 0x6464, 0xAF91, 0x6C6C, 0x6868, 0xAB95,
+    0x4040, 0x83BD, 0x87B9, 0x4444, 0x8FB1, 0x4C4C, 0x4848, 0x8BB5, 0x9FA1, 0x5C5C, 0x5858, 0x9BA5,
+    0x5050, 0x93AD, 0x97A9, 0x5454, 0x3F01, 0xFCFC, 0xF8F8, 0x3B05, 0xF0F0, 0x330D, 0x3709, 0xF4F4,
+    0xE0E0, 0x231D, 0x2719, 0xE4E4, 0x2F11, 0xECEC, 0xE8E8, 0x2B15, 0xC0C0, 0x033D, 0x0739, 0xC4C4,
+    0x0F31, 0xCCCC, 0xC8C8, 0x0B35, 0x1F21, 0xDCDC, 0xD8D8, 0x1B25, 0xD0D0, 0x132D, 0x1729, 0xD4D4,
+    0x8080, 0x437D, 0x4779, 0x8484, 0x4F71, 0x8C8C, 0x8888, 0x4B75, 0x5F61, 0x9C9C, 0x9898, 0x5B65,
+    0x9090, 0x536D, 0x5769, 0x9494, 0x7F41, 0xBCBC, 0xB8B8, 0x7B45, 0xB0B0, 0x734D, 0x7749, 0xB4B4,
+    0xA0A0, 0x635D, 0x6759, 0xA4A4, 0x6F51, 0xACAC, 0xA8A8, 0x6B55, 0x7E02, 0xBDFF, 0xB9FB, 0x7A06,
+    0xB1F3, 0x720E, 0x760A, 0xB5F7, 0xA1E3, 0x621E, 0x661A, 0xA5E7, 0x6E12, 0xADEF, 0xA9EB, 0x6A16,
+    0x81C3, 0x423E, 0x463A, 0x85C7, 0x4E32, 0x8DCF, 0x89CB, 0x4A36, 0x5E22, 0x9DDF, 0x99DB, 0x5A26,
+    0x91D3, 0x522E, 0x562A, 0x95D7, 0xC183, 0x027E, 0x067A, 0xC587, 0x0E72, 0xCD8F, 0xC98B, 0x0A76,
+    0x1E62, 0xDD9F, 0xD99B, 0x1A66, 0xD193, 0x126E, 0x166A, 0xD597, 0x3E42, 0xFDBF, 0xF9BB, 0x3A46,
+    0xF1B3, 0x324E, 0x364A, 0xF5B7, 0xE1A3, 0x225E, 0x265A, 0xE5A7, 0x2E52, 0xEDAF, 0xE9AB, 0x2A56,
+    0x4103, 0x82FE, 0x86FA, 0x4507, 0x8EF2, 0x4D0F, 0x490B, 0x8AF6, 0x9EE2, 0x5D1F, 0x591B, 0x9AE6,
+    0x5113, 0x92EE, 0x96EA, 0x5517, 0xBEC2, 0x7D3F, 0x793B, 0xBAC6, 0x7133, 0xB2CE, 0xB6CA, 0x7537,
+    0x6123, 0xA2DE, 0xA6DA, 0x6527, 0xAED2, 0x6D2F, 0x692B, 0xAAD6, 0xFE82, 0x3D7F, 0x397B, 0xFA86,
+    0x3173, 0xF28E, 0xF68A, 0x3577, 0x2163, 0xE29E, 0xE69A, 0x2567, 0xEE92, 0x2D6F, 0x296B, 0xEA96,
+    0x0143, 0xC2BE, 0xC6BA, 0x0547, 0xCEB2, 0x0D4F, 0x094B, 0xCAB6, 0xDEA2, 0x1D5F, 0x195B, 0xDAA6,
+    0x1153, 0xD2AE, 0xD6AA, 0x1557
+  },
+  { /* 12 */
+    0x0000, 0x8102, 0x4207, 0xC305, 0x840E, 0x050C, 0xC609, 0x470B, 0x481F, 0xC91D, 0x0A18, 0x8B1A,
+    0xCC11, 0x4D13, 0x8E16, 0x0F14, 0x903E, 0x113C, 0xD239, 0x533B, 0x1430, 0x9532, 0x5637, 0xD735,
+    0xD821, 0x5923, 0x9A26, 0x1B24, 0x5C2F, 0xDD2D, 0x1E28, 0x9F2A, 0x607F, 0xE17D, 0x2278, 0xA37A,
+    0xE471, 0x6573, 0xA676, 0x2774, 0x2860, 0xA962, 0x6A67, 0xEB65, 0xAC6E, 0x2D6C, 0xEE69, 0x6F6B,
+    0xF041, 0x7143, 0xB246, 0x3344, 0x744F, 0xF54D, 0x3648, 0xB74A, 0xB85E, 0x395C, 0xFA59, 0x7B5B,
+    0x3C50, 0xBD52, 0x7E57, 0xFF55, 0xC0FE, 0x41FC, 0x82F9, 0x03FB, 0x44F0, 0xC5F2, 0x06F7, 0x87F5,
+    0x88E1, 0x09E3, 0xCAE6, 0x4BE4, 0x0CEF, 0x8DED, 0x4EE8, 0xCFEA, 0x50C0, 0xD1C2, 0x12C7, 0x93C5,
+    0xD4CE, 0x55CC, 0x96C9, 0x17CB, 0x18DF, 0x99DD, 0x5AD8, 0xDBDA, 0x9CD1, 0x1DD3, 0xDED6, 0x5FD4,
+    0xA081, 0x2183, 0xE286, 0x6384, 0x248F, 0xA58D, 0x6688, 0xE78A, 0xE89E, 0x699C, 0xAA99, 0x2B9B,
+    0x6C90, 0xED92, 0x2E97, 0xAF95, 0x30BF, 0xB1BD, 0x72B8, 0xF3BA, 0xB4B1, 0x35B3, 0xF6B6, 0x77B4,
+    0x78A0, 0xF9A2, 0x3AA7, 0xBBA5, 0xFCAE, 0x7DAC, 0xBEA9, 0x3FAB, 0xC1FF, 0x40FD, 0x83F8, 0x02FA,
+    0x45F1, 0xC4F3, 0x07F6, 0x86F4, 0x89E0, 0x08E2, 0xCBE7, 0x4AE5, 0x0DEE, 0x8CEC, 0x4FE9, 0xCEEB,
+    0x51C1, 0xD0C3, 0x13C6, 0x92C4, 0xD5CF, 0x54CD, 0x97C8, 0x16CA, 0x19DE, 0x98DC, 0x5BD9, 0xDADB,
+    0x9DD0, 0x1CD2, 0xDFD7, 0x5ED5, 0xA180, 0x2082, 0xE387, 0x6285, 0x258E, 0xA48C, 0x6789, 0xE68B,
+    0xE99F, 0x689D, 0xAB98, 0x2A9A, 0x6D91, 0xEC93, 0x2F96, 0xAE94, 0x31BE, 0xB0BC, 0x73B9, 0xF2BB,
+    0xB5B0, 0x34B2, 0xF7B7, 0x76B5, 0x79A1, 0xF8A3, 0x3BA6, 0xBAA4, 0xFDAF, 0x7CAD, 0xBFA8, 0x3EAA,
+    0x0101, 0x8003, 0x4306, 0xC204, 0x850F, 0x040D, 0xC708, 0x460A, 0x491E, 0xC81C, 0x0B19, 0x8A1B,
+    0xCD10, 0x4C12, 0x8F17, 0x0E15, 0x913F, 0x103D, 0xD338, 0x523A, 0x1531, 0x9433, 0x5736, 0xD634,
+    0xD920, 0x5822, 0x9B27, 0x1A25, 0x5D2E, 0xDC2C, 0x1F29, 0x9E2B, 0x617E, 0xE07C, 0x2379, 0xA27B,
+    0xE570, 0x6472, 0xA777, 0x2675, 0x2961, 0xA863, 0x6B66, 0xEA64, 0xAD6F, 0x2C6D, 0xEF68, 0x6E6A,
+    0xF140, 0x7042, 0xB347, 0x3245, 0x754E, 0xF44C, 0x3749, 0xB64B, 0xB95F, 0x385D, 0xFB58, 0x7A5A,
+    0x3D51, 0xBC53, 0x7F56, 0xFE54
+  },
+  { /* 13 */
+    0x0000, 0xC100, 0xC203, 0x0303, 0xC405, 0x0505, 0x0606, 0xC706, 0xC809, 0x0909, 0x0A0A, 0xCB0A,
+    0x0C0C, 0xCD0C, 0xCE0F, 0x0F0F, 0xD011, 0x1111, 0x1212, 0xD312, 0x1414, 0xD514, 0xD617, 0x1717,
+    0x1818, 0xD918, 0xDA1B, 0x1B1B, 0xDC1D, 0x1D1D, 0x1E1E, 0xDF1E, 0xE021, 0x2121, 0x2222, 0xE322,
+    0x2424, 0xE524, 0xE627, 0x2727, 0x2828, 0xE928, 0xEA2B, 0x2B2B, 0xEC2D, 0x2D2D, 0x2E2E, 0xEF2E,
+    0x3030, 0xF130, 0xF233, 0x3333, 0xF435, 0x3535, 0x3636, 0xF736, 0xF839, 0x3939, 0x3A3A, 0xFB3A,
+    0x3C3C, 0xFD3C, 0xFE3F, 0x3F3F, 0x8041, 0x4141, 0x4242, 0x8342, 0x4444, 0x8544, 0x8647, 0x4747,
+    0x4848, 0x8948, 0x8A4B, 0x4B4B, 0x8C4D, 0x4D4D, 0x4E4E, 0x8F4E, 0x5050, 0x9150, 0x9253, 0x5353,
+    0x9455, 0x5555, 0x5656, 0x9756, 0x9859, 0x5959, 0x5A5A, 0x9B5A, 0x5C5C, 0x9D5C, 0x9E5F, 0x5F5F,
+    0x6060, 0xA160, 0xA263, 0x6363, 0xA465, 0x6565, 0x6666, 0xA766, 0xA869, 0x6969, 0x6A6A, 0xAB6A,
+    0x6C6C, 0xAD6C, 0xAE6F, 0x6F6F, 0xB071, 0x7171, 0x7272, 0xB372, 0x7474, 0xB574, 0xB677, 0x7777,
+    0x7878, 0xB978, 0xBA7B, 0x7B7B, 0xBC7D, 0x7D7D, 0x7E7E, 0xBF7E, 0x4081, 0x8181, 0x8282, 0x4382,
+    0x8484, 0x4584, 0x4687, 0x8787, 0x8888, 0x4988, 0x4A8B, 0x8B8B, 0x4C8D, 0x8D8D, 0x8E8E, 0x4F8E,
+    0x9090, 0x5190, 0x5293, 0x9393, 0x5495, 0x9595, 0x9696, 0x5796, 0x5899, 0x9999, 0x9A9A, 0x5B9A,
+    0x9C9C, 0x5D9C, 0x5E9F, 0x9F9F, 0xA0A0, 0x61A0, 0x62A3, 0xA3A3, 0x64A5, 0xA5A5, 0xA6A6, 0x67A6,
+    0x68A9, 0xA9A9, 0xAAAA, 0x6BAA, 0xACAC, 0x6DAC, 0x6EAF, 0xAFAF, 0x70B1, 0xB1B1, 0xB2B2, 0x73B2,
+    0xB4B4, 0x75B4, 0x76B7, 0xB7B7, 0xB8B8, 0x79B8, 0x7ABB, 0xBBBB, 0x7CBD, 0xBDBD, 0xBEBE, 0x7FBE,
+    0xC0C0, 0x01C0, 0x02C3, 0xC3C3, 0x04C5, 0xC5C5, 0xC6C6, 0x07C6, 0x08C9, 0xC9C9, 0xCACA, 0x0BCA,
+    0xCCCC, 0x0DCC, 0x0ECF, 0xCFCF, 0x10D1, 0xD1D1, 0xD2D2, 0x13D2, 0xD4D4, 0x15D4, 0x16D7, 0xD7D7,
+    0xD8D8, 0x19D8, 0x1ADB, 0xDBDB, 0x1CDD, 0xDDDD, 0xDEDE, 0x1FDE, 0x20E1, 0xE1E1, 0xE2E2, 0x23E2,
+    0xE4E4, 0x25E4, 0x26E7, 0xE7E7, 0xE8E8, 0x29E8, 0x2AEB, 0xEBEB, 0x2CED, 0xEDED, 0xEEEE, 0x2FEE,
+    0xF0F0, 0x31F0, 0x32F3, 0xF3F3, 0x34F5, 0xF5F5, 0xF6F6, 0x37F6, 0x38F9, 0xF9F9, 0xFAFA, 0x3BFA,
+    0xFCFC, 0x3DFC, 0x3EFF, 0xFFFF
+  },
+  { /* 14 */
+    0x0000, 0x00C1, 0x0182, 0x0143, 0x0304, 0x03C5, 0x0286, 0x0247, 0x0608, 0x06C9, 0x078A, 0x074B,
+    0x050C, 0x05CD, 0x048E, 0x044F, 0x0C10, 0x0CD1, 0x0D92, 0x0D53, 0x0F14, 0x0FD5, 0x0E96, 0x0E57,
+    0x0A18, 0x0AD9, 0x0B9A, 0x0B5B, 0x091C, 0x09DD, 0x089E, 0x085F, 0x1820, 0x18E1, 0x19A2, 0x1963,
+    0x1B24, 0x1BE5, 0x1AA6, 0x1A67, 0x1E28, 0x1EE9, 0x1FAA, 0x1F6B, 0x1D2C, 0x1DED, 0x1CAE, 0x1C6F,
+    0x1430, 0x14F1, 0x15B2, 0x1573, 0x1734, 0x17F5, 0x16B6, 0x1677, 0x1238, 0x12F9, 0x13BA, 0x137B,
+    0x113C, 0x11FD, 0x10BE, 0x107F, 0x3040, 0x3081, 0x31C2, 0x3103, 0x3344, 0x3385, 0x32C6, 0x3207,
+    0x3648, 0x3689, 0x37CA, 0x370B, 0x354C, 0x358D, 0x34CE, 0x340F, 0x3C50, 0x3C91, 0x3DD2, 0x3D13,
+    0x3F54, 0x3F95, 0x3ED6, 0x3E17, 0x3A58, 0x3A99, 0x3BDA, 0x3B1B, 0x395C, 0x399D, 0x38DE, 0x381F,
+    0x2860, 0x28A1, 0x29E2, 0x2923, 0x2B64, 0x2BA5, 0x2AE6, 0x2A27, 0x2E68, 0x2EA9, 0x2FEA, 0x2F2B,
+    0x2D6C, 0x2DAD, 0x2CEE, 0x2C2F, 0x2470, 0x24B1, 0x25F2, 0x2533, 0x2774, 0x27B5, 0x26F6, 0x2637,
+    0x2278, 0x22B9, 0x23FA, 0x233B, 0x217C, 0x21BD, 0x20FE, 0x203F, 0x6080, 0x6041, 0x6102, 0x61C3,
+    0x6384, 0x6345, 0x6206, 0x62C7, 0x6688, 0x6649, 0x670A, 0x67CB, 0x658C, 0x654D, 0x640E, 0x64CF,
+    0x6C90, 0x6C51, 0x6D12, 0x6DD3, 0x6F94, 0x6F55, 0x6E16, 0x6ED7, 0x6A98, 0x6A59, 0x6B1A, 0x6BDB,
+    0x699C, 0x695D, 0x681E, 0x68DF, 0x78A0, 0x7861, 0x7922, 0x79E3, 0x7BA4, 0x7B65, 0x7A26, 0x7AE7,
+    0x7EA8, 0x7E69, 0x7F2A, 0x7FEB, 0x7DAC, 0x7D6D, 0x7C2E, 0x7CEF, 0x74B0, 0x7471, 0x7532, 0x75F3,
+    0x77B4, 0x7775, 0x7636, 0x76F7, 0x72B8, 0x7279, 0x733A, 0x73FB, 0x71BC, 0x717D, 0x703E, 0x70FF,
+    0x50C0, 0x5001, 0x5142, 0x5183, 0x53C4, 0x5305, 0x5246, 0x5287, 0x56C8, 0x5609, 0x574A, 0x578B,
+    0x55CC, 0x550D, 0x544E, 0x548F, 0x5CD0, 0x5C11, 0x5D52, 0x5D93, 0x5FD4, 0x5F15, 0x5E56, 0x5E97,
+    0x5AD8, 0x5A19, 0x5B5A, 0x5B9B, 0x59DC, 0x591D, 0x585E, 0x589F, 0x48E0, 0x4821, 0x4962, 0x49A3,
+    0x4BE4, 0x4B25, 0x4A66, 0x4AA7, 0x4EE8, 0x4E29, 0x4F6A, 0x4FAB, 0x4DEC, 0x4D2D, 0x4C6E, 0x4CAF,
+    0x44F0, 0x4431, 0x4572, 0x45B3, 0x47F4, 0x4735, 0x4676, 0x46B7, 0x42F8, 0x4239, 0x437A, 0x43BB,
+    0x41FC, 0x413D, 0x407E, 0x40BF
+  },
+  { /* 15 */
+    0x0000, 0x90C1, 0x6181, 0xF140, 0xC302, 0x53C3, 0xA283, 0x3242, 0xC607, 0x56C6, 0xA786, 0x3747,
+    0x0505, 0x95C4, 0x6484, 0xF445, 0xCC0D, 0x5CCC, 0xAD8C, 0x3D4D, 0x0F0F, 0x9FCE, 0x6E8E, 0xFE4F,
+    0x0A0A, 0x9ACB, 0x6B8B, 0xFB4A, 0xC908, 0x59C9, 0xA889, 0x3848, 0xD819, 0x48D8, 0xB998, 0x2959,
+    0x1B1B, 0x8BDA, 0x7A9A, 0xEA5B, 0x1E1E, 0x8EDF, 0x7F9F, 0xEF5E, 0xDD1C, 0x4DDD, 0xBC9D, 0x2C5C,
+    0x1414, 0x84D5, 0x7595, 0xE554, 0xD716, 0x47D7, 0xB697, 0x2656, 0xD213, 0x42D2, 0xB392, 0x2353,
+    0x1111, 0x81D0, 0x7090, 0xE051, 0xF031, 0x60F0, 0x91B0, 0x0171, 0x3333, 0xA3F2, 0x52B2, 0xC273,
+    0x3636, 0xA6F7, 0x57B7, 0xC776, 0xF534, 0x65F5, 0x94B5, 0x0474, 0x3C3C, 0xACFD, 0x5DBD, 0xCD7C,
+    0xFF3E, 0x6FFF, 0x9EBF, 0x0E7E, 0xFA3B, 0x6AFA, 0x9BBA, 0x0B7B, 0x3939, 0xA9F8, 0x58B8, 0xC879,
+    0x2828, 0xB8E9, 0x49A9, 0xD968, 0xEB2A, 0x7BEB, 0x8AAB, 0x1A6A, 0xEE2F, 0x7EEE, 0x8FAE, 0x1F6F,
+    0x2D2D, 0xBDEC, 0x4CAC, 0xDC6D, 0xE425, 0x74E4, 0x85A4, 0x1565, 0x2727, 0xB7E6, 0x46A6, 0xD667,
+    0x2222, 0xB2E3, 0x43A3, 0xD362, 0xE120, 0x71E1, 0x80A1, 0x1060, 0xA061, 0x30A0, 0xC1E0, 0x5121,
+    0x6363, 0xF3A2, 0x02E2, 0x9223, 0x6666, 0xF6A7, 0x07E7, 0x9726, 0xA564, 0x35A5, 0xC4E5, 0x5424,
+    0x6C6C, 0xFCAD, 0x0DED, 0x9D2C, 0xAF6E, 0x3FAF, 0xCEEF, 0x5E2E, 0xAA6B, 0x3AAA, 0xCBEA, 0x5B2B,
+    0x6969, 0xF9A8, 0x08E8, 0x9829, 0x7878, 0xE8B9, 0x19F9, 0x8938, 0xBB7A, 0x2BBB, 0xDAFB, 0x4A3A,
+    0xBE7F, 0x2EBE, 0xDFFE, 0x4F3F, 0x7D7D, 0xEDBC, 0x1CFC, 0x8C3D, 0xB475, 0x24B4, 0xD5F4, 0x4535,
+    0x7777, 0xE7B6, 0x16F6, 0x8637, 0x7272, 0xE2B3, 0x13F3, 0x8332, 0xB170, 0x21B1, 0xD0F1, 0x4030,
+    0x5050, 0xC091, 0x31D1, 0xA110, 0x9352, 0x0393, 0xF2D3, 0x6212, 0x9657, 0x0696, 0xF7D6, 0x6717,
+    0x5555, 0xC594, 0x34D4, 0xA415, 0x9C5D, 0x0C9C, 0xFDDC, 0x6D1D, 0x5F5F, 0xCF9E, 0x3EDE, 0xAE1F,
+    0x5A5A, 0xCA9B, 0x3BDB, 0xAB1A, 0x9958, 0x0999, 0xF8D9, 0x6818, 0x8849, 0x1888, 0xE9C8, 0x7909,
+    0x4B4B, 0xDB8A, 0x2ACA, 0xBA0B, 0x4E4E, 0xDE8F, 0x2FCF, 0xBF0E, 0x8D4C, 0x1D8D, 0xECCD, 0x7C0C,
+    0x4444, 0xD485, 0x25C5, 0xB504, 0x8746, 0x1787, 0xE6C7, 0x7606, 0x8243, 0x1282, 0xE3C2, 0x7303,
+    0x4141, 0xD180, 0x20C0, 0xB001
   }
 };
 
-/* Carry-less folding constants (reflected): RTU_Kd_LO = rev64(x^(64+d-1) mod G),
- * RTU_Kd_HI = rev64(x^(d-1) mod G); they move a 128-bit accumulator d bits forward. */
-#define RTU_K128_LO 0xCCD0000000000000ULL /* d = 128: 1 x 128-bit lane */
-#define RTU_K128_HI 0xC100000000000000ULL
-#define RTU_K256_LO 0xC991000000000000ULL /* d = 256: 2 lanes / lane merge */
-#define RTU_K256_HI 0x5001000000000000ULL
-#define RTU_K384_LO 0xAAA4000000000000ULL /* d = 384: 3 lanes / lane merge */
-#define RTU_K384_HI 0xAC91000000000000ULL
-#define RTU_K512_LO 0xC450000000000000ULL /* d = 512: 4 lanes / 1 zmm */
-#define RTU_K512_HI 0x8101000000000000ULL
-#define RTU_K640_LO 0x6FF8000000000000ULL /* d = 640: 5 lanes (lane merge) */
-#define RTU_K640_HI 0xF080000000000000ULL
-#define RTU_K768_LO 0xAE6C000000000000ULL /* d = 768: 6 lanes (lane merge) */
-#define RTU_K768_HI 0xE491000000000000ULL
-#define RTU_K896_LO 0x5103000000000000ULL /* d = 896: 7 lanes (lane merge) */
-#define RTU_K896_HI 0xB749000000000000ULL
-#define RTU_K1024_LO 0xCDD1000000000000ULL /* d = 1024: 8 x 128 (SSE loop, 128 B) / 2 zmm */
+#if RTU_CRC_X86 /* the carry-less multiplication paths */
+
+/* Carry-less folding constants, reflected.  A pair (lo, hi) = (rev64(x^(64+d-1) mod G),
+ * rev64(x^(d-1) mod G)) moves a 128-bit accumulator d bits forward (lo multiplies the
+ * low qword, which holds the high-order coefficients). */
+#define RTU_K1024_LO 0xCDD1000000000000ULL /* d = 1024: SSE loop: 8 lanes x 128 bits */
 #define RTU_K1024_HI 0xD000000000000000ULL
-#define RTU_K1536_LO 0x5F79000000000000ULL /* d = 1536: 3 zmm (zmm merge) */
-#define RTU_K1536_HI 0xF4D1000000000000ULL
-#define RTU_K2048_LO 0xC540000000000000ULL /* d = 2048: 4 zmm (AVX-512 loop, 256 B) */
+#define RTU_K2048_LO 0xC540000000000000ULL /* d = 2048: AVX-512 loop: 4 zmm x 512 bits */
 #define RTU_K2048_HI 0x5100000000000000ULL
-/* Final reduction: fold 128 -> 80 bits, then Barrett with mu = floor(x^79 / G). */
-#define RTU_K_FOLD80 0xCCC1000000000000ULL /* rev64(x^79 mod G) */
-#define RTU_K_MU     0xF0FFEBFFCFFFBFFFULL /* rev64(floor(x^79 / G)) */
-#define RTU_K_POLY   0xA001000000000000ULL /* rev64(G mod x^16) = 0xA001 << 48 */
+
+/* "Fold to A": rtu_crc_kA[32 - 1 - j] = fold pair for d = 128 * j + 16, j = 0..31.
+ * A 16-byte block followed by j more blocks contributes block * x^(128 j) to the
+ * message, and the CRC is message * x^16 mod G: folding every block with its
+ * pair and XORing gives a 128-bit A of degree < 80 with CRC = A mod G (Barrett).
+ * Stored by decreasing j so that 4 consecutive entries are the constants of 4
+ * consecutive blocks (one 64-byte load for a zmm). */
+static const uint64_t rtu_crc_kA[32][2] __attribute__((aligned(64))) = {
+    { 0xEAA6000000000000ULL, 0xBDAD000000000000ULL }, /* j = 31 */
+    { 0xCA6D000000000000ULL, 0x6C01000000000000ULL }, /* j = 30 */
+    { 0x732B000000000000ULL, 0x0A1A000000000000ULL }, /* j = 29 */
+    { 0x4D76000000000000ULL, 0xADB4000000000000ULL }, /* j = 28 */
+    { 0xCFA2000000000000ULL, 0xE033000000000000ULL }, /* j = 27 */
+    { 0xCB9F000000000000ULL, 0x9866000000000000ULL }, /* j = 26 */
+    { 0xF16A000000000000ULL, 0xA4FA000000000000ULL }, /* j = 25 */
+    { 0xF83A000000000000ULL, 0xD29D000000000000ULL }, /* j = 24 */
+    { 0xAF31000000000000ULL, 0xA55D000000000000ULL }, /* j = 23 */
+    { 0x095D000000000000ULL, 0xBA77000000000000ULL }, /* j = 22 */
+    { 0x706C000000000000ULL, 0xFD1B000000000000ULL }, /* j = 21 */
+    { 0x90AE000000000000ULL, 0x9F0D000000000000ULL }, /* j = 20 */
+    { 0xBF3F000000000000ULL, 0xB4A1000000000000ULL }, /* j = 19 */
+    { 0xECC6000000000000ULL, 0xDDAD000000000000ULL }, /* j = 18 */
+    { 0xB956000000000000ULL, 0x816D000000000000ULL }, /* j = 17 */
+    { 0x93F1000000000000ULL, 0xFCC1000000000000ULL }, /* j = 16 */
+    { 0x999D000000000000ULL, 0x50C1000000000000ULL }, /* j = 15 */
+    { 0x2AB7000000000000ULL, 0x9ADA000000000000ULL }, /* j = 14 */
+    { 0xA7C0000000000000ULL, 0xF76F000000000000ULL }, /* j = 13 */
+    { 0xA863000000000000ULL, 0xD75D000000000000ULL }, /* j = 12 */
+    { 0xA3FD000000000000ULL, 0x8F3A000000000000ULL }, /* j = 11 */
+    { 0x9296000000000000ULL, 0xEBC1000000000000ULL }, /* j = 10 */
+    { 0xAAAD000000000000ULL, 0xF95D000000000000ULL }, /* j = 9 */
+    { 0xC59D000000000000ULL, 0x9C01000000000000ULL }, /* j = 8 */
+    { 0x0CC1000000000000ULL, 0xE677000000000000ULL }, /* j = 7 */
+    { 0xBCAC000000000000ULL, 0xDB6D000000000000ULL }, /* j = 6 */
+    { 0xEC03000000000000ULL, 0x8461000000000000ULL }, /* j = 5 */
+    { 0x933D000000000000ULL, 0xF0C1000000000000ULL }, /* j = 4 */
+    { 0xBFFA000000000000ULL, 0xED6D000000000000ULL }, /* j = 3 */
+    { 0xC6AD000000000000ULL, 0xAC01000000000000ULL }, /* j = 2 */
+    { 0x955D000000000000ULL, 0x90C1000000000000ULL }, /* j = 1 */
+    { 0xCCC1000000000000ULL, 0x0001000000000000ULL } /* j = 0 */
+};
+
+/* Barrett reduction of A (degree < 80): mu = floor(x^79 / G). */
+#define RTU_K_MU   0xF0FFEBFFCFFFBFFFULL /* rev64(floor(x^79 / G)) */
+#define RTU_K_POLY 0xA001000000000000ULL /* rev64(G mod x^16) = 0xA001 << 48 */
+
+#endif /* RTU_CRC_X86 */
 
 /* END GENERATED */
 
@@ -337,7 +564,7 @@ uint16_t rtu_crc16_bytewise(const uint8_t *data, size_t len, uint16_t crc)
 }
 
 /* ------------------------------------------------------------------------ */
-/* slicing-by-8                                                              */
+/* slicing (the "slice8" path)                                               */
 /* ------------------------------------------------------------------------ */
 
 static inline uint64_t rtu_load_le64(const uint8_t *p)
@@ -360,41 +587,111 @@ static inline uint32_t rtu_load_le32(const uint8_t *p)
     return v;
 }
 
-/* Byte j of an 8-byte word is followed by 7 - j more bytes of the word, so it
- * is looked up in rtu_crc_slice[7 - j]; the running CRC is XORed into the
- * first two bytes (linearity of the reflected CRC). */
-static inline uint16_t rtu_slice8_body(const uint8_t *p, size_t len, uint32_t crc)
+#define RTU_S(k, v) ((uint32_t)rtu_crc_slice[k][(v) & 0xFF])
+
+/* Keep the compiler from re-associating the XOR of the data lookups with the
+ * CRC's lookups (it likes to put the CRC first, which puts every lookup on
+ * the dependency chain of the running CRC). */
+#if defined(__GNUC__)
+#define RTU_OPAQUE(v) __asm__("" : "+r"(v))
+#else
+#define RTU_OPAQUE(v) ((void)0)
+#endif
+
+/*
+ * Slicing: byte j of a k-byte step is followed by k - 1 - j more bytes of the
+ * step, so it is looked up in rtu_crc_slice[k - 1 - j]; the running CRC is
+ * XORed into the first two bytes (linearity of the reflected CRC).  With a
+ * 16-bit CRC only those two lookups wait for the previous step, the other
+ * k - 2 are off the dependency chain.  Steps of 16 bytes (slicing-by-16: 2x
+ * the throughput of slicing-by-8 here, 6.5 vs 3.3 GB/s, for 8 KB of tables
+ * that stay in L1).  This is the RTU_CRC_SLICE8 path; the name is kept for
+ * the API.
+ *
+ * Partial steps never loop over bytes: a step may start with z zero bytes
+ * (they add nothing while the register is 0), and the running CRC then
+ * enters at byte z.  So the last 2..15 bytes are one 16-byte step over the
+ * 16 bytes ending at the end with the z = 16 - r bytes in front (already
+ * counted) masked off, and a short message is loaded with two overlapping
+ * loads and shifted to the end of one step.  A lone byte has no second
+ * byte for the CRC's high half: that is the plain byte step.
+ */
+
+/* One 16-byte step (a = bytes 0..7, b = bytes 8..15, little-endian) whose
+ * first z (0..14) bytes are zero, the CRC entering at byte z.  The tables are
+ * linear (T[k][u ^ v] = T[k][u] ^ T[k][v]), so the CRC's two lookups are
+ * taken apart from the data's: only they wait for the previous step. */
+static inline uint32_t rtu_step16(uint64_t a, uint64_t b, uint32_t crc, unsigned z)
 {
-    while (len >= 8) {
-        uint64_t w = rtu_load_le64(p) ^ crc;
-        crc = (uint32_t)rtu_crc_slice[7][w & 0xFF]
-            ^ rtu_crc_slice[6][(w >> 8) & 0xFF]
-            ^ rtu_crc_slice[5][(w >> 16) & 0xFF]
-            ^ rtu_crc_slice[4][(w >> 24) & 0xFF]
-            ^ rtu_crc_slice[3][(w >> 32) & 0xFF]
-            ^ rtu_crc_slice[2][(w >> 40) & 0xFF]
-            ^ rtu_crc_slice[1][(w >> 48) & 0xFF]
-            ^ rtu_crc_slice[0][w >> 56];
-        p += 8;
-        len -= 8;
+    uint32_t d = (RTU_S(15, a) ^ RTU_S(14, a >> 8) ^ RTU_S(13, a >> 16) ^ RTU_S(12, a >> 24))
+               ^ (RTU_S(11, a >> 32) ^ RTU_S(10, a >> 40) ^ RTU_S(9, a >> 48) ^ RTU_S(8, a >> 56))
+               ^ (RTU_S(7, b) ^ RTU_S(6, b >> 8) ^ RTU_S(5, b >> 16) ^ RTU_S(4, b >> 24))
+               ^ (RTU_S(3, b >> 32) ^ RTU_S(2, b >> 40) ^ RTU_S(1, b >> 48) ^ RTU_S(0, b >> 56));
+    RTU_OPAQUE(d);
+    return d ^ RTU_S(15 - z, crc) ^ RTU_S(14 - z, crc >> 8);
+}
+
+/* the same for one 8-byte step, z = 0..6 */
+static inline uint32_t rtu_step8(uint64_t a, uint32_t crc, unsigned z)
+{
+    uint32_t d = (RTU_S(7, a) ^ RTU_S(6, a >> 8) ^ RTU_S(5, a >> 16) ^ RTU_S(4, a >> 24))
+               ^ (RTU_S(3, a >> 32) ^ RTU_S(2, a >> 40) ^ RTU_S(1, a >> 48) ^ RTU_S(0, a >> 56));
+    RTU_OPAQUE(d);
+    return d ^ RTU_S(7 - z, crc) ^ RTU_S(6 - z, crc >> 8);
+}
+
+static inline uint16_t rtu_slice_body(const uint8_t *p, size_t len, uint32_t crc)
+{
+    if (len >= 16) {
+        do {
+            /* the full step, written so that only bytes 0 and 1 wait for crc */
+            uint64_t a = rtu_load_le64(p), b = rtu_load_le64(p + 8);
+            uint32_t c = ((uint32_t)a & 0xFFFFu) ^ crc;
+            uint32_t rest = RTU_S(13, a >> 16) ^ RTU_S(12, a >> 24) ^ RTU_S(11, a >> 32)
+                          ^ RTU_S(10, a >> 40) ^ RTU_S(9, a >> 48) ^ RTU_S(8, a >> 56)
+                          ^ RTU_S(7, b) ^ RTU_S(6, b >> 8) ^ RTU_S(5, b >> 16)
+                          ^ RTU_S(4, b >> 24) ^ RTU_S(3, b >> 32) ^ RTU_S(2, b >> 40)
+                          ^ RTU_S(1, b >> 48) ^ RTU_S(0, b >> 56);
+            RTU_OPAQUE(rest);
+            crc = RTU_S(15, c) ^ RTU_S(14, c >> 8) ^ rest;
+            p += 16;
+            len -= 16;
+        } while (len >= 16);
+        if (len >= 2) {
+            /* the last len bytes: the 16 ending at the end, 16 - len masked off */
+            unsigned z = 16u - (unsigned)len;                      /* 1..14 */
+            uint64_t a = rtu_load_le64(p + len - 16), b = rtu_load_le64(p + len - 8);
+            if (z < 8) {
+                a &= ~(uint64_t)0 << (8 * z);
+            } else {
+                a = 0;
+                b &= ~(uint64_t)0 << (8 * (z - 8));
+            }
+            return (uint16_t)rtu_step16(a, b, crc, z);
+        }
+    } else if (len > 8) {
+        /* 9..15 bytes: bytes 0..7 and the last 8 (overlapping), as the end of
+         * one 16-byte step */
+        unsigned z = 16u - (unsigned)len;                          /* 1..7 */
+        uint64_t a = rtu_load_le64(p), b = rtu_load_le64(p + len - 8);
+        return (uint16_t)rtu_step16(a << (8 * z), b, crc, z);
+    } else if (len >= 2) {
+        /* 2..8 bytes as the end of one 8-byte step */
+        uint64_t a;
+        if (len >= 4)
+            a = rtu_load_le32(p) | (uint64_t)rtu_load_le32(p + len - 4) << (8 * (len - 4));
+        else
+            a = (uint64_t)(p[0] | (uint32_t)p[1] << 8) | (uint64_t)p[len - 1] << (8 * (len - 1));
+        return (uint16_t)rtu_step8(a << (8 * (8 - len)), crc, 8u - (unsigned)len);
     }
-    if (len >= 4) {
-        uint32_t w = rtu_load_le32(p) ^ crc;
-        crc = (uint32_t)rtu_crc_slice[3][w & 0xFF]
-            ^ rtu_crc_slice[2][(w >> 8) & 0xFF]
-            ^ rtu_crc_slice[1][(w >> 16) & 0xFF]
-            ^ rtu_crc_slice[0][w >> 24];
-        p += 4;
-        len -= 4;
-    }
-    while (len--)
-        crc = (crc >> 8) ^ rtu_crc_slice[0][(crc ^ *p++) & 0xFF];
+    if (len)                       /* a single byte (the Appendix B step) */
+        crc = (crc >> 8) ^ RTU_S(0, crc ^ *p);
     return (uint16_t)crc;
 }
 
 uint16_t rtu_crc16_slice8(const uint8_t *data, size_t len, uint16_t crc)
 {
-    return rtu_slice8_body(data, len, crc);
+    return rtu_slice_body(data, len, crc);
 }
 
 /* ------------------------------------------------------------------------ */
@@ -402,209 +699,245 @@ uint16_t rtu_crc16_slice8(const uint8_t *data, size_t len, uint16_t crc)
 /* ------------------------------------------------------------------------ */
 #if RTU_CRC_X86
 
+/*
+ * Scheme (both SIMD paths).  The message is cut into 16-byte blocks aligned
+ * to its END: the first block is the h = len % 16 leading bytes (if h != 0),
+ * zero-padded at the front, which does not change a CRC computed from 0;
+ * the running CRC is XORed into the first two message bytes.  Then:
+ *   - main loop: independent accumulators (8 xmm, or 4 zmm = 16 lanes), each
+ *     moved forward by the loop stride (x^1024 / x^2048) and XORed with the
+ *     next block;
+ *   - end: every accumulator lane and every remaining block j blocks before
+ *     the end is folded with the "fold to A" pair for d = 128 j + 16 (the
+ *     +16 is the x^16 of the CRC definition), all in parallel, and XORed into
+ *     A (degree < 80);
+ *   - Barrett: crc = A mod G with two more multiplications.
+ * No partial block at the end, hence no tail code.  The carry-less multiplier
+ * is the bottleneck (here one PCLMULQDQ / VPCLMULQDQ every 2 cycles, either
+ * width): 2 multiplications per 16 bytes (xmm) or per 64 bytes (zmm).
+ */
+
 #define RTU_TARGET_CLMUL __attribute__((target("pclmul,sse4.1")))
 #define RTU_TARGET_VCLMUL \
     __attribute__((target("pclmul,sse4.1,avx2,avx512f,avx512bw,avx512vl,vpclmulqdq")))
 
-/* Below these lengths the SIMD functions use slicing-by-8 (measured: the fixed
- * cost of the folding set-up and of the reduction outweighs the gain). */
-#define RTU_CLMUL_MIN  64
-#define RTU_VCLMUL_MIN 64
+/* Below these lengths the SIMD functions hand over to slicing (measured on
+ * Zen 5: slicing-by-16 takes ~2.8 ns at 8 bytes and ~8 ns at 48, the folding
+ * functions have a floor of ~10 (clmul) / ~12 ns (vclmul) of latency, though
+ * a much better throughput, 3 to 5 ns per independent call).  The folding
+ * code itself is exact for any length >= 16 (clmul) / >= 2 (vclmul); the
+ * test harness builds it with lower thresholds to exercise that. */
+#ifndef RTU_CLMUL_MIN
+#define RTU_CLMUL_MIN  48
+#endif
+#ifndef RTU_VCLMUL_MIN
+#define RTU_VCLMUL_MIN 64   /* >= 2: the CRC needs two message bytes */
+#endif
+#if RTU_CLMUL_MIN < 16 || RTU_VCLMUL_MIN < 2
+#error "RTU_CLMUL_MIN must be >= 16 and RTU_VCLMUL_MIN >= 2"
+#endif
 
-/* pshufb masks for the partial last block: 0x80 = zero the byte. */
-static const uint8_t rtu_crc_shuf[48] = {
+#define RTU_NKA 32   /* entries of rtu_crc_kA */
+
+/* pshufb mask (rtu_crc_shuf + h): move bytes 0..h-1 to 16-h..15, zero the rest */
+static const uint8_t rtu_crc_shuf[32] = {
     0x80, 0x80, 0x80, 0x80, 0x80, 0x80, 0x80, 0x80,
     0x80, 0x80, 0x80, 0x80, 0x80, 0x80, 0x80, 0x80,
     0x00, 0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x07,
     0x08, 0x09, 0x0A, 0x0B, 0x0C, 0x0D, 0x0E, 0x0F,
-    0x80, 0x80, 0x80, 0x80, 0x80, 0x80, 0x80, 0x80,
-    0x80, 0x80, 0x80, 0x80, 0x80, 0x80, 0x80, 0x80,
 };
-
-#define RTU_KPAIR(name) _mm_set_epi64x((long long)name##_HI, (long long)name##_LO)
 
 static inline RTU_TARGET_CLMUL __m128i rtu_load128(const uint8_t *p)
 {
     return _mm_loadu_si128((const __m128i *)(const void *)p);
 }
 
-/* x * x^d (mod G) for the distance d encoded in k: the high 64 coefficients
- * (low qword) times x^(64+d), the low 64 (high qword) times x^d. */
+static inline RTU_TARGET_CLMUL __m128i rtu_kA(size_t j)
+{
+    return _mm_load_si128((const __m128i *)(const void *)rtu_crc_kA[RTU_NKA - 1 - j]);
+}
+
+/* x * x^d (mod G) for the distance d of the pair k: the high-order 64
+ * coefficients (low qword) times x^(64+d), the low-order ones times x^d. */
 static inline RTU_TARGET_CLMUL __m128i rtu_fold128(__m128i x, __m128i k)
 {
     return _mm_xor_si128(_mm_clmulepi64_si128(x, k, 0x00),
                          _mm_clmulepi64_si128(x, k, 0x11));
 }
 
-/* The last r (1..15) bytes, ending at `end`: with the accumulator
- * x = b[0..15], the stream b[0..15] t[0..r-1] equals
- * b[0..r-1] * x^128 + (b[r..15] t[0..r-1]); both parts are 16-byte blocks,
- * built with pshufb.  Needs end - 16 to be inside the buffer. */
-static inline RTU_TARGET_CLMUL __m128i rtu_fold_tail(__m128i x, const uint8_t *end, size_t r)
+/* crc = A mod G for A of degree < 80 (coefficient x^j at register bit 127-j):
+ *   q   = floor(floor(A / x^16) * mu / x^63),  mu = floor(x^79 / G), degree 63
+ *         (exact because floor(A / x^16) has degree <= 63)
+ *   crc = (A + q * G) mod x^16 = A mod x^16 + (q * (G mod x^16)) mod x^16
+ * A mod x^16 is the top 16 register bits; the reflected product q * 0x8005
+ * comes out times x, i.e. one bit lower, hence the shift by one. */
+static inline RTU_TARGET_CLMUL uint16_t rtu_barrett(__m128i a)
 {
-    __m128i ml = rtu_load128(rtu_crc_shuf + r);
-    __m128i mr = rtu_load128(rtu_crc_shuf + 16 + r);
-    __m128i h = _mm_shuffle_epi8(x, ml);          /* b[0..r-1] at the top */
-    __m128i b = _mm_shuffle_epi8(x, mr);          /* b[r..15] at the bottom */
-    b = _mm_blendv_epi8(rtu_load128(end - 16), b, ml);
-    return _mm_xor_si128(rtu_fold128(h, RTU_KPAIR(RTU_K128)), b);
-}
-
-/* CRC of a 128-bit accumulator x (crc = x * x^16 mod G, reflected):
- *   A  = xh * x^80 + xl * x^16          (degree < 80)
- *   q  = floor(floor(A / x^16) * mu / x^63), mu = floor(x^79 / G)
- *   crc = (A + q * G) mod x^16          (only G mod x^16 = 0x8005 matters)
- * In the reflected register A's coefficient x^j sits at bit 127-j, so the CRC
- * is its top 16 bits; the q * G' product (reflected, times x) lands one bit
- * lower, hence the shift by one. */
-static inline RTU_TARGET_CLMUL uint16_t rtu_barrett(__m128i x)
-{
-    const __m128i kf = _mm_set_epi64x(0, (long long)RTU_K_FOLD80);
     const __m128i km = _mm_set_epi64x(0, (long long)RTU_K_MU);
     const __m128i kp = _mm_set_epi64x(0, (long long)RTU_K_POLY);
-    __m128i a = _mm_xor_si128(_mm_clmulepi64_si128(x, kf, 0x00),
-                              _mm_slli_si128(_mm_srli_si128(x, 8), 6));
     __m128i q = _mm_clmulepi64_si128(_mm_srli_si128(a, 6), km, 0x00);
     __m128i g = _mm_clmulepi64_si128(q, kp, 0x00);
     a = _mm_xor_si128(a, _mm_slli_epi64(g, 1));
     return (uint16_t)_mm_extract_epi16(a, 7);
 }
 
-/* Fold all full 16-byte blocks of [p, end) into x, then the partial block. */
-static inline RTU_TARGET_CLMUL __m128i rtu_fold_rest(__m128i x, const uint8_t *p,
-                                                     const uint8_t *end)
-{
-    const __m128i k128 = RTU_KPAIR(RTU_K128);
-    while (end - p >= 16) {
-        x = _mm_xor_si128(rtu_fold128(x, k128), rtu_load128(p));
-        p += 16;
-    }
-    if (end != p)
-        x = rtu_fold_tail(x, end, (size_t)(end - p));
-    return x;
-}
+#define RTU_FOLD8(i) x##i = _mm_xor_si128(rtu_fold128(x##i, k), rtu_load128(r + 16 * (i)))
 
 RTU_TARGET_CLMUL
 uint16_t rtu_crc16_clmul(const uint8_t *data, size_t len, uint16_t crc)
 {
-    const uint8_t *p = data, *end = data + len;
-    __m128i x;
+    const uint8_t *end = data + len, *r;
+    size_t h, nb, m, i;
+    __m128i x0, a;
 
     if (len < RTU_CLMUL_MIN)
-        return rtu_slice8_body(data, len, crc);
+        return rtu_slice_body(data, len, crc);
 
-    if (len >= 128) {
-        /* 8 independent lanes, 128 bytes per iteration, fold distance 1024. */
-        const __m128i k = RTU_KPAIR(RTU_K1024);
-        __m128i x0 = _mm_xor_si128(rtu_load128(p), _mm_cvtsi32_si128(crc));
-        __m128i x1 = rtu_load128(p + 16), x2 = rtu_load128(p + 32);
-        __m128i x3 = rtu_load128(p + 48), x4 = rtu_load128(p + 64);
-        __m128i x5 = rtu_load128(p + 80), x6 = rtu_load128(p + 96);
-        __m128i x7 = rtu_load128(p + 112);
-        p += 128;
-        while (end - p >= 128) {
-            x0 = _mm_xor_si128(rtu_fold128(x0, k), rtu_load128(p));
-            x1 = _mm_xor_si128(rtu_fold128(x1, k), rtu_load128(p + 16));
-            x2 = _mm_xor_si128(rtu_fold128(x2, k), rtu_load128(p + 32));
-            x3 = _mm_xor_si128(rtu_fold128(x3, k), rtu_load128(p + 48));
-            x4 = _mm_xor_si128(rtu_fold128(x4, k), rtu_load128(p + 64));
-            x5 = _mm_xor_si128(rtu_fold128(x5, k), rtu_load128(p + 80));
-            x6 = _mm_xor_si128(rtu_fold128(x6, k), rtu_load128(p + 96));
-            x7 = _mm_xor_si128(rtu_fold128(x7, k), rtu_load128(p + 112));
-            p += 128;
-        }
-        /* merge: lane i moves (7 - i) * 128 bits forward, independently */
-        x0 = _mm_xor_si128(rtu_fold128(x0, RTU_KPAIR(RTU_K896)),
-                           rtu_fold128(x1, RTU_KPAIR(RTU_K768)));
-        x2 = _mm_xor_si128(rtu_fold128(x2, RTU_KPAIR(RTU_K640)),
-                           rtu_fold128(x3, RTU_KPAIR(RTU_K512)));
-        x4 = _mm_xor_si128(rtu_fold128(x4, RTU_KPAIR(RTU_K384)),
-                           rtu_fold128(x5, RTU_KPAIR(RTU_K256)));
-        x6 = _mm_xor_si128(rtu_fold128(x6, RTU_KPAIR(RTU_K128)), x7);
-        x = _mm_xor_si128(_mm_xor_si128(x0, x2), _mm_xor_si128(x4, x6));
-    } else {
-        x = _mm_xor_si128(rtu_load128(p), _mm_cvtsi32_si128(crc));
-        p += 16;
+    /* block 0: the h leading bytes (h == 1: the CRC would straddle two
+     * blocks, take that byte with the table instead) */
+    h = len & 15;
+    if (h == 1) {
+        crc = (uint16_t)((crc >> 8) ^ rtu_crc_slice[0][(crc ^ *data) & 0xFF]);
+        data++;
+        h = 0;
     }
-    return rtu_barrett(rtu_fold_rest(x, p, end));
+    x0 = _mm_xor_si128(rtu_load128(data), _mm_cvtsi32_si128(crc));
+    if (h) {
+        x0 = _mm_shuffle_epi8(x0, rtu_load128(rtu_crc_shuf + h));
+        r = data + h;
+    } else {
+        r = data + 16;
+    }
+    nb = 1 + (size_t)(end - r) / 16;       /* (end - r) is a multiple of 16 */
+
+    if (nb >= 8) {
+        /* 8 lanes, 128 bytes per iteration */
+        const __m128i k = _mm_set_epi64x((long long)RTU_K1024_HI, (long long)RTU_K1024_LO);
+        __m128i x1 = rtu_load128(r), x2 = rtu_load128(r + 16), x3 = rtu_load128(r + 32);
+        __m128i x4 = rtu_load128(r + 48), x5 = rtu_load128(r + 64), x6 = rtu_load128(r + 80);
+        __m128i x7 = rtu_load128(r + 96);
+        r += 112;
+        while (end - r >= 128) {
+            RTU_FOLD8(0); RTU_FOLD8(1); RTU_FOLD8(2); RTU_FOLD8(3);
+            RTU_FOLD8(4); RTU_FOLD8(5); RTU_FOLD8(6); RTU_FOLD8(7);
+            r += 128;
+        }
+        m = (size_t)(end - r) / 16;        /* 0..7 blocks after the lanes */
+        a = _mm_xor_si128(
+                _mm_xor_si128(_mm_xor_si128(rtu_fold128(x0, rtu_kA(m + 7)),
+                                            rtu_fold128(x1, rtu_kA(m + 6))),
+                              _mm_xor_si128(rtu_fold128(x2, rtu_kA(m + 5)),
+                                            rtu_fold128(x3, rtu_kA(m + 4)))),
+                _mm_xor_si128(_mm_xor_si128(rtu_fold128(x4, rtu_kA(m + 3)),
+                                            rtu_fold128(x5, rtu_kA(m + 2))),
+                              _mm_xor_si128(rtu_fold128(x6, rtu_kA(m + 1)),
+                                            rtu_fold128(x7, rtu_kA(m)))));
+    } else {
+        m = nb - 1;
+        a = rtu_fold128(x0, rtu_kA(m));
+    }
+    for (i = 0; i < m; i++)
+        a = _mm_xor_si128(a, rtu_fold128(rtu_load128(r + 16 * i), rtu_kA(m - 1 - i)));
+    return rtu_barrett(a);
 }
 
 /* ------------------------------------------------------------------------ */
 /* AVX-512 VPCLMULQDQ                                                        */
 /* ------------------------------------------------------------------------ */
 
-#define RTU_KPAIR512(name) \
-    _mm512_broadcast_i32x4(RTU_KPAIR(name))
-
 static inline RTU_TARGET_VCLMUL __m512i rtu_load512(const uint8_t *p)
 {
     return _mm512_loadu_si512((const void *)p);
 }
 
-/* fold(z) ^ d, four 128-bit lanes at once (0x96 = a ^ b ^ c) */
-static inline RTU_TARGET_VCLMUL __m512i rtu_fold512(__m512i z, __m512i k, __m512i d)
+/* the pairs of 4 consecutive blocks, j = c, c-1, c-2, c-3 in lanes 0..3 */
+static inline RTU_TARGET_VCLMUL __m512i rtu_kvec(size_t c)
+{
+    return _mm512_loadu_si512((const void *)rtu_crc_kA[RTU_NKA - 1 - c]);
+}
+
+/* fold(z) ^ acc, four 128-bit lanes at once (0x96 = a ^ b ^ c) */
+static inline RTU_TARGET_VCLMUL __m512i rtu_fold512(__m512i z, __m512i k, __m512i acc)
 {
     return _mm512_ternarylogic_epi64(_mm512_clmulepi64_epi128(z, k, 0x00),
-                                     _mm512_clmulepi64_epi128(z, k, 0x11), d, 0x96);
+                                     _mm512_clmulepi64_epi128(z, k, 0x11), acc, 0x96);
 }
 
 RTU_TARGET_VCLMUL
 uint16_t rtu_crc16_vclmul(const uint8_t *data, size_t len, uint16_t crc)
 {
-    const uint8_t *p = data, *end = data + len;
-    __m512i z0;
-    __m128i x;
+    const uint8_t *end = data + len, *r;
+    unsigned p;
+    size_t m, c;
+    __m512i z0, t;
+    __m256i y;
 
     if (len < RTU_VCLMUL_MIN)
-        return rtu_slice8_body(data, len, crc);
+        return rtu_slice_body(data, len, crc);
 
-    z0 = _mm512_xor_si512(rtu_load512(p), _mm512_castsi128_si512(_mm_cvtsi32_si128(crc)));
-    p += 64;
-    if (end - p >= 192) {
-        /* 4 zmm accumulators = 16 lanes, 256 bytes per iteration, d = 2048. */
-        const __m512i k = RTU_KPAIR512(RTU_K2048);
-        __m512i z1 = rtu_load512(p), z2 = rtu_load512(p + 64), z3 = rtu_load512(p + 128);
-        p += 192;
-        while (end - p >= 256) {
-            z0 = rtu_fold512(z0, k, rtu_load512(p));
-            z1 = rtu_fold512(z1, k, rtu_load512(p + 64));
-            z2 = rtu_fold512(z2, k, rtu_load512(p + 128));
-            z3 = rtu_fold512(z3, k, rtu_load512(p + 192));
-            p += 256;
-        }
-        z0 = rtu_fold512(z0, RTU_KPAIR512(RTU_K1536), z3);
-        z1 = rtu_fold512(z1, RTU_KPAIR512(RTU_K1024), z0);
-        z0 = rtu_fold512(z2, RTU_KPAIR512(RTU_K512), z1);
-    }
+    /* blocks 0..3: block 0 starts p = (16 - len % 16) % 16 bytes before the
+     * data (p = 64 - len for a message shorter than 64 bytes, which then ends
+     * with block 3); a masked load reads only the data bytes (masked-out
+     * bytes are neither accessed nor able to fault) and zeroes the p bytes in
+     * front.  The CRC goes to bytes p, p+1 (set1_epi16 puts the low byte at
+     * even offsets, so swap it for odd p). */
+    p = len < 64 ? 64u - (unsigned)len : (16u - (unsigned)(len & 15)) & 15u;
     {
-        const __m512i k = RTU_KPAIR512(RTU_K512);
-        while (end - p >= 64) {
-            z0 = rtu_fold512(z0, k, rtu_load512(p));
-            p += 64;
+        uint16_t cc = (p & 1u) ? (uint16_t)(crc << 8 | crc >> 8) : crc;
+        __m512i cv = _mm512_maskz_mov_epi8((__mmask64)3 << p, _mm512_set1_epi16((short)cc));
+        z0 = _mm512_maskz_loadu_epi8(~(__mmask64)0 << p,
+                                     (const void *)((uintptr_t)data - p));
+        z0 = _mm512_xor_si512(z0, cv);
+    }
+    r = data + 64 - p;                       /* block 4 */
+
+    if (end - r >= 192) {
+        /* 4 zmm accumulators (16 lanes), 256 bytes per iteration */
+        const __m512i k = _mm512_broadcast_i32x4(
+            _mm_set_epi64x((long long)RTU_K2048_HI, (long long)RTU_K2048_LO));
+        __m512i z1 = rtu_load512(r), z2 = rtu_load512(r + 64), z3 = rtu_load512(r + 128);
+        r += 192;
+        while (end - r >= 256) {
+            z0 = rtu_fold512(z0, k, rtu_load512(r));
+            z1 = rtu_fold512(z1, k, rtu_load512(r + 64));
+            z2 = rtu_fold512(z2, k, rtu_load512(r + 128));
+            z3 = rtu_fold512(z3, k, rtu_load512(r + 192));
+            r += 256;
         }
+        m = (size_t)(end - r) / 16;          /* 0..15 blocks after the lanes */
+        t = rtu_fold512(z0, rtu_kvec(m + 15),
+            rtu_fold512(z1, rtu_kvec(m + 11),
+            rtu_fold512(z2, rtu_kvec(m + 7),
+            _mm512_xor_si512(_mm512_clmulepi64_epi128(z3, rtu_kvec(m + 3), 0x00),
+                             _mm512_clmulepi64_epi128(z3, rtu_kvec(m + 3), 0x11)))));
+    } else {
+        __m512i k = rtu_kvec((m = (size_t)(end - r) / 16) + 3);   /* m = 0..11 */
+        t = _mm512_xor_si512(_mm512_clmulepi64_epi128(z0, k, 0x00),
+                             _mm512_clmulepi64_epi128(z0, k, 0x11));
     }
-    {
-        /* 4 lanes -> 1: lane i moves (3 - i) * 128 bits forward. */
-        const __m512i k = _mm512_inserti64x4(
-            _mm512_castsi256_si512(_mm256_set_m128i(RTU_KPAIR(RTU_K256), RTU_KPAIR(RTU_K384))),
-            _mm256_set_m128i(_mm_setzero_si128(), RTU_KPAIR(RTU_K128)), 1);
-        __m512i t = rtu_fold512(z0, k, _mm512_maskz_mov_epi64(0xC0, z0));
-        __m256i h = _mm256_xor_si256(_mm512_castsi512_si256(t), _mm512_extracti64x4_epi64(t, 1));
-        x = _mm_xor_si128(_mm256_castsi256_si128(h), _mm256_extracti128_si256(h, 1));
+    /* the last m blocks, 64 bytes at a time backwards from the end; lane l of
+     * piece c is 4c + 3 - l blocks before the end, lanes that are not among
+     * the last m blocks (already in the accumulators) get zero constants */
+    for (c = 0; 4 * c < m; c++) {
+        size_t d = 4 * c + 3;
+        __mmask8 live = (__mmask8)(d < m ? 0xFF : 0xFF << (2 * (d + 1 - m)));
+        __m512i k = _mm512_maskz_loadu_epi64(live, (const void *)rtu_crc_kA[RTU_NKA - 1 - d]);
+        t = rtu_fold512(rtu_load512(end - 64 * (c + 1)), k, t);
     }
-    return rtu_barrett(rtu_fold_rest(x, p, end));
+    y = _mm256_xor_si256(_mm512_castsi512_si256(t), _mm512_extracti64x4_epi64(t, 1));
+    return rtu_barrett(_mm_xor_si128(_mm256_castsi256_si128(y), _mm256_extracti128_si256(y, 1)));
 }
 
 #else /* !RTU_CRC_X86: no carry-less multiply here, the slicing code stands in */
 
 uint16_t rtu_crc16_clmul(const uint8_t *data, size_t len, uint16_t crc)
 {
-    return rtu_slice8_body(data, len, crc);
+    return rtu_slice_body(data, len, crc);
 }
 
 uint16_t rtu_crc16_vclmul(const uint8_t *data, size_t len, uint16_t crc)
 {
-    return rtu_slice8_body(data, len, crc);
+    return rtu_slice_body(data, len, crc);
 }
 
 #endif
@@ -649,15 +982,27 @@ __attribute__((constructor)) static void rtu_crc_init(void)
     (void)rtu_crc_cpu();
 }
 
-/* Length thresholds of the dispatcher (bytes), from the measurements in the
- * header comment of bench/bench_crc.py. */
-#define RTU_DISPATCH_CLMUL  64
-#define RTU_DISPATCH_VCLMUL 256
+/* Length thresholds of the dispatcher (bytes): slicing below RTU_DISPATCH_CLMUL,
+ * VPCLMULQDQ from RTU_DISPATCH_VCLMUL, PCLMULQDQ in between (and above, without
+ * AVX-512).  Measured in C on Zen 5, ns per call with each call's CRC feeding
+ * the next one (see also bench/bench_crc.py):
+ *   bytes          8     48     64    128    256  |  1 MiB
+ *   slice8       2.8    8.3   11.0   21.0   41.8  |   6.4 GB/s
+ *   clmul          -    9.9   10.4   11.5   16.2  |  16.5 GB/s
+ *   vclmul         -      -   12.2   13.2   12.3  |  65   GB/s
+ * Independent calls are 2-3x cheaper for the folding paths (vclmul: 3.1 ns at
+ * 64 bytes, 6.2 ns at 256), hence the switch at 48 / 64 bytes. */
+#ifndef RTU_DISPATCH_CLMUL
+#define RTU_DISPATCH_CLMUL  48
+#endif
+#ifndef RTU_DISPATCH_VCLMUL
+#define RTU_DISPATCH_VCLMUL 64
+#endif
 
 uint16_t rtu_crc16(const uint8_t *data, size_t len, uint16_t crc)
 {
     if (len < RTU_DISPATCH_CLMUL)
-        return rtu_slice8_body(data, len, crc);
+        return rtu_slice_body(data, len, crc);
 #if RTU_CRC_X86
     {
         int f = rtu_crc_cpu();
@@ -667,7 +1012,7 @@ uint16_t rtu_crc16(const uint8_t *data, size_t len, uint16_t crc)
             return rtu_crc16_clmul(data, len, crc);
     }
 #endif
-    return rtu_slice8_body(data, len, crc);
+    return rtu_slice_body(data, len, crc);
 }
 
 int rtu_crc16_path_available(int path)

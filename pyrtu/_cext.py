@@ -57,10 +57,16 @@ def _seed(crc: int) -> int:
     return crc
 
 
+_crc16_bytes = lib.rtu_crc16_bytes
+
+
 def crc16(data: BytesLike, crc: int = 0xFFFF) -> int:
     """CRC-16/MODBUS of ``data``, continuing from ``crc`` (0xFFFF to start)."""
-    buf = _buffer(data, "data")
-    return int(lib.rtu_crc16(buf, len(buf), _seed(crc)))
+    try:  # bytes: straight through cffi, which refuses any other type
+        return _crc16_bytes(data, len(data), crc)  # type: ignore[no-any-return,arg-type]
+    except (TypeError, OverflowError):
+        buf = _buffer(data, "data")
+        return int(lib.rtu_crc16(buf, len(buf), _seed(crc)))
 
 
 def add_crc(data: BytesLike) -> bytes:
