@@ -6,15 +6,21 @@ extension was not built.  Buffers reach C through ``ffi.from_buffer`` (no copy).
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
-from ._framing import Event, FramerBase, as_bytes, counters_dict, stream_times
+from ._framing import (
+    Event,
+    FramerBase,
+    as_bytes,
+    counters_dict,
+    make_char_timing,
+    make_parse_stream,
+)
 from ._rtu_core import ffi, lib
 from ._types import BytesLike
-from .config import CoreOptions, core_options, flush_us_for
+from .config import CoreOptions, flush_us_for
 from .frames import FrameList
-from .rules import RuleTable
 from .timing import Timing
 
 BACKEND = "c"
@@ -109,30 +115,6 @@ def crc16_path(path: str, data: BytesLike, crc: int = 0xFFFF) -> int:
     if status != lib.RTU_OK:
         raise ValueError(f"crc16_path: rtu_crc16_path failed with status {status}")
     return int(out[0])
-
-
-def char_timing(
-    baudrate: int,
-    parity: str = "E",
-    stopbits: float = 1,
-    bytesize: int = 8,
-    timing: str = "modbus",
-    t15: float | None = None,
-    t35: float | None = None,
-) -> Timing:
-    """Character time, t1.5 and t3.5 for a baud rate and byte format (computed in C)."""
-    options = core_options(
-        "master",
-        baudrate=baudrate,
-        parity=parity,
-        stopbits=stopbits,
-        bytesize=bytesize,
-        timing=timing,
-        t15=t15,
-        t35=t35,
-    )
-    cfg = _config(options)
-    return Timing(int(cfg.timing.char_us), int(cfg.timing.t15_us), int(cfg.timing.t35_us))
 
 
 def _config(options: CoreOptions) -> Any:
@@ -235,59 +217,39 @@ class CFrameList(FrameList):
         )
 
 
-def parse_stream(
-    data: BytesLike,
-    role: str = "monitor",
-    *,
-    times: Iterable[float] | None = None,
-    chunks: Iterable[tuple[int, float]] | None = None,
-    baudrate: int = 19200,
-    parity: str = "E",
-    stopbits: float = 1,
-    bytesize: int = 8,
-    timing: str = "modbus",
-    t15: float | None = None,
-    t35: float | None = None,
-    strict: bool = False,
-    max_adu: int = 256,
-    rules: RuleTable | None = None,
+def _parse(
+    options: CoreOptions, data: bytes, offsets: list[int], times_us: list[int]
 ) -> CFrameList:
-    """Every frame and discard run in ``data`` (a capture), as a lazy sequence."""
-    options = core_options(
-        role,
-        baudrate=baudrate,
-        parity=parity,
-        stopbits=stopbits,
-        bytesize=bytesize,
-        timing=timing,
-        t15=t15,
-        t35=t35,
-        strict=strict,
-        max_adu=max_adu,
-        rules=rules,
-    )
-    raw = as_bytes(data)
-    offsets, us = stream_times(len(raw), times, chunks)
     cfg = _config(options)
     n_chunks = len(offsets)
     c_offsets = ffi.new("uint64_t[]", offsets) if n_chunks else ffi.NULL
-    c_times = ffi.new("int64_t[]", us) if n_chunks else ffi.NULL
+    c_times = ffi.new("int64_t[]", times_us) if n_chunks else ffi.NULL
     marks = ffi.new("rtu_mark[]", max(n_chunks, 1))
     n_marks = ffi.new("size_t *")
     status = lib.rtu_marks_from_chunks(
-        ffi.addressof(cfg, "timing"), c_offsets, c_times, n_chunks, len(raw), marks, n_marks
+        ffi.addressof(cfg, "timing"), c_offsets, c_times, n_chunks, len(data), marks, n_marks
     )
     if status != lib.RTU_OK:
         raise ValueError(f"parse_stream: chunk times rejected (status {status})")
     parser = ffi.new("rtu_parser *")
     lib.rtu_parser_init(parser, cfg)
     blocks: list[tuple[Any, int]] = []
-    cap = max(64, len(raw) // 8)
+    cap = max(64, len(data) // 8)
     n_out = ffi.new("size_t *")
     while True:
         out = ffi.new("rtu_event[]", cap)
         status = lib.rtu_parse(
-            parser, raw, len(raw), marks, n_marks[0], c_offsets, c_times, n_chunks, out, cap, n_out
+            parser,
+            data,
+            len(data),
+            marks,
+            n_marks[0],
+            c_offsets,
+            c_times,
+            n_chunks,
+            out,
+            cap,
+            n_out,
         )
         if n_out[0]:
             blocks.append((out, int(n_out[0])))
@@ -298,4 +260,13 @@ def parse_stream(
         cap = min(cap * 2, 1 << 22)
     c = parser.counters
     counters = counters_dict(list(c.frames), list(c.discarded), int(c.discard_events))
-    return CFrameList(raw, blocks, counters)
+    return CFrameList(data, blocks, counters)
+
+
+def _timing(options: CoreOptions) -> Timing:
+    cfg = _config(options)
+    return Timing(int(cfg.timing.char_us), int(cfg.timing.t15_us), int(cfg.timing.t35_us))
+
+
+parse_stream = make_parse_stream(_parse)
+char_timing = make_char_timing(_timing)

@@ -8,13 +8,14 @@ A backend supplies a *core*: ``feed(data, now_us) -> int``, ``poll() -> event``,
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import Protocol
 
 from ._types import BytesLike
 from .config import CoreOptions, core_options, to_microseconds
-from .frames import ERROR_BY_CODE, Frame, FrameKind, event_counters_template
+from .frames import ERROR_BY_CODE, Frame, FrameKind, FrameList, event_counters_template
 from .rules import RuleTable
+from .timing import Timing
 
 # (offset, length, kind, error, start_us, end_us, adu)
 Event = tuple[int, int, int, int, int, int, bytes]
@@ -196,3 +197,84 @@ def stream_times(
     if offsets and offsets[0] != 0:
         raise ValueError("parse_stream: the first chunk must start at offset 0")
     return offsets, us
+
+
+class StreamParser(Protocol):
+    def __call__(
+        self, options: CoreOptions, data: bytes, offsets: list[int], times_us: list[int]
+    ) -> FrameList: ...
+
+
+def make_parse_stream(parse: StreamParser) -> Callable[..., FrameList]:
+    """The public parse_stream of a backend, around its ``parse(options, data, ...)``."""
+
+    def parse_stream(
+        data: BytesLike,
+        role: str = "monitor",
+        *,
+        times: Iterable[float] | None = None,
+        chunks: Iterable[tuple[int, float]] | None = None,
+        baudrate: int = 19200,
+        parity: str = "E",
+        stopbits: float = 1,
+        bytesize: int = 8,
+        timing: str = "modbus",
+        t15: float | None = None,
+        t35: float | None = None,
+        strict: bool = False,
+        max_adu: int = 256,
+        rules: RuleTable | None = None,
+    ) -> FrameList:
+        """Every frame and discard run in ``data`` (a capture), as a lazy sequence.
+
+        ``times``: per-byte arrival times (seconds); ``chunks``: ``[(offset, time), ...]``,
+        the bytes from ``offset`` to the next chunk arrived by ``time``.  Without either,
+        only prediction and CRC split the stream.  The result's ``counters`` give frames by
+        kind and discarded bytes by reason.
+        """
+        options = core_options(
+            role,
+            baudrate=baudrate,
+            parity=parity,
+            stopbits=stopbits,
+            bytesize=bytesize,
+            timing=timing,
+            t15=t15,
+            t35=t35,
+            strict=strict,
+            max_adu=max_adu,
+            rules=rules,
+        )
+        raw = as_bytes(data)
+        offsets, us = stream_times(len(raw), times, chunks)
+        return parse(options, raw, offsets, us)
+
+    return parse_stream
+
+
+def make_char_timing(compute: Callable[[CoreOptions], Timing]) -> Callable[..., Timing]:
+    """The public char_timing of a backend, around its ``compute(options)``."""
+
+    def char_timing(
+        baudrate: int,
+        parity: str = "E",
+        stopbits: float = 1,
+        bytesize: int = 8,
+        timing: str = "modbus",
+        t15: float | None = None,
+        t35: float | None = None,
+    ) -> Timing:
+        """Character time, t1.5 and t3.5 for a baud rate and byte format."""
+        options = core_options(
+            "master",
+            baudrate=baudrate,
+            parity=parity,
+            stopbits=stopbits,
+            bytesize=bytesize,
+            timing=timing,
+            t15=t15,
+            t35=t35,
+        )
+        return compute(options)
+
+    return char_timing

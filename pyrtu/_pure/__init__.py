@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 
-from .._framing import Event, FramerBase, as_bytes, counters_dict, stream_times
-from .._types import BytesLike
-from ..config import CoreOptions, core_options, flush_us_for
+from .._framing import Event, FramerBase, counters_dict, make_char_timing, make_parse_stream
+from ..config import CoreOptions, flush_us_for
 from ..frames import FrameList
-from ..rules import RuleTable
-from ..timing import Timing, apply_overrides, bits_per_char, compute_timing
+from ..timing import Timing, compute_timing
 from .crc import add_crc, check_crc, crc16, crc16_path, crc16_paths, lrc
 from .framer import CoreFramer
 from .head import Config
@@ -30,20 +28,6 @@ __all__ = [
     "lrc",
     "parse_stream",
 ]
-
-
-def char_timing(
-    baudrate: int,
-    parity: str = "E",
-    stopbits: float = 1,
-    bytesize: int = 8,
-    timing: str = "modbus",
-    t15: float | None = None,
-    t35: float | None = None,
-) -> Timing:
-    """Character time, t1.5 and t3.5 for a baud rate and byte format."""
-    base = compute_timing(baudrate, bits_per_char(parity, stopbits, bytesize), timing)
-    return apply_overrides(base, t15, t35)
 
 
 def _config(options: CoreOptions) -> Config:
@@ -106,40 +90,19 @@ class PyFrameList(FrameList):
         return self._entries[i]
 
 
-def parse_stream(
-    data: BytesLike,
-    role: str = "monitor",
-    *,
-    times: Iterable[float] | None = None,
-    chunks: Iterable[tuple[int, float]] | None = None,
-    baudrate: int = 19200,
-    parity: str = "E",
-    stopbits: float = 1,
-    bytesize: int = 8,
-    timing: str = "modbus",
-    t15: float | None = None,
-    t35: float | None = None,
-    strict: bool = False,
-    max_adu: int = 256,
-    rules: RuleTable | None = None,
+def _parse(
+    options: CoreOptions, data: bytes, offsets: list[int], times_us: list[int]
 ) -> PyFrameList:
-    """Every frame and discard run in ``data`` (a capture), as a lazy sequence."""
-    options = core_options(
-        role,
-        baudrate=baudrate,
-        parity=parity,
-        stopbits=stopbits,
-        bytesize=bytesize,
-        timing=timing,
-        t15=t15,
-        t35=t35,
-        strict=strict,
-        max_adu=max_adu,
-        rules=rules,
-    )
-    raw = as_bytes(data)
-    offsets, us = stream_times(len(raw), times, chunks)
     parser = CoreParser(_config(options))
-    entries = parser.parse(raw, offsets, us)
+    entries = parser.parse(data, offsets, times_us)
     counters = counters_dict(parser.frames, parser.discarded, parser.discard_events)
-    return PyFrameList(raw, entries, counters)
+    return PyFrameList(data, entries, counters)
+
+
+def _timing(options: CoreOptions) -> Timing:
+    cfg = _config(options)
+    return Timing(cfg.char_us, cfg.t15_us, cfg.t35_us)
+
+
+parse_stream = make_parse_stream(_parse)
+char_timing = make_char_timing(_timing)
