@@ -36,7 +36,16 @@ EINVAL), so clients must open the drops as 8N1 or 8N2.  The parity of the bus is
 a timing parameter only: a bus configured 8E1 (the default, as in the Modbus
 specification) uses 11-bit characters; no parity bit is carried or checked.
 
-Clock: all times are `time.perf_counter` (CLOCK_MONOTONIC on Linux).
+Timing
+------
+
+One hub thread schedules the characters on `time.perf_counter_ns`
+(CLOCK_MONOTONIC on Linux; it is also the clock of capture times), sleeps in
+``select`` until a delivery is due and spins the last tens of microseconds.  It
+compensates the pseudo-terminals' own transfer latency (``latency=``), asks for
+real-time scheduling when permitted (``realtime=``), and shares the GIL with the
+rest of the process: for timing work, run it as a process (``pyrtu vbus``).
+Measured accuracy and the details: ``docs/vbus.md``.
 """
 
 from __future__ import annotations
@@ -49,7 +58,7 @@ from .capture import (
     read_capture,
 )
 from .faults import FaultCounters, Faults, collision_byte
-from .hub import BusCounters, DropCounters, VirtualBus, bits_per_char
+from .hub import BusCounters, DropCounters, VirtualBus
 
 __all__ = [
     "BusCounters",
@@ -60,7 +69,6 @@ __all__ = [
     "FaultCounters",
     "Faults",
     "VirtualBus",
-    "bits_per_char",
     "collision_byte",
     "load_capture",
     "read_capture",

@@ -11,7 +11,7 @@ import termios
 import tty
 from dataclasses import dataclass
 
-__all__ = ["Pty", "OpenWatch", "open_pty", "set_timer_slack"]
+__all__ = ["OpenWatch", "Pty", "open_pty", "set_realtime", "set_timer_slack"]
 
 _libc: ctypes.CDLL | None
 try:
@@ -37,6 +37,23 @@ def set_timer_slack(ns: int = 1000) -> bool:
         return int(_libc.prctl(_PR_SET_TIMERSLACK, ns, 0, 0, 0)) == 0
     except AttributeError:  # pragma: no cover - not Linux
         return False
+
+
+def set_realtime(priority: int = 1) -> bool:
+    """Give the calling thread SCHED_FIFO at `priority`, when permitted (Linux).
+
+    Needs CAP_SYS_NICE (root) or an RLIMIT_RTPRIO allowance; returns False
+    without changing anything otherwise.
+    """
+    setsched = getattr(os, "sched_setscheduler", None)
+    fifo = getattr(os, "SCHED_FIFO", None)
+    if setsched is None or fifo is None:  # pragma: no cover - not Linux
+        return False
+    try:
+        setsched(0, fifo, os.sched_param(priority))
+    except OSError:
+        return False
+    return True
 
 
 @dataclass

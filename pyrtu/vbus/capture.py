@@ -5,7 +5,10 @@ Format (version 1)
 
 A capture starts with one ASCII header line ending in ``\\n``::
 
-    PYRTUCAP 1 baudrate=9600 bytesize=8 parity=E stopbits=1 bits=11 char_ns=1145833 drops=4 start_unix_ns=1700000000000000000
+    PYRTUCAP 1 baudrate=9600 bytesize=8 parity=E stopbits=1 bits=11 char_ns=1145833
+    drops=4 start_unix_ns=1700000000000000000
+
+(shown on two lines here; it is one line in the file).
 
 ``bits`` is the number of bits per character used for timing (start + data +
 parity + stop) and ``char_ns`` the character time in nanoseconds; unknown
@@ -209,7 +212,7 @@ class CaptureWriter:
         self.path = path
         self.header = header
         self._char_ns = header.char_ns
-        self._f: IO[bytes] = open(path, "wb")  # noqa: SIM115 - closed by close()
+        self._f: IO[bytes] = open(path, "wb")
         self._f.write(header.line())
         self._f.flush()
         # per drop: [start_ns, next_start_ns, collision, bytearray]

@@ -13,7 +13,7 @@ import math
 import random
 from dataclasses import dataclass, field
 
-__all__ = ["Faults", "FaultCounters", "TxFaults", "collision_byte"]
+__all__ = ["FaultCounters", "Faults", "TxFaults", "collision_byte"]
 
 
 @dataclass(frozen=True)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import errno
-import heapq
+import math
 import os
 import select
 import shutil
@@ -11,105 +11,53 @@ import tempfile
 import termios
 import threading
 import time
-from collections import deque
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import fields, replace
 from types import TracebackType
 
-from ._os import OpenWatch, Pty, open_pty, set_timer_slack
+from ..timing import bits_per_char
+from ._os import OpenWatch, open_pty, set_realtime, set_timer_slack
+from ._state import (
+    BusCounters,
+    DropCounters,
+    DropState,
+    normalize_parity,
+    pending_input,
+)
 from .capture import CaptureHeader, CaptureWriter
-from .faults import FaultCounters, Faults, TxFaults, collision_byte
+from .faults import FaultCounters, Faults
+from .wire import Wire
 
-__all__ = ["VirtualBus", "BusCounters", "DropCounters", "bits_per_char"]
+__all__ = ["BusCounters", "DropCounters", "VirtualBus"]
 
 _ns = time.perf_counter_ns
-#: Wake this long before a delivery and spin the rest (select wakes late by tens of us).
-_SPIN_NS = 120_000
+#: Wake this long before a delivery and spin the rest: select() wakes late by tens
+#: of microseconds, a few with real-time priority.
+_SPIN_NS = 50_000
+_SPIN_RT_NS = 20_000
 _READ_SIZE = 4096
+#: Wake at least this often when idle: a thread that sleeps longer wakes slower
+#: (CPU idle states, VM halts), which delays noticing a client's write.
+_IDLE_TICK = 0.002
+#: ... for this long after the last activity (and after start).
+_WARM_NS = 2_000_000_000
+#: Compensated pseudo-terminal latencies (s): client write -> hub read, and hub
+#: write -> client read (typical medians measured on Linux VMs; see docs/vbus.md).
+DEFAULT_LATENCY = (70e-6, 40e-6)
 
 
-def bits_per_char(bytesize: int = 8, parity: str = "E", stopbits: float = 1) -> int:
-    """Bits on the wire per character: start + data + parity + stop (10 or 11 for RTU)."""
-    p = _parity(parity)
-    return round(1 + bytesize + (0 if p == "N" else 1) + stopbits)
-
-
-def _parity(parity: str) -> str:
-    p = parity.upper()[:1]
-    if p not in ("N", "E", "O", "M", "S"):
-        raise ValueError(f"parity must be N, E or O, got {parity!r}")
-    return p
-
-
-@dataclass
-class DropCounters:
-    """Per-drop counters (a snapshot when returned by `VirtualBus.counters`)."""
-
-    tx_bytes: int = 0  #: bytes the client wrote that went on the wire
-    rx_bytes: int = 0  #: bytes delivered to the client (echo included)
-    collided_bytes: int = 0  #: own bytes corrupted by a collision
-    collisions: int = 0  #: collisions this drop took part in
-    overruns: int = 0  #: bytes lost because the client did not read (pty full)
-    unheard: int = 0  #: bytes not delivered because no client had the drop open
-    faults: FaultCounters = field(default_factory=FaultCounters)
-    unplugged: bool = False
-
-
-@dataclass(frozen=True)
-class BusCounters:
-    """Bus-wide counters: `wire_bytes` characters carried, `collisions` events."""
-
-    wire_bytes: int
-    collisions: int
-    collided_bytes: int
-    faults: dict[str, int]
-    drops: tuple[DropCounters, ...]
-
-
-class _Char:
-    __slots__ = ("start", "end", "src", "byte", "mask", "dead")
-
-    def __init__(self, start: int, end: int, src: int, byte: int) -> None:
-        self.start = start
-        self.end = end
-        self.src = src
-        self.byte = byte
-        self.mask = -1  # -1: intact, else the byte it collided with
-        self.dead = False
-
-
-class _Drop:
-    def __init__(self, index: int, echo: bool) -> None:
-        self.index = index
-        self.echo = echo
-        self.pty: Pty | None = None
-        self.link: str | None = None
-        self.alive = False
-        self.clients = 0
-        self.watched = False
-        self.counters = DropCounters()
-        self.tx: TxFaults | None = None
-        self.batch_ns = 0
-        self.batch_bytes = 62
-        self.tx_free = 0
-        self.inflight: deque[_Char] = deque()
-        self.unplug_left: int | None = None
-        self.cut = False
-        self.hold = bytearray()
-        self.hold_deadline: int | None = None
-        self.out = bytearray()
-        self.episode = -1
-
-    def set_faults(self, faults: Faults | None) -> None:
-        counters = self.counters.faults
-        self.tx = None
-        self.batch_ns = 0
-        if faults is None:
-            return
-        if faults.line_faults:
-            self.tx = TxFaults(faults, self.index, counters)
-        self.batch_ns = round(faults.batch_s * 1e9)
-        self.batch_bytes = faults.batch_bytes
+def _wait_readable(fds: list[int], timeout: float | None) -> list[int]:
+    """select() with microsecond timeouts; poll() when an fd is beyond FD_SETSIZE."""
+    try:
+        if max(fds) < 1024:
+            return select.select(fds, [], [], timeout)[0]
+        poller = select.poll()
+        for fd in fds:
+            poller.register(fd, select.POLLIN)
+        ms = None if timeout is None else math.ceil(timeout * 1000)
+        return [fd for fd, _ in poller.poll(ms)]
+    except (OSError, ValueError):
+        return []  # an fd closed under us (shutdown); the loop re-reads the state
 
 
 class VirtualBus:
@@ -123,9 +71,30 @@ class VirtualBus:
 
     Use as a context manager (``with VirtualBus(3, baudrate=9600) as bus:``), or
     call `start` and `close`.  `paths` are stable symlinks ``DIR/drop0``... to the
-    pty slaves, openable with pyserial, libmodbus, or anything else.  Clients must
-    open them as 8N1 or 8N2 (a pty rejects parity); the bus's own `parity` only
-    sets the character time.
+    pty slaves, openable with pyserial, libmodbus, or anything else.  Clients open
+    them as 8N1 or 8N2 (a pty carries no parity); the bus's own `parity`,
+    `stopbits` and `bytesize` set the character time (``1 + bytesize + parity +
+    stopbits`` bits).
+
+    Parameters:
+        drops: number of drops.
+        baudrate, parity, stopbits, bytesize: the wire's character format.
+        directory: where the ``dropN`` symlinks go (default: a new temporary
+            directory, removed by `close`).
+        echo: drops that receive their own transmissions.
+        faults: `Faults` for every drop; drop_faults: per-drop `Faults` (replace
+            the global ones for that drop).
+        capture: path of a capture file (format in `pyrtu.vbus.capture`).
+        realtime: try SCHED_FIFO for the hub thread (silently skipped when not
+            permitted; `realtime` attribute tells).
+        latency: ``(client->hub, hub->client)`` pseudo-terminal latencies in
+            seconds that the hub compensates: a byte's character starts that much
+            before the hub read it, and deliveries are written that much before
+            their time.  ``(0, 0)`` gives the raw schedule.
+
+    The hub is a daemon thread of this process and shares the GIL: a thread that
+    computes for milliseconds without releasing it delays deliveries.  For timing
+    work, run the bus as its own process (``pyrtu vbus``).
     """
 
     def __init__(
@@ -141,6 +110,8 @@ class VirtualBus:
         faults: Faults | None = None,
         drop_faults: Mapping[int, Faults] | None = None,
         capture: str | None = None,
+        realtime: bool = True,
+        latency: tuple[float, float] = DEFAULT_LATENCY,
     ) -> None:
         if drops < 1:
             raise ValueError("a bus needs at least one drop")
@@ -149,17 +120,17 @@ class VirtualBus:
         if bytesize not in (5, 6, 7, 8) or stopbits not in (1, 2):
             raise ValueError("bytesize must be 5..8 and stopbits 1 or 2")
         self.baudrate = baudrate
-        self.parity = _parity(parity)
+        self.parity = normalize_parity(parity)
         self.stopbits = stopbits
         self.bytesize = bytesize
-        self.bits = bits_per_char(bytesize, self.parity, stopbits)
+        self.bits = bits_per_char(self.parity, stopbits, bytesize)
         self.char_ns = round(self.bits * 1e9 / baudrate)
         self._directory = directory
         self._own_dir = False
         self._capture_path = capture
         self._capture: CaptureWriter | None = None
         echo_set = set(echo)
-        self._drops = [_Drop(i, i in echo_set) for i in range(drops)]
+        self._drops = [DropState(i, i in echo_set) for i in range(drops)]
         for i in echo_set | set(drop_faults or {}):
             self._check(i)
         for d in self._drops:
@@ -167,13 +138,6 @@ class VirtualBus:
             d.set_faults(f)
             if f is not None and f.unplug_after is not None:
                 d.unplug_left = f.unplug_after
-        self._heap: list[tuple[int, int, _Char]] = []
-        self._seq = 0
-        self._events: list[tuple[int, int]] = []  # (time, drop) unplug events
-        self._wire_bytes = 0
-        self._collisions = 0
-        self._collided = 0
-        self._coll_until = -1
         self._lock = threading.RLock()
         self._thread: threading.Thread | None = None
         self._stop = False
@@ -181,6 +145,14 @@ class VirtualBus:
         self._watch: OpenWatch | None = None
         self.t0_ns = 0
         self.error: BaseException | None = None
+        self._want_realtime = realtime
+        if min(latency) < 0 or max(latency) > 0.01:
+            raise ValueError("latency compensation must be within [0, 10 ms]")
+        self._anchor_ns = round(latency[0] * 1e9)
+        self._wire = Wire(self._drops, self.char_ns, round(latency[1] * 1e9))
+        #: True when the hub thread got real-time scheduling (SCHED_FIFO, priority 1)
+        self.realtime = False
+        self._spin_ns = _SPIN_NS
 
     # -- properties ------------------------------------------------------------
 
@@ -254,7 +226,7 @@ class VirtualBus:
         try:
             for d in self._drops:
                 self._plug(d)
-            self.t0_ns = _ns()
+            self.t0_ns = self._wire.t0_ns = _ns()
             if self._capture_path is not None:
                 header = CaptureHeader(
                     baudrate=self.baudrate,
@@ -267,6 +239,7 @@ class VirtualBus:
                     start_unix_ns=time.time_ns(),
                 )
                 self._capture = CaptureWriter(self._capture_path, header)
+                self._wire.capture = self._capture
         except BaseException:
             self._teardown()
             raise
@@ -304,7 +277,7 @@ class VirtualBus:
                 self._directory = None
                 self._own_dir = False
 
-    def _plug(self, d: _Drop) -> None:
+    def _plug(self, d: DropState) -> None:
         pty = open_pty()
         d.pty = pty
         d.alive = True
@@ -321,14 +294,13 @@ class VirtualBus:
         os.replace(tmp, link)
         d.link = link
 
-    def _unplug_now(self, d: _Drop, count: bool = True) -> None:
+    def _unplug_now(self, d: DropState, count: bool = True) -> None:
         if not d.alive:
             return
         d.alive = False
         d.cut = True
-        for ch in d.inflight:
-            ch.dead = True
-        d.inflight.clear()
+        d.txq.clear()
+        d.last = None
         d.hold.clear()
         d.hold_deadline = None
         d.out.clear()
@@ -377,7 +349,7 @@ class VirtualBus:
                 return
             if after_bytes == 0:
                 d.cut = True
-                self._events.append((_ns(), drop))
+                self._wire.events.append((_ns(), drop))
             else:
                 d.unplug_left = after_bytes
         self._wake()
@@ -391,6 +363,28 @@ class VirtualBus:
                 self._plug(d)
         self._wake()
         return self.path(drop)
+
+    def clients(self, drop: int) -> int:
+        """How many open handles clients have on the drop (-1: not tracked here).
+
+        Tracked with inotify: a drop nobody has open does not queue bytes, like a
+        closed serial port, so a late opener reads no stale data.
+        """
+        self._check(drop)
+        with self._lock:
+            d = self._drops[drop]
+            return d.clients if d.watched else -1
+
+    def wait_clients(self, drop: int, count: int = 1, timeout: float = 2.0) -> bool:
+        """Wait until the hub has seen `count` client handles open on `drop`."""
+        deadline = time.monotonic() + timeout
+        while True:
+            n = self.clients(drop)
+            if n < 0 or n >= count:
+                return True
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.0005)
 
     def set_echo(self, drop: int, on: bool = True) -> None:
         """Turn the local echo of a drop on or off."""
@@ -418,9 +412,9 @@ class VirtualBus:
                 for name in totals:
                     totals[name] += getattr(dc.faults, name)
             return BusCounters(
-                wire_bytes=self._wire_bytes,
-                collisions=self._collisions,
-                collided_bytes=self._collided,
+                wire_bytes=self._wire.wire_bytes,
+                collisions=self._wire.collisions,
+                collided_bytes=self._wire.collided,
                 faults=totals,
                 drops=drops,
             )
@@ -428,8 +422,10 @@ class VirtualBus:
     def idle(self) -> bool:
         """True when nothing is on or queued for the wire and nothing is held."""
         with self._lock:
-            return not self._heap and not self._events and not any(
-                d.hold for d in self._drops
+            if self._wire.busy():
+                return False
+            return not any(
+                d.alive and d.pty is not None and pending_input(d.pty.master) for d in self._drops
             )
 
     def wait_idle(self, timeout: float = 5.0, settle: float = 0.0) -> bool:
@@ -452,6 +448,9 @@ class VirtualBus:
 
     def _run(self) -> None:
         set_timer_slack(1000)
+        if self._want_realtime:
+            self.realtime = set_realtime(1)
+        self._spin_ns = _SPIN_RT_NS if self.realtime else _SPIN_NS
         try:
             self._loop()
         except BaseException as exc:  # pragma: no cover - reported to the owner
@@ -459,11 +458,13 @@ class VirtualBus:
             raise
 
     def _loop(self) -> None:
+        active_until = _ns() + _WARM_NS
         while not self._stop:
             now = _ns()
             with self._lock:
-                self._service(now)
-                deadline = self._deadline()
+                for i in self._wire.service(now):
+                    self._unplug_now(self._drops[i])
+                deadline = self._wire.deadline()
                 rfds = [d.pty.master for d in self._drops if d.alive and d.pty is not None]
                 watch_fd = self._watch.fd if self._watch is not None else -1
             rfds.append(self._wake_r)
@@ -472,15 +473,15 @@ class VirtualBus:
             wait: float | None = None
             if deadline is not None:
                 remaining = deadline - _ns()
-                if remaining <= _SPIN_NS:
+                if remaining <= self._spin_ns:
                     self._spin(deadline)
                     continue
-                wait = (remaining - _SPIN_NS) / 1e9
-            try:
-                ready, _, _ = select.select(rfds, [], [], wait)
-            except (OSError, ValueError):
-                continue  # an fd closed under us (unplug from another thread)
+                wait = (remaining - self._spin_ns) / 1e9
+            if now < active_until and (wait is None or wait > _IDLE_TICK):
+                wait = _IDLE_TICK
+            ready = _wait_readable(rfds, wait)
             if ready:
+                active_until = _ns() + _WARM_NS
                 self._on_ready(ready, watch_fd)
 
     def _spin(self, deadline: int) -> None:
@@ -508,9 +509,9 @@ class VirtualBus:
                         continue
                     raise
                 if data:
-                    self._transmit(d, data, _ns())
+                    self._wire.transmit(d, data, _ns() - self._anchor_ns)
 
-    def _client_event(self, d: _Drop, delta: int) -> None:
+    def _client_event(self, d: DropState, delta: int) -> None:
         before = d.clients
         d.clients = max(0, d.clients + delta)
         if (before == 0) != (d.clients == 0) and d.pty is not None:
@@ -521,149 +522,3 @@ class VirtualBus:
                 pass
             d.hold.clear()
             d.hold_deadline = None
-
-    def _deadline(self) -> int | None:
-        t: int | None = self._heap[0][0] if self._heap else None
-        for d in self._drops:
-            if d.hold_deadline is not None and (t is None or d.hold_deadline < t):
-                t = d.hold_deadline
-        for when, _ in self._events:
-            if t is None or when < t:
-                t = when
-        return t
-
-    # -- transmit side -------------------------------------------------------------
-
-    def _transmit(self, d: _Drop, data: bytes, now: int) -> None:
-        if d.cut:
-            return
-        c = self.char_ns
-        t = max(now, d.tx_free)
-        tx = d.tx
-        for b in data:
-            if d.unplug_left == 0:
-                self._cut(d, t)
-                break
-            if tx is not None:
-                gap, slots = tx.apply(b)
-                if gap:
-                    t += round(gap * 1e9)
-            else:
-                slots = [b]
-            for v in slots:
-                if v is not None:
-                    self._put(d, t, v)
-                t += c
-            d.counters.tx_bytes += 1
-            if d.unplug_left is not None:
-                d.unplug_left -= 1
-                if d.unplug_left <= 0:
-                    self._cut(d, t)
-                    break
-        d.tx_free = t
-
-    def _cut(self, d: _Drop, t: int) -> None:
-        """The drop transmits nothing more and goes away at `t`."""
-        d.unplug_left = None
-        d.cut = True
-        self._events.append((t, d.index))
-
-    def _put(self, d: _Drop, start: int, byte: int) -> None:
-        end = start + self.char_ns
-        ch = _Char(start, end, d.index, byte)
-        for o in self._drops:
-            if o is d or not o.inflight:
-                continue
-            for oc in o.inflight:
-                if oc.start >= end:
-                    break
-                if oc.end > start and not oc.dead:
-                    self._collide(ch, oc, d, o)
-        d.inflight.append(ch)
-        self._seq += 1
-        heapq.heappush(self._heap, (end, self._seq, ch))
-
-    def _collide(self, ch: _Char, oc: _Char, d: _Drop, o: _Drop) -> None:
-        if ch.mask < 0:
-            ch.mask = oc.byte
-        if oc.mask < 0:
-            oc.mask = ch.byte
-        if ch.start >= self._coll_until:
-            self._collisions += 1
-        self._coll_until = max(self._coll_until, ch.end, oc.end)
-        for x in (d, o):
-            if x.episode != self._collisions:
-                x.episode = self._collisions
-                x.counters.collisions += 1
-
-    # -- receive side ---------------------------------------------------------------
-
-    def _service(self, now: int) -> None:
-        heap = self._heap
-        drops = self._drops
-        cap = self._capture
-        touched = False
-        while heap and heap[0][0] <= now:
-            _, _, ch = heapq.heappop(heap)
-            if ch.dead:
-                continue
-            src = drops[ch.src]
-            if src.inflight and src.inflight[0] is ch:
-                src.inflight.popleft()
-            value = ch.byte if ch.mask < 0 else collision_byte(ch.byte, ch.mask)
-            self._wire_bytes += 1
-            if ch.mask >= 0:
-                self._collided += 1
-                src.counters.collided_bytes += 1
-            if cap is not None:
-                cap.add(ch.src, ch.start - self.t0_ns, value, ch.mask >= 0)
-            for r in drops:
-                if not r.alive or (r is src and not r.echo):
-                    continue
-                if r.batch_ns:
-                    if not r.hold:
-                        r.hold_deadline = ch.end + r.batch_ns
-                    r.hold.append(value)
-                    if len(r.hold) >= r.batch_bytes:
-                        self._release(r)
-                else:
-                    r.out.append(value)
-            touched = True
-        for r in drops:
-            if r.hold_deadline is not None and r.hold_deadline <= now:
-                self._release(r)
-            if r.out:
-                self._write(r)
-        if touched and cap is not None:
-            for i in cap.pending():
-                if not drops[i].inflight:
-                    cap.end_run(i)
-        if self._events:
-            due = [e for e in self._events if e[0] <= now]
-            if due:
-                self._events = [e for e in self._events if e[0] > now]
-                for _, i in due:
-                    self._unplug_now(drops[i])
-
-    def _release(self, r: _Drop) -> None:
-        r.out += r.hold
-        r.hold.clear()
-        r.hold_deadline = None
-        r.counters.faults.batches += 1
-
-    def _write(self, r: _Drop) -> None:
-        data = bytes(r.out)
-        r.out.clear()
-        if r.pty is None:
-            return
-        if r.watched and r.clients == 0:
-            r.counters.unheard += len(data)
-            return
-        try:
-            n = os.write(r.pty.master, data)
-        except BlockingIOError:
-            n = 0
-        except OSError:
-            n = 0
-        r.counters.rx_bytes += n
-        r.counters.overruns += len(data) - n

@@ -1,0 +1,5 @@
+"""``python -m pyrtu``: the pyrtu command line."""
+
+from pyrtu.cli import main
+
+raise SystemExit(main())
