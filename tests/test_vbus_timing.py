@@ -162,12 +162,14 @@ def check(baud: int, parity: str, stopbits: int, parts: list[tuple[int, float]])
     )
 
 
+@pytest.mark.wall_clock
 @pytest.mark.parametrize("baud", [9600, 115200])
 def test_256_byte_frame_takes_its_wire_time(baud: int) -> None:
     run = check(baud, "E", 1, [(256, 0)])
     assert run.ok()
 
 
+@pytest.mark.wall_clock
 @pytest.mark.parametrize("baud", [9600, 115200])
 def test_gaps_the_sender_leaves_are_kept(baud: int) -> None:
     # 8 bytes, a silence of 5 character times (more than t3.5), 8 bytes.
