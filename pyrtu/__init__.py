@@ -48,6 +48,35 @@ Framer = _active.Framer
 parse_stream = _active.parse_stream
 
 
+# The thin API over the core: imported after the backend is chosen (they use it).
+from .data import (  # noqa: E402
+    decode_float32,
+    decode_int32,
+    decode_string,
+    decode_uint32,
+    decode_values,
+    encode_float32,
+    encode_int32,
+    encode_string,
+    encode_uint32,
+    encode_values,
+)
+from .datastore import DataStore, Table  # noqa: E402
+from .errors import (  # noqa: E402
+    EXCEPTION_NAMES,
+    BusFault,
+    ExceptionResponseError,
+    FrameError,
+    ModbusError,
+    NoResponseError,
+    PortError,
+    SlaveException,
+)
+from .master import Master  # noqa: E402
+from .pdu import CommEventLog  # noqa: E402
+from .slave import Slave  # noqa: E402
+
+
 def backend(name: str | None = None) -> ModuleType:
     """The backend module named ``"c"`` or ``"python"`` (None: the active one)."""
     if name is None:
@@ -70,12 +99,25 @@ __all__ = [
     "BACKEND",
     "BONFIGLIOLI",
     "CV100",
+    "EXCEPTION_NAMES",
+    "BusFault",
+    "CommEventLog",
+    "DataStore",
     "ErrorReason",
+    "ExceptionResponseError",
     "Frame",
+    "FrameError",
     "FrameKind",
     "FrameList",
     "Framer",
     "LengthRule",
+    "Master",
+    "ModbusError",
+    "NoResponseError",
+    "PortError",
+    "Slave",
+    "SlaveException",
+    "Table",
     "Timing",
     "add_crc",
     "available_backends",
@@ -86,7 +128,17 @@ __all__ = [
     "crc16_path",
     "crc16_paths",
     "decode_ascii",
+    "decode_float32",
+    "decode_int32",
+    "decode_string",
+    "decode_uint32",
+    "decode_values",
     "encode_ascii",
+    "encode_float32",
+    "encode_int32",
+    "encode_string",
+    "encode_uint32",
+    "encode_values",
     "lrc",
     "parse_stream",
 ]
