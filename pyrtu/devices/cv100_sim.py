@@ -1,0 +1,478 @@
+"""Simulated CV100 / FV100 on `pyrtu.Slave`, RTU or ASCII (seed 003).
+
+What the manual gives, and the simulator does:
+
+* function codes 0x03, 0x06, 0x08, 0x10 and the vendor codes 0x41/0x43 (the same
+  writes, kept after power-off: `power_cycle` shows the difference) and 0x42;
+* registers by group/index (groups A0-A8, B0-B4, C0-C1, D0-D2, U0), control
+  parameters at 0x32xx (read back as last written), status parameters at 0x33xx
+  (read only);
+* FC 0x10/0x43 on function codes: one invalid value and nothing is written; on
+  control parameters: the ones before the invalid one are written;
+* the function codes that are always kept (B4.02, A6.00-A6.04, A2.03, B0.00, U0.01,
+  U0.09) and the reserved ones that cannot be changed (B4.04, B0.11);
+* the user password (A0.00) and the factory password (U0.00, group U0) with the
+  5-minute access right; reading either returns 0;
+* control word 1 (bits 0-2 command, 3 direction, 4/5 jog, 6 acc/dec bits enable,
+  7 control word enable, 8 main reference, 9 fault reset) and control word 2; in a
+  fault only the reset acts; status words 1-3 follow the motor model; ramps are
+  the acceleration/deceleration times 1 (A0.06/A0.07) from 0 to the maximum
+  frequency; scalings 1:100 Hz, 1:10 s, 1:10 A;
+* the response delay: 3.5 characters in RTU (the slave's t3.5), 1 ms in ASCII.
+
+Choices where the manual is silent: exception 2 for an address the drive does not
+have (each group has the indices 0-63), 3 for a value out of range or a write to a
+status parameter, 4 for an operation the drive refuses (password, reserved code);
+status word 3 at 0x3322; the maximum frequency is 50.00 Hz and the jog frequency
+5.00 Hz (constructor arguments); the output current is the rated current (30.0 A)
+x |f| / maximum frequency; an external-fault stop shows fault code 15; the
+sub-functions of 0x42 are those of `cv100.Manage`.  The default state is the
+manual's examples': running forward at the main reference 50.00 Hz, 30.0 A, A1.01 =
+5000, deceleration time 1 = 6.0 s.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from .. import pdu as P
+from ..errors import SlaveException
+from ..rules import CV100 as CV100_RULES
+from ..slave import Slave
+from . import cv100 as C
+from ._simbase import DriveSimulator, HandlerSpec
+from .motor import Clock, monotonic
+
+GROUP_SIZE = 64
+ACCESS_SECONDS = 300.0
+FAULT_EXTERNAL = 15
+
+
+@dataclass(frozen=True)
+class Code:
+    name: str
+    default: int = 0
+    low: int = 0
+    high: int = 0xFFFF
+    always_saved: bool = False
+    reserved: bool = False
+
+
+KNOWN: dict[int, Code] = {
+    C.register("A0.00"): Code("User password"),
+    C.register("A0.06"): Code("Acceleration time 1", 60, 1, 36000),
+    C.register("A0.07"): Code("Deceleration time 1", 60, 1, 36000),
+    C.register("A1.01"): Code("A1.01 (read in the manual's RTU example)", 5000),
+    C.register("A2.01"): Code("A2.01 (written in the manual's ASCII example)"),
+    C.register("A2.03"): Code("Main reference frequency control", always_saved=True),
+    **{
+        C.register(f"A6.0{i}"): Code(f"Selection of input terminal X{i + 1}", always_saved=True)
+        for i in range(5)
+    },
+    C.register("B0.00"): Code("Motor rated power", always_saved=True),
+    C.register("B0.11"): Code("Motor parameters auto-tuning", reserved=True),
+    C.register("B4.02"): Code("Parameters protection setting", always_saved=True),
+    C.register("B4.04"): Code("Parameters copy", reserved=True),
+    C.register("U0.00"): Code("Factory password"),
+    C.register("U0.01"): Code("Machine model setting", always_saved=True),
+    C.register("U0.09"): Code("VFD series selection", always_saved=True),
+}
+_CONTROL_RANGES = ((0x3200, 4), (0x3205, 1), (0x3207, 1), (0x3209, 3), (0x3212, 1))
+_STATUS_FIRST, _STATUS_LAST = C.STATUS_WORD_1, C.STATUS_WORD_3
+
+
+class CV100Simulator(DriveSimulator):
+    """A CV100/FV100.  ``mode``: "rtu" or "ascii" (sets the response delay)."""
+
+    device = "cv100"
+    example_addresses = frozenset({5})
+    modes = ("rtu", "ascii")
+
+    def __init__(
+        self,
+        *,
+        state: str = "manual",
+        mode: str = "rtu",
+        max_hz: float = 50.0,
+        jog_hz: float = 5.0,
+        rated_current: float = 30.0,
+        user_password: int = 0,
+        factory_password: int = 8888,
+        clock: Clock = monotonic,
+    ) -> None:
+        super().__init__(mode=mode, clock=clock)
+        if state not in ("manual", "stopped"):
+            raise ValueError("state is 'manual' or 'stopped'")
+        self.max_hz = max_hz
+        self.jog_hz = jog_hz
+        self.rated_current = rated_current
+        self.user_password = user_password
+        self.factory_password = factory_password
+        self.preset_hz = 50.0  # the keypad's digital setting (main reference without bit 8)
+        self.command_source = 2  # 0x331E: communication control
+        self.fault_code = 0
+        self.alarm_code = 0
+        self.undervoltage = False
+        self.fault_log: list[int] = []
+        self.run = state == "manual"
+        self.reverse = False
+        self.jog: str | None = None
+        self.main_reference = False
+        self.operation_disabled = False
+        self.aux_reference = False
+        self.display = C.OPERATING_FREQUENCY
+        self._user_until = -1.0
+        self._factory_until = -1.0
+        self._saving = False
+        regs = self.store.holding_registers
+        self.eeprom: dict[int, int] = {}
+        for high in C.GROUPS.values():
+            base = high << 8
+            values = [KNOWN[a].default if a in KNOWN else 0 for a in range(base, base + GROUP_SIZE)]
+            regs.add_range(
+                base,
+                values,
+                validator=self._validate_code,
+                on_write=self._on_write_code,
+                on_read=self._on_read_code,
+            )
+            self.eeprom.update(zip(range(base, base + GROUP_SIZE), values, strict=True))
+        for start, n in _CONTROL_RANGES:
+            regs.add_range(
+                start, [0] * n, validator=self._validate_control, on_write=self._on_write_control
+            )
+        regs.add_range(
+            _STATUS_FIRST,
+            [0] * (_STATUS_LAST - _STATUS_FIRST + 1),
+            read_only=True,
+            on_read=self._on_read_status,
+        )
+        with self.lock:
+            self._retarget()
+            self.motor.frequency = self.motor.reference
+            self._refresh()
+
+    # -- access rights and values -------------------------------------------------------
+
+    def _raw(self, address: int) -> int:
+        return int(self.store.holding_registers.get(address))
+
+    def _check_access(self, address: int, writing: bool) -> None:
+        now = self.timeline.now
+        if address >> 8 == C.GROUPS["U0"] and address != C.register("U0.00"):
+            if now > self._factory_until:
+                raise SlaveException(4, "group U0 needs the factory password in U0.00")
+        elif address != C.register("A0.00") and self.user_password and now > self._user_until:
+            raise SlaveException(4, "function codes need the user password in A0.00")
+
+    def _on_read_code(self, address: int, count: int) -> None:
+        self.update()
+        for a in range(address, address + count):
+            self._check_access(a, False)
+        for pw in (C.register("A0.00"), C.register("U0.00")):
+            if address <= pw < address + count:
+                self.store.holding_registers.set(pw, 0)
+
+    def _validate_code(self, address: int, value: int | bool) -> bool:
+        value = int(value)
+        if address == C.register("A0.00"):
+            ok = value == self.user_password if self.user_password else value == 0
+            if not ok:
+                raise SlaveException(4, "the user password cannot be set or changed by the host")
+            return True
+        if address == C.register("U0.00"):
+            if value != self.factory_password:
+                raise SlaveException(4, "wrong factory password")
+            return True
+        self._check_access(address, True)
+        code = KNOWN.get(address)
+        if code is None:
+            return True
+        if code.reserved:
+            raise SlaveException(4, f"{code.name} cannot be changed via communication")
+        return code.low <= value <= code.high
+
+    def _on_write_code(self, address: int, values: list[int | bool]) -> None:
+        now = self.update()
+        for a, v in zip(range(address, address + len(values)), values, strict=True):
+            if a == C.register("A0.00"):
+                if self.user_password:
+                    self._user_until = now + ACCESS_SECONDS
+                continue
+            if a == C.register("U0.00"):
+                self._factory_until = now + ACCESS_SECONDS
+                continue
+            code = KNOWN.get(a)
+            if self._saving or (code is not None and code.always_saved):
+                self.eeprom[a] = int(v)
+        self._retarget()
+
+    def _validate_control(self, address: int, value: int | bool) -> bool:
+        value = int(value)
+        if address in (C.MAIN_SETTING, C.OPERATION_FREQUENCY_SETTING):
+            return value <= round(self.max_hz * C.FREQUENCY_SCALE)
+        if address in (C.ACCEL_TIME_SETTING, C.DECEL_TIME_SETTING):
+            return 1 <= value <= 36000
+        return True
+
+    def _on_write_control(self, address: int, values: list[int | bool]) -> None:
+        self.update()
+        for a, v in zip(range(address, address + len(values)), values, strict=True):
+            self._control(a, int(v))
+        self._retarget()
+
+    def _control(self, address: int, value: int) -> None:
+        if address == C.CONTROL_WORD_1:
+            self._control_word_1(value)
+        elif address == C.CONTROL_WORD_2:
+            cw = C.ControlWord2.decode(value)
+            if cw.enable and not self.fault_code:
+                self.operation_disabled = cw.operation_disable
+                self.aux_reference = cw.aux_reference
+                if cw.run:
+                    self.run, self.reverse, self.jog = True, False, None
+        elif address in (C.ACCEL_TIME_SETTING, C.DECEL_TIME_SETTING):
+            code = C.register("A0.06" if address == C.ACCEL_TIME_SETTING else "A0.07")
+            self.store.holding_registers.set(code, value)
+            self.eeprom[code] = value
+
+    def _control_word_1(self, value: int) -> None:
+        if self.command_source != 2 or not value & C.CW1_ENABLE:
+            return
+        cw = C.ControlWord1.decode(value)
+        if cw.fault_reset and self.fault_code:
+            self.fault_code = 0
+        if self.fault_code:
+            return
+        self.main_reference = cw.main_reference
+        if not cw.acc_dec_enable:
+            return
+        if cw.jog_forward or cw.jog_reverse:
+            if not (cw.jog_forward and cw.jog_reverse):
+                self.jog = "forward" if cw.jog_forward else "reverse"
+            return
+        self.jog = None
+        if cw.command is C.Command.RUN:
+            self.run, self.reverse = True, cw.reverse
+        elif cw.command is C.Command.STOP:
+            self.run = False
+        elif cw.command in (C.Command.COAST_STOP, C.Command.EXTERNAL_FAULT_STOP):
+            self.run = False
+            self.motor.coast()
+            if cw.command is C.Command.EXTERNAL_FAULT_STOP:
+                self._fault(FAULT_EXTERNAL)
+
+    def _fault(self, code: int) -> None:
+        self.fault_code = code
+        self.fault_log.append(code)
+        self.run, self.jog = False, None
+        self.motor.coast()
+
+    # -- the drive ------------------------------------------------------------------------
+
+    def reference_hz(self) -> float:
+        if self.main_reference:
+            return self._raw(C.MAIN_SETTING) / C.FREQUENCY_SCALE
+        return self.preset_hz
+
+    def _retarget(self) -> None:
+        m = self.motor
+        m.set_ramp_times(
+            self.max_hz, self._raw(C.register("A0.06")) / 10, self._raw(C.register("A0.07")) / 10
+        )
+        if self.fault_code or self.operation_disabled or self.undervoltage:
+            m.reference = 0.0
+            m.coast()
+        elif self.jog is not None:
+            m.reference = self.jog_hz if self.jog == "forward" else -self.jog_hz
+        elif self.run:
+            hz = min(self.reference_hz(), self.max_hz)
+            m.reference = -hz if self.reverse else hz
+        else:
+            m.reference = 0.0
+
+    def _on_read_status(self, address: int, count: int) -> None:
+        self.update()
+
+    def _refresh(self) -> None:
+        m = self.motor
+        f = abs(m.frequency)
+        running = f != 0.0 or ((self.run or self.jog is not None) and m.reference != 0.0)
+        if m.frequency or m.reference:
+            reverse = (m.frequency or m.reference) < 0
+        else:
+            reverse = self.reverse if self.run else self.jog == "reverse"
+        log = self.fault_log
+        at_ref = running and m.at_reference and self.jog is None
+        code = self.fault_code or self.alarm_code
+        w1 = C.StatusWord1(
+            0,
+            running,
+            reverse,
+            at_ref,
+            self.command_source == 2,
+            self.main_reference,
+            bool(self.alarm_code),
+            code,
+        )
+        w2 = {"jog"} if running and self.jog else {"common"} if running else set()
+        if self.undervoltage:
+            w2.add("undervoltage")
+        w3 = {"speed_control"}
+        if running:
+            w3.add(
+                "constant_speed"
+                if at_ref and f
+                else "zero_speed"
+                if not f
+                else "accelerating"
+                if abs(m.reference) > f
+                else "decelerating"
+            )
+        if self.fault_code:
+            w3.add("failure")
+        current = self.rated_current * f / self.max_hz if self.max_hz else 0.0
+        voltage = 380.0 * f / self.max_hz if self.max_hz else 0.0
+        values = {
+            C.STATUS_WORD_1: w1.encode(),
+            C.MAIN_REFERENCE: round(self.reference_hz() * 100),
+            C.SLAVE_MODEL: 100,
+            C.VFD_MODEL: 1,
+            C.SOFTWARE_VERSION: 100,
+            C.OPERATING_FREQUENCY: round(f * 100),
+            C.OUTPUT_CURRENT: round(current * 10),
+            C.OUTPUT_VOLTAGE: round(voltage),
+            C.OUTPUT_POWER: round(1.732 * voltage * current * 0.85 / 100),
+            C.ROTARY_SPEED: round(f * 30),
+            C.BUS_VOLTAGE: 400 if self.undervoltage else 540,
+            C.OUTPUT_TORQUE: round(100 * f / self.max_hz) if self.max_hz else 0,
+            C.FIRST_FAULT: log[0] if log else 0,
+            C.SECOND_FAULT: log[1] if len(log) > 1 else 0,
+            C.LATEST_FAULT: log[-1] if log else 0,
+            C.FREQUENCY_SETTING: round(abs(m.reference) * 100),
+            0x3316: round(abs(m.reference) * 30),
+            C.ACCEL_TIME_1: self._raw(C.register("A0.06")),
+            C.DECEL_TIME_1: self._raw(C.register("A0.07")),
+            C.COMMAND_SOURCE: self.command_source,
+            C.STATUS_WORD_2: C.flags_word(frozenset(w2), C.STATUS_2_BITS),
+            C.MAIN_REFERENCE_SELECTOR: 2 if self.main_reference else 0,
+            C.STATUS_WORD_3: C.flags_word(frozenset(w3), C.STATUS_3_BITS),
+        }
+        regs = self.store.holding_registers
+        for a, v in values.items():
+            regs.set(a, v & 0xFFFF)
+
+    def _on_telegram(self, now: float, unit: int, pdu: bytes) -> None:
+        super()._on_telegram(now, unit, pdu)
+        if now <= self._user_until:
+            self._user_until = now + ACCESS_SECONDS
+        if now <= self._factory_until:
+            self._factory_until = now + ACCESS_SECONDS
+
+    # -- the owner's controls ----------------------------------------------------------------
+
+    def power_cycle(self) -> None:
+        """Mains off and on: function codes from the EEPROM, control parameters
+        cleared (except the saved ones), motor stopped, access rights gone."""
+        with self.lock:
+            self.update()
+            regs = self.store.holding_registers
+            for a, v in self.eeprom.items():
+                regs.set(a, v)
+            for start, n in _CONTROL_RANGES:
+                for a in range(start, start + n):
+                    if a not in C.CONTROL_SAVED:
+                        regs.set(a, 0)
+            self.run, self.jog, self.main_reference = False, None, False
+            self.operation_disabled = False
+            self._user_until = self._factory_until = -1.0
+            self.motor.frequency = 0.0
+            self._retarget()
+            self._refresh()
+
+    def inject_fault(self, code: int) -> None:
+        with self.lock:
+            self.update()
+            self._fault(code)
+            self._refresh()
+
+    def status(self) -> C.CV100Status:
+        with self.lock:
+            self.update()
+            regs = self.store.holding_registers
+            return C.CV100Status(
+                C.StatusWord1.decode(int(regs.get(C.STATUS_WORD_1))),
+                C.flags(int(regs.get(C.STATUS_WORD_2)), C.STATUS_2_BITS),
+                C.flags(int(regs.get(C.STATUS_WORD_3)), C.STATUS_3_BITS),
+            )
+
+    def frequency_hz(self) -> float:
+        with self.lock:
+            self.update()
+            return self.motor.frequency
+
+    # -- the slave ------------------------------------------------------------------------
+
+    def slave_options(self) -> dict[str, Any]:
+        return {
+            "functions": {0x03, 0x06, 0x08, 0x10, 0x41, 0x42, 0x43},
+            "mode": self.mode,
+            "rules": dict(CV100_RULES),
+            "response_delay": 0.001 if self.mode == "ascii" else 0.0,
+        }
+
+    def handlers(self) -> dict[int, HandlerSpec]:
+        req41, resp41 = CV100_RULES[0x41]
+        req42, resp42 = CV100_RULES[0x42]
+        req43, resp43 = CV100_RULES[0x43]
+        return {
+            0x06: (self._write_single, None, None, True),
+            0x41: (self._write_single, req41, resp41, True),
+            0x10: (self._write_multiple, None, None, True),
+            0x43: (self._write_multiple, req43, resp43, True),
+            0x42: (self._manage, req42, resp42, False),
+        }
+
+    def _write_single(self, slave: Slave, unit: int, pdu: bytes) -> bytes:
+        address, value = P.decode_write_single(pdu)
+        self._write(address, [value], pdu[0] == C.FC_WRITE_SAVE)
+        return pdu
+
+    def _write_multiple(self, slave: Slave, unit: int, pdu: bytes) -> bytes:
+        address, words = P.decode_write_registers(pdu)
+        self._write(address, list(words), pdu[0] == C.FC_WRITE_MULTIPLE_SAVE)
+        return pdu[:5]
+
+    def _write(self, address: int, values: list[int], save: bool) -> None:
+        regs = self.store.holding_registers
+        self._saving = save
+        try:
+            if address >> 8 == C.CONTROL_GROUP:
+                for i, v in enumerate(values):  # the ones before a bad one stay written
+                    regs.write(address + i, [v])
+            else:
+                regs.write(address, list(values))
+        finally:
+            self._saving = False
+
+    def _manage(self, slave: Slave, unit: int, pdu: bytes) -> bytes:
+        if len(pdu) != 5:
+            raise SlaveException(3, "0x42 carries a sub-function and a data word")
+        sub, data = int.from_bytes(pdu[1:3], "big"), int.from_bytes(pdu[3:5], "big")
+        if sub in (C.Manage.UPPER_LIMIT, C.Manage.LOWER_LIMIT, C.Manage.FACTORY_VALUE):
+            if data >> 8 not in C.GROUPS.values() or data & 0xFF >= GROUP_SIZE:
+                raise SlaveException(2, f"0x{data:04X} is not a function code")
+            self.update()
+            self._check_access(data, False)
+            code = KNOWN.get(data, Code(""))
+            value = {0: code.high, 1: code.low, 2: code.default}[sub]
+        elif sub == C.Manage.DISPLAY_ADDRESS:
+            value = self.display
+        elif sub == C.Manage.SWITCH_DISPLAY:
+            if not _STATUS_FIRST <= data <= _STATUS_LAST:
+                raise SlaveException(2, f"0x{data:04X} is not a status parameter")
+            self.display = value = data
+        else:
+            raise SlaveException(1, f"0x42 sub-function 0x{sub:04X} is not supported")
+        return pdu[:3] + value.to_bytes(2, "big")

@@ -1,0 +1,343 @@
+"""The drives' domain logic, without I/O: scales, words, addressing, state machine,
+parameter tables, the motor model and the supervision timer."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from pyrtu.devices import bonfiglioli as B
+from pyrtu.devices import cv100 as C
+from pyrtu.devices import weg as W
+from pyrtu.devices.common import s16, s32, scaled, u16, u32, unscaled
+from pyrtu.devices.motor import ManualClock, Motor, Supervision, Timeline
+from tests.vectors import TELEGRAMS
+
+# -- WEG ----------------------------------------------------------------------------
+
+
+def test_13bit_scale_examples() -> None:
+    # CFW100 P683: 30 Hz of a 60 Hz motor is 4096 (1000h, the FC 06 example); P681 2048 is 15 Hz
+    assert W.hz_to_13bit(30, 60) == 0x1000
+    assert W.hz_from_13bit(0x0800, 60) == 15.0
+    assert W.hz_to_13bit(60, 60) == 8192
+    # CFW701 wording: 900 rpm of 1800 rpm synchronous speed is 4096, 2048 reads 450 rpm
+    assert W.rpm_to_13bit(900, 1800) == 4096
+    assert W.rpm_from_13bit(2048, 1800) == 450.0
+
+
+def test_13bit_scale_saturates_and_signs() -> None:
+    assert W.hz_to_13bit(4 * 60, 60) == 32767
+    assert W.hz_to_13bit(1000, 60) == 32767
+    assert W.hz_to_13bit(-1000, 60) == -32768
+    assert W.hz_to_13bit(-30, 60) == -4096
+    assert W.hz_from_13bit(u16(-4096), 60) == -30.0
+    assert W.hz_from_13bit(0xF000, 60) == -30.0
+    with pytest.raises(ValueError):
+        W.hz_to_13bit(10, 0)
+
+
+def test_status_word_common_layout() -> None:
+    st = W.decode_status(0b1001_0111_1010_0000, "CFW701")
+    assert st.fault and st.remote and st.forward and st.enabled and st.running
+    assert st.alarm and st.second_ramp
+    assert not (st.jog or st.undervoltage or st.config_mode)
+    assert st.run_command is None and st.fire_mode is None
+    assert W.decode_status(0x1700).describe() == "running, forward, remote"
+    assert W.decode_status(0x0000, "CFW100").describe() == "stopped, reverse, local, disabled"
+
+
+def test_status_word_cfw320_bits_differ() -> None:
+    # bits 1 (run command) and 2 (fire mode) exist only on the CFW320
+    cfw320 = W.decode_status(0x0006, "CFW320")
+    assert cfw320.run_command is True and cfw320.fire_mode is True
+    other = W.decode_status(0x0006, "CFW100")
+    assert other.run_command is None and other.active() == []
+    assert W.encode_status(cfw320, "CFW320") == 0x0006
+    assert W.encode_status(cfw320, "CFW701") == 0
+
+
+def test_control_word_builder() -> None:
+    assert W.control_word(run=True) == 0x17  # run, enable, direction as reference, remote
+    assert W.control_word(enable=False, remote=False, forward=False) == 0
+    assert W.control_word(fault_reset=True, jog=True) == 0x9E
+    assert W.WegControl(second_ramp=True, forward=False).encode("CFW100") == 0x20
+    assert W.WegControl(fast_stop=True, forward=False).encode("CFW701") == 0x40
+    with pytest.raises(ValueError, match="fast_stop"):
+        W.WegControl(fast_stop=True).encode("CFW100")
+    assert W.WegControl.decode(0xE0FF, "CFW701").pid_external2_manual
+    assert not W.WegControl.decode(0xE0FF, "CFW100").pid_external2_manual
+
+
+@pytest.mark.parametrize(
+    ("bit2", "reference", "forward"),
+    [(True, 100, True), (True, -100, False), (False, 100, False), (False, -100, True)],
+)
+def test_reference_direction_table(bit2: bool, reference: int, forward: bool) -> None:
+    """The four lines of the P683 direction table."""
+    assert W.reference_direction(4 if bit2 else 0, u16(reference)) is forward
+
+
+def test_error_actions_write_the_control_word() -> None:
+    full = 0x3F
+    assert W.apply_error_action(full, W.ErrorAction.RAMP_STOP) == 0x3E
+    assert W.apply_error_action(full, W.ErrorAction.GENERAL_DISABLE) == 0x3D
+    assert W.apply_error_action(full, W.ErrorAction.GO_TO_LOCAL) == 0x2F
+    assert W.apply_error_action(full, W.ErrorAction.LOCAL_KEEP_COMMANDS) == 0x2F
+    assert W.apply_error_action(full, W.ErrorAction.INACTIVE) == full
+    assert W.apply_error_action(full, W.ErrorAction.CAUSE_FAULT) == full
+
+
+def test_weg_parameter_tables() -> None:
+    cfw100, cfw320, cfw701 = (W.parameters(m) for m in ("CFW100", "CFW320", "CFW701"))
+    for table in (cfw100, cfw320, cfw701):
+        assert table[680].ro and table[681].ro and table[316].ro
+        assert not table[682].ro and table[683].accepts(u16(-32768))
+        assert table[314].cfg and table[314].accepts(9990) and not table[314].accepts(9991)
+        assert 2900 not in table
+    assert 685 in cfw320 and 685 not in cfw701 and 695 not in cfw100
+    assert cfw701[695].high == 0x1F and cfw320[695].high == 0xF
+    assert cfw100[310].high == 2 and cfw320[310].high == 4 and cfw701[310].high == 3
+    assert cfw701[311].default == 0 and cfw100[311].default == 1
+    assert W.CFW320_MODEL.functions == frozenset({1, 2, 3, 5, 6, 15, 16, 22, 23, 43})
+    assert W.CFW100_MODEL.functions == frozenset({3, 4, 6, 16, 43})
+
+
+def test_weg_describe_register() -> None:
+    assert W.describe_register("CFW701", 680, 0x1700) == "P680 status: running, forward, remote"
+    assert W.describe_register("CFW701", 316, 2) == "P316 serial interface: watchdog_error"
+    assert W.describe_register("CFW320", 685, 4096) == "P685 reference: 4096/8192 of P403"
+    assert W.describe_register("CFW701", 100, 10) is None
+
+
+# -- CV100 ----------------------------------------------------------------------------
+
+
+def test_cv100_addressing() -> None:
+    assert C.register("A3.02") == 0x0302
+    assert C.register("a0.06") == 0x0006
+    assert C.register("B0.00") == 0x0A00 and C.register("B4.02") == 0x0E02
+    assert C.register("C1.05") == 0x1505 and C.register("D2.00") == 0x2000
+    assert C.register("U0.09") == 0x5A09
+    assert C.register("A6.28") == 0x061C
+    assert C.register(0x3200) == 0x3200
+    assert C.function_code(0x0302) == "A3.02" and C.function_code(0x3301) == "0x3301"
+    for bad in ("A9.00", "C2.00", "X1.00", "A3-", "A3.123"):
+        with pytest.raises(ValueError):
+            C.register(bad)
+
+
+@pytest.mark.parametrize(
+    ("word", "value"),
+    [
+        (C.ControlWord1(C.Command.RUN), 0x00C7),  # start forward
+        (C.ControlWord1(C.Command.STOP), 0x00C6),  # stop mode 0
+        (C.ControlWord1(jog_forward=True), 0x00D0),  # jog forward
+        (C.ControlWord1(), 0x00C0),  # stop jogging
+        (C.ControlWord1(acc_dec_enable=False, fault_reset=True), 0x0280),  # reset fault
+    ],
+)
+def test_cv100_control_word_1_examples(word: C.ControlWord1, value: int) -> None:
+    assert word.encode() == value
+    assert C.ControlWord1.decode(value) == word
+    # and the value is what the manual's telegram carries
+    assert any(t.adu[2:6] == bytes([0x32, 0x00, value >> 8, value & 0xFF]) for t in TELEGRAMS)
+
+
+def test_cv100_control_word_2_and_status_words() -> None:
+    assert C.ControlWord2(run=True).encode() == 0b1010
+    assert C.ControlWord2.decode(0b1101) == C.ControlWord2(True, False, True, True)
+    w1 = C.StatusWord1.decode(0x0F0B)
+    assert w1.running and w1.reverse and w1.serial_control and not w1.alarm
+    assert w1.code == 0x0F and w1.fault
+    alarm = C.StatusWord1.decode(0x0381)
+    assert alarm.alarm and not alarm.fault and alarm.code == 3
+    assert C.StatusWord1.decode(0x0F0B).encode() == 0x0F0B
+    assert C.flags(0b1000001, C.STATUS_2_BITS) == {"jog", "undervoltage"}
+    assert C.flags(1 << 12 | 1 << 3, C.STATUS_3_BITS) == {"failure", "accelerating"}
+    assert C.flags_word(["failure", "accelerating"], C.STATUS_3_BITS) == 1 << 12 | 1 << 3
+
+
+def test_cv100_scalings() -> None:
+    assert C.raw_hz(50) == 0x1388 and C.hz(0x1388) == 50.0
+    assert C.raw_seconds(30) == 0x012C and C.seconds(0x0064) == 10.0
+    assert C.amperes(0x012C) == 30.0
+    assert C.describe_register(C.OUTPUT_CURRENT, 300) == "output current: 30.0 A"
+    assert (
+        C.describe_register(C.STATUS_WORD_1, 0x0F00) == "status word 1: stopped, forward, fault 15"
+    )
+
+
+# -- Bonfiglioli ------------------------------------------------------------------------
+
+
+def test_bonfiglioli_addressing() -> None:
+    assert B.address(372, 2) == 0x2174
+    assert B.address(376, 4) == 0x4178
+    assert B.address(481) == 0x01E1
+    assert B.address(375, 2) == 0x2177
+    assert B.address(484, 0, ram=True) == 0x51E4
+    assert B.address(1599, 4, ram=True) == 0x963F  # the top of the manual's 0x0000-0x963F
+    assert B.split(0x2640) == (2, 1600)
+    with pytest.raises(ValueError):
+        B.address(372, 5, ram=True)
+    with pytest.raises(ValueError):
+        B.address(0x1000)
+
+
+def test_chapter_11_parameter_list() -> None:
+    chapter_11 = {228, 229, 249, 250, 260, 270, 282, 283, 411}  # 11.1 actual values
+    chapter_11 |= {10, 11, 34, 392, 394, 395, 410, 412, 413, 414, 424, 425, 434}  # 11.2
+    chapter_11 |= {484, 524, 549, 632, 637, 638, 1375, 1376}
+    assert chapter_11 <= set(B.PARAMETERS)
+    p = B.PARAMETERS
+    assert p[413].high == 10000 and p[413].type is B.Type.UINT
+    assert p[484].type is B.Type.LONG and (p[484].low, p[484].high) == (-99999, 99999)
+    assert p[524].decimals == 2 and p[524].high == 30000
+    assert p[1376].low == 1 and p[1376].high == 247
+    assert not p[411].writable and p[410].ram_only
+    # the examples' parameters: 372 no decimals, 376 one, 375 and 481 two
+    assert (p[372].decimals, p[376].decimals, p[375].decimals, p[481].decimals) == (0, 1, 2, 2)
+    assert p[375].to_raw(10.0) == 1000 and p[376].from_raw(15) == 1.5
+    assert 1600 not in p
+
+
+def test_drivecom_walk_and_transitions() -> None:
+    S = B.DriveState
+    walk = [
+        (0x06, S.READY, 2),
+        (0x07, S.SWITCHED_ON, 3),
+        (0x0F, S.OPERATION_ENABLED, 4),
+        (0x07, S.SWITCHED_ON, 5),
+        (0x06, S.READY, 6),
+        (0x00, S.STARTING_LOCKOUT, 7),
+    ]
+    state = S.STARTING_LOCKOUT
+    for word, expected, transition in walk:
+        state, t = B.next_state(state, word)
+        assert (state, t) == (expected, transition)
+    assert B.next_state(S.STARTING_LOCKOUT, 0x0F) == (S.OPERATION_ENABLED, 4)  # the extension
+    assert B.next_state(S.OPERATION_ENABLED, 0x06) == (S.READY, 8)
+    assert B.next_state(S.OPERATION_ENABLED, 0x00) == (S.STARTING_LOCKOUT, 9)
+    assert B.next_state(S.SWITCHED_ON, 0x00) == (S.STARTING_LOCKOUT, 10)
+    assert B.next_state(S.OPERATION_ENABLED, 0x02) == (S.QUICK_STOP, 11)
+    assert B.next_state(S.QUICK_STOP, 0x00) == (S.STARTING_LOCKOUT, 12)
+    assert B.next_state(S.FAULT, 0x0F) == (S.FAULT, None)
+    assert B.next_state(S.READY, 0x06) == (S.READY, None)
+
+
+def test_status_word_decoding() -> None:
+    for value in (0x40, 0x21, 0x23, 0x27, 0x07, 0x08, 0x0F):
+        assert B.state_of(value) == value
+        assert B.state_of(value | 0x10 | 0x0680) == value  # bit 4 and bits 7..15 ignored
+    st = B.VectronStatus.decode(0x0627)
+    assert st.state is B.DriveState.OPERATION_ENABLED and st.remote and st.reference_reached
+    assert st.describe() == "operation enabled, remote, reference reached"
+    assert B.fault_text(B.F2010) == "F2010" and B.fault_text(0x0102) == "F0102"
+    assert B.warnings_of(0x008B) == ["Ixt", "Short-Term Ixt", "Heat Sink Temperature Tk",
+                                     "Motor Temperature"]  # fmt: skip
+
+
+def test_word_helpers() -> None:
+    assert u16(-1) == 0xFFFF and s16(0xFFFF) == -1 and s16(0x7FFF) == 32767
+    assert u32(-2) == 0xFFFFFFFE and s32(0xFFFFFFFE) == -2
+    assert unscaled(10.3, 1) == 103 and unscaled(100.25, 2) == 10025 and scaled(103, 1) == 10.3
+    with pytest.raises(ValueError):
+        u16(0x10000)
+
+
+# -- motor model and supervision -----------------------------------------------------------
+
+
+def test_motor_ramps_up_and_down() -> None:
+    m = Motor.from_times(60.0, accel_s=2.0, decel_s=4.0)  # 30 Hz/s up, 15 Hz/s down
+    m.reference = 30.0
+    assert m.time_to_reference() == pytest.approx(1.0)
+    m.advance(0.5)
+    assert m.frequency == pytest.approx(15.0)
+    m.advance(10)
+    assert m.frequency == 30.0 and m.at_reference
+    m.reference = 0.0
+    m.advance(1.0)
+    assert m.frequency == pytest.approx(15.0)
+
+
+def test_motor_reverses_through_zero() -> None:
+    m = Motor(accel=10.0, decel=20.0, frequency=10.0, reference=-10.0)
+    assert m.time_to_reference() == pytest.approx(0.5 + 1.0)
+    assert m.time_to(0.0) == pytest.approx(0.5)
+    assert m.time_to(5.0) == pytest.approx(0.25)
+    m.advance(1.0)
+    assert m.frequency == pytest.approx(-5.0)
+    assert m.time_to(20.0) == math.inf
+
+
+def test_motor_step_and_coast() -> None:
+    m = Motor.from_times(50.0, 0.0, 0.0)
+    m.reference = 40.0
+    m.advance(0.0)
+    assert m.frequency == 40.0
+    m.coast()
+    assert m.frequency == 0.0
+
+
+def test_supervision_counts_from_first_telegram() -> None:
+    sup = Supervision(timeout=2.0)
+    assert sup.deadline() is None  # not counting before the first valid telegram
+    sup.feed(10.0)
+    assert sup.deadline() == 12.0
+    sup.feed(11.0)
+    assert sup.deadline() == 13.0
+    sup.tripped = True
+    assert sup.deadline() is None
+    sup.reset()
+    assert sup.last is None and not sup.tripped
+
+
+def test_timeline_stops_at_events() -> None:
+    clock = ManualClock(100.0)
+    line = Timeline(clock)
+    seen: list[tuple[str, float]] = []
+    pending = [101.0, 102.5]
+
+    def nxt() -> float | None:
+        return pending[0] if pending else None
+
+    def fire(at: float) -> None:
+        seen.append(("fire", at))
+        pending.pop(0)
+
+    clock.advance(2.0)
+    assert line.run(None, nxt, lambda dt: seen.append(("advance", dt)), fire) == 102.0
+    assert seen == [("advance", 1.0), ("fire", 101.0), ("advance", 1.0)]
+    with pytest.raises(ValueError):
+        clock.advance(-1)
+
+
+def test_registry_and_describe() -> None:
+    from pyrtu.devices import EXAMPLE_ADDRESS, PROFILES, SIMULATORS, describe_register, simulator
+
+    assert set(SIMULATORS) == set(PROFILES) == set(EXAMPLE_ADDRESS)
+    assert set(SIMULATORS) == {"cfw100", "cfw320", "cfw701", "cv100", "act", "acu"}
+    assert type(simulator("ACU")).__name__ == "ACUSimulator"
+    with pytest.raises(ValueError, match="unknown device"):
+        simulator("cfw500")
+    with pytest.raises(ValueError, match="the rtu mode only"):
+        simulator("cfw701", mode="ascii")
+    with pytest.raises(ValueError, match="the rtu and ascii modes only"):
+        simulator("act", mode="tcp")
+    assert describe_register("cfw320", 680, 0x1502) == (
+        "P680 status: running, forward, remote, disabled"
+    )
+    assert describe_register("acu", B.P_STATUS_WORD, 0x0237) == (
+        "411 status: operation enabled, remote (0x0237)"
+    )
+    assert describe_register("act", B.address(484), u32(-1234)) == (
+        "484 Reference Frequency RAM (data set 0): -12.34 Hz"
+    )
+    assert describe_register("cv100", C.MAIN_REFERENCE, 5000) == (
+        "Current main reference value: 50.00 Hz"
+    )
+    with pytest.raises(ValueError):
+        describe_register("x", 0, 0)
