@@ -254,7 +254,7 @@ def open_port(
                 port.open()
         except ValueError as exc:
             raise PortError(name, f"the port refused RS-485 mode: {exc}") from exc
-        except (serial.SerialException, OSError) as exc:
+        except (serial.SerialException, OSError, termios.error) as exc:
             raise PortError(name, f"cannot open: {exc}") from exc
         baud = int(getattr(port, "baudrate", baudrate) or baudrate)
         p = str(getattr(port, "parity", parity) or parity).upper()[:1]
@@ -282,8 +282,11 @@ def open_port(
     except ValueError as exc:
         what = "RS-485 mode" if "RS485" in str(exc) else f"the format {fmt}"
         raise PortError(port, f"the port refused {what}: {exc}") from exc
-    except (serial.SerialException, OSError) as exc:
+    except (serial.SerialException, OSError, termios.error) as exc:
+        # termios.error (not an OSError) escapes pyserial when tcsetattr refuses parity
         code = getattr(exc, "errno", None)
+        if isinstance(exc, termios.error) and exc.args:
+            code = exc.args[0]
         text = str(exc)
         if code == errno.EINVAL or "Invalid argument" in text:
             hint = " (pseudo-terminals carry no parity: use parity='N')" if parity != "N" else ""

@@ -279,13 +279,21 @@ def test_parity_refused_by_a_pty(link: PtyLink) -> None:
         assert m.port.stopbits == 2
 
 
-def test_parity_einval_from_older_kernels(monkeypatch: pytest.MonkeyPatch) -> None:
+@pytest.mark.parametrize("raw_termios", [False, True])
+def test_parity_einval_from_older_kernels(
+    monkeypatch: pytest.MonkeyPatch, raw_termios: bool
+) -> None:
     """Kernels that refuse PARENB on a pty make pyserial's open fail with EINVAL (this
-    kernel drops the bit instead, see above): the same clear error."""
+    kernel drops the bit instead, see above), wrapped in SerialException or as a bare
+    termios.error (which is not an OSError): the same clear error."""
+    import termios
+
     import serial
 
     class Refusing:
         def open(self) -> None:
+            if raw_termios:
+                raise termios.error(22, "Invalid argument")
             raise serial.SerialException("Could not configure port: (22, 'Invalid argument')")
 
     monkeypatch.setattr(serial, "serial_for_url", lambda *a, **k: Refusing())
