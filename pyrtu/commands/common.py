@@ -1,0 +1,449 @@
+"""What the ``pyrtu`` subcommands share: the serial options, the exit codes, error
+reporting, ``--json`` output and a stop flag for SIGINT/SIGTERM.
+
+Exit codes (`EXIT_CODES`; ``pyrtu --help`` lists them):
+
+===  ===============  ==============================================================
+ 0   ok               the command did what was asked
+ 1   failure          anything else went wrong (an internal error, the bus hub failed)
+ 2   usage            bad arguments or values (argparse's own code, kept for all)
+ 3   port             a port or file cannot be opened or used: missing, busy, a
+                      refused format (parity E/O on a pseudo-terminal), unplugged,
+                      an unreadable capture file
+ 4   no response      nothing valid came back within ``--timeout`` (scan: no slave found)
+ 5   exception        the slave answered with a Modbus exception response
+ 6   frame            an answer came but cannot be the answer: bad CRC/LRC, another
+                      slave or function, malformed data, echo mismatch
+130  interrupted      Ctrl-C during a one-shot command (read, write, info, scan)
+===  ===============  ==============================================================
+
+``poll``, ``sniff``, ``simulate``, ``vbus`` and ``demo`` run until their end
+(``--count``, ``--duration``) or SIGINT/SIGTERM, which is a normal stop (0).
+"""
+
+from __future__ import annotations
+
+import argparse
+import errno
+import json
+import math
+import re
+import signal
+import sys
+import termios
+import threading
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
+from types import FrameType
+from typing import IO, TYPE_CHECKING, Any, NamedTuple
+
+if TYPE_CHECKING:
+    from ..errors import PortError
+    from ..master import Master
+
+EXIT_OK = 0
+EXIT_FAILURE = 1
+EXIT_USAGE = 2
+EXIT_PORT = 3
+EXIT_NO_RESPONSE = 4
+EXIT_EXCEPTION = 5
+EXIT_FRAME = 6
+EXIT_INTERRUPTED = 130
+
+#: exit code -> (kind, meaning); the kind is the ``error`` field of ``--json`` output
+EXIT_CODES: Mapping[int, tuple[str, str]] = {
+    EXIT_OK: ("ok", "success"),
+    EXIT_FAILURE: ("failure", "another failure (internal error, bus hub failed)"),
+    EXIT_USAGE: ("usage", "bad arguments or values"),
+    EXIT_PORT: ("port", "port or file error: missing, busy, refused format, unplugged"),
+    EXIT_NO_RESPONSE: ("no_response", "no response within the timeout (scan: no slave)"),
+    EXIT_EXCEPTION: ("exception", "the slave answered with an exception response"),
+    EXIT_FRAME: ("frame", "a bad answer: CRC/LRC, wrong slave/function, malformed"),
+    EXIT_INTERRUPTED: ("interrupted", "interrupted (Ctrl-C) during a one-shot command"),
+}
+
+Configure = Callable[[argparse.ArgumentParser], None]
+Run = Callable[[argparse.Namespace], int]
+
+
+class CommandSpec(NamedTuple):
+    """A subcommand as a module declares it; `pyrtu.cli` registers it."""
+
+    name: str
+    help: str
+    configure: Configure
+    run: Run
+    description: str | None = None
+
+
+def exit_code_table() -> str:
+    """The exit codes, for ``--help`` epilogs."""
+    lines = ["exit codes:"]
+    for code, (kind, meaning) in EXIT_CODES.items():
+        lines.append(f"  {code:>3}  {kind:<12} {meaning}")
+    return "\n".join(lines)
+
+
+# -- argument types -------------------------------------------------------------------
+
+_DURATION = re.compile(r"^\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*(s|ms|us|µs)?\s*$")
+
+
+def seconds(text: str) -> float:
+    """``"0.5"``, ``"500ms"``, ``"1750us"`` -> seconds (argparse type)."""
+    m = _DURATION.match(text)
+    if not m:
+        raise argparse.ArgumentTypeError(
+            f"expected seconds (e.g. 0.5, 500ms, 1750us), not {text!r}"
+        )
+    value = (
+        float(m.group(1)) * {None: 1.0, "s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6}[m.group(2)]
+    )
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite time, not {text!r}")
+    return value
+
+
+def positive_seconds(text: str) -> float:
+    value = seconds(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"expected a positive time, not {text!r}")
+    return value
+
+
+class HexInt(int):
+    """An integer the user wrote in hexadecimal (shown back in hexadecimal)."""
+
+    def __repr__(self) -> str:
+        return f"0x{int(self):04X}"
+
+
+def integer(text: str) -> int:
+    """Decimal, ``0x`` hex, ``0o``/``0b`` (argparse type); hex gives a `HexInt`."""
+    try:
+        value = int(text, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, not {text!r}") from None
+    return HexInt(value) if text.strip().lower().startswith("0x") else value
+
+
+def show_address(address: int, like: int) -> str:
+    """``address`` in the base the user wrote ``like`` in."""
+    return f"0x{address:04X}" if isinstance(like, HexInt) else str(address)
+
+
+def slave_address(text: str) -> int:
+    value = integer(text)
+    if not 0 <= value <= 247:
+        raise argparse.ArgumentTypeError(f"a slave address is 1..247 (0: broadcast), not {value}")
+    return value
+
+
+def parity(text: str) -> str:
+    value = text.strip().upper()[:1]
+    if value not in ("N", "E", "O") or len(text.strip()) != 1:
+        raise argparse.ArgumentTypeError(f"parity is N, E or O, not {text!r}")
+    return value
+
+
+# -- the serial options -----------------------------------------------------------------
+
+
+def add_serial_options(
+    p: argparse.ArgumentParser,
+    *,
+    timeout: float | None = 1.0,
+    parity_default: str = "E",
+) -> None:
+    """``--baudrate --parity --stopbits --bytesize --timeout --retries --mode --t35
+    --timing --echo``: the `pyrtu.Master` keywords (``timeout=None``: no timeout and
+    retries options, for the commands that only listen or serve)."""
+    g = p.add_argument_group("serial line (the keywords of pyrtu.Master)")
+    g.add_argument(
+        "-b", "--baudrate", type=int, default=19200, metavar="BAUD", help="(default 19200)"
+    )
+    g.add_argument(
+        "-P",
+        "--parity",
+        type=parity,
+        default=parity_default,
+        metavar="N|E|O",
+        help=f"(default {parity_default}; pseudo-terminals and the virtual bus need N)",
+    )
+    g.add_argument("--stopbits", type=float, default=1, choices=[1, 1.5, 2], help="(default 1)")
+    g.add_argument("--bytesize", type=int, default=8, choices=[7, 8], help="(default 8)")
+    g.add_argument("--mode", default="rtu", choices=["rtu", "ascii"], help="(default rtu)")
+    g.add_argument(
+        "--t35",
+        type=seconds,
+        default=None,
+        metavar="SECONDS",
+        help="inter-frame silence (default: 3.5 characters, 1.75 ms above 19200 baud; 0: off)",
+    )
+    g.add_argument(
+        "--timing",
+        default="modbus",
+        choices=["modbus", "weg"],
+        help="timing rule above 19200 baud (default modbus)",
+    )
+    if timeout is not None:
+        g.add_argument(
+            "-o",
+            "--timeout",
+            type=positive_seconds,
+            default=timeout,
+            metavar="SECONDS",
+            help=f"response timeout (default {timeout:g} s; 500ms works too)",
+        )
+        g.add_argument(
+            "--retries", type=int, default=0, metavar="N", help="repeat a failed transaction"
+        )
+        g.add_argument(
+            "--echo", action="store_true", help="the adapter echoes what it sends (read it back)"
+        )
+
+
+def add_json_option(p: argparse.ArgumentParser, what: str = "one JSON document") -> None:
+    p.add_argument("--json", action="store_true", help=f"output for scripts: {what} on stdout")
+
+
+def serial_kwargs(args: argparse.Namespace) -> dict[str, Any]:
+    """The byte format of the serial options."""
+    return {
+        "baudrate": args.baudrate,
+        "parity": args.parity,
+        "stopbits": _stopbits(args.stopbits),
+        "bytesize": args.bytesize,
+    }
+
+
+def _stopbits(value: float) -> float:
+    return int(value) if value == int(value) else value
+
+
+def framing_kwargs(args: argparse.Namespace) -> dict[str, Any]:
+    """Serial format plus the framer's timing options."""
+    out = serial_kwargs(args)
+    out.update(timing=args.timing, t35=args.t35)
+    return out
+
+
+def describe_format(args: argparse.Namespace) -> str:
+    stop = {1.0: "1", 1.5: "1.5", 2.0: "2"}[float(args.stopbits)]
+    return f"{args.baudrate} baud {args.bytesize}{args.parity}{stop}"
+
+
+def open_master(args: argparse.Namespace, **overrides: Any) -> Master:
+    """A `pyrtu.Master` on ``args.port`` with the serial options."""
+    from ..master import Master
+
+    kwargs: dict[str, Any] = serial_kwargs(args)
+    kwargs.update(
+        timeout=args.timeout,
+        retries=args.retries,
+        mode=args.mode,
+        echo=args.echo,
+        t35=args.t35,
+        timing=args.timing,
+    )
+    kwargs.update(overrides)
+    return Master(args.port, **kwargs)
+
+
+# -- errors -------------------------------------------------------------------------------
+
+
+def classify(exc: BaseException) -> int:
+    """The exit code for an exception."""
+    from ..errors import (
+        ExceptionResponseError,
+        FrameError,
+        ModbusError,
+        NoResponseError,
+        PortError,
+    )
+
+    if isinstance(exc, KeyboardInterrupt):
+        return EXIT_INTERRUPTED
+    if isinstance(exc, PortError):
+        return EXIT_PORT
+    if isinstance(exc, NoResponseError):
+        return EXIT_NO_RESPONSE
+    if isinstance(exc, ExceptionResponseError):
+        return EXIT_EXCEPTION
+    if isinstance(exc, FrameError):
+        return EXIT_FRAME
+    if isinstance(exc, ModbusError):
+        return EXIT_FAILURE
+    if isinstance(exc, OSError):
+        return EXIT_PORT
+    if isinstance(exc, ValueError | OverflowError):
+        return EXIT_USAGE
+    return EXIT_FAILURE
+
+
+def kind_of(code: int) -> str:
+    return EXIT_CODES.get(code, ("failure", ""))[0]
+
+
+def error_document(exc: BaseException, code: int) -> dict[str, Any]:
+    """The ``--json`` form of an error."""
+    from ..errors import ExceptionResponseError
+
+    doc: dict[str, Any] = {
+        "ok": False,
+        "error": kind_of(code),
+        "exit_code": code,
+        "message": message_of(exc),
+    }
+    if isinstance(exc, ExceptionResponseError):
+        doc.update(
+            slave=exc.slave,
+            function=exc.function,
+            exception_code=exc.code,
+            exception_name=exc.name,
+        )
+    return doc
+
+
+def message_of(exc: BaseException) -> str:
+    if isinstance(exc, KeyboardInterrupt):
+        return "interrupted"
+    if isinstance(exc, OSError) and exc.filename is not None and exc.strerror:
+        return f"{exc.filename}: {exc.strerror}"
+    return str(exc) or type(exc).__name__
+
+
+#: what people read before the message, by kind
+LABELS = {
+    "failure": "error",
+    "usage": "error",
+    "port": "port error",
+    "no_response": "no response",
+    "exception": "exception response",
+    "frame": "frame error",
+    "interrupted": "interrupted",
+}
+
+
+def port_error(exc: termios.error, port: str, fmt: str) -> PortError:
+    """pyserial lets the ``termios.error`` of a refused format through: as a PortError."""
+    from ..errors import PortError
+
+    code = exc.args[0] if exc.args and isinstance(exc.args[0], int) else None
+    text = exc.args[1] if len(exc.args) > 1 else str(exc)
+    hint = ""
+    if code == errno.EINVAL:
+        hint = " (pseudo-terminals and the virtual bus carry no parity: use --parity N)"
+    return PortError(port, f"the port refused the format {fmt}: {text}{hint}")
+
+
+def report_error(
+    command: str, exc: BaseException, json_output: bool, out: IO[str] | None = None
+) -> int:
+    """Print the error for people (stderr) and, with ``--json``, as a document on
+    stdout; returns the exit code."""
+    code = classify(exc)
+    label = LABELS.get(kind_of(code), "error")
+    print(f"pyrtu {command}: {label}: {message_of(exc)}", file=sys.stderr)
+    if json_output:
+        emit(error_document(exc, code), out)
+    return code
+
+
+def guarded(command: str, run: Run) -> Run:
+    """``run`` with its errors turned into messages and exit codes."""
+
+    def wrapper(args: argparse.Namespace) -> int:
+        try:
+            return run(args)
+        except (Exception, KeyboardInterrupt) as exc:
+            from ..errors import ModbusError
+
+            error: BaseException = exc
+            if isinstance(exc, BrokenPipeError):
+                raise  # the reader went away (| head): pyrtu.cli.main ends quietly
+            if isinstance(exc, termios.error):
+                fmt = describe_format(args) if hasattr(args, "baudrate") else "asked"
+                error = port_error(exc, str(getattr(args, "port", "?")), fmt)
+            elif not isinstance(
+                exc, ModbusError | OSError | ValueError | OverflowError | KeyboardInterrupt
+            ):
+                raise
+            return report_error(command, error, bool(getattr(args, "json", False)))
+
+    wrapper.__name__ = getattr(run, "__name__", "run")
+    wrapper.__doc__ = run.__doc__
+    return wrapper
+
+
+# -- output ---------------------------------------------------------------------------------
+
+
+def jsonable(value: Any) -> Any:
+    """Floats that JSON cannot hold (NaN, infinities) as strings; bytes as text."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)
+    if isinstance(value, bytes):
+        return value.decode("latin-1")
+    if isinstance(value, dict):
+        return {str(k): jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [jsonable(v) for v in value]
+    return value
+
+
+def emit(doc: Mapping[str, Any], out: IO[str] | None = None) -> None:
+    """One JSON document on one line (stdout), flushed."""
+    stream = out if out is not None else sys.stdout
+    stream.write(json.dumps(jsonable(dict(doc)), allow_nan=False) + "\n")
+    stream.flush()
+
+
+# -- stopping ---------------------------------------------------------------------------------
+
+
+@contextmanager
+def stop_on_signals() -> Iterator[threading.Event]:
+    """An event set by SIGINT or SIGTERM while the block runs (handlers restored after)."""
+    stop = threading.Event()
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        stop.set()
+
+    old: dict[signal.Signals, Any] = {}
+    in_main = threading.current_thread() is threading.main_thread()
+    if in_main:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            old[sig] = signal.signal(sig, on_signal)
+    try:
+        yield stop
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+
+
+__all__ = [
+    "EXIT_CODES",
+    "EXIT_EXCEPTION",
+    "EXIT_FAILURE",
+    "EXIT_FRAME",
+    "EXIT_INTERRUPTED",
+    "EXIT_NO_RESPONSE",
+    "EXIT_OK",
+    "EXIT_PORT",
+    "EXIT_USAGE",
+    "CommandSpec",
+    "add_json_option",
+    "add_serial_options",
+    "classify",
+    "emit",
+    "error_document",
+    "exit_code_table",
+    "guarded",
+    "open_master",
+    "report_error",
+    "seconds",
+    "serial_kwargs",
+    "stop_on_signals",
+]

@@ -1,0 +1,190 @@
+"""``pyrtu simulate DEVICE --port PATH``: a simulated drive on a serial port.
+
+DEVICE is one of cfw100, cfw320, cfw701 (WEG), cv100 (CV100/FV100), act, acu
+(Bonfiglioli Vectron): the simulators of `pyrtu.devices`, which answer as their
+manuals say (function codes, exceptions, identification, response delay, motor
+ramps, status words, serial watchdog).  ``--address`` defaults to the address of
+the manual's examples.  Put it on a drop of ``pyrtu vbus`` (with ``--parity N``:
+pseudo-terminals carry no parity) or on a real port.
+
+Runs until SIGINT/SIGTERM or ``--duration`` (exit 0), then prints the counters;
+``--watch`` prints the drive's frequency and status word every second.
+"""
+
+from __future__ import annotations
+
+import argparse
+import inspect
+import sys
+import time
+from typing import Any
+
+from .common import (
+    EXIT_OK,
+    CommandSpec,
+    add_json_option,
+    add_serial_options,
+    describe_format,
+    emit,
+    exit_code_table,
+    guarded,
+    positive_seconds,
+    serial_kwargs,
+    stop_on_signals,
+)
+from .io import DEVICES
+
+VENDORS = {
+    "cfw100": "WEG CFW100",
+    "cfw320": "WEG CFW320",
+    "cfw701": "WEG CFW701",
+    "cv100": "CV100/FV100",
+    "act": "Bonfiglioli Vectron ACT",
+    "acu": "Bonfiglioli Vectron ACU",
+}
+
+
+def make_simulator(device: str, state: str | None = None, mode: str = "rtu") -> Any:
+    """The simulator of ``device``; ``state`` where the simulator has states."""
+    from ..devices import SIMULATORS, simulator
+
+    options: dict[str, Any] = {}
+    params = inspect.signature(SIMULATORS[device]).parameters
+    if state is not None:
+        if "state" not in params:
+            raise ValueError(
+                f"the {device} simulator has no --state (it starts as its manual says)"
+            )
+        options["state"] = state
+    if mode != "rtu":
+        options["mode"] = mode
+    return simulator(device, **options)
+
+
+def frequency_of(sim: Any) -> float:
+    reader = getattr(sim, "frequency_hz", None) or sim.speed_hz
+    value: float = reader()
+    return value
+
+
+def status_of(sim: Any) -> str:
+    status = sim.status()
+    describe = getattr(status, "describe", None)
+    return str(describe() if describe is not None else status)
+
+
+def _configure(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "device",
+        metavar="DEVICE",
+        type=str.lower,
+        choices=DEVICES,
+        help="cfw100, cfw320, cfw701, cv100, act or acu",
+    )
+    p.add_argument("-p", "--port", required=True, metavar="PATH", help="serial port to serve")
+    p.add_argument(
+        "-a",
+        "--address",
+        type=int,
+        metavar="N",
+        help="slave address (default: the manual's example address)",
+    )
+    p.add_argument(
+        "--state",
+        choices=["manual", "stopped"],
+        help="WEG and CV100: start in the state of the manual's examples (default) or stopped",
+    )
+    p.add_argument(
+        "-d", "--duration", type=positive_seconds, metavar="SECONDS", help="stop after this time"
+    )
+    p.add_argument("--watch", action="store_true", help="print frequency and status every second")
+    add_json_option(p, "JSON lines: ready, status (--watch), stopped")
+    add_serial_options(p, timeout=None)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from ..devices import EXAMPLE_ADDRESS
+
+    device: str = args.device
+    address = args.address if args.address is not None else EXAMPLE_ADDRESS[device]
+    if not 1 <= address <= 247:
+        raise ValueError(f"a slave address is 1..247, not {address}")
+    sim = make_simulator(device, args.state, args.mode)
+    options = serial_kwargs(args)
+    options.update(mode=args.mode, timing=args.timing)
+    if args.t35 is not None:
+        options["t35"] = args.t35
+    with stop_on_signals() as stop:  # before the "ready" line: a signal after it stops cleanly
+        slave = sim.serve(args.port, address, **options)
+        started = time.monotonic()
+        try:
+            _ready(args, device, address, sorted(slave.functions))
+            deadline = None if args.duration is None else started + args.duration
+            next_watch = started + 1.0
+            while not stop.is_set():
+                now = time.monotonic()
+                if deadline is not None and now >= deadline:
+                    break
+                if slave.error is not None:
+                    raise slave.error
+                if args.watch and now >= next_watch:
+                    next_watch += 1.0
+                    _watch(args, sim, now - started)
+                wake = min(next_watch if args.watch else now + 0.2, now + 0.2)
+                if deadline is not None:
+                    wake = min(wake, deadline)
+                stop.wait(max(0.0, wake - now))
+        finally:
+            counters = slave.counters
+            sim.close()
+    elapsed = time.monotonic() - started
+    if args.json:
+        emit({"type": "stopped", "seconds": round(elapsed, 3), "counters": counters})
+    else:
+        print(
+            f"pyrtu simulate: stopped after {elapsed:.1f} s: {counters['requests']} requests, "
+            f"{counters['responses']} responses, {counters['exceptions']} exceptions",
+            file=sys.stderr,
+        )
+    return EXIT_OK
+
+
+def _ready(args: argparse.Namespace, device: str, address: int, functions: list[int]) -> None:
+    if args.json:
+        emit(
+            {
+                "type": "ready",
+                "device": device,
+                "address": address,
+                "port": args.port,
+                "format": f"{describe_format(args)} {args.mode.upper()}",
+                "functions": functions,
+            }
+        )
+    else:
+        print(
+            f"pyrtu simulate: {VENDORS[device]} at address {address} on {args.port}, "
+            f"{describe_format(args)} {args.mode.upper()} "
+            f"(functions {', '.join(map(str, functions))}); Ctrl-C to stop",
+            file=sys.stderr,
+            flush=True,
+        )
+
+
+def _watch(args: argparse.Namespace, sim: Any, t: float) -> None:
+    hz, text = frequency_of(sim), status_of(sim)
+    if args.json:
+        emit({"type": "status", "t": round(t, 3), "frequency_hz": round(hz, 3), "status": text})
+    else:
+        print(f"{t:7.1f} s  {hz:7.2f} Hz  {text}", flush=True)
+
+
+COMMANDS = (
+    CommandSpec(
+        "simulate",
+        "run a simulated drive (cfw100, cfw320, cfw701, cv100, act, acu) on a port",
+        _configure,
+        guarded("simulate", _run),
+        (__doc__ or "").strip() + "\n\n" + exit_code_table(),
+    ),
+)

@@ -1,0 +1,110 @@
+"""Helpers of the command-line tests: run ``python -m pyrtu`` as a subprocess, with
+bounded timeouts, from the root of the tree under test."""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import subprocess
+import sys
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+TIMEOUT = 30.0
+
+
+@dataclass
+class Result:
+    code: int
+    out: str
+    err: str
+
+    def json(self) -> Any:
+        """The one JSON document on stdout."""
+        lines = self.json_lines()
+        assert len(lines) == 1, self.out
+        return lines[0]
+
+    def json_lines(self) -> list[Any]:
+        return [json.loads(line) for line in self.out.splitlines() if line.strip()]
+
+
+def env() -> dict[str, str]:
+    e = dict(os.environ)
+    e.pop("PYTHONSTARTUP", None)
+    e["PYTHONUNBUFFERED"] = "1"
+    e.setdefault("TERM", "dumb")
+    return e
+
+
+def pyrtu(*args: object, timeout: float = TIMEOUT) -> Result:
+    """Run ``python -m pyrtu ARGS`` to completion."""
+    proc = subprocess.run(
+        [sys.executable, "-m", "pyrtu", *map(str, args)],
+        cwd=ROOT,
+        env=env(),
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+    return Result(proc.returncode, proc.stdout, proc.stderr)
+
+
+class Background:
+    """``python -m pyrtu ARGS`` running; its stdout lines arrive in a queue."""
+
+    def __init__(self, *args: object) -> None:
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "pyrtu", *map(str, args)],
+            cwd=ROOT,
+            env=env(),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        self.lines: queue.Queue[str] = queue.Queue()
+        self.err: list[str] = []
+        self.out: list[str] = []
+        self._threads = [
+            threading.Thread(target=self._read_out, daemon=True),
+            threading.Thread(target=self._read_err, daemon=True),
+        ]
+        for t in self._threads:
+            t.start()
+
+    def _read_out(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self.lines.put(line)
+
+    def _read_err(self) -> None:
+        assert self.proc.stderr is not None
+        for line in self.proc.stderr:
+            self.err.append(line)
+
+    def line(self, timeout: float = 10.0) -> str:
+        """The next line of stdout (queue.Empty after ``timeout``)."""
+        line = self.lines.get(timeout=timeout)
+        self.out.append(line)
+        return line
+
+    def finish(self, timeout: float = 15.0) -> Result:
+        """Wait for the end (killed after ``timeout``); everything it printed."""
+        try:
+            self.proc.wait(timeout)
+        finally:
+            self.kill()
+        for t in self._threads:
+            t.join(5)
+        while not self.lines.empty():
+            self.out.append(self.lines.get_nowait())
+        return Result(self.proc.returncode, "".join(self.out), "".join(self.err))
+
+    def kill(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(5)
