@@ -54,4 +54,5 @@ bench: setup
 
 lint: setup
 	$(PY) -m ruff check pyrtu tests bench
+	$(PY) -m ruff format --check pyrtu tests bench
 	$(PY) -m mypy

@@ -34,7 +34,7 @@ if os.environ.get("PYRTU_SANITIZE") == "1":
 # parameter without a copy and refuses every other type, which gives crc16 a
 # fast path that checks the type for free; the empty call with the same
 # arguments is the benchmarks' floor for a call of this shape.
-_BINDING = '''
+_BINDING = """
 #include "rtu.h"
 static uint16_t rtu_crc16_bytes(const char *data, size_t len, uint16_t crc)
 {
@@ -46,7 +46,7 @@ static uint16_t rtu_noop_bytes(const char *data, size_t len, uint16_t crc)
     (void)len;
     return crc;
 }
-'''
+"""
 
 ffibuilder.set_source(
     "pyrtu._rtu_core",
