@@ -1,0 +1,1 @@
+"""Interoperability peers of the tests and the serial benchmark (see fixtures.py)."""
