@@ -65,6 +65,20 @@ FUNCTION_NAMES = {5: "write_coil", 6: "write_register", 15: "write_coils", 16: "
 Value = int | float | str | bool
 
 
+def _add_value_format(p: argparse.ArgumentParser) -> None:
+    """--type and --order, shared by read and write."""
+    p.add_argument(
+        "-t", "--type", dest="kind", default="uint16", choices=TYPES, help="(default uint16)"
+    )
+    p.add_argument(
+        "--order",
+        type=order,
+        default="ABCD",
+        metavar="ORDER",
+        help="32-bit word/byte order: ABCD (default), CDAB, BADC, DCBA",
+    )
+
+
 def table(text: str) -> str:
     try:
         return _TABLE_ALIASES[text.lower()]
@@ -257,16 +271,7 @@ def add_read_arguments(p: argparse.ArgumentParser) -> None:
         metavar="TABLE",
         help="holding (default), input, coils or discrete",
     )
-    p.add_argument(
-        "-t", "--type", dest="kind", default="uint16", choices=TYPES, help="(default uint16)"
-    )
-    p.add_argument(
-        "--order",
-        type=order,
-        default="ABCD",
-        metavar="ORDER",
-        help="32-bit word/byte order: ABCD (default), CDAB, BADC, DCBA",
-    )
+    _add_value_format(p)
     p.add_argument(
         "--profile",
         choices=DEVICES,
@@ -359,16 +364,7 @@ def _configure_write(p: argparse.ArgumentParser) -> None:
         metavar="TABLE",
         help="holding (default) or coils (input registers and discrete inputs are read-only)",
     )
-    p.add_argument(
-        "-t", "--type", dest="kind", default="uint16", choices=TYPES, help="(default uint16)"
-    )
-    p.add_argument(
-        "--order",
-        type=order,
-        default="ABCD",
-        metavar="ORDER",
-        help="32-bit word/byte order: ABCD (default), CDAB, BADC, DCBA",
-    )
+    _add_value_format(p)
     p.add_argument(
         "-f",
         "--function",
