@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 
+from pyrtu import add_crc
 from pyrtu.vbus import VirtualBus, load_capture
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -24,18 +25,7 @@ def env() -> dict[str, str]:
     return e
 
 
-def crc16(data: bytes) -> int:
-    crc = 0xFFFF
-    for b in data:
-        crc ^= b
-        for _ in range(8):
-            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
-    return crc
-
-
-def adu(body: bytes) -> bytes:
-    crc = crc16(body)
-    return body + bytes((crc & 0xFF, crc >> 8))
+adu = add_crc  # the ADU of address + PDU, CRC low byte first (the core's own tests check it)
 
 
 # A device in another process, plain pyserial: answers "read holding registers"
