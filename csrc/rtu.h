@@ -155,7 +155,6 @@ typedef struct {
     int64_t times[RTU_FRAMER_CAP]; /* arrival (end of character) of each byte */
     rtu_mark marks[RTU_FRAMER_CAP];
     size_t nmarks;
-    size_t start;      /* first byte still referenced by the last event */
     size_t head;       /* first unresolved byte */
     size_t n;          /* bytes in buf */
     uint64_t base;     /* stream position of buf[0] */
@@ -194,7 +193,6 @@ typedef struct {
     uint8_t run_error;
     uint64_t run_start;
     size_t chunk_index; /* cursor for byte times */
-    int done;
 } rtu_parser;
 
 /* Marks from chunk times (chunk i starts at offsets[i], all its bytes arrived

@@ -55,7 +55,7 @@ void rtu_framer_reset(rtu_framer *f)
         f->counters.discarded[RTU_ERR_TRUNCATED] += f->n - f->head;
     }
     f->base += f->n;
-    f->n = f->head = f->start = 0;
+    f->n = f->head = 0;
     f->nmarks = 0;
     f->run = 0;
     f->silent = f->final = 0;

@@ -192,6 +192,5 @@ int rtu_parse(rtu_parser *p, const uint8_t *data, size_t len, const rtu_mark *ma
         p->counters.discard_events++;
         p->run = 0;
     }
-    p->done = 1;
     return RTU_OK;
 }

@@ -80,9 +80,6 @@ class Frame:
         """The exception code of an exception response, else None."""
         return self.adu[2] if self.kind is FrameKind.EXCEPTION else None
 
-    def __bool__(self) -> bool:
-        return True
-
     def __repr__(self) -> str:
         what = f"error={self.error}" if self.error else f"address={self.address}"
         return (
