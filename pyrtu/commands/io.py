@@ -18,6 +18,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from ..pdu import FUNCTION_NAMES
 from .common import (
     EXIT_OK,
     CommandSpec,
@@ -60,7 +61,6 @@ _TABLE_ALIASES = {
 TYPES = ("uint16", "int16", "uint32", "int32", "float32", "string")
 ORDERS = ("ABCD", "CDAB", "BADC", "DCBA")
 DEVICES = ("cfw100", "cfw320", "cfw701", "cv100", "act", "acu")
-FUNCTION_NAMES = {5: "write_coil", 6: "write_register", 15: "write_coils", 16: "write_registers"}
 
 Value = int | float | str | bool
 
