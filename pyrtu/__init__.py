@@ -8,33 +8,15 @@ the import fail when the C core is missing.  ``pyrtu.BACKEND`` says which runs;
 
 from __future__ import annotations
 
-import os
-from types import ModuleType
-
-from . import _pure
+from . import _backend
+from ._version import __version__ as __version__
 from .ascii import decode_ascii, encode_ascii
 from .frames import ErrorReason, Frame, FrameKind, FrameList
 from .rules import BONFIGLIOLI, CV100, LengthRule
 from .timing import Timing
 
-__version__ = "0.1.0"
-
-
-def _load_c() -> ModuleType | None:
-    try:
-        from . import _cext
-    except ImportError as exc:
-        if os.environ.get("PYRTU_REQUIRE_C") == "1":
-            raise ImportError(
-                f"PYRTU_REQUIRE_C=1 but the pyrtu C core is not built ({exc}); "
-                "reinstall with a C compiler (pip install .)"
-            ) from exc
-        return None
-    return _cext
-
-
-_C = _load_c()
-_active: ModuleType = _pure if os.environ.get("PYRTU_PURE") == "1" or _C is None else _C
+_active = _backend.active
+_C = _backend.C
 
 BACKEND: str = _active.BACKEND
 crc16 = _active.crc16
@@ -76,23 +58,8 @@ from .master import Master  # noqa: E402
 from .pdu import CommEventLog  # noqa: E402
 from .slave import Slave  # noqa: E402
 
-
-def backend(name: str | None = None) -> ModuleType:
-    """The backend module named ``"c"`` or ``"python"`` (None: the active one)."""
-    if name is None:
-        return _active
-    if name == "python":
-        return _pure
-    if name == "c":
-        if _C is None:
-            raise ImportError("the pyrtu C core is not built")
-        return _C
-    raise ValueError(f"backend must be 'c' or 'python', not {name!r}")
-
-
-def available_backends() -> tuple[str, ...]:
-    """The backends that can run here."""
-    return ("c", "python") if _C is not None else ("python",)
+backend = _backend.backend
+available_backends = _backend.available_backends
 
 
 __all__ = [

@@ -80,7 +80,7 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     try:
-        from pyrtu import __version__ as version
+        from ._version import __version__ as version
     except ImportError:  # pragma: no cover - package half-installed
         version = "unknown"
     parser.add_argument("--version", action="version", version=f"pyrtu {version}")

@@ -30,6 +30,7 @@ import threading
 from collections.abc import Iterable, Sequence
 from typing import Any
 
+from . import _backend
 from . import pdu as P
 from ._master_io import Transactions, _counters
 from .ascii import AsciiFramer
@@ -79,8 +80,6 @@ class Master(Transactions):
         strict: bool = False,
         backend: str | None = None,
     ) -> None:
-        import pyrtu
-
         self.mode = _mode(mode)
         self.timeout = _seconds("timeout", timeout, positive=True)
         if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
@@ -88,7 +87,7 @@ class Master(Transactions):
         self.retries = retries
         self.broadcast_delay = _seconds("broadcast_delay", broadcast_delay)
         self.echo = bool(echo)
-        self._backend = pyrtu.backend(backend)
+        self._backend = _backend.backend(backend)
         self._rules = dict(check_rules(rules))
         self._max_adu = max_adu
         self._strict = strict

@@ -29,8 +29,10 @@ import time
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
+from . import _backend
 from . import pdu as P
 from ._slave_diag import DeviceIdentification, LineState
+from ._version import __version__
 from .ascii import AsciiFramer, encode_ascii
 from .datastore import DataStore
 from .errors import SlaveException
@@ -89,8 +91,6 @@ class Slave:
         server_id: bytes = b"pyrtu",
         run_indicator: bool = True,
     ) -> None:
-        import pyrtu
-
         if mode not in ("rtu", "ascii"):
             raise ValueError(f"mode must be 'rtu' or 'ascii', not {mode!r}")
         self.mode = mode
@@ -125,11 +125,11 @@ class Slave:
         #: FC 07: the eight exception status bits (the owner sets them)
         self.exception_status = 0
         self.echo = bool(echo)
-        self._backend = pyrtu.backend(backend)
+        self._backend = _backend.backend(backend)
         self._rules = dict(check_rules(rules))
         self._max_adu = max_adu
         max_pdu = min(P.MAX_PDU, max_adu - 3) if mode == "rtu" else P.MAX_PDU
-        self.identification = DeviceIdentification(identification, max_pdu, pyrtu.__version__)
+        self.identification = DeviceIdentification(identification, max_pdu, __version__)
         self.line = LineState()
         self._handlers: dict[int, _Builtin] = self._builtins()
         self._broadcast_ok = set(P.BROADCAST_FUNCTIONS)
