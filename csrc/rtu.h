@@ -11,6 +11,7 @@
  *   [SL]  MODBUS over Serial Line, Specification and Implementation Guide V1.02
  *   [AP]  MODBUS Application Protocol Specification V1.1b
  *   [CFW] WEG CFW100 Modbus RTU manual (seed 000), sections 4 and 6, Appendix B
+ *   [TCP] MODBUS Messaging on TCP/IP Implementation Guide V1.0b
  *   [BV]  Bonfiglioli Vectron ACT/ACU CM-232/CM-485 Modbus manual (seed 004), ch. 6
  */
 #ifndef RTU_H
@@ -207,5 +208,88 @@ int rtu_parser_init(rtu_parser *p, const rtu_config *cfg);
 int rtu_parse(rtu_parser *p, const uint8_t *data, size_t len, const rtu_mark *marks, size_t nmarks,
               const uint64_t *offsets, const int64_t *times, size_t nchunks, rtu_event *out,
               size_t cap, size_t *nout);
+
+/* ---- Modbus TCP: MBAP framing ([TCP] 3.1.3; csrc/rtu_mbap.c) ------------ */
+#define RTU_MBAP_HEADER_LEN 7   /* transaction id, protocol id, length, unit id */
+#define RTU_MBAP_MIN_LENGTH 2   /* length field: unit id + a PDU of 1..253 bytes */
+#define RTU_MBAP_MAX_LENGTH 254 /* ([AP] 4.1) */
+#define RTU_MBAP_MAX_ADU 260
+#define RTU_MBAP_FRAMER_CAP (2 * RTU_MBAP_MAX_ADU)
+
+/* rtu_mbap_inspect results */
+#define RTU_MBAP_COMPLETE 0 /* *length: the ADU is data[0..*length) */
+#define RTU_MBAP_NEED 1     /* *length: the ADU length known so far (7 until the length field) */
+#define RTU_MBAP_INVALID 2  /* *error: why the header is invalid */
+
+/* Why bytes were discarded (event error codes) */
+#define RTU_MBAP_ERR_NONE 0
+#define RTU_MBAP_ERR_PROTOCOL 1  /* protocol id other than 0 */
+#define RTU_MBAP_ERR_LENGTH 2    /* length field outside 2..254 */
+#define RTU_MBAP_ERR_TRUNCATED 3 /* the stream ended inside an ADU */
+#define RTU_MBAP_NERR 4
+
+typedef struct {
+    uint64_t offset;  /* stream position of the first byte */
+    uint64_t length;  /* bytes of the ADU, or of the discarded run */
+    uint8_t kind;     /* RTU_KIND_* (RTU_KIND_DISCARD with an error) */
+    uint8_t error;    /* RTU_MBAP_ERR_* */
+    uint16_t reserved;
+} rtu_mbap_event;
+
+typedef struct {
+    uint64_t frames[4];                 /* by kind: request, response, exception, unknown */
+    uint64_t discarded[RTU_MBAP_NERR];  /* bytes by error reason */
+    uint64_t discard_events;
+} rtu_mbap_counters;
+
+/* The head of a stream: RTU_MBAP_COMPLETE, RTU_MBAP_NEED or RTU_MBAP_INVALID
+ * (RTU_EINVAL for NULL pointers).  Errors are reported as soon as the bytes
+ * show them (protocol id after 4 bytes, length after 6). */
+int rtu_mbap_inspect(const uint8_t *data, size_t n, size_t *length, int *error);
+/* RTU_KIND_* of a complete ADU for a role (RTU_ROLE_MASTER: responses). */
+int rtu_mbap_kind(int role, const uint8_t *adu);
+/* Header + PDU (1..253 bytes) into out; *nout = 7 + pdu_len. */
+int rtu_mbap_encode(uint16_t transaction, uint8_t unit, const uint8_t *pdu, size_t pdu_len,
+                    uint8_t *out, size_t cap, size_t *nout);
+
+typedef struct {
+    int role;
+    int error;    /* sticky RTU_MBAP_ERR_* after a bad header: the rest is discarded */
+    int eof;      /* the stream ended (rtu_mbap_framer_close) */
+    size_t head;  /* first unresolved byte */
+    size_t n;     /* bytes in buf */
+    uint64_t base; /* stream position of buf[0] */
+    rtu_mbap_counters counters;
+    rtu_mbap_event event; /* the event returned by the last rtu_mbap_framer_poll */
+    uint8_t buf[RTU_MBAP_FRAMER_CAP];
+} rtu_mbap_framer;
+
+int rtu_mbap_framer_init(rtu_mbap_framer *f, int role);
+/* Accept bytes; returns how many were taken (offer the rest after polling).
+ * After a bad header every byte is taken and counted as discarded; after
+ * rtu_mbap_framer_close none is. */
+size_t rtu_mbap_framer_feed(rtu_mbap_framer *f, const uint8_t *data, size_t len);
+/* End of stream: an incomplete ADU becomes a truncated discard event. */
+void rtu_mbap_framer_close(rtu_mbap_framer *f);
+/* 1: f->event holds an event whose bytes are at rtu_mbap_framer_event_data(f)
+ * until the next call; 0: nothing more until new bytes. */
+int rtu_mbap_framer_poll(rtu_mbap_framer *f);
+const uint8_t *rtu_mbap_framer_event_data(const rtu_mbap_framer *f);
+/* Bytes still needed to complete the ADU at the head (7 when idle, 0 when an
+ * event is ready or the stream is over). */
+size_t rtu_mbap_framer_needed(const rtu_mbap_framer *f);
+
+typedef struct {
+    int role;
+    int done;     /* a bad header or the end: the rest is one discard event */
+    uint64_t pos; /* next unresolved byte */
+    rtu_mbap_counters counters;
+} rtu_mbap_parser;
+
+int rtu_mbap_parser_init(rtu_mbap_parser *p, int role);
+/* The ADUs of a whole capture into out (capacity cap); RTU_ENOSPC when out is
+ * full (call again with a fresh out array to continue), RTU_OK when done. */
+int rtu_mbap_parse(rtu_mbap_parser *p, const uint8_t *data, size_t len, rtu_mbap_event *out,
+                   size_t cap, size_t *nout);
 
 #endif /* RTU_H */

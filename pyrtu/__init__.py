@@ -29,6 +29,13 @@ char_timing = _active.char_timing
 Framer = _active.Framer
 parse_stream = _active.parse_stream
 
+# Modbus TCP: MBAP framing (Messaging on TCP/IP Implementation Guide V1.0b, 3.1.3)
+from ._mbap import MbapError, MbapFrame, MbapFrameList  # noqa: E402
+
+MbapFramer = _active.MbapFramer
+parse_tcp_stream = _active.parse_tcp_stream
+encode_mbap = _active.encode_mbap
+
 
 # The thin API over the core: imported after the backend is chosen (they use it).
 from .data import (  # noqa: E402
@@ -79,6 +86,10 @@ __all__ = [
     "Framer",
     "LengthRule",
     "Master",
+    "MbapError",
+    "MbapFrame",
+    "MbapFrameList",
+    "MbapFramer",
     "ModbusError",
     "NoResponseError",
     "PortError",
@@ -103,9 +114,11 @@ __all__ = [
     "encode_ascii",
     "encode_float32",
     "encode_int32",
+    "encode_mbap",
     "encode_string",
     "encode_uint32",
     "encode_values",
     "lrc",
     "parse_stream",
+    "parse_tcp_stream",
 ]

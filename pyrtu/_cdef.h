@@ -110,3 +110,50 @@ int rtu_parser_init(rtu_parser *p, const rtu_config *cfg);
 int rtu_parse(rtu_parser *p, const uint8_t *data, size_t len, const rtu_mark *marks, size_t nmarks,
               const uint64_t *offsets, const int64_t *times, size_t nchunks, rtu_event *out,
               size_t cap, size_t *nout);
+
+/* ---- Modbus TCP: MBAP framing (csrc/rtu_mbap.c) ---- */
+#define RTU_MBAP_HEADER_LEN ...
+#define RTU_MBAP_MAX_LENGTH ...
+#define RTU_MBAP_COMPLETE ...
+#define RTU_MBAP_NEED ...
+#define RTU_MBAP_INVALID ...
+#define RTU_MBAP_NERR ...
+
+typedef struct {
+    uint64_t offset;
+    uint64_t length;
+    uint8_t kind;
+    uint8_t error;
+    ...;
+} rtu_mbap_event;
+
+typedef struct {
+    uint64_t frames[4];
+    uint64_t discarded[4];
+    uint64_t discard_events;
+} rtu_mbap_counters;
+
+typedef struct {
+    int error;
+    rtu_mbap_counters counters;
+    rtu_mbap_event event;
+    ...;
+} rtu_mbap_framer;
+
+typedef struct {
+    rtu_mbap_counters counters;
+    ...;
+} rtu_mbap_parser;
+
+int rtu_mbap_inspect(const uint8_t *data, size_t n, size_t *length, int *error);
+int rtu_mbap_encode(uint16_t transaction, uint8_t unit, const uint8_t *pdu, size_t pdu_len,
+                    uint8_t *out, size_t cap, size_t *nout);
+int rtu_mbap_framer_init(rtu_mbap_framer *f, int role);
+size_t rtu_mbap_framer_feed(rtu_mbap_framer *f, const uint8_t *data, size_t len);
+void rtu_mbap_framer_close(rtu_mbap_framer *f);
+int rtu_mbap_framer_poll(rtu_mbap_framer *f);
+const uint8_t *rtu_mbap_framer_event_data(const rtu_mbap_framer *f);
+size_t rtu_mbap_framer_needed(const rtu_mbap_framer *f);
+int rtu_mbap_parser_init(rtu_mbap_parser *p, int role);
+int rtu_mbap_parse(rtu_mbap_parser *p, const uint8_t *data, size_t len, rtu_mbap_event *out,
+                   size_t cap, size_t *nout);

@@ -106,3 +106,79 @@ def _timing(options: CoreOptions) -> Timing:
 
 parse_stream = make_parse_stream(_parse)
 char_timing = make_char_timing(_timing)
+
+
+# ---- Modbus TCP: MBAP framing (the twin of csrc/rtu_mbap.c) -----------------
+from array import array  # noqa: E402
+
+from .._mbap import (  # noqa: E402
+    MbapCore,
+    MbapEvent,
+    MbapFrameList,
+    MbapFramerBase,
+    make_encode_mbap,
+    make_parse_tcp_stream,
+    mbap_counters_dict,
+)
+from . import mbap as _mbap_core  # noqa: E402
+
+
+class _MbapCore:
+    def __init__(self, role: int) -> None:
+        self.f = _mbap_core.CoreMbapFramer(role)
+
+    def feed(self, data: bytes) -> int:
+        return self.f.feed(data)
+
+    def close(self) -> None:
+        self.f.close()
+
+    def poll(self) -> MbapEvent | None:
+        return self.f.poll()
+
+    def needed(self) -> int:
+        return self.f.needed()
+
+    def error(self) -> int:
+        return self.f.error
+
+    def counts(self) -> tuple[Sequence[int], Sequence[int], int]:
+        return self.f.frames, self.f.discarded, self.f.discard_events
+
+
+class MbapFramer(MbapFramerBase):
+    __doc__ = MbapFramerBase.__doc__
+    BACKEND = BACKEND
+
+    def _make_core(self, role: int) -> MbapCore:
+        return _MbapCore(role)
+
+    def _encode(self, transaction: int, unit: int, pdu: bytes) -> bytes:
+        return _mbap_core.encode(transaction, unit, pdu)
+
+
+class PyMbapFrameList(MbapFrameList):
+    def __init__(
+        self,
+        data: bytes,
+        entries: tuple[array[int], array[int], array[int], array[int]],
+        counters: dict[str, int],
+    ) -> None:
+        super().__init__(data, len(entries[0]))
+        self._offsets, self._lengths, self._kinds, self._errors = entries
+        self.counters = counters
+
+    def _entry(self, i: int) -> tuple[int, int, int, int]:
+        return self._offsets[i], self._lengths[i], self._kinds[i], self._errors[i]
+
+
+def _parse_tcp(role: int, data: bytes) -> PyMbapFrameList:
+    parser = _mbap_core.CoreMbapParser(role)
+    entries = parser.parse(data)
+    counters = mbap_counters_dict(parser.frames, parser.discarded, parser.discard_events)
+    return PyMbapFrameList(data, entries, counters)
+
+
+parse_tcp_stream = make_parse_tcp_stream(_parse_tcp)
+encode_mbap = make_encode_mbap(_mbap_core.encode)
+__all__ += ["MbapFramer", "encode_mbap", "parse_tcp_stream"]
