@@ -7,7 +7,8 @@
  *
  * options: --baud N (default 115200), --timeout-ms N (response timeout, default
  * 1000), --warmup N (bench: untimed transactions first, default 50), --debug.
- * DEVICE is opened 8N1 (pseudo-terminals refuse parity).
+ * DEVICE is opened 8N1 (pseudo-terminals refuse parity); DEVICE "tcp:HOST:PORT"
+ * speaks Modbus TCP instead (modbus_new_tcp; SLAVE is the unit id, --baud ignored).
  *
  * bench: N transactions of FC 03, 10 holding registers from ADDRESS (default 0),
  * each value checked against the pattern of tests/peers/pattern.py
@@ -404,9 +405,23 @@ int main(int argc, char **argv)
         usage();
     }
 
-    ctx = modbus_new_rtu(device, baud, 'N', 8, 1);
+    if (strncmp(device, "tcp:", 4) == 0) {
+        char host[256];
+        const char *colon = strrchr(device + 4, ':');
+        size_t hlen = colon ? (size_t)(colon - (device + 4)) : 0;
+        if (colon == NULL || hlen == 0 || hlen >= sizeof host) {
+            fprintf(stderr, "libmodbus_client: expected tcp:HOST:PORT, not %s\n", device);
+            return 2;
+        }
+        memcpy(host, device + 4, hlen);
+        host[hlen] = '\0';
+        ctx = modbus_new_tcp(host, (int)parse_num(colon + 1, NULL, 1, 65535, "TCP port"));
+    } else {
+        ctx = modbus_new_rtu(device, baud, 'N', 8, 1);
+    }
     if (ctx == NULL) {
-        fprintf(stderr, "libmodbus_client: modbus_new_rtu(%s): %s\n", device, modbus_strerror(errno));
+        fprintf(stderr, "libmodbus_client: cannot create a context for %s: %s\n", device,
+                modbus_strerror(errno));
         return 1;
     }
     modbus_set_debug(ctx, debug);

@@ -22,6 +22,10 @@
  * so this program resynchronises: it discards input until the line has been
  * silent for --resync-ms (default 1 ms, below the master's t3.5 above 19200 baud).
  *
+ * DEVICE "tcp:HOST:PORT" makes it a Modbus TCP server instead (modbus_new_tcp,
+ * modbus_tcp_listen): one connection at a time, the next accepted when it closes;
+ * it answers every unit id (libmodbus's TCP filter accepts them all).
+ *
  * Output on stdout: "READY <device> <slave>" once the port is open, and on exit
  * "STATS replies=R ignored=I crc=C timeouts=T errors=E".
  */
@@ -124,12 +128,13 @@ int main(int argc, char **argv)
     int response_timeout_ms = 50;
     int resync_us = 1000;
     int debug = 0;
+    int tcp = 0, listener = -1;
     int i;
     modbus_t *ctx;
     modbus_mapping_t *mb;
     struct sigaction sa;
     unsigned long replies = 0, ignored = 0, crc = 0, timeouts = 0, errors = 0;
-    uint8_t query[MODBUS_RTU_MAX_ADU_LENGTH];
+    uint8_t query[MODBUS_MAX_ADU_LENGTH]; /* 260: a TCP ADU is the longest */
 
     if (argc < 3) {
         usage();
@@ -159,9 +164,24 @@ int main(int argc, char **argv)
     sigaction(SIGTERM, &sa, NULL);
     sigaction(SIGINT, &sa, NULL);
 
-    ctx = modbus_new_rtu(device, baud, 'N', 8, 1);
+    if (strncmp(device, "tcp:", 4) == 0) {
+        char host[256];
+        const char *colon = strrchr(device + 4, ':');
+        size_t hlen = colon ? (size_t)(colon - (device + 4)) : 0;
+        if (colon == NULL || hlen == 0 || hlen >= sizeof host) {
+            fprintf(stderr, "libmodbus_server: expected tcp:HOST:PORT, not %s\n", device);
+            return 2;
+        }
+        memcpy(host, device + 4, hlen);
+        host[hlen] = '\0';
+        tcp = 1;
+        ctx = modbus_new_tcp(host, parse_int(colon + 1, 1, 65535, "TCP port"));
+    } else {
+        ctx = modbus_new_rtu(device, baud, 'N', 8, 1);
+    }
     if (ctx == NULL) {
-        fprintf(stderr, "libmodbus_server: modbus_new_rtu(%s): %s\n", device, modbus_strerror(errno));
+        fprintf(stderr, "libmodbus_server: cannot create a context for %s: %s\n", device,
+                modbus_strerror(errno));
         return 1;
     }
     modbus_set_debug(ctx, debug);
@@ -181,7 +201,16 @@ int main(int argc, char **argv)
         return 1;
     }
     fill_pattern(mb, slave);
-    if (modbus_connect(ctx) == -1) {
+    if (tcp) {
+        listener = modbus_tcp_listen(ctx, 4);
+        if (listener == -1) {
+            fprintf(stderr, "libmodbus_server: cannot listen on %s: %s\n", device,
+                    modbus_strerror(errno));
+            modbus_mapping_free(mb);
+            modbus_free(ctx);
+            return 1;
+        }
+    } else if (modbus_connect(ctx) == -1) {
         fprintf(stderr, "libmodbus_server: cannot open %s: %s\n", device, modbus_strerror(errno));
         modbus_mapping_free(mb);
         modbus_free(ctx);
@@ -191,6 +220,11 @@ int main(int argc, char **argv)
     fflush(stdout);
 
     while (!stop_requested) {
+        if (tcp && modbus_get_socket(ctx) == -1) {
+            if (modbus_tcp_accept(ctx, &listener) == -1) {
+                continue; /* EINTR from SIGTERM: the loop condition decides */
+            }
+        }
         int rc = modbus_receive(ctx, query);
         if (rc > 0) {
             if (modbus_reply(ctx, query, rc, mb) == -1) {
@@ -202,6 +236,13 @@ int main(int argc, char **argv)
             ignored++;
         } else if (errno == ETIMEDOUT) {
             timeouts++; /* idle (indication timeout) or a frame cut short */
+        } else if (tcp) {
+            /* the client closed or sent garbage: drop it, accept the next one */
+            if (errno != ECONNRESET) {
+                errors++;
+            }
+            modbus_close(ctx);
+            modbus_set_socket(ctx, -1);
         } else {
             if (errno == EMBBADCRC) {
                 crc++;
@@ -219,6 +260,9 @@ int main(int argc, char **argv)
            timeouts, errors);
     fflush(stdout);
     modbus_close(ctx);
+    if (listener != -1) {
+        close(listener);
+    }
     modbus_mapping_free(mb);
     modbus_free(ctx);
     return 0;

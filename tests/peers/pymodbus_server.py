@@ -1,6 +1,10 @@
 """A pymodbus 3.x serial RTU server serving the pattern of `pattern.py`.
 
     python tests/peers/pymodbus_server.py PORT SLAVE [--baud N] [--ascii]
+    python tests/peers/pymodbus_server.py HOST:PORT SLAVE --tcp
+
+``--tcp``: a Modbus TCP server (ModbusTcpServer) on HOST:PORT instead, serving
+unit SLAVE (and the unit ids 0 and 255 some clients use for a plain server).
 
 Opens PORT as 8N1 (pseudo-terminals refuse parity) and serves slave address
 SLAVE only; requests for other addresses are ignored, as on a shared bus.
@@ -25,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import signal
 import sys
 from pathlib import Path
@@ -36,7 +41,7 @@ from pymodbus import FramerType
 from pymodbus import __version__ as pymodbus_version
 from pymodbus.pdu import ModbusPDU
 from pymodbus.pdu.device import ModbusDeviceIdentification
-from pymodbus.server import ModbusSerialServer
+from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 #: FC 43/14 basic objects (VendorName, ProductCode, MajorMinorRevision)
@@ -115,15 +120,50 @@ async def serve(port: str, slave: int, baudrate: int, ascii_mode: bool = False) 
     print("STATS " + " ".join(f"{k}={v}" for k, v in stats.items()), flush=True)
 
 
+async def serve_tcp(address: str, slave: int) -> None:
+    host, _, port = address.rpartition(":")
+    stats = {"requests": 0, "responses": 0}
+
+    def count(sending: bool, pdu: ModbusPDU) -> ModbusPDU:
+        stats["responses" if sending else "requests"] += 1
+        return pdu
+
+    server = ModbusTcpServer(
+        [make_device(slave), make_device_as(slave, 255)],
+        address=(host, int(port)),
+        identity=ModbusDeviceIdentification(info=dict(IDENTITY)),  # type: ignore[no-untyped-call]
+        trace_pdu=count,
+    )
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        loop.add_signal_handler(sig, lambda: asyncio.ensure_future(server.shutdown()))  # type: ignore[no-untyped-call]
+    await server.serve_forever(background=True)
+    print(f"READY {address} {slave} pymodbus {pymodbus_version}", flush=True)
+    with contextlib.suppress(asyncio.CancelledError):
+        await server.serving
+    print("STATS " + " ".join(f"{k}={v}" for k, v in stats.items()), flush=True)
+
+
+def make_device_as(slave: int, unit: int) -> SimDevice:
+    """The tables of `slave` under another unit id."""
+    device = make_device(slave)
+    device.id = unit
+    return device
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("port")
     parser.add_argument("slave", type=int)
     parser.add_argument("--baud", type=int, default=115200)
     parser.add_argument("--ascii", action="store_true", help="Modbus ASCII instead of RTU")
+    parser.add_argument("--tcp", action="store_true", help="Modbus TCP on HOST:PORT")
     args = parser.parse_args(argv)
     if not 1 <= args.slave <= 247:
         parser.error("slave must be 1..247")
+    if args.tcp:
+        asyncio.run(serve_tcp(args.port, args.slave))
+        return 0
     asyncio.run(serve(args.port, args.slave, args.baud, args.ascii))
     return 0
 

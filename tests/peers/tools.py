@@ -212,9 +212,11 @@ def libmodbus_server(
 
 
 def pymodbus_server(port: str, slave: int, *, baudrate: int = 115200, mode: str = "rtu") -> Peer:
-    """The pymodbus server on `port`, RTU or ASCII (not started: use ``with``)."""
+    """The pymodbus server on `port`, RTU, ASCII or TCP (``mode="tcp"``, `port` is
+    HOST:PORT) (not started: use ``with``)."""
     argv: list[str | Path] = [sys.executable, PEERS / "pymodbus_server.py", port, str(slave)]
     argv += ["--baud", str(baudrate), *(["--ascii"] if mode == "ascii" else [])]
+    argv += ["--tcp"] if mode == "tcp" else []
     return Peer(f"pymodbus-server-{slave}", argv)
 
 
@@ -295,6 +297,15 @@ def libmodbus_bench(
 
 
 # -- pseudo-terminal pair --------------------------------------------------------
+
+
+def free_tcp_port() -> int:
+    """A TCP port on 127.0.0.1 that nothing listens on right now."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
 
 
 @contextlib.contextmanager
