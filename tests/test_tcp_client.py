@@ -9,9 +9,9 @@ import threading
 from collections.abc import Iterator
 
 import pytest
-
 from peers import pattern
 from peers.tools import PeerBinaries, free_tcp_port, libmodbus_server, pymodbus_server
+
 from pyrtu import (
     ExceptionResponseError,
     FrameError,

@@ -1,0 +1,468 @@
+"""A Modbus TCP gateway: many TCP clients onto serial buses, one transaction at a time.
+
+Messaging on TCP/IP Implementation Guide V1.0b, 3.1.3 (the MBAP header; the unit
+id addresses a device behind a gateway) and Application Protocol V1.1b, section 7
+(exceptions 0x0A and 0x0B).  The parts:
+
+* `Routes`: unit id -> bus (``--port`` repeated with unit-id ranges).
+* `FairQueue`: the sans-I/O queue of one bus: one sub-queue per connection, served
+  round-robin, so a client that pipelines many requests cannot starve the others;
+  bounded per connection and per bus.
+* `Gateway`: the asyncio driver: a listener, one `MbapFramer` per connection, one
+  worker per bus that runs one transaction at a time through the bus's `request`
+  (`pyrtu.aio.AsyncMaster`, whose sans-I/O engine keeps t3.5 and nothing more).
+
+What the gateway answers itself (transaction id, protocol id and unit id copied
+from the request, [TCP] 3.1.3):
+
+* unit id with no bus: exception 0x0A, gateway path unavailable ([AP] 7: "the
+  gateway was unable to allocate an internal communication path"); also when a
+  bus's port failed (`PortError`).
+* no valid answer from the device within the bus's timeout (after its retries):
+  exception 0x0B, gateway target device failed to respond ([AP] 7).
+* queue full (this connection already has ``max_queued_per_connection`` requests
+  waiting, or the bus ``max_queued_per_bus``): exception 0x06, server device busy
+  ([AP] 7: "the client should retransmit the message later").  Chosen over 0x0A,
+  whose text also covers overload, because busy tells a client the condition is
+  transient and that retrying later is right; 0x0A stays a routing answer.
+* broadcast (unit 0): sent to every bus without waiting for an answer (the bus
+  keeps the turnaround delay); nothing is sent back to the client, as on a serial
+  line ([SL] 2.1).
+
+A malformed MBAP header (protocol id not 0, length outside 2..254) closes that
+connection only.  A client that does not read its answers is closed when its
+unsent output passes ``max_write_buffer`` bytes (it never blocks a bus worker:
+answers are written without waiting).  A client that disconnects leaves the bus
+in step: a transaction already on the wire runs to its end (its answer is
+dropped), the client's waiting requests are removed from the queue.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections import OrderedDict, deque
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Protocol
+
+from . import _backend
+from .errors import (
+    GATEWAY_PATH_UNAVAILABLE,
+    GATEWAY_TARGET_FAILED,
+    SLAVE_DEVICE_BUSY,
+    ExceptionResponseError,
+    ModbusError,
+    NoResponseError,
+    PortError,
+)
+
+log = logging.getLogger("pyrtu.gateway")
+
+#: Defaults of the limits (documented in the README and ``pyrtu gateway --help``).
+MAX_CONNECTIONS = 64
+MAX_QUEUED_PER_CONNECTION = 16
+MAX_QUEUED_PER_BUS = 256
+MAX_WRITE_BUFFER = 256 * 1024
+
+
+def _positive_int(name: str, value: object) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f"{name} must be a positive integer, not {value!r}")
+    return value
+
+
+@dataclass(frozen=True)
+class GatewayLimits:
+    """Bounds on what the gateway holds (validated on construction)."""
+
+    max_connections: int = MAX_CONNECTIONS
+    max_queued_per_connection: int = MAX_QUEUED_PER_CONNECTION
+    max_queued_per_bus: int = MAX_QUEUED_PER_BUS
+    max_write_buffer: int = MAX_WRITE_BUFFER
+
+    def __post_init__(self) -> None:
+        for name in (
+            "max_connections",
+            "max_queued_per_connection",
+            "max_queued_per_bus",
+            "max_write_buffer",
+        ):
+            _positive_int(name, getattr(self, name))
+
+
+# -- routing ---------------------------------------------------------------------
+
+
+def parse_units(text: str) -> frozenset[int]:
+    """Unit ids from ``"1-10,20,30-31"`` (1..247 and 255; 0 is the broadcast)."""
+    units: set[int] = set()
+    for part in text.split(","):
+        part = part.strip()
+        lo_text, sep, hi_text = part.partition("-")
+        try:
+            lo = int(lo_text, 0)
+            hi = int(hi_text, 0) if sep else lo
+        except ValueError:
+            raise ValueError(f"unit ids: {part!r} is not a number or a range A-B") from None
+        if not (1 <= lo <= hi <= 255):
+            raise ValueError(f"unit ids: {part!r} is outside 1..255 or not ascending")
+        units.update(range(lo, hi + 1))
+    return frozenset(units)
+
+
+class Routes:
+    """Unit id -> bus index; every unit on at most one bus."""
+
+    def __init__(self, units_per_bus: Sequence[Iterable[int]]) -> None:
+        self._bus: dict[int, int] = {}
+        for index, units in enumerate(units_per_bus):
+            for unit in units:
+                if not 1 <= unit <= 255:
+                    raise ValueError(f"unit id {unit} is outside 1..255")
+                if unit in self._bus:
+                    raise ValueError(f"unit id {unit} is on bus {self._bus[unit]} and bus {index}")
+                self._bus[unit] = index
+        self.buses = len(units_per_bus)
+
+    def bus_for(self, unit: int) -> int | None:
+        return self._bus.get(unit)
+
+
+# -- the fair queue (sans-I/O) -------------------------------------------------------
+
+
+@dataclass
+class Job:
+    """A request waiting for (or on) a bus."""
+
+    conn: int  # connection id
+    transaction: int
+    unit: int  # the unit id of the request (copied into the answer)
+    slave: int  # the address on the bus
+    pdu: bytes
+    queued: float = 0.0
+
+
+class QueueFull(Exception):
+    """The connection's or the bus's queue is full (answered with exception 0x06)."""
+
+
+class FairQueue:
+    """Requests of many connections for one bus, served round-robin by connection."""
+
+    def __init__(self, max_per_connection: int, max_total: int) -> None:
+        self.max_per_connection = max_per_connection
+        self.max_total = max_total
+        self._queues: OrderedDict[int, deque[Job]] = OrderedDict()
+        self._total = 0
+
+    def __len__(self) -> int:
+        return self._total
+
+    def queued(self, conn: int) -> int:
+        q = self._queues.get(conn)
+        return len(q) if q else 0
+
+    def submit(self, job: Job) -> None:
+        """Queue ``job``; `QueueFull` when a bound would be passed."""
+        if self._total >= self.max_total:
+            raise QueueFull(f"{self._total} requests wait for this bus")
+        q = self._queues.get(job.conn)
+        if q is None:
+            q = self._queues[job.conn] = deque()
+        elif len(q) >= self.max_per_connection:
+            raise QueueFull(f"connection {job.conn} has {len(q)} requests waiting")
+        q.append(job)
+        self._total += 1
+
+    def pop(self) -> Job | None:
+        """The next job: the head of the connection whose turn it is."""
+        if not self._queues:
+            return None
+        conn, q = next(iter(self._queues.items()))
+        job = q.popleft()
+        self._total -= 1
+        del self._queues[conn]
+        if q:
+            self._queues[conn] = q  # to the back of the round
+        return job
+
+    def drop(self, conn: int) -> int:
+        """Forget every job of ``conn``; returns how many."""
+        q = self._queues.pop(conn, None)
+        n = len(q) if q else 0
+        self._total -= n
+        return n
+
+
+def exception_pdu(function: int, code: int) -> bytes:
+    return bytes(((function | 0x80) & 0xFF, code))
+
+
+# -- the asyncio driver -------------------------------------------------------------
+
+
+class Bus(Protocol):
+    """What a bus behind the gateway offers: `pyrtu.aio.AsyncMaster` (a serial
+    line), `pyrtu.tcp.AsyncTcpClient` (another Modbus TCP server)."""
+
+    async def request(self, slave: int, pdu: bytes) -> bytes | None: ...
+
+
+@dataclass
+class _BusState:
+    bus: Bus
+    queue: FairQueue
+    wake: asyncio.Event = field(default_factory=asyncio.Event)
+    task: asyncio.Task[None] | None = None
+    busy_since: float | None = None
+    busy_seconds: float = 0.0
+    transactions: int = 0
+
+
+class _Connection(asyncio.Protocol):
+    def __init__(self, gateway: Gateway) -> None:
+        self.gateway = gateway
+        self.id = 0
+        self.transport: asyncio.Transport | None = None
+        self.framer = _backend.active.MbapFramer("slave")
+        self.closed = False
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        assert isinstance(transport, asyncio.Transport)
+        self.transport = transport
+        self.gateway._opened(self)
+
+    def data_received(self, data: bytes) -> None:
+        if self.closed:
+            return
+        self.framer.receive_data(data)
+        while (ev := self.framer.next_event()) is not None:
+            if ev.error is not None:
+                self.gateway.counters["bad_headers"] += 1
+                log.info("connection %d: bad MBAP header (%s): closed", self.id, ev.error)
+                self.close()
+                return
+            self.gateway._request(self, ev.transaction, ev.unit, ev.pdu)
+            if self.closed:
+                return
+
+    def eof_received(self) -> bool | None:
+        return None  # close our side too
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self.closed = True
+        self.gateway._closed(self)
+
+    def send(self, transaction: int, unit: int, pdu: bytes) -> None:
+        t = self.transport
+        if self.closed or t is None or t.is_closing():
+            self.gateway.counters["answers_dropped"] += 1
+            return
+        t.write(self.framer.send(transaction, unit, pdu))
+        if t.get_write_buffer_size() > self.gateway.limits.max_write_buffer:
+            self.gateway.counters["slow_clients"] += 1
+            log.info("connection %d does not read its answers: closed", self.id)
+            t.abort()
+
+    def close(self) -> None:
+        if self.transport is not None and not self.closed:
+            self.transport.close()
+        self.closed = True
+
+
+class Gateway:
+    """The asyncio gateway (see the module docstring).
+
+    ``buses``: (bus, units) pairs; ``units`` are the unit ids routed to that bus
+    (unit id = slave address on the bus).  ``await start(host, port)`` listens;
+    ``address`` is then the (host, port) bound; ``await close()`` stops.
+    """
+
+    def __init__(
+        self,
+        buses: Sequence[tuple[Bus, Iterable[int]]],
+        limits: GatewayLimits | None = None,
+    ) -> None:
+        if not buses:
+            raise ValueError("a gateway needs at least one bus")
+        self.limits = limits or GatewayLimits()
+        self.routes = Routes([units for _, units in buses])
+        lim = self.limits
+        self._buses = [
+            _BusState(bus, FairQueue(lim.max_queued_per_connection, lim.max_queued_per_bus))
+            for bus, _ in buses
+        ]
+        self._connections: dict[int, _Connection] = {}
+        self._next_id = 0
+        self._server: asyncio.Server | None = None
+        self.address: tuple[str, int] | None = None
+        self.counters = dict.fromkeys(
+            (
+                "connections",
+                "refused",
+                "requests",
+                "answers",
+                "broadcasts",
+                "exceptions",
+                "no_route",
+                "timeouts",
+                "busy",
+                "bad_headers",
+                "slow_clients",
+                "answers_dropped",
+                "jobs_dropped",
+            ),
+            0,
+        )
+
+    # ---------------------------------------------------------------- running
+
+    async def start(self, host: str = "127.0.0.1", port: int = 502) -> Gateway:
+        loop = asyncio.get_running_loop()
+        self._server = await loop.create_server(lambda: _Connection(self), host, port)
+        sock = self._server.sockets[0].getsockname()
+        self.address = (str(sock[0]), int(sock[1]))
+        for state in self._buses:
+            state.task = asyncio.ensure_future(self._worker(state))
+        return self
+
+    async def close(self) -> None:
+        if self._server is not None:
+            self._server.close()
+        for conn in list(self._connections.values()):
+            conn.close()
+        for state in self._buses:
+            if state.task is not None:
+                state.task.cancel()
+        for state in self._buses:
+            if state.task is not None:
+                try:
+                    await state.task
+                except asyncio.CancelledError:
+                    pass
+        if self._server is not None:
+            await self._server.wait_closed()
+
+    async def __aenter__(self) -> Gateway:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.close()
+
+    def stats(self) -> dict[str, object]:
+        """Counters, open connections, queue lengths and bus occupancy."""
+        return {
+            **self.counters,
+            "open_connections": len(self._connections),
+            "queued": [len(s.queue) for s in self._buses],
+            "bus_transactions": [s.transactions for s in self._buses],
+            "bus_busy_seconds": [round(s.busy_seconds, 6) for s in self._buses],
+        }
+
+    # ---------------------------------------------------------- connections
+
+    def _opened(self, conn: _Connection) -> None:
+        if len(self._connections) >= self.limits.max_connections:
+            self.counters["refused"] += 1
+            log.info("connection refused: %d open", len(self._connections))
+            conn.closed = True
+            assert conn.transport is not None
+            conn.transport.abort()
+            return
+        self._next_id += 1
+        conn.id = self._next_id
+        self._connections[conn.id] = conn
+        self.counters["connections"] += 1
+
+    def _closed(self, conn: _Connection) -> None:
+        if self._connections.pop(conn.id, None) is None:
+            return
+        for state in self._buses:
+            self.counters["jobs_dropped"] += state.queue.drop(conn.id)
+
+    def _request(self, conn: _Connection, transaction: int, unit: int, pdu: bytes) -> None:
+        self.counters["requests"] += 1
+        now = time.monotonic()
+        if unit == 0:
+            self.counters["broadcasts"] += 1
+            targets = range(len(self._buses))
+        else:
+            bus = self.routes.bus_for(unit)
+            if bus is None:
+                self.counters["no_route"] += 1
+                self._answer(
+                    conn, transaction, unit, exception_pdu(pdu[0], GATEWAY_PATH_UNAVAILABLE)
+                )
+                return
+            targets = range(bus, bus + 1)
+        for index in targets:
+            state = self._buses[index]
+            job = Job(conn.id, transaction, unit, unit, pdu, now)
+            try:
+                state.queue.submit(job)
+            except QueueFull as exc:
+                self.counters["busy"] += 1
+                log.debug("connection %d: %s: busy", conn.id, exc)
+                if unit != 0:
+                    self._answer(conn, transaction, unit, exception_pdu(pdu[0], SLAVE_DEVICE_BUSY))
+                continue
+            state.wake.set()
+
+    def _answer(self, conn: _Connection, transaction: int, unit: int, pdu: bytes) -> None:
+        if pdu[0] & 0x80:
+            self.counters["exceptions"] += 1
+        else:
+            self.counters["answers"] += 1
+        conn.send(transaction, unit, pdu)
+
+    # ---------------------------------------------------------------- buses
+
+    async def _worker(self, state: _BusState) -> None:
+        while True:
+            job = state.queue.pop()
+            if job is None:
+                state.wake.clear()
+                await state.wake.wait()
+                continue
+            if job.conn not in self._connections:
+                continue
+            answer = await self._transact(state, job)
+            conn = self._connections.get(job.conn)
+            if answer is None or conn is None:
+                if conn is None and answer is not None:
+                    self.counters["answers_dropped"] += 1
+                continue
+            self._answer(conn, job.transaction, job.unit, answer)
+
+    async def _transact(self, state: _BusState, job: Job) -> bytes | None:
+        """The answer PDU for ``job`` (None for a broadcast); never raises but
+        CancelledError (the gateway is closing)."""
+        started = time.monotonic()
+        state.busy_since = started
+        try:
+            answer = await state.bus.request(job.slave, job.pdu)
+            if job.slave == 0:
+                return None
+            if not answer:
+                raise NoResponseError(f"unit {job.unit}: no answer PDU", job.unit, job.pdu[0])
+            return answer
+        except ExceptionResponseError as exc:
+            return exception_pdu(job.pdu[0], exc.code)
+        except NoResponseError:
+            self.counters["timeouts"] += 1
+            return exception_pdu(job.pdu[0], GATEWAY_TARGET_FAILED)
+        except PortError as exc:
+            log.warning("bus unavailable: %s", exc)
+            return exception_pdu(job.pdu[0], GATEWAY_PATH_UNAVAILABLE)
+        except (ModbusError, ValueError, RuntimeError) as exc:
+            # a garbled answer after the retries, or a request the bus refuses
+            log.info("unit %d: %s", job.unit, exc)
+            self.counters["timeouts"] += 1
+            return exception_pdu(job.pdu[0], GATEWAY_TARGET_FAILED)
+        finally:
+            state.transactions += 1
+            state.busy_seconds += time.monotonic() - started
+            state.busy_since = None

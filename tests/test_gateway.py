@@ -1,0 +1,314 @@
+"""The gateway: its sans-I/O queue and routes, and the asyncio gateway with real
+peers behind it (a libmodbus TCP server as the bus here; the serial buses are in
+test_gateway_serial.py).  Loopback addresses only."""
+
+from __future__ import annotations
+
+import asyncio
+import socket
+import struct
+import threading
+from collections.abc import Iterator
+
+import pytest
+from peers import pattern
+from peers.tools import PeerBinaries, free_tcp_port, libmodbus_server
+
+from pyrtu import ExceptionResponseError, encode_mbap, parse_tcp_stream, pdu
+from pyrtu.gateway import FairQueue, Gateway, GatewayLimits, Job, QueueFull, Routes, parse_units
+from pyrtu.tcp import AsyncTcpClient
+
+pytest_plugins = ["peers.fixtures"]
+
+READ = pdu.read_request(pdu.READ_HOLDING_REGISTERS, 0, 4)
+
+
+# -- sans-I/O parts ------------------------------------------------------------------
+
+
+def job(conn: int, n: int) -> Job:
+    return Job(conn=conn, transaction=n, unit=1, slave=1, pdu=READ)
+
+
+def test_fair_queue_serves_connections_round_robin() -> None:
+    q = FairQueue(max_per_connection=10, max_total=100)
+    for n in range(5):
+        q.submit(job(1, n))  # a client that pipelines five
+    q.submit(job(2, 100))
+    q.submit(job(3, 200))
+    q.submit(job(2, 101))
+    order = []
+    while (j := q.pop()) is not None:
+        order.append((j.conn, j.transaction))
+    assert order == [(1, 0), (2, 100), (3, 200), (1, 1), (2, 101), (1, 2), (1, 3), (1, 4)]
+    assert len(q) == 0
+
+
+def test_fair_queue_bounds_and_drop() -> None:
+    q = FairQueue(max_per_connection=2, max_total=3)
+    q.submit(job(1, 0))
+    q.submit(job(1, 1))
+    with pytest.raises(QueueFull, match="connection 1"):
+        q.submit(job(1, 2))
+    q.submit(job(2, 0))
+    with pytest.raises(QueueFull, match="wait for this bus"):
+        q.submit(job(3, 0))
+    assert q.queued(1) == 2 and q.drop(1) == 2 and len(q) == 1 and q.queued(1) == 0
+    q.submit(job(3, 0))
+    assert [q.pop().conn, q.pop().conn, q.pop()] == [2, 3, None]  # type: ignore[union-attr]
+
+
+def test_routes_and_unit_ranges() -> None:
+    assert parse_units("1-3,10, 0x20") == {1, 2, 3, 10, 32}
+    for bad in ("0", "5-2", "1-300", "x", "1-"):
+        with pytest.raises(ValueError, match="unit ids"):
+            parse_units(bad)
+    r = Routes([parse_units("1-10"), parse_units("11-20,255")])
+    assert (r.bus_for(1), r.bus_for(11), r.bus_for(255), r.bus_for(21)) == (0, 1, 1, None)
+    with pytest.raises(ValueError, match="unit id 5 is on bus 0 and bus 1"):
+        Routes([parse_units("1-10"), parse_units("5")])
+
+
+def test_limits_are_validated() -> None:
+    with pytest.raises(ValueError, match="max_connections"):
+        GatewayLimits(max_connections=0)
+    with pytest.raises(ValueError, match="max_write_buffer"):
+        GatewayLimits(max_write_buffer=True)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="at least one bus"):
+        Gateway([])
+
+
+# -- the asyncio gateway, a libmodbus TCP server behind it ---------------------------
+
+
+@pytest.fixture
+def libmodbus_tcp(peer_binaries: PeerBinaries) -> Iterator[str]:
+    port = free_tcp_port()
+    with libmodbus_server(peer_binaries, f"tcp:127.0.0.1:{port}", 1):
+        yield f"tcp://127.0.0.1:{port}"
+
+
+@pytest.fixture
+def silent_tcp() -> Iterator[str]:
+    """A server that accepts and reads but never answers: a dead device."""
+    listener = socket.socket()
+    listener.bind(("127.0.0.1", 0))
+    listener.listen(8)
+    held: list[socket.socket] = []
+
+    def run() -> None:
+        while True:
+            try:
+                held.append(listener.accept()[0])
+            except OSError:
+                return
+
+    threading.Thread(target=run, daemon=True).start()
+    yield f"tcp://127.0.0.1:{listener.getsockname()[1]}"
+    listener.close()
+    for s in held:
+        s.close()
+
+
+async def open_gateway(
+    buses: list[tuple[str, str]], limits: GatewayLimits | None = None, timeout: float = 1.0
+) -> tuple[Gateway, list[AsyncTcpClient]]:
+    clients = [
+        await AsyncTcpClient.connect(url, timeout=timeout, max_in_flight=1) for url, _ in buses
+    ]
+    gw = Gateway(
+        [(c, parse_units(units)) for c, (_, units) in zip(clients, buses, strict=True)], limits
+    )
+    await gw.start("127.0.0.1", 0)
+    return gw, clients
+
+
+async def raw(gw: Gateway) -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:
+    assert gw.address is not None
+    return await asyncio.open_connection(*gw.address)
+
+
+async def read_adu(reader: asyncio.StreamReader, timeout: float = 3.0) -> bytes:
+    head = await asyncio.wait_for(reader.readexactly(6), timeout)
+    (length,) = struct.unpack(">H", head[4:6])
+    return head + await asyncio.wait_for(reader.readexactly(length), timeout)
+
+
+@pytest.fixture
+def run() -> Iterator[object]:
+    loop = asyncio.new_event_loop()
+    yield loop.run_until_complete
+    loop.close()
+
+
+def test_forwarding_preserves_transaction_and_unit_ids(libmodbus_tcp: str, run) -> None:  # type: ignore[no-untyped-def]
+    async def main() -> None:
+        gw, clients = await open_gateway([(libmodbus_tcp, "1-5")])
+        reader, writer = await raw(gw)
+        requests = [(0xBEEF, 1, READ), (0x0000, 5, READ), (0xFFFF, 2, pdu.read_request(1, 3, 9))]
+        writer.write(b"".join(encode_mbap(*r) for r in requests))  # three in one write
+        answers = [await read_adu(reader) for _ in requests]
+        got = [(a.transaction, a.unit) for a in parse_tcp_stream(b"".join(answers), "master")]
+        assert got == [(0xBEEF, 1), (0x0000, 5), (0xFFFF, 2)]
+        first = parse_tcp_stream(answers[0], "master")[0]
+        assert pdu.parse_registers(first.pdu, 4) == pattern.holdings(1, 0, 4)
+        writer.close()
+        await gw.close()
+        for c in clients:
+            await c.close()
+
+    run(main())
+
+
+def test_unrouted_unit_gets_0x0a_and_broadcast_gets_nothing(libmodbus_tcp: str, run) -> None:  # type: ignore[no-untyped-def]
+    async def main() -> None:
+        gw, clients = await open_gateway([(libmodbus_tcp, "1-5")])
+        assert gw.address is not None
+        c = await AsyncTcpClient.connect(f"tcp://{gw.address[0]}:{gw.address[1]}", timeout=2.0)
+        with pytest.raises(ExceptionResponseError) as info:
+            await c.request(9, READ)
+        assert info.value.code == 0x0A
+        assert await c.request(0, pdu.write_register_request(40, 4321)) is None
+        await asyncio.sleep(0.2)  # nothing comes back; the write reached the bus
+        got = await c.request(1, pdu.read_request(pdu.READ_HOLDING_REGISTERS, 40, 1))
+        assert got is not None and pdu.parse_registers(got, 1) == [4321]
+        assert c.counters["late"] == 0 and gw.counters["broadcasts"] == 1
+        await c.close()
+        await gw.close()
+        for b in clients:
+            await b.close()
+
+    run(main())
+
+
+def test_dead_device_gets_0x0b_in_time_and_others_go_on(
+    libmodbus_tcp: str,
+    silent_tcp: str,
+    run,  # type: ignore[no-untyped-def]
+) -> None:
+    async def main() -> None:
+        gw, clients = await open_gateway([(libmodbus_tcp, "1"), (silent_tcp, "20")], timeout=0.3)
+        assert gw.address is not None
+        url = f"tcp://{gw.address[0]}:{gw.address[1]}"
+        dead = await AsyncTcpClient.connect(url, timeout=3.0)
+        alive = await AsyncTcpClient.connect(url, timeout=3.0)
+        loop = asyncio.get_running_loop()
+        started = loop.time()
+        dead_task = asyncio.ensure_future(dead.request(20, READ))
+        answers = await asyncio.gather(*(alive.request(1, READ) for _ in range(30)))
+        assert all(a is not None for a in answers)
+        assert loop.time() - started < 0.3  # the live bus did not wait for the dead one
+        with pytest.raises(ExceptionResponseError) as info:
+            await dead_task
+        assert info.value.code == 0x0B
+        # the bus timeout (0.3 s) plus scheduling: well within the client's 3 s
+        assert loop.time() - started < 2.0
+        assert gw.counters["timeouts"] == 1
+        for c in (dead, alive, *clients):
+            await c.close()
+        await gw.close()
+
+    run(main())
+
+
+@pytest.mark.parametrize(
+    "header",
+    ["0001 0001 0006 01", "0001 0000 00ff 01", "0001 0000 0001 01", "0001 0000 ffff 01"],
+)
+def test_bad_header_closes_that_connection_only(libmodbus_tcp: str, header: str, run) -> None:  # type: ignore[no-untyped-def]
+    async def main() -> None:
+        gw, clients = await open_gateway([(libmodbus_tcp, "1")])
+        good_r, good_w = await raw(gw)
+        bad_r, bad_w = await raw(gw)
+        bad_w.write(encode_mbap(1, 1, READ) + bytes.fromhex(header) + READ)
+        # closed at once: the good request before the bad header goes unanswered
+        assert await asyncio.wait_for(bad_r.read(), 3.0) == b""
+        good_w.write(encode_mbap(7, 1, READ))
+        assert (await read_adu(good_r))[:2] == b"\x00\x07"
+        assert gw.counters["bad_headers"] == 1
+        good_w.close()
+        await gw.close()
+        for c in clients:
+            await c.close()
+
+    run(main())
+
+
+def test_queue_overflow_answers_busy(silent_tcp: str, run) -> None:  # type: ignore[no-untyped-def]
+    async def main() -> None:
+        limits = GatewayLimits(max_queued_per_connection=2)
+        gw, clients = await open_gateway([(silent_tcp, "1")], limits, timeout=0.5)
+        reader, writer = await raw(gw)
+        writer.write(encode_mbap(0, 1, READ))
+        await asyncio.sleep(0.1)  # on the bus now
+        writer.write(b"".join(encode_mbap(n, 1, READ) for n in range(1, 6)))
+        # one on the bus, two waiting, three refused at once with 0x06
+        busy = [parse_tcp_stream(await read_adu(reader, 0.4), "master")[0] for _ in range(3)]
+        assert [(b.transaction, b.function, b.exception_code) for b in busy] == [
+            (3, 0x83, 6),
+            (4, 0x83, 6),
+            (5, 0x83, 6),
+        ]
+        # the three accepted ones time out on the dead bus: 0x0B, in order
+        later = [parse_tcp_stream(await read_adu(reader, 3.0), "master")[0] for _ in range(3)]
+        assert [(b.transaction, b.exception_code) for b in later] == [(0, 11), (1, 11), (2, 11)]
+        assert gw.counters["busy"] == 3
+        writer.close()
+        await gw.close()
+        for c in clients:
+            await c.close()
+
+    run(main())
+
+
+def test_disconnect_mid_transaction_keeps_the_bus_in_step(
+    libmodbus_tcp: str,
+    silent_tcp: str,
+    run,  # type: ignore[no-untyped-def]
+) -> None:
+    async def main() -> None:
+        gw, clients = await open_gateway([(silent_tcp, "1-10")], timeout=0.4)
+        reader, writer = await raw(gw)
+        writer.write(b"".join(encode_mbap(n, 1, READ) for n in range(5)))
+        await asyncio.sleep(0.1)  # the first is on the bus, four wait
+        writer.close()
+        await asyncio.sleep(0.1)
+        assert gw.stats()["queued"] == [0] and gw.counters["jobs_dropped"] == 4
+        # the next client's request waits for the one on the wire, then goes
+        c = await AsyncTcpClient.connect(f"tcp://{gw.address[0]}:{gw.address[1]}", timeout=3.0)  # type: ignore[index]
+        with pytest.raises(ExceptionResponseError) as info:
+            await c.request(2, READ)
+        assert info.value.code == 0x0B
+        assert gw.stats()["bus_transactions"] == [2]  # one abandoned, one for c
+        await c.close()
+        await gw.close()
+        for b in clients:
+            await b.close()
+
+    run(main())
+
+
+def test_connection_limit_and_stuck_client(libmodbus_tcp: str, run) -> None:  # type: ignore[no-untyped-def]
+    async def main() -> None:
+        limits = GatewayLimits(max_connections=2, max_write_buffer=4096)
+        gw, clients = await open_gateway([(libmodbus_tcp, "1")], limits)
+        stuck_r, stuck_w = await raw(gw)
+        ok_r, ok_w = await raw(gw)
+        third_r, third_w = await raw(gw)
+        assert await asyncio.wait_for(third_r.read(), 3.0) == b""  # refused: closed at once
+        assert gw.counters["refused"] == 1
+        big = pdu.read_request(pdu.READ_HOLDING_REGISTERS, 0, 125)
+        # the stuck client pipelines and never reads; the other one is served meanwhile
+        stuck_w.write(b"".join(encode_mbap(n, 1, big) for n in range(16)))
+        for n in range(50):
+            ok_w.write(encode_mbap(n, 1, READ))
+            assert (await read_adu(ok_r))[:2] == struct.pack(">H", n)
+        assert gw.stats()["open_connections"] == 2
+        ok_w.close()
+        stuck_w.close()
+        third_w.close()
+        await gw.close()
+        for c in clients:
+            await c.close()
+
+    run(main())
