@@ -43,7 +43,7 @@ import asyncio
 import logging
 import time
 from collections import OrderedDict, deque
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -113,21 +113,33 @@ def parse_units(text: str) -> frozenset[int]:
 
 
 class Routes:
-    """Unit id -> bus index; every unit on at most one bus."""
+    """Unit id -> (bus index, slave address); every unit on at most one bus.
 
-    def __init__(self, units_per_bus: Sequence[Iterable[int]]) -> None:
-        self._bus: dict[int, int] = {}
+    Per bus: unit ids (the unit id is the slave address) or a mapping unit id ->
+    slave address (a TCP server maps 0xFF, "the server itself", to its device)."""
+
+    def __init__(self, units_per_bus: Sequence[Iterable[int] | Mapping[int, int]]) -> None:
+        self._route: dict[int, tuple[int, int]] = {}
         for index, units in enumerate(units_per_bus):
-            for unit in units:
+            pairs = units.items() if isinstance(units, Mapping) else ((u, u) for u in units)
+            for unit, slave in pairs:
                 if not 1 <= unit <= 255:
                     raise ValueError(f"unit id {unit} is outside 1..255")
-                if unit in self._bus:
-                    raise ValueError(f"unit id {unit} is on bus {self._bus[unit]} and bus {index}")
-                self._bus[unit] = index
+                if unit in self._route:
+                    raise ValueError(
+                        f"unit id {unit} is on bus {self._route[unit][0]} and bus {index}"
+                    )
+                self._route[unit] = (index, slave)
         self.buses = len(units_per_bus)
 
     def bus_for(self, unit: int) -> int | None:
-        return self._bus.get(unit)
+        route = self._route.get(unit)
+        return None if route is None else route[0]
+
+    def slave_for(self, unit: int) -> int:
+        """The address on the bus of a routed unit id (0 for the broadcast)."""
+        route = self._route.get(unit)
+        return unit if route is None else route[1]
 
 
 # -- the fair queue (sans-I/O) -------------------------------------------------------
@@ -277,13 +289,13 @@ class Gateway:
     """The asyncio gateway (see the module docstring).
 
     ``buses``: (bus, units) pairs; ``units`` are the unit ids routed to that bus
-    (unit id = slave address on the bus).  ``await start(host, port)`` listens;
+    (unit id = slave address on the bus), or a mapping unit id -> slave address.  ``await start(host, port)`` listens;
     ``address`` is then the (host, port) bound; ``await close()`` stops.
     """
 
     def __init__(
         self,
-        buses: Sequence[tuple[Bus, Iterable[int]]],
+        buses: Sequence[tuple[Bus, Iterable[int] | Mapping[int, int]]],
         limits: GatewayLimits | None = None,
     ) -> None:
         if not buses:
@@ -400,7 +412,7 @@ class Gateway:
             targets = range(bus, bus + 1)
         for index in targets:
             state = self._buses[index]
-            job = Job(conn.id, transaction, unit, unit, pdu, now)
+            job = Job(conn.id, transaction, unit, self.routes.slave_for(unit), pdu, now)
             try:
                 state.queue.submit(job)
             except QueueFull as exc:

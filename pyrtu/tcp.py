@@ -12,8 +12,9 @@ typed errors of `pyrtu.errors`::
 
 The asyncio client keeps up to ``max_in_flight`` requests on the wire at once (the
 server answers them by transaction id, in any order); the blocking one sends one
-at a time.  ``rtu+tcp://host:port`` (RTU frames over a TCP socket) is not here: it
-is a serial line without wire timing, opened by the port layer.
+at a time.  ``rtu+tcp://host:port`` (RTU frames over a TCP socket, as serial device
+servers carry them) is a serial line without wire timing: `rtu_over_tcp` opens it
+as a pyserial object for the serial master.
 """
 
 from __future__ import annotations
@@ -24,7 +25,10 @@ import select
 import socket
 import time
 from types import TracebackType
+from typing import Any
 from urllib.parse import urlsplit
+
+import serial
 
 from ._tcp_client import TcpClientProtocol, check_timeout
 from ._types import BytesLike
@@ -57,6 +61,20 @@ def _raise(result: bytes | ModbusError | None) -> bytes | None:
     if isinstance(result, ModbusError):
         raise result
     return result
+
+
+RTU_TCP_SCHEME = "rtu+tcp"
+
+
+def rtu_over_tcp(url: str) -> Any:
+    """A pyserial object over TCP for ``rtu+tcp://host[:port]``: RTU frames (CRC kept)
+    to a serial device server; no wire timing, so use it with ``t35=0``."""
+    host, port = parse_tcp_url(url, (RTU_TCP_SCHEME,))
+    netloc = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
+    try:
+        return serial.serial_for_url(f"socket://{netloc}", timeout=0)
+    except (serial.SerialException, OSError) as exc:
+        raise PortError(url, f"cannot connect: {exc}") from exc
 
 
 class TcpClient:
@@ -271,4 +289,4 @@ class AsyncTcpClient:
         return f"AsyncTcpClient({self.where!r})"
 
 
-__all__ = ["DEFAULT_PORT", "AsyncTcpClient", "TcpClient", "parse_tcp_url"]
+__all__ = ["DEFAULT_PORT", "AsyncTcpClient", "TcpClient", "parse_tcp_url", "rtu_over_tcp"]

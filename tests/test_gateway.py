@@ -268,7 +268,7 @@ def test_disconnect_mid_transaction_keeps_the_bus_in_step(
 ) -> None:
     async def main() -> None:
         gw, clients = await open_gateway([(silent_tcp, "1-10")], timeout=0.4)
-        reader, writer = await raw(gw)
+        _reader, writer = await raw(gw)
         writer.write(b"".join(encode_mbap(n, 1, READ) for n in range(5)))
         await asyncio.sleep(0.1)  # the first is on the bus, four wait
         writer.close()
@@ -292,7 +292,7 @@ def test_connection_limit_and_stuck_client(libmodbus_tcp: str, run) -> None:  # 
     async def main() -> None:
         limits = GatewayLimits(max_connections=2, max_write_buffer=4096)
         gw, clients = await open_gateway([(libmodbus_tcp, "1")], limits)
-        stuck_r, stuck_w = await raw(gw)
+        _stuck_r, stuck_w = await raw(gw)
         ok_r, ok_w = await raw(gw)
         third_r, third_w = await raw(gw)
         assert await asyncio.wait_for(third_r.read(), 3.0) == b""  # refused: closed at once

@@ -1,0 +1,101 @@
+"""A Modbus TCP server for a slave application: `pyrtu.Slave`, `pyrtu.aio.AsyncSlave`,
+the device simulators; the same DataStore and handlers as on the serial line.
+
+Messaging on TCP/IP Implementation Guide V1.0b, 3.1.3: the server answers with the
+request's transaction id, protocol id and unit id.  The unit ids served are the
+slave's addresses, plus 0xFF ("the server itself" for clients that address a
+TCP server directly) for its lowest address; 0 is a broadcast (executed, not
+answered); any other unit id gets exception 0x0A (gateway path unavailable).
+
+It is the gateway's machinery (`pyrtu.gateway`) with the application in place of
+a serial bus: many connections, each read by an `MbapFramer` (a bad header closes
+that connection only), requests executed one at a time through the fair queue,
+the same limits::
+
+    store = pyrtu.DataStore()
+    store.holding_registers.add_range(0, [0] * 100)
+    app = pyrtu.Slave(None, 1, store)            # or any object with execute/addresses
+    async with await TcpServer(app).start("127.0.0.1", 5020) as server:
+        await asyncio.Event().wait()
+"""
+
+from __future__ import annotations
+
+import asyncio
+from typing import Protocol
+
+from .errors import NoResponseError
+from .gateway import Gateway, GatewayLimits
+
+UNIT_SELF = 0xFF
+
+
+class Application(Protocol):
+    """What the server asks of the slave behind it (`pyrtu.Slave` and the others)."""
+
+    addresses: frozenset[int]
+
+    def execute(self, unit: int, request: bytes) -> bytes | None:
+        """The response PDU of ``request`` for ``unit`` (0: broadcast), or None."""
+        ...
+
+
+class LocalBus:
+    """An application in place of a serial bus: `execute` is the transaction."""
+
+    def __init__(self, app: Application) -> None:
+        self.app = app
+
+    async def request(self, slave: int, pdu: bytes) -> bytes | None:
+        response = self.app.execute(slave, pdu)
+        if slave == 0:
+            return None
+        if response is None:  # listen-only mode, or a handler that stays silent
+            raise NoResponseError(f"unit {slave} does not answer", slave, pdu[0])
+        return response
+
+
+class TcpServer:
+    """Serves ``app`` over Modbus TCP (see the module docstring)."""
+
+    def __init__(self, app: Application, limits: GatewayLimits | None = None) -> None:
+        if not callable(getattr(app, "execute", None)) or not getattr(app, "addresses", None):
+            raise TypeError(
+                f"app must have execute(unit, pdu) and addresses, not {type(app).__name__}"
+            )
+        self.app = app
+        units = {a: a for a in app.addresses}
+        units[UNIT_SELF] = min(app.addresses)
+        self._gateway = Gateway([(LocalBus(app), units)], limits)
+
+    @property
+    def address(self) -> tuple[str, int] | None:
+        """The (host, port) bound, once started."""
+        return self._gateway.address
+
+    @property
+    def counters(self) -> dict[str, int]:
+        return dict(self._gateway.counters)
+
+    async def start(self, host: str = "127.0.0.1", port: int = 502) -> TcpServer:
+        await self._gateway.start(host, port)
+        return self
+
+    async def serve_forever(self, host: str = "127.0.0.1", port: int = 502) -> None:
+        await self.start(host, port)
+        try:
+            await asyncio.Event().wait()
+        finally:
+            await self.close()
+
+    async def close(self) -> None:
+        await self._gateway.close()
+
+    async def __aenter__(self) -> TcpServer:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.close()
+
+    def __repr__(self) -> str:
+        return f"TcpServer({self.app!r}, address={self.address})"

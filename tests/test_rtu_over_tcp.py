@@ -1,0 +1,66 @@
+"""RTU over TCP (``rtu+tcp://``): RTU frames, CRC kept, on a TCP socket, as serial
+device servers carry them.  The device server here is socat joining a TCP listener
+on 127.0.0.1 to a pseudo-terminal, with a real slave (pyrtu, libmodbus) on the pty."""
+
+from __future__ import annotations
+
+import subprocess
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from peers import pattern
+from peers.tools import PeerBinaries, free_tcp_port, libmodbus_server, pyrtu_slave_process
+
+from pyrtu import ExceptionResponseError, Master, PortError
+from pyrtu.tcp import rtu_over_tcp
+
+pytest_plugins = ["peers.fixtures"]
+
+
+@pytest.fixture
+def device_server(tmp_path: Path) -> Iterator[tuple[str, str]]:
+    """(pty path, rtu+tcp URL): socat opens the pty, then listens on TCP."""
+    port = free_tcp_port()
+    link = tmp_path / "serial"
+    proc = subprocess.Popen(
+        ["socat", f"PTY,link={link},raw,echo=0", f"TCP-LISTEN:{port},bind=127.0.0.1,reuseaddr"],
+        stderr=subprocess.DEVNULL,
+    )
+    for _ in range(200):
+        if link.exists():
+            break
+        time.sleep(0.01)
+    try:
+        yield str(link), f"rtu+tcp://127.0.0.1:{port}"
+    finally:
+        proc.terminate()
+        proc.wait(5)
+
+
+@pytest.mark.parametrize("peer", ["pyrtu", "libmodbus"])
+def test_master_over_rtu_tcp(
+    device_server: tuple[str, str], peer: str, peer_binaries: PeerBinaries
+) -> None:
+    path, url = device_server
+    slave = (
+        pyrtu_slave_process(path, 3, t35=0)
+        if peer == "pyrtu"
+        else libmodbus_server(peer_binaries, path, 3)
+    )
+    with slave, Master(rtu_over_tcp(url), t35=0, timeout=1.0) as m:
+        assert m.read_holding_registers(3, 10, 5) == pattern.holdings(3, 10, 5)
+        m.write_registers(3, 50, [11, 12])
+        assert m.read_holding_registers(3, 50, 2) == [11, 12]
+        assert m.read_coils(3, 0, 12) == pattern.coils(3, 0, 12)
+        with pytest.raises(ExceptionResponseError):
+            m.read_holding_registers(3, 60000, 2)
+        assert m.counters["crc_errors"] == 0
+
+
+def test_bad_urls_and_refused_connections() -> None:
+    with pytest.raises(ValueError, match="rtu\\+tcp://"):
+        rtu_over_tcp("tcp://127.0.0.1:1")
+    with pytest.raises(PortError, match="cannot connect"):
+        rtu_over_tcp(f"rtu+tcp://127.0.0.1:{free_tcp_port()}")
