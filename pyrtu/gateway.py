@@ -289,8 +289,9 @@ class Gateway:
     """The asyncio gateway (see the module docstring).
 
     ``buses``: (bus, units) pairs; ``units`` are the unit ids routed to that bus
-    (unit id = slave address on the bus), or a mapping unit id -> slave address.  ``await start(host, port)`` listens;
-    ``address`` is then the (host, port) bound; ``await close()`` stops.
+    (unit id = slave address on the bus), or a mapping unit id -> slave address.
+    ``await start(host, port)`` listens; ``address`` is then the (host, port)
+    bound; ``await close()`` stops.
     """
 
     def __init__(
