@@ -143,6 +143,10 @@ def _register_builtins() -> None:
     for module in (io, poll, scan, info, sniff, simulate, vbus, demo):
         for spec in module.COMMANDS:
             register(*spec)
+    from .commands import gateway
+
+    for spec in gateway.COMMANDS:
+        register(*spec)
 
 
 _register_builtins()

@@ -96,7 +96,7 @@ class GatewayLimits:
 
 
 def parse_units(text: str) -> frozenset[int]:
-    """Unit ids from ``"1-10,20,30-31"`` (1..247 and 255; 0 is the broadcast)."""
+    """Serial addresses from ``"1-10,20,30-31"`` (1..247; 0 is the broadcast)."""
     units: set[int] = set()
     for part in text.split(","):
         part = part.strip()
@@ -106,8 +106,8 @@ def parse_units(text: str) -> frozenset[int]:
             hi = int(hi_text, 0) if sep else lo
         except ValueError:
             raise ValueError(f"unit ids: {part!r} is not a number or a range A-B") from None
-        if not (1 <= lo <= hi <= 255):
-            raise ValueError(f"unit ids: {part!r} is outside 1..255 or not ascending")
+        if not (1 <= lo <= hi <= 247):
+            raise ValueError(f"unit ids: {part!r} is outside 1..247 or not ascending")
         units.update(range(lo, hi + 1))
     return frozenset(units)
 

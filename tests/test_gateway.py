@@ -60,11 +60,12 @@ def test_fair_queue_bounds_and_drop() -> None:
 
 def test_routes_and_unit_ranges() -> None:
     assert parse_units("1-3,10, 0x20") == {1, 2, 3, 10, 32}
-    for bad in ("0", "5-2", "1-300", "x", "1-"):
+    for bad in ("0", "5-2", "1-248", "x", "1-"):
         with pytest.raises(ValueError, match="unit ids"):
             parse_units(bad)
-    r = Routes([parse_units("1-10"), parse_units("11-20,255")])
+    r = Routes([parse_units("1-10"), {11: 11, 255: 12}])
     assert (r.bus_for(1), r.bus_for(11), r.bus_for(255), r.bus_for(21)) == (0, 1, 1, None)
+    assert (r.slave_for(255), r.slave_for(3), r.slave_for(0)) == (12, 3, 0)
     with pytest.raises(ValueError, match="unit id 5 is on bus 0 and bus 1"):
         Routes([parse_units("1-10"), parse_units("5")])
 

@@ -1,0 +1,219 @@
+"""``pyrtu gateway --listen HOST:PORT --port SERIAL[=UNITS] ...``: Modbus TCP to RTU.
+
+Many Modbus TCP clients share the serial buses behind one listener: one
+transaction at a time per bus at full wire rate (t3.5 between frames, no fixed
+pause), a fair queue per bus (connections served in turn), the unit id as the
+slave address.  ``--port`` may be repeated, each with the unit ids it carries
+(``--port /dev/ttyUSB0=1-10 --port /dev/ttyUSB1=11-20,30``; one ``--port``
+without ``=`` carries 1-247); ``--port tcp://HOST:PORT=UNITS`` forwards to
+another Modbus TCP server.  All serial buses share the serial options.
+
+Answers of the gateway itself (Application Protocol 7): exception 0x0A for a
+unit id no bus carries, 0x0B when the device does not answer within --timeout
+(after --retries), 0x06 (busy) when a queue is full.  Unit 0 is a broadcast:
+sent to every bus, not answered.  A malformed MBAP header closes that
+connection.  Limits (defaults): --max-connections 64, --max-queue 16 requests
+waiting per connection, --max-bus-queue 256 per bus, --max-write-buffer 262144
+bytes of unread answers before a client is closed.
+
+Runs until SIGINT/SIGTERM or --duration (exit 0), then prints the counters.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import signal
+import sys
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from .. import gateway as G
+from .common import (
+    EXIT_OK,
+    CommandSpec,
+    add_json_option,
+    add_serial_options,
+    emit,
+    exit_code_table,
+    guarded,
+    positive_seconds,
+    serial_kwargs,
+)
+
+
+@dataclass(frozen=True)
+class BusSpec:
+    port: str
+    units: frozenset[int] | None  # None: 1-247
+
+
+def listen_address(text: str) -> tuple[str, int]:
+    """HOST:PORT (``[::1]:502`` for IPv6)."""
+    host, sep, port = text.rpartition(":")
+    host = host[1:-1] if host.startswith("[") and host.endswith("]") else host
+    if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+        raise argparse.ArgumentTypeError(f"expected HOST:PORT (port 0..65535), not {text!r}")
+    return host, int(port)
+
+
+def bus_spec(text: str) -> BusSpec:
+    """SERIAL or SERIAL=UNITS (unit ids ``1-10,20``)."""
+    port, sep, units = text.rpartition("=")
+    if not sep:
+        return BusSpec(text, None)
+    if not port:
+        raise argparse.ArgumentTypeError(f"expected SERIAL=UNITS, not {text!r}")
+    try:
+        return BusSpec(port, G.parse_units(units))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _limit(text: str) -> int:
+    try:
+        value = int(text, 0)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, not {text!r}")
+    return value
+
+
+def _configure(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "-l", "--listen", required=True, type=listen_address, metavar="HOST:PORT",
+        help="address to listen on for Modbus TCP clients (port 0: any free port)",
+    )  # fmt: skip
+    p.add_argument(
+        "-p", "--port", required=True, action="append", type=bus_spec, metavar="SERIAL[=UNITS]",
+        help="a bus: serial port (or tcp://HOST:PORT) and its unit ids; repeat for more",
+    )  # fmt: skip
+    g = p.add_argument_group("limits")
+    g.add_argument("--max-connections", type=_limit, default=G.MAX_CONNECTIONS, metavar="N",
+                   help=f"TCP connections at once (default {G.MAX_CONNECTIONS})")  # fmt: skip
+    g.add_argument("--max-queue", type=_limit, default=G.MAX_QUEUED_PER_CONNECTION, metavar="N",
+                   help="requests waiting per connection "
+                   f"(default {G.MAX_QUEUED_PER_CONNECTION})")  # fmt: skip
+    g.add_argument("--max-bus-queue", type=_limit, default=G.MAX_QUEUED_PER_BUS, metavar="N",
+                   help=f"requests waiting per bus (default {G.MAX_QUEUED_PER_BUS})")  # fmt: skip
+    g.add_argument("--max-write-buffer", type=_limit, default=G.MAX_WRITE_BUFFER, metavar="BYTES",
+                   help=f"unread answers before a client is closed "
+                   f"(default {G.MAX_WRITE_BUFFER})")  # fmt: skip
+    p.add_argument(
+        "-d", "--duration", type=positive_seconds, metavar="SECONDS", help="stop after this time"
+    )
+    add_json_option(p, "JSON lines: ready, stopped (with the counters)")
+    add_serial_options(p, timeout=0.5)
+
+
+def _routes(specs: list[BusSpec]) -> list[frozenset[int]]:
+    if len(specs) > 1 and any(s.units is None for s in specs):
+        raise ValueError("--port: with several buses, give each its unit ids (SERIAL=1-10)")
+    units = [s.units if s.units is not None else frozenset(range(1, 248)) for s in specs]
+    G.Routes(units)  # ValueError when a unit id is on two buses
+    return units
+
+
+async def _open_bus(spec: BusSpec, args: argparse.Namespace) -> Any:
+    if spec.port.startswith("tcp://"):
+        from ..tcp import AsyncTcpClient
+
+        return await AsyncTcpClient.connect(spec.port, timeout=args.timeout, max_in_flight=1)
+    from ..aio import AsyncMaster
+
+    options: dict[str, Any] = serial_kwargs(args)
+    options.update(timeout=args.timeout, retries=args.retries, mode=args.mode,
+                   timing=args.timing, echo=args.echo)  # fmt: skip
+    if args.t35 is not None:
+        options["t35"] = args.t35
+    master = AsyncMaster(spec.port, **options)
+    opened = getattr(master, "open", None)
+    if opened is not None:
+        await opened()
+    return master
+
+
+async def _close_bus(bus: Any) -> None:
+    result = bus.close()
+    if asyncio.iscoroutine(result):
+        await result
+
+
+async def _serve(args: argparse.Namespace) -> dict[str, Any]:
+    units = _routes(args.port)
+    limits = G.GatewayLimits(
+        max_connections=args.max_connections,
+        max_queued_per_connection=args.max_queue,
+        max_queued_per_bus=args.max_bus_queue,
+        max_write_buffer=args.max_write_buffer,
+    )
+    buses: list[Any] = []
+    try:
+        for spec in args.port:
+            buses.append(await _open_bus(spec, args))
+        gw = G.Gateway(list(zip(buses, units, strict=True)), limits)
+        host, port = args.listen
+        try:
+            await gw.start(host, port)
+        except OSError as exc:
+            raise OSError(exc.errno, f"--listen {host}:{port}: {exc.strerror}") from exc
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, stop.set)
+        started = time.monotonic()
+        _ready(args, gw)
+        try:
+            await asyncio.wait_for(stop.wait(), args.duration)
+        except asyncio.TimeoutError:
+            pass
+        finally:
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                loop.remove_signal_handler(sig)
+            await gw.close()
+        return {"seconds": round(time.monotonic() - started, 3), **gw.stats()}
+    finally:
+        for bus in buses:
+            await _close_bus(bus)
+
+
+def _ready(args: argparse.Namespace, gw: G.Gateway) -> None:
+    assert gw.address is not None
+    host, port = gw.address
+    buses = [s.port for s in args.port]
+    if args.json:
+        emit({"type": "ready", "listen": f"{host}:{port}", "buses": buses})
+    else:
+        print(
+            f"pyrtu gateway: listening on {host}:{port}, buses {', '.join(buses)}; Ctrl-C to stop",
+            file=sys.stderr,
+            flush=True,
+        )
+
+
+def _run(args: argparse.Namespace) -> int:
+    stats = asyncio.run(_serve(args))
+    if args.json:
+        emit({"type": "stopped", **stats})
+    else:
+        print(
+            f"pyrtu gateway: stopped after {stats['seconds']:.1f} s: {stats['connections']} "
+            f"connections, {stats['requests']} requests, {stats['answers']} answers, "
+            f"{stats['exceptions']} exceptions ({stats['timeouts']} timeouts, "
+            f"{stats['busy']} busy, {stats['no_route']} no route)",
+            file=sys.stderr,
+        )
+    return EXIT_OK
+
+
+COMMANDS = (
+    CommandSpec(
+        "gateway",
+        "Modbus TCP to RTU gateway: many TCP clients onto serial buses",
+        _configure,
+        guarded("gateway", _run),
+        (__doc__ or "").strip() + "\n\n" + exit_code_table(),
+    ),
+)

@@ -1,0 +1,86 @@
+"""``pyrtu gateway`` as a program: usage errors (exit 2, naming the flag), and a run
+with a libmodbus TCP server as its bus (the serial buses: test_gateway_serial.py)."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+from collections.abc import Iterator
+
+import pytest
+
+from peers import pattern
+from peers.tools import PeerBinaries, free_tcp_port, libmodbus_server, peer_env
+from pyrtu import ExceptionResponseError, pdu
+from pyrtu.tcp import TcpClient
+
+pytest_plugins = ["peers.fixtures"]
+
+
+def pyrtu(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "pyrtu", "gateway", *args],
+        capture_output=True, text=True, timeout=60, env=peer_env(), check=False,
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("args", "flag"),
+    [
+        (["--listen", "nope", "--port", "x"], "--listen"),
+        (["--listen", "127.0.0.1:70000", "--port", "x"], "--listen"),
+        (["--listen", "127.0.0.1:0", "--port", "x=1-300"], "--port"),
+        (["--listen", "127.0.0.1:0", "--port", "x=a"], "--port"),
+        (["--listen", "127.0.0.1:0", "--port", "a", "--port", "b"], "--port"),
+        (["--listen", "127.0.0.1:0", "--port", "a=1-5", "--port", "b=5"], "unit id 5"),
+        (["--listen", "127.0.0.1:0", "--port", "a", "--max-queue", "0"], "--max-queue"),
+    ],
+)
+def test_usage_errors(args: list[str], flag: str) -> None:
+    done = pyrtu(*args)
+    assert done.returncode == 2, done.stderr
+    assert flag in done.stderr and "Traceback" not in done.stderr
+
+
+def test_missing_serial_port_is_a_port_error() -> None:
+    done = pyrtu("--listen", "127.0.0.1:0", "--port", "/dev/does-not-exist", "--json")
+    assert done.returncode == 3, done.stderr
+    assert "/dev/does-not-exist" in done.stderr and "Traceback" not in done.stderr
+
+
+@pytest.fixture
+def gateway_process(peer_binaries: PeerBinaries) -> Iterator[tuple[subprocess.Popen[str], str]]:
+    port = free_tcp_port()
+    with libmodbus_server(peer_binaries, f"tcp:127.0.0.1:{port}", 1):
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "pyrtu", "gateway", "--listen", "127.0.0.1:0",
+             "--port", f"tcp://127.0.0.1:{port}=1-9", "--json", "--timeout", "0.5"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=peer_env(),
+        )  # fmt: skip
+        assert proc.stdout is not None
+        ready = json.loads(proc.stdout.readline())
+        assert ready["type"] == "ready"
+        try:
+            yield proc, f"tcp://{ready['listen']}"
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+            proc.wait(10)
+
+
+def test_gateway_runs_and_reports(gateway_process: tuple[subprocess.Popen[str], str]) -> None:
+    proc, url = gateway_process
+    with TcpClient(url, timeout=2.0) as c:
+        got = c.request(1, pdu.read_request(pdu.READ_INPUT_REGISTERS, 5, 3))
+        assert got is not None and pdu.parse_registers(got, 3) == pattern.inputs(1, 5, 3)
+        with pytest.raises(ExceptionResponseError) as info:
+            c.request(10, pdu.read_request(pdu.READ_INPUT_REGISTERS, 5, 3))
+        assert info.value.code == 0x0A
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=10)
+    assert proc.returncode == 0, err
+    stopped = json.loads(out.splitlines()[-1])
+    assert stopped["type"] == "stopped"
+    assert (stopped["requests"], stopped["answers"], stopped["no_route"]) == (2, 1, 1)
