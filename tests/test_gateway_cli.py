@@ -10,9 +10,9 @@ import sys
 from collections.abc import Iterator
 
 import pytest
-
 from peers import pattern
 from peers.tools import PeerBinaries, free_tcp_port, libmodbus_server, peer_env
+
 from pyrtu import ExceptionResponseError, pdu
 from pyrtu.tcp import TcpClient
 

@@ -191,7 +191,7 @@ static void run_op(modbus_t *ctx, const char *op)
     static uint16_t regs[MAX_VALUES];
     static uint16_t wregs[MAX_VALUES];
     static uint8_t bits[MAX_VALUES];
-    static uint8_t buf[MODBUS_RTU_MAX_ADU_LENGTH];
+    static uint8_t buf[MODBUS_MAX_ADU_LENGTH];
     const char *p;
     int rc, n, i;
 
@@ -293,7 +293,7 @@ static void run_op(modbus_t *ctx, const char *op)
             print_hex(op, buf, rc);
         }
     } else if (strncmp(op, "raw:", 4) == 0) {
-        uint8_t req[MODBUS_RTU_MAX_ADU_LENGTH];
+        uint8_t req[MODBUS_MAX_ADU_LENGTH];
         size_t len = strlen(op + 4);
         int hi, lo;
         if (len < 2 || len % 2 != 0 || len / 2 + 1 > sizeof req - 2) {
@@ -317,8 +317,9 @@ static void run_op(modbus_t *ctx, const char *op)
         if (rc < 0) {
             print_failure(ctx, op);
         } else {
-            /* ADU -> PDU: drop the address and the CRC */
-            print_hex(op, buf + 1, rc - 3);
+            /* ADU -> PDU: drop the address and the CRC (RTU), or the MBAP header (TCP) */
+            const int head = modbus_get_header_length(ctx);
+            print_hex(op, buf + head, rc - head - (head == 1 ? 2 : 0));
         }
     } else {
         fprintf(stderr, "libmodbus_client: unknown op '%s'\n", op);

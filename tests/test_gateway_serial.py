@@ -1,0 +1,240 @@
+"""Interop through `pyrtu gateway` onto a serial bus: pymodbus's and libmodbus's TCP
+clients and pyrtu's, to a pyrtu slave and to a simulated drive on the other end of a
+pseudo-terminal pair (socat; t35=0: a pty pair has no wire timing).  The gateway
+runs as its own process (the command); 127.0.0.1 only."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any
+
+import pytest
+from peers import pattern
+from peers.tools import (
+    PeerBinaries,
+    libmodbus_script,
+    peer_env,
+    pyrtu_slave_process,
+)
+
+from pyrtu import ExceptionResponseError, encode_mbap, parse_tcp_stream, pdu
+from pyrtu.tcp import AsyncTcpClient, TcpClient
+
+pytest_plugins = ["peers.fixtures"]
+
+TIMEOUT = 0.3  # the gateway's response timeout on the bus
+
+
+@dataclass
+class RunningGateway:
+    proc: subprocess.Popen[str]
+    host: str
+    port: int
+
+    @property
+    def url(self) -> str:
+        return f"tcp://{self.host}:{self.port}"
+
+    def stop(self) -> dict[str, Any]:
+        self.proc.send_signal(signal.SIGTERM)
+        out, err = self.proc.communicate(timeout=15)
+        assert self.proc.returncode == 0, err
+        stopped: dict[str, Any] = json.loads(out.splitlines()[-1])
+        return stopped
+
+
+def start_gateway(serial: str, *extra: str) -> RunningGateway:
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "pyrtu", "gateway", "--listen", "127.0.0.1:0", "--port", serial,
+         "--baudrate", "115200", "--parity", "N", "--t35", "0", "--timeout", str(TIMEOUT),
+         "--json", *extra],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=peer_env(),
+    )  # fmt: skip
+    assert proc.stdout is not None
+    line = proc.stdout.readline()
+    if not line:
+        proc.wait(10)
+        raise AssertionError(
+            f"the gateway did not start: {proc.stderr.read() if proc.stderr else ''}"
+        )
+    ready = json.loads(line)
+    host, _, port = ready["listen"].rpartition(":")
+    return RunningGateway(proc, host, int(port))
+
+
+@pytest.fixture
+def pyrtu_bus(pty_pair: tuple[str, str]) -> Iterator[RunningGateway]:
+    """A pyrtu slave at addresses 1 and 2 behind the gateway."""
+    gw_side, slave_side = pty_pair
+    with pyrtu_slave_process(slave_side, 1, t35=0) as _slave:
+        gw = start_gateway(f"{gw_side}=1-9")
+        try:
+            yield gw
+        finally:
+            if gw.proc.poll() is None:
+                gw.proc.kill()
+                gw.proc.communicate()
+
+
+def test_pymodbus_tcp_client_through_the_gateway(pyrtu_bus: RunningGateway) -> None:
+    from pymodbus.client import ModbusTcpClient
+
+    client = ModbusTcpClient(pyrtu_bus.host, port=pyrtu_bus.port, timeout=2, retries=0)
+    assert client.connect()
+    try:
+        rr = client.read_holding_registers(10, count=8, device_id=1)
+        assert not rr.isError() and rr.registers == pattern.holdings(1, 10, 8)
+        rr = client.read_discrete_inputs(3, count=20, device_id=1)
+        assert not rr.isError() and rr.bits[:20] == pattern.discretes(1, 3, 20)
+        assert not client.write_registers(100, [5, 6, 7], device_id=1).isError()
+        rr = client.read_holding_registers(100, count=3, device_id=1)
+        assert rr.registers == [5, 6, 7]
+        rr = client.read_holding_registers(60000, count=2, device_id=1)
+        assert rr.isError() and rr.exception_code == 2  # the slave's own exception
+        rr = client.read_holding_registers(0, count=1, device_id=9)
+        assert rr.isError() and rr.exception_code == 0x0B  # nobody at 9 on the bus
+        rr = client.read_holding_registers(0, count=1, device_id=20)
+        assert rr.isError() and rr.exception_code == 0x0A  # no bus for unit 20
+        # broadcast: no answer expected; the write reaches the slave
+        client.write_register(200, 4242, device_id=0, no_response_expected=True)
+        time.sleep(0.2)
+        assert client.read_holding_registers(200, count=1, device_id=1).registers == [4242]
+    finally:
+        client.close()
+    stats = pyrtu_bus.stop()
+    assert stats["broadcasts"] == 1 and stats["timeouts"] == 1 and stats["no_route"] == 1
+
+
+def test_libmodbus_tcp_client_through_the_gateway(
+    pyrtu_bus: RunningGateway, peer_binaries: PeerBinaries
+) -> None:
+    device = f"tcp:{pyrtu_bus.host}:{pyrtu_bus.port}"
+    ops = ["r03:0:10", "r01:5:30", "w16:300:1,2,3", "r03:300:3", "r04:7:4", "r03:60000:1",
+           "slave:9", "r03:0:1", "slave:30", "r03:0:1"]  # fmt: skip
+    results = libmodbus_script(peer_binaries, device, 1, ops, timeout_ms=2000)
+    assert results[0]["values"] == pattern.holdings(1, 0, 10)
+    assert results[1]["values"] == [int(b) for b in pattern.coils(1, 5, 30)]
+    assert results[2]["ok"] and results[3]["values"] == [1, 2, 3]
+    assert results[4]["values"] == pattern.inputs(1, 7, 4)
+    assert [r.get("exception") for r in results[5:] if "exception" in r] == [2, 0x0B, 0x0A]
+
+
+@pytest.mark.wall_clock
+def test_dead_slave_answers_0x0b_in_time_and_others_go_on(pyrtu_bus: RunningGateway) -> None:
+    async def main() -> None:
+        dead = await AsyncTcpClient.connect(pyrtu_bus.url, timeout=10.0)
+        live = await AsyncTcpClient.connect(pyrtu_bus.url, timeout=10.0)
+        loop = asyncio.get_running_loop()
+        t0 = loop.time()
+        dead_task = asyncio.ensure_future(dead.request(7, pdu.read_request(3, 0, 1)))
+        reads = [live.request(1, pdu.read_request(3, i, 2)) for i in range(20)]
+        answers = await asyncio.gather(*reads)
+        assert [pdu.parse_registers(a or b"", 2) for a in answers] == [
+            pattern.holdings(1, i, 2) for i in range(20)
+        ]
+        with pytest.raises(ExceptionResponseError) as info:
+            await dead_task
+        elapsed = loop.time() - t0
+        assert info.value.code == 0x0B
+        # One bus timeout (0.3 s) plus 20 pty transactions of well under 10 ms each;
+        # 10 x the timeout leaves room for a loaded 2-core machine, and is still far
+        # below the clients' own 10 s timeout: the gateway answered, the client did not
+        # time out.
+        assert elapsed < 10 * TIMEOUT
+        await dead.close()
+        await live.close()
+
+    asyncio.run(main())
+
+
+def test_clients_leaving_mid_transaction_keep_the_bus_in_step(pyrtu_bus: RunningGateway) -> None:
+    for i in range(20):  # send and leave at once: the answers arrive for nobody
+        s = socket.create_connection((pyrtu_bus.host, pyrtu_bus.port))
+        s.sendall(encode_mbap(i, 1, pdu.read_request(3, 500 + i, 1)))
+        s.close()
+    with TcpClient(pyrtu_bus.url, timeout=3.0) as c:
+        for i in range(40):  # every answer is the right one: no stale frame in between
+            got = c.request(1, pdu.read_request(3, i, 3))
+            assert got is not None and pdu.parse_registers(got, 3) == pattern.holdings(1, i, 3)
+    stats = pyrtu_bus.stop()
+    assert stats["answers"] >= 40 and stats["timeouts"] == 0
+
+
+def test_queue_overflow_through_the_gateway(pty_pair: tuple[str, str]) -> None:
+    gw_side, slave_side = pty_pair
+    with pyrtu_slave_process(slave_side, 1, t35=0):
+        gw = start_gateway(f"{gw_side}=1", "--max-queue", "2")
+        try:
+            s = socket.create_connection((gw.host, gw.port))
+            s.sendall(b"".join(encode_mbap(n, 1, pdu.read_request(3, n, 1)) for n in range(10)))
+            data = b""
+            s.settimeout(5)
+            while len(parse_tcp_stream(data, "master")) < 10 or data[-1:] == b"":
+                chunk = s.recv(4096)
+                assert chunk, "the gateway closed the connection"
+                data += chunk
+                if len(list(parse_tcp_stream(data, "master").frames())) == 10:
+                    break
+            s.close()
+            answers = {f.transaction: f for f in parse_tcp_stream(data, "master").frames()}
+            assert sorted(answers) == list(range(10))
+            busy = [t for t, f in answers.items() if f.exception_code == 6]
+            served = [t for t, f in answers.items() if f.exception_code is None]
+            assert len(busy) >= 1 and len(served) >= 2  # two fit in the queue
+            for t in served:
+                assert pdu.parse_registers(answers[t].pdu, 1) == pattern.holdings(1, t, 1)
+            stats = gw.stop()
+            assert stats["busy"] == len(busy)
+        finally:
+            if gw.proc.poll() is None:
+                gw.proc.kill()
+                gw.proc.communicate()
+
+
+@pytest.fixture
+def drive_bus(pty_pair: tuple[str, str]) -> Iterator[RunningGateway]:
+    """A simulated WEG CFW701 (address 1) behind the gateway."""
+    gw_side, drive_side = pty_pair
+    sim = subprocess.Popen(
+        [sys.executable, "-m", "pyrtu", "simulate", "cfw701", "--port", drive_side,
+         "--parity", "N", "--baudrate", "115200", "--t35", "0", "--json"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=peer_env(),
+    )  # fmt: skip
+    assert sim.stdout is not None
+    assert json.loads(sim.stdout.readline())["type"] == "ready"
+    gw = start_gateway(f"{gw_side}=1")
+    try:
+        yield gw
+    finally:
+        for proc in (gw.proc, sim):
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
+            proc.communicate(timeout=15)
+
+
+def test_simulated_drive_through_the_gateway(
+    drive_bus: RunningGateway, peer_binaries: PeerBinaries
+) -> None:
+    with TcpClient(drive_bus.url, timeout=2.0) as c:
+        got = c.request(1, pdu.device_id_request(1, 0))
+        assert got is not None
+        page = pdu.parse_device_id(got, 1)
+        assert page.objects[0] == (0, b"WEG")
+        status = c.request(1, pdu.read_request(3, 680, 1))
+        assert status is not None and len(status) == 4
+    device = f"tcp:{drive_bus.host}:{drive_bus.port}"
+    # (libmodbus sizes no FC 43 answer, on TCP as on RTU: registers only here)
+    results = libmodbus_script(
+        peer_binaries, device, 1, ["r03:680:1", "w06:683:4096", "r03:683:1", "r03:9999:1"]
+    )
+    assert results[0]["ok"] and results[0]["values"] == pdu.parse_registers(status, 1)
+    assert results[1]["ok"] and results[2]["values"] == [4096]  # P683 speed reference
+    assert results[3]["exception"] == 2  # the manual's illegal data address
