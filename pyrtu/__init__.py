@@ -38,6 +38,7 @@ encode_mbap = _active.encode_mbap
 
 
 # The thin API over the core: imported after the backend is chosen (they use it).
+from . import _tcp_master  # noqa: E402,F401  (registers tcp:// and rtu+tcp:// masters)
 from .data import (  # noqa: E402
     decode_float32,
     decode_int32,

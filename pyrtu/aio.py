@@ -36,6 +36,7 @@ from . import _requests as R
 from . import pdu as P
 from ._client import State
 from ._requests import Call
+from ._transports import transport_for
 from .errors import PortError
 from .line import LineConfig
 from .master import MasterBase, make_line
@@ -46,6 +47,11 @@ _monotonic = time.monotonic
 
 class AsyncMaster(MasterBase):
     """A Modbus master on one serial line for asyncio (see the module docstring)."""
+
+    def __new__(cls, port: Any = None, *args: Any, **kwargs: Any) -> AsyncMaster:
+        # tcp://, rtu+tcp://: the transport's subclass (pyrtu._transports)
+        sub = transport_for("async", port) if cls is AsyncMaster else None
+        return super().__new__(sub or cls)
 
     def __init__(
         self,

@@ -39,6 +39,7 @@ from . import pdu as P
 from ._client import ClientProtocol
 from ._master_io import run_sync
 from ._requests import Call
+from ._transports import transport_for
 from .errors import PortError
 from .line import LineConfig
 from .port import Port, open_port
@@ -211,6 +212,11 @@ class Master(MasterBase):
     stopbits, bytesize, mode, timing, t15, t35, rules, max_adu, strict);
     ``exclusive``: lock the port against other processes (passed to open_port).
     """
+
+    def __new__(cls, port: Any = None, *args: Any, **kwargs: Any) -> Master:
+        # tcp://, rtu+tcp://: the transport's subclass (pyrtu._transports)
+        sub = transport_for("sync", port) if cls is Master else None
+        return super().__new__(sub or cls)
 
     def __init__(
         self,

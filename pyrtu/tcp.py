@@ -100,6 +100,14 @@ class TcpClient:
     def counters(self) -> dict[str, int]:
         return dict(self._proto.counters)
 
+    @property
+    def timeout(self) -> float:
+        return self._proto.timeout
+
+    @timeout.setter
+    def timeout(self, value: float) -> None:
+        self._proto.timeout = check_timeout(value)
+
     def request(self, unit: int, pdu: BytesLike) -> bytes | None:
         """The response PDU of ``pdu`` sent to ``unit`` (None for unit 0, a broadcast)."""
         proto = self._proto
@@ -247,6 +255,14 @@ class AsyncTcpClient:
     @property
     def counters(self) -> dict[str, int]:
         return dict(self._conn.proto.counters)
+
+    @property
+    def timeout(self) -> float:
+        return self._conn.proto.timeout
+
+    @timeout.setter
+    def timeout(self, value: float) -> None:
+        self._conn.proto.timeout = check_timeout(value)
 
     async def request(self, unit: int, pdu: BytesLike) -> bytes | None:
         """The response PDU of ``pdu`` sent to ``unit`` (None for unit 0, a broadcast).

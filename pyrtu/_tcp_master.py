@@ -1,0 +1,186 @@
+"""`Master` and `AsyncMaster` over Modbus TCP: ``Master("tcp://host:port")``.
+
+The same methods, argument checks and decoders (`pyrtu._requests`), with the
+transport of `pyrtu.tcp` in place of the serial line: MBAP frames, transaction ids,
+no CRC and no wire timing (the length field ends each answer).  ``timeout`` and
+``retries`` keep their meaning (a retry after `NoResponseError` only); the serial
+keywords are accepted and ignored, so code can switch transports by the port
+string.  The asyncio master keeps up to ``max_in_flight`` requests on the
+connection at once (``asyncio.gather`` of several awaits), for servers that answer
+pipelined requests (libmodbus does; pymodbus 3.16's server does not: keep 1).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+from typing import Any
+
+from ._requests import Call
+from ._transports import TRANSPORTS
+from .aio import AsyncMaster
+from .errors import NoResponseError
+from .master import Master, check_retries, check_seconds
+from .tcp import RTU_TCP_SCHEME, AsyncTcpClient, TcpClient, parse_tcp_url, rtu_over_tcp
+
+
+class TcpMaster(Master):
+    """`pyrtu.Master` on a Modbus TCP connection (made by ``Master("tcp://...")``)."""
+
+    def __init__(
+        self, port: str, *args: Any, timeout: float = 1.0, retries: int = 0, **kwargs: Any
+    ) -> None:
+        self._timeout = check_seconds("timeout", timeout, positive=True)
+        self._retries = check_retries(retries)
+        self._lock = threading.RLock()
+        self.url = port
+        self._client = TcpClient(port, timeout=self._timeout)
+
+    def _run(self, call: Call) -> Any:
+        with self._lock:
+            for attempt in range(self._retries + 1):
+                try:
+                    answer = self._client.request(call.slave, call.pdu)
+                    break
+                except NoResponseError:
+                    if attempt == self._retries:
+                        raise
+            if call.decode is None or answer is None:
+                return None
+            return call.decode(answer)
+
+    def add_rule(self, function: int, request_rule: Any, response_rule: Any) -> None:
+        """Length rules are not needed on TCP (the MBAP length ends every answer)."""
+
+    @property
+    def counters(self) -> dict[str, int]:
+        return self._client.counters
+
+    @property
+    def timeout(self) -> float:
+        return self._timeout
+
+    @timeout.setter
+    def timeout(self, value: float) -> None:
+        self._timeout = check_seconds("timeout", value, positive=True)
+        self._client.timeout = self._timeout
+
+    @property
+    def retries(self) -> int:
+        return self._retries
+
+    @retries.setter
+    def retries(self, value: int) -> None:
+        self._retries = check_retries(value)
+
+    @property
+    def line(self) -> Any:
+        raise AttributeError("a Modbus TCP master has no serial line")
+
+    def close(self) -> None:
+        with self._lock:
+            self._client.close()
+
+    def __repr__(self) -> str:
+        return f"<pyrtu.Master {self.url} Modbus TCP>"
+
+
+class AsyncTcpMaster(AsyncMaster):
+    """`pyrtu.aio.AsyncMaster` on a Modbus TCP connection (``AsyncMaster("tcp://...")``);
+    connects on the first request."""
+
+    def __init__(
+        self,
+        port: str,
+        *args: Any,
+        timeout: float = 1.0,
+        retries: int = 0,
+        max_in_flight: int = 1,
+        **kwargs: Any,
+    ) -> None:
+        parse_tcp_url(port)  # ValueError now, not at the first request
+        self._timeout = check_seconds("timeout", timeout, positive=True)
+        self._retries = check_retries(retries)
+        self._max_in_flight = max_in_flight
+        self.url = port
+        self._client: AsyncTcpClient | None = None
+        self._connecting: asyncio.Lock | None = None
+
+    async def _connected(self) -> AsyncTcpClient:
+        if self._client is None:
+            if self._connecting is None:
+                self._connecting = asyncio.Lock()
+            async with self._connecting:
+                if self._client is None:
+                    self._client = await AsyncTcpClient.connect(
+                        self.url, timeout=self._timeout, max_in_flight=self._max_in_flight
+                    )
+        return self._client
+
+    async def _run(self, call: Call) -> Any:
+        client = await self._connected()
+        for attempt in range(self._retries + 1):
+            try:
+                answer = await client.request(call.slave, call.pdu)
+                break
+            except NoResponseError:
+                if attempt == self._retries:
+                    raise
+        if call.decode is None or answer is None:
+            return None
+        return call.decode(answer)
+
+    async def add_rule(self, function: int, request_rule: Any, response_rule: Any) -> None:
+        """Length rules are not needed on TCP (the MBAP length ends every answer)."""
+
+    @property
+    def counters(self) -> dict[str, int]:
+        return {} if self._client is None else self._client.counters
+
+    @property
+    def timeout(self) -> float:
+        return self._timeout
+
+    @timeout.setter
+    def timeout(self, value: float) -> None:
+        self._timeout = check_seconds("timeout", value, positive=True)
+        if self._client is not None:
+            self._client.timeout = self._timeout
+
+    @property
+    def retries(self) -> int:
+        return self._retries
+
+    @retries.setter
+    def retries(self, value: int) -> None:
+        self._retries = check_retries(value)
+
+    @property
+    def line(self) -> Any:
+        raise AttributeError("a Modbus TCP master has no serial line")
+
+    async def close(self) -> None:
+        if self._client is not None:
+            await self._client.close()
+
+    def __repr__(self) -> str:
+        return f"<pyrtu.aio.AsyncMaster {self.url} Modbus TCP>"
+
+
+class RtuTcpMaster(Master):
+    """`pyrtu.Master` on ``rtu+tcp://host:port``: RTU frames (CRC kept) on a TCP socket,
+    ``t35`` 0 unless given (a socket has no wire timing)."""
+
+    def __init__(self, port: str, *args: Any, t35: float | None = None, **kwargs: Any) -> None:
+        super().__init__(rtu_over_tcp(port), *args, t35=0.0 if t35 is None else t35, **kwargs)
+
+
+class AsyncRtuTcpMaster(AsyncMaster):
+    """`pyrtu.aio.AsyncMaster` on ``rtu+tcp://host:port`` (see `RtuTcpMaster`)."""
+
+    def __init__(self, port: str, *args: Any, t35: float | None = None, **kwargs: Any) -> None:
+        super().__init__(rtu_over_tcp(port), *args, t35=0.0 if t35 is None else t35, **kwargs)
+
+
+TRANSPORTS["sync"].update({"tcp": TcpMaster, RTU_TCP_SCHEME: RtuTcpMaster})
+TRANSPORTS["async"].update({"tcp": AsyncTcpMaster, RTU_TCP_SCHEME: AsyncRtuTcpMaster})
