@@ -45,7 +45,7 @@ from types import ModuleType
 from typing import Any
 
 from . import _backend
-from .ascii import encode_ascii
+from .ascii import encode_ascii, make_framer
 from .errors import BusFault, ExceptionResponseError, FrameError, NoResponseError
 from .functions import function_name
 from .line import LineConfig
@@ -114,7 +114,7 @@ class ClientProtocol:
         self.gap = line.frame_gap
         self.settle = max(0.02, 3 * self.gap)
         self.counters = new_counters()
-        self._framer: Any = line.framer("master", self._backend)
+        self._framer: Any = make_framer(line, "master", self._backend)
         self._char = line.char_time
         self.state = State.IDLE
         # the line, across transactions
@@ -146,7 +146,7 @@ class ClientProtocol:
         self.gap = line.frame_gap
         self.settle = max(0.02, 3 * self.gap)
         self._char = line.char_time
-        self._framer = line.framer("master", self._backend)
+        self._framer = make_framer(line, "master", self._backend)
 
     # ------------------------------------------------------------- transaction
 
