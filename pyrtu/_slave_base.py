@@ -196,7 +196,8 @@ class SlaveBase:
     # --------------------------------------------------- the protocol's application
 
     def watchdog_expired(self) -> None:
-        log.warning("watchdog: no valid telegram for %.3f s on %s", self.watchdog, self.port.name)
+        port = getattr(self, "port", None)
+        log.warning("watchdog: no valid telegram on %s", port.name if port else "the line")
         if self.on_watchdog is not None:
             try:
                 self.on_watchdog(self)
