@@ -17,10 +17,10 @@ functions and the vendor handlers); the protocol keeps what belongs to the seria
 line: addressing and broadcast (Serial Line V1.02, 2.1), listen-only mode and the
 counters (`LineState`, FC 08/11/12), the echo of an echoing adapter, the watchdog,
 and the turnaround.  A response goes out no sooner than t3.5 after the end of the
-request (Serial Line V1.02, 2.5.1.1: frames are separated by a t3.5 silence) and,
-when the line carried bytes after the request, t3.5 after those; plus
-``response_delay`` after the request for devices whose manual gives one.  A new
-request before the pending response went out replaces it (the master moved on).
+request (Serial Line V1.02, 2.5.1.1: frames are separated by a t3.5 silence), plus
+``response_delay`` for devices whose manual gives one.  A new request before the
+pending response went out replaces it (the master moved on; the first one counts
+as not answered).
 """
 
 from __future__ import annotations
@@ -119,7 +119,6 @@ class ServerProtocol:
         self.counters = dict.fromkeys(COUNTER_NAMES, 0)
         self.reconfigure(line)
         self._pending: Response | None = None
-        self._last_rx: float | None = None  # when bytes last came (the line's activity)
         self._echo: bytes | None = None  # what was sent, expected back (echo=True)
         self._echo_until = 0.0
         self._sending: Response | None = None
@@ -149,7 +148,6 @@ class ServerProtocol:
             return
         if self._ascii and self.state.ascii_delimiter != 0x0A:
             data = data.translate(_delimiter_table(self.state.ascii_delimiter))
-        self._last_rx = now
         self.framer.receive_data(data, now)
         self._drain(now)
 
@@ -186,7 +184,7 @@ class ServerProtocol:
         if timer is not None:
             times.append(timer)
         if self._pending is not None:
-            times.append(self._send_time(self._pending))
+            times.append(self._pending.earliest)
         if self.watchdog is not None and self._last_valid is not None and not self._tripped:
             times.append(self._last_valid + self.watchdog)
         return min(times) if times else None
@@ -203,7 +201,7 @@ class ServerProtocol:
     def data_to_send(self, now: float) -> bytes | None:
         """The response ADU if its time has come (the caller writes it now), else None."""
         pending = self._pending
-        if pending is None or now < self._send_time(pending):
+        if pending is None or now < pending.earliest:
             return None
         self._pending = None
         self._sending = pending
@@ -215,12 +213,6 @@ class ServerProtocol:
         return pending.adu
 
     # ------------------------------------------------------------------ frames
-
-    def _send_time(self, response: Response) -> float:
-        quiet = self._last_rx
-        if quiet is None or quiet + self.turnaround <= response.earliest:
-            return response.earliest
-        return quiet + self.turnaround  # the line carried bytes after the request
 
     def _drain(self, now: float) -> None:
         framer = self.framer
@@ -263,6 +255,8 @@ class ServerProtocol:
         if broadcast or response is None:
             self.state.not_answered()
             return
+        if self._pending is not None:
+            self.state.not_answered()
         end = now if frame.end is None else frame.end
         self._pending = Response(
             unit,
