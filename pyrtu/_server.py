@@ -41,6 +41,8 @@ from .line import LineConfig
 
 log = logging.getLogger("pyrtu.slave")
 
+_MIN_ADU = 4
+
 COUNTER_NAMES = (
     "requests",
     "responses",
@@ -119,6 +121,8 @@ class ServerProtocol:
         self.counters = dict.fromkeys(COUNTER_NAMES, 0)
         self.reconfigure(line)
         self._pending: Response | None = None
+        self._received = 0  # bytes given to the framer
+        self._framed = 0  # of which the framer has ended (frames and discards)
         self._echo: bytes | None = None  # what was sent, expected back (echo=True)
         self._echo_until = 0.0
         self._sending: Response | None = None
@@ -148,6 +152,7 @@ class ServerProtocol:
             return
         if self._ascii and self.state.ascii_delimiter != 0x0A:
             data = data.translate(_delimiter_table(self.state.ascii_delimiter))
+        self._received += len(data)
         self.framer.receive_data(data, now)
         self._drain(now)
 
@@ -190,8 +195,14 @@ class ServerProtocol:
         return min(times) if times else None
 
     def needed(self) -> int:
-        """Bytes the frame being received still needs (0: unknown or none)."""
-        return self.framer.needed()
+        """A lower bound on the bytes the frame being received still needs (0: unknown
+        or none): the framer's, and in RTU at least the rest of the shortest ADU
+        (address, function, CRC: 4 bytes, Serial Line V1.02 2.5.1.1)."""
+        needed = self.framer.needed()
+        started = self._received - self._framed
+        if 0 < started < _MIN_ADU and not self._ascii:
+            return max(needed, _MIN_ADU - started)
+        return needed
 
     @property
     def pending(self) -> Response | None:
@@ -217,6 +228,7 @@ class ServerProtocol:
     def _drain(self, now: float) -> None:
         framer = self.framer
         while (ev := framer.next_event()) is not None:
+            self._framed = ev.offset + len(ev.adu if ev.text is None else ev.text)
             if ev.error is not None:
                 self.state.discard_seen(ev.error.value, ev.start, ev.end)
             else:

@@ -44,6 +44,7 @@ from typing import Any
 from ._slave_base import STANDARD_FUNCTIONS, Handler, SlaveBase, line_from_keywords
 from .datastore import DataStore
 from .line import LineConfig
+from .errors import PortError
 from .port import open_port
 from .rules import RuleTable
 
@@ -51,6 +52,7 @@ log = logging.getLogger("pyrtu.slave")
 _monotonic = time.monotonic
 
 _POLL = 0.05  # ports without a file descriptor: the longest blocking read
+_READ_SIZE = 4096
 
 
 def open_slave_port(port: Any, line: LineConfig, rs485: Any, exclusive: bool) -> Any:
@@ -229,11 +231,15 @@ class Slave(SlaveBase):
                 ready = self._sleeper.poll(timeout * 1000.0)
             else:
                 ready = self._waiter.poll(None if timeout is None else timeout * 1000.0)
-            if ready and any(fd == self._wake_r for fd, _ in ready):
-                self._drain_wake()
-                if self._stop.is_set():
-                    return
-            data = port.read(0)
+            readable = False
+            for fd, _events in ready:
+                if fd == self._wake_r:
+                    self._drain_wake()
+                    if self._stop.is_set():
+                        return
+                else:
+                    readable = True
+            data = self._read(port.fd, readable)
         now = _monotonic()
         with self._lock:
             if data:
@@ -244,6 +250,19 @@ class Slave(SlaveBase):
             _start, end = port.write(adu)
             with self._lock:
                 proto.transmitted(end)
+
+    def _read(self, fd: int, readable: bool) -> bytes:
+        """What the port has (its file descriptor is non-blocking, VMIN = VTIME = 0)."""
+        try:
+            data = os.read(fd, _READ_SIZE)
+        except BlockingIOError:
+            return b""
+        except OSError as exc:
+            raise PortError(self.port.name, f"read failed: {exc}") from exc
+        if not data and readable:
+            # reported readable but empty: the device went away
+            raise PortError(self.port.name, "the device reports data but returns none")
+        return data
 
     def _drain_wake(self) -> None:
         with contextlib.suppress(OSError):
