@@ -18,16 +18,20 @@ from __future__ import annotations
 import argparse
 import asyncio
 import datetime
+import os
 import platform
+import shutil
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+# the slave process of the baseline runs on another tree (``--baseline``)
+sys.path.insert(0, os.environ.get("PYRTU_BENCH_TREE", str(ROOT)))
 
 SLAVE = 7
 COUNT = 10
@@ -52,7 +56,7 @@ def make_store() -> Any:
 
 def serve(kind: str, path: str, baudrate: int) -> None:
     """Serve on ``path``; answer "cpu" lines on stdin with "<process_time> <requests>"."""
-    if kind == "sync":
+    if kind in ("sync", "baseline"):
         from pyrtu.slave import Slave
 
         slave = Slave(path, SLAVE, make_store(), baudrate=baudrate, parity="N")
@@ -79,9 +83,14 @@ def serve(kind: str, path: str, baudrate: int) -> None:
 
 
 class SlaveProcess:
-    def __init__(self, kind: str, path: str, baudrate: int) -> None:
+    def __init__(self, kind: str, path: str, baudrate: int, tree: str | None = None) -> None:
         argv = [sys.executable, __file__, "--serve", kind, path, str(baudrate)]
-        self.proc = subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        env = dict(os.environ)
+        if tree is not None:
+            env["PYRTU_BENCH_TREE"] = tree
+        self.proc = subprocess.Popen(
+            argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env
+        )
 
     def sample(self) -> tuple[float, int]:
         assert self.proc.stdin is not None and self.proc.stdout is not None
@@ -103,7 +112,18 @@ class SlaveProcess:
 # ------------------------------------------------------------------ the measurement
 
 
-def measure(kind: str, baudrate: int) -> dict[str, Any]:
+def baseline_tree(rev: str, into: str) -> str:
+    """The pyrtu of commit ``rev`` in ``into``, with this tree's built C core."""
+    archive = subprocess.run(
+        ["git", "-C", str(ROOT), "archive", rev, "pyrtu"], check=True, capture_output=True
+    ).stdout
+    subprocess.run(["tar", "-x", "-C", into], input=archive, check=True)
+    for so in (ROOT / "pyrtu").glob("_rtu_core*.so"):
+        shutil.copy(so, Path(into) / "pyrtu" / so.name)
+    return into
+
+
+def measure(kind: str, baudrate: int, tree: str | None = None) -> dict[str, Any]:
     from pyrtu.master import Master
     from pyrtu.vbus import VirtualBus
 
@@ -112,7 +132,7 @@ def measure(kind: str, baudrate: int) -> dict[str, Any]:
     per_tx: list[float] = []
     rates: list[float] = []
     with VirtualBus(2, baudrate=baudrate, parity="N") as bus:
-        slave = SlaveProcess(kind, bus.paths[1], baudrate)
+        slave = SlaveProcess(kind, bus.paths[1], baudrate, tree if kind == "baseline" else None)
         try:
             if not bus.wait_clients(1, timeout=10.0):
                 raise RuntimeError("the slave process did not open its drop")
@@ -144,6 +164,9 @@ def measure(kind: str, baudrate: int) -> dict[str, Any]:
     }
 
 
+NAMES = {"sync": "Slave", "async": "AsyncSlave", "baseline": "Slave before (baseline)"}
+
+
 def table(results: list[dict[str, Any]]) -> str:
     rows = [
         "| baud | slave | transactions/s | slave CPU µs/tx (median) | min | max |",
@@ -151,23 +174,28 @@ def table(results: list[dict[str, Any]]) -> str:
     ]
     for r in results:
         rows.append(
-            f"| {r['baudrate']} | {'Slave' if r['kind'] == 'sync' else 'AsyncSlave'} "
+            f"| {r['baudrate']} | {NAMES[r['kind']]} "
             f"| {r['tps']:.1f} | **{r['cpu_us']:.1f}** | {r['cpu_us_min']:.1f} "
             f"| {r['cpu_us_max']:.1f} |"
         )
     return "\n".join(rows)
 
 
-def section(results: list[dict[str, Any]], backend: str) -> str:
+def section(results: list[dict[str, Any]], backend: str, baseline: str | None) -> str:
     stamp = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%S UTC")
     by = {(r["kind"], r["baudrate"]): r["cpu_us"] for r in results}
+    bauds = sorted({r["baudrate"] for r in results})
     ratios = ", ".join(
-        f"{b} baud {by[('async', b)] / by[('sync', b)]:.2f}x" for b in BAUDS
+        f"{b} baud: AsyncSlave/Slave {by[('async', b)] / by[('sync', b)]:.2f}x"
+        + (f", Slave/baseline {by[('sync', b)] / by[('baseline', b)]:.2f}x" if baseline else "")
+        for b in bauds
+        if ("async", b) in by and ("sync", b) in by
     )
+    command = "python bench/run_slave.py --write" + (f" --baseline {baseline}" if baseline else "")
     return f"""{BEGIN}
 ## Slave on the virtual bus (issue 10)
 
-`python bench/run_slave.py --write`, one run, {stamp}.  {platform.machine()}, 2 cores
+`{command}`, one run, {stamp}.  {platform.machine()}, 2 cores
 (shared), Python {platform.python_version()}, pyrtu backend `{backend}`.
 
 FC 03, 10 holding registers, byte-timed delivery by the virtual bus (8N1, the
@@ -178,8 +206,8 @@ threads) before and after each round of {ROUND[9600]} (9600) or {ROUND[115200]}
 
 {table(results)}
 
-AsyncSlave / Slave CPU: {ratios}.  Before the server protocol (bench/RESULTS.md,
-issue 4, /proc ticks): 250 µs at 9600 and 160 µs at 115200 for the sync slave.
+CPU ratios (same run): {ratios}.  The baseline is the sync Slave of the
+commit before this work (same C core), measured in the same run.
 {END}"""
 
 
@@ -200,6 +228,9 @@ def main() -> None:
     parser.add_argument("--serve", nargs=3, metavar=("KIND", "PATH", "BAUD"))
     parser.add_argument("--write", action="store_true", help="update bench/RESULTS.md")
     parser.add_argument("--kinds", default=",".join(KINDS))
+    parser.add_argument(
+        "--baseline", metavar="REV", help="also measure the sync Slave of commit REV"
+    )
     parser.add_argument("--bauds", default=",".join(map(str, BAUDS)))
     args = parser.parse_args()
     if args.serve:
@@ -208,14 +239,15 @@ def main() -> None:
         return
     from pyrtu._backend import active
 
-    results = [
-        measure(kind, int(baud))
-        for baud in args.bauds.split(",")
-        for kind in args.kinds.split(",")
-    ]
+    kinds = args.kinds.split(",") + (["baseline"] if args.baseline else [])
+    with tempfile.TemporaryDirectory() as tmp:
+        tree = baseline_tree(args.baseline, tmp) if args.baseline else None
+        results = [
+            measure(kind, int(baud), tree) for baud in args.bauds.split(",") for kind in kinds
+        ]
     print(table(results))
     if args.write:
-        write_results(section(results, active.BACKEND))
+        write_results(section(results, active.BACKEND, args.baseline))
 
 
 if __name__ == "__main__":

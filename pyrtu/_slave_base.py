@@ -145,7 +145,7 @@ class SlaveBase:
             raise ValueError(f"register_function: handler must be callable, not {handler!r}")
         with self._guard():
             if request_rule is not None or response_rule is not None:
-                rules: RuleTable = dict(self.line_config.rules)
+                rules = dict(self.line_config.rules)
                 rules.update(check_rules({function: (request_rule, response_rule)}))
                 self.line_config = self.line_config.replace(rules=rules)
                 self.protocol.reconfigure(self.line_config)

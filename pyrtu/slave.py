@@ -43,8 +43,8 @@ from typing import Any
 
 from ._slave_base import STANDARD_FUNCTIONS, Handler, SlaveBase, line_from_keywords
 from .datastore import DataStore
-from .line import LineConfig
 from .errors import PortError
+from .line import LineConfig
 from .port import open_port
 from .rules import RuleTable
 
