@@ -1,0 +1,254 @@
+"""Slave CPU per transaction on the virtual bus (issue 10): the sync `Slave` and the
+`AsyncSlave`, FC 03 x 10 registers, byte-timed delivery, 9600 and 115200 baud 8N1,
+specification timing on both sides.
+
+The slave runs in a process of its own (``run_slave.py --serve KIND PATH BAUD``) and
+reports ``time.process_time()`` (every thread of that process, nanosecond clock) and
+its request counter on demand; the load is the sync `pyrtu.Master` of this tree in
+this process, on drop 0 of a `VirtualBus` (whose hub thread also runs here).  A
+round is ``N`` transactions; the figures are medians over the rounds, CPU per
+transaction = the slave process's CPU over the round / the requests it served.
+
+    python bench/run_slave.py            # prints the table
+    python bench/run_slave.py --write    # and writes the slave section of RESULTS.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import datetime
+import os
+import platform
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent.parent
+# the slave process of the baseline runs on another tree (``--baseline``)
+sys.path.insert(0, os.environ.get("PYRTU_BENCH_TREE", str(ROOT)))
+
+SLAVE = 7
+COUNT = 10
+ROUNDS = 7
+ROUND = {9600: 40, 115200: 250}
+BAUDS = (9600, 115200)
+KINDS = ("sync", "async")
+BEGIN = "<!-- slave:begin (bench/run_slave.py) -->"
+END = "<!-- slave:end -->"
+
+
+def make_store() -> Any:
+    from pyrtu.datastore import DataStore
+
+    store = DataStore()
+    store.holding_registers.add_range(0, [(SLAVE * 1000 + i) & 0xFFFF for i in range(100)])
+    return store
+
+
+# ------------------------------------------------------------------ the slave process
+
+
+def serve(kind: str, path: str, baudrate: int) -> None:
+    """Serve on ``path``; answer "cpu" lines on stdin with "<process_time> <requests>"."""
+    if kind in ("sync", "baseline"):
+        from pyrtu.slave import Slave
+
+        slave = Slave(path, SLAVE, make_store(), baudrate=baudrate, parity="N")
+        slave.start()
+        for line in sys.stdin:
+            if line.strip() == "cpu":
+                print(time.process_time(), slave.counters["requests"], flush=True)
+        slave.close()
+        return
+    from pyrtu._aio_slave import AsyncSlave
+
+    async def main() -> None:
+        loop = asyncio.get_running_loop()
+        aslave = AsyncSlave(path, SLAVE, make_store(), baudrate=baudrate, parity="N")
+        aslave.start()
+        reader = asyncio.StreamReader()
+        await loop.connect_read_pipe(lambda: asyncio.StreamReaderProtocol(reader), sys.stdin)
+        while line := await reader.readline():
+            if line.strip() == b"cpu":
+                print(time.process_time(), aslave.counters["requests"], flush=True)
+        await aslave.close()
+
+    asyncio.run(main())
+
+
+class SlaveProcess:
+    def __init__(self, kind: str, path: str, baudrate: int, tree: str | None = None) -> None:
+        argv = [sys.executable, __file__, "--serve", kind, path, str(baudrate)]
+        env = dict(os.environ)
+        if tree is not None:
+            env["PYRTU_BENCH_TREE"] = tree
+        self.proc = subprocess.Popen(
+            argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env
+        )
+
+    def sample(self) -> tuple[float, int]:
+        assert self.proc.stdin is not None and self.proc.stdout is not None
+        self.proc.stdin.write("cpu\n")
+        self.proc.stdin.flush()
+        cpu, requests = self.proc.stdout.readline().split()
+        return float(cpu), int(requests)
+
+    def close(self) -> None:
+        assert self.proc.stdin is not None
+        self.proc.stdin.close()
+        try:
+            self.proc.wait(5)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+
+
+# ------------------------------------------------------------------ the measurement
+
+
+def baseline_tree(rev: str, into: str) -> str:
+    """The pyrtu of commit ``rev`` in ``into``, with this tree's built C core."""
+    archive = subprocess.run(
+        ["git", "-C", str(ROOT), "archive", rev, "pyrtu"], check=True, capture_output=True
+    ).stdout
+    subprocess.run(["tar", "-x", "-C", into], input=archive, check=True)
+    for so in (ROOT / "pyrtu").glob("_rtu_core*.so"):
+        shutil.copy(so, Path(into) / "pyrtu" / so.name)
+    return into
+
+
+def measure(kind: str, baudrate: int, tree: str | None = None) -> dict[str, Any]:
+    from pyrtu.master import Master
+    from pyrtu.vbus import VirtualBus
+
+    expected = [(SLAVE * 1000 + i) & 0xFFFF for i in range(COUNT)]
+    n = ROUND[baudrate]
+    per_tx: list[float] = []
+    rates: list[float] = []
+    with VirtualBus(2, baudrate=baudrate, parity="N") as bus:
+        slave = SlaveProcess(kind, bus.paths[1], baudrate, tree if kind == "baseline" else None)
+        try:
+            if not bus.wait_clients(1, timeout=10.0):
+                raise RuntimeError("the slave process did not open its drop")
+            with Master(bus.paths[0], baudrate, parity="N", timeout=1.0) as master:
+                for _ in range(5):
+                    assert master.read_holding_registers(SLAVE, 0, COUNT) == expected
+                for _ in range(ROUNDS):
+                    cpu0, req0 = slave.sample()
+                    t0 = time.perf_counter()
+                    for _ in range(n):
+                        if master.read_holding_registers(SLAVE, 0, COUNT) != expected:
+                            raise AssertionError("wrong value on the virtual bus")
+                    wall = time.perf_counter() - t0
+                    cpu1, req1 = slave.sample()
+                    if req1 - req0 != n:
+                        raise AssertionError(f"the slave served {req1 - req0} of {n} requests")
+                    per_tx.append((cpu1 - cpu0) / n)
+                    rates.append(n / wall)
+        finally:
+            slave.close()
+    return {
+        "kind": kind,
+        "baudrate": baudrate,
+        "transactions": n * ROUNDS,
+        "cpu_us": statistics.median(per_tx) * 1e6,
+        "cpu_us_min": min(per_tx) * 1e6,
+        "cpu_us_max": max(per_tx) * 1e6,
+        "tps": statistics.median(rates),
+    }
+
+
+NAMES = {"sync": "Slave", "async": "AsyncSlave", "baseline": "Slave before (baseline)"}
+
+
+def table(results: list[dict[str, Any]]) -> str:
+    rows = [
+        "| baud | slave | transactions/s | slave CPU µs/tx (median) | min | max |",
+        "|---:|---|---:|---:|---:|---:|",
+    ]
+    for r in results:
+        rows.append(
+            f"| {r['baudrate']} | {NAMES[r['kind']]} "
+            f"| {r['tps']:.1f} | **{r['cpu_us']:.1f}** | {r['cpu_us_min']:.1f} "
+            f"| {r['cpu_us_max']:.1f} |"
+        )
+    return "\n".join(rows)
+
+
+def section(results: list[dict[str, Any]], backend: str, baseline: str | None) -> str:
+    stamp = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%S UTC")
+    by = {(r["kind"], r["baudrate"]): r["cpu_us"] for r in results}
+    bauds = sorted({r["baudrate"] for r in results})
+    ratios = ", ".join(
+        f"{b} baud: AsyncSlave/Slave {by[('async', b)] / by[('sync', b)]:.2f}x"
+        + (f", Slave/baseline {by[('sync', b)] / by[('baseline', b)]:.2f}x" if baseline else "")
+        for b in bauds
+        if ("async", b) in by and ("sync", b) in by
+    )
+    command = "python bench/run_slave.py --write" + (f" --baseline {baseline}" if baseline else "")
+    return f"""{BEGIN}
+## Slave on the virtual bus (issue 10)
+
+`{command}`, one run, {stamp}.  {platform.machine()}, 2 cores
+(shared), Python {platform.python_version()}, pyrtu backend `{backend}`.
+
+FC 03, 10 holding registers, byte-timed delivery by the virtual bus (8N1, the
+specification's t3.5 on both sides), the sync `pyrtu.Master` of this tree as the load.
+The slave runs in its own process, which reports `time.process_time()` (all its
+threads) before and after each round of {ROUND[9600]} (9600) or {ROUND[115200]}
+(115200) transactions; {ROUNDS} rounds, medians.  Target: ≤ 40 µs per transaction.
+
+{table(results)}
+
+CPU ratios (same run): {ratios}.  The baseline is the sync Slave of the
+commit before this work (same C core), measured in the same run.
+{END}"""
+
+
+def write_results(text: str) -> None:
+    path = ROOT / "bench" / "RESULTS.md"
+    old = path.read_text(encoding="utf-8")
+    if BEGIN in old:
+        head, rest = old.split(BEGIN, 1)
+        tail = rest.split(END, 1)[1]
+        new = head + text + tail
+    else:
+        new = old.rstrip("\n") + "\n\n" + text + "\n"
+    path.write_text(new, encoding="utf-8")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--serve", nargs=3, metavar=("KIND", "PATH", "BAUD"))
+    parser.add_argument("--write", action="store_true", help="update bench/RESULTS.md")
+    parser.add_argument("--kinds", default=",".join(KINDS))
+    parser.add_argument(
+        "--baseline", metavar="REV", help="also measure the sync Slave of commit REV"
+    )
+    parser.add_argument("--bauds", default=",".join(map(str, BAUDS)))
+    args = parser.parse_args()
+    if args.serve:
+        kind, path, baud = args.serve
+        serve(kind, path, int(baud))
+        return
+    from pyrtu._backend import active
+
+    kinds = args.kinds.split(",") + (["baseline"] if args.baseline else [])
+    with tempfile.TemporaryDirectory() as tmp:
+        tree = baseline_tree(args.baseline, tmp) if args.baseline else None
+        results = [
+            measure(kind, int(baud), tree) for baud in args.bauds.split(",") for kind in kinds
+        ]
+    print(table(results))
+    if args.write:
+        write_results(section(results, active.BACKEND, args.baseline))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,329 @@
+"""`AsyncSlave`: the Modbus slave on asyncio (re-exported by `pyrtu.aio`).
+
+Same keywords as `pyrtu.Slave`, same protocol underneath (`pyrtu._server`); many
+slaves (ports) share one event loop and one thread::
+
+    async def main():
+        slaves = [AsyncSlave(path, address=1, store=store, parity="N") for path in paths]
+        async with asyncio.TaskGroup() as tg:
+            for s in slaves:
+                tg.create_task(s.serve())
+
+A port with a file descriptor is watched with ``loop.add_reader``; the protocol's
+deadline is a ``loop.call_at`` timer; while a frame of known length arrives the
+reader is set aside for the bytes still needed (one wake-up instead of one per
+byte, lenient mode).  A port without one (a pyserial URL) is read by a worker
+thread with pyserial's generic reads, which hands the bytes to the loop.
+
+A port that fails (unplugged) ends `serve` with the `PortError`; the port is
+closed, its reader removed, and the other slaves of the loop go on.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import os
+import threading
+from collections.abc import Callable, Iterable, Mapping
+from typing import Any
+
+from ._slave_base import SlaveBase, line_from_keywords
+from .datastore import DataStore
+from .errors import PortError
+from .line import LineConfig
+from .rules import RuleTable
+from .slave import open_slave_port
+
+log = logging.getLogger("pyrtu.slave")
+
+_POLL = 0.05  # the reader thread of a port without a file descriptor
+
+
+class AsyncSlave(SlaveBase):
+    """A Modbus slave on asyncio, serving one or several addresses on one port."""
+
+    def __init__(
+        self,
+        port: Any,
+        address: int | Iterable[int] = 1,
+        store: DataStore | Mapping[int, DataStore] | None = None,
+        *,
+        baudrate: int = 19200,
+        parity: str = "E",
+        stopbits: float = 1,
+        bytesize: int = 8,
+        mode: str = "rtu",
+        echo: bool = False,
+        rs485: Any = None,
+        t15: float | None = None,
+        t35: float | None = None,
+        timing: str = "modbus",
+        rules: RuleTable | None = None,
+        max_adu: int = 256,
+        strict: bool = False,
+        backend: str | None = None,
+        functions: Iterable[int] | None = None,
+        identification: dict[int, bytes] | None = None,
+        response_delay: float = 0.0,
+        watchdog: float | None = None,
+        on_watchdog: Callable[[AsyncSlave], object] | None = None,
+        server_id: bytes = b"pyrtu",
+        run_indicator: bool = True,
+        exclusive: bool = True,
+        line: LineConfig | None = None,
+    ) -> None:
+        config = line_from_keywords(
+            line, baudrate=baudrate, parity=parity, stopbits=stopbits, bytesize=bytesize,
+            mode=mode, t15=t15, t35=t35, timing=timing, rules=rules, max_adu=max_adu,
+            strict=strict,
+        )  # fmt: skip
+        super().__init__(
+            address, store, line=config, echo=echo, backend=backend, functions=functions,
+            identification=identification, response_delay=response_delay, watchdog=watchdog,
+            on_watchdog=on_watchdog, server_id=server_id, run_indicator=run_indicator,
+        )  # fmt: skip
+        self._setup_line(open_slave_port(port, config, rs485, exclusive))
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._done: asyncio.Future[None] | None = None
+        self._task: asyncio.Task[None] | None = None
+        self._timer: asyncio.TimerHandle | None = None
+        self._timer_at: float | None = None
+        self._reading = False  # the reader is installed (not set aside for a frame)
+        self._resume_at: float | None = None  # when a set-aside reader comes back
+        self._out: memoryview | None = None  # the unwritten rest of a response
+        self._thread: threading.Thread | None = None
+        self._thread_stop = threading.Event()
+        self._skip = not self.line_config.strict and self.port.fd is not None
+        #: the error that ended `serve`, if any
+        self.error: BaseException | None = None
+
+    def _guard(self) -> Any:
+        return contextlib.nullcontext()  # one thread: the loop's
+
+    # ------------------------------------------------------------------ serving
+
+    async def serve(self) -> None:
+        """Serve until `stop` (or cancellation); a failing port raises `PortError`."""
+        if self._done is not None:
+            raise RuntimeError("this slave is already serving")
+        loop = asyncio.get_running_loop()
+        self._loop = loop
+        self._done = loop.create_future()
+        self.error = None
+        try:
+            if self.port.fd is not None:
+                self._add_reader()
+            else:
+                self._thread_stop.clear()
+                self._thread = threading.Thread(
+                    target=self._read_thread, name=f"pyrtu-aslave {self.port.name}", daemon=True
+                )
+                self._thread.start()
+            self._rearm(loop.time())
+            await self._done
+        finally:
+            self._teardown()
+
+    def start(self) -> asyncio.Task[None]:
+        """Serve in a task of the running loop; returns it."""
+        if self._task is not None and not self._task.done():
+            raise RuntimeError("this slave is already started")
+        self._task = asyncio.get_running_loop().create_task(self.serve())
+        return self._task
+
+    async def stop(self) -> None:
+        """Stop serving (at once; the task of `start` ends)."""
+        done = self._done
+        if done is not None and not done.done():
+            done.set_result(None)
+        task = self._task
+        if task is not None:
+            self._task = None
+            with contextlib.suppress(PortError, asyncio.CancelledError):
+                await task
+
+    async def close(self) -> None:
+        await self.stop()
+        self.port.close()
+
+    async def __aenter__(self) -> AsyncSlave:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.close()
+
+    def __repr__(self) -> str:
+        return f"<pyrtu.AsyncSlave {sorted(self.addresses)} on {self.port.name} {self.mode}>"
+
+    def _teardown(self) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+        self._timer = self._timer_at = None
+        self._remove_reader()
+        if self._out is not None and self.port.fd is not None and self._loop is not None:
+            self._loop.remove_writer(self.port.fd)
+        self._out = None
+        self._resume_at = None
+        thread, self._thread = self._thread, None
+        if thread is not None:
+            self._thread_stop.set()
+            thread.join(2 * _POLL + 1.0)
+        self._done = None
+
+    def _fail(self, exc: BaseException) -> None:
+        """The port failed: end `serve` with the error, close the port (no fd left)."""
+        log.error("slave on %s stopped: %s", self.port.name, exc)
+        self.error = exc
+        self._remove_reader()
+        if self._out is not None and self._loop is not None and self.port.fd is not None:
+            self._loop.remove_writer(self.port.fd)
+            self._out = None
+        self.port.close()
+        if self._done is not None and not self._done.done():
+            self._done.set_exception(exc)
+
+    # ------------------------------------------------------------------ reading
+
+    def _add_reader(self) -> None:
+        fd = self.port.fd
+        if not self._reading and fd is not None and self._loop is not None:
+            self._loop.add_reader(fd, self._on_readable)
+            self._reading = True
+
+    def _remove_reader(self) -> None:
+        fd = self.port.fd
+        if self._reading and fd is not None and self._loop is not None:
+            self._loop.remove_reader(fd)
+        self._reading = False
+
+    def _on_readable(self) -> None:
+        self._read_now()
+
+    def _read_now(self) -> None:
+        assert self._loop is not None
+        try:
+            data = self.port.read(0)
+        except PortError as exc:
+            self._fail(exc)
+            return
+        now = self._loop.time()
+        if data:
+            self.protocol.receive_data(data, now)
+        self._after(now)
+
+    def _read_thread(self) -> None:
+        """A port without a file descriptor: pyserial's reads, bytes to the loop."""
+        loop = self._loop
+        assert loop is not None
+        while not self._thread_stop.is_set():
+            try:
+                data = self.port.read(_POLL)
+            except PortError as exc:
+                with contextlib.suppress(RuntimeError):  # the loop is closed
+                    loop.call_soon_threadsafe(self._fail, exc)
+                return
+            if data:
+                with contextlib.suppress(RuntimeError):
+                    loop.call_soon_threadsafe(self._on_data, data)
+
+    def _on_data(self, data: bytes) -> None:
+        if self._done is None or self._loop is None:
+            return
+        now = self._loop.time()
+        self.protocol.receive_data(data, now)
+        self._after(now)
+
+    # ------------------------------------------------------------- time, sending
+
+    def _after(self, now: float) -> None:
+        """The protocol saw bytes or time: act on it, then wait for what comes next."""
+        proto = self.protocol
+        proto.handle_timer(now)
+        if self._out is None:
+            adu = proto.data_to_send(now)
+            if adu is not None:
+                self._write(adu, now)
+        if self._done is None or self._done.done():
+            return
+        if self._skip and self._reading:
+            needed = proto.needed()
+            if needed > 0:
+                # the rest of a frame of known length: one wake-up for all of it
+                self._remove_reader()
+                self._resume_at = now + needed * self.port.char_time
+        self._rearm(now)
+
+    def _rearm(self, now: float) -> None:
+        assert self._loop is not None
+        at = self.protocol.deadline()
+        if self._resume_at is not None and (at is None or self._resume_at < at):
+            at = self._resume_at
+        if at == self._timer_at:
+            return
+        if self._timer is not None:
+            self._timer.cancel()
+        self._timer_at = at
+        self._timer = None if at is None else self._loop.call_at(at, self._on_timer)
+
+    def _on_timer(self) -> None:
+        assert self._loop is not None
+        self._timer = self._timer_at = None
+        if self._resume_at is not None:
+            self._resume_at = None
+            self._add_reader()
+            self._read_now()  # what came while the reader was set aside, and the time
+            return
+        self._after(self._loop.time())
+
+    def _write(self, adu: bytes, now: float) -> None:
+        port = self.port
+        fd = port.fd
+        if fd is None:
+            try:
+                _start, end = port.write(adu)  # pyserial's write: URL ports have no wire
+            except PortError as exc:
+                self._fail(exc)
+                return
+            self.protocol.transmitted(end)
+            return
+        try:
+            n = os.write(fd, adu)
+        except BlockingIOError:
+            n = 0
+        except OSError as exc:
+            self._fail(PortError(port.name, f"write failed: {exc}"))
+            return
+        # a real line: the bytes leave the wire one character time each after now
+        end = now + len(adu) * port.char_time if port.has_wire else now
+        if n == len(adu):
+            self.protocol.transmitted(end)
+            return
+        self._out = memoryview(adu)[n:]
+        self._out_end = end
+        assert self._loop is not None
+        self._loop.add_writer(fd, self._on_writable)
+
+    def _on_writable(self) -> None:
+        fd = self.port.fd
+        out = self._out
+        if fd is None or out is None or self._loop is None:
+            return
+        try:
+            n = os.write(fd, out)
+        except BlockingIOError:
+            return
+        except OSError as exc:
+            self._fail(PortError(self.port.name, f"write failed: {exc}"))
+            return
+        self._out = out[n:]
+        if not self._out:
+            self._out = None
+            self._loop.remove_writer(fd)
+            now = self._loop.time()
+            self.protocol.transmitted(max(self._out_end, now))
+            self._after(now)
+
+
+__all__ = ["AsyncSlave"]

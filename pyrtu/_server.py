@@ -1,0 +1,295 @@
+"""The Modbus serial server (slave) as a sans-I/O state machine, in h11's shape.
+
+Bytes and times go in, response bytes and the earliest time they may go out come
+out; nothing here reads a port, sleeps or looks at a clock::
+
+    proto = ServerProtocol(line, app)        # line: a LineConfig
+    proto.receive_data(chunk, now)        # bytes read at ``now`` (seconds, monotonic)
+    proto.handle_timer(now)               # when ``now >= proto.deadline()``
+    adu = proto.data_to_send(now)         # the response, once its time has come
+    if adu:
+        start, end = port.write(adu)
+        proto.transmitted(end)            # end of transmission: the echo window
+
+The request frames the framer (slave role) cuts from the line are executed by the
+*application* (`pyrtu.Slave`, `pyrtu.aio.AsyncSlave`: the DataStore, the standard
+functions and the vendor handlers); the protocol keeps what belongs to the serial
+line: addressing and broadcast (Serial Line V1.02, 2.1), listen-only mode and the
+counters (`LineState`, FC 08/11/12), the echo of an echoing adapter, the watchdog,
+and the turnaround.  A response goes out no sooner than t3.5 after the end of the
+request (Serial Line V1.02, 2.5.1.1: frames are separated by a t3.5 silence), plus
+``response_delay`` for devices whose manual gives one.  A new request before the
+pending response went out replaces it (the master moved on; the first one counts
+as not answered).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+from types import ModuleType
+from typing import Any, Protocol
+
+from . import _backend
+from ._slave_diag import LineState
+from .ascii import encode_ascii
+from .errors import SlaveException
+from .frames import Frame, FrameKind
+from .line import LineConfig
+
+log = logging.getLogger("pyrtu.slave")
+
+_MIN_ADU = 4
+
+COUNTER_NAMES = (
+    "requests",
+    "responses",
+    "exceptions",
+    "broadcasts",
+    "ignored",
+    "echo_dropped",
+    "watchdog_trips",
+)
+
+
+class Application(Protocol):
+    """What the protocol asks of the slave behind it."""
+
+    #: the addresses served (read for every frame: a device may change its own)
+    addresses: frozenset[int]
+
+    def execute(self, unit: int, request: bytes) -> bytes | None:
+        """The response PDU of ``request`` for ``unit`` (0: broadcast), or None."""
+        ...
+
+    def watchdog_expired(self) -> None:
+        """No valid request for the watchdog time."""
+        ...
+
+
+class Framer(Protocol):
+    """The framer face the protocol uses (RTU `Framer` and `AsciiFramer` alike)."""
+
+    def receive_data(self, data: bytes, now: float) -> None: ...
+    def next_event(self) -> Frame | None: ...
+    def timer(self) -> float | None: ...
+    def handle_timer(self, now: float) -> None: ...
+    def needed(self) -> int: ...
+    def send(self, adu: bytes) -> Any: ...
+
+
+@dataclass(frozen=True, slots=True)
+class Response:
+    """A response waiting for its time: the ADU and the earliest time to send it."""
+
+    unit: int
+    adu: bytes
+    earliest: float
+    exception: int | None
+
+
+class ServerProtocol:
+    """One serial port of a slave: frames in, responses out, time as an input.
+
+    ``line``: the line (mode, timing, rules); the protocol keeps a slave-role framer
+    of it (``backend``: the RTU framer's implementation).  ``app`` executes the
+    requests; ``state``: the serial-line counters and modes (FC 08/11/12);
+    ``echo``: the adapter echoes what is sent; ``response_delay``: added to the
+    turnaround (a device's manual); ``watchdog``: seconds without a valid request
+    before ``app.watchdog_expired()``.
+    """
+
+    def __init__(
+        self,
+        line: LineConfig,
+        app: Application,
+        *,
+        backend: ModuleType | str | None = None,
+        state: LineState | None = None,
+        echo: bool = False,
+        response_delay: float = 0.0,
+        watchdog: float | None = None,
+    ) -> None:
+        self.app = app
+        self.backend = _backend.backend(backend) if not isinstance(backend, ModuleType) else backend
+        self.response_delay = response_delay
+        self.watchdog = watchdog
+        self.echo = echo
+        self.state = LineState() if state is None else state
+        self.counters = dict.fromkeys(COUNTER_NAMES, 0)
+        self.reconfigure(line)
+        self._pending: Response | None = None
+        self._received = 0  # bytes given to the framer
+        self._framed = 0  # of which the framer has ended (frames and discards)
+        self._echo: bytes | None = None  # what was sent, expected back (echo=True)
+        self._echo_until = 0.0
+        self._sending: Response | None = None
+        self._last_valid: float | None = None
+        self._tripped = False
+
+    def reconfigure(self, line: LineConfig) -> None:
+        """Take ``line`` (new rules, say) from now on; bytes being framed are dropped."""
+        self.line = line
+        self.framer: Framer = line.framer("slave", self.backend)
+        #: the silence kept after a request (t3.5 in RTU; none in ASCII)
+        self.turnaround = line.frame_gap
+        self.char_time = line.char_time
+        self._ascii = line.mode == "ascii"
+        self._encode: Callable[[bytes], bytes] = (
+            encode_ascii if self._ascii else self.backend.add_crc
+        )
+        # damaged messages are told apart by the spec's t3.5 (whatever t35 says)
+        spec = line.replace(t15=None, t35=None).t35_time
+        self.state.boundary = 1.0 if self._ascii else spec
+
+    # ----------------------------------------------------------------- inputs
+
+    def receive_data(self, data: bytes, now: float) -> None:
+        """Bytes that arrived (were read) at ``now``."""
+        if not data:
+            return
+        if self._ascii and self.state.ascii_delimiter != 0x0A:
+            data = data.translate(_delimiter_table(self.state.ascii_delimiter))
+        self._received += len(data)
+        self.framer.receive_data(data, now)
+        self._drain(now)
+
+    def handle_timer(self, now: float) -> None:
+        """Let the time up to ``now`` end what it ends (frames, the watchdog)."""
+        timer = self.framer.timer()
+        if timer is not None and now >= timer:
+            self.framer.handle_timer(now)
+            self._drain(now)
+        if (
+            self.watchdog is not None
+            and self._last_valid is not None
+            and not self._tripped
+            and now - self._last_valid >= self.watchdog
+        ):
+            self._tripped = True
+            self.counters["watchdog_trips"] += 1
+            self.app.watchdog_expired()
+
+    def transmitted(self, end: float) -> None:
+        """The response handed out by `data_to_send` left the wire at ``end``."""
+        sent, self._sending = self._sending, None
+        if sent is not None and self.echo:
+            # the echo comes back within its own wire time (and some adapter latency)
+            self._echo = sent.adu
+            self._echo_until = end + 2 * len(sent.adu) * self.char_time + 0.2
+
+    # ---------------------------------------------------------------- outputs
+
+    def deadline(self) -> float | None:
+        """When `handle_timer` or `data_to_send` has work (None: only bytes will do)."""
+        times = []
+        timer = self.framer.timer()
+        if timer is not None:
+            times.append(timer)
+        if self._pending is not None:
+            times.append(self._pending.earliest)
+        if self.watchdog is not None and self._last_valid is not None and not self._tripped:
+            times.append(self._last_valid + self.watchdog)
+        return min(times) if times else None
+
+    def needed(self) -> int:
+        """A lower bound on the bytes the frame being received still needs (0: unknown
+        or none): the framer's, and in RTU at least the rest of the shortest ADU
+        (address, function, CRC: 4 bytes, Serial Line V1.02 2.5.1.1)."""
+        needed = self.framer.needed()
+        started = self._received - self._framed
+        if 0 < started < _MIN_ADU and not self._ascii:
+            return max(needed, _MIN_ADU - started)
+        return needed
+
+    @property
+    def pending(self) -> Response | None:
+        """The response waiting for its time, if any."""
+        return self._pending
+
+    def data_to_send(self, now: float) -> bytes | None:
+        """The response ADU if its time has come (the caller writes it now), else None."""
+        pending = self._pending
+        if pending is None or now < pending.earliest:
+            return None
+        self._pending = None
+        self._sending = pending
+        self.framer.send(pending.adu)
+        self.state.answered(pending.exception)
+        self.counters["exceptions" if pending.exception is not None else "responses"] += 1
+        if log.isEnabledFor(logging.DEBUG):
+            log.debug("TX unit %d: %s", pending.unit, pending.adu.hex(" "))
+        return pending.adu
+
+    # ------------------------------------------------------------------ frames
+
+    def _drain(self, now: float) -> None:
+        framer = self.framer
+        while (ev := framer.next_event()) is not None:
+            self._framed = ev.offset + len(ev.adu if ev.text is None else ev.text)
+            if ev.error is not None:
+                self.state.discard_seen(ev.error.value, ev.start, ev.end)
+            else:
+                self._on_frame(ev, now)
+
+    def _on_frame(self, frame: Frame, now: float) -> None:
+        raw = frame.wire
+        if self._echo is not None:
+            sent, self._echo = self._echo, None
+            if raw == sent and now <= self._echo_until:
+                self.counters["echo_dropped"] += 1
+                return
+        self.state.frame_seen()
+        if frame.kind is not FrameKind.REQUEST:
+            return
+        message = frame.message
+        unit = message[0]
+        if unit != 0 and unit not in self.app.addresses:
+            self.counters["ignored"] += 1
+            return
+        broadcast = unit == 0
+        request = message[1:]
+        self.state.request_received(broadcast)
+        self.counters["broadcasts" if broadcast else "requests"] += 1
+        self._last_valid = now
+        self._tripped = False
+        if log.isEnabledFor(logging.DEBUG):
+            log.debug("RX unit %d: %s", unit, raw.hex(" "))
+        if self.state.listen_only:
+            if request[:3] == b"\x08\x00\x01":  # restart: the one request served
+                with contextlib.suppress(SlaveException):  # not answered either way
+                    self.state.diagnostics(request)
+            self.state.not_answered()
+            return
+        response = self.app.execute(unit, request)
+        if broadcast or response is None:
+            self.state.not_answered()
+            return
+        if self._pending is not None:
+            self.state.not_answered()
+        end = now if frame.end is None else frame.end
+        self._pending = Response(
+            unit,
+            self._encode(bytes((unit,)) + response),
+            end + self.turnaround + self.response_delay,
+            response[1] if response[0] & 0x80 else None,
+        )
+
+
+_TABLES: dict[int, bytes] = {}
+
+
+def _delimiter_table(char: int) -> bytes:
+    """Incoming bytes with ``char`` as the frame end (FC 08 sub-function 0x03)."""
+    table = _TABLES.get(char)
+    if table is None:
+        mapping = bytearray(range(256))
+        mapping[char] = 0x0A
+        mapping[0x0A] = 0x00  # a LF is no longer a delimiter: it breaks the frame
+        table = _TABLES[char] = bytes(mapping)
+    return table
+
+
+__all__ = ["Application", "Response", "ServerProtocol"]

@@ -1,0 +1,240 @@
+"""AsyncSlave (pyrtu._aio_slave) served by plain ``asyncio.run``, polled by the sync
+pyrtu.Master (in a worker thread): on pseudo-terminals and on the virtual bus, RTU
+and ASCII; many slaves (ports) in one loop; stop and cancellation; a port that
+vanishes (a virtual-bus drop unplugged) ends only its own slave and leaks no file
+descriptor; a pyserial URL port (no file descriptor: the reader thread)."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import random
+import socket
+from collections.abc import Iterator
+from types import ModuleType
+
+import pytest
+import serial
+from ptylink import PtyLink, make_store
+
+from pyrtu import add_crc
+from pyrtu._aio_slave import AsyncSlave
+from pyrtu.errors import NoResponseError, PortError
+from pyrtu.master import Master
+from pyrtu.vbus import VirtualBus
+
+BAUD = 38400
+
+
+@pytest.fixture
+def link() -> Iterator[PtyLink]:
+    with PtyLink() as pty:
+        yield pty
+
+
+def open_fds() -> set[str]:
+    return set(os.listdir("/proc/self/fd"))
+
+
+def test_master_against_async_slave_on_a_pty(link: PtyLink, backend: ModuleType) -> None:
+    async def main() -> None:
+        async with AsyncSlave(
+            link.path_b, 1, make_store(), parity="N", t35=0, backend=backend.BACKEND
+        ) as slave:
+            slave.start()
+
+            def client() -> None:
+                with Master(link.path_a, parity="N", t35=0, timeout=0.5) as m:
+                    assert m.read_holding_registers(1, 0, 10) == [1000 + i for i in range(10)]
+                    m.write_registers(1, 5, [1, 2, 3])
+                    assert m.read_holding_registers(1, 4, 5) == [1004, 1, 2, 3, 1008]
+                    assert m.read_coils(1, 0, 4) == [True, False, False, True]
+                    with pytest.raises(NoResponseError):
+                        m.read_holding_registers(2, 0, 1)  # not this slave
+
+            await asyncio.to_thread(client)
+            counters = slave.counters
+            assert counters["requests"] == 4 and counters["ignored"] == 1
+            assert slave.error is None
+
+    asyncio.run(main())
+
+
+@pytest.mark.parametrize("mode", ["rtu", "ascii"])
+def test_three_async_slaves_share_a_virtual_bus(mode: str) -> None:
+    """Drop 0: the sync master; drops 1-3: AsyncSlaves 1-3 in one loop (spec timing)."""
+
+    async def main(bus: VirtualBus) -> None:
+        slaves = [
+            AsyncSlave(bus.paths[a], a, make_store(), baudrate=BAUD, parity="N", mode=mode)
+            for a in (1, 2, 3)
+        ]
+        tasks = [s.start() for s in slaves]
+        rng = random.Random(10)
+
+        def client() -> dict[int, int]:
+            done = {1: 0, 2: 0, 3: 0}
+            with Master(bus.paths[0], BAUD, parity="N", mode=mode, timeout=0.3) as m:
+                for _ in range(60):
+                    a = rng.choice((1, 2, 3))
+                    start = rng.randrange(0, 190)
+                    count = rng.randrange(1, 10)
+                    got = m.read_holding_registers(a, start, count)
+                    assert got == [1000 + start + i for i in range(count)]
+                    done[a] += 1
+                m.write_register(0, 7, 77)  # broadcast: every slave writes, none answers
+                for a in (1, 2, 3):
+                    assert m.read_holding_registers(a, 7, 1) == [77]
+            return done
+
+        done = await asyncio.to_thread(client)
+        for a, s in zip((1, 2, 3), slaves, strict=True):
+            assert s.counters["requests"] == done[a] + 1
+            assert s.counters["broadcasts"] == 1
+            assert s.error is None
+        for s in slaves:
+            await s.close()
+        assert all(t.done() for t in tasks)
+
+    with VirtualBus(4, baudrate=BAUD, parity="E") as bus:
+        asyncio.run(main(bus))
+
+
+def test_many_ports_in_one_loop() -> None:
+    """Four virtual buses, an AsyncSlave on each, four masters polling at once."""
+    buses = [VirtualBus(2, baudrate=BAUD, parity="N") for _ in range(4)]
+
+    async def main() -> None:
+        slaves = [AsyncSlave(b.paths[1], 1 + i, make_store(), baudrate=BAUD, parity="N")
+                  for i, b in enumerate(buses)]  # fmt: skip
+        for s in slaves:
+            s.start()
+
+        def client(i: int) -> int:
+            with Master(buses[i].paths[0], BAUD, parity="N", timeout=0.5) as m:
+                for k in range(40):
+                    assert m.read_holding_registers(1 + i, k, 3) == [1000 + k, 1001 + k, 1002 + k]
+            return 40
+
+        counts = await asyncio.gather(*(asyncio.to_thread(client, i) for i in range(4)))
+        assert counts == [40] * 4
+        assert [s.counters["requests"] for s in slaves] == [40] * 4
+        for s in slaves:
+            await s.close()
+
+    try:
+        for b in buses:
+            b.start()
+        asyncio.run(main())
+    finally:
+        for b in buses:
+            b.close()
+
+
+def test_stop_and_cancel(link: PtyLink) -> None:
+    async def main() -> None:
+        slave = AsyncSlave(link.path_b, 1, make_store(), parity="N", t35=0)
+        fd = slave.port.fd
+        assert fd is not None
+        task = slave.start()
+        await asyncio.sleep(0.01)
+        with pytest.raises(RuntimeError, match="already"):
+            slave.start()
+        task.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await task
+        loop = asyncio.get_running_loop()
+        assert not loop.remove_reader(fd)  # the reader went with the task
+        # serving again after a cancel, then stop()
+        task = slave.start()
+
+        def client() -> list[int]:
+            with Master(link.path_a, parity="N", t35=0, timeout=0.5) as m:
+                return m.read_holding_registers(1, 0, 2)
+
+        assert await asyncio.to_thread(client) == [1000, 1001]
+        await slave.stop()
+        assert task.done() and task.exception() is None
+        assert not loop.remove_reader(fd)
+        await slave.close()
+
+    asyncio.run(main())
+
+
+def test_a_vanishing_port_ends_only_its_slave_and_leaks_no_fd() -> None:
+    before = open_fds()
+
+    async def main(bus: VirtualBus) -> None:
+        gone = AsyncSlave(bus.paths[1], 1, make_store(), baudrate=BAUD, parity="N")
+        stays = AsyncSlave(bus.paths[2], 2, make_store(), baudrate=BAUD, parity="N")
+        t_gone, t_stays = gone.start(), stays.start()
+
+        def client() -> None:
+            with Master(bus.paths[0], BAUD, parity="N", timeout=0.3) as m:
+                assert m.read_holding_registers(1, 0, 1) == [1000]
+                bus.unplug(1)
+                with pytest.raises(NoResponseError):
+                    m.read_holding_registers(1, 0, 1)
+                assert m.read_holding_registers(2, 0, 1) == [1000]
+
+        await asyncio.to_thread(client)
+        with pytest.raises(PortError):
+            await asyncio.wait_for(t_gone, 2.0)
+        assert isinstance(gone.error, PortError)
+        assert gone.port.closed
+        assert not t_stays.done()
+        await stays.close()
+        await gone.close()  # closing again is harmless
+
+    with VirtualBus(3, baudrate=BAUD, parity="N") as bus:
+        asyncio.run(main(bus))
+    assert open_fds() == before
+
+
+def test_unplugged_mid_request() -> None:
+    """The drop vanishes after the first bytes of a request reached the slave."""
+    before = open_fds()
+
+    async def main(bus: VirtualBus) -> None:
+        slave = AsyncSlave(bus.paths[1], 1, make_store(), baudrate=BAUD, parity="N")
+        task = slave.start()
+        assert bus.wait_clients(1)
+        with serial.Serial(bus.paths[0], BAUD) as raw:
+            raw.write(add_crc(bytes.fromhex("01 03 0000 000A"))[:4])
+            await asyncio.sleep(4 * bus.char_time + 0.01)
+            bus.unplug(1)
+            with pytest.raises(PortError):
+                await asyncio.wait_for(task, 2.0)
+        await slave.close()
+
+    with VirtualBus(2, baudrate=BAUD, parity="N") as bus:
+        asyncio.run(main(bus))
+    assert open_fds() == before
+
+
+def test_url_port_without_a_file_descriptor() -> None:
+    """socket:// has no tty file descriptor: the reader thread feeds the loop."""
+    server = socket.create_server(("127.0.0.1", 0))
+    port = server.getsockname()[1]
+
+    async def main() -> None:
+        slave = AsyncSlave(f"socket://127.0.0.1:{port}", 1, make_store(), parity="N", t35=0)
+        assert slave.port.fd is None
+        slave.start()
+        conn, _ = await asyncio.to_thread(server.accept)
+        with conn:
+            conn.settimeout(2.0)
+            request = add_crc(bytes.fromhex("01 03 0000 0002"))
+            expected = add_crc(bytes.fromhex("01 03 04 03E8 03E9"))
+            for _ in range(3):
+                conn.sendall(request)
+                got = b""
+                while len(got) < len(expected):
+                    got += await asyncio.to_thread(conn.recv, 64)
+                assert got == expected
+            await slave.close()
+
+    try:
+        asyncio.run(main())
+    finally:
+        server.close()

@@ -1,0 +1,303 @@
+"""The sans-I/O server protocol (pyrtu._server) driven with synthetic time: no
+ports, no sleeps.  Every path on both backends: normal, exception, broadcast,
+ASCII, garbage, split requests, other addresses, turnaround, listen-only, echo,
+watchdog, and the driver's `needed` hint."""
+
+from __future__ import annotations
+
+from types import ModuleType
+
+import pytest
+
+from pyrtu import pdu as P
+from pyrtu._server import ServerProtocol
+from pyrtu._slave_base import SlaveBase
+from pyrtu.ascii import encode_ascii
+from pyrtu.datastore import DataStore
+from pyrtu.line import LineConfig
+from pyrtu.rules import LengthRule
+
+BAUD = 9600
+LINE = LineConfig(baudrate=BAUD, parity="N")
+CHAR = LINE.char_time
+T35 = LINE.t35_time
+
+
+def make_store() -> DataStore:
+    store = DataStore()
+    store.holding_registers.add_range(0, [1000 + i for i in range(20)])
+    return store
+
+
+class Harness:
+    """A SlaveBase (the functions, the DataStore) behind a protocol, fed byte-timed."""
+
+    def __init__(
+        self, backend: ModuleType, line: LineConfig = LINE, address: int = 1, **options: object
+    ) -> None:
+        self.backend = backend
+        self.line = line
+        self.store = make_store()
+        self.app = SlaveBase(address, self.store, line=line, backend=backend.BACKEND)
+        self.proto = ServerProtocol(line, self.app, backend=backend, state=self.app.line, **options)  # type: ignore[arg-type]
+        self.now = 100.0
+
+    def adu(self, message: bytes) -> bytes:
+        if self.line.mode == "ascii":
+            return encode_ascii(message)
+        return bytes(self.backend.add_crc(message))
+
+    def feed(self, data: bytes, spacing: float = CHAR) -> float:
+        """``data`` one byte per ``spacing`` seconds; returns the time of the last byte."""
+        for i in range(len(data)):
+            self.now += spacing
+            self.proto.receive_data(data[i : i + 1], self.now)
+        return self.now
+
+    def run_until_sent(self, limit: float = 5.0) -> tuple[bytes | None, float]:
+        """Advance time deadline by deadline until a response is due (or ``limit``)."""
+        end = self.now + limit
+        while self.now < end:
+            out = self.proto.data_to_send(self.now)
+            if out is not None:
+                self.proto.transmitted(self.now + len(out) * CHAR)
+                return out, self.now
+            deadline = self.proto.deadline()
+            if deadline is None:
+                return None, self.now
+            self.now = max(self.now, deadline)
+            self.proto.handle_timer(self.now)
+        return None, self.now
+
+
+def read_request(unit: int = 1, address: int = 0, count: int = 10) -> bytes:
+    return bytes((unit,)) + P.read_request(P.READ_HOLDING_REGISTERS, address, count)
+
+
+def test_normal_answer_after_t35(backend: ModuleType) -> None:
+    h = Harness(backend)
+    end = h.feed(h.adu(read_request()))
+    assert h.proto.data_to_send(end) is None  # not before t3.5
+    assert h.proto.data_to_send(end + T35 - 1e-6) is None
+    assert h.proto.deadline() == pytest.approx(end + T35)
+    out, at = h.run_until_sent()
+    expected = h.adu(b"\x01" + P.registers_response(3, [1000 + i for i in range(10)]))
+    assert out == expected
+    assert at == pytest.approx(end + T35)
+    assert h.proto.counters["responses"] == 1 and h.proto.counters["requests"] == 1
+    assert h.proto.deadline() is None  # nothing left to do
+
+
+def test_response_delay_adds_to_the_turnaround(backend: ModuleType) -> None:
+    h = Harness(backend, response_delay=0.02)
+    end = h.feed(h.adu(read_request()))
+    out, at = h.run_until_sent()
+    assert out is not None
+    assert at == pytest.approx(end + T35 + 0.02)
+
+
+def test_noise_after_the_request_does_not_move_the_answer(backend: ModuleType) -> None:
+    h = Harness(backend)
+    end = h.feed(h.adu(read_request()))
+    h.now += 2 * CHAR
+    h.proto.receive_data(b"\xff", h.now)
+    out, at = h.run_until_sent()
+    assert out is not None
+    assert at == pytest.approx(end + T35)
+
+
+def test_exception_response(backend: ModuleType) -> None:
+    h = Harness(backend)
+    h.feed(h.adu(read_request(address=15, count=10)))  # 15..24: past the range
+    out, _ = h.run_until_sent()
+    assert out == h.adu(b"\x01\x83\x02")
+    assert h.proto.counters["exceptions"] == 1
+    assert h.app.line.counters["slave_exception_error_count"] == 1
+
+
+def test_unsupported_function_is_exception_1(backend: ModuleType) -> None:
+    h = Harness(backend)
+    h.feed(h.adu(b"\x01\x07"))
+    h.app.functions.discard(7)
+    h.feed(h.adu(b"\x01\x07"))
+    out, _ = h.run_until_sent()
+    assert out == h.adu(b"\x01\x87\x01")
+
+
+def test_broadcast_write_is_executed_and_not_answered(backend: ModuleType) -> None:
+    h = Harness(backend)
+    h.feed(h.adu(b"\x00" + P.write_register_request(3, 0x1234)))
+    out, _ = h.run_until_sent()
+    assert out is None
+    assert h.store.holding_registers.get(3) == 0x1234
+    assert h.proto.counters["broadcasts"] == 1
+    assert h.app.line.counters["slave_no_response_count"] == 1
+    # a broadcast read is not executed either
+    h.feed(h.adu(read_request(unit=0)))
+    assert h.run_until_sent()[0] is None
+
+
+def test_other_addresses_and_responses_are_ignored(backend: ModuleType) -> None:
+    h = Harness(backend)
+    h.feed(h.adu(read_request(unit=2)))
+    assert h.run_until_sent()[0] is None
+    assert h.proto.counters["ignored"] == 1
+    # slave 2's answer on the shared bus is sized as a response, never taken for a request
+    h.now += T35 * 2
+    h.feed(h.adu(b"\x02" + P.registers_response(3, list(range(10)))))
+    h.now += T35 * 2
+    h.feed(h.adu(read_request()))
+    out, _ = h.run_until_sent()
+    assert out is not None and out[:2] == b"\x01\x03"
+    assert h.app.line.counters["bus_message_count"] == 3
+
+
+def test_address_change_is_seen_at_once(backend: ModuleType) -> None:
+    h = Harness(backend)
+    h.app.addresses = frozenset({9})
+    h.feed(h.adu(read_request(unit=1)))
+    assert h.run_until_sent()[0] is None
+    h.feed(h.adu(read_request(unit=9)))
+    out, _ = h.run_until_sent()
+    assert out is not None and out[0] == 9
+
+
+def test_garbage_before_the_request(backend: ModuleType) -> None:
+    h = Harness(backend)
+    h.feed(b"\x55\xaa\x13")
+    h.now += 2 * T35  # a silence: the garbage is a (damaged) message of its own
+    h.proto.handle_timer(h.now)
+    h.now = h.proto.deadline() or h.now
+    h.proto.handle_timer(h.now)
+    h.feed(h.adu(read_request()))
+    out, _ = h.run_until_sent()
+    assert out is not None and out[:3] == b"\x01\x03\x14"
+    assert h.app.line.counters["bus_communication_error_count"] == 1
+
+
+def test_bad_crc_is_silent(backend: ModuleType) -> None:
+    h = Harness(backend)
+    adu = bytearray(h.adu(read_request()))
+    adu[-1] ^= 0xFF
+    h.feed(bytes(adu))
+    assert h.run_until_sent()[0] is None
+    assert h.proto.counters["requests"] == 0
+
+
+@pytest.mark.parametrize("cut", range(1, 8))
+def test_request_split_at_every_byte_boundary(backend: ModuleType, cut: int) -> None:
+    h = Harness(backend)
+    adu = h.adu(read_request())
+    h.now += CHAR
+    h.proto.receive_data(adu[:cut], h.now)
+    assert h.proto.data_to_send(h.now) is None
+    h.now += (len(adu) - cut) * CHAR
+    h.proto.receive_data(adu[cut:], h.now)
+    end = h.now
+    out, at = h.run_until_sent()
+    assert out == h.adu(b"\x01" + P.registers_response(3, [1000 + i for i in range(10)]))
+    assert at == pytest.approx(end + T35)
+
+
+def test_needed_is_a_lower_bound_on_the_rest(backend: ModuleType) -> None:
+    """A driver may sleep ``needed`` characters without missing the request's end:
+    never more than the bytes still to come, never 0 while the request is incomplete
+    (the slave role also sizes other slaves' responses, so it may be less)."""
+    h = Harness(backend)
+    adu = h.adu(read_request())
+    assert h.proto.needed() == 0
+    wakeups = 0
+    got = 0
+    while got < len(adu):
+        step = max(1, h.proto.needed())
+        assert step <= len(adu) - got
+        h.feed(adu[got : got + step], spacing=0)
+        h.now += step * CHAR
+        got += step
+        wakeups += 1
+    assert h.proto.needed() == 0
+    assert wakeups < len(adu)  # fewer wake-ups than bytes
+    out, _ = h.run_until_sent()
+    assert out is not None and out[:3] == b"\x01\x03\x14"
+
+
+@pytest.mark.parametrize("cut", [1, 5, 16])
+def test_ascii(backend: ModuleType, cut: int) -> None:
+    line = LineConfig(baudrate=BAUD, parity="N", mode="ascii")
+    h = Harness(backend, line)
+    frame = encode_ascii(read_request(count=2))
+    h.now += CHAR
+    h.proto.receive_data(frame[:cut], h.now)
+    h.now += CHAR
+    h.proto.receive_data(frame[cut:], h.now)
+    out = h.proto.data_to_send(h.now)  # ASCII: no t3.5 turnaround
+    assert out == encode_ascii(b"\x01\x03\x04\x03\xe8\x03\xe9")
+
+
+def test_listen_only_and_restart(backend: ModuleType) -> None:
+    h = Harness(backend)
+    h.feed(h.adu(b"\x01" + P.diagnostics_request(P.DIAG_FORCE_LISTEN_ONLY, 0)))
+    assert h.run_until_sent()[0] is None
+    assert h.app.listen_only
+    h.feed(h.adu(read_request()))
+    assert h.run_until_sent()[0] is None  # silent while listening
+    assert h.store.holding_registers.get(0) == 1000
+    h.feed(h.adu(b"\x01" + P.write_register_request(0, 7)))
+    assert h.run_until_sent()[0] is None
+    assert h.store.holding_registers.get(0) == 1000  # not executed either
+    # restart communications: the one request served, not answered, leaves listen-only
+    h.feed(h.adu(b"\x01" + P.diagnostics_request(P.DIAG_RESTART_COMMUNICATIONS, 0)))
+    assert h.run_until_sent()[0] is None
+    assert not h.app.listen_only
+    h.feed(h.adu(read_request()))
+    assert h.run_until_sent()[0] is not None
+
+
+def test_echo_is_dropped_once(backend: ModuleType) -> None:
+    h = Harness(backend, echo=True)
+    h.feed(h.adu(read_request()))
+    out, _ = h.run_until_sent()
+    assert out is not None
+    h.feed(out)  # the adapter's echo
+    assert h.proto.counters["echo_dropped"] == 1
+    assert h.run_until_sent()[0] is None
+    assert h.app.line.counters["bus_message_count"] == 1
+
+
+def test_new_request_replaces_a_pending_answer(backend: ModuleType) -> None:
+    h = Harness(backend, response_delay=0.5)
+    h.feed(h.adu(read_request(count=1)))
+    h.now += T35
+    h.feed(h.adu(read_request(address=1, count=1)))
+    out, _ = h.run_until_sent()
+    assert out == h.adu(b"\x01" + P.registers_response(3, [1001]))
+    assert h.run_until_sent()[0] is None
+    assert h.app.line.counters["slave_no_response_count"] == 1
+
+
+def test_watchdog(backend: ModuleType) -> None:
+    tripped: list[object] = []
+    h = Harness(backend, watchdog=0.5)
+    h.app.on_watchdog = tripped.append
+    assert h.proto.deadline() is None  # armed by the first valid request
+    h.feed(h.adu(read_request()))
+    h.run_until_sent()
+    start = h.now
+    deadline = h.proto.deadline()
+    assert deadline is not None and deadline <= start + 0.5
+    h.now = deadline
+    h.proto.handle_timer(h.now)
+    assert tripped == [h.app] and h.proto.counters["watchdog_trips"] == 1
+    assert h.proto.deadline() is None  # once per silence
+    h.feed(h.adu(read_request()))
+    assert h.proto.deadline() is not None  # re-armed
+
+
+def test_reconfigure_with_vendor_rules(backend: ModuleType) -> None:
+    h = Harness(backend)
+    """A vendor function whose request the framer cannot size without its rule."""
+    h.app.protocol = h.proto
+    h.app.register_function(0x41, lambda slave, unit, pdu: pdu[:2], LengthRule.fixed(7))
+    h.feed(h.adu(b"\x01\x41\x01\x02\x03"))
+    h.now += CHAR  # framed by the rule at once: no silence needed
+    assert h.proto.data_to_send(h.now + T35) == h.adu(b"\x01\x41\x01")
