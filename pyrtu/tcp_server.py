@@ -14,18 +14,27 @@ the same limits::
 
     store = pyrtu.DataStore()
     store.holding_registers.add_range(0, [0] * 100)
-    app = pyrtu.Slave(None, 1, store)            # or any object with execute/addresses
-    async with await TcpServer(app).start("127.0.0.1", 5020) as server:
+    server = TcpServer.for_store(1, store)       # a slave on TCP only
+    server = TcpServer(slave)                    # or a Slave/AsyncSlave that also serves serial
+    async with await server.start("127.0.0.1", 5020):
         await asyncio.Event().wait()
+
+A `pyrtu.Slave` served on both its serial port and TCP sees one DataStore; its
+execution step runs under the slave's lock (the serial side runs in its thread).
 """
 
 from __future__ import annotations
 
 import asyncio
-from typing import Protocol
+import contextlib
+from collections.abc import Iterable, Mapping
+from typing import Any, Protocol
 
+from ._slave_base import SlaveBase
+from .datastore import DataStore
 from .errors import NoResponseError
 from .gateway import Gateway, GatewayLimits
+from .line import LineConfig
 
 UNIT_SELF = 0xFF
 
@@ -45,9 +54,12 @@ class LocalBus:
 
     def __init__(self, app: Application) -> None:
         self.app = app
+        guard = getattr(app, "_guard", None)  # SlaveBase: the sync Slave's lock
+        self._guard: Any = guard if callable(guard) else contextlib.nullcontext
 
     async def request(self, slave: int, pdu: bytes) -> bytes | None:
-        response = self.app.execute(slave, pdu)
+        with self._guard():
+            response = self.app.execute(slave, pdu)
         if slave == 0:
             return None
         if response is None:  # listen-only mode, or a handler that stays silent
@@ -67,6 +79,18 @@ class TcpServer:
         units = {a: a for a in app.addresses}
         units[UNIT_SELF] = min(app.addresses)
         self._gateway = Gateway([(LocalBus(app), units)], limits)
+
+    @classmethod
+    def for_store(
+        cls,
+        address: int | Iterable[int] = 1,
+        store: DataStore | Mapping[int, DataStore] | None = None,
+        limits: GatewayLimits | None = None,
+        **options: Any,
+    ) -> TcpServer:
+        """A slave on TCP only: the standard functions over ``store`` (``options``: the
+        `pyrtu.Slave` keywords functions, identification, server_id, ...)."""
+        return cls(SlaveBase(address, store, line=LineConfig(), **options), limits)
 
     @property
     def address(self) -> tuple[str, int] | None:
