@@ -19,6 +19,7 @@ import sys
 import time
 from typing import Any
 
+from ._simulate_tcp import TcpThread, tcp_only_slave
 from .common import (
     EXIT_OK,
     CommandSpec,
@@ -32,6 +33,7 @@ from .common import (
     serial_kwargs,
     stop_on_signals,
 )
+from .gateway import listen_address
 from .io import DEVICES
 
 VENDORS = {
@@ -81,7 +83,13 @@ def _configure(p: argparse.ArgumentParser) -> None:
         choices=DEVICES,
         help="cfw100, cfw320, cfw701, cv100, act or acu",
     )
-    p.add_argument("-p", "--port", required=True, metavar="PATH", help="serial port to serve")
+    p.add_argument("-p", "--port", metavar="PATH", help="serial port to serve")
+    p.add_argument(
+        "--tcp",
+        type=listen_address,
+        metavar="HOST:PORT",
+        help="also (or only, without --port) serve the drive over Modbus TCP",
+    )
     p.add_argument(
         "-a",
         "--address",
@@ -109,23 +117,34 @@ def _run(args: argparse.Namespace) -> int:
     address = args.address if args.address is not None else EXAMPLE_ADDRESS[device]
     if not 1 <= address <= 247:
         raise ValueError(f"a slave address is 1..247, not {address}")
+    if args.port is None and args.tcp is None:
+        raise ValueError("give --port PATH, --tcp HOST:PORT or both")
     sim = make_simulator(device, args.state, args.mode)
     options = serial_kwargs(args)
     options.update(mode=args.mode, timing=args.timing)
     if args.t35 is not None:
         options["t35"] = args.t35
     with stop_on_signals() as stop:  # before the "ready" line: a signal after it stops cleanly
-        slave = sim.serve(args.port, address, **options)
+        tcp = None
+        try:
+            slave = sim.serve(args.port, address, **options) if args.port else None
+            if args.tcp is not None:
+                app = slave if slave is not None else tcp_only_slave(sim, address)
+                tcp = TcpThread(app, *args.tcp)
+                args.tcp = tcp.address  # the port bound (0: any free port)
+        except BaseException:
+            sim.close()
+            raise
         started = time.monotonic()
         try:
-            _ready(args, device, address, sorted(slave.functions))
+            _ready(args, device, address, sorted((slave or app).functions))
             deadline = None if args.duration is None else started + args.duration
             next_watch = started + 1.0
             while not stop.is_set():
                 now = time.monotonic()
                 if deadline is not None and now >= deadline:
                     break
-                if slave.error is not None:
+                if slave is not None and slave.error is not None:
                     raise slave.error
                 if args.watch and now >= next_watch:
                     next_watch += 1.0
@@ -135,7 +154,9 @@ def _run(args: argparse.Namespace) -> int:
                     wake = min(wake, deadline)
                 stop.wait(max(0.0, wake - now))
         finally:
-            counters = slave.counters
+            counters = slave.counters if slave is not None else _tcp_counters(tcp)
+            if tcp is not None:
+                tcp.stop()
             sim.close()
     elapsed = time.monotonic() - started
     if args.json:
@@ -149,7 +170,17 @@ def _run(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _tcp_counters(tcp: Any) -> dict[str, int]:
+    c = tcp.server.counters if tcp is not None else {}
+    return {
+        "requests": c.get("requests", 0),
+        "responses": c.get("answers", 0),
+        "exceptions": c.get("exceptions", 0),
+    }
+
+
 def _ready(args: argparse.Namespace, device: str, address: int, functions: list[int]) -> None:
+    tcp = None if args.tcp is None else f"{args.tcp[0]}:{args.tcp[1]}"
     if args.json:
         emit(
             {
@@ -157,13 +188,16 @@ def _ready(args: argparse.Namespace, device: str, address: int, functions: list[
                 "device": device,
                 "address": address,
                 "port": args.port,
+                "tcp": tcp,
                 "format": f"{describe_format(args)} {args.mode.upper()}",
                 "functions": functions,
             }
         )
     else:
+        where = f"on {args.port}, " if args.port else ""
+        where += f"Modbus TCP on {tcp}, " if tcp else ""
         print(
-            f"pyrtu simulate: {VENDORS[device]} at address {address} on {args.port}, "
+            f"pyrtu simulate: {VENDORS[device]} at address {address} {where}"
             f"{describe_format(args)} {args.mode.upper()} "
             f"(functions {', '.join(map(str, functions))}); Ctrl-C to stop",
             file=sys.stderr,
