@@ -32,7 +32,8 @@ from the request, [TCP] 3.1.3):
 A malformed MBAP header (protocol id not 0, length outside 2..254) closes that
 connection only.  A client that does not read its answers is closed when its
 unsent output passes ``max_write_buffer`` bytes (it never blocks a bus worker:
-answers are written without waiting).  A client that disconnects leaves the bus
+answers are written without waiting), and while its output is above the transport's
+high-water mark its requests are not read (asyncio's pause_writing).  A client that disconnects leaves the bus
 in step: a transaction already on the wire runs to its end (its answer is
 dropped), the client's waiting requests are removed from the queue.
 """
@@ -263,6 +264,15 @@ class _Connection(asyncio.Protocol):
 
     def eof_received(self) -> bool | None:
         return None  # close our side too
+
+    def pause_writing(self) -> None:
+        # the client does not read its answers: read no more of its requests
+        if self.transport is not None and not self.closed:
+            self.transport.pause_reading()
+
+    def resume_writing(self) -> None:
+        if self.transport is not None and not self.closed:
+            self.transport.resume_reading()
 
     def connection_lost(self, exc: Exception | None) -> None:
         self.closed = True
