@@ -129,6 +129,15 @@ async def raw(gw: Gateway) -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:
     return await asyncio.open_connection(*gw.address)
 
 
+async def until(check: object, timeout: float = 10.0) -> None:
+    """Wait (polling) until ``check()`` is true: state, not a timed assertion."""
+    loop = asyncio.get_running_loop()
+    end = loop.time() + timeout
+    while not check():  # type: ignore[operator]
+        assert loop.time() < end, "the gateway did not get there"
+        await asyncio.sleep(0.01)
+
+
 async def read_adu(reader: asyncio.StreamReader, timeout: float = 3.0) -> bytes:
     head = await asyncio.wait_for(reader.readexactly(6), timeout)
     (length,) = struct.unpack(">H", head[4:6])
@@ -182,28 +191,25 @@ def test_unrouted_unit_gets_0x0a_and_broadcast_gets_nothing(libmodbus_tcp: str, 
     run(main())
 
 
-def test_dead_device_gets_0x0b_in_time_and_others_go_on(
+def test_dead_device_gets_0x0b_and_others_go_on(
     libmodbus_tcp: str,
     silent_tcp: str,
     run,  # type: ignore[no-untyped-def]
 ) -> None:
     async def main() -> None:
-        gw, clients = await open_gateway([(libmodbus_tcp, "1"), (silent_tcp, "20")], timeout=0.3)
+        # a long bus timeout: the live bus must finish its work while the dead one waits
+        gw, clients = await open_gateway([(libmodbus_tcp, "1"), (silent_tcp, "20")], timeout=5.0)
         assert gw.address is not None
         url = f"tcp://{gw.address[0]}:{gw.address[1]}"
-        dead = await AsyncTcpClient.connect(url, timeout=3.0)
-        alive = await AsyncTcpClient.connect(url, timeout=3.0)
-        loop = asyncio.get_running_loop()
-        started = loop.time()
+        dead = await AsyncTcpClient.connect(url, timeout=30.0)
+        alive = await AsyncTcpClient.connect(url, timeout=30.0)
         dead_task = asyncio.ensure_future(dead.request(20, READ))
         answers = await asyncio.gather(*(alive.request(1, READ) for _ in range(30)))
         assert all(a is not None for a in answers)
-        assert loop.time() - started < 0.3  # the live bus did not wait for the dead one
+        assert not dead_task.done()  # the live bus did not wait for the dead one
         with pytest.raises(ExceptionResponseError) as info:
             await dead_task
         assert info.value.code == 0x0B
-        # the bus timeout (0.3 s) plus scheduling: well within the client's 3 s
-        assert loop.time() - started < 2.0
         assert gw.counters["timeouts"] == 1
         for c in (dead, alive, *clients):
             await c.close()
@@ -241,10 +247,10 @@ def test_queue_overflow_answers_busy(silent_tcp: str, run) -> None:  # type: ign
         gw, clients = await open_gateway([(silent_tcp, "1")], limits, timeout=0.5)
         reader, writer = await raw(gw)
         writer.write(encode_mbap(0, 1, READ))
-        await asyncio.sleep(0.1)  # on the bus now
+        await until(lambda: gw.stats()["requests"] == 1 and gw.stats()["queued"] == [0])
         writer.write(b"".join(encode_mbap(n, 1, READ) for n in range(1, 6)))
         # one on the bus, two waiting, three refused at once with 0x06
-        busy = [parse_tcp_stream(await read_adu(reader, 0.4), "master")[0] for _ in range(3)]
+        busy = [parse_tcp_stream(await read_adu(reader), "master")[0] for _ in range(3)]
         assert [(b.transaction, b.function, b.exception_code) for b in busy] == [
             (3, 0x83, 6),
             (4, 0x83, 6),
@@ -271,9 +277,9 @@ def test_disconnect_mid_transaction_keeps_the_bus_in_step(
         gw, clients = await open_gateway([(silent_tcp, "1-10")], timeout=0.4)
         _reader, writer = await raw(gw)
         writer.write(b"".join(encode_mbap(n, 1, READ) for n in range(5)))
-        await asyncio.sleep(0.1)  # the first is on the bus, four wait
+        await until(lambda: gw.stats()["queued"] == [4])  # the first is on the bus
         writer.close()
-        await asyncio.sleep(0.1)
+        await until(lambda: gw.stats()["open_connections"] == 0)
         assert gw.stats()["queued"] == [0] and gw.counters["jobs_dropped"] == 4
         # the next client's request waits for the one on the wire, then goes
         c = await AsyncTcpClient.connect(f"tcp://{gw.address[0]}:{gw.address[1]}", timeout=3.0)  # type: ignore[index]

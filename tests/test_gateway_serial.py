@@ -238,3 +238,32 @@ def test_simulated_drive_through_the_gateway(
     assert results[0]["ok"] and results[0]["values"] == pdu.parse_registers(status, 1)
     assert results[1]["ok"] and results[2]["values"] == [4096]  # P683 speed reference
     assert results[3]["exception"] == 2  # the manual's illegal data address
+
+
+def test_two_buses_behind_one_listener() -> None:
+    from peers.tools import socat_pair
+
+    with socat_pair() as (gw_a, dev_a), socat_pair() as (gw_b, dev_b):
+        with pyrtu_slave_process(dev_a, 1, t35=0), pyrtu_slave_process(dev_b, 2, t35=0):
+            gw = start_gateway(f"{gw_a}=1", "--port", f"{gw_b}=2-3", "--max-queue", "32")
+            try:
+
+                async def main() -> None:
+                    c = await AsyncTcpClient.connect(gw.url, timeout=10.0, max_in_flight=64)
+                    dead = asyncio.ensure_future(c.request(3, pdu.read_request(3, 0, 1)))
+                    reads = [c.request(1 + i % 2, pdu.read_request(3, i, 2)) for i in range(40)]
+                    answers = await asyncio.gather(*reads)
+                    for i, a in enumerate(answers):  # each unit answered from its own bus
+                        assert pdu.parse_registers(a or b"", 2) == pattern.holdings(1 + i % 2, i, 2)
+                    with pytest.raises(ExceptionResponseError) as info:
+                        await dead
+                    assert info.value.code == 0x0B
+                    await c.close()
+
+                asyncio.run(main())
+                stats = gw.stop()
+                assert stats["bus_transactions"][0] == 20 and stats["bus_transactions"][1] == 21
+            finally:
+                if gw.proc.poll() is None:
+                    gw.proc.kill()
+                    gw.proc.communicate()
