@@ -33,9 +33,10 @@ A malformed MBAP header (protocol id not 0, length outside 2..254) closes that
 connection only.  A client that does not read its answers is closed when its
 unsent output passes ``max_write_buffer`` bytes (it never blocks a bus worker:
 answers are written without waiting), and while its output is above the transport's
-high-water mark its requests are not read (asyncio's pause_writing).  A client that disconnects leaves the bus
-in step: a transaction already on the wire runs to its end (its answer is
-dropped), the client's waiting requests are removed from the queue.
+high-water mark its requests are not read (asyncio's pause_writing).  A client
+that disconnects leaves the bus in step: a transaction already on the wire runs to
+its end (its answer is dropped), the client's waiting requests are removed from the
+queue.
 """
 
 from __future__ import annotations
