@@ -52,6 +52,7 @@ from typing import Protocol
 from . import _backend
 from .errors import (
     GATEWAY_PATH_UNAVAILABLE,
+    ILLEGAL_FUNCTION,
     GATEWAY_TARGET_FAILED,
     SLAVE_DEVICE_BUSY,
     ExceptionResponseError,
@@ -410,6 +411,9 @@ class Gateway:
     def _request(self, conn: _Connection, transaction: int, unit: int, pdu: bytes) -> None:
         self.counters["requests"] += 1
         now = time.monotonic()
+        if not 1 <= pdu[0] <= 127:  # [AP] 4.1: function codes 1..127; the rest is no request
+            self._answer(conn, transaction, unit, exception_pdu(pdu[0], ILLEGAL_FUNCTION))
+            return
         if unit == 0:
             self.counters["broadcasts"] += 1
             targets = range(len(self._buses))

@@ -178,6 +178,14 @@ def test_unrouted_unit_gets_0x0a_and_broadcast_gets_nothing(libmodbus_tcp: str, 
         with pytest.raises(ExceptionResponseError) as info:
             await c.request(9, READ)
         assert info.value.code == 0x0A
+        reader, writer = await raw(gw)
+        writer.write(encode_mbap(5, 1, b"\x00\x01") + encode_mbap(6, 1, b"\x85\x01"))
+        bad = parse_tcp_stream(await read_adu(reader) + await read_adu(reader), "master")
+        assert [(f.transaction, f.function, f.exception_code) for f in bad] == [
+            (5, 0x80, 1),
+            (6, 0x85, 1),
+        ]  # not function codes: illegal function, and the bus never saw them
+        writer.close()
         assert await c.request(0, pdu.write_register_request(40, 4321)) is None
         await asyncio.sleep(0.2)  # nothing comes back; the write reached the bus
         got = await c.request(1, pdu.read_request(pdu.READ_HOLDING_REGISTERS, 40, 1))
