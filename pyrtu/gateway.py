@@ -52,8 +52,8 @@ from typing import Protocol
 from . import _backend
 from .errors import (
     GATEWAY_PATH_UNAVAILABLE,
-    ILLEGAL_FUNCTION,
     GATEWAY_TARGET_FAILED,
+    ILLEGAL_FUNCTION,
     SLAVE_DEVICE_BUSY,
     ExceptionResponseError,
     ModbusError,
