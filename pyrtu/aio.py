@@ -132,9 +132,10 @@ class AsyncMaster(MasterBase):
             deadline = _monotonic() + 1.0
         if self._fd is None:
             return await self._read_thread(deadline)
-        if deadline > _monotonic() and await self._readable(deadline):
-            return self.port.read(0)
-        return b""
+        data = self.port.read(0)
+        if not data and deadline > _monotonic() and await self._readable(deadline):
+            data = self.port.read(0)
+        return data
 
     async def _transmit(self, adu: bytes) -> tuple[float, float]:
         port = self.port
@@ -156,13 +157,19 @@ class AsyncMaster(MasterBase):
             except termios.error as exc:
                 raise PortError(self.port.name, f"drain failed: {exc}") from exc
 
+    async def _nap(self) -> None:
+        """Sleep until the bytes the answer still needs can all be in (no wake per byte)."""
+        now = _monotonic()
+        until = self._proto.ready_at(now)
+        if until > now:
+            await asyncio.sleep(until - now)
+
     async def _run(self, call: Call) -> Any:
         async with self._lock:
             port = self.port
             if port.closed:
                 raise PortError(port.name, "the master is closed")
             proto = self._proto
-            char = proto.line.char_time
             proto.start(call.slave, call.pdu, call.decode, _monotonic())
             try:
                 while True:
@@ -174,13 +181,8 @@ class AsyncMaster(MasterBase):
                             proto.handle_timer(now)
                             continue
                         proto.receive_data(data, now)
-                        if proto.state is State.ANSWER and (need := proto.needed()) > 0:
-                            deadline = proto.deadline()
-                            nap = need * char
-                            if deadline is not None:
-                                nap = min(nap, deadline - now)
-                            if nap > 0:
-                                await asyncio.sleep(nap)
+                        if proto.state is State.ANSWER:
+                            await self._nap()
                     elif state is State.SEND:
                         if self._inflight is not None:  # a read a cancel left behind
                             stale = await self._read_thread(_monotonic())
@@ -191,6 +193,8 @@ class AsyncMaster(MasterBase):
                             continue
                         start, end = await self._transmit(proto.data_to_send())
                         proto.transmitted(end, start)
+                        if proto.state is State.ANSWER:
+                            await self._nap()
                     else:
                         return proto.result()
             except BaseException:
