@@ -135,6 +135,7 @@ class ClientProtocol:
         self._end = 0.0  # ANSWER: end of transmission
         self._limit = 0.0  # ANSWER: when the attempt ends without an answer
         self._bad: FrameError | None = None
+        self._heard = False  # ANSWER: a byte came after the request
         self._result: Any = None
         self._error: Exception | None = None
 
@@ -222,6 +223,7 @@ class ClientProtocol:
             )
         self._echo_left = self._adu if self.echo else b""
         self._bad = None
+        self._heard = False
         self._limit = end + self.timeout
         framer = self._framer
         framer.reset()
@@ -251,6 +253,7 @@ class ClientProtocol:
                 self.state = State.QUIET
                 self._check_quiet(now)
             return
+        self._heard = True
         if self._echo_left:
             data = self._eat_echo(data, now)
             if self.state is State.DONE:
@@ -296,6 +299,28 @@ class ClientProtocol:
             return None
         timer = None if self._echo_left else self._framer.timer()
         return self._limit if timer is None else min(timer, self._limit)
+
+    def ready_at(self, now: float) -> float:
+        """ANSWER: the earliest time the bytes still needed can all be in, so a driver
+        may sleep until then instead of waking per byte: ``needed()`` character times
+        from now, and before any byte of the answer came, from the end of
+        transmission plus t3.5 (the slave keeps that silence before it answers,
+        Serial Line V1.02 2.5.1.1; not with an echo, which comes at once).  Never
+        past ``wait_limit()``; ``now`` in other states."""
+        if self.state is not State.ANSWER:
+            return now
+        start = now
+        if not self._heard and not self._echo_left:
+            start = max(now, self._end + self.gap)
+        return min(start + self.needed() * self._char, self._limit)
+
+    def wait_limit(self) -> float:
+        """ANSWER: when the attempt ends if no valid answer comes (the timeout, or the
+        settling time after a frame that was not the answer).  A driver sleeping
+        ``needed()`` character times caps the sleep here, not at ``deadline()``: the
+        framer's silence timer only matters when no byte comes, and the bytes read
+        after the sleep carry their own times."""
+        return self._limit
 
     def needed(self) -> int:
         """ANSWER: bytes that must still arrive before the answer can be complete (a
@@ -365,26 +390,27 @@ class ClientProtocol:
     def _events(self, now: float) -> None:
         framer = self._framer
         slave, fc = self._slave, self._fc
-        where = function_name(fc)
         c = self.counters
         while (ev := framer.next_event()) is not None:
             self._limit = min(self._end + self.timeout, now + self.settle)
-            size = len(ev.wire)
             if ev.error is not None:
+                size = len(ev.wire)
                 reason = ev.error.value
                 self._discard(reason, size)
                 if reason == "crc":
                     c["crc_errors"] += 1
                 self._bad = self._bad or FrameError(
-                    f"{where}: slave {slave}: {size} bytes discarded ({reason})", slave, fc
+                    f"{function_name(fc)}: slave {slave}: {size} bytes discarded ({reason})",
+                    slave,
+                    fc,
                 )
                 continue
             message = ev.message
             if message[0] != slave or message[1] & 0x7F != fc:
-                self._discard("unexpected", size)
+                self._discard("unexpected", len(ev.wire))
                 log.debug("RX dropped (not the answer): %s", message.hex(" "))
                 self._bad = self._bad or FrameError(
-                    f"{where}: slave {slave}: got a frame from slave {message[0]} "
+                    f"{function_name(fc)}: slave {slave}: got a frame from slave {message[0]} "
                     f"function 0x{message[1]:02X} instead of the answer",
                     slave,
                     fc,
@@ -408,7 +434,7 @@ class ClientProtocol:
             try:
                 value = decode(message[1:])
             except FrameError as exc:
-                self._discard("unexpected", size)
+                self._discard("unexpected", len(ev.wire))
                 self._bad = self._bad or FrameError(f"slave {slave}: {exc}", slave, fc)
                 continue
             c["responses"] += 1

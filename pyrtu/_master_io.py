@@ -2,9 +2,11 @@
 
 All policy (silences, echo, retries, late answers, settling) is in
 `pyrtu._client.ClientProtocol`; this loop only writes, waits and reads.  While
-an answer is coming in it wakes once for the first bytes, then sleeps the
-character times of the bytes the protocol still needs (``needed()``), with the
-protocol's deadline as the safety net, instead of waking per byte.
+an answer comes in it does not wake per byte: it sleeps until the bytes the
+protocol still needs can all be in (``ready_at``: ``needed()`` character times,
+from the core's length prediction, after the slave's t3.5), reads what is
+there, and waits for input only when more is needed, with the protocol's
+deadline as the safety net.
 """
 
 from __future__ import annotations
@@ -32,10 +34,17 @@ def _wait_readable(port: Port, timeout: float) -> bool:
     return bool(port._poll.poll(max(timeout, 0.0) * 1000.0))
 
 
+def _nap(proto: ClientProtocol) -> None:
+    """Sleep until the bytes the answer still needs can all be in."""
+    now = _monotonic()
+    until = proto.ready_at(now)
+    if until > now:
+        _sleep(until - now)
+
+
 def run_sync(port: Port, proto: ClientProtocol, call: Call) -> Any:
     """Run ``call`` through ``proto`` on ``port``; the result or the typed error."""
     proto.start(call.slave, call.pdu, call.decode, _monotonic())
-    char = proto.line.char_time
     has_fd = port.fd is not None
     try:
         while True:
@@ -44,27 +53,19 @@ def run_sync(port: Port, proto: ClientProtocol, call: Call) -> Any:
                 deadline = proto.deadline()
                 now = _monotonic()
                 wait = 1.0 if deadline is None else deadline - now
-                if wait <= 0:
-                    proto.handle_timer(now)
-                    continue
                 if has_fd:
-                    data = port.read(0) if _wait_readable(port, wait) else b""
+                    data = port.read(0)
+                    if not data and wait > 0 and _wait_readable(port, wait):
+                        data = port.read(0)
                 else:
-                    data = port.read(wait)
+                    data = port.read(max(wait, 0.0))
                 now = _monotonic()
                 if not data:
                     proto.handle_timer(now)
                     continue
                 proto.receive_data(data, now)
                 if proto.state is State.ANSWER:
-                    need = proto.needed()
-                    if need > 0:
-                        deadline = proto.deadline()
-                        nap = need * char
-                        if deadline is not None:
-                            nap = min(nap, deadline - now)
-                        if nap > 0:
-                            _sleep(nap)
+                    _nap(proto)
             elif state is State.SEND:
                 stale = port.read(0)
                 if stale:
@@ -72,6 +73,8 @@ def run_sync(port: Port, proto: ClientProtocol, call: Call) -> Any:
                     continue
                 start, end = port.write(proto.data_to_send())
                 proto.transmitted(end, start)
+                if proto.state is State.ANSWER:
+                    _nap(proto)
             elif state is State.QUIET:
                 deadline = proto.deadline()
                 now = _monotonic()
