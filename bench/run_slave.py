@@ -61,6 +61,7 @@ def serve(kind: str, path: str, baudrate: int) -> None:
 
         slave = Slave(path, SLAVE, make_store(), baudrate=baudrate, parity="N")
         slave.start()
+        print("ready", flush=True)
         for line in sys.stdin:
             if line.strip() == "cpu":
                 print(time.process_time(), slave.counters["requests"], flush=True)
@@ -74,6 +75,7 @@ def serve(kind: str, path: str, baudrate: int) -> None:
         aslave.start()
         reader = asyncio.StreamReader()
         await loop.connect_read_pipe(lambda: asyncio.StreamReaderProtocol(reader), sys.stdin)
+        print("ready", flush=True)
         while line := await reader.readline():
             if line.strip() == b"cpu":
                 print(time.process_time(), aslave.counters["requests"], flush=True)
@@ -91,6 +93,9 @@ class SlaveProcess:
         self.proc = subprocess.Popen(
             argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env
         )
+        assert self.proc.stdout is not None
+        if self.proc.stdout.readline().strip() != "ready":
+            raise RuntimeError(f"the {kind} slave process did not start")
 
     def sample(self) -> tuple[float, int]:
         assert self.proc.stdin is not None and self.proc.stdout is not None

@@ -108,6 +108,8 @@ class AsyncSlave(SlaveBase):
         """Serve until `stop` (or cancellation); a failing port raises `PortError`."""
         if self._done is not None:
             raise RuntimeError("this slave is already serving")
+        if self.port.closed:
+            raise PortError(self.port.name, "the port is closed")
         loop = asyncio.get_running_loop()
         self._loop = loop
         self._done = loop.create_future()
