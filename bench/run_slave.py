@@ -98,6 +98,17 @@ class SlaveProcess:
         if self.proc.stdout.readline().strip() != "ready":
             raise RuntimeError(f"the {kind} slave process did not start")
 
+    def proc_stat(self) -> tuple[float, float, int]:
+        """(user s, system s, voluntary context switches of all threads) from /proc."""
+        pid = self.proc.pid
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        tick = os.sysconf("SC_CLK_TCK")
+        switches = 0
+        for task in os.listdir(f"/proc/{pid}/task"):
+            status = Path(f"/proc/{pid}/task/{task}/status").read_text()
+            switches += int(status.split("voluntary_ctxt_switches:")[1].split()[0])
+        return int(fields[11]) / tick, int(fields[12]) / tick, switches
+
     def sample(self) -> tuple[float, int]:
         assert self.proc.stdin is not None and self.proc.stdout is not None
         self.proc.stdin.write("cpu\n")
@@ -134,7 +145,8 @@ def measure(kind: str, baudrate: int, tree: str | None = None) -> dict[str, Any]
     from pyrtu.master import Master
     from pyrtu.vbus import VirtualBus
 
-    errors = 0
+    errors = total = switches = 0
+    user = system = 0.0
     expected = [(SLAVE * 1000 + i) & 0xFFFF for i in range(COUNT)]
     n = ROUND[baudrate]
     per_tx: list[float] = []
@@ -150,6 +162,7 @@ def measure(kind: str, baudrate: int, tree: str | None = None) -> dict[str, Any]
                         master.read_holding_registers(SLAVE, 0, COUNT)
                 for _ in range(ROUNDS):
                     cpu0, req0 = slave.sample()
+                    user0, sys0, sw0 = slave.proc_stat()
                     t0 = time.perf_counter()
                     for _ in range(n):
                         try:
@@ -161,7 +174,13 @@ def measure(kind: str, baudrate: int, tree: str | None = None) -> dict[str, Any]
                             raise AssertionError("wrong value on the virtual bus")
                     wall = time.perf_counter() - t0
                     cpu1, req1 = slave.sample()
-                    per_tx.append((cpu1 - cpu0) / max(1, req1 - req0))
+                    user1, sys1, sw1 = slave.proc_stat()
+                    served = max(1, req1 - req0)
+                    per_tx.append((cpu1 - cpu0) / served)
+                    user += user1 - user0
+                    system += sys1 - sys0
+                    switches += sw1 - sw0
+                    total += served
                     rates.append(n / wall)
         finally:
             slave.close()
@@ -174,6 +193,9 @@ def measure(kind: str, baudrate: int, tree: str | None = None) -> dict[str, Any]
         "cpu_us_max": max(per_tx) * 1e6,
         "tps": statistics.median(rates),
         "errors": errors,
+        "user_us": user / total * 1e6,
+        "sys_us": system / total * 1e6,
+        "wakeups": switches / total,
     }
 
 
@@ -182,14 +204,16 @@ NAMES = {"sync": "Slave", "async": "AsyncSlave", "baseline": "Slave before (base
 
 def table(results: list[dict[str, Any]]) -> str:
     rows = [
-        "| baud | slave | transactions/s | slave CPU µs/tx (median) | min | max | errors |",
-        "|---:|---|---:|---:|---:|---:|---:|",
+        "| baud | slave | transactions/s | slave CPU µs/tx (median) | min | max "
+        "| user / system µs/tx | wake-ups/tx | errors |",
+        "|---:|---|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in results:
         rows.append(
             f"| {r['baudrate']} | {NAMES[r['kind']]} "
             f"| {r['tps']:.1f} | **{r['cpu_us']:.1f}** | {r['cpu_us_min']:.1f} "
-            f"| {r['cpu_us_max']:.1f} | {r['errors']} |"
+            f"| {r['cpu_us_max']:.1f} | {r['user_us']:.0f} / {r['sys_us']:.0f} "
+            f"| {r['wakeups']:.2f} | {r['errors']} |"
         )
     return "\n".join(rows)
 
@@ -216,8 +240,9 @@ specification's t3.5 on both sides), the sync `pyrtu.Master` of this tree as the
 The slave runs in its own process, which reports `time.process_time()` (all its
 threads) before and after each round of {ROUND[9600]} (9600) or {ROUND[115200]}
 (115200) transactions; {ROUNDS} rounds, medians; CPU per request the slave served.  *errors*:
-typed errors the master met (the load's own timing on the shared VM).
-Target: ≤ 40 µs per transaction.
+typed errors the master met (the load's own timing on the shared VM).  *user / system*
+and *wake-ups* (voluntary context switches of the slave's threads) come from /proc over
+all rounds (10 ms ticks).  Target: ≤ 40 µs per transaction.
 
 {table(results)}
 
