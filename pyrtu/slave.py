@@ -243,9 +243,10 @@ class Slave(SlaveBase):
                 if timeout is None or hold < timeout:
                     timeout = hold
                 ready = self._sleeper.poll(timeout * 1000.0)
+                readable = True  # not asked: read whatever came
             else:
                 ready = self._waiter.poll(None if timeout is None else timeout * 1000.0)
-            readable = False
+                readable = False
             for fd, _events in ready:
                 if fd == self._wake_r:
                     self._drain_wake()
@@ -253,7 +254,7 @@ class Slave(SlaveBase):
                         return
                 else:
                     readable = True
-            data = read_ready(port, port.fd, readable)
+            data = read_ready(port, port.fd, needed == 0) if readable else b""
         now = _monotonic()
         with self._lock:
             if data:
