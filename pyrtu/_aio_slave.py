@@ -34,7 +34,7 @@ from .datastore import DataStore
 from .errors import PortError
 from .line import LineConfig
 from .rules import RuleTable
-from .slave import open_slave_port
+from .slave import open_slave_port, read_ready
 
 log = logging.getLogger("pyrtu.slave")
 
@@ -108,6 +108,8 @@ class AsyncSlave(SlaveBase):
         """Serve until `stop` (or cancellation); a failing port raises `PortError`."""
         if self._done is not None:
             raise RuntimeError("this slave is already serving")
+        if self.port.closed:
+            raise PortError(self.port.name, "the port is closed")
         loop = asyncio.get_running_loop()
         self._loop = loop
         self._done = loop.create_future()
@@ -199,12 +201,12 @@ class AsyncSlave(SlaveBase):
         self._reading = False
 
     def _on_readable(self) -> None:
-        self._read_now()
+        self._read_now(True)
 
-    def _read_now(self) -> None:
-        assert self._loop is not None
+    def _read_now(self, readable: bool) -> None:
+        assert self._loop is not None and self.port.fd is not None
         try:
-            data = self.port.read(0)
+            data = read_ready(self.port, self.port.fd, readable)
         except PortError as exc:
             self._fail(exc)
             return
@@ -273,7 +275,7 @@ class AsyncSlave(SlaveBase):
         if self._resume_at is not None:
             self._resume_at = None
             self._add_reader()
-            self._read_now()  # what came while the reader was set aside, and the time
+            self._read_now(False)  # what came while the reader was set aside, and the time
             return
         self._after(self._loop.time())
 

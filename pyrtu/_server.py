@@ -121,8 +121,6 @@ class ServerProtocol:
         self.counters = dict.fromkeys(COUNTER_NAMES, 0)
         self.reconfigure(line)
         self._pending: Response | None = None
-        self._received = 0  # bytes given to the framer
-        self._framed = 0  # of which the framer has ended (frames and discards)
         self._echo: bytes | None = None  # what was sent, expected back (echo=True)
         self._echo_until = 0.0
         self._sending: Response | None = None
@@ -133,6 +131,8 @@ class ServerProtocol:
         """Take ``line`` (new rules, say) from now on; bytes being framed are dropped."""
         self.line = line
         self.framer: Framer = make_framer(line, "slave", self.backend)
+        self._received = 0  # bytes given to the framer
+        self._framed = 0  # of which the framer has ended (frames and discards)
         #: the silence kept after a request (t3.5 in RTU; none in ASCII)
         self.turnaround = line.frame_gap
         self.char_time = line.char_time

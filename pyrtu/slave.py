@@ -45,7 +45,7 @@ from ._slave_base import STANDARD_FUNCTIONS, Handler, SlaveBase, line_from_keywo
 from .datastore import DataStore
 from .errors import PortError
 from .line import LineConfig
-from .port import open_port
+from .port import Port, open_port
 from .rules import RuleTable
 
 log = logging.getLogger("pyrtu.slave")
@@ -64,6 +64,20 @@ def open_slave_port(port: Any, line: LineConfig, rs485: Any, exclusive: bool) ->
     if "exclusive" in inspect.signature(open_port).parameters:
         options["exclusive"] = exclusive
     return open_port(port, **options)
+
+
+def read_ready(port: Port, fd: int, readable: bool) -> bytes:
+    """What the port's file descriptor has (pyserial keeps it non-blocking, VMIN = VTIME
+    = 0); ``readable``: poll said so, and then an empty read means the device is gone."""
+    try:
+        data = os.read(fd, _READ_SIZE)
+    except BlockingIOError:
+        return b""
+    except OSError as exc:
+        raise PortError(port.name, f"read failed: {exc}") from exc
+    if not data and readable:
+        raise PortError(port.name, "the device reports data but returns none (disconnected?)")
+    return data
 
 
 class Slave(SlaveBase):
@@ -229,9 +243,10 @@ class Slave(SlaveBase):
                 if timeout is None or hold < timeout:
                     timeout = hold
                 ready = self._sleeper.poll(timeout * 1000.0)
+                readable = True  # not asked: read whatever came
             else:
                 ready = self._waiter.poll(None if timeout is None else timeout * 1000.0)
-            readable = False
+                readable = False
             for fd, _events in ready:
                 if fd == self._wake_r:
                     self._drain_wake()
@@ -239,7 +254,7 @@ class Slave(SlaveBase):
                         return
                 else:
                     readable = True
-            data = self._read(port.fd, readable)
+            data = read_ready(port, port.fd, needed == 0) if readable else b""
         now = _monotonic()
         with self._lock:
             if data:
@@ -250,19 +265,6 @@ class Slave(SlaveBase):
             _start, end = port.write(adu)
             with self._lock:
                 proto.transmitted(end)
-
-    def _read(self, fd: int, readable: bool) -> bytes:
-        """What the port has (its file descriptor is non-blocking, VMIN = VTIME = 0)."""
-        try:
-            data = os.read(fd, _READ_SIZE)
-        except BlockingIOError:
-            return b""
-        except OSError as exc:
-            raise PortError(self.port.name, f"read failed: {exc}") from exc
-        if not data and readable:
-            # reported readable but empty: the device went away
-            raise PortError(self.port.name, "the device reports data but returns none")
-        return data
 
     def _drain_wake(self) -> None:
         with contextlib.suppress(OSError):

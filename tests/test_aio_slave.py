@@ -185,6 +185,8 @@ def test_a_vanishing_port_ends_only_its_slave_and_leaks_no_fd() -> None:
         assert not t_stays.done()
         await stays.close()
         await gone.close()  # closing again is harmless
+        with pytest.raises(PortError, match="closed"):
+            await gone.serve()
 
     with VirtualBus(3, baudrate=BAUD, parity="N") as bus:
         asyncio.run(main(bus))

@@ -1,0 +1,116 @@
+"""The sync Slave as a driver of the server protocol: it waits without holding its
+lock, sleeps until there is work instead of polling, stops through its wake-up pipe,
+takes a LineConfig, and ``poll`` answers within the call."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+
+import pytest
+from ptylink import PtyLink, RawPort, make_store
+
+from pyrtu import add_crc
+from pyrtu.line import LineConfig
+from pyrtu.master import Master
+from pyrtu.slave import Slave
+
+
+@pytest.fixture
+def link() -> Iterator[PtyLink]:
+    with PtyLink() as pty:
+        yield pty
+
+
+REQUEST = add_crc(bytes.fromhex("01 03 0000 0001"))
+ANSWER = add_crc(bytes.fromhex("01 03 02 03E8"))
+
+
+def test_idle_slave_does_not_poll(link: PtyLink) -> None:
+    """Without a deadline the loop blocks until bytes or stop(): a few steps in 0.3 s
+    (a 50 ms poll would make six or more)."""
+    slave = Slave(link.path_b, store=make_store(), parity="N", t35=0)
+    steps = 0
+    step = slave._step
+
+    def counting(until: float | None) -> None:
+        nonlocal steps
+        steps += 1
+        step(until)
+
+    slave._step = counting  # type: ignore[method-assign]
+    slave.start()
+    time.sleep(0.3)
+    slave.stop()
+    assert steps <= 2
+    with Master(link.path_a, parity="N", t35=0, timeout=0.3) as m:
+        slave.start()
+        assert m.read_holding_registers(1, 0, 1) == [1000]
+    slave.close()
+    assert slave.error is None
+
+
+@pytest.mark.wall_clock
+def test_lock_is_free_while_the_answer_waits(link: PtyLink) -> None:
+    """A 0.4 s response delay: the owner's calls that take the lock (counters,
+    register_function) do not wait for it, and the answer still comes after it.
+    The bound (half the delay) holds on a loaded VM: the calls take microseconds;
+    if the lock were held through the delay they would take up to 0.4 s."""
+    delay = 0.4
+    with Slave(link.path_b, store=make_store(), parity="N", t35=0, response_delay=delay) as s:
+        s.start()
+        with RawPort(link.path_a) as port:
+            port.send(REQUEST)
+            sent = time.monotonic()
+            deadline = sent + delay / 2
+            while s.counters["requests"] == 0 and time.monotonic() < deadline:
+                time.sleep(0.005)
+            t0 = time.monotonic()
+            counters = s.counters
+            s.register_function(0x41, lambda slave, unit, pdu: pdu)
+            took = time.monotonic() - t0
+            assert counters["requests"] == 1 and counters["responses"] == 0
+            assert took < delay / 2
+            assert port.collect(want=len(ANSWER), timeout=2.0) == ANSWER
+            assert time.monotonic() - sent >= delay
+
+
+def test_stop_wakes_the_loop_through_the_pipe(link: PtyLink) -> None:
+    slave = Slave(link.path_b, parity="N")
+    done = threading.Event()
+
+    def serve() -> None:
+        slave.serve_forever()
+        done.set()
+
+    threading.Thread(target=serve, daemon=True).start()
+    time.sleep(0.05)
+    slave.stop()
+    assert done.wait(2.0)
+    slave.close()
+    slave.close()  # twice is harmless
+
+
+def test_line_config_and_keywords(link: PtyLink) -> None:
+    line = LineConfig(baudrate=19200, parity="N", t35=0)
+    with pytest.raises(TypeError, match="not both"):
+        Slave(link.path_b, line=line, baudrate=9600)
+    with pytest.raises(TypeError, match="LineConfig"):
+        Slave(link.path_b, line="19200 8N1")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="mode"):
+        Slave(link.path_b, mode="tcp", parity="N")
+    with Slave(link.path_b, store=make_store(), line=line, exclusive=False) as s:
+        assert s.line_config.t35 == 0 and s.t35 == 0
+        s.start()
+        with RawPort(link.path_a) as port:
+            assert port.ask(REQUEST, want=len(ANSWER)) == ANSWER
+
+
+def test_poll_answers_after_the_delay_within_the_call() -> None:
+    with Slave("loop://", store=make_store(), parity="N", response_delay=0.05) as s:
+        s.port.write(REQUEST)
+        t0 = time.monotonic()
+        s.poll(0.2)
+        assert time.monotonic() - t0 >= 0.05
+        assert s.port.read(0.2) == ANSWER
