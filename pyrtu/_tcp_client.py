@@ -70,7 +70,17 @@ class TcpClientProtocol:
         self._tid = 0
         self.broken: ModbusError | None = None
         self.counters = dict.fromkeys(
-            ("requests", "responses", "exceptions", "timeouts", "late", "mismatched"), 0
+            # the names of `pyrtu.Master.counters` where they mean the same
+            (
+                "requests",
+                "responses",
+                "broadcasts",
+                "exceptions",
+                "timeouts",
+                "frame_errors",
+                "late",
+            ),
+            0,
         )
 
     @property
@@ -97,6 +107,7 @@ class TcpClientProtocol:
         data: bytes = self._framer.send(tid, unit, raw)
         self.counters["requests"] += 1
         if unit == 0:
+            self.counters["broadcasts"] += 1
             self._results.append((tid, None))
         else:
             self._pending[tid] = _Pending(unit, data[7], now + self.timeout)
@@ -124,7 +135,7 @@ class TcpClientProtocol:
             return
         fc = pending.function
         if unit != pending.unit or pdu[0] & 0x7F != fc:
-            self.counters["mismatched"] += 1
+            self.counters["frame_errors"] += 1
             self._results.append(
                 (
                     tid,
@@ -140,6 +151,7 @@ class TcpClientProtocol:
         if kind is FrameKind.EXCEPTION:
             self.counters["exceptions"] += 1
             if len(pdu) != 2:
+                self.counters["frame_errors"] += 1
                 self._results.append(
                     (tid, FrameError(f"exception response of {len(pdu)} bytes", unit, fc))
                 )

@@ -75,7 +75,7 @@ def test_wrong_unit_or_function_is_a_frame_error() -> None:
     for expected in (t1, t2):
         t, err = p.next_result()  # type: ignore[misc]
         assert t == expected and isinstance(err, FrameError) and isinstance(err, ValueError)
-    assert p.counters["mismatched"] == 2
+    assert p.counters["frame_errors"] == 2
 
 
 def test_bad_header_breaks_the_connection() -> None:
@@ -95,6 +95,7 @@ def test_broadcast_completes_at_once_and_limits_hold() -> None:
     p = TcpClientProtocol(max_in_flight=2)
     tid, data = p.send_request(0, pdu.write_register_request(1, 5), 0.0)
     assert p.next_result() == (tid, None) and p.in_flight == 0 and data[6] == 0
+    assert p.counters["broadcasts"] == 1
     p.send_request(1, READ, 0.0)
     p.send_request(1, READ, 0.0)
     with pytest.raises(RuntimeError, match="in flight"):
