@@ -11,6 +11,8 @@ import threading
 from collections.abc import Iterator
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from peers import pattern
 from peers.tools import PeerBinaries, free_tcp_port, libmodbus_server
 
@@ -327,3 +329,52 @@ def test_connection_limit_and_stuck_client(libmodbus_tcp: str, run) -> None:  # 
             await c.close()
 
     run(main())
+
+
+@given(
+    ops=st.lists(
+        st.one_of(
+            st.tuples(st.just("submit"), st.integers(0, 5)),
+            st.tuples(st.just("pop"), st.just(0)),
+            st.tuples(st.just("drop"), st.integers(0, 5)),
+        ),
+        max_size=200,
+    )
+)
+@settings(max_examples=300, deadline=None)
+def test_fair_queue_properties(ops: list[tuple[str, int]]) -> None:
+    """Bounds hold, each connection's jobs come out in order, and no connection with
+    jobs waiting is passed over more than once by each of the other connections."""
+    q = FairQueue(max_per_connection=4, max_total=12)
+    model: dict[int, list[int]] = {}
+    waits: dict[int, int] = {}
+    serial = 0
+    for op, conn in ops:
+        if op == "submit":
+            serial += 1
+            full = len(q) >= 12 or len(model.get(conn, [])) >= 4
+            try:
+                q.submit(Job(conn=conn, transaction=serial, unit=1, slave=1, pdu=READ))
+            except QueueFull:
+                assert full
+            else:
+                assert not full
+                model.setdefault(conn, []).append(serial)
+        elif op == "drop":
+            assert q.drop(conn) == len(model.pop(conn, []))
+            waits.pop(conn, None)
+        else:
+            j = q.pop()
+            if not any(model.values()):
+                assert j is None
+                continue
+            assert j is not None and model[j.conn][0] == j.transaction  # FIFO per connection
+            model[j.conn].pop(0)
+            active = [c for c, jobs in model.items() if jobs or c == j.conn]
+            for c in active:
+                waits[c] = 0 if c == j.conn else waits.get(c, 0) + 1
+                assert waits[c] <= 5  # at most one turn of each of the other connections
+            if not model[j.conn]:
+                del model[j.conn]
+                waits.pop(j.conn, None)
+        assert len(q) == sum(len(v) for v in model.values()) <= 12
