@@ -8,7 +8,8 @@ id addresses a device behind a gateway) and Application Protocol V1.1b, section 
 * `FairQueue`: the sans-I/O queue of one bus: one sub-queue per connection, served
   round-robin, so a client that pipelines many requests cannot starve the others;
   bounded per connection and per bus.
-* `Gateway`: the asyncio driver: a listener, one `MbapFramer` per connection, one
+* `Gateway`: the asyncio driver: a listener, one `MbapFramer` per connection (and
+  optionally a second listener for RTU over TCP, one RTU framer per connection), one
   worker per bus that runs one transaction at a time through the bus's `request`
   (`pyrtu.aio.AsyncMaster`, whose sans-I/O engine keeps t3.5 and nothing more).
 
@@ -60,6 +61,7 @@ from .errors import (
     NoResponseError,
     PortError,
 )
+from .frames import FrameKind
 
 log = logging.getLogger("pyrtu.gateway")
 
@@ -285,16 +287,73 @@ class _Connection(asyncio.Protocol):
         if self.closed or t is None or t.is_closing():
             self.gateway.counters["answers_dropped"] += 1
             return
-        t.write(self.framer.send(transaction, unit, pdu))
+        t.write(self.encode(transaction, unit, pdu))
         if t.get_write_buffer_size() > self.gateway.limits.max_write_buffer:
             self.gateway.counters["slow_clients"] += 1
             log.info("connection %d does not read its answers: closed", self.id)
             t.abort()
 
+    def encode(self, transaction: int, unit: int, pdu: bytes) -> bytes:
+        return bytes(self.framer.send(transaction, unit, pdu))
+
     def close(self) -> None:
         if self.transport is not None and not self.closed:
             self.transport.close()
         self.closed = True
+
+
+class _RtuConnection(_Connection):
+    """A client speaking RTU over TCP (RTU frames, CRC kept, no MBAP header): framed by
+    the RTU framer without wire timing (length prediction and CRC); bytes that make no
+    frame are skipped as on a serial line, not a reason to close.  Answers go back in
+    RTU frames; there is no transaction id (such clients send one request at a time)."""
+
+    def __init__(self, gateway: Gateway) -> None:
+        super().__init__(gateway)
+        self.rtu = _backend.active.Framer("slave", t15=0, t35=0)
+        self.timer: asyncio.TimerHandle | None = None
+
+    def data_received(self, data: bytes) -> None:
+        if self.closed:
+            return
+        self.rtu.receive_data(data, time.monotonic())
+        self._events()
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if self.timer is not None:
+            self.timer.cancel()
+            self.timer = None
+        super().connection_lost(exc)
+
+    def _on_timer(self) -> None:
+        self.timer = None
+        if not self.closed:
+            self.rtu.handle_timer(time.monotonic())
+            self._events()
+
+    def _events(self) -> None:
+        # bytes that make no frame yet wait for the framer's flush timeout (a silence)
+        if self.timer is not None:
+            self.timer.cancel()
+            self.timer = None
+        when = self.rtu.timer()
+        if when is not None:
+            loop = asyncio.get_running_loop()
+            self.timer = loop.call_later(max(0.0, when - time.monotonic()), self._on_timer)
+        while (ev := self.rtu.next_event()) is not None:
+            if ev.error is not None:
+                self.gateway.counters["rtu_discarded_bytes"] += len(ev.adu)
+                continue
+            if ev.kind is not FrameKind.REQUEST:
+                continue
+            self.gateway._request(self, 0, ev.address, ev.pdu)
+            if self.closed:
+                return
+
+    def encode(self, transaction: int, unit: int, pdu: bytes) -> bytes:
+        adu: bytes = _backend.active.add_crc(bytes((unit,)) + pdu)
+        self.rtu.send(adu)
+        return adu
 
 
 class Gateway:
@@ -323,7 +382,9 @@ class Gateway:
         self._connections: dict[int, _Connection] = {}
         self._next_id = 0
         self._server: asyncio.Server | None = None
+        self._rtu_server: asyncio.Server | None = None
         self.address: tuple[str, int] | None = None
+        self.rtu_address: tuple[str, int] | None = None
         self.counters = dict.fromkeys(
             (
                 "connections",
@@ -339,24 +400,34 @@ class Gateway:
                 "slow_clients",
                 "answers_dropped",
                 "jobs_dropped",
+                "rtu_discarded_bytes",
             ),
             0,
         )
 
     # ---------------------------------------------------------------- running
 
-    async def start(self, host: str = "127.0.0.1", port: int = 502) -> Gateway:
+    async def start(
+        self, host: str = "127.0.0.1", port: int = 502, rtu: tuple[str, int] | None = None
+    ) -> Gateway:
+        """Listen for Modbus TCP on host:port and, with ``rtu=(host, port)``, for RTU
+        over TCP there (``rtu_address``)."""
         loop = asyncio.get_running_loop()
         self._server = await loop.create_server(lambda: _Connection(self), host, port)
         sock = self._server.sockets[0].getsockname()
         self.address = (str(sock[0]), int(sock[1]))
+        if rtu is not None:
+            self._rtu_server = await loop.create_server(lambda: _RtuConnection(self), *rtu)
+            sock = self._rtu_server.sockets[0].getsockname()
+            self.rtu_address = (str(sock[0]), int(sock[1]))
         for state in self._buses:
             state.task = asyncio.ensure_future(self._worker(state))
         return self
 
     async def close(self) -> None:
-        if self._server is not None:
-            self._server.close()
+        for server in (self._server, self._rtu_server):
+            if server is not None:
+                server.close()
         for conn in list(self._connections.values()):
             conn.close()
         for state in self._buses:
@@ -368,8 +439,9 @@ class Gateway:
                     await state.task
                 except asyncio.CancelledError:
                     pass
-        if self._server is not None:
-            await self._server.wait_closed()
+        for server in (self._server, self._rtu_server):
+            if server is not None:
+                await server.wait_closed()
 
     async def __aenter__(self) -> Gateway:
         return self

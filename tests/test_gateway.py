@@ -378,3 +378,49 @@ def test_fair_queue_properties(ops: list[tuple[str, int]]) -> None:
                 del model[j.conn]
                 waits.pop(j.conn, None)
         assert len(q) == sum(len(v) for v in model.values()) <= 12
+
+
+def test_rtu_over_tcp_listener(libmodbus_tcp: str, run) -> None:  # type: ignore[no-untyped-def]
+    from pymodbus import FramerType
+    from pymodbus.client import ModbusTcpClient
+
+    from pyrtu import add_crc
+    from pyrtu.aio import AsyncMaster
+
+    async def main() -> None:
+        gw, clients = await open_gateway([(libmodbus_tcp, "1-5")])
+        await gw.close()  # again, with the RTU listener
+        gw = Gateway([(clients[0], parse_units("1-5"))])
+        await gw.start("127.0.0.1", 0, rtu=("127.0.0.1", 0))
+        assert gw.rtu_address is not None
+        host, port = gw.rtu_address
+        async with AsyncMaster(f"rtu+tcp://{host}:{port}", timeout=2.0) as m:
+            assert await m.read_holding_registers(1, 3, 4) == pattern.holdings(1, 3, 4)
+            with pytest.raises(ExceptionResponseError) as info:
+                await m.read_holding_registers(9, 0, 1)  # no bus for 9: 0x0A, an RTU frame
+            assert info.value.code == 0x0A
+
+        def pymodbus_rtu() -> list[int]:
+            client = ModbusTcpClient(host, port=port, framer=FramerType.RTU, timeout=2, retries=0)
+            assert client.connect()
+            try:
+                return list(client.read_input_registers(2, count=3, device_id=2).registers)
+            finally:
+                client.close()
+
+        assert await asyncio.to_thread(pymodbus_rtu) == pattern.inputs(1, 2, 3)
+        # noise before a frame is skipped (RTU resynchronises by CRC), not a reason to close
+        reader, writer = await asyncio.open_connection(host, port)
+        writer.write(b"\xff\x00\x13" + add_crc(bytes.fromhex("0103000a0002")))
+        answer = await asyncio.wait_for(reader.readexactly(9), 3.0)
+        assert answer == add_crc(
+            bytes.fromhex("010304")
+            + bytes.fromhex("".join(f"{v:04x}" for v in pattern.holdings(1, 10, 2)))
+        )
+        assert gw.counters["rtu_discarded_bytes"] == 3
+        writer.close()
+        await gw.close()
+        for c in clients:
+            await c.close()
+
+    run(main())

@@ -38,6 +38,7 @@ class RunningGateway:
     proc: subprocess.Popen[str]
     host: str
     port: int
+    rtu: str | None = None  # the RTU-over-TCP listener, HOST:PORT
 
     @property
     def url(self) -> str:
@@ -67,7 +68,7 @@ def start_gateway(serial: str, *extra: str) -> RunningGateway:
         )
     ready = json.loads(line)
     host, _, port = ready["listen"].rpartition(":")
-    return RunningGateway(proc, host, int(port))
+    return RunningGateway(proc, host, int(port), ready.get("listen_rtu"))
 
 
 @pytest.fixture
@@ -267,3 +268,27 @@ def test_two_buses_behind_one_listener() -> None:
                 if gw.proc.poll() is None:
                     gw.proc.kill()
                     gw.proc.communicate()
+
+
+def test_rtu_over_tcp_clients_through_the_gateway(pty_pair: tuple[str, str]) -> None:
+    from pyrtu import Master
+
+    gw_side, slave_side = pty_pair
+    with pyrtu_slave_process(slave_side, 1, t35=0):
+        gw = start_gateway(f"{gw_side}=1-5", "--listen-rtu", "127.0.0.1:0")
+        try:
+            assert gw.rtu is not None
+            with Master(f"rtu+tcp://{gw.rtu}", timeout=2.0) as rtu, TcpClient(gw.url) as tcp:
+                assert rtu.read_holding_registers(1, 30, 5) == pattern.holdings(1, 30, 5)
+                rtu.write_register(1, 31, 3131)
+                got = tcp.request(1, pdu.read_request(3, 31, 1))  # the same bus, both clients
+                assert got is not None and pdu.parse_registers(got, 1) == [3131]
+                with pytest.raises(ExceptionResponseError) as info:
+                    rtu.read_holding_registers(4, 0, 1)  # nobody at 4 on the bus
+                assert info.value.code == 0x0B
+            stats = gw.stop()
+            assert stats["connections"] == 2 and stats["timeouts"] == 1
+        finally:
+            if gw.proc.poll() is None:
+                gw.proc.kill()
+                gw.proc.communicate()

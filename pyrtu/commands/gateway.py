@@ -1,6 +1,7 @@
 """``pyrtu gateway --listen HOST:PORT --port SERIAL[=UNITS] ...``: Modbus TCP to RTU.
 
-Many Modbus TCP clients share the serial buses behind one listener: one
+Many Modbus TCP clients share the serial buses behind one listener (and, with
+--listen-rtu, clients speaking RTU over TCP on a second one): one
 transaction at a time per bus at full wire rate (t3.5 between frames, no fixed
 pause), a fair queue per bus (connections served in turn), the unit id as the
 slave address.  ``--port`` may be repeated, each with the unit ids it carries
@@ -87,6 +88,10 @@ def _configure(p: argparse.ArgumentParser) -> None:
         help="address to listen on for Modbus TCP clients (port 0: any free port)",
     )  # fmt: skip
     p.add_argument(
+        "--listen-rtu", type=listen_address, metavar="HOST:PORT",
+        help="also listen for RTU over TCP (RTU frames with their CRC, no MBAP header)",
+    )  # fmt: skip
+    p.add_argument(
         "-p", "--port", required=True, action="append", type=bus_spec, metavar="SERIAL[=UNITS]",
         help="a bus: serial port (or tcp://HOST:PORT) and its unit ids; repeat for more",
     )  # fmt: skip
@@ -156,9 +161,10 @@ async def _serve(args: argparse.Namespace) -> dict[str, Any]:
         gw = G.Gateway(list(zip(buses, units, strict=True)), limits)
         host, port = args.listen
         try:
-            await gw.start(host, port)
+            await gw.start(host, port, rtu=args.listen_rtu)
         except OSError as exc:
-            raise OSError(exc.errno, f"--listen {host}:{port}: {exc.strerror}") from exc
+            flag = "--listen" if gw.address is None else "--listen-rtu"
+            raise OSError(exc.errno, f"{flag}: {exc.strerror}") from exc
         stop = asyncio.Event()
         loop = asyncio.get_running_loop()
         for sig in (signal.SIGINT, signal.SIGTERM):
@@ -183,11 +189,14 @@ def _ready(args: argparse.Namespace, gw: G.Gateway) -> None:
     assert gw.address is not None
     host, port = gw.address
     buses = [s.port for s in args.port]
+    rtu = None if gw.rtu_address is None else "{}:{}".format(*gw.rtu_address)
     if args.json:
-        emit({"type": "ready", "listen": f"{host}:{port}", "buses": buses})
+        emit({"type": "ready", "listen": f"{host}:{port}", "listen_rtu": rtu, "buses": buses})
     else:
+        also = f" (RTU over TCP on {rtu})" if rtu else ""
         print(
-            f"pyrtu gateway: listening on {host}:{port}, buses {', '.join(buses)}; Ctrl-C to stop",
+            f"pyrtu gateway: listening on {host}:{port}{also}, buses {', '.join(buses)}; "
+            "Ctrl-C to stop",
             file=sys.stderr,
             flush=True,
         )
