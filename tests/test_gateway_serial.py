@@ -239,6 +239,18 @@ def test_simulated_drive_through_the_gateway(
     assert results[0]["ok"] and results[0]["values"] == pdu.parse_registers(status, 1)
     assert results[1]["ok"] and results[2]["values"] == [4096]  # P683 speed reference
     assert results[3]["exception"] == 2  # the manual's illegal data address
+    from pymodbus.client import ModbusTcpClient
+
+    client = ModbusTcpClient(drive_bus.host, port=drive_bus.port, timeout=2, retries=0)
+    assert client.connect()
+    try:
+        assert client.read_holding_registers(683, count=1, device_id=1).registers == [4096]
+        assert not client.write_register(683, 2048, device_id=1).isError()
+        assert client.read_holding_registers(683, count=1, device_id=1).registers == [2048]
+        rr = client.read_holding_registers(9999, count=1, device_id=1)
+        assert rr.isError() and rr.exception_code == 2
+    finally:
+        client.close()
 
 
 def test_two_buses_behind_one_listener() -> None:
