@@ -192,6 +192,29 @@ async def direct(
         return n, time.monotonic() - t0, time.process_time() - c0
 
 
+def tcp_side(seconds: float) -> list[tuple[int, float, float]]:
+    """The TCP side alone: `pyrtu simulate cfw701 --tcp` is a TcpServer, the gateway's
+    machinery with the drive in place of a bus.  (clients, transactions/s, server CPU
+    µs per transaction)."""
+    sim, ready = spawn(
+        [sys.executable, "-m", "pyrtu", "simulate", "cfw701", "--tcp", "127.0.0.1:0", "--json"],
+        "ready",
+    )
+    out = []
+    try:
+        url = "tcp://" + json.loads(ready)["tcp"]
+        for n in CLIENTS:
+            cpu0 = cpu_seconds(sim.pid)
+            total, errors, elapsed = asyncio.run(load(url, n, seconds, "CFW701 sim"))
+            cpu = cpu_seconds(sim.pid) - cpu0
+            assert errors == 0
+            out.append((n, round(total / elapsed, 1), round(cpu / max(total, 1) * 1e6, 1)))
+            print(out[-1], flush=True)
+    finally:
+        stop(sim)
+    return out
+
+
 def wire_limit(kind: str, count: int) -> float:
     t = pyrtu.char_timing(BAUD, "N")
     chars = 8 + 5 + 2 * count
@@ -246,7 +269,9 @@ def cpu_model() -> str:
     return platform.processor() or "unknown CPU"
 
 
-def section(rows: list[Row], seconds: float) -> str:
+def section(
+    rows: list[Row], seconds: float, tcp: list[tuple[int, float, float]] | None = None
+) -> str:
     when = time.strftime("%Y-%m-%dT%H:%M:%S UTC", time.gmtime())
     load = os.getloadavg()[0]
     out = [
@@ -282,6 +307,16 @@ def section(rows: list[Row], seconds: float) -> str:
             f"| {r.gateway_cpu_us:.1f} | {r.errors} |"
         )
     vbus4 = [r for r in rows if r.line == "vbus" and r.clients == 4]
+    if tcp:
+        out += [
+            "",
+            "The TCP side alone (`pyrtu simulate cfw701 --tcp`: `TcpServer`, the gateway's "
+            "listener, framer and queue with the drive in place of a bus):",
+            "",
+            "| clients | transactions/s | server CPU µs/tx |",
+            "|---:|---:|---:|",
+            *(f"| {n} | {tps:,.0f} | {cpu:.1f} |" for n, tps, cpu in tcp),
+        ]
     out += ["", "Ratios and targets (same run):", ""]
     for r in vbus4:
         met = "met" if r.efficiency >= 0.95 else "NOT met"
@@ -364,9 +399,10 @@ def main() -> int:
     parser.add_argument("--json", type=Path, help="also write the rows as JSON")
     args = parser.parse_args()
     rows = measure(args.seconds)
+    tcp = tcp_side(args.seconds)
     if args.json:
-        args.json.write_text(json.dumps([asdict(r) for r in rows], indent=1))
-    text = section(rows, args.seconds)
+        args.json.write_text(json.dumps({"rows": [asdict(r) for r in rows], "tcp": tcp}))
+    text = section(rows, args.seconds, tcp)
     print(text)
     if not args.no_write:
         write(text)
