@@ -363,6 +363,7 @@ class ClientProtocol:
         self.state = State.DONE
 
     def _fail(self, error: Exception, now: float) -> None:
+        """End with ``error``; ``now`` (0: none) starts the settling a late answer needs."""
         self._error = error
         self.failed_at = now
         self.state = State.DONE
@@ -427,8 +428,8 @@ class ClientProtocol:
             if message[1] & 0x80:
                 c["exceptions"] += 1
                 code = message[2] if len(message) > 2 else 0
+                # answered: no late answer to wait out (failed_at stays 0)
                 self._fail(ExceptionResponseError(slave, fc, code), 0.0)
-                self.failed_at = 0.0  # answered: no late answer to wait out
                 return
             decode = self._decode or _identity
             try:
