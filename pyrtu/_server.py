@@ -196,11 +196,11 @@ class ServerProtocol:
 
     def needed(self) -> int:
         """A lower bound on the bytes the frame being received still needs (0: unknown
-        or none): the framer's, and in RTU at least the rest of the shortest ADU
-        (address, function, CRC: 4 bytes, Serial Line V1.02 2.5.1.1)."""
+        or none): the framer's, and where it predicts one, in RTU at least the rest of
+        the shortest ADU (address, function, CRC: 4 bytes, Serial Line V1.02 2.5.1.1)."""
         needed = self.framer.needed()
         started = self._received - self._framed
-        if 0 < started < _MIN_ADU and not self._ascii:
+        if needed and 0 < started < _MIN_ADU and not self._ascii:
             return max(needed, _MIN_ADU - started)
         return needed
 
