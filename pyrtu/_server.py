@@ -180,6 +180,13 @@ class ServerProtocol:
             self._echo = sent.adu
             self._echo_until = end + 2 * len(sent.adu) * self.char_time + 0.2
 
+    def drop_response(self) -> None:
+        """Forget the response waiting for its time (the driver stopped: when it serves
+        again the master has long moved on); it counts as not answered."""
+        if self._pending is not None:
+            self._pending = None
+            self.state.not_answered()
+
     # ---------------------------------------------------------------- outputs
 
     def deadline(self) -> float | None:

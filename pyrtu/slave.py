@@ -156,6 +156,8 @@ class Slave(SlaveBase):
             while not self._stop.is_set():
                 self._step(None)
         finally:
+            with self._lock:
+                self.protocol.drop_response()
             self._serving = False
             self._drain_wake()
 
