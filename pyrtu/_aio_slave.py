@@ -160,6 +160,7 @@ class AsyncSlave(SlaveBase):
         return f"<pyrtu.AsyncSlave {sorted(self.addresses)} on {self.port.name} {self.mode}>"
 
     def _teardown(self) -> None:
+        self.protocol.drop_response()
         if self._timer is not None:
             self._timer.cancel()
         self._timer = self._timer_at = None

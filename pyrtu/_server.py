@@ -180,6 +180,13 @@ class ServerProtocol:
             self._echo = sent.adu
             self._echo_until = end + 2 * len(sent.adu) * self.char_time + 0.2
 
+    def drop_response(self) -> None:
+        """Forget the response waiting for its time (the driver stopped: when it serves
+        again the master has long moved on); it counts as not answered."""
+        if self._pending is not None:
+            self._pending = None
+            self.state.not_answered()
+
     # ---------------------------------------------------------------- outputs
 
     def deadline(self) -> float | None:
@@ -196,11 +203,11 @@ class ServerProtocol:
 
     def needed(self) -> int:
         """A lower bound on the bytes the frame being received still needs (0: unknown
-        or none): the framer's, and in RTU at least the rest of the shortest ADU
-        (address, function, CRC: 4 bytes, Serial Line V1.02 2.5.1.1)."""
+        or none): the framer's, and where it predicts one, in RTU at least the rest of
+        the shortest ADU (address, function, CRC: 4 bytes, Serial Line V1.02 2.5.1.1)."""
         needed = self.framer.needed()
         started = self._received - self._framed
-        if 0 < started < _MIN_ADU and not self._ascii:
+        if needed and 0 < started < _MIN_ADU and not self._ascii:
             return max(needed, _MIN_ADU - started)
         return needed
 

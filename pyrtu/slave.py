@@ -53,6 +53,7 @@ _monotonic = time.monotonic
 
 _POLL = 0.05  # ports without a file descriptor: the longest blocking read
 _READ_SIZE = 4096
+_SELECT_LIMIT = 1024  # FD_SETSIZE
 
 
 def open_slave_port(port: Any, line: LineConfig, rs485: Any, exclusive: bool) -> Any:
@@ -132,12 +133,9 @@ class Slave(SlaveBase):
         os.set_blocking(self._wake_r, False)
         os.set_blocking(self._wake_w, False)
         fd = self.port.fd
-        self._waiter = select.poll()  # the port and the wake-up pipe
-        self._sleeper = select.poll()  # the wake-up pipe only: sleeping through a frame
-        self._waiter.register(self._wake_r, select.POLLIN)
-        self._sleeper.register(self._wake_r, select.POLLIN)
-        if fd is not None:
-            self._waiter.register(fd, select.POLLIN)
+        #: the port and the wake-up pipe; the pipe alone (sleeping through a frame)
+        self._wait_fds = [self._wake_r] if fd is None else [fd, self._wake_r]
+        self._sleep_fds = [self._wake_r]
         #: skip ahead over the known rest of a frame (not in strict mode: every gap counts)
         self._skip = not self.line_config.strict and fd is not None
         #: the error that ended serve_forever in the background thread, if any
@@ -158,6 +156,8 @@ class Slave(SlaveBase):
             while not self._stop.is_set():
                 self._step(None)
         finally:
+            with self._lock:
+                self.protocol.drop_response()
             self._serving = False
             self._drain_wake()
 
@@ -242,12 +242,12 @@ class Slave(SlaveBase):
                 hold = needed * port.char_time
                 if timeout is None or hold < timeout:
                     timeout = hold
-                ready = self._sleeper.poll(timeout * 1000.0)
+                ready = self._wait(self._sleep_fds, timeout)
                 readable = True  # not asked: read whatever came
             else:
-                ready = self._waiter.poll(None if timeout is None else timeout * 1000.0)
+                ready = self._wait(self._wait_fds, timeout)
                 readable = False
-            for fd, _events in ready:
+            for fd in ready:
                 if fd == self._wake_r:
                     self._drain_wake()
                     if self._stop.is_set():
@@ -265,6 +265,18 @@ class Slave(SlaveBase):
             _start, end = port.write(adu)
             with self._lock:
                 proto.transmitted(end)
+
+    @staticmethod
+    def _wait(fds: list[int], timeout: float | None) -> list[int]:
+        """The readable ones of ``fds`` within ``timeout`` seconds.  select() keeps the
+        microseconds (poll and epoll round up to whole milliseconds: a t3.5 of 1.75 ms
+        would become 2 and more); poll for descriptors past select's limit."""
+        if max(fds) < _SELECT_LIMIT:
+            return select.select(fds, (), (), timeout)[0]
+        poller = select.poll()
+        for fd in fds:
+            poller.register(fd, select.POLLIN)
+        return [fd for fd, _ in poller.poll(None if timeout is None else timeout * 1000.0)]
 
     def _drain_wake(self) -> None:
         with contextlib.suppress(OSError):

@@ -161,6 +161,38 @@ def test_stop_and_cancel(link: PtyLink) -> None:
     asyncio.run(main())
 
 
+def test_cancel_while_an_answer_waits(link: PtyLink) -> None:
+    """Cancelled during a 0.3 s response delay: the answer is never sent, and the
+    slave serves the next request normally when started again."""
+
+    async def main() -> None:
+        slave = AsyncSlave(link.path_b, 1, make_store(), parity="N", t35=0, response_delay=0.3)
+        task = slave.start()
+        with serial.Serial(link.path_a, 19200, timeout=0) as raw:
+            raw.write(add_crc(bytes.fromhex("01 03 0000 0001")))
+            while slave.protocol.pending is None:
+                await asyncio.sleep(0.005)
+            task.cancel()
+            with pytest.raises(asyncio.CancelledError):
+                await task
+            await asyncio.sleep(0.4)
+            assert raw.read(100) == b""  # the cancelled answer never went out
+            slave.start()
+            raw.write(add_crc(bytes.fromhex("01 03 0001 0001")))
+            expected = add_crc(bytes.fromhex("01 03 02 03E9"))
+            got = b""
+            for _ in range(200):
+                got += raw.read(100)
+                if len(got) >= len(expected):
+                    break
+                await asyncio.sleep(0.01)
+            assert got == expected
+        assert slave.counters["slave_no_response_count"] == 1
+        await slave.close()
+
+    asyncio.run(main())
+
+
 def test_a_vanishing_port_ends_only_its_slave_and_leaks_no_fd() -> None:
     before = open_fds()
 

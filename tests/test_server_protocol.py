@@ -301,3 +301,14 @@ def test_reconfigure_with_vendor_rules(backend: ModuleType) -> None:
     h.feed(h.adu(b"\x01\x41\x01\x02\x03"))
     h.now += CHAR  # framed by the rule at once: no silence needed
     assert h.proto.data_to_send(h.now + T35) == h.adu(b"\x01\x41\x01")
+
+
+def test_drop_response(backend: ModuleType) -> None:
+    """A driver that stops forgets the answer still waiting (never sent later)."""
+    h = Harness(backend, response_delay=0.5)
+    h.feed(h.adu(read_request()))
+    assert h.proto.pending is not None
+    h.proto.drop_response()
+    assert h.proto.pending is None
+    assert h.run_until_sent()[0] is None
+    assert h.app.line.counters["slave_no_response_count"] == 1
