@@ -272,3 +272,29 @@ def test_url_port_without_a_file_descriptor() -> None:
         asyncio.run(main())
     finally:
         server.close()
+
+
+def test_echoing_drop() -> None:
+    """The slave's drop echoes what it sends (a 2-wire adapter): the echo is dropped,
+    never taken for a request, and the master is answered every time."""
+
+    async def main(bus: VirtualBus) -> None:
+        slave = AsyncSlave(bus.paths[1], 1, make_store(), baudrate=BAUD, parity="N", echo=True)
+        slave.start()
+
+        def client() -> None:
+            with Master(bus.paths[0], BAUD, parity="N", timeout=0.5) as m:
+                for k in range(10):
+                    assert m.read_holding_registers(1, k, 2) == [1000 + k, 1001 + k]
+
+        await asyncio.to_thread(client)
+        for _ in range(100):  # the last echo may still be on its way back
+            if slave.counters["echo_dropped"] == 10:
+                break
+            await asyncio.sleep(0.01)
+        assert slave.counters["echo_dropped"] == 10
+        assert slave.counters["requests"] == slave.counters["responses"] == 10
+        await slave.close()
+
+    with VirtualBus(2, baudrate=BAUD, parity="N", echo=[1]) as bus:
+        asyncio.run(main(bus))
