@@ -298,3 +298,42 @@ def test_echoing_drop() -> None:
 
     with VirtualBus(2, baudrate=BAUD, parity="N", echo=[1]) as bus:
         asyncio.run(main(bus))
+
+
+def test_simulated_drives_in_one_loop() -> None:
+    """Three WEG drive simulators, each on its own virtual bus, served by AsyncSlaves in
+    one event loop (DriveSimulator.make_async_slave), polled by three masters at once."""
+    from pyrtu.devices import CFW100Simulator, CFW320Simulator, CFW701Simulator
+
+    sims = [CFW100Simulator(), CFW320Simulator(), CFW701Simulator()]
+    buses = [VirtualBus(2, baudrate=BAUD, parity="N") for _ in sims]
+    expected = [[sim.store.holding_registers.get(a) for a in (100, 101)] for sim in sims]
+
+    async def main() -> None:
+        slaves = [
+            sim.make_async_slave(bus.paths[1], 1, baudrate=BAUD, parity="N")
+            for sim, bus in zip(sims, buses, strict=True)
+        ]
+        for s in slaves:
+            s.start()
+
+        def client(i: int) -> None:
+            with Master(buses[i].paths[0], BAUD, parity="N", timeout=0.5) as m:
+                for _ in range(10):
+                    assert m.read_holding_registers(1, 100, 2) == expected[i]
+
+        await asyncio.gather(*(asyncio.to_thread(client, i) for i in range(len(sims))))
+        assert [sim.telegrams for sim in sims] == [10] * len(sims)
+        for sim, s in zip(sims, slaves, strict=True):
+            assert sim.slave is s
+            await s.close()
+            sim.close()
+            assert sim.slave is None
+
+    try:
+        for b in buses:
+            b.start()
+        asyncio.run(main())
+    finally:
+        for b in buses:
+            b.close()
