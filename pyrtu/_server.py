@@ -34,7 +34,7 @@ from typing import Any, Protocol
 
 from . import _backend
 from ._slave_diag import LineState
-from .ascii import encode_ascii
+from .ascii import encode_ascii, make_framer
 from .errors import SlaveException
 from .frames import Frame, FrameKind
 from .line import LineConfig
@@ -130,7 +130,7 @@ class ServerProtocol:
     def reconfigure(self, line: LineConfig) -> None:
         """Take ``line`` (new rules, say) from now on; bytes being framed are dropped."""
         self.line = line
-        self.framer: Framer = line.framer("slave", self.backend)
+        self.framer: Framer = make_framer(line, "slave", self.backend)
         self._received = 0  # bytes given to the framer
         self._framed = 0  # of which the framer has ended (frames and discards)
         #: the silence kept after a request (t3.5 in RTU; none in ASCII)

@@ -18,6 +18,7 @@ from . import pdu as P
 from ._server import ServerProtocol
 from ._slave_diag import DeviceIdentification, LineState
 from ._version import __version__
+from .ascii import make_framer
 from .datastore import DataStore
 from .errors import SlaveException
 from .line import LineConfig
@@ -102,7 +103,7 @@ class SlaveBase:
         self._handlers: dict[int, _Builtin] = self._builtins()
         self._broadcast_ok = set(P.BROADCAST_FUNCTIONS)
         self._hooks: list[Callable[[int, bytes], object]] = []
-        line.framer("slave", self._backend)  # checks the options before the port is opened
+        make_framer(line, "slave", self._backend)  # checks the options before the port is opened
 
     def _setup_line(self, port: Port) -> None:
         """The port is open: the line as the port has it (an adopted serial object
