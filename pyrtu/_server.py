@@ -191,15 +191,14 @@ class ServerProtocol:
 
     def deadline(self) -> float | None:
         """When `handle_timer` or `data_to_send` has work (None: only bytes will do)."""
-        times = []
-        timer = self.framer.timer()
-        if timer is not None:
-            times.append(timer)
-        if self._pending is not None:
-            times.append(self._pending.earliest)
+        at = self.framer.timer()
+        if self._pending is not None and (at is None or self._pending.earliest < at):
+            at = self._pending.earliest
         if self.watchdog is not None and self._last_valid is not None and not self._tripped:
-            times.append(self._last_valid + self.watchdog)
-        return min(times) if times else None
+            expiry = self._last_valid + self.watchdog
+            if at is None or expiry < at:
+                at = expiry
+        return at
 
     def needed(self) -> int:
         """A lower bound on the bytes the frame being received still needs (0: unknown

@@ -226,7 +226,7 @@ class Slave(SlaveBase):
         the response whose time has come."""
         proto = self.protocol
         with self._lock:
-            deadline = proto.deadline()
+            due = deadline = proto.deadline()
             needed = proto.needed() if self._skip else 0
         if until is not None and (deadline is None or until < deadline):
             deadline = until
@@ -258,8 +258,9 @@ class Slave(SlaveBase):
         now = _monotonic()
         with self._lock:
             if data:
-                proto.receive_data(data, now)
-            proto.handle_timer(now)
+                proto.receive_data(data, now)  # (new bytes only move the framer's timer on)
+            if due is not None and now >= due:
+                proto.handle_timer(now)
             adu = proto.data_to_send(now)
         if adu is not None:
             _start, end = port.write(adu)

@@ -272,3 +272,68 @@ def test_url_port_without_a_file_descriptor() -> None:
         asyncio.run(main())
     finally:
         server.close()
+
+
+def test_echoing_drop() -> None:
+    """The slave's drop echoes what it sends (a 2-wire adapter): the echo is dropped,
+    never taken for a request, and the master is answered every time."""
+
+    async def main(bus: VirtualBus) -> None:
+        slave = AsyncSlave(bus.paths[1], 1, make_store(), baudrate=BAUD, parity="N", echo=True)
+        slave.start()
+
+        def client() -> None:
+            with Master(bus.paths[0], BAUD, parity="N", timeout=0.5) as m:
+                for k in range(10):
+                    assert m.read_holding_registers(1, k, 2) == [1000 + k, 1001 + k]
+
+        await asyncio.to_thread(client)
+        for _ in range(100):  # the last echo may still be on its way back
+            if slave.counters["echo_dropped"] == 10:
+                break
+            await asyncio.sleep(0.01)
+        assert slave.counters["echo_dropped"] == 10
+        assert slave.counters["requests"] == slave.counters["responses"] == 10
+        await slave.close()
+
+    with VirtualBus(2, baudrate=BAUD, parity="N", echo=[1]) as bus:
+        asyncio.run(main(bus))
+
+
+def test_simulated_drives_in_one_loop() -> None:
+    """Three WEG drive simulators, each on its own virtual bus, served by AsyncSlaves in
+    one event loop (DriveSimulator.make_async_slave), polled by three masters at once."""
+    from pyrtu.devices import CFW100Simulator, CFW320Simulator, CFW701Simulator
+
+    sims = [CFW100Simulator(), CFW320Simulator(), CFW701Simulator()]
+    buses = [VirtualBus(2, baudrate=BAUD, parity="N") for _ in sims]
+    expected = [[sim.store.holding_registers.get(a) for a in (100, 101)] for sim in sims]
+
+    async def main() -> None:
+        slaves = [
+            sim.make_async_slave(bus.paths[1], 1, baudrate=BAUD, parity="N")
+            for sim, bus in zip(sims, buses, strict=True)
+        ]
+        for s in slaves:
+            s.start()
+
+        def client(i: int) -> None:
+            with Master(buses[i].paths[0], BAUD, parity="N", timeout=0.5) as m:
+                for _ in range(10):
+                    assert m.read_holding_registers(1, 100, 2) == expected[i]
+
+        await asyncio.gather(*(asyncio.to_thread(client, i) for i in range(len(sims))))
+        assert [sim.telegrams for sim in sims] == [10] * len(sims)
+        for sim, s in zip(sims, slaves, strict=True):
+            assert sim.slave is s
+            await s.close()
+            sim.close()
+            assert sim.slave is None
+
+    try:
+        for b in buses:
+            b.start()
+        asyncio.run(main())
+    finally:
+        for b in buses:
+            b.close()

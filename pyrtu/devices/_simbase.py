@@ -1,5 +1,6 @@
 """The part every drive simulator shares: its data store, clock, lock, the lazy
-time line, the serial supervision, and the binding to `pyrtu.Slave`."""
+time line, the serial supervision, and the binding to `pyrtu.Slave` (or, for many drives
+in one event loop, `pyrtu.aio.AsyncSlave`)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
+from .._aio_slave import AsyncSlave
 from ..datastore import DataStore
 from ..rules import LengthRule
 from ..slave import Slave
@@ -43,7 +45,7 @@ class DriveSimulator(ABC):
         self.timeline = Timeline(clock)
         self.motor = Motor()
         self.supervision = Supervision()
-        self.slave: Slave | None = None
+        self.slave: Slave | AsyncSlave | None = None
         #: valid telegrams addressed to this drive (every one restarts the watchdog)
         self.telegrams = 0
         #: how often the serial watchdog expired
@@ -129,12 +131,32 @@ class DriveSimulator(ABC):
         are `pyrtu.Slave` keywords (baudrate, parity, ...); they override the drive's
         own (`slave_options`).  ``mode`` switches the drive to RTU or ASCII (where
         its manual has both)."""
+        addr, kwargs = self._slave_arguments(address, options)
+        slave = Slave(port, addr, self.store, **kwargs)
+        self._bind(slave, address)
+        return slave
+
+    def make_async_slave(
+        self, port: Any, address: int | Iterable[int] = 1, **options: Any
+    ) -> AsyncSlave:
+        """`make_slave` for asyncio: an `AsyncSlave` (serve it with ``await
+        slave.serve()`` or ``slave.start()``); many drives share one event loop."""
+        addr, kwargs = self._slave_arguments(address, options)
+        slave = AsyncSlave(port, addr, self.store, **kwargs)
+        self._bind(slave, address)
+        return slave
+
+    def _slave_arguments(
+        self, address: int | Iterable[int], options: dict[str, Any]
+    ) -> tuple[int | set[int], dict[str, Any]]:
         if "mode" in options:
             self.mode = self._check_mode(options.pop("mode"))
         kwargs = self.slave_options()
         kwargs.update(options)
         addr: int | set[int] = address if isinstance(address, int) else set(address)
-        slave = Slave(port, addr, self.store, **kwargs)
+        return addr, kwargs
+
+    def _bind(self, slave: Slave | AsyncSlave, address: int | Iterable[int]) -> None:
         for fc, (handler, req, resp, broadcast) in self.handlers().items():
             slave.register_function(fc, handler, req, resp, broadcast=broadcast)
         slave.on_request(self.telegram)
@@ -142,7 +164,6 @@ class DriveSimulator(ABC):
         if isinstance(address, int):
             with self.lock:
                 self._served_at(address)
-        return slave
 
     def _served_at(self, address: int) -> None:
         """The slave serves ``address`` (subclasses keep it in the drive's parameter)."""
@@ -155,9 +176,11 @@ class DriveSimulator(ABC):
         return slave
 
     def close(self) -> None:
-        if self.slave is not None:
+        """Close the `Slave` (an `AsyncSlave` is only let go: its owner awaits its
+        ``close()``)."""
+        if isinstance(self.slave, Slave):
             self.slave.close()
-            self.slave = None
+        self.slave = None
 
     def __enter__(self) -> DriveSimulator:
         return self
