@@ -1,0 +1,54 @@
+"""The high-rate poller: declared points, coalesced requests, wire-time scheduling.
+
+Layers, sans-I/O up to the driver (time is an input everywhere below `driver`):
+
+============  ===================================================================
+`points`      `Point`: name, bus, slave, table, address, type, scale, interval
+`config`      `Bus`, `Device`, `PollerConfig`; `load_config` for TOML
+`plan`        coalescing: `plan` points into `Block` reads, `Wire` prices them
+`schedule`    `BusScheduler`: EDF per bus, writes first, slave health, load
+`events`      `Update`, `SlaveState`, `PointDropped`, `Overload`, statistics
+`driver`      `Poller`: asyncio, one task per bus; a thread for sync scripts
+============  ===================================================================
+
+The rules (coalescing, scheduling, back-off) are in ``docs/POLLER.md``.
+"""
+
+from __future__ import annotations
+
+from .config import Bus, ConfigError, Device, PollerConfig, load_config, make_config, parse_config
+from .events import BusReport, Overload, PointDropped, SlaveState, SlaveStats, Update
+from .plan import Block, Cuts, Limits, Wire, merge_pays, plan, split
+from .points import TABLES, TYPES, Point, PointError
+from .profiles import profile_points
+from .schedule import BusScheduler, Request
+
+__all__ = [
+    "TABLES",
+    "TYPES",
+    "Block",
+    "Bus",
+    "BusReport",
+    "BusScheduler",
+    "ConfigError",
+    "Cuts",
+    "Device",
+    "Limits",
+    "Overload",
+    "Point",
+    "PointDropped",
+    "PointError",
+    "PollerConfig",
+    "Request",
+    "SlaveState",
+    "SlaveStats",
+    "Update",
+    "Wire",
+    "load_config",
+    "make_config",
+    "merge_pays",
+    "parse_config",
+    "plan",
+    "profile_points",
+    "split",
+]
