@@ -201,14 +201,14 @@ class PollerConfig:
         for i, p in enumerate(self.points):
             if p.bus not in names:
                 raise ConfigError(
-                    f"{self.source}: point[{i}] ({p.name!r}): bus: no bus named {p.bus!r}"
+                    f'{self.source}: point[{i}] ("{p.name}"): bus: no bus named {p.bus!r}'
                     f" (buses: {', '.join(names) or 'none'})"
                 )
             lim = self.limits(p.bus).get(p.slave, self.bus(p.bus).limits)
             most = lim.per_request(p.table)
             if p.size > most:
                 raise ConfigError(
-                    f"{self.source}: point[{i}] ({p.name!r}): takes {p.size} registers, "
+                    f'{self.source}: point[{i}] ("{p.name}"): takes {p.size} registers, '
                     f"more than slave {p.slave} reads per request ({most})"
                 )
 
@@ -304,7 +304,7 @@ class _Loader:
             raise
 
     def bus(self, i: int, t: Mapping[str, Any]) -> Bus:
-        label = f"bus[{i}]" + (f" ({t['name']!r})" if isinstance(t.get("name"), str) else "")
+        label = f"bus[{i}]" + (f' ("{t["name"]}")' if isinstance(t.get("name"), str) else "")
         known = ("name", "port", *MASTER_KEYS, *POLLER_KEYS, *LIMIT_KEYS)
         for k in t:
             if k not in known:
@@ -369,7 +369,7 @@ class _Loader:
 
     def point(self, i: int, t: Mapping[str, Any], defaults: Mapping[str, Any]) -> Point:
         name = t.get("name")
-        label = f"point[{i}]" + (f" ({name!r})" if isinstance(name, str) else "")
+        label = f"point[{i}]" + (f' ("{name}")' if isinstance(name, str) else "")
         for k in t:
             if k not in POINT_KEYS:
                 raise self.fail("point", i, label, k, f"unknown key (known: {', '.join(POINT_KEYS)})")

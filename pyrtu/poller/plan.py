@@ -234,15 +234,26 @@ def plan(
 
 
 def split(block: Block) -> tuple[Block, Block] | None:
-    """A block that answered exception 2, in two halves at a point boundary (the
-    middle one by address), or None when it is one point (or points sharing one
-    start address) and cannot be split."""
-    starts = sorted({p.address for p in block.points})
+    """A block that answered exception 2, in two at a point boundary, or None when
+    it is one point (or points sharing one start address) and cannot be split.
+
+    The cut goes where the hole most likely is: the widest gap between points
+    (the points themselves are presumed to exist); contiguous points are halved.
+    """
+    pts = sorted(block.points, key=lambda p: (p.address, p.end))
+    starts = sorted({p.address for p in pts})
     if len(starts) < 2:
         return None
-    mid = starts[len(starts) // 2]
-    lo = [p for p in block.points if p.address < mid]
-    hi = [p for p in block.points if p.address >= mid]
+    best, cut = -1, starts[len(starts) // 2]
+    reach = pts[0].end
+    for p in pts[1:]:
+        if p.address >= reach and p.address - reach > best and p.address > pts[0].address:
+            best, cut = p.address - reach, p.address
+        reach = max(reach, p.end)
+    if best <= 0:
+        cut = starts[len(starts) // 2]
+    lo = [p for p in block.points if p.address < cut]
+    hi = [p for p in block.points if p.address >= cut]
     return _block(lo), _block(hi)
 
 
