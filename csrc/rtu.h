@@ -77,6 +77,11 @@ int rtu_rules_set(rtu_rules *r, int direction, unsigned function, rtu_rule rule)
 
 int rtu_predict(const rtu_rules *r, int direction, const uint8_t *adu, size_t n, size_t *length);
 
+/* The shortest answer to a request (address, function): the response's
+ * shortest length from the rules, or the 5-byte exception response ([AP] 7)
+ * when shorter; 4 (the shortest RTU frame) when no rule knows the response. */
+size_t rtu_answer_min(const rtu_rules *r, uint8_t address, uint8_t function);
+
 /* ---- Frames and events -------------------------------------------------- */
 #define RTU_KIND_REQUEST 0
 #define RTU_KIND_RESPONSE 1
@@ -181,6 +186,24 @@ int rtu_framer_poll(rtu_framer *f);
 const uint8_t *rtu_framer_event_data(const rtu_framer *f);
 /* The local side transmitted an ADU (sets or clears the context). */
 void rtu_framer_sent(rtu_framer *f, const uint8_t *adu, size_t len);
+
+/* Bytes still needed, a lower bound a driver may sleep on (needed x character
+ * time) before it looks again; call it after rtu_framer_poll returned 0.
+ *   - Bytes pending: the least, over the directions rtu_framer_poll tries at
+ *     the head (and over a head that starts after a t3.5 silence inside the
+ *     pending bytes), of the shortest frame the prediction rules allow for
+ *     the bytes so far, minus the bytes pending.  One pending byte: 1 (the
+ *     function code decides), or, in the master role when it is the awaited
+ *     slave's address, the shortest answer (rtu_answer_min) minus 1.
+ *   - Nothing pending: in the master role after rtu_framer_sent of a request
+ *     that awaits an answer, the shortest answer (rtu_answer_min); else 0.
+ *   - 0 also when no rule predicts the head (unknown function, a length past
+ *     max_adu), or when every predicted candidate is complete and only a
+ *     silence can end the head: wake on the next byte or the deadline.
+ * More bytes can arrive before a frame ends (a longer answer, noise); fewer
+ * never end one by its length.  Silences end frames by time, not by bytes:
+ * rtu_framer_deadline covers them. */
+size_t rtu_framer_needed(const rtu_framer *f);
 
 /* ---- Bulk stream parser ------------------------------------------------- */
 typedef struct {

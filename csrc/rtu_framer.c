@@ -238,3 +238,22 @@ void rtu_framer_sent(rtu_framer *f, const uint8_t *adu, size_t len)
         f->ctx.pending = 0;
     }
 }
+
+size_t rtu_framer_needed(const rtu_framer *f)
+{
+    const size_t unresolved = f->n - f->head;
+    rtu_view v;
+    v.data = f->buf + f->head;
+    v.n = unresolved < f->cfg.max_adu ? unresolved : f->cfg.max_adu;
+    v.base = f->base + f->head;
+    size_t m = 0;
+    while (m < f->nmarks && f->marks[m].pos <= v.base) {
+        m++;
+    }
+    v.marks = f->marks + m;
+    v.nmarks = f->nmarks - m;
+    v.silent_end = f->silent && v.n == unresolved;
+    v.closed = f->final || v.n < unresolved;
+    v.timed = 1;
+    return rtu_head_needed(&f->cfg, &f->ctx, &v);
+}

@@ -234,3 +234,88 @@ void rtu_count_frame(rtu_counters *c, int kind)
         c->frames[kind]++;
     }
 }
+
+/* ---- Bytes still needed: the lower bound a driver may sleep on ----------- */
+
+/* The shortest frame of direction `dir` that starts with d[0..n) (n >= 2), from
+ * the prediction rules ([AP] section 6); 0 when no rule predicts it.  Before a
+ * count field is in, a count of zero gives the bound; before the rest of a
+ * Device Identification walk is in, the CRC after the decision point does. */
+static size_t rtu_min_length(const rtu_rules *r, int dir, const uint8_t *d, size_t n)
+{
+    size_t len = 0;
+    const int st = rtu_predict(r, dir, d, n, &len);
+    if (st == RTU_PRED_UNKNOWN) {
+        return 0;
+    }
+    if (st == RTU_PRED_NEED) {
+        const rtu_rule *rule = &r->rule[dir][d[1]];
+        return rule->type == RTU_RULE_COUNT ? len + (size_t)rule->add : len + 2;
+    }
+    return len;
+}
+
+size_t rtu_answer_min(const rtu_rules *r, uint8_t address, uint8_t function)
+{
+    const uint8_t d[2] = {address, (uint8_t)(function & 0x7F)};
+    const size_t len = rtu_min_length(r, RTU_DIR_RESPONSE, d, 2);
+    if (len == 0) {
+        return 4; /* unknown layout: the shortest RTU frame ([SL] 2.5.1) */
+    }
+    return len < 5 ? len : 5; /* or an exception response, 5 bytes ([AP] 7) */
+}
+
+size_t rtu_head_needed(const rtu_config *cfg, const rtu_context *ctx, const rtu_view *v)
+{
+    const size_t n = v->n;
+    const uint8_t *d = v->data;
+    size_t least = 0;
+    if (n < 2) {
+        if (cfg->role == RTU_ROLE_MASTER && ctx->pending && (n == 0 || d[0] == ctx->address)) {
+            least = rtu_answer_min(&cfg->rules, ctx->address, ctx->function);
+        } else if (n == 1) {
+            least = 2; /* the function code decides */
+        }
+    } else {
+        int dirs[2];
+        int nd;
+        if ((d[1] & 0x80) || cfg->role == RTU_ROLE_MASTER) {
+            dirs[0] = RTU_DIR_RESPONSE;
+            nd = 1;
+        } else {
+            dirs[0] = RTU_DIR_REQUEST;
+            dirs[1] = RTU_DIR_RESPONSE;
+            nd = 2;
+        }
+        for (int k = 0; k < nd; k++) {
+            const size_t len = rtu_min_length(&cfg->rules, dirs[k], d, n);
+            if (len > n && len <= cfg->max_adu && (least == 0 || len < least)) {
+                least = len;
+            }
+        }
+    }
+    size_t need = least > n ? least - n : 0;
+    /* A frame that starts after a t3.5 silence inside the window may end first
+     * (rtu_try_head lets it win over an incomplete one before it). */
+    for (size_t i = 0; i < v->nmarks; i++) {
+        const uint64_t rel = v->marks[i].pos - v->base;
+        if (rel >= n) {
+            break;
+        }
+        if (rel == 0 || !(v->marks[i].flags & RTU_MARK_T35)) {
+            continue;
+        }
+        rtu_view sub = *v;
+        sub.data = d + rel;
+        sub.n = n - (size_t)rel;
+        sub.base = v->base + rel;
+        sub.marks = v->marks + i + 1;
+        sub.nmarks = v->nmarks - i - 1;
+        const size_t s = rtu_head_needed(cfg, ctx, &sub);
+        if (s != 0 && (need == 0 || s < need)) {
+            need = s;
+        }
+        break; /* the sub-view covers the later marks */
+    }
+    return need;
+}

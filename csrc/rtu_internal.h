@@ -29,6 +29,9 @@ typedef struct {
 
 rtu_verdict rtu_try_head(const rtu_config *cfg, const rtu_context *ctx, const rtu_view *v,
                          int allow_skip);
+/* Bytes that must still arrive before the head can end as a frame by its
+ * predicted length (see rtu_framer_needed). */
+size_t rtu_head_needed(const rtu_config *cfg, const rtu_context *ctx, const rtu_view *v);
 void rtu_context_update(rtu_context *ctx, int kind, const uint8_t *adu);
 void rtu_count_frame(rtu_counters *c, int kind);
 

@@ -98,6 +98,7 @@ int64_t rtu_framer_deadline(const rtu_framer *f);
 int rtu_framer_poll(rtu_framer *f);
 const uint8_t *rtu_framer_event_data(const rtu_framer *f);
 void rtu_framer_sent(rtu_framer *f, const uint8_t *adu, size_t len);
+size_t rtu_framer_needed(const rtu_framer *f);
 
 typedef struct {
     rtu_counters counters;

@@ -174,6 +174,9 @@ class _Core:
     def reset(self) -> None:
         lib.rtu_framer_reset(self.f)
 
+    def needed(self) -> int:
+        return int(lib.rtu_framer_needed(self.f))
+
     def counts(self) -> tuple[Sequence[int], Sequence[int], int]:
         c = self.f.counters
         return list(c.frames), list(c.discarded), int(c.discard_events)

@@ -14,6 +14,7 @@ from typing import Protocol
 from ._types import BytesLike
 from .config import CoreOptions, core_options, to_microseconds
 from .frames import ERROR_BY_CODE, Frame, FrameKind, FrameList, event_counters_template
+from .line import LineConfig
 from .rules import RuleTable
 from .timing import Timing
 
@@ -28,6 +29,7 @@ class FramerCore(Protocol):
     def deadline(self) -> int | None: ...
     def sent(self, adu: bytes) -> None: ...
     def reset(self) -> None: ...
+    def needed(self) -> int: ...
     def counts(self) -> tuple[Sequence[int], Sequence[int], int]: ...
 
 
@@ -38,6 +40,17 @@ def as_bytes(data: BytesLike, name: str = "data") -> bytes:
         return memoryview(data).cast("B").tobytes()
     except TypeError:
         raise TypeError(f"{name} must be a bytes-like object, not {type(data).__name__}") from None
+
+
+_DEFAULTS = (19200, "E", 1, 8, "modbus", None, None, False, 256, None, None)
+
+
+def _check_line(line: object, given: tuple[object, ...], where: str) -> None:
+    """``line=`` replaces the line keywords: refuse both at once."""
+    if not isinstance(line, LineConfig):
+        raise TypeError(f"{where}: line must be a LineConfig, not {type(line).__name__}")
+    if given != _DEFAULTS:
+        raise TypeError(f"{where}: give line= or the line keywords (baudrate=...), not both")
 
 
 def event_to_frame(ev: Event) -> Frame:
@@ -89,21 +102,29 @@ class FramerBase:
         max_adu: int = 256,
         rules: RuleTable | None = None,
         flush_timeout: float | None = None,
+        line: LineConfig | None = None,
     ) -> None:
-        self.options = core_options(
-            role,
-            baudrate=baudrate,
-            parity=parity,
-            stopbits=stopbits,
-            bytesize=bytesize,
-            timing=timing,
-            t15=t15,
-            t35=t35,
-            strict=strict,
-            max_adu=max_adu,
-            rules=rules,
-            flush_timeout=flush_timeout,
-        )
+        given = (baudrate, parity, stopbits, bytesize, timing, t15, t35, strict, max_adu)
+        if line is None:
+            self.options = core_options(
+                role,
+                baudrate=baudrate,
+                parity=parity,
+                stopbits=stopbits,
+                bytesize=bytesize,
+                timing=timing,
+                t15=t15,
+                t35=t35,
+                strict=strict,
+                max_adu=max_adu,
+                rules=rules,
+                flush_timeout=flush_timeout,
+            )
+        else:
+            _check_line(line, (*given, rules, flush_timeout), "Framer")
+            if line.mode != "rtu":
+                raise ValueError("line: Framer frames RTU; for ASCII use line.framer()")
+            self.options = line.options(role)
         self.role = role
         self._core = self._make_core(self.options)
         self._events: deque[Frame] = deque()
@@ -154,6 +175,24 @@ class FramerBase:
         raw = as_bytes(adu, "adu")
         self._core.sent(raw)
         return raw
+
+    def needed(self) -> int:
+        """Bytes still needed: a lower bound on how many more bytes must arrive
+        before the frame at the head can end by its predicted length, so a driver
+        may sleep ``needed() x character time`` (with ``timer()`` as a safety net).
+
+        Call it after ``next_event()`` returned None.  With bytes pending: the least,
+        over the directions tried at the head, of the shortest frame the length
+        rules allow for the bytes so far, minus the bytes pending (one pending
+        byte: 1, or in the master role, when it is the awaited slave's address, the
+        shortest answer minus 1).  Nothing pending: in the master role after
+        ``send(request)`` the shortest answer (the response's shortest length, or 5
+        for an exception response, whichever is less); otherwise 0.  0 also when no
+        rule predicts the head (unknown function, length past ``max_adu``) or only a
+        silence can end it: then wake on the next byte or the timer.  Same value
+        from the C core (``rtu_framer_needed``) and the twin.
+        """
+        return self._core.needed()
 
     def reset(self) -> None:
         """Drop buffered bytes (counted as truncated) and the request context."""
@@ -224,27 +263,34 @@ def make_parse_stream(parse: StreamParser) -> Callable[..., FrameList]:
         strict: bool = False,
         max_adu: int = 256,
         rules: RuleTable | None = None,
+        line: LineConfig | None = None,
     ) -> FrameList:
         """Every frame and discard run in ``data`` (a capture), as a lazy sequence.
 
         ``times``: per-byte arrival times (seconds); ``chunks``: ``[(offset, time), ...]``,
         the bytes from ``offset`` to the next chunk arrived by ``time``.  Without either,
         only prediction and CRC split the stream.  The result's ``counters`` give frames by
-        kind and discarded bytes by reason.
+        kind and discarded bytes by reason.  ``line``: a `LineConfig` instead of the
+        line keywords.
         """
-        options = core_options(
-            role,
-            baudrate=baudrate,
-            parity=parity,
-            stopbits=stopbits,
-            bytesize=bytesize,
-            timing=timing,
-            t15=t15,
-            t35=t35,
-            strict=strict,
-            max_adu=max_adu,
-            rules=rules,
-        )
+        if line is not None:
+            given = (baudrate, parity, stopbits, bytesize, timing, t15, t35, strict, max_adu)
+            _check_line(line, (*given, rules, None), "parse_stream")
+            options = line.options(role)
+        else:
+            options = core_options(
+                role,
+                baudrate=baudrate,
+                parity=parity,
+                stopbits=stopbits,
+                bytesize=bytesize,
+                timing=timing,
+                t15=t15,
+                t35=t35,
+                strict=strict,
+                max_adu=max_adu,
+                rules=rules,
+            )
         raw = as_bytes(data)
         offsets, us = stream_times(len(raw), times, chunks)
         return parse(options, raw, offsets, us)

@@ -127,18 +127,9 @@ class Transactions:
 
     def _events(self) -> Iterator[_Event]:
         framer = self._framer
-        if self.mode == "rtu":
-            while (ev := framer.next_event()) is not None:
-                error = ev.error
-                yield (error.value if error else None, ev.adu[:-2], len(ev.adu))
-        else:
-            while (item := framer.next_event()) is not None:
-                frame, message = item
-                if message is None:
-                    reason = frame.error.value if frame.error else "truncated"
-                    yield (reason, b"", len(frame.adu))
-                else:
-                    yield (None, message, len(frame.adu))
+        while (ev := framer.next_event()) is not None:
+            error = ev.error
+            yield (error.value if error else None, ev.message, len(ev.wire))
 
     def _exchange(
         self, slave: int, request: bytes, decode: Decoder[T] | None, expect: int

@@ -10,18 +10,18 @@ from __future__ import annotations
 import binascii
 from collections import deque
 
+from ._backend import active
 from ._types import BytesLike
 from .config import ROLES, to_microseconds
 from .frames import ErrorReason, Frame, FrameKind
+from .line import LineConfig
 
 ASCII_MAX_FRAME = 513  # ':' + 2 x 255 + CR LF (2.5.2.1)
 INTER_CHAR_LIMIT = 1.0  # seconds (2.5.2.1)
 
 
 def _lrc(data: bytes) -> int:
-    from . import backend  # the active backend's LRC
-
-    return int(backend().lrc(data))
+    return int(active.lrc(data))
 
 
 def encode_ascii(message: BytesLike) -> bytes:
@@ -59,21 +59,40 @@ class AsciiFramer:
 
     Frames are delimited by ':' and CR LF; a ':' restarts a frame (2.5.2.1);
     a silence of more than ``inter_char`` seconds inside a frame discards it.
-    Events are ``Frame`` objects whose ``adu`` is the binary message followed
-    by the LRC byte (so ``pdu`` = adu[1:-1]... see ``message``).
+    Events are the same `Frame` objects as the RTU framer's: ``adu`` is the
+    binary address + PDU + LRC, ``message``/``pdu`` as in RTU, ``text`` the
+    frame as received; a discard event's ``adu`` and ``text`` hold the
+    characters thrown away.
     """
 
-    def __init__(self, role: str = "master", *, inter_char: float = INTER_CHAR_LIMIT) -> None:
+    def __init__(
+        self,
+        role: str = "master",
+        *,
+        inter_char: float = INTER_CHAR_LIMIT,
+        line: LineConfig | None = None,
+    ) -> None:
         if role not in ROLES:
             raise ValueError(f"role must be 'master', 'slave' or 'monitor', not {role!r}")
+        if line is not None:
+            if not isinstance(line, LineConfig):
+                raise TypeError(f"line must be a LineConfig, not {type(line).__name__}")
+            inter_char = line.inter_char
+        elif (
+            isinstance(inter_char, bool)
+            or not isinstance(inter_char, int | float)
+            or not 0 < inter_char < float("inf")
+        ):
+            raise ValueError(f"inter_char must be a positive number of seconds, not {inter_char!r}")
         self.role = role
+        self.line = line
         self.inter_char_us = to_microseconds(inter_char)
         self._buf = bytearray()
         self._in_frame = False
         self._start_us = 0
         self._last_us: int | None = None
         self._offset = 0
-        self._events: deque[tuple[Frame, bytes | None]] = deque()
+        self._events: deque[Frame] = deque()
         self._pending: tuple[int, int] | None = None
         self.counters = {"frames": 0, "discarded_bytes": 0, "lrc_errors": 0}
 
@@ -88,8 +107,9 @@ class AsciiFramer:
             self._start_us / 1e6,
             end_us / 1e6,
             reason,
+            raw,
         )
-        self._events.append((frame, None))
+        self._events.append(frame)
 
     def _kind(self, message: bytes) -> FrameKind:
         if message[1] & 0x80:
@@ -147,12 +167,37 @@ class AsciiFramer:
         elif kind is not FrameKind.REQUEST:
             self._pending = None
         self.counters["frames"] += 1
-        frame = Frame(kind, raw, self._offset - len(raw), self._start_us / 1e6, now_us / 1e6)
-        self._events.append((frame, message))
+        lrc = raw[-4:-2]
+        frame = Frame(
+            kind,
+            message + bytes((int(lrc, 16),)),
+            self._offset - len(raw),
+            self._start_us / 1e6,
+            now_us / 1e6,
+            None,
+            raw,
+        )
+        self._events.append(frame)
 
-    def next_event(self) -> tuple[Frame, bytes | None] | None:
-        """(frame, message) where message is address + PDU (None for a discard)."""
+    def next_event(self) -> Frame | None:
+        """The next `Frame` (a frame or a discard event), or None."""
         return self._events.popleft() if self._events else None
+
+    def events(self) -> list[Frame]:
+        """All events available now."""
+        out = list(self._events)
+        self._events.clear()
+        return out
+
+    def send(self, frame: BytesLike) -> bytes:
+        """Record that ``frame`` (an ASCII frame) is transmitted by this side; returns
+        the bytes to write.  (ASCII frames carry their own delimiters: nothing to
+        predict.)"""
+        return memoryview(frame).cast("B").tobytes()
+
+    def needed(self) -> int:
+        """0: ASCII frames end at CR LF, not at a predicted length (wake on any byte)."""
+        return 0
 
     def timer(self) -> float | None:
         if not self._in_frame or self._last_us is None:

@@ -48,12 +48,16 @@ CODE_BY_ERROR = {reason: code for code, reason in enumerate(ERROR_BY_CODE) if re
 
 @dataclass(frozen=True, slots=True)
 class Frame:
-    """A frame (CRC checked) or a discard event (``error`` set) from the framer.
+    """A frame (CRC or LRC checked) or a discard event (``error`` set) from a framer.
 
-    ``adu`` is the whole frame as on the wire (address, PDU, CRC); ``pdu`` is
-    the function code and data.  ``start``/``end`` are seconds on the clock of
-    the times given to the framer (None when no times were given).  ``offset``
-    is the position of the first byte in the byte stream.
+    One type for RTU and ASCII.  ``adu`` is the binary frame: address, PDU and the
+    check (the 2-byte CRC in RTU, the 1-byte LRC in ASCII); ``message`` is address
+    + PDU and ``pdu`` the function code and data, in both modes.  ``text`` is the
+    ASCII frame as on the wire (``:`` hex LRC CR LF), None in RTU; ``wire`` is the
+    bytes as on the wire in either mode.  A discard event's ``adu`` (and ``text``
+    in ASCII) holds the bytes thrown away as they were received.  ``start``/``end``
+    are seconds on the clock of the times given to the framer (None when no times
+    were given).  ``offset`` is the position of the first byte in the byte stream.
     """
 
     kind: FrameKind
@@ -62,6 +66,7 @@ class Frame:
     start: float | None = None
     end: float | None = None
     error: ErrorReason | None = None
+    text: bytes | None = None
 
     @property
     def address(self) -> int:
@@ -72,8 +77,21 @@ class Frame:
         return self.adu[1] if len(self.adu) > 1 else -1
 
     @property
+    def message(self) -> bytes:
+        """Address + PDU (the ADU without its CRC or LRC); b"" for a discard event."""
+        if self.error is not None:
+            return b""
+        return self.adu[:-1] if self.text is not None else self.adu[:-2]
+
+    @property
     def pdu(self) -> bytes:
-        return self.adu[1:-2] if self.error is None else b""
+        """Function code + data; b"" for a discard event."""
+        return self.message[1:]
+
+    @property
+    def wire(self) -> bytes:
+        """The frame as on the wire: the ASCII text in ASCII mode, else ``adu``."""
+        return self.adu if self.text is None else self.text
 
     @property
     def exception_code(self) -> int | None:

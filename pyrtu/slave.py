@@ -346,20 +346,11 @@ class Slave:
 
     def _drain_events(self) -> None:
         framer = self._framer
-        if self.mode == "rtu":
-            while (ev := framer.next_event()) is not None:
-                if ev.error is not None:
-                    self.line.discard_seen(ev.error.value, ev.start, ev.end)
-                else:
-                    self._on_frame(ev.kind, ev.adu, ev.adu[:-2], ev.end)
-        else:
-            while (item := framer.next_event()) is not None:
-                frame, message = item
-                if message is None:
-                    reason = frame.error.value if frame.error else "truncated"
-                    self.line.discard_seen(reason, frame.start, frame.end)
-                else:
-                    self._on_frame(frame.kind, frame.adu, message, frame.end)
+        while (ev := framer.next_event()) is not None:
+            if ev.error is not None:
+                self.line.discard_seen(ev.error.value, ev.start, ev.end)
+            else:
+                self._on_frame(ev.kind, ev.wire, ev.message, ev.end)
 
     def _on_frame(self, kind: FrameKind, raw: bytes, message: bytes, end: float) -> None:
         if self._sent is not None:

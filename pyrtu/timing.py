@@ -8,6 +8,7 @@ T3.5 = 2.005 ms (t1.5 = 1.5 x 573 us = 860 us).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 TIMING_RULES = ("modbus", "weg")
@@ -72,7 +73,12 @@ def compute_timing(baudrate: int, bits: int, rule: str = "modbus") -> Timing:
 
 def seconds_to_us(value: float, name: str) -> int:
     """A duration in seconds as integer microseconds, checked."""
-    if isinstance(value, bool) or not isinstance(value, int | float) or value != value or value < 0:
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, int | float)
+        or not math.isfinite(value)
+        or value < 0
+    ):
         raise ValueError(f"{name} must be a non-negative number of seconds, not {value!r}")
     return round(value * 1_000_000)
 

@@ -65,11 +65,11 @@ def test_ascii_framer(t: Telegram) -> None:
     f = pyrtu.ascii.AsciiFramer(role)
     for i, byte in enumerate(t.adu):  # one character at a time
         f.receive_data(bytes((byte,)), 1.0 + i * 0.001)
-    got = f.next_event()
-    assert got is not None
-    frame, message = got
+    frame = f.next_event()
+    assert frame is not None
     assert frame.error is None and frame.kind == KINDS[t.kind]
-    assert message == pyrtu.decode_ascii(t.adu)
+    assert frame.message == pyrtu.decode_ascii(t.adu)
+    assert frame.pdu == frame.message[1:] and frame.text == frame.wire == t.adu
 
 
 def test_errata_are_carried_corrected() -> None:

@@ -68,6 +68,9 @@ class _Core:
     def reset(self) -> None:
         self.f.reset()
 
+    def needed(self) -> int:
+        return self.f.needed()
+
     def counts(self) -> tuple[Sequence[int], Sequence[int], int]:
         return self.f.frames, self.f.discarded, self.f.discard_events
 

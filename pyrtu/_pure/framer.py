@@ -18,6 +18,7 @@ from .head import (
     Config,
     Context,
     View,
+    head_needed,
     try_head,
 )
 
@@ -186,3 +187,22 @@ class CoreFramer:
             self.ctx.pending, self.ctx.address, self.ctx.function = True, adu[0], adu[1]
         else:
             self.ctx.pending = False
+
+    def needed(self) -> int:
+        """Bytes still needed at the head (see rtu_framer_needed in csrc/rtu.h)."""
+        unresolved = len(self.buf) - self.head
+        window = min(unresolved, self.cfg.max_adu)
+        base = self.base + self.head
+        mi = 0
+        while mi < len(self.marks) and self.marks[mi][0] <= base:
+            mi += 1
+        v = View(
+            bytes(self.buf[self.head : self.head + window]),
+            base,
+            self.marks,
+            mi,
+            self.silent and window == unresolved,
+            self.final or window < unresolved,
+            True,
+        )
+        return head_needed(self.cfg, self.ctx, v)

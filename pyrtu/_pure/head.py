@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..rules import RULE_NONE
+from ..rules import RULE_COUNT, RULE_NONE
 from .crc import crc16
 from .predict import DIR_REQUEST, DIR_RESPONSE, PRED_NEED, PRED_UNKNOWN, Rule, predict
 
@@ -174,3 +174,60 @@ def try_head(cfg: Config, ctx: Context, v: View, allow_skip: bool) -> tuple[int,
         return ACT_WAIT, 0, 0
     # The predicted candidates give the reason; the silence's only without them.
     return ACT_DISCARD, 1, _pick_error((pnotes[0] | pnotes[1]) or notes)
+
+
+# ---- Bytes still needed: the lower bound a driver may sleep on (rtu_head.c) ----
+
+
+def _min_length(rules: tuple[list[Rule], list[Rule]], direction: int, d: bytes, n: int) -> int:
+    """The shortest frame of ``direction`` that starts with d[:n] (n >= 2); 0: no rule."""
+    status, length = predict(rules, direction, d, n)
+    if status == PRED_UNKNOWN:
+        return 0
+    if status == PRED_NEED:
+        rule = rules[direction][d[1]]
+        return length + rule[4] if rule[0] == RULE_COUNT else length + 2
+    return length
+
+
+def answer_min(rules: tuple[list[Rule], list[Rule]], address: int, function: int) -> int:
+    """The shortest answer to (address, function): see rtu_answer_min."""
+    length = _min_length(rules, DIR_RESPONSE, bytes((address, function & 0x7F)), 2)
+    if length == 0:
+        return 4
+    return min(length, 5)
+
+
+def head_needed(cfg: Config, ctx: Context, v: View) -> int:
+    """Bytes that must still arrive before the head can end by its predicted length."""
+    d = v.data
+    n = len(d)
+    least = 0
+    if n < 2:
+        if cfg.role == ROLE_MASTER and ctx.pending and (n == 0 or d[0] == ctx.address):
+            least = answer_min(cfg.rules, ctx.address, ctx.function)
+        elif n == 1:
+            least = 2
+    else:
+        if d[1] & 0x80 or cfg.role == ROLE_MASTER:
+            dirs: tuple[int, ...] = (DIR_RESPONSE,)
+        else:
+            dirs = (DIR_REQUEST, DIR_RESPONSE)
+        for direction in dirs:
+            length = _min_length(cfg.rules, direction, d, n)
+            if n < length <= cfg.max_adu and (least == 0 or length < least):
+                least = length
+    need = least - n if least > n else 0
+    for i in range(v.mi, len(v.marks)):
+        pos, flags = v.marks[i]
+        rel = pos - v.base
+        if rel >= n:
+            break
+        if rel == 0 or not flags & MARK_T35:
+            continue
+        sub = View(d[rel:], pos, v.marks, i + 1, v.silent_end, v.closed, v.timed)
+        s = head_needed(cfg, ctx, sub)
+        if s and (need == 0 or s < need):
+            need = s
+        break
+    return need

@@ -301,12 +301,10 @@ def from_port(args: argparse.Namespace, stop: Any) -> Iterator[Seen]:
                 framer.handle_timer(now)
             while (ev := framer.next_event()) is not None:
                 if ascii_mode:
-                    frame, message = ev
-                    if message is None:
-                        reason = frame.error.value if frame.error else "truncated"
-                        yield Seen("discard", b"", frame.adu, frame.start, reason)
+                    if ev.error is not None:
+                        yield Seen("discard", b"", ev.wire, ev.start, ev.error.value)
                     else:
-                        yield Seen(str(frame.kind), message, frame.adu, frame.start)
+                        yield Seen(str(ev.kind), ev.message, ev.wire, ev.start)
                 else:
                     yield _seen_rtu(ev)
     finally:

@@ -1,0 +1,194 @@
+"""`LineConfig`: one validated description of a serial line, for every layer.
+
+The framer, the client and server protocols, the sync and asyncio drivers, the
+CLI and the virtual bus all take a `LineConfig` (the ten framer keywords were
+written out in six places before it)::
+
+    line = LineConfig(baudrate=9600, parity="N", stopbits=2)
+    line.times            # Timing(char_us=1146, t15_us=1719, t35_us=4010)
+    line.t35_time         # 0.00401 (seconds)
+    framer = line.framer("master")
+
+Fields (all keyword, all checked in the constructor; a bad value raises
+ValueError naming the keyword):
+
+* ``baudrate``, ``parity`` ("N", "E", "O", "M", "S"), ``stopbits`` (1, 1.5, 2),
+  ``bytesize`` (7, 8): the byte format (Modbus over Serial Line V1.02, 2.5.1).
+* ``mode``: "rtu" or "ascii" (2.5.1 / 2.5.2).
+* ``timing``: "modbus" (fixed 750 / 1750 us above 19200 baud, 2.5.1.1) or
+  "weg" (the WEG manuals keep the 19200-baud values above 19200).
+* ``t15``, ``t35``: overrides of t1.5 and t3.5 in seconds (0 turns the silence
+  detection off, for links without wire timing).
+* ``max_adu``: the longest RTU ADU accepted (4..1024; 256 per 2.5.1).
+* ``strict``: a silence of t3.5 always ends a frame, and a t1.5 gap inside one
+  discards it (default: lenient, for USB adapters that batch bytes).
+* ``rules``: vendor length rules, ``{fc: (request_rule, response_rule)}``.
+* ``flush_timeout``: lenient mode drops an incomplete frame after this silence
+  (default 50 ms, never below t3.5).
+* ``inter_char``: ASCII mode's longest silence inside a frame (1 s, 2.5.2.1).
+
+The derived timing comes from the same integer arithmetic as the C core
+(``rtu_timing_init``), with the overrides applied.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from types import MappingProxyType, ModuleType
+from typing import Any
+
+from .config import CoreOptions, core_options
+from .rules import RuleTable
+from .timing import Timing, apply_overrides, compute_timing
+
+MODES = ("rtu", "ascii")
+
+
+def _optional_seconds(name: str, value: object) -> None:
+    if value is None:
+        return
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, int | float)
+        or not math.isfinite(value)
+        or value < 0
+    ):
+        raise ValueError(f"{name} must be a non-negative number of seconds, not {value!r}")
+
+
+@dataclass(frozen=True)
+class LineConfig:
+    """The line: byte format, mode, timing rule and framing options (see module doc)."""
+
+    baudrate: int = 19200
+    parity: str = "E"
+    stopbits: float = 1
+    bytesize: int = 8
+    mode: str = "rtu"
+    timing: str = "modbus"
+    t15: float | None = None
+    t35: float | None = None
+    max_adu: int = 256
+    strict: bool = False
+    rules: RuleTable = field(default_factory=dict, hash=False)
+    flush_timeout: float | None = None
+    inter_char: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.parity, str):
+            raise ValueError(f"parity must be one of N, E, O, M, S, not {self.parity!r}")
+        if self.mode not in MODES:
+            raise ValueError(f"mode must be 'rtu' or 'ascii', not {self.mode!r}")
+        for name in ("t15", "t35", "flush_timeout"):
+            _optional_seconds(name, getattr(self, name))
+        inter = self.inter_char
+        if (
+            isinstance(inter, bool)
+            or not isinstance(inter, int | float)
+            or not math.isfinite(inter)
+            or inter <= 0
+        ):
+            raise ValueError(f"inter_char must be a positive number of seconds, not {inter!r}")
+        if not isinstance(self.strict, bool):
+            raise ValueError(f"strict must be True or False, not {self.strict!r}")
+        # The framer's checks, with the framer's messages (they name the keyword).
+        options = core_options("master", **self._framer_kwargs(self.parity))
+        object.__setattr__(self, "parity", self.parity.upper()[:1])
+        object.__setattr__(self, "rules", MappingProxyType(dict(options.rules)))
+        object.__setattr__(self, "_bits", options.bits)
+        base = compute_timing(self.baudrate, options.bits, self.timing)
+        object.__setattr__(self, "_times", apply_overrides(base, self.t15, self.t35))
+
+    def _framer_kwargs(self, parity: str | None = None) -> dict[str, Any]:
+        return dict(
+            baudrate=self.baudrate,
+            parity=self.parity if parity is None else parity,
+            stopbits=self.stopbits,
+            bytesize=self.bytesize,
+            timing=self.timing,
+            t15=self.t15,
+            t35=self.t35,
+            strict=self.strict,
+            max_adu=self.max_adu,
+            rules=self.rules,
+            flush_timeout=self.flush_timeout,
+        )
+
+    # ------------------------------------------------------------ derived values
+
+    @property
+    def bits(self) -> int:
+        """Bits per character: start + data + parity + stop (11 for 8E1)."""
+        return int(self.__dict__["_bits"])
+
+    @property
+    def times(self) -> Timing:
+        """Character time, t1.5 and t3.5 (integer microseconds; ``.char``, ``.t15``,
+        ``.t35`` in seconds), overrides applied."""
+        times: Timing = self.__dict__["_times"]
+        return times
+
+    @property
+    def char_time(self) -> float:
+        """One character on the wire, in seconds."""
+        return self.times.char
+
+    @property
+    def t15_time(self) -> float:
+        """The inter-character limit t1.5 in seconds (override applied)."""
+        return self.times.t15
+
+    @property
+    def t35_time(self) -> float:
+        """The inter-frame silence t3.5 in seconds (override applied)."""
+        return self.times.t35
+
+    @property
+    def frame_gap(self) -> float:
+        """The silence a sender keeps between frames: t3.5 in RTU, none in ASCII
+        (frames are delimited by ':' and CR LF, 2.5.2.1)."""
+        return self.times.t35 if self.mode == "rtu" else 0.0
+
+    def wire_time(self, nbytes: int) -> float:
+        """Seconds that ``nbytes`` characters take on the wire."""
+        return nbytes * self.times.char
+
+    # ------------------------------------------------------------ other shapes
+
+    def options(self, role: str) -> CoreOptions:
+        """The backends' internal options for a framer of ``role``."""
+        return core_options(role, **self._framer_kwargs())
+
+    def framer_kwargs(self) -> dict[str, Any]:
+        """The framer keywords (``Framer(role, **line.framer_kwargs())``)."""
+        return self._framer_kwargs()
+
+    def replace(self, **changes: Any) -> LineConfig:
+        """A copy with ``changes`` applied (checked like the constructor)."""
+        return dataclasses.replace(self, **changes)
+
+    def framer(self, role: str = "master", backend: ModuleType | str | None = None) -> Any:
+        """A receiver for this line: the RTU `Framer` of ``backend`` (default: the
+        active one) or, in ASCII mode, an `AsciiFramer`; both yield `Frame` events."""
+        if self.mode == "ascii":
+            from .ascii import AsciiFramer
+
+            return AsciiFramer(role, line=self)
+        from . import _backend
+
+        be = backend if isinstance(backend, ModuleType) else _backend.backend(backend)
+        return be.Framer(role, line=self)
+
+    @classmethod
+    def of(cls, line: LineConfig | None = None, **kwargs: Any) -> LineConfig:
+        """``line`` with ``kwargs`` applied, or a new LineConfig from ``kwargs``."""
+        if line is None:
+            return cls(**kwargs)
+        if not isinstance(line, LineConfig):
+            raise TypeError(f"line must be a LineConfig, not {type(line).__name__}")
+        return line.replace(**kwargs) if kwargs else line
+
+
+__all__ = ["MODES", "LineConfig"]
