@@ -102,7 +102,7 @@ def test_minimal_form(tmp_path: Path) -> None:
     (p,) = cfg.points
     assert p == Point("cfw701.status", "line1", 1, "holding", 680, "uint16", interval=0.1)
     w = bus.wire()
-    assert w.char == pytest.approx(11 / 19200) and w.t35 == pytest.approx(0.002005)
+    assert w.char == pytest.approx(11 / 19200, abs=1e-6) and w.t35 == pytest.approx(0.002005)
 
 
 def test_full_form_devices_profiles_defaults() -> None:

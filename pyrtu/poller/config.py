@@ -43,7 +43,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from ..timing import apply_overrides, bits_per_char, compute_timing
+from ..line import LineConfig
 from .plan import Limits, Wire
 from .points import Point, PointError, check_unique
 from .profiles import device_limits, profile_points
@@ -70,36 +70,37 @@ def _real(v: object) -> bool:
     return not isinstance(v, bool) and isinstance(v, int | float) and math.isfinite(v)
 
 
+#: the `LineConfig` fields among them (checked by `LineConfig` itself)
+LINE_KEYS = ("baudrate", "parity", "stopbits", "bytesize", "mode", "timing", "t15", "t35",
+             "max_adu", "strict")  # fmt: skip
+
+
 def _check_master(key: str, v: object) -> str | None:
-    """What is wrong with Master keyword ``key`` = ``v`` (None: nothing)."""
-    if key == "baudrate":
-        ok = not isinstance(v, bool) and isinstance(v, int) and v > 0
-        return None if ok else f"must be a positive integer, not {v!r}"
-    if key == "parity":
-        ok = isinstance(v, str) and v.upper() in ("N", "E", "O", "M", "S")
-        return None if ok else f"must be one of N, E, O, M, S, not {v!r}"
-    if key == "stopbits":
-        return None if _real(v) and v in (1, 1.5, 2) else f"must be 1, 1.5 or 2, not {v!r}"
-    if key == "bytesize":
-        return None if v in (7, 8) and not isinstance(v, bool) else f"must be 7 or 8, not {v!r}"
-    if key in ("timeout",):
+    """What is wrong with a Master-only keyword ``key`` = ``v`` (None: nothing)."""
+    if key == "timeout":
         return None if _real(v) and v > 0 else f"must be a positive number of seconds, not {v!r}"
-    if key in ("t15", "t35", "broadcast_delay"):
+    if key == "broadcast_delay":
         ok = _real(v) and v >= 0
         return None if ok else f"must be a non-negative number of seconds, not {v!r}"
     if key == "retries":
         ok = not isinstance(v, bool) and isinstance(v, int) and v >= 0
         return None if ok else f"must be a non-negative integer, not {v!r}"
-    if key == "timing":
-        return None if v in ("modbus", "weg") else f"must be 'modbus' or 'weg', not {v!r}"
-    if key == "mode":
-        return None if v in ("rtu", "ascii") else f"must be 'rtu' or 'ascii', not {v!r}"
-    if key in ("echo", "strict"):
+    if key == "echo":
         return None if isinstance(v, bool) else f"must be true or false, not {v!r}"
-    if key == "max_adu":
-        ok = not isinstance(v, bool) and isinstance(v, int) and 6 <= v <= 256
-        return None if ok else f"must be an integer 6..256, not {v!r}"
     return "unknown key"
+
+
+def make_line(master: Mapping[str, Any]) -> LineConfig:
+    """The `LineConfig` of a bus's Master keywords; ValueError ``"key: what"``."""
+    kw = {k: master[k] for k in LINE_KEYS if k in master}
+    try:
+        return LineConfig(**kw)
+    except (ValueError, TypeError) as e:
+        msg = str(e)
+        for k in LINE_KEYS:
+            if msg.startswith(k + " "):
+                raise ValueError(f"{k}: {msg[len(k) + 1 :]}") from None
+        raise ValueError(msg) from None
 
 
 @dataclass(frozen=True)
@@ -122,9 +123,10 @@ class Bus:
         if self.port is None or (isinstance(self.port, str) and not self.port):
             raise ValueError("port: missing")
         for k, v in self.master.items():
-            wrong = _check_master(k, v)
+            wrong = None if k in LINE_KEYS else _check_master(k, v)
             if wrong:
                 raise ValueError(f"{k}: {wrong}")
+        object.__setattr__(self, "_line", make_line(self.master))
         if not (_real(self.share) and 0 < self.share <= 1):
             raise ValueError(f"share: must be a fraction in (0, 1], not {self.share!r}")
         oa = self.offline_after
@@ -135,19 +137,22 @@ class Bus:
         if not (_real(self.max_backoff) and self.max_backoff >= self.backoff):
             raise ValueError(f"max_backoff: must be at least backoff, not {self.max_backoff!r}")
 
+    @property
+    def line(self) -> LineConfig:
+        """The bus's line configuration (from the Master keywords)."""
+        line: LineConfig = self.__dict__["_line"]
+        return line
+
     def wire(self) -> Wire:
-        """The bus's wire model from its baud rate, format and timing rule (an
-        estimated turnaround of t3.5 until the slaves' are measured)."""
-        m = self.master
-        baud = int(m.get("baudrate", 19200))
-        bits = bits_per_char(str(m.get("parity", "E")), m.get("stopbits", 1), m.get("bytesize", 8))
-        timing = apply_overrides(
-            compute_timing(baud, bits, str(m.get("timing", "modbus"))), m.get("t15"), m.get("t35")
+        """The bus's wire model from its line (an estimated turnaround of t3.5 until
+        the slaves' are measured)."""
+        line = self.line
+        return Wire(
+            line.char_time,
+            line.frame_gap,
+            turnaround=max(line.t35_time, line.char_time),
+            ascii=line.mode == "ascii",
         )
-        ascii_ = m.get("mode", "rtu") == "ascii"
-        char = bits / baud
-        t35 = 0.0 if ascii_ else timing.t35
-        return Wire(char, t35, turnaround=max(timing.t35, char), ascii=ascii_)
 
 
 @dataclass(frozen=True)
@@ -319,7 +324,6 @@ class _Loader:
             raise self.fail("bus", i, label, "port", f"must be a string, not {t['port']!r}")
         try:
             bus = Bus(t["name"], t["port"], master, limits=limits, **poller)
-            bus.wire()
         except ValueError as e:
             key, _, msg = str(e).partition(": ")
             raise self.fail("bus", i, label, key if key in known else None, msg or str(e)) from None
