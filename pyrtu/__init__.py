@@ -56,15 +56,14 @@ from .errors import (  # noqa: E402
 )
 from .master import Master  # noqa: E402
 from .pdu import CommEventLog  # noqa: E402
-from .slave import Slave  # noqa: E402
 from .poller import Poller  # noqa: E402  (after Master: the poller drives it)
+from .slave import Slave  # noqa: E402
 
 backend = _backend.backend
 available_backends = _backend.available_backends
 
 
 __all__ = [
-    "Poller",
     "BACKEND",
     "BONFIGLIOLI",
     "CV100",
@@ -83,6 +82,7 @@ __all__ = [
     "Master",
     "ModbusError",
     "NoResponseError",
+    "Poller",
     "PortError",
     "Slave",
     "SlaveException",

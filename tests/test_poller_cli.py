@@ -81,7 +81,10 @@ def test_json_updates_and_summary(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("text", "message"),
     [
-        ('[[bus]]\nname = 1\nport = "{port}"\n', "points.toml:2: bus[0]: name: must be a non-empty"),
+        (
+            '[[bus]]\nname = 1\nport = "{port}"\n',
+            "points.toml:2: bus[0]: name: must be a non-empty",
+        ),
         ("[[bus]]\nname = 1\n", "points.toml:1: bus[0]: port: missing"),
         (CONFIG.replace("0x3300", "-1"), 'points.toml:23: point[0] ("cv.status"): address:'),
         (CONFIG.replace("slave = 9", "slave = 300"), "slave: must be 1..247, not 300"),

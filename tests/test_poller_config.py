@@ -135,13 +135,13 @@ def test_semantic_errors_name_file_line_table_key() -> None:
         'table = "holding"\naddress = -1\n'  # fmt: skip
     msg = bad(text)
     assert msg == 'points.toml:21: point[1] ("cfw701.speed"): address: must be 0..65535, not -1'
-    assert bad(MINIMAL.replace("parity = \"E\"", "parity = \"X\"")) == (
+    assert bad(MINIMAL.replace('parity = "E"', 'parity = "X"')) == (
         "points.toml:5: bus[0] (\"line1\"): parity: must be one of N, E, O, M, S, not 'X'"
     )
     msg = bad(MINIMAL.replace("address = 680", "adress = 680"))
-    assert msg.startswith("points.toml:12: point[0] (\"cfw701.status\"): adress: unknown key")
+    assert msg.startswith('points.toml:12: point[0] ("cfw701.status"): adress: unknown key')
     msg = bad(MINIMAL.replace('table = "holding"', 'table = "registers"'))
-    assert msg.startswith("points.toml:11: point[0] (\"cfw701.status\"): table: must be one of")
+    assert msg.startswith('points.toml:11: point[0] ("cfw701.status"): table: must be one of')
     msg = bad(MINIMAL.replace('bus = "line1"', 'bus = "line2"'))
     assert msg == (
         "points.toml:9: point[0] (\"cfw701.status\"): bus: no bus named 'line2' (buses: line1)"
@@ -168,8 +168,8 @@ def test_more_bad_files() -> None:
               + '[[device]]\nbus = "line1"\nslave = 1\nmax_registers = 1\n')  # fmt: skip
     assert "takes 2 registers, more than slave 1 reads per request (1)" in msg
     assert msg.startswith("points.toml:7: point[0]")
-    msg = bad('[defaults]\ninterval = -1\n' + MINIMAL.replace("interval = 0.1\n", ""))
-    assert msg.startswith("points.toml:1: point[0] (\"cfw701.status\"): interval: must be greater")
+    msg = bad("[defaults]\ninterval = -1\n" + MINIMAL.replace("interval = 0.1\n", ""))
+    assert msg.startswith('points.toml:1: point[0] ("cfw701.status"): interval: must be greater')
     assert "(from [defaults])" in msg
 
 

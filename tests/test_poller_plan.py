@@ -66,7 +66,7 @@ def test_point_validation_names_the_field(kw: dict[str, object], field: str, wor
 
 
 def test_point_decoding_uses_the_data_helpers() -> None:
-    block = [0xFFFE] + encode_float32(1.5, "CDAB") + encode_uint32(70000) + encode_string("AB", 2)
+    block = [65534, *encode_float32(1.5, "CDAB"), *encode_uint32(70000), *encode_string("AB", 2)]
     assert pt(0).decode(block, 0) == 0xFFFE
     assert pt(0, type="int16").decode(block, 0) == -2
     assert pt(0, type="int16", scale=0.5, offset=1).decode(block, 0) == 0.0

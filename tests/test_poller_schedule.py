@@ -4,6 +4,7 @@ back-off and its share of the bus, the figures."""
 
 from __future__ import annotations
 
+import itertools
 from collections import Counter
 from collections.abc import Callable, Sequence
 
@@ -240,8 +241,8 @@ def test_dead_slave_backoff_and_share_of_the_bus() -> None:
     # probes are one short request each
     assert all(r.count == 1 for r, *_ in bus.done if r.kind == "probe")
     # exponential back-off: the gaps between probes grow (doubling up to the maximum)
-    gaps = [b[0] - a[1] for a, b in zip(probes, probes[1:], strict=False)]
-    assert all(b >= a - 1e-9 for a, b in zip(gaps, gaps[1:], strict=False))
+    gaps = [b[0] - a[1] for a, b in itertools.pairwise(probes)]
+    assert all(b >= a - 1e-9 for a, b in itertools.pairwise(gaps))
     assert gaps[-1] >= 4 * gaps[0]
     # the probes take at most 5 % of the bus time after the slave went offline
     spent = sum(e - s for s, e in probes)
@@ -263,7 +264,9 @@ def test_slave_comes_back_online() -> None:
     bus.run(10.0)
     states = [(e.slave, e.online) for e in bus.events if isinstance(e, SlaveState)]
     assert states == [(1, True), (2, False), (2, True)]
-    back = next(e.time for e in bus.events if isinstance(e, SlaveState) and e.online and e.slave == 2)
+    back = next(
+        e.time for e in bus.events if isinstance(e, SlaveState) and e.online and e.slave == 2
+    )
     # probed within the back-off cap plus the 5 % share floor of a 100 ms timeout
     assert back <= 5.0 + max(1.0, TIMEOUT * 19) + 0.2
     late = [k for r, s, _, k in bus.done if r.slave == 2 and s > back]

@@ -64,7 +64,7 @@ def config(bus_path: str, baud: int = BAUD, interval: float = 0.05, **bus_kw: ob
 
 def test_values_write_and_a_dropped_point() -> None:
     async def main() -> tuple[list[Event], object, object]:
-        with drives() as (bus, sims):
+        with drives() as (bus, _sims):
             events: list[Event] = []
             poller = Poller(config(bus.paths[0]))  # type: ignore[attr-defined,arg-type]
             poller.on_event(events.append)
@@ -90,7 +90,10 @@ def test_values_write_and_a_dropped_point() -> None:
     assert on_demand == CV100Simulator().store.holding_registers.get(C.STATUS_WORD_1)
     dropped = [e.point.name for e in events if isinstance(e, PointDropped)]
     assert dropped == ["weg.missing"]
-    assert [(e.slave, e.online) for e in events if isinstance(e, SlaveState)] == [(1, True), (5, True)]
+    assert [(e.slave, e.online) for e in events if isinstance(e, SlaveState)] == [
+        (1, True),
+        (5, True),
+    ]
     assert isinstance(summary, dict) and summary["summary"] is True
     slaves = {s["slave"]: s for s in summary["slaves"]}
     assert slaves[1]["state"] == slaves[5]["state"] == "online"
@@ -117,9 +120,7 @@ def test_a_slave_unplugged_and_replugged() -> None:
                         break
                 mark = len(events)
                 await asyncio.sleep(0.6)
-                during = Counter(
-                    e.point.slave for e in events[mark:] if isinstance(e, Update)
-                )
+                during = Counter(e.point.slave for e in events[mark:] if isinstance(e, Update))
                 path = bus.replug(2)  # type: ignore[attr-defined]
                 sims[1] = CV100Simulator()
                 sims[1].serve(path, 5, baudrate=BAUD, parity="N")

@@ -48,7 +48,9 @@ def build_parser() -> argparse.ArgumentParser:
         description=__doc__.split("\n\n")[1] if __doc__ else None,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("--config", required=True, metavar="FILE", help="the TOML file of buses and points")
+    p.add_argument(
+        "--config", required=True, metavar="FILE", help="the TOML file of buses and points"
+    )
     p.add_argument("-d", "--duration", type=positive_seconds, default=None, metavar="SECONDS",
                    help="stop after this time (default: on Ctrl-C)")  # fmt: skip
     p.add_argument("--json", action="store_true",
@@ -68,7 +70,9 @@ def main(argv: Sequence[str]) -> int:
     args = list(argv)
     verbose = 0
     while args and args[0] != "poll":
-        verbose += args[0].count("v") if args[0].startswith("-") and not args[0].startswith("--") else 1
+        verbose += (
+            args[0].count("v") if args[0].startswith("-") and not args[0].startswith("--") else 1
+        )
         args.pop(0)
     _logging(verbose)
     ns = build_parser().parse_args(args[1:])

@@ -19,20 +19,16 @@ from __future__ import annotations
 from .config import Bus, ConfigError, Device, PollerConfig, load_config, make_config, parse_config
 from .driver import Poller, PollerThread, encode_point
 from .events import BusReport, Overload, PointDropped, SlaveState, SlaveStats, Update
+from .masters import AsyncMasterLike, ThreadMaster
 from .plan import Block, Cuts, Limits, Wire, merge_pays, plan, split
 from .points import TABLES, TYPES, Point, PointError
 from .profiles import profile_points
-from .masters import AsyncMasterLike, ThreadMaster
 from .schedule import BusScheduler, Request
 
 __all__ = [
-    "AsyncMasterLike",
-    "Poller",
-    "PollerThread",
-    "ThreadMaster",
-    "encode_point",
     "TABLES",
     "TYPES",
+    "AsyncMasterLike",
     "Block",
     "Bus",
     "BusReport",
@@ -45,12 +41,16 @@ __all__ = [
     "Point",
     "PointDropped",
     "PointError",
+    "Poller",
     "PollerConfig",
+    "PollerThread",
     "Request",
     "SlaveState",
     "SlaveStats",
+    "ThreadMaster",
     "Update",
     "Wire",
+    "encode_point",
     "load_config",
     "make_config",
     "merge_pays",

@@ -41,7 +41,7 @@ import sys
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeGuard
 
 from ..line import LineConfig
 from .plan import Limits, Wire
@@ -66,7 +66,7 @@ LIMIT_KEYS = ("max_registers", "max_bits", "max_adu", "max_gap")
 POINT_KEYS = tuple(f.name for f in fields(Point))
 
 
-def _real(v: object) -> bool:
+def _real(v: object) -> TypeGuard[float]:
     return not isinstance(v, bool) and isinstance(v, int | float) and math.isfinite(v)
 
 
@@ -115,7 +115,7 @@ class Bus:
     offline_after: int = 3
     backoff: float = 0.5
     max_backoff: float = 30.0
-    limits: Limits = Limits()
+    limits: Limits = field(default_factory=Limits)
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name:
@@ -161,7 +161,7 @@ class Device:
 
     bus: str
     slave: int
-    limits: Limits = Limits()
+    limits: Limits = field(default_factory=Limits)
 
 
 @dataclass(frozen=True)
@@ -249,7 +249,9 @@ class _Loader:
         self.text = text
         self.source = source
 
-    def fail(self, array: str, index: int | None, label: str, key: str | None, msg: str) -> ConfigError:
+    def fail(
+        self, array: str, index: int | None, label: str, key: str | None, msg: str
+    ) -> ConfigError:
         line = None
         if index is not None:
             line = _locate(self.text, array, index, key)
@@ -280,8 +282,14 @@ class _Loader:
             raise ConfigError(f"{self.source}: defaults: must be a table ([defaults])")
         for k in defaults:
             if k not in POINT_KEYS or k in ("name", "address"):
-                raise self.fail("defaults", None, "defaults", k, "unknown key (defaults are "
-                                "point keys: bus, slave, table, type, order, interval, ...)")
+                raise self.fail(
+                    "defaults",
+                    None,
+                    "defaults",
+                    k,
+                    "unknown key (defaults are "
+                    "point keys: bus, slave, table, type, order, interval, ...)",
+                )
         buses = [self.bus(i, t) for i, t in enumerate(self.tables(doc, "bus"))]
         if not buses:
             raise ConfigError(f"{self.source}: no [[bus]] table")
@@ -336,7 +344,9 @@ class _Loader:
             key, _, msg = str(e).partition(": ")
             raise self.fail(array, i, label, key, msg) from None
 
-    def device(self, i: int, t: Mapping[str, Any], buses: Sequence[Bus]) -> tuple[Device, list[Point]]:
+    def device(
+        self, i: int, t: Mapping[str, Any], buses: Sequence[Bus]
+    ) -> tuple[Device, list[Point]]:
         label = f"device[{i}]"
         known = ("bus", "slave", "profile", "name", "interval", *LIMIT_KEYS)
         for k in t:
@@ -376,7 +386,9 @@ class _Loader:
         label = f"point[{i}]" + (f' ("{name}")' if isinstance(name, str) else "")
         for k in t:
             if k not in POINT_KEYS:
-                raise self.fail("point", i, label, k, f"unknown key (known: {', '.join(POINT_KEYS)})")
+                raise self.fail(
+                    "point", i, label, k, f"unknown key (known: {', '.join(POINT_KEYS)})"
+                )
         merged = {**defaults, **t}
         for k in ("name", "bus", "slave", "table", "address"):
             if k not in merged:
@@ -386,9 +398,13 @@ class _Loader:
         except PointError as e:
             key = e.field if e.field in t else None
             if key is None and e.field in defaults:
-                raise self.fail("defaults", None, label, e.field, e.detail + " (from [defaults])") from None
-            raise self.fail("point", i, label, e.field, e.detail) if key is None else self.fail(
-                "point", i, label, key, e.detail
+                raise self.fail(
+                    "defaults", None, label, e.field, e.detail + " (from [defaults])"
+                ) from None
+            raise (
+                self.fail("point", i, label, e.field, e.detail)
+                if key is None
+                else self.fail("point", i, label, key, e.detail)
             ) from None
 
 

@@ -440,8 +440,8 @@ class Poller:
 class PollerThread:
     """A `Poller` on its own asyncio loop in a background thread, for scripts::
 
-        with Poller(config).running() as p:
-            p.values(); p.write("pump.reference", 30.0); p.report()
+    with Poller(config).running() as p:
+        p.values(); p.write("pump.reference", 30.0); p.report()
     """
 
     def __init__(self, poller: Poller) -> None:

@@ -188,7 +188,7 @@ class Cuts:
 def plan(
     points: Iterable[Point],
     wire: Wire,
-    limits: Limits = Limits(),
+    limits: Limits | None = None,
     cuts: Cuts | None = None,
 ) -> list[Block]:
     """The blocks for ``points`` (any mix of slaves and tables: grouped by bus,
@@ -203,6 +203,7 @@ def plan(
     for p in points:
         groups.setdefault((p.bus, p.slave, p.table), []).append(p)
     cuts = cuts or Cuts()
+    limits = limits or Limits()
     out: list[Block] = []
     for (bus, slave, table), members in sorted(groups.items()):
         limit = limits.per_request(table)

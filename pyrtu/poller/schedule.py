@@ -111,7 +111,7 @@ class BusScheduler:
         points: Iterable[Point],
         wire: Wire,
         limits: Mapping[int, Limits] | None = None,
-        default_limits: Limits = Limits(),
+        default_limits: Limits | None = None,
         *,
         share: float = 0.05,
         offline_after: int = 3,
@@ -136,7 +136,7 @@ class BusScheduler:
         self.max_backoff = float(max_backoff)
         self.stamp_offset = stamp_offset
         self._limits = dict(limits or {})
-        self._default = default_limits
+        self._default = default_limits or Limits()
         self._points: list[Point] = []
         for p in points:
             if p.bus != bus:
@@ -213,7 +213,9 @@ class BusScheduler:
 
     # ------------------------------------------------------------------ requests
 
-    def submit_write(self, slave: int, table: str, address: int, values: Sequence[int | bool]) -> Request:
+    def submit_write(
+        self, slave: int, table: str, address: int, values: Sequence[int | bool]
+    ) -> Request:
         """Queue a write (ahead of every poll): one value -> FC 05/06, several ->
         FC 15/16.  Returns the request; its outcome comes back through
         `on_response`/`on_failure` like any other."""
@@ -420,10 +422,14 @@ class BusScheduler:
             for p in block.points:
                 if p.name not in self._dropped:
                     self._dropped.add(p.name)
-                    out.append(PointDropped(p, "exception 2 (ILLEGAL DATA ADDRESS)", now + self.stamp_offset))
+                    out.append(
+                        PointDropped(
+                            p, "exception 2 (ILLEGAL DATA ADDRESS)", now + self.stamp_offset
+                        )
+                    )
             self._tasks = [t for t in self._tasks if t.alive]
             return out
-        lo, hi = halves
+        _lo, hi = halves
         self._cuts.add(self.bus, block.slave, block.table, hi.address)
         self._tasks = [t for t in self._tasks if t.alive]
         self._replan(list(block.points), now)
