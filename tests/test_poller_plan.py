@@ -197,3 +197,24 @@ def test_wire_prices_ascii_and_broadcast() -> None:
     assert w.chars(8) == 17
     rtu = Wire(10 / 9600, 0.004, 0.001)
     assert rtu.frames(8, 0) == pytest.approx(0.004 + 8 * 10 / 9600)
+
+
+def test_encode_point_undoes_scale_and_offset() -> None:
+    from pyrtu.poller import encode_point
+
+    assert encode_point(pt(0, scale=0.1), 30.0) == [300]
+    assert encode_point(pt(0, type="int16", offset=-40), -50) == [0xFFF6]
+    assert encode_point(pt(0, type="float32", order="CDAB"), 1.5) == encode_float32(1.5, "CDAB")
+    assert encode_point(pt(0, type="uint32"), 70000) == encode_uint32(70000)
+    assert encode_point(pt(0, type="string", count=2), "AB") == encode_string("AB", 2)
+    assert encode_point(pt(0, table="coils"), True) == [True]
+    p = pt(0, type="uint32", order="DCBA")
+    assert p.decode(encode_point(p, 123456), 0) == 123456
+    with pytest.raises(ValueError, match="outside 0..65535"):
+        encode_point(pt(0), 70000)
+    with pytest.raises(ValueError, match="read only"):
+        encode_point(pt(0, table="input"), 1)
+    with pytest.raises(ValueError, match="finite number"):
+        encode_point(pt(0), "x")
+    with pytest.raises(ValueError, match="bool"):
+        encode_point(pt(0, table="coils"), 2)

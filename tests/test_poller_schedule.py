@@ -39,7 +39,8 @@ Outcome = Sequence[int] | Sequence[bool] | BaseException | None
 
 class FakeBus:
     """Runs a scheduler against a model of the slaves on a fake clock: a transaction
-    lasts its wire time (answered) or the timeout (no answer)."""
+    lasts its wire time (answered) or the timeout (no answer); the t3.5 silence
+    before a request is waited only where the line was not quiet that long."""
 
     def __init__(self, sched: BusScheduler, registers: dict[int, dict[int, int]] | None = None):
         self.sched = sched
@@ -48,6 +49,7 @@ class FakeBus:
         self.dead: set[int] = set()
         self.done: list[tuple[Request, float, float, str]] = []
         self.events: list[Event] = []
+        self.quiet_since = -1.0
 
     def answer(self, req: Request) -> tuple[Outcome, float]:
         if req.slave in self.dead:
@@ -75,7 +77,9 @@ class FakeBus:
                 continue
             outcome, duration = self.answer(req)
             start = self.now
-            self.now += duration
+            wait = max(0.0, self.quiet_since + WIRE.t35 - self.now)
+            self.now += duration - WIRE.t35 + wait
+            self.quiet_since = self.now
             if isinstance(outcome, BaseException):
                 self.events += self.sched.on_failure(req, outcome, self.now)
                 kind = type(outcome).__name__
@@ -295,9 +299,15 @@ def test_figures_latency_success_rate_and_reset() -> None:
     st = sched.slave_stats()[1]
     assert st.success_rate == 1.0 and st.requests >= 20
     expect = WIRE.read("holding", 1)
-    assert st.latency(50) == pytest.approx(expect) and st.latency(99) == pytest.approx(expect)
+    # slave 1 is asked on a quiet line (no t3.5 to wait), slave 2 right after it
+    first = expect - WIRE.t35
+    assert st.latency(50) == pytest.approx(first) and st.latency(99) == pytest.approx(first)
+    assert sched.slave_stats()[2].latency(50) == pytest.approx(expect)
     d = st.as_dict()
-    assert d["state"] == "online" and d["latency_p50_ms"] == pytest.approx(expect * 1e3, abs=1e-3)
+    assert d["state"] == "online" and d["latency_p50_ms"] == pytest.approx(first * 1e3, abs=1e-3)
+    # the wire time of each slave: its transactions with their t3.5 silences (but
+    # the first, which had no frame before it)
+    assert st.busy == pytest.approx((st.requests - 1) * expect + first)
     r = sched.report(bus.now)
     assert r.utilisation == pytest.approx(2 * expect / 0.1, rel=0.05)
     sched.reset_stats(bus.now)

@@ -56,6 +56,7 @@ def config(bus_path: str, baud: int = BAUD, interval: float = 0.05, **bus_kw: ob
     points = profile_points("cfw701", "weg", "line", 1, interval)
     points += profile_points("cv100", "cv", "line", 5, interval)
     points.append(Point("weg.missing", "line", 1, "holding", 2900, interval=interval))
+    points.append(Point("weg.ref", "line", 1, "holding", W.P_REFERENCE, scale=0.5, interval=1))
     kw: dict[str, object] = dict(share=0.05, offline_after=2, backoff=0.1, max_backoff=0.4)
     kw.update(bus_kw)
     bus = Bus("line", bus_path, {"baudrate": baud, "parity": "N", "timeout": 0.05}, **kw)  # type: ignore[arg-type]
@@ -70,9 +71,14 @@ def test_values_write_and_a_dropped_point() -> None:
             poller.on_event(events.append)
             async with poller:
                 await asyncio.sleep(0.5)
-                # a write of the WEG speed reference (P683), ahead of the polls
-                await poller.write_registers("line", 1, "holding", W.P_REFERENCE, [4096])
+                # writes of the WEG speed reference (P683), ahead of the polls
+                await poller.write("weg.ref", 2048.0)  # scale 0.5: raw 4096
                 ref = await poller.read_registers("line", 1, "holding", W.P_REFERENCE, 1)
+                await poller.write_registers("line", 1, "holding", W.P_REFERENCE, [100])
+                assert await poller.read("weg.ref") == 50.0
+                # FC 16: the acceleration and deceleration times P100/P101
+                await poller.write_registers("line", 1, "holding", W.P_ACCEL_TIME, [60, 120])
+                ref += await poller.read_registers("line", 1, "holding", W.P_ACCEL_TIME, 2)
                 on_demand = await poller.read("cv.status")
                 await asyncio.sleep(0.3)
                 return events, (ref, on_demand), poller.summary()
@@ -81,12 +87,12 @@ def test_values_write_and_a_dropped_point() -> None:
     updates = {e.point.name: e for e in events if isinstance(e, Update)}
     assert set(updates) == {
         "weg.status", "weg.speed", "weg.current", "weg.fault", "weg.alarm",
-        "cv.status", "cv.speed", "cv.current", "cv.fault",
+        "cv.status", "cv.speed", "cv.current", "cv.fault", "weg.ref",
     }  # fmt: skip
     sim_weg = CFW701Simulator()
     assert updates["weg.fault"].value == sim_weg.store.holding_registers.get(W.P_PRESENT_FAULT)
     assert isinstance(updates["cv.speed"].value, float)
-    assert ref == [4096]
+    assert ref == [4096, 60, 120]
     assert on_demand == CV100Simulator().store.holding_registers.get(C.STATUS_WORD_1)
     dropped = [e.point.name for e in events if isinstance(e, PointDropped)]
     assert dropped == ["weg.missing"]
@@ -201,10 +207,10 @@ def test_sync_facade() -> None:
                 C.LATEST_FAULT
             )
             for _ in range(40):
-                if len(p.values()) >= 9:
+                if len(p.values()) >= 10:
                     break
                 time.sleep(0.05)
-            assert len(p.values()) == 9 and p.age("weg.status") is not None
+            assert len(p.values()) == 10 and p.age("weg.status") is not None
             assert p.summary()["buses"][0]["transactions"] > 0
     with pytest.raises(Exception) as e:
         Poller(config("/nonexistent/port")).running().start()  # type: ignore[arg-type]

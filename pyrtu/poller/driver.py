@@ -382,9 +382,11 @@ class Poller:
 
     # ------------------------------------------------------------------ writes, reads
 
-    def _submit(self, run: _BusRun, reqs: Sequence[Request]) -> list[asyncio.Future[Any]]:
+    def _check_running(self) -> None:
         if not self._running:
             raise RuntimeError("the poller is not running (start it first)")
+
+    def _submit(self, run: _BusRun, reqs: Sequence[Request]) -> list[asyncio.Future[Any]]:
         loop = asyncio.get_running_loop()
         futs = []
         for r in reqs:
@@ -399,6 +401,7 @@ class Poller:
         poll on its bus; raises what the transaction raised."""
         p = self.point(name)
         words = encode_point(p, value)
+        self._check_running()
         run = self._runs[p.bus]
         (fut,) = self._submit(run, [run.sched.submit_write(p.slave, p.table, p.address, words)])
         await fut
@@ -408,12 +411,14 @@ class Poller:
     ) -> None:
         """Write raw ``values`` (FC 05/06/15/16) ahead of every poll on ``bus``."""
         run = self._run_of(bus)
+        self._check_running()
         (fut,) = self._submit(run, [run.sched.submit_write(slave, table, address, values)])
         await fut
 
     async def read(self, name: str) -> Value:
         """Read point ``name`` now, ahead of every poll on its bus."""
         p = self.point(name)
+        self._check_running()
         run = self._runs[p.bus]
         (fut,) = self._submit(run, run.sched.submit_read(p.slave, p.table, p.address, p.size))
         data = await fut
@@ -424,6 +429,7 @@ class Poller:
     ) -> list[int] | list[bool]:
         """Read ``count`` registers (or bits) now, ahead of every poll on ``bus``."""
         run = self._run_of(bus)
+        self._check_running()
         futs = self._submit(run, run.sched.submit_read(slave, table, address, count))
         out: list[Any] = []
         for f in futs:

@@ -74,7 +74,8 @@ def percentile(sorted_values: list[float], q: float) -> float | None:
 
 @dataclass
 class SlaveStats:
-    """Counts of one slave's transactions and its latencies (the last 1024)."""
+    """Counts of one slave's transactions, the wire time they took (``busy``,
+    seconds) and their latencies (the last 1024)."""
 
     bus: str
     slave: int
@@ -84,6 +85,7 @@ class SlaveStats:
     exceptions: int = 0
     frame_errors: int = 0
     online: bool | None = None
+    busy: float = 0.0
     latencies: deque[float] = field(default_factory=lambda: deque(maxlen=1024))
 
     @property
@@ -106,6 +108,7 @@ class SlaveStats:
             "exceptions": self.exceptions,
             "frame_errors": self.frame_errors,
             "state": state,
+            "busy_s": round(self.busy, 4),
             "success_rate": None if rate is None else round(rate, 4),
             "latency_p50_ms": None if p50 is None else round(p50 * 1e3, 3),
             "latency_p99_ms": None if p99 is None else round(p99 * 1e3, 3),

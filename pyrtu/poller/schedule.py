@@ -10,9 +10,9 @@ when the transaction gave up); when nothing is due it sleeps until `deadline()`
 2. a probe of an offline slave whose back-off has run out;
 3. the poll block with the earliest due time, if it is due.
 
-Every transaction's wire-busy time (from `next_request` to the end of the
-answer, which includes the inter-frame silence) is counted, so the scheduler
-knows the bus's utilisation; the wire time each block needs per second (from the
+Every transaction's wire-busy time is counted (from `next_request` to the end of
+the answer or the timeout, plus the part of the mandatory t3.5 silence that
+passed before `next_request`), so the scheduler knows the bus's utilisation; the wire time each block needs per second (from the
 frame lengths, character time, t3.5 and the slave's measured turnaround) sums to
 the bus's *load*: above 1 the configured rates exceed the wire, an `Overload`
 event says so and names the points that lag.
@@ -160,6 +160,7 @@ class BusScheduler:
         self._overloaded = False
         self._load = 0.0
         self._since_check = 0
+        self._prev_end: float | None = None
         for p in self._points:
             self._slave(p.slave)
         for slave, h in self._health.items():
@@ -306,14 +307,22 @@ class BusScheduler:
     # ------------------------------------------------------------------ outcomes
 
     def _end(self, req: Request, now: float) -> float:
+        """Count a finished transaction; returns its latency (issue to end)."""
         busy = max(0.0, now - req.issued)
-        self._stats.busy += busy
+        # the silence of t3.5 after the previous frame is wire time too: the part of
+        # it that passed before this request was issued is not inside ``busy``
+        silence = 0.0
+        if self._prev_end is not None:
+            silence = min(self.wire.t35, max(0.0, req.issued - self._prev_end))
+        self._prev_end = now
+        self._stats.busy += busy + silence
         self._stats.transactions += 1
         st = self._stats.slaves.get(req.slave)
         if st is None:
             self._slave(req.slave)
             st = self._stats.slaves[req.slave]
         st.requests += 1
+        st.busy += busy + silence
         return busy
 
     def _requeue(self, req: Request) -> None:
