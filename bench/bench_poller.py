@@ -88,7 +88,7 @@ def farm(baud: int) -> Iterator[tuple[str, list[subprocess.Popen[bytes]]]]:
                     str(baud),
                     "-P",
                     "N",
-                ],  # fmt: skip
+                ],
                 stdout=subprocess.DEVNULL,
                 stderr=subprocess.DEVNULL,
             )
@@ -266,7 +266,8 @@ def section(runs: list[dict[str, Any]], command: str) -> str:
         "all-alive rate; the naive loop for comparison.",
         "",
         "| baud | interval | poller: others' rate dead/alive (worst) | "
-        "the dead slave's share of the bus (its probes' wire time / wall time) | naive loop: others' rate dead/alive |",
+        "the dead slave's share of the bus (its probes' wire time / wall time) | "
+        "naive loop: others' rate dead/alive |",
         "|---|---|---|---|---|",
     ]
     for r in runs:

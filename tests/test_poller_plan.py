@@ -210,7 +210,7 @@ def test_encode_point_undoes_scale_and_offset() -> None:
     assert encode_point(pt(0, table="coils"), True) == [True]
     p = pt(0, type="uint32", order="DCBA")
     assert p.decode(encode_point(p, 123456), 0) == 123456
-    with pytest.raises(ValueError, match="outside 0..65535"):
+    with pytest.raises(ValueError, match=r"outside 0\.\.65535"):
         encode_point(pt(0), 70000)
     with pytest.raises(ValueError, match="read only"):
         encode_point(pt(0, table="input"), 1)

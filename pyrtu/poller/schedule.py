@@ -12,10 +12,11 @@ when the transaction gave up); when nothing is due it sleeps until `deadline()`
 
 Every transaction's wire-busy time is counted (from `next_request` to the end of
 the answer or the timeout, plus the part of the mandatory t3.5 silence that
-passed before `next_request`), so the scheduler knows the bus's utilisation; the wire time each block needs per second (from the
-frame lengths, character time, t3.5 and the slave's measured turnaround) sums to
-the bus's *load*: above 1 the configured rates exceed the wire, an `Overload`
-event says so and names the points that lag.
+passed before `next_request`), so the scheduler knows the bus's utilisation; the
+wire time each block needs per second (from the frame lengths, character time,
+t3.5 and the slave's measured turnaround) sums to the bus's *load*: above 1 the
+configured rates exceed the wire, an `Overload` event says so and names the
+points that lag.
 
 Slave health: ``offline_after`` consecutive failed transactions (no answer, or
 garbage) take a slave offline (`SlaveState` event): its blocks leave the schedule
