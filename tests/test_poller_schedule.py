@@ -338,3 +338,21 @@ def test_scheduler_rejects_bad_setup() -> None:
         BusScheduler("x", [pt(0)], WIRE)
     with pytest.raises(ValueError, match="at most 1 per request"):
         BusScheduler("b", [pt(0, type="uint32")], WIRE, {1: Limits(max_registers=1)})
+
+
+def test_utilisation_counts_only_the_window() -> None:
+    sched = BusScheduler("b", [pt(0, interval=0.01)], WIRE)
+    req = sched.next_request(0.0)
+    assert req is not None
+    sched.reset_stats(0.005)  # the statistics start with a transaction in flight
+    sched.on_response(req, [0], 0.010)
+    assert sched.slave_stats()[1].busy == pytest.approx(0.005)
+    req = sched.next_request(0.0105)  # 0.5 ms after the last frame: part of t3.5
+    assert req is not None
+    sched.on_response(req, [0], 0.020)
+    assert sched.slave_stats()[1].busy == pytest.approx(0.005 + 0.0005 + 0.0095)
+    assert sched.report(0.020).utilisation == pytest.approx(1.0)
+    req = sched.next_request(0.030)  # after a long silence: a whole t3.5 more
+    assert req is not None
+    sched.on_response(req, [0], 0.035)
+    assert sched.slave_stats()[1].busy == pytest.approx(0.015 + WIRE.t35 + 0.005)

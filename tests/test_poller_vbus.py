@@ -215,3 +215,38 @@ def test_sync_facade() -> None:
     with pytest.raises(Exception) as e:
         Poller(config("/nonexistent/port")).running().start()  # type: ignore[arg-type]
     assert "nonexistent" in str(e.value)
+
+
+def test_two_buses_at_once() -> None:
+    async def main() -> tuple[list[Event], dict[str, object]]:
+        with VirtualBus(2, baudrate=BAUD, parity="N") as b1, VirtualBus(
+            2, baudrate=19200, parity="N"
+        ) as b2:
+            s1, s2 = CFW701Simulator(), CV100Simulator()
+            s1.serve(b1.paths[1], 1, baudrate=BAUD, parity="N")
+            s2.serve(b2.paths[1], 5, baudrate=19200, parity="N")
+            try:
+                buses = [
+                    Bus("fast", b1.paths[0], {"baudrate": BAUD, "parity": "N", "timeout": 0.05}),
+                    Bus("slow", b2.paths[0], {"baudrate": 19200, "parity": "N", "timeout": 0.1}),
+                ]
+                points = profile_points("cfw701", "weg", "fast", 1, 0.05)
+                points += profile_points("cv100", "cv", "slow", 5, 0.05)
+                events: list[Event] = []
+                poller = Poller(make_config(buses, points))
+                poller.on_event(events.append)
+                async with poller:
+                    await asyncio.sleep(1.0)
+                    return events, poller.summary()
+            finally:
+                s1.close()
+                s2.close()
+
+    events, summary = asyncio.run(main())
+    by_bus = Counter(e.point.bus for e in events if isinstance(e, Update))
+    assert by_bus["fast"] == 5 and by_bus["slow"] == 4  # every point, change-only
+    buses = summary["buses"]
+    assert isinstance(buses, list) and [b["bus"] for b in buses] == ["fast", "slow"]
+    assert all(b["transactions"] > 5 for b in buses)
+    # the 19200-baud line is busier for the same rates
+    assert buses[1]["load"] > buses[0]["load"]

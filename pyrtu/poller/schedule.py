@@ -309,22 +309,27 @@ class BusScheduler:
 
     def _end(self, req: Request, now: float) -> float:
         """Count a finished transaction; returns its latency (issue to end)."""
-        busy = max(0.0, now - req.issued)
+        latency = max(0.0, now - req.issued)
+        # only what falls inside the statistics' window counts (a transaction in
+        # flight when the window started counts from its start)
+        start = self._stats.started
+        issued = req.issued if start is None else max(req.issued, start)
+        busy = max(0.0, now - issued)
         # the silence of t3.5 after the previous frame is wire time too: the part of
         # it that passed before this request was issued is not inside ``busy``
-        silence = 0.0
         if self._prev_end is not None:
-            silence = min(self.wire.t35, max(0.0, req.issued - self._prev_end))
+            after = self._prev_end if start is None else max(self._prev_end, start)
+            busy += min(self.wire.t35, max(0.0, issued - after))
         self._prev_end = now
-        self._stats.busy += busy + silence
+        self._stats.busy += busy
         self._stats.transactions += 1
         st = self._stats.slaves.get(req.slave)
         if st is None:
             self._slave(req.slave)
             st = self._stats.slaves[req.slave]
         st.requests += 1
-        st.busy += busy + silence
-        return busy
+        st.busy += busy
+        return latency
 
     def _requeue(self, req: Request) -> None:
         task = req.task
