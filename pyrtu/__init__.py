@@ -12,6 +12,7 @@ from . import _backend
 from ._version import __version__ as __version__
 from .ascii import decode_ascii, encode_ascii
 from .frames import ErrorReason, Frame, FrameKind, FrameList
+from .line import LineConfig
 from .rules import BONFIGLIOLI, CV100, LengthRule
 from .timing import Timing
 
@@ -79,6 +80,7 @@ __all__ = [
     "FrameList",
     "Framer",
     "LengthRule",
+    "LineConfig",
     "Master",
     "ModbusError",
     "NoResponseError",

@@ -123,7 +123,9 @@ class FramerBase:
         else:
             _check_line(line, (*given, rules, flush_timeout), "Framer")
             if line.mode != "rtu":
-                raise ValueError("line: Framer frames RTU; for ASCII use line.framer()")
+                raise ValueError(
+                    "line: Framer frames RTU; for ASCII use pyrtu.ascii.make_framer(line)"
+                )
             self.options = line.options(role)
         self.role = role
         self._core = self._make_core(self.options)

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import binascii
 from collections import deque
+from types import ModuleType
+from typing import Any
 
 from ._backend import active
 from ._types import BytesLike
@@ -52,6 +54,14 @@ def decode_ascii(frame: BytesLike) -> bytes:
     if check != expected:
         raise ValueError(f"decode_ascii: LRC is {check:02X}, expected {expected:02X}")
     return message
+
+
+def make_framer(line: LineConfig, role: str = "master", backend: ModuleType | None = None) -> Any:
+    """The receiver for ``line``: the RTU ``Framer`` of ``backend`` (default: the active
+    backend) or, in ASCII mode, an `AsciiFramer`; both yield `Frame` events."""
+    if line.mode == "ascii":
+        return AsciiFramer(role, line=line)
+    return (backend or active).Framer(role, line=line)
 
 
 class AsciiFramer:

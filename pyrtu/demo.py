@@ -156,8 +156,8 @@ class Demo:
         cfw701.set(weg.P_DECEL_TIME, accel)
 
     def run(self) -> int:
-        import pyrtu
-
+        from ._backend import active
+        from ._version import __version__
         from .devices import PROFILES
         from .master import Master
         from .vbus import VirtualBus
@@ -166,7 +166,7 @@ class Demo:
         self._simulators()
         baud = args.baudrate
         self.say(
-            f"pyrtu {pyrtu.__version__} demo (backend {pyrtu.BACKEND}): a virtual RS-485 bus, "
+            f"pyrtu {__version__} demo (backend {active.BACKEND}): a virtual RS-485 bus, "
             f"{baud} baud 8N1, a master and {len(self.drives)} simulated drives; no hardware"
         )
         with VirtualBus(1 + len(self.drives), baudrate=baud, parity="N") as bus:

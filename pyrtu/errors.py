@@ -16,6 +16,8 @@ code; it is not a `ModbusError` (nothing went wrong on the bus).
 
 from __future__ import annotations
 
+from .functions import FUNCTION_NAMES
+
 #: Exception codes (Application Protocol V1.1b section 7; 7 from the serial-line
 #: diagnostics, "NAK", counted by FC 08 sub-function 0x10).
 EXCEPTION_NAMES: dict[int, str] = {
@@ -60,8 +62,6 @@ class ExceptionResponseError(ModbusError):
         self.function = function
         self.code = code
         self.name = exception_name(code)
-        from ._pdu_base import FUNCTION_NAMES  # here: _pdu_base imports this module
-
         known = FUNCTION_NAMES.get(function)
         what = (
             f"{known} (function {function})" if known else f"function {function} (0x{function:02X})"

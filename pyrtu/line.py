@@ -7,7 +7,7 @@ written out in six places before it)::
     line = LineConfig(baudrate=9600, parity="N", stopbits=2)
     line.times            # Timing(char_us=1146, t15_us=1719, t35_us=4010)
     line.t35_time         # 0.00401 (seconds)
-    framer = line.framer("master")
+    framer = pyrtu.Framer("master", line=line)
 
 Fields (all keyword, all checked in the constructor; a bad value raises
 ValueError naming the keyword):
@@ -36,7 +36,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from types import MappingProxyType, ModuleType
+from types import MappingProxyType
 from typing import Any
 
 from .config import CoreOptions, core_options
@@ -168,18 +168,6 @@ class LineConfig:
     def replace(self, **changes: Any) -> LineConfig:
         """A copy with ``changes`` applied (checked like the constructor)."""
         return dataclasses.replace(self, **changes)
-
-    def framer(self, role: str = "master", backend: ModuleType | str | None = None) -> Any:
-        """A receiver for this line: the RTU `Framer` of ``backend`` (default: the
-        active one) or, in ASCII mode, an `AsciiFramer`; both yield `Frame` events."""
-        if self.mode == "ascii":
-            from .ascii import AsciiFramer
-
-            return AsciiFramer(role, line=self)
-        from . import _backend
-
-        be = backend if isinstance(backend, ModuleType) else _backend.backend(backend)
-        return be.Framer(role, line=self)
 
     @classmethod
     def of(cls, line: LineConfig | None = None, **kwargs: Any) -> LineConfig:

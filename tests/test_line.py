@@ -7,7 +7,7 @@ from types import ModuleType
 import pytest
 
 from pyrtu import BONFIGLIOLI
-from pyrtu.ascii import AsciiFramer
+from pyrtu.ascii import AsciiFramer, make_framer
 from pyrtu.line import LineConfig
 from pyrtu.timing import Timing
 
@@ -30,7 +30,7 @@ def test_rules_overrides_and_modes() -> None:
     assert LineConfig(t35=0.0, t15=0.0).times.t35_us == 0
     ascii_line = LineConfig(mode="ascii")
     assert ascii_line.frame_gap == 0.0
-    assert isinstance(ascii_line.framer("master"), AsciiFramer)
+    assert isinstance(make_framer(ascii_line, "master"), AsciiFramer)
     line = LineConfig(rules=BONFIGLIOLI)
     assert dict(line.rules) == dict(BONFIGLIOLI)
     with pytest.raises(TypeError):
@@ -76,12 +76,12 @@ def test_framer_and_parse_stream_take_a_line(backend: ModuleType) -> None:
     ev = f.next_event()
     assert ev is not None and ev.adu == adu
     assert [fr.adu for fr in backend.parse_stream(adu, "slave", line=line)] == [adu]
-    assert line.framer("slave", backend).options == f.options
+    assert make_framer(line, "slave", backend).options == f.options
     with pytest.raises(TypeError, match="not both"):
         backend.Framer("slave", line=line, baudrate=9600)
     with pytest.raises(TypeError, match="not both"):
         backend.parse_stream(adu, line=line, strict=True)
     with pytest.raises(TypeError, match="LineConfig"):
         backend.Framer("slave", line={"baudrate": 9600})
-    with pytest.raises(ValueError, match="ASCII"):
+    with pytest.raises(ValueError, match="ASCII"):  # make_framer() picks AsciiFramer
         backend.Framer("slave", line=LineConfig(mode="ascii"))

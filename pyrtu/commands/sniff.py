@@ -262,20 +262,18 @@ def from_capture(path: str, profile: str | None, args: argparse.Namespace) -> It
 
 
 def from_example(profile: str | None) -> Iterator[Seen]:
-    import pyrtu
-
+    from .._backend import active as core
     from ..rules import BONFIGLIOLI
 
     data, chunks = example_capture()
     rules = _rules(profile) or dict(BONFIGLIOLI)
-    for frame in pyrtu.parse_stream(data, "monitor", chunks=chunks, rules=rules):
+    for frame in core.parse_stream(data, "monitor", chunks=chunks, rules=rules):
         yield _seen_rtu(frame)
 
 
 def from_port(args: argparse.Namespace, stop: Any) -> Iterator[Seen]:
     """Frames heard on a live port until ``stop`` is set."""
-    import pyrtu
-
+    from .._backend import active as core
     from ..ascii import AsciiFramer
     from ..port import open_port
 
@@ -284,7 +282,7 @@ def from_port(args: argparse.Namespace, stop: Any) -> Iterator[Seen]:
     framer: Any = (
         AsciiFramer("monitor")
         if ascii_mode
-        else pyrtu.Framer("monitor", rules=_rules(args.profile) or None, **framing_kwargs(args))
+        else core.Framer("monitor", rules=_rules(args.profile) or None, **framing_kwargs(args))
     )
     clock = time.monotonic
     try:
@@ -313,9 +311,9 @@ def from_port(args: argparse.Namespace, stop: Any) -> Iterator[Seen]:
 
 def example_capture() -> tuple[bytes, list[tuple[int, float]]]:
     """(data, chunks) of a small bus capture at 19200 baud 8E1."""
-    import pyrtu
+    from .._backend import active as core
 
-    add = pyrtu.add_crc
+    add = core.add_crc
     t = 10.0
     parts: list[tuple[bytes, float]] = []
 

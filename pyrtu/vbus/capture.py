@@ -142,11 +142,11 @@ class Capture:
 
     def parse(self, role: str = "monitor", **kwargs: Any) -> Sequence[Any]:
         """Decode the capture with ``pyrtu.parse_stream`` (monitor role by default)."""
-        import pyrtu
+        from .._backend import active as core
 
         options = self.parse_kwargs()
         options.update(kwargs)
-        result: Sequence[Any] = pyrtu.parse_stream(
+        result: Sequence[Any] = core.parse_stream(
             self.data, role, times=list(self.times), **options
         )
         return result

@@ -1,0 +1,369 @@
+"""Issue 10: the master on the sans-I/O client protocol, on the virtual bus.
+
+    python bench/bench_client.py [--json FILE] [--write] [--quick]
+
+Every bus is a separate ``pyrtu vbus`` process (its hub keeps the byte timing away
+from the GIL of the process under test) and every server a separate process, so
+the CPU figures are the master's own:
+
+1. single bus, FC 03 x 10 registers, byte-timed delivery, specification timing on
+   both sides, the pyrtu slave (tests/peers/pyrtu_slave.py) on drop 1, at 9600 and
+   115200 baud 8N1: the sync `Master` and `AsyncMaster` (on `pyrtu.aio.run`'s
+   microsecond-timer loop): transactions/s, ratio to the wire limit
+   1 / (33 characters + 2 x t3.5), master CPU per transaction (thread CPU time);
+2. pymodbus's ``AsyncModbusSerialClient`` on the same bus against the same slave,
+   at 115200: transactions/s and CPU per transaction, and the ratios;
+3. 8 buses at 115200, a simulated drive on each (``pyrtu simulate cfw100``), polled
+   concurrently by one `AsyncMaster` process (8 masters in one event loop): every
+   bus's ratio to the wire limit and the process's total CPU.
+
+``--write`` replaces the section "## Sans-I/O client (issue 10)" of bench/RESULTS.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import json
+import os
+import resource
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+BENCH = Path(__file__).resolve().parent
+ROOT = BENCH.parent
+sys.path.insert(0, str(ROOT / "tests"))
+
+import peers.pattern as pattern  # noqa: E402
+
+from pyrtu.aio import AsyncMaster  # noqa: E402
+from pyrtu.aio import run as aio_run  # noqa: E402
+from pyrtu.line import LineConfig  # noqa: E402
+from pyrtu.master import Master  # noqa: E402
+
+SLAVE = 7
+COUNT = 10
+EXPECTED = pattern.holdings(SLAVE, 0, COUNT)
+RESULTS = BENCH / "RESULTS.md"
+HEADING = "## Sans-I/O client (issue 10)"
+BEGIN, END = "<!-- client:begin (bench/bench_client.py) -->", "<!-- client:end -->"
+
+
+def wire_limit(baudrate: int, bits: int = 10) -> float:
+    """Transactions per second the wire allows: 33 characters and two t3.5 silences."""
+    line = LineConfig(baudrate=baudrate, parity="N" if bits == 10 else "E")
+    return 1.0 / (33 * line.char_time + 2 * line.t35_time)
+
+
+def cpu_of(pid: int) -> float:
+    with open(f"/proc/{pid}/stat", encoding="ascii") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+@contextlib.contextmanager
+def process(argv: list[str], ready_lines: int = 0) -> Iterator[tuple[subprocess.Popen[str], list[str]]]:
+    """A child process; the first ``ready_lines`` lines of its stdout are returned."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, text=True, env=env, cwd=ROOT)
+    try:
+        lines = []
+        assert proc.stdout is not None
+        for _ in range(ready_lines):
+            lines.append(proc.stdout.readline().strip())
+        yield proc, lines
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(5)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+
+@contextlib.contextmanager
+def vbus(baudrate: int, drops: int = 2) -> Iterator[tuple[list[str], int]]:
+    """``pyrtu vbus`` in its own process: (drop paths, pid)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        argv = [sys.executable, "-m", "pyrtu", "vbus", "--drops", str(drops)]
+        argv += ["--baud", str(baudrate), "--parity", "N", "--dir", tmp]
+        with process(argv, drops) as (proc, paths):
+            yield paths, proc.pid
+
+
+@contextlib.contextmanager
+def slave(path: str, baudrate: int) -> Iterator[int]:
+    argv = [sys.executable, str(ROOT / "tests/peers/pyrtu_slave.py"), path, str(SLAVE)]
+    argv += ["--baud", str(baudrate)]
+    with process(argv) as (proc, _):
+        time.sleep(0.5)
+        yield proc.pid
+
+
+@contextlib.contextmanager
+def drive(path: str, baudrate: int) -> Iterator[int]:
+    argv = [sys.executable, "-m", "pyrtu", "simulate", "cfw100", "--port", path]
+    argv += ["--baudrate", str(baudrate), "-P", "N", "--address", "1"]
+    with process(argv) as (proc, _):
+        time.sleep(0.8)
+        yield proc.pid
+
+
+def sync_master(path: str, baudrate: int, n: int) -> dict[str, float]:
+    with Master(path, baudrate, parity="N", timeout=1.0) as m:
+        for _ in range(5):
+            assert m.read_holding_registers(SLAVE, 0, COUNT) == EXPECTED
+        c0, t0 = time.thread_time(), time.perf_counter()
+        for _ in range(n):
+            if m.read_holding_registers(SLAVE, 0, COUNT) != EXPECTED:
+                raise AssertionError("wrong value")
+        wall, cpu = time.perf_counter() - t0, time.thread_time() - c0
+        assert m.counters["timeouts"] == m.counters["frame_errors"] == 0
+    return {"tps": n / wall, "cpu_us": cpu / n * 1e6}
+
+
+def async_master(path: str, baudrate: int, n: int) -> dict[str, float]:
+    async def main() -> dict[str, float]:
+        async with AsyncMaster(path, baudrate, parity="N", timeout=1.0) as m:
+            for _ in range(5):
+                assert await m.read_holding_registers(SLAVE, 0, COUNT) == EXPECTED
+            c0, t0 = time.thread_time(), time.perf_counter()
+            for _ in range(n):
+                if await m.read_holding_registers(SLAVE, 0, COUNT) != EXPECTED:
+                    raise AssertionError("wrong value")
+            wall, cpu = time.perf_counter() - t0, time.thread_time() - c0
+            assert m.counters["timeouts"] == m.counters["frame_errors"] == 0
+        return {"tps": n / wall, "cpu_us": cpu / n * 1e6}
+
+    result: dict[str, float] = aio_run(main())
+    return result
+
+
+def pymodbus_master(path: str, baudrate: int, n: int) -> dict[str, float]:
+    from pymodbus.client import AsyncModbusSerialClient
+
+    async def main() -> dict[str, float]:
+        client = AsyncModbusSerialClient(
+            path, baudrate=baudrate, parity="N", stopbits=1, bytesize=8, timeout=1.0, retries=0
+        )
+        await client.connect()
+        try:
+            for _ in range(5):
+                rr = await client.read_holding_registers(0, count=COUNT, device_id=SLAVE)
+                assert list(rr.registers) == EXPECTED
+            c0, t0 = time.thread_time(), time.perf_counter()
+            ok = 0
+            for _ in range(n):
+                rr = await client.read_holding_registers(0, count=COUNT, device_id=SLAVE)
+                ok += list(rr.registers) == EXPECTED
+            wall, cpu = time.perf_counter() - t0, time.thread_time() - c0
+        finally:
+            client.close()
+        return {"tps": n / wall, "cpu_us": cpu / n * 1e6, "ok": ok}
+
+    return asyncio.run(main())
+
+
+def single_bus(baudrate: int, n: int, rounds: int, pymodbus: bool) -> dict[str, Any]:
+    out: dict[str, Any] = {"baudrate": baudrate, "wire_limit": wire_limit(baudrate)}
+    with vbus(baudrate) as (paths, hub_pid), slave(paths[1], baudrate) as slave_pid:
+        runs: dict[str, list[dict[str, float]]] = {"sync": [], "asyncio": [], "pymodbus": []}
+        for _ in range(rounds):  # interleaved: the machine is shared and drifts
+            runs["sync"].append(sync_master(paths[0], baudrate, n))
+            runs["asyncio"].append(async_master(paths[0], baudrate, n))
+            if pymodbus:
+                runs["pymodbus"].append(pymodbus_master(paths[0], baudrate, max(n // 2, 20)))
+        for name, rs in runs.items():
+            if rs:
+                out[name] = {
+                    "tps": statistics.median(r["tps"] for r in rs),
+                    "cpu_us": statistics.median(r["cpu_us"] for r in rs),
+                    "rounds": len(rs),
+                    "n": n,
+                }
+                out[name]["ratio"] = out[name]["tps"] / out["wire_limit"]
+        out["hub_cpu_s"] = cpu_of(hub_pid)
+        out["slave_cpu_s"] = cpu_of(slave_pid)
+    return out
+
+
+def eight_buses(baudrate: int, seconds: float, buses: int = 8) -> dict[str, Any]:
+    """``buses`` buses, a simulated CFW100 on each, polled by one AsyncMaster process
+    (this one) for ``seconds``: FC 03 x 10 registers from 0 (speed reference, ...)."""
+    with contextlib.ExitStack() as stack:
+        paths: list[str] = []
+        hubs: list[int] = []
+        for _ in range(buses):
+            p, pid = stack.enter_context(vbus(baudrate))
+            paths.append(p[0])
+            hubs.append(pid)
+            stack.enter_context(drive(p[1], baudrate))
+        counts = [0] * buses
+
+        async def main() -> tuple[float, float, float]:
+            masters = [AsyncMaster(p, baudrate, parity="N", timeout=1.0) for p in paths]
+            try:
+                for m in masters:  # warm-up, and the drive answers
+                    await m.read_holding_registers(1, 0, COUNT)
+                stop = time.perf_counter() + seconds
+
+                async def poll(i: int, m: AsyncMaster) -> None:
+                    while time.perf_counter() < stop:
+                        await m.read_holding_registers(1, 0, COUNT)
+                        counts[i] += 1
+
+                r0 = resource.getrusage(resource.RUSAGE_SELF)
+                t0 = time.perf_counter()
+                await asyncio.gather(*(poll(i, m) for i, m in enumerate(masters)))
+                wall = time.perf_counter() - t0
+                r1 = resource.getrusage(resource.RUSAGE_SELF)
+                cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
+                errors = sum(m.counters["timeouts"] + m.counters["frame_errors"] for m in masters)
+                return wall, cpu, float(errors)
+            finally:
+                for m in masters:
+                    await m.close()
+
+        wall, cpu, errors = aio_run(main())
+        hub_cpu = sum(cpu_of(h) for h in hubs)
+    limit = wire_limit(baudrate)
+    tps = [c / wall for c in counts]
+    return {
+        "baudrate": baudrate,
+        "buses": buses,
+        "seconds": wall,
+        "tps": tps,
+        "ratios": [t / limit for t in tps],
+        "wire_limit": limit,
+        "process_cpu_s": cpu,
+        "process_cpu_share": cpu / wall,
+        "cpu_us_per_tx": cpu / sum(counts) * 1e6,
+        "errors": errors,
+        "hub_cpu_s_total": hub_cpu,
+    }
+
+
+def section(data: dict[str, Any]) -> str:
+    lines = [
+        HEADING,
+        "",
+        BEGIN,
+        "",
+        f"`python bench/bench_client.py --write`, one run, {data['when']}. {data['machine']}.",
+        "",
+        "FC 03, 10 holding registers, every answer checked.  Each bus is a `pyrtu vbus`",
+        "process (byte-timed delivery) and each server a process of its own: CPU is the",
+        "master's thread.  Specification timing on both sides (t3.5 = 3.5 characters up to",
+        "19200 baud, 1750 µs above).  Wire limit = 1 / (33 characters + 2 x t3.5).  Medians",
+        f"over {data['rounds']} interleaved rounds.  The asyncio master runs on",
+        "`pyrtu.aio.run` (a select() loop: microsecond timers; the default epoll loop",
+        "rounds every timer up to a millisecond).",
+        "",
+        "| baud | master | transactions/s | wire limit /s | ratio | master CPU µs/tx |",
+        "|---:|---|---:|---:|---:|---:|",
+    ]
+    for bus in data["single"]:
+        for name in ("sync", "asyncio", "pymodbus"):
+            r = bus.get(name)
+            if r:
+                label = {"sync": "pyrtu Master", "asyncio": "pyrtu AsyncMaster"}.get(
+                    name, "pymodbus AsyncModbusSerialClient"
+                )
+                lines.append(
+                    f"| {bus['baudrate']} | {label} | {r['tps']:.1f} | {bus['wire_limit']:.1f} | "
+                    f"**{r['ratio']:.3f}** | {r['cpu_us']:.1f} |"
+                )
+    lines.append("")
+    for bus in data["single"]:
+        if bus.get("pymodbus"):
+            a, p = bus["asyncio"], bus["pymodbus"]
+            lines.append(
+                f"- {bus['baudrate']} baud, AsyncMaster / pymodbus AsyncModbusSerialClient: "
+                f"transactions/s **{a['tps'] / p['tps']:.2f}x**, CPU per transaction "
+                f"**{p['cpu_us'] / a['cpu_us']:.1f}x** less"
+            )
+    e = data.get("eight")
+    if e:
+        ratios = ", ".join(f"{r:.3f}" for r in e["ratios"])
+        lines += [
+            "",
+            f"### {e['buses']} virtual buses at {e['baudrate']} baud, one AsyncMaster process",
+            "",
+            f"A simulated CFW100 (`pyrtu simulate cfw100`) on each bus; {e['buses']} masters in one",
+            f"event loop poll FC 03 x 10 for {e['seconds']:.1f} s.",
+            "",
+            f"- per-bus ratio to the wire limit ({e['wire_limit']:.1f}/s): {ratios}; "
+            f"minimum **{min(e['ratios']):.3f}**",
+            f"- total {sum(e['tps']):.0f} transactions/s; the process's CPU: "
+            f"{e['process_cpu_s']:.2f} s in {e['seconds']:.1f} s "
+            f"(**{e['process_cpu_share'] * 100:.0f}% of one core**, "
+            f"{e['cpu_us_per_tx']:.1f} µs per transaction); timeouts + frame errors: "
+            f"{int(e['errors'])}",
+            f"- the {e['buses']} hub processes used {e['hub_cpu_s_total']:.1f} s of CPU "
+            f"({e['hub_cpu_s_total'] / e['seconds'] * 100:.0f}% of one core) in that time",
+        ]
+    lines += ["", END, ""]
+    return "\n".join(lines)
+
+
+def write_section(text: str) -> None:
+    old = RESULTS.read_text(encoding="utf-8")
+    if BEGIN in old:
+        start = old.index(HEADING) if HEADING in old else old.index(BEGIN)
+        stop = old.index(END) + len(END)
+        new = old[:start] + text.rstrip("\n") + old[stop:]
+    else:
+        new = old.rstrip("\n") + "\n\n" + text
+    RESULTS.write_text(new, encoding="utf-8")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--json", type=Path)
+    ap.add_argument("--from-json", type=Path)
+    ap.add_argument("--write", action="store_true")
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--only", choices=("single", "eight"))
+    ap.add_argument("--buses", type=int, default=8)
+    args = ap.parse_args()
+    if args.from_json:
+        data = json.loads(args.from_json.read_text())
+    else:
+        import platform
+
+        rounds = 1 if args.quick else args.rounds
+        data = {
+            "when": time.strftime("%Y-%m-%dT%H:%M:%S UTC", time.gmtime()),
+            "machine": f"{os.cpu_count()} cores, Python {platform.python_version()}",
+            "rounds": rounds,
+            "single": [],
+        }
+        if args.only != "eight":
+            for baud, n in ((9600, 24), (115200, 160)):
+                data["single"].append(
+                    single_bus(baud, n // 2 if args.quick else n, rounds, pymodbus=baud == 115200)
+                )
+                print(json.dumps(data["single"][-1], indent=1), flush=True)
+        if args.only != "single":
+            data["eight"] = eight_buses(115200, 3.0 if args.quick else 10.0, args.buses)
+            print(json.dumps(data["eight"], indent=1), flush=True)
+    if args.json:
+        args.json.write_text(json.dumps(data, indent=1))
+    text = section(data)
+    print(text)
+    if args.write:
+        write_section(text)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,478 @@
+"""The sans-I/O Modbus client (master) protocol: one transaction at a time on a line.
+
+No clock, no port, no sleeps: time is an input (``now``, seconds on a monotonic
+clock) and the driver does the I/O.  The shape, in the spirit of h11::
+
+    proto = ClientProtocol(LineConfig(baudrate=9600), timeout=0.5)
+    proto.start(1, pdu.read_request(3, 0, 10), decode, now)
+    while not proto.done:
+        if proto.state is State.SEND:            # the line is quiet: transmit
+            start, end = port.write(proto.data_to_send())
+            proto.transmitted(end)               # end of transmission is an input
+            continue
+        # wait for bytes, at most until proto.deadline(); a driver that can sleep may
+        # first sleep proto.needed() character times (fewer bytes end nothing)
+        data = port.read(...)
+        if data:
+            proto.receive_data(data, now)
+        else:
+            proto.handle_timer(now)
+    value = proto.result()                       # or raises the transaction's error
+
+States: ``IDLE`` -> ``QUIET`` (waiting for the earliest send time: t3.5 after the
+line went quiet, the broadcast turnaround, the settling time after a failure;
+bytes that arrive now are stale and restart the silence) -> ``SEND`` (the ADU is
+ready) -> ``ANSWER`` (the echo of an echoing adapter first, then the answer, fed
+to the framer) -> ``DONE`` (a result or a typed error).  A failed attempt with
+retries left goes back to ``QUIET``.  ``abort(now)`` (a cancelled driver) ends the
+transaction and makes the next one wait out a late answer.
+
+Frames that are not the answer (another slave or function, data the decoder
+refuses, frames damaged on the line) are dropped and counted; the wait goes on
+for a short settling time in case the real answer follows, then the attempt
+ends with `FrameError`.  Nothing valid within ``timeout`` after the end of
+transmission: `NoResponseError`.  An exception response ends it at once with
+`ExceptionResponseError` (never retried).  An echo that differs from the request
+or does not come back: `BusFault`.
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+from collections.abc import Callable
+from types import ModuleType
+from typing import Any
+
+from . import _backend
+from .ascii import encode_ascii, make_framer
+from .errors import BusFault, ExceptionResponseError, FrameError, NoResponseError
+from .functions import function_name
+from .line import LineConfig
+
+log = logging.getLogger("pyrtu.master")
+
+DISCARD_REASONS = (
+    "crc",
+    "t1.5",
+    "overflow",
+    "unknown_function",
+    "truncated",
+    "stale",
+    "unexpected",
+)
+Decoder = Callable[[bytes], Any]
+
+
+class State(enum.Enum):
+    IDLE = "idle"
+    QUIET = "quiet"
+    SEND = "send"
+    ANSWER = "answer"
+    DONE = "done"
+
+
+def new_counters() -> dict[str, int]:
+    """The master's counters, all zero."""
+    keys = ["requests", "responses", "broadcasts", "exceptions", "timeouts", "crc_errors"]
+    keys += ["frame_errors", "echo_mismatches", "retries", "discarded_bytes"]
+    keys += [f"discarded_{r}" for r in DISCARD_REASONS]
+    return dict.fromkeys(keys, 0)
+
+
+def _identity(pdu: bytes) -> bytes:
+    return pdu
+
+
+class ClientProtocol:
+    """A Modbus master's transactions on one line (see the module docstring).
+
+    ``line``: the `LineConfig`; ``timeout``: seconds from the end of transmission
+    to a valid answer; ``retries``: repeats after `NoResponseError` and
+    `FrameError`; ``echo``: the adapter reads back what it sends (RS-485 without
+    echo suppression); ``broadcast_delay``: the silence after a broadcast (Serial
+    Line V1.02, 2.4.1 "turnaround delay"); ``backend``: the framer's backend.
+    """
+
+    def __init__(
+        self,
+        line: LineConfig,
+        *,
+        timeout: float = 1.0,
+        retries: int = 0,
+        echo: bool = False,
+        broadcast_delay: float = 0.1,
+        backend: ModuleType | None = None,
+    ) -> None:
+        self.line = line
+        self.timeout = timeout
+        self.retries = retries
+        self.echo = echo
+        self.broadcast_delay = broadcast_delay
+        self._backend = backend or _backend.active
+        #: the inter-frame silence kept before a request (seconds; 0: none)
+        self.gap = line.frame_gap
+        self.settle = max(0.02, 3 * self.gap)
+        self.counters = new_counters()
+        self._framer: Any = make_framer(line, "master", self._backend)
+        self._char = line.char_time
+        self.state = State.IDLE
+        # the line, across transactions
+        self.tx_end = 0.0  # end of our last transmission
+        self.last_rx = 0.0  # arrival of the last byte we read
+        self.quiet_until = 0.0  # broadcast turnaround
+        self.failed_at = 0.0  # when an attempt failed (a late answer may follow)
+        #: when the last byte of the latest answer arrived (None before one)
+        self.answer_end: float | None = None
+        # the transaction
+        self._slave = 0
+        self._fc = 0
+        self._adu = b""
+        self._decode: Decoder | None = None
+        self._attempt = 0
+        self._give_up = 0.0  # QUIET: send anyway after a babbling line
+        self._echo_left = b""
+        self._end = 0.0  # ANSWER: end of transmission
+        self._limit = 0.0  # ANSWER: when the attempt ends without an answer
+        self._bad: FrameError | None = None
+        self._heard = False  # ANSWER: a byte came after the request
+        self._result: Any = None
+        self._error: Exception | None = None
+
+    def set_line(self, line: LineConfig) -> None:
+        """A new line configuration (new length rules); between transactions only."""
+        if self.state not in (State.IDLE, State.DONE):
+            raise RuntimeError(f"a transaction is in progress ({self.state.value})")
+        self.line = line
+        self.gap = line.frame_gap
+        self.settle = max(0.02, 3 * self.gap)
+        self._char = line.char_time
+        self._framer = make_framer(line, "master", self._backend)
+
+    # ------------------------------------------------------------- transaction
+
+    @property
+    def done(self) -> bool:
+        return self.state is State.DONE
+
+    def encode(self, slave: int, pdu: bytes) -> bytes:
+        """The ADU of ``pdu`` to ``slave`` in the line's mode; ValueError past max_adu."""
+        message = bytes((slave,)) + pdu
+        if self.line.mode == "ascii":
+            return encode_ascii(message)
+        adu: bytes = self._backend.add_crc(message)
+        if len(adu) > self.line.max_adu:
+            raise ValueError(f"{function_name(pdu[0])}: a {len(adu)}-byte request exceeds max_adu")
+        return adu
+
+    def start(self, slave: int, pdu: bytes, decode: Decoder | None, now: float) -> None:
+        """Begin a transaction: ``pdu`` (function code + data, from the PDU builders) to
+        ``slave``.  ``decode(response_pdu)`` gives the result and raises `FrameError`
+        for data that cannot be the answer; None: no answer is awaited (a broadcast,
+        or FC 08 sub-function 4), the result is None.  Raises ValueError (nothing
+        is sent) for a request longer than ``max_adu``."""
+        if self.state not in (State.IDLE, State.DONE):
+            raise RuntimeError(f"a transaction is in progress ({self.state.value})")
+        self._adu = self.encode(slave, pdu)
+        self._slave, self._fc, self._decode = slave, pdu[0], decode
+        self._attempt = 0
+        self._result = self._error = None
+        self._begin_attempt(now)
+
+    def _begin_attempt(self, now: float) -> None:
+        self.state = State.QUIET
+        self._give_up = now + self.timeout
+        self._check_quiet(now)
+
+    def send_at(self) -> float:
+        """QUIET: the earliest time the request may go out."""
+        ready = self.quiet_until
+        if self.gap > 0:
+            ready = max(ready, self.tx_end + self.gap, self.last_rx + self.gap)
+        if self.failed_at:
+            ready = max(ready, self.failed_at + self.settle, self.last_rx + self.settle)
+        return ready
+
+    def _check_quiet(self, now: float) -> None:
+        if self.state is State.QUIET and (self.send_at() <= now or now >= self._give_up):
+            self.state = State.SEND
+
+    def data_to_send(self) -> bytes:
+        """SEND: the ADU to transmit now (a driver reads pending input first and feeds
+        it with receive_data, which may move the protocol back to QUIET)."""
+        if self.state is not State.SEND:
+            raise RuntimeError(f"nothing to send ({self.state.value})")
+        return self._adu
+
+    def transmitted(self, end: float, start: float | None = None) -> None:
+        """The ADU went out; ``end``: when its transmission ended (``start``: when it
+        began, for the log)."""
+        if self.state is not State.SEND:
+            raise RuntimeError(f"nothing was to be sent ({self.state.value})")
+        self.quiet_until = self.failed_at = 0.0
+        self.tx_end = self._end = end
+        c = self.counters
+        c["requests"] += 1
+        if log.isEnabledFor(logging.DEBUG):
+            log.debug(
+                "TX slave %d fc %d: %s (%.3f ms on the line)",
+                self._slave,
+                self._fc,
+                self._adu.hex(" "),
+                (end - (end if start is None else start)) * 1e3,
+            )
+        self._echo_left = self._adu if self.echo else b""
+        self._bad = None
+        self._heard = False
+        self._limit = end + self.timeout
+        framer = self._framer
+        framer.reset()
+        if self._decode is None:
+            c["broadcasts"] += 1
+            self.quiet_until = end + self.broadcast_delay
+            if not self._echo_left:
+                self._finish(None)
+                return
+        else:
+            framer.send(self._adu)
+        self.state = State.ANSWER
+
+    # ------------------------------------------------------------- inputs
+
+    def receive_data(self, data: bytes, now: float) -> None:
+        """Bytes read at ``now``."""
+        if not data:
+            return
+        self.last_rx = now
+        state = self.state
+        if state is not State.ANSWER:
+            # before the request (or between transactions): a late answer, noise
+            self._discard("stale", len(data))
+            log.debug("stale input dropped: %s", data.hex(" "))
+            if state is State.SEND:
+                self.state = State.QUIET
+                self._check_quiet(now)
+            return
+        self._heard = True
+        if self._echo_left:
+            data = self._eat_echo(data, now)
+            if self.state is State.DONE:
+                return
+            if self._decode is None:
+                if data:
+                    self._discard("stale", len(data))
+                if not self._echo_left:
+                    self._finish(None)
+                return
+            if not data:
+                return
+        self._framer.receive_data(data, now)
+        self._events(now)
+        if self.state is State.ANSWER and self._bad is not None:
+            self._limit = min(self._end + self.timeout, now + self.settle)
+
+    def handle_timer(self, now: float) -> None:
+        """Time passed up to ``now`` (call it at ``deadline()``)."""
+        state = self.state
+        if state is State.QUIET:
+            self._check_quiet(now)
+            return
+        if state is not State.ANSWER:
+            return
+        if not self._echo_left:
+            timer = self._framer.timer()
+            if timer is not None and now >= timer:
+                self._framer.handle_timer(now)
+                self._events(now)
+                if self.state is not State.ANSWER:
+                    return
+        if now >= self._limit:
+            self._fail_attempt(now)
+
+    def deadline(self) -> float | None:
+        """When ``handle_timer`` must run: the send time (QUIET), the end of the wait
+        for the answer (ANSWER), or None."""
+        state = self.state
+        if state is State.QUIET:
+            return min(self.send_at(), self._give_up)
+        if state is not State.ANSWER:
+            return None
+        timer = None if self._echo_left else self._framer.timer()
+        return self._limit if timer is None else min(timer, self._limit)
+
+    def ready_at(self, now: float) -> float:
+        """ANSWER: the earliest time the bytes still needed can all be in, so a driver
+        may sleep until then instead of waking per byte: ``needed()`` character times
+        from now, and before any byte of the answer came, from the end of
+        transmission plus t3.5 (the slave keeps that silence before it answers,
+        Serial Line V1.02 2.5.1.1; not with an echo, which comes at once).  Never
+        past ``wait_limit()``; ``now`` in other states."""
+        if self.state is not State.ANSWER:
+            return now
+        start = now
+        if not self._heard and not self._echo_left:
+            start = max(now, self._end + self.gap)
+        return min(start + self.needed() * self._char, self._limit)
+
+    def wait_limit(self) -> float:
+        """ANSWER: when the attempt ends if no valid answer comes (the timeout, or the
+        settling time after a frame that was not the answer).  A driver sleeping
+        ``needed()`` character times caps the sleep here, not at ``deadline()``: the
+        framer's silence timer only matters when no byte comes, and the bytes read
+        after the sleep carry their own times."""
+        return self._limit
+
+    def needed(self) -> int:
+        """ANSWER: bytes that must still arrive before the answer can be complete (a
+        lower bound: the echo still expected plus the framer's ``needed()``); 0 when
+        unknown (ASCII, an unknown layout) or in another state."""
+        if self.state is not State.ANSWER:
+            return 0
+        if self._decode is None:
+            return len(self._echo_left)
+        return len(self._echo_left) + int(self._framer.needed())
+
+    def abort(self, now: float) -> None:
+        """The driver gave up on the transaction (cancelled): the line keeps what it
+        knows, and the next transaction waits out a late answer."""
+        if self.state in (State.IDLE, State.DONE):
+            return
+        if self.state is State.ANSWER:
+            self.failed_at = now
+        self.state = State.IDLE
+
+    def result(self) -> Any:
+        """DONE: the decoded answer (None for a broadcast), or raise the error."""
+        if self.state is not State.DONE:
+            raise RuntimeError(f"the transaction is not done ({self.state.value})")
+        self.state = State.IDLE
+        if self._error is not None:
+            error, self._error = self._error, None
+            raise error
+        return self._result
+
+    # ------------------------------------------------------------- internals
+
+    def _discard(self, reason: str, size: int) -> None:
+        c = self.counters
+        c["discarded_bytes"] += size
+        c[f"discarded_{reason}"] = c.get(f"discarded_{reason}", 0) + size
+
+    def _finish(self, value: Any) -> None:
+        self._result = value
+        self.state = State.DONE
+
+    def _fail(self, error: Exception, now: float) -> None:
+        self._error = error
+        self.failed_at = now
+        self.state = State.DONE
+
+    def _eat_echo(self, data: bytes, now: float) -> bytes:
+        expected = self._echo_left
+        n = min(len(data), len(expected))
+        if data[:n] != expected[:n]:
+            self.counters["echo_mismatches"] += 1
+            adu = self._adu
+            got = adu[: len(adu) - len(expected)] + data[:n]
+            self._fail(
+                BusFault(
+                    f"{function_name(self._fc)}: slave {self._slave}: echo mismatch: "
+                    f"sent {adu.hex(' ')}, read back {got.hex(' ')}",
+                    self._slave,
+                    self._fc,
+                ),
+                now,
+            )
+            return b""
+        self._echo_left = expected[n:]
+        return data[n:]
+
+    def _events(self, now: float) -> None:
+        framer = self._framer
+        slave, fc = self._slave, self._fc
+        c = self.counters
+        while (ev := framer.next_event()) is not None:
+            self._limit = min(self._end + self.timeout, now + self.settle)
+            if ev.error is not None:
+                size = len(ev.wire)
+                reason = ev.error.value
+                self._discard(reason, size)
+                if reason == "crc":
+                    c["crc_errors"] += 1
+                self._bad = self._bad or FrameError(
+                    f"{function_name(fc)}: slave {slave}: {size} bytes discarded ({reason})",
+                    slave,
+                    fc,
+                )
+                continue
+            message = ev.message
+            if message[0] != slave or message[1] & 0x7F != fc:
+                self._discard("unexpected", len(ev.wire))
+                log.debug("RX dropped (not the answer): %s", message.hex(" "))
+                self._bad = self._bad or FrameError(
+                    f"{function_name(fc)}: slave {slave}: got a frame from slave {message[0]} "
+                    f"function 0x{message[1]:02X} instead of the answer",
+                    slave,
+                    fc,
+                )
+                continue
+            if log.isEnabledFor(logging.DEBUG):
+                log.debug(
+                    "RX slave %d fc %d: %s (%.3f ms)",
+                    slave,
+                    fc,
+                    message.hex(" "),
+                    (now - self._end) * 1e3,
+                )
+            if message[1] & 0x80:
+                c["exceptions"] += 1
+                code = message[2] if len(message) > 2 else 0
+                self._fail(ExceptionResponseError(slave, fc, code), 0.0)
+                self.failed_at = 0.0  # answered: no late answer to wait out
+                return
+            decode = self._decode or _identity
+            try:
+                value = decode(message[1:])
+            except FrameError as exc:
+                self._discard("unexpected", len(ev.wire))
+                self._bad = self._bad or FrameError(f"slave {slave}: {exc}", slave, fc)
+                continue
+            c["responses"] += 1
+            self.answer_end = ev.end
+            self._finish(value)
+            return
+
+    def _fail_attempt(self, now: float) -> None:
+        """No answer by the limit: the attempt's error; retry when allowed."""
+        slave, fc = self._slave, self._fc
+        where = function_name(fc)
+        c = self.counters
+        error: FrameError | NoResponseError
+        if self._echo_left:
+            c["echo_mismatches"] += 1
+            self._fail(
+                BusFault(
+                    f"{where}: slave {slave}: the echo of the request did not come back", slave, fc
+                ),
+                now,
+            )
+            return
+        if self._bad is not None:
+            c["frame_errors"] += 1
+            error = self._bad
+        else:
+            c["timeouts"] += 1
+            error = NoResponseError(
+                f"{where}: slave {slave}: no response within {self.timeout} s", slave, fc
+            )
+        self.failed_at = now
+        if self._attempt < self.retries:
+            self._attempt += 1
+            c["retries"] += 1
+            log.debug("retry %d of %d after: %s", self._attempt, self.retries, error)
+            self._begin_attempt(now)
+            return
+        self._fail(error, now)
+
+
+__all__ = ["ClientProtocol", "State", "new_counters"]

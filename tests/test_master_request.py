@@ -1,0 +1,72 @@
+"""Master additions: request() (raw PDU in and out), line=, finite timeouts only."""
+
+from __future__ import annotations
+
+import pytest
+from ptylink import PtyLink, make_store, serving
+
+from pyrtu import pdu as P
+from pyrtu.errors import ExceptionResponseError
+from pyrtu.line import LineConfig
+from pyrtu.master import Master
+
+
+def test_request_raw_pdu(backend: object) -> None:
+    be = backend.BACKEND  # type: ignore[attr-defined]
+    with PtyLink() as link, serving(link.path_b, store=make_store(), t35=0, backend=be):
+        line = LineConfig(parity="N", t35=0)
+        with Master(link.path_a, line=line, timeout=0.5, backend=be) as m:
+            assert m.line is line and m.t35 == 0
+            assert m.request(1, P.read_request(3, 2, 2)) == bytes.fromhex("030403ea03eb")
+            assert m.request(1, P.write_register_request(5, 9)) == P.write_register_request(5, 9)
+            assert m.request(0, P.write_register_request(6, 7)) == b""  # broadcast
+            with pytest.raises(ExceptionResponseError) as info:
+                m.request(1, P.read_request(3, 250, 1))
+            assert info.value.code == 2 and info.value.function == 3
+            assert m.last_answer_time is not None
+            c = m.counters
+            assert c["requests"] == 4 and c["responses"] == 2 and c["broadcasts"] == 1
+            for bad, exc in (
+                (b"", ValueError),
+                (b"\x83\x00", ValueError),
+                (bytes(254), ValueError),
+                ("0300", TypeError),
+            ):
+                with pytest.raises(exc, match="request"):
+                    m.request(1, bad)  # type: ignore[arg-type]
+            with pytest.raises(ValueError, match="slave"):
+                m.request(248, b"\x07")
+            assert m.counters["requests"] == 4  # nothing was sent
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "name"),
+    [
+        ({"timeout": float("inf")}, "timeout"),
+        ({"timeout": float("nan")}, "timeout"),
+        ({"timeout": -1}, "timeout"),
+        ({"broadcast_delay": float("inf")}, "broadcast_delay"),
+        ({"t35": float("inf")}, "t35"),
+        ({"retries": 1.5}, "retries"),
+    ],
+)
+def test_bad_options_refused_before_opening(kwargs: dict[str, object], name: str) -> None:
+    with pytest.raises(ValueError, match=name):
+        Master("/dev/pyrtu-no-such-port", **kwargs)  # type: ignore[arg-type]
+
+
+def test_line_and_keywords_are_exclusive() -> None:
+    with pytest.raises(TypeError, match="baudrate"):
+        Master("/dev/pyrtu-no-such-port", 9600, line=LineConfig())
+    with pytest.raises(TypeError, match="LineConfig"):
+        Master("/dev/pyrtu-no-such-port", line={"baudrate": 9600})  # type: ignore[arg-type]
+
+
+def test_timeout_setter_is_checked() -> None:
+    with PtyLink() as link, Master(link.path_a, parity="N", timeout=0.5) as m:
+        m.timeout = 0.25
+        assert m.timeout == 0.25
+        with pytest.raises(ValueError, match="timeout"):
+            m.timeout = float("inf")
+        with pytest.raises(ValueError, match="retries"):
+            m.retries = -1
