@@ -63,11 +63,12 @@ def config(bus_path: str, baud: int = BAUD, interval: float = 0.05, **bus_kw: ob
     return make_config([bus], points)
 
 
-def test_values_write_and_a_dropped_point() -> None:
+@pytest.mark.parametrize("master", ["aio", "thread"])
+def test_values_write_and_a_dropped_point(master: str) -> None:
     async def main() -> tuple[list[Event], object, object]:
         with drives() as (bus, _sims):
             events: list[Event] = []
-            poller = Poller(config(bus.paths[0]))  # type: ignore[attr-defined,arg-type]
+            poller = Poller(config(bus.paths[0]), master=master)  # type: ignore[attr-defined,arg-type]
             poller.on_event(events.append)
             async with poller:
                 await asyncio.sleep(0.5)
@@ -219,9 +220,10 @@ def test_sync_facade() -> None:
 
 def test_two_buses_at_once() -> None:
     async def main() -> tuple[list[Event], dict[str, object]]:
-        with VirtualBus(2, baudrate=BAUD, parity="N") as b1, VirtualBus(
-            2, baudrate=19200, parity="N"
-        ) as b2:
+        with (
+            VirtualBus(2, baudrate=BAUD, parity="N") as b1,
+            VirtualBus(2, baudrate=19200, parity="N") as b2,
+        ):
             s1, s2 = CFW701Simulator(), CV100Simulator()
             s1.serve(b1.paths[1], 1, baudrate=BAUD, parity="N")
             s2.serve(b2.paths[1], 5, baudrate=19200, parity="N")

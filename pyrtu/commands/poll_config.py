@@ -64,6 +64,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str]) -> int:
     """Run ``pyrtu [-v] poll --config ...`` (``argv`` without the program name)."""
+    from ..aio import run as aio_run
     from ..cli import _logging
     from ..poller import ConfigError, Poller, load_config
 
@@ -82,7 +83,7 @@ def main(argv: Sequence[str]) -> int:
         print(f"pyrtu poll: config error: {e}", file=sys.stderr)
         return EXIT_USAGE
     try:
-        return asyncio.run(_run(poller, ns))
+        return int(aio_run(_run(poller, ns)))
     except (Exception, KeyboardInterrupt) as exc:
         from ..errors import ModbusError
 

@@ -30,10 +30,11 @@ from collections.abc import AsyncIterator, Callable, Iterable, Iterator, Sequenc
 from dataclasses import dataclass, field
 from typing import Any
 
+from ..aio import new_event_loop
 from ..data import encode_float32, encode_int32, encode_string, encode_uint32
 from .config import Bus, ConfigError, Device, PollerConfig, load_config, make_config
 from .events import BusReport, Event, SlaveStats, Tracker, Update
-from .masters import METHODS, AsyncMasterLike, open_thread_master
+from .masters import FACTORIES, METHODS, AsyncMasterLike
 from .points import Point, Value
 from .schedule import BusScheduler, Request
 
@@ -87,8 +88,9 @@ class Poller:
     """Keeps declared points fresh on many buses (see the module docstring).
 
     ``config``: a `PollerConfig` (`load_config`, `make_config`) or a TOML path;
-    or ``buses``/``points``/``devices`` directly.  ``master``: a function making
-    a bus's master (default: a `pyrtu.Master` on a worker thread).
+    or ``buses``/``points``/``devices`` directly.  ``master``: ``"aio"`` (the
+    default: `pyrtu.aio.AsyncMaster`), ``"thread"`` (a sync `pyrtu.Master` on a
+    worker thread per bus) or a function ``Bus -> master``.
     ``changes_only``: deliver a value only when it changed beyond its deadband.
     """
 
@@ -99,7 +101,7 @@ class Poller:
         buses: Iterable[Bus] = (),
         points: Iterable[Point] = (),
         devices: Iterable[Device] = (),
-        master: MasterFactory | None = None,
+        master: MasterFactory | str = "aio",
         changes_only: bool = True,
     ) -> None:
         if isinstance(config, str):
@@ -112,7 +114,12 @@ class Poller:
             config.check()
         self.config = config
         self.changes_only = changes_only
-        self._factory = master or open_thread_master
+        if isinstance(master, str):
+            if master not in FACTORIES:
+                raise ValueError(f"master must be one of {', '.join(FACTORIES)}, not {master!r}")
+            self._factory: MasterFactory = FACTORIES[master]
+        else:
+            self._factory = master
         self._points = {p.name: p for p in config.points}
         self._tracker = Tracker()
         self._update_cbs: list[Callable[[Update], None]] = []
@@ -149,11 +156,10 @@ class Poller:
         if self._running:
             return
         self._loop = asyncio.get_running_loop()
-        loop = self._loop
         try:
             for run in self._runs.values():
                 run.wake = asyncio.Event()
-                run.master = await loop.run_in_executor(None, self._factory, run.bus)
+                run.master = self._factory(run.bus)
         except BaseException:
             await self._close_masters()
             raise
@@ -190,7 +196,7 @@ class Poller:
         for run in self._runs.values():
             if run.master is not None:
                 try:
-                    await run.master.aclose()
+                    await run.master.close()
                 except Exception as e:  # closing a vanished port
                     log.info("bus %s: close: %s", run.bus.name, e)
                 run.master = None
@@ -452,7 +458,7 @@ class PollerThread:
 
     def __init__(self, poller: Poller) -> None:
         self.poller = poller
-        self._loop = asyncio.new_event_loop()
+        self._loop = new_event_loop()  # microsecond timers (see pyrtu.aio)
         self._thread = threading.Thread(target=self._main, name="pyrtu-poller", daemon=True)
         self._started = threading.Event()
         self._error: BaseException | None = None

@@ -1,9 +1,11 @@
 """The masters a `Poller` drives: anything with `pyrtu.Master`'s method names as
-coroutines (`pyrtu.aio.AsyncMaster`'s API) and ``last_answer_time``.
+coroutines (`pyrtu.aio.AsyncMaster`'s API), ``last_answer_time`` and ``close()``.
 
-`ThreadMaster` runs a sync `pyrtu.Master` on a thread of its own (one per bus,
-so buses run in parallel): the fallback for ports an asyncio master cannot
-drive, and the default until `pyrtu.aio` is available.
+The default is `pyrtu.aio.AsyncMaster` (``loop.add_reader`` on the port, one
+wake-up per answer; ports without a descriptor are read in a thread of its own).
+`ThreadMaster` runs a sync `pyrtu.Master` on a worker thread of its own per bus:
+the fallback (``Poller(master="thread")``) for ports or drivers only the sync
+master handles.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import functools
 from collections.abc import Callable, Sequence
 from typing import Any, Protocol, TypeVar
 
+from ..aio import AsyncMaster
 from ..master import Master
 from .config import Bus
 
@@ -47,7 +50,7 @@ class AsyncMasterLike(Protocol):
 
     async def write_registers(self, slave: int, address: int, values: Sequence[int]) -> None: ...
 
-    async def aclose(self) -> None: ...
+    async def close(self) -> None: ...
 
 
 class ThreadMaster:
@@ -72,7 +75,7 @@ class ThreadMaster:
         try:
             return fn(*args)
         finally:
-            self.last_answer_time = self.master._last_rx or None
+            self.last_answer_time = self.master.last_answer_time
 
     async def read_coils(self, slave: int, address: int, count: int) -> list[bool]:
         return await self._run(self.master.read_coils, slave, address, count)
@@ -102,7 +105,7 @@ class ThreadMaster:
     def counters(self) -> dict[str, int]:
         return self.master.counters
 
-    async def aclose(self) -> None:
+    async def close(self) -> None:
         try:
             await self._run(self.master.close)
         finally:
@@ -110,7 +113,25 @@ class ThreadMaster:
 
 
 def open_thread_master(bus: Bus) -> AsyncMasterLike:
+    """A `ThreadMaster` for ``bus``."""
     return ThreadMaster.open(bus)
 
 
-__all__ = ["METHODS", "AsyncMasterLike", "ThreadMaster", "open_thread_master"]
+def open_async_master(bus: Bus) -> AsyncMasterLike:
+    """A `pyrtu.aio.AsyncMaster` on the bus's port with its keywords (call it in the
+    event loop's thread)."""
+    return AsyncMaster(bus.port, **dict(bus.master))
+
+
+#: the masters `Poller(master=...)` names
+FACTORIES = {"aio": open_async_master, "thread": open_thread_master}
+
+
+__all__ = [
+    "FACTORIES",
+    "METHODS",
+    "AsyncMasterLike",
+    "ThreadMaster",
+    "open_async_master",
+    "open_thread_master",
+]
