@@ -54,7 +54,7 @@ def test_json_updates_and_summary(tmp_path: Path) -> None:
         try:
             cfg = tmp_path / "points.toml"
             cfg.write_text(CONFIG.format(port=bus.paths[0]))
-            r = pyrtu("poll", "--config", cfg, "--duration", "1.5", "--json")
+            r = pyrtu("poll", "--config", cfg, "--duration", "3", "--json")
         finally:
             weg.close()
             cv.close()
