@@ -109,7 +109,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit status."""
     argv = list(argv) if argv is not None else sys.argv[1:]
     if poll_config.wants(argv):  # ``pyrtu poll --config FILE``: the poller
-        return poll_config.main(argv)
+        return poll_config.main(argv, _logging)
     parser = build_parser()
     args = parser.parse_args(argv)
     _logging(args.verbose)

@@ -23,7 +23,7 @@ import asyncio
 import signal
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from .common import EXIT_OK, EXIT_USAGE, emit, positive_seconds, report_error
@@ -62,10 +62,10 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def main(argv: Sequence[str]) -> int:
-    """Run ``pyrtu [-v] poll --config ...`` (``argv`` without the program name)."""
+def main(argv: Sequence[str], setup_logging: Callable[[int], None] | None = None) -> int:
+    """Run ``pyrtu [-v] poll --config ...`` (``argv`` without the program name);
+    ``setup_logging(verbosity)`` is the command line's logging set-up."""
     from ..aio import run as aio_run
-    from ..cli import _logging
     from ..poller import ConfigError, Poller, load_config
 
     args = list(argv)
@@ -75,7 +75,8 @@ def main(argv: Sequence[str]) -> int:
             args[0].count("v") if args[0].startswith("-") and not args[0].startswith("--") else 1
         )
         args.pop(0)
-    _logging(verbose)
+    if setup_logging is not None:
+        setup_logging(verbose)
     ns = build_parser().parse_args(args[1:])
     try:
         poller = Poller(load_config(ns.config), changes_only=not ns.all)
