@@ -279,3 +279,31 @@ def test_two_buses_at_once() -> None:
     assert all(b["transactions"] > 5 for b in buses)
     # the 19200-baud line is busier for the same rates
     assert buses[1]["load"] > buses[0]["load"]
+
+
+def test_ascii_mode() -> None:
+    async def main() -> tuple[list[Event], dict[str, object], float]:
+        with VirtualBus(2, baudrate=19200, parity="N") as vb:
+            sim = CV100Simulator(mode="ascii")
+            sim.serve(vb.paths[1], 5, baudrate=19200, parity="N")
+            try:
+                options = {"baudrate": 19200, "parity": "N", "timeout": 0.3, "mode": "ascii"}
+                bus = Bus("l", vb.paths[0], options)
+                cfg = make_config([bus], profile_points("cv100", "cv", "l", 5, 0.1))
+                events: list[Event] = []
+                poller = Poller(cfg)
+                poller.on_event(events.append)
+                async with poller:
+                    await until(lambda: len(events) >= 5, "the CV100's values")
+                    return events, poller.summary(), bus.wire().t35
+            finally:
+                sim.close()
+
+    events, summary, t35 = asyncio.run(main())
+    cv = CV100Simulator().store.holding_registers
+    values = {e.point.name: e.value for e in events if isinstance(e, Update)}
+    assert values["cv.status"] == cv.get(C.STATUS_WORD_1)
+    assert values["cv.fault"] == cv.get(C.LATEST_FAULT)
+    assert t35 == 0.0  # ASCII frames are delimited, not timed
+    (slave,) = summary["slaves"]  # type: ignore[misc]
+    assert slave["state"] == "online" and slave["frame_errors"] == 0
