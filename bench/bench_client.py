@@ -42,10 +42,11 @@ BENCH = Path(__file__).resolve().parent
 ROOT = BENCH.parent
 sys.path.insert(0, str(ROOT / "tests"))
 
-import peers.pattern as pattern  # noqa: E402
+import peers.pattern as pattern  # type: ignore[import-not-found]  # noqa: E402
 
 from pyrtu.aio import AsyncMaster  # noqa: E402
 from pyrtu.aio import run as aio_run  # noqa: E402
+from pyrtu.errors import NoResponseError  # noqa: E402
 from pyrtu.line import LineConfig  # noqa: E402
 from pyrtu.master import Master  # noqa: E402
 
@@ -70,7 +71,9 @@ def cpu_of(pid: int) -> float:
 
 
 @contextlib.contextmanager
-def process(argv: list[str], ready_lines: int = 0) -> Iterator[tuple[subprocess.Popen[str], list[str]]]:
+def process(
+    argv: list[str], ready_lines: int = 0
+) -> Iterator[tuple[subprocess.Popen[str], list[str]]]:
     """A child process; the first ``ready_lines`` lines of its stdout are returned."""
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     proc = subprocess.Popen(argv, stdout=subprocess.PIPE, text=True, env=env, cwd=ROOT)
@@ -104,8 +107,9 @@ def vbus(baudrate: int, drops: int = 2) -> Iterator[tuple[list[str], int]]:
 def slave(path: str, baudrate: int) -> Iterator[int]:
     argv = [sys.executable, str(ROOT / "tests/peers/pyrtu_slave.py"), path, str(SLAVE)]
     argv += ["--baud", str(baudrate)]
-    with process(argv) as (proc, _):
-        time.sleep(0.5)
+    with process(argv, 1) as (proc, lines):  # the peer prints READY once serving
+        if not lines[0].startswith("READY"):
+            raise RuntimeError(f"the pyrtu slave did not start: {lines[0]!r}")
         yield proc.pid
 
 
@@ -173,11 +177,68 @@ def pymodbus_master(path: str, baudrate: int, n: int) -> dict[str, float]:
     return asyncio.run(main())
 
 
-def single_bus(baudrate: int, n: int, rounds: int, pymodbus: bool) -> dict[str, Any]:
+_BASELINE = r"""
+import sys, time
+from pyrtu.master import Master
+path, n, baud = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+with Master(path, baud, parity="N", timeout=1.0) as m:
+    for _ in range(5):
+        m.read_holding_registers(7, 0, 10)
+    c0, t0 = time.thread_time(), time.perf_counter()
+    for _ in range(n):
+        m.read_holding_registers(7, 0, 10)
+    print(n / (time.perf_counter() - t0), (time.thread_time() - c0) / n * 1e6)
+"""
+
+
+def baseline_master(root: str, path: str, baudrate: int, n: int) -> dict[str, float]:
+    """The sync Master of another checkout (``--baseline DIR``), same bus, same slave."""
+    env = dict(os.environ, PYTHONPATH=root)
+    argv = [sys.executable, "-c", _BASELINE, path, str(n), str(baudrate)]
+    out = subprocess.run(argv, env=env, cwd=root, capture_output=True, text=True, check=True)
+    tps, cpu = (float(x) for x in out.stdout.split())
+    return {"tps": tps, "cpu_us": cpu}
+
+
+def protocol_only(baudrate: int, n: int = 20000) -> float:
+    """CPU per transaction of the client protocol alone, synthetic time, no I/O (hot
+    caches): start, send, the answer in two reads, the result."""
+    from pyrtu import _backend
+    from pyrtu._client import ClientProtocol
+    from pyrtu._requests import read_holding_registers
+
+    be = _backend.active
+    proto = ClientProtocol(LineConfig(baudrate=baudrate, parity="N"), timeout=1.0, backend=be)
+    answer = be.add_crc(bytes((SLAVE, 3, 2 * COUNT)) + bytes(2 * COUNT))
+    t = 1.0
+    c0 = time.thread_time()
+    for _ in range(n):
+        proto.start(*read_holding_registers(SLAVE, 0, COUNT), now=t)
+        proto.handle_timer(t + 0.01)
+        proto.data_to_send()
+        proto.transmitted(t + 0.011)
+        proto.receive_data(answer[:5], t + 0.012)
+        proto.ready_at(t + 0.012)
+        proto.receive_data(answer[5:], t + 0.014)
+        proto.result()
+        t += 0.02
+    return (time.thread_time() - c0) / n * 1e6
+
+
+def single_bus(
+    baudrate: int, n: int, rounds: int, pymodbus: bool, baseline: str | None = None
+) -> dict[str, Any]:
     out: dict[str, Any] = {"baudrate": baudrate, "wire_limit": wire_limit(baudrate)}
     with vbus(baudrate) as (paths, hub_pid), slave(paths[1], baudrate) as slave_pid:
-        runs: dict[str, list[dict[str, float]]] = {"sync": [], "asyncio": [], "pymodbus": []}
+        runs: dict[str, list[dict[str, float]]] = {
+            "sync": [],
+            "asyncio": [],
+            "pymodbus": [],
+            "baseline": [],
+        }
         for _ in range(rounds):  # interleaved: the machine is shared and drifts
+            if baseline:
+                runs["baseline"].append(baseline_master(baseline, paths[0], baudrate, n))
             runs["sync"].append(sync_master(paths[0], baudrate, n))
             runs["asyncio"].append(async_master(paths[0], baudrate, n))
             if pymodbus:
@@ -212,8 +273,14 @@ def eight_buses(baudrate: int, seconds: float, buses: int = 8) -> dict[str, Any]
         async def main() -> tuple[float, float, float]:
             masters = [AsyncMaster(p, baudrate, parity="N", timeout=1.0) for p in paths]
             try:
-                for m in masters:  # warm-up, and the drive answers
-                    await m.read_holding_registers(1, 0, COUNT)
+                for m in masters:  # warm-up: the drive is up and answers
+                    for attempt in range(10):
+                        try:
+                            await m.read_holding_registers(1, 0, COUNT)
+                            break
+                        except NoResponseError:
+                            if attempt == 9:
+                                raise
                 stop = time.perf_counter() + seconds
 
                 async def poll(i: int, m: AsyncMaster) -> None:
@@ -272,17 +339,32 @@ def section(data: dict[str, Any]) -> str:
         "|---:|---|---:|---:|---:|---:|",
     ]
     for bus in data["single"]:
-        for name in ("sync", "asyncio", "pymodbus"):
+        for name in ("baseline", "sync", "asyncio", "pymodbus"):
             r = bus.get(name)
             if r:
-                label = {"sync": "pyrtu Master", "asyncio": "pyrtu AsyncMaster"}.get(
-                    name, "pymodbus AsyncModbusSerialClient"
-                )
+                label = {
+                    "sync": "pyrtu Master",
+                    "asyncio": "pyrtu AsyncMaster",
+                    "baseline": f"pyrtu Master before (`{data.get('baseline_rev', '?')}`)",
+                }.get(name, "pymodbus AsyncModbusSerialClient")
                 lines.append(
                     f"| {bus['baudrate']} | {label} | {r['tps']:.1f} | {bus['wire_limit']:.1f} | "
                     f"**{r['ratio']:.3f}** | {r['cpu_us']:.1f} |"
                 )
     lines.append("")
+    if "protocol_us" in data:
+        lines.append(
+            f"- the client protocol alone (synthetic time, no I/O, hot caches): "
+            f"**{data['protocol_us']:.1f} µs** per transaction"
+        )
+    for bus in data["single"]:
+        if bus.get("baseline"):
+            b, s_ = bus["baseline"], bus["sync"]
+            lines.append(
+                f"- {bus['baudrate']} baud, Master now / before, same bus and slave, "
+                f"interleaved: CPU per transaction **{s_['cpu_us'] / b['cpu_us']:.2f}x**, "
+                f"transactions/s {s_['tps'] / b['tps']:.2f}x"
+            )
     for bus in data["single"]:
         if bus.get("pymodbus"):
             a, p = bus["asyncio"], bus["pymodbus"]
@@ -298,8 +380,8 @@ def section(data: dict[str, Any]) -> str:
             "",
             f"### {e['buses']} virtual buses at {e['baudrate']} baud, one AsyncMaster process",
             "",
-            f"A simulated CFW100 (`pyrtu simulate cfw100`) on each bus; {e['buses']} masters in one",
-            f"event loop poll FC 03 x 10 for {e['seconds']:.1f} s.",
+            f"A simulated CFW100 (`pyrtu simulate cfw100`) on each bus; {e['buses']} masters",
+            f"in one event loop poll FC 03 x 10 for {e['seconds']:.1f} s.",
             "",
             f"- per-bus ratio to the wire limit ({e['wire_limit']:.1f}/s): {ratios}; "
             f"minimum **{min(e['ratios']):.3f}**",
@@ -335,6 +417,7 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--only", choices=("single", "eight"))
     ap.add_argument("--buses", type=int, default=8)
+    ap.add_argument("--baseline", help="a checkout of the code before, for a comparison")
     args = ap.parse_args()
     if args.from_json:
         data = json.loads(args.from_json.read_text())
@@ -347,11 +430,21 @@ def main() -> None:
             "machine": f"{os.cpu_count()} cores, Python {platform.python_version()}",
             "rounds": rounds,
             "single": [],
+            "protocol_us": protocol_only(115200),
         }
+        if args.baseline:
+            rev = subprocess.run(
+                ["git", "rev-parse", "--short", "HEAD"],
+                cwd=args.baseline,
+                capture_output=True,
+                text=True,
+            ).stdout.strip()
+            data["baseline_rev"] = rev
         if args.only != "eight":
             for baud, n in ((9600, 24), (115200, 160)):
+                count = n // 2 if args.quick else n
                 data["single"].append(
-                    single_bus(baud, n // 2 if args.quick else n, rounds, pymodbus=baud == 115200)
+                    single_bus(baud, count, rounds, baud == 115200, args.baseline)
                 )
                 print(json.dumps(data["single"][-1], indent=1), flush=True)
         if args.only != "single":

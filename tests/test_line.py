@@ -85,3 +85,14 @@ def test_framer_and_parse_stream_take_a_line(backend: ModuleType) -> None:
         backend.Framer("slave", line={"baudrate": 9600})
     with pytest.raises(ValueError, match="ASCII"):  # make_framer() picks AsciiFramer
         backend.Framer("slave", line=LineConfig(mode="ascii"))
+
+
+def test_virtual_bus_takes_a_line() -> None:
+    from pyrtu.vbus import VirtualBus
+
+    line = LineConfig(baudrate=9600, parity="N", stopbits=2)
+    bus = VirtualBus(2, line=line)  # not started: only the configuration
+    assert bus.baudrate == 9600 and bus.bits == line.bits == 11
+    assert bus.char_time == pytest.approx(line.char_time, abs=1e-6)
+    with pytest.raises(TypeError, match="LineConfig"):
+        VirtualBus(2, line={"baudrate": 9600})  # type: ignore[arg-type]

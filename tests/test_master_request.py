@@ -70,3 +70,32 @@ def test_timeout_setter_is_checked() -> None:
             m.timeout = float("inf")
         with pytest.raises(ValueError, match="retries"):
             m.retries = -1
+
+
+def test_no_wake_per_byte_on_a_timed_line() -> None:
+    """On the virtual bus at 9600 baud (a 25-byte answer takes 26 ms), the master reads
+    the answer in a few reads, not one per byte: it sleeps until the bytes the
+    core's length prediction still needs can be in."""
+    vbus = pytest.importorskip("pyrtu.vbus")
+    with (
+        vbus.VirtualBus(2, baudrate=9600, parity="N") as bus,
+        serving(bus.paths[1], store=make_store(), baudrate=9600),
+        Master(bus.paths[0], 9600, parity="N", timeout=1.0) as m,
+    ):
+        assert m.read_holding_registers(1, 0, 10) == [1000 + i for i in range(10)]
+        reads = []
+        real_read = m.port.read
+
+        def counting_read(timeout: float) -> bytes:
+            data = real_read(timeout)
+            if data:
+                reads.append(len(data))
+            return data
+
+        m.port.read = counting_read  # type: ignore[method-assign]
+        for _ in range(10):
+            assert m.read_holding_registers(1, 0, 10) == [1000 + i for i in range(10)]
+        assert sum(reads) == 10 * 25
+        # one read per byte would be 250; sleeping on needed() takes 2-3 per answer
+        # (scheduling delays on a loaded machine only merge reads further)
+        assert len(reads) <= 10 * 8, reads

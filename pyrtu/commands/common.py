@@ -39,6 +39,7 @@ from typing import IO, TYPE_CHECKING, Any, NamedTuple
 
 if TYPE_CHECKING:
     from ..errors import PortError
+    from ..line import LineConfig
     from ..master import Master
 
 EXIT_OK = 0
@@ -228,6 +229,16 @@ def framing_kwargs(args: argparse.Namespace) -> dict[str, Any]:
     return out
 
 
+def line_config(args: argparse.Namespace, **overrides: Any) -> LineConfig:
+    """The `LineConfig` of the serial and timing options (ValueError names the field)."""
+    from ..line import LineConfig
+
+    kwargs: dict[str, Any] = serial_kwargs(args)
+    kwargs.update(mode=args.mode, timing=args.timing, t35=args.t35)
+    kwargs.update(overrides)
+    return LineConfig(**kwargs)
+
+
 def describe_format(args: argparse.Namespace) -> str:
     stop = {1.0: "1", 1.5: "1.5", 2.0: "2"}[float(args.stopbits)]
     return f"{args.baudrate} baud {args.bytesize}{args.parity}{stop}"
@@ -237,17 +248,15 @@ def open_master(args: argparse.Namespace, **overrides: Any) -> Master:
     """A `pyrtu.Master` on ``args.port`` with the serial options."""
     from ..master import Master
 
-    kwargs: dict[str, Any] = serial_kwargs(args)
-    kwargs.update(
-        timeout=args.timeout,
-        retries=args.retries,
-        mode=args.mode,
-        echo=args.echo,
-        t35=args.t35,
-        timing=args.timing,
-    )
+    line_fields = {k: overrides.pop(k) for k in list(overrides) if k in _LINE_FIELDS}
+    kwargs: dict[str, Any] = dict(timeout=args.timeout, retries=args.retries, echo=args.echo)
     kwargs.update(overrides)
-    return Master(args.port, **kwargs)
+    return Master(args.port, line=line_config(args, **line_fields), **kwargs)
+
+
+_LINE_FIELDS = frozenset(
+    "baudrate parity stopbits bytesize mode timing t15 t35 rules max_adu strict".split()
+)
 
 
 # -- errors -------------------------------------------------------------------------------

@@ -15,6 +15,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import fields, replace
 from types import TracebackType
 
+from ..line import LineConfig
 from ..timing import bits_per_char
 from ._os import OpenWatch, open_pty, set_realtime, set_timer_slack
 from ._state import (
@@ -112,7 +113,13 @@ class VirtualBus:
         capture: str | None = None,
         realtime: bool = True,
         latency: tuple[float, float] = DEFAULT_LATENCY,
+        line: LineConfig | None = None,
     ) -> None:
+        if line is not None:  # the line's byte format sets the character time
+            if not isinstance(line, LineConfig):
+                raise TypeError(f"line must be a LineConfig, not {type(line).__name__}")
+            baudrate, parity = line.baudrate, line.parity
+            stopbits, bytesize = int(line.stopbits), line.bytesize
         if drops < 1:
             raise ValueError("a bus needs at least one drop")
         if baudrate <= 0:
