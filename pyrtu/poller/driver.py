@@ -130,8 +130,7 @@ class Poller:
         self._t0 = time.monotonic()
         self._offset = time.time() - time.monotonic()
         self._updates = 0
-        self._dropped_events = 0
-        self._loop: asyncio.AbstractEventLoop | None = None
+        self._lost_events = 0
         self._make_schedulers()
 
     def _make_schedulers(self) -> None:
@@ -155,7 +154,6 @@ class Poller:
         the ports opened so far are closed again)."""
         if self._running:
             return
-        self._loop = asyncio.get_running_loop()
         try:
             for run in self._runs.values():
                 run.wake = asyncio.Event()
@@ -294,7 +292,7 @@ class Poller:
     def _put(self, q: asyncio.Queue[Event | None], ev: Event | None) -> None:
         if q.full():  # a consumer that does not keep up loses the oldest events
             q.get_nowait()
-            self._dropped_events += 1
+            self._lost_events += 1
         q.put_nowait(ev)
 
     @staticmethod
@@ -369,7 +367,8 @@ class Poller:
         return self._runs[bus].sched
 
     def summary(self) -> dict[str, Any]:
-        """Per-bus utilisation and load, per-slave counts and state (JSON-ready)."""
+        """Per-bus utilisation and load, per-slave counts and state, the points
+        dropped, and the events lost by iterators that did not keep up (JSON-ready)."""
         return {
             "summary": True,
             "seconds": round(time.monotonic() - self._t0, 3),
@@ -377,6 +376,7 @@ class Poller:
             "buses": [r.as_dict() for r in self.report()],
             "slaves": [s.as_dict() for s in self.slave_stats()],
             "dropped_points": sorted(n for r in self._runs.values() for n in r.sched.dropped),
+            "lost_events": self._lost_events,
         }
 
     def reset_stats(self) -> None:
