@@ -307,3 +307,32 @@ def test_ascii_mode() -> None:
     assert t35 == 0.0  # ASCII frames are delimited, not timed
     (slave,) = summary["slaves"]  # type: ignore[misc]
     assert slave["state"] == "online" and slave["frame_errors"] == 0
+
+
+def test_run_for_a_duration_and_the_async_iterators() -> None:
+    async def main() -> tuple[list[Update], list[Event], dict[str, object]]:
+        with drives() as (bus, _sims):
+            poller = Poller(config(bus.paths[0]))  # type: ignore[attr-defined,arg-type]
+            got: list[Update] = []
+            seen: list[Event] = []
+
+            async def consume() -> None:
+                async for u in poller.updates():
+                    got.append(u)
+
+            async def watch() -> None:
+                async for e in poller.events():
+                    seen.append(e)
+
+            tasks = [asyncio.create_task(consume()), asyncio.create_task(watch())]
+            await asyncio.sleep(0)  # the iterators subscribe before the poller starts
+            await poller.run(1.0)
+            await asyncio.wait_for(asyncio.gather(*tasks), PATIENCE)  # they end with it
+            return got, seen, poller.summary()
+
+    got, seen, summary = asyncio.run(main())
+    assert got and all(isinstance(u, Update) for u in got)
+    assert {u.name for u in got} <= {e.point.name for e in seen if isinstance(e, Update)}
+    assert any(isinstance(e, PointDropped) for e in seen)
+    assert any(isinstance(e, SlaveState) for e in seen)
+    assert summary["lost_events"] == 0
