@@ -51,6 +51,7 @@ from .functions import function_name
 from .line import LineConfig
 
 log = logging.getLogger("pyrtu.master")
+_debug = log.isEnabledFor
 
 DISCARD_REASONS = (
     "crc",
@@ -213,7 +214,7 @@ class ClientProtocol:
         self.tx_end = self._end = end
         c = self.counters
         c["requests"] += 1
-        if log.isEnabledFor(logging.DEBUG):
+        if _debug(logging.DEBUG):
             log.debug(
                 "TX slave %d fc %d: %s (%.3f ms on the line)",
                 self._slave,
@@ -306,8 +307,10 @@ class ClientProtocol:
         from now, and before any byte of the answer came, from the end of
         transmission plus t3.5 (the slave keeps that silence before it answers,
         Serial Line V1.02 2.5.1.1; not with an echo, which comes at once).  Never
-        past ``wait_limit()``; ``now`` in other states."""
-        if self.state is not State.ANSWER:
+        past ``wait_limit()``; ``now`` in other states, and on a line without wire
+        timing (t3.5 = 0: pseudo-terminals, TCP links), whose bytes come in bursts
+        rather than at the character rate."""
+        if self.state is not State.ANSWER or self.gap <= 0:
             return now
         start = now
         if not self._heard and not self._echo_left:
@@ -363,6 +366,7 @@ class ClientProtocol:
         self.state = State.DONE
 
     def _fail(self, error: Exception, now: float) -> None:
+        """End with ``error``; ``now`` (0: none) starts the settling a late answer needs."""
         self._error = error
         self.failed_at = now
         self.state = State.DONE
@@ -405,7 +409,8 @@ class ClientProtocol:
                     fc,
                 )
                 continue
-            message = ev.message
+            adu = ev.adu
+            message = adu[:-2] if ev.text is None else adu[:-1]  # ev.message, inlined
             if message[0] != slave or message[1] & 0x7F != fc:
                 self._discard("unexpected", len(ev.wire))
                 log.debug("RX dropped (not the answer): %s", message.hex(" "))
@@ -416,7 +421,7 @@ class ClientProtocol:
                     fc,
                 )
                 continue
-            if log.isEnabledFor(logging.DEBUG):
+            if _debug(logging.DEBUG):
                 log.debug(
                     "RX slave %d fc %d: %s (%.3f ms)",
                     slave,
@@ -427,8 +432,8 @@ class ClientProtocol:
             if message[1] & 0x80:
                 c["exceptions"] += 1
                 code = message[2] if len(message) > 2 else 0
+                # answered: no late answer to wait out (failed_at stays 0)
                 self._fail(ExceptionResponseError(slave, fc, code), 0.0)
-                self.failed_at = 0.0  # answered: no late answer to wait out
                 return
             decode = self._decode or _identity
             try:

@@ -13,7 +13,14 @@ from typing import Protocol
 
 from ._types import BytesLike
 from .config import CoreOptions, core_options, to_microseconds
-from .frames import ERROR_BY_CODE, Frame, FrameKind, FrameList, event_counters_template
+from .frames import (
+    ERROR_BY_CODE,
+    Frame,
+    FrameKind,
+    FrameList,
+    event_counters_template,
+    make_frame,
+)
 from .line import LineConfig
 from .rules import RuleTable
 from .timing import Timing
@@ -55,14 +62,7 @@ def _check_line(line: object, given: tuple[object, ...], where: str) -> None:
 
 def event_to_frame(ev: Event) -> Frame:
     offset, _length, kind, error, start_us, end_us, adu = ev
-    return Frame(
-        kind=FrameKind(kind),
-        adu=adu,
-        offset=offset,
-        start=start_us / 1e6,
-        end=end_us / 1e6,
-        error=ERROR_BY_CODE[error],
-    )
+    return make_frame(kind, adu, offset, start_us / 1e6, end_us / 1e6, error)
 
 
 def counters_dict(frames: Sequence[int], discarded: Sequence[int], events: int) -> dict[str, int]:
@@ -140,13 +140,18 @@ class FramerBase:
 
     def receive_data(self, data: BytesLike, now: float) -> None:
         """Bytes that arrived (were read) at ``now`` seconds."""
-        raw = as_bytes(data)
-        now_us = to_microseconds(now)
-        pos = 0
-        stalled = 0
+        raw = data if type(data) is bytes else as_bytes(data)
+        now_us = round(now * 1_000_000)
+        core = self._core
+        took = core.feed(raw, now_us)
+        self._drain()  # a silence before the new bytes may end what is buffered
+        if took == len(raw):
+            return
+        pos = took
+        stalled = 1 if took == 0 else 0
         while pos < len(raw):
-            took = self._core.feed(raw[pos:], now_us)
-            self._drain()  # a silence before the new bytes may end what is buffered
+            took = core.feed(raw[pos:], now_us)
+            self._drain()
             pos += took
             stalled = stalled + 1 if took == 0 else 0
             if stalled > 2:

@@ -11,13 +11,17 @@ deadline as the safety net.
 
 from __future__ import annotations
 
+import os
 import select
 import time
 from typing import Any
 
 from ._client import ClientProtocol, State
 from ._requests import Call
+from .errors import PortError
 from .port import Port
+
+_READ_SIZE = 4096
 
 _monotonic = time.monotonic
 _sleep = time.sleep
@@ -34,18 +38,36 @@ def _wait_readable(port: Port, timeout: float) -> bool:
     return bool(port._poll.poll(max(timeout, 0.0) * 1000.0))
 
 
-def _nap(proto: ClientProtocol) -> None:
-    """Sleep until the bytes the answer still needs can all be in."""
+def _nap(proto: ClientProtocol) -> bool:
+    """Sleep until the bytes the answer still needs can all be in; True if it slept."""
     now = _monotonic()
     until = proto.ready_at(now)
     if until > now:
         _sleep(until - now)
+        return True
+    return False
+
+
+def _read_ready(port: Port, fd: int) -> bytes:
+    """The input of a descriptor select() reported readable: Port.read(0) without its
+    poll (same errors)."""
+    try:
+        data = os.read(fd, _READ_SIZE)
+    except BlockingIOError:
+        return b""
+    except OSError as exc:
+        raise PortError(port.name, f"read failed: {exc}") from exc
+    if not data:
+        raise PortError(port.name, "the device reports data but returns none (disconnected?)")
+    return data
 
 
 def run_sync(port: Port, proto: ClientProtocol, call: Call) -> Any:
     """Run ``call`` through ``proto`` on ``port``; the result or the typed error."""
     proto.start(call.slave, call.pdu, call.decode, _monotonic())
-    has_fd = port.fd is not None
+    fd = port.fd
+    has_fd = fd is not None
+    napped = False
     try:
         while True:
             state = proto.state
@@ -53,19 +75,20 @@ def run_sync(port: Port, proto: ClientProtocol, call: Call) -> Any:
                 deadline = proto.deadline()
                 now = _monotonic()
                 wait = 1.0 if deadline is None else deadline - now
-                if has_fd:
-                    data = port.read(0)
+                if fd is not None:
+                    # after a sleep the bytes are usually in: read first
+                    data = port.read(0) if napped else b""
                     if not data and wait > 0 and _wait_readable(port, wait):
-                        data = port.read(0)
+                        data = _read_ready(port, fd)
                 else:
                     data = port.read(max(wait, 0.0))
                 now = _monotonic()
                 if not data:
+                    napped = False
                     proto.handle_timer(now)
                     continue
                 proto.receive_data(data, now)
-                if proto.state is State.ANSWER:
-                    _nap(proto)
+                napped = proto.state is State.ANSWER and _nap(proto)
             elif state is State.SEND:
                 stale = port.read(0)
                 if stale:
@@ -73,8 +96,7 @@ def run_sync(port: Port, proto: ClientProtocol, call: Call) -> Any:
                     continue
                 start, end = port.write(proto.data_to_send())
                 proto.transmitted(end, start)
-                if proto.state is State.ANSWER:
-                    _nap(proto)
+                napped = proto.state is State.ANSWER and _nap(proto)
             elif state is State.QUIET:
                 deadline = proto.deadline()
                 now = _monotonic()

@@ -161,7 +161,19 @@ class AsyncMaster(MasterBase):
             try:
                 while True:
                     state = proto.state
-                    if state is State.ANSWER or state is State.QUIET:
+                    if state is State.QUIET and self._fd is not None:
+                        # a timer, not a reader: bytes that come meanwhile are read
+                        # (as stale, restarting the silence) before the request goes
+                        deadline = proto.deadline()
+                        wait = 0.0 if deadline is None else deadline - _monotonic()
+                        if wait > 0:
+                            await asyncio.sleep(wait)
+                        stale = port.read(0)
+                        if stale:
+                            proto.receive_data(stale, _monotonic())
+                        else:
+                            proto.handle_timer(_monotonic())
+                    elif state is State.ANSWER or state is State.QUIET:
                         data = await self._input(proto.deadline())
                         now = _monotonic()
                         if not data:

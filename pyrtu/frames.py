@@ -106,6 +106,35 @@ class Frame:
         )
 
 
+KINDS: tuple[FrameKind, ...] = tuple(FrameKind)
+_new = object.__new__
+_SET = tuple(Frame.__dict__[name].__set__ for name in Frame.__slots__)
+
+
+def make_frame(
+    kind: int,
+    adu: bytes,
+    offset: int,
+    start: float | None,
+    end: float | None,
+    error: int,
+    text: bytes | None = None,
+) -> Frame:
+    """A `Frame` from the core's codes (``kind``: RTU_KIND_*, ``error``: RTU_ERR_*),
+    built without the frozen dataclass's checked ``__init__`` (the framers' hot path:
+    several times faster; the fields are those of ``Frame``, in order)."""
+    frame = _new(Frame)
+    set_kind, set_adu, set_offset, set_start, set_end, set_error, set_text = _SET
+    set_kind(frame, KINDS[kind])
+    set_adu(frame, adu)
+    set_offset(frame, offset)
+    set_start(frame, start)
+    set_end(frame, end)
+    set_error(frame, ERROR_BY_CODE[error])
+    set_text(frame, text)
+    return frame
+
+
 def event_counters_template() -> dict[str, int]:
     """The keys of a framer's ``counters`` dict, all zero."""
     keys = [str(k) for k in FrameKind if k is not FrameKind.DISCARD]
@@ -133,13 +162,13 @@ class FrameList(Sequence[Frame]):
 
     def _make(self, i: int) -> Frame:
         offset, length, kind, error, start, end = self._entry(i)
-        return Frame(
-            kind=FrameKind(kind),
-            adu=bytes(self._data[offset : offset + length]),
-            offset=offset,
-            start=None if start is None else start / 1e6,
-            end=None if end is None else end / 1e6,
-            error=ERROR_BY_CODE[error],
+        return make_frame(
+            kind,
+            bytes(self._data[offset : offset + length]),
+            offset,
+            None if start is None else start / 1e6,
+            None if end is None else end / 1e6,
+            error,
         )
 
     @overload
