@@ -65,6 +65,7 @@ from .errors import (  # noqa: E402
 )
 from .master import Master  # noqa: E402
 from .pdu import CommEventLog  # noqa: E402
+from .poller import Poller  # noqa: E402  (after Master: the poller drives it)
 from .slave import Slave  # noqa: E402
 
 backend = _backend.backend
@@ -95,6 +96,7 @@ __all__ = [
     "MbapFramer",
     "ModbusError",
     "NoResponseError",
+    "Poller",
     "PortError",
     "Slave",
     "SlaveException",

@@ -27,6 +27,7 @@ import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+from .commands import poll_config
 from .commands.common import EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, exit_code_table
 
 __all__ = ["COMMANDS", "Command", "build_parser", "command", "main", "register"]
@@ -106,8 +107,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit status."""
+    argv = list(argv) if argv is not None else sys.argv[1:]
+    if poll_config.wants(argv):  # ``pyrtu poll --config FILE``: the poller
+        return poll_config.main(argv, _logging)
     parser = build_parser()
-    args = parser.parse_args(list(argv) if argv is not None else None)
+    args = parser.parse_args(argv)
     _logging(args.verbose)
     run: Run | None = getattr(args, "_run", None)
     if run is None:

@@ -10,6 +10,9 @@ Stops after ``--count`` transactions, after ``--duration``, or on SIGINT/SIGTERM
 Exit status: 0 when every transaction succeeded, otherwise the code of the most
 frequent kind of error (4 no response, 5 exception, 6 frame); 3 when the port
 fails (the poll stops).
+
+``pyrtu poll --config points.toml [--duration S] [--json]`` polls the points of a
+TOML file on all its buses instead (`pyrtu.commands.poll_config`).
 """
 
 from __future__ import annotations

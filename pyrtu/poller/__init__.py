@@ -1,0 +1,61 @@
+"""The high-rate poller: declared points, coalesced requests, wire-time scheduling.
+
+Layers, sans-I/O up to the driver (time is an input everywhere below `driver`):
+
+============  ===================================================================
+`points`      `Point`: name, bus, slave, table, address, type, scale, interval
+`config`      `Bus`, `Device`, `PollerConfig`; `load_config` for TOML
+`plan`        coalescing: `plan` points into `Block` reads, `Wire` prices them
+`schedule`    `BusScheduler`: EDF per bus, writes first, slave health, load
+`events`      `Update`, `SlaveState`, `PointDropped`, `Overload`, statistics
+`driver`      `Poller`: asyncio, one task per bus; a thread for sync scripts
+============  ===================================================================
+
+The rules (coalescing, scheduling, back-off) are in ``docs/POLLER.md``.
+"""
+
+from __future__ import annotations
+
+from .config import Bus, ConfigError, Device, PollerConfig, load_config, make_config, parse_config
+from .driver import Poller, PollerThread, encode_point
+from .events import BusReport, Overload, PointDropped, SlaveState, SlaveStats, Update
+from .masters import AsyncMasterLike, ThreadMaster
+from .plan import Block, Cuts, Limits, Wire, merge_pays, plan, split
+from .points import TABLES, TYPES, Point, PointError
+from .profiles import profile_points
+from .schedule import BusScheduler, Request
+
+__all__ = [
+    "TABLES",
+    "TYPES",
+    "AsyncMasterLike",
+    "Block",
+    "Bus",
+    "BusReport",
+    "BusScheduler",
+    "ConfigError",
+    "Cuts",
+    "Device",
+    "Limits",
+    "Overload",
+    "Point",
+    "PointDropped",
+    "PointError",
+    "Poller",
+    "PollerConfig",
+    "PollerThread",
+    "Request",
+    "SlaveState",
+    "SlaveStats",
+    "ThreadMaster",
+    "Update",
+    "Wire",
+    "encode_point",
+    "load_config",
+    "make_config",
+    "merge_pays",
+    "parse_config",
+    "plan",
+    "profile_points",
+    "split",
+]

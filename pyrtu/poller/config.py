@@ -1,0 +1,454 @@
+"""The poller's configuration: buses, devices and points, in Python or TOML.
+
+Minimal TOML (``[[bus]]`` keys are `pyrtu.Master`'s keywords; ``[[point]]`` keys
+are `Point`'s fields)::
+
+    [[bus]]
+    name = "line1"
+    port = "/dev/ttyUSB0"
+    baudrate = 19200
+    parity = "E"
+
+    [[point]]
+    name = "cfw701.status"
+    bus = "line1"
+    slave = 1
+    table = "holding"
+    address = 680
+    type = "uint16"
+    interval = 0.1
+
+Added keys: on a bus, the poller's ``share`` (of bus time an offline slave's
+probes may take, default 0.05), ``offline_after`` (failures, default 3),
+``backoff``/``max_backoff`` (seconds) and default device limits
+(``max_registers``, ``max_bits``, ``max_adu``, ``max_gap``); ``[[device]]`` tables
+(``bus``, ``slave``, the same limits, and ``profile`` = a drive of
+`pyrtu.devices` with ``name``/``interval`` to add its standard points); a
+``[defaults]`` table whose keys are defaults of every point (``bus``, ``table``,
+``interval``...).
+
+Errors are `ConfigError` (a ValueError) naming the file, the line where it can be
+found, the table and key, and what is wrong::
+
+    points.toml:14: point[3] ("cfw701.speed"): address: must be 0..65535, not -1
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import sys
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any, TypeGuard
+
+from ..line import LineConfig
+from .plan import Limits, Wire
+from .points import Point, PointError, check_unique
+from .profiles import device_limits, profile_points
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+
+class ConfigError(ValueError):
+    """A configuration that cannot be used (the message names where and why)."""
+
+
+#: `pyrtu.Master` keywords a ``[[bus]]`` may carry, with their checks
+MASTER_KEYS = ("baudrate", "parity", "stopbits", "bytesize", "timeout", "retries", "t15", "t35",
+               "timing", "mode", "echo", "broadcast_delay", "max_adu", "strict")  # fmt: skip
+POLLER_KEYS = ("share", "offline_after", "backoff", "max_backoff")
+LIMIT_KEYS = ("max_registers", "max_bits", "max_adu", "max_gap")
+POINT_KEYS = tuple(f.name for f in fields(Point))
+
+
+def _real(v: object) -> TypeGuard[float]:
+    return not isinstance(v, bool) and isinstance(v, int | float) and math.isfinite(v)
+
+
+#: the `LineConfig` fields among them (checked by `LineConfig` itself)
+LINE_KEYS = ("baudrate", "parity", "stopbits", "bytesize", "mode", "timing", "t15", "t35",
+             "max_adu", "strict")  # fmt: skip
+
+
+def _check_master(key: str, v: object) -> str | None:
+    """What is wrong with a Master-only keyword ``key`` = ``v`` (None: nothing)."""
+    if key == "timeout":
+        return None if _real(v) and v > 0 else f"must be a positive number of seconds, not {v!r}"
+    if key == "broadcast_delay":
+        ok = _real(v) and v >= 0
+        return None if ok else f"must be a non-negative number of seconds, not {v!r}"
+    if key == "retries":
+        ok = not isinstance(v, bool) and isinstance(v, int) and v >= 0
+        return None if ok else f"must be a non-negative integer, not {v!r}"
+    if key == "echo":
+        return None if isinstance(v, bool) else f"must be true or false, not {v!r}"
+    return "unknown key"
+
+
+def make_line(master: Mapping[str, Any]) -> LineConfig:
+    """The `LineConfig` of a bus's Master keywords; ValueError ``"key: what"``."""
+    kw = {k: master[k] for k in LINE_KEYS if k in master}
+    try:
+        return LineConfig(**kw)
+    except (ValueError, TypeError) as e:
+        msg = str(e)
+        for k in LINE_KEYS:
+            if msg.startswith(k + " "):
+                raise ValueError(f"{k}: {msg[len(k) + 1 :]}") from None
+        raise ValueError(msg) from None
+
+
+@dataclass(frozen=True)
+class Bus:
+    """One serial line: ``port`` and `pyrtu.Master` keywords (``master``), the
+    poller's slave-health settings and the default limits of its devices."""
+
+    name: str
+    port: Any
+    master: Mapping[str, Any] = field(default_factory=dict)
+    share: float = 0.05
+    offline_after: int = 3
+    backoff: float = 0.5
+    max_backoff: float = 30.0
+    limits: Limits = field(default_factory=Limits)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name:
+            raise ValueError(f"name: must be a non-empty string, not {self.name!r}")
+        if self.port is None or (isinstance(self.port, str) and not self.port):
+            raise ValueError("port: missing")
+        for k, v in self.master.items():
+            wrong = None if k in LINE_KEYS else _check_master(k, v)
+            if wrong:
+                raise ValueError(f"{k}: {wrong}")
+        object.__setattr__(self, "_line", make_line(self.master))
+        if not (_real(self.share) and 0 < self.share <= 1):
+            raise ValueError(f"share: must be a fraction in (0, 1], not {self.share!r}")
+        oa = self.offline_after
+        if isinstance(oa, bool) or not isinstance(oa, int) or oa < 1:
+            raise ValueError(f"offline_after: must be a positive integer, not {oa!r}")
+        if not (_real(self.backoff) and self.backoff > 0):
+            raise ValueError(f"backoff: must be a positive number of seconds, not {self.backoff!r}")
+        if not (_real(self.max_backoff) and self.max_backoff >= self.backoff):
+            raise ValueError(f"max_backoff: must be at least backoff, not {self.max_backoff!r}")
+
+    @property
+    def line(self) -> LineConfig:
+        """The bus's line configuration (from the Master keywords)."""
+        line: LineConfig = self.__dict__["_line"]
+        return line
+
+    def wire(self) -> Wire:
+        """The bus's wire model from its line (an estimated turnaround of t3.5 until
+        the slaves' are measured)."""
+        line = self.line
+        return Wire(
+            line.char_time,
+            line.frame_gap,
+            turnaround=max(line.t35_time, line.char_time),
+            ascii=line.mode == "ascii",
+        )
+
+
+@dataclass(frozen=True)
+class Device:
+    """Limits of one slave on a bus (None: the bus's)."""
+
+    bus: str
+    slave: int
+    limits: Limits = field(default_factory=Limits)
+
+
+@dataclass(frozen=True)
+class PollerConfig:
+    """Buses, device limits and points; `check` makes sure they fit together."""
+
+    buses: tuple[Bus, ...]
+    points: tuple[Point, ...]
+    devices: tuple[Device, ...] = ()
+    source: str = "<config>"
+
+    def bus(self, name: str) -> Bus:
+        for b in self.buses:
+            if b.name == name:
+                return b
+        raise KeyError(name)
+
+    def limits(self, bus: str) -> dict[int, Limits]:
+        """Per-slave limits on ``bus`` (a device's keys over the bus's)."""
+        base = self.bus(bus).limits
+        out: dict[int, Limits] = {}
+        for d in self.devices:
+            if d.bus == bus:
+                merged = {k: getattr(base, k) for k in LIMIT_KEYS}
+                merged.update({k: v for k in LIMIT_KEYS if (v := getattr(d.limits, k)) is not None})
+                out[d.slave] = Limits(**merged)
+        return out
+
+    def check(self) -> None:
+        """ConfigError when points name unknown buses, names repeat, or a point does
+        not fit its device's maximum per request."""
+        names = [b.name for b in self.buses]
+        if len(set(names)) != len(names):
+            dup = next(n for n in names if names.count(n) > 1)
+            raise ConfigError(f"{self.source}: bus {dup!r} is declared twice")
+        if not self.points:
+            raise ConfigError(f"{self.source}: no points to poll")
+        try:
+            check_unique(self.points)
+        except PointError as e:
+            raise ConfigError(f"{self.source}: point: {e}") from None
+        for i, p in enumerate(self.points):
+            if p.bus not in names:
+                raise ConfigError(
+                    f'{self.source}: point[{i}] ("{p.name}"): bus: no bus named {p.bus!r}'
+                    f" (buses: {', '.join(names) or 'none'})"
+                )
+            lim = self.limits(p.bus).get(p.slave, self.bus(p.bus).limits)
+            most = lim.per_request(p.table)
+            if p.size > most:
+                raise ConfigError(
+                    f'{self.source}: point[{i}] ("{p.name}"): takes {p.size} registers, '
+                    f"more than slave {p.slave} reads per request ({most})"
+                )
+
+
+# ---------------------------------------------------------------------- TOML
+
+
+def _locate(text: str, array: str, index: int, key: str | None) -> int | None:
+    """The line (1-based) of ``key`` in the ``index``-th ``[[array]]`` table of
+    ``text`` (or of the table header), None when it cannot be found."""
+    header = re.compile(r"^\s*\[\[\s*" + re.escape(array) + r"\s*\]\]")
+    any_header = re.compile(r"^\s*\[")
+    lines = text.splitlines()
+    seen = -1
+    for n, line in enumerate(lines):
+        if header.match(line):
+            seen += 1
+            if seen == index:
+                if key is None:
+                    return n + 1
+                want = re.compile(r"^\s*" + re.escape(key) + r"\s*=")
+                for m in range(n + 1, len(lines)):
+                    if any_header.match(lines[m]):
+                        break
+                    if want.match(lines[m]):
+                        return m + 1
+                return n + 1
+    return None
+
+
+class _Loader:
+    def __init__(self, text: str, source: str) -> None:
+        self.text = text
+        self.source = source
+
+    def fail(
+        self, array: str, index: int | None, label: str, key: str | None, msg: str
+    ) -> ConfigError:
+        line = None
+        if index is not None:
+            line = _locate(self.text, array, index, key)
+        elif array:
+            m = re.search(r"^\s*\[\s*" + re.escape(array) + r"\s*\]", self.text, re.M)
+            line = self.text.count("\n", 0, m.start()) + 1 if m else None
+        where = f"{self.source}:{line}" if line else self.source
+        what = f"{label}: {key}: {msg}" if key else f"{label}: {msg}"
+        return ConfigError(f"{where}: {what}")
+
+    def tables(self, doc: Mapping[str, Any], name: str) -> list[Mapping[str, Any]]:
+        got = doc.get(name, [])
+        if isinstance(got, Mapping):
+            got = [got]
+        if not isinstance(got, list) or not all(isinstance(t, Mapping) for t in got):
+            raise self.fail("", None, name, None, f"must be an array of tables ([[{name}]])")
+        return got
+
+    def load(self, doc: Mapping[str, Any]) -> PollerConfig:
+        unknown = sorted(set(doc) - {"bus", "point", "device", "defaults"})
+        if unknown:
+            raise ConfigError(
+                f"{self.source}: unknown top-level key {unknown[0]!r} "
+                "(known: bus, point, device, defaults)"
+            )
+        defaults = doc.get("defaults", {})
+        if not isinstance(defaults, Mapping):
+            raise ConfigError(f"{self.source}: defaults: must be a table ([defaults])")
+        for k in defaults:
+            if k not in POINT_KEYS or k in ("name", "address"):
+                raise self.fail(
+                    "defaults",
+                    None,
+                    "defaults",
+                    k,
+                    "unknown key (defaults are "
+                    "point keys: bus, slave, table, type, order, interval, ...)",
+                )
+        buses = [self.bus(i, t) for i, t in enumerate(self.tables(doc, "bus"))]
+        if not buses:
+            raise ConfigError(f"{self.source}: no [[bus]] table")
+        devices: list[Device] = []
+        points: list[Point] = []
+        for i, t in enumerate(self.tables(doc, "device")):
+            dev, extra = self.device(i, t, buses)
+            devices.append(dev)
+            points += extra
+        for i, t in enumerate(self.tables(doc, "point")):
+            points.append(self.point(i, t, defaults))
+        cfg = PollerConfig(tuple(buses), tuple(points), tuple(devices), self.source)
+        self.check(cfg, len(points) - len(self.tables(doc, "point")))
+        return cfg
+
+    def check(self, cfg: PollerConfig, n_profile: int) -> None:
+        try:
+            cfg.check()
+        except ConfigError as e:
+            m = re.match(re.escape(self.source) + r": point\[(\d+)\] (.*)", str(e))
+            if m and int(m.group(1)) >= n_profile:
+                idx = int(m.group(1)) - n_profile
+                line = _locate(self.text, "point", idx, "bus" if ": bus:" in str(e) else None)
+                raise ConfigError(f"{self.source}:{line}: point[{idx}] {m.group(2)}") from None
+            raise
+
+    def bus(self, i: int, t: Mapping[str, Any]) -> Bus:
+        label = f"bus[{i}]" + (f' ("{t["name"]}")' if isinstance(t.get("name"), str) else "")
+        known = ("name", "port", *MASTER_KEYS, *POLLER_KEYS, *LIMIT_KEYS)
+        for k in t:
+            if k not in known:
+                raise self.fail("bus", i, label, k, f"unknown key (known: {', '.join(known)})")
+        for k in ("name", "port"):
+            if k not in t:
+                raise self.fail("bus", i, label, None, f"{k}: missing")
+        master = {k: t[k] for k in MASTER_KEYS if k in t}
+        poller = {k: t[k] for k in POLLER_KEYS if k in t}
+        limits = self.limits("bus", i, label, t)
+        if not isinstance(t["port"], str):
+            raise self.fail("bus", i, label, "port", f"must be a string, not {t['port']!r}")
+        try:
+            bus = Bus(t["name"], t["port"], master, limits=limits, **poller)
+        except ValueError as e:
+            key, _, msg = str(e).partition(": ")
+            raise self.fail("bus", i, label, key if key in known else None, msg or str(e)) from None
+        return bus
+
+    def limits(self, array: str, i: int, label: str, t: Mapping[str, Any]) -> Limits:
+        try:
+            return Limits(**{k: t[k] for k in LIMIT_KEYS if k in t})
+        except ValueError as e:
+            key, _, msg = str(e).partition(": ")
+            raise self.fail(array, i, label, key, msg) from None
+
+    def device(
+        self, i: int, t: Mapping[str, Any], buses: Sequence[Bus]
+    ) -> tuple[Device, list[Point]]:
+        label = f"device[{i}]"
+        known = ("bus", "slave", "profile", "name", "interval", *LIMIT_KEYS)
+        for k in t:
+            if k not in known:
+                raise self.fail("device", i, label, k, f"unknown key (known: {', '.join(known)})")
+        for k in ("bus", "slave"):
+            if k not in t:
+                raise self.fail("device", i, label, None, f"{k}: missing")
+        if t["bus"] not in [b.name for b in buses]:
+            raise self.fail("device", i, label, "bus", f"no bus named {t['bus']!r}")
+        s = t["slave"]
+        if isinstance(s, bool) or not isinstance(s, int) or not 1 <= s <= 247:
+            raise self.fail("device", i, label, "slave", f"must be an integer 1..247, not {s!r}")
+        limits = self.limits("device", i, label, t)
+        points: list[Point] = []
+        if "profile" in t:
+            try:
+                points = profile_points(
+                    t["profile"], t.get("name", f"{t['profile']}{s}"), t["bus"], s,
+                    t.get("interval", 1.0),
+                )  # fmt: skip
+                defaults = device_limits(t["profile"])
+                merged = {**defaults, **{k: t[k] for k in LIMIT_KEYS if k in t}}
+                limits = Limits(**merged)
+            except ValueError as e:
+                key, _, msg = str(e).partition(": ")
+                if key in known:
+                    raise self.fail("device", i, label, key, msg) from None
+                raise self.fail("device", i, label, "profile", str(e)) from None
+        elif "name" in t or "interval" in t:
+            raise self.fail("device", i, label, "name" if "name" in t else "interval",
+                            "applies only with profile")  # fmt: skip
+        return Device(t["bus"], s, limits), points
+
+    def point(self, i: int, t: Mapping[str, Any], defaults: Mapping[str, Any]) -> Point:
+        name = t.get("name")
+        label = f"point[{i}]" + (f' ("{name}")' if isinstance(name, str) else "")
+        for k in t:
+            if k not in POINT_KEYS:
+                raise self.fail(
+                    "point", i, label, k, f"unknown key (known: {', '.join(POINT_KEYS)})"
+                )
+        merged = {**defaults, **t}
+        for k in ("name", "bus", "slave", "table", "address"):
+            if k not in merged:
+                raise self.fail("point", i, label, None, f"{k}: missing")
+        try:
+            return Point(**merged)
+        except PointError as e:
+            key = e.field if e.field in t else None
+            if key is None and e.field in defaults:
+                raise self.fail(
+                    "defaults", None, label, e.field, e.detail + " (from [defaults])"
+                ) from None
+            raise (
+                self.fail("point", i, label, e.field, e.detail)
+                if key is None
+                else self.fail("point", i, label, key, e.detail)
+            ) from None
+
+
+def parse_config(text: str, source: str = "<config>") -> PollerConfig:
+    """A configuration from TOML text (``source`` names it in errors)."""
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(f"{source}: {e}") from None
+    return _Loader(text, source).load(doc)
+
+
+def load_config(path: str | Path) -> PollerConfig:
+    """A configuration from a TOML file; `ConfigError` names the file on any problem
+    (missing, unreadable, not UTF-8, bad TOML, bad values)."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{p}: no such file") from None
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"{p}: not UTF-8 text ({e.reason} at byte {e.start})") from None
+    except OSError as e:
+        raise ConfigError(f"{p}: cannot read: {e.strerror or e}") from None
+    return parse_config(text, p.name if p.name else str(p))
+
+
+def make_config(
+    buses: Iterable[Bus], points: Iterable[Point], devices: Iterable[Device] = ()
+) -> PollerConfig:
+    """A checked configuration from Python objects (ConfigError on a mismatch)."""
+    cfg = PollerConfig(tuple(buses), tuple(points), tuple(devices), "<python>")
+    cfg.check()
+    return cfg
+
+
+__all__ = [
+    "LIMIT_KEYS",
+    "MASTER_KEYS",
+    "Bus",
+    "ConfigError",
+    "Device",
+    "PollerConfig",
+    "load_config",
+    "make_config",
+    "parse_config",
+]

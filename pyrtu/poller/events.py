@@ -1,0 +1,186 @@
+"""What a poller reports: value updates, slave state changes, dropped points,
+overload; and the per-point, per-slave and per-bus figures."""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+from .points import Point, Value
+
+
+@dataclass(frozen=True, slots=True)
+class Update:
+    """A point's value, stamped with the time the answer's last byte arrived."""
+
+    point: Point
+    value: Value
+    time: float
+
+    @property
+    def name(self) -> str:
+        return self.point.name
+
+    def as_dict(self) -> dict[str, Any]:
+        """The JSON form of ``pyrtu poll --json``."""
+        p = self.point
+        return {"point": p.name, "value": self.value, "time": self.time, "slave": p.slave,
+                "bus": p.bus}  # fmt: skip
+
+
+@dataclass(frozen=True, slots=True)
+class SlaveState:
+    """A slave went online (answered again) or offline (stopped answering)."""
+
+    bus: str
+    slave: int
+    online: bool
+    time: float
+
+
+@dataclass(frozen=True, slots=True)
+class PointDropped:
+    """A point that can never be read (exception 2 on its own): reported once and
+    taken out of the schedule."""
+
+    point: Point
+    reason: str
+    time: float
+
+
+@dataclass(frozen=True, slots=True)
+class Overload:
+    """The configured rates of a bus need ``load`` times the wire (> 1), or no longer
+    do (``overloaded`` False); ``lagging`` names the points that miss their interval."""
+
+    bus: str
+    overloaded: bool
+    load: float
+    lagging: tuple[str, ...]
+    time: float
+
+
+Event = Update | SlaveState | PointDropped | Overload
+
+
+def percentile(sorted_values: list[float], q: float) -> float | None:
+    """Nearest-rank percentile (``q`` in 0..100) of sorted values; None if empty."""
+    if not sorted_values:
+        return None
+    rank = max(1, -(-len(sorted_values) * q // 100))
+    return sorted_values[int(rank) - 1]
+
+
+@dataclass
+class SlaveStats:
+    """Counts of one slave's transactions, the wire time they took (``busy``,
+    seconds) and their latencies (the last 1024)."""
+
+    bus: str
+    slave: int
+    requests: int = 0
+    responses: int = 0
+    timeouts: int = 0
+    exceptions: int = 0
+    frame_errors: int = 0
+    online: bool | None = None
+    busy: float = 0.0
+    latencies: deque[float] = field(default_factory=lambda: deque(maxlen=1024))
+
+    @property
+    def success_rate(self) -> float | None:
+        return self.responses / self.requests if self.requests else None
+
+    def latency(self, q: float) -> float | None:
+        return percentile(sorted(self.latencies), q)
+
+    def as_dict(self) -> dict[str, Any]:
+        p50, p99 = self.latency(50), self.latency(99)
+        state = {None: "unknown", True: "online", False: "offline"}[self.online]
+        rate = self.success_rate
+        return {
+            "bus": self.bus,
+            "slave": self.slave,
+            "requests": self.requests,
+            "responses": self.responses,
+            "timeouts": self.timeouts,
+            "exceptions": self.exceptions,
+            "frame_errors": self.frame_errors,
+            "state": state,
+            "busy_s": round(self.busy, 4),
+            "success_rate": None if rate is None else round(rate, 4),
+            "latency_p50_ms": None if p50 is None else round(p50 * 1e3, 3),
+            "latency_p99_ms": None if p99 is None else round(p99 * 1e3, 3),
+        }
+
+
+@dataclass(frozen=True, slots=True)
+class BusReport:
+    """A bus's figures: ``utilisation`` is wire-busy time over wall time since the
+    statistics started; ``load`` the wire time the configured rates ask for per
+    second (> 1: more than the wire carries); ``lagging`` the points that miss
+    their interval."""
+
+    bus: str
+    utilisation: float
+    load: float
+    overloaded: bool
+    lagging: tuple[str, ...]
+    transactions: int
+    seconds: float
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "bus": self.bus,
+            "utilisation": round(self.utilisation, 4),
+            "load": round(self.load, 4),
+            "overloaded": self.overloaded,
+            "lagging": list(self.lagging),
+            "transactions": self.transactions,
+            "seconds": round(self.seconds, 3),
+        }
+
+
+class Tracker:
+    """Change-only delivery and per-point age.  `offer` records a sample and says
+    whether it is to be delivered (first value, or a change beyond the point's
+    deadband)."""
+
+    def __init__(self) -> None:
+        self._delivered: dict[str, Value] = {}
+        self._seen: dict[str, float] = {}
+        self._latest: dict[str, Update] = {}
+
+    def offer(self, update: Update, seen: float) -> bool:
+        """``seen``: the sample's time on the clock `age` is asked on."""
+        name = update.point.name
+        self._seen[name] = seen
+        self._latest[name] = update
+        old = self._delivered.get(name)
+        if update.point.changed(old, update.value):
+            self._delivered[name] = update.value
+            return True
+        return False
+
+    def age(self, name: str, now: float) -> float | None:
+        """Seconds since the point was last read (None: never)."""
+        t = self._seen.get(name)
+        return None if t is None else now - t
+
+    def latest(self) -> dict[str, Update]:
+        """The last sample of every point read so far."""
+        return dict(self._latest)
+
+
+__all__ = [
+    "BusReport",
+    "Event",
+    "Overload",
+    "PointDropped",
+    "SlaveState",
+    "SlaveStats",
+    "Tracker",
+    "Update",
+    "percentile",
+]

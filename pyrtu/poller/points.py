@@ -1,0 +1,193 @@
+"""Points: named, typed values at a place in a slave's data model.
+
+A point is a value a poller keeps fresh: where it is (bus, slave, table, address),
+how its registers or bits become a value (type, word order, scale and offset) and
+how often it is read (interval, in seconds) and reported (deadband)::
+
+    Point("cfw701.speed", bus="line1", slave=1, table="holding", address=2,
+          type="uint16", scale=0.1, interval=0.1, deadband=0.5)
+
+Every field is checked when the point is made; a bad one raises `PointError`
+(a ValueError) whose ``field`` names it and whose message says what is wrong.
+Decoding reuses the helpers of `pyrtu.data`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from ..data import ORDERS, decode_float32, decode_int32, decode_string, decode_uint32
+
+#: the four tables of the Modbus data model, as points name them
+TABLES = ("coils", "discrete_inputs", "holding", "input")
+BIT_TABLES = frozenset({"coils", "discrete_inputs"})
+#: value types; ``bool`` is the type of bit tables, the others of register tables
+TYPES = ("uint16", "int16", "uint32", "int32", "float32", "string", "bool")
+_WIDTH = {"uint16": 1, "int16": 1, "uint32": 2, "int32": 2, "float32": 2}
+_DECODE32 = {"uint32": decode_uint32, "int32": decode_int32, "float32": decode_float32}
+
+Value = bool | int | float | str
+
+
+class PointError(ValueError):
+    """A point field with a wrong value; ``field`` names it."""
+
+    def __init__(self, field: str, message: str) -> None:
+        super().__init__(f"{field}: {message}")
+        self.field = field
+        self.detail = message
+
+
+def _int(field: str, value: object, lo: int, hi: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise PointError(field, f"must be an integer {lo}..{hi}, not {value!r}")
+    if not lo <= value <= hi:
+        raise PointError(field, f"must be {lo}..{hi}, not {value!r}")
+    return value
+
+
+def _number(field: str, value: object, *, positive: bool = False, minimum: float = 0) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise PointError(field, f"must be a finite number, not {value!r}")
+    if positive and value <= minimum:
+        raise PointError(field, f"must be greater than {minimum:g}, not {value!r}")
+    return float(value)
+
+
+def _name(field: str, value: object) -> str:
+    if not isinstance(value, str) or not value.strip():
+        raise PointError(field, f"must be a non-empty string, not {value!r}")
+    return value
+
+
+@dataclass(frozen=True, slots=True)
+class Point:
+    """A polled value (see the module docstring).
+
+    ``type`` defaults to ``bool`` on the bit tables and ``uint16`` on the register
+    tables; ``count`` is the register count of a ``string`` (two characters each);
+    ``order`` the word/byte order of the 32-bit types (``ABCD`` big-endian,
+    ``CDAB`` word swap, ``BADC`` byte swap, ``DCBA`` little-endian).  Numbers are
+    delivered as ``raw * scale + offset`` (integers stay integers while ``scale``
+    and ``offset`` are 1 and 0).  ``deadband``: a new value is delivered only when
+    it differs from the last delivered one by more than this (0: any change).
+    """
+
+    name: str
+    bus: str
+    slave: int
+    table: str
+    address: int
+    type: str = ""
+    order: str = "ABCD"
+    count: int = 0
+    scale: float = 1.0
+    offset: float = 0.0
+    interval: float = 1.0
+    deadband: float = 0.0
+
+    def __post_init__(self) -> None:
+        _name("name", self.name)
+        _name("bus", self.bus)
+        _int("slave", self.slave, 1, 247)
+        if self.table not in TABLES:
+            raise PointError("table", f"must be one of {', '.join(TABLES)}, not {self.table!r}")
+        _int("address", self.address, 0, 0xFFFF)
+        bits = self.table in BIT_TABLES
+        kind = self.type or ("bool" if bits else "uint16")
+        if kind not in TYPES:
+            raise PointError("type", f"must be one of {', '.join(TYPES)}, not {self.type!r}")
+        if bits != (kind == "bool"):
+            want = "bool" if bits else "a register type, not bool"
+            raise PointError("type", f"the {self.table} table holds {want}; got {kind!r}")
+        object.__setattr__(self, "type", kind)
+        order = self.order.upper() if isinstance(self.order, str) else self.order
+        if order not in ORDERS:
+            raise PointError("order", f"must be one of {', '.join(ORDERS)}, not {self.order!r}")
+        object.__setattr__(self, "order", order)
+        if kind == "string":
+            _int("count", self.count, 1, 125)
+        elif self.count not in (0, self.size):
+            raise PointError("count", f"applies to strings only ({kind} takes {self.size})")
+        if self.address + self.size > 0x10000:
+            raise PointError("address", f"{self.address} + {self.size} runs past 65535")
+        scale = _number("scale", self.scale)
+        if scale == 0:
+            raise PointError("scale", "must not be 0")
+        _number("offset", self.offset)
+        _number("interval", self.interval, positive=True)
+        deadband = _number("deadband", self.deadband)
+        if deadband < 0:
+            raise PointError("deadband", f"must be >= 0, not {self.deadband!r}")
+        if kind in ("bool", "string") and (scale != 1 or self.offset != 0):
+            raise PointError("scale", f"a {kind} point takes no scale or offset")
+
+    @property
+    def bits(self) -> bool:
+        """True on the bit tables (coils, discrete inputs)."""
+        return self.table in BIT_TABLES
+
+    @property
+    def size(self) -> int:
+        """Registers (or bits) the point takes."""
+        if self.type == "string":
+            return self.count
+        return _WIDTH.get(self.type, 1)
+
+    @property
+    def end(self) -> int:
+        """One past the point's last register (or bit)."""
+        return self.address + self.size
+
+    def decode(self, block: Sequence[int] | Sequence[bool], start: int) -> Value:
+        """The point's value in ``block``, the registers (or bits) read from address
+        ``start`` (which must cover the point)."""
+        i = self.address - start
+        if i < 0 or i + self.size > len(block):
+            raise ValueError(
+                f"point {self.name!r} ({self.address}..{self.end - 1}) is outside the "
+                f"block {start}..{start + len(block) - 1}"
+            )
+        kind = self.type
+        if kind == "bool":
+            return bool(block[i])
+        regs = [int(r) for r in block[i : i + self.size]]
+        if kind == "string":
+            return decode_string(regs)
+        raw: int | float
+        if kind == "uint16":
+            raw = regs[0]
+        elif kind == "int16":
+            raw = regs[0] - 0x10000 if regs[0] & 0x8000 else regs[0]
+        else:
+            raw = _DECODE32[kind](regs, self.order)
+        if self.scale == 1 and self.offset == 0:
+            return raw
+        return raw * self.scale + self.offset
+
+    def changed(self, old: Value | None, new: Value) -> bool:
+        """Whether ``new`` is to be delivered after ``old`` (None: nothing yet)."""
+        if old is None or type(old) is not type(new):
+            return True
+        if isinstance(new, bool | str) or self.deadband == 0:
+            if isinstance(new, float) and isinstance(old, float):
+                return not (new == old or (math.isnan(new) and math.isnan(old)))
+            return new != old
+        assert isinstance(old, int | float) and isinstance(new, int | float)
+        if math.isnan(new) != math.isnan(old):
+            return True
+        return abs(new - old) > self.deadband
+
+
+def check_unique(points: Sequence[Point]) -> None:
+    """ValueError naming the first duplicated point name."""
+    seen: set[str] = set()
+    for p in points:
+        if p.name in seen:
+            raise PointError("name", f"{p.name!r} is declared twice")
+        seen.add(p.name)
+
+
+__all__ = ["BIT_TABLES", "TABLES", "TYPES", "Point", "PointError", "Value", "check_unique"]

@@ -1,0 +1,512 @@
+"""The scheduler of one bus, sans-I/O: time is an input, nothing here waits.
+
+A driver asks `BusScheduler.next_request(now)` for what to send, performs it, and
+reports the outcome with `on_response(request, data, now)` or
+`on_failure(request, error, now)` (``now``: when the answer's last byte arrived, or
+when the transaction gave up); when nothing is due it sleeps until `deadline()`
+(or until a write is submitted).  The order:
+
+1. writes and on-demand reads (`submit_write`, `submit_read`), first come first served;
+2. a probe of an offline slave whose back-off has run out;
+3. the poll block with the earliest due time, if it is due.
+
+Every transaction's wire-busy time is counted (from `next_request` to the end of
+the answer or the timeout, plus the part of the mandatory t3.5 silence that
+passed before `next_request`), so the scheduler knows the bus's utilisation; the
+wire time each block needs per second (from the frame lengths, character time,
+t3.5 and the slave's measured turnaround) sums to the bus's *load*: above 1 the
+configured rates exceed the wire, an `Overload` event says so and names the
+points that lag.
+
+Slave health: ``offline_after`` consecutive failed transactions (no answer, or
+garbage) take a slave offline (`SlaveState` event): its blocks leave the schedule
+and one short request (one register or bit) probes it, after a back-off that
+doubles from ``backoff`` to ``max_backoff`` and never less than what keeps the
+probes within ``share`` of the bus time (default 5 %).  Any answer, even an
+exception, brings it back online with its blocks due at once.  Exception 2 on a
+block splits it in two and remembers the cut; on a single point it drops the point
+(`PointDropped`, once).
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+
+from ..errors import ExceptionResponseError, FrameError, NoResponseError
+from .events import (
+    BusReport,
+    Event,
+    Overload,
+    PointDropped,
+    SlaveState,
+    SlaveStats,
+    Update,
+)
+from .plan import FUNCTIONS, Block, Cuts, Limits, Wire, chunks, plan, split
+from .points import Point
+
+POLL, PROBE, WRITE, READ = "poll", "probe", "write", "read"
+_WRITE_FUNCTIONS = {("coils", True): 5, ("coils", False): 15, ("holding", True): 6,
+                    ("holding", False): 16}  # fmt: skip
+
+
+@dataclass(eq=False)
+class Request:
+    """One transaction to perform.  ``kind``: poll, probe, write, read.  Reads:
+    ``count`` registers or bits of ``table`` at ``address``; writes: ``values``
+    (function 5/6 for one value, 15/16 for several)."""
+
+    kind: str
+    slave: int
+    table: str
+    address: int
+    count: int
+    function: int
+    values: tuple[int | bool, ...] = ()
+    block: Block | None = None
+    tag: int = 0
+    issued: float = 0.0
+    cost: float = 0.0
+    task: _Task | None = field(default=None, repr=False)
+
+
+@dataclass(eq=False)
+class _Task:
+    block: Block
+    due: float
+    cost: float
+    late: float = 0.0
+    alive: bool = True
+    suspended: bool = False
+    seq: int = 0
+
+
+@dataclass
+class _Health:
+    failures: int = 0
+    offline: bool = False
+    probe_due: float = 0.0
+    backoff: float = 0.0
+    probe: tuple[str, int] = ("holding", 0)
+    turnaround: float | None = None
+    probing: bool = False
+
+
+@dataclass
+class _Stats:
+    started: float | None = None
+    busy: float = 0.0
+    transactions: int = 0
+    slaves: dict[int, SlaveStats] = field(default_factory=dict)
+
+
+class BusScheduler:
+    """Earliest-deadline-first scheduling of one bus's points (module docstring)."""
+
+    def __init__(
+        self,
+        bus: str,
+        points: Iterable[Point],
+        wire: Wire,
+        limits: Mapping[int, Limits] | None = None,
+        default_limits: Limits | None = None,
+        *,
+        share: float = 0.05,
+        offline_after: int = 3,
+        backoff: float = 0.5,
+        max_backoff: float = 30.0,
+        stamp_offset: float = 0.0,
+        now: float = 0.0,
+    ) -> None:
+        if not 0 < share <= 1:
+            raise ValueError(f"share must be in (0, 1], not {share!r}")
+        if isinstance(offline_after, bool) or not isinstance(offline_after, int):
+            raise ValueError(f"offline_after must be a positive integer, not {offline_after!r}")
+        if offline_after < 1:
+            raise ValueError(f"offline_after must be a positive integer, not {offline_after!r}")
+        if not 0 < backoff <= max_backoff:
+            raise ValueError(f"backoff must be > 0 and <= max_backoff, not {backoff!r}")
+        self.bus = bus
+        self.wire = wire
+        self.share = float(share)
+        self.offline_after = offline_after
+        self.backoff = float(backoff)
+        self.max_backoff = float(max_backoff)
+        self.stamp_offset = stamp_offset
+        self._limits = dict(limits or {})
+        self._default = default_limits or Limits()
+        self._points: list[Point] = []
+        for p in points:
+            if p.bus != bus:
+                raise ValueError(f"point {p.name!r} is on bus {p.bus!r}, not {bus!r}")
+            most = self.limits(p.slave).per_request(p.table)
+            if p.size > most:
+                raise ValueError(
+                    f"point {p.name!r} takes {p.size} registers; slave {p.slave} "
+                    f"reads at most {most} per request"
+                )
+            self._points.append(p)
+        self._cuts = Cuts()
+        self._dropped: set[str] = set()
+        self._tasks: list[_Task] = []
+        self._heap: list[tuple[float, int, _Task]] = []
+        self._seq = itertools.count()
+        self._tags = itertools.count(1)
+        self._urgent: list[Request] = []
+        self._health: dict[int, _Health] = {}
+        self._stats = _Stats()
+        self._overloaded = False
+        self._load = 0.0
+        self._since_check = 0
+        self._prev_end: float | None = None
+        for p in self._points:
+            self._slave(p.slave)
+        for slave, h in self._health.items():
+            mine = sorted(
+                (p for p in self._points if p.slave == slave), key=lambda p: (p.size, p.address)
+            )
+            if mine:
+                h.probe = (mine[0].table, mine[0].address)
+        self._replan(self._points, now)
+
+    # ------------------------------------------------------------------ set-up
+
+    def limits(self, slave: int) -> Limits:
+        return self._limits.get(slave, self._default)
+
+    def _slave(self, slave: int) -> _Health:
+        h = self._health.get(slave)
+        if h is None:
+            h = self._health[slave] = _Health()
+            self._stats.slaves[slave] = SlaveStats(self.bus, slave)
+        return h
+
+    def _replan(self, points: Sequence[Point], due: float) -> None:
+        by_slave: dict[int, list[Point]] = {}
+        for p in points:
+            if p.name not in self._dropped:
+                by_slave.setdefault(p.slave, []).append(p)
+        for slave, mine in sorted(by_slave.items()):
+            for block in plan(mine, self.wire, self.limits(slave), self._cuts):
+                self._add_task(block, due)
+
+    def _add_task(self, block: Block, due: float) -> None:
+        task = _Task(block, due, self._cost(block))
+        task.suspended = self._slave(block.slave).offline
+        self._tasks.append(task)
+        if not task.suspended:
+            self._push(task)
+
+    def _push(self, task: _Task) -> None:
+        task.seq = next(self._seq)
+        heapq.heappush(self._heap, (task.due, task.seq, task))
+
+    def _cost(self, block: Block) -> float:
+        ta = self._slave(block.slave).turnaround
+        return self.wire.read(block.table, block.count, ta)
+
+    @property
+    def blocks(self) -> list[Block]:
+        """The blocks in the schedule (offline slaves' included)."""
+        return [t.block for t in self._tasks if t.alive]
+
+    # ------------------------------------------------------------------ requests
+
+    def submit_write(
+        self, slave: int, table: str, address: int, values: Sequence[int | bool]
+    ) -> Request:
+        """Queue a write (ahead of every poll): one value -> FC 05/06, several ->
+        FC 15/16.  Returns the request; its outcome comes back through
+        `on_response`/`on_failure` like any other."""
+        if table not in ("coils", "holding"):
+            raise ValueError(f"table: only coils and holding registers are writable, not {table!r}")
+        vals = tuple(values)
+        if not vals:
+            raise ValueError("values: nothing to write")
+        fn = _WRITE_FUNCTIONS[(table, len(vals) == 1)]
+        req = Request(WRITE, slave, table, address, len(vals), fn, vals, tag=next(self._tags))
+        size = len(vals) * 2 if table == "holding" else (len(vals) + 7) // 8
+        req.cost = self.wire.frames(7 + size + (len(vals) > 1) * 2, 8)
+        self._urgent.append(req)
+        return req
+
+    def submit_read(self, slave: int, table: str, address: int, count: int) -> list[Request]:
+        """Queue an on-demand read (ahead of every poll), split within the slave's
+        maximum per request; returns the requests in address order."""
+        if table not in FUNCTIONS:
+            raise ValueError(f"table: must be one of {', '.join(FUNCTIONS)}, not {table!r}")
+        out = []
+        for a, n in chunks(table, address, count, self.limits(slave)):
+            req = Request(READ, slave, table, a, n, FUNCTIONS[table], tag=next(self._tags))
+            req.cost = self.wire.read(table, n)
+            out.append(req)
+        self._urgent.extend(out)
+        return out
+
+    def next_request(self, now: float) -> Request | None:
+        """What to send now, or None when nothing is due before `deadline`."""
+        if self._stats.started is None:
+            self._stats.started = now
+        if self._urgent:
+            req = self._urgent.pop(0)
+            req.issued = now
+            return req
+        probe = self._due_probe(now)
+        if probe is not None:
+            return probe
+        heap = self._heap
+        while heap:
+            due, _, task = heap[0]
+            if not task.alive or task.suspended:
+                heapq.heappop(heap)
+                continue
+            if due > now:
+                return None
+            heapq.heappop(heap)
+            task.late = now - due
+            nxt = due + task.block.interval
+            task.due = now if nxt + task.block.interval < now else nxt
+            b = task.block
+            return Request(POLL, b.slave, b.table, b.address, b.count, b.function, (), b,
+                           issued=now, cost=task.cost, task=task)  # fmt: skip
+        return None
+
+    def _due_probe(self, now: float) -> Request | None:
+        best: tuple[float, int] | None = None
+        for slave, h in self._health.items():
+            if h.offline and not h.probing and h.probe_due <= now:
+                if best is None or h.probe_due < best[0]:
+                    best = (h.probe_due, slave)
+        if best is None:
+            return None
+        slave = best[1]
+        h = self._health[slave]
+        h.probing = True
+        table, address = h.probe
+        return Request(PROBE, slave, table, address, 1, FUNCTIONS[table], issued=now,
+                       cost=self.wire.read(table, 1))  # fmt: skip
+
+    def deadline(self) -> float | None:
+        """The earliest time `next_request` has something (None: never, until a
+        submit); at or before now when something is ready."""
+        if self._urgent:
+            return float("-inf")
+        best: float | None = None
+        heap = self._heap
+        while heap and (not heap[0][2].alive or heap[0][2].suspended):
+            heapq.heappop(heap)
+        if heap:
+            best = heap[0][0]
+        for h in self._health.values():
+            if h.offline and not h.probing and (best is None or h.probe_due < best):
+                best = h.probe_due
+        return best
+
+    # ------------------------------------------------------------------ outcomes
+
+    def _end(self, req: Request, now: float) -> float:
+        """Count a finished transaction; returns its latency (issue to end)."""
+        latency = max(0.0, now - req.issued)
+        # only what falls inside the statistics' window counts (a transaction in
+        # flight when the window started counts from its start)
+        start = self._stats.started
+        issued = req.issued if start is None else max(req.issued, start)
+        busy = max(0.0, now - issued)
+        # the silence of t3.5 after the previous frame is wire time too: the part of
+        # it that passed before this request was issued is not inside ``busy``
+        if self._prev_end is not None:
+            after = self._prev_end if start is None else max(self._prev_end, start)
+            busy += min(self.wire.t35, max(0.0, issued - after))
+        self._prev_end = now
+        self._stats.busy += busy
+        self._stats.transactions += 1
+        st = self._stats.slaves.get(req.slave)
+        if st is None:
+            self._slave(req.slave)
+            st = self._stats.slaves[req.slave]
+        st.requests += 1
+        st.busy += busy
+        return latency
+
+    def _requeue(self, req: Request) -> None:
+        task = req.task
+        if task is not None and task.alive and not task.suspended:
+            self._push(task)
+
+    def on_response(
+        self, req: Request, data: Sequence[int] | Sequence[bool] | None, now: float
+    ) -> list[Event]:
+        """A transaction answered (``data``: the registers or bits read; None for a
+        write).  Returns the events: an `Update` for every point of a poll block,
+        `SlaveState` when the slave comes back, `Overload` when the bus's state
+        changes."""
+        busy = self._end(req, now)
+        h = self._health[req.slave]
+        st = self._stats.slaves[req.slave]
+        st.responses += 1
+        st.latencies.append(busy)
+        self._turnaround(req, busy, h)
+        events: list[Event] = self._back(req, h, st, now)
+        if req.kind == POLL and req.block is not None and data is not None:
+            b = req.block
+            stamp = now + self.stamp_offset
+            for p in b.points:
+                if p.name not in self._dropped:
+                    events.append(Update(p, p.decode(data, b.address), stamp))
+            self._requeue(req)
+        self._check_load(now, events)
+        return events
+
+    def _turnaround(self, req: Request, busy: float, h: _Health) -> None:
+        if req.kind == WRITE:
+            return
+        frames = self.wire.read(req.table, req.count, 0.0)
+        ta = max(0.0, busy - frames)
+        h.turnaround = ta if h.turnaround is None else 0.9 * h.turnaround + 0.1 * ta
+
+    def _back(self, req: Request, h: _Health, st: SlaveStats, now: float) -> list[Event]:
+        h.failures = 0
+        h.probing = False
+        h.backoff = 0.0
+        was = st.online
+        st.online = True
+        if not h.offline:
+            return [] if was else [SlaveState(self.bus, req.slave, True, now + self.stamp_offset)]
+        h.offline = False
+        for task in self._tasks:
+            if task.alive and task.block.slave == req.slave and task.suspended:
+                task.suspended = False
+                task.due = now
+                self._push(task)
+        return [SlaveState(self.bus, req.slave, True, now + self.stamp_offset)]
+
+    def on_failure(self, req: Request, error: BaseException, now: float) -> list[Event]:
+        """A transaction failed: an exception response (`ExceptionResponseError`),
+        no answer (`NoResponseError`), a bad answer (`FrameError`), or the port
+        (any other error: counted as no answer)."""
+        busy = self._end(req, now)
+        h = self._health[req.slave]
+        st = self._stats.slaves[req.slave]
+        events: list[Event] = []
+        if isinstance(error, ExceptionResponseError):
+            st.exceptions += 1
+            st.latencies.append(busy)
+            self._turnaround(req, busy, h)
+            events += self._back(req, h, st, now)
+            if req.kind == POLL and error.code == 2 and req.block is not None:
+                events += self._hole(req.block, now)
+            else:
+                self._requeue(req)
+            self._check_load(now, events)
+            return events
+        if isinstance(error, FrameError) and not isinstance(error, NoResponseError):
+            st.frame_errors += 1
+        else:
+            st.timeouts += 1
+        h.failures += 1
+        if h.offline:
+            h.probing = False
+            floor = busy * (1 / self.share - 1)
+            h.backoff = min(self.max_backoff, max(self.backoff, 2 * h.backoff))
+            h.probe_due = now + max(h.backoff, floor)
+        elif h.failures >= self.offline_after:
+            h.offline = True
+            st.online = False
+            h.backoff = self.backoff
+            h.probe_due = now + max(self.backoff, busy * (1 / self.share - 1))
+            for task in self._tasks:
+                if task.block.slave == req.slave:
+                    task.suspended = True
+            events.append(SlaveState(self.bus, req.slave, False, now + self.stamp_offset))
+        else:
+            self._requeue(req)
+        self._check_load(now, events)
+        return events
+
+    def _hole(self, block: Block, now: float) -> list[Event]:
+        """Exception 2 on ``block``: split it and remember the cut, or drop its point."""
+        for task in self._tasks:
+            if task.block is block:
+                task.alive = False
+        halves = split(block)
+        if halves is None:
+            out: list[Event] = []
+            for p in block.points:
+                if p.name not in self._dropped:
+                    self._dropped.add(p.name)
+                    out.append(
+                        PointDropped(
+                            p, "exception 2 (ILLEGAL DATA ADDRESS)", now + self.stamp_offset
+                        )
+                    )
+            self._tasks = [t for t in self._tasks if t.alive]
+            return out
+        _lo, hi = halves
+        self._cuts.add(self.bus, block.slave, block.table, hi.address)
+        self._tasks = [t for t in self._tasks if t.alive]
+        self._replan(list(block.points), now)
+        return []
+
+    # ------------------------------------------------------------------ figures
+
+    def _check_load(self, now: float, events: list[Event]) -> None:
+        self._since_check += 1
+        if self._since_check < 16 and not any(isinstance(e, SlaveState) for e in events):
+            return
+        self._since_check = 0
+        load = self.load()
+        over = load > 1.0
+        if over != self._overloaded:
+            self._overloaded = over
+            events.append(Overload(self.bus, over, load, self.lagging(), now + self.stamp_offset))
+
+    def load(self) -> float:
+        """Wire seconds per second the online slaves' blocks need at their intervals."""
+        total = 0.0
+        for t in self._tasks:
+            if t.alive and not t.suspended:
+                t.cost = self._cost(t.block)
+                total += t.cost / t.block.interval
+        self._load = total
+        return total
+
+    def lagging(self) -> tuple[str, ...]:
+        """Points whose block started more than one interval late last time."""
+        return tuple(
+            p.name
+            for t in self._tasks
+            if t.alive and not t.suspended and t.late > t.block.interval
+            for p in t.block.points
+        )
+
+    def report(self, now: float) -> BusReport:
+        s = self._stats
+        span = 0.0 if s.started is None else max(0.0, now - s.started)
+        util = min(1.0, s.busy / span) if span > 0 else 0.0
+        load = self.load()
+        return BusReport(self.bus, util, load, load > 1.0, self.lagging(), s.transactions, span)
+
+    def slave_stats(self) -> dict[int, SlaveStats]:
+        return dict(self._stats.slaves)
+
+    def online(self, slave: int) -> bool | None:
+        st = self._stats.slaves.get(slave)
+        return None if st is None else st.online
+
+    @property
+    def dropped(self) -> frozenset[str]:
+        return frozenset(self._dropped)
+
+    def reset_stats(self, now: float) -> None:
+        """Start the utilisation and the counts again from ``now``."""
+        self._stats.started = now
+        self._stats.busy = 0.0
+        self._stats.transactions = 0
+        for slave, old in self._stats.slaves.items():
+            self._stats.slaves[slave] = SlaveStats(self.bus, slave, online=old.online)
+
+
+__all__ = ["POLL", "PROBE", "READ", "WRITE", "BusScheduler", "Request"]

@@ -1,0 +1,358 @@
+"""The bus scheduler with a fake clock (no sleeps, no ports): deadlines, preemption
+by writes, holes learned from exception 2, the overload report, slave health with
+back-off and its share of the bus, the figures."""
+
+from __future__ import annotations
+
+import itertools
+from collections import Counter
+from collections.abc import Callable, Sequence
+
+import pytest
+
+from pyrtu.errors import ExceptionResponseError, FrameError, NoResponseError
+from pyrtu.poller import (
+    BusScheduler,
+    Limits,
+    Overload,
+    Point,
+    PointDropped,
+    Request,
+    SlaveState,
+    Update,
+    Wire,
+)
+from pyrtu.poller.events import Event, Tracker
+
+WIRE = Wire(11 / 19200, 0.002005, 0.002005)
+TIMEOUT = 0.1
+
+
+def pt(address: int, name: str | None = None, **kw: object) -> Point:
+    fields: dict[str, object] = dict(bus="b", slave=1, table="holding", interval=1.0)
+    fields.update(kw)
+    return Point(name or f"s{fields['slave']}.{address}", address=address, **fields)  # type: ignore[arg-type]
+
+
+Outcome = Sequence[int] | Sequence[bool] | BaseException | None
+
+
+class FakeBus:
+    """Runs a scheduler against a model of the slaves on a fake clock: a transaction
+    lasts its wire time (answered) or the timeout (no answer); the t3.5 silence
+    before a request is waited only where the line was not quiet that long."""
+
+    def __init__(self, sched: BusScheduler, registers: dict[int, dict[int, int]] | None = None):
+        self.sched = sched
+        self.now = 0.0
+        self.regs = registers or {}
+        self.dead: set[int] = set()
+        self.done: list[tuple[Request, float, float, str]] = []
+        self.events: list[Event] = []
+        self.quiet_since = -1.0
+
+    def answer(self, req: Request) -> tuple[Outcome, float]:
+        if req.slave in self.dead:
+            return NoResponseError("no answer", req.slave, req.function), TIMEOUT
+        cost = WIRE.read(req.table, req.count)
+        if req.kind == "write":
+            for i, v in enumerate(req.values):
+                self.regs.setdefault(req.slave, {})[req.address + i] = int(v)
+            return None, req.cost
+        mapped = self.regs.get(req.slave)
+        if mapped is None:
+            return [0] * req.count, cost
+        if any(a not in mapped for a in range(req.address, req.address + req.count)):
+            return ExceptionResponseError(req.slave, req.function, 2), WIRE.frames(8, 5)
+        return [mapped[a] for a in range(req.address, req.address + req.count)], cost
+
+    def run(self, until: float, hook: Callable[[float], None] | None = None) -> None:
+        while self.now < until:
+            if hook is not None:
+                hook(self.now)
+            req = self.sched.next_request(self.now)
+            if req is None:
+                dl = self.sched.deadline()
+                self.now = until if dl is None else max(self.now + 1e-6, min(dl, until))
+                continue
+            outcome, duration = self.answer(req)
+            start = self.now
+            wait = max(0.0, self.quiet_since + WIRE.t35 - self.now)
+            self.now += duration - WIRE.t35 + wait
+            self.quiet_since = self.now
+            if isinstance(outcome, BaseException):
+                self.events += self.sched.on_failure(req, outcome, self.now)
+                kind = type(outcome).__name__
+            else:
+                self.events += self.sched.on_response(req, outcome, self.now)
+                kind = "ok"
+            self.done.append((req, start, self.now, kind))
+
+    def polls(self, slave: int | None = None) -> Counter[int]:
+        """Completed poll transactions by block address."""
+        return Counter(
+            r.address for r, _, _, k in self.done
+            if r.kind == "poll" and (slave is None or r.slave == slave) and k == "ok"
+        )  # fmt: skip
+
+
+def test_deadlines_each_block_at_its_interval() -> None:
+    points = [pt(0, interval=0.1), pt(100, interval=0.5), pt(0, slave=2, interval=1.0)]
+    sched = BusScheduler("b", points, WIRE)
+    bus = FakeBus(sched)
+    bus.run(10.0)
+    polls = Counter((r.slave, r.address) for r, *_ in bus.done)
+    assert polls[(1, 0)] in (100, 101)
+    assert polls[(1, 100)] in (20, 21)
+    assert polls[(2, 0)] in (10, 11)
+    # never early: each start is at or after its due time (multiples of the interval)
+    starts = [s for r, s, *_ in bus.done if (r.slave, r.address) == (1, 100)]
+    assert all(s >= k * 0.5 - 1e-9 for k, s in enumerate(starts))
+    assert all(s <= k * 0.5 + 0.05 for k, s in enumerate(starts))  # and not late
+    assert sched.report(bus.now).overloaded is False
+    assert sched.deadline() is not None
+
+
+def test_earliest_deadline_first() -> None:
+    sched = BusScheduler("b", [pt(0, interval=1.0), pt(200, interval=0.3)], WIRE)
+    first = sched.next_request(0.0)
+    second = sched.next_request(0.0)
+    assert first is not None and second is not None
+    # both due at 0: order by due time then declaration; afterwards by deadline
+    assert {first.address, second.address} == {0, 200}
+    sched.on_response(first, [0], 0.01)
+    sched.on_response(second, [0], 0.02)
+    assert sched.next_request(0.1) is None
+    assert sched.deadline() == pytest.approx(0.3)
+    nxt = sched.next_request(0.35)
+    assert nxt is not None and nxt.address == 200
+
+
+def test_writes_and_on_demand_reads_preempt_polls() -> None:
+    sched = BusScheduler("b", [pt(0, interval=0.01)], WIRE)
+    w = sched.submit_write(1, "holding", 682, [0x13])
+    reads = sched.submit_read(1, "input", 0, 300)
+    assert (w.function, w.kind) == (6, "write") and [r.count for r in reads] == [125, 125, 50]
+    assert sched.deadline() == float("-inf")
+    got = [sched.next_request(1.0) for _ in range(5)]
+    assert [g.kind for g in got if g] == ["write", "read", "read", "read", "poll"]
+    assert sched.submit_write(1, "coils", 0, [True, False]).function == 15
+    assert sched.submit_write(1, "coils", 0, [True]).function == 5
+    assert sched.submit_write(1, "holding", 0, [1, 2]).function == 16
+    with pytest.raises(ValueError, match="table"):
+        sched.submit_write(1, "input", 0, [1])
+    with pytest.raises(ValueError, match="values"):
+        sched.submit_write(1, "holding", 0, [])
+
+
+def test_a_write_submitted_mid_run_goes_next() -> None:
+    points = [pt(a * 20, interval=0.001) for a in range(10)]  # overloaded: always a poll due
+    sched = BusScheduler("b", points, WIRE)
+    bus = FakeBus(sched)
+    submitted: list[Request] = []
+
+    def hook(now: float) -> None:
+        if now > 0.5 and not submitted:
+            submitted.append(sched.submit_write(1, "holding", 5, [42]))
+
+    bus.run(1.0, hook)
+    idx = next(i for i, (r, *_) in enumerate(bus.done) if r is submitted[0])
+    start = bus.done[idx][1]
+    before = [s for _, s, *_ in bus.done[:idx]]
+    assert max(before) < start and bus.regs[1][5] == 42
+    # it went out right after the transaction in flight when it was submitted
+    assert bus.done[idx - 1][2] == start and bus.done[idx - 1][1] <= 0.5 + 0.05
+
+
+def test_holes_learned_from_exception_2() -> None:
+    mapped = {a: a for a in (0, 1, 2, 6, 7, 8, 20)}
+    points = [pt(a) for a in (0, 1, 2, 6, 7, 8)] + [pt(10, "missing"), pt(20)]
+    sched = BusScheduler("b", points, WIRE)
+    assert [(b.address, b.count) for b in sched.blocks] == [(0, 21)]
+    bus = FakeBus(sched, {1: mapped})
+    bus.run(5.0)
+    dropped = [e for e in bus.events if isinstance(e, PointDropped)]
+    assert [d.point.name for d in dropped] == ["missing"]  # once
+    assert sched.dropped == frozenset({"missing"})
+    blocks = sorted((b.address, b.count) for b in sched.blocks)
+    assert blocks == [(0, 3), (6, 3), (20, 1)]
+    # after learning, every read succeeds; every good point updated every second
+    late = [k for r, s, _, k in bus.done if s > 1.0]
+    assert late and all(k == "ok" for k in late)
+    got = Counter(e.point.name for e in bus.events if isinstance(e, Update))
+    assert set(got) == {f"s1.{a}" for a in (0, 1, 2, 6, 7, 8, 20)}
+    assert min(got.values()) >= 4
+
+
+def test_other_exceptions_keep_the_schedule() -> None:
+    sched = BusScheduler("b", [pt(0, interval=0.1)], WIRE)
+    req = sched.next_request(0.0)
+    assert req is not None
+    assert sched.on_failure(req, ExceptionResponseError(1, 3, 4), 0.01) == [
+        SlaveState("b", 1, True, 0.01)
+    ]
+    assert sched.slave_stats()[1].exceptions == 1 and sched.blocks
+    assert sched.next_request(0.1) is not None
+
+
+def test_overload_reported_with_lagging_points() -> None:
+    # 40 blocks of one register every 10 ms: ~13.7 ms of wire each at 19200
+    points = [pt(a * 30, interval=0.01) for a in range(40)]
+    sched = BusScheduler("b", points, WIRE)
+    bus = FakeBus(sched)
+    bus.run(3.0)
+    over = [e for e in bus.events if isinstance(e, Overload)]
+    assert over and over[0].overloaded and over[0].load > 10
+    report = sched.report(bus.now)
+    assert report.overloaded and report.load == pytest.approx(over[-1].load, rel=0.2)
+    assert report.utilisation > 0.99  # the fake bus never idles while work is due
+    assert len(report.lagging) == 40
+    # every block is still read, in turn (EDF under overload shares the wire)
+    polls = bus.polls()
+    assert len(polls) == 40 and max(polls.values()) - min(polls.values()) <= 1
+
+
+def test_no_overload_under_capacity() -> None:
+    points = [pt(a * 30, interval=1.0) for a in range(40)]
+    sched = BusScheduler("b", points, WIRE)
+    bus = FakeBus(sched)
+    bus.run(5.0)
+    assert not any(isinstance(e, Overload) for e in bus.events)
+    r = sched.report(bus.now)
+    assert not r.overloaded and r.lagging == () and 0.5 < r.load < 0.6
+    assert r.utilisation == pytest.approx(r.load, rel=0.05)
+
+
+def alive_and_dead(dead: bool, until: float = 120.0) -> tuple[FakeBus, BusScheduler]:
+    points = [pt(a * 30, slave=s, interval=0.05) for s in (1, 2, 3) for a in range(2)]
+    sched = BusScheduler("b", points, WIRE, share=0.05, offline_after=3, backoff=0.5)
+    bus = FakeBus(sched)
+    if dead:
+        bus.dead.add(2)
+    bus.run(until)
+    return bus, sched
+
+
+def test_dead_slave_backoff_and_share_of_the_bus() -> None:
+    bus, sched = alive_and_dead(True)
+    states = [e for e in bus.events if isinstance(e, SlaveState)]
+    assert [(e.slave, e.online) for e in states if e.slave == 2] == [(2, False)]
+    assert sched.online(2) is False and sched.online(1) is True
+    attempts = [(s, e) for r, s, e, _ in bus.done if r.slave == 2]
+    offline_at = attempts[2][1]
+    probes = [(s, e) for r, s, e, _ in bus.done if r.slave == 2 and r.kind == "probe"]
+    assert len(attempts) == 3 + len(probes)
+    # probes are one short request each
+    assert all(r.count == 1 for r, *_ in bus.done if r.kind == "probe")
+    # exponential back-off: the gaps between probes grow (doubling up to the maximum)
+    gaps = [b[0] - a[1] for a, b in itertools.pairwise(probes)]
+    assert all(b >= a - 1e-9 for a, b in itertools.pairwise(gaps))
+    assert gaps[-1] >= 4 * gaps[0]
+    # the probes take at most 5 % of the bus time after the slave went offline
+    spent = sum(e - s for s, e in probes)
+    assert spent <= 0.05 * (bus.now - offline_at)
+    # the others keep their rate: 0.05 s intervals over 120 s
+    alive, _ = alive_and_dead(False)
+    for slave in (1, 3):
+        n_dead, n_alive = sum(bus.polls(slave).values()), sum(alive.polls(slave).values())
+        assert n_dead >= 0.99 * n_alive, (slave, n_dead, n_alive)
+
+
+def test_slave_comes_back_online() -> None:
+    points = [pt(0, interval=0.1), pt(0, slave=2, interval=0.1)]
+    sched = BusScheduler("b", points, WIRE, backoff=0.2, max_backoff=1.0)
+    bus = FakeBus(sched)
+    bus.dead.add(2)
+    bus.run(5.0)
+    bus.dead.clear()
+    bus.run(10.0)
+    states = [(e.slave, e.online) for e in bus.events if isinstance(e, SlaveState)]
+    assert states == [(1, True), (2, False), (2, True)]
+    back = next(
+        e.time for e in bus.events if isinstance(e, SlaveState) and e.online and e.slave == 2
+    )
+    # probed within the back-off cap plus the 5 % share floor of a 100 ms timeout
+    assert back <= 5.0 + max(1.0, TIMEOUT * 19) + 0.2
+    late = [k for r, s, _, k in bus.done if r.slave == 2 and s > back]
+    assert len(late) >= int((10.0 - back) / 0.1) - 1 and all(k == "ok" for k in late)
+
+
+def test_frame_errors_count_toward_offline_but_exceptions_do_not() -> None:
+    sched = BusScheduler("b", [pt(0, interval=0.1)], WIRE, offline_after=2)
+    events: list[Event] = []
+    t = 0.0
+    for err in (FrameError("bad crc"), ExceptionResponseError(1, 3, 4), FrameError("bad")):
+        req = sched.next_request(t)
+        assert req is not None
+        t += 0.05
+        events += sched.on_failure(req, err, t)
+        t = sched.deadline() or t
+    assert sched.online(1) is True  # the exception in between reset the count
+    st = sched.slave_stats()[1]
+    assert (st.frame_errors, st.exceptions, st.requests, st.responses) == (2, 1, 3, 0)
+
+
+def test_figures_latency_success_rate_and_reset() -> None:
+    sched = BusScheduler("b", [pt(0, interval=0.1), pt(0, slave=2, interval=0.1)], WIRE)
+    bus = FakeBus(sched)
+    bus.run(2.0)
+    st = sched.slave_stats()[1]
+    assert st.success_rate == 1.0 and st.requests >= 20
+    expect = WIRE.read("holding", 1)
+    # slave 1 is asked on a quiet line (no t3.5 to wait), slave 2 right after it
+    first = expect - WIRE.t35
+    assert st.latency(50) == pytest.approx(first) and st.latency(99) == pytest.approx(first)
+    assert sched.slave_stats()[2].latency(50) == pytest.approx(expect)
+    d = st.as_dict()
+    assert d["state"] == "online" and d["latency_p50_ms"] == pytest.approx(first * 1e3, abs=1e-3)
+    # the wire time of each slave: its transactions with their t3.5 silences (but
+    # the first, which had no frame before it)
+    assert st.busy == pytest.approx((st.requests - 1) * expect + first)
+    r = sched.report(bus.now)
+    assert r.utilisation == pytest.approx(2 * expect / 0.1, rel=0.05)
+    sched.reset_stats(bus.now)
+    assert sched.slave_stats()[1].requests == 0 and sched.slave_stats()[1].online is True
+    # measured turnaround: answers slower than the model raise the slave's cost
+    req = sched.next_request(10.0)
+    assert req is not None
+    sched.on_response(req, [0], 10.0 + expect + 0.02)
+    assert sched.load() > 2 * expect / 0.1
+
+
+def test_tracker_change_only_and_age() -> None:
+    p = pt(0, deadband=2)
+    tr = Tracker()
+    assert tr.offer(Update(p, 10, 1.0), 1.0)
+    assert not tr.offer(Update(p, 11, 2.0), 2.0)
+    assert tr.offer(Update(p, 13, 3.0), 3.0)
+    assert tr.age(p.name, 3.5) == pytest.approx(0.5) and tr.age("other", 1) is None
+    assert tr.latest()[p.name].value == 13
+
+
+def test_scheduler_rejects_bad_setup() -> None:
+    with pytest.raises(ValueError, match="share"):
+        BusScheduler("b", [pt(0)], WIRE, share=0)
+    with pytest.raises(ValueError, match="offline_after"):
+        BusScheduler("b", [pt(0)], WIRE, offline_after=0)
+    with pytest.raises(ValueError, match="on bus"):
+        BusScheduler("x", [pt(0)], WIRE)
+    with pytest.raises(ValueError, match="at most 1 per request"):
+        BusScheduler("b", [pt(0, type="uint32")], WIRE, {1: Limits(max_registers=1)})
+
+
+def test_utilisation_counts_only_the_window() -> None:
+    sched = BusScheduler("b", [pt(0, interval=0.01)], WIRE)
+    req = sched.next_request(0.0)
+    assert req is not None
+    sched.reset_stats(0.005)  # the statistics start with a transaction in flight
+    sched.on_response(req, [0], 0.010)
+    assert sched.slave_stats()[1].busy == pytest.approx(0.005)
+    req = sched.next_request(0.0105)  # 0.5 ms after the last frame: part of t3.5
+    assert req is not None
+    sched.on_response(req, [0], 0.020)
+    assert sched.slave_stats()[1].busy == pytest.approx(0.005 + 0.0005 + 0.0095)
+    assert sched.report(0.020).utilisation == pytest.approx(1.0)
+    req = sched.next_request(0.030)  # after a long silence: a whole t3.5 more
+    assert req is not None
+    sched.on_response(req, [0], 0.035)
+    assert sched.slave_stats()[1].busy == pytest.approx(0.015 + WIRE.t35 + 0.005)
