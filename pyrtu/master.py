@@ -79,6 +79,7 @@ class Master(Transactions):
         max_adu: int = 256,
         strict: bool = False,
         backend: str | None = None,
+        exclusive: bool = True,
     ) -> None:
         self.mode = _mode(mode)
         self.timeout = _seconds("timeout", timeout, positive=True)
@@ -104,6 +105,7 @@ class Master(Transactions):
             stopbits=stopbits,
             bytesize=bytesize,
             rs485=rs485,
+            exclusive=exclusive,
         )
         p = self.port
         timing_ = self._make_framer(p.baudrate, p.parity, p.stopbits, p.bytesize)

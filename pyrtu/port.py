@@ -241,8 +241,16 @@ def open_port(
     stopbits: float = 1,
     bytesize: int = 8,
     rs485: Any = None,
+    exclusive: bool = True,
 ) -> Port:
-    """Open (or adopt) a serial port; PortError names the port and the setting."""
+    """Open (or adopt) a serial port; PortError names the port and the setting.
+
+    ``exclusive`` (POSIX): take an exclusive ``flock`` on the device, so that a
+    second program opening it the same way (pyrtu, pyserial with
+    ``exclusive=True``, ...) gets `PortError` ("busy") instead of splitting the
+    bytes with the first; ``False`` shares the port.  The lock is advisory: a
+    program that takes none is not stopped.  Adopted serial objects keep theirs.
+    """
     if not isinstance(port, str):
         if not (hasattr(port, "read") and hasattr(port, "write")):
             raise TypeError(f"port must be a path, a pyserial URL or a serial object, not {port!r}")
@@ -276,6 +284,8 @@ def open_port(
         ser.stopbits = stopbits
         ser.timeout = 0
         ser.write_timeout = None
+        if os.name == "posix":
+            ser.exclusive = bool(exclusive)
         if mode is not None:
             ser.rs485_mode = mode
         ser.open()
@@ -288,6 +298,12 @@ def open_port(
         if isinstance(exc, termios.error) and exc.args:
             code = exc.args[0]
         text = str(exc)
+        if code in (errno.EWOULDBLOCK, errno.EAGAIN) and "exclusive" in text:
+            raise PortError(
+                port,
+                "busy: another program holds it (ports are opened exclusively;"
+                " pass exclusive=False to share it)",
+            ) from exc
         if code == errno.EINVAL or "Invalid argument" in text:
             hint = " (pseudo-terminals carry no parity: use parity='N')" if parity != "N" else ""
             raise PortError(

@@ -90,6 +90,7 @@ class Slave:
         on_watchdog: Callable[[Slave], object] | None = None,
         server_id: bytes = b"pyrtu",
         run_indicator: bool = True,
+        exclusive: bool = True,
     ) -> None:
         if mode not in ("rtu", "ascii"):
             raise ValueError(f"mode must be 'rtu' or 'ascii', not {mode!r}")
@@ -146,6 +147,7 @@ class Slave:
             stopbits=stopbits,
             bytesize=bytesize,
             rs485=rs485,
+            exclusive=exclusive,
         )
         p = self.port
         self._framer = self._new_framer(p.baudrate, p.parity, p.stopbits, p.bytesize)

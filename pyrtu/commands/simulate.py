@@ -111,7 +111,7 @@ def _run(args: argparse.Namespace) -> int:
         raise ValueError(f"a slave address is 1..247, not {address}")
     sim = make_simulator(device, args.state, args.mode)
     options = serial_kwargs(args)
-    options.update(mode=args.mode, timing=args.timing)
+    options.update(mode=args.mode, timing=args.timing, exclusive=args.exclusive)
     if args.t35 is not None:
         options["t35"] = args.t35
     with stop_on_signals() as stop:  # before the "ready" line: a signal after it stops cleanly
