@@ -26,6 +26,7 @@ import os
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import NoReturn
 
 from .commands.common import EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, exit_code_table
 
@@ -71,8 +72,30 @@ def command(
     return deco
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with ``--json`` honoured for usage errors too: the error object goes
+    to stdout (the usual message and exit code 2 stay)."""
+
+    json_errors = False
+
+    def error(self, message: str) -> NoReturn:
+        if _Parser.json_errors:
+            from .commands.common import emit
+
+            command = self.prog.removeprefix("pyrtu").strip() or "pyrtu"
+            emit(
+                {
+                    "ok": False,
+                    "error": "usage",
+                    "exit_code": EXIT_USAGE,
+                    "message": f"{command}: {message}",
+                }
+            )
+        super().error(message)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="pyrtu",
         description="Modbus RTU toolkit (pyrtu): read, write, poll, scan, identify, sniff, "
         "simulate drives, run a virtual RS-485 bus, and a demo without hardware.",
@@ -107,7 +130,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit status."""
     parser = build_parser()
-    args = parser.parse_args(list(argv) if argv is not None else None)
+    words = list(argv) if argv is not None else sys.argv[1:]
+    _Parser.json_errors = "--json" in words
+    args = parser.parse_args(words)
     _logging(args.verbose)
     run: Run | None = getattr(args, "_run", None)
     if run is None:

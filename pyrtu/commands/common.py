@@ -174,6 +174,22 @@ def integer(text: str) -> int:
     return HexInt(value) if text.strip().lower().startswith("0x") else value
 
 
+def register_address(text: str) -> int:
+    """A register or bit address 0..65535 (decimal or 0x hex; argparse type)."""
+    value = integer(text)
+    if not 0 <= value <= 0xFFFF:
+        raise argparse.ArgumentTypeError(f"an address is 0..65535 (0xFFFF), not {text!r}")
+    return value
+
+
+def object_id(text: str) -> int:
+    """A device identification object id 0..255 (argparse type)."""
+    value = integer(text)
+    if not 0 <= value <= 0xFF:
+        raise argparse.ArgumentTypeError(f"an object id is 0..255 (0xFF), not {text!r}")
+    return value
+
+
 def show_address(address: int, like: int) -> str:
     """``address`` in the base the user wrote ``like`` in."""
     return f"0x{address:04X}" if isinstance(like, HexInt) else str(address)

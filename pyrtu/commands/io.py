@@ -29,6 +29,7 @@ from .common import (
     guarded,
     integer,
     open_master,
+    register_address,
     show_address,
     slave_address,
 )
@@ -245,7 +246,10 @@ def add_read_arguments(p: argparse.ArgumentParser) -> None:
     """PORT --slave --table ADDRESS [COUNT] --type --order --profile (read and poll)."""
     p.add_argument("port", metavar="PORT", help="serial device (/dev/ttyUSB0) or pyserial URL")
     p.add_argument(
-        "address", type=integer, metavar="ADDRESS", help="first address, from 0 (0x hex too)"
+        "address",
+        type=register_address,
+        metavar="ADDRESS",
+        help="first address, 0..65535 (0x hex too)",
     )
     p.add_argument(
         "count",
@@ -341,7 +345,9 @@ def _run_read(args: argparse.Namespace) -> int:
 
 def _configure_write(p: argparse.ArgumentParser) -> None:
     p.add_argument("port", metavar="PORT", help="serial device (/dev/ttyUSB0) or pyserial URL")
-    p.add_argument("address", type=integer, metavar="ADDRESS", help="first address, from 0")
+    p.add_argument(
+        "address", type=register_address, metavar="ADDRESS", help="first address, 0..65535"
+    )
     p.add_argument(
         "values",
         nargs="+",

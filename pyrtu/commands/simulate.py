@@ -108,7 +108,7 @@ def _run(args: argparse.Namespace) -> int:
     device: str = args.device
     address = args.address if args.address is not None else EXAMPLE_ADDRESS[device]
     if not 1 <= address <= 247:
-        raise ValueError(f"a slave address is 1..247, not {address}")
+        raise ValueError(f"--address: a slave address is 1..247, not {address}")
     sim = make_simulator(device, args.state, args.mode)
     options = serial_kwargs(args)
     options.update(mode=args.mode, timing=args.timing, exclusive=args.exclusive)
