@@ -57,7 +57,7 @@ from dataclasses import dataclass
 from types import TracebackType
 from typing import IO, Any
 
-from .._backend import active as _core
+from .._backend import backend as _backend_named
 
 __all__ = [
     "MAGIC",
@@ -382,11 +382,15 @@ class Capture:
         """The byte-format keywords of this capture, for `parse_stream`/`Framer`."""
         return _format(self.header)
 
-    def parse(self, role: str = "monitor", **kwargs: Any) -> Sequence[Any]:
-        """Decode the capture with `parse_stream` (monitor role by default)."""
+    def parse(
+        self, role: str = "monitor", *, backend: str | None = None, **kwargs: Any
+    ) -> Sequence[Any]:
+        """Decode the capture with `parse_stream` (monitor role by default; ``backend``
+        "c" or "python", None: the active one)."""
         options = self.parse_kwargs()
         options.update(kwargs)
-        result: Sequence[Any] = _core.parse_stream(self.data, role, chunks=self.chunks, **options)
+        core = _backend_named(backend)
+        result: Sequence[Any] = core.parse_stream(self.data, role, chunks=self.chunks, **options)
         return result
 
 
@@ -438,6 +442,8 @@ def read_capture(path: str) -> tuple[bytes, list[tuple[int, float]]]:
 def stream_frames(
     runs: Iterator[tuple[bytes, float]] | Sequence[tuple[bytes, float]],
     role: str = "monitor",
+    *,
+    backend: str | None = None,
     **options: Any,
 ) -> Iterator[Any]:
     """Frames of a byte stream of any size, in bounded memory: the streaming form of
@@ -449,8 +455,9 @@ def stream_frames(
     keywords of `Framer` (baudrate, parity, ..., strict, rules).  The frames are
     those a live `Framer` finds (lenient mode ends a frame left incomplete by a
     silence at ``flush_timeout``, where `parse_stream` waits for the next bytes).
+    ``backend``: "c" or "python" (None: the active one).
     """
-    framer = _core.Framer(role, **options)
+    framer = _backend_named(backend).Framer(role, **options)
     timer = framer.timer
     receive = framer.receive_data
     handle = framer.handle_timer
