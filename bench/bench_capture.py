@@ -1,6 +1,8 @@
 """Peak memory (RSS) of reading captures: ``pyrtu sniff --capture`` and the
 streaming API (`pyrtu.vbus.capture_frames`), on valid captures of 10 MB and
-200 MB and on a valid header followed by 20 MB of random bytes.
+200 MB, on a valid header followed by 20 MB of random bytes (damaged: refused at
+the first record), and on 20 MB of well-formed records carrying random bytes
+(line noise: every byte goes through the framer's discard path).
 
 Each case runs in its own process, measured with ``/usr/bin/time -v`` (the
 maximum resident set size) when present, else ``resource.getrusage`` of the child::
@@ -52,6 +54,9 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--sizes", default="10,200", help="valid capture sizes in MB")
     ap.add_argument("--random", type=int, default=20, help="MB of random bytes after a header")
+    ap.add_argument(
+        "--noise", type=int, default=20, help="MB of well-formed records of random bytes"
+    )
     ap.add_argument("--dir", default=None)
     ap.add_argument("--cli-max", type=int, default=200, help="largest size sniffed by the CLI")
     args = ap.parse_args()
@@ -78,6 +83,20 @@ def main() -> None:
         )
     )
     rnd.unlink()
+    noise = tmp / "noise.cap"
+    with open(noise, "wb") as f:
+        capsynth.write_random_records(f, args.noise * 1_000_000)
+    rows.append(
+        (f"capture_frames: {args.noise} MB of noise records", "", run([py, "-c", API, str(noise)]))
+    )
+    rows.append(
+        (
+            f"sniff --capture --json: {args.noise} MB noise",
+            "",
+            run([py, "-m", "pyrtu", "sniff", "--capture", str(noise), "--json"]),
+        )
+    )
+    noise.unlink()
     for mb in (int(s) for s in args.sizes.split(",")):
         path = tmp / f"valid{mb}.cap"
         with open(path, "wb") as f:

@@ -147,7 +147,7 @@ def test_the_interrupted_message_says_it_once() -> None:
             Err.text += s
 
     saved = sys.stderr
-    sys.stderr = Err()  # type: ignore[assignment]
+    sys.stderr = Err()
     try:
         assert report_error("read", KeyboardInterrupt(), False) == 130
     finally:

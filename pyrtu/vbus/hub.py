@@ -16,6 +16,7 @@ from dataclasses import fields, replace
 from types import TracebackType
 
 from ..timing import bits_per_char
+from ._lock import DirectoryLock
 from ._os import OpenWatch, open_pty, set_realtime, set_timer_slack
 from ._state import (
     BusCounters,
@@ -24,7 +25,6 @@ from ._state import (
     normalize_parity,
     pending_input,
 )
-from ._lock import DirectoryLock
 from .capture import CaptureHeader, CaptureWriter
 from .faults import FaultCounters, Faults
 from .wire import Wire
