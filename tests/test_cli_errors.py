@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
 import subprocess
 import sys
 import time
@@ -46,6 +47,13 @@ BAD: list[tuple[str, int, str]] = [
     (f"read {NOPORT} 70000", 2, "ADDRESS"),
     (f"read {NOPORT} 0 --slave 300", 2, "--slave"),
     (f"read {NOPORT} 0 --order XYZW", 2, "--order"),
+    (f"read {NOPORT} 0 0", 2, "COUNT"),
+    (f"read {NOPORT} 0 126", 2, "COUNT 126"),
+    (f"read {NOPORT} 0 2001 --table coils", 2, "COUNT 2001"),
+    (f"read {NOPORT} 65535 10", 2, "ADDRESS 65535"),
+    (f"poll {NOPORT} 65535 2", 2, "ADDRESS 65535"),
+    (f"write {NOPORT} 65535 1 2", 2, "ADDRESS 65535"),
+    (f"write {NOPORT} 0 --type string ''", 2, "VALUE"),
     (f"write {NOPORT} 0 --type float32 1e39", 2, "float32 range"),
     (f"write {NOPORT} 0 --type float32 abc", 2, "float32"),
     (f"write {NOPORT} 0 70000", 2, "uint16"),
@@ -93,6 +101,7 @@ BAD: list[tuple[str, int, str]] = [
     (f"simulate cfw701 --port {NOPORT}", 3, NOPORT),
     ("vbus --dir /proc/pyrtu-x --duration 0.1", 3, "--dir /proc/pyrtu-x"),
     ("vbus --dir /etc/hostname --duration 0.1", 3, "--dir /etc/hostname: not a directory"),
+    ("vbus --dir /proc --duration 0.1", 3, "--dir /proc: cannot create the lock file"),
     ("vbus --capture /proc/pyrtu-x/y.cap --duration 0.1", 3, "--capture /proc/pyrtu-x/y.cap"),
     ("vbus --capture / --duration 0.1", 3, "--capture /"),
 ]
@@ -112,7 +121,7 @@ def run_main(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, 
 def test_bad_command_lines(
     line: str, code: int, needle: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    got, _, err = run_main(line.split(), capsys)
+    got, _, err = run_main(shlex.split(line), capsys)
     assert got == code, err
     assert needle in err
     assert "Traceback" not in err
@@ -121,7 +130,7 @@ def test_bad_command_lines(
 def test_no_traceback_in_a_real_process(tmp_path: Path) -> None:
     # The same as a user sees it: separate processes, stderr as printed.
     for line, code, needle in (BAD[0], BAD[-3], ("demo --baudrate -1", 2, "--baudrate")):
-        r = pyrtu(*line.split())
+        r = pyrtu(*shlex.split(line))
         assert r.code == code and needle in r.err and "Traceback" not in r.err, r.err
 
 

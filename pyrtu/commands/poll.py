@@ -40,7 +40,7 @@ from .common import (
     positive_seconds,
     stop_on_signals,
 )
-from .io import ReadResult, add_read_arguments, is_bits, read_values, show
+from .io import ReadResult, add_read_arguments, check_read, is_bits, read_values, show
 
 
 def percentile(sorted_values: list[float], q: float) -> float | None:
@@ -198,6 +198,7 @@ def _configure(p: argparse.ArgumentParser) -> None:
 def _run(args: argparse.Namespace) -> int:
     from ..errors import PortError
 
+    check_read(args)  # before the port is opened
     period = 1.0 / args.rate if args.rate > 0 else 0.0
     live = sys.stdout.isatty() and not args.json
     clock = time.monotonic

@@ -61,7 +61,14 @@ class DirectoryLock:
         self.path = os.path.join(directory, LOCK_NAME)
         self._fd = -1
         for _ in range(10):  # the owner may remove the file between open and flock
-            fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+            try:
+                fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+            except OSError as exc:
+                raise OSError(
+                    exc.errno,
+                    f"cannot create the lock file {LOCK_NAME} ({exc.strerror})",
+                    directory,
+                ) from None
             try:
                 self._take(fd)
                 if os.path.samestat(os.fstat(fd), os.stat(self.path)):
