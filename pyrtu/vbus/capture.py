@@ -454,8 +454,16 @@ def stream_frames(
     the character time, as `parse_stream` does with ``chunks``.  ``options`` are the
     keywords of `Framer` (baudrate, parity, ..., strict, rules).  The frames are
     those a live `Framer` finds (lenient mode ends a frame left incomplete by a
-    silence at ``flush_timeout``, where `parse_stream` waits for the next bytes).
-    ``backend``: "c" or "python" (None: the active one).
+    silence at ``flush_timeout``, where `parse_stream` waits for the next bytes; a
+    run of discarded bytes may come in pieces, as the framer resolves what it holds).
+    ``backend``: "c" or "python" (None: the active one).  A file of bytes without
+    times (a raw dump) streams with the time 0 for every block; then, as for
+    `parse_stream` without times, prediction and CRC alone split the stream::
+
+        with open("dump.bin", "rb") as f:
+            blocks = ((b, 0.0) for b in iter(lambda: f.read(1 << 16), b""))
+            for frame in stream_frames(blocks, baudrate=9600):
+                ...
     """
     framer = _backend_named(backend).Framer(role, **options)
     timer = framer.timer
