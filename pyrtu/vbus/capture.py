@@ -52,8 +52,8 @@ from __future__ import annotations
 import heapq
 import struct
 from array import array
-from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, replace
 from types import TracebackType
 from typing import IO, Any
 
@@ -439,8 +439,40 @@ def read_capture(path: str) -> tuple[bytes, list[tuple[int, float]]]:
     return cap.data, cap.chunks
 
 
+#: contiguous discard events are joined into runs of at most this many bytes
+MAX_DISCARD_RUN = 1 << 16
+
+
+def _join_discards(events: Iterator[Any]) -> Iterator[Any]:
+    """Contiguous discard events as one run with the first one's reason, as
+    `parse_stream` reports them (the live framer resolves a garbled frame in steps)."""
+    first: Any = None
+    buf = bytearray()
+    end: float | None = None
+    for ev in events:
+        if ev.error is not None:
+            if (
+                first is not None
+                and first.offset + len(buf) == ev.offset
+                and len(buf) + len(ev.adu) <= MAX_DISCARD_RUN
+            ):
+                buf += ev.adu
+                end = ev.end
+                continue
+            if first is not None:
+                yield replace(first, adu=bytes(buf), end=end)
+            first, buf, end = ev, bytearray(ev.adu), ev.end
+            continue
+        if first is not None:
+            yield replace(first, adu=bytes(buf), end=end)
+            first = None
+        yield ev
+    if first is not None:
+        yield replace(first, adu=bytes(buf), end=end)
+
+
 def stream_frames(
-    runs: Iterator[tuple[bytes, float]] | Sequence[tuple[bytes, float]],
+    runs: Iterable[tuple[bytes, float]],
     role: str = "monitor",
     *,
     backend: str | None = None,
@@ -453,9 +485,12 @@ def stream_frames(
     when the last byte of ``data`` arrived; the bytes before it are spread back at
     the character time, as `parse_stream` does with ``chunks``.  ``options`` are the
     keywords of `Framer` (baudrate, parity, ..., strict, rules).  The frames are
-    those a live `Framer` finds (lenient mode ends a frame left incomplete by a
-    silence at ``flush_timeout``, where `parse_stream` waits for the next bytes; a
-    run of discarded bytes may come in pieces, as the framer resolves what it holds).
+    those a live `Framer` finds: lenient mode ends a frame left incomplete by a
+    silence at ``flush_timeout``, where `parse_stream` keeps looking across any
+    silence (and can, by a CRC that checks by chance, swallow seconds of a damaged
+    capture into one frame).  Contiguous discarded bytes are reported as one run
+    (with the reason of its first byte, as `parse_stream` does), in pieces of at
+    most `MAX_DISCARD_RUN` bytes.
     ``backend``: "c" or "python" (None: the active one).  A file of bytes without
     times (a raw dump) streams with the time 0 for every block; then, as for
     `parse_stream` without times, prediction and CRC alone split the stream::
@@ -465,15 +500,23 @@ def stream_frames(
             for frame in stream_frames(blocks, baudrate=9600):
                 ...
     """
+    return _join_discards(_framer_events(runs, role, backend, options))
+
+
+def _framer_events(
+    runs: Iterable[tuple[bytes, float]], role: str, backend: str | None, options: dict[str, Any]
+) -> Iterator[Any]:
     framer = _backend_named(backend).Framer(role, **options)
+    char = framer.options.bits / framer.options.baudrate
     timer = framer.timer
     receive = framer.receive_data
     handle = framer.handle_timer
     next_event = framer.next_event
     now = None
     for data, at in runs:
+        # as a live framer: the timers due before the run's first byte fire first
         due = timer()
-        if due is not None and due <= at:
+        if due is not None and due <= at - (len(data) - 1) * char:
             handle(due)
         receive(data, at)
         now = at
