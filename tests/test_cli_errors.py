@@ -318,3 +318,12 @@ def test_demo_at_1200_baud() -> None:
     assert r.code == 0, r.err
     assert "0 errors" in r.out, r.out
     assert time.monotonic() - t < 90
+
+
+def test_the_drop_cap_is_the_buses() -> None:
+    from pyrtu.commands.vbus import MAX_DROPS as CLI_MAX
+    from pyrtu.vbus import MAX_DROPS
+
+    assert CLI_MAX == MAX_DROPS == 248
+    with pytest.raises(ValueError, match=r"1\.\.248 drops"):
+        VirtualBus(249)
