@@ -33,8 +33,9 @@ from ._slave_base import SlaveBase, line_from_keywords
 from .datastore import DataStore
 from .errors import PortError
 from .line import LineConfig
+from .port import open_line_port
 from .rules import RuleTable
-from .slave import open_slave_port, read_ready
+from .slave import read_ready
 
 log = logging.getLogger("pyrtu.slave")
 
@@ -84,7 +85,7 @@ class AsyncSlave(SlaveBase):
             identification=identification, response_delay=response_delay, watchdog=watchdog,
             on_watchdog=on_watchdog, server_id=server_id, run_indicator=run_indicator,
         )  # fmt: skip
-        self._setup_line(open_slave_port(port, config, rs485, exclusive))
+        self._setup_line(open_line_port(port, config, rs485, exclusive))
         self._loop: asyncio.AbstractEventLoop | None = None
         self._done: asyncio.Future[None] | None = None
         self._task: asyncio.Task[None] | None = None

@@ -23,7 +23,6 @@ order    registers            seen as
 
 from __future__ import annotations
 
-import math
 import struct
 from collections.abc import Callable, Iterable, Sequence
 from typing import Any
@@ -89,13 +88,30 @@ def decode_uint32(registers: Sequence[int], order: str = "ABCD") -> int:
     return int.from_bytes(_from_registers(registers, order), "big")
 
 
+#: the largest finite float32 (FLT_MAX)
+FLOAT32_MAX = 3.4028234663852886e38
+
+
 def encode_float32(value: float, order: str = "ABCD") -> list[int]:
-    """An IEEE 754 single as two registers (OverflowError if out of range)."""
+    """An IEEE 754 single as two registers.
+
+    One rule (the CLI's ``--type float32`` too): every value a float32 can hold is
+    written.  A finite value is rounded to the nearest single; NaN and the
+    infinities are written as themselves (devices use them as "no value").  A
+    finite value that would round to infinity (beyond ``FLOAT32_MAX`` by more than
+    half a unit in the last place) raises ValueError: a number never silently
+    becomes infinite.
+    """
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise ValueError(f"a float32 must be a number, not {value!r}")
-    if math.isfinite(value) and abs(value) > 3.4028234663852886e38:
-        raise OverflowError(f"{value!r} is out of the float32 range")
-    return _to_registers(struct.pack(">f", value), order)
+    try:
+        packed = struct.pack(">f", value)
+    except (OverflowError, struct.error):  # struct.error: an int too big for a float
+        raise ValueError(
+            f"{value!r} is out of the float32 range (finite values up to"
+            f" ±{FLOAT32_MAX:.8g}; nan and ±inf are written as such)"
+        ) from None
+    return _to_registers(packed, order)
 
 
 def decode_float32(registers: Sequence[int], order: str = "ABCD") -> float:
@@ -175,6 +191,7 @@ def decode_string(
 
 
 __all__ = [
+    "FLOAT32_MAX",
     "KINDS",
     "ORDERS",
     "decode_float32",

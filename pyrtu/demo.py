@@ -35,7 +35,9 @@ from typing import Any
 from .commands.common import (
     EXIT_FAILURE,
     EXIT_OK,
+    MAX_BAUDRATE,
     CommandSpec,
+    baudrate,
     message_of,
     positive_seconds,
     stop_on_signals,
@@ -103,7 +105,12 @@ def configure(p: argparse.ArgumentParser) -> None:
         help="the CFW701's acceleration time P100, 0 to 66 Hz (default 10 s)",
     )
     p.add_argument(
-        "-b", "--baudrate", type=int, default=19200, metavar="BAUD", help="(default 19200)"
+        "-b",
+        "--baudrate",
+        type=baudrate,
+        default=19200,
+        metavar="BAUD",
+        help=f"(default 19200; at most {MAX_BAUDRATE})",
     )
     p.add_argument(
         "-i",
@@ -116,6 +123,13 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--plain", action="store_true", help="plain lines even when the output is a terminal"
     )
+
+
+def response_timeout(char_time: float) -> float:
+    """The master's timeout: 0.3 s of slack plus the wire time of the longest
+    exchange (a request and a 256-byte answer, [SL] 2.5.1), so that slow lines
+    (1200 baud and below) work as well as fast ones."""
+    return 0.3 + (8 + 256 + 8) * char_time
 
 
 def run(args: argparse.Namespace) -> int:
@@ -176,7 +190,8 @@ class Demo:
                 for drop, d in enumerate(self.drives, start=1):
                     d.sim.serve(bus.paths[drop], d.address, baudrate=baud, parity="N")
                     self.say(f"    drop{drop}  {d.title:<16} slave address {d.address}")
-                with Master(bus.paths[0], baud, parity="N", timeout=0.3, retries=2) as master:
+                timeout = response_timeout(bus.char_time)
+                with Master(bus.paths[0], baud, parity="N", timeout=timeout, retries=2) as master:
                     for d in self.drives:
                         d.profile = PROFILES[d.device](master, d.address)
                     self._identify(master)

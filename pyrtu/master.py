@@ -42,7 +42,7 @@ from ._requests import Call
 from ._transports import transport_for
 from .errors import PortError
 from .line import LineConfig
-from .port import Port, open_port
+from .port import Port, open_line_port
 from .rules import LengthRule, RuleTable, check_rules
 
 _LINE_DEFAULTS: dict[str, Any] = dict(
@@ -89,22 +89,6 @@ def make_line(line: LineConfig | None, **kwargs: Any) -> LineConfig:
     if given:
         raise TypeError(f"give line= or the line keywords ({', '.join(given)}), not both")
     return line
-
-
-def open_line_port(port: Any, line: LineConfig, rs485: Any, exclusive: bool) -> Port:
-    """Open ``port`` with the line's format (``exclusive`` when open_port takes it)."""
-    kwargs: dict[str, Any] = {}
-    if "exclusive" in open_port.__code__.co_varnames:
-        kwargs["exclusive"] = exclusive
-    return open_port(
-        port,
-        baudrate=line.baudrate,
-        parity=line.parity,
-        stopbits=line.stopbits,
-        bytesize=line.bytesize,
-        rs485=rs485,
-        **kwargs,
-    )
 
 
 def adopt_port_format(line: LineConfig, p: Port) -> LineConfig:

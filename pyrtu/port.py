@@ -36,13 +36,16 @@ import os
 import select
 import termios
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import serial
 import serial.rs485
 
 from .errors import PortError
 from .timing import bits_per_char
+
+if TYPE_CHECKING:
+    from .line import LineConfig
 
 _READ_SIZE = 4096
 _PTY_MAJORS = frozenset(range(136, 144)) | {2, 3}  # Unix98 pty slaves, legacy BSD ptys
@@ -241,8 +244,16 @@ def open_port(
     stopbits: float = 1,
     bytesize: int = 8,
     rs485: Any = None,
+    exclusive: bool = True,
 ) -> Port:
-    """Open (or adopt) a serial port; PortError names the port and the setting."""
+    """Open (or adopt) a serial port; PortError names the port and the setting.
+
+    ``exclusive`` (POSIX): take an exclusive ``flock`` on the device, so that a
+    second program opening it the same way (pyrtu, pyserial with
+    ``exclusive=True``, ...) gets `PortError` ("busy") instead of splitting the
+    bytes with the first; ``False`` shares the port.  The lock is advisory: a
+    program that takes none is not stopped.  Adopted serial objects keep theirs.
+    """
     if not isinstance(port, str):
         if not (hasattr(port, "read") and hasattr(port, "write")):
             raise TypeError(f"port must be a path, a pyserial URL or a serial object, not {port!r}")
@@ -276,6 +287,8 @@ def open_port(
         ser.stopbits = stopbits
         ser.timeout = 0
         ser.write_timeout = None
+        if os.name == "posix":
+            ser.exclusive = bool(exclusive)
         if mode is not None:
             ser.rs485_mode = mode
         ser.open()
@@ -288,6 +301,12 @@ def open_port(
         if isinstance(exc, termios.error) and exc.args:
             code = exc.args[0]
         text = str(exc)
+        if code in (errno.EWOULDBLOCK, errno.EAGAIN) and "exclusive" in text:
+            raise PortError(
+                port,
+                "busy: another program holds it (ports are opened exclusively;"
+                " pass exclusive=False to share it)",
+            ) from exc
         if code == errno.EINVAL or "Invalid argument" in text:
             hint = " (pseudo-terminals carry no parity: use parity='N')" if parity != "N" else ""
             raise PortError(
@@ -307,3 +326,16 @@ def open_port(
 
 
 __all__ = ["Port", "open_port"]
+
+
+def open_line_port(port: Any, line: LineConfig, rs485: Any = None, exclusive: bool = True) -> Port:
+    """`open_port` with the byte format of ``line`` (the drivers' one way to open)."""
+    return open_port(
+        port,
+        baudrate=line.baudrate,
+        parity=line.parity,
+        stopbits=line.stopbits,
+        bytesize=line.bytesize,
+        rs485=rs485,
+        exclusive=exclusive,
+    )

@@ -32,7 +32,6 @@ The diagnostic counters, event log and listen-only mode of the serial line
 from __future__ import annotations
 
 import contextlib
-import inspect
 import logging
 import os
 import select
@@ -45,7 +44,7 @@ from ._slave_base import STANDARD_FUNCTIONS, Handler, SlaveBase, line_from_keywo
 from .datastore import DataStore
 from .errors import PortError
 from .line import LineConfig
-from .port import Port, open_port
+from .port import Port, open_line_port
 from .rules import RuleTable
 
 log = logging.getLogger("pyrtu.slave")
@@ -54,17 +53,6 @@ _monotonic = time.monotonic
 _POLL = 0.05  # ports without a file descriptor: the longest blocking read
 _READ_SIZE = 4096
 _SELECT_LIMIT = 1024  # FD_SETSIZE
-
-
-def open_slave_port(port: Any, line: LineConfig, rs485: Any, exclusive: bool) -> Any:
-    """open_port with ``exclusive`` when the port layer has it."""
-    options: dict[str, Any] = dict(
-        baudrate=line.baudrate, parity=line.parity, stopbits=line.stopbits,
-        bytesize=line.bytesize, rs485=rs485,
-    )  # fmt: skip
-    if "exclusive" in inspect.signature(open_port).parameters:
-        options["exclusive"] = exclusive
-    return open_port(port, **options)
 
 
 def read_ready(port: Port, fd: int, readable: bool) -> bytes:
@@ -125,7 +113,7 @@ class Slave(SlaveBase):
             identification=identification, response_delay=response_delay, watchdog=watchdog,
             on_watchdog=on_watchdog, server_id=server_id, run_indicator=run_indicator,
         )  # fmt: skip
-        self._setup_line(open_slave_port(port, config, rs485, exclusive))
+        self._setup_line(open_line_port(port, config, rs485, exclusive))
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._serving = False

@@ -8,6 +8,7 @@ import struct
 import pytest
 
 from pyrtu.data import (
+    FLOAT32_MAX,
     ORDERS,
     decode_float32,
     decode_int32,
@@ -95,9 +96,16 @@ def test_bad_arguments(call: object, message: str) -> None:
         call()  # type: ignore[operator]
 
 
-def test_float32_overflow() -> None:
-    with pytest.raises(OverflowError):
-        encode_float32(1e39)
+def test_float32_one_rule_for_range_nan_and_inf() -> None:
+    # Out of range is a ValueError (like the integer encoders), not OverflowError.
+    for value in (1e39, -1e39, 3.5e38, 10**400):
+        with pytest.raises(ValueError, match="out of the float32 range"):
+            encode_float32(value)
+    # What a float32 can hold is written: the rounding edge, nan, the infinities.
+    assert decode_float32(encode_float32(3.4028235e38)) == FLOAT32_MAX
+    assert decode_float32(encode_float32(-3.4028235e38)) == -FLOAT32_MAX
+    assert math.isnan(decode_float32(encode_float32(math.nan)))
+    assert decode_float32(encode_float32(math.inf)) == math.inf
 
 
 def test_many_values() -> None:

@@ -284,9 +284,12 @@ def test_inserted_gaps(tmp_path: Path) -> None:
     assert gap_run(f, tmp_path, "rand2.cap") == runs
     assert gap_run(Faults(seed=12, gap_rate=0.05, gap_s=2 * char), tmp_path, "rand3.cap") != runs
     data, chunks = read_capture(str(tmp_path / "rand1.cap"))
-    times = [t for _, t in chunks]
-    silences = [b - a - char for a, b in itertools.pairwise(times)]
-    assert sum(1 for s in silences if s > char) == len(runs) - 1
+    # one chunk per run of back-to-back bytes, timed at its last byte
+    assert [b[0] - a[0] for a, b in itertools.pairwise(chunks)] == runs[:-1]
+    ends = [t for _, t in chunks]
+    firsts = [t - (n - 1) * char for t, n in zip(ends, runs, strict=True)]
+    silences = [b - a - char for a, b in zip(ends, firsts[1:], strict=False)]
+    assert all(s > char for s in silences)
     assert data == PAYLOAD[:120]
 
 
@@ -381,7 +384,7 @@ def test_capture_round_trips_through_parse_stream(tmp_path: Path) -> None:
 
     data, chunks = read_capture(cap)
     assert data == (request + response) * 3
-    assert len(chunks) == len(data)
+    assert [o for o, _ in chunks] == [0, 8, 19, 27, 38, 46]  # a chunk per frame on the wire
     assert all(b[1] > a[1] for a, b in itertools.pairwise(chunks))
     frames = pyrtu.parse_stream(data, "monitor", chunks=chunks, baudrate=9600, parity="E")
     kinds = [f.kind for f in frames]
@@ -397,11 +400,12 @@ def test_capture_round_trips_through_parse_stream(tmp_path: Path) -> None:
     assert loaded.header.baudrate == 9600 and loaded.header.bits == 11
     assert [r.drop for r in sorted(loaded.records, key=lambda r: r.t_us)] == [0, 1] * 3
     assert not any(r.collision for r in loaded.records)
-    assert loaded.drops[: len(request)] == (0,) * len(request)
+    assert list(loaded.drops[: len(request)]) == [0] * len(request)
+    assert list(loaded.drops[len(request) : len(request) + len(response)]) == [1] * len(response)
     assert [f.adu for f in loaded.parse()] == [request, response] * 3
     # Each frame takes its wire time in the capture: 8 characters of 11 bits.
     char = 11 / 9600
-    span = chunks[len(request) - 1][1] - chunks[0][1]
+    span = loaded.times[len(request) - 1] - loaded.times[0]
     assert span == pytest.approx((len(request) - 1) * char, abs=2e-6)
 
 

@@ -87,6 +87,12 @@ def exit_code_table() -> str:
 
 # -- argument types -------------------------------------------------------------------
 
+#: the longest time any option takes (about 31 years): beyond, microseconds overflow
+MAX_SECONDS = 1e9
+#: the fastest serial line the commands accept: the character time must stay a
+#: positive number of microseconds (the framer's clock) for every format
+MAX_BAUDRATE = 10_000_000
+
 _DURATION = re.compile(r"^\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*(s|ms|us|µs)?\s*$")
 
 
@@ -100,8 +106,10 @@ def seconds(text: str) -> float:
     value = (
         float(m.group(1)) * {None: 1.0, "s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6}[m.group(2)]
     )
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"expected a finite time, not {text!r}")
+    if not math.isfinite(value) or value > MAX_SECONDS:
+        raise argparse.ArgumentTypeError(
+            f"expected a time of at most {MAX_SECONDS:g} s, not {text!r}"
+        )
     return value
 
 
@@ -110,6 +118,45 @@ def positive_seconds(text: str) -> float:
     if value <= 0:
         raise argparse.ArgumentTypeError(f"expected a positive time, not {text!r}")
     return value
+
+
+def bounded_int(low: int, high: int | None, what: str = "an integer") -> Callable[[str], int]:
+    """An argparse type: a decimal (or 0x hex) integer within [low, high]."""
+
+    def convert(text: str) -> int:
+        try:
+            value = int(text, 0)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {what}, not {text!r}") from None
+        if value < low or (high is not None and value > high):
+            span = f"{low}..{high}" if high is not None else f"{low} or more"
+            raise argparse.ArgumentTypeError(f"expected {what} {span}, not {text!r}")
+        return value
+
+    convert.__name__ = what.replace(" ", "_")
+    return convert
+
+
+#: ``--baudrate``: 1..MAX_BAUDRATE
+baudrate = bounded_int(1, MAX_BAUDRATE, "a baud rate")
+#: ``--count``: 1 or more (there is no "0 = unlimited": leave the option out)
+count = bounded_int(1, None, "a count")
+
+
+def finite_float(low: float, high: float, what: str) -> Callable[[str], float]:
+    """An argparse type: a finite number within [low, high] (no nan, no inf)."""
+
+    def convert(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {what}, not {text!r}") from None
+        if not (math.isfinite(value) and low <= value <= high):
+            raise argparse.ArgumentTypeError(f"expected {what} {low:g}..{high:g}, not {text!r}")
+        return value
+
+    convert.__name__ = what.replace(" ", "_")
+    return convert
 
 
 class HexInt(int):
@@ -126,6 +173,22 @@ def integer(text: str) -> int:
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected an integer, not {text!r}") from None
     return HexInt(value) if text.strip().lower().startswith("0x") else value
+
+
+def register_address(text: str) -> int:
+    """A register or bit address 0..65535 (decimal or 0x hex; argparse type)."""
+    value = integer(text)
+    if not 0 <= value <= 0xFFFF:
+        raise argparse.ArgumentTypeError(f"an address is 0..65535 (0xFFFF), not {text!r}")
+    return value
+
+
+def object_id(text: str) -> int:
+    """A device identification object id 0..255 (argparse type)."""
+    value = integer(text)
+    if not 0 <= value <= 0xFF:
+        raise argparse.ArgumentTypeError(f"an object id is 0..255 (0xFF), not {text!r}")
+    return value
 
 
 def show_address(address: int, like: int) -> str:
@@ -161,7 +224,12 @@ def add_serial_options(
     retries options, for the commands that only listen or serve)."""
     g = p.add_argument_group("serial line (the keywords of pyrtu.Master)")
     g.add_argument(
-        "-b", "--baudrate", type=int, default=19200, metavar="BAUD", help="(default 19200)"
+        "-b",
+        "--baudrate",
+        type=baudrate,
+        default=19200,
+        metavar="BAUD",
+        help=f"(default 19200; at most {MAX_BAUDRATE})",
     )
     g.add_argument(
         "-P",
@@ -187,6 +255,7 @@ def add_serial_options(
         choices=["modbus", "weg"],
         help="timing rule above 19200 baud (default modbus)",
     )
+    add_exclusive_option(g)
     if timeout is not None:
         g.add_argument(
             "-o",
@@ -197,11 +266,26 @@ def add_serial_options(
             help=f"response timeout (default {timeout:g} s; 500ms works too)",
         )
         g.add_argument(
-            "--retries", type=int, default=0, metavar="N", help="repeat a failed transaction"
+            "--retries",
+            type=bounded_int(0, 100, "a number of retries"),
+            default=0,
+            metavar="N",
+            help="repeat a failed transaction (0..100)",
         )
         g.add_argument(
             "--echo", action="store_true", help="the adapter echoes what it sends (read it back)"
         )
+
+
+def add_exclusive_option(g: Any) -> None:
+    """``--no-exclusive``: open the port without the exclusive lock (pyrtu.open_port)."""
+    g.add_argument(
+        "--no-exclusive",
+        dest="exclusive",
+        action="store_false",
+        help="share the port with other programs (default: opened exclusively; "
+        "a port another program holds is an error, exit 3)",
+    )
 
 
 def add_json_option(p: argparse.ArgumentParser, what: str = "one JSON document") -> None:
@@ -249,7 +333,9 @@ def open_master(args: argparse.Namespace, **overrides: Any) -> Master:
     from ..master import Master
 
     line_fields = {k: overrides.pop(k) for k in list(overrides) if k in _LINE_FIELDS}
-    kwargs: dict[str, Any] = dict(timeout=args.timeout, retries=args.retries, echo=args.echo)
+    kwargs: dict[str, Any] = dict(
+        timeout=args.timeout, retries=args.retries, echo=args.echo, exclusive=args.exclusive
+    )
     kwargs.update(overrides)
     return Master(args.port, line=line_config(args, **line_fields), **kwargs)
 
@@ -271,10 +357,11 @@ def classify(exc: BaseException) -> int:
         NoResponseError,
         PortError,
     )
+    from ..vbus.capture import CaptureError
 
     if isinstance(exc, KeyboardInterrupt):
         return EXIT_INTERRUPTED
-    if isinstance(exc, PortError):
+    if isinstance(exc, PortError | CaptureError):
         return EXIT_PORT
     if isinstance(exc, NoResponseError):
         return EXIT_NO_RESPONSE
@@ -317,7 +404,7 @@ def error_document(exc: BaseException, code: int) -> dict[str, Any]:
 
 def message_of(exc: BaseException) -> str:
     if isinstance(exc, KeyboardInterrupt):
-        return "interrupted"
+        return "stopped by SIGINT (Ctrl-C)"
     if isinstance(exc, OSError) and exc.filename is not None and exc.strerror:
         return f"{exc.filename}: {exc.strerror}"
     return str(exc) or type(exc).__name__
@@ -345,6 +432,29 @@ def port_error(exc: termios.error, port: str, fmt: str) -> PortError:
     if code == errno.EINVAL:
         hint = " (pseudo-terminals and the virtual bus carry no parity: use --parity N)"
     return PortError(port, f"the port refused the format {fmt}: {text}{hint}")
+
+
+#: the library's advice in its own terms -> the command line's
+_CLI_TERMS = (
+    ("use parity='N'", "use --parity N"),
+    ("pass exclusive=False", "use --no-exclusive"),
+)
+
+
+def in_cli_terms(exc: BaseException) -> BaseException:
+    """A PortError whose advice names Python keywords, reworded with the CLI flags."""
+    from ..errors import PortError
+
+    if not isinstance(exc, PortError):
+        return exc
+    text = str(exc)
+    for python, cli in _CLI_TERMS:
+        text = text.replace(python, cli)
+    if text == str(exc):
+        return exc
+    out = PortError(exc.port, text.removeprefix(f"{exc.port}: "))
+    out.__cause__ = exc.__cause__
+    return out
 
 
 def report_error(
@@ -379,6 +489,7 @@ def guarded(command: str, run: Run) -> Run:
                 exc, ModbusError | OSError | ValueError | OverflowError | KeyboardInterrupt
             ):
                 raise
+            error = in_cli_terms(error)
             return report_error(command, error, bool(getattr(args, "json", False)))
 
     wrapper.__name__ = getattr(run, "__name__", "run")

@@ -20,7 +20,7 @@ from .common import (
     emit,
     exit_code_table,
     guarded,
-    integer,
+    object_id,
     open_master,
     slave_address,
 )
@@ -68,7 +68,7 @@ def _configure(p: argparse.ArgumentParser) -> None:
         default="basic",
         help="identification category (default basic)",
     )
-    p.add_argument("--object", type=integer, metavar="ID", help="read one object (read code 4)")
+    p.add_argument("--object", type=object_id, metavar="ID", help="read one object (read code 4)")
     p.add_argument(
         "--profile",
         choices=DEVICES,

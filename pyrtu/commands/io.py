@@ -29,6 +29,7 @@ from .common import (
     guarded,
     integer,
     open_master,
+    register_address,
     show_address,
     slave_address,
 )
@@ -245,7 +246,10 @@ def add_read_arguments(p: argparse.ArgumentParser) -> None:
     """PORT --slave --table ADDRESS [COUNT] --type --order --profile (read and poll)."""
     p.add_argument("port", metavar="PORT", help="serial device (/dev/ttyUSB0) or pyserial URL")
     p.add_argument(
-        "address", type=integer, metavar="ADDRESS", help="first address, from 0 (0x hex too)"
+        "address",
+        type=register_address,
+        metavar="ADDRESS",
+        help="first address, 0..65535 (0x hex too)",
     )
     p.add_argument(
         "count",
@@ -280,13 +284,38 @@ def add_read_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def read_values(master: Master, args: argparse.Namespace) -> ReadResult:
-    """One read as the arguments say."""
+#: the most one request reads or writes (Application Protocol V1.1b, 6.1-6.4, 6.11-6.12)
+READ_LIMIT = {"bits": 2000, "registers": 125}
+WRITE_LIMIT = {"bits": 1968, "registers": 123}
+
+
+def check_span(table: str, address: int, n: int, limits: dict[str, int] | None, what: str) -> None:
+    """The items a request covers, in the command's terms (ValueError: usage);
+    ``limits``: READ_LIMIT, WRITE_LIMIT, or None (one request per item)."""
+    unit = "bits" if is_bits(table) else "registers"
+    if limits is not None and n > limits[unit]:
+        verb = "writes" if limits is WRITE_LIMIT else "reads"
+        raise ValueError(f"{what} covers {n} {unit}; one request {verb} at most {limits[unit]}")
+    if address + n > 0x10000:
+        raise ValueError(f"ADDRESS {address} + {n} {unit} runs past the last address 65535")
+
+
+def check_read(args: argparse.Namespace) -> None:
+    """The read's arguments, checked before the port is opened (ValueError: usage)."""
     if args.slave == 0:
         raise ValueError("a read needs a slave address 1..247 (0 is broadcast: nobody answers)")
     count = 1 if args.count is None else args.count
     if count < 1:
         raise ValueError(f"COUNT must be at least 1, not {count}")
+    n = count if is_bits(args.table) or args.kind == "string" else count * width(args.kind)
+    what = f"COUNT {count}" + ("" if is_bits(args.table) else f" of {args.kind}")
+    check_span(args.table, args.address, n, READ_LIMIT, what)
+
+
+def read_values(master: Master, args: argparse.Namespace) -> ReadResult:
+    """One read as the arguments say."""
+    check_read(args)
+    count = 1 if args.count is None else args.count
     tbl = args.table
     if is_bits(tbl):
         reader = master.read_coils if tbl == "coils" else master.read_discrete_inputs
@@ -327,6 +356,7 @@ def _configure_read(p: argparse.ArgumentParser) -> None:
 
 
 def _run_read(args: argparse.Namespace) -> int:
+    check_read(args)
     with open_master(args) as master:
         result = read_values(master, args)
     if args.json:
@@ -341,7 +371,9 @@ def _run_read(args: argparse.Namespace) -> int:
 
 def _configure_write(p: argparse.ArgumentParser) -> None:
     p.add_argument("port", metavar="PORT", help="serial device (/dev/ttyUSB0) or pyserial URL")
-    p.add_argument("address", type=integer, metavar="ADDRESS", help="first address, from 0")
+    p.add_argument(
+        "address", type=register_address, metavar="ADDRESS", help="first address, 0..65535"
+    )
     p.add_argument(
         "values",
         nargs="+",
@@ -405,6 +437,11 @@ def plan_write(args: argparse.Namespace) -> WritePlan:
             f"function {function} ({FUNCTION_NAMES[function]}) does not write {TABLES[tbl][2]}; "
             f"use {single} or {multiple}"
         )
+    if not items:
+        raise ValueError("VALUE: nothing to write")
+    n = len(items)
+    limits = WRITE_LIMIT if function == multiple else None
+    check_span(tbl, args.address, n, limits, f"VALUE ({n} items)")
     return WritePlan(tbl, function, items, values)
 
 

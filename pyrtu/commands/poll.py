@@ -33,15 +33,17 @@ from .common import (
     CommandSpec,
     add_json_option,
     add_serial_options,
+    count,
     emit,
     exit_code_table,
+    finite_float,
     guarded,
     message_of,
     open_master,
     positive_seconds,
     stop_on_signals,
 )
-from .io import ReadResult, add_read_arguments, is_bits, read_values, show
+from .io import ReadResult, add_read_arguments, check_read, is_bits, read_values, show
 
 
 def percentile(sorted_values: list[float], q: float) -> float | None:
@@ -162,13 +164,19 @@ def _configure(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "-r",
         "--rate",
-        type=float,
+        type=finite_float(0.0, 1e6, "a rate in Hz"),
         default=10.0,
         metavar="HZ",
         help="transactions per second (default 10; 0: back to back)",
     )
     g.add_argument(
-        "-n", "--count", dest="polls", type=int, default=None, metavar="N", help="stop after N"
+        "-n",
+        "--count",
+        dest="polls",
+        type=count,
+        default=None,
+        metavar="N",
+        help="stop after N (1 or more)",
     )
     g.add_argument(
         "-d",
@@ -193,10 +201,7 @@ def _configure(p: argparse.ArgumentParser) -> None:
 def _run(args: argparse.Namespace) -> int:
     from ..errors import PortError
 
-    if args.rate < 0:
-        raise ValueError(f"--rate must be 0 or more, not {args.rate:g}")
-    if args.polls is not None and args.polls < 1:
-        raise ValueError(f"--count must be at least 1, not {args.polls}")
+    check_read(args)  # before the port is opened
     period = 1.0 / args.rate if args.rate > 0 else 0.0
     live = sys.stdout.isatty() and not args.json
     clock = time.monotonic

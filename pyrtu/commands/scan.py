@@ -25,8 +25,8 @@ from .common import (
     emit,
     exit_code_table,
     guarded,
-    integer,
     open_master,
+    register_address,
 )
 
 if TYPE_CHECKING:
@@ -116,7 +116,11 @@ def _configure(p: argparse.ArgumentParser) -> None:
         help="probe function (default 3: read one holding register)",
     )
     p.add_argument(
-        "--register", type=integer, default=0, metavar="ADDRESS", help="register or bit to read"
+        "--register",
+        type=register_address,
+        default=0,
+        metavar="ADDRESS",
+        help="register or bit to read",
     )
     p.add_argument(
         "--identify", action="store_true", help="FC 43 identification of each slave found"

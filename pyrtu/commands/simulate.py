@@ -116,12 +116,12 @@ def _run(args: argparse.Namespace) -> int:
     device: str = args.device
     address = args.address if args.address is not None else EXAMPLE_ADDRESS[device]
     if not 1 <= address <= 247:
-        raise ValueError(f"a slave address is 1..247, not {address}")
+        raise ValueError(f"--address: a slave address is 1..247, not {address}")
     if args.port is None and args.tcp is None:
         raise ValueError("give --port PATH, --tcp HOST:PORT or both")
     sim = make_simulator(device, args.state, args.mode)
     options = serial_kwargs(args)
-    options.update(mode=args.mode, timing=args.timing)
+    options.update(mode=args.mode, timing=args.timing, exclusive=args.exclusive)
     if args.t35 is not None:
         options["t35"] = args.t35
     with stop_on_signals() as stop:  # before the "ready" line: a signal after it stops cleanly

@@ -31,6 +31,7 @@ from .common import (
     CommandSpec,
     add_json_option,
     add_serial_options,
+    count,
     emit,
     exit_code_table,
     framing_kwargs,
@@ -251,38 +252,72 @@ def _seen_rtu(frame: Any) -> Seen:
     )
 
 
-def from_capture(path: str, profile: str | None, args: argparse.Namespace) -> Iterator[Seen]:
-    from ..vbus import load_capture
+def from_capture(reader: Any, profile: str | None, args: argparse.Namespace) -> Iterator[Seen]:
+    """The frames of an open `CaptureReader`, streamed (memory bounded by a constant)."""
+    from ..vbus.capture import capture_frames
 
-    cap = load_capture(path)
-    options = cap.parse_kwargs()
-    options.update(timing=args.timing, t35=args.t35)
-    for frame in cap.parse(rules=_rules(profile) or None, **options):
+    options: dict[str, Any] = {"timing": args.timing, "t35": args.t35}
+    rules = _rules(profile)
+    if rules:
+        options["rules"] = rules
+    for frame in capture_frames(reader, **options):
         yield _seen_rtu(frame)
 
 
+def open_capture(path: str) -> Any:
+    """A `CaptureReader` for ``--capture``; unreadable files raise `PortError` (exit 3)."""
+    from ..errors import PortError
+    from ..vbus.capture import CaptureError, CaptureReader
+
+    try:
+        return CaptureReader(path)
+    except CaptureError as exc:
+        raise PortError(path, str(exc).removeprefix(f"{path}: ")) from None
+    except IsADirectoryError:
+        raise PortError(path, "is a directory, not a capture file") from None
+
+
+def capture_warnings(reader: Any) -> list[str]:
+    """What a finished capture read has to say (a cut last record, merge trouble)."""
+    out = []
+    if reader.truncated is not None:
+        out.append(f"{reader.path}: {reader.truncated}")
+    if reader.late:
+        out.append(
+            f"{reader.path}: {reader.late} runs of bytes came after later ones beyond the"
+            " reordering window (the file is damaged or not written by pyrtu)"
+        )
+    return out
+
+
 def from_example(profile: str | None) -> Iterator[Seen]:
-    from .._backend import active as core
+    from .._backend import active
     from ..rules import BONFIGLIOLI
 
     data, chunks = example_capture()
     rules = _rules(profile) or dict(BONFIGLIOLI)
-    for frame in core.parse_stream(data, "monitor", chunks=chunks, rules=rules):
+    for frame in active.parse_stream(data, "monitor", chunks=chunks, rules=rules):
         yield _seen_rtu(frame)
 
 
 def from_port(args: argparse.Namespace, stop: Any) -> Iterator[Seen]:
-    """Frames heard on a live port until ``stop`` is set."""
-    from .._backend import active as core
-    from ..ascii import AsciiFramer
+    """Frames heard on a live port until ``stop`` is set; the port is opened here
+    (errors now, not at the first frame)."""
     from ..port import open_port
 
-    port = open_port(args.port, **serial_kwargs(args))
+    port = open_port(args.port, exclusive=args.exclusive, **serial_kwargs(args))
+    return _listen(port, args, stop)
+
+
+def _listen(port: Any, args: argparse.Namespace, stop: Any) -> Iterator[Seen]:
+    from .._backend import active
+    from ..ascii import AsciiFramer
+
     ascii_mode = args.mode == "ascii"
     framer: Any = (
         AsciiFramer("monitor")
         if ascii_mode
-        else core.Framer("monitor", rules=_rules(args.profile) or None, **framing_kwargs(args))
+        else active.Framer("monitor", rules=_rules(args.profile) or None, **framing_kwargs(args))
     )
     clock = time.monotonic
     try:
@@ -353,7 +388,7 @@ def _configure(p: argparse.ArgumentParser) -> None:
     src.add_argument("-c", "--capture", metavar="FILE", help="decode a capture file instead")
     src.add_argument("--example", action="store_true", help="decode a built-in sample capture")
     p.add_argument("--profile", choices=DEVICES, type=str.lower, help="decode for this drive")
-    p.add_argument("-n", "--count", type=int, metavar="N", help="stop after N frames")
+    p.add_argument("-n", "--count", type=count, metavar="N", help="stop after N frames (1 or more)")
     p.add_argument(
         "-d", "--duration", type=positive_seconds, metavar="SECONDS", help="stop after this time"
     )
@@ -363,7 +398,13 @@ def _configure(p: argparse.ArgumentParser) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     sources = [args.port is not None, args.capture is not None, args.example]
-    if sum(sources) != 1:
+    if sum(sources) > 1:
+        raise ValueError(
+            "give a PORT to listen to, or --capture FILE, or --example: not both"
+            if sum(sources) == 2 and not args.example
+            else "give one of PORT, --capture FILE and --example, not several"
+        )
+    if sum(sources) == 0:
         raise ValueError("give a PORT to listen to, or --capture FILE, or --example")
     # the built-in sample has Bonfiglioli FC 100 frames
     decoder = Decoder(args.profile, "bonfiglioli" if args.example and not args.profile else None)
@@ -371,45 +412,56 @@ def _run(args: argparse.Namespace) -> int:
     discarded = 0
     shown = 0
     t0: float | None = None
-    with stop_on_signals() as stop:
-        if args.port is not None:
-            frames: Iterable[Seen] = from_port(args, stop)
-            if not args.json:
-                print(
-                    f"listening on {args.port} ({args.baudrate} baud {args.bytesize}{args.parity}"
-                    f"{args.stopbits:g} {args.mode.upper()}); Ctrl-C to stop",
-                    file=sys.stderr,
-                    flush=True,
-                )
-        elif args.capture is not None:
-            frames = from_capture(args.capture, args.profile, args)
-        else:
-            frames = from_example(args.profile)
-        started = time.monotonic()
-        deadline = None if args.duration is None else started + args.duration
-        if deadline is not None:
-            frames = _until(frames, deadline, stop)
-        for seen in frames:
-            if t0 is None:
-                t0 = seen.start if seen.start is not None else 0.0
-            at = (seen.start or t0) - t0
-            decoded = decoder.decode(seen)
-            counts[seen.kind] = counts.get(seen.kind, 0) + 1
-            if seen.error:
-                discarded += len(seen.raw)
-            if args.json:
-                emit(_document(seen, at, decoder, decoded))
+    reader: Any = None
+    try:
+        with stop_on_signals() as stop:
+            if args.port is not None:
+                frames: Iterable[Seen] = from_port(args, stop)  # opens the port first
+                if not args.json:
+                    print(
+                        f"listening on {args.port} ({args.baudrate} baud {args.bytesize}"
+                        f"{args.parity}{args.stopbits:g} {args.mode.upper()}); Ctrl-C to stop",
+                        file=sys.stderr,
+                        flush=True,
+                    )
+            elif args.capture is not None:
+                reader = open_capture(args.capture)
+                frames = from_capture(reader, args.profile, args)
             else:
-                print(_line(seen, at, decoder, decoded), flush=True)
-            shown += 1
-            if args.count is not None and shown >= args.count:
-                break
-    summary = {
+                frames = from_example(args.profile)
+            started = time.monotonic()
+            deadline = None if args.duration is None else started + args.duration
+            if deadline is not None:
+                frames = _until(frames, deadline, stop)
+            for seen in frames:
+                if t0 is None:
+                    t0 = seen.start if seen.start is not None else 0.0
+                at = (seen.start or t0) - t0
+                decoded = decoder.decode(seen)
+                counts[seen.kind] = counts.get(seen.kind, 0) + 1
+                if seen.error:
+                    discarded += len(seen.raw)
+                if args.json:
+                    emit(_document(seen, at, decoder, decoded))
+                else:
+                    print(_line(seen, at, decoder, decoded), flush=True)
+                shown += 1
+                if args.count is not None and shown >= args.count:
+                    break
+        warnings = capture_warnings(reader) if reader is not None else []
+    finally:
+        if reader is not None:
+            reader.close()
+    for text in warnings:
+        print(f"pyrtu sniff: warning: {text}", file=sys.stderr)
+    summary: dict[str, Any] = {
         "type": "summary",
         "frames": shown,
         "by_kind": counts,
         "discarded_bytes": discarded,
     }
+    if warnings:
+        summary["warnings"] = warnings
     if args.json:
         emit(summary)
     else:

@@ -8,21 +8,54 @@ import sys
 import time
 from typing import Any
 
-from .common import CommandSpec, stop_on_signals
+from .common import (
+    EXIT_FAILURE,
+    EXIT_OK,
+    EXIT_PORT,
+    EXIT_USAGE,
+    MAX_BAUDRATE,
+    CommandSpec,
+    baudrate,
+    bounded_int,
+    finite_float,
+    positive_seconds,
+    seconds,
+    stop_on_signals,
+)
+
+#: a drop count (the cap is the Modbus one: 247 slaves and a master; pyrtu.vbus.MAX_DROPS)
+MAX_DROPS = 248
+_drops = bounded_int(1, MAX_DROPS, "a number of drops")
+_drop = bounded_int(0, MAX_DROPS - 1, "a drop index")
+_probability = finite_float(0.0, 1.0, "a probability")
+_bytes = bounded_int(0, None, "a byte count")
 
 
 def _drop_count(text: str) -> tuple[int, int]:
     drop, _, count = text.partition(":")
     try:
-        return int(drop), int(count or "0")
+        value = int(drop), int(count or "0")
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected DROP[:BYTES], got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"expected DROP[:BYTES], not {text!r}") from None
+    if value[0] < 0 or value[1] < 0:
+        raise argparse.ArgumentTypeError(f"expected DROP[:BYTES] (0 or more), not {text!r}")
+    return value
 
 
 def _configure_vbus(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--drops", type=int, default=2, help="number of drops (default 2)")
     p.add_argument(
-        "--baud", "--baudrate", dest="baud", type=int, default=19200, help="(default 19200)"
+        "--drops",
+        type=_drops,
+        default=2,
+        help=f"number of drops, 1..{MAX_DROPS} (default 2; each is a pseudo-terminal)",
+    )
+    p.add_argument(
+        "--baud",
+        "--baudrate",
+        dest="baud",
+        type=baudrate,
+        default=19200,
+        help=f"(default 19200; at most {MAX_BAUDRATE})",
     )
     p.add_argument(
         "--parity",
@@ -36,25 +69,29 @@ def _configure_vbus(p: argparse.ArgumentParser) -> None:
         "--dir", default=None, help="directory for the drop0.. symlinks (default: a temp dir)"
     )
     p.add_argument(
-        "--echo", type=int, nargs="*", default=[], metavar="DROP", help="drops with local echo"
+        "--echo", type=_drop, nargs="*", default=[], metavar="DROP", help="drops with local echo"
     )
     p.add_argument("--capture", metavar="FILE", help="write every wire byte to FILE")
-    p.add_argument("--duration", type=float, help="stop after this many seconds")
+    p.add_argument(
+        "--duration", type=positive_seconds, metavar="SECONDS", help="stop after this time"
+    )
     p.add_argument("--stats", action="store_true", help="print counters on exit (stderr)")
     f = p.add_argument_group("faults (every drop; seeded)")
     f.add_argument("--seed", type=int, default=0)
-    f.add_argument("--bit-flip-rate", type=float, default=0.0, metavar="P", help="per bit")
-    f.add_argument("--drop-rate", type=float, default=0.0, metavar="P", help="lost bytes")
-    f.add_argument("--insert-rate", type=float, default=0.0, metavar="P", help="extra bytes")
+    f.add_argument("--bit-flip-rate", type=_probability, default=0.0, metavar="P", help="per bit")
+    f.add_argument("--drop-rate", type=_probability, default=0.0, metavar="P", help="lost bytes")
+    f.add_argument("--insert-rate", type=_probability, default=0.0, metavar="P", help="extra bytes")
     f.add_argument(
-        "--gap-every", type=int, default=0, metavar="N", help="gap before every Nth byte"
+        "--gap-every", type=_bytes, default=0, metavar="N", help="gap before every Nth byte"
     )
-    f.add_argument("--gap-rate", type=float, default=0.0, metavar="P", help="random gaps")
-    f.add_argument("--gap", type=float, default=0.0, metavar="SECONDS", help="gap length")
+    f.add_argument("--gap-rate", type=_probability, default=0.0, metavar="P", help="random gaps")
+    f.add_argument("--gap", type=seconds, default=0.0, metavar="SECONDS", help="gap length")
     f.add_argument(
-        "--batch", type=float, default=0.0, metavar="SECONDS", help="split delivery period"
+        "--batch", type=seconds, default=0.0, metavar="SECONDS", help="split delivery period"
     )
-    f.add_argument("--batch-bytes", type=int, default=62, metavar="N")
+    f.add_argument(
+        "--batch-bytes", type=bounded_int(1, None, "a byte count"), default=62, metavar="N"
+    )
     f.add_argument(
         "--unplug",
         type=_drop_count,
@@ -65,12 +102,37 @@ def _configure_vbus(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _check_drops(args: argparse.Namespace) -> None:
+    """Drop indexes against --drops (argparse checks each option alone)."""
+    for flag, drops in (("--echo", args.echo), ("--unplug", [d for d, _ in args.unplug])):
+        for drop in drops:
+            if drop >= args.drops:
+                raise ValueError(f"{flag}: no drop {drop} on a {args.drops}-drop bus (--drops)")
+
+
+def _flag_of(exc: OSError, args: argparse.Namespace) -> str:
+    name = str(exc.filename or "")
+    if args.capture is not None and name == args.capture:
+        return "--capture"
+    return "--dir"
+
+
 def _run_vbus(args: argparse.Namespace) -> int:
+    from ..vbus import BusDirectoryBusy
+
     try:
+        _check_drops(args)
         return _serve_vbus(args)
-    except (ValueError, IndexError) as exc:
-        print(f"pyrtu vbus: {exc}", file=sys.stderr)
-        return 2
+    except BusDirectoryBusy as exc:
+        print(f"pyrtu vbus: port error: --dir {exc}", file=sys.stderr)
+        return EXIT_PORT
+    except OSError as exc:
+        what = f"{exc.filename}: {exc.strerror}" if exc.filename and exc.strerror else str(exc)
+        print(f"pyrtu vbus: port error: {_flag_of(exc, args)} {what}", file=sys.stderr)
+        return EXIT_PORT
+    except ValueError as exc:
+        print(f"pyrtu vbus: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
 
 
 def _serve_vbus(args: argparse.Namespace) -> int:
@@ -119,11 +181,11 @@ def _serve_vbus(args: argparse.Namespace) -> int:
                     break
                 stop.wait(timeout)
                 if bus.error is not None:
-                    print(f"pyrtu vbus: hub failed: {bus.error!r}", file=sys.stderr)
-                    return 1
+                    print(f"pyrtu vbus: error: the hub failed: {bus.error!r}", file=sys.stderr)
+                    return EXIT_FAILURE
             if args.stats:
                 _print_stats(bus.counters())
-    return 0
+    return EXIT_OK
 
 
 def _print_stats(c: Any) -> None:

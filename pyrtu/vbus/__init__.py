@@ -26,7 +26,11 @@ What it models
   drop that vanishes mid-frame.
 * Capture: every byte on the wire with its time, in the format described in
   `pyrtu.vbus.capture`; `read_capture` returns ``(data, chunks)`` for
-  ``pyrtu.parse_stream(data, "monitor", chunks=chunks, ...)``.
+  ``pyrtu.parse_stream(data, "monitor", chunks=chunks, ...)``; `capture_frames`
+  streams a capture of any size through the `Framer` in bounded memory.
+* One bus per directory: ``DIR/.pyrtu-vbus.lock`` holds the running bus's pid;
+  a second bus there raises `BusDirectoryBusy` (a lock left by a dead bus is taken
+  over).  At most `MAX_DROPS` (248) drops: each is a pseudo-terminal.
 
 Parity
 ------
@@ -50,26 +54,37 @@ Measured accuracy and the details: ``docs/vbus.md``.
 
 from __future__ import annotations
 
+from ._lock import BusDirectoryBusy
 from .capture import (
     Capture,
+    CaptureError,
     CaptureHeader,
+    CaptureReader,
     CaptureRecord,
+    capture_frames,
     load_capture,
     read_capture,
+    stream_frames,
 )
 from .faults import FaultCounters, Faults, collision_byte
-from .hub import BusCounters, DropCounters, VirtualBus
+from .hub import MAX_DROPS, BusCounters, DropCounters, VirtualBus
 
 __all__ = [
+    "MAX_DROPS",
     "BusCounters",
+    "BusDirectoryBusy",
     "Capture",
+    "CaptureError",
     "CaptureHeader",
+    "CaptureReader",
     "CaptureRecord",
     "DropCounters",
     "FaultCounters",
     "Faults",
     "VirtualBus",
+    "capture_frames",
     "collision_byte",
     "load_capture",
     "read_capture",
+    "stream_frames",
 ]

@@ -17,6 +17,7 @@ from types import TracebackType
 
 from ..line import LineConfig
 from ..timing import bits_per_char
+from ._lock import DirectoryLock
 from ._os import OpenWatch, open_pty, set_realtime, set_timer_slack
 from ._state import (
     BusCounters,
@@ -29,7 +30,11 @@ from .capture import CaptureHeader, CaptureWriter
 from .faults import FaultCounters, Faults
 from .wire import Wire
 
-__all__ = ["BusCounters", "DropCounters", "VirtualBus"]
+__all__ = ["MAX_DROPS", "BusCounters", "DropCounters", "VirtualBus"]
+
+#: a Modbus serial line has at most 247 slaves and a master ([SL] 2.2): each drop
+#: is a pseudo-terminal, a resource of the whole system, so a bus has at most this many
+MAX_DROPS = 248
 
 _ns = time.perf_counter_ns
 #: Wake this long before a delivery and spin the rest: select() wakes late by tens
@@ -120,8 +125,10 @@ class VirtualBus:
                 raise TypeError(f"line must be a LineConfig, not {type(line).__name__}")
             baudrate, parity = line.baudrate, line.parity
             stopbits, bytesize = int(line.stopbits), line.bytesize
-        if drops < 1:
-            raise ValueError("a bus needs at least one drop")
+        if isinstance(drops, bool) or not isinstance(drops, int) or not 1 <= drops <= MAX_DROPS:
+            raise ValueError(
+                f"a bus has 1..{MAX_DROPS} drops (247 slaves and a master), not {drops!r}"
+            )
         if baudrate <= 0:
             raise ValueError("baudrate must be positive")
         if bytesize not in (5, 6, 7, 8) or stopbits not in (1, 2):
@@ -134,6 +141,7 @@ class VirtualBus:
         self.char_ns = round(self.bits * 1e9 / baudrate)
         self._directory = directory
         self._own_dir = False
+        self._dir_lock: DirectoryLock | None = None
         self._capture_path = capture
         self._capture: CaptureWriter | None = None
         echo_set = set(echo)
@@ -225,7 +233,14 @@ class VirtualBus:
             self._directory = tempfile.mkdtemp(prefix="pyrtu-vbus-")
             self._own_dir = True
         else:
-            os.makedirs(self._directory, exist_ok=True)
+            try:
+                os.makedirs(self._directory, exist_ok=True)
+            except FileExistsError:
+                raise NotADirectoryError(
+                    errno.ENOTDIR, "not a directory", self._directory
+                ) from None
+        # one bus per directory: refuse before touching another bus's drops
+        self._dir_lock = DirectoryLock(self._directory)
         self._watch = OpenWatch()
         self._wake_r, self._wake_w = os.pipe()
         os.set_blocking(self._wake_r, False)
@@ -279,6 +294,9 @@ class VirtualBus:
                 if fd >= 0:
                     os.close(fd)
             self._wake_r = self._wake_w = -1
+            if self._dir_lock is not None:
+                self._dir_lock.release()
+                self._dir_lock = None
             if self._own_dir and self._directory is not None:
                 shutil.rmtree(self._directory, ignore_errors=True)
                 self._directory = None
