@@ -178,7 +178,10 @@ class ClientProtocol:
         self._slave, self._fc, self._decode = slave, pdu[0], decode
         self._attempt = 0
         self._result = self._error = None
-        self._begin_attempt(now)
+        self.state = State.QUIET
+        self._give_up = now + self.timeout
+        if self.send_at() <= now:  # the line is quiet already (the common case)
+            self.state = State.SEND
 
     def _begin_attempt(self, now: float) -> None:
         self.state = State.QUIET
@@ -226,16 +229,15 @@ class ClientProtocol:
         self._bad = None
         self._heard = False
         self._limit = end + self.timeout
-        framer = self._framer
-        framer.reset()
         if self._decode is None:
+            self._framer.restart()
             c["broadcasts"] += 1
             self.quiet_until = end + self.broadcast_delay
             if not self._echo_left:
                 self._finish(None)
                 return
         else:
-            framer.send(self._adu)
+            self._framer.restart(self._adu)
         self.state = State.ANSWER
 
     # ------------------------------------------------------------- inputs

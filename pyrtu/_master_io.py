@@ -67,6 +67,7 @@ def run_sync(port: Port, proto: ClientProtocol, call: Call) -> Any:
     proto.start(call.slave, call.pdu, call.decode, _monotonic())
     fd = port.fd
     has_fd = fd is not None
+    timed = proto.gap > 0  # bytes come at the character rate: sleep on needed()
     napped = False
     try:
         while True:
@@ -78,7 +79,8 @@ def run_sync(port: Port, proto: ClientProtocol, call: Call) -> Any:
                 if fd is not None:
                     # after a sleep the bytes are usually in: read first
                     data = port.read(0) if napped else b""
-                    if not data and wait > 0 and _wait_readable(port, wait):
+                    # poll(): millisecond timeouts are fine for the answer's deadline
+                    if not data and wait > 0 and port._poll.poll(wait * 1000.0):
                         data = _read_ready(port, fd)
                 else:
                     data = port.read(max(wait, 0.0))
@@ -88,7 +90,7 @@ def run_sync(port: Port, proto: ClientProtocol, call: Call) -> Any:
                     proto.handle_timer(now)
                     continue
                 proto.receive_data(data, now)
-                napped = proto.state is State.ANSWER and _nap(proto)
+                napped = timed and proto.state is State.ANSWER and _nap(proto)
             elif state is State.SEND:
                 stale = port.read(0)
                 if stale:
@@ -96,7 +98,7 @@ def run_sync(port: Port, proto: ClientProtocol, call: Call) -> Any:
                     continue
                 start, end = port.write(proto.data_to_send())
                 proto.transmitted(end, start)
-                napped = proto.state is State.ANSWER and _nap(proto)
+                napped = timed and proto.state is State.ANSWER and _nap(proto)
             elif state is State.QUIET:
                 deadline = proto.deadline()
                 now = _monotonic()
