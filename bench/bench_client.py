@@ -427,6 +427,9 @@ def section(data: dict[str, Any]) -> str:
             f"- the {e['buses']} hub processes used {e['hub_cpu_s_total']:.1f} s of CPU "
             f"({e['hub_cpu_s_total'] / e['seconds'] * 100:.0f}% of one core) in that time",
         ]
+    if data.get("notes"):
+        lines += ["", "### Reading", ""]
+        lines += [f"- {note}" for note in data["notes"]]
     lines += ["", END, ""]
     return "\n".join(lines)
 
