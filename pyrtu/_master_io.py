@@ -24,6 +24,7 @@ from .port import Port
 _READ_SIZE = 4096
 
 _monotonic = time.monotonic
+_QUIET, _SEND, _ANSWER = State.QUIET, State.SEND, State.ANSWER
 _sleep = time.sleep
 
 
@@ -72,7 +73,7 @@ def run_sync(port: Port, proto: ClientProtocol, call: Call) -> Any:
     try:
         while True:
             state = proto.state
-            if state is State.ANSWER:
+            if state is _ANSWER:
                 deadline = proto.deadline()
                 now = _monotonic()
                 wait = 1.0 if deadline is None else deadline - now
@@ -90,16 +91,16 @@ def run_sync(port: Port, proto: ClientProtocol, call: Call) -> Any:
                     proto.handle_timer(now)
                     continue
                 proto.receive_data(data, now)
-                napped = timed and proto.state is State.ANSWER and _nap(proto)
-            elif state is State.SEND:
+                napped = timed and proto.state is _ANSWER and _nap(proto)
+            elif state is _SEND:
                 stale = port.read(0)
                 if stale:
                     proto.receive_data(stale, _monotonic())
                     continue
                 start, end = port.write(proto.data_to_send())
                 proto.transmitted(end, start)
-                napped = timed and proto.state is State.ANSWER and _nap(proto)
-            elif state is State.QUIET:
+                napped = timed and proto.state is _ANSWER and _nap(proto)
+            elif state is _QUIET:
                 deadline = proto.deadline()
                 now = _monotonic()
                 wait = 0.0 if deadline is None else deadline - now
