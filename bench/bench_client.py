@@ -385,6 +385,25 @@ def section(data: dict[str, Any]) -> str:
                 f"transactions/s **{a['tps'] / p['tps']:.2f}x**, CPU per transaction "
                 f"**{p['cpu_us'] / a['cpu_us']:.1f}x** less"
             )
+    pty = data.get("pty")
+    if pty:
+        lines += [
+            "",
+            "### Pseudo-terminal pair, against the libmodbus server (bench/run_serial.py)",
+            "",
+            f"`{data.get('pty_note', '')}`: the pyrtu master's rate as a ratio of the",
+            "libmodbus client's in the same cycles, and its CPU per transaction.",
+            "",
+            "| master | transactions/s | vs libmodbus client | client CPU µs/tx |",
+            "|---|---:|---:|---:|",
+        ]
+        for key in pty:
+            r = pty[key].get("pyrtu")
+            if r:
+                lines.append(
+                    f"| pyrtu Master {key} | {r['tps']:,.0f} | **{r['vs_libmodbus']:.2f}** | "
+                    f"{r['cpu_us']:.1f} |"
+                )
     e = data.get("eight")
     if e:
         ratios = ", ".join(f"{r:.3f}" for r in e["ratios"])
@@ -408,6 +427,9 @@ def section(data: dict[str, Any]) -> str:
             f"- the {e['buses']} hub processes used {e['hub_cpu_s_total']:.1f} s of CPU "
             f"({e['hub_cpu_s_total'] / e['seconds'] * 100:.0f}% of one core) in that time",
         ]
+    if data.get("notes"):
+        lines += ["", "### Reading", ""]
+        lines += [f"- {note}" for note in data["notes"]]
     lines += ["", END, ""]
     return "\n".join(lines)
 

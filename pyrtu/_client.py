@@ -47,6 +47,7 @@ from typing import Any
 from . import _backend
 from .ascii import encode_ascii, make_framer
 from .errors import BusFault, ExceptionResponseError, FrameError, NoResponseError
+from .frames import ERROR_BY_CODE
 from .functions import function_name
 from .line import LineConfig
 
@@ -71,6 +72,13 @@ class State(enum.Enum):
     SEND = "send"
     ANSWER = "answer"
     DONE = "done"
+
+
+# module constants: an enum member lookup costs a class attribute access (3.11)
+_IDLE, _QUIET, _SEND, _ANSWER, _DONE = State.IDLE, State.QUIET, State.SEND, State.ANSWER, State.DONE
+_DEBUG = logging.DEBUG
+#: the core's error codes (RTU_ERR_*) as the discard reasons of the counters
+_REASONS: tuple[str | None, ...] = tuple(r.value if r else None for r in ERROR_BY_CODE)
 
 
 def new_counters() -> dict[str, int]:
@@ -116,8 +124,11 @@ class ClientProtocol:
         self.settle = max(0.02, 3 * self.gap)
         self.counters = new_counters()
         self._framer: Any = make_framer(line, "master", self._backend)
+        # RTU: the backend's core framer, driven directly (events as the core's tuples,
+        # no Frame objects: the hot path); ASCII: the AsciiFramer's Frame events
+        self._core: Any = getattr(self._framer, "_core", None)
         self._char = line.char_time
-        self.state = State.IDLE
+        self.state = _IDLE
         # the line, across transactions
         self.tx_end = 0.0  # end of our last transmission
         self.last_rx = 0.0  # arrival of the last byte we read
@@ -142,19 +153,20 @@ class ClientProtocol:
 
     def set_line(self, line: LineConfig) -> None:
         """A new line configuration (new length rules); between transactions only."""
-        if self.state not in (State.IDLE, State.DONE):
+        if self.state not in (_IDLE, _DONE):
             raise RuntimeError(f"a transaction is in progress ({self.state.value})")
         self.line = line
         self.gap = line.frame_gap
         self.settle = max(0.02, 3 * self.gap)
         self._char = line.char_time
         self._framer = make_framer(line, "master", self._backend)
+        self._core = getattr(self._framer, "_core", None)
 
     # ------------------------------------------------------------- transaction
 
     @property
     def done(self) -> bool:
-        return self.state is State.DONE
+        return self.state is _DONE
 
     def encode(self, slave: int, pdu: bytes) -> bytes:
         """The ADU of ``pdu`` to ``slave`` in the line's mode; ValueError past max_adu."""
@@ -172,16 +184,19 @@ class ClientProtocol:
         for data that cannot be the answer; None: no answer is awaited (a broadcast,
         or FC 08 sub-function 4), the result is None.  Raises ValueError (nothing
         is sent) for a request longer than ``max_adu``."""
-        if self.state not in (State.IDLE, State.DONE):
+        if self.state not in (_IDLE, _DONE):
             raise RuntimeError(f"a transaction is in progress ({self.state.value})")
         self._adu = self.encode(slave, pdu)
         self._slave, self._fc, self._decode = slave, pdu[0], decode
         self._attempt = 0
         self._result = self._error = None
-        self._begin_attempt(now)
+        self.state = _QUIET
+        self._give_up = now + self.timeout
+        if self.send_at() <= now:  # the line is quiet already (the common case)
+            self.state = _SEND
 
     def _begin_attempt(self, now: float) -> None:
-        self.state = State.QUIET
+        self.state = _QUIET
         self._give_up = now + self.timeout
         self._check_quiet(now)
 
@@ -195,26 +210,26 @@ class ClientProtocol:
         return ready
 
     def _check_quiet(self, now: float) -> None:
-        if self.state is State.QUIET and (self.send_at() <= now or now >= self._give_up):
-            self.state = State.SEND
+        if self.state is _QUIET and (self.send_at() <= now or now >= self._give_up):
+            self.state = _SEND
 
     def data_to_send(self) -> bytes:
         """SEND: the ADU to transmit now (a driver reads pending input first and feeds
         it with receive_data, which may move the protocol back to QUIET)."""
-        if self.state is not State.SEND:
+        if self.state is not _SEND:
             raise RuntimeError(f"nothing to send ({self.state.value})")
         return self._adu
 
     def transmitted(self, end: float, start: float | None = None) -> None:
         """The ADU went out; ``end``: when its transmission ended (``start``: when it
         began, for the log)."""
-        if self.state is not State.SEND:
+        if self.state is not _SEND:
             raise RuntimeError(f"nothing was to be sent ({self.state.value})")
         self.quiet_until = self.failed_at = 0.0
         self.tx_end = self._end = end
         c = self.counters
         c["requests"] += 1
-        if _debug(logging.DEBUG):
+        if _debug(_DEBUG):
             log.debug(
                 "TX slave %d fc %d: %s (%.3f ms on the line)",
                 self._slave,
@@ -226,17 +241,16 @@ class ClientProtocol:
         self._bad = None
         self._heard = False
         self._limit = end + self.timeout
-        framer = self._framer
-        framer.reset()
         if self._decode is None:
+            self._restart(None)
             c["broadcasts"] += 1
             self.quiet_until = end + self.broadcast_delay
             if not self._echo_left:
                 self._finish(None)
                 return
         else:
-            framer.send(self._adu)
-        self.state = State.ANSWER
+            self._restart(self._adu)
+        self.state = _ANSWER
 
     # ------------------------------------------------------------- inputs
 
@@ -246,18 +260,18 @@ class ClientProtocol:
             return
         self.last_rx = now
         state = self.state
-        if state is not State.ANSWER:
+        if state is not _ANSWER:
             # before the request (or between transactions): a late answer, noise
             self._discard("stale", len(data))
             log.debug("stale input dropped: %s", data.hex(" "))
-            if state is State.SEND:
-                self.state = State.QUIET
+            if state is _SEND:
+                self.state = _QUIET
                 self._check_quiet(now)
             return
         self._heard = True
         if self._echo_left:
             data = self._eat_echo(data, now)
-            if self.state is State.DONE:
+            if self.state is _DONE:
                 return
             if self._decode is None:
                 if data:
@@ -267,25 +281,34 @@ class ClientProtocol:
                 return
             if not data:
                 return
-        self._framer.receive_data(data, now)
-        self._events(now)
-        if self.state is State.ANSWER and self._bad is not None:
+        core = self._core
+        if core is None:
+            self._framer.receive_data(data, now)
+            self._events(now)
+        else:
+            self._feed(core, data, now)
+        if self.state is _ANSWER and self._bad is not None:
             self._limit = min(self._end + self.timeout, now + self.settle)
 
     def handle_timer(self, now: float) -> None:
         """Time passed up to ``now`` (call it at ``deadline()``)."""
         state = self.state
-        if state is State.QUIET:
+        if state is _QUIET:
             self._check_quiet(now)
             return
-        if state is not State.ANSWER:
+        if state is not _ANSWER:
             return
         if not self._echo_left:
-            timer = self._framer.timer()
+            timer = self._timer()
             if timer is not None and now >= timer:
-                self._framer.handle_timer(now)
-                self._events(now)
-                if self.state is not State.ANSWER:
+                core = self._core
+                if core is None:
+                    self._framer.handle_timer(now)
+                    self._events(now)
+                else:
+                    core.handle_timer(round(now * 1_000_000))
+                    self._core_events(core, now)
+                if self.state is not _ANSWER:
                     return
         if now >= self._limit:
             self._fail_attempt(now)
@@ -294,11 +317,11 @@ class ClientProtocol:
         """When ``handle_timer`` must run: the send time (QUIET), the end of the wait
         for the answer (ANSWER), or None."""
         state = self.state
-        if state is State.QUIET:
+        if state is _QUIET:
             return min(self.send_at(), self._give_up)
-        if state is not State.ANSWER:
+        if state is not _ANSWER:
             return None
-        timer = None if self._echo_left else self._framer.timer()
+        timer = None if self._echo_left else self._timer()
         return self._limit if timer is None else min(timer, self._limit)
 
     def ready_at(self, now: float) -> float:
@@ -310,7 +333,7 @@ class ClientProtocol:
         past ``wait_limit()``; ``now`` in other states, and on a line without wire
         timing (t3.5 = 0: pseudo-terminals, TCP links), whose bytes come in bursts
         rather than at the character rate."""
-        if self.state is not State.ANSWER or self.gap <= 0:
+        if self.state is not _ANSWER or self.gap <= 0:
             return now
         start = now
         if not self._heard and not self._echo_left:
@@ -329,26 +352,27 @@ class ClientProtocol:
         """ANSWER: bytes that must still arrive before the answer can be complete (a
         lower bound: the echo still expected plus the framer's ``needed()``); 0 when
         unknown (ASCII, an unknown layout) or in another state."""
-        if self.state is not State.ANSWER:
+        if self.state is not _ANSWER:
             return 0
         if self._decode is None:
             return len(self._echo_left)
-        return len(self._echo_left) + int(self._framer.needed())
+        framer = self._framer if self._core is None else self._core
+        return len(self._echo_left) + int(framer.needed())
 
     def abort(self, now: float) -> None:
         """The driver gave up on the transaction (cancelled): the line keeps what it
         knows, and the next transaction waits out a late answer."""
-        if self.state in (State.IDLE, State.DONE):
+        if self.state in (_IDLE, _DONE):
             return
-        if self.state is State.ANSWER:
+        if self.state is _ANSWER:
             self.failed_at = now
-        self.state = State.IDLE
+        self.state = _IDLE
 
     def result(self) -> Any:
         """DONE: the decoded answer (None for a broadcast), or raise the error."""
-        if self.state is not State.DONE:
+        if self.state is not _DONE:
             raise RuntimeError(f"the transaction is not done ({self.state.value})")
-        self.state = State.IDLE
+        self.state = _IDLE
         if self._error is not None:
             error, self._error = self._error, None
             raise error
@@ -363,13 +387,13 @@ class ClientProtocol:
 
     def _finish(self, value: Any) -> None:
         self._result = value
-        self.state = State.DONE
+        self.state = _DONE
 
     def _fail(self, error: Exception, now: float) -> None:
         """End with ``error``; ``now`` (0: none) starts the settling a late answer needs."""
         self._error = error
         self.failed_at = now
-        self.state = State.DONE
+        self.state = _DONE
 
     def _eat_echo(self, data: bytes, now: float) -> bytes:
         expected = self._echo_left
@@ -391,61 +415,106 @@ class ClientProtocol:
         self._echo_left = expected[n:]
         return data[n:]
 
+    def _restart(self, adu: bytes | None) -> None:
+        """A fresh framer for the answer (told of the request: its prediction)."""
+        core = self._core
+        if core is None:
+            self._framer.restart(adu)
+            return
+        core.reset()
+        if adu is not None:
+            core.sent(adu)
+
+    def _timer(self) -> float | None:
+        core = self._core
+        if core is None:
+            timer: float | None = self._framer.timer()
+            return timer
+        deadline = core.deadline()
+        return None if deadline is None else deadline / 1e6
+
+    def _feed(self, core: Any, data: bytes, now: float) -> None:
+        """RTU: bytes into the core framer, its events handled as they come (a silence
+        before the new bytes may end what is buffered: the core takes fewer)."""
+        now_us = round(now * 1_000_000)
+        took = core.feed(data, now_us)
+        self._core_events(core, now)
+        stalled = 1 if took == 0 else 0
+        while took < len(data) and self.state is _ANSWER:
+            data = data[took:]
+            took = core.feed(data, now_us)
+            self._core_events(core, now)
+            stalled = stalled + 1 if took == 0 else 0
+            if stalled > 2:
+                raise RuntimeError("framer made no progress (internal error)")
+
+    def _core_events(self, core: Any, now: float) -> None:
+        """RTU: the core's events, (offset, length, kind, error, start_us, end_us, adu)."""
+        while self.state is _ANSWER and (ev := core.poll()) is not None:
+            error = ev[3]
+            adu = ev[6]
+            reason = _REASONS[error]
+            self._event(now, reason, b"" if reason else adu[:-2], len(adu), ev[5] / 1e6)
+
     def _events(self, now: float) -> None:
+        """ASCII: the AsciiFramer's Frame events."""
         framer = self._framer
+        while self.state is _ANSWER and (ev := framer.next_event()) is not None:
+            error = ev.error
+            reason = error.value if error is not None else None
+            self._event(now, reason, ev.message, len(ev.wire), ev.end)
+
+    def _event(
+        self, now: float, reason: str | None, message: bytes, size: int, end: float | None
+    ) -> None:
+        """One frame or discard event of the answer phase."""
+        self._limit = min(self._end + self.timeout, now + self.settle)
         slave, fc = self._slave, self._fc
         c = self.counters
-        while (ev := framer.next_event()) is not None:
-            self._limit = min(self._end + self.timeout, now + self.settle)
-            if ev.error is not None:
-                size = len(ev.wire)
-                reason = ev.error.value
-                self._discard(reason, size)
-                if reason == "crc":
-                    c["crc_errors"] += 1
-                self._bad = self._bad or FrameError(
-                    f"{function_name(fc)}: slave {slave}: {size} bytes discarded ({reason})",
-                    slave,
-                    fc,
-                )
-                continue
-            adu = ev.adu
-            message = adu[:-2] if ev.text is None else adu[:-1]  # ev.message, inlined
-            if message[0] != slave or message[1] & 0x7F != fc:
-                self._discard("unexpected", len(ev.wire))
-                log.debug("RX dropped (not the answer): %s", message.hex(" "))
-                self._bad = self._bad or FrameError(
-                    f"{function_name(fc)}: slave {slave}: got a frame from slave {message[0]} "
-                    f"function 0x{message[1]:02X} instead of the answer",
-                    slave,
-                    fc,
-                )
-                continue
-            if _debug(logging.DEBUG):
-                log.debug(
-                    "RX slave %d fc %d: %s (%.3f ms)",
-                    slave,
-                    fc,
-                    message.hex(" "),
-                    (now - self._end) * 1e3,
-                )
-            if message[1] & 0x80:
-                c["exceptions"] += 1
-                code = message[2] if len(message) > 2 else 0
-                # answered: no late answer to wait out (failed_at stays 0)
-                self._fail(ExceptionResponseError(slave, fc, code), 0.0)
-                return
-            decode = self._decode or _identity
-            try:
-                value = decode(message[1:])
-            except FrameError as exc:
-                self._discard("unexpected", len(ev.wire))
-                self._bad = self._bad or FrameError(f"slave {slave}: {exc}", slave, fc)
-                continue
-            c["responses"] += 1
-            self.answer_end = ev.end
-            self._finish(value)
+        if reason is not None:
+            self._discard(reason, size)
+            if reason == "crc":
+                c["crc_errors"] += 1
+            self._bad = self._bad or FrameError(
+                f"{function_name(fc)}: slave {slave}: {size} bytes discarded ({reason})",
+                slave,
+                fc,
+            )
             return
+        if message[0] != slave or message[1] & 0x7F != fc:
+            self._discard("unexpected", size)
+            log.debug("RX dropped (not the answer): %s", message.hex(" "))
+            self._bad = self._bad or FrameError(
+                f"{function_name(fc)}: slave {slave}: got a frame from slave {message[0]} "
+                f"function 0x{message[1]:02X} instead of the answer",
+                slave,
+                fc,
+            )
+            return
+        if _debug(_DEBUG):
+            log.debug(
+                "RX slave %d fc %d: %s (%.3f ms)",
+                slave,
+                fc,
+                message.hex(" "),
+                (now - self._end) * 1e3,
+            )
+        if message[1] & 0x80:
+            c["exceptions"] += 1
+            code = message[2] if len(message) > 2 else 0
+            # answered: no late answer to wait out (failed_at stays 0)
+            self._fail(ExceptionResponseError(slave, fc, code), 0.0)
+            return
+        decode = self._decode or _identity
+        try:
+            value = decode(message[1:])
+        except FrameError as exc:
+            self._discard("unexpected", size)
+            self._bad = self._bad or FrameError(f"slave {slave}: {exc}", slave, fc)
+            return
+        c["responses"] += 1
+        self.answer_end = end
+        self._finish(value)
 
     def _fail_attempt(self, now: float) -> None:
         """No answer by the limit: the attempt's error; retry when allowed."""

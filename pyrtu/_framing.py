@@ -201,6 +201,14 @@ class FramerBase:
         """
         return self._core.needed()
 
+    def restart(self, adu: bytes | None = None) -> None:
+        """``reset()``, then ``send(adu)`` when given: a new transaction in one call."""
+        core = self._core
+        core.reset()
+        self._events.clear()
+        if adu is not None:
+            core.sent(adu)
+
     def reset(self) -> None:
         """Drop buffered bytes (counted as truncated) and the request context."""
         self._core.reset()

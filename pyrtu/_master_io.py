@@ -24,6 +24,7 @@ from .port import Port
 _READ_SIZE = 4096
 
 _monotonic = time.monotonic
+_QUIET, _SEND, _ANSWER = State.QUIET, State.SEND, State.ANSWER
 _sleep = time.sleep
 
 
@@ -67,18 +68,20 @@ def run_sync(port: Port, proto: ClientProtocol, call: Call) -> Any:
     proto.start(call.slave, call.pdu, call.decode, _monotonic())
     fd = port.fd
     has_fd = fd is not None
+    timed = proto.gap > 0  # bytes come at the character rate: sleep on needed()
     napped = False
     try:
         while True:
             state = proto.state
-            if state is State.ANSWER:
+            if state is _ANSWER:
                 deadline = proto.deadline()
                 now = _monotonic()
                 wait = 1.0 if deadline is None else deadline - now
                 if fd is not None:
                     # after a sleep the bytes are usually in: read first
                     data = port.read(0) if napped else b""
-                    if not data and wait > 0 and _wait_readable(port, wait):
+                    # poll(): millisecond timeouts are fine for the answer's deadline
+                    if not data and wait > 0 and port._poll.poll(wait * 1000.0):
                         data = _read_ready(port, fd)
                 else:
                     data = port.read(max(wait, 0.0))
@@ -88,16 +91,16 @@ def run_sync(port: Port, proto: ClientProtocol, call: Call) -> Any:
                     proto.handle_timer(now)
                     continue
                 proto.receive_data(data, now)
-                napped = proto.state is State.ANSWER and _nap(proto)
-            elif state is State.SEND:
+                napped = timed and proto.state is _ANSWER and _nap(proto)
+            elif state is _SEND:
                 stale = port.read(0)
                 if stale:
                     proto.receive_data(stale, _monotonic())
                     continue
                 start, end = port.write(proto.data_to_send())
                 proto.transmitted(end, start)
-                napped = proto.state is State.ANSWER and _nap(proto)
-            elif state is State.QUIET:
+                napped = timed and proto.state is _ANSWER and _nap(proto)
+            elif state is _QUIET:
                 deadline = proto.deadline()
                 now = _monotonic()
                 wait = 0.0 if deadline is None else deadline - now

@@ -42,6 +42,7 @@ from .master import MasterBase, make_line
 from .rules import LengthRule, RuleTable
 
 _monotonic = time.monotonic
+_QUIET, _SEND, _ANSWER = State.QUIET, State.SEND, State.ANSWER
 
 
 class AsyncMaster(MasterBase):
@@ -167,7 +168,7 @@ class AsyncMaster(MasterBase):
             try:
                 while True:
                     state = proto.state
-                    if state is State.QUIET and self._fd is not None:
+                    if state is _QUIET and self._fd is not None:
                         # a timer, not a reader: bytes that come meanwhile are read
                         # (as stale, restarting the silence) before the request goes
                         deadline = proto.deadline()
@@ -179,16 +180,16 @@ class AsyncMaster(MasterBase):
                             proto.receive_data(stale, _monotonic())
                         else:
                             proto.handle_timer(_monotonic())
-                    elif state is State.ANSWER or state is State.QUIET:
+                    elif state is _ANSWER or state is _QUIET:
                         data = await self._input(proto.deadline())
                         now = _monotonic()
                         if not data:
                             proto.handle_timer(now)
                             continue
                         proto.receive_data(data, now)
-                        if proto.state is State.ANSWER:
+                        if proto.state is _ANSWER:
                             await self._nap()
-                    elif state is State.SEND:
+                    elif state is _SEND:
                         if self._inflight is not None:  # a read a cancel left behind
                             stale = await self._read_thread(_monotonic())
                         else:
@@ -198,7 +199,7 @@ class AsyncMaster(MasterBase):
                             continue
                         start, end = await self._transmit(proto.data_to_send())
                         proto.transmitted(end, start)
-                        if proto.state is State.ANSWER:
+                        if proto.state is _ANSWER:
                             await self._nap()
                     else:
                         return proto.result()

@@ -225,6 +225,10 @@ class AsciiFramer:
             self._buf.clear()
             self._in_frame = False
 
+    def restart(self, frame: bytes | None = None) -> None:
+        """``reset()`` for a new transaction (``frame``: what was sent; unused)."""
+        self.reset()
+
     def reset(self) -> None:
         self._buf.clear()
         self._in_frame = False

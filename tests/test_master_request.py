@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 from ptylink import PtyLink, make_store, serving
 
+from pyrtu import _master_io as mio
 from pyrtu import pdu as P
 from pyrtu.errors import ExceptionResponseError
 from pyrtu.line import LineConfig
@@ -72,7 +73,7 @@ def test_timeout_setter_is_checked() -> None:
             m.retries = -1
 
 
-def test_no_wake_per_byte_on_a_timed_line() -> None:
+def test_no_wake_per_byte_on_a_timed_line(monkeypatch: pytest.MonkeyPatch) -> None:
     """On the virtual bus at 9600 baud (a 25-byte answer takes 26 ms), the master reads
     the answer in a few reads, not one per byte: it sleeps until the bytes the
     core's length prediction still needs can be in."""
@@ -83,8 +84,9 @@ def test_no_wake_per_byte_on_a_timed_line() -> None:
         Master(bus.paths[0], 9600, parity="N", timeout=1.0) as m,
     ):
         assert m.read_holding_registers(1, 0, 10) == [1000 + i for i in range(10)]
-        reads = []
+        reads: list[int] = []
         real_read = m.port.read
+        real_ready = mio._read_ready
 
         def counting_read(timeout: float) -> bytes:
             data = real_read(timeout)
@@ -92,7 +94,14 @@ def test_no_wake_per_byte_on_a_timed_line() -> None:
                 reads.append(len(data))
             return data
 
+        def counting_ready(port: object, fd: int) -> bytes:
+            data = real_ready(port, fd)  # type: ignore[arg-type]
+            if data:
+                reads.append(len(data))
+            return data
+
         m.port.read = counting_read  # type: ignore[method-assign]
+        monkeypatch.setattr(mio, "_read_ready", counting_ready)
         for _ in range(10):
             assert m.read_holding_registers(1, 0, 10) == [1000 + i for i in range(10)]
         assert sum(reads) == 10 * 25
