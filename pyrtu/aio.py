@@ -25,6 +25,7 @@ late answer may come, and the next transaction waits it out before sending.
 from __future__ import annotations
 
 import asyncio
+import sys
 import time
 from collections.abc import Iterable, Sequence
 from concurrent.futures import Future as ThreadFuture
@@ -382,12 +383,25 @@ def run(main: Any, *, debug: bool | None = None) -> Any:
     from .vbus._os import set_timer_slack
 
     set_timer_slack(1000)
-    with asyncio.Runner(debug=debug, loop_factory=new_event_loop) as runner:
-        return runner.run(main)
+    if sys.version_info >= (3, 11):
+        with asyncio.Runner(debug=debug, loop_factory=new_event_loop) as runner:
+            return runner.run(main)
+    loop = new_event_loop()  # Python 3.10: what asyncio.Runner does, by hand
+    try:
+        asyncio.set_event_loop(loop)
+        if debug is not None:
+            loop.set_debug(debug)
+        return loop.run_until_complete(main)
+    finally:
+        pending = asyncio.all_tasks(loop)
+        for task in pending:
+            task.cancel()
+        loop.run_until_complete(asyncio.gather(*pending, return_exceptions=True))
+        loop.run_until_complete(loop.shutdown_asyncgens())
+        asyncio.set_event_loop(None)
+        loop.close()
 
 
-# AsyncSlave (the server side, pyrtu._aio_slave) is re-exported here at the merge:
-#     from ._aio_slave import AsyncSlave
-# and added to __all__.
+from ._aio_slave import AsyncSlave  # noqa: E402  (the server side, re-exported)
 
-__all__ = ["AsyncMaster", "new_event_loop", "run"]
+__all__ = ["AsyncMaster", "AsyncSlave", "new_event_loop", "run"]
