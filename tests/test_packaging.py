@@ -6,6 +6,7 @@ import os
 import shutil
 import subprocess
 import sys
+import sysconfig
 from importlib import metadata
 from pathlib import Path
 
@@ -136,3 +137,37 @@ def test_pure_switch_and_backend_attribute(tmp_path: Path) -> None:
     assert default.returncode == 0, default.stderr
     if "'c'" in default.stdout:
         assert default.stdout.startswith("c ")
+
+
+# gcc warns on every compile ("-Wformat-security ignored without -Wformat"): the
+# stand-in for a warning a newer compiler adds on a user's machine.
+WARNING_CFLAGS = "-Wformat-security -Wno-format"
+
+
+def _build_core(tmp: Path, **env: str) -> tuple[subprocess.CompletedProcess[str], Path]:
+    """Compile the C core (setup.py build_ext) into `tmp` with CFLAGS adding a warning."""
+    lib = tmp / "lib"
+    cmd = [sys.executable, "setup.py", "-q", "build_ext"]
+    cmd += ["--build-lib", str(lib), "--build-temp", str(tmp / "temp"), "--force"]
+    # PYRTU_REQUIRE_C=1: a failed compile fails the command instead of falling back
+    out = _run(cmd, ROOT, CFLAGS=WARNING_CFLAGS, PYRTU_REQUIRE_C="1", **env)
+    return out, lib
+
+
+def test_compiler_warnings_fail_only_a_strict_build(tmp_path: Path) -> None:
+    cc = (sysconfig.get_config_var("CC") or "cc").split()[0]
+    if shutil.which(os.environ.get("CC", cc)) is None:
+        pytest.skip("no C compiler here")
+    plain, lib = _build_core(tmp_path / "plain")
+    log = plain.stdout + plain.stderr
+    if "format-security" not in log:
+        pytest.skip(f"this compiler does not warn about {WARNING_CFLAGS}: {log[-500:]}")
+    assert plain.returncode == 0, log[-3000:]
+    assert "-Werror" not in log
+    assert list((lib / "pyrtu").glob("_rtu_core*.so")), log[-3000:]
+
+    strict, lib = _build_core(tmp_path / "strict", PYRTU_STRICT_BUILD="1")
+    log = strict.stdout + strict.stderr
+    assert strict.returncode != 0, log[-3000:]
+    assert "-Werror=format-security" in log, log[-3000:]
+    assert not list((lib / "pyrtu").glob("_rtu_core*.so"))
