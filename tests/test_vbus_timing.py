@@ -303,14 +303,6 @@ def check(
 
 
 @pytest.mark.wall_clock
-def test_bare_pty_latency_is_measured() -> None:
-    """The reference the bus is measured against: sane, and printed for the record."""
-    pty = measure_pty_latency()
-    print(pty)
-    assert 0 < pty.p50_us <= pty.p99_us
-
-
-@pytest.mark.wall_clock
 @pytest.mark.parametrize("baud", [9600, 115200])
 def test_256_byte_frame_takes_its_wire_time(
     baud: int, record_property: pytest.RecordProperty
