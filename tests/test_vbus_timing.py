@@ -31,6 +31,12 @@ inter-frame silence to every delivery is no wire, whatever the reason.
 The machine is shared (2 cores, a VM: timed waits occasionally wake milliseconds
 late whatever the program), so a measurement is repeated up to 5 times and the
 test passes when one run meets every bound; every run's figures are printed.
+A run is judged only when the machine could carry the fidelity at all: when the
+bare pty's own jitter in that run (p99 - p50) is within the 200 us floor.  On a
+saturated machine (bare pty p99 of milliseconds: the kernel's pty work is a normal
+priority kworker, behind every busy process) the kernel alone breaks the bound
+for some bytes; when no run is judged and none passes, the test is skipped with
+its figures, as unmeasurable here, rather than failed.
 """
 
 from __future__ import annotations
@@ -167,6 +173,12 @@ class Run:
     realtime: bool = False
 
     @property
+    def measurable(self) -> bool:
+        """The bare pty's jitter is within the fidelity floor: the kernel alone cannot
+        account for an error beyond the bound."""
+        return (self.pty.p99_us - self.pty.p50_us) * 1e3 <= bound_ns(0)
+
+    @property
     def own_offset_us(self) -> float:
         """The end-to-end offset less what the two pty crossings add (2 * p50)."""
         return self.raw_offset_us - 2 * self.pty.p50_us
@@ -289,17 +301,22 @@ def check(
     for _ in range(ATTEMPTS):
         run = measure(baud, parity, stopbits, parts)
         runs.append(run)
-        print(f"vbus timing {run}")
+        print(f"vbus timing {run}{'' if run.measurable else ' [pty jitter > 200 us]'}")
         if run.ok():
             if record_property is not None:
                 for key, value in run.figures().items():
                     record_property(key, round(value, 1))
             return run
-    pytest.fail(
-        "delivery timing out of bounds in every run:\n"
-        + "\n".join(map(str, runs))
+    report = (
+        "\n".join(map(str, runs))
         + f"\n(hub thread real-time: {runs[-1].realtime}; load average: {os.getloadavg()})"
     )
+    if not any(run.measurable for run in runs):
+        pytest.skip(
+            "unmeasurable here: the bare pty's own jitter (p99 - p50) exceeded the 200 us"
+            " fidelity floor in every run, and no run met the bounds anyway:\n" + report
+        )
+    pytest.fail("delivery timing out of bounds in every run:\n" + report)
 
 
 @pytest.mark.wall_clock
