@@ -31,6 +31,7 @@ FIGURES = [
     ("raw_offset_us", "end-to-end offset, raw"),
     ("own_offset_us", "end-to-end offset - 2 x pty p50"),
 ]
+SIGNED = {"span_err_us", "raw_offset_us", "own_offset_us"}
 
 
 def main() -> None:
@@ -43,7 +44,8 @@ def main() -> None:
         results[baud] = [measure(baud, "E", 1, [(256, 0)]) for _ in range(runs)]
     for key, label in FIGURES:
         cells = [statistics.median(r.figures()[key] for r in results[b]) for b in results]
-        print(f"| {label} | {cells[0]:+.0f} | {cells[1]:+.0f} |")
+        fmt = "+.0f" if key in SIGNED else ".0f"
+        print(f"| {label} | {cells[0]:{fmt}} | {cells[1]:{fmt}} |")
     ok = [sum(r.ok() for r in results[b]) for b in results]
     print(f"| runs meeting every bound | {ok[0]} / {runs} | {ok[1]} / {runs} |")
     print(f"load average after: {os.getloadavg()}")
