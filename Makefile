@@ -11,7 +11,12 @@ APT_PACKAGES := libmodbus-dev pkg-config socat
 
 .PHONY: demo test test-asan bench lint setup system-packages
 
-demo: setup
+# Developer targets compile the C core with -Werror (PYRTU_STRICT_BUILD=1, read by
+# pyrtu/_build_core.py), so that it stays -Wall -Wextra clean; `make demo` builds
+# it as a user's `pip install .` does, where a new compiler's warning is no error.
+setup test test-asan bench lint: export PYRTU_STRICT_BUILD := 1
+
+demo: $(STAMP)
 	$(PY) -m pyrtu demo
 
 test: setup
@@ -32,6 +37,8 @@ $(STAMP): pyproject.toml setup.py pyrtu/_build_core.py pyrtu/_cdef.h $(wildcard 
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e '.[test]'
 	$(PY) -c "import pyrtu; print('pyrtu backend:', pyrtu.BACKEND)"
+	@$(PY) -c "import pyrtu, sys; sys.exit(pyrtu.BACKEND != 'c')" || echo "*** pyrtu: the C" \
+	  "core did not build; the pure-Python twin runs. Why: $(PY) -m pip install -v -e ." >&2
 	touch $(STAMP)
 
 # The whole suite against a C core built with -fsanitize=address,undefined

@@ -34,12 +34,20 @@ import contextlib
 import errno
 import os
 import select
-import termios
 import time
 from typing import TYPE_CHECKING, Any
 
 import serial
 import serial.rs485
+
+try:  # POSIX only: without it (Windows) every port takes pyserial's generic path
+    import termios
+
+    _TermiosError: type[Exception] = termios.error
+    _HAVE_TERMIOS = True
+except ImportError:
+    _TermiosError = OSError
+    _HAVE_TERMIOS = False
 
 from .errors import PortError
 from .timing import bits_per_char
@@ -67,13 +75,15 @@ def _is_pty(fd: int) -> bool:
 
 
 def _posix_fd(ser: Any) -> int | None:
+    if not _HAVE_TERMIOS:
+        return None
     fd = getattr(ser, "fd", None)
     if not isinstance(fd, int) or fd < 0:
         return None
     try:
         os.fstat(fd)
         termios.tcgetattr(fd)
-    except (OSError, termios.error):
+    except (OSError, _TermiosError):
         return None
     return fd
 
@@ -100,8 +110,8 @@ class Port:
         self.bytesize = bytesize
         self.char_time = bits_per_char(parity, stopbits, bytesize) / baudrate
         self.fd = _posix_fd(ser)
-        self._poll = select.poll()
-        if self.fd is not None:
+        if self.fd is not None:  # select.poll is POSIX only, as the fd path is
+            self._poll = select.poll()
             self._poll.register(self.fd, select.POLLIN)
         self.is_pty = self.fd is not None and _is_pty(self.fd)
         #: a real line with wire timing (a tty that is not a pseudo-terminal)
@@ -265,7 +275,7 @@ def open_port(
                 port.open()
         except ValueError as exc:
             raise PortError(name, f"the port refused RS-485 mode: {exc}") from exc
-        except (serial.SerialException, OSError, termios.error) as exc:
+        except (serial.SerialException, OSError, _TermiosError) as exc:
             raise PortError(name, f"cannot open: {exc}") from exc
         baud = int(getattr(port, "baudrate", baudrate) or baudrate)
         p = str(getattr(port, "parity", parity) or parity).upper()[:1]
@@ -295,10 +305,10 @@ def open_port(
     except ValueError as exc:
         what = "RS-485 mode" if "RS485" in str(exc) else f"the format {fmt}"
         raise PortError(port, f"the port refused {what}: {exc}") from exc
-    except (serial.SerialException, OSError, termios.error) as exc:
+    except (serial.SerialException, OSError, _TermiosError) as exc:
         # termios.error (not an OSError) escapes pyserial when tcsetattr refuses parity
         code = getattr(exc, "errno", None)
-        if isinstance(exc, termios.error) and exc.args:
+        if isinstance(exc, _TermiosError) and exc.args:
             code = exc.args[0]
         text = str(exc)
         if code in (errno.EWOULDBLOCK, errno.EAGAIN) and "exclusive" in text:

@@ -12,6 +12,7 @@ import subprocess
 import sys
 import time
 
+import pytest
 from cli_helpers import ROOT, env, pyrtu
 
 #: a row of the plain output: [time] slave drive frequency word-name 0xWORD status
@@ -21,12 +22,15 @@ ROW = re.compile(
 )
 
 
+@pytest.mark.wall_clock
 def test_demo_plain_lines_reach_30_hz() -> None:
     t0 = time.monotonic()
     r = pyrtu("demo", "--duration", "5", "--accel", "4", "--interval", "0.5", timeout=60)
     elapsed = time.monotonic() - t0
     assert r.code == 0, r.err
-    assert 5 <= elapsed < 30
+    # It runs for its duration (5 s), and then stops: 6 durations leave 25 s for the
+    # start (a bus, four simulators) on a loaded 2-core VM, where it takes ~2 s.
+    assert 5 <= elapsed < 6 * 5
     out = r.out
     assert "\x1b[" not in out  # not a terminal: no escapes
     # identification: FC 43 for the WEG drives, the profiles for the others

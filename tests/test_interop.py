@@ -134,12 +134,15 @@ def test_master_writes(server: tuple[str, int], bus: VirtualBus) -> None:
         ]
 
 
+@pytest.mark.wall_clock
 def test_master_exceptions_and_no_response(server: tuple[str, int], bus: VirtualBus) -> None:
     _, s = server
     with open_master(bus.paths[0]) as m:
         t0 = time.monotonic()
         with pytest.raises(ExceptionResponseError) as info:
             m.read_holding_registers(s, 999, 2)  # crosses the end of the table
+        # at once, not at the timeout: half of it (250 ms) is ~50x a pymodbus exchange
+        # over the bus and above a loaded 2-core VM's stalls (tens of ms)
         assert time.monotonic() - t0 < TIMEOUT / 2, "an exception response returns at once"
         e = info.value
         assert (e.slave, e.function, e.code) == (s, 3, 2)
@@ -155,7 +158,7 @@ def test_master_exceptions_and_no_response(server: tuple[str, int], bus: Virtual
         t0 = time.monotonic()
         with pytest.raises(NoResponseError) as none:
             m.read_holding_registers(s + 100, 0, 1)
-        assert time.monotonic() - t0 >= TIMEOUT * 0.9
+        assert time.monotonic() - t0 >= TIMEOUT * 0.9  # a lower bound: load only adds
         assert isinstance(none.value, TimeoutError) and isinstance(none.value, ModbusError)
         # and the server is still in step
         assert m.read_holding_registers(s, 10, 2) == pattern.holdings(s, 10, 2)
@@ -203,6 +206,7 @@ def test_master_serial_line_functions_pymodbus(bus: VirtualBus) -> None:
         assert m.read_holding_registers(s, 0, 3) == pattern.holdings(s, 0, 3)
 
 
+@pytest.mark.wall_clock
 def test_master_unsupported_functions_libmodbus(
     peer_binaries: PeerBinaries, bus: VirtualBus
 ) -> None:
@@ -214,6 +218,7 @@ def test_master_unsupported_functions_libmodbus(
             with pytest.raises(ExceptionResponseError) as info:
                 m.execute(s, function, b"")
             assert (info.value.function, info.value.code) == (function, 1)
+            # at once, not at the timeout (as above)
             assert time.monotonic() - t0 < TIMEOUT / 2
         # libmodbus 3.1 does not answer FC 07 at all, and frames FC 08/43 requests
         # as 4 bytes (bad CRC): silence, a typed error
@@ -621,7 +626,8 @@ def report(
 
 
 def test_shared_bus_three_slaves(shared_bus: SharedBus, capsys: pytest.CaptureFixture[str]) -> None:
-    """10,000 transactions, zero wrong answers, and the pyrtu slave never misses one.
+    """10,000 transactions, zero wrong answers, and the pyrtu slave never misses one
+    that reached it intact.
 
     The pyrtu slave's own counters must show every request for it recognised and
     answered, and no frame on the bus it could not size.  On the master's side a
@@ -657,8 +663,14 @@ def test_shared_bus_three_slaves(shared_bus: SharedBus, capsys: pytest.CaptureFi
     assert not tally.untyped, text
     assert tally.ok + tally.failed == TRANSACTIONS
     polls = TRANSACTIONS // len(SHARED)
-    assert slave["requests"] == slave["responses"] == slave["slave_message_count"] >= polls, text
-    assert slave["bus_communication_error_count"] == 0, text  # every frame sized, CRC good
+    # Every request that reached it intact: on a loaded machine an answer can come
+    # after the master's 25 ms timeout and collide with the next request, which no
+    # slave can read (the bus counts the collisions; each spoils at most one frame).
+    collisions = bus.counters().collisions
+    assert slave["requests"] == slave["responses"] == slave["slave_message_count"], text
+    assert slave["requests"] >= polls - collisions, text
+    # every intact frame sized, CRC good
+    assert slave["bus_communication_error_count"] <= collisions, text
     pyrtu_misses = sum(n for k, n in tally.errors.items() if k.startswith("pyrtu:"))
     assert pyrtu_misses <= polls // 1000, text
     # (a FrameError would be a pymodbus stray answer colliding with a real one)

@@ -30,12 +30,18 @@ import math
 import re
 import signal
 import sys
-import termios
 import threading
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from types import FrameType
 from typing import IO, TYPE_CHECKING, Any, NamedTuple
+
+try:  # POSIX: pyserial lets termios.error through when a port refuses a format
+    import termios
+
+    _TERMIOS_ERRORS: tuple[type[Exception], ...] = (termios.error,)
+except ImportError:  # no termios (Windows): pyserial raises its own errors there
+    _TERMIOS_ERRORS = ()
 
 if TYPE_CHECKING:
     from ..errors import PortError
@@ -422,7 +428,7 @@ LABELS = {
 }
 
 
-def port_error(exc: termios.error, port: str, fmt: str) -> PortError:
+def port_error(exc: Exception, port: str, fmt: str) -> PortError:
     """pyserial lets the ``termios.error`` of a refused format through: as a PortError."""
     from ..errors import PortError
 
@@ -482,7 +488,7 @@ def guarded(command: str, run: Run) -> Run:
             error: BaseException = exc
             if isinstance(exc, BrokenPipeError):
                 raise  # the reader went away (| head): pyrtu.cli.main ends quietly
-            if isinstance(exc, termios.error):
+            if isinstance(exc, _TERMIOS_ERRORS):
                 fmt = describe_format(args) if hasattr(args, "baudrate") else "asked"
                 error = port_error(exc, str(getattr(args, "port", "?")), fmt)
             elif not isinstance(

@@ -54,7 +54,8 @@ Measured accuracy and the details: ``docs/vbus.md``.
 
 from __future__ import annotations
 
-from ._lock import BusDirectoryBusy
+from typing import Any
+
 from .capture import (
     Capture,
     CaptureError,
@@ -67,7 +68,23 @@ from .capture import (
     stream_frames,
 )
 from .faults import FaultCounters, Faults, collision_byte
-from .hub import MAX_DROPS, BusCounters, DropCounters, VirtualBus
+
+try:  # the hub is made of pseudo-terminals: POSIX only (termios, fcntl, tty)
+    from ._lock import BusDirectoryBusy
+    from .hub import MAX_DROPS, BusCounters, DropCounters, VirtualBus
+except ImportError as _exc:
+    if _exc.name not in ("termios", "fcntl", "tty"):
+        raise
+    _NO_PTY = _exc  # captures and faults still work here (Windows)
+
+    def __getattr__(name: str) -> Any:
+        if name in ("MAX_DROPS", "BusDirectoryBusy", "BusCounters", "DropCounters", "VirtualBus"):
+            raise ImportError(
+                f"pyrtu.vbus.{name} needs POSIX pseudo-terminals; this Python has no "
+                f"{_NO_PTY.name} module (Windows?): run the virtual bus on Linux or macOS"
+            ) from _NO_PTY
+        raise AttributeError(f"module 'pyrtu.vbus' has no attribute {name!r}")
+
 
 __all__ = [
     "MAX_DROPS",
