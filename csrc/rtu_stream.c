@@ -119,13 +119,13 @@ int rtu_parse(rtu_parser *p, const uint8_t *data, size_t len, const rtu_mark *ma
         (nchunks > 0 && (offsets == NULL || times == NULL)) || (cap > 0 && out == NULL)) {
         return RTU_EINVAL;
     }
+    *nout = 0;
     if (cap == 0 && (p->pos < len || p->run)) {
         return RTU_EINVAL; /* no room for any event: no progress possible */
     }
     const rtu_config *cfg = p->cfg;
     const rtu_chunks ch = {offsets, times, nchunks, len};
     const int timed = nchunks > 0;
-    *nout = 0;
     while (p->pos < len) {
         while (p->mark_index < nmarks && marks[p->mark_index].pos <= p->pos) {
             p->mark_index++;
