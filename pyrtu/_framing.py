@@ -7,6 +7,8 @@ A backend supplies a *core*: ``feed(data, now_us) -> int``, ``poll() -> event``,
 
 from __future__ import annotations
 
+import numbers
+import operator
 from collections import deque
 from collections.abc import Callable, Iterable, Sequence
 from typing import Protocol
@@ -15,7 +17,7 @@ from ._types import BytesLike
 from .config import CoreOptions, core_options, to_microseconds
 from .frames import ERROR_BY_CODE, Frame, FrameKind, FrameList, event_counters_template
 from .rules import RuleTable
-from .timing import Timing
+from .timing import TIMING_RULES, Timing, compute_timing
 
 # (offset, length, kind, error, start_us, end_us, adu)
 Event = tuple[int, int, int, int, int, int, bytes]
@@ -32,12 +34,55 @@ class FramerCore(Protocol):
 
 
 def as_bytes(data: BytesLike, name: str = "data") -> bytes:
+    """Any buffer (strided or multi-dimensional ones too, in logical order) as bytes."""
     if isinstance(data, bytes):
         return data
     try:
-        return memoryview(data).cast("B").tobytes()
+        view = memoryview(data)
     except TypeError:
         raise TypeError(f"{name} must be a bytes-like object, not {type(data).__name__}") from None
+    return view.tobytes()
+
+
+INT64_MAX = 2**63 - 1
+#: Times and durations reach the C core as int64 microseconds; INT64_MIN is its
+#: "no time", so both backends accept |t| <= INT64_MAX us (about 292,000 years).
+MAX_SECONDS = INT64_MAX / 1e6
+
+
+def time_us(value: object, name: str) -> int:
+    """A time in seconds (a real number) as integer microseconds, checked the same way
+    for both backends: TypeError for a non-number, ValueError for NaN, infinities and
+    times beyond +-INT64_MAX microseconds."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name} must be a number of seconds, not {type(value).__name__}")
+    try:
+        us = to_microseconds(float(value) if not isinstance(value, int) else value)
+    except (ValueError, OverflowError):
+        us = None
+    if us is None or not -INT64_MAX <= us <= INT64_MAX:
+        raise ValueError(
+            f"{name} must be a finite time within +-{MAX_SECONDS:.3g} s, not {value!r}"
+        )
+    return us
+
+
+def check_core_limits(options: CoreOptions) -> None:
+    """What the C core's int64/uint32 fields and its 1 us resolution impose, checked
+    before either backend builds its configuration (ValueError naming the argument)."""
+    for name, us in (
+        ("t15", options.t15_us),
+        ("t35", options.t35_us),
+        ("flush_timeout", options.flush_us),
+    ):
+        if us is not None and us > INT64_MAX:
+            raise ValueError(f"{name} must be at most {MAX_SECONDS:.3g} s, not {us / 1e6:g} s")
+    timing = compute_timing(options.baudrate, options.bits, TIMING_RULES[options.rule])
+    if options.baudrate > 0xFFFFFFFF or timing.char_us < 1:
+        raise ValueError(
+            f"baudrate {options.baudrate} is too high: a character would last under 1 us, "
+            "the core's time resolution"
+        )
 
 
 def event_to_frame(ev: Event) -> Frame:
@@ -118,7 +163,7 @@ class FramerBase:
     def receive_data(self, data: BytesLike, now: float) -> None:
         """Bytes that arrived (were read) at ``now`` seconds."""
         raw = as_bytes(data)
-        now_us = to_microseconds(now)
+        now_us = time_us(now, "now")
         pos = 0
         stalled = 0
         while pos < len(raw):
@@ -146,7 +191,7 @@ class FramerBase:
 
     def handle_timer(self, now: float) -> None:
         """Let the silence up to ``now`` end what it ends."""
-        self._core.handle_timer(to_microseconds(now))
+        self._core.handle_timer(time_us(now, "now"))
         self._drain()
 
     def send(self, adu: BytesLike) -> bytes:
@@ -175,7 +220,7 @@ def stream_times(
     if times is not None and chunks is not None:
         raise ValueError("parse_stream: give times= or chunks=, not both")
     if times is not None:
-        us = [to_microseconds(t) for t in times]
+        us = [time_us(t, f"times[{i}]") for i, t in enumerate(_iterable(times, "times"))]
         if len(us) != length:
             raise ValueError(f"parse_stream: times has {len(us)} entries for {length} bytes")
         return list(range(length)), us
@@ -183,8 +228,22 @@ def stream_times(
         return [], []
     offsets: list[int] = []
     us = []
-    for offset, t in chunks:
-        if not isinstance(offset, int) or offset < 0 or offset > length:
+    for i, chunk in enumerate(_iterable(chunks, "chunks")):
+        try:
+            offset, t = chunk
+        except (TypeError, ValueError):
+            raise TypeError(
+                f"parse_stream: chunks[{i}] must be an (offset, time) pair, not {chunk!r}"
+            ) from None
+        try:
+            if isinstance(offset, bool):
+                raise TypeError
+            offset = operator.index(offset)
+        except TypeError:
+            raise TypeError(
+                f"parse_stream: chunks[{i}] offset must be an integer, not {type(offset).__name__}"
+            ) from None
+        if offset < 0 or offset > length:
             raise ValueError(
                 f"parse_stream: chunk offset {offset!r} is outside the data (0..{length})"
             )
@@ -193,10 +252,16 @@ def stream_times(
                 f"parse_stream: chunk offsets must ascend ({offset} after {offsets[-1]})"
             )
         offsets.append(offset)
-        us.append(to_microseconds(t))
+        us.append(time_us(t, f"chunks[{i}] time"))
     if offsets and offsets[0] != 0:
         raise ValueError("parse_stream: the first chunk must start at offset 0")
     return offsets, us
+
+
+def _iterable(value: object, name: str) -> Iterable[object]:
+    if isinstance(value, str | bytes) or not isinstance(value, Iterable):
+        raise TypeError(f"parse_stream: {name} must be an iterable, not {type(value).__name__}")
+    return value
 
 
 class StreamParser(Protocol):
