@@ -220,7 +220,9 @@ def stream_times(
     if times is not None and chunks is not None:
         raise ValueError("parse_stream: give times= or chunks=, not both")
     if times is not None:
-        us = [time_us(t, f"times[{i}]") for i, t in enumerate(_iterable(times, "times"))]
+        us = [
+            time_us(t, f"parse_stream: times[{i}]") for i, t in enumerate(_iterable(times, "times"))
+        ]
         if len(us) != length:
             raise ValueError(f"parse_stream: times has {len(us)} entries for {length} bytes")
         return list(range(length)), us
@@ -245,16 +247,19 @@ def stream_times(
             ) from None
         if offset < 0 or offset > length:
             raise ValueError(
-                f"parse_stream: chunk offset {offset!r} is outside the data (0..{length})"
+                f"parse_stream: chunks[{i}] offset {offset} is outside the data (0..{length})"
             )
         if offsets and offset < offsets[-1]:
             raise ValueError(
-                f"parse_stream: chunk offsets must ascend ({offset} after {offsets[-1]})"
+                f"parse_stream: chunks offsets must ascend (chunks[{i}] at {offset} "
+                f"after {offsets[-1]})"
             )
         offsets.append(offset)
-        us.append(time_us(t, f"chunks[{i}] time"))
+        us.append(time_us(t, f"parse_stream: chunks[{i}] time"))
     if offsets and offsets[0] != 0:
-        raise ValueError("parse_stream: the first chunk must start at offset 0")
+        raise ValueError(
+            f"parse_stream: chunks[0], the first chunk, must start at offset 0, not {offsets[0]}"
+        )
     return offsets, us
 
 
