@@ -231,20 +231,20 @@ def stream_times(
     offsets: list[int] = []
     us = []
     for i, chunk in enumerate(_iterable(chunks, "chunks")):
+        raw_offset: object
+        t: object
         try:
-            offset, t = chunk
+            raw_offset, t = chunk  # type: ignore[misc]
         except (TypeError, ValueError):
             raise TypeError(
                 f"parse_stream: chunks[{i}] must be an (offset, time) pair, not {chunk!r}"
             ) from None
-        try:
-            if isinstance(offset, bool):
-                raise TypeError
-            offset = operator.index(offset)
-        except TypeError:
+        if isinstance(raw_offset, bool) or not hasattr(raw_offset, "__index__"):
             raise TypeError(
-                f"parse_stream: chunks[{i}] offset must be an integer, not {type(offset).__name__}"
-            ) from None
+                f"parse_stream: chunks[{i}] offset must be an integer, "
+                f"not {type(raw_offset).__name__}"
+            )
+        offset = operator.index(raw_offset)
         if offset < 0 or offset > length:
             raise ValueError(
                 f"parse_stream: chunks[{i}] offset {offset} is outside the data (0..{length})"
