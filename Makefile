@@ -10,7 +10,8 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 APT_PACKAGES := libmodbus-dev pkg-config socat
 
-.PHONY: demo test test-asan bench lint setup system-packages fuzz fuzz-ci fuzz-build fuzz-packages
+.PHONY: demo test test-asan bench lint setup system-packages fuzz fuzz-ci fuzz-build fuzz-packages \
+	fuzz-python
 
 demo: setup
 	$(PY) -m pyrtu demo
@@ -63,11 +64,12 @@ lint: setup
 # build/fuzz/corpus/<name>/, crashes to build/fuzz/crash-<name>-*.
 #   make fuzz                  each harness for FUZZ_SECONDS (default 300)
 #   make fuzz FUZZ_SECONDS=3600 FUZZ_ARGS=-max_len=300
+#   make fuzz-python           the atheris harness of the Python layer, FUZZ_SECONDS
 #   make fuzz-ci               each briefly (about a minute in all); fails on any crash
 FUZZ_APT_PACKAGES := clang-14 libfuzzer-14-dev libclang-rt-14-dev
 CLANG ?= clang-14
 FUZZ_SECONDS ?= 300
-FUZZ_CI_SECONDS ?= 12
+FUZZ_CI_SECONDS ?= 10
 FUZZ_ARGS ?=
 FUZZ_HARNESSES := stream framer predict crc
 FUZZ_DIR := build/fuzz
@@ -98,5 +100,15 @@ fuzz: fuzz-build
 	  grep -E '^stat::(number_of_executed_units|average_exec_per_sec)' $(FUZZ_DIR)/fuzz_$$h.log; \
 	done
 
+# The Python layer (fuzz/fuzz_python.py): atheris from PyPI, into the venv.
+fuzz-python: setup
+	@$(PY) -c "import atheris" 2>/dev/null || $(PY) -m pip install -q atheris
+	mkdir -p $(FUZZ_DIR)/corpus/python
+	$(PY) fuzz/fuzz_python.py -max_total_time=$(FUZZ_SECONDS) -print_final_stats=1 $(FUZZ_ARGS) \
+	  -artifact_prefix=$(FUZZ_DIR)/crash-python- $(FUZZ_DIR)/corpus/python \
+	  2>$(FUZZ_DIR)/fuzz_python.log || { tail -40 $(FUZZ_DIR)/fuzz_python.log; exit 1; }
+	@grep -E '^stat::(number_of_executed_units|average_exec_per_sec)' $(FUZZ_DIR)/fuzz_python.log
+
 fuzz-ci:
 	$(MAKE) fuzz FUZZ_SECONDS=$(FUZZ_CI_SECONDS)
+	$(MAKE) fuzz-python FUZZ_SECONDS=$(FUZZ_CI_SECONDS)
