@@ -96,7 +96,9 @@ def _stream(fdp: Any) -> None:
     strict = fdp.ConsumeBool()
     max_adu = fdp.ConsumeIntInRange(3, 1025)
     n_chunks = fdp.ConsumeIntInRange(0, 8)
-    raw_chunks = [(fdp.ConsumeIntInRange(-1, 300), fdp.ConsumeRegularFloat()) for _ in range(n_chunks)]
+    raw_chunks = [
+        (fdp.ConsumeIntInRange(-1, 300), fdp.ConsumeRegularFloat()) for _ in range(n_chunks)
+    ]
     data = fdp.ConsumeBytes(fdp.remaining_bytes())
     chunks = sorted(raw_chunks) if fdp.ConsumeBool() else raw_chunks
     if chunks and fdp.ConsumeBool():
