@@ -50,21 +50,31 @@ INT64_MAX = 2**63 - 1
 MAX_SECONDS = INT64_MAX / 1e6
 
 
-def time_us(value: object, name: str) -> int:
+def time_us(value: object, name: str, index: int = 0) -> int:
     """A time in seconds (a real number) as integer microseconds, checked the same way
     for both backends: TypeError for a non-number, ValueError for NaN, infinities and
-    times beyond +-INT64_MAX microseconds."""
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise TypeError(f"{name} must be a number of seconds, not {type(value).__name__}")
-    try:
-        us = to_microseconds(float(value) if not isinstance(value, int) else value)
-    except (ValueError, OverflowError):
-        us = None
-    if us is None or not -INT64_MAX <= us <= INT64_MAX:
-        raise ValueError(
-            f"{name} must be a finite time within +-{MAX_SECONDS:.3g} s, not {value!r}"
+    times beyond +-INT64_MAX microseconds.  ``name`` may hold ``{}`` for ``index``
+    (formatted only for an error message: this runs once per chunk)."""
+    kind = type(value)
+    if kind is float:  # the common case first: NaN and infinities fail the comparison
+        if -MAX_SECONDS <= value <= MAX_SECONDS:  # type: ignore[operator]
+            us = round(value * 1_000_000)  # type: ignore[operator]
+            if -INT64_MAX <= us <= INT64_MAX:
+                return us
+    elif kind is bool or not isinstance(value, numbers.Real):
+        raise TypeError(
+            f"{name.format(index)} must be a number of seconds, not {type(value).__name__}"
         )
-    return us
+    else:
+        try:
+            us = to_microseconds(value if isinstance(value, int) else float(value))
+        except (ValueError, OverflowError):
+            us = INT64_MAX + 1
+        if -INT64_MAX <= us <= INT64_MAX:
+            return us
+    raise ValueError(
+        f"{name.format(index)} must be a finite time within +-{MAX_SECONDS:.3g} s, not {value!r}"
+    )
 
 
 def check_core_limits(options: CoreOptions) -> None:
@@ -221,7 +231,8 @@ def stream_times(
         raise ValueError("parse_stream: give times= or chunks=, not both")
     if times is not None:
         us = [
-            time_us(t, f"parse_stream: times[{i}]") for i, t in enumerate(_iterable(times, "times"))
+            time_us(t, "parse_stream: times[{}]", i)
+            for i, t in enumerate(_iterable(times, "times"))
         ]
         if len(us) != length:
             raise ValueError(f"parse_stream: times has {len(us)} entries for {length} bytes")
@@ -231,8 +242,16 @@ def stream_times(
     offsets: list[int] = []
     us = []
     for i, chunk in enumerate(_iterable(chunks, "chunks")):
+        if type(chunk) is tuple and len(chunk) == 2 and type(chunk[0]) is int:
+            offset, t = chunk  # the common case, checked below like any other
+            if 0 <= offset <= length and (not offsets or offset >= offsets[-1]):
+                offsets.append(offset)
+                if type(t) is float and -9e12 < t < 9e12:  # well inside int64 us
+                    us.append(round(t * 1_000_000))
+                else:
+                    us.append(time_us(t, "parse_stream: chunks[{}] time", i))
+                continue
         raw_offset: object
-        t: object
         try:
             raw_offset, t = chunk  # type: ignore[misc]
         except (TypeError, ValueError):
@@ -255,7 +274,7 @@ def stream_times(
                 f"after {offsets[-1]})"
             )
         offsets.append(offset)
-        us.append(time_us(t, f"parse_stream: chunks[{i}] time"))
+        us.append(time_us(t, "parse_stream: chunks[{}] time", i))
     if offsets and offsets[0] != 0:
         raise ValueError(
             f"parse_stream: chunks[0], the first chunk, must start at offset 0, not {offsets[0]}"
