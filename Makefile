@@ -1,7 +1,8 @@
 # pyrtu: the two set-up commands of the README.
 #   make demo   set up (venv, packages, C core) and run the main job
 #   make test   set up and run the whole test suite (C core and pure-Python twin)
-# Also: make test-asan (the suite against a C core built with ASan/UBSan), make bench.
+# Also: make test-asan (the suite against a C core built with ASan/UBSan), make bench,
+# make fuzz (the libFuzzer harnesses of fuzz/, FUZZ_SECONDS each), make fuzz-ci.
 
 PYTHON ?= python3
 VENV   := .venv
@@ -9,7 +10,8 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 APT_PACKAGES := libmodbus-dev pkg-config socat
 
-.PHONY: demo test test-asan bench lint setup system-packages
+.PHONY: demo test test-asan bench lint setup system-packages fuzz fuzz-ci fuzz-build fuzz-packages \
+	fuzz-python
 
 # Developer targets compile the C core with -Werror (PYRTU_STRICT_BUILD=1, read by
 # pyrtu/_build_core.py), so that it stays -Wall -Wextra clean; `make demo` builds
@@ -63,3 +65,57 @@ lint: setup
 	$(PY) -m ruff check pyrtu tests bench
 	$(PY) -m ruff format --check pyrtu tests bench
 	$(PY) -m mypy
+
+# libFuzzer harnesses (fuzz/*.c) built with clang and ASan/UBSan.  The seeds in
+# fuzz/corpus/<name>/ (fuzz/make_corpus.py) are read first; new inputs go to
+# build/fuzz/corpus/<name>/, crashes to build/fuzz/crash-<name>-*.
+#   make fuzz                  each harness for FUZZ_SECONDS (default 300)
+#   make fuzz FUZZ_SECONDS=3600 FUZZ_ARGS=-max_len=300
+#   make fuzz-python           the atheris harness of the Python layer, FUZZ_SECONDS
+#   make fuzz-ci               each briefly (about a minute in all); fails on any crash
+FUZZ_APT_PACKAGES := clang-14 libfuzzer-14-dev libclang-rt-14-dev
+CLANG ?= clang-14
+FUZZ_SECONDS ?= 300
+FUZZ_CI_SECONDS ?= 10
+FUZZ_ARGS ?=
+FUZZ_HARNESSES := stream framer predict crc mbap
+FUZZ_DIR := build/fuzz
+FUZZ_CFLAGS := -std=c99 -g -O2 -Wall -Wextra -Werror -Icsrc \
+  -fsanitize=fuzzer,address,undefined -fno-sanitize-recover=undefined
+# the CRC harness runs the folding code at every length (see csrc/rtu_crc.c)
+FUZZ_CRC_DEFS := -DRTU_CLMUL_MIN=16 -DRTU_VCLMUL_MIN=2 -DRTU_DISPATCH_CLMUL=1 -DRTU_DISPATCH_VCLMUL=2
+
+fuzz-packages:
+	@missing=""; for p in $(FUZZ_APT_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
+	if [ -n "$$missing" ]; then \
+	  if [ "$$(id -u)" = 0 ]; then apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing; \
+	  else echo "pyrtu: please install:$$missing (sudo apt-get install$$missing)"; exit 1; fi; \
+	fi
+
+$(FUZZ_DIR)/fuzz_%: fuzz/fuzz_%.c fuzz/fuzz_common.h $(wildcard csrc/*.c csrc/*.h) | fuzz-packages
+	mkdir -p $(FUZZ_DIR)
+	$(CLANG) $(FUZZ_CFLAGS) $(if $(filter crc,$*),$(FUZZ_CRC_DEFS)) $< $(wildcard csrc/*.c) -o $@
+
+fuzz-build: $(addprefix $(FUZZ_DIR)/fuzz_,$(FUZZ_HARNESSES))
+
+fuzz: fuzz-build
+	@for h in $(FUZZ_HARNESSES); do \
+	  mkdir -p $(FUZZ_DIR)/corpus/$$h; echo "== fuzz_$$h: $(FUZZ_SECONDS) s"; \
+	  $(FUZZ_DIR)/fuzz_$$h -max_total_time=$(FUZZ_SECONDS) -print_final_stats=1 $(FUZZ_ARGS) \
+	    -artifact_prefix=$(FUZZ_DIR)/crash-$$h- $(FUZZ_DIR)/corpus/$$h fuzz/corpus/$$h \
+	    2>$(FUZZ_DIR)/fuzz_$$h.log || { tail -40 $(FUZZ_DIR)/fuzz_$$h.log; exit 1; }; \
+	  grep -E '^stat::(number_of_executed_units|average_exec_per_sec)' $(FUZZ_DIR)/fuzz_$$h.log; \
+	done
+
+# The Python layer (fuzz/fuzz_python.py): atheris from PyPI, into the venv.
+fuzz-python: setup
+	@$(PY) -c "import atheris" 2>/dev/null || $(PY) -m pip install -q atheris
+	mkdir -p $(FUZZ_DIR)/corpus/python
+	$(PY) fuzz/fuzz_python.py -max_total_time=$(FUZZ_SECONDS) -print_final_stats=1 $(FUZZ_ARGS) \
+	  -artifact_prefix=$(FUZZ_DIR)/crash-python- $(FUZZ_DIR)/corpus/python \
+	  2>$(FUZZ_DIR)/fuzz_python.log || { tail -40 $(FUZZ_DIR)/fuzz_python.log; exit 1; }
+	@grep -E '^stat::(number_of_executed_units|average_exec_per_sec)' $(FUZZ_DIR)/fuzz_python.log
+
+fuzz-ci:
+	$(MAKE) fuzz FUZZ_SECONDS=$(FUZZ_CI_SECONDS)
+	$(MAKE) fuzz-python FUZZ_SECONDS=$(FUZZ_CI_SECONDS)

@@ -69,6 +69,8 @@ typedef struct {
 
 /* Fill with the standard public function codes of [AP]/[SL]. */
 void rtu_rules_init(rtu_rules *r);
+/* RTU_EINVAL unless function is 1..127 and the rule's shortest ADU is 4..RTU_MAX_ADU_LIMIT
+ * bytes (FIXED: add; COUNT: off + width + add, with off >= 2, width 1 or 2, mul >= 1). */
 int rtu_rules_set(rtu_rules *r, int direction, unsigned function, rtu_rule rule);
 
 /* Prediction result. */
@@ -76,6 +78,7 @@ int rtu_rules_set(rtu_rules *r, int direction, unsigned function, rtu_rule rule)
 #define RTU_PRED_NEED 1    /* more bytes needed; *length is the minimum to decide */
 #define RTU_PRED_UNKNOWN 2 /* no rule for this function in this direction */
 
+/* RTU_PRED_UNKNOWN for a direction other than RTU_DIR_REQUEST / RTU_DIR_RESPONSE. */
 int rtu_predict(const rtu_rules *r, int direction, const uint8_t *adu, size_t n, size_t *length);
 
 /* The shortest answer to a request (address, function): the response's
@@ -179,7 +182,8 @@ void rtu_framer_reset(rtu_framer *f);
 size_t rtu_framer_feed(rtu_framer *f, const uint8_t *data, size_t len, int64_t now_us);
 /* Silence up to now_us. */
 void rtu_framer_handle_timer(rtu_framer *f, int64_t now_us);
-/* Absolute time at which rtu_framer_handle_timer should run, INT64_MAX if none. */
+/* Absolute time at which rtu_framer_handle_timer should run, INT64_MAX if none
+ * (or if it would lie beyond INT64_MAX: time arithmetic saturates). */
 int64_t rtu_framer_deadline(const rtu_framer *f);
 /* 1: f->event holds an event whose bytes are at rtu_framer_event_data(f) until
  * the next call; 0: nothing more until new bytes or a timer. */
@@ -220,14 +224,20 @@ typedef struct {
 } rtu_parser;
 
 /* Marks from chunk times (chunk i starts at offsets[i], all its bytes arrived
- * by times[i]); out must hold nchunks marks. */
+ * by times[i]); out must hold nchunks marks.  RTU_EINVAL for offsets that do
+ * not start at 0 and ascend within total, or t->char_us <= 0. */
 int rtu_marks_from_chunks(const rtu_timing *t, const uint64_t *offsets, const int64_t *times,
                           size_t nchunks, uint64_t total, rtu_mark *out, size_t *nout);
 
+/* RTU_EINVAL for a config rtu_framer_init would refuse too (max_adu outside
+ * 4..RTU_MAX_ADU_LIMIT, char_us <= 0, negative t1.5/t3.5, flush_us < t3.5). */
 int rtu_parser_init(rtu_parser *p, const rtu_config *cfg);
 /* Parse data[0..len) into out (capacity cap); *nout receives the count.
  * Returns RTU_OK when the whole buffer is done, RTU_ENOSPC when out is full
- * (call again with a fresh out array to continue). */
+ * (call again with the same data, marks and chunks and a fresh out array to
+ * continue: the events of all calls are those of one call with a large out).
+ * Any cap >= 1 makes progress; cap == 0 with work left is RTU_EINVAL.  Marks
+ * must ascend by pos (rtu_marks_from_chunks makes them so). */
 int rtu_parse(rtu_parser *p, const uint8_t *data, size_t len, const rtu_mark *marks, size_t nmarks,
               const uint64_t *offsets, const int64_t *times, size_t nchunks, rtu_event *out,
               size_t cap, size_t *nout);

@@ -786,12 +786,13 @@ static inline RTU_TARGET_CLMUL uint16_t rtu_barrett(__m128i a)
 RTU_TARGET_CLMUL
 uint16_t rtu_crc16_clmul(const uint8_t *data, size_t len, uint16_t crc)
 {
-    const uint8_t *end = data + len, *r;
+    const uint8_t *end, *r;
     size_t h, nb, m, i;
     __m128i x0, a;
 
     if (len < RTU_CLMUL_MIN)
         return rtu_slice_body(data, len, crc);
+    end = data + len;   /* data != NULL here: no NULL + 0 (C99 6.5.6p8) */
 
     /* block 0: the h leading bytes (h == 1: the CRC would straddle two
      * blocks, take that byte with the table instead) */
@@ -866,7 +867,7 @@ static inline RTU_TARGET_VCLMUL __m512i rtu_fold512(__m512i z, __m512i k, __m512
 RTU_TARGET_VCLMUL
 uint16_t rtu_crc16_vclmul(const uint8_t *data, size_t len, uint16_t crc)
 {
-    const uint8_t *end = data + len, *r;
+    const uint8_t *end, *r;
     unsigned p;
     size_t m, c;
     __m512i z0, t;
@@ -874,6 +875,7 @@ uint16_t rtu_crc16_vclmul(const uint8_t *data, size_t len, uint16_t crc)
 
     if (len < RTU_VCLMUL_MIN)
         return rtu_slice_body(data, len, crc);
+    end = data + len;   /* data != NULL here: no NULL + 0 (C99 6.5.6p8) */
 
     /* blocks 0..3: block 0 starts p = (16 - len % 16) % 16 bytes before the
      * data (p = 64 - len for a message shorter than 64 bytes, which then ends

@@ -8,7 +8,11 @@
  * 2.5.1.1).  Strict mode closes the frame at t3.5 of silence; lenient mode
  * keeps incomplete bytes across such a gap (USB adapters batch bytes) until
  * flush_us of silence.  t3.5 = 0 (or t1.5 = 0) turns that detection off, for
- * links without wire timing (pseudo-terminals, TCP gateways). */
+ * links without wire timing (pseudo-terminals, TCP gateways).
+ *
+ * Times are int64 microseconds of any value but RTU_NO_TIME; the arithmetic on
+ * them saturates (rtu_internal.h), so extreme or non-monotonic times shift no
+ * deadline into the past and never overflow. */
 #include "rtu_internal.h"
 
 #include <string.h>
@@ -31,7 +35,7 @@ int rtu_config_init(rtu_config *c, int role, uint32_t baudrate, unsigned bits_pe
     return RTU_OK;
 }
 
-static int rtu_config_valid(const rtu_config *c)
+int rtu_config_valid(const rtu_config *c)
 {
     return c->role >= RTU_ROLE_MASTER && c->role <= RTU_ROLE_MONITOR && c->max_adu >= 4 &&
            c->max_adu <= RTU_MAX_ADU_LIMIT && c->timing.char_us > 0 && c->timing.t15_us >= 0 &&
@@ -87,19 +91,20 @@ static void rtu_framer_compact(rtu_framer *f, size_t keep)
 size_t rtu_framer_feed(rtu_framer *f, const uint8_t *data, size_t len, int64_t now_us)
 {
     rtu_framer_compact(f, f->head);
-    if (f->final && f->n > f->head) {
-        return 0; /* poll first */
+    if (data == NULL || (f->final && f->n > f->head)) {
+        return 0; /* poll first (or nothing to take) */
     }
     const rtu_timing *t = &f->cfg.timing;
+    now_us = rtu_time_clamp(now_us);
     size_t i = 0;
     for (; i < len && f->n < RTU_FRAMER_CAP; i++) {
-        int64_t at = now_us - (int64_t)(len - 1 - i) * t->char_us;
+        int64_t at = rtu_sat_sub(now_us, rtu_sat_mul(len - 1 - i, t->char_us));
         uint32_t flags = 0;
         if (f->last_us != RTU_NO_TIME) {
             if (at < f->last_us) {
                 at = f->last_us;
             }
-            const int64_t silence = at - t->char_us - f->last_us;
+            const int64_t silence = rtu_sat_sub(rtu_sat_sub(at, t->char_us), f->last_us);
             if (t->t35_us > 0 && silence >= t->t35_us) {
                 const int closes = f->cfg.strict || silence >= f->cfg.flush_us;
                 if (f->n > f->head && (!f->silent || (closes && !f->final))) {
@@ -133,7 +138,7 @@ void rtu_framer_handle_timer(rtu_framer *f, int64_t now_us)
     if (f->n <= f->head || f->last_us == RTU_NO_TIME) {
         return;
     }
-    const int64_t silence = now_us - f->last_us;
+    const int64_t silence = rtu_sat_sub(rtu_time_clamp(now_us), f->last_us);
     if (silence >= f->cfg.timing.t35_us) {
         f->silent = 1;
         if (f->cfg.strict || silence >= f->cfg.flush_us) {
@@ -148,10 +153,10 @@ int64_t rtu_framer_deadline(const rtu_framer *f)
         return INT64_MAX;
     }
     if (!f->silent) {
-        return f->last_us + f->cfg.timing.t35_us;
+        return rtu_sat_add(f->last_us, f->cfg.timing.t35_us);
     }
     if (!f->final) {
-        return f->last_us + f->cfg.flush_us;
+        return rtu_sat_add(f->last_us, f->cfg.flush_us);
     }
     return INT64_MAX;
 }
@@ -164,7 +169,7 @@ static void rtu_framer_emit(rtu_framer *f, size_t at, size_t len, int kind, int 
     e->kind = (uint8_t)kind;
     e->error = (uint8_t)error;
     e->reserved = 0;
-    e->start_us = f->times[at] - f->cfg.timing.char_us;
+    e->start_us = rtu_sat_sub(f->times[at], f->cfg.timing.char_us);
     e->end_us = f->times[at + len - 1];
 }
 
@@ -230,7 +235,7 @@ const uint8_t *rtu_framer_event_data(const rtu_framer *f)
 
 void rtu_framer_sent(rtu_framer *f, const uint8_t *adu, size_t len)
 {
-    if (f->cfg.role == RTU_ROLE_MASTER && len >= 2 && adu[0] != 0) {
+    if (f->cfg.role == RTU_ROLE_MASTER && adu != NULL && len >= 2 && adu[0] != 0) {
         f->ctx.pending = 1;
         f->ctx.address = adu[0];
         f->ctx.function = adu[1];

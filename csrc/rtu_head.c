@@ -91,14 +91,35 @@ static rtu_verdict rtu_verdict_of(int action, size_t length, int kind, int error
     return v;
 }
 
+/* A running CRC over data[0..done): candidates checked in ascending length
+ * extend it instead of starting over, so that a window with many t3.5 marks
+ * costs one pass over its bytes, not one per mark (a hostile capture could
+ * otherwise cost max_adu^2 CRC bytes per input byte). */
+typedef struct {
+    size_t done;
+    uint16_t crc;
+} rtu_crc_run;
+
+static int rtu_crc_ok_run(const uint8_t *adu, size_t len, rtu_crc_run *run)
+{
+    if (run == NULL || len - 2 < run->done) {
+        return rtu_crc_ok(adu, len);
+    }
+    run->crc = rtu_crc16(adu + run->done, len - 2 - run->done, run->crc);
+    run->done = len - 2;
+    /* [CFW] 4.2.4: the low byte of the CRC is sent first. */
+    return adu[len - 2] == (uint8_t)(run->crc & 0xFF) && adu[len - 1] == (uint8_t)(run->crc >> 8);
+}
+
 /* Check one candidate length; returns 1 when it is a frame. */
-static int rtu_check(const rtu_config *cfg, const rtu_view *v, size_t len, unsigned *notes)
+static int rtu_check(const rtu_config *cfg, const rtu_view *v, size_t len, unsigned *notes,
+                     rtu_crc_run *run)
 {
     if (len < 4) {
         *notes |= NOTE_TRUNCATED;
         return 0;
     }
-    if (!rtu_crc_ok(v->data, len)) {
+    if (!rtu_crc_ok_run(v->data, len, run)) {
         *notes |= NOTE_CRC;
         return 0;
     }
@@ -157,7 +178,7 @@ rtu_verdict rtu_try_head(const rtu_config *cfg, const rtu_context *ctx, const rt
             pnotes[k] = NOTE_TRUNCATED;
             continue;
         }
-        if (rtu_check(cfg, v, len, &pnotes[k])) {
+        if (rtu_check(cfg, v, len, &pnotes[k], NULL)) {
             const int kind = (d[1] & 0x80) ? RTU_KIND_EXCEPTION : kinds[k];
             return rtu_verdict_of(RTU_ACT_FRAME, len, kind, 0);
         }
@@ -166,6 +187,7 @@ rtu_verdict rtu_try_head(const rtu_config *cfg, const rtu_context *ctx, const rt
     /* 2. Silence-delimited lengths ([SL] 2.5.1.1): every t3.5 boundary in the
      * window (strict mode: only the first), then the end if silence follows. */
     int stop = 0;
+    rtu_crc_run run = {0, 0xFFFF}; /* the marks ascend, and n is past them all */
     for (size_t i = 0; i < v->nmarks; i++) {
         const uint64_t rel = v->marks[i].pos - v->base;
         if (rel >= n) {
@@ -174,7 +196,7 @@ rtu_verdict rtu_try_head(const rtu_config *cfg, const rtu_context *ctx, const rt
         if (!(v->marks[i].flags & RTU_MARK_T35)) {
             continue;
         }
-        if (rtu_check(cfg, v, (size_t)rel, &notes)) {
+        if (rtu_check(cfg, v, (size_t)rel, &notes, &run)) {
             return rtu_verdict_of(RTU_ACT_FRAME, (size_t)rel, rtu_silence_kind(cfg, ctx, d), 0);
         }
         if (cfg->strict) {
@@ -182,7 +204,7 @@ rtu_verdict rtu_try_head(const rtu_config *cfg, const rtu_context *ctx, const rt
             break;
         }
     }
-    if (!stop && v->silent_end && rtu_check(cfg, v, n, &notes)) {
+    if (!stop && v->silent_end && rtu_check(cfg, v, n, &notes, &run)) {
         return rtu_verdict_of(RTU_ACT_FRAME, n, rtu_silence_kind(cfg, ctx, d), 0);
     }
 

@@ -77,8 +77,12 @@ int rtu_rules_set(rtu_rules *r, int direction, unsigned function, rtu_rule rule)
     if (rule.type == RTU_RULE_FIXED && (rule.add < 4 || rule.add > RTU_MAX_ADU_LIMIT)) {
         return RTU_EINVAL;
     }
+    /* A count rule's shortest ADU (count 0) obeys the bounds of a fixed one:
+     * address, function and CRC make 4 bytes at least ([SL] 2.5.1). */
     if (rule.type == RTU_RULE_COUNT &&
-        (rule.off < 2 || (rule.width != 1 && rule.width != 2) || rule.mul == 0 || rule.add < 0)) {
+        (rule.off < 2 || (rule.width != 1 && rule.width != 2) || rule.mul == 0 || rule.add < 0 ||
+         rule.off + rule.width + rule.add < 4 ||
+         rule.off + rule.width + rule.add > RTU_MAX_ADU_LIMIT)) {
         return RTU_EINVAL;
     }
     r->rule[direction][function] = rule;
@@ -118,6 +122,9 @@ static int rtu_predict_mei_response(const uint8_t *adu, size_t n, size_t *length
 
 int rtu_predict(const rtu_rules *r, int direction, const uint8_t *adu, size_t n, size_t *length)
 {
+    if (direction != RTU_DIR_REQUEST && direction != RTU_DIR_RESPONSE) {
+        return RTU_PRED_UNKNOWN; /* rule[direction] would be out of bounds */
+    }
     if (n < 2) {
         *length = 2;
         return RTU_PRED_NEED;

@@ -1,14 +1,16 @@
 /* The bulk stream parser: one call resolves a whole buffer (a capture) into
  * frames and discard runs, with the same head step as the framer.  Arrival
  * times are optional: chunks (offset, time) give them, one chunk per byte for
- * per-byte times; without them only prediction and CRC split the stream. */
+ * per-byte times; without them only prediction and CRC split the stream.
+ * Chunk times may be any int64 (RTU_NO_TIME reads as the earliest time) and
+ * need not ascend: the time arithmetic saturates (rtu_internal.h). */
 #include "rtu_internal.h"
 
 #include <string.h>
 
 static int64_t rtu_chunk_prev(const int64_t *times, size_t c)
 {
-    return c > 0 ? times[c - 1] : RTU_NO_TIME;
+    return c > 0 ? rtu_time_clamp(times[c - 1]) : RTU_NO_TIME;
 }
 
 /* Arrival of byte i of chunk c (chunk ends at `end`): spread back over the
@@ -16,7 +18,7 @@ static int64_t rtu_chunk_prev(const int64_t *times, size_t c)
 static int64_t rtu_byte_time(const rtu_timing *t, const int64_t *times, size_t c, uint64_t end,
                              uint64_t i)
 {
-    int64_t at = times[c] - (int64_t)(end - 1 - i) * t->char_us;
+    int64_t at = rtu_sat_sub(rtu_time_clamp(times[c]), rtu_sat_mul(end - 1 - i, t->char_us));
     const int64_t prev = rtu_chunk_prev(times, c);
     if (prev != RTU_NO_TIME && at < prev) {
         at = prev;
@@ -27,7 +29,8 @@ static int64_t rtu_byte_time(const rtu_timing *t, const int64_t *times, size_t c
 int rtu_marks_from_chunks(const rtu_timing *t, const uint64_t *offsets, const int64_t *times,
                           size_t nchunks, uint64_t total, rtu_mark *out, size_t *nout)
 {
-    if (t == NULL || out == NULL || nout == NULL || (nchunks > 0 && (!offsets || !times))) {
+    if (t == NULL || out == NULL || nout == NULL || (nchunks > 0 && (!offsets || !times)) ||
+        t->char_us <= 0) {
         return RTU_EINVAL;
     }
     *nout = 0;
@@ -43,7 +46,8 @@ int rtu_marks_from_chunks(const rtu_timing *t, const uint64_t *offsets, const in
             continue;
         }
         const int64_t first = rtu_byte_time(t, times, c, end, offsets[c]);
-        const int64_t silence = first - t->char_us - times[c - 1];
+        const int64_t silence =
+            rtu_sat_sub(rtu_sat_sub(first, t->char_us), rtu_time_clamp(times[c - 1]));
         uint32_t flags = 0;
         if (t->t35_us > 0 && silence >= t->t35_us) {
             flags = RTU_MARK_T15 | RTU_MARK_T35;
@@ -62,7 +66,7 @@ int rtu_marks_from_chunks(const rtu_timing *t, const uint64_t *offsets, const in
 
 int rtu_parser_init(rtu_parser *p, const rtu_config *cfg)
 {
-    if (p == NULL || cfg == NULL || cfg->max_adu < 4 || cfg->max_adu > RTU_MAX_ADU_LIMIT) {
+    if (p == NULL || cfg == NULL || !rtu_config_valid(cfg)) {
         return RTU_EINVAL;
     }
     memset(p, 0, sizeof *p);
@@ -103,7 +107,7 @@ static void rtu_parser_event(rtu_parser *p, const rtu_chunks *ch, rtu_event *e, 
     e->error = (uint8_t)error;
     e->reserved = 0;
     const int64_t first = rtu_parser_time(p, ch, at);
-    e->start_us = first == RTU_NO_TIME ? RTU_NO_TIME : first - p->cfg->timing.char_us;
+    e->start_us = first == RTU_NO_TIME ? RTU_NO_TIME : rtu_sat_sub(first, p->cfg->timing.char_us);
     e->end_us = rtu_parser_time(p, ch, at + len - 1);
 }
 
@@ -115,10 +119,13 @@ int rtu_parse(rtu_parser *p, const uint8_t *data, size_t len, const rtu_mark *ma
         (nchunks > 0 && (offsets == NULL || times == NULL)) || (cap > 0 && out == NULL)) {
         return RTU_EINVAL;
     }
+    *nout = 0;
+    if (cap == 0 && (p->pos < len || p->run)) {
+        return RTU_EINVAL; /* no room for any event: no progress possible */
+    }
     const rtu_config *cfg = p->cfg;
     const rtu_chunks ch = {offsets, times, nchunks, len};
     const int timed = nchunks > 0;
-    *nout = 0;
     while (p->pos < len) {
         while (p->mark_index < nmarks && marks[p->mark_index].pos <= p->pos) {
             p->mark_index++;
@@ -142,7 +149,7 @@ int rtu_parse(rtu_parser *p, const uint8_t *data, size_t len, const rtu_mark *ma
         v.data = data + p->pos;
         v.n = window;
         v.base = p->pos;
-        v.marks = marks + p->mark_index;
+        v.marks = marks != NULL ? marks + p->mark_index : NULL; /* no NULL + 0 */
         v.nmarks = nmarks - p->mark_index;
         v.silent_end = window == limit;
         for (size_t m = 0; !v.silent_end && m < v.nmarks; m++) {
@@ -167,9 +174,10 @@ int rtu_parse(rtu_parser *p, const uint8_t *data, size_t len, const rtu_mark *ma
             p->counters.discarded[p->run_error] += r.length;
             continue;
         }
-        /* closed views never wait: this is a frame */
-        const size_t need = p->run ? 2 : 1;
-        if (*nout + need > cap) {
+        /* closed views never wait: this is a frame, after the pending run.
+         * One slot at a time, so that any capacity >= 1 makes progress: the
+         * run goes out first; the frame is found again on the next call. */
+        if (*nout == cap) {
             return RTU_ENOSPC;
         }
         if (p->run) {
@@ -177,6 +185,9 @@ int rtu_parse(rtu_parser *p, const uint8_t *data, size_t len, const rtu_mark *ma
                              p->run_error);
             p->counters.discard_events++;
             p->run = 0;
+            if (*nout == cap) {
+                return RTU_ENOSPC;
+            }
         }
         rtu_parser_event(p, &ch, &out[(*nout)++], p->pos, r.length, r.kind, RTU_ERR_NONE);
         rtu_context_update(&p->ctx, r.kind, data + p->pos);

@@ -82,6 +82,7 @@ typedef struct {
 
 int rtu_config_init(rtu_config *c, int role, uint32_t baudrate, unsigned bits_per_char, int rule);
 int rtu_rules_set(rtu_rules *r, int direction, unsigned function, rtu_rule rule);
+int rtu_predict(const rtu_rules *r, int direction, const uint8_t *adu, size_t n, size_t *length);
 
 typedef struct {
     rtu_config cfg;

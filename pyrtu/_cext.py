@@ -13,6 +13,7 @@ from ._framing import (
     Event,
     FramerBase,
     as_bytes,
+    check_core_limits,
     counters_dict,
     make_char_timing,
     make_parse_stream,
@@ -51,14 +52,19 @@ _PATHS = {
 
 
 def _buffer(data: BytesLike, name: str) -> Any:
+    """A C view of any buffer; strided ones are copied (as the twin reads them)."""
     try:
         return ffi.from_buffer("uint8_t[]", data)
     except TypeError:
         raise TypeError(f"{name} must be a bytes-like object, not {type(data).__name__}") from None
+    except BufferError:  # not C-contiguous
+        return ffi.from_buffer("uint8_t[]", memoryview(data).tobytes())
 
 
 def _seed(crc: int) -> int:
-    if isinstance(crc, bool) or not isinstance(crc, int) or not 0 <= crc <= 0xFFFF:
+    if isinstance(crc, bool) or not isinstance(crc, int):
+        raise TypeError(f"crc must be an integer 0..0xFFFF, not {type(crc).__name__}")
+    if not 0 <= crc <= 0xFFFF:
         raise ValueError(f"crc must be an integer 0..0xFFFF, not {crc!r}")
     return crc
 
@@ -68,11 +74,13 @@ _crc16_bytes = lib.rtu_crc16_bytes
 
 def crc16(data: BytesLike, crc: int = 0xFFFF) -> int:
     """CRC-16/MODBUS of ``data``, continuing from ``crc`` (0xFFFF to start)."""
-    try:  # bytes: straight through cffi, which refuses any other type
-        return _crc16_bytes(data, len(data), crc)  # type: ignore[no-any-return,arg-type]
-    except (TypeError, OverflowError):
-        buf = _buffer(data, "data")
-        return int(lib.rtu_crc16(buf, len(buf), _seed(crc)))
+    if crc is not True and crc is not False:  # cffi would take a bool as 0 / 1
+        try:  # bytes: straight through cffi, which refuses any other type
+            return _crc16_bytes(data, len(data), crc)  # type: ignore[no-any-return,arg-type]
+        except (TypeError, OverflowError):
+            pass
+    buf = _buffer(data, "data")
+    return int(lib.rtu_crc16(buf, len(buf), _seed(crc)))
 
 
 def add_crc(data: BytesLike) -> bytes:
@@ -118,6 +126,7 @@ def crc16_path(path: str, data: BytesLike, crc: int = 0xFFFF) -> int:
 
 
 def _config(options: CoreOptions) -> Any:
+    check_core_limits(options)
     cfg = ffi.new("rtu_config *")
     status = lib.rtu_config_init(cfg, options.role, options.baudrate, options.bits, options.rule)
     if status != lib.RTU_OK:
@@ -235,7 +244,8 @@ def _parse(
     if status != lib.RTU_OK:
         raise ValueError(f"parse_stream: chunk times rejected (status {status})")
     parser = ffi.new("rtu_parser *")
-    lib.rtu_parser_init(parser, cfg)
+    if lib.rtu_parser_init(parser, cfg) != lib.RTU_OK:
+        raise ValueError(f"parse_stream: the C core refuses the configuration {options}")
     blocks: list[tuple[Any, int]] = []
     cap = max(64, len(data) // 8)
     n_out = ffi.new("size_t *")

@@ -7,6 +7,8 @@ A backend supplies a *core*: ``feed(data, now_us) -> int``, ``poll() -> event``,
 
 from __future__ import annotations
 
+import numbers
+import operator
 from collections import deque
 from collections.abc import Callable, Iterable, Sequence
 from typing import Protocol
@@ -23,7 +25,7 @@ from .frames import (
 )
 from .line import LineConfig
 from .rules import RuleTable
-from .timing import Timing
+from .timing import TIMING_RULES, Timing, compute_timing
 
 # (offset, length, kind, error, start_us, end_us, adu)
 Event = tuple[int, int, int, int, int, int, bytes]
@@ -41,12 +43,65 @@ class FramerCore(Protocol):
 
 
 def as_bytes(data: BytesLike, name: str = "data") -> bytes:
+    """Any buffer (strided or multi-dimensional ones too, in logical order) as bytes."""
     if isinstance(data, bytes):
         return data
     try:
-        return memoryview(data).cast("B").tobytes()
+        view = memoryview(data)
     except TypeError:
         raise TypeError(f"{name} must be a bytes-like object, not {type(data).__name__}") from None
+    return view.tobytes()
+
+
+INT64_MAX = 2**63 - 1
+#: Times and durations reach the C core as int64 microseconds; INT64_MIN is its
+#: "no time", so both backends accept |t| <= INT64_MAX us (about 292,000 years).
+MAX_SECONDS = INT64_MAX / 1e6
+
+
+def time_us(value: object, name: str, index: int = 0) -> int:
+    """A time in seconds (a real number) as integer microseconds, checked the same way
+    for both backends: TypeError for a non-number, ValueError for NaN, infinities and
+    times beyond +-INT64_MAX microseconds.  ``name`` may hold ``{}`` for ``index``
+    (formatted only for an error message: this runs once per chunk)."""
+    kind = type(value)
+    if kind is float:  # the common case first: NaN and infinities fail the comparison
+        if -MAX_SECONDS <= value <= MAX_SECONDS:  # type: ignore[operator]
+            us = round(value * 1_000_000)  # type: ignore[operator]
+            if -INT64_MAX <= us <= INT64_MAX:
+                return us
+    elif kind is bool or not isinstance(value, numbers.Real):
+        raise TypeError(
+            f"{name.format(index)} must be a number of seconds, not {type(value).__name__}"
+        )
+    else:
+        try:
+            us = to_microseconds(value if isinstance(value, int) else float(value))
+        except (ValueError, OverflowError):
+            us = INT64_MAX + 1
+        if -INT64_MAX <= us <= INT64_MAX:
+            return us
+    raise ValueError(
+        f"{name.format(index)} must be a finite time within +-{MAX_SECONDS:.3g} s, not {value!r}"
+    )
+
+
+def check_core_limits(options: CoreOptions) -> None:
+    """What the C core's int64/uint32 fields and its 1 us resolution impose, checked
+    before either backend builds its configuration (ValueError naming the argument)."""
+    for name, us in (
+        ("t15", options.t15_us),
+        ("t35", options.t35_us),
+        ("flush_timeout", options.flush_us),
+    ):
+        if us is not None and us > INT64_MAX:
+            raise ValueError(f"{name} must be at most {MAX_SECONDS:.3g} s, not {us / 1e6:g} s")
+    timing = compute_timing(options.baudrate, options.bits, TIMING_RULES[options.rule])
+    if options.baudrate > 0xFFFFFFFF or timing.char_us < 1:
+        raise ValueError(
+            f"baudrate {options.baudrate} is too high: a character would last under 1 us, "
+            "the core's time resolution"
+        )
 
 
 _DEFAULTS = (19200, "E", 1, 8, "modbus", None, None, False, 256, None, None)
@@ -141,7 +196,7 @@ class FramerBase:
     def receive_data(self, data: BytesLike, now: float) -> None:
         """Bytes that arrived (were read) at ``now`` seconds."""
         raw = data if type(data) is bytes else as_bytes(data)
-        now_us = round(now * 1_000_000)
+        now_us = time_us(now, "now")
         core = self._core
         took = core.feed(raw, now_us)
         self._drain()  # a silence before the new bytes may end what is buffered
@@ -174,7 +229,7 @@ class FramerBase:
 
     def handle_timer(self, now: float) -> None:
         """Let the silence up to ``now`` end what it ends."""
-        self._core.handle_timer(to_microseconds(now))
+        self._core.handle_timer(time_us(now, "now"))
         self._drain()
 
     def send(self, adu: BytesLike) -> bytes:
@@ -229,7 +284,10 @@ def stream_times(
     if times is not None and chunks is not None:
         raise ValueError("parse_stream: give times= or chunks=, not both")
     if times is not None:
-        us = [to_microseconds(t) for t in times]
+        us = [
+            time_us(t, "parse_stream: times[{}]", i)
+            for i, t in enumerate(_iterable(times, "times"))
+        ]
         if len(us) != length:
             raise ValueError(f"parse_stream: times has {len(us)} entries for {length} bytes")
         return list(range(length)), us
@@ -237,20 +295,51 @@ def stream_times(
         return [], []
     offsets: list[int] = []
     us = []
-    for offset, t in chunks:
-        if not isinstance(offset, int) or offset < 0 or offset > length:
+    for i, chunk in enumerate(_iterable(chunks, "chunks")):
+        if type(chunk) is tuple and len(chunk) == 2 and type(chunk[0]) is int:
+            offset, t = chunk  # the common case, checked below like any other
+            if 0 <= offset <= length and (not offsets or offset >= offsets[-1]):
+                offsets.append(offset)
+                if type(t) is float and -9e12 < t < 9e12:  # well inside int64 us
+                    us.append(round(t * 1_000_000))
+                else:
+                    us.append(time_us(t, "parse_stream: chunks[{}] time", i))
+                continue
+        raw_offset: object
+        try:
+            raw_offset, t = chunk  # type: ignore[misc]
+        except (TypeError, ValueError):
+            raise TypeError(
+                f"parse_stream: chunks[{i}] must be an (offset, time) pair, not {chunk!r}"
+            ) from None
+        if isinstance(raw_offset, bool) or not hasattr(raw_offset, "__index__"):
+            raise TypeError(
+                f"parse_stream: chunks[{i}] offset must be an integer, "
+                f"not {type(raw_offset).__name__}"
+            )
+        offset = operator.index(raw_offset)
+        if offset < 0 or offset > length:
             raise ValueError(
-                f"parse_stream: chunk offset {offset!r} is outside the data (0..{length})"
+                f"parse_stream: chunks[{i}] offset {offset} is outside the data (0..{length})"
             )
         if offsets and offset < offsets[-1]:
             raise ValueError(
-                f"parse_stream: chunk offsets must ascend ({offset} after {offsets[-1]})"
+                f"parse_stream: chunks offsets must ascend (chunks[{i}] at {offset} "
+                f"after {offsets[-1]})"
             )
         offsets.append(offset)
-        us.append(to_microseconds(t))
+        us.append(time_us(t, "parse_stream: chunks[{}] time", i))
     if offsets and offsets[0] != 0:
-        raise ValueError("parse_stream: the first chunk must start at offset 0")
+        raise ValueError(
+            f"parse_stream: chunks[0], the first chunk, must start at offset 0, not {offsets[0]}"
+        )
     return offsets, us
+
+
+def _iterable(value: object, name: str) -> Iterable[object]:
+    if isinstance(value, str | bytes) or not isinstance(value, Iterable):
+        raise TypeError(f"parse_stream: {name} must be an iterable, not {type(value).__name__}")
+    return value
 
 
 class StreamParser(Protocol):

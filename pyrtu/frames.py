@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import enum
+import operator
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import overload
@@ -178,6 +179,12 @@ class FrameList(Sequence[Frame]):
     def __getitem__(self, i: int | slice) -> Frame | list[Frame]:
         if isinstance(i, slice):
             return [self._make(j) for j in range(*i.indices(self._count))]
+        try:
+            i = operator.index(i)
+        except TypeError:
+            raise TypeError(
+                f"FrameList indices must be integers or slices, not {type(i).__name__}"
+            ) from None
         if i < 0:
             i += self._count
         if not 0 <= i < self._count:

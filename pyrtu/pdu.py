@@ -3,7 +3,8 @@
 A PDU is the function code and its data (Modbus Application Protocol V1.1b,
 section 4.1); the ADU adds the address and the CRC (RTU) or the ASCII framing.
 Request builders check their arguments and raise ``ValueError`` naming the
-function and the reason; response parsers raise `FrameError` when the data
+function and the reason (`ArgumentTypeError`, a TypeError that is also a
+ValueError, for an argument of the wrong type); response parsers raise `FrameError` when the data
 cannot be the answer to the request.  The constants, the data classes and the
 slave side (request decoders raising `SlaveException`, response encoders) are
 defined in `pyrtu._pdu_base` and re-exported here under the same names.
@@ -104,9 +105,15 @@ from .functions import (
 # --------------------------------------------------------------------------- checks
 
 
+class ArgumentTypeError(TypeError, ValueError):
+    """An argument of the wrong type: a TypeError, and a ValueError as well so that
+    code written when the builders raised ValueError for every bad argument still
+    catches it."""
+
+
 def _int(where: str, name: str, value: object, lo: int, hi: int) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
-        raise ValueError(f"{where}: {name} must be an integer, not {value!r}")
+        raise ArgumentTypeError(f"{where}: {name} must be an integer, not {value!r}")
     if not lo <= value <= hi:
         raise ValueError(f"{where}: {name} must be {lo}..{hi}, not {value}")
     return value
@@ -137,19 +144,32 @@ def check_word(where: str, value: object, name: str = "value") -> int:
     return _int(where, name, value, 0, 0xFFFF)
 
 
+def _sequence(where: str, values: object, what: str, name: str = "values") -> Iterable[object]:
+    """An iterable of items; bytes and str are refused rather than read as numbers
+    (``write_registers(1, 0, b'ab')`` would otherwise write 97 and 98)."""
+    if isinstance(values, str | bytes | bytearray | memoryview) or not isinstance(values, Iterable):
+        raise ArgumentTypeError(
+            f"{where}: {name} must be a sequence of {what}, not {type(values).__name__}"
+        )
+    return values
+
+
 def check_words(where: str, values: Iterable[object], limit: int) -> list[int]:
-    out = [check_word(where, v, f"values[{i}]") for i, v in enumerate(values)]
+    items = _sequence(where, values, "integers 0..65535")
+    out = [check_word(where, v, f"values[{i}]") for i, v in enumerate(items)]
     check_quantity(where, len(out), limit, "number of values")
     return out
 
 
 def check_bits(where: str, values: Iterable[object], limit: int) -> list[bool]:
     out: list[bool] = []
-    for i, v in enumerate(values):
+    for i, v in enumerate(_sequence(where, values, "bools")):
         if isinstance(v, bool) or (isinstance(v, int) and v in (0, 1)):
             out.append(bool(v))
-        else:
+        elif isinstance(v, int):
             raise ValueError(f"{where}: values[{i}] must be a bool (or 0/1), not {v!r}")
+        else:
+            raise ArgumentTypeError(f"{where}: values[{i}] must be a bool (or 0/1), not {v!r}")
     check_quantity(where, len(out), limit, "number of values")
     return out
 
@@ -243,8 +263,12 @@ def read_file_request(items: Iterable[tuple[int, int, int]]) -> bytes:
     where = "read_file_record"
     body = bytearray()
     answer = 0
-    for i, item in enumerate(items):
-        if not isinstance(item, tuple | list) or len(item) != 3:
+    for i, item in enumerate(_sequence(where, items, "(file, record, length)", "items")):
+        if not isinstance(item, tuple | list):
+            raise ArgumentTypeError(
+                f"{where}: item {i} must be (file, record, length), not {item!r}"
+            )
+        if len(item) != 3:
             raise ValueError(f"{where}: item {i} must be (file, record, length), not {item!r}")
         file, record, length = item
         _int(where, f"item {i} file", file, 1, 0xFFFF)
@@ -265,8 +289,12 @@ def write_file_request(items: Iterable[tuple[int, int, Sequence[int]]]) -> bytes
     """FC 21: ``[(file, record, values), ...]``."""
     where = "write_file_record"
     body = bytearray()
-    for i, item in enumerate(items):
-        if not isinstance(item, tuple | list) or len(item) != 3:
+    for i, item in enumerate(_sequence(where, items, "(file, record, values)", "items")):
+        if not isinstance(item, tuple | list):
+            raise ArgumentTypeError(
+                f"{where}: item {i} must be (file, record, values), not {item!r}"
+            )
+        if len(item) != 3:
             raise ValueError(f"{where}: item {i} must be (file, record, values), not {item!r}")
         file, record, values = item
         _int(where, f"item {i} file", file, 1, 0xFFFF)
@@ -459,6 +487,7 @@ __all__ = [
     "WRITE_MULTIPLE_REGISTERS",
     "WRITE_SINGLE_COIL",
     "WRITE_SINGLE_REGISTER",
+    "ArgumentTypeError",
     "CommEventLog",
     "DeviceIdPage",
     "bits_response",

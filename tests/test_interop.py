@@ -404,7 +404,8 @@ def test_libmodbus_client_against_pyrtu_slave(
         "slave:0",
         "w06:6:99",  # broadcast: executed, not answered (libmodbus waits: timeout)
     ]
-    r = libmodbus_script(peer_binaries, bus.paths[0], s, ops, baudrate=BAUD, timeout_ms=300)
+    # 1 s: a loaded runner may hold the slave past a few hundred ms (the broadcast op waits it out)
+    r = libmodbus_script(peer_binaries, bus.paths[0], s, ops, baudrate=BAUD, timeout_ms=1000)
     assert r[0]["values"] == pattern.coils(s, 3, 10)
     assert r[1]["values"] == pattern.discretes(s, 0, 2000)
     assert r[2]["values"] == pattern.holdings(s, 875, 125)

@@ -4,7 +4,14 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from .._framing import Event, FramerBase, counters_dict, make_char_timing, make_parse_stream
+from .._framing import (
+    Event,
+    FramerBase,
+    check_core_limits,
+    counters_dict,
+    make_char_timing,
+    make_parse_stream,
+)
 from ..config import CoreOptions, flush_us_for
 from ..frames import FrameList
 from ..timing import Timing, compute_timing
@@ -31,6 +38,7 @@ __all__ = [
 
 
 def _config(options: CoreOptions) -> Config:
+    check_core_limits(options)
     base = compute_timing(options.baudrate, options.bits, ("modbus", "weg")[options.rule])
     t15 = base.t15_us if options.t15_us is None else options.t15_us
     t35 = base.t35_us if options.t35_us is None else options.t35_us

@@ -31,11 +31,15 @@ def _as_bytes(data: Buffer, name: str = "data") -> memoryview:
         view = memoryview(data)
     except TypeError:
         raise TypeError(f"{name} must be a bytes-like object, not {type(data).__name__}") from None
+    if not view.c_contiguous:  # strided: its bytes in logical order, as C copies them
+        return memoryview(view.tobytes())
     return view.cast("B") if view.format != "B" or view.ndim != 1 else view
 
 
 def _check_seed(crc: int) -> int:
-    if isinstance(crc, bool) or not isinstance(crc, int) or not 0 <= crc <= 0xFFFF:
+    if isinstance(crc, bool) or not isinstance(crc, int):
+        raise TypeError(f"crc must be an integer 0..0xFFFF, not {type(crc).__name__}")
+    if not 0 <= crc <= 0xFFFF:
         raise ValueError(f"crc must be an integer 0..0xFFFF, not {crc!r}")
     return crc
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 from .head import (
     ACT_DISCARD,
     ACT_WAIT,
+    INT64_MAX,
     KIND_DISCARD,
     MARK_T15,
     MARK_T35,
@@ -19,6 +20,10 @@ from .head import (
     Context,
     View,
     head_needed,
+    sat_add,
+    sat_mul,
+    sat_sub,
+    time_clamp,
     try_head,
 )
 
@@ -78,15 +83,16 @@ class CoreFramer:
             return 0
         cfg = self.cfg
         char = cfg.char_us
+        now_us = time_clamp(now_us)
         n_in = len(data)
         i = 0
         while i < n_in and len(self.buf) < FRAMER_CAP:
-            at = now_us - (n_in - 1 - i) * char
+            at = sat_sub(now_us, sat_mul(n_in - 1 - i, char))
             flags = 0
             if self.last_us is not None:
                 if at < self.last_us:
                     at = self.last_us
-                silence = at - char - self.last_us
+                silence = sat_sub(sat_sub(at, char), self.last_us)
                 if cfg.t35_us > 0 and silence >= cfg.t35_us:
                     closes = cfg.strict or silence >= cfg.flush_us
                     if len(self.buf) > self.head and (
@@ -110,20 +116,22 @@ class CoreFramer:
     def handle_timer(self, now_us: int) -> None:
         if len(self.buf) <= self.head or self.last_us is None:
             return
-        silence = now_us - self.last_us
+        silence = sat_sub(time_clamp(now_us), self.last_us)
         if silence >= self.cfg.t35_us:
             self.silent = True
             if self.cfg.strict or silence >= self.cfg.flush_us:
                 self.final = True
 
     def deadline(self) -> int | None:
+        """None for no timer, as INT64_MAX in C (also when the deadline saturates)."""
         if len(self.buf) <= self.head or self.last_us is None:
             return None
+        at = None
         if not self.silent:
-            return self.last_us + self.cfg.t35_us
-        if not self.final:
-            return self.last_us + self.cfg.flush_us
-        return None
+            at = sat_add(self.last_us, self.cfg.t35_us)
+        elif not self.final:
+            at = sat_add(self.last_us, self.cfg.flush_us)
+        return None if at is None or at == INT64_MAX else at
 
     def _event(self, at: int, length: int, kind: int, error: int) -> Event:
         return (
@@ -131,7 +139,7 @@ class CoreFramer:
             length,
             kind,
             error,
-            self.times[at] - self.cfg.char_us,
+            sat_sub(self.times[at], self.cfg.char_us),
             self.times[at + length - 1],
             bytes(self.buf[at : at + length]),
         )

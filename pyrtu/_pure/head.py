@@ -22,6 +22,33 @@ ACT_WAIT, ACT_FRAME, ACT_DISCARD = range(3)
 
 NOTE_CRC, NOTE_T15, NOTE_OVERFLOW, NOTE_TRUNCATED, NOTE_UNKNOWN = 1, 2, 4, 8, 16
 
+# Time arithmetic of csrc/rtu_internal.h: int64 microseconds that saturate to
+# [-INT64_MAX, INT64_MAX] after every step, in the C order, so that extreme times
+# give the same results on both backends (INT64_MIN is the C core's "no time").
+INT64_MAX = 2**63 - 1
+TIME_MIN = -INT64_MAX
+
+
+def time_clamp(a: int) -> int:
+    return TIME_MIN if a < TIME_MIN else a
+
+
+def sat_add(a: int, b: int) -> int:
+    s = a + b
+    return INT64_MAX if s > INT64_MAX else TIME_MIN if s < TIME_MIN else s
+
+
+def sat_sub(a: int, b: int) -> int:
+    return sat_add(a, -b)
+
+
+def sat_mul(k: int, c: int) -> int:
+    """k * c for k >= 0, clamped to INT64_MAX (0 for c <= 0)."""
+    if c <= 0:
+        return 0
+    p = k * c
+    return INT64_MAX if p > INT64_MAX else p
+
 
 @dataclass
 class Config:

@@ -10,6 +10,9 @@ from .head import (
     Config,
     Context,
     View,
+    sat_mul,
+    sat_sub,
+    time_clamp,
     try_head,
 )
 
@@ -18,9 +21,9 @@ Entry = tuple[int, int, int, int, int | None, int | None]
 
 
 def _byte_time(char_us: int, times: list[int], c: int, end: int, i: int) -> int:
-    at = times[c] - (end - 1 - i) * char_us
-    if c > 0 and at < times[c - 1]:
-        at = times[c - 1]
+    at = sat_sub(time_clamp(times[c]), sat_mul(end - 1 - i, char_us))
+    if c > 0 and at < time_clamp(times[c - 1]):
+        at = time_clamp(times[c - 1])
     return at
 
 
@@ -39,7 +42,7 @@ def marks_from_chunks(
         if c == 0 or end == offsets[c]:
             continue
         first = _byte_time(cfg.char_us, times, c, end, offsets[c])
-        silence = first - cfg.char_us - times[c - 1]
+        silence = sat_sub(sat_sub(first, cfg.char_us), time_clamp(times[c - 1]))
         if cfg.t35_us > 0 and silence >= cfg.t35_us:
             marks.append((offsets[c], MARK_T15 | MARK_T35))
         elif cfg.t15_us > 0 and silence > cfg.t15_us:
@@ -82,7 +85,7 @@ class CoreParser:
                 length,
                 kind,
                 error,
-                None if first is None else first - cfg.char_us,
+                None if first is None else sat_sub(first, cfg.char_us),
                 byte_time(at + length - 1),
             )
 
