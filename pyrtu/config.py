@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from .errors import ArgumentTypeError
 from .rules import RuleTable, check_rules
 from .timing import TIMING_RULES, bits_per_char, seconds_to_us
 
@@ -45,15 +46,15 @@ def core_options(
 ) -> CoreOptions:
     if role not in ROLES:
         raise ValueError(f"role must be 'master', 'slave' or 'monitor', not {role!r}")
-    if isinstance(baudrate, bool) or not isinstance(baudrate, int) or baudrate <= 0:
+    if isinstance(baudrate, bool) or not isinstance(baudrate, int):
+        raise ArgumentTypeError(f"baudrate must be a positive integer, not {baudrate!r}")
+    if baudrate <= 0:
         raise ValueError(f"baudrate must be a positive integer, not {baudrate!r}")
     if timing not in TIMING_RULES:
         raise ValueError(f"timing must be 'modbus' or 'weg', not {timing!r}")
-    if (
-        isinstance(max_adu, bool)
-        or not isinstance(max_adu, int)
-        or not 4 <= max_adu <= MAX_ADU_LIMIT
-    ):
+    if isinstance(max_adu, bool) or not isinstance(max_adu, int):
+        raise ArgumentTypeError(f"max_adu must be 4..{MAX_ADU_LIMIT} bytes, not {max_adu!r}")
+    if not 4 <= max_adu <= MAX_ADU_LIMIT:
         raise ValueError(f"max_adu must be 4..{MAX_ADU_LIMIT} bytes, not {max_adu!r}")
     return CoreOptions(
         role=ROLES[role],

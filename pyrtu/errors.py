@@ -16,6 +16,7 @@ code; it is not a `ModbusError` (nothing went wrong on the bus).
 
 from __future__ import annotations
 
+from ._errtypes import ArgumentTypeError as ArgumentTypeError
 from .functions import FUNCTION_NAMES
 
 #: Exception codes (Application Protocol V1.1b section 7; 7 from the serial-line

@@ -40,6 +40,7 @@ from types import MappingProxyType
 from typing import Any
 
 from .config import CoreOptions, core_options
+from .errors import ArgumentTypeError
 from .rules import RuleTable
 from .timing import Timing, apply_overrides, compute_timing
 
@@ -49,12 +50,9 @@ MODES = ("rtu", "ascii")
 def _optional_seconds(name: str, value: object) -> None:
     if value is None:
         return
-    if (
-        isinstance(value, bool)
-        or not isinstance(value, int | float)
-        or not math.isfinite(value)
-        or value < 0
-    ):
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ArgumentTypeError(f"{name} must be a non-negative number of seconds, not {value!r}")
+    if not math.isfinite(value) or value < 0:
         raise ValueError(f"{name} must be a non-negative number of seconds, not {value!r}")
 
 
@@ -78,7 +76,7 @@ class LineConfig:
 
     def __post_init__(self) -> None:
         if not isinstance(self.parity, str):
-            raise ValueError(f"parity must be one of N, E, O, M, S, not {self.parity!r}")
+            raise ArgumentTypeError(f"parity must be one of N, E, O, M, S, not {self.parity!r}")
         if self.mode not in MODES:
             raise ValueError(f"mode must be 'rtu' or 'ascii', not {self.mode!r}")
         for name in ("t15", "t35", "flush_timeout"):
@@ -92,7 +90,7 @@ class LineConfig:
         ):
             raise ValueError(f"inter_char must be a positive number of seconds, not {inter!r}")
         if not isinstance(self.strict, bool):
-            raise ValueError(f"strict must be True or False, not {self.strict!r}")
+            raise ArgumentTypeError(f"strict must be True or False, not {self.strict!r}")
         # The framer's checks, with the framer's messages (they name the keyword).
         options = core_options("master", **self._framer_kwargs(self.parity))
         object.__setattr__(self, "parity", self.parity.upper()[:1])

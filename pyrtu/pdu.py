@@ -76,7 +76,7 @@ from ._pdu_base import (
     server_id_response,
     unpack_bits,
 )
-from .errors import FrameError
+from .errors import ArgumentTypeError, FrameError
 from .functions import (
     DIAGNOSTICS,
     ENCAPSULATED_INTERFACE,
@@ -103,12 +103,6 @@ from .functions import (
 )
 
 # --------------------------------------------------------------------------- checks
-
-
-class ArgumentTypeError(TypeError, ValueError):
-    """An argument of the wrong type: a TypeError, and a ValueError as well so that
-    code written when the builders raised ValueError for every bad argument still
-    catches it."""
 
 
 def _int(where: str, name: str, value: object, lo: int, hi: int) -> int:

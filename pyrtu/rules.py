@@ -11,6 +11,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 
+from ._errtypes import ArgumentTypeError
+
 RULE_NONE = 0
 RULE_FIXED = 1
 RULE_COUNT = 2
@@ -71,13 +73,19 @@ def check_rules(rules: RuleTable | None) -> dict[int, tuple[LengthRule | None, L
     """Validate a rule table given by a user; raises ValueError naming the entry."""
     out: dict[int, tuple[LengthRule | None, LengthRule | None]] = {}
     for fc, pair in (rules or {}).items():
-        if not isinstance(fc, int) or not 1 <= fc <= 127:
+        if isinstance(fc, bool) or not isinstance(fc, int):
+            raise ArgumentTypeError(f"rules: function code must be 1..127, not {fc!r}")
+        if not 1 <= fc <= 127:
             raise ValueError(f"rules: function code must be 1..127, not {fc!r}")
-        if not isinstance(pair, tuple) or len(pair) != 2:
+        if not isinstance(pair, tuple):
+            raise ArgumentTypeError(
+                f"rules[{fc}]: give (request_rule, response_rule), not {pair!r}"
+            )
+        if len(pair) != 2:
             raise ValueError(f"rules[{fc}]: give (request_rule, response_rule), not {pair!r}")
         for rule in pair:
             if rule is not None and not isinstance(rule, LengthRule):
-                raise ValueError(f"rules[{fc}]: {rule!r} is not a LengthRule")
+                raise ArgumentTypeError(f"rules[{fc}]: {rule!r} is not a LengthRule")
         out[fc] = pair
     return out
 

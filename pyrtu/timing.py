@@ -11,6 +11,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from ._errtypes import ArgumentTypeError
+
 TIMING_RULES = ("modbus", "weg")
 PARITIES = ("N", "E", "O", "M", "S")
 
@@ -38,11 +40,17 @@ class Timing:
 
 def bits_per_char(parity: str = "E", stopbits: float = 1, bytesize: int = 8) -> int:
     """Start bit + data bits + parity bit + stop bits (11 for 8E1, 8O1, 8N2; 10 for 8N1)."""
+    if not isinstance(parity, str):
+        raise ArgumentTypeError(f"parity must be one of {', '.join(PARITIES)}, not {parity!r}")
     parity = parity.upper()[:1]
     if parity not in PARITIES:
         raise ValueError(f"parity must be one of {', '.join(PARITIES)}, not {parity!r}")
+    if isinstance(bytesize, bool) or not isinstance(bytesize, int):
+        raise ArgumentTypeError(f"bytesize must be 7 or 8, not {bytesize!r}")
     if bytesize not in (7, 8):
         raise ValueError(f"bytesize must be 7 or 8, not {bytesize!r}")
+    if isinstance(stopbits, bool) or not isinstance(stopbits, int | float):
+        raise ArgumentTypeError(f"stopbits must be 1, 1.5 or 2, not {stopbits!r}")
     if stopbits not in (1, 1.5, 2):
         raise ValueError(f"stopbits must be 1, 1.5 or 2, not {stopbits!r}")
     return 1 + bytesize + (0 if parity == "N" else 1) + int(stopbits + 0.5)
@@ -54,7 +62,9 @@ def _div_round(num: int, den: int) -> int:
 
 def compute_timing(baudrate: int, bits: int, rule: str = "modbus") -> Timing:
     """The pure-Python twin of rtu_timing_init (same integer arithmetic)."""
-    if not isinstance(baudrate, int) or baudrate <= 0:
+    if isinstance(baudrate, bool) or not isinstance(baudrate, int):
+        raise ArgumentTypeError(f"baudrate must be a positive integer, not {baudrate!r}")
+    if baudrate <= 0:
         raise ValueError(f"baudrate must be a positive integer, not {baudrate!r}")
     if rule not in TIMING_RULES:
         raise ValueError(f"timing must be 'modbus' or 'weg', not {rule!r}")
@@ -73,12 +83,9 @@ def compute_timing(baudrate: int, bits: int, rule: str = "modbus") -> Timing:
 
 def seconds_to_us(value: float, name: str) -> int:
     """A duration in seconds as integer microseconds, checked."""
-    if (
-        isinstance(value, bool)
-        or not isinstance(value, int | float)
-        or not math.isfinite(value)
-        or value < 0
-    ):
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ArgumentTypeError(f"{name} must be a non-negative number of seconds, not {value!r}")
+    if not math.isfinite(value) or value < 0:
         raise ValueError(f"{name} must be a non-negative number of seconds, not {value!r}")
     return round(value * 1_000_000)
 

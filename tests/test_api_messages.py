@@ -92,3 +92,42 @@ def test_frame_list_index_types(backend: ModuleType) -> None:
             frames[bad]
     with pytest.raises(IndexError):
         frames[2]
+
+
+# The line options (the framer, parse_stream, char_timing, LineConfig): a wrong type is
+# a TypeError on both backends (it was ValueError, and parity=5 an AttributeError).
+LINE_WRONG_TYPES: list[tuple[dict[str, object], str]] = [
+    ({"parity": 5}, "parity must be one of"),
+    ({"baudrate": "9600"}, "baudrate must be a positive integer"),
+    ({"baudrate": 9600.0}, "baudrate must be a positive integer"),
+    ({"bytesize": "8"}, "bytesize must be 7 or 8"),
+    ({"stopbits": "1"}, "stopbits must be 1, 1.5 or 2"),
+    ({"max_adu": "256"}, "max_adu must be"),
+    ({"t35": "0.002"}, "t35 must be a non-negative number of seconds"),
+    ({"rules": {"3": (None, None)}}, "function code must be 1..127"),
+    ({"rules": {3: [None, None]}}, r"rules\[3\]: give \(request_rule, response_rule\)"),
+    ({"rules": {3: (5, None)}}, r"rules\[3\]: 5 is not a LengthRule"),
+]
+
+
+@pytest.mark.parametrize(("options", "message"), LINE_WRONG_TYPES)
+def test_line_options_of_the_wrong_type(
+    backend: ModuleType, options: dict[str, object], message: str
+) -> None:
+    from pyrtu import LineConfig
+
+    for make in (
+        lambda: backend.Framer("master", **options),
+        lambda: backend.parse_stream(b"", **options),
+        lambda: LineConfig(**options),  # type: ignore[arg-type]
+    ):
+        with pytest.raises(TypeError, match=message) as info:
+            make()
+        assert isinstance(info.value, ValueError)  # still caught by `except ValueError`
+
+
+def test_line_options_of_the_wrong_value_stay_value_errors(backend: ModuleType) -> None:
+    for options in ({"parity": "X"}, {"baudrate": 0}, {"bytesize": 6}, {"max_adu": 3}):
+        with pytest.raises(ValueError) as info:
+            backend.Framer("master", **options)
+        assert not isinstance(info.value, TypeError), options

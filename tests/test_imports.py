@@ -20,7 +20,9 @@ MODULES = sorted(
     for m in pkgutil.walk_packages(pyrtu.__path__, "pyrtu.")
     if "_build_core" not in m.name and not m.name.endswith("__main__")
 )
-LEAVES = ("pyrtu.functions", "pyrtu.timing", "pyrtu.rules")
+LEAVES = ("pyrtu.functions", "pyrtu._errtypes")
+# the low layers import leaves only
+LOW = ("pyrtu.timing", "pyrtu.rules")
 
 _PROBE = """
 import importlib, sys
@@ -153,3 +155,9 @@ def test_no_function_imports_the_package_root() -> None:
                     if path.parent.name == "pyrtu" and names & {"backend", "BACKEND"}:
                         offenders.append(f"{path.name}:{node.lineno}")
     assert offenders == [], offenders
+
+
+@pytest.mark.parametrize("name", LOW)
+def test_low_layers_import_only_leaves(name: str) -> None:
+    graph = _module_graph(deferred=True)
+    assert graph[name] <= set(LEAVES), graph[name]
