@@ -144,6 +144,9 @@ def _config(options: CoreOptions) -> Any:
     return cfg
 
 
+_buffer_of = ffi.buffer
+
+
 class _Core:
     def __init__(self, options: CoreOptions) -> None:
         self.f = ffi.new("rtu_framer *")
@@ -158,8 +161,9 @@ class _Core:
         if not lib.rtu_framer_poll(f):
             return None
         e = f.event
-        adu = ffi.unpack(ffi.cast("char *", lib.rtu_framer_event_data(f)), e.length)
-        return (e.offset, e.length, e.kind, e.error, e.start_us, e.end_us, adu)
+        n = e.length
+        adu = _buffer_of(lib.rtu_framer_event_data(f), n)[:]  # bytes, one copy
+        return (e.offset, n, e.kind, e.error, e.start_us, e.end_us, adu)
 
     def handle_timer(self, now_us: int) -> None:
         lib.rtu_framer_handle_timer(self.f, now_us)
