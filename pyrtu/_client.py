@@ -257,6 +257,9 @@ class ClientProtocol:
             if not self._echo_left:
                 self._finish(None)
                 return
+        elif (core := self._core) is not None:  # _restart inlined (the hot path)
+            core.reset()
+            core.sent(self._adu)
         else:
             self._restart(self._adu)
         self.state = _ANSWER
@@ -330,8 +333,14 @@ class ClientProtocol:
             return min(self.send_at(), self._give_up)
         if state is not _ANSWER:
             return None
-        timer = None if self._echo_left else self._timer()
-        return self._limit if timer is None else min(timer, self._limit)
+        if self._echo_left:
+            return self._limit
+        core = self._core
+        if core is None:
+            timer = self._framer.timer()
+            return self._limit if timer is None else min(timer, self._limit)
+        deadline = core.deadline()  # _timer inlined (the hot path)
+        return self._limit if deadline is None else min(deadline / 1e6, self._limit)
 
     def ready_at(self, now: float) -> float:
         """ANSWER: the earliest time the bytes still needed can all be in, so a driver
