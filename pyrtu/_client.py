@@ -493,7 +493,8 @@ class ClientProtocol:
         self, now: float, reason: str | None, message: bytes, size: int, end: float | None
     ) -> None:
         """One frame or discard event of the answer phase."""
-        self._limit = min(self._end + self.timeout, now + self.settle)
+        limit, settled = self._end + self.timeout, now + self.settle
+        self._limit = limit if limit <= settled else settled  # min() without the call
         slave, fc = self._slave, self._fc
         c = self.counters
         if reason is not None:
@@ -539,7 +540,8 @@ class ClientProtocol:
             return
         c["responses"] += 1
         self.answer_end = end
-        self._finish(value)
+        self._result = value  # _finish inlined (the hot path)
+        self.state = _DONE
 
     def _fail_attempt(self, now: float) -> None:
         """No answer by the limit: the attempt's error; retry when allowed."""
