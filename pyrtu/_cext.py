@@ -70,6 +70,7 @@ def _seed(crc: int) -> int:
 
 
 _crc16_bytes = lib.rtu_crc16_bytes
+_crc16 = lib.rtu_crc16
 
 
 def crc16(data: BytesLike, crc: int = 0xFFFF) -> int:
@@ -86,7 +87,7 @@ def crc16(data: BytesLike, crc: int = 0xFFFF) -> int:
 def add_crc(data: BytesLike) -> bytes:
     """``data`` with its CRC appended, low byte first (CFW100 4.2.4)."""
     raw = as_bytes(data)
-    crc = lib.rtu_crc16(raw, len(raw), 0xFFFF)
+    crc = _crc16(raw, len(raw), 0xFFFF)
     return raw + bytes((crc & 0xFF, crc >> 8))
 
 
@@ -153,6 +154,18 @@ def _config(options: CoreOptions) -> Any:
     return cfg
 
 
+# bound once: a ``lib.name`` lookup per call costs more than the call (cffi's lib_getattr)
+_buffer_of = ffi.buffer
+_framer_feed = lib.rtu_framer_feed
+_framer_poll = lib.rtu_framer_poll
+_framer_event_data = lib.rtu_framer_event_data
+_framer_handle_timer = lib.rtu_framer_handle_timer
+_framer_deadline = lib.rtu_framer_deadline
+_framer_sent = lib.rtu_framer_sent
+_framer_reset = lib.rtu_framer_reset
+_framer_needed = lib.rtu_framer_needed
+
+
 class _Core:
     def __init__(self, options: CoreOptions) -> None:
         self.f = ffi.new("rtu_framer *")
@@ -160,31 +173,32 @@ class _Core:
             raise ValueError(f"cannot initialise the framer for {options}")
 
     def feed(self, data: bytes, now_us: int) -> int:
-        return int(lib.rtu_framer_feed(self.f, data, len(data), now_us))
+        return int(_framer_feed(self.f, data, len(data), now_us))
 
     def poll(self) -> Event | None:
         f = self.f
-        if not lib.rtu_framer_poll(f):
+        if not _framer_poll(f):
             return None
         e = f.event
-        adu = ffi.unpack(ffi.cast("char *", lib.rtu_framer_event_data(f)), e.length)
-        return (e.offset, e.length, e.kind, e.error, e.start_us, e.end_us, adu)
+        n = e.length
+        adu = _buffer_of(_framer_event_data(f), n)[:]  # bytes, one copy
+        return (e.offset, n, e.kind, e.error, e.start_us, e.end_us, adu)
 
     def handle_timer(self, now_us: int) -> None:
-        lib.rtu_framer_handle_timer(self.f, now_us)
+        _framer_handle_timer(self.f, now_us)
 
     def deadline(self) -> int | None:
-        deadline = int(lib.rtu_framer_deadline(self.f))
+        deadline = int(_framer_deadline(self.f))
         return None if deadline == INT64_MAX else deadline
 
     def sent(self, adu: bytes) -> None:
-        lib.rtu_framer_sent(self.f, adu, len(adu))
+        _framer_sent(self.f, adu, len(adu))
 
     def reset(self) -> None:
-        lib.rtu_framer_reset(self.f)
+        _framer_reset(self.f)
 
     def needed(self) -> int:
-        return int(lib.rtu_framer_needed(self.f))
+        return int(_framer_needed(self.f))
 
     def counts(self) -> tuple[Sequence[int], Sequence[int], int]:
         c = self.f.counters

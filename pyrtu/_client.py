@@ -128,6 +128,8 @@ class ClientProtocol:
         # no Frame objects: the hot path); ASCII: the AsciiFramer's Frame events
         self._core: Any = getattr(self._framer, "_core", None)
         self._char = line.char_time
+        self._max_adu = line.max_adu
+        self._add_crc: Callable[[bytes], bytes] = self._backend.add_crc
         self.state = _IDLE
         # the line, across transactions
         self.tx_end = 0.0  # end of our last transmission
@@ -159,6 +161,7 @@ class ClientProtocol:
         self.gap = line.frame_gap
         self.settle = max(0.02, 3 * self.gap)
         self._char = line.char_time
+        self._max_adu = line.max_adu
         self._framer = make_framer(line, "master", self._backend)
         self._core = getattr(self._framer, "_core", None)
 
@@ -186,7 +189,13 @@ class ClientProtocol:
         is sent) for a request longer than ``max_adu``."""
         if self.state not in (_IDLE, _DONE):
             raise RuntimeError(f"a transaction is in progress ({self.state.value})")
-        self._adu = self.encode(slave, pdu)
+        if self._core is not None:  # RTU (the hot path): encode() inlined
+            adu = self._add_crc(bytes((slave,)) + pdu)
+            if len(adu) > self._max_adu:
+                self.encode(slave, pdu)  # raises its ValueError
+            self._adu = adu
+        else:
+            self._adu = self.encode(slave, pdu)
         self._slave, self._fc, self._decode = slave, pdu[0], decode
         self._attempt = 0
         self._result = self._error = None
@@ -248,6 +257,9 @@ class ClientProtocol:
             if not self._echo_left:
                 self._finish(None)
                 return
+        elif (core := self._core) is not None:  # _restart inlined (the hot path)
+            core.reset()
+            core.sent(self._adu)
         else:
             self._restart(self._adu)
         self.state = _ANSWER
@@ -321,8 +333,14 @@ class ClientProtocol:
             return min(self.send_at(), self._give_up)
         if state is not _ANSWER:
             return None
-        timer = None if self._echo_left else self._timer()
-        return self._limit if timer is None else min(timer, self._limit)
+        if self._echo_left:
+            return self._limit
+        core = self._core
+        if core is None:
+            timer = self._framer.timer()
+            return self._limit if timer is None else min(timer, self._limit)
+        deadline = core.deadline()  # _timer inlined (the hot path)
+        return self._limit if deadline is None else min(deadline / 1e6, self._limit)
 
     def ready_at(self, now: float) -> float:
         """ANSWER: the earliest time the bytes still needed can all be in, so a driver
@@ -438,7 +456,14 @@ class ClientProtocol:
         before the new bytes may end what is buffered: the core takes fewer)."""
         now_us = round(now * 1_000_000)
         took = core.feed(data, now_us)
-        self._core_events(core, now)
+        # the common case, a whole answer in one read: its event at once
+        poll = core.poll
+        while self.state is _ANSWER and (ev := poll()) is not None:
+            adu = ev[6]
+            reason = _REASONS[ev[3]]
+            self._event(now, reason, b"" if reason else adu[:-2], len(adu), ev[5] / 1e6)
+        if took == len(data):
+            return
         stalled = 1 if took == 0 else 0
         while took < len(data) and self.state is _ANSWER:
             data = data[took:]
@@ -450,10 +475,10 @@ class ClientProtocol:
 
     def _core_events(self, core: Any, now: float) -> None:
         """RTU: the core's events, (offset, length, kind, error, start_us, end_us, adu)."""
-        while self.state is _ANSWER and (ev := core.poll()) is not None:
-            error = ev[3]
+        poll = core.poll
+        while self.state is _ANSWER and (ev := poll()) is not None:
             adu = ev[6]
-            reason = _REASONS[error]
+            reason = _REASONS[ev[3]]
             self._event(now, reason, b"" if reason else adu[:-2], len(adu), ev[5] / 1e6)
 
     def _events(self, now: float) -> None:
@@ -468,7 +493,8 @@ class ClientProtocol:
         self, now: float, reason: str | None, message: bytes, size: int, end: float | None
     ) -> None:
         """One frame or discard event of the answer phase."""
-        self._limit = min(self._end + self.timeout, now + self.settle)
+        limit, settled = self._end + self.timeout, now + self.settle
+        self._limit = limit if limit <= settled else settled  # min() without the call
         slave, fc = self._slave, self._fc
         c = self.counters
         if reason is not None:
@@ -514,7 +540,8 @@ class ClientProtocol:
             return
         c["responses"] += 1
         self.answer_end = end
-        self._finish(value)
+        self._result = value  # _finish inlined (the hot path)
+        self.state = _DONE
 
     def _fail_attempt(self, now: float) -> None:
         """No answer by the limit: the attempt's error; retry when allowed."""

@@ -93,7 +93,11 @@ def run_sync(port: Port, proto: ClientProtocol, call: Call) -> Any:
                 proto.receive_data(data, now)
                 napped = timed and proto.state is _ANSWER and _nap(proto)
             elif state is _SEND:
-                stale = port.read(0)
+                # pending input first (stale: it restarts the silence); one poll(0)
+                if fd is not None:
+                    stale = _read_ready(port, fd) if port._poll.poll(0) else b""
+                else:
+                    stale = port.read(0)
                 if stale:
                     proto.receive_data(stale, _monotonic())
                     continue
