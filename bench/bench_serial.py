@@ -90,7 +90,10 @@ def python_client(stack: ExitStack, name: str, port: str) -> Callable[[], list[i
     """One FC 03 transaction of the named Python client, as a callable."""
     if name.startswith("pyrtu"):
         backend = "python" if name == "pyrtu-python" else "c"
-        master = Master(port, 115200, parity="N", timeout=1.0, t35=0, backend=backend)
+        # the clients of one run share the port and take turns: no exclusive lock
+        master = Master(
+            port, 115200, parity="N", timeout=1.0, t35=0, backend=backend, exclusive=False
+        )
         stack.callback(master.close)
         return lambda: master.read_holding_registers(SLAVE, ADDRESS, COUNT)
     if name == "pymodbus":
