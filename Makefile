@@ -48,7 +48,7 @@ $(STAMP): pyproject.toml setup.py pyrtu/_build_core.py pyrtu/_cdef.h $(wildcard 
 ASAN_DIR := build/asan
 test-asan: setup
 	rm -rf $(ASAN_DIR) && mkdir -p $(ASAN_DIR)
-	cp -r pyrtu tests csrc setup.py pyproject.toml README.md $(ASAN_DIR)/ && rm -f $(ASAN_DIR)/pyrtu/*.so
+	cp -r pyrtu tests csrc bench setup.py pyproject.toml README.md $(ASAN_DIR)/ && rm -f $(ASAN_DIR)/pyrtu/*.so
 	PYRTU_SANITIZE=1 PYRTU_REQUIRE_C=1 $(PY) setup.py -q build_ext --build-lib $(ASAN_DIR) --build-temp build/asan-tmp --force
 	cd $(ASAN_DIR) && \
 	  LD_PRELOAD="$$(gcc -print-file-name=libasan.so) $$(gcc -print-file-name=libubsan.so)" \
