@@ -225,6 +225,11 @@ MEMORY = textwrap.dedent(
 # Tens of megabytes through the pure-Python framer take minutes: the memory tests
 # measure the reader with the C framer (the twin's framer buffers the same bounded way).
 needs_c = pytest.mark.skipif(_backend.C is None, reason="the C core is not built")
+# Under AddressSanitizer (make test-asan) the peak RSS is the sanitizer's (shadow
+# memory, its allocator's caches and quarantine): there the memory tests stream the
+# same captures through the instrumented core and check the frames, and the bounds
+# are held by the plain build (make test).
+SANITIZED = "ASAN_OPTIONS" in os.environ
 
 
 def peak_rss(path: Path) -> tuple[int, int]:
@@ -253,8 +258,9 @@ def test_memory_is_bounded_whatever_the_capture_size(tmp_path: Path) -> None:
         assert got == frames
         sizes[mb] = rss
         path.unlink()
-    assert sizes[24] < 150 * 1024, sizes
-    assert sizes[24] < sizes[3] + 16 * 1024, sizes  # kB: independent of the size
+    if not SANITIZED:
+        assert sizes[24] < 150 * 1024, sizes
+        assert sizes[24] < sizes[3] + 16 * 1024, sizes  # kB: independent of the size
 
 
 @needs_c
@@ -262,6 +268,8 @@ def test_memory_is_bounded_on_random_bytes(tmp_path: Path) -> None:
     path = tmp_path / "noise.cap"
     with open(path, "wb") as f:
         capsynth.write_random_records(f, 5_000_000)
-    _, rss = peak_rss(path)
-    assert rss < 150 * 1024
+    got, rss = peak_rss(path)
+    assert got > 0  # noise still frames the odd good CRC or a discard run
+    if not SANITIZED:
+        assert rss < 150 * 1024
     os.unlink(path)
