@@ -181,6 +181,25 @@ static int rtu_framer_emit_run(rtu_framer *f)
     return 1;
 }
 
+/* The window at the head of the unresolved bytes (at most max_adu) with the silence
+ * marks after its start: what rtu_try_head and rtu_head_needed look at. */
+static void rtu_framer_head_view(const rtu_framer *f, rtu_view *v)
+{
+    const size_t unresolved = f->n - f->head;
+    v->data = f->buf + f->head;
+    v->n = unresolved < f->cfg.max_adu ? unresolved : f->cfg.max_adu;
+    v->base = f->base + f->head;
+    size_t m = 0;
+    while (m < f->nmarks && f->marks[m].pos <= v->base) {
+        m++;
+    }
+    v->marks = f->marks + m;
+    v->nmarks = f->nmarks - m;
+    v->silent_end = f->silent && v->n == unresolved;
+    v->closed = f->final || v->n < unresolved;
+    v->timed = 1;
+}
+
 int rtu_framer_poll(rtu_framer *f)
 {
     rtu_framer_compact(f, f->head);
@@ -190,20 +209,8 @@ int rtu_framer_poll(rtu_framer *f)
             f->silent = f->final = 0;
             return f->run ? rtu_framer_emit_run(f) : 0;
         }
-        const size_t window = unresolved < f->cfg.max_adu ? unresolved : f->cfg.max_adu;
         rtu_view v;
-        v.data = f->buf + f->head;
-        v.n = window;
-        v.base = f->base + f->head;
-        size_t m = 0;
-        while (m < f->nmarks && f->marks[m].pos <= v.base) {
-            m++;
-        }
-        v.marks = f->marks + m;
-        v.nmarks = f->nmarks - m;
-        v.silent_end = f->silent && window == unresolved;
-        v.closed = f->final || window < unresolved;
-        v.timed = 1;
+        rtu_framer_head_view(f, &v);
         const rtu_verdict r = rtu_try_head(&f->cfg, &f->ctx, &v, 1);
         if (r.action == RTU_ACT_DISCARD) {
             if (f->run == 0) {
@@ -246,19 +253,7 @@ void rtu_framer_sent(rtu_framer *f, const uint8_t *adu, size_t len)
 
 size_t rtu_framer_needed(const rtu_framer *f)
 {
-    const size_t unresolved = f->n - f->head;
     rtu_view v;
-    v.data = f->buf + f->head;
-    v.n = unresolved < f->cfg.max_adu ? unresolved : f->cfg.max_adu;
-    v.base = f->base + f->head;
-    size_t m = 0;
-    while (m < f->nmarks && f->marks[m].pos <= v.base) {
-        m++;
-    }
-    v.marks = f->marks + m;
-    v.nmarks = f->nmarks - m;
-    v.silent_end = f->silent && v.n == unresolved;
-    v.closed = f->final || v.n < unresolved;
-    v.timed = 1;
+    rtu_framer_head_view(f, &v);
     return rtu_head_needed(&f->cfg, &f->ctx, &v);
 }

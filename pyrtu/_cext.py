@@ -213,6 +213,24 @@ class Framer(FramerBase):
         return _Core(options)
 
 
+class _Blocks:
+    """Entry ``i`` of a parse spread over C arrays ``[(array, count), ...]``."""
+
+    def __init__(self, blocks: list[tuple[Any, int]]) -> None:
+        self._blocks = blocks
+        self._starts: list[int] = []
+        total = 0
+        for _, n in blocks:
+            self._starts.append(total)
+            total += n
+
+    def __getitem__(self, i: int) -> Any:
+        b = len(self._starts) - 1
+        while self._starts[b] > i:
+            b -= 1
+        return self._blocks[b][0][i - self._starts[b]]
+
+
 class CFrameList(FrameList):
     """Entries live in C arrays (blocks of rtu_event); frames are built on access."""
 
@@ -220,19 +238,11 @@ class CFrameList(FrameList):
         self, data: bytes, blocks: list[tuple[Any, int]], counters: dict[str, int]
     ) -> None:
         super().__init__(data, sum(n for _, n in blocks))
-        self._blocks = blocks
-        self._starts: list[int] = []
-        total = 0
-        for _, n in blocks:
-            self._starts.append(total)
-            total += n
+        self._entries = _Blocks(blocks)
         self.counters = counters
 
     def _entry(self, i: int) -> tuple[int, int, int, int, int | None, int | None]:
-        b = len(self._starts) - 1
-        while self._starts[b] > i:
-            b -= 1
-        e = self._blocks[b][0][i - self._starts[b]]
+        e = self._entries[i]
         return (
             e.offset,
             e.length,
@@ -369,19 +379,11 @@ class CMbapFrameList(MbapFrameList):
         self, data: bytes, blocks: list[tuple[Any, int]], counters: dict[str, int]
     ) -> None:
         super().__init__(data, sum(n for _, n in blocks))
-        self._blocks = blocks
-        self._starts: list[int] = []
-        total = 0
-        for _, n in blocks:
-            self._starts.append(total)
-            total += n
+        self._entries = _Blocks(blocks)
         self.counters = counters
 
     def _entry(self, i: int) -> tuple[int, int, int, int]:
-        b = len(self._starts) - 1
-        while self._starts[b] > i:
-            b -= 1
-        e = self._blocks[b][0][i - self._starts[b]]
+        e = self._entries[i]
         return int(e.offset), int(e.length), int(e.kind), int(e.error)
 
 

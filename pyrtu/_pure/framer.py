@@ -158,20 +158,7 @@ class CoreFramer:
             if unresolved == 0:
                 self.silent = self.final = False
                 return self._emit_run() if self.run else None
-            window = min(unresolved, cfg.max_adu)
-            base = self.base + self.head
-            mi = 0
-            while mi < len(self.marks) and self.marks[mi][0] <= base:
-                mi += 1
-            v = View(
-                bytes(self.buf[self.head : self.head + window]),
-                base,
-                self.marks,
-                mi,
-                self.silent and window == unresolved,
-                self.final or window < unresolved,
-                True,
-            )
+            v = self._head_view()
             action, length, code = try_head(cfg, self.ctx, v, True)
             if action == ACT_DISCARD:
                 if self.run == 0:
@@ -198,13 +185,18 @@ class CoreFramer:
 
     def needed(self) -> int:
         """Bytes still needed at the head (see rtu_framer_needed in csrc/rtu.h)."""
+        return head_needed(self.cfg, self.ctx, self._head_view())
+
+    def _head_view(self) -> View:
+        """The window at the head of the unresolved bytes (at most max_adu) with the
+        silence marks after its start (rtu_framer_head_view)."""
         unresolved = len(self.buf) - self.head
         window = min(unresolved, self.cfg.max_adu)
         base = self.base + self.head
         mi = 0
         while mi < len(self.marks) and self.marks[mi][0] <= base:
             mi += 1
-        v = View(
+        return View(
             bytes(self.buf[self.head : self.head + window]),
             base,
             self.marks,
@@ -213,4 +205,3 @@ class CoreFramer:
             self.final or window < unresolved,
             True,
         )
-        return head_needed(self.cfg, self.ctx, v)
