@@ -22,12 +22,31 @@ class Call(NamedTuple):
     decode: Callable[[bytes], Any] | None
 
 
+#: Calls of the reads already checked and built, by (function, slave, address, count)
+#: of exact ints: a poller repeats the same few reads, and a Call is immutable
+_READS: dict[tuple[int, int, int, int], Call] = {}
+_READS_MAX = 4096
+
+
 def _read(name: str, fc: int, slave: int, address: int, count: int, bits: bool) -> Call:
+    # exact ints only: True == 1 and 1.0 == 1 as keys, but they must fail the checks
+    exact = type(slave) is type(address) is type(count) is int
+    key = (fc, slave, address, count)
+    if exact:
+        call = _READS.get(key)
+        if call is not None:
+            return call
     s = P.check_slave(name, slave, broadcast=False)
     req = P.read_request(fc, address, count)
     if bits:
-        return Call(s, req, lambda p: P.parse_bits(p, count))
-    return Call(s, req, lambda p: P.parse_registers(p, count))
+        call = Call(s, req, lambda p: P.parse_bits(p, count))
+    else:
+        call = Call(s, req, lambda p: P.parse_registers(p, count))
+    if exact:
+        if len(_READS) >= _READS_MAX:
+            _READS.clear()
+        _READS[key] = call
+    return call
 
 
 def read_coils(slave: int, address: int, count: int) -> Call:

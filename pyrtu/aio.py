@@ -36,6 +36,7 @@ from . import _requests as R
 from . import pdu as P
 from ._client import State
 from ._requests import Call
+from ._slack import tighten_this_thread
 from ._transports import transport_for
 from .errors import PortError
 from .line import LineConfig
@@ -380,9 +381,7 @@ def run(main: Any, *, debug: bool | None = None) -> Any:
     """``asyncio.run(main)`` on `new_event_loop` (microsecond timers), with this
     thread's timer slack shrunk to 1 µs (Linux; the default 50 µs of slack is a
     large part of t3.5 at high baud rates)."""
-    from .vbus._os import set_timer_slack
-
-    set_timer_slack(1000)
+    tighten_this_thread()
     if sys.version_info >= (3, 11):
         with asyncio.Runner(debug=debug, loop_factory=new_event_loop) as runner:
             return runner.run(main)
