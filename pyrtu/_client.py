@@ -156,6 +156,8 @@ class ClientProtocol:
         self._result: Any = None
         self._error: Exception | None = None
         self._dbg = False  # debug logging on for this transaction
+        #: per slave: how long past t3.5 its answers start (see _learn_turnaround)
+        self._turn: dict[int, float] = {}
 
     def set_line(self, line: LineConfig) -> None:
         """A new line configuration (new length rules); between transactions only."""
@@ -293,6 +295,7 @@ class ClientProtocol:
                 self.state = _QUIET
                 self._check_quiet(now)
             return
+        first = not self._heard
         self._heard = True
         if self._echo_left:
             data = self._eat_echo(data, now)
@@ -312,8 +315,11 @@ class ClientProtocol:
             self._events(now)
         else:
             self._feed(core, data, now)
-        if self.state is _ANSWER and self._bad is not None:
-            self._limit = min(self._end + self.timeout, now + self.settle)
+        if self.state is _ANSWER:
+            if self._bad is not None:
+                self._limit = min(self._end + self.timeout, now + self.settle)
+            elif first and not self.echo and self.gap > 0:
+                self._learn_turnaround(len(data), now)
 
     def handle_timer(self, now: float) -> None:
         """Time passed up to ``now`` (call it at ``deadline()``)."""
@@ -355,12 +361,37 @@ class ClientProtocol:
         deadline = core.deadline()  # _timer inlined (the hot path)
         return self._limit if deadline is None else min(deadline / 1e6, self._limit)
 
+    def _learn_turnaround(self, size: int, now: float) -> None:
+        """The first bytes of an answer still coming: its first byte arrived about
+        ``size`` characters before ``now`` (the slave sends its characters back to
+        back, Serial Line V1.02 2.5.1.1), so the slave took that long past t3.5 to
+        answer (an upper bound within a character: the bytes were read at ``now``,
+        at or after the last one came).  Kept per slave as a slowly rising minimum
+        of these estimates, so that `ready_at` puts the first sleep where the first
+        bytes are in (a slave that answers sooner lowers it at once)."""
+        turn = now - size * self._char - (self._end + self.gap)
+        turn = turn if turn > 0.0 else 0.0
+        old = self._turn.get(self._slave)
+        if old is None or turn <= old:
+            if old is None and len(self._turn) >= 256:
+                self._turn.clear()
+            self._turn[self._slave] = turn
+        else:
+            self._turn[self._slave] = old + (turn - old) / 16
+
+    def turnaround(self, slave: int) -> float | None:
+        """The slave's learned turnaround past t3.5 (seconds; see `ready_at`), None
+        before one of its answers was seen arriving on a timed line."""
+        return self._turn.get(slave)
+
     def ready_at(self, now: float) -> float:
         """ANSWER: the earliest time the bytes still needed can all be in, so a driver
         may sleep until then instead of waking per byte: ``needed()`` character times
         from now, and before any byte of the answer came, from the end of
         transmission plus t3.5 (the slave keeps that silence before it answers,
-        Serial Line V1.02 2.5.1.1; not with an echo, which comes at once).  Never
+        Serial Line V1.02 2.5.1.1; not with an echo, which comes at once) plus the
+        slave's learned turnaround (`turnaround`), so that the first sleep does not
+        end before the first bytes are in.  Never
         past ``wait_limit()``; ``now`` in other states, and on a line without wire
         timing (t3.5 = 0: pseudo-terminals, TCP links), whose bytes come in bursts
         rather than at the character rate."""
@@ -368,7 +399,7 @@ class ClientProtocol:
             return now
         start = now
         if not self._heard and not self._echo_left:
-            start = max(now, self._end + self.gap)
+            start = max(now, self._end + self.gap + self._turn.get(self._slave, 0.0))
         return min(start + self.needed() * self._char, self._limit)
 
     def wait_limit(self) -> float:

@@ -312,3 +312,39 @@ def test_misuse_is_refused(backend: ModuleType) -> None:
     with pytest.raises(ValueError, match="max_adu"):
         q.start(1, big, None, 1.0)
     assert q.state is State.IDLE and q.counters["requests"] == 0
+
+
+def test_ready_at_learns_the_slaves_turnaround(backend: ModuleType) -> None:
+    """The first sleep of an answer starts after the slave's learned turnaround: a
+    slave that answers 2 ms past t3.5 is first read when its first bytes are in,
+    not 2 ms early (a wasted wake-up); a quicker answer lowers it at once."""
+    p = proto(backend)
+    call = read_holding_registers(1, 0, 10)
+    answer = regs(backend, 1, list(range(10)))
+    assert p.turnaround(1) is None
+    now = 100.0
+    learned = 0.0
+    for late, after in ((0.002, 0.002), (0.002, 0.002), (0.0005, 0.0005)):
+        p.start(*call, now=now)
+        _adu, end = send(p, now)
+        assert p.ready_at(end) == pytest.approx(end + T35 + learned + 5 * CHAR)
+        arrive = end + T35 + late  # the first byte starts here
+        p.receive_data(answer[:5], arrive + 5 * CHAR)  # read once 5 bytes are in
+        learned = p.turnaround(1)  # type: ignore[assignment]
+        assert learned == pytest.approx(after, abs=1e-9)
+        p.receive_data(answer[5:], arrive + len(answer) * CHAR)
+        assert p.result() == list(range(10))
+        now = arrive + len(answer) * CHAR
+    assert p.turnaround(1) == pytest.approx(0.0005)  # the quicker answer lowered it
+    assert p.turnaround(2) is None  # per slave
+    # a slower answer raises it only slowly (1/16 of the difference)
+    p.start(*call, now=now)
+    _adu, end = send(p, now)
+    p.receive_data(answer[:5], end + T35 + 0.0105 + 5 * CHAR)
+    assert p.turnaround(1) == pytest.approx(0.0005 + 0.01 / 16)
+    # an echo or a line without timing learns nothing
+    q = proto(backend, LineConfig(baudrate=9600, parity="N", t35=0))
+    q.start(*call, now=1.0)
+    _adu, end = send(q, 1.0)
+    q.receive_data(answer[:5], end + 0.003)
+    assert q.turnaround(1) is None and q.ready_at(end + 0.003) == end + 0.003
