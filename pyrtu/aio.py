@@ -78,7 +78,17 @@ class AsyncMaster(MasterBase):
         backend: str | None = None,
         line: LineConfig | None = None,
         exclusive: bool = True,
+        max_in_flight: int = 1,
     ) -> None:
+        # ``max_in_flight``: requests on the wire at once, for ``tcp://`` ports (their
+        # class takes it); a serial line (and rtu+tcp://) carries one at a time
+        if isinstance(max_in_flight, bool) or not isinstance(max_in_flight, int):
+            raise TypeError(f"max_in_flight must be an integer, not {max_in_flight!r}")
+        if max_in_flight != 1:
+            raise ValueError(
+                f"max_in_flight must be 1 on a serial line, not {max_in_flight} "
+                "(only tcp:// ports keep several requests on the wire)"
+            )
         cfg = make_line(
             line,
             baudrate=baudrate,
