@@ -352,8 +352,8 @@ class ClientProtocol:
             return min(self.send_at(), self._give_up)
         if state is not _ANSWER:
             return None
-        if self._echo_left:
-            return self._limit
+        if self._echo_left or not self._heard:
+            return self._limit  # no byte of the answer yet: the framer has no timer
         core = self._core
         if core is None:
             timer = self._framer.timer()

@@ -131,3 +131,11 @@ def test_cached_reads_still_check_their_arguments(backend: object) -> None:
         proto.abort(100.0)
     assert adus[0] == adus[2] != adus[1] and adus[1][0] == 2
     assert adus[0] == backend.add_crc(bytes((1,)) + good.pdu)  # type: ignore[attr-defined]
+
+
+def test_unhashable_read_arguments_name_the_argument() -> None:
+    from pyrtu import _requests as R
+
+    for args, name in (([1], 0, 10), "slave"), ((1, {}, 10), "address"):
+        with pytest.raises(TypeError, match=name):
+            R.read_coils(*args)  # type: ignore[arg-type]
