@@ -12,9 +12,10 @@
 coroutines.  One event loop serves many ports: each `AsyncMaster` runs one
 transaction at a time through a first-come-first-served queue (an
 `asyncio.Lock`, which wakes its waiters in order), and different ports run in
-parallel.  Waiting is ``loop.add_reader`` on the port's file descriptor; while
-an answer comes in, the driver sleeps the character times of the bytes it
-still needs instead of waking per byte.  Ports without a descriptor (pyserial
+parallel.  Waiting is a timer or ``loop.add_reader`` on the port's file
+descriptor, run from the loop's callbacks (the awaiting task wakes once per
+transaction); while an answer comes in, the driver sleeps the character times
+of the bytes it still needs instead of waking per byte.  Ports without a descriptor (pyserial
 URLs such as ``loop://``, Windows COM ports) are read with pyserial's blocking
 reads in a worker thread of their own.
 
