@@ -78,6 +78,10 @@ class State(enum.Enum):
 _IDLE, _QUIET, _SEND, _ANSWER, _DONE = State.IDLE, State.QUIET, State.SEND, State.ANSWER, State.DONE
 _DEBUG = logging.DEBUG
 _ADUS_MAX = 1024
+#: from this character time up (19200 baud and slower), `ready_at` leaves the
+#: answer's last byte to a wait for input: half a character, the mean overshoot of a
+#: sleep on needed(), is then well above a wake-up's latency
+_EXACT_END_CHAR = 500e-6
 #: the core's error codes (RTU_ERR_*) as the discard reasons of the counters
 _REASONS: tuple[str | None, ...] = tuple(r.value if r else None for r in ERROR_BY_CODE)
 
@@ -398,9 +402,15 @@ class ClientProtocol:
         if self.state is not _ANSWER or self.gap <= 0:
             return now
         start = now
+        needed = self.needed()
         if not self._heard and not self._echo_left:
             start = max(now, self._end + self.gap + self._turn.get(self._slave, 0.0))
-        return min(start + self.needed() * self._char, self._limit)
+        elif needed and self._char >= _EXACT_END_CHAR:
+            # a slow line: wake a character early and read the last byte as it comes
+            # (a sleep would end up to a character after it: the next silence is
+            # measured from when the answer's end was read)
+            needed -= 1
+        return min(start + needed * self._char, self._limit)
 
     def wait_limit(self) -> float:
         """ANSWER: when the attempt ends if no valid answer comes (the timeout, or the

@@ -348,3 +348,25 @@ def test_ready_at_learns_the_slaves_turnaround(backend: ModuleType) -> None:
     _adu, end = send(q, 1.0)
     q.receive_data(answer[:5], end + 0.003)
     assert q.turnaround(1) is None and q.ready_at(end + 0.003) == end + 0.003
+
+
+def test_ready_at_leaves_the_last_byte_to_a_wait_on_slow_lines(backend: ModuleType) -> None:
+    """Up to 19200 baud the last byte of an answer is read as it comes (a wait for
+    input) instead of after a sleep, which would end up to a character late; at
+    115200 the sleep covers every byte still needed."""
+    answer = regs(backend, 1, list(range(10)))
+    for baud, early in ((9600, 1), (19200, 1), (115200, 0)):
+        line = LineConfig(baudrate=baud, parity="N")
+        p = proto(backend, line)
+        p.start(*read_holding_registers(1, 0, 10), now=5.0)
+        adu = p.data_to_send()
+        end = 5.0 + len(adu) * line.char_time
+        p.transmitted(end, 5.0)
+        t = end + line.t35_time + 5 * line.char_time
+        p.receive_data(answer[:5], t)
+        assert p.needed() == 20
+        assert p.ready_at(t) == pytest.approx(t + (20 - early) * line.char_time)
+        t += 24 * line.char_time - 5 * line.char_time
+        p.receive_data(answer[5:24], t)
+        assert p.needed() == 1
+        assert p.ready_at(t) == pytest.approx(t + (1 - early) * line.char_time)
