@@ -130,6 +130,18 @@ def _quiet(port: Port, proto: ClientProtocol, has_fd: bool) -> None:
         proto.handle_timer(now)
 
 
+def send_request(port: Port, proto: ClientProtocol) -> bool:
+    """SEND: pending input first (stale: fed to the protocol, which restarts the
+    silence; False), else the request goes out and its end is reported (True)."""
+    stale = port.read(0)
+    if stale:
+        proto.receive_data(stale, _monotonic())
+        return False
+    start, end = port.write(proto.data_to_send())
+    proto.transmitted(end, start)
+    return True
+
+
 def _run_generic(port: Port, proto: ClientProtocol) -> Any:
     """run_sync on a port without a file descriptor (URL ports, Windows): pyserial's
     timed reads, and on a timed line the sleep on needed() as run_sync."""
@@ -148,13 +160,7 @@ def _run_generic(port: Port, proto: ClientProtocol) -> Any:
                 else:
                     proto.handle_timer(_monotonic())
             elif state is _SEND:
-                stale = port.read(0)
-                if stale:
-                    proto.receive_data(stale, _monotonic())
-                    continue
-                start, end = port.write(proto.data_to_send())
-                proto.transmitted(end, start)
-                if timed and proto.state is _ANSWER:
+                if send_request(port, proto) and timed and proto.state is _ANSWER:
                     _nap(proto)
             elif state is _QUIET:
                 _quiet(port, proto, False)

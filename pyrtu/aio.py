@@ -36,6 +36,7 @@ from typing import Any
 from . import _requests as R
 from . import pdu as P
 from ._client import State
+from ._master_io import send_request
 from ._requests import Call
 from ._slack import tighten_this_thread
 from ._transports import transport_for
@@ -463,13 +464,7 @@ class _Drive:
                         return
                     proto.handle_timer(now)
                 elif state is _SEND:
-                    stale = port.read(0)
-                    if stale:
-                        proto.receive_data(stale, _monotonic())
-                        continue
-                    start, end = port.write(proto.data_to_send())
-                    proto.transmitted(end, start)
-                    if self._timed and proto.state is _ANSWER:
+                    if send_request(port, proto) and self._timed and proto.state is _ANSWER:
                         now = _monotonic()
                         until = proto.ready_at(now)
                         if until > now:
