@@ -43,6 +43,11 @@ ROOT = BENCH.parent
 sys.path.insert(0, str(ROOT / "tests"))
 
 import peers.pattern as pattern  # type: ignore[import-not-found]  # noqa: E402
+from peers.tools import (  # type: ignore[import-not-found]  # noqa: E402
+    PeerBinaries,
+    build_peers,
+    libmodbus_bench,
+)
 
 from pyrtu.aio import AsyncMaster  # noqa: E402
 from pyrtu.aio import run as aio_run  # noqa: E402
@@ -199,6 +204,15 @@ with Master(path, baud, parity="N", timeout=1.0) as m:
 """
 
 
+def libmodbus_master(binaries: PeerBinaries, path: str, baudrate: int, n: int) -> dict[str, float]:
+    """The libmodbus client (C, tests/peers/libmodbus_client.c) on the same bus: the
+    C reference for CPU per transaction (it keeps no t3.5 before its requests)."""
+    r = libmodbus_bench(binaries, path, SLAVE, n, baudrate=baudrate, warmup=5)
+    if r["errors"] or r["wrong"]:
+        raise AssertionError(f"libmodbus client: {r}")
+    return {"tps": float(r["tps"]), "cpu_us": float(r["cpu_us_per_tx"])}
+
+
 def baseline_master(root: str, path: str, baudrate: int, n: int) -> dict[str, float]:
     """The sync Master of another checkout (``--baseline DIR``), same bus, same slave."""
     env = dict(os.environ, PYTHONPATH=root)
@@ -234,7 +248,12 @@ def protocol_only(baudrate: int, n: int = 20000) -> float:
 
 
 def single_bus(
-    baudrate: int, n: int, rounds: int, pymodbus: bool, baseline: str | None = None
+    baudrate: int,
+    n: int,
+    rounds: int,
+    pymodbus: bool,
+    baseline: str | None = None,
+    peers: PeerBinaries | None = None,
 ) -> dict[str, Any]:
     out: dict[str, Any] = {"baudrate": baudrate, "wire_limit": wire_limit(baudrate)}
     with vbus(baudrate) as (paths, hub_pid), slave(paths[1], baudrate) as slave_pid:
@@ -243,6 +262,7 @@ def single_bus(
             "asyncio": [],
             "pymodbus": [],
             "baseline": [],
+            "libmodbus": [],
         }
         for _ in range(rounds):  # interleaved: the machine is shared and drifts
             if baseline:
@@ -251,6 +271,8 @@ def single_bus(
             runs["asyncio"].append(async_master(paths[0], baudrate, n))
             if pymodbus:
                 runs["pymodbus"].append(pymodbus_master(paths[0], baudrate, max(n // 2, 20)))
+            if peers is not None:
+                runs["libmodbus"].append(libmodbus_master(peers, paths[0], baudrate, n))
         for name, rs in runs.items():
             if rs:
                 out[name] = {
@@ -351,13 +373,14 @@ def section(data: dict[str, Any]) -> str:
         "|---:|---|---:|---:|---:|---:|",
     ]
     for bus in data["single"]:
-        for name in ("baseline", "sync", "asyncio", "pymodbus"):
+        for name in ("baseline", "sync", "asyncio", "pymodbus", "libmodbus"):
             r = bus.get(name)
             if r:
                 label = {
                     "sync": "pyrtu Master",
                     "asyncio": "pyrtu AsyncMaster",
                     "baseline": f"pyrtu Master before (`{data.get('baseline_rev', '?')}`)",
+                    "libmodbus": "libmodbus client (C; no t3.5 before its requests)",
                 }.get(name, "pymodbus AsyncModbusSerialClient")
                 lines.append(
                     f"| {bus['baudrate']} | {label} | {r['tps']:.1f} | {bus['wire_limit']:.1f} | "
@@ -384,6 +407,15 @@ def section(data: dict[str, Any]) -> str:
                 f"- {bus['baudrate']} baud, AsyncMaster / pymodbus AsyncModbusSerialClient: "
                 f"transactions/s **{a['tps'] / p['tps']:.2f}x**, CPU per transaction "
                 f"**{p['cpu_us'] / a['cpu_us']:.1f}x** less"
+            )
+    for bus in data["single"]:
+        if bus.get("libmodbus"):
+            lm, s_, a = bus["libmodbus"], bus["sync"], bus["asyncio"]
+            lines.append(
+                f"- {bus['baudrate']} baud, CPU per transaction against the libmodbus client "
+                f"(C) on the same bus: Master **{s_['cpu_us'] / lm['cpu_us']:.2f}x**, "
+                f"AsyncMaster **{a['cpu_us'] / lm['cpu_us']:.2f}x** "
+                f"({lm['cpu_us']:.0f} µs for libmodbus)"
             )
     pty = data.get("pty")
     if pty:
@@ -478,10 +510,11 @@ def main() -> None:
             ).stdout.strip()
             data["baseline_rev"] = rev
         if args.only != "eight":
+            peers = build_peers(Path(tempfile.mkdtemp(prefix="pyrtu-peers-")))
             for baud, n in ((9600, 24), (115200, 160)):
                 count = n // 2 if args.quick else n
                 data["single"].append(
-                    single_bus(baud, count, rounds, baud == 115200, args.baseline)
+                    single_bus(baud, count, rounds, baud == 115200, args.baseline, peers)
                 )
                 print(json.dumps(data["single"][-1], indent=1), flush=True)
         if args.only != "single":

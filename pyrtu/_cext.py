@@ -184,6 +184,21 @@ class _Core:
         adu = _buffer_of(_framer_event_data(f), n)[:]  # bytes, one copy
         return (e.offset, n, e.kind, e.error, e.start_us, e.end_us, adu)
 
+    def take(self) -> tuple[int, int, bytes] | None:
+        """The next event as (error, end_us, adu): poll() for a client that needs no
+        more (fewer reads of the C struct on the master's hot path)."""
+        f = self.f
+        if not _framer_poll(f):
+            return None
+        e = f.event
+        return (e.error, e.end_us, _buffer_of(_framer_event_data(f), e.length)[:])
+
+    def expect(self, adu: bytes) -> None:
+        """reset() then sent(adu): a fresh framer for the answer to ``adu``."""
+        f = self.f
+        _framer_reset(f)
+        _framer_sent(f, adu, len(adu))
+
     def handle_timer(self, now_us: int) -> None:
         _framer_handle_timer(self.f, now_us)
 

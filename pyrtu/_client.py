@@ -77,6 +77,11 @@ class State(enum.Enum):
 # module constants: an enum member lookup costs a class attribute access (3.11)
 _IDLE, _QUIET, _SEND, _ANSWER, _DONE = State.IDLE, State.QUIET, State.SEND, State.ANSWER, State.DONE
 _DEBUG = logging.DEBUG
+_ADUS_MAX = 1024
+#: from this character time up (19200 baud and slower), `ready_at` leaves the
+#: answer's last byte to a wait for input: half a character, the mean overshoot of a
+#: sleep on needed(), is then well above a wake-up's latency
+_EXACT_END_CHAR = 500e-6
 #: the core's error codes (RTU_ERR_*) as the discard reasons of the counters
 _REASONS: tuple[str | None, ...] = tuple(r.value if r else None for r in ERROR_BY_CODE)
 
@@ -130,6 +135,8 @@ class ClientProtocol:
         self._char = line.char_time
         self._max_adu = line.max_adu
         self._add_crc: Callable[[bytes], bytes] = self._backend.add_crc
+        #: RTU ADUs already built, by (slave, PDU): a poller repeats the same requests
+        self._adus: dict[tuple[int, bytes], bytes] = {}
         self.state = _IDLE
         # the line, across transactions
         self.tx_end = 0.0  # end of our last transmission
@@ -152,6 +159,9 @@ class ClientProtocol:
         self._heard = False  # ANSWER: a byte came after the request
         self._result: Any = None
         self._error: Exception | None = None
+        self._dbg = False  # debug logging on for this transaction
+        #: per slave: how long past t3.5 its answers start (see _learn_turnaround)
+        self._turn: dict[int, float] = {}
 
     def set_line(self, line: LineConfig) -> None:
         """A new line configuration (new length rules); between transactions only."""
@@ -162,6 +172,7 @@ class ClientProtocol:
         self.settle = max(0.02, 3 * self.gap)
         self._char = line.char_time
         self._max_adu = line.max_adu
+        self._adus.clear()
         self._framer = make_framer(line, "master", self._backend)
         self._core = getattr(self._framer, "_core", None)
 
@@ -189,20 +200,26 @@ class ClientProtocol:
         is sent) for a request longer than ``max_adu``."""
         if self.state not in (_IDLE, _DONE):
             raise RuntimeError(f"a transaction is in progress ({self.state.value})")
-        if self._core is not None:  # RTU (the hot path): encode() inlined
-            adu = self._add_crc(bytes((slave,)) + pdu)
-            if len(adu) > self._max_adu:
-                self.encode(slave, pdu)  # raises its ValueError
+        if self._core is not None:  # RTU (the hot path): encode() inlined, and cached
+            key = (slave, pdu)
+            adu = self._adus.get(key)
+            if adu is None:
+                adu = self._add_crc(bytes((slave,)) + pdu)
+                if len(adu) > self._max_adu:
+                    self.encode(slave, pdu)  # raises its ValueError
+                if len(self._adus) >= _ADUS_MAX:
+                    self._adus.clear()
+                self._adus[key] = adu
             self._adu = adu
         else:
             self._adu = self.encode(slave, pdu)
         self._slave, self._fc, self._decode = slave, pdu[0], decode
         self._attempt = 0
         self._result = self._error = None
-        self.state = _QUIET
         self._give_up = now + self.timeout
-        if self.send_at() <= now:  # the line is quiet already (the common case)
-            self.state = _SEND
+        ready = self.send_at() if self.gap > 0 or self.failed_at else self.quiet_until
+        # the line is quiet already (the common case): SEND at once
+        self.state = _SEND if ready <= now else _QUIET
 
     def _begin_attempt(self, now: float) -> None:
         self.state = _QUIET
@@ -238,7 +255,10 @@ class ClientProtocol:
         self.tx_end = self._end = end
         c = self.counters
         c["requests"] += 1
-        if _debug(_DEBUG):
+        # once per transaction (after the write: off the critical path); the hot path
+        # logs nothing
+        self._dbg = _debug(_DEBUG)
+        if self._dbg:
             log.debug(
                 "TX slave %d fc %d: %s (%.3f ms on the line)",
                 self._slave,
@@ -258,8 +278,7 @@ class ClientProtocol:
                 self._finish(None)
                 return
         elif (core := self._core) is not None:  # _restart inlined (the hot path)
-            core.reset()
-            core.sent(self._adu)
+            core.expect(self._adu)
         else:
             self._restart(self._adu)
         self.state = _ANSWER
@@ -280,6 +299,7 @@ class ClientProtocol:
                 self.state = _QUIET
                 self._check_quiet(now)
             return
+        first = not self._heard
         self._heard = True
         if self._echo_left:
             data = self._eat_echo(data, now)
@@ -299,8 +319,11 @@ class ClientProtocol:
             self._events(now)
         else:
             self._feed(core, data, now)
-        if self.state is _ANSWER and self._bad is not None:
-            self._limit = min(self._end + self.timeout, now + self.settle)
+        if self.state is _ANSWER:
+            if self._bad is not None:
+                self._limit = min(self._end + self.timeout, now + self.settle)
+            elif first and not self.echo and self.gap > 0:
+                self._learn_turnaround(len(data), now)
 
     def handle_timer(self, now: float) -> None:
         """Time passed up to ``now`` (call it at ``deadline()``)."""
@@ -333,8 +356,8 @@ class ClientProtocol:
             return min(self.send_at(), self._give_up)
         if state is not _ANSWER:
             return None
-        if self._echo_left:
-            return self._limit
+        if self._echo_left or not self._heard:
+            return self._limit  # no byte of the answer yet: the framer has no timer
         core = self._core
         if core is None:
             timer = self._framer.timer()
@@ -342,21 +365,52 @@ class ClientProtocol:
         deadline = core.deadline()  # _timer inlined (the hot path)
         return self._limit if deadline is None else min(deadline / 1e6, self._limit)
 
+    def _learn_turnaround(self, size: int, now: float) -> None:
+        """The first bytes of an answer still coming: its first byte arrived about
+        ``size`` characters before ``now`` (the slave sends its characters back to
+        back, Serial Line V1.02 2.5.1.1), so the slave took that long past t3.5 to
+        answer (an upper bound within a character: the bytes were read at ``now``,
+        at or after the last one came).  Kept per slave as a slowly rising minimum
+        of these estimates, so that `ready_at` puts the first sleep where the first
+        bytes are in (a slave that answers sooner lowers it at once)."""
+        turn = now - size * self._char - (self._end + self.gap)
+        turn = turn if turn > 0.0 else 0.0
+        old = self._turn.get(self._slave)
+        if old is None or turn <= old:
+            if old is None and len(self._turn) >= 256:
+                self._turn.clear()
+            self._turn[self._slave] = turn
+        else:
+            self._turn[self._slave] = old + (turn - old) / 16
+
+    def turnaround(self, slave: int) -> float | None:
+        """The slave's learned turnaround past t3.5 (seconds; see `ready_at`), None
+        before one of its answers was seen arriving on a timed line."""
+        return self._turn.get(slave)
+
     def ready_at(self, now: float) -> float:
         """ANSWER: the earliest time the bytes still needed can all be in, so a driver
         may sleep until then instead of waking per byte: ``needed()`` character times
         from now, and before any byte of the answer came, from the end of
         transmission plus t3.5 (the slave keeps that silence before it answers,
-        Serial Line V1.02 2.5.1.1; not with an echo, which comes at once).  Never
+        Serial Line V1.02 2.5.1.1; not with an echo, which comes at once) plus the
+        slave's learned turnaround (`turnaround`), so that the first sleep does not
+        end before the first bytes are in.  Never
         past ``wait_limit()``; ``now`` in other states, and on a line without wire
         timing (t3.5 = 0: pseudo-terminals, TCP links), whose bytes come in bursts
         rather than at the character rate."""
         if self.state is not _ANSWER or self.gap <= 0:
             return now
         start = now
+        needed = self.needed()
         if not self._heard and not self._echo_left:
-            start = max(now, self._end + self.gap)
-        return min(start + self.needed() * self._char, self._limit)
+            start = max(now, self._end + self.gap + self._turn.get(self._slave, 0.0))
+        elif needed and self._char >= _EXACT_END_CHAR:
+            # a slow line: wake a character early and read the last byte as it comes
+            # (a sleep would end up to a character after it: the next silence is
+            # measured from when the answer's end was read)
+            needed -= 1
+        return min(start + needed * self._char, self._limit)
 
     def wait_limit(self) -> float:
         """ANSWER: when the attempt ends if no valid answer comes (the timeout, or the
@@ -457,11 +511,13 @@ class ClientProtocol:
         now_us = round(now * 1_000_000)
         took = core.feed(data, now_us)
         # the common case, a whole answer in one read: its event at once
-        poll = core.poll
-        while self.state is _ANSWER and (ev := poll()) is not None:
-            adu = ev[6]
-            reason = _REASONS[ev[3]]
-            self._event(now, reason, b"" if reason else adu[:-2], len(adu), ev[5] / 1e6)
+        take = core.take
+        while self.state is _ANSWER and (ev := take()) is not None:
+            error, end_us, adu = ev
+            if error:
+                self._event(now, _REASONS[error], b"", len(adu), end_us / 1e6)
+            else:
+                self._event(now, None, adu[:-2], len(adu), end_us / 1e6)
         if took == len(data):
             return
         stalled = 1 if took == 0 else 0
@@ -475,11 +531,11 @@ class ClientProtocol:
 
     def _core_events(self, core: Any, now: float) -> None:
         """RTU: the core's events, (offset, length, kind, error, start_us, end_us, adu)."""
-        poll = core.poll
-        while self.state is _ANSWER and (ev := poll()) is not None:
-            adu = ev[6]
-            reason = _REASONS[ev[3]]
-            self._event(now, reason, b"" if reason else adu[:-2], len(adu), ev[5] / 1e6)
+        take = core.take
+        while self.state is _ANSWER and (ev := take()) is not None:
+            error, end_us, adu = ev
+            reason = _REASONS[error]
+            self._event(now, reason, b"" if reason else adu[:-2], len(adu), end_us / 1e6)
 
     def _events(self, now: float) -> None:
         """ASCII: the AsciiFramer's Frame events."""
@@ -493,10 +549,38 @@ class ClientProtocol:
         self, now: float, reason: str | None, message: bytes, size: int, end: float | None
     ) -> None:
         """One frame or discard event of the answer phase."""
-        limit, settled = self._end + self.timeout, now + self.settle
-        self._limit = limit if limit <= settled else settled  # min() without the call
         slave, fc = self._slave, self._fc
         c = self.counters
+        if reason is None and message[0] == slave and message[1] & 0x7F == fc:
+            # the answer (the hot path first)
+            if self._dbg:
+                log.debug(
+                    "RX slave %d fc %d: %s (%.3f ms)",
+                    slave,
+                    fc,
+                    message.hex(" "),
+                    (now - self._end) * 1e3,
+                )
+            if message[1] & 0x80:
+                c["exceptions"] += 1
+                code = message[2] if len(message) > 2 else 0
+                # answered: no late answer to wait out (failed_at stays 0)
+                self._fail(ExceptionResponseError(slave, fc, code), 0.0)
+                return
+            decode = self._decode or _identity
+            try:
+                value = decode(message[1:])
+            except FrameError as exc:
+                self._settle(now)
+                self._discard("unexpected", size)
+                self._bad = self._bad or FrameError(f"slave {slave}: {exc}", slave, fc)
+                return
+            c["responses"] += 1
+            self.answer_end = end
+            self._result = value  # _finish inlined (the hot path)
+            self.state = _DONE
+            return
+        self._settle(now)
         if reason is not None:
             self._discard(reason, size)
             if reason == "crc":
@@ -507,41 +591,19 @@ class ClientProtocol:
                 fc,
             )
             return
-        if message[0] != slave or message[1] & 0x7F != fc:
-            self._discard("unexpected", size)
-            log.debug("RX dropped (not the answer): %s", message.hex(" "))
-            self._bad = self._bad or FrameError(
-                f"{function_name(fc)}: slave {slave}: got a frame from slave {message[0]} "
-                f"function 0x{message[1]:02X} instead of the answer",
-                slave,
-                fc,
-            )
-            return
-        if _debug(_DEBUG):
-            log.debug(
-                "RX slave %d fc %d: %s (%.3f ms)",
-                slave,
-                fc,
-                message.hex(" "),
-                (now - self._end) * 1e3,
-            )
-        if message[1] & 0x80:
-            c["exceptions"] += 1
-            code = message[2] if len(message) > 2 else 0
-            # answered: no late answer to wait out (failed_at stays 0)
-            self._fail(ExceptionResponseError(slave, fc, code), 0.0)
-            return
-        decode = self._decode or _identity
-        try:
-            value = decode(message[1:])
-        except FrameError as exc:
-            self._discard("unexpected", size)
-            self._bad = self._bad or FrameError(f"slave {slave}: {exc}", slave, fc)
-            return
-        c["responses"] += 1
-        self.answer_end = end
-        self._result = value  # _finish inlined (the hot path)
-        self.state = _DONE
+        self._discard("unexpected", size)
+        log.debug("RX dropped (not the answer): %s", message.hex(" "))
+        self._bad = self._bad or FrameError(
+            f"{function_name(fc)}: slave {slave}: got a frame from slave {message[0]} "
+            f"function 0x{message[1]:02X} instead of the answer",
+            slave,
+            fc,
+        )
+
+    def _settle(self, now: float) -> None:
+        """A frame that was not the answer: wait at most the settling time for it."""
+        limit, settled = self._end + self.timeout, now + self.settle
+        self._limit = limit if limit <= settled else settled  # min() without the call
 
     def _fail_attempt(self, now: float) -> None:
         """No answer by the limit: the attempt's error; retry when allowed."""

@@ -18,6 +18,7 @@ from typing import Any
 
 from ._client import ClientProtocol, State
 from ._requests import Call
+from ._slack import tighten_this_thread
 from .errors import PortError
 from .port import Port
 
@@ -65,61 +66,104 @@ def _read_ready(port: Port, fd: int) -> bytes:
 
 def run_sync(port: Port, proto: ClientProtocol, call: Call) -> Any:
     """Run ``call`` through ``proto`` on ``port``; the result or the typed error."""
-    proto.start(call.slave, call.pdu, call.decode, _monotonic())
+    slave, pdu, decode = call
+    proto.start(slave, pdu, decode, _monotonic())
     fd = port.fd
-    has_fd = fd is not None
     timed = proto.gap > 0  # bytes come at the character rate: sleep on needed()
+    if timed:
+        tighten_this_thread()  # silences and sleeps on needed() wake on time
+    if fd is None:
+        return _run_generic(port, proto)
+    poll = port._poll.poll
     napped = False
     try:
         while True:
             state = proto.state
             if state is _ANSWER:
-                deadline = proto.deadline()
-                now = _monotonic()
-                wait = 1.0 if deadline is None else deadline - now
-                if fd is not None:
-                    # after a sleep the bytes are usually in: read first
-                    data = port.read(0) if napped else b""
-                    # poll(): millisecond timeouts are fine for the answer's deadline
-                    if not data and wait > 0 and port._poll.poll(wait * 1000.0):
-                        data = _read_ready(port, fd)
-                else:
-                    data = port.read(max(wait, 0.0))
-                now = _monotonic()
+                # after a sleep the bytes are usually in: read first
+                data = _read_ready(port, fd) if napped and poll(0) else b""
                 if not data:
+                    deadline = proto.deadline()
+                    wait = 1.0 if deadline is None else deadline - _monotonic()
+                    # poll(): millisecond timeouts are fine for the answer's deadline
+                    if wait > 0 and poll(wait * 1000.0):
+                        data = _read_ready(port, fd)
+                if data:
+                    proto.receive_data(data, _monotonic())
+                    napped = timed and proto.state is _ANSWER and _nap(proto)
+                else:
                     napped = False
-                    proto.handle_timer(now)
-                    continue
-                proto.receive_data(data, now)
-                napped = timed and proto.state is _ANSWER and _nap(proto)
+                    proto.handle_timer(_monotonic())
             elif state is _SEND:
                 # pending input first (stale: it restarts the silence); one poll(0)
-                if fd is not None:
-                    stale = _read_ready(port, fd) if port._poll.poll(0) else b""
-                else:
-                    stale = port.read(0)
-                if stale:
+                if poll(0) and (stale := _read_ready(port, fd)):
                     proto.receive_data(stale, _monotonic())
                     continue
                 start, end = port.write(proto.data_to_send())
                 proto.transmitted(end, start)
                 napped = timed and proto.state is _ANSWER and _nap(proto)
             elif state is _QUIET:
+                _quiet(port, proto, True)
+            else:
+                return proto.result()
+    except BaseException:
+        proto.abort(_monotonic())
+        raise
+
+
+def _quiet(port: Port, proto: ClientProtocol, has_fd: bool) -> None:
+    """QUIET: wait for the send time; input meanwhile is stale (it restarts the silence)."""
+    deadline = proto.deadline()
+    now = _monotonic()
+    wait = 0.0 if deadline is None else deadline - now
+    data = b""
+    if wait > 0:
+        if has_fd:
+            if _wait_readable(port, wait):
+                data = port.read(0)
+        else:
+            data = port.read(wait)
+        now = _monotonic()
+    if data:
+        proto.receive_data(data, now)
+    else:
+        proto.handle_timer(now)
+
+
+def send_request(port: Port, proto: ClientProtocol) -> bool:
+    """SEND: pending input first (stale: fed to the protocol, which restarts the
+    silence; False), else the request goes out and its end is reported (True)."""
+    stale = port.read(0)
+    if stale:
+        proto.receive_data(stale, _monotonic())
+        return False
+    start, end = port.write(proto.data_to_send())
+    proto.transmitted(end, start)
+    return True
+
+
+def _run_generic(port: Port, proto: ClientProtocol) -> Any:
+    """run_sync on a port without a file descriptor (URL ports, Windows): pyserial's
+    timed reads, and on a timed line the sleep on needed() as run_sync."""
+    timed = proto.gap > 0
+    try:
+        while True:
+            state = proto.state
+            if state is _ANSWER:
                 deadline = proto.deadline()
-                now = _monotonic()
-                wait = 0.0 if deadline is None else deadline - now
-                data = b""
-                if wait > 0:
-                    if has_fd:
-                        if _wait_readable(port, wait):
-                            data = port.read(0)
-                    else:
-                        data = port.read(wait)
-                    now = _monotonic()
+                wait = 1.0 if deadline is None else deadline - _monotonic()
+                data = port.read(max(wait, 0.0))
                 if data:
-                    proto.receive_data(data, now)
+                    proto.receive_data(data, _monotonic())
+                    if timed and proto.state is _ANSWER:
+                        _nap(proto)
                 else:
-                    proto.handle_timer(now)
+                    proto.handle_timer(_monotonic())
+            elif state is _SEND:
+                if send_request(port, proto) and timed and proto.state is _ANSWER:
+                    _nap(proto)
+            elif state is _QUIET:
+                _quiet(port, proto, False)
             else:
                 return proto.result()
     except BaseException:

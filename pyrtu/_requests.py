@@ -22,28 +22,58 @@ class Call(NamedTuple):
     decode: Callable[[bytes], Any] | None
 
 
-def _read(name: str, fc: int, slave: int, address: int, count: int, bits: bool) -> Call:
+#: Calls of the reads already checked and built, by (function, slave, address, count):
+#: a poller repeats the same few reads, and a Call is immutable.  Only calls whose
+#: arguments are exact ints come from here (True == 1 and 1.0 == 1 as keys, but
+#: they must fail the checks).
+_READS: dict[tuple[int, int, int, int], Call] = {}
+_READS_MAX = 4096
+
+
+def _read(name: str, fc: int, slave: int, address: int, count: int) -> Call:
     s = P.check_slave(name, slave, broadcast=False)
     req = P.read_request(fc, address, count)
-    if bits:
-        return Call(s, req, lambda p: P.parse_bits(p, count))
-    return Call(s, req, lambda p: P.parse_registers(p, count))
+    if fc <= P.READ_DISCRETE_INPUTS:
+        call = Call(s, req, lambda p: P.parse_bits(p, count))
+    else:
+        call = Call(s, req, lambda p: P.parse_registers(p, count))
+    if type(slave) is type(address) is type(count) is int:
+        if len(_READS) >= _READS_MAX:
+            _READS.clear()
+        _READS[(fc, slave, address, count)] = call
+    return call
 
 
 def read_coils(slave: int, address: int, count: int) -> Call:
-    return _read("read_coils", P.READ_COILS, slave, address, count, True)
+    if type(slave) is type(address) is type(count) is int:  # hashable, exact
+        call = _READS.get((1, slave, address, count))
+        if call is not None:
+            return call
+    return _read("read_coils", P.READ_COILS, slave, address, count)
 
 
 def read_discrete_inputs(slave: int, address: int, count: int) -> Call:
-    return _read("read_discrete_inputs", P.READ_DISCRETE_INPUTS, slave, address, count, True)
+    if type(slave) is type(address) is type(count) is int:  # hashable, exact
+        call = _READS.get((2, slave, address, count))
+        if call is not None:
+            return call
+    return _read("read_discrete_inputs", P.READ_DISCRETE_INPUTS, slave, address, count)
 
 
 def read_holding_registers(slave: int, address: int, count: int) -> Call:
-    return _read("read_holding_registers", P.READ_HOLDING_REGISTERS, slave, address, count, False)
+    if type(slave) is type(address) is type(count) is int:  # hashable, exact
+        call = _READS.get((3, slave, address, count))
+        if call is not None:
+            return call
+    return _read("read_holding_registers", P.READ_HOLDING_REGISTERS, slave, address, count)
 
 
 def read_input_registers(slave: int, address: int, count: int) -> Call:
-    return _read("read_input_registers", P.READ_INPUT_REGISTERS, slave, address, count, False)
+    if type(slave) is type(address) is type(count) is int:  # hashable, exact
+        call = _READS.get((4, slave, address, count))
+        if call is not None:
+            return call
+    return _read("read_input_registers", P.READ_INPUT_REGISTERS, slave, address, count)
 
 
 def _write(slave: int, req: bytes, decode: Callable[[bytes], Any]) -> Call:

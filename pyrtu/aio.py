@@ -12,9 +12,10 @@
 coroutines.  One event loop serves many ports: each `AsyncMaster` runs one
 transaction at a time through a first-come-first-served queue (an
 `asyncio.Lock`, which wakes its waiters in order), and different ports run in
-parallel.  Waiting is ``loop.add_reader`` on the port's file descriptor; while
-an answer comes in, the driver sleeps the character times of the bytes it
-still needs instead of waking per byte.  Ports without a descriptor (pyserial
+parallel.  Waiting is a timer or ``loop.add_reader`` on the port's file
+descriptor, run from the loop's callbacks (the awaiting task wakes once per
+transaction); while an answer comes in, the driver sleeps the character times
+of the bytes it still needs instead of waking per byte.  Ports without a descriptor (pyserial
 URLs such as ``loop://``, Windows COM ports) are read with pyserial's blocking
 reads in a worker thread of their own.
 
@@ -35,7 +36,9 @@ from typing import Any
 from . import _requests as R
 from . import pdu as P
 from ._client import State
+from ._master_io import send_request
 from ._requests import Call
+from ._slack import tighten_this_thread
 from ._transports import transport_for
 from .errors import PortError
 from .line import LineConfig
@@ -77,7 +80,17 @@ class AsyncMaster(MasterBase):
         backend: str | None = None,
         line: LineConfig | None = None,
         exclusive: bool = True,
+        max_in_flight: int = 1,
     ) -> None:
+        # ``max_in_flight``: requests on the wire at once, for ``tcp://`` ports (their
+        # class takes it); a serial line (and rtu+tcp://) carries one at a time
+        if isinstance(max_in_flight, bool) or not isinstance(max_in_flight, int):
+            raise TypeError(f"max_in_flight must be an integer, not {max_in_flight!r}")
+        if max_in_flight != 1:
+            raise ValueError(
+                f"max_in_flight must be 1 on a serial line, not {max_in_flight} "
+                "(only tcp:// ports keep several requests on the wire)"
+            )
         cfg = make_line(
             line,
             baudrate=baudrate,
@@ -165,48 +178,73 @@ class AsyncMaster(MasterBase):
             if port.closed:
                 raise PortError(port.name, "the master is closed")
             proto = self._proto
-            proto.start(call.slave, call.pdu, call.decode, _monotonic())
-            try:
-                while True:
-                    state = proto.state
-                    if state is _QUIET and self._fd is not None:
-                        # a timer, not a reader: bytes that come meanwhile are read
-                        # (as stale, restarting the silence) before the request goes
-                        deadline = proto.deadline()
-                        wait = 0.0 if deadline is None else deadline - _monotonic()
-                        if wait > 0:
-                            await asyncio.sleep(wait)
-                        stale = port.read(0)
-                        if stale:
-                            proto.receive_data(stale, _monotonic())
-                        else:
-                            proto.handle_timer(_monotonic())
-                    elif state is _ANSWER or state is _QUIET:
-                        data = await self._input(proto.deadline())
-                        now = _monotonic()
-                        if not data:
-                            proto.handle_timer(now)
-                            continue
-                        proto.receive_data(data, now)
-                        if proto.state is _ANSWER:
-                            await self._nap()
-                    elif state is _SEND:
-                        if self._inflight is not None:  # a read a cancel left behind
-                            stale = await self._read_thread(_monotonic())
-                        else:
-                            stale = port.read(0)
-                        if stale:
-                            proto.receive_data(stale, _monotonic())
-                            continue
-                        start, end = await self._transmit(proto.data_to_send())
-                        proto.transmitted(end, start)
-                        if proto.state is _ANSWER:
-                            await self._nap()
+            slave, pdu, decode = call
+            proto.start(slave, pdu, decode, _monotonic())
+            if self._fd is not None and not port.has_wire:
+                return await self._run_callbacks(proto)
+            return await self._run_task(proto)
+
+    async def _run_task(self, proto: Any) -> Any:
+        """The transaction as this task's loop: ports without a descriptor (thread
+        reads) and real lines (the write's drain runs in an executor)."""
+        port = self.port
+        try:
+            while True:
+                state = proto.state
+                if state is _QUIET and self._fd is not None:
+                    # a timer, not a reader: bytes that come meanwhile are read
+                    # (as stale, restarting the silence) before the request goes
+                    deadline = proto.deadline()
+                    wait = 0.0 if deadline is None else deadline - _monotonic()
+                    if wait > 0:
+                        await asyncio.sleep(wait)
+                    stale = port.read(0)
+                    if stale:
+                        proto.receive_data(stale, _monotonic())
                     else:
-                        return proto.result()
-            except BaseException:
-                proto.abort(_monotonic())
-                raise
+                        proto.handle_timer(_monotonic())
+                elif state is _ANSWER or state is _QUIET:
+                    data = await self._input(proto.deadline())
+                    now = _monotonic()
+                    if not data:
+                        proto.handle_timer(now)
+                        continue
+                    proto.receive_data(data, now)
+                    if proto.state is _ANSWER:
+                        await self._nap()
+                elif state is _SEND:
+                    if self._inflight is not None:  # a read a cancel left behind
+                        stale = await self._read_thread(_monotonic())
+                    else:
+                        stale = port.read(0)
+                    if stale:
+                        proto.receive_data(stale, _monotonic())
+                        continue
+                    start, end = await self._transmit(proto.data_to_send())
+                    proto.transmitted(end, start)
+                    if proto.state is _ANSWER:
+                        await self._nap()
+                else:
+                    return proto.result()
+        except BaseException:
+            proto.abort(_monotonic())
+            raise
+
+    async def _run_callbacks(self, proto: Any) -> Any:
+        """The transaction driven by the loop's callbacks (descriptor ports without a
+        wire: pseudo-terminals, virtual bus drops): each wake-up (a timer at the
+        protocol's send time or ``ready_at``, or the descriptor readable) runs
+        `_step` in the callback itself, and the awaiting task wakes once, when the
+        transaction is over.  (The loop's ``time()`` is `time.monotonic`.)"""
+        fut: asyncio.Future[Any] = asyncio.get_running_loop().create_future()
+        drive = _Drive(self, proto, fut)
+        drive.step()
+        try:
+            return await fut
+        except BaseException:
+            drive.stop()
+            proto.abort(_monotonic())
+            raise
 
     # ------------------------------------------------------------- plumbing
 
@@ -364,6 +402,97 @@ class AsyncMaster(MasterBase):
         return out
 
 
+class _Drive:
+    """One transaction of an `AsyncMaster` driven from the loop's callbacks: the
+    sync driver's loop (`pyrtu._master_io.run_sync`), where each wait is a timer or
+    a reader that calls `step` again instead of a sleep."""
+
+    __slots__ = ("_fd", "_fut", "_loop", "_port", "_proto", "_reading", "_timed", "_timer")
+
+    def __init__(self, master: AsyncMaster, proto: Any, fut: asyncio.Future[Any]) -> None:
+        self._loop = fut.get_loop()
+        self._port = master.port
+        self._fd: int = master._fd  # type: ignore[assignment]
+        self._proto = proto
+        self._fut = fut
+        self._timed = proto.gap > 0
+        self._timer: asyncio.TimerHandle | None = None
+        self._reading = False
+
+    def stop(self) -> None:
+        """Cancel the pending wait (the transaction ended or was cancelled)."""
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        if self._reading:
+            self._reading = False
+            self._loop.remove_reader(self._fd)
+
+    def _wait(self, until: float, reader: bool) -> None:
+        self._timer = self._loop.call_at(until, self._wake)
+        if reader:
+            self._reading = True
+            self._loop.add_reader(self._fd, self._wake)
+
+    def _wake(self) -> None:
+        self.stop()
+        if not self._fut.done():  # cancelled meanwhile: the task aborts the protocol
+            self.step()
+
+    def step(self) -> None:
+        """Run the protocol until it must wait (a timer or the descriptor) or is done."""
+        proto, port, fut = self._proto, self._port, self._fut
+        try:
+            while True:
+                state = proto.state
+                if state is _ANSWER:
+                    data = port.read(0)
+                    now = _monotonic()
+                    if data:
+                        proto.receive_data(data, now)
+                        if self._timed and proto.state is _ANSWER:
+                            until = proto.ready_at(now)
+                            if until > now:  # sleep on needed(), no wake per byte
+                                self._wait(until, False)
+                                return
+                        continue
+                    deadline = proto.deadline()
+                    if deadline is None:
+                        deadline = now + 1.0
+                    if deadline > now:
+                        self._wait(deadline, True)
+                        return
+                    proto.handle_timer(now)
+                elif state is _SEND:
+                    if send_request(port, proto) and self._timed and proto.state is _ANSWER:
+                        now = _monotonic()
+                        until = proto.ready_at(now)
+                        if until > now:
+                            self._wait(until, False)
+                            return
+                elif state is _QUIET:
+                    # a timer, not a reader: bytes that come meanwhile are read (as
+                    # stale, restarting the silence) before the request goes
+                    deadline = proto.deadline()
+                    now = _monotonic()
+                    if deadline is not None and deadline > now:
+                        self._wait(deadline, False)
+                        return
+                    stale = port.read(0)
+                    if stale:
+                        proto.receive_data(stale, now)
+                    else:
+                        proto.handle_timer(now)
+                else:
+                    fut.set_result(proto.result())
+                    return
+        except Exception as exc:  # the typed errors, PortError; the task re-raises
+            self.stop()
+            proto.abort(_monotonic())
+            if not fut.done():
+                fut.set_exception(exc)
+
+
 def new_event_loop() -> asyncio.AbstractEventLoop:
     """An event loop whose timers have microsecond resolution.
 
@@ -380,9 +509,7 @@ def run(main: Any, *, debug: bool | None = None) -> Any:
     """``asyncio.run(main)`` on `new_event_loop` (microsecond timers), with this
     thread's timer slack shrunk to 1 µs (Linux; the default 50 µs of slack is a
     large part of t3.5 at high baud rates)."""
-    from .vbus._os import set_timer_slack
-
-    set_timer_slack(1000)
+    tighten_this_thread()
     if sys.version_info >= (3, 11):
         with asyncio.Runner(debug=debug, loop_factory=new_event_loop) as runner:
             return runner.run(main)

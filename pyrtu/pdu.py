@@ -18,6 +18,7 @@ from collections.abc import Iterable, Sequence
 from ._pdu_base import (
     _BHH,
     _READ_LIMITS,
+    _UNPACK_WORDS_FROM,
     BROADCAST_FUNCTIONS,
     COIL_OFF,
     COIL_ON,
@@ -332,6 +333,8 @@ def parse_bits(pdu: bytes, count: int) -> list[bool]:
 
 
 def parse_registers(pdu: bytes, count: int) -> list[int]:
+    if len(pdu) == 2 + 2 * count and pdu[1] == 2 * count and count < 127:  # the answer
+        return list(_UNPACK_WORDS_FROM[count](pdu, 2))
     fc = pdu[0]
     _expect_len(fc, pdu, 2 + 2 * count)
     if pdu[1] != 2 * count:

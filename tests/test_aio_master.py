@@ -8,6 +8,7 @@ import asyncio
 import contextlib
 import os
 import time
+from pathlib import Path
 from types import ModuleType
 
 import pytest
@@ -261,3 +262,15 @@ def test_arguments_checked_before_the_port_opens() -> None:
             AsyncMaster("/dev/pyrtu-no-such-port", **kwargs)  # type: ignore[arg-type]
     with pytest.raises(TypeError, match="not both"):
         AsyncMaster("/dev/pyrtu-no-such-port", 9600, line=LineConfig())
+
+
+def test_max_in_flight_is_for_tcp_only(tmp_path: Path) -> None:
+    """AsyncMaster takes ``max_in_flight`` (tcp:// keeps several requests on the
+    wire); a serial line refuses anything but 1 before its port is opened."""
+    missing = str(tmp_path / "no-such-port")
+    with pytest.raises(ValueError, match="max_in_flight must be 1 on a serial line"):
+        AsyncMaster(missing, 9600, max_in_flight=4)
+    with pytest.raises(TypeError, match="max_in_flight must be an integer"):
+        AsyncMaster(missing, 9600, max_in_flight=True)
+    tcp = AsyncMaster("tcp://127.0.0.1:1", max_in_flight=4)  # connects on first use
+    assert type(tcp).__name__ != "AsyncMaster"

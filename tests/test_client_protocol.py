@@ -312,3 +312,61 @@ def test_misuse_is_refused(backend: ModuleType) -> None:
     with pytest.raises(ValueError, match="max_adu"):
         q.start(1, big, None, 1.0)
     assert q.state is State.IDLE and q.counters["requests"] == 0
+
+
+def test_ready_at_learns_the_slaves_turnaround(backend: ModuleType) -> None:
+    """The first sleep of an answer starts after the slave's learned turnaround: a
+    slave that answers 2 ms past t3.5 is first read when its first bytes are in,
+    not 2 ms early (a wasted wake-up); a quicker answer lowers it at once."""
+    p = proto(backend)
+    call = read_holding_registers(1, 0, 10)
+    answer = regs(backend, 1, list(range(10)))
+    assert p.turnaround(1) is None
+    now = 100.0
+    learned = 0.0
+    for late, after in ((0.002, 0.002), (0.002, 0.002), (0.0005, 0.0005)):
+        p.start(*call, now=now)
+        _adu, end = send(p, now)
+        assert p.ready_at(end) == pytest.approx(end + T35 + learned + 5 * CHAR)
+        arrive = end + T35 + late  # the first byte starts here
+        p.receive_data(answer[:5], arrive + 5 * CHAR)  # read once 5 bytes are in
+        learned = p.turnaround(1)  # type: ignore[assignment]
+        assert learned == pytest.approx(after, abs=1e-9)
+        p.receive_data(answer[5:], arrive + len(answer) * CHAR)
+        assert p.result() == list(range(10))
+        now = arrive + len(answer) * CHAR
+    assert p.turnaround(1) == pytest.approx(0.0005)  # the quicker answer lowered it
+    assert p.turnaround(2) is None  # per slave
+    # a slower answer raises it only slowly (1/16 of the difference)
+    p.start(*call, now=now)
+    _adu, end = send(p, now)
+    p.receive_data(answer[:5], end + T35 + 0.0105 + 5 * CHAR)
+    assert p.turnaround(1) == pytest.approx(0.0005 + 0.01 / 16)
+    # an echo or a line without timing learns nothing
+    q = proto(backend, LineConfig(baudrate=9600, parity="N", t35=0))
+    q.start(*call, now=1.0)
+    _adu, end = send(q, 1.0)
+    q.receive_data(answer[:5], end + 0.003)
+    assert q.turnaround(1) is None and q.ready_at(end + 0.003) == end + 0.003
+
+
+def test_ready_at_leaves_the_last_byte_to_a_wait_on_slow_lines(backend: ModuleType) -> None:
+    """Up to 19200 baud the last byte of an answer is read as it comes (a wait for
+    input) instead of after a sleep, which would end up to a character late; at
+    115200 the sleep covers every byte still needed."""
+    answer = regs(backend, 1, list(range(10)))
+    for baud, early in ((9600, 1), (19200, 1), (115200, 0)):
+        line = LineConfig(baudrate=baud, parity="N")
+        p = proto(backend, line)
+        p.start(*read_holding_registers(1, 0, 10), now=5.0)
+        adu = p.data_to_send()
+        end = 5.0 + len(adu) * line.char_time
+        p.transmitted(end, 5.0)
+        t = end + line.t35_time + 5 * line.char_time
+        p.receive_data(answer[:5], t)
+        assert p.needed() == 20
+        assert p.ready_at(t) == pytest.approx(t + (20 - early) * line.char_time)
+        t += 24 * line.char_time - 5 * line.char_time
+        p.receive_data(answer[5:24], t)
+        assert p.needed() == 1
+        assert p.ready_at(t) == pytest.approx(t + (1 - early) * line.char_time)

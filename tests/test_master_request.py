@@ -108,3 +108,34 @@ def test_no_wake_per_byte_on_a_timed_line(monkeypatch: pytest.MonkeyPatch) -> No
         # one read per byte would be 250; sleeping on needed() takes 2-3 per answer
         # (scheduling delays on a loaded machine only merge reads further)
         assert len(reads) <= 10 * 8, reads
+
+
+def test_cached_reads_still_check_their_arguments(backend: object) -> None:
+    """The Calls of reads are cached by (function, slave, address, count): arguments
+    equal to a cached key but of another type (True == 1, 1.0 == 1) must still fail
+    their checks, and a different slave gets its own ADU (CRC)."""
+    from pyrtu import _requests as R
+    from pyrtu._client import ClientProtocol
+
+    good = R.read_holding_registers(1, 0, 10)
+    assert R.read_holding_registers(1, 0, 10) is good  # cached
+    for args in ((True, 0, 10), (1.0, 0, 10), (1, False, 10), (1, 0, 10.0)):
+        with pytest.raises((TypeError, ValueError), match="read_holding_registers"):
+            R.read_holding_registers(*args)
+    assert R.read_input_registers(1, 0, 10).pdu[0] == 4  # the function is in the key
+    proto = ClientProtocol(LineConfig(parity="N"), backend=backend)  # type: ignore[arg-type]
+    adus = []
+    for slave in (1, 2, 1):
+        proto.start(slave, good.pdu, good.decode, 100.0)
+        adus.append(proto.data_to_send())
+        proto.abort(100.0)
+    assert adus[0] == adus[2] != adus[1] and adus[1][0] == 2
+    assert adus[0] == backend.add_crc(bytes((1,)) + good.pdu)  # type: ignore[attr-defined]
+
+
+def test_unhashable_read_arguments_name_the_argument() -> None:
+    from pyrtu import _requests as R
+
+    for args, name in (([1], 0, 10), "slave"), ((1, {}, 10), "address"):
+        with pytest.raises(TypeError, match=name):
+            R.read_coils(*args)  # type: ignore[arg-type]

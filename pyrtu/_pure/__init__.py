@@ -64,6 +64,14 @@ class _Core:
     def poll(self) -> Event | None:
         return self.f.poll()
 
+    def take(self) -> tuple[int, int, bytes] | None:
+        ev = self.f.poll()
+        return None if ev is None else (ev[3], ev[5], ev[6])
+
+    def expect(self, adu: bytes) -> None:
+        self.f.reset()
+        self.f.sent(adu)
+
     def handle_timer(self, now_us: int) -> None:
         self.f.handle_timer(now_us)
 
