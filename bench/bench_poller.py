@@ -25,6 +25,7 @@ import itertools
 import json
 import os
 import signal
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -339,7 +340,7 @@ def scheduler_cpu(transactions: int = 20000) -> dict[str, float]:
 def overhead(seconds: float, baud: int = 115200) -> dict[str, float]:
     """CPU per transaction of a bare `AsyncMaster` loop and of the poller, reading
     the same 10 registers of one CV100 back to back (the poller's cost on top of
-    its master)."""
+    its master): three runs of ``seconds / 3`` each, interleaved, medians."""
     from pyrtu.aio import AsyncMaster
 
     with farm(baud) as (path, _sims):
@@ -349,7 +350,7 @@ def overhead(seconds: float, baud: int = 115200) -> dict[str, float]:
                 for _ in range(20):
                     await m.read_holding_registers(4, 0x3300, 10)
                 c0, t0, n = time.process_time(), time.monotonic(), 0
-                while time.monotonic() - t0 < seconds:
+                while time.monotonic() - t0 < seconds / 3:
                     await m.read_holding_registers(4, 0x3300, 10)
                     n += 1
                 return 1e6 * (time.process_time() - c0) / n
@@ -363,11 +364,18 @@ def overhead(seconds: float, baud: int = 115200) -> dict[str, float]:
                 await asyncio.sleep(0.5)
                 poller.reset_stats()
                 c0 = time.process_time()
-                await asyncio.sleep(seconds)
+                await asyncio.sleep(seconds / 3)
                 n = poller.report()[0].transactions
                 return 1e6 * (time.process_time() - c0) / n
 
-        return {"bare_us_per_tx": aio_run(bare()), "poller_us_per_tx": aio_run(polled())}
+        # interleaved (bare, poller, bare, ...) so that a change of the machine's load
+        # hits both alike; medians of three each
+        bares, polls = [], []
+        for _ in range(3):
+            bares.append(aio_run(bare()))
+            polls.append(aio_run(polled()))
+        return {"bare_us_per_tx": statistics.median(bares),
+                "poller_us_per_tx": statistics.median(polls)}  # fmt: skip
 
 
 def measure(baud: int, seconds: float) -> dict[str, Any]:
@@ -405,14 +413,19 @@ def _ratio(r: dict[str, float], of: str) -> float:
 
 
 def section(
-    runs: list[dict[str, Any]], command: str, pure: dict[str, float], over: dict[str, float]
+    runs: list[dict[str, Any]],
+    command: str,
+    pure: dict[str, float],
+    over: dict[str, float],
+    note: str = "",
 ) -> str:
     npoints = runs[0]["poller"]["points"]
     lines = [
         HEADING, "", BEGIN, "",
         f"Command: `{command}` (one run; {os.cpu_count()} CPUs, Python "
-        f"{sys.version.split()[0]}). Eight simulated drives on the virtual bus (hub and "
-        f"drives in their own processes), {npoints} registers of points; point updates "
+        f"{sys.version.split()[0]}).{' ' + note if note else ''} Eight simulated "
+        "drives on the virtual bus (hub and drives in their own processes), "
+        f"{npoints} registers of points; point updates "
         "per second counted over the measuring window, the poller after 1.5 s of "
         "warm-up (holes learned, turnarounds measured). Master timeout 100 ms.",
         "",
@@ -513,6 +526,12 @@ def section(
     fast = [_ratio(r["bound"]["without_vectron"], "ideal") for r in runs]
     vec = [r["bound"]["rows"]["Vectron"]["fewest"] / r["bound"]["total"]["fewest"] for r in runs]
     blocks = runs[0]["poller"]["blocks"]
+    slow = min(runs, key=lambda r: r["baud"])
+    fastest = max(runs, key=lambda r: r["baud"])
+    weg = slow["bound"]["rows"]["WEG"]
+    weg_n = round(weg["points"] / weg["slaves"])
+    weg_ideal = 1e3 * weg["ideal"] / weg["points"]
+    weg_naive = 1e3 * weg["naive"] / weg["points"]
 
     def span(xs: list[float], fmt: str = ".1f", unit: str = "x") -> str:
         lo, hi = f"{min(xs):{fmt}}", f"{max(xs):{fmt}}"
@@ -535,10 +554,12 @@ def section(
         "P100-P103, P220-P228, P401-P403, P680-P683: six requests a drive). Even if "
         "every drive's points were one contiguous run (no point set of this size on "
         f"these drives does better) the bound would be {span(ideals, '.1f')}, and "
-        f"without the two Vectrons {span(fast, '.1f')}: at 19200 a 29-register WEG "
-        "read spends 1.5 ms of wire per register against the naive 13.5 ms (9.2x at "
-        "best), so only at 115200, without Vectrons and with points contiguous in "
-        "runs of 29 or more, does 10x become reachable. "
+        f"without the two Vectrons {span(fast, '.1f')}: at {slow['baud']} a "
+        f"{weg_n}-register WEG read spends {weg_ideal:.2f} ms of wire per register "
+        f"against the naive loop's {weg_naive:.1f} ms ({weg_naive / weg_ideal:.1f}x at "
+        "best), so 10x is out of reach at that rate whatever the point set, and at "
+        f"{fastest['baud']} it takes dropping the Vectrons and points contiguous in "
+        "long runs, which these drives' parameter maps do not have. "
         "Utilisation under overload meets its target (>= 0.95), and so does an "
         "unplugged slave (the others within 5 %, its probes within 5 % of the bus). "
         "CPU per point update is this process's CPU time (event loop, master and "
@@ -568,6 +589,21 @@ def write_section(text: str) -> None:
     RESULTS.write_text(new)
 
 
+def command_line(argv: list[str]) -> str:
+    """The command that measures again: ``argv`` without the options that only say
+    where figures go or come from (``--json``, ``--from-json``, ``--note``)."""
+    out: list[str] = []
+    skip = False
+    for a in argv:
+        if skip:
+            skip = False
+        elif a in ("--json", "--from-json", "--note"):
+            skip = True
+        elif not a.startswith(("--json=", "--from-json=", "--note=")):
+            out.append(a)
+    return " ".join(["python bench/bench_poller.py", *out])
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0] if __doc__ else None)
     ap.add_argument("--seconds", type=float, default=5.0)
@@ -576,19 +612,22 @@ def main() -> None:
     ap.add_argument("--json", type=Path, default=None, help="also save the figures here")
     ap.add_argument("--from-json", type=Path, default=None,
                     help="write the section from figures of --json, measuring nothing")  # fmt: skip
+    ap.add_argument("--note", default="", help="a sentence on the run (e.g. the machine's load)")
     args = ap.parse_args()
     if args.from_json is not None:
-        runs = json.loads(args.from_json.read_text())
+        saved = json.loads(args.from_json.read_text())
+        runs, pure, over = saved["runs"], saved["scheduler_cpu"], saved["overhead"]
+        command, note = saved["command"], saved.get("note", "")
     else:
         runs = [measure(int(b), args.seconds) for b in args.bauds.split(",")]
-    command = "python bench/bench_poller.py " + " ".join(
-        a for a in sys.argv[1:] if a != "--from-json" and not a.endswith(".json")
-    )
-    text = section(runs, command.strip(), scheduler_cpu(), overhead(args.seconds))
+        pure, over = scheduler_cpu(), overhead(args.seconds)
+        command, note = command_line(sys.argv[1:]), args.note
+    text = section(runs, command, pure, over, note)
     print(text)
-    print(json.dumps(runs, indent=1, default=str), file=sys.stderr)
     if args.json:
-        args.json.write_text(json.dumps(runs, indent=1, default=str))
+        saved = {"command": command, "note": note, "runs": runs, "scheduler_cpu": pure,
+                 "overhead": over}  # fmt: skip
+        args.json.write_text(json.dumps(saved, indent=1, default=str))
     if not args.no_write:
         write_section(text)
 
