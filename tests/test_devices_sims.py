@@ -121,6 +121,39 @@ def test_weg_exception_cases(cfw701: Direct) -> None:
     assert cfw701.write(683, u16(-4096)) == 0 and cfw701.read(683) == [u16(-4096)]
 
 
+#: every parameter number each WEG manual names (``P\d{3,4}`` in seeds 000, 001, 002)
+MANUAL_PARAMETERS = {
+    "CFW100": (0, 1, 2, 3, 48, 49, 100, 101, 102, 103, 105, *range(220, 229), 308, 310, 311,
+               313, 314, 316, 403, 680, 681, 682, 683),
+    "CFW320": (0, 1, 6, 28, 48, 49, 100, 101, 102, 103, 220, 221, 222, 228, 251, 254, 308,
+               310, 311, 312, 313, 314, 316, 402, 403, 680, 681, 682, 683, 685, 695, 696, 697),
+    "CFW701": (0, 1, 48, 49, 100, 101, 102, 103, 105, 202, *range(220, 229), 251, 254, 275,
+               279, 308, 310, 311, 312, 313, 314, 316, 680, 681, 682, 683, 695, 696, 697),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("model", sorted(MANUAL_PARAMETERS))
+def test_weg_maps_every_parameter_its_manual_names(model: str, clock: ManualClock) -> None:
+    """The manual is the spec: a parameter it names answers FC 03 (exception 2 would
+    be a simulator bug), also those it only refers to (P028, P202, P251/P254,
+    P275-P279); P2900 (the manual's nonexistent register) still answers 2."""
+    d = Direct({"CFW100": CFW100Simulator, "CFW320": CFW320Simulator,
+                "CFW701": CFW701Simulator}[model](clock=clock))  # fmt: skip
+    try:
+        missing = [n for n in MANUAL_PARAMETERS[model] if d.refused(n) != 0]
+        assert missing == []
+        assert d.refused(2900) == 2
+        if model == "CFW701":
+            assert d.read(275, 5) == [0] * 5  # DO1-DO5 functions, one block
+            assert d.write(279, 10) == 0 and d.read(279) == [10]
+            assert d.write(202, 6) == 3  # out of the simulator's range
+        if model == "CFW320":
+            assert d.write(28, 1) == 3  # read only
+            assert d.refused(275) == 2  # the CFW320 manual names no P275
+    finally:
+        d.close()
+
+
 def test_weg_64_byte_telegram_limit(cfw701: Direct) -> None:
     """A read whose response would pass 64 bytes (30 registers: 65) is refused with
     exception 3, before the address check (29 registers at P680 run into a gap: 2)."""

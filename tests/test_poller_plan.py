@@ -70,6 +70,8 @@ def test_point_decoding_uses_the_data_helpers() -> None:
     assert pt(0).decode(block, 0) == 0xFFFE
     assert pt(0, type="int16").decode(block, 0) == -2
     assert pt(0, type="int16", scale=0.5, offset=1).decode(block, 0) == 0.0
+    assert pt(3, type="int16").decode(block, 0) == 1  # 70000 >> 16, positive
+    assert pt(0, scale=2).decode(block, 0) == 2 * 0xFFFE
     assert pt(1, type="float32", order="CDAB").decode(block, 0) == 1.5
     assert pt(3, type="uint32").decode(block, 0) == 70000
     assert pt(5, type="string", count=2).decode(block, 0) == "AB"

@@ -184,6 +184,64 @@ def test_holes_learned_from_exception_2() -> None:
     assert min(got.values()) >= 4
 
 
+def _learn(points: list[Point], mapped: set[int]) -> tuple[BusScheduler, FakeBus]:
+    sched = BusScheduler("b", points, WIRE)
+    bus = FakeBus(sched, {1: {a: a for a in mapped}})
+    bus.run(5.0)
+    return sched, bus
+
+
+def test_holes_learned_converge_to_the_fewest_requests() -> None:
+    """The first cut goes at the widest gap (9..15); the hole is in the narrower one
+    (5): the second exception 2 finds it inside the first cut's block, the first
+    cut is withdrawn and 8..17 is read as one block again (two requests, not
+    three)."""
+    points = [pt(a) for a in (0, 1, 2, 8, 16, 17)]
+    mapped = set(range(18)) - {5}
+    sched, bus = _learn(points, mapped)
+    assert sorted((b.address, b.count) for b in sched.blocks) == [(0, 3), (8, 10)]
+    fails = [r for r, _, _, k in bus.done if k != "ok"]
+    assert len(fails) == 2
+    late = [k for r, s, _, k in bus.done if s > 1.0]
+    assert late and all(k == "ok" for k in late)
+    # holes in both gaps: both cuts stay (three blocks), learned in a bounded number
+    # of exception responses
+    sched, bus = _learn(points, mapped - {12})
+    assert sorted((b.address, b.count) for b in sched.blocks) == [(0, 3), (8, 1), (16, 2)]
+    assert sum(k != "ok" for *_, k in bus.done) <= 4
+    # a hole in the wide gap only: one cut, proven by the halves
+    sched, bus = _learn(points, set(range(18)) - {12})
+    assert sorted((b.address, b.count) for b in sched.blocks) == [(0, 9), (16, 2)]
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_hole_learning_always_ends_at_the_fewest_requests(seed: int) -> None:
+    """Random maps and point sets: after learning, every read succeeds and the
+    blocks are exactly those `plan` makes when it knows every hole in advance."""
+    import random
+
+    from pyrtu.poller import Cuts, plan
+
+    rnd = random.Random(seed)
+    mapped = {a for a in range(60) if rnd.random() > 0.12}
+    addrs = sorted(rnd.sample(sorted(mapped), 12))
+    points = [pt(a) for a in addrs]
+    if seed % 4 == 0:  # and a point that does not exist: dropped, its cuts withdrawn
+        points.append(pt(rnd.choice(sorted(set(range(60)) - mapped)), "missing"))
+    sched, bus = _learn(points, mapped)
+    late = [k for r, s, _, k in bus.done if s > 2.0]
+    assert late and all(k == "ok" for k in late)
+    assert sched.dropped == ({"missing"} if seed % 4 == 0 else set())
+    known = Cuts()
+    for a, b in itertools.pairwise(addrs):
+        if any(x not in mapped for x in range(a + 1, b)):
+            known.add("b", 1, "holding", b)
+    best = plan([p for p in points if p.name != "missing"], WIRE, cuts=known)
+    assert sorted((b.address, b.count) for b in sched.blocks) == [
+        (b.address, b.count) for b in best
+    ]
+
+
 def test_other_exceptions_keep_the_schedule() -> None:
     sched = BusScheduler("b", [pt(0, interval=0.1)], WIRE)
     req = sched.next_request(0.0)

@@ -358,6 +358,11 @@ def parameters(model: WegModel | str) -> dict[int, WegParam]:
     parameters (P001-P007, P048/P049, P100-P103, P122, P134, P401-P403) are the
     ones the manuals name, with the ranges and factory values of the drives'
     programming manuals, simplified: frequencies in 0.1 Hz on all three models.
+    Every parameter a model's manual names is here (a test checks it against the
+    manuals' text), also those the manuals only refer to: the CFW320's P028 (the
+    accessory detected), the CFW701's P202 (type of control), the output functions
+    P251/P254 (analog) and P275-P279 (digital, CFW701).  Those are stored, not
+    interpreted; their ranges are the simulator's choice (the manuals give none).
     """
     m = MODELS[model.upper()] if isinstance(model, str) else model
     p = WegParam
@@ -413,6 +418,16 @@ def parameters(model: WegModel | str) -> dict[int, WegParam]:
         table.append(p(P_ANALOG_OUTPUT_2, "Analog output value 2", 0, low, high, signed=signed_ao))
     if m.name == "CFW320":
         table.append(p(P_REFERENCE_ALT, "Speed reference (P683)", 0, -32768, 32767, signed=True))
+        # CFW320 manual 6.1 step 2: P028 shows the communication accessory detected
+        table.append(p(28, "Communication accessory configuration", 0, ro=True))
+    if m.name == "CFW701":
+        # CFW701 manual, P0682 bit 6: fast stop needs a vector control type (P0202)
+        table.append(p(202, "Type of control", 0, 0, 5, cfg=True))
+        # CFW701 manual, P0695: the digital outputs' functions are P0275 to P0279
+        table += [p(275 + i, f"DO{i + 1} function", 0, 0, 255) for i in range(5)]
+    if m.name in ("CFW320", "CFW701"):
+        # both manuals, P696/P697: the analog outputs' functions are P251 and P254
+        table += [p(n, f"Analog output function (P{n})", 0, 0, 255) for n in (251, 254)]
     return {x.number: x for x in sorted(table, key=lambda x: x.number)}
 
 

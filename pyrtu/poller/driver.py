@@ -228,6 +228,7 @@ class Poller:
         master = run.master
         assert master is not None
         clock = time.monotonic
+        loop = asyncio.get_running_loop()
         while True:
             now = clock()
             req = sched.next_request(now)
@@ -239,10 +240,13 @@ class Poller:
                 else:
                     delay = dl - clock()
                     if delay > 0:
+                        # a timer that sets the event, not asyncio.wait_for (which
+                        # makes a task per wait: measured 130 against 70 us of CPU)
+                        timer = loop.call_later(delay, run.wake.set)
                         try:
-                            await asyncio.wait_for(run.wake.wait(), delay)
-                        except TimeoutError:
-                            pass
+                            await run.wake.wait()
+                        finally:
+                            timer.cancel()
                 continue
             fut = run.pending.pop(req.tag, None) if req.tag else None
             try:

@@ -169,15 +169,83 @@ def merge_pays(wire: Wire, a: Block, b: Block) -> bool:
     return merged <= apart * (1 + 1e-9)
 
 
+#: how often a cut may be withdrawn before it is kept for good (a bound on learning)
+MAX_WITHDRAWALS = 8
+
+_Key = tuple[str, int, str]
+
+
 @dataclass
 class Cuts:
     """Learned boundaries: ``cuts[(bus, slave, table)]`` holds addresses no block
-    may read across (a block may end before one or start at one)."""
+    may read across (a block may end before one or start at one).
 
-    cuts: dict[tuple[str, int, str], set[int]] = field(default_factory=dict)
+    A cut learned from a block ``lo..hi-1`` that answered exception 2 is *proven*
+    when the block had one gap (two runs of points: the hole is in that gap) and
+    *suspected* otherwise (the cut went at the widest gap, the hole may be in
+    another).  `learn` withdraws a suspected cut when a later exception 2 puts a
+    cut after a gap inside the block it came from (that hole alone may explain the
+    first answer), and `forget_point` withdraws every cut whose block held a point that
+    turned out not to exist; the planner then reads across a withdrawn cut again,
+    and a read that fails puts it back as proven or suspected.  So the cuts
+    converge to the ones the holes need: the fewest requests.  A cut withdrawn
+    `MAX_WITHDRAWALS` times is kept for good."""
+
+    cuts: dict[_Key, set[int]] = field(default_factory=dict)
+    #: where each cut came from: (lo, hi) of the failing block, proven
+    origin: dict[tuple[_Key, int], tuple[int, int, bool]] = field(default_factory=dict)
+    withdrawn: dict[tuple[_Key, int], int] = field(default_factory=dict)
 
     def add(self, bus: str, slave: int, table: str, address: int) -> None:
-        self.cuts.setdefault((bus, slave, table), set()).add(address)
+        """A cut known for certain (kept for good)."""
+        key = (bus, slave, table)
+        self.cuts.setdefault(key, set()).add(address)
+        self.origin.pop((key, address), None)
+        self.withdrawn[(key, address)] = MAX_WITHDRAWALS
+
+    def learn(self, block: Block, cut: int, proven: bool) -> list[int]:
+        """Exception 2 on ``block``, split at ``cut``: add the cut and withdraw the
+        suspected cuts whose blocks held the gap before this one.  Returns the
+        withdrawn addresses."""
+        key = (block.bus, block.slave, block.table)
+        gap = max((p.end for p in block.points if p.address < cut), default=block.address)
+        out = [
+            c
+            for c in self.cuts.get(key, ())
+            if c != cut
+            and (o := self.origin.get((key, c))) is not None
+            and not o[2]
+            and o[0] <= gap
+            and cut < o[1]
+        ]
+        for c in out:
+            self._withdraw(key, c)
+        self.cuts.setdefault(key, set()).add(cut)
+        if (key, cut) not in self.origin or proven:
+            self.origin[(key, cut)] = (block.address, block.end, proven)
+        return out
+
+    def forget_point(self, bus: str, slave: int, table: str, address: int) -> list[int]:
+        """A point at ``address`` does not exist: withdraw the cuts learned from
+        blocks that held it.  Returns the withdrawn addresses."""
+        key = (bus, slave, table)
+        out = [
+            c
+            for c in self.cuts.get(key, ())
+            if (o := self.origin.get((key, c))) is not None and o[0] <= address < o[1]
+        ]
+        for c in out:
+            self._withdraw(key, c)
+        return out
+
+    def _withdraw(self, key: _Key, cut: int) -> None:
+        n = self.withdrawn.get((key, cut), 0)
+        if n >= MAX_WITHDRAWALS:
+            self.origin.pop((key, cut), None)
+            return
+        self.withdrawn[(key, cut)] = n + 1
+        self.cuts[key].discard(cut)
+        del self.origin[(key, cut)]
 
     def between(self, bus: str, slave: int, table: str, lo: int, hi: int) -> bool:
         """Whether a cut lies in ``lo < cut < hi``... i.e. a block ``lo..hi-1`` would
@@ -258,6 +326,17 @@ def split(block: Block) -> tuple[Block, Block] | None:
     return _block(lo), _block(hi)
 
 
+def gaps(block: Block) -> int:
+    """How many gaps (addresses read but not a point's) ``block`` has between its
+    points: with one, a hole that made it answer exception 2 is in that gap."""
+    pts = sorted(block.points, key=lambda p: (p.address, p.end))
+    n, reach = 0, pts[0].end
+    for p in pts[1:]:
+        n += p.address > reach
+        reach = max(reach, p.end)
+    return n
+
+
 def chunks(table: str, address: int, count: int, limits: Limits) -> list[tuple[int, int]]:
     """``(address, count)`` reads covering ``count`` registers (or bits) within the
     device's maximum per request (for on-demand reads)."""
@@ -274,6 +353,7 @@ __all__ = [
     "Limits",
     "Wire",
     "chunks",
+    "gaps",
     "merge_pays",
     "plan",
     "response_size",

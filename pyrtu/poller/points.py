@@ -145,15 +145,21 @@ class Point:
         """The point's value in ``block``, the registers (or bits) read from address
         ``start`` (which must cover the point)."""
         i = self.address - start
-        if i < 0 or i + self.size > len(block):
+        kind = self.type
+        size = self.count if kind == "string" else _WIDTH.get(kind, 1)
+        if i < 0 or i + size > len(block):
             raise ValueError(
                 f"point {self.name!r} ({self.address}..{self.end - 1}) is outside the "
                 f"block {start}..{start + len(block) - 1}"
             )
-        kind = self.type
         if kind == "bool":
             return bool(block[i])
-        regs = [int(r) for r in block[i : i + self.size]]
+        if self.scale == 1 and self.offset == 0 and kind in ("uint16", "int16"):
+            # the common cases, without the general path's list (measured: 4.3 ->
+            # 3.4 us per point update in bench_poller's scheduler_cpu)
+            v = int(block[i])
+            return v - 0x10000 if kind == "int16" and v & 0x8000 else v
+        regs = [int(r) for r in block[i : i + size]]
         if kind == "string":
             return decode_string(regs)
         raw: int | float

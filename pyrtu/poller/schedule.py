@@ -45,7 +45,7 @@ from .events import (
     SlaveStats,
     Update,
 )
-from .plan import FUNCTIONS, Block, Cuts, Limits, Wire, chunks, plan, split
+from .plan import FUNCTIONS, Block, Cuts, Limits, Wire, chunks, gaps, plan, split
 from .points import Point
 
 POLL, PROBE, WRITE, READ = "poll", "probe", "write", "read"
@@ -427,28 +427,44 @@ class BusScheduler:
         return events
 
     def _hole(self, block: Block, now: float) -> list[Event]:
-        """Exception 2 on ``block``: split it and remember the cut, or drop its point."""
+        """Exception 2 on ``block``: split it and learn the cut (`Cuts.learn`), or
+        drop its point (and withdraw the cuts learned with it, `Cuts.forget_point`);
+        then plan the slave's table again if a cut was withdrawn."""
         for task in self._tasks:
             if task.block is block:
                 task.alive = False
         halves = split(block)
+        out: list[Event] = []
         if halves is None:
-            out: list[Event] = []
+            withdrawn: list[int] = []
             for p in block.points:
                 if p.name not in self._dropped:
                     self._dropped.add(p.name)
+                    withdrawn += self._cuts.forget_point(self.bus, p.slave, p.table, p.address)
                     out.append(
                         PointDropped(
                             p, "exception 2 (ILLEGAL DATA ADDRESS)", now + self.stamp_offset
                         )
                     )
-            self._tasks = [t for t in self._tasks if t.alive]
-            return out
-        _lo, hi = halves
-        self._cuts.add(self.bus, block.slave, block.table, hi.address)
+        else:
+            cut = halves[1].address
+            withdrawn = self._cuts.learn(block, cut, proven=gaps(block) == 1)
         self._tasks = [t for t in self._tasks if t.alive]
-        self._replan(list(block.points), now)
-        return []
+        if withdrawn:
+            # plan the slave's whole table again: blocks may merge across a withdrawn cut
+            mine = [
+                t
+                for t in self._tasks
+                if t.block.slave == block.slave and t.block.table == block.table
+            ]
+            for t in mine:
+                t.alive = False
+            self._tasks = [t for t in self._tasks if t.alive]
+            points = [p for t in mine for p in t.block.points] + list(block.points)
+            self._replan(points, now)
+        elif halves is not None:
+            self._replan(list(block.points), now)
+        return out
 
     # ------------------------------------------------------------------ figures
 
