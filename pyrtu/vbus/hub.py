@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import math
 import os
@@ -11,12 +12,15 @@ import tempfile
 import termios
 import threading
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import fields, replace
 from types import TracebackType
 
 from ..line import LineConfig
 from ..timing import bits_per_char
+from .._pure.vbus import OUT, Schedule
+from . import _cvbus
+from ._cvbus import CLoop, CSchedule
 from ._lock import DirectoryLock
 from ._os import OpenWatch, open_pty, set_realtime, set_timer_slack
 from ._state import (
@@ -28,7 +32,6 @@ from ._state import (
 )
 from .capture import CaptureHeader, CaptureWriter
 from .faults import FaultCounters, Faults
-from .wire import Wire
 
 __all__ = ["MAX_DROPS", "BusCounters", "DropCounters", "VirtualBus"]
 
@@ -97,10 +100,16 @@ class VirtualBus:
             seconds that the hub compensates: a byte's character starts that much
             before the hub read it, and deliveries are written that much before
             their time.  ``(0, 0)`` gives the raw schedule.
+        loop: ``"auto"`` (default): the C loop (csrc/rtu_vbus_io.c: the schedule and
+            the pty I/O in C, no GIL) when the C core is the backend and no capture
+            and no line faults are asked for, else the Python loop (the twin
+            schedule, pyrtu/_pure/vbus.py, and a select() loop); ``"python"``
+            forces the Python loop.  `loop` attribute: the one running.  A bus on
+            the C loop moves to the Python loop when line faults are set on it.
 
-    The hub is a daemon thread of this process and shares the GIL: a thread that
-    computes for milliseconds without releasing it delays deliveries.  For timing
-    work, run the bus as its own process (``pyrtu vbus``).
+    The hub is a daemon thread of this process.  On the Python loop it shares the
+    GIL: a thread that computes for milliseconds without releasing it delays
+    deliveries; for timing work, run the bus as its own process (``pyrtu vbus``).
     """
 
     def __init__(
@@ -119,6 +128,7 @@ class VirtualBus:
         realtime: bool = True,
         latency: tuple[float, float] = DEFAULT_LATENCY,
         line: LineConfig | None = None,
+        loop: str = "auto",
     ) -> None:
         if line is not None:  # the line's byte format sets the character time
             if not isinstance(line, LineConfig):
@@ -131,6 +141,8 @@ class VirtualBus:
             )
         if baudrate <= 0:
             raise ValueError("baudrate must be positive")
+        if loop not in ("auto", "python"):
+            raise ValueError(f"loop must be 'auto' or 'python', not {loop!r}")
         if bytesize not in (5, 6, 7, 8) or stopbits not in (1, 2):
             raise ValueError("bytesize must be 5..8 and stopbits 1 or 2")
         self.baudrate = baudrate
@@ -148,11 +160,6 @@ class VirtualBus:
         self._drops = [DropState(i, i in echo_set) for i in range(drops)]
         for i in echo_set | set(drop_faults or {}):
             self._check(i)
-        for d in self._drops:
-            f = (drop_faults or {}).get(d.index, faults)
-            d.set_faults(f)
-            if f is not None and f.unplug_after is not None:
-                d.unplug_left = f.unplug_after
         self._lock = threading.RLock()
         self._thread: threading.Thread | None = None
         self._stop = False
@@ -164,10 +171,38 @@ class VirtualBus:
         if min(latency) < 0 or max(latency) > 0.01:
             raise ValueError("latency compensation must be within [0, 10 ms]")
         self._anchor_ns = round(latency[0] * 1e9)
-        self._wire = Wire(self._drops, self.char_ns, round(latency[1] * 1e9))
+        self._lead_ns = round(latency[1] * 1e9)
+        self._faults = [(drop_faults or {}).get(d.index, faults) for d in self._drops]
+        line_faults = any(f is not None and f.line_faults for f in self._faults)
+        #: which loop runs the hub: "c" or "python" (see the class docstring)
+        self.loop = (
+            "c"
+            if loop == "auto" and _cvbus.available and capture is None and not line_faults
+            else "python"
+        )
+        self._sched: Schedule | CSchedule = self._new_schedule()
+        self._cloop: CLoop | None = None
+        self._to_python = False
+        for d, f in zip(self._drops, self._faults, strict=True):
+            self._sched.set_echo(d.index, d.echo)
+            self._apply_faults(d, f)
         #: True when the hub thread got real-time scheduling (SCHED_FIFO, priority 1)
         self.realtime = False
         self._spin_ns = _SPIN_NS
+
+    def _new_schedule(self) -> Schedule | CSchedule:
+        n = len(self._drops)
+        if self.loop == "c":
+            return CSchedule(n, self.char_ns, self._lead_ns)
+        return Schedule(n, self.char_ns, self._lead_ns)
+
+    def _apply_faults(self, d: DropState, f: Faults | None) -> None:
+        d.set_faults(f)
+        self._sched.set_batch(d.index, d.batch_ns, min(d.batch_bytes, OUT))
+        if isinstance(self._sched, Schedule):
+            self._sched.set_tx_faults(d.index, d.tx)
+        if f is not None and f.unplug_after is not None:
+            self._sched.set_unplug_after(d.index, f.unplug_after)
 
     # -- properties ------------------------------------------------------------
 
@@ -246,10 +281,12 @@ class VirtualBus:
         os.set_blocking(self._wake_r, False)
         os.set_blocking(self._wake_w, False)
         try:
+            if isinstance(self._sched, CSchedule):
+                self._cloop = CLoop(self._sched, self._wake_r, self._watch.fd, self._anchor_ns)
             for d in self._drops:
                 self._plug(d)
-            self.t0_ns = self._wire.t0_ns = _ns()
-            if self._capture_path is not None:
+            self.t0_ns = _ns()
+            if self._capture_path is not None and isinstance(self._sched, Schedule):
                 header = CaptureHeader(
                     baudrate=self.baudrate,
                     bytesize=self.bytesize,
@@ -261,7 +298,8 @@ class VirtualBus:
                     start_unix_ns=time.time_ns(),
                 )
                 self._capture = CaptureWriter(self._capture_path, header)
-                self._wire.capture = self._capture
+                self._sched.capture = self._capture
+                self._sched.t0_ns = self.t0_ns
         except BaseException:
             self._teardown()
             raise
@@ -275,7 +313,7 @@ class VirtualBus:
         thread = self._thread
         if thread is not None:
             self._stop = True
-            self._wake()
+            self._interrupt()
             thread.join(5.0)
             self._thread = None
         self._teardown()
@@ -284,6 +322,9 @@ class VirtualBus:
         with self._lock:
             for d in self._drops:
                 self._unplug_now(d, count=False)
+            if self._cloop is not None:
+                self._cloop.destroy()
+                self._cloop = None
             if self._capture is not None:
                 self._capture.close()
                 self._capture = None
@@ -302,15 +343,30 @@ class VirtualBus:
                 self._directory = None
                 self._own_dir = False
 
+    @contextlib.contextmanager
+    def _locked(self) -> Iterator[Schedule | CSchedule]:
+        """The hub's lock and, on the C loop, the I/O thread's: the schedule is ours."""
+        with self._lock:
+            cloop = self._cloop
+            if cloop is None:
+                yield self._sched
+                return
+            cloop.lock()
+            try:
+                yield self._sched
+            finally:
+                cloop.unlock()
+
     def _plug(self, d: DropState) -> None:
         pty = open_pty()
         d.pty = pty
-        d.alive = True
-        d.cut = False
         d.clients = 0
         d.counters.unplugged = False
-        d.tx_free = 0
         d.watched = self._watch is not None and self._watch.add(pty.path, d.index)
+        with self._locked() as sched:
+            sched.plug(d.index)
+            if self._cloop is not None:
+                self._cloop.set_fd(d.index, pty.master, d.heard)
         link = os.path.join(self.directory, f"drop{d.index}")
         tmp = f"{link}.{os.getpid()}.tmp"
         if os.path.lexists(tmp):
@@ -320,16 +376,12 @@ class VirtualBus:
         d.link = link
 
     def _unplug_now(self, d: DropState, count: bool = True) -> None:
-        if not d.alive:
-            return
-        d.alive = False
-        d.cut = True
-        d.txq.clear()
-        d.last = None
-        d.hold.clear()
-        d.hold_deadline = None
-        d.out.clear()
-        d.unplug_left = None
+        with self._locked() as sched:
+            if d.pty is None:
+                return
+            sched.unplug(d.index)
+            if self._cloop is not None:
+                self._cloop.set_fd(d.index, -1, False)
         if self._capture is not None:
             self._capture.end_run(d.index)
         if self._watch is not None:
@@ -341,9 +393,8 @@ class VirtualBus:
             except OSError:
                 pass
             d.link = None
-        if d.pty is not None:
-            d.pty.close()
-            d.pty = None
+        d.pty.close()
+        d.pty = None
         d.counters.unplugged = True
         if count:
             d.counters.faults.unplugs += 1
@@ -354,6 +405,13 @@ class VirtualBus:
                 os.write(self._wake_w, b"\0")
             except OSError:
                 pass
+
+    def _interrupt(self) -> None:
+        """Make the hub thread come back to Python (the C loop returns), and wake it."""
+        with self._lock:
+            if self._cloop is not None:
+                self._cloop.stop()
+        self._wake()
 
     # -- control ---------------------------------------------------------------
 
@@ -368,15 +426,13 @@ class VirtualBus:
         self._check(drop)
         if after_bytes < 0:
             raise ValueError("after_bytes must be >= 0")
-        with self._lock:
-            d = self._drops[drop]
-            if not d.alive:
+        with self._locked() as sched:
+            if not sched.alive(drop):
                 return
             if after_bytes == 0:
-                d.cut = True
-                self._wire.events.append((_ns(), drop))
+                sched.cut(drop, _ns())
             else:
-                d.unplug_left = after_bytes
+                sched.set_unplug_after(drop, after_bytes)
         self._wake()
 
     def replug(self, drop: int) -> str:
@@ -384,7 +440,7 @@ class VirtualBus:
         self._check(drop)
         with self._lock:
             d = self._drops[drop]
-            if not d.alive:
+            if d.pty is None:
                 self._plug(d)
         self._wake()
         return self.path(drop)
@@ -414,44 +470,95 @@ class VirtualBus:
     def set_echo(self, drop: int, on: bool = True) -> None:
         """Turn the local echo of a drop on or off."""
         self._check(drop)
-        with self._lock:
+        with self._locked() as sched:
             self._drops[drop].echo = on
+            sched.set_echo(drop, on)
 
     def set_faults(self, faults: Faults | None, drop: int | None = None) -> None:
-        """Replace the faults of one drop (or of every drop when `drop` is None)."""
-        with self._lock:
+        """Replace the faults of one drop (or of every drop when `drop` is None).
+
+        Line faults on a bus running the C loop move it to the Python loop (the
+        seeded faults are Python's `random.Random`): the schedule's state moves over.
+        """
+        if drop is not None:
+            self._check(drop)
+        if faults is not None and faults.line_faults and self._cloop is not None:
+            self._move_to_python()
+        with self._locked():
             targets = self._drops if drop is None else [self._drops[drop]]
             for d in targets:
-                d.set_faults(faults)
-                if faults is not None and faults.unplug_after is not None:
-                    d.unplug_left = faults.unplug_after
+                self._faults[d.index] = faults
+                self._apply_faults(d, faults)
+        self._wake()
+
+    def _move_to_python(self) -> None:
+        """Hand the C schedule's state to the twin and run the Python loop."""
+        thread = self._thread
+        if thread is not None and thread.is_alive():
+            with self._lock:
+                self._to_python = True
+            self._interrupt()
+            while self._cloop is not None and thread.is_alive():
+                time.sleep(0.0005)
+        else:
+            with self._lock:
+                self._take_over()
+
+    def _take_over(self) -> None:
+        """(Lock held, the C loop not running.)  The twin takes the C schedule's state."""
+        old, cloop = self._sched, self._cloop
+        if not isinstance(old, CSchedule) or cloop is None:
+            return
+        new = Schedule(len(self._drops), self.char_ns, self._lead_ns)
+        for i, d in enumerate(new.drops):
+            c = old.drops[i]
+            d.q.extend(old.queued(i))
+            d.tx_free, d.rx_end = int(c.tx_free), int(c.rx_end)
+            d.last = (int(c.last_start), int(c.last_byte)) if c.has_last else None
+            d.alive, d.cut, d.echo = bool(c.alive), bool(c.cut), bool(c.echo)
+            d.unplug_left = int(c.unplug_left)
+            d.event_at = None if c.event_at == -(2**63) else int(c.event_at)
+            d.batch_ns, d.batch_bytes = int(c.batch_ns), int(c.batch_bytes)
+            d.hold = bytearray(bytes(old._ffi.buffer(c.hold, c.hold_len)))
+            d.hold_deadline = None if c.hold_deadline == -(2**63) else int(c.hold_deadline)
+            d.hold_end, d.episode = int(c.hold_end), int(c.episode)
+            d.out = bytearray(old.take_output(i))
+            d.counters = old.drop_counters(i)
+            d.tx = self._drops[i].tx
+        new.wire_bytes, new.collisions, new.collided = old.wire_bytes, old.collisions, old.collided
+        new._coll_until = int(old.s.coll_until)
+        new.t0_ns = self.t0_ns
+        self._sched = new
+        self._cloop = None
+        cloop.destroy()
+        self.loop = "python"
 
     def counters(self) -> BusCounters:
         """A snapshot of the counters."""
-        with self._lock:
-            drops = tuple(
-                replace(d.counters, faults=replace(d.counters.faults)) for d in self._drops
-            )
+        with self._locked() as sched:
+            drops = []
+            for d in self._drops:
+                c = sched.drop_counters(d.index)
+                faults = replace(d.counters.faults, batches=c.pop("batches"))
+                drops.append(replace(d.counters, faults=faults, **c))
             totals = {f.name: 0 for f in fields(FaultCounters)}
             for dc in drops:
                 for name in totals:
                     totals[name] += getattr(dc.faults, name)
             return BusCounters(
-                wire_bytes=self._wire.wire_bytes,
-                collisions=self._wire.collisions,
-                collided_bytes=self._wire.collided,
+                wire_bytes=sched.wire_bytes,
+                collisions=sched.collisions,
+                collided_bytes=sched.collided,
                 faults=totals,
-                drops=drops,
+                drops=tuple(drops),
             )
 
     def idle(self) -> bool:
         """True when nothing is on or queued for the wire and nothing is held."""
-        with self._lock:
-            if self._wire.busy():
+        with self._locked() as sched:
+            if sched.busy():
                 return False
-            return not any(
-                d.alive and d.pty is not None and pending_input(d.pty.master) for d in self._drops
-            )
+            return not any(d.pty is not None and pending_input(d.pty.master) for d in self._drops)
 
     def wait_idle(self, timeout: float = 5.0, settle: float = 0.0) -> bool:
         """Wait until `idle` (and has stayed so for `settle` seconds)."""
@@ -477,20 +584,56 @@ class VirtualBus:
             self.realtime = set_realtime(1)
         self._spin_ns = _SPIN_RT_NS if self.realtime else _SPIN_NS
         try:
+            if self._cloop is not None:
+                self._c_loop()
             self._loop()
         except BaseException as exc:  # pragma: no cover - reported to the owner
             self.error = exc
             raise
+
+    def _c_loop(self) -> None:
+        """Run the C I/O loop; come back to Python for what only Python does."""
+        while not self._stop:
+            cloop = self._cloop
+            if cloop is None:
+                return
+            reason = cloop.run()  # the GIL is released for as long as it runs
+            with self._lock:
+                if reason == cloop.UNPLUG:
+                    cloop.lock()
+                    try:
+                        due = cloop.sched.take_due()
+                    finally:
+                        cloop.unlock()
+                    for i in due:
+                        self._unplug_now(self._drops[i])
+                elif reason == cloop.WATCH:
+                    self._watch_events()
+                elif reason == cloop.ERRNO:
+                    code = cloop.errno()
+                    raise OSError(code, f"virtual bus I/O loop: {os.strerror(code)}")
+                elif reason != cloop.STOPPED:
+                    raise RuntimeError(f"rtu_vbus_io_run failed with status {reason}")
+                if self._to_python:
+                    self._take_over()
+                    self._to_python = False
+                    return
 
     def _loop(self) -> None:
         active_until = _ns() + _WARM_NS
         while not self._stop:
             now = _ns()
             with self._lock:
-                for i in self._wire.service(now):
+                sched = self._sched
+                for i in sched.service(now):
                     self._unplug_now(self._drops[i])
-                deadline = self._wire.deadline()
-                rfds = [d.pty.master for d in self._drops if d.alive and d.pty is not None]
+                self._flush(sched)
+                deadline = sched.deadline()
+                rfds = [
+                    d.pty.master
+                    for d in self._drops
+                    if d.pty is not None and sched.space(d.index) > 0
+                ]
                 watch_fd = self._watch.fd if self._watch is not None else -1
             rfds.append(self._wake_r)
             if watch_fd >= 0:
@@ -509,6 +652,21 @@ class VirtualBus:
                 active_until = _ns() + _WARM_NS
                 self._on_ready(ready, watch_fd)
 
+    def _flush(self, sched: Schedule | CSchedule) -> None:
+        """Write what each drop receives (Python loop)."""
+        for d in self._drops:
+            data = sched.take_output(d.index)
+            if not data:
+                continue
+            if d.pty is None or not d.heard:
+                sched.written(d.index, 0, -1 if d.pty is None else 0)
+                continue
+            try:
+                n = os.write(d.pty.master, data)
+            except OSError:  # BlockingIOError (the pty is full) included
+                n = 0
+            sched.written(d.index, n, 1)
+
     def _spin(self, deadline: int) -> None:
         # Brief busy-wait for the last stretch; sleep(0) lets other threads run.
         while _ns() < deadline:
@@ -516,25 +674,34 @@ class VirtualBus:
 
     def _on_ready(self, ready: list[int], watch_fd: int) -> None:
         with self._lock:
-            if watch_fd in ready and self._watch is not None:
-                for key, delta in self._watch.read():
-                    self._client_event(self._drops[key], delta)
+            if watch_fd in ready:
+                self._watch_events()
             if self._wake_r in ready:
                 try:
                     os.read(self._wake_r, 4096)
                 except OSError:
                     pass
+            sched = self._sched
             for d in self._drops:
-                if not d.alive or d.pty is None or d.pty.master not in ready:
+                if d.pty is None or d.pty.master not in ready:
+                    continue
+                space = min(_READ_SIZE, sched.space(d.index))
+                if space <= 0:
                     continue
                 try:
-                    data = os.read(d.pty.master, _READ_SIZE)
+                    data = os.read(d.pty.master, space)
                 except OSError as exc:
                     if exc.errno in (errno.EAGAIN, errno.EIO, errno.EINTR):
                         continue
                     raise
                 if data:
-                    self._wire.transmit(d, data, _ns() - self._anchor_ns)
+                    sched.transmit(d.index, data, _ns() - self._anchor_ns)
+
+    def _watch_events(self) -> None:
+        if self._watch is None:
+            return
+        for key, delta in self._watch.read():
+            self._client_event(self._drops[key], delta)
 
     def _client_event(self, d: DropState, delta: int) -> None:
         before = d.clients
@@ -545,5 +712,7 @@ class VirtualBus:
                 termios.tcflush(d.pty.slave, termios.TCIFLUSH)
             except termios.error:
                 pass
-            d.hold.clear()
-            d.hold_deadline = None
+            with self._locked() as sched:
+                sched.clear_hold(d.index)
+                if self._cloop is not None:
+                    self._cloop.set_heard(d.index, d.heard)
