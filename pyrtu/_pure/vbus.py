@@ -29,7 +29,15 @@ MAX_LEAD_NS = 10_000_000
 _TIME_LIMIT = 1 << 62
 _MAX_BATCH_NS = 3600 * 1_000_000_000
 
-COUNTERS = ("tx_bytes", "rx_bytes", "collided_bytes", "collisions", "overruns", "unheard", "batches")
+COUNTERS = (
+    "tx_bytes",
+    "rx_bytes",
+    "collided_bytes",
+    "collisions",
+    "overruns",
+    "unheard",
+    "batches",
+)
 
 
 class CaptureSink(Protocol):
@@ -183,7 +191,7 @@ class Schedule:
         q = d.q
         tx = d.tx
         if tx is None and d.unplug_left < 0:  # the common case, in one pass
-            q.extend(zip(range(t, t + len(data) * c, c), data))
+            q.extend(zip(range(t, t + len(data) * c, c), data, strict=True))
             d.counters["tx_bytes"] += len(data)
             d.tx_free = t + len(data) * c
             return
