@@ -46,7 +46,7 @@ import peers.pattern as pattern  # type: ignore[import-not-found]  # noqa: E402
 
 from pyrtu.aio import AsyncMaster  # noqa: E402
 from pyrtu.aio import run as aio_run  # noqa: E402
-from pyrtu.errors import NoResponseError  # noqa: E402
+from pyrtu.errors import FrameError, NoResponseError  # noqa: E402
 from pyrtu.line import LineConfig  # noqa: E402
 from pyrtu.master import Master  # noqa: E402
 
@@ -102,12 +102,16 @@ def process(
 
 
 @contextlib.contextmanager
-def vbus(baudrate: int, drops: int = 2, loop: str = "c") -> Iterator[tuple[list[str], int]]:
+def vbus(
+    baudrate: int, drops: int = 2, loop: str = "c", stats: bool = False
+) -> Iterator[tuple[list[str], int]]:
     """``pyrtu vbus`` in its own process: (drop paths, pid).  ``loop="python"`` runs
-    its hub on the Python loop (PYRTU_PURE=1 in that process only)."""
+    its hub on the Python loop (PYRTU_PURE=1 in that process only); ``stats``: it
+    prints its counters on stderr when it stops."""
     with tempfile.TemporaryDirectory() as tmp:
         argv = [sys.executable, "-m", "pyrtu", "vbus", "--drops", str(drops)]
         argv += ["--baud", str(baudrate), "--parity", "N", "--dir", tmp]
+        argv += ["--stats"] if stats else []
         env = {"PYRTU_PURE": "1"} if loop == "python" else None
         with process(argv, drops, env) as (proc, paths):
             yield paths, proc.pid
@@ -289,7 +293,7 @@ def eight_buses(
         hubs: list[int] = []
         drives: list[int] = []
         for _ in range(buses):
-            p, pid = stack.enter_context(vbus(baudrate, loop=loop))
+            p, pid = stack.enter_context(vbus(baudrate, loop=loop, stats=True))
             paths.append(p[0])
             hubs.append(pid)
             drives.append(stack.enter_context(drive(p[1], baudrate, drive_name)))
@@ -310,7 +314,10 @@ def eight_buses(
 
                 async def poll(i: int, m: AsyncMaster) -> None:
                     while time.perf_counter() < stop:
-                        await m.read_holding_registers(address, start, count)
+                        try:
+                            await m.read_holding_registers(address, start, count)
+                        except (NoResponseError, FrameError):
+                            continue  # counted by the master (timeouts, frame errors)
                         counts[i] += 1
 
                 errors0 = sum(m.counters["timeouts"] + m.counters["frame_errors"] for m in masters)
