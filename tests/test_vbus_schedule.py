@@ -145,6 +145,15 @@ def test_batch_holds_then_releases(make: Any) -> None:
     assert s.drop_counters(1)["batches"] == 2
 
 
+def test_any_bytes_like_and_what_is_held(make: Any) -> None:
+    s = plugged(make, 2, lead=0)
+    s.set_batch(1, 10 * C, 100)
+    s.transmit(0, bytearray(b"ab"), 0)
+    s.transmit(0, memoryview(b"xcdx")[1:3], 0)
+    s.service(4 * C)
+    assert s.held(1) == b"abcd" and drain(s, 2) == [b"", b""]
+
+
 def test_counters_of_writes(make: Any) -> None:
     s = plugged(make, 3, lead=0)
     s.transmit(0, b"abc", 0)
@@ -183,6 +192,8 @@ def test_bounded_queue_and_output(make: Any) -> None:
         (lambda s: s.written(0, 1, 1), ValueError),
         (lambda s: s.cut(0, 2**62 + 1), ValueError),
         (lambda s: s.set_echo("0", True), TypeError),
+        (lambda s: s.transmit(0, "text", 0), TypeError),
+        (lambda s: s.transmit(0, [1, 2], 0), TypeError),
     ],
 )
 def test_refused_inputs_raise_the_same_on_both(

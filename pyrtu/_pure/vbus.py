@@ -178,6 +178,8 @@ class Schedule:
         """Queue what a drop's client wrote at `now`: one character slot after the other."""
         d = self._drop(i)
         _time(now, "now")
+        if not isinstance(data, (bytes, bytearray, memoryview)):
+            raise TypeError(f"data must be bytes-like, not {type(data).__name__}")
         if d.cut:
             return  # a drop going away sends nothing more
         if len(data) > QUEUE - len(d.q):
@@ -355,6 +357,10 @@ class Schedule:
 
     def alive(self, i: int) -> bool:
         return self._drop(i).alive
+
+    def held(self, i: int) -> bytes:
+        """What the drop's batch fault holds back."""
+        return bytes(self._drop(i).hold)
 
     def queued(self, i: int) -> list[tuple[int, int]]:
         """The drop's queued character slots (start, byte)."""

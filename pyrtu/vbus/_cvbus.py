@@ -109,7 +109,10 @@ class CSchedule:
     def transmit(self, i: int, data: bytes, now: int) -> None:
         self._i(i)
         _time(now, "now")
-        status = self._lib.rtu_vbus_transmit(self.s, i, data, len(data), now)
+        if not isinstance(data, (bytes, bytearray, memoryview)):
+            raise TypeError(f"data must be bytes-like, not {type(data).__name__}")
+        buf = self._ffi.from_buffer("uint8_t[]", data)
+        status = self._lib.rtu_vbus_transmit(self.s, i, buf, len(buf), now)
         if status == self._lib.RTU_ENOSPC:
             free = self.space(i)
             raise BufferError(f"drop {i}: {len(data)} bytes for {free} free slots")
@@ -149,6 +152,11 @@ class CSchedule:
 
     def alive(self, i: int) -> bool:
         return bool(self.drops[self._i(i)].alive)
+
+    def held(self, i: int) -> bytes:
+        """What the drop's batch fault holds back."""
+        d = self.drops[self._i(i)]
+        return bytes(self._ffi.buffer(d.hold, d.hold_len))
 
     def queued(self, i: int) -> list[tuple[int, int]]:
         """The drop's queued character slots (start, byte), for a move to the twin."""

@@ -95,7 +95,7 @@ class HubLoops:
             d.unplug_left = int(c.unplug_left)
             d.event_at = None if c.event_at == -(2**63) else int(c.event_at)
             d.batch_ns, d.batch_bytes = int(c.batch_ns), int(c.batch_bytes)
-            d.hold = bytearray(bytes(old._ffi.buffer(c.hold, c.hold_len)))
+            d.hold = bytearray(old.held(i))
             d.hold_deadline = None if c.hold_deadline == -(2**63) else int(c.hold_deadline)
             d.hold_end, d.episode = int(c.hold_end), int(c.episode)
             d.out = bytearray(old.take_output(i))
