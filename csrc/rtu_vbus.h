@@ -151,7 +151,7 @@ int rtu_vbus_io_run(rtu_vbus_io *io);
 int rtu_vbus_io_errno(const rtu_vbus_io *io);
 int64_t rtu_vbus_io_now(void);
 /* wake-ups so far, and the current estimate of a timed wake-up's lateness */
-uint64_t rtu_vbus_io_wakeups(const rtu_vbus_io *io);
-int64_t rtu_vbus_io_wake_estimate(const rtu_vbus_io *io);
+uint64_t rtu_vbus_io_wakeups(rtu_vbus_io *io);
+int64_t rtu_vbus_io_wake_estimate(rtu_vbus_io *io);
 
 #endif

@@ -118,8 +118,28 @@ void rtu_vbus_io_stop(rtu_vbus_io *io)
 }
 
 int rtu_vbus_io_errno(const rtu_vbus_io *io) { return io == NULL ? 0 : io->err; }
-uint64_t rtu_vbus_io_wakeups(const rtu_vbus_io *io) { return io == NULL ? 0 : io->wakeups; }
-int64_t rtu_vbus_io_wake_estimate(const rtu_vbus_io *io) { return io == NULL ? 0 : io->wake_est; }
+/* the I/O thread changes these under the mutex */
+uint64_t rtu_vbus_io_wakeups(rtu_vbus_io *io)
+{
+    uint64_t n;
+    if (io == NULL || io->s == NULL)
+        return 0;
+    pthread_mutex_lock(&io->mu);
+    n = io->wakeups;
+    pthread_mutex_unlock(&io->mu);
+    return n;
+}
+
+int64_t rtu_vbus_io_wake_estimate(rtu_vbus_io *io)
+{
+    int64_t e;
+    if (io == NULL || io->s == NULL)
+        return 0;
+    pthread_mutex_lock(&io->mu);
+    e = io->wake_est;
+    pthread_mutex_unlock(&io->mu);
+    return e;
+}
 
 /* Write every drop's deliveries (non-blocking: what the pty cannot take is an overrun). */
 static void flush(rtu_vbus_io *io)
@@ -187,7 +207,7 @@ int rtu_vbus_io_run(rtu_vbus_io *io)
     s = io->s;
     pthread_mutex_lock(&io->mu);
     while (rc == RTU_OK) {
-        int64_t now = rtu_vbus_io_now(), dl, target;
+        int64_t now = rtu_vbus_io_now(), dl, target, late;
         nfds_t n = 0, k;
         int timed, ready;
         uint32_t i;
@@ -237,18 +257,18 @@ int rtu_vbus_io_run(rtu_vbus_io *io)
             timed = 0;
         }
         ready = wait_fds(pfd, n, target);
+        late = ready == 0 && timed ? rtu_vbus_io_now() - target : -1;
+        if (late >= 0)
+            spin_until(dl); /* woke early by the estimate's error: the few us left */
+        pthread_mutex_lock(&io->mu); /* the fields below are read by other threads */
         io->wakeups++;
-        if (ready == 0 && timed) {
-            /* track the median lateness of a timed wake-up, then spin what is left */
-            int64_t late = rtu_vbus_io_now() - target;
+        if (late >= 0) { /* track the median lateness of a timed wake-up */
             io->wake_est += late > io->wake_est ? EST_STEP_NS : -EST_STEP_NS;
             if (io->wake_est < 0)
                 io->wake_est = 0;
             if (io->wake_est > EST_MAX_NS)
                 io->wake_est = EST_MAX_NS;
-            spin_until(dl);
         }
-        pthread_mutex_lock(&io->mu);
         if (ready < 0) {
             if (errno != EINTR) {
                 io->err = errno;
@@ -343,12 +363,12 @@ int rtu_vbus_io_errno(const rtu_vbus_io *io)
     return 0;
 }
 int64_t rtu_vbus_io_now(void) { return 0; }
-uint64_t rtu_vbus_io_wakeups(const rtu_vbus_io *io)
+uint64_t rtu_vbus_io_wakeups(rtu_vbus_io *io)
 {
     (void)io;
     return 0;
 }
-int64_t rtu_vbus_io_wake_estimate(const rtu_vbus_io *io)
+int64_t rtu_vbus_io_wake_estimate(rtu_vbus_io *io)
 {
     (void)io;
     return 0;

@@ -250,5 +250,5 @@ void rtu_vbus_io_stop(rtu_vbus_io *io);
 int rtu_vbus_io_run(rtu_vbus_io *io);
 int rtu_vbus_io_errno(const rtu_vbus_io *io);
 int64_t rtu_vbus_io_now(void);
-uint64_t rtu_vbus_io_wakeups(const rtu_vbus_io *io);
-int64_t rtu_vbus_io_wake_estimate(const rtu_vbus_io *io);
+uint64_t rtu_vbus_io_wakeups(rtu_vbus_io *io);
+int64_t rtu_vbus_io_wake_estimate(rtu_vbus_io *io);
