@@ -51,7 +51,7 @@ from peers.tools import (  # type: ignore[import-not-found]  # noqa: E402
 
 from pyrtu.aio import AsyncMaster  # noqa: E402
 from pyrtu.aio import run as aio_run  # noqa: E402
-from pyrtu.errors import NoResponseError  # noqa: E402
+from pyrtu.errors import FrameError, NoResponseError  # noqa: E402
 from pyrtu.line import LineConfig  # noqa: E402
 from pyrtu.master import Master  # noqa: E402
 
@@ -85,10 +85,10 @@ def cpu_of(pid: int) -> float:
 
 @contextlib.contextmanager
 def process(
-    argv: list[str], ready_lines: int = 0
+    argv: list[str], ready_lines: int = 0, extra_env: dict[str, str] | None = None
 ) -> Iterator[tuple[subprocess.Popen[str], list[str]]]:
     """A child process; the first ``ready_lines`` lines of its stdout are returned."""
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    env = dict(os.environ, PYTHONPATH=str(ROOT), **(extra_env or {}))
     proc = subprocess.Popen(argv, stdout=subprocess.PIPE, text=True, env=env, cwd=ROOT)
     try:
         lines = []
@@ -107,12 +107,18 @@ def process(
 
 
 @contextlib.contextmanager
-def vbus(baudrate: int, drops: int = 2) -> Iterator[tuple[list[str], int]]:
-    """``pyrtu vbus`` in its own process: (drop paths, pid)."""
+def vbus(
+    baudrate: int, drops: int = 2, loop: str = "c", stats: bool = False
+) -> Iterator[tuple[list[str], int]]:
+    """``pyrtu vbus`` in its own process: (drop paths, pid).  ``loop="python"`` runs
+    its hub on the Python loop (PYRTU_PURE=1 in that process only); ``stats``: it
+    prints its counters on stderr when it stops."""
     with tempfile.TemporaryDirectory() as tmp:
         argv = [sys.executable, "-m", "pyrtu", "vbus", "--drops", str(drops)]
         argv += ["--baud", str(baudrate), "--parity", "N", "--dir", tmp]
-        with process(argv, drops) as (proc, paths):
+        argv += ["--stats"] if stats else []
+        env = {"PYRTU_PURE": "1"} if loop == "python" else None
+        with process(argv, drops, env) as (proc, paths):
             yield paths, proc.pid
 
 
@@ -126,10 +132,20 @@ def slave(path: str, baudrate: int) -> Iterator[int]:
         yield proc.pid
 
 
+#: the simulated drives of the 8-bus run: (address, FC 03 start, count, the response
+#: delay its manual documents and the simulator keeps).  The CFW100 answers 2 ms after
+#: t3.5, which caps a bus at 127.4/s of the 171/s wire limit; the CV100 (RTU mode)
+#: documents no delay, so its bus can approach the wire limit itself.
+DRIVES = {
+    "cfw100": (1, DRIVE_START, DRIVE_COUNT, DRIVE_DELAY),  # P001-P007
+    "cv100": (5, 0x3300, 7, 0.0),  # status words and monitored values (U0)
+}
+
+
 @contextlib.contextmanager
-def drive(path: str, baudrate: int) -> Iterator[int]:
-    argv = [sys.executable, "-m", "pyrtu", "simulate", "cfw100", "--port", path]
-    argv += ["--baudrate", str(baudrate), "-P", "N", "--address", "1"]
+def drive(path: str, baudrate: int, name: str = "cfw100") -> Iterator[int]:
+    argv = [sys.executable, "-m", "pyrtu", "simulate", name, "--port", path]
+    argv += ["--baudrate", str(baudrate), "-P", "N", "--address", str(DRIVES[name][0])]
     with process(argv) as (proc, _):
         time.sleep(0.8)
         yield proc.pid
@@ -287,26 +303,31 @@ def single_bus(
     return out
 
 
-def eight_buses(baudrate: int, seconds: float, buses: int = 8) -> dict[str, Any]:
-    """``buses`` buses, a simulated CFW100 on each, polled by one AsyncMaster process
-    (this one) for ``seconds``: FC 03 of P001-P007."""
+def eight_buses(
+    baudrate: int, seconds: float, buses: int = 8, drive_name: str = "cfw100", loop: str = "c"
+) -> dict[str, Any]:
+    """``buses`` buses, a simulated drive on each, polled by one AsyncMaster process
+    (this one) for ``seconds``: FC 03 of 7 registers (19-byte answers).  ``loop``: the
+    hubs' loop ("c": the C I/O thread; "python": the Python loop)."""
+    address, start, count, delay = DRIVES[drive_name]
     with contextlib.ExitStack() as stack:
         paths: list[str] = []
         hubs: list[int] = []
+        drives: list[int] = []
         for _ in range(buses):
-            p, pid = stack.enter_context(vbus(baudrate))
+            p, pid = stack.enter_context(vbus(baudrate, loop=loop, stats=True))
             paths.append(p[0])
             hubs.append(pid)
-            stack.enter_context(drive(p[1], baudrate))
+            drives.append(stack.enter_context(drive(p[1], baudrate, drive_name)))
         counts = [0] * buses
 
-        async def main() -> tuple[float, float, float]:
+        async def main() -> tuple[float, float, float, float, float]:
             masters = [AsyncMaster(p, baudrate, parity="N", timeout=1.0) for p in paths]
             try:
                 for m in masters:  # warm-up: the drive is up and answers
                     for attempt in range(10):
                         try:
-                            await m.read_holding_registers(1, DRIVE_START, DRIVE_COUNT)
+                            await m.read_holding_registers(address, start, count)
                             break
                         except NoResponseError:
                             if attempt == 9:
@@ -315,30 +336,39 @@ def eight_buses(baudrate: int, seconds: float, buses: int = 8) -> dict[str, Any]
 
                 async def poll(i: int, m: AsyncMaster) -> None:
                     while time.perf_counter() < stop:
-                        await m.read_holding_registers(1, DRIVE_START, DRIVE_COUNT)
+                        try:
+                            await m.read_holding_registers(address, start, count)
+                        except (NoResponseError, FrameError):
+                            continue  # counted by the master (timeouts, frame errors)
                         counts[i] += 1
 
                 errors0 = sum(m.counters["timeouts"] + m.counters["frame_errors"] for m in masters)
+                hub0 = sum(cpu_of(h) for h in hubs)
+                drive0 = sum(cpu_of(d) for d in drives)
                 r0 = resource.getrusage(resource.RUSAGE_SELF)
                 t0 = time.perf_counter()
                 await asyncio.gather(*(poll(i, m) for i, m in enumerate(masters)))
                 wall = time.perf_counter() - t0
                 r1 = resource.getrusage(resource.RUSAGE_SELF)
+                hub_cpu = sum(cpu_of(h) for h in hubs) - hub0
+                drive_cpu = sum(cpu_of(d) for d in drives) - drive0
                 cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
                 errors = sum(m.counters["timeouts"] + m.counters["frame_errors"] for m in masters)
-                return wall, cpu, float(errors - errors0)
+                return wall, cpu, float(errors - errors0), hub_cpu, drive_cpu
             finally:
                 for m in masters:
                     await m.close()
 
-        wall, cpu, errors = aio_run(main())
-        hub_cpu = sum(cpu_of(h) for h in hubs)
+        wall, cpu, errors, hub_cpu, drive_cpu = aio_run(main())
     limit = wire_limit(baudrate, DRIVE_CHARS)
-    with_delay = 1.0 / (1.0 / limit + DRIVE_DELAY)
+    with_delay = 1.0 / (1.0 / limit + delay)
     tps = [c / wall for c in counts]
     return {
         "baudrate": baudrate,
         "buses": buses,
+        "drive": drive_name,
+        "response_delay_s": delay,
+        "hub_loop": loop,
         "seconds": wall,
         "tps": tps,
         "ratios": [t / limit for t in tps],
@@ -350,7 +380,19 @@ def eight_buses(baudrate: int, seconds: float, buses: int = 8) -> dict[str, Any]
         "cpu_us_per_tx": cpu / sum(counts) * 1e6,
         "errors": errors,
         "hub_cpu_s_total": hub_cpu,
+        "drive_cpu_s_total": drive_cpu,
     }
+
+
+def eight_line(e: dict[str, Any]) -> str:
+    """One row of the hub comparison (bench/RESULTS.md, "C hub" subsection)."""
+    return (
+        f"| {e['drive']} | {e['hub_loop']} | {min(e['ratios']):.3f} / "
+        f"{statistics.median(e['ratios']):.3f} | {min(e['ratios_with_delay']):.3f} | "
+        f"{sum(e['tps']):.0f} | {e['process_cpu_share'] * 100:.0f}% | "
+        f"{e['hub_cpu_s_total'] / e['seconds'] * 100:.0f}% | "
+        f"{e['drive_cpu_s_total'] / e['seconds'] * 100:.0f}% | {int(e['errors'])} |"
+    )
 
 
 def section(data: dict[str, Any]) -> str:
@@ -443,8 +485,10 @@ def section(data: dict[str, Any]) -> str:
             "",
             f"### {e['buses']} virtual buses at {e['baudrate']} baud, one AsyncMaster process",
             "",
-            f"A simulated CFW100 (`pyrtu simulate cfw100`) on each bus; {e['buses']} masters",
-            "in one event loop poll FC 03 of P001-P007 (19-byte answers; wire limit",
+            f"A simulated {e.get('drive', 'cfw100').upper()} (`pyrtu simulate"
+            f" {e.get('drive', 'cfw100')}`) on each bus, its hub on the"
+            f" {e.get('hub_loop', 'python').upper()} loop; {e['buses']} masters",
+            "in one event loop poll FC 03 of 7 registers (19-byte answers; wire limit",
             f"1 / (27 characters + 2 x t3.5)) for {e['seconds']:.1f} s.",
             "",
             f"- per-bus ratio to the wire limit ({e['wire_limit']:.1f}/s): {ratios}; "
@@ -454,10 +498,17 @@ def section(data: dict[str, Any]) -> str:
             f"(**{e['process_cpu_share'] * 100:.0f}% of one core**, "
             f"{e['cpu_us_per_tx']:.1f} µs per transaction); timeouts + frame errors: "
             f"{int(e['errors'])}",
-            f"- with the drive's 2 ms response delay the bus allows {e['limit_with_delay']:.1f}/s: "
+            f"- with the drive's {e.get('response_delay_s', DRIVE_DELAY) * 1e3:g} ms response"
+            f" delay the bus allows {e['limit_with_delay']:.1f}/s: "
             f"per-bus ratios {', '.join(f'{r:.3f}' for r in e['ratios_with_delay'])}",
             f"- the {e['buses']} hub processes used {e['hub_cpu_s_total']:.1f} s of CPU "
-            f"({e['hub_cpu_s_total'] / e['seconds'] * 100:.0f}% of one core) in that time",
+            f"({e['hub_cpu_s_total'] / e['seconds'] * 100:.0f}% of one core) in that time"
+            + (
+                f"; the {e['buses']} drive simulators "
+                f"{e['drive_cpu_s_total'] / e['seconds'] * 100:.0f}%"
+                if "drive_cpu_s_total" in e
+                else ""
+            ),
         ]
     if data.get("notes"):
         lines += ["", "### Reading", ""]
@@ -477,6 +528,26 @@ def write_section(text: str) -> None:
     RESULTS.write_text(new, encoding="utf-8")
 
 
+def compare_hubs(rounds: int, seconds: float, buses: int, out: Path | None) -> None:
+    """The 8-bus run with the hubs on the Python loop and on the C loop, interleaved."""
+    print(f"load average before: {os.getloadavg()}")
+    print(
+        "| drive | hub loop | ratio to wire limit (min / median) | ratio to limit with"
+        " delay (min) | tx/s total | AsyncMaster CPU | hubs CPU | drives CPU | errors |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|")
+    runs = []
+    for _ in range(rounds):
+        for drive_name in ("cfw100", "cv100"):
+            for loop in ("python", "c"):
+                e = eight_buses(115200, seconds, buses, drive_name, loop)
+                runs.append(e)
+                print(eight_line(e), flush=True)
+    print(f"load average after: {os.getloadavg()}")
+    if out is not None:
+        out.write_text(json.dumps(runs, indent=1))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--json", type=Path)
@@ -486,8 +557,18 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--only", choices=("single", "eight"))
     ap.add_argument("--buses", type=int, default=8)
+    ap.add_argument("--drive", choices=sorted(DRIVES), default="cfw100")
+    ap.add_argument(
+        "--hubs",
+        action="store_true",
+        help="compare the hubs' loops: 8 buses on the Python loop and on the C loop,"
+        " alternately, --rounds times per drive (cfw100 and cv100); prints table rows",
+    )
     ap.add_argument("--baseline", help="a checkout of the code before, for a comparison")
     args = ap.parse_args()
+    if args.hubs:
+        compare_hubs(args.rounds, 3.0 if args.quick else 10.0, args.buses, args.json)
+        return
     if args.from_json:
         data = json.loads(args.from_json.read_text())
     else:
@@ -518,7 +599,7 @@ def main() -> None:
                 )
                 print(json.dumps(data["single"][-1], indent=1), flush=True)
         if args.only != "single":
-            data["eight"] = eight_buses(115200, 3.0 if args.quick else 10.0, args.buses)
+            data["eight"] = eight_buses(115200, 3.0 if args.quick else 10.0, args.buses, args.drive)
             print(json.dumps(data["eight"], indent=1), flush=True)
     if args.json:
         args.json.write_text(json.dumps(data, indent=1))

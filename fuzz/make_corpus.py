@@ -103,12 +103,28 @@ def mbap_seeds() -> list[bytes]:
     return seeds
 
 
+def vbus_seeds() -> list[bytes]:
+    """The manuals' telegrams as request/answer exchanges on a 2-drop wire at 115200
+    baud (see fuzz_vbus.c): transmit on drop 0 then 1, a service after each."""
+    seeds = []
+    for adus in _sources().values():
+        ops = bytearray([1, 0, 2])  # 2 drops, 86806 ns characters, 40 us lead
+        for k, adu in enumerate(adus):
+            body = adu[:79]
+            ops += bytes([0, k % 2, len(body), 2]) + body  # transmit, 2 us later
+            ops += bytes([2, 0]) + (len(body) * 9).to_bytes(2, "big")  # service
+            ops += bytes([9, (k + 1) % 2, 0x10, 0x00, 2])  # the receiver reads it
+        seeds.append(bytes(ops))
+    return seeds
+
+
 HARNESSES = {
     "stream": stream_seeds,
     "framer": framer_seeds,
     "predict": predict_seeds,
     "crc": crc_seeds,
     "mbap": mbap_seeds,
+    "vbus": vbus_seeds,
 }
 
 

@@ -43,6 +43,7 @@ if os.environ.get("PYRTU_SANITIZE") == "1":
 # arguments is the benchmarks' floor for a call of this shape.
 _BINDING = """
 #include "rtu.h"
+#include "rtu_vbus.h"
 static uint16_t rtu_crc16_bytes(const char *data, size_t len, uint16_t crc)
 {
     return rtu_crc16((const uint8_t *)data, len, crc);

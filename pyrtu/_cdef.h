@@ -159,3 +159,96 @@ size_t rtu_mbap_framer_needed(const rtu_mbap_framer *f);
 int rtu_mbap_parser_init(rtu_mbap_parser *p, int role);
 int rtu_mbap_parse(rtu_mbap_parser *p, const uint8_t *data, size_t len, rtu_mbap_event *out,
                    size_t cap, size_t *nout);
+
+/* ---- the virtual bus: sans-I/O schedule and I/O thread (csrc/rtu_vbus*.c) ---- */
+#define RTU_VBUS_MAX_DROPS ...
+#define RTU_VBUS_QUEUE ...
+#define RTU_VBUS_OUT ...
+#define RTU_VBUS_MAX_CHAR_NS ...
+#define RTU_VBUS_MAX_LEAD_NS ...
+#define RTU_VBUS_IO_STOPPED ...
+#define RTU_VBUS_IO_WATCH ...
+#define RTU_VBUS_IO_UNPLUG ...
+#define RTU_VBUS_IO_ERRNO ...
+
+typedef struct {
+    uint64_t tx_bytes;
+    uint64_t rx_bytes;
+    uint64_t collided_bytes;
+    uint64_t collisions;
+    uint64_t overruns;
+    uint64_t unheard;
+    uint64_t batches;
+} rtu_vbus_drop_counters;
+
+typedef struct {
+    int64_t q_time[...];
+    uint8_t q_byte[...];
+    uint32_t q_head;
+    uint32_t q_len;
+    int64_t tx_free;
+    int64_t rx_end;
+    int64_t last_start;
+    uint8_t last_byte;
+    uint8_t has_last;
+    uint8_t alive;
+    uint8_t cut;
+    uint8_t echo;
+    uint8_t due;
+    int64_t unplug_left;
+    int64_t event_at;
+    int64_t batch_ns;
+    uint32_t batch_bytes;
+    uint32_t hold_len;
+    int64_t hold_deadline;
+    int64_t hold_end;
+    uint32_t out_len;
+    int64_t episode;
+    rtu_vbus_drop_counters counters;
+    uint8_t hold[...];
+    uint8_t out[...];
+    ...;
+} rtu_vbus_drop;
+
+typedef struct {
+    uint32_t ndrops;
+    int64_t char_ns;
+    int64_t lead_ns;
+    uint64_t wire_bytes;
+    uint64_t collisions;
+    uint64_t collided;
+    int64_t coll_until;
+    ...;
+} rtu_vbus;
+
+int rtu_vbus_init(rtu_vbus *s, rtu_vbus_drop *drops, uint32_t ndrops, int64_t char_ns,
+                  int64_t lead_ns);
+int rtu_vbus_plug(rtu_vbus *s, uint32_t drop);
+int rtu_vbus_unplug(rtu_vbus *s, uint32_t drop);
+int rtu_vbus_set_echo(rtu_vbus *s, uint32_t drop, int on);
+int rtu_vbus_set_batch(rtu_vbus *s, uint32_t drop, int64_t batch_ns, uint32_t batch_bytes);
+int rtu_vbus_set_unplug_after(rtu_vbus *s, uint32_t drop, int64_t left);
+int rtu_vbus_cut(rtu_vbus *s, uint32_t drop, int64_t at);
+int rtu_vbus_clear_hold(rtu_vbus *s, uint32_t drop);
+size_t rtu_vbus_space(const rtu_vbus *s, uint32_t drop);
+int rtu_vbus_transmit(rtu_vbus *s, uint32_t drop, const uint8_t *data, size_t len, int64_t now);
+int64_t rtu_vbus_deadline(const rtu_vbus *s);
+int rtu_vbus_service(rtu_vbus *s, int64_t now);
+int rtu_vbus_take_due(rtu_vbus *s);
+int rtu_vbus_written(rtu_vbus *s, uint32_t drop, size_t n, int heard);
+int rtu_vbus_busy(const rtu_vbus *s);
+
+typedef struct rtu_vbus_io rtu_vbus_io;
+size_t rtu_vbus_io_size(void);
+int rtu_vbus_io_init(rtu_vbus_io *io, rtu_vbus *s, int wake_fd, int watch_fd, int64_t anchor_ns);
+void rtu_vbus_io_destroy(rtu_vbus_io *io);
+void rtu_vbus_io_lock(rtu_vbus_io *io);
+void rtu_vbus_io_unlock(rtu_vbus_io *io);
+int rtu_vbus_io_set_fd(rtu_vbus_io *io, uint32_t drop, int fd, int heard);
+int rtu_vbus_io_set_heard(rtu_vbus_io *io, uint32_t drop, int heard);
+void rtu_vbus_io_stop(rtu_vbus_io *io);
+int rtu_vbus_io_run(rtu_vbus_io *io);
+int rtu_vbus_io_errno(const rtu_vbus_io *io);
+int64_t rtu_vbus_io_now(void);
+uint64_t rtu_vbus_io_wakeups(rtu_vbus_io *io);
+int64_t rtu_vbus_io_wake_estimate(rtu_vbus_io *io);

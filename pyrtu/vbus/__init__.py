@@ -43,12 +43,14 @@ specification) uses 11-bit characters; no parity bit is carried or checked.
 Timing
 ------
 
-One hub thread schedules the characters on `time.perf_counter_ns`
-(CLOCK_MONOTONIC on Linux; it is also the clock of capture times), sleeps in
-``select`` until a delivery is due and spins the last tens of microseconds.  It
-compensates the pseudo-terminals' own transfer latency (``latency=``), asks for
-real-time scheduling when permitted (``realtime=``), and shares the GIL with the
-rest of the process: for timing work, run it as a process (``pyrtu vbus``).
+The wire is a sans-I/O schedule (csrc/rtu_vbus.c, twin pyrtu/_pure/vbus.py) on
+`time.perf_counter_ns` (CLOCK_MONOTONIC on Linux; also the clock of capture times).
+One hub thread drives it: by default in C (csrc/rtu_vbus_io.c: ``ppoll`` until the
+next delivery, no GIL), or in a Python ``select`` loop for the pure backend, a
+capture or seeded line faults (``bus.loop`` tells).  It compensates the
+pseudo-terminals' own transfer latency (``latency=``) and asks for real-time
+scheduling when permitted (``realtime=``).  On the Python loop it shares the GIL with
+the rest of the process: for timing work, run it as a process (``pyrtu vbus``).
 Measured accuracy and the details: ``docs/vbus.md``.
 """
 

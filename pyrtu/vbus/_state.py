@@ -5,7 +5,6 @@ from __future__ import annotations
 import fcntl
 import struct
 import termios
-from collections import deque
 from dataclasses import dataclass, field
 
 from ._os import Pty
@@ -62,29 +61,25 @@ class BusCounters:
 
 
 class DropState:
+    """What the hub keeps of a drop besides the schedule's state: its pty, link,
+    clients, counters and fault configuration."""
+
     def __init__(self, index: int, echo: bool) -> None:
         self.index = index
         self.echo = echo
         self.pty: Pty | None = None
         self.link: str | None = None
-        self.alive = False
         self.clients = 0
         self.watched = False
         self.counters = DropCounters()
         self.tx: TxFaults | None = None
         self.batch_ns = 0
         self.batch_bytes = 62
-        self.tx_free = 0
-        self.txq: deque[tuple[int, int]] = deque()  # (start ns, byte) queued for the wire
-        self.last: tuple[int, int] | None = None  # the last character it put on the wire
-        self.unplug_left: int | None = None
-        self.cut = False
-        self.hold = bytearray()
-        self.hold_deadline: int | None = None
-        self.hold_end = 0  # wire end time of the last held byte
-        self.rx_end = 0  # wire end time of the last byte handed to the client
-        self.out = bytearray()
-        self.episode = -1
+
+    @property
+    def heard(self) -> bool:
+        """Someone has the drop open (or opens are not tracked)."""
+        return not (self.watched and self.clients == 0)
 
     def set_faults(self, faults: Faults | None) -> None:
         counters = self.counters.faults

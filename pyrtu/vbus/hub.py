@@ -2,23 +2,25 @@
 
 from __future__ import annotations
 
+import contextlib
 import errno
-import math
 import os
-import select
 import shutil
 import tempfile
-import termios
 import threading
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import fields, replace
 from types import TracebackType
 
+from .._pure.vbus import OUT, Schedule
 from ..line import LineConfig
 from ..timing import bits_per_char
+from . import _cvbus
+from ._cvbus import CLoop, CSchedule
+from ._hubloop import _SPIN_NS, DEFAULT_LATENCY, HubLoops
 from ._lock import DirectoryLock
-from ._os import OpenWatch, open_pty, set_realtime, set_timer_slack
+from ._os import OpenWatch, open_pty
 from ._state import (
     BusCounters,
     DropCounters,
@@ -28,45 +30,16 @@ from ._state import (
 )
 from .capture import CaptureHeader, CaptureWriter
 from .faults import FaultCounters, Faults
-from .wire import Wire
 
 __all__ = ["MAX_DROPS", "BusCounters", "DropCounters", "VirtualBus"]
 
 #: a Modbus serial line has at most 247 slaves and a master ([SL] 2.2): each drop
 #: is a pseudo-terminal, a resource of the whole system, so a bus has at most this many
 MAX_DROPS = 248
-
 _ns = time.perf_counter_ns
-#: Wake this long before a delivery and spin the rest: select() wakes late by tens
-#: of microseconds, a few with real-time priority.
-_SPIN_NS = 50_000
-_SPIN_RT_NS = 20_000
-_READ_SIZE = 4096
-#: Wake at least this often when idle: a thread that sleeps longer wakes slower
-#: (CPU idle states, VM halts), which delays noticing a client's write.
-_IDLE_TICK = 0.002
-#: ... for this long after the last activity (and after start).
-_WARM_NS = 2_000_000_000
-#: Compensated pseudo-terminal latencies (s): client write -> hub read, and hub
-#: write -> client read (typical medians measured on Linux VMs; see docs/vbus.md).
-DEFAULT_LATENCY = (70e-6, 40e-6)
 
 
-def _wait_readable(fds: list[int], timeout: float | None) -> list[int]:
-    """select() with microsecond timeouts; poll() when an fd is beyond FD_SETSIZE."""
-    try:
-        if max(fds) < 1024:
-            return select.select(fds, [], [], timeout)[0]
-        poller = select.poll()
-        for fd in fds:
-            poller.register(fd, select.POLLIN)
-        ms = None if timeout is None else math.ceil(timeout * 1000)
-        return [fd for fd, _ in poller.poll(ms)]
-    except (OSError, ValueError):
-        return []  # an fd closed under us (shutdown); the loop re-reads the state
-
-
-class VirtualBus:
+class VirtualBus(HubLoops):
     """A virtual RS-485 bus: `drops` pseudo-terminals sharing one half-duplex wire.
 
     Every byte written to a drop is put on the wire one character time after the
@@ -97,10 +70,16 @@ class VirtualBus:
             seconds that the hub compensates: a byte's character starts that much
             before the hub read it, and deliveries are written that much before
             their time.  ``(0, 0)`` gives the raw schedule.
+        loop: ``"auto"`` (default): the C loop (csrc/rtu_vbus_io.c: the schedule and
+            the pty I/O in C, no GIL) when the C core is the backend and no capture
+            and no line faults are asked for, else the Python loop (the twin
+            schedule, pyrtu/_pure/vbus.py, and a select() loop); ``"python"``
+            forces the Python loop.  `loop` attribute: the one running.  A bus on
+            the C loop moves to the Python loop when line faults are set on it.
 
-    The hub is a daemon thread of this process and shares the GIL: a thread that
-    computes for milliseconds without releasing it delays deliveries.  For timing
-    work, run the bus as its own process (``pyrtu vbus``).
+    The hub is a daemon thread of this process.  On the Python loop it shares the
+    GIL: a thread that computes for milliseconds without releasing it delays
+    deliveries; for timing work, run the bus as its own process (``pyrtu vbus``).
     """
 
     def __init__(
@@ -119,6 +98,7 @@ class VirtualBus:
         realtime: bool = True,
         latency: tuple[float, float] = DEFAULT_LATENCY,
         line: LineConfig | None = None,
+        loop: str = "auto",
     ) -> None:
         if line is not None:  # the line's byte format sets the character time
             if not isinstance(line, LineConfig):
@@ -131,6 +111,8 @@ class VirtualBus:
             )
         if baudrate <= 0:
             raise ValueError("baudrate must be positive")
+        if loop not in ("auto", "python"):
+            raise ValueError(f"loop must be 'auto' or 'python', not {loop!r}")
         if bytesize not in (5, 6, 7, 8) or stopbits not in (1, 2):
             raise ValueError("bytesize must be 5..8 and stopbits 1 or 2")
         self.baudrate = baudrate
@@ -148,11 +130,6 @@ class VirtualBus:
         self._drops = [DropState(i, i in echo_set) for i in range(drops)]
         for i in echo_set | set(drop_faults or {}):
             self._check(i)
-        for d in self._drops:
-            f = (drop_faults or {}).get(d.index, faults)
-            d.set_faults(f)
-            if f is not None and f.unplug_after is not None:
-                d.unplug_left = f.unplug_after
         self._lock = threading.RLock()
         self._thread: threading.Thread | None = None
         self._stop = False
@@ -164,10 +141,38 @@ class VirtualBus:
         if min(latency) < 0 or max(latency) > 0.01:
             raise ValueError("latency compensation must be within [0, 10 ms]")
         self._anchor_ns = round(latency[0] * 1e9)
-        self._wire = Wire(self._drops, self.char_ns, round(latency[1] * 1e9))
+        self._lead_ns = round(latency[1] * 1e9)
+        self._faults = [(drop_faults or {}).get(d.index, faults) for d in self._drops]
+        line_faults = any(f is not None and f.line_faults for f in self._faults)
+        #: which loop runs the hub: "c" or "python" (see the class docstring)
+        self.loop = (
+            "c"
+            if loop == "auto" and _cvbus.available and capture is None and not line_faults
+            else "python"
+        )
+        self._sched: Schedule | CSchedule = self._new_schedule()
+        self._cloop: CLoop | None = None
+        self._to_python = False
+        for d, f in zip(self._drops, self._faults, strict=True):
+            self._sched.set_echo(d.index, d.echo)
+            self._apply_faults(d, f)
         #: True when the hub thread got real-time scheduling (SCHED_FIFO, priority 1)
         self.realtime = False
         self._spin_ns = _SPIN_NS
+
+    def _new_schedule(self) -> Schedule | CSchedule:
+        n = len(self._drops)
+        if self.loop == "c":
+            return CSchedule(n, self.char_ns, self._lead_ns)
+        return Schedule(n, self.char_ns, self._lead_ns)
+
+    def _apply_faults(self, d: DropState, f: Faults | None) -> None:
+        d.set_faults(f)
+        self._sched.set_batch(d.index, d.batch_ns, min(d.batch_bytes, OUT))
+        if isinstance(self._sched, Schedule):
+            self._sched.set_tx_faults(d.index, d.tx)
+        if f is not None and f.unplug_after is not None:
+            self._sched.set_unplug_after(d.index, f.unplug_after)
 
     # -- properties ------------------------------------------------------------
 
@@ -246,10 +251,12 @@ class VirtualBus:
         os.set_blocking(self._wake_r, False)
         os.set_blocking(self._wake_w, False)
         try:
+            if isinstance(self._sched, CSchedule):
+                self._cloop = CLoop(self._sched, self._wake_r, self._watch.fd, self._anchor_ns)
             for d in self._drops:
                 self._plug(d)
-            self.t0_ns = self._wire.t0_ns = _ns()
-            if self._capture_path is not None:
+            self.t0_ns = _ns()
+            if self._capture_path is not None and isinstance(self._sched, Schedule):
                 header = CaptureHeader(
                     baudrate=self.baudrate,
                     bytesize=self.bytesize,
@@ -261,7 +268,8 @@ class VirtualBus:
                     start_unix_ns=time.time_ns(),
                 )
                 self._capture = CaptureWriter(self._capture_path, header)
-                self._wire.capture = self._capture
+                self._sched.capture = self._capture
+                self._sched.t0_ns = self.t0_ns
         except BaseException:
             self._teardown()
             raise
@@ -275,7 +283,7 @@ class VirtualBus:
         thread = self._thread
         if thread is not None:
             self._stop = True
-            self._wake()
+            self._interrupt()
             thread.join(5.0)
             self._thread = None
         self._teardown()
@@ -284,6 +292,9 @@ class VirtualBus:
         with self._lock:
             for d in self._drops:
                 self._unplug_now(d, count=False)
+            if self._cloop is not None:
+                self._cloop.destroy()
+                self._cloop = None
             if self._capture is not None:
                 self._capture.close()
                 self._capture = None
@@ -302,15 +313,30 @@ class VirtualBus:
                 self._directory = None
                 self._own_dir = False
 
+    @contextlib.contextmanager
+    def _locked(self) -> Iterator[Schedule | CSchedule]:
+        """The hub's lock and, on the C loop, the I/O thread's: the schedule is ours."""
+        with self._lock:
+            cloop = self._cloop
+            if cloop is None:
+                yield self._sched
+                return
+            cloop.lock()
+            try:
+                yield self._sched
+            finally:
+                cloop.unlock()
+
     def _plug(self, d: DropState) -> None:
         pty = open_pty()
         d.pty = pty
-        d.alive = True
-        d.cut = False
         d.clients = 0
         d.counters.unplugged = False
-        d.tx_free = 0
         d.watched = self._watch is not None and self._watch.add(pty.path, d.index)
+        with self._locked() as sched:
+            sched.plug(d.index)
+            if self._cloop is not None:
+                self._cloop.set_fd(d.index, pty.master, d.heard)
         link = os.path.join(self.directory, f"drop{d.index}")
         tmp = f"{link}.{os.getpid()}.tmp"
         if os.path.lexists(tmp):
@@ -320,16 +346,12 @@ class VirtualBus:
         d.link = link
 
     def _unplug_now(self, d: DropState, count: bool = True) -> None:
-        if not d.alive:
-            return
-        d.alive = False
-        d.cut = True
-        d.txq.clear()
-        d.last = None
-        d.hold.clear()
-        d.hold_deadline = None
-        d.out.clear()
-        d.unplug_left = None
+        with self._locked() as sched:
+            if d.pty is None:
+                return
+            sched.unplug(d.index)
+            if self._cloop is not None:
+                self._cloop.set_fd(d.index, -1, False)
         if self._capture is not None:
             self._capture.end_run(d.index)
         if self._watch is not None:
@@ -341,9 +363,8 @@ class VirtualBus:
             except OSError:
                 pass
             d.link = None
-        if d.pty is not None:
-            d.pty.close()
-            d.pty = None
+        d.pty.close()
+        d.pty = None
         d.counters.unplugged = True
         if count:
             d.counters.faults.unplugs += 1
@@ -354,6 +375,13 @@ class VirtualBus:
                 os.write(self._wake_w, b"\0")
             except OSError:
                 pass
+
+    def _interrupt(self) -> None:
+        """Make the hub thread come back to Python (the C loop returns), and wake it."""
+        with self._lock:
+            if self._cloop is not None:
+                self._cloop.stop()
+        self._wake()
 
     # -- control ---------------------------------------------------------------
 
@@ -368,15 +396,13 @@ class VirtualBus:
         self._check(drop)
         if after_bytes < 0:
             raise ValueError("after_bytes must be >= 0")
-        with self._lock:
-            d = self._drops[drop]
-            if not d.alive:
+        with self._locked() as sched:
+            if not sched.alive(drop):
                 return
             if after_bytes == 0:
-                d.cut = True
-                self._wire.events.append((_ns(), drop))
+                sched.cut(drop, _ns())
             else:
-                d.unplug_left = after_bytes
+                sched.set_unplug_after(drop, after_bytes)
         self._wake()
 
     def replug(self, drop: int) -> str:
@@ -384,7 +410,7 @@ class VirtualBus:
         self._check(drop)
         with self._lock:
             d = self._drops[drop]
-            if not d.alive:
+            if d.pty is None:
                 self._plug(d)
         self._wake()
         return self.path(drop)
@@ -414,44 +440,76 @@ class VirtualBus:
     def set_echo(self, drop: int, on: bool = True) -> None:
         """Turn the local echo of a drop on or off."""
         self._check(drop)
-        with self._lock:
+        with self._locked() as sched:
             self._drops[drop].echo = on
+            sched.set_echo(drop, on)
 
     def set_faults(self, faults: Faults | None, drop: int | None = None) -> None:
-        """Replace the faults of one drop (or of every drop when `drop` is None)."""
-        with self._lock:
+        """Replace the faults of one drop (or of every drop when `drop` is None).
+
+        Line faults on a bus running the C loop move it to the Python loop (the
+        seeded faults are Python's `random.Random`): the schedule's state moves over.
+        """
+        if drop is not None:
+            self._check(drop)
+        if faults is not None and faults.line_faults and self._cloop is not None:
+            self._move_to_python()
+        with self._locked():
             targets = self._drops if drop is None else [self._drops[drop]]
             for d in targets:
-                d.set_faults(faults)
-                if faults is not None and faults.unplug_after is not None:
-                    d.unplug_left = faults.unplug_after
+                self._faults[d.index] = faults
+                self._apply_faults(d, faults)
+        self._wake()
+
+    def _move_to_python(self) -> None:
+        """Hand the C schedule's state to the twin and run the Python loop."""
+        thread = self._thread
+        if thread is not None and thread.is_alive():
+            with self._lock:
+                self._to_python = True
+            self._interrupt()
+            while self._cloop is not None and thread.is_alive():
+                time.sleep(0.0005)
+        else:
+            with self._lock:
+                self._take_over()
 
     def counters(self) -> BusCounters:
         """A snapshot of the counters."""
-        with self._lock:
-            drops = tuple(
-                replace(d.counters, faults=replace(d.counters.faults)) for d in self._drops
-            )
+        with self._locked() as sched:
+            drops = []
+            for d in self._drops:
+                c = sched.drop_counters(d.index)
+                drops.append(
+                    DropCounters(
+                        tx_bytes=c["tx_bytes"],
+                        rx_bytes=c["rx_bytes"],
+                        collided_bytes=c["collided_bytes"],
+                        collisions=c["collisions"],
+                        overruns=c["overruns"],
+                        unheard=c["unheard"],
+                        faults=replace(d.counters.faults, batches=c["batches"]),
+                        unplugged=d.counters.unplugged,
+                    )
+                )
             totals = {f.name: 0 for f in fields(FaultCounters)}
             for dc in drops:
                 for name in totals:
                     totals[name] += getattr(dc.faults, name)
             return BusCounters(
-                wire_bytes=self._wire.wire_bytes,
-                collisions=self._wire.collisions,
-                collided_bytes=self._wire.collided,
+                wire_bytes=sched.wire_bytes,
+                collisions=sched.collisions,
+                collided_bytes=sched.collided,
                 faults=totals,
-                drops=drops,
+                drops=tuple(drops),
             )
 
     def idle(self) -> bool:
         """True when nothing is on or queued for the wire and nothing is held."""
-        with self._lock:
-            if self._wire.busy():
+        with self._locked() as sched:
+            if sched.busy():
                 return False
-            return not any(
-                d.alive and d.pty is not None and pending_input(d.pty.master) for d in self._drops
-            )
+            return not any(d.pty is not None and pending_input(d.pty.master) for d in self._drops)
 
     def wait_idle(self, timeout: float = 5.0, settle: float = 0.0) -> bool:
         """Wait until `idle` (and has stayed so for `settle` seconds)."""
@@ -470,80 +528,3 @@ class VirtualBus:
         return False
 
     # -- hub thread --------------------------------------------------------------
-
-    def _run(self) -> None:
-        set_timer_slack(1000)
-        if self._want_realtime:
-            self.realtime = set_realtime(1)
-        self._spin_ns = _SPIN_RT_NS if self.realtime else _SPIN_NS
-        try:
-            self._loop()
-        except BaseException as exc:  # pragma: no cover - reported to the owner
-            self.error = exc
-            raise
-
-    def _loop(self) -> None:
-        active_until = _ns() + _WARM_NS
-        while not self._stop:
-            now = _ns()
-            with self._lock:
-                for i in self._wire.service(now):
-                    self._unplug_now(self._drops[i])
-                deadline = self._wire.deadline()
-                rfds = [d.pty.master for d in self._drops if d.alive and d.pty is not None]
-                watch_fd = self._watch.fd if self._watch is not None else -1
-            rfds.append(self._wake_r)
-            if watch_fd >= 0:
-                rfds.append(watch_fd)
-            wait: float | None = None
-            if deadline is not None:
-                remaining = deadline - _ns()
-                if remaining <= self._spin_ns:
-                    self._spin(deadline)
-                    continue
-                wait = (remaining - self._spin_ns) / 1e9
-            if now < active_until and (wait is None or wait > _IDLE_TICK):
-                wait = _IDLE_TICK
-            ready = _wait_readable(rfds, wait)
-            if ready:
-                active_until = _ns() + _WARM_NS
-                self._on_ready(ready, watch_fd)
-
-    def _spin(self, deadline: int) -> None:
-        # Brief busy-wait for the last stretch; sleep(0) lets other threads run.
-        while _ns() < deadline:
-            time.sleep(0)
-
-    def _on_ready(self, ready: list[int], watch_fd: int) -> None:
-        with self._lock:
-            if watch_fd in ready and self._watch is not None:
-                for key, delta in self._watch.read():
-                    self._client_event(self._drops[key], delta)
-            if self._wake_r in ready:
-                try:
-                    os.read(self._wake_r, 4096)
-                except OSError:
-                    pass
-            for d in self._drops:
-                if not d.alive or d.pty is None or d.pty.master not in ready:
-                    continue
-                try:
-                    data = os.read(d.pty.master, _READ_SIZE)
-                except OSError as exc:
-                    if exc.errno in (errno.EAGAIN, errno.EIO, errno.EINTR):
-                        continue
-                    raise
-                if data:
-                    self._wire.transmit(d, data, _ns() - self._anchor_ns)
-
-    def _client_event(self, d: DropState, delta: int) -> None:
-        before = d.clients
-        d.clients = max(0, d.clients + delta)
-        if (before == 0) != (d.clients == 0) and d.pty is not None:
-            # first client arrived or last one left: nothing stale stays queued
-            try:
-                termios.tcflush(d.pty.slave, termios.TCIFLUSH)
-            except termios.error:
-                pass
-            d.hold.clear()
-            d.hold_deadline = None
