@@ -11,6 +11,8 @@ import termios
 import tty
 from dataclasses import dataclass
 
+from .._slack import set_timer_slack
+
 __all__ = ["OpenWatch", "Pty", "open_pty", "set_realtime", "set_timer_slack"]
 
 _libc: ctypes.CDLL | None
@@ -19,7 +21,6 @@ try:
 except OSError:  # pragma: no cover - no libc to load
     _libc = None
 
-_PR_SET_TIMERSLACK = 29
 _IN_NONBLOCK = os.O_NONBLOCK
 _IN_CLOEXEC = os.O_CLOEXEC
 IN_OPEN = 0x020
@@ -27,16 +28,6 @@ IN_CLOSE_WRITE = 0x008
 IN_CLOSE_NOWRITE = 0x010
 IN_IGNORED = 0x8000
 _EVENT = struct.Struct("iIII")
-
-
-def set_timer_slack(ns: int = 1000) -> bool:
-    """Shrink this thread's timer slack so that timed waits wake on time (Linux)."""
-    if _libc is None:
-        return False
-    try:
-        return int(_libc.prctl(_PR_SET_TIMERSLACK, ns, 0, 0, 0)) == 0
-    except AttributeError:  # pragma: no cover - not Linux
-        return False
 
 
 def set_realtime(priority: int = 1) -> bool:
