@@ -33,6 +33,7 @@ from types import ModuleType
 from typing import Any, Protocol
 
 from . import _backend
+from ._pure.predict import DIR_REQUEST, PRED_LENGTH, make_rules, predict
 from ._slave_diag import LineState
 from .ascii import encode_ascii, make_framer
 from .errors import SlaveException
@@ -126,6 +127,8 @@ class ServerProtocol:
         self._sending: Response | None = None
         self._last_valid: float | None = None
         self._tripped = False
+        #: the frame ends of the bytes being given (see `wake_at`): (time, bytes then)
+        self._bound: tuple[float, int] | None = None
 
     def reconfigure(self, line: LineConfig) -> None:
         """Take ``line`` (new rules, say) from now on; bytes being framed are dropped."""
@@ -133,6 +136,12 @@ class ServerProtocol:
         self.framer: Framer = make_framer(line, "slave", self.backend)
         self._received = 0  # bytes given to the framer
         self._framed = 0  # of which the framer has ended (frames and discards)
+        self._head = bytearray()  # RTU: the bytes of the frame in progress
+        self._nap: tuple[float, int] | None = None  # see `wake_at`
+        self._rules = make_rules(line.rules)
+        self._last_length = 0  # of the last request to this slave (see wake_at)
+        self._last_function = -1
+        self.max_adu = line.max_adu
         #: the silence kept after a request (t3.5 in RTU; none in ASCII)
         self.turnaround = line.frame_gap
         self.char_time = line.char_time
@@ -147,14 +156,28 @@ class ServerProtocol:
     # ----------------------------------------------------------------- inputs
 
     def receive_data(self, data: bytes, now: float) -> None:
-        """Bytes that arrived (were read) at ``now``."""
+        """Bytes that arrived (were read) at ``now``.  After a nap (`wake_at`), give
+        what the read returned, even nothing: that ends the nap."""
+        nap, self._nap = self._nap, None
         if not data:
             return
-        if self._ascii and self.state.ascii_delimiter != 0x0A:
-            data = data.translate(_delimiter_table(self.state.ascii_delimiter))
+        if self._ascii:
+            if self.state.ascii_delimiter != 0x0A:
+                data = data.translate(_delimiter_table(self.state.ascii_delimiter))
+            self._received += len(data)
+            self.framer.receive_data(data, now)
+            self._drain(now)
+            return
         self._received += len(data)
+        head = self._head
+        head += data
+        self._bound = nap
         self.framer.receive_data(data, now)
         self._drain(now)
+        self._bound = None
+        excess = len(head) - (self._received - self._framed)
+        if excess > 0:
+            del head[:excess]
 
     def handle_timer(self, now: float) -> None:
         """Let the time up to ``now`` end what it ends (frames, the watchdog)."""
@@ -183,6 +206,7 @@ class ServerProtocol:
     def drop_response(self) -> None:
         """Forget the response waiting for its time (the driver stopped: when it serves
         again the master has long moved on); it counts as not answered."""
+        self._nap = None
         if self._pending is not None:
             self._pending = None
             self.state.not_answered()
@@ -209,6 +233,54 @@ class ServerProtocol:
         if needed and 0 < started < _MIN_ADU and not self._ascii:
             return max(needed, _MIN_ADU - started)
         return needed
+
+    def wake_at(self, now: float) -> float | None:
+        """Until when a driver that just gave the protocol all the bytes it could read
+        (at ``now``) may sleep without watching the port, so that it wakes once for
+        the rest of a frame instead of once per byte; None: watch the port.
+
+        A request to this slave (or a broadcast) whose length the rules give
+        (Application Protocol V1.1b section 6, and the registered rules): its end at
+        the character rate, plus the turnaround when it will be answered, so that
+        the driver reads it, executes it and sends the response in one wake-up, at
+        the earliest time allowed.  Any other frame in progress: ``needed()``
+        characters (the least it can still take).  RTU only (ASCII frames end at a
+        delimiter, not at a length); none while a response waits or an echo is due.
+
+        The bytes the driver reads after the nap must be given to `receive_data`
+        (even none): the frame they end is taken to have ended by its last byte's
+        time at the character rate from ``now``, not by the late read (a frame is
+        sent as a continuous stream, Serial Line V1.02 2.5.1.1), so the response
+        still goes out t3.5 after the frame's end on the line.
+        """
+        head = self._head
+        n = len(head)
+        if self._ascii or n == 0 or self._pending is not None or self._echo is not None:
+            return None
+        unit = head[0]
+        char = self.char_time
+        if unit == 0 or unit in self.app.addresses:
+            length = 0
+            if n >= 2:
+                status, length = predict(self._rules, DIR_REQUEST, bytes(head), n)
+                if status != PRED_LENGTH:
+                    length = self._last_length if head[1] == self._last_function else 0
+            else:
+                # the function code is not in yet: guess the last request's length (a
+                # master polls the same requests); a wrong guess costs a later answer
+                # or one more wake-up, never an early answer (see receive_data)
+                length = self._last_length
+            if n < length <= self.max_adu:
+                self._nap = (now, self._received)
+                end = now + (length - n) * char
+                if unit == 0 or self.state.listen_only:
+                    return end  # not answered
+                return end + self.turnaround
+        need = self.needed()
+        if need <= 0:
+            return None
+        self._nap = (now, self._received)
+        return now + need * char
 
     @property
     def pending(self) -> Response | None:
@@ -256,6 +328,9 @@ class ServerProtocol:
             self.counters["ignored"] += 1
             return
         broadcast = unit == 0
+        if not self._ascii:
+            self._last_length = len(raw)
+            self._last_function = raw[1]
         request = message[1:]
         self.state.request_received(broadcast)
         self.counters["broadcasts" if broadcast else "requests"] += 1
@@ -276,6 +351,13 @@ class ServerProtocol:
         if self._pending is not None:
             self.state.not_answered()
         end = now if frame.end is None else frame.end
+        bound = self._bound
+        if bound is not None and frame.offset < bound[1]:
+            # read late after a nap: the frame's last byte came at the character
+            # rate after the bytes read before it (see wake_at)
+            at = bound[0] + (frame.offset + len(raw) - bound[1]) * self.char_time
+            if at < end:
+                end = at
         self._pending = Response(
             unit,
             self._encode(bytes((unit,)) + response),

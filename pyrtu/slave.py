@@ -17,11 +17,14 @@ wait) plus ``response_delay``.  With ``echo=True`` (an adapter that echoes)
 the frame equal to what it just sent is dropped.
 
 All of that is the sans-I/O server protocol (`pyrtu._server.ServerProtocol`); this
-module only moves bytes and times.  The loop waits in ``poll`` on the port's file
+module only moves bytes and times.  The loop waits in ``select`` on the port's file
 descriptor and a wake-up pipe (`stop` writes to it), until bytes come or the
-protocol's deadline (a frame's silence, the response's time, the watchdog); while
-a frame whose length is known is arriving it sleeps through the bytes still
-needed instead of waking for each one (lenient mode).  The lock is held only while
+protocol's deadline (a frame's silence, the response's time, the watchdog).  When
+the first bytes of a frame come it sleeps, not watching the port, until the
+protocol's `wake_at`: for a request to this slave the end of the request (its
+length from the rules) plus t3.5, then reads the rest, executes the request and
+writes the response in that one wake-up; two wake-ups per transaction instead of
+one per byte (lenient mode; strict mode sees every gap).  The lock is held only while
 the protocol runs, never while waiting.  Ports without a file descriptor (pyserial
 URLs) are read with a 50 ms timeout, which bounds `stop` there.
 
@@ -124,8 +127,9 @@ class Slave(SlaveBase):
         #: the port and the wake-up pipe; the pipe alone (sleeping through a frame)
         self._wait_fds = [self._wake_r] if fd is None else [fd, self._wake_r]
         self._sleep_fds = [self._wake_r]
-        #: skip ahead over the known rest of a frame (not in strict mode: every gap counts)
+        #: sleep through the known rest of a frame (not in strict mode: every gap counts)
         self._skip = not self.line_config.strict and fd is not None
+        self._nap: float | None = None  # napping until then (the port not watched)
         #: the error that ended serve_forever in the background thread, if any
         self.error: BaseException | None = None
 
@@ -140,6 +144,7 @@ class Slave(SlaveBase):
             if self._serving:
                 raise RuntimeError("this slave is already serving")
             self._serving = True
+            self._nap = None
         try:
             while not self._stop.is_set():
                 self._step(None)
@@ -198,58 +203,62 @@ class Slave(SlaveBase):
 
     def poll(self, timeout: float = _POLL) -> None:
         """One step of the loop: wait up to ``timeout`` for bytes, act on what came; a
-        response that became due is sent before returning (after its t3.5 and delay)."""
+        request that began is read to its end and a response that became due is
+        sent before returning (after its t3.5 and delay)."""
         self._step(_monotonic() + timeout)
         while not self._stop.is_set():
             with self._lock:
                 pending = self.protocol.pending
-            if pending is None:
+            if pending is None and self._nap is None:
                 return
             self._step(self.protocol.deadline())
 
     # ------------------------------------------------------------------ one step
 
     def _step(self, until: float | None) -> None:
-        """Wait for bytes, the protocol's deadline or ``until``; feed what came; send
-        the response whose time has come."""
+        """Wait for bytes, the protocol's deadline or ``until`` (or, napping, for the
+        end of the nap); feed what came; send the response whose time has come."""
         proto = self.protocol
-        with self._lock:
-            due = deadline = proto.deadline()
-            needed = proto.needed() if self._skip else 0
-        if until is not None and (deadline is None or until < deadline):
-            deadline = until
-        now = _monotonic()
-        timeout = None if deadline is None else max(0.0, deadline - now)
         port = self.port
-        if port.fd is None:
-            limit = _POLL if timeout is None else timeout
-            data = port.read(min(limit, _POLL) if until is None else limit)
+        fd = port.fd
+        nap = self._nap
+        with self._lock:
+            due = proto.deadline()
+        if fd is None:
+            deadline = due if until is None or (due is not None and due < until) else until
+            timeout = _POLL if deadline is None else max(0.0, deadline - _monotonic())
+            data = port.read(min(timeout, _POLL) if until is None else timeout)
+        elif nap is not None:
+            # the rest of a frame the protocol sized: sleep through it (only stop()
+            # wakes this), then read it all at once
+            self._nap = None
+            timeout = nap - _monotonic()
+            if timeout > 0 and self._wait(self._sleep_fds, timeout):
+                self._drain_wake()
+                if self._stop.is_set():
+                    return
+            data = read_ready(port, fd, False)
         else:
-            if needed > 0:
-                # the rest of a frame of known length: sleep through it, then read it all
-                hold = needed * port.char_time
-                if timeout is None or hold < timeout:
-                    timeout = hold
-                ready = self._wait(self._sleep_fds, timeout)
-                readable = True  # not asked: read whatever came
-            else:
-                ready = self._wait(self._wait_fds, timeout)
-                readable = False
-            for fd in ready:
-                if fd == self._wake_r:
+            deadline = due if until is None or (due is not None and due < until) else until
+            wait = None if deadline is None else max(0.0, deadline - _monotonic())
+            readable = False
+            for ready in self._wait(self._wait_fds, wait):
+                if ready == self._wake_r:
                     self._drain_wake()
                     if self._stop.is_set():
                         return
                 else:
                     readable = True
-            data = read_ready(port, port.fd, needed == 0) if readable else b""
+            data = read_ready(port, fd, True) if readable else b""
         now = _monotonic()
         with self._lock:
-            if data:
-                proto.receive_data(data, now)  # (new bytes only move the framer's timer on)
+            if data or nap is not None:
+                proto.receive_data(data, now)
             if due is not None and now >= due:
                 proto.handle_timer(now)
             adu = proto.data_to_send(now)
+            if adu is None and data and self._skip:
+                self._nap = proto.wake_at(now)
         if adu is not None:
             _start, end = port.write(adu)
             with self._lock:
