@@ -28,21 +28,21 @@ from __future__ import annotations
 import contextlib
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass
 from types import ModuleType
-from typing import Any, Protocol
+from typing import Any, NamedTuple, Protocol
 
 from . import _backend
 from ._pure.predict import DIR_REQUEST, PRED_LENGTH, make_rules, predict
 from ._slave_diag import LineState
 from .ascii import encode_ascii, make_framer
 from .errors import SlaveException
-from .frames import Frame, FrameKind
+from .frames import ERROR_BY_CODE, Frame
 from .line import LineConfig
 
 log = logging.getLogger("pyrtu.slave")
 
 _MIN_ADU = 4
+_REQUEST = 0  # FrameKind.REQUEST, RTU_KIND_REQUEST
 
 COUNTER_NAMES = (
     "requests",
@@ -81,8 +81,7 @@ class Framer(Protocol):
     def send(self, adu: bytes) -> Any: ...
 
 
-@dataclass(frozen=True, slots=True)
-class Response:
+class Response(NamedTuple):
     """A response waiting for its time: the ADU and the earliest time to send it."""
 
     unit: int
@@ -134,6 +133,8 @@ class ServerProtocol:
         """Take ``line`` (new rules, say) from now on; bytes being framed are dropped."""
         self.line = line
         self.framer: Framer = make_framer(line, "slave", self.backend)
+        #: RTU: the framer's core, driven directly (the hot path: no Frame objects)
+        self._core: Any = getattr(self.framer, "_core", None)
         self._received = 0  # bytes given to the framer
         self._framed = 0  # of which the framer has ended (frames and discards)
         self._head = bytearray()  # RTU: the bytes of the frame in progress
@@ -161,7 +162,7 @@ class ServerProtocol:
         nap, self._nap = self._nap, None
         if not data:
             return
-        if self._ascii:
+        if self._core is None:  # ASCII
             if self.state.ascii_delimiter != 0x0A:
                 data = data.translate(_delimiter_table(self.state.ascii_delimiter))
             self._received += len(data)
@@ -172,8 +173,18 @@ class ServerProtocol:
         head = self._head
         head += data
         self._bound = nap
-        self.framer.receive_data(data, now)
-        self._drain(now)
+        core = self._core
+        now_us = round(now * 1_000_000)
+        took = core.feed(data, now_us)
+        self._core_events(core, now)
+        stalled = 1 if took == 0 else 0
+        while took < len(data):  # a silence before the bytes, or a frame ended in them
+            data = data[took:]
+            took = core.feed(data, now_us)
+            self._core_events(core, now)
+            stalled = stalled + 1 if took == 0 else 0
+            if stalled > 2:
+                raise RuntimeError("framer made no progress (internal error)")
         self._bound = None
         excess = len(head) - (self._received - self._framed)
         if excess > 0:
@@ -181,10 +192,17 @@ class ServerProtocol:
 
     def handle_timer(self, now: float) -> None:
         """Let the time up to ``now`` end what it ends (frames, the watchdog)."""
-        timer = self.framer.timer()
-        if timer is not None and now >= timer:
-            self.framer.handle_timer(now)
-            self._drain(now)
+        core = self._core
+        if core is None:
+            timer = self.framer.timer()
+            if timer is not None and now >= timer:
+                self.framer.handle_timer(now)
+                self._drain(now)
+        else:
+            deadline = core.deadline()
+            if deadline is not None and now >= deadline / 1e6:
+                core.handle_timer(round(now * 1_000_000))
+                self._core_events(core, now)
         if (
             self.watchdog is not None
             and self._last_valid is not None
@@ -215,7 +233,12 @@ class ServerProtocol:
 
     def deadline(self) -> float | None:
         """When `handle_timer` or `data_to_send` has work (None: only bytes will do)."""
-        at = self.framer.timer()
+        core = self._core
+        if core is None:
+            at = self.framer.timer()
+        else:
+            timer = core.deadline()
+            at = None if timer is None else timer / 1e6
         if self._pending is not None and (at is None or self._pending.earliest < at):
             at = self._pending.earliest
         if self.watchdog is not None and self._last_valid is not None and not self._tripped:
@@ -294,7 +317,10 @@ class ServerProtocol:
             return None
         self._pending = None
         self._sending = pending
-        self.framer.send(pending.adu)
+        if self._core is None:
+            self.framer.send(pending.adu)
+        else:
+            self._core.sent(pending.adu)
         self.state.answered(pending.exception)
         self.counters["exceptions" if pending.exception is not None else "responses"] += 1
         if log.isEnabledFor(logging.DEBUG):
@@ -304,25 +330,43 @@ class ServerProtocol:
     # ------------------------------------------------------------------ frames
 
     def _drain(self, now: float) -> None:
+        """ASCII: the framer's Frame events."""
         framer = self.framer
         while (ev := framer.next_event()) is not None:
-            self._framed = ev.offset + len(ev.adu if ev.text is None else ev.text)
+            wire = ev.wire
+            self._framed = ev.offset + len(wire)
             if ev.error is not None:
                 self.state.discard_seen(ev.error.value, ev.start, ev.end)
             else:
-                self._on_frame(ev, now)
+                self._on_frame(ev.kind, wire, ev.message, ev.offset, ev.end, now)
 
-    def _on_frame(self, frame: Frame, now: float) -> None:
-        raw = frame.wire
+    def _core_events(self, core: Any, now: float) -> None:
+        """RTU: the core's events, (offset, length, kind, error, start_us, end_us, adu)."""
+        poll = core.poll
+        while (ev := poll()) is not None:
+            offset, length, kind, error, start_us, end_us, adu = ev
+            self._framed = offset + length
+            if error:
+                reason = ERROR_BY_CODE[error]
+                assert reason is not None
+                self.state.discard_seen(reason.value, start_us / 1e6, end_us / 1e6)
+            else:
+                self._on_frame(kind, adu, adu[:-2], offset, end_us / 1e6, now)
+
+    def _on_frame(
+        self, kind: int, raw: bytes, message: bytes, offset: int, end: float | None, now: float
+    ) -> None:
+        """A frame checked by its CRC or LRC: ``raw`` as on the wire, ``message`` the
+        address and PDU, ``kind`` a `FrameKind` (RTU_KIND_*), ``end`` its last byte's
+        time (None: no times given)."""
         if self._echo is not None:
             sent, self._echo = self._echo, None
             if raw == sent and now <= self._echo_until:
                 self.counters["echo_dropped"] += 1
                 return
         self.state.frame_seen()
-        if frame.kind is not FrameKind.REQUEST:
+        if kind != _REQUEST:
             return
-        message = frame.message
         unit = message[0]
         if unit != 0 and unit not in self.app.addresses:
             self.counters["ignored"] += 1
@@ -350,12 +394,13 @@ class ServerProtocol:
             return
         if self._pending is not None:
             self.state.not_answered()
-        end = now if frame.end is None else frame.end
+        if end is None:
+            end = now
         bound = self._bound
-        if bound is not None and frame.offset < bound[1]:
+        if bound is not None and offset < bound[1]:
             # read late after a nap: the frame's last byte came at the character
             # rate after the bytes read before it (see wake_at)
-            at = bound[0] + (frame.offset + len(raw) - bound[1]) * self.char_time
+            at = bound[0] + (offset + len(raw) - bound[1]) * self.char_time
             if at < end:
                 end = at
         self._pending = Response(

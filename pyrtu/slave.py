@@ -218,28 +218,19 @@ class Slave(SlaveBase):
     def _step(self, until: float | None) -> None:
         """Wait for bytes, the protocol's deadline or ``until`` (or, napping, for the
         end of the nap); feed what came; send the response whose time has come."""
+        if self._nap is not None:
+            self._nap_step(self._nap)
+            return
         proto = self.protocol
         port = self.port
         fd = port.fd
-        nap = self._nap
         with self._lock:
             due = proto.deadline()
+        deadline = due if until is None or (due is not None and due < until) else until
         if fd is None:
-            deadline = due if until is None or (due is not None and due < until) else until
             timeout = _POLL if deadline is None else max(0.0, deadline - _monotonic())
             data = port.read(min(timeout, _POLL) if until is None else timeout)
-        elif nap is not None:
-            # the rest of a frame the protocol sized: sleep through it (only stop()
-            # wakes this), then read it all at once
-            self._nap = None
-            timeout = nap - _monotonic()
-            if timeout > 0 and self._wait(self._sleep_fds, timeout):
-                self._drain_wake()
-                if self._stop.is_set():
-                    return
-            data = read_ready(port, fd, False)
         else:
-            deadline = due if until is None or (due is not None and due < until) else until
             wait = None if deadline is None else max(0.0, deadline - _monotonic())
             readable = False
             for ready in self._wait(self._wait_fds, wait):
@@ -252,7 +243,7 @@ class Slave(SlaveBase):
             data = read_ready(port, fd, True) if readable else b""
         now = _monotonic()
         with self._lock:
-            if data or nap is not None:
+            if data:
                 proto.receive_data(data, now)
             if due is not None and now >= due:
                 proto.handle_timer(now)
@@ -260,9 +251,40 @@ class Slave(SlaveBase):
             if adu is None and data and self._skip:
                 self._nap = proto.wake_at(now)
         if adu is not None:
-            _start, end = port.write(adu)
-            with self._lock:
-                proto.transmitted(end)
+            self._send(adu)
+
+    def _nap_step(self, until: float) -> None:
+        """Sleep through the rest of a frame the protocol sized, not watching the port
+        (only stop() wakes this), then read it all: for a request to this slave, its
+        end plus t3.5 has come, and the response goes out at once."""
+        self._nap = None
+        timeout = until - _monotonic()
+        if timeout > 0 and self._wait(self._sleep_fds, timeout):
+            self._drain_wake()
+            if self._stop.is_set():
+                return
+        port = self.port
+        assert port.fd is not None
+        data = read_ready(port, port.fd, False)
+        now = _monotonic()
+        proto = self.protocol
+        with self._lock:
+            proto.receive_data(data, now)  # even nothing: that ends the nap
+            adu = proto.data_to_send(now)
+            if adu is None:
+                due = proto.deadline()
+                if due is not None and now >= due:
+                    proto.handle_timer(now)
+                    adu = proto.data_to_send(now)
+                if adu is None and data:
+                    self._nap = proto.wake_at(now)
+        if adu is not None:
+            self._send(adu)
+
+    def _send(self, adu: bytes) -> None:
+        _start, end = self.port.write(adu)
+        with self._lock:
+            self.protocol.transmitted(end)
 
     @staticmethod
     def _wait(fds: list[int], timeout: float | None) -> list[int]:
