@@ -268,9 +268,10 @@ class AsyncSlave(SlaveBase):
 
     def _rearm(self, now: float) -> None:
         assert self._loop is not None
-        at = self.protocol.deadline()
-        if self._resume_at is not None and (at is None or self._resume_at < at):
-            at = self._resume_at
+        # napping: only the nap's end (the framer's silence timer counts from the last
+        # byte read, which says nothing while the port is not watched; the watchdog
+        # is looked at after the nap)
+        at = self._resume_at if self._resume_at is not None else self.protocol.deadline()
         if at == self._timer_at:
             return
         if self._timer is not None:
