@@ -355,24 +355,30 @@ commit {baseline or "-"} (same C core), measured in the same run.
 
 {ir}{verdict}  CPU per wake-up: {per_wake}.
 
-How the slave wakes: on the first byte(s) of a request (the port is watched), then
-once more at the request's end plus t3.5, where it reads the rest, executes the
-request and writes the answer (`ServerProtocol.wake_at`: the request's length from
-the length rules once the function code is in, the last request's length when only
-the address is; the bytes read late are dated by the character rate, so the answer
-never goes out early).  Two wake-ups is the least a transaction can take without
-kernel timestamps: one to learn that a request began, one to answer it.  What each
-costs is set by this VM: `python bench/wake_floor.py` (same run), CPU of one wake-up
-(sleep, pipe write, select, read) after a sleep of each length:
+How the slave wakes (`ServerProtocol.wake_at`): on the first byte(s) of a request
+(the port is watched), then, not watching the port, at the request's end plus t3.5,
+the request's length from the length rules once the function code is in (from the
+address alone, the last request's length); the bytes read late are dated by the
+character rate, so the answer never goes out early.  The sync `Slave` wakes
+`PREPARE` (0.5 ms) before that time, reads the request, prepares the answer and
+sends it at its time after a short wait (three wake-ups; its timer slack is 1 µs);
+the `AsyncSlave` reads, executes and sends in one wake-up (two; asyncio's epoll
+waits are rounded up to whole milliseconds, so its answer is up to 1 ms late, and a
+wake-up to prepare would have the same rounding).  Without kernel timestamps two
+wake-ups is the least a transaction can take: one to learn that a request began,
+one to answer it.  What each costs is set by this VM: `python bench/wake_floor.py`
+(same run), CPU of one wake-up (sleep, pipe write, select, read) after a sleep of
+each length:
 
 {floor}
 
-The slave's wake-ups come after 5-30 ms sleeps, so two of them cost 50-100 µs before
-any code runs; and the same protocol code (framer, function, DataStore, CRC, about a
-hundred Python calls) that takes about 30 µs in a hot loop takes 200-250 µs after a
-10 ms sleep on this loaded VM (caches and TLB refilled by other jobs).  ≤ 40 µs per
-transaction is below what two Python wake-ups cost here; it needs the per-frame path
-(framing, the standard functions on a register table, CRC) in C, or a quiet machine.
+The slave's long sleeps are 5-30 ms (waiting for a request, sleeping through it),
+so its first two wake-ups cost 50-100 µs before any code runs; and the same protocol
+code (framer, function, DataStore, CRC, some eighty Python calls) that takes about
+25 µs in a hot loop takes 150-250 µs after a 10 ms sleep on this loaded VM (caches
+and TLB refilled by other jobs).  ≤ 40 µs per transaction is below what two Python
+wake-ups cost here; it needs the per-frame path (framing, the standard functions on
+a register table, CRC) in C, or a quiet machine to show what it costs.
 {END}"""
 
 

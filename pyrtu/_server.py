@@ -257,18 +257,21 @@ class ServerProtocol:
             return max(needed, _MIN_ADU - started)
         return needed
 
-    def wake_at(self, now: float) -> float | None:
+    def wake_at(self, now: float, lead: float = 0.0) -> float | None:
         """Until when a driver that just gave the protocol all the bytes it could read
         (at ``now``) may sleep without watching the port, so that it wakes once for
         the rest of a frame instead of once per byte; None: watch the port.
 
         A request to this slave (or a broadcast) whose length the rules give
-        (Application Protocol V1.1b section 6, and the registered rules): its end at
-        the character rate, plus the turnaround when it will be answered, so that
-        the driver reads it, executes it and sends the response in one wake-up, at
-        the earliest time allowed.  Any other frame in progress: ``needed()``
-        characters (the least it can still take).  RTU only (ASCII frames end at a
-        delimiter, not at a length); none while a response waits or an echo is due.
+        (Application Protocol V1.1b section 6, and the registered rules; from the
+        address alone, the last request's length): its end at the character rate,
+        plus the turnaround when it will be answered, less ``lead`` (at most half
+        the turnaround, so that the request is in): the driver reads the request,
+        prepares the response during the turnaround and sends it at its time
+        (`deadline`); with ``lead`` 0 it reads, executes and sends in one wake-up, a
+        little late.  Any other frame in progress: ``needed()`` characters (the
+        least it can still take).  RTU only (ASCII frames end at a delimiter, not at
+        a length); none while a response waits or an echo is due.
 
         The bytes the driver reads after the nap must be given to `receive_data`
         (even none): the frame they end is taken to have ended by its last byte's
@@ -298,7 +301,8 @@ class ServerProtocol:
                 end = now + (length - n) * char
                 if unit == 0 or self.state.listen_only:
                     return end  # not answered
-                return end + self.turnaround
+                turnaround = self.turnaround
+                return end + turnaround - min(lead, 0.5 * turnaround)
         need = self.needed()
         if need <= 0:
             return None

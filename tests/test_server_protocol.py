@@ -467,3 +467,20 @@ def test_driven_naps_never_answer_early(
             assert sent <= end + T35 + latency + CHAR + 1e-9
             assert wakeups == 2
         h.now = sent + (len(adu) + 60) * CHAR + T35
+
+
+def test_wake_at_with_a_lead_prepares_during_the_turnaround(backend: ModuleType) -> None:
+    """``lead``: wake that much before the answer's time (at most half of t3.5, so the
+    request is in), prepare it, and send it at its time, not sooner."""
+    h = Harness(backend)
+    adu = h.adu(read_request())
+    t0 = h.now
+    h.proto.receive_data(adu[:2], t0)
+    assert h.proto.wake_at(t0, lead=0.0005) == pytest.approx(t0 + 6 * CHAR + T35 - 0.0005)
+    at = h.proto.wake_at(t0, lead=1.0)  # capped
+    assert at == pytest.approx(t0 + 6 * CHAR + T35 / 2)
+    h.proto.receive_data(adu[2:], at)
+    assert h.proto.data_to_send(at) is None  # prepared, not due
+    assert h.proto.deadline() == pytest.approx(t0 + 6 * CHAR + T35)
+    out, sent = h.run_until_sent()
+    assert out is not None and sent == pytest.approx(t0 + 6 * CHAR + T35)

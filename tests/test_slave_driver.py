@@ -120,8 +120,9 @@ def test_poll_answers_after_the_delay_within_the_call() -> None:
 @pytest.mark.wall_clock
 def test_two_reads_per_transaction_on_the_virtual_bus() -> None:
     """Byte-timed delivery at 9600: the sync Slave reads the first byte(s) of a
-    request, sleeps to the request's end plus t3.5 (wake_at), then reads the rest and
-    answers: two reads per repeated request, not one per byte (eight).  The median
+    request, sleeps to shortly before the request's end plus t3.5 (wake_at), reads
+    the rest, prepares the answer and sends it at its time: two reads per repeated
+    request, not one per byte (eight).  The median
     over 15 requests holds on a loaded VM (a late hub thread adds a read to a few
     transactions at most; the answers are checked all the same)."""
     reads: list[int] = []
