@@ -14,7 +14,7 @@ from ptylink import PtyLink, RawPort, make_store
 from pyrtu import add_crc
 from pyrtu.line import LineConfig
 from pyrtu.master import Master
-from pyrtu.slave import Slave
+from pyrtu.slave import Slave, _timer_slack
 from pyrtu.vbus import VirtualBus
 
 
@@ -147,3 +147,26 @@ def test_two_reads_per_transaction_on_the_virtual_bus() -> None:
             assert sorted(per)[len(per) // 2] <= 2, per
             assert sum(reads) >= 16 * 8
             assert slave.error is None
+
+
+@pytest.mark.skipif(_timer_slack(None) is None, reason="no prctl timer slack (not Linux)")
+def test_serving_thread_timer_slack_is_set_and_restored(link: PtyLink) -> None:
+    """While serving, the thread's timer slack is 1 µs (timed waits end on time);
+    serve_forever gives the caller's thread its own back."""
+    seen: list[int | None] = []
+    slave = Slave(link.path_b, store=make_store(), parity="N")
+    slave.on_request(lambda unit, pdu: seen.append(_timer_slack(None)))
+
+    def serve() -> None:
+        _timer_slack(123_000)
+        slave.serve_forever()
+        seen.append(_timer_slack(None))
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    with RawPort(link.path_a) as port:
+        assert port.ask(REQUEST, want=len(ANSWER)) == ANSWER
+    slave.stop()
+    thread.join(2.0)
+    slave.close()
+    assert seen == [1000, 123_000]
