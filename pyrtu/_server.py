@@ -5,6 +5,7 @@ out; nothing here reads a port, sleeps or looks at a clock::
 
     proto = ServerProtocol(line, app)        # line: a LineConfig
     proto.receive_data(chunk, now)        # bytes read at ``now`` (seconds, monotonic)
+    nap = proto.wake_at(now)              # may sleep until then, not watching the port
     proto.handle_timer(now)               # when ``now >= proto.deadline()``
     adu = proto.data_to_send(now)         # the response, once its time has come
     if adu:
