@@ -10,10 +10,15 @@ slaves (ports) share one event loop and one thread::
                 tg.create_task(s.serve())
 
 A port with a file descriptor is watched with ``loop.add_reader``; the protocol's
-deadline is a ``loop.call_at`` timer; while a frame of known length arrives the
-reader is set aside for the bytes still needed (one wake-up instead of one per
-byte, lenient mode).  A port without one (a pyserial URL) is read by a worker
-thread with pyserial's generic reads, which hands the bytes to the loop.
+deadline is a ``loop.call_at`` timer.  When the first bytes of a frame come, the
+reader is set aside until the protocol's `wake_at` (the frame's end, and for a
+request to this slave the end of its t3.5 as well): the rest is read, the request
+executed and the response written in that one wake-up (lenient mode): two
+wake-ups per transaction.  (asyncio's epoll loop rounds its waits up to whole
+milliseconds, so the answer goes out up to 1 ms after its time; preparing it
+sooner would only add a wake-up with the same rounding.)  A port
+without a file descriptor (a pyserial URL) is read by a worker thread with
+pyserial's generic reads, which hands the bytes to the loop.
 
 A port that fails (unplugged) ends `serve` with the `PortError`; the port is
 closed, its reader removed, and the other slaves of the loop go on.
@@ -203,9 +208,9 @@ class AsyncSlave(SlaveBase):
         self._reading = False
 
     def _on_readable(self) -> None:
-        self._read_now(True)
+        self._read_now(True, False)
 
-    def _read_now(self, readable: bool) -> None:
+    def _read_now(self, readable: bool, napped: bool) -> None:
         assert self._loop is not None and self.port.fd is not None
         try:
             data = read_ready(self.port, self.port.fd, readable)
@@ -213,9 +218,9 @@ class AsyncSlave(SlaveBase):
             self._fail(exc)
             return
         now = self._loop.time()
-        if data:
-            self.protocol.receive_data(data, now)
-        self._after(now)
+        if data or napped:
+            self.protocol.receive_data(data, now)  # after a nap even nothing: it ends it
+        self._after(now, bool(data))
 
     def _read_thread(self) -> None:
         """A port without a file descriptor: pyserial's reads, bytes to the loop."""
@@ -237,33 +242,39 @@ class AsyncSlave(SlaveBase):
             return
         now = self._loop.time()
         self.protocol.receive_data(data, now)
-        self._after(now)
+        self._after(now, False)  # no nap: the reader thread reads on its own
 
     # ------------------------------------------------------------- time, sending
 
-    def _after(self, now: float) -> None:
-        """The protocol saw bytes or time: act on it, then wait for what comes next."""
+    def _after(self, now: float, read: bool) -> None:
+        """The protocol saw bytes (``read``: from the port's descriptor, all there
+        were) or time: act on it, then wait for what comes next."""
         proto = self.protocol
-        proto.handle_timer(now)
+        due = proto.deadline()
+        if due is not None and now >= due:
+            proto.handle_timer(now)
+        adu = None
         if self._out is None:
             adu = proto.data_to_send(now)
             if adu is not None:
                 self._write(adu, now)
         if self._done is None or self._done.done():
             return
-        if self._skip and self._reading:
-            needed = proto.needed()
-            if needed > 0:
-                # the rest of a frame of known length: one wake-up for all of it
+        if read and adu is None and self._skip and self._reading:
+            at = proto.wake_at(now)
+            if at is not None:
+                # the rest of a frame the protocol sized (and the answer's time): one
+                # wake-up for all of it, with the reader set aside
                 self._remove_reader()
-                self._resume_at = now + needed * self.port.char_time
+                self._resume_at = at
         self._rearm(now)
 
     def _rearm(self, now: float) -> None:
         assert self._loop is not None
-        at = self.protocol.deadline()
-        if self._resume_at is not None and (at is None or self._resume_at < at):
-            at = self._resume_at
+        # napping: only the nap's end (the framer's silence timer counts from the last
+        # byte read, which says nothing while the port is not watched; the watchdog
+        # is looked at after the nap)
+        at = self._resume_at if self._resume_at is not None else self.protocol.deadline()
         if at == self._timer_at:
             return
         if self._timer is not None:
@@ -277,9 +288,9 @@ class AsyncSlave(SlaveBase):
         if self._resume_at is not None:
             self._resume_at = None
             self._add_reader()
-            self._read_now(False)  # what came while the reader was set aside, and the time
+            self._read_now(False, True)  # what came while the reader was set aside
             return
-        self._after(self._loop.time())
+        self._after(self._loop.time(), False)
 
     def _write(self, adu: bytes, now: float) -> None:
         port = self.port
@@ -327,7 +338,7 @@ class AsyncSlave(SlaveBase):
             self._loop.remove_writer(fd)
             now = self._loop.time()
             self.protocol.transmitted(max(self._out_end, now))
-            self._after(now)
+            self._after(now, False)
 
 
 __all__ = ["AsyncSlave"]

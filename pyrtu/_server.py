@@ -5,6 +5,7 @@ out; nothing here reads a port, sleeps or looks at a clock::
 
     proto = ServerProtocol(line, app)        # line: a LineConfig
     proto.receive_data(chunk, now)        # bytes read at ``now`` (seconds, monotonic)
+    nap = proto.wake_at(now)              # may sleep until then, not watching the port
     proto.handle_timer(now)               # when ``now >= proto.deadline()``
     adu = proto.data_to_send(now)         # the response, once its time has come
     if adu:
@@ -28,20 +29,21 @@ from __future__ import annotations
 import contextlib
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass
 from types import ModuleType
-from typing import Any, Protocol
+from typing import Any, NamedTuple, Protocol
 
 from . import _backend
+from ._pure.predict import DIR_REQUEST, PRED_LENGTH, make_rules, predict
 from ._slave_diag import LineState
 from .ascii import encode_ascii, make_framer
 from .errors import SlaveException
-from .frames import Frame, FrameKind
+from .frames import ERROR_BY_CODE, Frame
 from .line import LineConfig
 
 log = logging.getLogger("pyrtu.slave")
 
 _MIN_ADU = 4
+_REQUEST = 0  # FrameKind.REQUEST, RTU_KIND_REQUEST
 
 COUNTER_NAMES = (
     "requests",
@@ -80,8 +82,7 @@ class Framer(Protocol):
     def send(self, adu: bytes) -> Any: ...
 
 
-@dataclass(frozen=True, slots=True)
-class Response:
+class Response(NamedTuple):
     """A response waiting for its time: the ADU and the earliest time to send it."""
 
     unit: int
@@ -126,13 +127,23 @@ class ServerProtocol:
         self._sending: Response | None = None
         self._last_valid: float | None = None
         self._tripped = False
+        #: the frame ends of the bytes being given (see `wake_at`): (time, bytes then)
+        self._bound: tuple[float, int] | None = None
 
     def reconfigure(self, line: LineConfig) -> None:
         """Take ``line`` (new rules, say) from now on; bytes being framed are dropped."""
         self.line = line
         self.framer: Framer = make_framer(line, "slave", self.backend)
+        #: RTU: the framer's core, driven directly (the hot path: no Frame objects)
+        self._core: Any = getattr(self.framer, "_core", None)
         self._received = 0  # bytes given to the framer
         self._framed = 0  # of which the framer has ended (frames and discards)
+        self._head = bytearray()  # RTU: the bytes of the frame in progress
+        self._nap: tuple[float, int] | None = None  # see `wake_at`
+        self._rules = make_rules(line.rules)
+        self._last_length = 0  # of the last request to this slave (see wake_at)
+        self._last_function = -1
+        self.max_adu = line.max_adu
         #: the silence kept after a request (t3.5 in RTU; none in ASCII)
         self.turnaround = line.frame_gap
         self.char_time = line.char_time
@@ -147,21 +158,52 @@ class ServerProtocol:
     # ----------------------------------------------------------------- inputs
 
     def receive_data(self, data: bytes, now: float) -> None:
-        """Bytes that arrived (were read) at ``now``."""
+        """Bytes that arrived (were read) at ``now``.  After a nap (`wake_at`), give
+        what the read returned, even nothing: that ends the nap."""
+        nap, self._nap = self._nap, None
         if not data:
             return
-        if self._ascii and self.state.ascii_delimiter != 0x0A:
-            data = data.translate(_delimiter_table(self.state.ascii_delimiter))
+        if self._core is None:  # ASCII
+            if self.state.ascii_delimiter != 0x0A:
+                data = data.translate(_delimiter_table(self.state.ascii_delimiter))
+            self._received += len(data)
+            self.framer.receive_data(data, now)
+            self._drain(now)
+            return
         self._received += len(data)
-        self.framer.receive_data(data, now)
-        self._drain(now)
+        head = self._head
+        head += data
+        self._bound = nap
+        core = self._core
+        now_us = round(now * 1_000_000)
+        took = core.feed(data, now_us)
+        self._core_events(core, now)
+        stalled = 1 if took == 0 else 0
+        while took < len(data):  # a silence before the bytes, or a frame ended in them
+            data = data[took:]
+            took = core.feed(data, now_us)
+            self._core_events(core, now)
+            stalled = stalled + 1 if took == 0 else 0
+            if stalled > 2:
+                raise RuntimeError("framer made no progress (internal error)")
+        self._bound = None
+        excess = len(head) - (self._received - self._framed)
+        if excess > 0:
+            del head[:excess]
 
     def handle_timer(self, now: float) -> None:
         """Let the time up to ``now`` end what it ends (frames, the watchdog)."""
-        timer = self.framer.timer()
-        if timer is not None and now >= timer:
-            self.framer.handle_timer(now)
-            self._drain(now)
+        core = self._core
+        if core is None:
+            timer = self.framer.timer()
+            if timer is not None and now >= timer:
+                self.framer.handle_timer(now)
+                self._drain(now)
+        else:
+            deadline = core.deadline()
+            if deadline is not None and now >= deadline / 1e6:
+                core.handle_timer(round(now * 1_000_000))
+                self._core_events(core, now)
         if (
             self.watchdog is not None
             and self._last_valid is not None
@@ -183,6 +225,7 @@ class ServerProtocol:
     def drop_response(self) -> None:
         """Forget the response waiting for its time (the driver stopped: when it serves
         again the master has long moved on); it counts as not answered."""
+        self._nap = None
         if self._pending is not None:
             self._pending = None
             self.state.not_answered()
@@ -191,7 +234,12 @@ class ServerProtocol:
 
     def deadline(self) -> float | None:
         """When `handle_timer` or `data_to_send` has work (None: only bytes will do)."""
-        at = self.framer.timer()
+        core = self._core
+        if core is None:
+            at = self.framer.timer()
+        else:
+            timer = core.deadline()
+            at = None if timer is None else timer / 1e6
         if self._pending is not None and (at is None or self._pending.earliest < at):
             at = self._pending.earliest
         if self.watchdog is not None and self._last_valid is not None and not self._tripped:
@@ -210,6 +258,58 @@ class ServerProtocol:
             return max(needed, _MIN_ADU - started)
         return needed
 
+    def wake_at(self, now: float, lead: float = 0.0) -> float | None:
+        """Until when a driver that just gave the protocol all the bytes it could read
+        (at ``now``) may sleep without watching the port, so that it wakes once for
+        the rest of a frame instead of once per byte; None: watch the port.
+
+        A request to this slave (or a broadcast) whose length the rules give
+        (Application Protocol V1.1b section 6, and the registered rules; from the
+        address alone, the last request's length): its end at the character rate,
+        plus the turnaround when it will be answered, less ``lead`` (at most half
+        the turnaround, so that the request is in): the driver reads the request,
+        prepares the response during the turnaround and sends it at its time
+        (`deadline`); with ``lead`` 0 it reads, executes and sends in one wake-up, a
+        little late.  Any other frame in progress: ``needed()`` characters (the
+        least it can still take).  RTU only (ASCII frames end at a delimiter, not at
+        a length); none while a response waits or an echo is due.
+
+        The bytes the driver reads after the nap must be given to `receive_data`
+        (even none): the frame they end is taken to have ended by its last byte's
+        time at the character rate from ``now``, not by the late read (a frame is
+        sent as a continuous stream, Serial Line V1.02 2.5.1.1), so the response
+        still goes out t3.5 after the frame's end on the line.
+        """
+        head = self._head
+        n = len(head)
+        if self._ascii or n == 0 or self._pending is not None or self._echo is not None:
+            return None
+        unit = head[0]
+        char = self.char_time
+        if unit == 0 or unit in self.app.addresses:
+            length = 0
+            if n >= 2:
+                status, length = predict(self._rules, DIR_REQUEST, bytes(head), n)
+                if status != PRED_LENGTH:
+                    length = self._last_length if head[1] == self._last_function else 0
+            else:
+                # the function code is not in yet: guess the last request's length (a
+                # master polls the same requests); a wrong guess costs a later answer
+                # or one more wake-up, never an early answer (see receive_data)
+                length = self._last_length
+            if n < length <= self.max_adu:
+                self._nap = (now, self._received)
+                end = now + (length - n) * char
+                if unit == 0 or self.state.listen_only:
+                    return end  # not answered
+                turnaround = self.turnaround
+                return end + turnaround - min(lead, 0.5 * turnaround)
+        need = self.needed()
+        if need <= 0:
+            return None
+        self._nap = (now, self._received)
+        return now + need * char
+
     @property
     def pending(self) -> Response | None:
         """The response waiting for its time, if any."""
@@ -222,7 +322,10 @@ class ServerProtocol:
             return None
         self._pending = None
         self._sending = pending
-        self.framer.send(pending.adu)
+        if self._core is None:
+            self.framer.send(pending.adu)
+        else:
+            self._core.sent(pending.adu)
         self.state.answered(pending.exception)
         self.counters["exceptions" if pending.exception is not None else "responses"] += 1
         if log.isEnabledFor(logging.DEBUG):
@@ -232,30 +335,51 @@ class ServerProtocol:
     # ------------------------------------------------------------------ frames
 
     def _drain(self, now: float) -> None:
+        """ASCII: the framer's Frame events."""
         framer = self.framer
         while (ev := framer.next_event()) is not None:
-            self._framed = ev.offset + len(ev.adu if ev.text is None else ev.text)
+            wire = ev.wire
+            self._framed = ev.offset + len(wire)
             if ev.error is not None:
                 self.state.discard_seen(ev.error.value, ev.start, ev.end)
             else:
-                self._on_frame(ev, now)
+                self._on_frame(ev.kind, wire, ev.message, ev.offset, ev.end, now)
 
-    def _on_frame(self, frame: Frame, now: float) -> None:
-        raw = frame.wire
+    def _core_events(self, core: Any, now: float) -> None:
+        """RTU: the core's events, (offset, length, kind, error, start_us, end_us, adu)."""
+        poll = core.poll
+        while (ev := poll()) is not None:
+            offset, length, kind, error, start_us, end_us, adu = ev
+            self._framed = offset + length
+            if error:
+                reason = ERROR_BY_CODE[error]
+                assert reason is not None
+                self.state.discard_seen(reason.value, start_us / 1e6, end_us / 1e6)
+            else:
+                self._on_frame(kind, adu, adu[:-2], offset, end_us / 1e6, now)
+
+    def _on_frame(
+        self, kind: int, raw: bytes, message: bytes, offset: int, end: float | None, now: float
+    ) -> None:
+        """A frame checked by its CRC or LRC: ``raw`` as on the wire, ``message`` the
+        address and PDU, ``kind`` a `FrameKind` (RTU_KIND_*), ``end`` its last byte's
+        time (None: no times given)."""
         if self._echo is not None:
             sent, self._echo = self._echo, None
             if raw == sent and now <= self._echo_until:
                 self.counters["echo_dropped"] += 1
                 return
         self.state.frame_seen()
-        if frame.kind is not FrameKind.REQUEST:
+        if kind != _REQUEST:
             return
-        message = frame.message
         unit = message[0]
         if unit != 0 and unit not in self.app.addresses:
             self.counters["ignored"] += 1
             return
         broadcast = unit == 0
+        if not self._ascii:
+            self._last_length = len(raw)
+            self._last_function = raw[1]
         request = message[1:]
         self.state.request_received(broadcast)
         self.counters["broadcasts" if broadcast else "requests"] += 1
@@ -275,7 +399,15 @@ class ServerProtocol:
             return
         if self._pending is not None:
             self.state.not_answered()
-        end = now if frame.end is None else frame.end
+        if end is None:
+            end = now
+        bound = self._bound
+        if bound is not None and offset < bound[1]:
+            # read late after a nap: the frame's last byte came at the character
+            # rate after the bytes read before it (see wake_at)
+            at = bound[0] + (offset + len(raw) - bound[1]) * self.char_time
+            if at < end:
+                end = at
         self._pending = Response(
             unit,
             self._encode(bytes((unit,)) + response),

@@ -168,9 +168,10 @@ class SlaveBase:
 
     def store_for(self, unit: int) -> DataStore:
         """The DataStore that serves ``unit``."""
-        if isinstance(self.store, Mapping):
-            return self.store[unit]
-        return self.store
+        store = self.store
+        if type(store) is DataStore or not isinstance(store, Mapping):
+            return store
+        return store[unit]
 
     @property
     def counters(self) -> dict[str, int]:
@@ -214,19 +215,19 @@ class SlaveBase:
             handler = self._handlers.get(fc)
             if handler is None or fc not in self.functions:
                 raise SlaveException(1, f"function {fc} is not supported")
-            if unit == 0:
+            if unit:
+                with self.store_for(unit).lock:
+                    response = handler(unit, request)
+            else:
                 if fc not in self._broadcast_ok:
                     return None
-                units = self._broadcast_units(fc)
-            else:
-                units = [unit]
-            response = None
-            for u in units:
-                if u:
-                    with self.store_for(u).lock:
+                response = None
+                for u in self._broadcast_units(fc):
+                    if u:
+                        with self.store_for(u).lock:
+                            response = handler(u, request)
+                    else:
                         response = handler(u, request)
-                else:
-                    response = handler(u, request)
             self.line.completed(fc)
             return response
         except SlaveException as exc:

@@ -17,11 +17,16 @@ wait) plus ``response_delay``.  With ``echo=True`` (an adapter that echoes)
 the frame equal to what it just sent is dropped.
 
 All of that is the sans-I/O server protocol (`pyrtu._server.ServerProtocol`); this
-module only moves bytes and times.  The loop waits in ``poll`` on the port's file
+module only moves bytes and times.  The loop waits in ``select`` on the port's file
 descriptor and a wake-up pipe (`stop` writes to it), until bytes come or the
-protocol's deadline (a frame's silence, the response's time, the watchdog); while
-a frame whose length is known is arriving it sleeps through the bytes still
-needed instead of waking for each one (lenient mode).  The lock is held only while
+protocol's deadline (a frame's silence, the response's time, the watchdog).  When
+the first bytes of a frame come it sleeps, not watching the port, until the
+protocol's `wake_at`: for a request to this slave, `PREPARE` before the end of the
+request (its length from the rules) plus t3.5; it reads the rest, executes the
+request, and writes the response at its time after one more short wait.  Three
+wake-ups per transaction (the first byte, the request, the answer) instead of one
+per byte (lenient mode; strict mode sees every gap).  The serving thread's timer
+slack is set to 1 µs (Linux) so that the answer's wait ends on time.  The lock is held only while
 the protocol runs, never while waiting.  Ports without a file descriptor (pyserial
 URLs) are read with a 50 ms timeout, which bounds `stop` there.
 
@@ -32,9 +37,11 @@ The diagnostic counters, event log and listen-only mode of the serial line
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import logging
 import os
 import select
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterable, Mapping
@@ -51,8 +58,38 @@ log = logging.getLogger("pyrtu.slave")
 _monotonic = time.monotonic
 
 _POLL = 0.05  # ports without a file descriptor: the longest blocking read
+#: wake this long before a response's time to prepare it (capped at half of t3.5 by the
+#: protocol): the read, the function and the CRC take 50-300 µs on a loaded machine
+PREPARE = 0.0005
+#: the serving thread's timer slack (Linux), so that timed waits end on time (the
+#: default 50 µs would add to every answer's turnaround)
+_TIMER_SLACK_NS = 1000
+_PR_SET_TIMERSLACK, _PR_GET_TIMERSLACK = 29, 30
 _READ_SIZE = 4096
 _SELECT_LIMIT = 1024  # FD_SETSIZE
+
+
+def _prctl() -> Any:
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        return ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return None
+
+
+_PRCTL = _prctl()
+
+
+def _timer_slack(ns: int | None) -> int | None:
+    """Set this thread's timer slack to ``ns`` (None: leave it); the old one, or None
+    where there is no prctl (not Linux)."""
+    if _PRCTL is None:
+        return None
+    old = int(_PRCTL(_PR_GET_TIMERSLACK, 0, 0, 0, 0))
+    if ns is not None and old >= 0:
+        _PRCTL(_PR_SET_TIMERSLACK, ns, 0, 0, 0)
+    return old if old >= 0 else None
 
 
 def read_ready(port: Port, fd: int, readable: bool) -> bytes:
@@ -124,8 +161,9 @@ class Slave(SlaveBase):
         #: the port and the wake-up pipe; the pipe alone (sleeping through a frame)
         self._wait_fds = [self._wake_r] if fd is None else [fd, self._wake_r]
         self._sleep_fds = [self._wake_r]
-        #: skip ahead over the known rest of a frame (not in strict mode: every gap counts)
+        #: sleep through the known rest of a frame (not in strict mode: every gap counts)
         self._skip = not self.line_config.strict and fd is not None
+        self._nap: float | None = None  # napping until then (the port not watched)
         #: the error that ended serve_forever in the background thread, if any
         self.error: BaseException | None = None
 
@@ -140,10 +178,14 @@ class Slave(SlaveBase):
             if self._serving:
                 raise RuntimeError("this slave is already serving")
             self._serving = True
+            self._nap = None
+        slack = _timer_slack(_TIMER_SLACK_NS)
         try:
             while not self._stop.is_set():
                 self._step(None)
         finally:
+            if slack is not None:
+                _timer_slack(slack)
             with self._lock:
                 self.protocol.drop_response()
             self._serving = False
@@ -198,62 +240,88 @@ class Slave(SlaveBase):
 
     def poll(self, timeout: float = _POLL) -> None:
         """One step of the loop: wait up to ``timeout`` for bytes, act on what came; a
-        response that became due is sent before returning (after its t3.5 and delay)."""
+        request that began is read to its end and a response that became due is
+        sent before returning (after its t3.5 and delay)."""
         self._step(_monotonic() + timeout)
         while not self._stop.is_set():
             with self._lock:
                 pending = self.protocol.pending
-            if pending is None:
+            if pending is None and self._nap is None:
                 return
             self._step(self.protocol.deadline())
 
     # ------------------------------------------------------------------ one step
 
     def _step(self, until: float | None) -> None:
-        """Wait for bytes, the protocol's deadline or ``until``; feed what came; send
-        the response whose time has come."""
+        """Wait for bytes, the protocol's deadline or ``until`` (or, napping, for the
+        end of the nap); feed what came; send the response whose time has come."""
+        if self._nap is not None:
+            self._nap_step(self._nap)
+            return
         proto = self.protocol
-        with self._lock:
-            due = deadline = proto.deadline()
-            needed = proto.needed() if self._skip else 0
-        if until is not None and (deadline is None or until < deadline):
-            deadline = until
-        now = _monotonic()
-        timeout = None if deadline is None else max(0.0, deadline - now)
         port = self.port
-        if port.fd is None:
-            limit = _POLL if timeout is None else timeout
-            data = port.read(min(limit, _POLL) if until is None else limit)
+        fd = port.fd
+        with self._lock:
+            due = proto.deadline()
+        deadline = due if until is None or (due is not None and due < until) else until
+        if fd is None:
+            timeout = _POLL if deadline is None else max(0.0, deadline - _monotonic())
+            data = port.read(min(timeout, _POLL) if until is None else timeout)
         else:
-            if needed > 0:
-                # the rest of a frame of known length: sleep through it, then read it all
-                hold = needed * port.char_time
-                if timeout is None or hold < timeout:
-                    timeout = hold
-                ready = self._wait(self._sleep_fds, timeout)
-                readable = True  # not asked: read whatever came
-            else:
-                ready = self._wait(self._wait_fds, timeout)
-                readable = False
-            for fd in ready:
-                if fd == self._wake_r:
+            wait = None if deadline is None else max(0.0, deadline - _monotonic())
+            readable = False
+            for ready in self._wait(self._wait_fds, wait):
+                if ready == self._wake_r:
                     self._drain_wake()
                     if self._stop.is_set():
                         return
                 else:
                     readable = True
-            data = read_ready(port, port.fd, needed == 0) if readable else b""
+            data = read_ready(port, fd, True) if readable else b""
         now = _monotonic()
         with self._lock:
             if data:
-                proto.receive_data(data, now)  # (new bytes only move the framer's timer on)
+                proto.receive_data(data, now)
             if due is not None and now >= due:
                 proto.handle_timer(now)
             adu = proto.data_to_send(now)
+            if adu is None and data and self._skip:
+                self._nap = proto.wake_at(now, PREPARE)
         if adu is not None:
-            _start, end = port.write(adu)
-            with self._lock:
-                proto.transmitted(end)
+            self._send(adu)
+
+    def _nap_step(self, until: float) -> None:
+        """Sleep through the rest of a frame the protocol sized, not watching the port
+        (only stop() wakes this), then read it all: for a request to this slave, its
+        end plus t3.5 has come, and the response goes out at once."""
+        self._nap = None
+        timeout = until - _monotonic()
+        if timeout > 0 and self._wait(self._sleep_fds, timeout):
+            self._drain_wake()
+            if self._stop.is_set():
+                return
+        port = self.port
+        assert port.fd is not None
+        data = read_ready(port, port.fd, False)
+        now = _monotonic()
+        proto = self.protocol
+        with self._lock:
+            proto.receive_data(data, now)  # even nothing: that ends the nap
+            adu = proto.data_to_send(now)
+            if adu is None:
+                due = proto.deadline()
+                if due is not None and now >= due:
+                    proto.handle_timer(now)
+                    adu = proto.data_to_send(now)
+                if adu is None and data:
+                    self._nap = proto.wake_at(now, PREPARE)
+        if adu is not None:
+            self._send(adu)
+
+    def _send(self, adu: bytes) -> None:
+        _start, end = self.port.write(adu)
+        with self._lock:
+            self.protocol.transmitted(end)
 
     @staticmethod
     def _wait(fds: list[int], timeout: float | None) -> list[int]:

@@ -312,3 +312,175 @@ def test_drop_response(backend: ModuleType) -> None:
     assert h.proto.pending is None
     assert h.run_until_sent()[0] is None
     assert h.app.line.counters["slave_no_response_count"] == 1
+
+
+# ------------------------------------------------------------------ wake_at: naps
+
+
+def test_wake_at_sleeps_through_the_request_and_its_turnaround(backend: ModuleType) -> None:
+    """Address and function in: the request's length is known, so the driver may
+    sleep to its end plus t3.5, read the rest late and answer at once; the answer's
+    time comes from the character rate, not from the late read."""
+    h = Harness(backend)
+    adu = h.adu(read_request())
+    t0 = h.now
+    h.proto.receive_data(adu[:2], t0)
+    at = h.proto.wake_at(t0)
+    assert at == pytest.approx(t0 + 6 * CHAR + T35)
+    late = at + 0.0004  # the driver wakes late
+    h.proto.receive_data(adu[2:], late)
+    pending = h.proto.pending
+    assert pending is not None and pending.earliest == pytest.approx(t0 + 6 * CHAR + T35)
+    assert h.proto.data_to_send(late) == h.adu(
+        b"\x01" + P.registers_response(3, [1000 + i for i in range(10)])
+    )
+
+
+def test_wake_at_guesses_the_last_length_from_the_address_alone(backend: ModuleType) -> None:
+    h = Harness(backend)
+    adu = h.adu(read_request())
+    h.proto.receive_data(adu[:1], h.now)
+    # nothing known yet: the least rest of any frame (4 bytes at least), no turnaround
+    assert h.proto.wake_at(h.now) == pytest.approx(h.now + 3 * CHAR)
+    h.proto.receive_data(adu[1:], h.now + 3 * CHAR)
+    h.run_until_sent()
+    h.now += 5 * T35
+    t0 = h.now
+    h.proto.receive_data(adu[:1], t0)
+    assert h.proto.wake_at(t0) == pytest.approx(t0 + 7 * CHAR + T35)
+
+
+def test_a_wrong_guess_answers_late_never_early(backend: ModuleType) -> None:
+    """After an 8-byte request the guess is 8; a 4-byte one (FC 07) ends sooner: it is
+    answered at the guessed time (late), its t3.5 counted from its own end."""
+    h = Harness(backend)
+    h.feed(h.adu(read_request()))
+    h.run_until_sent()
+    h.now += 5 * T35
+    short = h.adu(b"\x01\x07")
+    t0 = h.now
+    h.proto.receive_data(short[:1], t0)
+    at = h.proto.wake_at(t0)
+    assert at == pytest.approx(t0 + 7 * CHAR + T35)
+    h.proto.receive_data(short[1:], at)
+    pending = h.proto.pending
+    assert pending is not None and pending.earliest == pytest.approx(t0 + 3 * CHAR + T35)
+    assert h.proto.data_to_send(at) == h.adu(b"\x01\x07\x00")
+
+
+def test_an_empty_read_ends_the_nap(backend: ModuleType) -> None:
+    """The rest did not come when the nap ended (the master paused): bytes read later
+    are not back-dated to the character rate."""
+    h = Harness(backend)
+    adu = h.adu(read_request())
+    t0 = h.now
+    h.proto.receive_data(adu[:2], t0)
+    at = h.proto.wake_at(t0)
+    assert at is not None
+    h.proto.receive_data(b"", at)
+    later = at + 2 * CHAR
+    h.proto.receive_data(adu[2:], later)
+    pending = h.proto.pending
+    assert pending is not None and pending.earliest == pytest.approx(later + T35)
+
+
+def test_wake_at_other_frames(backend: ModuleType) -> None:
+    """Another slave's request or response, a broadcast: the least rest, no
+    turnaround; ASCII, a pending answer, nothing in progress: watch the port."""
+    h = Harness(backend)
+    other = h.adu(read_request(unit=2))
+    h.proto.receive_data(other[:2], h.now)
+    at = h.proto.wake_at(h.now)
+    assert at is not None and h.now < at <= h.now + 6 * CHAR
+    h.proto.receive_data(other[2:], at)
+    assert h.proto.wake_at(at) is None  # nothing in progress
+    h.now = at + 2 * T35
+    broadcast = h.adu(b"\x00" + P.write_register_request(3, 7))
+    h.proto.receive_data(broadcast[:2], h.now)
+    assert h.proto.wake_at(h.now) == pytest.approx(h.now + 6 * CHAR)
+    h.proto.receive_data(broadcast[2:], h.now + 6 * CHAR)
+    assert h.store.holding_registers.get(3) == 7
+    h.now += 2 * T35
+    h.feed(h.adu(read_request()))
+    assert h.proto.pending is not None
+    h.proto.receive_data(b"\x01", h.now)
+    assert h.proto.wake_at(h.now) is None  # a response waits: the deadline rules
+    line = LineConfig(baudrate=BAUD, parity="N", mode="ascii")
+    a = Harness(backend, line)
+    a.proto.receive_data(b":0103", a.now)
+    assert a.proto.wake_at(a.now) is None
+
+
+def _drive(h: Harness, adu: bytes, latency: float) -> tuple[float, float, int]:
+    """A driver on a byte-timed line: byte i is in at t0 + (i + 1) CHAR; it wakes
+    ``latency`` after the first byte, then at every ``wake_at`` plus ``latency``,
+    reading all that is in.  Returns (the request's end, when the answer went out,
+    wake-ups)."""
+    t0 = h.now
+    arrival = [t0 + (i + 1) * CHAR for i in range(len(adu))]
+    now = arrival[0] + latency
+    got = 0
+    wakeups = 0
+    while True:
+        wakeups += 1
+        ready = sum(1 for t in arrival if t <= now)
+        h.proto.receive_data(adu[got:ready], now)
+        got = ready
+        out = h.proto.data_to_send(now)
+        if out is not None:
+            h.now = now
+            h.proto.transmitted(now + len(out) * CHAR)
+            return arrival[-1], now, wakeups
+        at = h.proto.wake_at(now)
+        if at is None:
+            at = h.proto.deadline()
+        if at is None:  # watching the port: the next byte
+            at = arrival[got]
+        now = max(at, now) + latency
+        assert wakeups < 3 * len(adu)
+
+
+@pytest.mark.parametrize("latency", [0.0, 0.3 * CHAR, 2.5 * CHAR])
+@pytest.mark.parametrize(
+    "message",
+    [
+        read_request(),
+        b"\x01\x07",
+        b"\x01" + P.write_registers_request(0, list(range(10))),
+        b"\x01\x2b\x0e\x01\x00",
+    ],
+    ids=["fc03", "fc07", "fc16", "fc43"],
+)
+def test_driven_naps_never_answer_early(
+    backend: ModuleType, message: bytes, latency: float
+) -> None:
+    """Whatever the guess and the driver's lateness, the answer goes out no sooner
+    than t3.5 after the request's last byte, and on time plus the lateness when
+    the guess holds; a repeated request takes two wake-ups."""
+    h = Harness(backend)
+    adu = h.adu(message)
+    for i, first in enumerate([read_request(), message, message]):
+        request = h.adu(first)
+        end, sent, wakeups = _drive(h, request, latency)
+        assert sent >= end + T35 - 1e-9
+        if i == 2:  # the same request again: the guess holds
+            assert sent <= end + T35 + latency + CHAR + 1e-9
+            assert wakeups == 2
+        h.now = sent + (len(adu) + 60) * CHAR + T35
+
+
+def test_wake_at_with_a_lead_prepares_during_the_turnaround(backend: ModuleType) -> None:
+    """``lead``: wake that much before the answer's time (at most half of t3.5, so the
+    request is in), prepare it, and send it at its time, not sooner."""
+    h = Harness(backend)
+    adu = h.adu(read_request())
+    t0 = h.now
+    h.proto.receive_data(adu[:2], t0)
+    assert h.proto.wake_at(t0, lead=0.0005) == pytest.approx(t0 + 6 * CHAR + T35 - 0.0005)
+    at = h.proto.wake_at(t0, lead=1.0)  # capped
+    assert at == pytest.approx(t0 + 6 * CHAR + T35 / 2)
+    h.proto.receive_data(adu[2:], at)
+    assert h.proto.data_to_send(at) is None  # prepared, not due
+    assert h.proto.deadline() == pytest.approx(t0 + 6 * CHAR + T35)
+    out, sent = h.run_until_sent()
+    assert out is not None and sent == pytest.approx(t0 + 6 * CHAR + T35)
