@@ -15,9 +15,9 @@ import ctypes.util
 import sys
 import threading
 
-__all__ = ["set_timer_slack", "tighten_this_thread"]
+__all__ = ["set_timer_slack", "swap_timer_slack", "tighten_this_thread"]
 
-_PR_SET_TIMERSLACK = 29
+_PR_SET_TIMERSLACK, _PR_GET_TIMERSLACK = 29, 30
 _libc: ctypes.CDLL | None = None
 if sys.platform.startswith("linux"):
     try:
@@ -36,6 +36,22 @@ def set_timer_slack(ns: int = 1000) -> bool:
         return int(_libc.prctl(_PR_SET_TIMERSLACK, ns, 0, 0, 0)) == 0
     except AttributeError:  # pragma: no cover - no prctl
         return False
+
+
+def swap_timer_slack(ns: int | None) -> int | None:
+    """Set this thread's timer slack to ``ns`` nanoseconds (None: leave it); the old
+    slack, to restore later, or None where unsupported."""
+    if _libc is None:
+        return None
+    try:
+        old = int(_libc.prctl(_PR_GET_TIMERSLACK, 0, 0, 0, 0))
+    except AttributeError:  # pragma: no cover - no prctl
+        return None
+    if old < 0:
+        return None
+    if ns is not None:
+        _libc.prctl(_PR_SET_TIMERSLACK, ns, 0, 0, 0)
+    return old
 
 
 def tighten_this_thread() -> None:

@@ -37,16 +37,15 @@ The diagnostic counters, event log and listen-only mode of the serial line
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import logging
 import os
 import select
-import sys
 import threading
 import time
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
+from ._slack import swap_timer_slack
 from ._slave_base import STANDARD_FUNCTIONS, Handler, SlaveBase, line_from_keywords
 from .datastore import DataStore
 from .errors import PortError
@@ -64,32 +63,8 @@ PREPARE = 0.0005
 #: the serving thread's timer slack (Linux), so that timed waits end on time (the
 #: default 50 µs would add to every answer's turnaround)
 _TIMER_SLACK_NS = 1000
-_PR_SET_TIMERSLACK, _PR_GET_TIMERSLACK = 29, 30
 _READ_SIZE = 4096
 _SELECT_LIMIT = 1024  # FD_SETSIZE
-
-
-def _prctl() -> Any:
-    if not sys.platform.startswith("linux"):
-        return None
-    try:
-        return ctypes.CDLL(None, use_errno=True).prctl
-    except (OSError, AttributeError):
-        return None
-
-
-_PRCTL = _prctl()
-
-
-def _timer_slack(ns: int | None) -> int | None:
-    """Set this thread's timer slack to ``ns`` (None: leave it); the old one, or None
-    where there is no prctl (not Linux)."""
-    if _PRCTL is None:
-        return None
-    old = int(_PRCTL(_PR_GET_TIMERSLACK, 0, 0, 0, 0))
-    if ns is not None and old >= 0:
-        _PRCTL(_PR_SET_TIMERSLACK, ns, 0, 0, 0)
-    return old if old >= 0 else None
 
 
 def read_ready(port: Port, fd: int, readable: bool) -> bytes:
@@ -179,13 +154,13 @@ class Slave(SlaveBase):
                 raise RuntimeError("this slave is already serving")
             self._serving = True
             self._nap = None
-        slack = _timer_slack(_TIMER_SLACK_NS)
+        slack = swap_timer_slack(_TIMER_SLACK_NS)
         try:
             while not self._stop.is_set():
                 self._step(None)
         finally:
             if slack is not None:
-                _timer_slack(slack)
+                swap_timer_slack(slack)
             with self._lock:
                 self.protocol.drop_response()
             self._serving = False

@@ -12,9 +12,10 @@ import pytest
 from ptylink import PtyLink, RawPort, make_store
 
 from pyrtu import add_crc
+from pyrtu._slack import swap_timer_slack as _timer_slack
 from pyrtu.line import LineConfig
 from pyrtu.master import Master
-from pyrtu.slave import Slave, _timer_slack
+from pyrtu.slave import Slave
 from pyrtu.vbus import VirtualBus
 
 
