@@ -78,6 +78,7 @@ def serve(kind: str, path: str, baudrate: int) -> None:
         slave.close()
         return
     from pyrtu._aio_slave import AsyncSlave
+    from pyrtu.aio import run as aio_run
 
     async def main() -> None:
         loop = asyncio.get_running_loop()
@@ -91,7 +92,7 @@ def serve(kind: str, path: str, baudrate: int) -> None:
                 print(time.process_time(), aslave.counters["requests"], flush=True)
         await aslave.close()
 
-    asyncio.run(main())
+    aio_run(main())  # pyrtu.aio.run: a select() loop, microsecond timers
 
 
 class SlaveProcess:
