@@ -32,9 +32,12 @@ from the request, [TCP] 3.1.3):
 
 A malformed MBAP header (protocol id not 0, length outside 2..254) closes that
 connection only.  A client that does not read its answers is closed when its
-unsent output passes ``max_write_buffer`` bytes (it never blocks a bus worker:
-answers are written without waiting), and while its output is above the transport's
-high-water mark its requests are not read (asyncio's pause_writing).  A client
+unsent output passes ``max_write_buffer`` bytes: answers are written without
+waiting, so it never blocks a bus worker, and its requests go on being read (and
+answered, 0x06 once its queue is full) until it is closed.  Its socket's kernel send
+buffer is set to ``max_write_buffer`` too (Linux doubles it), so what one client
+can leave unread on the gateway's host is bounded by about three times the limit,
+not by the kernel's autotuned buffer (megabytes on Linux).  A client
 that disconnects leaves the bus in step: a transaction already on the wire runs to
 its end (its answer is dropped), the client's waiting requests are removed from the
 queue.
@@ -43,7 +46,9 @@ queue.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
+import socket
 import time
 from collections import OrderedDict, deque
 from collections.abc import Iterable, Mapping, Sequence
@@ -250,6 +255,12 @@ class _Connection(asyncio.Protocol):
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         assert isinstance(transport, asyncio.Transport)
         self.transport = transport
+        sock = transport.get_extra_info("socket")
+        if sock is not None:
+            with contextlib.suppress(OSError):  # bound the kernel's share of unread answers
+                sock.setsockopt(
+                    socket.SOL_SOCKET, socket.SO_SNDBUF, self.gateway.limits.max_write_buffer
+                )
         self.gateway._opened(self)
 
     def data_received(self, data: bytes) -> None:
@@ -269,15 +280,6 @@ class _Connection(asyncio.Protocol):
     def eof_received(self) -> bool | None:
         return None  # close our side too
 
-    def pause_writing(self) -> None:
-        # the client does not read its answers: read no more of its requests
-        if self.transport is not None and not self.closed:
-            self.transport.pause_reading()
-
-    def resume_writing(self) -> None:
-        if self.transport is not None and not self.closed:
-            self.transport.resume_reading()
-
     def connection_lost(self, exc: Exception | None) -> None:
         self.closed = True
         self.gateway._closed(self)
@@ -292,6 +294,7 @@ class _Connection(asyncio.Protocol):
             self.gateway.counters["slow_clients"] += 1
             log.info("connection %d does not read its answers: closed", self.id)
             t.abort()
+            self.closed = True  # read none of its requests still in the chunk
 
     def encode(self, transaction: int, unit: int, pdu: bytes) -> bytes:
         return bytes(self.framer.send(transaction, unit, pdu))

@@ -24,6 +24,7 @@ from peers.tools import (
     peer_env,
     pyrtu_slave_process,
 )
+from tcp_helpers import flood, stuck_socket
 
 from pyrtu import ExceptionResponseError, encode_mbap, parse_tcp_stream, pdu
 from pyrtu.tcp import AsyncTcpClient, TcpClient
@@ -194,6 +195,45 @@ def test_queue_overflow_through_the_gateway(pty_pair: tuple[str, str]) -> None:
                 assert pdu.parse_registers(answers[t].pdu, 1) == pattern.holdings(1, t, 1)
             stats = gw.stop()
             assert stats["busy"] == len(busy)
+        finally:
+            if gw.proc.poll() is None:
+                gw.proc.kill()
+                gw.proc.communicate()
+
+
+def test_max_write_buffer_closes_a_stuck_client_and_others_go_on(pty_pair: tuple[str, str]) -> None:
+    """--max-write-buffer: a client that sends and never reads is closed; a client
+    reading its answers on the same bus is served before, during and after.  The
+    limit is above asyncio's write high-water mark (64 KiB), where a gateway that
+    stops reading a client instead of closing it would keep it forever."""
+    gw_side, slave_side = pty_pair
+    with pyrtu_slave_process(slave_side, 1, t35=0):
+        gw = start_gateway(f"{gw_side}=1", "--max-write-buffer", "131072")
+        try:
+
+            async def main() -> int:
+                stuck = stuck_socket((gw.host, gw.port))
+                big = pdu.read_request(3, 0, 125)
+                burst = b"".join(encode_mbap(n, 1, big) for n in range(32))
+                async with await AsyncTcpClient.connect(gw.url, timeout=5.0) as ok:
+                    flooding = asyncio.ensure_future(flood(stuck, burst))
+                    served = 0
+                    while not flooding.done():
+                        got = await ok.request(1, pdu.read_request(3, served % 100, 2))
+                        assert pdu.parse_registers(got or b"", 2) == pattern.holdings(
+                            1, served % 100, 2
+                        )
+                        served += 1
+                    await flooding
+                    stuck.close()
+                    for i in range(10):
+                        got = await ok.request(1, pdu.read_request(3, i, 1))
+                        assert pdu.parse_registers(got or b"", 1) == pattern.holdings(1, i, 1)
+                return served
+
+            assert asyncio.run(main()) > 0
+            stats = gw.stop()
+            assert stats["slow_clients"] == 1 and stats["connections"] == 2
         finally:
             if gw.proc.poll() is None:
                 gw.proc.kill()
