@@ -1,7 +1,8 @@
 """Interop through `pyrtu gateway` onto a serial bus: pymodbus's and libmodbus's TCP
 clients and pyrtu's, to a pyrtu slave and to a simulated drive on the other end of a
 pseudo-terminal pair (socat; t35=0: a pty pair has no wire timing).  The gateway
-runs as its own process (the command); 127.0.0.1 only."""
+runs as its own process (the command); 127.0.0.1 only.  An ASCII bus (--mode ascii)
+at the end."""
 
 from __future__ import annotations
 
@@ -22,6 +23,7 @@ from peers.tools import (
     PeerBinaries,
     libmodbus_script,
     peer_env,
+    pymodbus_server,
     pyrtu_slave_process,
 )
 from tcp_helpers import flood, stuck_socket
@@ -344,3 +346,94 @@ def test_rtu_over_tcp_clients_through_the_gateway(pty_pair: tuple[str, str]) -> 
             if gw.proc.poll() is None:
                 gw.proc.kill()
                 gw.proc.communicate()
+
+
+# -- an ASCII bus behind the gateway (--mode ascii) ----------------------------------
+
+
+def test_ascii_bus_pymodbus_slave_through_the_gateway(pty_pair: tuple[str, str]) -> None:
+    """`--mode ascii`: Modbus TCP clients (pyrtu's and pymodbus's) onto pymodbus's ASCII
+    serial server; the gateway frames ':' ... LRC CR LF on the bus."""
+    from pymodbus.client import ModbusTcpClient
+
+    gw_side, slave_side = pty_pair
+    with pymodbus_server(slave_side, 1, mode="ascii") as peer:
+        gw = start_gateway(f"{gw_side}=1-9", "--mode", "ascii")
+        try:
+            with TcpClient(gw.url, timeout=3.0) as c:
+                got = c.request(1, pdu.read_request(3, 5, 10))
+                assert pdu.parse_registers(got or b"", 10) == pattern.holdings(1, 5, 10)
+                got = c.request(1, pdu.read_request(2, 3, 20))
+                assert pdu.parse_bits(got or b"", 20) == pattern.discretes(1, 3, 20)
+                assert c.request(1, pdu.write_registers_request(120, [7, 8, 9])) is not None
+                got = c.request(1, pdu.read_request(3, 120, 3))
+                assert pdu.parse_registers(got or b"", 3) == [7, 8, 9]
+                with pytest.raises(ExceptionResponseError) as info:
+                    c.request(4, pdu.read_request(3, 0, 1))  # nobody at 4 on the bus
+                assert info.value.code == 0x0B
+                assert c.request(0, pdu.write_register_request(130, 1313)) is None  # broadcast
+            client = ModbusTcpClient(gw.host, port=gw.port, timeout=3, retries=0)
+            assert client.connect()
+            try:
+                rr = client.read_input_registers(2, count=6, device_id=1)
+                assert not rr.isError() and rr.registers == pattern.inputs(1, 2, 6)
+                assert client.read_holding_registers(130, count=1, device_id=1).registers == [
+                    1313
+                ]  # the broadcast reached the slave
+                rr = client.read_holding_registers(60000, count=1, device_id=1)
+                assert rr.isError() and rr.exception_code == 2  # the slave's own, in ASCII
+            finally:
+                client.close()
+            stats = gw.stop()
+            assert stats["broadcasts"] == 1 and stats["timeouts"] == 1
+            assert stats["answers"] == 6 and stats["exceptions"] == 2
+        finally:
+            if gw.proc.poll() is None:
+                gw.proc.kill()
+                gw.proc.communicate()
+    # the slave saw each request once (the broadcast too), none for unit 4, no stray answer
+    assert peer.stats.split() == ["requests=8", "responses=7", "ignored=1", "stray=0"]
+
+
+def test_ascii_bus_simulated_drive_through_the_gateway(
+    pty_pair: tuple[str, str], peer_binaries: PeerBinaries
+) -> None:
+    """`--mode ascii` onto pyrtu's own ASCII slave (a simulated CV100, whose manual gives
+    ASCII; address 5), with libmodbus's TCP client and an RTU-over-TCP client on the
+    same bus."""
+    from pyrtu import Master
+
+    gw_side, drive_side = pty_pair
+    sim = subprocess.Popen(
+        [sys.executable, "-m", "pyrtu", "simulate", "cv100", "--port", drive_side,
+         "--parity", "N", "--baudrate", "115200", "--mode", "ascii", "--json"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=peer_env(),
+    )  # fmt: skip
+    assert sim.stdout is not None
+    ready = json.loads(sim.stdout.readline())
+    assert ready["type"] == "ready" and ready["format"].endswith("ASCII")
+    gw = start_gateway(f"{gw_side}=1-9", "--mode", "ascii", "--listen-rtu", "127.0.0.1:0")
+    try:
+        device = f"tcp:{gw.host}:{gw.port}"
+        # A1.01 = 0x0101 reads 5000 (the manual's RTU example); A0.06 = 0x0006 is the
+        # acceleration time; 0x7777 is no function code's register
+        results = libmodbus_script(
+            peer_binaries, device, 5, ["r03:257:1", "w06:6:100", "r03:6:1", "r03:30583:1"]
+        )
+        assert results[0]["values"] == [5000]
+        assert results[1]["ok"] and results[2]["values"] == [100]
+        assert results[3]["exception"] == 2
+        with Master(f"rtu+tcp://{gw.rtu}", timeout=3.0) as m:
+            assert m.read_holding_registers(5, 6, 1) == [100]
+            m.write_register(5, 6, 250)
+            assert m.read_holding_registers(5, 6, 1) == [250]
+            with pytest.raises(ExceptionResponseError) as info:
+                m.read_holding_registers(7, 0, 1)  # nobody at 7 on the ASCII bus
+            assert info.value.code == 0x0B
+        stats = gw.stop()
+        assert stats["answers"] == 6 and stats["exceptions"] == 2 and stats["timeouts"] == 1
+    finally:
+        for proc in (gw.proc, sim):
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
+            proc.communicate(timeout=15)
