@@ -462,3 +462,67 @@ def test_rtu_over_tcp_listener(libmodbus_tcp: str, run) -> None:  # type: ignore
             await c.close()
 
     run(main())
+
+
+def test_bus_queue_limit_answers_busy_to_any_connection(silent_tcp: str, run) -> None:  # type: ignore[no-untyped-def]
+    """max_queued_per_bus bounds the bus's queue across connections: once the bus has
+    that many waiting, a request from another connection is answered 0x06 at once."""
+
+    async def main() -> None:
+        limits = GatewayLimits(max_queued_per_connection=8, max_queued_per_bus=3)
+        gw, clients = await open_gateway([(silent_tcp, "1")], limits, timeout=0.5)
+        first_r, first_w = await raw(gw)
+        first_w.write(encode_mbap(0, 1, READ))
+        await until(lambda: gw.stats()["requests"] == 1 and gw.stats()["queued"] == [0])
+        first_w.write(b"".join(encode_mbap(n, 1, READ) for n in range(1, 4)))  # 3 waiting
+        await until(lambda: gw.stats()["queued"] == [3])
+        other_r, other_w = await raw(gw)
+        other_w.write(encode_mbap(0x4242, 1, READ))
+        busy = parse_tcp_stream(await read_adu(other_r), "master")[0]
+        assert (busy.transaction, busy.function, busy.exception_code) == (0x4242, 0x83, 6)
+        assert gw.counters["busy"] == 1
+        # the first connection's four go on to time out on the dead bus, in order
+        later = [parse_tcp_stream(await read_adu(first_r, 5.0), "master")[0] for _ in range(4)]
+        assert [(f.transaction, f.exception_code) for f in later] == [(n, 11) for n in range(4)]
+        for w in (first_w, other_w):
+            w.close()
+        await gw.close()
+        for c in clients:
+            await c.close()
+
+    run(main())
+
+
+def test_a_bus_whose_port_failed_answers_0x0a_and_the_other_goes_on(
+    peer_binaries: PeerBinaries,
+    libmodbus_tcp: str,
+    run,  # type: ignore[no-untyped-def]
+) -> None:
+    """A bus whose connection (port) is gone answers 0x0A, gateway path unavailable, at
+    once; the other bus behind the same listener is not affected."""
+    port = free_tcp_port()
+    doomed = libmodbus_server(peer_binaries, f"tcp:127.0.0.1:{port}", 2).start()
+
+    async def main() -> None:
+        gw, clients = await open_gateway([(libmodbus_tcp, "1"), (f"tcp://127.0.0.1:{port}", "2")])
+        assert gw.address is not None
+        c = await AsyncTcpClient.connect(f"tcp://{gw.address[0]}:{gw.address[1]}", timeout=5.0)
+        got = await c.request(2, READ)
+        assert pdu.parse_registers(got or b"", 4) == pattern.holdings(2, 0, 4)
+        doomed.stop()  # the server behind bus 1 exits: its connection closes
+        for _ in range(3):
+            with pytest.raises(ExceptionResponseError) as info:
+                await c.request(2, READ)
+            assert info.value.code == 0x0A
+            got = await c.request(1, READ)
+            assert pdu.parse_registers(got or b"", 4) == pattern.holdings(1, 0, 4)
+        assert gw.counters["timeouts"] == 0
+        await c.close()
+        await gw.close()
+        for b in clients:
+            await b.close()
+
+    try:
+        run(main())
+    finally:
+        doomed.stop()

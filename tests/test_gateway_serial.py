@@ -242,6 +242,40 @@ def test_max_write_buffer_closes_a_stuck_client_and_others_go_on(pty_pair: tuple
                 gw.proc.communicate()
 
 
+def test_broadcast_is_sent_once_not_waited_for_nor_retried(pty_pair: tuple[str, str]) -> None:
+    """With --retries 2 a broadcast still goes on the wire once (mbusd's issue #61: it
+    waits for an answer to a broadcast and retries it); the gateway counts no timeout,
+    answers nothing, and a read right after it is served."""
+    gw_side, slave_side = pty_pair
+    with pyrtu_slave_process(slave_side, 1, t35=0) as slave:
+        gw = start_gateway(f"{gw_side}=1-9", "--retries", "2")
+        try:
+            with socket.create_connection((gw.host, gw.port)) as s:
+                s.settimeout(5)
+                s.sendall(
+                    encode_mbap(1, 0, pdu.write_register_request(210, 2100))
+                    + encode_mbap(2, 0, pdu.write_registers_request(211, [2111, 2112]))
+                    + encode_mbap(3, 1, pdu.read_request(3, 210, 3))
+                )
+                data = b""
+                while len(data) < 6 or len(data) < 6 + int.from_bytes(data[4:6], "big"):
+                    chunk = s.recv(4096)
+                    assert chunk
+                    data += chunk
+                frames = list(parse_tcp_stream(data, "master").frames())
+                # one answer, the read's: nothing for the broadcasts
+                assert [f.transaction for f in frames] == [3]
+                assert pdu.parse_registers(frames[0].pdu, 3) == [2100, 2111, 2112]
+            stats = gw.stop()
+            assert (stats["broadcasts"], stats["timeouts"], stats["answers"]) == (2, 0, 1)
+        finally:
+            if gw.proc.poll() is None:
+                gw.proc.kill()
+                gw.proc.communicate()
+        counters = json.loads(slave.stop())
+    assert (counters["broadcasts"], counters["requests"]) == (2, 1)  # no retry on the wire
+
+
 @pytest.fixture
 def drive_bus(pty_pair: tuple[str, str]) -> Iterator[RunningGateway]:
     """A simulated WEG CFW701 (address 1) behind the gateway."""
