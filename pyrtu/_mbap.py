@@ -113,9 +113,13 @@ class MbapFrame:
         return f"MbapFrame({self.kind}, {what}, offset={self.offset})"
 
 
+#: FrameKind by the core's code: an index, not an Enum call per frame
+_KIND_BY_CODE = tuple(FrameKind(k) for k in range(len(FrameKind)))
+
+
 def event_to_mbap_frame(ev: MbapEvent) -> MbapFrame:
     offset, _length, kind, error, adu = ev
-    return MbapFrame(kind=FrameKind(kind), adu=adu, offset=offset, error=MBAP_ERROR_BY_CODE[error])
+    return MbapFrame(_KIND_BY_CODE[kind], adu, offset, MBAP_ERROR_BY_CODE[error])
 
 
 def mbap_counters_dict(

@@ -52,7 +52,7 @@ import socket
 import time
 from collections import OrderedDict, deque
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Protocol
 
 from . import _backend
@@ -142,6 +142,10 @@ class Routes:
                 self._route[unit] = (index, slave)
         self.buses = len(units_per_bus)
 
+    def route(self, unit: int) -> tuple[int, int] | None:
+        """(bus index, slave address) of a unit id, or None when no bus carries it."""
+        return self._route.get(unit)
+
     def bus_for(self, unit: int) -> int | None:
         route = self._route.get(unit)
         return None if route is None else route[0]
@@ -155,7 +159,7 @@ class Routes:
 # -- the fair queue (sans-I/O) -------------------------------------------------------
 
 
-@dataclass
+@dataclass(slots=True)
 class Job:
     """A request waiting for (or on) a bus."""
 
@@ -164,7 +168,6 @@ class Job:
     unit: int  # the unit id of the request (copied into the answer)
     slave: int  # the address on the bus
     pdu: bytes
-    queued: float = 0.0
 
 
 class QueueFull(Exception):
@@ -203,12 +206,15 @@ class FairQueue:
         """The next job: the head of the connection whose turn it is."""
         if not self._queues:
             return None
-        conn, q = next(iter(self._queues.items()))
+        queues = self._queues
+        conn = next(iter(queues))
+        q = queues[conn]
         job = q.popleft()
         self._total -= 1
-        del self._queues[conn]
         if q:
-            self._queues[conn] = q  # to the back of the round
+            queues.move_to_end(conn)  # to the back of the round
+        else:
+            del queues[conn]
         return job
 
     def drop(self, conn: int) -> int:
@@ -237,11 +243,19 @@ class Bus(Protocol):
 class _BusState:
     bus: Bus
     queue: FairQueue
-    wake: asyncio.Event = field(default_factory=asyncio.Event)
+    #: what the idle worker awaits; a request for the bus resolves it (a bare future:
+    #: one wake-up, none of asyncio.Event's bookkeeping)
+    waiter: asyncio.Future[None] | None = None
     task: asyncio.Task[None] | None = None
-    busy_since: float | None = None
     busy_seconds: float = 0.0
     transactions: int = 0
+
+    def wake(self) -> None:
+        waiter = self.waiter
+        if waiter is not None:
+            self.waiter = None
+            if not waiter.done():
+                waiter.set_result(None)
 
 
 class _Connection(asyncio.Protocol):
@@ -266,14 +280,17 @@ class _Connection(asyncio.Protocol):
     def data_received(self, data: bytes) -> None:
         if self.closed:
             return
-        self.framer.receive_data(data)
-        while (ev := self.framer.next_event()) is not None:
+        framer = self.framer
+        framer.receive_data(data)
+        request = self.gateway._request
+        while (ev := framer.next_event()) is not None:
             if ev.error is not None:
                 self.gateway.counters["bad_headers"] += 1
                 log.info("connection %d: bad MBAP header (%s): closed", self.id, ev.error)
                 self.close()
                 return
-            self.gateway._request(self, ev.transaction, ev.unit, ev.pdu)
+            adu = ev.adu  # a whole ADU: transaction id, protocol 0, length, unit, PDU
+            request(self, (adu[0] << 8) | adu[1], adu[6], adu[7:])
             if self.closed:
                 return
 
@@ -297,7 +314,8 @@ class _Connection(asyncio.Protocol):
             self.closed = True  # read none of its requests still in the chunk
 
     def encode(self, transaction: int, unit: int, pdu: bytes) -> bytes:
-        return bytes(self.framer.send(transaction, unit, pdu))
+        adu: bytes = self.framer.send(transaction, unit, pdu)
+        return adu
 
     def close(self) -> None:
         if self.transport is not None and not self.closed:
@@ -484,35 +502,35 @@ class Gateway:
             self.counters["jobs_dropped"] += state.queue.drop(conn.id)
 
     def _request(self, conn: _Connection, transaction: int, unit: int, pdu: bytes) -> None:
-        self.counters["requests"] += 1
-        now = time.monotonic()
+        counters = self.counters
+        counters["requests"] += 1
         if not 1 <= pdu[0] <= 127:  # [AP] 4.1: function codes 1..127; the rest is no request
             self._answer(conn, transaction, unit, exception_pdu(pdu[0], ILLEGAL_FUNCTION))
             return
         if unit == 0:
-            self.counters["broadcasts"] += 1
-            targets = range(len(self._buses))
-        else:
-            bus = self.routes.bus_for(unit)
-            if bus is None:
-                self.counters["no_route"] += 1
+            counters["broadcasts"] += 1
+            for state in self._buses:
+                self._submit(state, Job(conn.id, transaction, 0, 0, pdu), conn)
+            return
+        route = self.routes.route(unit)
+        if route is None:
+            counters["no_route"] += 1
+            self._answer(conn, transaction, unit, exception_pdu(pdu[0], GATEWAY_PATH_UNAVAILABLE))
+            return
+        self._submit(self._buses[route[0]], Job(conn.id, transaction, unit, route[1], pdu), conn)
+
+    def _submit(self, state: _BusState, job: Job, conn: _Connection) -> None:
+        try:
+            state.queue.submit(job)
+        except QueueFull as exc:
+            self.counters["busy"] += 1
+            log.debug("connection %d: %s: busy", conn.id, exc)
+            if job.unit != 0:
                 self._answer(
-                    conn, transaction, unit, exception_pdu(pdu[0], GATEWAY_PATH_UNAVAILABLE)
+                    conn, job.transaction, job.unit, exception_pdu(job.pdu[0], SLAVE_DEVICE_BUSY)
                 )
-                return
-            targets = range(bus, bus + 1)
-        for index in targets:
-            state = self._buses[index]
-            job = Job(conn.id, transaction, unit, self.routes.slave_for(unit), pdu, now)
-            try:
-                state.queue.submit(job)
-            except QueueFull as exc:
-                self.counters["busy"] += 1
-                log.debug("connection %d: %s: busy", conn.id, exc)
-                if unit != 0:
-                    self._answer(conn, transaction, unit, exception_pdu(pdu[0], SLAVE_DEVICE_BUSY))
-                continue
-            state.wake.set()
+            return
+        state.wake()
 
     def _answer(self, conn: _Connection, transaction: int, unit: int, pdu: bytes) -> None:
         if pdu[0] & 0x80:
@@ -524,16 +542,19 @@ class Gateway:
     # ---------------------------------------------------------------- buses
 
     async def _worker(self, state: _BusState) -> None:
+        loop = asyncio.get_running_loop()
+        queue = state.queue
+        connections = self._connections
         while True:
-            job = state.queue.pop()
+            job = queue.pop()
             if job is None:
-                state.wake.clear()
-                await state.wake.wait()
+                state.waiter = waiter = loop.create_future()
+                await waiter
                 continue
-            if job.conn not in self._connections:
+            if job.conn not in connections:
                 continue
             answer = await self._transact(state, job)
-            conn = self._connections.get(job.conn)
+            conn = connections.get(job.conn)
             if answer is None or conn is None:
                 if conn is None and answer is not None:
                     self.counters["answers_dropped"] += 1
@@ -544,7 +565,6 @@ class Gateway:
         """The answer PDU for ``job`` (None for a broadcast); never raises but
         CancelledError (the gateway is closing)."""
         started = time.monotonic()
-        state.busy_since = started
         try:
             answer = await state.bus.request(job.slave, job.pdu)
             if job.slave == 0:
@@ -568,4 +588,3 @@ class Gateway:
         finally:
             state.transactions += 1
             state.busy_seconds += time.monotonic() - started
-            state.busy_since = None
