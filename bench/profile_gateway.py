@@ -13,7 +13,9 @@ pair (socat, ``t35=0``) with the pyrtu slave of tests/peers/pyrtu_slave.py (its 
 process) on the other end: the whole path, TCP receive -> queue -> serial
 transaction -> TCP send.  ``--bus instant``: a bus whose ``request`` returns the
 answer at once (no I/O), which leaves the gateway's own code (listener, MBAP framer,
-routes, fair queue, worker, answer) and nothing else.
+routes, fair queue, worker, answer) and nothing else.  ``--bus floor``: no gateway, a
+bare asyncio Protocol answering each request in ``data_received`` (one read, one
+write, one loop iteration per transaction): the floor of any asyncio server here.
 
 Output: transactions, CPU seconds of this process (``time.process_time``) and CPU µs
 per transaction; with ``--profile FILE`` a cProfile of the run (pstats file).
@@ -35,6 +37,7 @@ import contextlib
 import cProfile
 import json
 import os
+import resource
 import sys
 import time
 from collections.abc import AsyncIterator
@@ -49,6 +52,34 @@ from peers import pattern  # noqa: E402
 from peers.tools import PeerBinaries, build_peers, pyrtu_slave_process, socat_pair  # noqa: E402
 
 from pyrtu.gateway import Gateway  # noqa: E402
+
+
+class FloorServer(asyncio.Protocol):
+    """``--bus floor``: no gateway at all; each ADU read is answered in ``data_received``
+    with the answer of InstantBus (its transaction id copied): the least an asyncio
+    server can spend per transaction (one read, one write, one loop iteration), the
+    floor to judge the gateway's own cost against.  Assumes whole ADUs per read (the
+    libmodbus client sends one request and waits)."""
+
+    def __init__(self, bus: InstantBus) -> None:
+        self.bus = bus
+        self.transport: asyncio.Transport | None = None
+        self.answers = 0
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        assert isinstance(transport, asyncio.Transport)
+        self.transport = transport
+
+    def data_received(self, data: bytes) -> None:
+        answer = self.bus.answers.get(data[7:])
+        if answer is None:
+            request = asyncio.get_running_loop().create_task(self.bus.request(1, data[7:]))
+            request.add_done_callback(lambda t: self.data_received(data))
+            return
+        assert self.transport is not None
+        header = data[:4] + (len(answer) + 1).to_bytes(2, "big") + data[6:7]
+        self.transport.write(header + answer)
+        self.answers += 1
 
 
 class InstantBus:
@@ -81,6 +112,12 @@ async def bus(kind: str) -> AsyncIterator[object]:
             yield master
 
 
+def cpu_since(before: resource.struct_rusage) -> tuple[float, float]:
+    """(user, system) CPU seconds of this process since ``before``."""
+    now = resource.getrusage(resource.RUSAGE_SELF)
+    return now.ru_utime - before.ru_utime, now.ru_stime - before.ru_stime
+
+
 async def client(binaries: PeerBinaries, url: str, transactions: int) -> dict[str, object]:
     proc = await asyncio.create_subprocess_exec(
         str(binaries.client), url, "1", "--warmup", "20", "bench", str(transactions), "0",
@@ -93,19 +130,55 @@ async def client(binaries: PeerBinaries, url: str, transactions: int) -> dict[st
     return report
 
 
+async def floor(transactions: int, clients: int, binaries: PeerBinaries) -> dict[str, object]:
+    bus = InstantBus()
+    servers: list[FloorServer] = []
+
+    def make() -> FloorServer:
+        servers.append(FloorServer(bus))
+        return servers[-1]
+
+    server = await asyncio.get_running_loop().create_server(make, "127.0.0.1", 0)
+    host, port = server.sockets[0].getsockname()[:2]
+    r0, t0 = resource.getrusage(resource.RUSAGE_SELF), time.monotonic()
+    reports = await asyncio.gather(
+        *(client(binaries, f"tcp:{host}:{port}", transactions) for _ in range(clients))
+    )
+    (user, system), wall = cpu_since(r0), time.monotonic() - t0
+    cpu = user + system
+    server.close()
+    await server.wait_closed()
+    done = sum(s.answers for s in servers)
+    errors = sum(int(r["errors"]) + int(r["wrong"]) for r in reports)  # type: ignore[call-overload]
+    return {
+        "bus": "floor",
+        "clients": clients,
+        "transactions": done,
+        "errors": errors,
+        "wall_s": round(wall, 3),
+        "tps": round(done / wall, 1),
+        "cpu_s": round(cpu, 3),
+        "cpu_us_per_tx": round(cpu / max(done, 1) * 1e6, 1),
+        "user_us_per_tx": round(user / max(done, 1) * 1e6, 1),
+    }
+
+
 async def run(
     kind: str, transactions: int, clients: int, binaries: PeerBinaries
 ) -> dict[str, object]:
+    if kind == "floor":
+        return await floor(transactions, clients, binaries)
     async with bus(kind) as b:
         gw = Gateway([(b, range(1, 248))])  # type: ignore[list-item]
         await gw.start("127.0.0.1", 0)
         assert gw.address is not None
         url = f"tcp:{gw.address[0]}:{gw.address[1]}"
-        c0, t0 = time.process_time(), time.monotonic()
+        r0, t0 = resource.getrusage(resource.RUSAGE_SELF), time.monotonic()
         reports = await asyncio.gather(
             *(client(binaries, url, transactions) for _ in range(clients))
         )
-        cpu, wall = time.process_time() - c0, time.monotonic() - t0
+        (user, system), wall = cpu_since(r0), time.monotonic() - t0
+        cpu = user + system
         stats = gw.stats()
         await gw.close()
     forwarded = int(stats["answers"])  # type: ignore[call-overload]
@@ -119,12 +192,13 @@ async def run(
         "tps": round(forwarded / wall, 1),
         "cpu_s": round(cpu, 3),
         "cpu_us_per_tx": round(cpu / max(forwarded, 1) * 1e6, 1),
+        "user_us_per_tx": round(user / max(forwarded, 1) * 1e6, 1),
     }
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
-    parser.add_argument("--bus", choices=("pty", "instant"), default="pty")
+    parser.add_argument("--bus", choices=("pty", "instant", "floor"), default="pty")
     parser.add_argument("--transactions", type=int, default=3000, help="per client")
     parser.add_argument("--clients", type=int, default=1)
     parser.add_argument("--profile", type=Path, help="write a cProfile (pstats) of the run")
