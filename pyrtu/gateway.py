@@ -146,15 +146,6 @@ class Routes:
         """(bus index, slave address) of a unit id, or None when no bus carries it."""
         return self._route.get(unit)
 
-    def bus_for(self, unit: int) -> int | None:
-        route = self._route.get(unit)
-        return None if route is None else route[0]
-
-    def slave_for(self, unit: int) -> int:
-        """The address on the bus of a routed unit id (0 for the broadcast)."""
-        route = self._route.get(unit)
-        return unit if route is None else route[1]
-
 
 # -- the fair queue (sans-I/O) -------------------------------------------------------
 
@@ -542,9 +533,14 @@ class Gateway:
     # ---------------------------------------------------------------- buses
 
     async def _worker(self, state: _BusState) -> None:
+        """One transaction at a time on the bus; never raises but CancelledError (the
+        gateway is closing)."""
         loop = asyncio.get_running_loop()
         queue = state.queue
+        bus = state.bus
         connections = self._connections
+        counters = self.counters
+        monotonic = time.monotonic
         while True:
             job = queue.pop()
             if job is None:
@@ -553,38 +549,45 @@ class Gateway:
                 continue
             if job.conn not in connections:
                 continue
-            answer = await self._transact(state, job)
-            conn = connections.get(job.conn)
-            if answer is None or conn is None:
-                if conn is None and answer is not None:
-                    self.counters["answers_dropped"] += 1
-                continue
-            self._answer(conn, job.transaction, job.unit, answer)
-
-    async def _transact(self, state: _BusState, job: Job) -> bytes | None:
-        """The answer PDU for ``job`` (None for a broadcast); never raises but
-        CancelledError (the gateway is closing)."""
-        started = time.monotonic()
-        try:
-            answer = await state.bus.request(job.slave, job.pdu)
-            if job.slave == 0:
-                return None
-            if not answer:
-                raise NoResponseError(f"unit {job.unit}: no answer PDU", job.unit, job.pdu[0])
-            return answer
-        except ExceptionResponseError as exc:
-            return exception_pdu(job.pdu[0], exc.code)
-        except NoResponseError:
-            self.counters["timeouts"] += 1
-            return exception_pdu(job.pdu[0], GATEWAY_TARGET_FAILED)
-        except PortError as exc:
-            log.warning("bus unavailable: %s", exc)
-            return exception_pdu(job.pdu[0], GATEWAY_PATH_UNAVAILABLE)
-        except (ModbusError, ValueError, RuntimeError) as exc:
-            # a garbled answer after the retries, or a request the bus refuses
-            log.info("unit %d: %s", job.unit, exc)
-            self.counters["timeouts"] += 1
-            return exception_pdu(job.pdu[0], GATEWAY_TARGET_FAILED)
-        finally:
+            started = monotonic()
+            try:
+                answer = await bus.request(job.slave, job.pdu)
+            except Exception as exc:  # (CancelledError is no Exception: it ends the worker)
+                answer = self._failed(job, exc)
+            else:
+                if job.slave == 0:
+                    answer = None  # a broadcast: nothing to answer
+                elif not answer:
+                    answer = self._failed(
+                        job,
+                        NoResponseError(f"unit {job.unit}: no answer PDU", job.unit, job.pdu[0]),
+                    )
             state.transactions += 1
-            state.busy_seconds += time.monotonic() - started
+            state.busy_seconds += monotonic() - started
+            conn = connections.get(job.conn)
+            if conn is None:
+                if answer is not None:
+                    counters["answers_dropped"] += 1
+            elif answer is not None:
+                self._answer(conn, job.transaction, job.unit, answer)
+
+    def _failed(self, job: Job, exc: Exception) -> bytes | None:
+        """The gateway's answer when the bus's request raised ``exc`` (None for a
+        broadcast): the device's exception, 0x0B when it did not answer (within the
+        timeout, after the retries, or not validly), 0x0A when the bus is unavailable."""
+        function = job.pdu[0]
+        if isinstance(exc, ExceptionResponseError):
+            return None if job.slave == 0 else exception_pdu(function, exc.code)
+        if isinstance(exc, PortError):
+            log.warning("bus unavailable: %s", exc)
+            return None if job.slave == 0 else exception_pdu(function, GATEWAY_PATH_UNAVAILABLE)
+        if isinstance(exc, (ModbusError, ValueError, RuntimeError)):
+            # no answer, a garbled answer after the retries, or a request the bus refuses
+            if not isinstance(exc, NoResponseError):
+                log.info("unit %d: %s", job.unit, exc)
+        else:  # a bus's bug: the bus goes on, the client gets an answer, the log the trace
+            log.error("unit %d: the bus failed", job.unit, exc_info=exc)
+        if job.slave == 0:
+            return None
+        self.counters["timeouts"] += 1
+        return exception_pdu(function, GATEWAY_TARGET_FAILED)

@@ -67,8 +67,8 @@ def test_routes_and_unit_ranges() -> None:
         with pytest.raises(ValueError, match="unit ids"):
             parse_units(bad)
     r = Routes([parse_units("1-10"), {11: 11, 255: 12}])
-    assert (r.bus_for(1), r.bus_for(11), r.bus_for(255), r.bus_for(21)) == (0, 1, 1, None)
-    assert (r.slave_for(255), r.slave_for(3), r.slave_for(0)) == (12, 3, 0)
+    assert [r.route(u) for u in (1, 11, 255, 3)] == [(0, 1), (1, 11), (1, 12), (0, 3)]
+    assert r.route(21) is None and r.route(0) is None  # 0, the broadcast, goes to every bus
     with pytest.raises(ValueError, match="unit id 5 is on bus 0 and bus 1"):
         Routes([parse_units("1-10"), parse_units("5")])
 
@@ -526,3 +526,41 @@ def test_a_bus_whose_port_failed_answers_0x0a_and_the_other_goes_on(
         run(main())
     finally:
         doomed.stop()
+
+
+class FaultyBus:
+    """A bus of the Python API (any object with ``async request``) with a bug: it
+    raises KeyError for slave 7, and answers the others from the register pattern."""
+
+    async def request(self, slave: int, request: bytes) -> bytes | None:
+        if slave == 7:
+            raise KeyError("a bug in the bus")
+        if slave == 0:
+            return None
+        count = int.from_bytes(request[3:5], "big")
+        values = pattern.holdings(slave, int.from_bytes(request[1:3], "big"), count)
+        return bytes((3, 2 * count)) + b"".join(v.to_bytes(2, "big") for v in values)
+
+
+def test_a_bus_that_raises_gets_0x0b_and_its_worker_goes_on(
+    run,  # type: ignore[no-untyped-def]
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    async def main() -> None:
+        gw = Gateway([(FaultyBus(), range(1, 10))])
+        await gw.start("127.0.0.1", 0)
+        assert gw.address is not None
+        c = await AsyncTcpClient.connect(f"tcp://{gw.address[0]}:{gw.address[1]}", timeout=5.0)
+        for _ in range(2):
+            with pytest.raises(ExceptionResponseError) as info:
+                await c.request(7, READ)
+            assert info.value.code == 0x0B
+            got = await c.request(1, READ)  # the same bus, served after the failure
+            assert pdu.parse_registers(got or b"", 4) == pattern.holdings(1, 0, 4)
+        assert gw.counters["timeouts"] == 2 and gw.stats()["bus_transactions"] == [4]
+        await c.close()
+        await gw.close()
+
+    with caplog.at_level("ERROR", logger="pyrtu.gateway"):
+        run(main())
+    assert [r.exc_info[0] for r in caplog.records if r.exc_info] == [KeyError, KeyError]
