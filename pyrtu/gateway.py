@@ -20,7 +20,8 @@ from the request, [TCP] 3.1.3):
   gateway was unable to allocate an internal communication path"); also when a
   bus's port failed (`PortError`).
 * no valid answer from the device within the bus's timeout (after its retries):
-  exception 0x0B, gateway target device failed to respond ([AP] 7).
+  exception 0x0B, gateway target device failed to respond ([AP] 7); also when a
+  bus object raises anything unexpected (logged with its trace; the bus goes on).
 * queue full (this connection already has ``max_queued_per_connection`` requests
   waiting, or the bus ``max_queued_per_bus``): exception 0x06, server device busy
   ([AP] 7: "the client should retransmit the message later").  Chosen over 0x0A,
