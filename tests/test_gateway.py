@@ -530,10 +530,11 @@ def test_a_bus_whose_port_failed_answers_0x0a_and_the_other_goes_on(
 
 class FaultyBus:
     """A bus of the Python API (any object with ``async request``) with a bug: it
-    raises KeyError for slave 7, and answers the others from the register pattern."""
+    raises KeyError for slave 7 and for a broadcast of FC 05, and answers the others
+    from the register pattern."""
 
     async def request(self, slave: int, request: bytes) -> bytes | None:
-        if slave == 7:
+        if slave == 7 or (slave == 0 and request[0] == 5):
             raise KeyError("a bug in the bus")
         if slave == 0:
             return None
@@ -558,9 +559,14 @@ def test_a_bus_that_raises_gets_0x0b_and_its_worker_goes_on(
             got = await c.request(1, READ)  # the same bus, served after the failure
             assert pdu.parse_registers(got or b"", 4) == pattern.holdings(1, 0, 4)
         assert gw.counters["timeouts"] == 2 and gw.stats()["bus_transactions"] == [4]
+        # a broadcast the bus fails on is still not answered (no frame for unit 0)
+        assert await c.request(0, pdu.write_coil_request(3, True)) is None
+        got = await c.request(2, READ)
+        assert pdu.parse_registers(got or b"", 4) == pattern.holdings(2, 0, 4)
+        assert c.counters["late"] == 0 and gw.stats()["bus_transactions"] == [6]
         await c.close()
         await gw.close()
 
     with caplog.at_level("ERROR", logger="pyrtu.gateway"):
         run(main())
-    assert [r.exc_info[0] for r in caplog.records if r.exc_info] == [KeyError, KeyError]
+    assert [r.exc_info[0] for r in caplog.records if r.exc_info] == [KeyError] * 3
