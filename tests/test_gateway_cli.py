@@ -47,6 +47,10 @@ def pyrtu(*args: str) -> subprocess.CompletedProcess[str]:
             "--max-write-buffer",
         ),
         (["--listen", "127.0.0.1:0", "--port", "a", "--listen-rtu", "host"], "--listen-rtu"),
+        (
+            ["--listen", "127.0.0.1:0", "--port", "a", "--broadcast-delay", "-1"],
+            "--broadcast-delay",
+        ),
     ],
 )
 def test_usage_errors(args: list[str], flag: str) -> None:

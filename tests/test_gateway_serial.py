@@ -276,6 +276,39 @@ def test_broadcast_is_sent_once_not_waited_for_nor_retried(pty_pair: tuple[str, 
     assert (counters["broadcasts"], counters["requests"]) == (2, 1)  # no retry on the wire
 
 
+@pytest.mark.wall_clock
+def test_broadcast_delay_holds_the_bus_after_a_broadcast(pty_pair: tuple[str, str]) -> None:
+    """--broadcast-delay: the silence the bus keeps after a broadcast (the devices'
+    turnaround) before its next request, here 0.6 s.  (The serial master cuts it to
+    the next request's --timeout, hence a timeout above it.)"""
+    gw_side, slave_side = pty_pair
+    with pyrtu_slave_process(slave_side, 1, t35=0):
+        gw = start_gateway(f"{gw_side}=1", "--broadcast-delay", "0.6", "--timeout", "2")
+        try:
+            with socket.create_connection((gw.host, gw.port)) as s:
+                s.settimeout(10)
+                t0 = time.monotonic()
+                s.sendall(
+                    encode_mbap(1, 0, pdu.write_register_request(220, 22))
+                    + encode_mbap(2, 1, pdu.read_request(3, 220, 1))
+                )
+                data = b""
+                while len(data) < 11:  # the read's answer: 7 + 4 bytes
+                    chunk = s.recv(64)
+                    assert chunk
+                    data += chunk
+                elapsed = time.monotonic() - t0
+            frame = parse_tcp_stream(data, "master")[0]
+            assert frame.transaction == 2 and pdu.parse_registers(frame.pdu, 1) == [22]
+            # a lower bound: load can only lengthen it
+            assert elapsed >= 0.6
+            assert gw.stop()["broadcasts"] == 1
+        finally:
+            if gw.proc.poll() is None:
+                gw.proc.kill()
+                gw.proc.communicate()
+
+
 @pytest.fixture
 def drive_bus(pty_pair: tuple[str, str]) -> Iterator[RunningGateway]:
     """A simulated WEG CFW701 (address 1) behind the gateway."""
