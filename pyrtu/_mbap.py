@@ -113,9 +113,13 @@ class MbapFrame:
         return f"MbapFrame({self.kind}, {what}, offset={self.offset})"
 
 
+#: FrameKind by the core's code: an index, not an Enum call per frame
+_KIND_BY_CODE = tuple(FrameKind(k) for k in range(len(FrameKind)))
+
+
 def event_to_mbap_frame(ev: MbapEvent) -> MbapFrame:
     offset, _length, kind, error, adu = ev
-    return MbapFrame(kind=FrameKind(kind), adu=adu, offset=offset, error=MBAP_ERROR_BY_CODE[error])
+    return MbapFrame(_KIND_BY_CODE[kind], adu, offset, MBAP_ERROR_BY_CODE[error])
 
 
 def mbap_counters_dict(
@@ -202,8 +206,9 @@ class MbapFramerBase:
         raise NotImplementedError
 
     def _drain(self) -> None:
-        while (ev := self._core.poll()) is not None:
-            self._events.append(event_to_mbap_frame(ev))
+        poll, append = self._core.poll, self._events.append
+        while (ev := poll()) is not None:
+            append(event_to_mbap_frame(ev))
 
     def receive_data(self, data: BytesLike) -> None:
         """Bytes read from the stream; ``b""`` at its end."""
@@ -217,9 +222,9 @@ class MbapFramerBase:
             self._core.close()
             self._drain()
             return
-        pos = 0
-        while pos < len(raw):
-            took = self._core.feed(raw[pos:] if pos else raw)
+        pos, size, feed = 0, len(raw), self._core.feed
+        while pos < size:
+            took = feed(raw[pos:] if pos else raw)
             self._drain()
             if took == 0:
                 raise RuntimeError("MbapFramer made no progress (internal error)")

@@ -69,6 +69,9 @@ class TcpClientProtocol:
         self._results: deque[Result] = deque()
         self._tid = 0
         self.broken: ModbusError | None = None
+        #: when the latest answer to a request in flight arrived (the ``now`` of its
+        #: `receive_data`), None before the first
+        self.answer_end: float | None = None
         self.counters = dict.fromkeys(
             # the names of `pyrtu.Master.counters` where they mean the same
             (
@@ -124,15 +127,16 @@ class TcpClientProtocol:
                     continue  # the close below fails what is in flight
                 self._fail_all(FrameError(f"bad MBAP header from the server ({ev.error})"))
                 return
-            self._answer(ev.transaction, ev.unit, ev.kind, ev.pdu)
+            self._answer(ev.transaction, ev.unit, ev.kind, ev.pdu, now)
         if not data:
             self.connection_lost("the server closed the connection")
 
-    def _answer(self, tid: int, unit: int, kind: FrameKind, pdu: bytes) -> None:
+    def _answer(self, tid: int, unit: int, kind: FrameKind, pdu: bytes, now: float) -> None:
         pending = self._pending.pop(tid, None)
         if pending is None:
             self.counters["late"] += 1
             return
+        self.answer_end = now
         fc = pending.function
         if unit != pending.unit or pdu[0] & 0x7F != fc:
             self.counters["frame_errors"] += 1

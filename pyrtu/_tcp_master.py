@@ -8,6 +8,18 @@ keywords are accepted and ignored, so code can switch transports by the port
 string.  The asyncio master keeps up to ``max_in_flight`` requests on the
 connection at once (``asyncio.gather`` of several awaits), for servers that answer
 pipelined requests (libmodbus does; pymodbus 3.16's server does not: keep 1).
+
+What `pyrtu.Master` says of its serial line, a TCP master answers for TCP:
+``mode`` is ``"tcp"``, ``t35``, ``broadcast_delay`` are 0.0 (no wire timing: the
+master keeps no silence and a broadcast returns at once), ``echo`` is False,
+``last_answer_time`` is when the latest answer was read (what the poller stamps
+values with), ``url`` is the URL given.  ``line`` and ``port`` (the `LineConfig` and
+the pyserial port of a serial master) do not exist: reading them raises
+AttributeError (``line``'s message names the URL and says why), so
+``hasattr(m, "line")`` is False and ``getattr(m, "line", None)`` is None: code
+tells a serial master from a TCP one that way.  ``add_rule`` is accepted and does
+nothing.  (Not None: a `LineConfig | None` would widen the type every caller of
+``Master.line`` relies on.)
 """
 
 from __future__ import annotations
@@ -22,6 +34,12 @@ from .aio import AsyncMaster
 from .errors import NoResponseError
 from .master import Master, check_retries, check_seconds
 from .tcp import RTU_TCP_SCHEME, AsyncTcpClient, TcpClient, parse_tcp_url, rtu_over_tcp
+
+MODE = "tcp"
+NO_LINE = (
+    "{url}: a Modbus TCP master has no serial line (line and port are a serial "
+    "master's; see url, timeout, retries)"
+)
 
 
 class TcpMaster(Master):
@@ -75,7 +93,27 @@ class TcpMaster(Master):
 
     @property
     def line(self) -> Any:
-        raise AttributeError("a Modbus TCP master has no serial line")
+        raise AttributeError(NO_LINE.format(url=self.url))
+
+    @property
+    def mode(self) -> str:
+        return MODE
+
+    @property
+    def t35(self) -> float:
+        return 0.0
+
+    @property
+    def echo(self) -> bool:
+        return False
+
+    @property
+    def broadcast_delay(self) -> float:
+        return 0.0
+
+    @property
+    def last_answer_time(self) -> float | None:
+        return self._client.last_answer_time
 
     def close(self) -> None:
         with self._lock:
@@ -157,7 +195,27 @@ class AsyncTcpMaster(AsyncMaster):
 
     @property
     def line(self) -> Any:
-        raise AttributeError("a Modbus TCP master has no serial line")
+        raise AttributeError(NO_LINE.format(url=self.url))
+
+    @property
+    def mode(self) -> str:
+        return MODE
+
+    @property
+    def t35(self) -> float:
+        return 0.0
+
+    @property
+    def echo(self) -> bool:
+        return False
+
+    @property
+    def broadcast_delay(self) -> float:
+        return 0.0
+
+    @property
+    def last_answer_time(self) -> float | None:
+        return None if self._client is None else self._client.last_answer_time
 
     async def close(self) -> None:
         if self._client is not None:

@@ -20,7 +20,8 @@ from the request, [TCP] 3.1.3):
   gateway was unable to allocate an internal communication path"); also when a
   bus's port failed (`PortError`).
 * no valid answer from the device within the bus's timeout (after its retries):
-  exception 0x0B, gateway target device failed to respond ([AP] 7).
+  exception 0x0B, gateway target device failed to respond ([AP] 7); also when a
+  bus object raises anything unexpected (logged with its trace; the bus goes on).
 * queue full (this connection already has ``max_queued_per_connection`` requests
   waiting, or the bus ``max_queued_per_bus``): exception 0x06, server device busy
   ([AP] 7: "the client should retransmit the message later").  Chosen over 0x0A,
@@ -32,9 +33,12 @@ from the request, [TCP] 3.1.3):
 
 A malformed MBAP header (protocol id not 0, length outside 2..254) closes that
 connection only.  A client that does not read its answers is closed when its
-unsent output passes ``max_write_buffer`` bytes (it never blocks a bus worker:
-answers are written without waiting), and while its output is above the transport's
-high-water mark its requests are not read (asyncio's pause_writing).  A client
+unsent output passes ``max_write_buffer`` bytes: answers are written without
+waiting, so it never blocks a bus worker, and its requests go on being read (and
+answered, 0x06 once its queue is full) until it is closed.  Its socket's kernel send
+buffer is set to ``max_write_buffer`` too (Linux doubles it), so what one client
+can leave unread on the gateway's host is bounded by about three times the limit,
+not by the kernel's autotuned buffer (megabytes on Linux).  A client
 that disconnects leaves the bus in step: a transaction already on the wire runs to
 its end (its answer is dropped), the client's waiting requests are removed from the
 queue.
@@ -43,11 +47,13 @@ queue.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
+import socket
 import time
 from collections import OrderedDict, deque
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Protocol
 
 from . import _backend
@@ -137,20 +143,15 @@ class Routes:
                 self._route[unit] = (index, slave)
         self.buses = len(units_per_bus)
 
-    def bus_for(self, unit: int) -> int | None:
-        route = self._route.get(unit)
-        return None if route is None else route[0]
-
-    def slave_for(self, unit: int) -> int:
-        """The address on the bus of a routed unit id (0 for the broadcast)."""
-        route = self._route.get(unit)
-        return unit if route is None else route[1]
+    def route(self, unit: int) -> tuple[int, int] | None:
+        """(bus index, slave address) of a unit id, or None when no bus carries it."""
+        return self._route.get(unit)
 
 
 # -- the fair queue (sans-I/O) -------------------------------------------------------
 
 
-@dataclass
+@dataclass(slots=True)
 class Job:
     """A request waiting for (or on) a bus."""
 
@@ -159,7 +160,6 @@ class Job:
     unit: int  # the unit id of the request (copied into the answer)
     slave: int  # the address on the bus
     pdu: bytes
-    queued: float = 0.0
 
 
 class QueueFull(Exception):
@@ -198,12 +198,15 @@ class FairQueue:
         """The next job: the head of the connection whose turn it is."""
         if not self._queues:
             return None
-        conn, q = next(iter(self._queues.items()))
+        queues = self._queues
+        conn = next(iter(queues))
+        q = queues[conn]
         job = q.popleft()
         self._total -= 1
-        del self._queues[conn]
         if q:
-            self._queues[conn] = q  # to the back of the round
+            queues.move_to_end(conn)  # to the back of the round
+        else:
+            del queues[conn]
         return job
 
     def drop(self, conn: int) -> int:
@@ -232,11 +235,19 @@ class Bus(Protocol):
 class _BusState:
     bus: Bus
     queue: FairQueue
-    wake: asyncio.Event = field(default_factory=asyncio.Event)
+    #: what the idle worker awaits; a request for the bus resolves it (a bare future:
+    #: one wake-up, none of asyncio.Event's bookkeeping)
+    waiter: asyncio.Future[None] | None = None
     task: asyncio.Task[None] | None = None
-    busy_since: float | None = None
     busy_seconds: float = 0.0
     transactions: int = 0
+
+    def wake(self) -> None:
+        waiter = self.waiter
+        if waiter is not None:
+            self.waiter = None
+            if not waiter.done():
+                waiter.set_result(None)
 
 
 class _Connection(asyncio.Protocol):
@@ -250,33 +261,33 @@ class _Connection(asyncio.Protocol):
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         assert isinstance(transport, asyncio.Transport)
         self.transport = transport
+        sock = transport.get_extra_info("socket")
+        if sock is not None:
+            with contextlib.suppress(OSError):  # bound the kernel's share of unread answers
+                sock.setsockopt(
+                    socket.SOL_SOCKET, socket.SO_SNDBUF, self.gateway.limits.max_write_buffer
+                )
         self.gateway._opened(self)
 
     def data_received(self, data: bytes) -> None:
         if self.closed:
             return
-        self.framer.receive_data(data)
-        while (ev := self.framer.next_event()) is not None:
+        framer = self.framer
+        framer.receive_data(data)
+        request = self.gateway._request
+        while (ev := framer.next_event()) is not None:
             if ev.error is not None:
                 self.gateway.counters["bad_headers"] += 1
                 log.info("connection %d: bad MBAP header (%s): closed", self.id, ev.error)
                 self.close()
                 return
-            self.gateway._request(self, ev.transaction, ev.unit, ev.pdu)
+            adu = ev.adu  # a whole ADU: transaction id, protocol 0, length, unit, PDU
+            request(self, (adu[0] << 8) | adu[1], adu[6], adu[7:])
             if self.closed:
                 return
 
     def eof_received(self) -> bool | None:
         return None  # close our side too
-
-    def pause_writing(self) -> None:
-        # the client does not read its answers: read no more of its requests
-        if self.transport is not None and not self.closed:
-            self.transport.pause_reading()
-
-    def resume_writing(self) -> None:
-        if self.transport is not None and not self.closed:
-            self.transport.resume_reading()
 
     def connection_lost(self, exc: Exception | None) -> None:
         self.closed = True
@@ -292,9 +303,11 @@ class _Connection(asyncio.Protocol):
             self.gateway.counters["slow_clients"] += 1
             log.info("connection %d does not read its answers: closed", self.id)
             t.abort()
+            self.closed = True  # read none of its requests still in the chunk
 
     def encode(self, transaction: int, unit: int, pdu: bytes) -> bytes:
-        return bytes(self.framer.send(transaction, unit, pdu))
+        adu: bytes = self.framer.send(transaction, unit, pdu)
+        return adu
 
     def close(self) -> None:
         if self.transport is not None and not self.closed:
@@ -481,35 +494,35 @@ class Gateway:
             self.counters["jobs_dropped"] += state.queue.drop(conn.id)
 
     def _request(self, conn: _Connection, transaction: int, unit: int, pdu: bytes) -> None:
-        self.counters["requests"] += 1
-        now = time.monotonic()
+        counters = self.counters
+        counters["requests"] += 1
         if not 1 <= pdu[0] <= 127:  # [AP] 4.1: function codes 1..127; the rest is no request
             self._answer(conn, transaction, unit, exception_pdu(pdu[0], ILLEGAL_FUNCTION))
             return
         if unit == 0:
-            self.counters["broadcasts"] += 1
-            targets = range(len(self._buses))
-        else:
-            bus = self.routes.bus_for(unit)
-            if bus is None:
-                self.counters["no_route"] += 1
+            counters["broadcasts"] += 1
+            for state in self._buses:
+                self._submit(state, Job(conn.id, transaction, 0, 0, pdu), conn)
+            return
+        route = self.routes.route(unit)
+        if route is None:
+            counters["no_route"] += 1
+            self._answer(conn, transaction, unit, exception_pdu(pdu[0], GATEWAY_PATH_UNAVAILABLE))
+            return
+        self._submit(self._buses[route[0]], Job(conn.id, transaction, unit, route[1], pdu), conn)
+
+    def _submit(self, state: _BusState, job: Job, conn: _Connection) -> None:
+        try:
+            state.queue.submit(job)
+        except QueueFull as exc:
+            self.counters["busy"] += 1
+            log.debug("connection %d: %s: busy", conn.id, exc)
+            if job.unit != 0:
                 self._answer(
-                    conn, transaction, unit, exception_pdu(pdu[0], GATEWAY_PATH_UNAVAILABLE)
+                    conn, job.transaction, job.unit, exception_pdu(job.pdu[0], SLAVE_DEVICE_BUSY)
                 )
-                return
-            targets = range(bus, bus + 1)
-        for index in targets:
-            state = self._buses[index]
-            job = Job(conn.id, transaction, unit, self.routes.slave_for(unit), pdu, now)
-            try:
-                state.queue.submit(job)
-            except QueueFull as exc:
-                self.counters["busy"] += 1
-                log.debug("connection %d: %s: busy", conn.id, exc)
-                if unit != 0:
-                    self._answer(conn, transaction, unit, exception_pdu(pdu[0], SLAVE_DEVICE_BUSY))
-                continue
-            state.wake.set()
+            return
+        state.wake()
 
     def _answer(self, conn: _Connection, transaction: int, unit: int, pdu: bytes) -> None:
         if pdu[0] & 0x80:
@@ -521,48 +534,61 @@ class Gateway:
     # ---------------------------------------------------------------- buses
 
     async def _worker(self, state: _BusState) -> None:
+        """One transaction at a time on the bus; never raises but CancelledError (the
+        gateway is closing)."""
+        loop = asyncio.get_running_loop()
+        queue = state.queue
+        bus = state.bus
+        connections = self._connections
+        counters = self.counters
+        monotonic = time.monotonic
         while True:
-            job = state.queue.pop()
+            job = queue.pop()
             if job is None:
-                state.wake.clear()
-                await state.wake.wait()
+                state.waiter = waiter = loop.create_future()
+                await waiter
                 continue
-            if job.conn not in self._connections:
+            if job.conn not in connections:
                 continue
-            answer = await self._transact(state, job)
-            conn = self._connections.get(job.conn)
-            if answer is None or conn is None:
-                if conn is None and answer is not None:
-                    self.counters["answers_dropped"] += 1
-                continue
-            self._answer(conn, job.transaction, job.unit, answer)
-
-    async def _transact(self, state: _BusState, job: Job) -> bytes | None:
-        """The answer PDU for ``job`` (None for a broadcast); never raises but
-        CancelledError (the gateway is closing)."""
-        started = time.monotonic()
-        state.busy_since = started
-        try:
-            answer = await state.bus.request(job.slave, job.pdu)
-            if job.slave == 0:
-                return None
-            if not answer:
-                raise NoResponseError(f"unit {job.unit}: no answer PDU", job.unit, job.pdu[0])
-            return answer
-        except ExceptionResponseError as exc:
-            return exception_pdu(job.pdu[0], exc.code)
-        except NoResponseError:
-            self.counters["timeouts"] += 1
-            return exception_pdu(job.pdu[0], GATEWAY_TARGET_FAILED)
-        except PortError as exc:
-            log.warning("bus unavailable: %s", exc)
-            return exception_pdu(job.pdu[0], GATEWAY_PATH_UNAVAILABLE)
-        except (ModbusError, ValueError, RuntimeError) as exc:
-            # a garbled answer after the retries, or a request the bus refuses
-            log.info("unit %d: %s", job.unit, exc)
-            self.counters["timeouts"] += 1
-            return exception_pdu(job.pdu[0], GATEWAY_TARGET_FAILED)
-        finally:
+            started = monotonic()
+            try:
+                answer = await bus.request(job.slave, job.pdu)
+            except Exception as exc:  # (CancelledError is no Exception: it ends the worker)
+                answer = self._failed(job, exc)
+            else:
+                if job.slave == 0:
+                    answer = None  # a broadcast: nothing to answer
+                elif not answer:
+                    answer = self._failed(
+                        job,
+                        NoResponseError(f"unit {job.unit}: no answer PDU", job.unit, job.pdu[0]),
+                    )
             state.transactions += 1
-            state.busy_seconds += time.monotonic() - started
-            state.busy_since = None
+            state.busy_seconds += monotonic() - started
+            conn = connections.get(job.conn)
+            if conn is None:
+                if answer is not None:
+                    counters["answers_dropped"] += 1
+            elif answer is not None:
+                self._answer(conn, job.transaction, job.unit, answer)
+
+    def _failed(self, job: Job, exc: Exception) -> bytes | None:
+        """The gateway's answer when the bus's request raised ``exc`` (None for a
+        broadcast): the device's exception, 0x0B when it did not answer (within the
+        timeout, after the retries, or not validly), 0x0A when the bus is unavailable."""
+        function = job.pdu[0]
+        if isinstance(exc, ExceptionResponseError):
+            return None if job.slave == 0 else exception_pdu(function, exc.code)
+        if isinstance(exc, PortError):
+            log.warning("bus unavailable: %s", exc)
+            return None if job.slave == 0 else exception_pdu(function, GATEWAY_PATH_UNAVAILABLE)
+        if isinstance(exc, (ModbusError, ValueError, RuntimeError)):
+            # no answer, a garbled answer after the retries, or a request the bus refuses
+            if not isinstance(exc, NoResponseError):
+                log.info("unit %d: %s", job.unit, exc)
+        else:  # a bus's bug: the bus goes on, the client gets an answer, the log the trace
+            log.error("unit %d: the bus failed", job.unit, exc_info=exc)
+        if job.slave == 0:
+            return None
+        self.counters["timeouts"] += 1
+        return exception_pdu(function, GATEWAY_TARGET_FAILED)

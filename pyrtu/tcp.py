@@ -108,6 +108,11 @@ class TcpClient:
     def timeout(self, value: float) -> None:
         self._proto.timeout = check_timeout(value)
 
+    @property
+    def last_answer_time(self) -> float | None:
+        """When the latest answer was read (monotonic seconds), or None before the first."""
+        return self._proto.answer_end
+
     def request(self, unit: int, pdu: BytesLike) -> bytes | None:
         """The response PDU of ``pdu`` sent to ``unit`` (None for unit 0, a broadcast)."""
         proto = self._proto
@@ -263,6 +268,11 @@ class AsyncTcpClient:
     @timeout.setter
     def timeout(self, value: float) -> None:
         self._conn.proto.timeout = check_timeout(value)
+
+    @property
+    def last_answer_time(self) -> float | None:
+        """When the latest answer was read (monotonic seconds), or None before the first."""
+        return self._conn.proto.answer_end
 
     async def request(self, unit: int, pdu: BytesLike) -> bytes | None:
         """The response PDU of ``pdu`` sent to ``unit`` (None for unit 0, a broadcast).

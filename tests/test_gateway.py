@@ -15,6 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from peers import pattern
 from peers.tools import PeerBinaries, free_tcp_port, libmodbus_server
+from tcp_helpers import flood, stuck_socket
 
 from pyrtu import ExceptionResponseError, encode_mbap, parse_tcp_stream, pdu
 from pyrtu.gateway import FairQueue, Gateway, GatewayLimits, Job, QueueFull, Routes, parse_units
@@ -66,8 +67,8 @@ def test_routes_and_unit_ranges() -> None:
         with pytest.raises(ValueError, match="unit ids"):
             parse_units(bad)
     r = Routes([parse_units("1-10"), {11: 11, 255: 12}])
-    assert (r.bus_for(1), r.bus_for(11), r.bus_for(255), r.bus_for(21)) == (0, 1, 1, None)
-    assert (r.slave_for(255), r.slave_for(3), r.slave_for(0)) == (12, 3, 0)
+    assert [r.route(u) for u in (1, 11, 255, 3)] == [(0, 1), (1, 11), (1, 12), (0, 3)]
+    assert r.route(21) is None and r.route(0) is None  # 0, the broadcast, goes to every bus
     with pytest.raises(ValueError, match="unit id 5 is on bus 0 and bus 1"):
         Routes([parse_units("1-10"), parse_units("5")])
 
@@ -331,6 +332,43 @@ def test_connection_limit_and_stuck_client(libmodbus_tcp: str, run) -> None:  # 
     run(main())
 
 
+def test_stuck_client_is_closed_and_others_are_served_meanwhile(libmodbus_tcp: str, run) -> None:  # type: ignore[no-untyped-def]
+    async def main() -> None:
+        limits = GatewayLimits(max_write_buffer=16384)
+        gw, clients = await open_gateway([(libmodbus_tcp, "1")], limits)
+        assert gw.address is not None
+        ok_r, ok_w = await raw(gw)
+        stuck = stuck_socket(gw.address)
+        big = pdu.read_request(pdu.READ_HOLDING_REGISTERS, 0, 125)  # 259-byte answers
+        burst = b"".join(encode_mbap(n, 1, big) for n in range(64))
+        flooding = asyncio.ensure_future(flood(stuck, burst))
+        served = 0
+        while not flooding.done():  # the other client, one request at a time, meanwhile
+            ok_w.write(encode_mbap(served & 0xFFFF, 1, READ))
+            adu = parse_tcp_stream(await read_adu(ok_r), "master")[0]
+            assert adu.transaction == served & 0xFFFF
+            assert pdu.parse_registers(adu.pdu, 4) == pattern.holdings(1, 0, 4)
+            served += 1
+        await flooding
+        stuck.close()
+        assert gw.counters["slow_clients"] == 1
+        # the bound held: what the gateway took before closing is the limit, its socket
+        # buffer (twice the limit on Linux) and the client's window, not megabytes
+        unread = (gw.counters["answers"] - served) * 259 + gw.counters["busy"] * 9
+        assert 16384 < unread < 8 * 16384
+        assert served > 0  # answered while the stuck client was flooding
+        await until(lambda: gw.stats()["open_connections"] == 1)
+        for n in range(20):  # and after
+            ok_w.write(encode_mbap(n, 1, READ))
+            assert (await read_adu(ok_r))[:2] == struct.pack(">H", n)
+        ok_w.close()
+        await gw.close()
+        for c in clients:
+            await c.close()
+
+    run(main())
+
+
 @given(
     ops=st.lists(
         st.one_of(
@@ -424,3 +462,111 @@ def test_rtu_over_tcp_listener(libmodbus_tcp: str, run) -> None:  # type: ignore
             await c.close()
 
     run(main())
+
+
+def test_bus_queue_limit_answers_busy_to_any_connection(silent_tcp: str, run) -> None:  # type: ignore[no-untyped-def]
+    """max_queued_per_bus bounds the bus's queue across connections: once the bus has
+    that many waiting, a request from another connection is answered 0x06 at once."""
+
+    async def main() -> None:
+        limits = GatewayLimits(max_queued_per_connection=8, max_queued_per_bus=3)
+        gw, clients = await open_gateway([(silent_tcp, "1")], limits, timeout=0.5)
+        first_r, first_w = await raw(gw)
+        first_w.write(encode_mbap(0, 1, READ))
+        await until(lambda: gw.stats()["requests"] == 1 and gw.stats()["queued"] == [0])
+        first_w.write(b"".join(encode_mbap(n, 1, READ) for n in range(1, 4)))  # 3 waiting
+        await until(lambda: gw.stats()["queued"] == [3])
+        other_r, other_w = await raw(gw)
+        other_w.write(encode_mbap(0x4242, 1, READ))
+        busy = parse_tcp_stream(await read_adu(other_r), "master")[0]
+        assert (busy.transaction, busy.function, busy.exception_code) == (0x4242, 0x83, 6)
+        assert gw.counters["busy"] == 1
+        # the first connection's four go on to time out on the dead bus, in order
+        later = [parse_tcp_stream(await read_adu(first_r, 5.0), "master")[0] for _ in range(4)]
+        assert [(f.transaction, f.exception_code) for f in later] == [(n, 11) for n in range(4)]
+        for w in (first_w, other_w):
+            w.close()
+        await gw.close()
+        for c in clients:
+            await c.close()
+
+    run(main())
+
+
+def test_a_bus_whose_port_failed_answers_0x0a_and_the_other_goes_on(
+    peer_binaries: PeerBinaries,
+    libmodbus_tcp: str,
+    run,  # type: ignore[no-untyped-def]
+) -> None:
+    """A bus whose connection (port) is gone answers 0x0A, gateway path unavailable, at
+    once; the other bus behind the same listener is not affected."""
+    port = free_tcp_port()
+    doomed = libmodbus_server(peer_binaries, f"tcp:127.0.0.1:{port}", 2).start()
+
+    async def main() -> None:
+        gw, clients = await open_gateway([(libmodbus_tcp, "1"), (f"tcp://127.0.0.1:{port}", "2")])
+        assert gw.address is not None
+        c = await AsyncTcpClient.connect(f"tcp://{gw.address[0]}:{gw.address[1]}", timeout=5.0)
+        got = await c.request(2, READ)
+        assert pdu.parse_registers(got or b"", 4) == pattern.holdings(2, 0, 4)
+        doomed.stop()  # the server behind bus 1 exits: its connection closes
+        for _ in range(3):
+            with pytest.raises(ExceptionResponseError) as info:
+                await c.request(2, READ)
+            assert info.value.code == 0x0A
+            got = await c.request(1, READ)
+            assert pdu.parse_registers(got or b"", 4) == pattern.holdings(1, 0, 4)
+        assert gw.counters["timeouts"] == 0
+        await c.close()
+        await gw.close()
+        for b in clients:
+            await b.close()
+
+    try:
+        run(main())
+    finally:
+        doomed.stop()
+
+
+class FaultyBus:
+    """A bus of the Python API (any object with ``async request``) with a bug: it
+    raises KeyError for slave 7 and for a broadcast of FC 05, and answers the others
+    from the register pattern."""
+
+    async def request(self, slave: int, request: bytes) -> bytes | None:
+        if slave == 7 or (slave == 0 and request[0] == 5):
+            raise KeyError("a bug in the bus")
+        if slave == 0:
+            return None
+        count = int.from_bytes(request[3:5], "big")
+        values = pattern.holdings(slave, int.from_bytes(request[1:3], "big"), count)
+        return bytes((3, 2 * count)) + b"".join(v.to_bytes(2, "big") for v in values)
+
+
+def test_a_bus_that_raises_gets_0x0b_and_its_worker_goes_on(
+    run,  # type: ignore[no-untyped-def]
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    async def main() -> None:
+        gw = Gateway([(FaultyBus(), range(1, 10))])
+        await gw.start("127.0.0.1", 0)
+        assert gw.address is not None
+        c = await AsyncTcpClient.connect(f"tcp://{gw.address[0]}:{gw.address[1]}", timeout=5.0)
+        for _ in range(2):
+            with pytest.raises(ExceptionResponseError) as info:
+                await c.request(7, READ)
+            assert info.value.code == 0x0B
+            got = await c.request(1, READ)  # the same bus, served after the failure
+            assert pdu.parse_registers(got or b"", 4) == pattern.holdings(1, 0, 4)
+        assert gw.counters["timeouts"] == 2 and gw.stats()["bus_transactions"] == [4]
+        # a broadcast the bus fails on is still not answered (no frame for unit 0)
+        assert await c.request(0, pdu.write_coil_request(3, True)) is None
+        got = await c.request(2, READ)
+        assert pdu.parse_registers(got or b"", 4) == pattern.holdings(2, 0, 4)
+        assert c.counters["late"] == 0 and gw.stats()["bus_transactions"] == [6]
+        await c.close()
+        await gw.close()
+
+    with caplog.at_level("ERROR", logger="pyrtu.gateway"):
+        run(main())
+    assert [r.exc_info[0] for r in caplog.records if r.exc_info] == [KeyError] * 3

@@ -4,6 +4,7 @@ with a libmodbus TCP server as its bus (the serial buses: test_gateway_serial.py
 from __future__ import annotations
 
 import json
+import re
 import signal
 import subprocess
 import sys
@@ -36,12 +37,46 @@ def pyrtu(*args: str) -> subprocess.CompletedProcess[str]:
         (["--listen", "127.0.0.1:0", "--port", "a", "--port", "b"], "--port"),
         (["--listen", "127.0.0.1:0", "--port", "a=1-5", "--port", "b=5"], "unit id 5"),
         (["--listen", "127.0.0.1:0", "--port", "a", "--max-queue", "0"], "--max-queue"),
+        (
+            ["--listen", "127.0.0.1:0", "--port", "a", "--max-connections", "-1"],
+            "--max-connections",
+        ),
+        (["--listen", "127.0.0.1:0", "--port", "a", "--max-bus-queue", "x"], "--max-bus-queue"),
+        (
+            ["--listen", "127.0.0.1:0", "--port", "a", "--max-write-buffer", "1.5"],
+            "--max-write-buffer",
+        ),
+        (["--listen", "127.0.0.1:0", "--port", "a", "--listen-rtu", "host"], "--listen-rtu"),
+        (
+            ["--listen", "127.0.0.1:0", "--port", "a", "--broadcast-delay", "-1"],
+            "--broadcast-delay",
+        ),
     ],
 )
 def test_usage_errors(args: list[str], flag: str) -> None:
     done = pyrtu(*args)
     assert done.returncode == 2, done.stderr
     assert flag in done.stderr and "Traceback" not in done.stderr
+
+
+def test_help_documents_the_limits_and_their_defaults() -> None:
+    """The defaults --help gives are the library's (pyrtu.gateway), for every limit."""
+    from pyrtu import gateway as G
+
+    done = pyrtu("--help")
+    assert done.returncode == 0
+    text = " ".join(done.stdout.split())
+    for flag, default in (
+        ("--max-connections", G.MAX_CONNECTIONS),
+        ("--max-queue", G.MAX_QUEUED_PER_CONNECTION),
+        ("--max-bus-queue", G.MAX_QUEUED_PER_BUS),
+        ("--max-write-buffer", G.MAX_WRITE_BUFFER),
+    ):
+        # the option's own help (after its metavar), and the summary in the description
+        assert re.search(rf"{flag} (N|BYTES) [^-]{{0,80}}\(default {default}\)", text), flag
+        assert f"{flag} {default}" in text
+    limits = G.GatewayLimits()
+    assert (limits.max_connections, limits.max_write_buffer) == (64, 256 * 1024)
 
 
 def test_missing_serial_port_is_a_port_error() -> None:

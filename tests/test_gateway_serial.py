@@ -1,7 +1,8 @@
 """Interop through `pyrtu gateway` onto a serial bus: pymodbus's and libmodbus's TCP
 clients and pyrtu's, to a pyrtu slave and to a simulated drive on the other end of a
 pseudo-terminal pair (socat; t35=0: a pty pair has no wire timing).  The gateway
-runs as its own process (the command); 127.0.0.1 only."""
+runs as its own process (the command); 127.0.0.1 only.  An ASCII bus (--mode ascii)
+at the end."""
 
 from __future__ import annotations
 
@@ -22,8 +23,10 @@ from peers.tools import (
     PeerBinaries,
     libmodbus_script,
     peer_env,
+    pymodbus_server,
     pyrtu_slave_process,
 )
+from tcp_helpers import flood, stuck_socket
 
 from pyrtu import ExceptionResponseError, encode_mbap, parse_tcp_stream, pdu
 from pyrtu.tcp import AsyncTcpClient, TcpClient
@@ -200,6 +203,112 @@ def test_queue_overflow_through_the_gateway(pty_pair: tuple[str, str]) -> None:
                 gw.proc.communicate()
 
 
+def test_max_write_buffer_closes_a_stuck_client_and_others_go_on(pty_pair: tuple[str, str]) -> None:
+    """--max-write-buffer: a client that sends and never reads is closed; a client
+    reading its answers on the same bus is served before, during and after.  The
+    limit is above asyncio's write high-water mark (64 KiB), where a gateway that
+    stops reading a client instead of closing it would keep it forever."""
+    gw_side, slave_side = pty_pair
+    with pyrtu_slave_process(slave_side, 1, t35=0):
+        gw = start_gateway(f"{gw_side}=1", "--max-write-buffer", "131072")
+        try:
+
+            async def main() -> int:
+                stuck = stuck_socket((gw.host, gw.port))
+                big = pdu.read_request(3, 0, 125)
+                burst = b"".join(encode_mbap(n, 1, big) for n in range(32))
+                async with await AsyncTcpClient.connect(gw.url, timeout=5.0) as ok:
+                    flooding = asyncio.ensure_future(flood(stuck, burst))
+                    served = 0
+                    while not flooding.done():
+                        got = await ok.request(1, pdu.read_request(3, served % 100, 2))
+                        assert pdu.parse_registers(got or b"", 2) == pattern.holdings(
+                            1, served % 100, 2
+                        )
+                        served += 1
+                    await flooding
+                    stuck.close()
+                    for i in range(10):
+                        got = await ok.request(1, pdu.read_request(3, i, 1))
+                        assert pdu.parse_registers(got or b"", 1) == pattern.holdings(1, i, 1)
+                return served
+
+            assert asyncio.run(main()) > 0
+            stats = gw.stop()
+            assert stats["slow_clients"] == 1 and stats["connections"] == 2
+        finally:
+            if gw.proc.poll() is None:
+                gw.proc.kill()
+                gw.proc.communicate()
+
+
+def test_broadcast_is_sent_once_not_waited_for_nor_retried(pty_pair: tuple[str, str]) -> None:
+    """With --retries 2 a broadcast still goes on the wire once (mbusd's issue #61: it
+    waits for an answer to a broadcast and retries it); the gateway counts no timeout,
+    answers nothing, and a read right after it is served."""
+    gw_side, slave_side = pty_pair
+    with pyrtu_slave_process(slave_side, 1, t35=0) as slave:
+        gw = start_gateway(f"{gw_side}=1-9", "--retries", "2")
+        try:
+            with socket.create_connection((gw.host, gw.port)) as s:
+                s.settimeout(5)
+                s.sendall(
+                    encode_mbap(1, 0, pdu.write_register_request(210, 2100))
+                    + encode_mbap(2, 0, pdu.write_registers_request(211, [2111, 2112]))
+                    + encode_mbap(3, 1, pdu.read_request(3, 210, 3))
+                )
+                data = b""
+                while len(data) < 6 or len(data) < 6 + int.from_bytes(data[4:6], "big"):
+                    chunk = s.recv(4096)
+                    assert chunk
+                    data += chunk
+                frames = list(parse_tcp_stream(data, "master").frames())
+                # one answer, the read's: nothing for the broadcasts
+                assert [f.transaction for f in frames] == [3]
+                assert pdu.parse_registers(frames[0].pdu, 3) == [2100, 2111, 2112]
+            stats = gw.stop()
+            assert (stats["broadcasts"], stats["timeouts"], stats["answers"]) == (2, 0, 1)
+        finally:
+            if gw.proc.poll() is None:
+                gw.proc.kill()
+                gw.proc.communicate()
+        counters = json.loads(slave.stop())
+    assert (counters["broadcasts"], counters["requests"]) == (2, 1)  # no retry on the wire
+
+
+@pytest.mark.wall_clock
+def test_broadcast_delay_holds_the_bus_after_a_broadcast(pty_pair: tuple[str, str]) -> None:
+    """--broadcast-delay: the silence the bus keeps after a broadcast (the devices'
+    turnaround) before its next request, here 0.6 s.  (The serial master cuts it to
+    the next request's --timeout, hence a timeout above it.)"""
+    gw_side, slave_side = pty_pair
+    with pyrtu_slave_process(slave_side, 1, t35=0):
+        gw = start_gateway(f"{gw_side}=1", "--broadcast-delay", "0.6", "--timeout", "2")
+        try:
+            with socket.create_connection((gw.host, gw.port)) as s:
+                s.settimeout(10)
+                t0 = time.monotonic()
+                s.sendall(
+                    encode_mbap(1, 0, pdu.write_register_request(220, 22))
+                    + encode_mbap(2, 1, pdu.read_request(3, 220, 1))
+                )
+                data = b""
+                while len(data) < 11:  # the read's answer: 7 + 4 bytes
+                    chunk = s.recv(64)
+                    assert chunk
+                    data += chunk
+                elapsed = time.monotonic() - t0
+            frame = parse_tcp_stream(data, "master")[0]
+            assert frame.transaction == 2 and pdu.parse_registers(frame.pdu, 1) == [22]
+            # a lower bound: load can only lengthen it
+            assert elapsed >= 0.6
+            assert gw.stop()["broadcasts"] == 1
+        finally:
+            if gw.proc.poll() is None:
+                gw.proc.kill()
+                gw.proc.communicate()
+
+
 @pytest.fixture
 def drive_bus(pty_pair: tuple[str, str]) -> Iterator[RunningGateway]:
     """A simulated WEG CFW701 (address 1) behind the gateway."""
@@ -304,3 +413,94 @@ def test_rtu_over_tcp_clients_through_the_gateway(pty_pair: tuple[str, str]) -> 
             if gw.proc.poll() is None:
                 gw.proc.kill()
                 gw.proc.communicate()
+
+
+# -- an ASCII bus behind the gateway (--mode ascii) ----------------------------------
+
+
+def test_ascii_bus_pymodbus_slave_through_the_gateway(pty_pair: tuple[str, str]) -> None:
+    """`--mode ascii`: Modbus TCP clients (pyrtu's and pymodbus's) onto pymodbus's ASCII
+    serial server; the gateway frames ':' ... LRC CR LF on the bus."""
+    from pymodbus.client import ModbusTcpClient
+
+    gw_side, slave_side = pty_pair
+    with pymodbus_server(slave_side, 1, mode="ascii") as peer:
+        gw = start_gateway(f"{gw_side}=1-9", "--mode", "ascii")
+        try:
+            with TcpClient(gw.url, timeout=3.0) as c:
+                got = c.request(1, pdu.read_request(3, 5, 10))
+                assert pdu.parse_registers(got or b"", 10) == pattern.holdings(1, 5, 10)
+                got = c.request(1, pdu.read_request(2, 3, 20))
+                assert pdu.parse_bits(got or b"", 20) == pattern.discretes(1, 3, 20)
+                assert c.request(1, pdu.write_registers_request(120, [7, 8, 9])) is not None
+                got = c.request(1, pdu.read_request(3, 120, 3))
+                assert pdu.parse_registers(got or b"", 3) == [7, 8, 9]
+                with pytest.raises(ExceptionResponseError) as info:
+                    c.request(4, pdu.read_request(3, 0, 1))  # nobody at 4 on the bus
+                assert info.value.code == 0x0B
+                assert c.request(0, pdu.write_register_request(130, 1313)) is None  # broadcast
+            client = ModbusTcpClient(gw.host, port=gw.port, timeout=3, retries=0)
+            assert client.connect()
+            try:
+                rr = client.read_input_registers(2, count=6, device_id=1)
+                assert not rr.isError() and rr.registers == pattern.inputs(1, 2, 6)
+                assert client.read_holding_registers(130, count=1, device_id=1).registers == [
+                    1313
+                ]  # the broadcast reached the slave
+                rr = client.read_holding_registers(60000, count=1, device_id=1)
+                assert rr.isError() and rr.exception_code == 2  # the slave's own, in ASCII
+            finally:
+                client.close()
+            stats = gw.stop()
+            assert stats["broadcasts"] == 1 and stats["timeouts"] == 1
+            assert stats["answers"] == 6 and stats["exceptions"] == 2
+        finally:
+            if gw.proc.poll() is None:
+                gw.proc.kill()
+                gw.proc.communicate()
+    # the slave saw each request once (the broadcast too), none for unit 4, no stray answer
+    assert peer.stats.split() == ["requests=8", "responses=7", "ignored=1", "stray=0"]
+
+
+def test_ascii_bus_simulated_drive_through_the_gateway(
+    pty_pair: tuple[str, str], peer_binaries: PeerBinaries
+) -> None:
+    """`--mode ascii` onto pyrtu's own ASCII slave (a simulated CV100, whose manual gives
+    ASCII; address 5), with libmodbus's TCP client and an RTU-over-TCP client on the
+    same bus."""
+    from pyrtu import Master
+
+    gw_side, drive_side = pty_pair
+    sim = subprocess.Popen(
+        [sys.executable, "-m", "pyrtu", "simulate", "cv100", "--port", drive_side,
+         "--parity", "N", "--baudrate", "115200", "--mode", "ascii", "--json"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=peer_env(),
+    )  # fmt: skip
+    assert sim.stdout is not None
+    ready = json.loads(sim.stdout.readline())
+    assert ready["type"] == "ready" and ready["format"].endswith("ASCII")
+    gw = start_gateway(f"{gw_side}=1-9", "--mode", "ascii", "--listen-rtu", "127.0.0.1:0")
+    try:
+        device = f"tcp:{gw.host}:{gw.port}"
+        # A1.01 = 0x0101 reads 5000 (the manual's RTU example); A0.06 = 0x0006 is the
+        # acceleration time; 0x7777 is no function code's register
+        results = libmodbus_script(
+            peer_binaries, device, 5, ["r03:257:1", "w06:6:100", "r03:6:1", "r03:30583:1"]
+        )
+        assert results[0]["values"] == [5000]
+        assert results[1]["ok"] and results[2]["values"] == [100]
+        assert results[3]["exception"] == 2
+        with Master(f"rtu+tcp://{gw.rtu}", timeout=3.0) as m:
+            assert m.read_holding_registers(5, 6, 1) == [100]
+            m.write_register(5, 6, 250)
+            assert m.read_holding_registers(5, 6, 1) == [250]
+            with pytest.raises(ExceptionResponseError) as info:
+                m.read_holding_registers(7, 0, 1)  # nobody at 7 on the ASCII bus
+            assert info.value.code == 0x0B
+        stats = gw.stop()
+        assert stats["answers"] == 6 and stats["exceptions"] == 2 and stats["timeouts"] == 1
+    finally:
+        for proc in (gw.proc, sim):
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
+            proc.communicate(timeout=15)

@@ -54,6 +54,23 @@ def test_answers_in_any_order_are_matched_by_transaction_id() -> None:
     assert p.counters["responses"] == 2 and p.counters["exceptions"] == 1
 
 
+def test_answer_end_is_the_time_of_the_latest_answer() -> None:
+    p = TcpClientProtocol(timeout=0.5, max_in_flight=4)
+    assert p.answer_end is None
+    t1, _ = p.send_request(1, READ, 10.0)
+    t2, _ = p.send_request(1, READ, 10.0)
+    p.receive_data(answer(t1, 1, "030400010002")[:5], 10.1)  # a partial answer: no answer yet
+    assert p.answer_end is None
+    p.receive_data(answer(t1, 1, "030400010002")[5:], 10.2)
+    assert p.answer_end == 10.2
+    p.handle_timer(10.6)  # t2 times out: no answer, the stamp stays
+    p.receive_data(answer(t2, 1, "030400010002"), 10.7)  # late, dropped: not an answer
+    assert p.answer_end == 10.2 and p.counters["late"] == 1
+    t3, _ = p.send_request(1, READ, 11.0)
+    p.receive_data(answer(t3, 1, "8302"), 11.3)  # an exception answer is an answer
+    assert p.answer_end == 11.3
+
+
 def test_timeout_then_late_answer_is_dropped() -> None:
     p = TcpClientProtocol(timeout=0.5)
     tid, _ = p.send_request(7, READ, 10.0)

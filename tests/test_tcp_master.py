@@ -152,3 +152,79 @@ def test_async_master_over_rtu_tcp(rtu_device_server: str) -> None:
             assert got == [pattern.inputs(4, i, 2) for i in range(10)]
 
     asyncio.run(main())
+
+
+def _serial_attributes(m: Master | AsyncMaster, url: str) -> None:
+    """What a TCP master answers in place of a serial line's properties."""
+    with pytest.raises(AttributeError, match="no serial line") as info:
+        _ = m.line
+    assert url in str(info.value)
+    assert not hasattr(m, "line") and getattr(m, "line", None) is None
+    assert not hasattr(m, "port")
+    assert (m.mode, m.t35, m.echo, m.broadcast_delay) == ("tcp", 0.0, False, 0.0)
+    assert m.url == url  # type: ignore[union-attr]
+
+
+def test_tcp_master_in_place_of_a_serial_one(tcp_server: tuple[str, int]) -> None:
+    """`Master`'s serial-line properties on a TCP master: a value where TCP has one, a
+    clear AttributeError for the line itself; last_answer_time stamps each answer."""
+    url, _ = tcp_server
+    with Master(url, timeout=2.0) as m:
+        _serial_attributes(m, url)
+        assert m.last_answer_time is None
+        before = time.monotonic()
+        assert m.read_holding_registers(1, 0, 2) == pattern.holdings(1, 0, 2)
+        first = m.last_answer_time
+        assert first is not None and before <= first <= time.monotonic()
+        with pytest.raises(ExceptionResponseError):
+            m.read_holding_registers(1, 60000, 1)
+        assert m.last_answer_time is not None and m.last_answer_time >= first  # an answer too
+
+    async def main() -> None:
+        async with AsyncMaster(url, timeout=2.0) as am:
+            _serial_attributes(am, url)
+            assert am.last_answer_time is None  # not even connected yet
+            before = time.monotonic()
+            assert await am.read_input_registers(1, 3, 2) == pattern.inputs(1, 3, 2)
+            stamp = am.last_answer_time
+            assert stamp is not None and before <= stamp <= time.monotonic()
+
+    asyncio.run(main())
+
+
+def test_poller_over_modbus_tcp() -> None:
+    """A `pyrtu.Poller` bus on tcp:// (the AsyncMaster the poller opens is the TCP one,
+    whose last_answer_time stamps the values), against pyrtu's TCP server."""
+    import pyrtu
+    from pyrtu.poller import Bus, Point
+    from pyrtu.tcp_server import TcpServer
+
+    async def main() -> None:
+        store = pyrtu.DataStore()
+        store.holding_registers.add_range(0, [100 + i for i in range(20)])
+        async with await TcpServer.for_store(3, store).start("127.0.0.1", 0) as server:
+            assert server.address is not None
+            host, port = server.address
+            bus = Bus("plant", f"tcp://{host}:{port}", {"timeout": 1.0})
+            points = [
+                Point("a", "plant", 3, "holding", 2, interval=0.02),
+                Point("b", "plant", 3, "holding", 7, interval=0.02),
+            ]
+            got: dict[str, object] = {}
+
+            async def watch(poller: pyrtu.Poller) -> None:
+                async for update in poller.updates():
+                    got[update.name] = update.value
+                    if len(got) == 2:
+                        break
+                assert got == {"a": 102, "b": 107}
+                store.holding_registers.set(7, 555)  # a later poll sees it
+                async for update in poller.updates():
+                    if update.name == "b" and update.value == 555:
+                        break
+
+            async with pyrtu.Poller(buses=[bus], points=points) as poller:
+                # (a bound on a hang, not a timing: the updates come every 20 ms)
+                await asyncio.wait_for(watch(poller), 30.0)
+
+    asyncio.run(main())

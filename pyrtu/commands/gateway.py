@@ -12,7 +12,8 @@ another Modbus TCP server.  All serial buses share the serial options.
 Answers of the gateway itself (Application Protocol 7): exception 0x0A for a
 unit id no bus carries, 0x0B when the device does not answer within --timeout
 (after --retries), 0x06 (busy) when a queue is full.  Unit 0 is a broadcast:
-sent to every bus, not answered.  A malformed MBAP header closes that
+sent to every bus, not answered, and the bus keeps --broadcast-delay (0.1 s)
+of silence after it (the devices' turnaround).  A malformed MBAP header closes that
 connection.  Limits (defaults): --max-connections 64, --max-queue 16 requests
 waiting per connection, --max-bus-queue 256 per bus, --max-write-buffer 262144
 bytes of unread answers before a client is closed.
@@ -40,8 +41,13 @@ from .common import (
     exit_code_table,
     guarded,
     positive_seconds,
+    seconds,
     serial_kwargs,
 )
+
+#: the silence kept after a broadcast (the Serial Line spec's turnaround delay, 2.1:
+#: "typically 100 ms to 200 ms"): `pyrtu.aio.AsyncMaster`'s default
+BROADCAST_DELAY = 0.1
 
 
 @dataclass(frozen=True)
@@ -107,6 +113,11 @@ def _configure(p: argparse.ArgumentParser) -> None:
                    help=f"unread answers before a client is closed "
                    f"(default {G.MAX_WRITE_BUFFER})")  # fmt: skip
     p.add_argument(
+        "--broadcast-delay", type=seconds, default=BROADCAST_DELAY, metavar="SECONDS",
+        help="silence after a broadcast before the bus's next request: the devices' "
+        f"turnaround (default {BROADCAST_DELAY})",
+    )  # fmt: skip
+    p.add_argument(
         "-d", "--duration", type=positive_seconds, metavar="SECONDS", help="stop after this time"
     )
     add_json_option(p, "JSON lines: ready, stopped (with the counters)")
@@ -130,7 +141,8 @@ async def _open_bus(spec: BusSpec, args: argparse.Namespace) -> Any:
 
     options: dict[str, Any] = serial_kwargs(args)
     options.update(timeout=args.timeout, retries=args.retries, mode=args.mode,
-                   timing=args.timing, echo=args.echo)  # fmt: skip
+                   timing=args.timing, echo=args.echo,
+                   broadcast_delay=args.broadcast_delay)  # fmt: skip
     if args.t35 is not None:
         options["t35"] = args.t35
     master = AsyncMaster(spec.port, **options)

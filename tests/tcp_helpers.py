@@ -1,0 +1,34 @@
+"""Helpers of the TCP and gateway tests: a client that never reads its answers."""
+
+from __future__ import annotations
+
+import asyncio
+import socket
+
+
+def stuck_socket(address: tuple[str, int]) -> socket.socket:
+    """A client socket with the smallest receive buffer the kernel allows (set before
+    connecting, so the window stays small): it takes few answers before it is full."""
+    s = socket.socket()
+    s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1024)
+    s.connect(address)
+    s.setblocking(False)
+    return s
+
+
+async def flood(s: socket.socket, data: bytes, until_closed: float = 20.0) -> int:
+    """Send ``data`` again and again, never reading, until the peer resets the
+    connection; returns the bytes sent.  Fails if it is not closed in time."""
+    loop = asyncio.get_running_loop()
+    end = loop.time() + until_closed
+    sent = 0
+    while loop.time() < end:
+        try:
+            sent += s.send(data)
+        except BlockingIOError:
+            await asyncio.sleep(0.005)  # the gateway reads its requests: this passes
+        except (ConnectionResetError, BrokenPipeError):
+            return sent
+        else:
+            await asyncio.sleep(0)
+    raise AssertionError(f"the stuck client was not closed ({sent} bytes sent)")
