@@ -64,6 +64,19 @@ def _read_ready(port: Port, fd: int) -> bytes:
     return data
 
 
+def read_now(port: Port, fd: int) -> bytes:
+    """What the descriptor has now, in one read: pyserial keeps ports non-blocking, so
+    no input is BlockingIOError (b""); an empty read (end of file, or a descriptor
+    someone made blocking) is looked at again through `Port.read`."""
+    try:
+        data = os.read(fd, _READ_SIZE)
+    except BlockingIOError:
+        return b""
+    except OSError as exc:
+        raise PortError(port.name, f"read failed: {exc}") from exc
+    return data if data else port.read(0)
+
+
 def run_sync(port: Port, proto: ClientProtocol, call: Call) -> Any:
     """Run ``call`` through ``proto`` on ``port``; the result or the typed error."""
     slave, pdu, decode = call
@@ -81,7 +94,7 @@ def run_sync(port: Port, proto: ClientProtocol, call: Call) -> Any:
             state = proto.state
             if state is _ANSWER:
                 # after a sleep the bytes are usually in: read first
-                data = _read_ready(port, fd) if napped and poll(0) else b""
+                data = read_now(port, fd) if napped else b""
                 if not data:
                     deadline = proto.deadline()
                     wait = 1.0 if deadline is None else deadline - _monotonic()

@@ -36,7 +36,7 @@ from typing import Any
 from . import _requests as R
 from . import pdu as P
 from ._client import State
-from ._master_io import send_request
+from ._master_io import read_now, send_request
 from ._requests import Call
 from ._slack import tighten_this_thread
 from ._transports import transport_for
@@ -446,7 +446,7 @@ class _Drive:
             while True:
                 state = proto.state
                 if state is _ANSWER:
-                    data = port.read(0)
+                    data = read_now(port, self._fd)
                     now = _monotonic()
                     if data:
                         proto.receive_data(data, now)
