@@ -46,6 +46,7 @@ from peers.tools import socat_pair  # noqa: E402
 import pyrtu  # noqa: E402
 from pyrtu import pdu  # noqa: E402
 from pyrtu.aio import AsyncMaster  # noqa: E402
+from pyrtu.aio import run as aio_run  # noqa: E402
 from pyrtu.tcp import AsyncTcpClient  # noqa: E402
 
 RESULTS = BENCH / "RESULTS.md"
@@ -229,7 +230,7 @@ def measure(seconds: float) -> list[Row]:
             with line(kind) as (gw_side, dev_side, timing):
                 dev, _ = device(target, dev_side, timing)
                 limit = wire_limit(kind, TARGETS[target][2])
-                n, elapsed, cpu = asyncio.run(direct(gw_side, timing, seconds, target))
+                n, elapsed, cpu = aio_run(direct(gw_side, timing, seconds, target))
                 rows.append(
                     Row(kind, target, 0, n, round(elapsed, 3), round(n / elapsed, 1),
                         round(limit, 1), round(n / elapsed / limit, 3),

@@ -45,6 +45,13 @@ from .common import (
     serial_kwargs,
 )
 
+#: up to this many connections the gateway runs on `pyrtu.aio.run`'s select() loop
+#: (microsecond timers: the serial side keeps t3.5 to the microsecond, where the
+#: default epoll loop rounds every wait up to a millisecond, a large part of a
+#: 115200-baud transaction); select() takes descriptors below 1024, so beyond this
+#: the default loop serves
+SELECT_LOOP_CONNECTIONS = 900
+
 #: the silence kept after a broadcast (the Serial Line spec's turnaround delay, 2.1:
 #: "typically 100 ms to 200 ms"): `pyrtu.aio.AsyncMaster`'s default
 BROADCAST_DELAY = 0.1
@@ -103,7 +110,10 @@ def _configure(p: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     g = p.add_argument_group("limits")
     g.add_argument("--max-connections", type=_limit, default=G.MAX_CONNECTIONS, metavar="N",
-                   help=f"TCP connections at once (default {G.MAX_CONNECTIONS})")  # fmt: skip
+                   help=f"TCP connections at once (default {G.MAX_CONNECTIONS}). Up to "
+                        f"{SELECT_LOOP_CONNECTIONS} the gateway runs on a select() loop, "
+                        "whose timers keep t3.5 to the microsecond; above, on asyncio's "
+                        "default loop, whose timers round up to milliseconds")  # fmt: skip
     g.add_argument("--max-queue", type=_limit, default=G.MAX_QUEUED_PER_CONNECTION, metavar="N",
                    help="requests waiting per connection "
                    f"(default {G.MAX_QUEUED_PER_CONNECTION})")  # fmt: skip
@@ -215,7 +225,12 @@ def _ready(args: argparse.Namespace, gw: G.Gateway) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    stats = asyncio.run(_serve(args))
+    if args.max_connections <= SELECT_LOOP_CONNECTIONS:
+        from ..aio import run as aio_run
+
+        stats = aio_run(_serve(args))
+    else:
+        stats = asyncio.run(_serve(args))
     if args.json:
         emit({"type": "stopped", **stats})
     else:
