@@ -38,9 +38,8 @@ from ._slave_base import SlaveBase, line_from_keywords
 from .datastore import DataStore
 from .errors import PortError
 from .line import LineConfig
-from .port import open_line_port
+from .port import open_line_port, read_fd
 from .rules import RuleTable
-from .slave import read_ready
 
 log = logging.getLogger("pyrtu.slave")
 
@@ -213,7 +212,7 @@ class AsyncSlave(SlaveBase):
     def _read_now(self, readable: bool, napped: bool) -> None:
         assert self._loop is not None and self.port.fd is not None
         try:
-            data = read_ready(self.port, self.port.fd, readable)
+            data = read_fd(self.port, self.port.fd, readable)
         except PortError as exc:
             self._fail(exc)
             return

@@ -11,7 +11,6 @@ deadline as the safety net.
 
 from __future__ import annotations
 
-import os
 import select
 import time
 from typing import Any
@@ -19,8 +18,7 @@ from typing import Any
 from ._client import ClientProtocol, State
 from ._requests import Call
 from ._slack import tighten_this_thread
-from .errors import PortError
-from .port import Port
+from .port import Port, read_fd
 
 _READ_SIZE = 4096
 
@@ -50,31 +48,11 @@ def _nap(proto: ClientProtocol) -> bool:
     return False
 
 
-def _read_ready(port: Port, fd: int) -> bytes:
-    """The input of a descriptor select() reported readable: Port.read(0) without its
-    poll (same errors)."""
-    try:
-        data = os.read(fd, _READ_SIZE)
-    except BlockingIOError:
-        return b""
-    except OSError as exc:
-        raise PortError(port.name, f"read failed: {exc}") from exc
-    if not data:
-        raise PortError(port.name, "the device reports data but returns none (disconnected?)")
-    return data
-
-
 def read_now(port: Port, fd: int) -> bytes:
-    """What the descriptor has now, in one read: pyserial keeps ports non-blocking, so
-    no input is BlockingIOError (b""); an empty read (end of file, or a descriptor
-    someone made blocking) is looked at again through `Port.read`."""
-    try:
-        data = os.read(fd, _READ_SIZE)
-    except BlockingIOError:
-        return b""
-    except OSError as exc:
-        raise PortError(port.name, f"read failed: {exc}") from exc
-    return data if data else port.read(0)
+    """What the descriptor has now (after a sleep on needed()): `read_fd` without a
+    poll first; nothing read is looked at again through `Port.read` (its poll tells
+    no input yet from a device that is gone)."""
+    return read_fd(port, fd, False) or port.read(0)
 
 
 def run_sync(port: Port, proto: ClientProtocol, call: Call) -> Any:
@@ -100,7 +78,7 @@ def run_sync(port: Port, proto: ClientProtocol, call: Call) -> Any:
                     wait = 1.0 if deadline is None else deadline - _monotonic()
                     # poll(): millisecond timeouts are fine for the answer's deadline
                     if wait > 0 and poll(wait * 1000.0):
-                        data = _read_ready(port, fd)
+                        data = read_fd(port, fd, True)
                 if data:
                     proto.receive_data(data, _monotonic())
                     napped = timed and proto.state is _ANSWER and _nap(proto)
@@ -109,7 +87,7 @@ def run_sync(port: Port, proto: ClientProtocol, call: Call) -> Any:
                     proto.handle_timer(_monotonic())
             elif state is _SEND:
                 # pending input first (stale: it restarts the silence); one poll(0)
-                if poll(0) and (stale := _read_ready(port, fd)):
+                if poll(0) and (stale := read_fd(port, fd, True)):
                     proto.receive_data(stale, _monotonic())
                     continue
                 start, end = port.write(proto.data_to_send())

@@ -42,7 +42,43 @@ NO_LINE = (
 )
 
 
-class TcpMaster(Master):
+class _TcpLine:
+    """What the TCP masters answer for a serial master's line properties (one place
+    for both): no line, mode "tcp", no silences, no echo; ``retries`` checked."""
+
+    url: str
+    _retries: int
+
+    @property
+    def retries(self) -> int:
+        return self._retries
+
+    @retries.setter
+    def retries(self, value: int) -> None:
+        self._retries = check_retries(value)
+
+    @property
+    def line(self) -> Any:
+        raise AttributeError(NO_LINE.format(url=self.url))
+
+    @property
+    def mode(self) -> str:
+        return MODE
+
+    @property
+    def t35(self) -> float:
+        return 0.0
+
+    @property
+    def echo(self) -> bool:
+        return False
+
+    @property
+    def broadcast_delay(self) -> float:
+        return 0.0
+
+
+class TcpMaster(_TcpLine, Master):
     """`pyrtu.Master` on a Modbus TCP connection (made by ``Master("tcp://...")``)."""
 
     def __init__(
@@ -84,34 +120,6 @@ class TcpMaster(Master):
         self._client.timeout = self._timeout
 
     @property
-    def retries(self) -> int:
-        return self._retries
-
-    @retries.setter
-    def retries(self, value: int) -> None:
-        self._retries = check_retries(value)
-
-    @property
-    def line(self) -> Any:
-        raise AttributeError(NO_LINE.format(url=self.url))
-
-    @property
-    def mode(self) -> str:
-        return MODE
-
-    @property
-    def t35(self) -> float:
-        return 0.0
-
-    @property
-    def echo(self) -> bool:
-        return False
-
-    @property
-    def broadcast_delay(self) -> float:
-        return 0.0
-
-    @property
     def last_answer_time(self) -> float | None:
         return self._client.last_answer_time
 
@@ -123,7 +131,7 @@ class TcpMaster(Master):
         return f"<pyrtu.Master {self.url} Modbus TCP>"
 
 
-class AsyncTcpMaster(AsyncMaster):
+class AsyncTcpMaster(_TcpLine, AsyncMaster):
     """`pyrtu.aio.AsyncMaster` on a Modbus TCP connection (``AsyncMaster("tcp://...")``);
     connects on the first request."""
 
@@ -184,34 +192,6 @@ class AsyncTcpMaster(AsyncMaster):
         self._timeout = check_seconds("timeout", value, positive=True)
         if self._client is not None:
             self._client.timeout = self._timeout
-
-    @property
-    def retries(self) -> int:
-        return self._retries
-
-    @retries.setter
-    def retries(self, value: int) -> None:
-        self._retries = check_retries(value)
-
-    @property
-    def line(self) -> Any:
-        raise AttributeError(NO_LINE.format(url=self.url))
-
-    @property
-    def mode(self) -> str:
-        return MODE
-
-    @property
-    def t35(self) -> float:
-        return 0.0
-
-    @property
-    def echo(self) -> bool:
-        return False
-
-    @property
-    def broadcast_delay(self) -> float:
-        return 0.0
 
     @property
     def last_answer_time(self) -> float | None:

@@ -88,6 +88,22 @@ def _posix_fd(ser: Any) -> int | None:
     return fd
 
 
+def read_fd(port: Port, fd: int, readable: bool) -> bytes:
+    """What the port's descriptor has now, in one read, without a poll first: pyserial
+    keeps it non-blocking (VMIN = VTIME = 0), so no input is b"".  ``readable``: poll()
+    said so, and then an empty read means the device is gone (`PortError`); errors as
+    `Port.read`'s."""
+    try:
+        data = os.read(fd, _READ_SIZE)
+    except BlockingIOError:
+        return b""
+    except OSError as exc:
+        raise PortError(port.name, f"read failed: {exc}") from exc
+    if not data and readable:
+        raise PortError(port.name, "the device reports data but returns none (disconnected?)")
+    return data
+
+
 class Port:
     """An open serial port with the few operations the master and slave need."""
 

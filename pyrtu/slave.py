@@ -48,9 +48,8 @@ from typing import Any
 from ._slack import swap_timer_slack
 from ._slave_base import STANDARD_FUNCTIONS, Handler, SlaveBase, line_from_keywords
 from .datastore import DataStore
-from .errors import PortError
 from .line import LineConfig
-from .port import Port, open_line_port
+from .port import open_line_port, read_fd
 from .rules import RuleTable
 
 log = logging.getLogger("pyrtu.slave")
@@ -65,20 +64,6 @@ PREPARE = 0.0005
 _TIMER_SLACK_NS = 1000
 _READ_SIZE = 4096
 _SELECT_LIMIT = 1024  # FD_SETSIZE
-
-
-def read_ready(port: Port, fd: int, readable: bool) -> bytes:
-    """What the port's file descriptor has (pyserial keeps it non-blocking, VMIN = VTIME
-    = 0); ``readable``: poll said so, and then an empty read means the device is gone."""
-    try:
-        data = os.read(fd, _READ_SIZE)
-    except BlockingIOError:
-        return b""
-    except OSError as exc:
-        raise PortError(port.name, f"read failed: {exc}") from exc
-    if not data and readable:
-        raise PortError(port.name, "the device reports data but returns none (disconnected?)")
-    return data
 
 
 class Slave(SlaveBase):
@@ -252,7 +237,7 @@ class Slave(SlaveBase):
                         return
                 else:
                     readable = True
-            data = read_ready(port, fd, True) if readable else b""
+            data = read_fd(port, fd, True) if readable else b""
         now = _monotonic()
         with self._lock:
             if data:
@@ -277,7 +262,7 @@ class Slave(SlaveBase):
                 return
         port = self.port
         assert port.fd is not None
-        data = read_ready(port, port.fd, False)
+        data = read_fd(port, port.fd, False)
         now = _monotonic()
         proto = self.protocol
         with self._lock:

@@ -86,7 +86,7 @@ def test_no_wake_per_byte_on_a_timed_line(monkeypatch: pytest.MonkeyPatch) -> No
         assert m.read_holding_registers(1, 0, 10) == [1000 + i for i in range(10)]
         reads: list[int] = []
         real_read = m.port.read
-        real_ready = mio._read_ready
+        real_ready = mio.read_fd
 
         def counting_read(timeout: float) -> bytes:
             data = real_read(timeout)
@@ -94,23 +94,14 @@ def test_no_wake_per_byte_on_a_timed_line(monkeypatch: pytest.MonkeyPatch) -> No
                 reads.append(len(data))
             return data
 
-        def counting_ready(port: object, fd: int) -> bytes:
-            data = real_ready(port, fd)  # type: ignore[arg-type]
-            if data:
-                reads.append(len(data))
-            return data
-
-        real_now = mio.read_now
-
-        def counting_now(port: object, fd: int) -> bytes:
-            data = real_now(port, fd)  # type: ignore[arg-type]
+        def counting_ready(port: object, fd: int, readable: bool) -> bytes:
+            data = real_ready(port, fd, readable)  # type: ignore[arg-type]
             if data:
                 reads.append(len(data))
             return data
 
         m.port.read = counting_read  # type: ignore[method-assign]
-        monkeypatch.setattr(mio, "_read_ready", counting_ready)
-        monkeypatch.setattr(mio, "read_now", counting_now)
+        monkeypatch.setattr(mio, "read_fd", counting_ready)
         for _ in range(10):
             assert m.read_holding_registers(1, 0, 10) == [1000 + i for i in range(10)]
         assert sum(reads) == 10 * 25
