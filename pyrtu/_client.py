@@ -78,10 +78,6 @@ class State(enum.Enum):
 _IDLE, _QUIET, _SEND, _ANSWER, _DONE = State.IDLE, State.QUIET, State.SEND, State.ANSWER, State.DONE
 _DEBUG = logging.DEBUG
 _ADUS_MAX = 1024
-#: from this character time up (19200 baud and slower), `ready_at` leaves the
-#: answer's last byte to a wait for input: half a character, the mean overshoot of a
-#: sleep on needed(), is then well above a wake-up's latency
-_EXACT_END_CHAR = 500e-6
 #: the core's error codes (RTU_ERR_*) as the discard reasons of the counters
 _REASONS: tuple[str | None, ...] = tuple(r.value if r else None for r in ERROR_BY_CODE)
 
@@ -390,12 +386,14 @@ class ClientProtocol:
 
     def ready_at(self, now: float) -> float:
         """ANSWER: the earliest time the bytes still needed can all be in, so a driver
-        may sleep until then instead of waking per byte: ``needed()`` character times
-        from now, and before any byte of the answer came, from the end of
-        transmission plus t3.5 (the slave keeps that silence before it answers,
-        Serial Line V1.02 2.5.1.1; not with an echo, which comes at once) plus the
-        slave's learned turnaround (`turnaround`), so that the first sleep does not
-        end before the first bytes are in.  Never
+        may sleep until then instead of waking per byte.  Before any byte of the
+        answer came: ``needed()`` character times from the end of transmission plus
+        t3.5 (the slave keeps that silence before it answers, Serial Line V1.02
+        2.5.1.1; not with an echo, which comes at once) plus the slave's learned
+        turnaround (`turnaround`), so that the first sleep does not end before the
+        first bytes are in.  Once bytes came: ``needed() - 1`` character times from
+        now, so that the driver reads the last byte as it comes (a wait for input)
+        and the next silence counts from the answer's real end.  Never
         past ``wait_limit()``; ``now`` in other states, and on a line without wire
         timing (t3.5 = 0: pseudo-terminals, TCP links), whose bytes come in bursts
         rather than at the character rate."""
@@ -405,10 +403,13 @@ class ClientProtocol:
         needed = self.needed()
         if not self._heard and not self._echo_left:
             start = max(now, self._end + self.gap + self._turn.get(self._slave, 0.0))
-        elif needed and self._char >= _EXACT_END_CHAR:
-            # a slow line: wake a character early and read the last byte as it comes
-            # (a sleep would end up to a character after it: the next silence is
-            # measured from when the answer's end was read)
+        elif needed:
+            # once bytes of the answer are in, wake a character early and read the
+            # last byte as it comes: a sleep would end up to a character (plus the
+            # timer's lateness) after it, and the next request's t3.5 counts from
+            # when the answer's end was read (measured on the virtual bus at 115200:
+            # the master's delay past t3.5 from 145 to 62 µs, the wire efficiency
+            # from 0.977 to 0.995, CPU per transaction unchanged)
             needed -= 1
         return min(start + needed * self._char, self._limit)
 
