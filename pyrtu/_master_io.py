@@ -20,8 +20,6 @@ from ._requests import Call
 from ._slack import tighten_this_thread
 from .port import Port, read_fd
 
-_READ_SIZE = 4096
-
 _monotonic = time.monotonic
 _QUIET, _SEND, _ANSWER = State.QUIET, State.SEND, State.ANSWER
 _sleep = time.sleep

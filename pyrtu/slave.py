@@ -62,7 +62,6 @@ PREPARE = 0.0005
 #: the serving thread's timer slack (Linux), so that timed waits end on time (the
 #: default 50 µs would add to every answer's turnaround)
 _TIMER_SLACK_NS = 1000
-_READ_SIZE = 4096
 _SELECT_LIMIT = 1024  # FD_SETSIZE
 
 
