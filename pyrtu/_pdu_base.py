@@ -97,16 +97,15 @@ def unpack_bits(data: bytes, count: int) -> list[bool]:
     return [bool(data[i >> 3] >> (i & 7) & 1) for i in range(count)]
 
 
-#: big-endian 16-bit word unpackers by count, up to the longest PDU's 126 words
-_UNPACK_WORDS = [struct.Struct(f">{n}H").unpack for n in range(127)]
-#: the same, from an offset (no slice copy): ``_UNPACK_WORDS_FROM[n](data, offset)``
+#: big-endian 16-bit word unpackers by count, up to the longest PDU's 126 words,
+#: from an offset (no slice copy): ``_UNPACK_WORDS_FROM[n](data, offset)``
 _UNPACK_WORDS_FROM = [struct.Struct(f">{n}H").unpack_from for n in range(127)]
 
 
 def _words(data: bytes) -> list[int]:
     n = len(data) // 2
     if n < 127 and len(data) == 2 * n:
-        return list(_UNPACK_WORDS[n](data))
+        return list(_UNPACK_WORDS_FROM[n](data, 0))
     return list(struct.unpack(f">{n}H", data[: 2 * n]))
 
 

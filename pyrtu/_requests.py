@@ -44,36 +44,25 @@ def _read(name: str, fc: int, slave: int, address: int, count: int) -> Call:
     return call
 
 
-def read_coils(slave: int, address: int, count: int) -> Call:
-    if type(slave) is type(address) is type(count) is int:  # hashable, exact
-        call = _READS.get((1, slave, address, count))
-        if call is not None:
-            return call
-    return _read("read_coils", P.READ_COILS, slave, address, count)
+def _reader(fc: int, name: str) -> Callable[[int, int, int], Call]:
+    """The read function of ``fc``: the cached Call of exact-int arguments (checked
+    before hashing: unhashable arguments get their named TypeError from `_read`)."""
+
+    def read(slave: int, address: int, count: int) -> Call:
+        if type(slave) is type(address) is type(count) is int:
+            call = _READS.get((fc, slave, address, count))
+            if call is not None:
+                return call
+        return _read(name, fc, slave, address, count)
+
+    read.__name__ = read.__qualname__ = name
+    return read
 
 
-def read_discrete_inputs(slave: int, address: int, count: int) -> Call:
-    if type(slave) is type(address) is type(count) is int:  # hashable, exact
-        call = _READS.get((2, slave, address, count))
-        if call is not None:
-            return call
-    return _read("read_discrete_inputs", P.READ_DISCRETE_INPUTS, slave, address, count)
-
-
-def read_holding_registers(slave: int, address: int, count: int) -> Call:
-    if type(slave) is type(address) is type(count) is int:  # hashable, exact
-        call = _READS.get((3, slave, address, count))
-        if call is not None:
-            return call
-    return _read("read_holding_registers", P.READ_HOLDING_REGISTERS, slave, address, count)
-
-
-def read_input_registers(slave: int, address: int, count: int) -> Call:
-    if type(slave) is type(address) is type(count) is int:  # hashable, exact
-        call = _READS.get((4, slave, address, count))
-        if call is not None:
-            return call
-    return _read("read_input_registers", P.READ_INPUT_REGISTERS, slave, address, count)
+read_coils = _reader(P.READ_COILS, "read_coils")
+read_discrete_inputs = _reader(P.READ_DISCRETE_INPUTS, "read_discrete_inputs")
+read_holding_registers = _reader(P.READ_HOLDING_REGISTERS, "read_holding_registers")
+read_input_registers = _reader(P.READ_INPUT_REGISTERS, "read_input_registers")
 
 
 def _write(slave: int, req: bytes, decode: Callable[[bytes], Any]) -> Call:

@@ -148,17 +148,7 @@ class Port:
             raise PortError(self.name, f"read failed: {exc}") from exc
         if not ready:
             return b""
-        try:
-            data = os.read(fd, _READ_SIZE)
-        except BlockingIOError:
-            return b""
-        except OSError as exc:
-            raise PortError(self.name, f"read failed: {exc}") from exc
-        if not data:
-            # pyserial sets VMIN = VTIME = 0: an empty read of a port reported
-            # readable means the device went away.
-            raise PortError(self.name, "the device reports data but returns none (disconnected?)")
-        return data
+        return read_fd(self, fd, True)
 
     def _read_generic(self, timeout: float) -> bytes:
         ser = self.serial
