@@ -117,7 +117,7 @@ class AsyncSlave(SlaveBase):
             raise PortError(self.port.name, "the port is closed")
         loop = asyncio.get_running_loop()
         self._loop = loop
-        self._done = loop.create_future()
+        done = self._done = loop.create_future()
         self.error = None
         try:
             if self.port.fd is not None:
@@ -129,9 +129,10 @@ class AsyncSlave(SlaveBase):
                 )
                 self._thread.start()
             self._rearm(loop.time())
-            await self._done
+            await done
         finally:
-            self._teardown()
+            if self._done is done:  # not already torn down by `stop`
+                self._teardown()
 
     def start(self) -> asyncio.Task[None]:
         """Serve in a task of the running loop; returns it."""
@@ -141,10 +142,13 @@ class AsyncSlave(SlaveBase):
         return self._task
 
     async def stop(self) -> None:
-        """Stop serving (at once; the task of `start` ends)."""
+        """Stop serving (at once; the task of `start` ends).  The port is off the
+        loop when this returns, even if `serve` runs in a task of the caller's that
+        has not resumed yet, so `close` never closes a descriptor the loop watches."""
         done = self._done
         if done is not None and not done.done():
             done.set_result(None)
+            self._teardown()
         task = self._task
         if task is not None:
             self._task = None

@@ -19,6 +19,7 @@ from ptylink import PtyLink, make_store
 
 from pyrtu import add_crc
 from pyrtu._aio_slave import AsyncSlave
+from pyrtu.aio import run as aio_run
 from pyrtu.errors import NoResponseError, PortError
 from pyrtu.master import Master
 from pyrtu.vbus import VirtualBus
@@ -159,6 +160,36 @@ def test_stop_and_cancel(link: PtyLink) -> None:
         await slave.close()
 
     asyncio.run(main())
+
+
+@pytest.mark.parametrize("runner", ["asyncio", "pyrtu"])
+def test_close_while_serve_runs_in_a_task_of_its_own(link: PtyLink, runner: str) -> None:
+    """``serve()`` in the caller's own task (not `start`), then `close`: the port leaves
+    the loop before its descriptor is closed.  It used to stay registered, and
+    pyrtu.aio.run's select loop then died with EBADF, taking every other slave in the
+    loop with it."""
+
+    async def main() -> None:
+        slave = AsyncSlave(link.path_b, 1, make_store(), parity="N", t35=0)
+        other = AsyncSlave(link.path_a, 2, make_store(), parity="N", t35=0)
+        fd = slave.port.fd
+        assert fd is not None
+        task = asyncio.ensure_future(slave.serve())
+        other_task = other.start()
+        await asyncio.sleep(0.01)
+        await slave.close()
+        assert slave.port.closed
+        assert not asyncio.get_running_loop().remove_reader(fd)
+        await asyncio.sleep(0.01)  # a select() over the loop's descriptors
+        assert await task is None and slave.error is None
+        assert not other_task.done()  # the loop and the other slave go on
+        await other.close()
+        assert other_task.done() and other_task.exception() is None
+
+    if runner == "pyrtu":
+        aio_run(main())
+    else:
+        asyncio.run(main())
 
 
 def test_cancel_while_an_answer_waits(link: PtyLink) -> None:
