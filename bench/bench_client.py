@@ -13,9 +13,10 @@ the CPU figures are the master's own:
    1 / (33 characters + 2 x t3.5), master CPU per transaction (thread CPU time);
 2. pymodbus's ``AsyncModbusSerialClient`` on the same bus against the same slave,
    at 115200: transactions/s and CPU per transaction, and the ratios;
-3. 8 buses at 115200, a simulated drive on each (``pyrtu simulate cfw100``), polled
-   concurrently by one `AsyncMaster` process (8 masters in one event loop): every
-   bus's ratio to the wire limit and the process's total CPU.
+3. 8 buses at 115200, a simulated drive on each (one ``pyrtu simulate cfw100 --port
+   ... --port ...`` process serving the 8 drives), polled concurrently by one
+   `AsyncMaster` process (8 masters in one event loop): every bus's ratio to the
+   wire limit and the process's total CPU.
 
 ``--write`` replaces the section "## Sans-I/O client (issue 10)" of bench/RESULTS.md.
 """
@@ -143,11 +144,16 @@ DRIVES = {
 
 
 @contextlib.contextmanager
-def drive(path: str, baudrate: int, name: str = "cfw100") -> Iterator[int]:
-    argv = [sys.executable, "-m", "pyrtu", "simulate", name, "--port", path]
+def drives(paths: list[str], baudrate: int, name: str = "cfw100") -> Iterator[int]:
+    """One ``pyrtu simulate`` process, a drive on each of ``paths`` (``--port`` given
+    once per path: the drives share one event loop)."""
+    argv = [sys.executable, "-m", "pyrtu", "simulate", name, "--json"]
+    for path in paths:
+        argv += ["--port", path]
     argv += ["--baudrate", str(baudrate), "-P", "N", "--address", str(DRIVES[name][0])]
-    with process(argv) as (proc, _):
-        time.sleep(0.8)
+    with process(argv, 1) as (proc, lines):
+        if '"ready"' not in lines[0]:
+            raise RuntimeError(f"pyrtu simulate did not start: {lines[0]!r}")
         yield proc.pid
 
 
@@ -312,13 +318,14 @@ def eight_buses(
     address, start, count, delay = DRIVES[drive_name]
     with contextlib.ExitStack() as stack:
         paths: list[str] = []
+        drive_paths: list[str] = []
         hubs: list[int] = []
-        drives: list[int] = []
         for _ in range(buses):
             p, pid = stack.enter_context(vbus(baudrate, loop=loop, stats=True))
             paths.append(p[0])
+            drive_paths.append(p[1])
             hubs.append(pid)
-            drives.append(stack.enter_context(drive(p[1], baudrate, drive_name)))
+        drive_pids = [stack.enter_context(drives(drive_paths, baudrate, drive_name))]
         counts = [0] * buses
 
         async def main() -> tuple[float, float, float, float, float]:
@@ -344,14 +351,14 @@ def eight_buses(
 
                 errors0 = sum(m.counters["timeouts"] + m.counters["frame_errors"] for m in masters)
                 hub0 = sum(cpu_of(h) for h in hubs)
-                drive0 = sum(cpu_of(d) for d in drives)
+                drive0 = sum(cpu_of(d) for d in drive_pids)
                 r0 = resource.getrusage(resource.RUSAGE_SELF)
                 t0 = time.perf_counter()
                 await asyncio.gather(*(poll(i, m) for i, m in enumerate(masters)))
                 wall = time.perf_counter() - t0
                 r1 = resource.getrusage(resource.RUSAGE_SELF)
                 hub_cpu = sum(cpu_of(h) for h in hubs) - hub0
-                drive_cpu = sum(cpu_of(d) for d in drives) - drive0
+                drive_cpu = sum(cpu_of(d) for d in drive_pids) - drive0
                 cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
                 errors = sum(m.counters["timeouts"] + m.counters["frame_errors"] for m in masters)
                 return wall, cpu, float(errors - errors0), hub_cpu, drive_cpu
@@ -485,8 +492,9 @@ def section(data: dict[str, Any]) -> str:
             "",
             f"### {e['buses']} virtual buses at {e['baudrate']} baud, one AsyncMaster process",
             "",
-            f"A simulated {e.get('drive', 'cfw100').upper()} (`pyrtu simulate"
-            f" {e.get('drive', 'cfw100')}`) on each bus, its hub on the"
+            f"A simulated {e.get('drive', 'cfw100').upper()} on each bus (one `pyrtu simulate"
+            f" {e.get('drive', 'cfw100')} --port ... --port ...` process serves the"
+            f" {e['buses']}), each bus a `pyrtu vbus` process with its hub on the"
             f" {e.get('hub_loop', 'python').upper()} loop; {e['buses']} masters",
             "in one event loop poll FC 03 of 7 registers (19-byte answers; wire limit",
             f"1 / (27 characters + 2 x t3.5)) for {e['seconds']:.1f} s.",
@@ -504,7 +512,7 @@ def section(data: dict[str, Any]) -> str:
             f"- the {e['buses']} hub processes used {e['hub_cpu_s_total']:.1f} s of CPU "
             f"({e['hub_cpu_s_total'] / e['seconds'] * 100:.0f}% of one core) in that time"
             + (
-                f"; the {e['buses']} drive simulators "
+                f"; the drive simulators' process "
                 f"{e['drive_cpu_s_total'] / e['seconds'] * 100:.0f}%"
                 if "drive_cpu_s_total" in e
                 else ""

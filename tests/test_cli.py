@@ -485,6 +485,51 @@ def test_simulate_for_a_duration_and_its_errors(bus: Bus, tmp_path: Path) -> Non
     assert pyrtu("simulate", "acu", "--state", "stopped", "--port", bus.path(SPARE)).code == 2
 
 
+def test_simulate_one_drive_per_port_in_one_process() -> None:
+    """``--port`` twice: two drives, each with its own state, one per bus, served by
+    one process; a bus that goes away ends the command with a port error naming it."""
+    with (
+        VirtualBus(2, baudrate=BAUD, parity="N") as a,
+        VirtualBus(2, baudrate=BAUD, parity="N") as b,
+    ):
+        ports = [a.paths[1], b.paths[1]]
+        args = ["simulate", "cfw701", "-p", ports[0], "--port", ports[1], *SERIAL]
+        bg = Background(*args, "-a", 7, "--state", "stopped", "--json")
+        try:
+            ready = bg.line(timeout=10)
+            assert '"type": "ready"' in ready and f'"ports": ["{ports[0]}", "{ports[1]}"]' in ready
+            with (
+                Master(a.paths[0], BAUD, parity="N", timeout=1.0) as ma,
+                Master(b.paths[0], BAUD, parity="N", timeout=1.0) as mb,
+            ):
+                on_a, on_b = W.CFW701(ma, 7), W.CFW701(mb, 7)
+                assert on_a.identify()["product_code"] == "CFW701"
+                assert on_b.identify()["product_code"] == "CFW701"
+                on_a.start()
+                assert on_a.status().running
+                assert not on_b.status().running  # its own drive, still stopped
+            bg.proc.send_signal(signal.SIGTERM)
+            r = bg.finish()
+        finally:
+            bg.kill()
+        assert r.code == 0, r.err
+        stopped = r.json_lines()[-1]
+        assert stopped["type"] == "stopped" and stopped["counters"]["requests"] >= 5
+
+        bg = Background(*args, "-a", 7, "--json")
+        try:
+            assert '"type": "ready"' in bg.line(timeout=10)
+            b.unplug(1)
+            r = bg.finish()
+        finally:
+            bg.kill()
+        assert r.code == 3 and ports[1] in r.err, r.err
+    duplicate = pyrtu("simulate", "cv100", "-p", ports[0], "-p", ports[0], *SERIAL)
+    assert duplicate.code == 2 and "--port" in duplicate.err
+    tcp = pyrtu("simulate", "cv100", "-p", ports[0], "-p", ports[1], "--tcp", "127.0.0.1:0")
+    assert tcp.code == 2 and "--tcp" in tcp.err
+
+
 # -- ASCII -------------------------------------------------------------------------------------
 
 

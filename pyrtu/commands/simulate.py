@@ -9,6 +9,11 @@ pseudo-terminals carry no parity) or on a real port.
 
 Runs until SIGINT/SIGTERM or ``--duration`` (exit 0), then prints the counters;
 ``--watch`` prints the drive's frequency and status word every second.
+
+``--port`` may be given several times: one drive per port, each with its own
+state, all served by one event loop in this process (cheaper than a process per
+drive when one machine simulates many buses); ``--watch`` then prints a line per
+port and the counters are added up.
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ import sys
 import time
 from typing import Any
 
+from ._simulate_many import DriveLoop
 from ._simulate_tcp import TcpThread, tcp_only_slave
 from .common import (
     EXIT_OK,
@@ -83,7 +89,13 @@ def _configure(p: argparse.ArgumentParser) -> None:
         choices=DEVICES,
         help="cfw100, cfw320, cfw701, cv100, act or acu",
     )
-    p.add_argument("-p", "--port", metavar="PATH", help="serial port to serve")
+    p.add_argument(
+        "-p",
+        "--port",
+        metavar="PATH",
+        action="append",
+        help="serial port to serve; give it again for one more drive (one per port)",
+    )
     p.add_argument(
         "--tcp",
         type=listen_address,
@@ -117,13 +129,22 @@ def _run(args: argparse.Namespace) -> int:
     address = args.address if args.address is not None else EXAMPLE_ADDRESS[device]
     if not 1 <= address <= 247:
         raise ValueError(f"--address: a slave address is 1..247, not {address}")
-    if args.port is None and args.tcp is None:
+    ports: list[str] = args.port or []
+    if not ports and args.tcp is None:
         raise ValueError("give --port PATH, --tcp HOST:PORT or both")
-    sim = make_simulator(device, args.state, args.mode)
+    if len(set(ports)) != len(ports):
+        raise ValueError("--port: a port is given twice (one drive per port)")
+    if len(ports) > 1 and args.tcp is not None:
+        raise ValueError("--tcp serves one drive: give it with a single --port")
+    args.ports = ports
+    args.port = ", ".join(ports) or None  # what an error message names
     options = serial_kwargs(args)
     options.update(mode=args.mode, timing=args.timing, exclusive=args.exclusive)
     if args.t35 is not None:
         options["t35"] = args.t35
+    if len(ports) > 1:
+        return _run_many(args, device, address, ports, options)
+    sim = make_simulator(device, args.state, args.mode)
     with stop_on_signals() as stop:  # before the "ready" line: a signal after it stops cleanly
         tcp = None
         try:
@@ -158,7 +179,53 @@ def _run(args: argparse.Namespace) -> int:
             if tcp is not None:
                 tcp.stop()
             sim.close()
-    elapsed = time.monotonic() - started
+    _stopped(args, time.monotonic() - started, counters)
+    return EXIT_OK
+
+
+def _run_many(
+    args: argparse.Namespace, device: str, address: int, ports: list[str], options: dict[str, Any]
+) -> int:
+    """One drive per port, served by `DriveLoop` (one event loop, one thread)."""
+    sims: list[Any] = []
+    slaves: list[Any] = []
+    with stop_on_signals() as stop:
+        try:
+            for port in ports:
+                sims.append(make_simulator(device, args.state, args.mode))
+                slaves.append(sims[-1].make_async_slave(port, address, **options))
+            drives = DriveLoop(slaves)
+            drives.start()
+        except BaseException:
+            for slave in slaves:
+                slave.port.close()
+            raise
+        started = time.monotonic()
+        try:
+            _ready(args, device, address, sorted(slaves[0].functions))
+            deadline = None if args.duration is None else started + args.duration
+            next_watch = started + 1.0
+            while not stop.is_set():
+                now = time.monotonic()
+                if deadline is not None and now >= deadline:
+                    break
+                if drives.error is not None:
+                    raise drives.error
+                if args.watch and now >= next_watch:
+                    next_watch += 1.0
+                    for port, sim in zip(ports, sims, strict=True):
+                        _watch(args, sim, now - started, port)
+                wake = min(next_watch if args.watch else now + 0.2, now + 0.2)
+                if deadline is not None:
+                    wake = min(wake, deadline)
+                stop.wait(max(0.0, wake - now))
+        finally:
+            drives.stop()
+    _stopped(args, time.monotonic() - started, drives.counters)
+    return EXIT_OK
+
+
+def _stopped(args: argparse.Namespace, elapsed: float, counters: dict[str, int]) -> None:
     if args.json:
         emit({"type": "stopped", "seconds": round(elapsed, 3), "counters": counters})
     else:
@@ -167,7 +234,6 @@ def _run(args: argparse.Namespace) -> int:
             f"{counters['responses']} responses, {counters['exceptions']} exceptions",
             file=sys.stderr,
         )
-    return EXIT_OK
 
 
 def _tcp_counters(tcp: Any) -> dict[str, int]:
@@ -187,7 +253,8 @@ def _ready(args: argparse.Namespace, device: str, address: int, functions: list[
                 "type": "ready",
                 "device": device,
                 "address": address,
-                "port": args.port,
+                "port": args.ports[0] if args.ports else None,
+                "ports": args.ports,
                 "tcp": tcp,
                 "format": f"{describe_format(args)} {args.mode.upper()}",
                 "functions": functions,
@@ -205,12 +272,15 @@ def _ready(args: argparse.Namespace, device: str, address: int, functions: list[
         )
 
 
-def _watch(args: argparse.Namespace, sim: Any, t: float) -> None:
+def _watch(args: argparse.Namespace, sim: Any, t: float, port: str | None = None) -> None:
     hz, text = frequency_of(sim), status_of(sim)
     if args.json:
-        emit({"type": "status", "t": round(t, 3), "frequency_hz": round(hz, 3), "status": text})
+        line: dict[str, Any] = {"type": "status", "t": round(t, 3)}
+        line.update({"port": port} if port is not None else {})
+        emit({**line, "frequency_hz": round(hz, 3), "status": text})
     else:
-        print(f"{t:7.1f} s  {hz:7.2f} Hz  {text}", flush=True)
+        where = f"{port}  " if port is not None else ""
+        print(f"{t:7.1f} s  {where}{hz:7.2f} Hz  {text}", flush=True)
 
 
 COMMANDS = (
