@@ -65,6 +65,7 @@ def run_sync(port: Port, proto: ClientProtocol, call: Call) -> Any:
         return _run_generic(port, proto)
     poll = port._poll.poll
     napped = False
+    checked = False  # QUIET just found no input: SEND need not look again
     try:
         while True:
             state = proto.state
@@ -84,15 +85,18 @@ def run_sync(port: Port, proto: ClientProtocol, call: Call) -> Any:
                     napped = False
                     proto.handle_timer(_monotonic())
             elif state is _SEND:
-                # pending input first (stale: it restarts the silence); one poll(0)
-                if poll(0) and (stale := read_fd(port, fd, True)):
+                # pending input first (stale: it restarts the silence); one poll(0),
+                # none right after QUIET's wait ended without input
+                if not checked and poll(0) and (stale := read_fd(port, fd, True)):
                     proto.receive_data(stale, _monotonic())
                     continue
+                checked = False
                 start, end = port.write(proto.data_to_send())
                 proto.transmitted(end, start)
                 napped = timed and proto.state is _ANSWER and _nap(proto)
             elif state is _QUIET:
-                _quiet(port, proto, True)
+                checked = _quiet(port, proto, True)
+                continue
             else:
                 return proto.result()
     except BaseException:
@@ -100,8 +104,9 @@ def run_sync(port: Port, proto: ClientProtocol, call: Call) -> Any:
         raise
 
 
-def _quiet(port: Port, proto: ClientProtocol, has_fd: bool) -> None:
-    """QUIET: wait for the send time; input meanwhile is stale (it restarts the silence)."""
+def _quiet(port: Port, proto: ClientProtocol, has_fd: bool) -> bool:
+    """QUIET: wait for the send time; input meanwhile is stale (it restarts the
+    silence).  True when the wait ended without input (the line was just looked at)."""
     deadline = proto.deadline()
     now = _monotonic()
     wait = 0.0 if deadline is None else deadline - now
@@ -115,14 +120,16 @@ def _quiet(port: Port, proto: ClientProtocol, has_fd: bool) -> None:
         now = _monotonic()
     if data:
         proto.receive_data(data, now)
-    else:
-        proto.handle_timer(now)
+        return False
+    proto.handle_timer(now)
+    return wait > 0
 
 
-def send_request(port: Port, proto: ClientProtocol) -> bool:
+def send_request(port: Port, proto: ClientProtocol, checked: bool = False) -> bool:
     """SEND: pending input first (stale: fed to the protocol, which restarts the
-    silence; False), else the request goes out and its end is reported (True)."""
-    stale = port.read(0)
+    silence; False), else the request goes out and its end is reported (True).
+    ``checked``: the caller found no input an instant ago (no second look)."""
+    stale = b"" if checked else port.read(0)
     if stale:
         proto.receive_data(stale, _monotonic())
         return False

@@ -442,6 +442,7 @@ class _Drive:
     def step(self) -> None:
         """Run the protocol until it must wait (a timer or the descriptor) or is done."""
         proto, port, fut = self._proto, self._port, self._fut
+        checked = False  # QUIET just found no input
         try:
             while True:
                 state = proto.state
@@ -464,7 +465,9 @@ class _Drive:
                         return
                     proto.handle_timer(now)
                 elif state is _SEND:
-                    if send_request(port, proto) and self._timed and proto.state is _ANSWER:
+                    sent = send_request(port, proto, checked)
+                    checked = False
+                    if sent and self._timed and proto.state is _ANSWER:
                         now = _monotonic()
                         until = proto.ready_at(now)
                         if until > now:
@@ -479,6 +482,7 @@ class _Drive:
                         self._wait(deadline, False)
                         return
                     stale = port.read(0)
+                    checked = not stale  # nothing came: SEND need not look again
                     if stale:
                         proto.receive_data(stale, now)
                     else:

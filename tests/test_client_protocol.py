@@ -13,7 +13,7 @@ from typing import Any
 import pytest
 
 from pyrtu import pdu as P
-from pyrtu._client import ClientProtocol, State
+from pyrtu._client import ONE_WAKE_CHAR, ClientProtocol, State
 from pyrtu._requests import read_holding_registers, write_register
 from pyrtu.ascii import encode_ascii
 from pyrtu.errors import BusFault, ExceptionResponseError, FrameError, NoResponseError
@@ -324,10 +324,12 @@ def test_ready_at_learns_the_slaves_turnaround(backend: ModuleType) -> None:
     assert p.turnaround(1) is None
     now = 100.0
     learned = 0.0
+    first = 5  # the shortest answer, then (the answer seen) the whole answer but a byte
     for late, after in ((0.002, 0.002), (0.002, 0.002), (0.0005, 0.0005)):
         p.start(*call, now=now)
         _adu, end = send(p, now)
-        assert p.ready_at(end) == pytest.approx(end + T35 + learned + 5 * CHAR)
+        assert p.ready_at(end) == pytest.approx(end + T35 + learned + first * CHAR)
+        first = len(answer) - 1
         arrive = end + T35 + late  # the first byte starts here
         p.receive_data(answer[:5], arrive + 5 * CHAR)  # read once 5 bytes are in
         learned = p.turnaround(1)  # type: ignore[assignment]
@@ -348,6 +350,79 @@ def test_ready_at_learns_the_slaves_turnaround(backend: ModuleType) -> None:
     _adu, end = send(q, 1.0)
     q.receive_data(answer[:5], end + 0.003)
     assert q.turnaround(1) is None and q.ready_at(end + 0.003) == end + 0.003
+
+
+def test_a_repeated_request_is_read_in_one_wake_up(backend: ModuleType) -> None:
+    """Once an answer to a request was seen, the first sleep of the next answer to
+    the same request ends a character before that answer's end (one wake-up for the
+    whole answer, the last byte read as it comes), not after its 5-byte header; an
+    exception answer, shorter, is still taken; another request, or another line,
+    starts from the header again; `needed` stays the framer's lower bound.  Above
+    19200 baud (a character shorter than a timed wake-up's lateness allows) the
+    header is read first every time."""
+    fast = LineConfig(baudrate=38400, parity="N")
+    assert fast.char_time < ONE_WAKE_CHAR <= LineConfig(baudrate=19200, parity="E").char_time
+    q = proto(backend, fast)
+    for now in (1.0, 2.0):
+        q.start(*read_holding_registers(1, 0, 10), now=now)
+        end = now + 8 * fast.char_time
+        q.transmitted(end, now)
+        assert q.ready_at(end) == pytest.approx(end + fast.t35_time + 5 * fast.char_time)
+        q.receive_data(regs(backend, 1, list(range(10))), end + fast.t35_time + 25 * fast.char_time)
+        assert q.result() == list(range(10))
+    line = LineConfig(baudrate=19200, parity="N")
+    char, t35 = line.char_time, line.t35_time
+    p = proto(backend, line)
+    call = read_holding_registers(1, 0, 10)
+    answer = regs(backend, 1, list(range(10)))
+
+    def transact(c: tuple[Any, ...], reply: bytes, now: float) -> tuple[float, float]:
+        p.start(*c, now=now)
+        adu = p.data_to_send()
+        end = now + len(adu) * char
+        p.transmitted(end, now)
+        first_sleep = p.ready_at(end)
+        assert p.needed() == 5  # before any byte: the shortest answer (an exception)
+        arrive = end + t35
+        p.receive_data(reply, arrive + len(reply) * char)
+        assert p.state is State.DONE
+        return end, first_sleep
+
+    end, first = transact(call, answer, 10.0)
+    assert first == pytest.approx(end + t35 + 5 * char)
+    end, first = transact(call, answer, 11.0)
+    assert first == pytest.approx(end + t35 + (len(answer) - 1) * char)
+    # read a character early: the last byte is then waited for as input
+    p.start(*call, now=12.0)
+    adu = p.data_to_send()
+    end = 12.0 + len(adu) * char
+    p.transmitted(end, 12.0)
+    wake = p.ready_at(end)
+    p.receive_data(answer[:-1], wake)
+    assert p.needed() == 1 and p.ready_at(wake) == wake
+    p.receive_data(answer[-1:], wake + char)
+    assert p.result() == list(range(10))
+    # an exception answer to the same request: the error, read at the later wake-up
+    exc = bytes(backend.add_crc(bytes((1, 0x83, 2))))
+    p.start(*call, now=13.0)
+    adu = p.data_to_send()
+    end = 13.0 + len(adu) * char
+    p.transmitted(end, 13.0)
+    assert p.ready_at(end) == pytest.approx(end + t35 + (len(answer) - 1) * char)
+    p.receive_data(exc, end + t35 + (len(answer) - 1) * char)
+    with pytest.raises(ExceptionResponseError):
+        p.result()
+    # the normal answer's length is kept (an exception does not replace it)
+    end, first = transact(call, answer, 14.0)
+    assert first == pytest.approx(end + t35 + (len(answer) - 1) * char)
+    # another request: from its header again
+    other = read_holding_registers(1, 0, 3)
+    end, first = transact(other, regs(backend, 1, [7, 8, 9]), 15.0)
+    assert first == pytest.approx(end + t35 + 5 * char)
+    # a new line (new rules) forgets the lengths
+    p.set_line(line)
+    end, first = transact(call, answer, 16.0)
+    assert first == pytest.approx(end + t35 + 5 * char)
 
 
 def test_ready_at_leaves_the_last_byte_to_a_wait_for_input(backend: ModuleType) -> None:
