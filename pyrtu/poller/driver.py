@@ -24,13 +24,12 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
-import threading
 import time
 from collections.abc import AsyncIterator, Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..aio import new_event_loop
+from .._loopthread import LoopThread
 from ..data import encode_float32, encode_int32, encode_string, encode_uint32
 from .config import Bus, ConfigError, Device, PollerConfig, load_config, make_config
 from .events import BusReport, Event, SlaveStats, Tracker, Update
@@ -462,44 +461,16 @@ class PollerThread:
 
     def __init__(self, poller: Poller) -> None:
         self.poller = poller
-        self._loop = new_event_loop()  # microsecond timers (see pyrtu.aio)
-        self._thread = threading.Thread(target=self._main, name="pyrtu-poller", daemon=True)
-        self._started = threading.Event()
-        self._error: BaseException | None = None
-        self._stop: asyncio.Event | None = None
-
-    def _main(self) -> None:
-        asyncio.set_event_loop(self._loop)
-        self._loop.run_until_complete(self._body())
-        self._loop.close()
-
-    async def _body(self) -> None:
-        self._stop = asyncio.Event()
-        try:
-            await self.poller.start()
-        except BaseException as e:
-            self._error = e
-            self._started.set()
-            return
-        self._started.set()
-        try:
-            await self._stop.wait()
-        finally:
-            await self.poller.stop()
+        self._thread = LoopThread("pyrtu-poller", poller.start, poller.stop)
+        self._loop = self._thread.loop  # microsecond timers (see pyrtu.aio)
 
     def start(self) -> PollerThread:
         """Start the thread; raises what `Poller.start` raised (a port that fails)."""
         self._thread.start()
-        self._started.wait()
-        if self._error is not None:
-            self._thread.join()
-            raise self._error
         return self
 
     def stop(self) -> None:
-        if self._thread.is_alive() and self._stop is not None:
-            self._loop.call_soon_threadsafe(self._stop.set)
-            self._thread.join()
+        self._thread.stop()
 
     def __enter__(self) -> PollerThread:
         return self.start()
@@ -508,7 +479,7 @@ class PollerThread:
         self.stop()
 
     def _await(self, coro: Any, timeout: float | None = None) -> Any:
-        return asyncio.run_coroutine_threadsafe(coro, self._loop).result(timeout)
+        return self._thread.call(coro, timeout)
 
     def values(self) -> dict[str, Value]:
         return self.poller.values()
