@@ -21,7 +21,9 @@ from __future__ import annotations
 import argparse
 import inspect
 import sys
+import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 from ._simulate_many import DriveLoop
@@ -159,21 +161,7 @@ def _run(args: argparse.Namespace) -> int:
         started = time.monotonic()
         try:
             _ready(args, device, address, sorted((slave or app).functions))
-            deadline = None if args.duration is None else started + args.duration
-            next_watch = started + 1.0
-            while not stop.is_set():
-                now = time.monotonic()
-                if deadline is not None and now >= deadline:
-                    break
-                if slave is not None and slave.error is not None:
-                    raise slave.error
-                if args.watch and now >= next_watch:
-                    next_watch += 1.0
-                    _watch(args, sim, now - started)
-                wake = min(next_watch if args.watch else now + 0.2, now + 0.2)
-                if deadline is not None:
-                    wake = min(wake, deadline)
-                stop.wait(max(0.0, wake - now))
+            _serve(args, stop, started, lambda: None if slave is None else slave.error, [sim])
         finally:
             counters = slave.counters if slave is not None else _tcp_counters(tcp)
             if tcp is not None:
@@ -203,26 +191,40 @@ def _run_many(
         started = time.monotonic()
         try:
             _ready(args, device, address, sorted(slaves[0].functions))
-            deadline = None if args.duration is None else started + args.duration
-            next_watch = started + 1.0
-            while not stop.is_set():
-                now = time.monotonic()
-                if deadline is not None and now >= deadline:
-                    break
-                if drives.error is not None:
-                    raise drives.error
-                if args.watch and now >= next_watch:
-                    next_watch += 1.0
-                    for port, sim in zip(ports, sims, strict=True):
-                        _watch(args, sim, now - started, port)
-                wake = min(next_watch if args.watch else now + 0.2, now + 0.2)
-                if deadline is not None:
-                    wake = min(wake, deadline)
-                stop.wait(max(0.0, wake - now))
+            _serve(args, stop, started, lambda: drives.error, sims, ports)
         finally:
             drives.stop()
     _stopped(args, time.monotonic() - started, drives.counters)
     return EXIT_OK
+
+
+def _serve(
+    args: argparse.Namespace,
+    stop: threading.Event,
+    started: float,
+    error: Callable[[], BaseException | None],
+    sims: list[Any],
+    ports: list[str] | None = None,
+) -> None:
+    """Until a signal or ``--duration``: raise the error that ended a drive's slave,
+    print the ``--watch`` lines (one per drive; with ``ports``, each names its port)."""
+    deadline = None if args.duration is None else started + args.duration
+    next_watch = started + 1.0
+    while not stop.is_set():
+        now = time.monotonic()
+        if deadline is not None and now >= deadline:
+            break
+        exc = error()
+        if exc is not None:
+            raise exc
+        if args.watch and now >= next_watch:
+            next_watch += 1.0
+            for i, sim in enumerate(sims):
+                _watch(args, sim, now - started, None if ports is None else ports[i])
+        wake = min(next_watch if args.watch else now + 0.2, now + 0.2)
+        if deadline is not None:
+            wake = min(wake, deadline)
+        stop.wait(max(0.0, wake - now))
 
 
 def _stopped(args: argparse.Namespace, elapsed: float, counters: dict[str, int]) -> None:
