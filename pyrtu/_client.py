@@ -133,6 +133,8 @@ class ClientProtocol:
         # no Frame objects: the hot path); ASCII: the AsciiFramer's Frame events
         self._core: Any = getattr(self._framer, "_core", None)
         self._char = line.char_time
+        #: learn answer lengths only where ready_at uses them (a timed, slow line)
+        self._one_wake = self.gap > 0 and self._char >= ONE_WAKE_CHAR
         self._max_adu = line.max_adu
         self._add_crc: Callable[[bytes], bytes] = self._backend.add_crc
         #: RTU ADUs already built, by (slave, PDU): a poller repeats the same requests
@@ -173,6 +175,8 @@ class ClientProtocol:
         self.gap = line.frame_gap
         self.settle = max(0.02, 3 * self.gap)
         self._char = line.char_time
+        #: learn answer lengths only where ready_at uses them (a timed, slow line)
+        self._one_wake = self.gap > 0 and self._char >= ONE_WAKE_CHAR
         self._max_adu = line.max_adu
         self._adus.clear()
         self._sizes.clear()
@@ -418,7 +422,7 @@ class ClientProtocol:
         needed = self.needed()
         if not self._heard and not self._echo_left:
             start = max(now, self._end + self.gap + self._turn.get(self._slave, 0.0))
-            if self._char >= ONE_WAKE_CHAR:
+            if self._one_wake:
                 size = self._sizes.get(self._adu, 0)
                 if size > needed:
                     needed = size - 1
@@ -599,11 +603,10 @@ class ClientProtocol:
             self.answer_end = end
             self._result = value  # _finish inlined (the hot path)
             self.state = _DONE
-            sizes = self._sizes
-            if sizes.get(self._adu) != size:  # see ready_at
-                if len(sizes) >= 4096:
-                    sizes.clear()
-                sizes[self._adu] = size
+            if self._one_wake and self._sizes.get(self._adu) != size:  # see ready_at
+                if len(self._sizes) >= 4096:
+                    self._sizes.clear()
+                self._sizes[self._adu] = size
             return
         self._settle(now)
         if reason is not None:
