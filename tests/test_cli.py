@@ -15,6 +15,7 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import pytest
 from cli_helpers import Background, pyrtu
@@ -449,6 +450,16 @@ def test_sniff_the_sample_and_its_errors(tmp_path: Path) -> None:
 # -- simulate -----------------------------------------------------------------------------------
 
 
+def sigterm_stopped(bg: Background) -> dict[str, Any]:
+    """SIGTERM to ``pyrtu simulate --json``: it exits 0 and its last line is "stopped"."""
+    bg.proc.send_signal(signal.SIGTERM)
+    r = bg.finish()
+    assert r.code == 0, r.err
+    stopped: dict[str, Any] = r.json_lines()[-1]
+    assert stopped["type"] == "stopped"
+    return stopped
+
+
 def test_simulate_serves_a_drive_until_sigterm(bus: Bus) -> None:
     bg = Background("simulate", "cfw701", "--port", bus.path(SPARE), *SERIAL, "-a", 7, "--json")
     try:
@@ -458,13 +469,10 @@ def test_simulate_serves_a_drive_until_sigterm(bus: Bus) -> None:
         assert drive.identify()["product_code"] == "CFW701"
         drive.start()
         assert drive.status().running
-        bg.proc.send_signal(signal.SIGTERM)
-        r = bg.finish()
+        stopped = sigterm_stopped(bg)
     finally:
         bg.kill()
-    assert r.code == 0, r.err
-    stopped = r.json_lines()[-1]
-    assert stopped["type"] == "stopped" and stopped["counters"]["requests"] >= 3
+    assert stopped["counters"]["requests"] >= 3
 
 
 def test_simulate_for_a_duration_and_its_errors(bus: Bus, tmp_path: Path) -> None:
@@ -508,13 +516,10 @@ def test_simulate_one_drive_per_port_in_one_process() -> None:
                 on_a.start()
                 assert on_a.status().running
                 assert not on_b.status().running  # its own drive, still stopped
-            bg.proc.send_signal(signal.SIGTERM)
-            r = bg.finish()
+            stopped = sigterm_stopped(bg)
         finally:
             bg.kill()
-        assert r.code == 0, r.err
-        stopped = r.json_lines()[-1]
-        assert stopped["type"] == "stopped" and stopped["counters"]["requests"] >= 5
+        assert stopped["counters"]["requests"] >= 5
 
         bg = Background(*args, "-a", 7, "--json")
         try:

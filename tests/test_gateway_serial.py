@@ -54,6 +54,12 @@ class RunningGateway:
         stopped: dict[str, Any] = json.loads(out.splitlines()[-1])
         return stopped
 
+    def kill(self) -> None:
+        """After a test that failed before `stop`: no gateway left running."""
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.communicate()
+
 
 def start_gateway(serial: str, *extra: str) -> RunningGateway:
     proc = subprocess.Popen(
@@ -83,9 +89,7 @@ def pyrtu_bus(pty_pair: tuple[str, str]) -> Iterator[RunningGateway]:
         try:
             yield gw
         finally:
-            if gw.proc.poll() is None:
-                gw.proc.kill()
-                gw.proc.communicate()
+            gw.kill()
 
 
 def test_pymodbus_tcp_client_through_the_gateway(pyrtu_bus: RunningGateway) -> None:
@@ -198,9 +202,7 @@ def test_queue_overflow_through_the_gateway(pty_pair: tuple[str, str]) -> None:
             stats = gw.stop()
             assert stats["busy"] == len(busy)
         finally:
-            if gw.proc.poll() is None:
-                gw.proc.kill()
-                gw.proc.communicate()
+            gw.kill()
 
 
 def test_max_write_buffer_closes_a_stuck_client_and_others_go_on(pty_pair: tuple[str, str]) -> None:
@@ -237,9 +239,7 @@ def test_max_write_buffer_closes_a_stuck_client_and_others_go_on(pty_pair: tuple
             stats = gw.stop()
             assert stats["slow_clients"] == 1 and stats["connections"] == 2
         finally:
-            if gw.proc.poll() is None:
-                gw.proc.kill()
-                gw.proc.communicate()
+            gw.kill()
 
 
 def test_broadcast_is_sent_once_not_waited_for_nor_retried(pty_pair: tuple[str, str]) -> None:
@@ -269,9 +269,7 @@ def test_broadcast_is_sent_once_not_waited_for_nor_retried(pty_pair: tuple[str, 
             stats = gw.stop()
             assert (stats["broadcasts"], stats["timeouts"], stats["answers"]) == (2, 0, 1)
         finally:
-            if gw.proc.poll() is None:
-                gw.proc.kill()
-                gw.proc.communicate()
+            gw.kill()
         counters = json.loads(slave.stop())
     assert (counters["broadcasts"], counters["requests"]) == (2, 1)  # no retry on the wire
 
@@ -304,9 +302,7 @@ def test_broadcast_delay_holds_the_bus_after_a_broadcast(pty_pair: tuple[str, st
             assert elapsed >= 0.6
             assert gw.stop()["broadcasts"] == 1
         finally:
-            if gw.proc.poll() is None:
-                gw.proc.kill()
-                gw.proc.communicate()
+            gw.kill()
 
 
 @pytest.fixture
@@ -386,9 +382,7 @@ def test_two_buses_behind_one_listener() -> None:
                 stats = gw.stop()
                 assert stats["bus_transactions"][0] == 20 and stats["bus_transactions"][1] == 21
             finally:
-                if gw.proc.poll() is None:
-                    gw.proc.kill()
-                    gw.proc.communicate()
+                gw.kill()
 
 
 def test_rtu_over_tcp_clients_through_the_gateway(pty_pair: tuple[str, str]) -> None:
@@ -410,9 +404,7 @@ def test_rtu_over_tcp_clients_through_the_gateway(pty_pair: tuple[str, str]) -> 
             stats = gw.stop()
             assert stats["connections"] == 2 and stats["timeouts"] == 1
         finally:
-            if gw.proc.poll() is None:
-                gw.proc.kill()
-                gw.proc.communicate()
+            gw.kill()
 
 
 # -- an ASCII bus behind the gateway (--mode ascii) ----------------------------------
@@ -455,9 +447,7 @@ def test_ascii_bus_pymodbus_slave_through_the_gateway(pty_pair: tuple[str, str])
             assert stats["broadcasts"] == 1 and stats["timeouts"] == 1
             assert stats["answers"] == 6 and stats["exceptions"] == 2
         finally:
-            if gw.proc.poll() is None:
-                gw.proc.kill()
-                gw.proc.communicate()
+            gw.kill()
     # the slave saw each request once (the broadcast too), none for unit 4, no stray answer
     assert peer.stats.split() == ["requests=8", "responses=7", "ignored=1", "stray=0"]
 
