@@ -32,16 +32,18 @@ from the request, [TCP] 3.1.3):
   line ([SL] 2.1).
 
 A malformed MBAP header (protocol id not 0, length outside 2..254) closes that
-connection only.  A client that does not read its answers is closed when its
-unsent output passes ``max_write_buffer`` bytes: answers are written without
-waiting, so it never blocks a bus worker, and its requests go on being read (and
-answered, 0x06 once its queue is full) until it is closed.  Its socket's kernel send
-buffer is set to ``max_write_buffer`` too (Linux doubles it), so what one client
-can leave unread on the gateway's host is bounded by about three times the limit,
-not by the kernel's autotuned buffer (megabytes on Linux).  A client
-that disconnects leaves the bus in step: a transaction already on the wire runs to
-its end (its answer is dropped), the client's waiting requests are removed from the
-queue.
+connection only: its waiting requests are dropped, the answers already written to
+it go out if it takes them within ``close_grace`` (5 s), else it is reset.  A
+client that does not read its answers is reset when its unsent output passes
+``max_write_buffer`` bytes: answers are written without waiting, so it never blocks
+a bus worker, and its requests go on being read (and answered, 0x06 once its queue
+is full) until it is reset.  Its socket's kernel send buffer is set to
+``max_write_buffer`` too (Linux doubles it), so what one client can leave unread on
+the gateway's host is bounded by about three times the limit, not by the kernel's
+autotuned buffer (megabytes on Linux); a reset drops what the kernel still holds
+(SO_LINGER 0).  A client that disconnects leaves the bus in step: a transaction
+already on the wire runs to its end (its answer is dropped), the client's waiting
+requests are removed from the queue.
 """
 
 from __future__ import annotations
@@ -50,6 +52,7 @@ import asyncio
 import contextlib
 import logging
 import socket
+import struct
 import time
 from collections import OrderedDict, deque
 from collections.abc import Iterable, Mapping, Sequence
@@ -76,10 +79,13 @@ MAX_CONNECTIONS = 64
 MAX_QUEUED_PER_CONNECTION = 16
 MAX_QUEUED_PER_BUS = 256
 MAX_WRITE_BUFFER = 256 * 1024
+CLOSE_GRACE = 5.0
 
 
 def _positive_int(name: str, value: object) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise TypeError(f"{name} must be a positive integer, not {value!r}")
+    if value < 1:
         raise ValueError(f"{name} must be a positive integer, not {value!r}")
     return value
 
@@ -92,6 +98,9 @@ class GatewayLimits:
     max_queued_per_connection: int = MAX_QUEUED_PER_CONNECTION
     max_queued_per_bus: int = MAX_QUEUED_PER_BUS
     max_write_buffer: int = MAX_WRITE_BUFFER
+    #: seconds a connection the gateway closes (a malformed header) has to take the
+    #: answers still unsent to it; then it is reset
+    close_grace: float = CLOSE_GRACE
 
     def __post_init__(self) -> None:
         for name in (
@@ -101,6 +110,11 @@ class GatewayLimits:
             "max_write_buffer",
         ):
             _positive_int(name, getattr(self, name))
+        grace = self.close_grace
+        if isinstance(grace, bool) or not isinstance(grace, (int, float)):
+            raise TypeError(f"close_grace must be a number of seconds, not {grace!r}")
+        if not 0 <= grace < float("inf"):
+            raise ValueError(f"close_grace must be finite and >= 0 seconds, not {grace!r}")
 
 
 # -- routing ---------------------------------------------------------------------
@@ -250,6 +264,17 @@ class _BusState:
                 waiter.set_result(None)
 
 
+def _reset(t: asyncio.Transport) -> None:
+    """Close at once with a reset: SO_LINGER 0 makes the kernel drop what is still
+    unsent and send RST, instead of keeping an orphan socket that goes on offering
+    answers to a client that takes none."""
+    sock = t.get_extra_info("socket")
+    if sock is not None:
+        with contextlib.suppress(OSError):
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+    t.abort()
+
+
 class _Connection(asyncio.Protocol):
     def __init__(self, gateway: Gateway) -> None:
         self.gateway = gateway
@@ -257,6 +282,7 @@ class _Connection(asyncio.Protocol):
         self.transport: asyncio.Transport | None = None
         self.framer = _backend.active.MbapFramer("slave")
         self.closed = False
+        self.grace: asyncio.TimerHandle | None = None  # a closing connection's reset
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         assert isinstance(transport, asyncio.Transport)
@@ -291,6 +317,9 @@ class _Connection(asyncio.Protocol):
 
     def connection_lost(self, exc: Exception | None) -> None:
         self.closed = True
+        if self.grace is not None:
+            self.grace.cancel()
+            self.grace = None
         self.gateway._closed(self)
 
     def send(self, transaction: int, unit: int, pdu: bytes) -> None:
@@ -302,7 +331,7 @@ class _Connection(asyncio.Protocol):
         if t.get_write_buffer_size() > self.gateway.limits.max_write_buffer:
             self.gateway.counters["slow_clients"] += 1
             log.info("connection %d does not read its answers: closed", self.id)
-            t.abort()
+            _reset(t)
             self.closed = True  # read none of its requests still in the chunk
 
     def encode(self, transaction: int, unit: int, pdu: bytes) -> bytes:
@@ -310,8 +339,17 @@ class _Connection(asyncio.Protocol):
         return adu
 
     def close(self) -> None:
-        if self.transport is not None and not self.closed:
-            self.transport.close()
+        """Close: its queued requests are dropped; answers already written go out if
+        the client takes them within ``close_grace``, else it is reset (a client
+        that does not read would otherwise hold the connection forever: asyncio's
+        close waits for the write buffer to drain)."""
+        t = self.transport
+        if t is not None and not self.closed:
+            t.close()
+            if t.get_write_buffer_size():
+                loop = asyncio.get_running_loop()
+                self.grace = loop.call_later(self.gateway.limits.close_grace, _reset, t)
+            self.gateway._closed(self)
         self.closed = True
 
 
@@ -470,6 +508,11 @@ class Gateway:
             "queued": [len(s.queue) for s in self._buses],
             "bus_transactions": [s.transactions for s in self._buses],
             "bus_busy_seconds": [round(s.busy_seconds, 6) for s in self._buses],
+            "unsent_bytes": sum(
+                c.transport.get_write_buffer_size()
+                for c in self._connections.values()
+                if c.transport is not None
+            ),
         }
 
     # ---------------------------------------------------------- connections
@@ -480,7 +523,7 @@ class Gateway:
             log.info("connection refused: %d open", len(self._connections))
             conn.closed = True
             assert conn.transport is not None
-            conn.transport.abort()
+            conn.transport.abort()  # nothing was written to it: a plain close
             return
         self._next_id += 1
         conn.id = self._next_id

@@ -18,17 +18,24 @@ def stuck_socket(address: tuple[str, int]) -> socket.socket:
 
 async def flood(s: socket.socket, data: bytes, until_closed: float = 20.0) -> int:
     """Send ``data`` again and again, never reading, until the peer resets the
-    connection; returns the bytes sent.  Fails if it is not closed in time."""
+    connection; returns the bytes sent.  Fails if it is not closed in time.  A
+    partial send is finished before ``data`` starts again, so the stream stays
+    whole requests (resending all of ``data`` after a partial send would break
+    the framing, and the gateway would close the client for a bad header)."""
     loop = asyncio.get_running_loop()
     end = loop.time() + until_closed
     sent = 0
+    view = memoryview(data)
+    at = 0  # where the next send starts in data
     while loop.time() < end:
         try:
-            sent += s.send(data)
+            n = s.send(view[at:])
         except BlockingIOError:
             await asyncio.sleep(0.005)  # the gateway reads its requests: this passes
         except (ConnectionResetError, BrokenPipeError):
             return sent
         else:
+            sent += n
+            at = (at + n) % len(data)
             await asyncio.sleep(0)
     raise AssertionError(f"the stuck client was not closed ({sent} bytes sent)")

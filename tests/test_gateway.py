@@ -76,8 +76,15 @@ def test_routes_and_unit_ranges() -> None:
 def test_limits_are_validated() -> None:
     with pytest.raises(ValueError, match="max_connections"):
         GatewayLimits(max_connections=0)
-    with pytest.raises(ValueError, match="max_write_buffer"):
+    with pytest.raises(TypeError, match="max_write_buffer"):
         GatewayLimits(max_write_buffer=True)  # type: ignore[arg-type]
+    for grace in (-0.1, float("inf"), float("nan")):
+        with pytest.raises(ValueError, match="close_grace"):
+            GatewayLimits(close_grace=grace)
+    for grace in (True, "5"):
+        with pytest.raises(TypeError, match="close_grace"):
+            GatewayLimits(close_grace=grace)  # type: ignore[arg-type]
+    assert GatewayLimits(close_grace=0).close_grace == 0
     with pytest.raises(ValueError, match="at least one bus"):
         Gateway([])
 
@@ -252,6 +259,67 @@ def test_bad_header_closes_that_connection_only(libmodbus_tcp: str, header: str,
     run(main())
 
 
+def test_bad_header_after_answered_requests_lets_them_be_read(libmodbus_tcp: str, run) -> None:  # type: ignore[no-untyped-def]
+    """Answers written before a malformed header still reach a client that reads
+    them (within close_grace); then the connection ends."""
+
+    async def main() -> None:
+        gw, clients = await open_gateway([(libmodbus_tcp, "1")])
+        r, w = await raw(gw)
+        w.write(b"".join(encode_mbap(n, 1, READ) for n in range(3)))
+        await until(lambda: gw.counters["answers"] == 3)
+        w.write(bytes.fromhex("0009 0001 0006 01") + READ)  # protocol id 1
+        got = [parse_tcp_stream(await read_adu(r), "master")[0] for _ in range(3)]
+        assert [a.transaction for a in got] == [0, 1, 2]
+        assert all(pdu.parse_registers(a.pdu, 4) == pattern.holdings(1, 0, 4) for a in got)
+        assert await asyncio.wait_for(r.read(), 3.0) == b""
+        assert gw.counters["bad_headers"] == 1 and gw.counters["slow_clients"] == 0
+        w.close()
+        await gw.close()
+        for c in clients:
+            await c.close()
+
+    run(main())
+
+
+def test_bad_header_from_a_client_that_never_reads_is_reset_after_the_grace(
+    libmodbus_tcp: str, run
+) -> None:  # type: ignore[no-untyped-def]
+    """A client closed for a malformed header while answers to it wait unsent in the
+    gateway, and that never reads them, is reset after close_grace: asyncio's close
+    alone waits for the buffer to drain, so it held the connection forever."""
+
+    async def main() -> None:
+        limits = GatewayLimits(max_write_buffer=1 << 20, close_grace=0.2)
+        gw, clients = await open_gateway([(libmodbus_tcp, "1")], limits)
+        assert gw.address is not None
+        stuck = stuck_socket(gw.address)
+        big = pdu.read_request(pdu.READ_HOLDING_REGISTERS, 0, 125)  # 259-byte answers
+        burst = b"".join(encode_mbap(n, 1, big) for n in range(16))  # one queue's worth
+        loop = asyncio.get_running_loop()
+        end = loop.time() + 20.0
+        while not gw.stats()["unsent_bytes"]:  # until the kernel's buffers are full
+            assert loop.time() < end, "the gateway's write buffer never filled"
+            target = gw.counters["answers"] + 16
+            await loop.sock_sendall(stuck, burst)
+            await until(lambda t=target: gw.counters["answers"] >= t)  # type: ignore[misc]
+        await loop.sock_sendall(stuck, bytes.fromhex("0009 0001 0006 01") + READ)
+        await until(lambda: gw.counters["bad_headers"] == 1)
+        assert gw.stats()["open_connections"] == 0  # it no longer counts
+        await flood(stuck, encode_mbap(1, 1, READ), until_closed=10.0)  # reset, not kept
+        stuck.close()
+        assert gw.counters["slow_clients"] == 0
+        async with await AsyncTcpClient.connect(f"tcp://{gw.address[0]}:{gw.address[1]}") as ok:
+            assert pdu.parse_registers(await ok.request(1, READ) or b"", 4) == pattern.holdings(
+                1, 0, 4
+            )
+        await gw.close()
+        for c in clients:
+            await c.close()
+
+    run(main())
+
+
 def test_queue_overflow_answers_busy(silent_tcp: str, run) -> None:  # type: ignore[no-untyped-def]
     async def main() -> None:
         limits = GatewayLimits(max_queued_per_connection=2)
@@ -351,7 +419,7 @@ def test_stuck_client_is_closed_and_others_are_served_meanwhile(libmodbus_tcp: s
             served += 1
         await flooding
         stuck.close()
-        assert gw.counters["slow_clients"] == 1
+        assert gw.counters["slow_clients"] == 1 and gw.counters["bad_headers"] == 0
         # the bound held: what the gateway took before closing is the limit, its socket
         # buffer (twice the limit on Linux) and the client's window, not megabytes
         unread = (gw.counters["answers"] - served) * 259 + gw.counters["busy"] * 9

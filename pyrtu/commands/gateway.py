@@ -14,9 +14,10 @@ unit id no bus carries, 0x0B when the device does not answer within --timeout
 (after --retries), 0x06 (busy) when a queue is full.  Unit 0 is a broadcast:
 sent to every bus, not answered, and the bus keeps --broadcast-delay (0.1 s)
 of silence after it (the devices' turnaround).  A malformed MBAP header closes that
-connection.  Limits (defaults): --max-connections 64, --max-queue 16 requests
-waiting per connection, --max-bus-queue 256 per bus, --max-write-buffer 262144
-bytes of unread answers before a client is closed.
+connection (reset after 5 s if it leaves answers unread).  Limits (defaults):
+--max-connections 64, --max-queue 16 requests waiting per connection,
+--max-bus-queue 256 per bus, --max-write-buffer 262144 bytes of unread answers
+before a client is reset.
 
 Runs until SIGINT/SIGTERM or --duration (exit 0), then prints the counters.
 """
