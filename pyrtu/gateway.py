@@ -330,7 +330,7 @@ class _Connection(asyncio.Protocol):
         t.write(self.encode(transaction, unit, pdu))
         if t.get_write_buffer_size() > self.gateway.limits.max_write_buffer:
             self.gateway.counters["slow_clients"] += 1
-            log.info("connection %d does not read its answers: closed", self.id)
+            log.info("connection %d does not read its answers: reset", self.id)
             _reset(t)
             self.closed = True  # read none of its requests still in the chunk
 

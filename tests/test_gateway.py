@@ -134,6 +134,13 @@ async def open_gateway(
     return gw, clients
 
 
+async def shut(gw: Gateway, clients: list[AsyncTcpClient]) -> None:
+    """Close the gateway, then the bus clients `open_gateway` made."""
+    await gw.close()
+    for c in clients:
+        await c.close()
+
+
 async def raw(gw: Gateway) -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:
     assert gw.address is not None
     return await asyncio.open_connection(*gw.address)
@@ -173,9 +180,7 @@ def test_forwarding_preserves_transaction_and_unit_ids(libmodbus_tcp: str, run) 
         first = parse_tcp_stream(answers[0], "master")[0]
         assert pdu.parse_registers(first.pdu, 4) == pattern.holdings(1, 0, 4)
         writer.close()
-        await gw.close()
-        for c in clients:
-            await c.close()
+        await shut(gw, clients)
 
     run(main())
 
@@ -202,9 +207,7 @@ def test_unrouted_unit_gets_0x0a_and_broadcast_gets_nothing(libmodbus_tcp: str, 
         assert got is not None and pdu.parse_registers(got, 1) == [4321]
         assert c.counters["late"] == 0 and gw.counters["broadcasts"] == 1
         await c.close()
-        await gw.close()
-        for b in clients:
-            await b.close()
+        await shut(gw, clients)
 
     run(main())
 
@@ -252,9 +255,7 @@ def test_bad_header_closes_that_connection_only(libmodbus_tcp: str, header: str,
         assert (await read_adu(good_r))[:2] == b"\x00\x07"
         assert gw.counters["bad_headers"] == 1
         good_w.close()
-        await gw.close()
-        for c in clients:
-            await c.close()
+        await shut(gw, clients)
 
     run(main())
 
@@ -275,9 +276,7 @@ def test_bad_header_after_answered_requests_lets_them_be_read(libmodbus_tcp: str
         assert await asyncio.wait_for(r.read(), 3.0) == b""
         assert gw.counters["bad_headers"] == 1 and gw.counters["slow_clients"] == 0
         w.close()
-        await gw.close()
-        for c in clients:
-            await c.close()
+        await shut(gw, clients)
 
     run(main())
 
@@ -313,9 +312,7 @@ def test_bad_header_from_a_client_that_never_reads_is_reset_after_the_grace(
             assert pdu.parse_registers(await ok.request(1, READ) or b"", 4) == pattern.holdings(
                 1, 0, 4
             )
-        await gw.close()
-        for c in clients:
-            await c.close()
+        await shut(gw, clients)
 
     run(main())
 
@@ -340,9 +337,7 @@ def test_queue_overflow_answers_busy(silent_tcp: str, run) -> None:  # type: ign
         assert [(b.transaction, b.exception_code) for b in later] == [(0, 11), (1, 11), (2, 11)]
         assert gw.counters["busy"] == 3
         writer.close()
-        await gw.close()
-        for c in clients:
-            await c.close()
+        await shut(gw, clients)
 
     run(main())
 
@@ -367,9 +362,7 @@ def test_disconnect_mid_transaction_keeps_the_bus_in_step(
         assert info.value.code == 0x0B
         assert gw.stats()["bus_transactions"] == [2]  # one abandoned, one for c
         await c.close()
-        await gw.close()
-        for b in clients:
-            await b.close()
+        await shut(gw, clients)
 
     run(main())
 
@@ -393,9 +386,7 @@ def test_connection_limit_and_stuck_client(libmodbus_tcp: str, run) -> None:  # 
         ok_w.close()
         stuck_w.close()
         third_w.close()
-        await gw.close()
-        for c in clients:
-            await c.close()
+        await shut(gw, clients)
 
     run(main())
 
@@ -430,9 +421,7 @@ def test_stuck_client_is_closed_and_others_are_served_meanwhile(libmodbus_tcp: s
             ok_w.write(encode_mbap(n, 1, READ))
             assert (await read_adu(ok_r))[:2] == struct.pack(">H", n)
         ok_w.close()
-        await gw.close()
-        for c in clients:
-            await c.close()
+        await shut(gw, clients)
 
     run(main())
 
@@ -525,9 +514,7 @@ def test_rtu_over_tcp_listener(libmodbus_tcp: str, run) -> None:  # type: ignore
         )
         assert gw.counters["rtu_discarded_bytes"] == 3
         writer.close()
-        await gw.close()
-        for c in clients:
-            await c.close()
+        await shut(gw, clients)
 
     run(main())
 
@@ -554,9 +541,7 @@ def test_bus_queue_limit_answers_busy_to_any_connection(silent_tcp: str, run) ->
         assert [(f.transaction, f.exception_code) for f in later] == [(n, 11) for n in range(4)]
         for w in (first_w, other_w):
             w.close()
-        await gw.close()
-        for c in clients:
-            await c.close()
+        await shut(gw, clients)
 
     run(main())
 
@@ -586,9 +571,7 @@ def test_a_bus_whose_port_failed_answers_0x0a_and_the_other_goes_on(
             assert pdu.parse_registers(got or b"", 4) == pattern.holdings(1, 0, 4)
         assert gw.counters["timeouts"] == 0
         await c.close()
-        await gw.close()
-        for b in clients:
-            await b.close()
+        await shut(gw, clients)
 
     try:
         run(main())
