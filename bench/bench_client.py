@@ -320,11 +320,17 @@ def single_bus(
 
 
 def eight_buses(
-    baudrate: int, seconds: float, buses: int = 8, drive_name: str = "cfw100", loop: str = "c"
+    baudrate: int,
+    seconds: float,
+    buses: int = 8,
+    drive_name: str = "cfw100",
+    loop: str = "c",
+    event_loop: str = "pyrtu",
 ) -> dict[str, Any]:
     """``buses`` buses, a simulated drive on each, polled by one AsyncMaster process
     (this one) for ``seconds``: FC 03 of 7 registers (19-byte answers).  ``loop``: the
-    hubs' loop ("c": the C I/O thread; "python": the Python loop)."""
+    hubs' loop ("c": the C I/O thread; "python": the Python loop); ``event_loop``: the
+    masters' asyncio loop (`EVENT_LOOPS`)."""
     address, start, count, delay = DRIVES[drive_name]
     with contextlib.ExitStack() as stack:
         paths: list[str] = []
@@ -380,7 +386,7 @@ def eight_buses(
                 for m in masters:
                     await m.close()
 
-        wall, cpu, errors, hub_cpu, drive_cpu = aio_run(main())
+        wall, cpu, errors, hub_cpu, drive_cpu = EVENT_LOOPS[event_loop](main())
     limit = wire_limit(baudrate, DRIVE_CHARS)
     with_delay = 1.0 / (1.0 / limit + delay)
     tps = [c / wall for c in counts]
@@ -390,6 +396,7 @@ def eight_buses(
         "drive": drive_name,
         "response_delay_s": delay,
         "hub_loop": loop,
+        "event_loop": event_loop,
         "seconds": wall,
         "tps": tps,
         "ratios": [t / limit for t in tps],
@@ -405,6 +412,37 @@ def eight_buses(
         "machine_busy_cores": busy[0],
         "machine_cores": os.cpu_count() or 1,
     }
+
+
+def _uvloop_run(main: Any) -> Any:
+    import uvloop  # type: ignore[import-not-found]
+
+    return uvloop.run(main)
+
+
+#: the masters' event loops: pyrtu.aio.run's select() loop, plain asyncio.run (epoll),
+#: uvloop (libuv)
+EVENT_LOOPS: dict[str, Any] = {"pyrtu": aio_run, "asyncio": asyncio.run, "uvloop": _uvloop_run}
+
+
+def compare_loops(rounds: int, seconds: float, buses: int, drive: str) -> None:
+    """``buses`` buses at 115200 under each event loop, interleaved ``rounds`` times:
+    per loop the minimum and median of the buses' ratios to the wire limit."""
+    rows: dict[str, list[float]] = {k: [] for k in EVENT_LOOPS}
+    cpu: dict[str, list[float]] = {k: [] for k in EVENT_LOOPS}
+    for _ in range(rounds):
+        for name in EVENT_LOOPS:
+            e = eight_buses(115200, seconds, buses, drive, event_loop=name)
+            rows[name] += e["ratios"]
+            cpu[name].append(e["cpu_us_per_tx"])
+            print(name, " ".join(f"{r:.3f}" for r in e["ratios"]), flush=True)
+    print(f"| event loop | buses | ratio to wire limit (min / median), {drive} | CPU us/tx |")
+    print("|---|---:|---:|---:|")
+    for name, rs in rows.items():
+        print(
+            f"| {name} | {buses} | {min(rs):.3f} / {statistics.median(rs):.3f} |"
+            f" {statistics.median(cpu[name]):.0f} |"
+        )
 
 
 def eight_line(e: dict[str, Any]) -> str:
@@ -594,7 +632,16 @@ def main() -> None:
         " alternately, --rounds times per drive (cfw100 and cv100); prints table rows",
     )
     ap.add_argument("--baseline", help="a checkout of the code before, for a comparison")
+    ap.add_argument(
+        "--loops",
+        action="store_true",
+        help="--buses buses at 115200 under pyrtu.aio.run, asyncio.run and uvloop,"
+        " interleaved --rounds times; prints table rows",
+    )
     args = ap.parse_args()
+    if args.loops:
+        compare_loops(args.rounds, 3.0 if args.quick else 10.0, args.buses, args.drive)
+        return
     if args.hubs:
         compare_hubs(args.rounds, 3.0 if args.quick else 10.0, args.buses, args.json)
         return

@@ -33,6 +33,7 @@ from concurrent.futures import Future as ThreadFuture
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
+from . import _ptimer
 from . import _requests as R
 from . import pdu as P
 from ._client import State
@@ -127,7 +128,7 @@ class AsyncMaster(MasterBase):
                 fut.set_result(value)
 
         loop.add_reader(fd, ready, True)
-        timer = loop.call_at(deadline, ready, False)
+        timer = _ptimer.call_at(loop, deadline, ready, False)
         try:
             return await fut
         finally:
@@ -170,7 +171,7 @@ class AsyncMaster(MasterBase):
         now = _monotonic()
         until = self._proto.ready_at(now)
         if until > now:
-            await asyncio.sleep(until - now)
+            await _ptimer.sleep_until(until)
 
     async def _run(self, call: Call) -> Any:
         async with self._lock:
@@ -195,9 +196,8 @@ class AsyncMaster(MasterBase):
                     # a timer, not a reader: bytes that come meanwhile are read
                     # (as stale, restarting the silence) before the request goes
                     deadline = proto.deadline()
-                    wait = 0.0 if deadline is None else deadline - _monotonic()
-                    if wait > 0:
-                        await asyncio.sleep(wait)
+                    if deadline is not None and deadline > _monotonic():
+                        await _ptimer.sleep_until(deadline)
                     stale = port.read(0)
                     if stale:
                         proto.receive_data(stale, _monotonic())
@@ -416,7 +416,7 @@ class _Drive:
         self._proto = proto
         self._fut = fut
         self._timed = proto.gap > 0
-        self._timer: asyncio.TimerHandle | None = None
+        self._timer: asyncio.TimerHandle | _ptimer.TimerHandle | None = None
         self._reading = False
 
     def stop(self) -> None:
@@ -429,7 +429,7 @@ class _Drive:
             self._loop.remove_reader(self._fd)
 
     def _wait(self, until: float, reader: bool) -> None:
-        self._timer = self._loop.call_at(until, self._wake)
+        self._timer = _ptimer.call_at(self._loop, until, self._wake)
         if reader:
             self._reading = True
             self._loop.add_reader(self._fd, self._wake)
@@ -506,7 +506,9 @@ def new_event_loop() -> asyncio.AbstractEventLoop:
     below 1024, plenty for a process with tens of ports)."""
     import selectors
 
-    return asyncio.SelectorEventLoop(selectors.SelectSelector())
+    loop = asyncio.SelectorEventLoop(selectors.SelectSelector())
+    _ptimer.mark_precise(loop)  # its own timers are exact: no timerfd
+    return loop
 
 
 def run(main: Any, *, debug: bool | None = None) -> Any:
