@@ -13,6 +13,7 @@ from collections.abc import Callable, Iterator
 
 import pytest
 
+from pyrtu.aio import AsyncMaster
 from pyrtu.devices import CFW701Simulator, CV100Simulator, DriveSimulator
 from pyrtu.devices import cv100 as C
 from pyrtu.devices import weg as W
@@ -22,6 +23,7 @@ from pyrtu.poller import (
     Point,
     PointDropped,
     Poller,
+    PortState,
     SlaveState,
     Update,
     make_config,
@@ -234,9 +236,19 @@ def test_sync_facade() -> None:
                 time.sleep(0.02)
             assert len(p.values()) == 10 and p.age("weg.status") is not None
             assert p.summary()["buses"][0]["transactions"] > 0
-    with pytest.raises(Exception) as e:
-        Poller(config("/nonexistent/port")).running().start()  # type: ignore[arg-type]
-    assert "nonexistent" in str(e.value)
+    # a port that cannot be opened is no error of start(): it is reported and retried
+    missing = Poller(config("/nonexistent/port"))  # type: ignore[arg-type]
+    seen: list[Event] = []
+    missing.on_event(seen.append)
+    with missing.running() as p:
+        assert p.summary()["buses"][0]["port_state"] == "down"
+    (down,) = seen
+    assert isinstance(down, PortState) and not down.up and "nonexistent" in down.error
+    # a wrong keyword is (before any port opens)
+    bad = Bus("line", "/nonexistent/port", {"baudrate": 9600, "parity": "N"})
+    with pytest.raises(TypeError):
+        Poller(make_config([bad], profile_points("cv100", "cv", "line", 5, 1.0)),
+               master=lambda b: AsyncMaster(b.port, colour="red")).running().start()  # type: ignore[call-arg]  # fmt: skip
 
 
 def test_two_buses_at_once() -> None:
