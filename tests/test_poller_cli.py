@@ -370,7 +370,7 @@ def test_the_live_table_fits_the_terminal(tmp_path: Path) -> None:
     out = b"".join(chunks).decode()
     assert code == 4  # slave 9 does not answer
     assert "None" not in out
-    table = out.partition("updates printed")[0]
+    table = out.partition("updates delivered")[0]
     frames = [f for f in table.split("\x1b[") if f.startswith(("23F", "22F", "21F"))]
     assert frames, "the table was not redrawn"
     # the first frame: every line at most 79 characters, 23 lines at most

@@ -289,15 +289,16 @@ async def _run(poller: Poller, ns: argparse.Namespace, out: Output) -> int:
     if ns.json:
         out.json(summary)
     else:
-        _print_summary(out, summary)
+        _print_summary(out, summary, table is not None)
     if code:
         print(f"pyrtu poll: exit status {code}: {why}", file=sys.stderr, flush=True)
     return code
 
 
-def _print_summary(out: Output, summary: dict[str, Any]) -> None:
+def _print_summary(out: Output, summary: dict[str, Any], live: bool) -> None:
     lines = [
-        f"{summary['updates']} updates printed, {summary['values_read']} values read; "
+        f"{summary['updates']} updates {'delivered' if live else 'printed'}, "
+        f"{summary['values_read']} values read; "
         f"{summary['points_read']} of {summary['points']} points read"
     ]
     for b in summary["buses"]:
