@@ -81,7 +81,8 @@ def test_an_unplugged_port_is_reported_once_and_reopened(
             weg.serve(va.paths[1], 1, baudrate=BAUD, parity="N")
             cv.serve(vb.paths[1], 5, baudrate=BAUD, parity="N")
             try:
-                options = {"baudrate": BAUD, "parity": "N", "timeout": 0.1}
+                # a timeout far above the answers' few ms: a loaded VM is no outage
+                options = {"baudrate": BAUD, "parity": "N", "timeout": 0.5}
                 buses = [Bus("a", va.paths[0], options, **HEALTH),  # type: ignore[arg-type]
                          Bus("b", vb.paths[0], options, **HEALTH)]  # type: ignore[arg-type]  # fmt: skip
                 points = profile_points("cfw701", "weg", "a", 1, 0.05)
@@ -126,15 +127,16 @@ def test_an_unplugged_port_is_reported_once_and_reopened(
     assert len(lines) == 2 and "down" in lines[0] and "back after" in lines[1], lines
     # the port vanished, not the slave: no timeouts counted, never marked offline
     states = [(e.bus, e.slave, e.online) for e in events if isinstance(e, SlaveState)]
-    assert states == [("a", 1, True), ("b", 5, True)]
+    assert states == [("a", 1, True), ("b", 5, True)], summary["slaves"]
     slaves = {s["bus"]: s for s in summary["slaves"]}  # type: ignore[attr-defined]
     assert slaves["a"]["timeouts"] == slaves["b"]["timeouts"] == 0
     assert slaves["a"]["state"] == "online"
     buses = {b["bus"]: b for b in summary["buses"]}  # type: ignore[attr-defined]
     assert buses["a"]["port_state"] == "up" and buses["a"]["outages"] == 1
     assert buses["b"]["outages"] == 0
-    # bus b's pace is the same whether bus a is up or down (bounds: 2x, for a loaded VM)
-    assert during < 2 * before + 0.5, (before, during)
+    # bus b's pace is the same whether bus a is up or down (bounds: 3x and 1 s, for
+    # a loaded VM; a bus held up by the other's reopening would take the back-off)
+    assert during < 3 * before + 1.0, (before, during)
 
 
 @pytest.mark.wall_clock
