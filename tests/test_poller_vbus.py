@@ -348,3 +348,34 @@ def test_run_for_a_duration_and_the_async_iterators() -> None:
     assert any(isinstance(e, PointDropped) for e in seen)
     assert any(isinstance(e, SlaveState) for e in seen)
     assert summary["lost_events"] == 0
+
+
+def test_a_probe_abandoned_by_stop_is_sent_after_a_restart() -> None:
+    """Stopping while an offline slave's probe is on the wire, then starting again:
+    the probe is due again (before, it stayed "in flight" and the slave was never
+    probed again)."""
+
+    async def main() -> tuple[float | None, int]:
+        with drives() as (bus, _sims):
+            cfg = config(bus.paths[0])
+            points = [p for p in cfg.points if p.slave == 5]  # type: ignore[attr-defined]
+            poller = Poller(make_config(cfg.buses, points), changes_only=False)  # type: ignore[attr-defined]
+            events: list[Event] = []
+            poller.on_event(events.append)
+            sched = poller.scheduler("line")
+            async with poller:
+                await until(lambda: sched.online(5) is True, "slave 5")
+                bus.unplug(2)  # type: ignore[attr-defined]
+                await until(lambda: sched.online(5) is False, "slave 5 offline")
+                # stop while the probe is out (it waits its timeout: no one answers)
+                await until(lambda: sched.deadline() is None, "the probe on the wire")
+            due = sched.deadline()
+            await poller.start()  # the counts start again from 0
+            try:
+                await until(lambda: sched.slave_stats()[5].requests > 0, "a probe")
+            finally:
+                await poller.stop()
+            return due, sched.slave_stats()[5].requests
+
+    due, probes = asyncio.run(main())
+    assert due is not None and probes > 0

@@ -262,6 +262,9 @@ class Poller:
             try:
                 data = await getattr(master, METHODS[req.function])(*self._args(req))
             except asyncio.CancelledError:
+                # abandoned, not failed: nothing counts, the block or probe stays due
+                # (a probe left "in flight" would never be sent after a restart)
+                sched.on_port_failure(req)
                 if fut is not None and not fut.done():
                     fut.cancel()
                 raise

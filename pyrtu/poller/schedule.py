@@ -430,7 +430,8 @@ class BusScheduler:
         """The port failed during ``req`` (a drop unplugged, a TCP connection lost):
         the slave is not to blame, so nothing counts against it (no timeout, no
         failure towards ``offline_after``).  A poll block keeps its place in the
-        schedule and a probe is due again; a write or read is the driver's to fail."""
+        schedule and a probe is due again; a write or read is the driver's to fail.
+        The same for a transaction abandoned (the driver stopped during it)."""
         if req.kind == PROBE:
             h = self._health.get(req.slave)
             if h is not None:
