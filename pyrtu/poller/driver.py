@@ -518,6 +518,7 @@ class Poller:
         self._updates = 0
         self._values_read = 0
         for r in self._runs.values():
+            r.values = 0
             r.sched.reset_stats(now)
 
     # ------------------------------------------------------------------ writes, reads
