@@ -414,3 +414,39 @@ def test_utilisation_counts_only_the_window() -> None:
     assert req is not None
     sched.on_response(req, [0], 0.035)
     assert sched.slave_stats()[1].busy == pytest.approx(0.015 + WIRE.t35 + 0.005)
+
+
+def test_a_failed_port_is_not_the_slaves_fault() -> None:
+    """`on_port_failure`: nothing counts against the slave (no timeout, no failure
+    towards offline_after), the block keeps its place, a probe is due again, and
+    writes and reads queued meanwhile can be taken out to fail them."""
+    sched = BusScheduler("b", [pt(0), pt(1)], WIRE, offline_after=2, now=0.0)
+    for i in range(10):  # a port down for ten cycles: more than offline_after
+        req = sched.next_request(float(i))
+        assert req is not None and req.kind == "poll" and (req.address, req.count) == (0, 2)
+        sched.on_port_failure(req)
+    st = sched.slave_stats()[1]
+    assert (st.requests, st.timeouts, st.online) == (0, 0, None)
+    assert sched.deadline() == 10.0  # still on its beat
+    req = sched.next_request(10.0)
+    assert req is not None
+    events = sched.on_response(req, [7, 8], 10.01)
+    assert [type(e) for e in events] == [SlaveState, Update, Update]
+    # an offline slave's probe that meets a failed port is due again at once
+    for t in (11.0, 12.0):
+        req = sched.next_request(t)
+        assert req is not None
+        sched.on_failure(req, NoResponseError("no answer", 1, 3), t + TIMEOUT)
+    assert sched.online(1) is False
+    probe_at = sched.deadline()
+    assert probe_at is not None
+    probe = sched.next_request(probe_at)
+    assert probe is not None and probe.kind == "probe"
+    assert sched.deadline() is None  # the probe is out
+    sched.on_port_failure(probe)
+    assert sched.deadline() == probe_at and sched.slave_stats()[1].timeouts == 2
+    write = sched.submit_write(1, "holding", 0, [5])
+    reads = sched.submit_read(1, "holding", 0, 2)
+    assert sched.take_urgent() == [write, *reads]
+    nxt = sched.next_request(probe_at)  # the queue is empty again: the probe is next
+    assert nxt is not None and nxt.kind == "probe"

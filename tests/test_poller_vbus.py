@@ -13,6 +13,7 @@ from collections.abc import Callable, Iterator
 
 import pytest
 
+from pyrtu.aio import AsyncMaster
 from pyrtu.devices import CFW701Simulator, CV100Simulator, DriveSimulator
 from pyrtu.devices import cv100 as C
 from pyrtu.devices import weg as W
@@ -22,6 +23,7 @@ from pyrtu.poller import (
     Point,
     PointDropped,
     Poller,
+    PortState,
     SlaveState,
     Update,
     make_config,
@@ -234,9 +236,19 @@ def test_sync_facade() -> None:
                 time.sleep(0.02)
             assert len(p.values()) == 10 and p.age("weg.status") is not None
             assert p.summary()["buses"][0]["transactions"] > 0
-    with pytest.raises(Exception) as e:
-        Poller(config("/nonexistent/port")).running().start()  # type: ignore[arg-type]
-    assert "nonexistent" in str(e.value)
+    # a port that cannot be opened is no error of start(): it is reported and retried
+    missing = Poller(config("/nonexistent/port"))  # type: ignore[arg-type]
+    seen: list[Event] = []
+    missing.on_event(seen.append)
+    with missing.running() as p:
+        assert p.summary()["buses"][0]["port_state"] == "down"
+    (down,) = seen
+    assert isinstance(down, PortState) and not down.up and "nonexistent" in down.error
+    # a wrong keyword is (before any port opens)
+    bad = Bus("line", "/nonexistent/port", {"baudrate": 9600, "parity": "N"})
+    with pytest.raises(TypeError):
+        Poller(make_config([bad], profile_points("cv100", "cv", "line", 5, 1.0)),
+               master=lambda b: AsyncMaster(b.port, colour="red")).running().start()  # type: ignore[call-arg]  # fmt: skip
 
 
 def test_two_buses_at_once() -> None:
@@ -336,3 +348,34 @@ def test_run_for_a_duration_and_the_async_iterators() -> None:
     assert any(isinstance(e, PointDropped) for e in seen)
     assert any(isinstance(e, SlaveState) for e in seen)
     assert summary["lost_events"] == 0
+
+
+def test_a_probe_abandoned_by_stop_is_sent_after_a_restart() -> None:
+    """Stopping while an offline slave's probe is on the wire, then starting again:
+    the probe is due again (before, it stayed "in flight" and the slave was never
+    probed again)."""
+
+    async def main() -> tuple[float | None, int]:
+        with drives() as (bus, _sims):
+            cfg = config(bus.paths[0])
+            points = [p for p in cfg.points if p.slave == 5]  # type: ignore[attr-defined]
+            poller = Poller(make_config(cfg.buses, points), changes_only=False)  # type: ignore[attr-defined]
+            events: list[Event] = []
+            poller.on_event(events.append)
+            sched = poller.scheduler("line")
+            async with poller:
+                await until(lambda: sched.online(5) is True, "slave 5")
+                bus.unplug(2)  # type: ignore[attr-defined]
+                await until(lambda: sched.online(5) is False, "slave 5 offline")
+                # stop while the probe is out (it waits its timeout: no one answers)
+                await until(lambda: sched.deadline() is None, "the probe on the wire")
+            due = sched.deadline()
+            await poller.start()  # the counts start again from 0
+            try:
+                await until(lambda: sched.slave_stats()[5].requests > 0, "a probe")
+            finally:
+                await poller.stop()
+            return due, sched.slave_stats()[5].requests
+
+    due, probes = asyncio.run(main())
+    assert due is not None and probes > 0

@@ -12,7 +12,9 @@ frequent kind of error (4 no response, 5 exception, 6 frame); 3 when the port
 fails (the poll stops).
 
 ``pyrtu poll --config points.toml [--duration S] [--json]`` polls the points of a
-TOML file on all its buses instead (`pyrtu.commands.poll_config`).
+TOML file on all its buses instead (`pyrtu.commands.poll_config`); its exit status
+says what came in (3 a port never worked or is down, 4 a slave offline or a point
+never read, 5 a point dropped): ``pyrtu poll --config FILE --help``.
 """
 
 from __future__ import annotations

@@ -1,15 +1,20 @@
 """``pyrtu poll --config points.toml [--duration S] [--json]``: the poller.
 
 Polls every point of a TOML configuration (see `pyrtu.poller.config`) on all its
-buses at once.  On a terminal: a live table of the points (value, age, slave,
-bus) and of the buses (utilisation, load).  With ``--json``: one JSON object per
-value update, ``{"point", "value", "time", "slave", "bus"}`` (change-only, beyond
-each point's deadband), and at the end one ``{"summary": true, ...}`` object with
-per-bus utilisation and per-slave counts (requests, responses, timeouts,
-exceptions, state).  Otherwise one line per update and the summary at the end.
+buses at once.  On a terminal: a live table of the points (value, age, slave, bus:
+as many as fit) and of the buses (port, utilisation, load) and slaves.  With
+``--json``: one JSON object per value update, ``{"point", "value", "time",
+"slave", "bus"}`` (change-only, beyond each point's deadband, unless ``--all``),
+one per event (``"event"``: ``"port"`` up/down, ``"slave"`` online/offline,
+``"dropped"``, ``"overload"``), and at the end one ``{"summary": true, ...}``
+object (``updates``: the update lines printed; ``values_read``: every value read;
+per bus the port's state and utilisation, per slave the counts and state).
+Otherwise one line per update, the events on stderr and the summary at the end.
 
-A configuration error exits with status 2 before any port is opened; a port that
-cannot be opened exits 3.  Stops after ``--duration`` seconds or on SIGINT/SIGTERM.
+A port that fails (cannot be opened or connected, unplugged, a TCP peer gone) is
+reported once and opened again with back-off while the other buses poll on.
+Stops after ``--duration`` seconds, on SIGINT/SIGTERM, or quietly (status 0) when
+the reader of its output goes away (``| head``).
 
 `pyrtu.cli` hands ``pyrtu poll`` over to this module when ``--config`` is given;
 ``pyrtu poll PORT ADDRESS [COUNT]`` (one range, live statistics) is
@@ -20,13 +25,45 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import io
+import json
+import os
 import signal
+import stat
 import sys
 import time
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from .common import EXIT_OK, EXIT_USAGE, emit, positive_seconds, report_error
+from .common import (
+    EXIT_EXCEPTION,
+    EXIT_NO_RESPONSE,
+    EXIT_OK,
+    EXIT_PORT,
+    EXIT_USAGE,
+    jsonable,
+    positive_seconds,
+    report_error,
+)
+from .poll_table import LiveTable, fmt_value, ms
+
+if TYPE_CHECKING:
+    from ..poller import Poller
+    from ..poller.events import Event
+
+#: what the exit status says of the data (``--help`` shows it)
+EXIT_STATUS = """\
+exit status (the first that applies):
+  3  port         a bus's port never worked (cannot be opened or connected),
+                  or was down at the end
+  4  no response  a slave was not online at the end, or a point was never read
+  5  exception    a point was dropped (its slave answered exception 2: no such
+                  address)
+  0  ok           every port up, every slave online and every point read
+  2  usage        bad arguments or a configuration error (before any port opens)
+  1  failure      anything else (an internal error)
+SIGINT, SIGTERM and --duration end the run normally: the status says what came in.
+A closed output pipe (| head) ends it at once with status 0."""
 
 
 def wants(argv: Sequence[str]) -> bool:
@@ -46,6 +83,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="pyrtu poll",
         description=__doc__.split("\n\n")[1] if __doc__ else None,
+        epilog=EXIT_STATUS,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument(
@@ -54,7 +92,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-d", "--duration", type=positive_seconds, default=None, metavar="SECONDS",
                    help="stop after this time (default: on Ctrl-C)")  # fmt: skip
     p.add_argument("--json", action="store_true",
-                   help="one JSON object per update and a summary object at the end")  # fmt: skip
+                   help="one JSON line per update and per event, a summary at the end")  # fmt: skip
     p.add_argument("--all", action="store_true",
                    help="deliver every value read, not only changes")  # fmt: skip
     p.add_argument("--refresh", type=positive_seconds, default=0.5, metavar="SECONDS",
@@ -83,118 +121,210 @@ def main(argv: Sequence[str], setup_logging: Callable[[int], None] | None = None
     except ConfigError as e:
         print(f"pyrtu poll: config error: {e}", file=sys.stderr)
         return EXIT_USAGE
+    out = Output()
     try:
-        return int(aio_run(_run(poller, ns)))
+        code = int(aio_run(_run(poller, ns, out)))
     except (Exception, KeyboardInterrupt) as exc:
         from ..errors import ModbusError
 
-        if not isinstance(exc, ModbusError | OSError | ValueError | KeyboardInterrupt):
+        if isinstance(exc, BrokenPipeError):
+            out.closed = True
+        elif not isinstance(exc, ModbusError | OSError | ValueError | KeyboardInterrupt):
             raise
-        return report_error("poll", exc, ns.json)
+        else:
+            code = report_error("poll", exc, False)
+            if ns.json and not out.closed:
+                from .common import error_document
+
+                out.json(error_document(exc, code))
+    if out.closed:
+        # the reader went away (| head): Python flushes stdout at exit, so point it
+        # at /dev/null for that not to fail too
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+        return EXIT_OK
+    return code
 
 
-def _fmt(value: object) -> str:
-    if isinstance(value, float):
-        return f"{value:.6g}"
-    return str(value)
+class Output:
+    """stdout, which a closed pipe ends quietly: the first write that fails, or the
+    reader of a pipe going away (seen by the event loop at once), sets `closed`
+    and `stop`; nothing is written after."""
+
+    def __init__(self) -> None:
+        self.closed = False
+        self.stop: asyncio.Event | None = None
+        self._watched: int | None = None
+
+    def write(self, text: str) -> bool:
+        if self.closed:
+            return False
+        try:
+            sys.stdout.write(text)
+            sys.stdout.flush()
+        except BrokenPipeError:
+            self._close()
+            return False
+        return True
+
+    def json(self, doc: dict[str, Any]) -> bool:
+        return self.write(json.dumps(jsonable(doc), allow_nan=False) + "\n")
+
+    def _close(self) -> None:
+        self.closed = True
+        if self.stop is not None:
+            self.stop.set()
+
+    def watch(self, loop: asyncio.AbstractEventLoop, stop: asyncio.Event) -> None:
+        """Stop when stdout is a pipe whose reader closes (its write end then
+        reports an error, which the loop's selector sees as readable)."""
+        self.stop = stop
+        try:
+            fd = sys.stdout.fileno()
+            if not stat.S_ISFIFO(os.fstat(fd).st_mode):
+                return
+            loop.add_reader(fd, self._hangup, loop, fd)
+        except (OSError, ValueError, io.UnsupportedOperation):
+            return  # not a real pipe: the writes tell
+        self._watched = fd
+
+    def _hangup(self, loop: asyncio.AbstractEventLoop, fd: int) -> None:
+        loop.remove_reader(fd)
+        self._watched = None
+        self._close()
+
+    def unwatch(self, loop: asyncio.AbstractEventLoop) -> None:
+        if self._watched is not None:
+            loop.remove_reader(self._watched)
+            self._watched = None
 
 
-class _Table:
-    """The live table on a terminal (redrawn in place)."""
-
-    def __init__(self, poller: Any) -> None:
-        self.poller = poller
-        self.lines = 0
-
-    def draw(self) -> None:
-        p = self.poller
-        latest = p.latest()
-        rows = [f"{'point':32} {'value':>14} {'age':>8}  slave  bus"]
-        for name, point in p._points.items():
-            u = latest.get(name)
-            age = p.age(name)
-            value = "-" if u is None else _fmt(u.value)
-            rows.append(
-                f"{name[:32]:32} {value[:14]:>14} "
-                f"{'-' if age is None else f'{age:.2f}s':>8}  {point.slave:5}  {point.bus}"
-            )
-        for r in p.report():
-            state = " OVERLOAD" if r.overloaded else ""
-            rows.append(
-                f"bus {r.bus}: utilisation {r.utilisation:.1%}, load {r.load:.2f}{state}"
-                + (f", lagging: {', '.join(r.lagging[:5])}" if r.lagging else "")
-            )
-        for s in p.slave_stats():
-            d = s.as_dict()
-            rows.append(
-                f"  slave {d['slave']} on {d['bus']}: {d['state']}, {d['responses']}/"
-                f"{d['requests']} answered, p50 {d['latency_p50_ms']} ms, p99 "
-                f"{d['latency_p99_ms']} ms"
-            )
-        out = sys.stdout
-        if self.lines:
-            out.write(f"\x1b[{self.lines}F")
-        out.write("".join(f"\x1b[2K{r}\n" for r in rows))
-        out.flush()
-        self.lines = len(rows)
+def exit_status(summary: dict[str, Any]) -> tuple[int, str]:
+    """The exit status of a run (``EXIT_STATUS``) and why, from `Poller.summary`."""
+    for b in summary["buses"]:
+        if b["port_state"] != "up":
+            why = b["port_error"] or "nothing went through it"
+            return EXIT_PORT, f"bus {b['bus']}: port {b['port']} {b['port_state']}: {why}"
+    for s in summary["slaves"]:
+        if s["state"] != "online":
+            return EXIT_NO_RESPONSE, f"bus {s['bus']}: slave {s['slave']} {s['state']} at the end"
+    if summary["points_unread"]:
+        return EXIT_NO_RESPONSE, f"{summary['points_unread']} points never read"
+    if summary["dropped_points"]:
+        names = ", ".join(summary["dropped_points"][:5])
+        more = len(summary["dropped_points"]) - 5
+        return EXIT_EXCEPTION, f"points dropped: {names}" + (
+            f" and {more} more" if more > 0 else ""
+        )
+    return EXIT_OK, ""
 
 
-async def _run(poller: Any, ns: argparse.Namespace) -> int:
+async def _pause(stop: asyncio.Event, seconds: float) -> None:
+    """Wait ``seconds`` or until ``stop`` is set (a timer, not asyncio.wait_for)."""
+    loop = asyncio.get_running_loop()
+    tick = asyncio.Event()
+    timer = loop.call_later(seconds, tick.set)
+    waiters = [asyncio.ensure_future(stop.wait()), asyncio.ensure_future(tick.wait())]
+    try:
+        await asyncio.wait(waiters, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        timer.cancel()
+        for w in waiters:
+            w.cancel()
+
+
+async def _run(poller: Poller, ns: argparse.Namespace, out: Output) -> int:
     from ..poller import Update
 
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
-    live = sys.stdout.isatty() and not ns.json
+    out.watch(loop, stop)
+    table = LiveTable(poller, sys.stdout) if sys.stdout.isatty() and not ns.json else None
+    done = False  # after the summary's snapshot nothing more is printed
 
-    def on_event(ev: Any) -> None:
+    def on_event(ev: Event) -> None:
+        if done or out.closed:
+            return
         if isinstance(ev, Update):
             if ns.json:
-                emit(ev.as_dict())
-            elif not live:
+                out.json(ev.as_dict())
+            elif table is None:
                 stamp = time.strftime("%H:%M:%S", time.localtime(ev.time))
                 ms = int(ev.time % 1 * 1000)
-                print(f"{stamp}.{ms:03d}  {ev.name} = {_fmt(ev.value)}", flush=True)
-        elif not ns.json:
-            print(f"pyrtu poll: {_describe(ev)}", file=sys.stderr, flush=True)
+                out.write(f"{stamp}.{ms:03d}  {ev.name} = {fmt_value(ev.value)}\n")
+        elif ns.json:
+            out.json(ev.as_dict())
+        else:
+            print(f"pyrtu poll: {describe(ev)}", file=sys.stderr, flush=True)
 
     poller.on_event(on_event)
     try:
         await poller.start()
-        table = _Table(poller) if live else None
         end = None if ns.duration is None else loop.time() + ns.duration
         while not stop.is_set():
             wait = ns.refresh if end is None else min(ns.refresh, end - loop.time())
             if wait <= 0:
                 break
-            try:
-                await asyncio.wait_for(stop.wait(), wait)
-            except TimeoutError:
-                pass
-            if table is not None:
+            await _pause(stop, wait)
+            if table is not None and not stop.is_set():
+                text = io.StringIO()
+                table.out = text
                 table.draw()
+                out.write(text.getvalue())
     finally:
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            loop.remove_signal_handler(sig)
         summary = poller.summary()
-        await poller.stop()
+        done = True
+        try:
+            await poller.stop()
+        finally:
+            out.unwatch(loop)
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                loop.remove_signal_handler(sig)
+    if out.closed:
+        return EXIT_OK
+    code, why = exit_status(summary)
     if ns.json:
-        emit(summary)
+        out.json(summary)
     else:
-        for b in summary["buses"]:
-            print(f"bus {b['bus']}: {b['transactions']} transactions in {b['seconds']} s, "
-                  f"utilisation {b['utilisation']:.1%}, load {b['load']:.2f}")  # fmt: skip
-        for s in summary["slaves"]:
-            print(f"slave {s['slave']} on {s['bus']}: {s['state']}, {s['requests']} requests, "
-                  f"{s['responses']} responses, {s['timeouts']} timeouts, "
-                  f"{s['exceptions']} exceptions")  # fmt: skip
-    return EXIT_OK
+        _print_summary(out, summary, table is not None)
+    if code:
+        print(f"pyrtu poll: exit status {code}: {why}", file=sys.stderr, flush=True)
+    return code
 
 
-def _describe(ev: Any) -> str:
-    from ..poller import Overload, PointDropped, SlaveState
+def _print_summary(out: Output, summary: dict[str, Any], live: bool) -> None:
+    lines = [
+        f"{summary['updates']} updates {'delivered' if live else 'printed'}, "
+        f"{summary['values_read']} values read; "
+        f"{summary['points_read']} of {summary['points']} points read"
+    ]
+    for b in summary["buses"]:
+        lines.append(
+            f"bus {b['bus']} ({b['port']}): port {b['port_state']}, {b['outages']} outages, "
+            f"{b['transactions']} transactions in {b['seconds']} s, "
+            f"utilisation {b['utilisation']:.1%}, load {b['load']:.2f}"
+        )
+    for s in summary["slaves"]:
+        lines.append(
+            f"slave {s['slave']} on {s['bus']}: {s['state']}, {s['requests']} requests, "
+            f"{s['responses']} responses, {s['timeouts']} timeouts, "
+            f"{s['exceptions']} exceptions, p50 {ms(s['latency_p50_ms'])}"
+        )
+    if summary["dropped_points"]:
+        lines.append("dropped: " + ", ".join(summary["dropped_points"]))
+    out.write("".join(line + "\n" for line in lines))
 
+
+def describe(ev: Event) -> str:
+    """An event (not an update) for people."""
+    from ..poller import Overload, PointDropped, PortState, SlaveState
+    from ..poller.driver import describe_port
+
+    if isinstance(ev, PortState):
+        return describe_port(ev)
     if isinstance(ev, SlaveState):
         return f"bus {ev.bus}: slave {ev.slave} {'online' if ev.online else 'offline'}"
     if isinstance(ev, PointDropped):
@@ -207,4 +337,4 @@ def _describe(ev: Any) -> str:
     return str(ev)
 
 
-__all__ = ["build_parser", "main", "wants"]
+__all__ = ["EXIT_STATUS", "Output", "build_parser", "describe", "exit_status", "main", "wants"]

@@ -15,27 +15,33 @@ One asyncio task per bus runs its `BusScheduler` against a master (an object wit
 `pyrtu.Master`'s method names as coroutines); buses run concurrently, each bus
 one transaction at a time.  Every value is stamped with the time (``time.time()``
 clock) the answer's last byte arrived; `updates` and `on_update` deliver changes
-only (beyond each point's deadband), `events` and `on_event` also slave
-online/offline, dropped points and overload.
+only (beyond each point's deadband), `events` and `on_event` also port up/down,
+slave online/offline, dropped points and overload.
+
+A port that fails (cannot be opened or connected, a drop unplugged, a TCP peer
+gone) is reported once (`PortState` and one log line), closed, and opened again
+on the back-off of `pyrtu._reconnect` (the bus's ``backoff`` doubling to
+``max_backoff``) while the other buses poll on; what failed because the port did
+is not counted against the slaves.
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
-import math
 import time
-from collections.abc import AsyncIterator, Callable, Iterable, Iterator, Sequence
+from collections.abc import AsyncIterator, Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from .._loopthread import LoopThread
-from ..data import encode_float32, encode_int32, encode_string, encode_uint32
+from .._reconnect import Backoff, Reconnect
+from ..errors import PortError
 from .config import Bus, ConfigError, Device, PollerConfig, load_config, make_config
-from .events import BusReport, Event, SlaveStats, Tracker, Update
-from .masters import FACTORIES, METHODS, AsyncMasterLike
-from .points import Point, Value
+from .events import BusReport, Event, PortState, SlaveStats, Tracker, Update
+from .masters import FACTORIES, METHODS, AsyncMasterLike, is_port_error, open_master
+from .points import Point, Value, encode_point
 from .schedule import BusScheduler, Request
+from .thread import PollerThread
 
 log = logging.getLogger("pyrtu.poller")
 
@@ -43,44 +49,36 @@ MasterFactory = Callable[[Bus], AsyncMasterLike]
 _QUEUE = 65536
 
 
-def encode_point(point: Point, value: object) -> list[int] | list[bool]:
-    """The registers (or bits) that write ``value`` to ``point`` (the inverse of its
-    scale and offset); ValueError when it does not fit."""
-    if point.table not in ("holding", "coils"):
-        raise ValueError(f"point {point.name!r}: the {point.table} table is read only")
-    if point.type == "bool":
-        if not isinstance(value, bool | int) or value not in (0, 1):
-            raise ValueError(f"point {point.name!r}: value must be a bool, not {value!r}")
-        return [bool(value)]
-    if point.type == "string":
-        if not isinstance(value, str):
-            raise ValueError(f"point {point.name!r}: value must be a str, not {value!r}")
-        return encode_string(value, point.count)
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise ValueError(f"point {point.name!r}: value must be a finite number, not {value!r}")
-    raw = (value - point.offset) / point.scale
-    if point.type == "float32":
-        return encode_float32(raw, point.order)
-    n = round(raw)
-    lo, hi = {"uint16": (0, 0xFFFF), "int16": (-0x8000, 0x7FFF), "uint32": (0, 2**32 - 1),
-              "int32": (-(2**31), 2**31 - 1)}[point.type]  # fmt: skip
-    if not lo <= n <= hi:
-        raise ValueError(f"point {point.name!r}: {value!r} is raw {n}, outside {lo}..{hi}")
-    if point.type == "uint16":
-        return [n]
-    if point.type == "int16":
-        return [n & 0xFFFF]
-    return (encode_uint32 if point.type == "uint32" else encode_int32)(n, point.order)
+def describe_port(ev: PortState) -> str:
+    """A `PortState` for people (the log line and the command line's message)."""
+    if ev.up:
+        return (f"bus {ev.bus}: port {ev.port} back after {ev.time - ev.since:.1f} s "
+                f"({ev.attempts} failed attempt{'s' if ev.attempts != 1 else ''})")  # fmt: skip
+    return f"bus {ev.bus}: port {ev.port} down: {ev.error} (retrying with back-off)"
 
 
 @dataclass
 class _BusRun:
     bus: Bus
     sched: BusScheduler
+    reconnect: Reconnect
     master: AsyncMasterLike | None = None
     wake: asyncio.Event = field(default_factory=asyncio.Event)
     pending: dict[int, asyncio.Future[Any]] = field(default_factory=dict)
     task: asyncio.Task[None] | None = None
+    worked: bool = False  # a transaction went through the port since start
+    values: int = 0  # values read on this bus since start
+
+    @property
+    def port(self) -> str:
+        return str(self.bus.port)
+
+    def port_state(self) -> str:
+        """``down`` (an outage is on), ``up`` (a transaction went through and none
+        failed since) or ``unknown`` (nothing went through yet)."""
+        if self.reconnect.down:
+            return "down"
+        return "up" if self.worked else "unknown"
 
 
 class Poller:
@@ -129,6 +127,7 @@ class Poller:
         self._t0 = time.monotonic()
         self._offset = time.time() - time.monotonic()
         self._updates = 0
+        self._values_read = 0
         self._lost_events = 0
         self._make_schedulers()
 
@@ -144,24 +143,31 @@ class Poller:
                 )  # fmt: skip
             except ValueError as e:
                 raise ConfigError(f"{self.config.source}: bus {bus.name!r}: {e}") from None
-            self._runs[bus.name] = _BusRun(bus, sched)
+            backoff = Backoff(initial=bus.backoff, maximum=bus.max_backoff)
+            self._runs[bus.name] = _BusRun(bus, sched, Reconnect(backoff))
 
     # ------------------------------------------------------------------ life cycle
 
     async def start(self) -> None:
-        """Open every bus's master and start polling (PortError if a port fails;
-        the ports opened so far are closed again)."""
+        """Open every bus's master and start polling.  A port that cannot be opened
+        (or connected) is a `PortState` event and is retried with back-off while
+        the other buses poll; any other error of a master (a wrong keyword) is
+        raised, and the ports opened so far are closed again."""
         if self._running:
             return
+        now = time.monotonic()
+        for run in self._runs.values():
+            run.wake = asyncio.Event()
+            run.reconnect = Reconnect(run.reconnect.backoff)
+            run.worked, run.values = False, 0
+        self._running = True
         try:
             for run in self._runs.values():
-                run.wake = asyncio.Event()
-                run.master = self._factory(run.bus)
+                await self._open(run)
         except BaseException:
+            self._running = False
             await self._close_masters()
             raise
-        self._running = True
-        now = time.monotonic()
         self._t0 = now
         for run in self._runs.values():
             run.sched.reset_stats(now)
@@ -169,16 +175,23 @@ class Poller:
 
     async def stop(self) -> None:
         """Stop polling and close the masters; pending writes fail with
-        CancelledError; iterators end."""
+        CancelledError; iterators end.  Returns within about one timeout of the
+        buses (a transaction in progress on a thread master is waited for)."""
         self._running = False
-        tasks = [r.task for r in self._runs.values() if r.task is not None]
+        for run in self._runs.values():
+            run.wake.set()
+        tasks = {r.task for r in self._runs.values() if r.task is not None}
+        # cancel until they end: a cancellation can be lost (Python 3.11's
+        # asyncio.wait_for returns the result of an inner future that completed at
+        # the same moment), and the bus loop also ends on _running being False
+        pending = tasks
+        while pending:
+            for t in pending:
+                t.cancel()
+            _, pending = await asyncio.wait(pending, timeout=0.05)
         for t in tasks:
-            t.cancel()
-        for t in tasks:
-            try:
-                await t
-            except asyncio.CancelledError:
-                pass
+            if not t.cancelled() and t.exception() is not None:
+                log.error("poller task %s failed", t.get_name(), exc_info=t.exception())
         for run in self._runs.values():
             run.task = None
             for fut in run.pending.values():
@@ -190,13 +203,22 @@ class Poller:
             self._put(q, None)
 
     async def _close_masters(self) -> None:
-        for run in self._runs.values():
-            if run.master is not None:
-                try:
-                    await run.master.close()
-                except Exception as e:  # closing a vanished port
-                    log.info("bus %s: close: %s", run.bus.name, e)
-                run.master = None
+        await asyncio.gather(*(self._close_master(r) for r in self._runs.values()))
+
+    async def _close_master(self, run: _BusRun) -> None:
+        """Close the bus's master, waiting at most its timeout and a second (a
+        transaction a thread master is in the middle of ends within its timeout)."""
+        master, run.master = run.master, None
+        if master is None:
+            return
+        closing = asyncio.ensure_future(master.close())
+        limit = float(run.bus.master.get("timeout", 1.0)) + 1.0
+        done, _ = await asyncio.wait({closing}, timeout=limit)
+        if not done:
+            closing.cancel()
+            log.warning("bus %s: closing the port took more than %.1f s", run.bus.name, limit)
+        elif closing.exception() is not None:  # closing a vanished port
+            log.info("bus %s: close: %s", run.bus.name, closing.exception())
 
     async def __aenter__(self) -> Poller:
         await self.start()
@@ -224,47 +246,119 @@ class Poller:
 
     async def _run_bus(self, run: _BusRun) -> None:
         sched = run.sched
-        master = run.master
-        assert master is not None
         clock = time.monotonic
-        loop = asyncio.get_running_loop()
-        while True:
+        while self._running:
+            master = run.master
+            if master is None:
+                await self._reopen(run)
+                continue
             now = clock()
             req = sched.next_request(now)
             if req is None:
                 dl = sched.deadline()
-                run.wake.clear()
-                if dl is None:
-                    await run.wake.wait()
-                else:
-                    delay = dl - clock()
-                    if delay > 0:
-                        # a timer that sets the event, not asyncio.wait_for (which
-                        # makes a task per wait: measured 130 against 70 us of CPU)
-                        timer = loop.call_later(delay, run.wake.set)
-                        try:
-                            await run.wake.wait()
-                        finally:
-                            timer.cancel()
+                await self._nap(run, None if dl is None else dl - clock())
                 continue
             fut = run.pending.pop(req.tag, None) if req.tag else None
             try:
                 data = await getattr(master, METHODS[req.function])(*self._args(req))
             except asyncio.CancelledError:
+                # abandoned, not failed: nothing counts, the block or probe stays due
+                # (a probe left "in flight" would never be sent after a restart)
+                sched.on_port_failure(req)
                 if fut is not None and not fut.done():
                     fut.cancel()
                 raise
             except Exception as exc:
-                events = sched.on_failure(req, exc, clock())
                 if fut is not None and not fut.done():
                     fut.set_exception(exc)
+                if is_port_error(exc):
+                    sched.on_port_failure(req)
+                    await self._port_failed(run, exc)
+                    continue
+                end = clock()
+                self._port_ok(run, end)
+                events = sched.on_failure(req, exc, end)
             else:
+                self._port_ok(run, clock())
                 end = master.last_answer_time or clock()
                 events = sched.on_response(req, data, end)
                 if fut is not None and not fut.done():
                     fut.set_result(data)
             if events:
                 self._dispatch(events)
+
+    async def _nap(self, run: _BusRun, delay: float | None) -> None:
+        """Sleep ``delay`` seconds (None: until woken), or until a submit or `stop`
+        wakes the bus."""
+        run.wake.clear()
+        if not self._running:
+            return
+        if delay is None:
+            await run.wake.wait()
+        elif delay > 0:
+            # a timer that sets the event, not asyncio.wait_for (which makes a task
+            # per wait: measured 130 against 70 us of CPU)
+            timer = asyncio.get_running_loop().call_later(delay, run.wake.set)
+            try:
+                await run.wake.wait()
+            finally:
+                timer.cancel()
+
+    async def _open(self, run: _BusRun) -> None:
+        """Open the bus's master; a port that fails begins (or continues) an outage.
+        Other errors are raised while the poller starts, and count as port failures
+        once it runs (a bus task never dies of them)."""
+        try:
+            run.master = await open_master(self._factory, run.bus)
+        except Exception as exc:
+            if not (is_port_error(exc) or run.task is not None):
+                raise
+            await self._port_failed(run, exc)
+
+    async def _reopen(self, run: _BusRun) -> None:
+        """While the port is down: fail the writes and reads asked meanwhile, wait
+        for the back-off, then try to open the port again."""
+        while self._running:
+            self._fail_urgent(run)
+            wait = run.reconnect.wait(time.monotonic())
+            if wait <= 0:
+                break
+            await self._nap(run, wait)
+        if self._running:
+            await self._open(run)
+
+    def _fail_urgent(self, run: _BusRun) -> None:
+        outage = run.reconnect.outage
+        error = "the port is down" if outage is None else f"the port is down: {outage.error}"
+        for req in run.sched.take_urgent():
+            fut = run.pending.pop(req.tag, None)
+            if fut is not None and not fut.done():
+                fut.set_exception(PortError(run.port, error))
+
+    async def _port_failed(self, run: _BusRun, exc: BaseException) -> None:
+        """The port failed: close it; the first failure of an outage is reported
+        (one `PortState` event, one log line), the next attempts are not."""
+        now = time.monotonic()
+        text = (str(exc) or type(exc).__name__).removeprefix(f"{run.port}: ")
+        if run.reconnect.failed(now, text):
+            outage = run.reconnect.outage
+            assert outage is not None
+            off = self._offset
+            ev = PortState(run.bus.name, run.port, False, outage.error, outage.since + off,
+                           outage.attempts, now + off)  # fmt: skip
+            self._dispatch([ev])
+        await self._close_master(run)
+
+    def _port_ok(self, run: _BusRun, now: float) -> None:
+        """A transaction went through the port (answered or not): an outage ends."""
+        run.worked = True
+        if run.reconnect.down:
+            outage = run.reconnect.recovered(now)
+            assert outage is not None
+            off = self._offset
+            ev = PortState(run.bus.name, run.port, True, outage.error, outage.since + off,
+                           outage.attempts, now + off)  # fmt: skip
+            self._dispatch([ev])
 
     @staticmethod
     def _args(req: Request) -> tuple[Any, ...]:
@@ -278,12 +372,16 @@ class Poller:
         now = time.monotonic()
         for ev in events:
             if isinstance(ev, Update):
-                self._updates += 1
+                self._values_read += 1
+                self._runs[ev.point.bus].values += 1
                 changed = self._tracker.offer(ev, now)
                 if self.changes_only and not changed:
                     continue
+                self._updates += 1
                 for cb in self._update_cbs:
                     self._call(cb, ev)
+            elif isinstance(ev, PortState):
+                log.warning("%s", describe_port(ev))
             else:
                 log.info("%s", ev)
             for ecb in self._event_cbs:
@@ -312,8 +410,8 @@ class Poller:
         self._update_cbs.append(callback)
 
     def on_event(self, callback: Callable[[Event], None]) -> None:
-        """Call ``callback(event)`` for every event: delivered updates, `SlaveState`,
-        `PointDropped`, `Overload`."""
+        """Call ``callback(event)`` for every event: delivered updates, `PortState`,
+        `SlaveState`, `PointDropped`, `Overload`."""
         self._event_cbs.append(callback)
 
     async def updates(self) -> AsyncIterator[Update]:
@@ -370,23 +468,57 @@ class Poller:
         return self._runs[bus].sched
 
     def summary(self) -> dict[str, Any]:
-        """Per-bus utilisation and load, per-slave counts and state, the points
-        dropped, and the events lost by iterators that did not keep up (JSON-ready)."""
+        """Per-bus utilisation, load and port state, per-slave counts and state, the
+        points dropped, and the events lost by iterators that did not keep up
+        (JSON-ready).  ``updates``: the values delivered (change-only unless
+        ``changes_only=False``); ``values_read``: every value read."""
+        now = time.monotonic()
+        dropped = {n for r in self._runs.values() for n in r.sched.dropped}
+        buses = []
+        for run in self._runs.values():
+            doc = run.sched.report(now).as_dict()
+            outage = run.reconnect.outage
+            doc.update(port=run.port, port_state=run.port_state(), outages=run.reconnect.outages,
+                       port_error=None if outage is None else outage.error,
+                       values_read=run.values)  # fmt: skip
+            buses.append(doc)
         return {
             "summary": True,
-            "seconds": round(time.monotonic() - self._t0, 3),
+            "seconds": round(now - self._t0, 3),
             "updates": self._updates,
-            "buses": [r.as_dict() for r in self.report()],
+            "values_read": self._values_read,
+            "points": len(self._points),
+            "points_read": len(self._tracker),
+            "points_unread": sum(
+                1 for n in self._points if self._tracker.last(n) is None and n not in dropped
+            ),
+            "buses": buses,
             "slaves": [s.as_dict() for s in self.slave_stats()],
-            "dropped_points": sorted(n for r in self._runs.values() for n in r.sched.dropped),
+            "dropped_points": sorted(dropped),
             "lost_events": self._lost_events,
         }
+
+    def last(self, name: str) -> Update | None:
+        """The last update of point ``name`` (None: not read yet)."""
+        self.point(name)
+        return self._tracker.last(name)
+
+    def points_read(self) -> int:
+        """How many points were read at least once."""
+        return len(self._tracker)
+
+    def port_state(self, bus: str) -> str:
+        """``up``, ``down`` (an outage is on: the poller retries) or ``unknown``
+        (nothing went through the port yet)."""
+        return self._run_of(bus).port_state()
 
     def reset_stats(self) -> None:
         now = time.monotonic()
         self._t0 = now
         self._updates = 0
+        self._values_read = 0
         for r in self._runs.values():
+            r.values = 0
             r.sched.reset_stats(now)
 
     # ------------------------------------------------------------------ writes, reads
@@ -452,90 +584,4 @@ class Poller:
             raise ValueError(f"bus: no bus named {bus!r}") from None
 
 
-class PollerThread:
-    """A `Poller` on its own asyncio loop in a background thread, for scripts::
-
-    with Poller(config).running() as p:
-        p.values(); p.write("pump.reference", 30.0); p.report()
-    """
-
-    def __init__(self, poller: Poller) -> None:
-        self.poller = poller
-        self._thread = LoopThread("pyrtu-poller", poller.start, poller.stop)
-        self._loop = self._thread.loop  # microsecond timers (see pyrtu.aio)
-
-    def start(self) -> PollerThread:
-        """Start the thread; raises what `Poller.start` raised (a port that fails)."""
-        self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        self._thread.stop()
-
-    def __enter__(self) -> PollerThread:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
-
-    def _await(self, coro: Any, timeout: float | None = None) -> Any:
-        return self._thread.call(coro, timeout)
-
-    def values(self) -> dict[str, Value]:
-        return self.poller.values()
-
-    def latest(self) -> dict[str, Update]:
-        return self.poller.latest()
-
-    def age(self, name: str) -> float | None:
-        return self.poller.age(name)
-
-    def report(self) -> list[BusReport]:
-        return self._await(self._call(self.poller.report))  # type: ignore[no-any-return]
-
-    def summary(self) -> dict[str, Any]:
-        return self._await(self._call(self.poller.summary))  # type: ignore[no-any-return]
-
-    @staticmethod
-    async def _call(fn: Callable[[], Any]) -> Any:
-        return fn()
-
-    def write(self, name: str, value: object, timeout: float | None = None) -> None:
-        """Write a point (ahead of the polls) and wait for the answer."""
-        self._await(self.poller.write(name, value), timeout)
-
-    def read(self, name: str, timeout: float | None = None) -> Value:
-        """Read a point now (ahead of the polls)."""
-        return self._await(self.poller.read(name), timeout)  # type: ignore[no-any-return]
-
-    def updates(self, timeout: float | None = None) -> Iterator[Update]:
-        """Delivered values as they come; stops after ``timeout`` seconds without one
-        (None: never)."""
-        import queue
-
-        q: queue.Queue[Update | None] = queue.Queue(_QUEUE)
-
-        def put(u: Update) -> None:
-            if q.full():
-                q.get_nowait()
-            q.put_nowait(u)
-
-        self._loop.call_soon_threadsafe(self.poller.on_update, put)
-        try:
-            while True:
-                try:
-                    item = q.get(timeout=timeout)
-                except queue.Empty:
-                    return
-                if item is None:
-                    return
-                yield item
-        finally:
-            self._loop.call_soon_threadsafe(self._remove, put)
-
-    def _remove(self, cb: Callable[[Update], None]) -> None:
-        if cb in self.poller._update_cbs:
-            self.poller._update_cbs.remove(cb)
-
-
-__all__ = ["MasterFactory", "Poller", "PollerThread", "encode_point"]
+__all__ = ["MasterFactory", "Poller", "PollerThread", "describe_port", "encode_point"]

@@ -1,5 +1,10 @@
-"""What a poller reports: value updates, slave state changes, dropped points,
-overload; and the per-point, per-slave and per-bus figures."""
+"""What a poller reports: value updates, port and slave state changes, dropped
+points, overload; and the per-point, per-slave and per-bus figures.
+
+Every event but `Update` has ``as_dict()``: its ``pyrtu poll --json`` line, with an
+``"event"`` key naming its kind (``"port"``, ``"slave"``, ``"dropped"``,
+``"overload"``); an update's line has none (``{"point", "value", "time", "slave",
+"bus"}``)."""
 
 from __future__ import annotations
 
@@ -38,6 +43,35 @@ class SlaveState:
     online: bool
     time: float
 
+    def as_dict(self) -> dict[str, Any]:
+        return {"event": "slave", "bus": self.bus, "slave": self.slave, "online": self.online,
+                "time": self.time}  # fmt: skip
+
+
+@dataclass(frozen=True, slots=True)
+class PortState:
+    """A bus's port failed or works again.
+
+    ``up`` False: the port could not be opened (connected), or failed in use (a
+    drop unplugged, a TCP peer gone); reported once per outage, with the first
+    ``error``, while the poller retries with back-off.  ``up`` True: a transaction
+    went through again; ``error`` is the outage's last error, ``attempts`` how many
+    attempts failed.  ``since``: when the outage began (``time.time()`` clock, like
+    ``time``)."""
+
+    bus: str
+    port: str
+    up: bool
+    error: str
+    since: float
+    attempts: int
+    time: float
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"event": "port", "bus": self.bus, "port": self.port, "up": self.up,
+                "error": self.error, "since": self.since, "attempts": self.attempts,
+                "time": self.time}  # fmt: skip
+
 
 @dataclass(frozen=True, slots=True)
 class PointDropped:
@@ -47,6 +81,11 @@ class PointDropped:
     point: Point
     reason: str
     time: float
+
+    def as_dict(self) -> dict[str, Any]:
+        p = self.point
+        return {"event": "dropped", "point": p.name, "slave": p.slave, "bus": p.bus,
+                "reason": self.reason, "time": self.time}  # fmt: skip
 
 
 @dataclass(frozen=True, slots=True)
@@ -60,8 +99,13 @@ class Overload:
     lagging: tuple[str, ...]
     time: float
 
+    def as_dict(self) -> dict[str, Any]:
+        return {"event": "overload", "bus": self.bus, "overloaded": self.overloaded,
+                "load": round(self.load, 4), "lagging": list(self.lagging),
+                "time": self.time}  # fmt: skip
 
-Event = Update | SlaveState | PointDropped | Overload
+
+Event = Update | PortState | SlaveState | PointDropped | Overload
 
 
 def percentile(sorted_values: list[float], q: float) -> float | None:
@@ -172,12 +216,21 @@ class Tracker:
         """The last sample of every point read so far."""
         return dict(self._latest)
 
+    def last(self, name: str) -> Update | None:
+        """The last sample of one point (None: never read)."""
+        return self._latest.get(name)
+
+    def __len__(self) -> int:
+        """How many points were read at least once."""
+        return len(self._latest)
+
 
 __all__ = [
     "BusReport",
     "Event",
     "Overload",
     "PointDropped",
+    "PortState",
     "SlaveState",
     "SlaveStats",
     "Tracker",

@@ -17,6 +17,7 @@ from collections.abc import Callable, Sequence
 from typing import Any, Protocol, TypeVar
 
 from ..aio import AsyncMaster
+from ..errors import ModbusError, PortError
 from ..master import Master
 from .config import Bus
 
@@ -127,11 +128,31 @@ def open_async_master(bus: Bus) -> AsyncMasterLike:
 FACTORIES = {"aio": open_async_master, "thread": open_thread_master}
 
 
+async def open_master(factory: Callable[[Bus], AsyncMasterLike], bus: Bus) -> AsyncMasterLike:
+    """``factory(bus)``; the sync master's open (a blocking TCP connect) runs on a
+    worker thread, so a port that is slow to refuse holds up no other bus."""
+    if factory is open_thread_master:
+        loop = asyncio.get_running_loop()
+        return await loop.run_in_executor(None, open_thread_master, bus)
+    return factory(bus)
+
+
+def is_port_error(exc: BaseException) -> bool:
+    """Whether a master's error means its port failed (`PortError`, an OS error of
+    the device or the connection), not its slave (no answer, a bad answer, an
+    exception response: `ModbusError`s; timeouts)."""
+    if isinstance(exc, PortError):
+        return True
+    return isinstance(exc, OSError) and not isinstance(exc, ModbusError | TimeoutError)
+
+
 __all__ = [
     "FACTORIES",
     "METHODS",
     "AsyncMasterLike",
     "ThreadMaster",
+    "is_port_error",
     "open_async_master",
+    "open_master",
     "open_thread_master",
 ]

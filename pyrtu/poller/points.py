@@ -18,7 +18,17 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from ..data import ORDERS, decode_float32, decode_int32, decode_string, decode_uint32
+from ..data import (
+    ORDERS,
+    decode_float32,
+    decode_int32,
+    decode_string,
+    decode_uint32,
+    encode_float32,
+    encode_int32,
+    encode_string,
+    encode_uint32,
+)
 
 #: the four tables of the Modbus data model, as points name them
 TABLES = ("coils", "discrete_inputs", "holding", "input")
@@ -196,4 +206,43 @@ def check_unique(points: Sequence[Point]) -> None:
         seen.add(p.name)
 
 
-__all__ = ["BIT_TABLES", "TABLES", "TYPES", "Point", "PointError", "Value", "check_unique"]
+def encode_point(point: Point, value: object) -> list[int] | list[bool]:
+    """The registers (or bits) that write ``value`` to ``point`` (the inverse of its
+    scale and offset); ValueError when it does not fit."""
+    if point.table not in ("holding", "coils"):
+        raise ValueError(f"point {point.name!r}: the {point.table} table is read only")
+    if point.type == "bool":
+        if not isinstance(value, bool | int) or value not in (0, 1):
+            raise ValueError(f"point {point.name!r}: value must be a bool, not {value!r}")
+        return [bool(value)]
+    if point.type == "string":
+        if not isinstance(value, str):
+            raise ValueError(f"point {point.name!r}: value must be a str, not {value!r}")
+        return encode_string(value, point.count)
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise ValueError(f"point {point.name!r}: value must be a finite number, not {value!r}")
+    raw = (value - point.offset) / point.scale
+    if point.type == "float32":
+        return encode_float32(raw, point.order)
+    n = round(raw)
+    lo, hi = {"uint16": (0, 0xFFFF), "int16": (-0x8000, 0x7FFF), "uint32": (0, 2**32 - 1),
+              "int32": (-(2**31), 2**31 - 1)}[point.type]  # fmt: skip
+    if not lo <= n <= hi:
+        raise ValueError(f"point {point.name!r}: {value!r} is raw {n}, outside {lo}..{hi}")
+    if point.type == "uint16":
+        return [n]
+    if point.type == "int16":
+        return [n & 0xFFFF]
+    return (encode_uint32 if point.type == "uint32" else encode_int32)(n, point.order)
+
+
+__all__ = [
+    "BIT_TABLES",
+    "TABLES",
+    "TYPES",
+    "Point",
+    "PointError",
+    "Value",
+    "check_unique",
+    "encode_point",
+]

@@ -385,8 +385,8 @@ class BusScheduler:
 
     def on_failure(self, req: Request, error: BaseException, now: float) -> list[Event]:
         """A transaction failed: an exception response (`ExceptionResponseError`),
-        no answer (`NoResponseError`), a bad answer (`FrameError`), or the port
-        (any other error: counted as no answer)."""
+        no answer (`NoResponseError`), a bad answer (`FrameError`), or anything else
+        (counted as no answer; a failed port is `on_port_failure`'s)."""
         busy = self._end(req, now)
         h = self._health[req.slave]
         st = self._stats.slaves[req.slave]
@@ -425,6 +425,25 @@ class BusScheduler:
             self._requeue(req)
         self._check_load(now, events)
         return events
+
+    def on_port_failure(self, req: Request) -> None:
+        """The port failed during ``req`` (a drop unplugged, a TCP connection lost):
+        the slave is not to blame, so nothing counts against it (no timeout, no
+        failure towards ``offline_after``).  A poll block keeps its place in the
+        schedule and a probe is due again; a write or read is the driver's to fail.
+        The same for a transaction abandoned (the driver stopped during it)."""
+        if req.kind == PROBE:
+            h = self._health.get(req.slave)
+            if h is not None:
+                h.probing = False
+        elif req.kind == POLL:
+            self._requeue(req)
+
+    def take_urgent(self) -> list[Request]:
+        """Take the queued writes and on-demand reads out (to fail them while the
+        port is down)."""
+        out, self._urgent = self._urgent, []
+        return out
 
     def _hole(self, block: Block, now: float) -> list[Event]:
         """Exception 2 on ``block``: split it and learn the cut (`Cuts.learn`), or
@@ -498,12 +517,25 @@ class BusScheduler:
             for p in t.block.points
         )
 
+    def utilisation(self, now: float) -> float:
+        """Wire-busy time over wall time since the statistics started."""
+        s = self._stats
+        span = 0.0 if s.started is None else max(0.0, now - s.started)
+        return min(1.0, s.busy / span) if span > 0 else 0.0
+
+    @property
+    def last_load(self) -> float:
+        """The load as last computed (every 16 transactions and on slave changes):
+        what a display refreshed often reads, at no cost per block."""
+        return self._load
+
     def report(self, now: float) -> BusReport:
         s = self._stats
         span = 0.0 if s.started is None else max(0.0, now - s.started)
-        util = min(1.0, s.busy / span) if span > 0 else 0.0
         load = self.load()
-        return BusReport(self.bus, util, load, load > 1.0, self.lagging(), s.transactions, span)
+        return BusReport(
+            self.bus, self.utilisation(now), load, load > 1.0, self.lagging(), s.transactions, span
+        )
 
     def slave_stats(self) -> dict[int, SlaveStats]:
         return dict(self._stats.slaves)

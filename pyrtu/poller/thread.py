@@ -1,0 +1,106 @@
+"""`PollerThread`: a `Poller` on an event loop of its own in a background thread,
+for synchronous scripts (``Poller.running()``)."""
+
+from __future__ import annotations
+
+import queue
+from collections.abc import Callable, Iterator
+from typing import TYPE_CHECKING, Any
+
+from .._loopthread import LoopThread
+from .events import BusReport, Update
+from .points import Value
+
+if TYPE_CHECKING:
+    from .driver import Poller
+
+_QUEUE = 65536
+
+
+class PollerThread:
+    """A `Poller` on its own asyncio loop in a background thread, for scripts::
+
+    with Poller(config).running() as p:
+        p.values(); p.write("pump.reference", 30.0); p.report()
+    """
+
+    def __init__(self, poller: Poller) -> None:
+        self.poller = poller
+        self._thread = LoopThread("pyrtu-poller", poller.start, poller.stop)
+        self._loop = self._thread.loop  # microsecond timers (see pyrtu.aio)
+
+    def start(self) -> PollerThread:
+        """Start the thread; raises what `Poller.start` raised (not a port that
+        fails: that is a `PortState` event, and retried)."""
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop the poller and end the thread (returns within about one timeout)."""
+        self._thread.stop()
+
+    def __enter__(self) -> PollerThread:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def _await(self, coro: Any, timeout: float | None = None) -> Any:
+        return self._thread.call(coro, timeout)
+
+    def values(self) -> dict[str, Value]:
+        return self.poller.values()
+
+    def latest(self) -> dict[str, Update]:
+        return self.poller.latest()
+
+    def age(self, name: str) -> float | None:
+        return self.poller.age(name)
+
+    def report(self) -> list[BusReport]:
+        return self._await(self._call(self.poller.report))  # type: ignore[no-any-return]
+
+    def summary(self) -> dict[str, Any]:
+        return self._await(self._call(self.poller.summary))  # type: ignore[no-any-return]
+
+    @staticmethod
+    async def _call(fn: Callable[[], Any]) -> Any:
+        return fn()
+
+    def write(self, name: str, value: object, timeout: float | None = None) -> None:
+        """Write a point (ahead of the polls) and wait for the answer."""
+        self._await(self.poller.write(name, value), timeout)
+
+    def read(self, name: str, timeout: float | None = None) -> Value:
+        """Read a point now (ahead of the polls)."""
+        return self._await(self.poller.read(name), timeout)  # type: ignore[no-any-return]
+
+    def updates(self, timeout: float | None = None) -> Iterator[Update]:
+        """Delivered values as they come; stops after ``timeout`` seconds without one
+        (None: never)."""
+        q: queue.Queue[Update | None] = queue.Queue(_QUEUE)
+
+        def put(u: Update) -> None:
+            if q.full():
+                q.get_nowait()
+            q.put_nowait(u)
+
+        self._loop.call_soon_threadsafe(self.poller.on_update, put)
+        try:
+            while True:
+                try:
+                    item = q.get(timeout=timeout)
+                except queue.Empty:
+                    return
+                if item is None:
+                    return
+                yield item
+        finally:
+            self._loop.call_soon_threadsafe(self._remove, put)
+
+    def _remove(self, cb: Callable[[Update], None]) -> None:
+        if cb in self.poller._update_cbs:
+            self.poller._update_cbs.remove(cb)
+
+
+__all__ = ["PollerThread"]
