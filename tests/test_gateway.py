@@ -566,6 +566,9 @@ def test_a_bus_whose_port_failed_answers_0x0a_and_the_other_goes_on(
             got = await c.request(1, READ)
             assert pdu.parse_registers(got or b"", 4) == pattern.holdings(1, 0, 4)
         assert gw.counters["timeouts"] == 0
+        # counted as what it is (not "no route"), one outage reported, the bus down
+        assert (gw.counters["bus_unavailable"], gw.counters["no_route"]) == (3, 0)
+        assert gw.counters["bus_failures"] == 1 and gw.stats()["bus_down"] == [False, True]
         await c.close()
         await shut(gw, clients)
 

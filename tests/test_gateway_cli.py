@@ -51,6 +51,16 @@ def pyrtu(*args: str) -> subprocess.CompletedProcess[str]:
             ["--listen", "127.0.0.1:0", "--port", "a", "--broadcast-delay", "-1"],
             "--broadcast-delay",
         ),
+        # the same port twice is a usage error, not "busy: another program holds it"
+        (["--listen", "127.0.0.1:0", "--port", "x=1-10", "--port", "x=11-20"], "--port: x"),
+        (["--listen", "127.0.0.1:0", "--port", "x=1", "--port", "./x=2"], "given twice"),
+        (["--listen", "127.0.0.1:0", "--port", "a", "--header-timeout", "-1"], "--header-timeout"),
+        (["--listen", "127.0.0.1:0", "--port", "a", "--idle-timeout", "x"], "--idle-timeout"),
+        (["--listen", "127.0.0.1:0", "--port", "a", "--unit-map", "256=1"], "--unit-map"),
+        (["--listen", "127.0.0.1:0", "--port", "a", "--unit-map", "255=0"], "--unit-map"),
+        (["--listen", "127.0.0.1:0", "--port", "a", "--unit-map", "255"], "--unit-map"),
+        (["--listen", "127.0.0.1:0", "--port", "a=1-5", "--unit-map", "255=9"], "--unit-map"),
+        (["--listen", "127.0.0.1:0", "--port", "a=1-5", "--unit-map", "3=1"], "--unit-map"),
     ],
 )
 def test_usage_errors(args: list[str], flag: str) -> None:
@@ -77,6 +87,13 @@ def test_help_documents_the_limits_and_their_defaults() -> None:
         assert f"{flag} {default}" in text
     limits = G.GatewayLimits()
     assert (limits.max_connections, limits.max_write_buffer) == (64, 256 * 1024)
+    for flag, seconds in (
+        ("--header-timeout", G.HEADER_TIMEOUT),
+        ("--idle-timeout", G.IDLE_TIMEOUT),
+    ):
+        assert re.search(rf"{flag} SECONDS [^-]{{0,80}}\(0: no limit; default {seconds:g}\)", text)
+        assert f"{flag} {seconds:g} s" in text
+    assert "--unit-map" in text and "255=1,0=1" in text
 
 
 def test_missing_serial_port_is_a_port_error() -> None:
@@ -119,3 +136,55 @@ def test_gateway_runs_and_reports(gateway_process: tuple[subprocess.Popen[str], 
     stopped = json.loads(out.splitlines()[-1])
     assert stopped["type"] == "stopped"
     assert (stopped["requests"], stopped["answers"], stopped["no_route"]) == (2, 1, 1)
+
+
+def test_unit_map_sends_0xff_and_0_to_a_slave_and_the_summary_counts(
+    peer_binaries: PeerBinaries,
+) -> None:
+    """--unit-map 255=1,0=1: libmodbus's default unit 0xFF and unit 0 (Messaging on
+    TCP/IP Implementation Guide 4.4.1.2) reach slave 1 and are answered under their
+    own unit id; the summary line counts what it says."""
+    import socket
+    import struct
+
+    from pyrtu import encode_mbap, parse_tcp_stream
+
+    port = free_tcp_port()
+    with libmodbus_server(peer_binaries, f"tcp:127.0.0.1:{port}", 1):
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "pyrtu", "gateway", "--listen", "127.0.0.1:0",
+             "--port", f"tcp://127.0.0.1:{port}=1-9", "--unit-map", "255=1,0=1",
+             "--timeout", "0.5"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=peer_env(),
+        )  # fmt: skip
+        try:
+            assert proc.stderr is not None
+            line = proc.stderr.readline()
+            m = re.search(r"listening on ([\d.]+):(\d+)", line)
+            assert m, line
+            read = pdu.read_request(pdu.READ_HOLDING_REGISTERS, 7, 2)
+            with socket.create_connection((m.group(1), int(m.group(2))), timeout=5) as s:
+                for tid, unit in ((1, 0xFF), (2, 0), (3, 1), (4, 10)):
+                    s.sendall(encode_mbap(tid, unit, read))
+                    head = b""
+                    while len(head) < 6:
+                        head += s.recv(6 - len(head))
+                    (length,) = struct.unpack(">H", head[4:])
+                    body = b""
+                    while len(body) < length:
+                        body += s.recv(length - len(body))
+                    (frame,) = parse_tcp_stream(head + body, "master")
+                    assert (frame.transaction, frame.unit) == (tid, unit)
+                    if unit == 10:
+                        assert frame.exception_code == 0x0A
+                    else:
+                        assert pdu.parse_registers(frame.pdu, 2) == pattern.holdings(1, 7, 2)
+            proc.send_signal(signal.SIGTERM)
+            _, err = proc.communicate(timeout=10)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+            proc.wait(10)
+    assert proc.returncode == 0, err
+    assert "4 requests, 3 answers, 1 exceptions" in err
+    assert "1 no route, 0 bus unavailable" in err and "0 bus failures" in err

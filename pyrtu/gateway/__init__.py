@@ -100,6 +100,7 @@ from ._plan import (
     exception_pdu,
     parse_units,
 )
+from ._reopen import ReopeningBus, close_bus
 
 log = logging.getLogger("pyrtu.gateway")
 
@@ -117,7 +118,9 @@ __all__ = [
     "GatewayLimits",
     "Job",
     "QueueFull",
+    "ReopeningBus",
     "Routes",
+    "close_bus",
     "exception_pdu",
     "parse_units",
 ]
