@@ -244,11 +244,17 @@ class Gateway:
         if self._server is not None:
             raise RuntimeError(f"the gateway already listens on {self.address}")
         loop = asyncio.get_running_loop()
-        self._server = await loop.create_server(lambda: _Connection(self), host, port)
-        sock = self._server.sockets[0].getsockname()
-        self.address = (str(sock[0]), int(sock[1]))
+        server = await loop.create_server(lambda: _Connection(self), host, port)
+        sock = server.sockets[0].getsockname()
+        self._server, self.address = server, (str(sock[0]), int(sock[1]))
         if rtu is not None:
-            self._rtu_server = await loop.create_server(lambda: _RtuConnection(self), *rtu)
+            try:
+                self._rtu_server = await loop.create_server(lambda: _RtuConnection(self), *rtu)
+            except BaseException:  # no listener left behind half-started
+                server.close()
+                await server.wait_closed()
+                self._server = None
+                raise
             sock = self._rtu_server.sockets[0].getsockname()
             self.rtu_address = (str(sock[0]), int(sock[1]))
         for state in self._buses:
@@ -279,6 +285,9 @@ class Gateway:
         for server in (self._server, self._rtu_server):
             if server is not None:
                 await server.wait_closed()
+        self._server = self._rtu_server = self._sweeper = None
+        for state in self._buses:
+            state.task = None
 
     async def __aenter__(self) -> Gateway:
         return self
