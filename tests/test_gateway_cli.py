@@ -188,3 +188,80 @@ def test_unit_map_sends_0xff_and_0_to_a_slave_and_the_summary_counts(
     assert proc.returncode == 0, err
     assert "4 requests, 3 answers, 1 exceptions" in err
     assert "1 no route, 0 bus unavailable" in err and "0 bus failures" in err
+
+
+@pytest.mark.parametrize("json_lines", [True, False])
+def test_a_bus_that_goes_away_is_reported_once_and_reopened(
+    peer_binaries: PeerBinaries, json_lines: bool
+) -> None:
+    """The TCP server behind a --port stops: reported once (a JSON "bus" line, or one
+    line on stderr), 0x0A for its requests (counted as bus unavailable, not no
+    route); it starts again on the same port: the gateway reconnects on its back-off
+    schedule (0.5 s doubling), says so once, and serves."""
+    import time
+
+    port = free_tcp_port()
+    read = pdu.read_request(pdu.READ_HOLDING_REGISTERS, 3, 2)
+    first = libmodbus_server(peer_binaries, f"tcp:127.0.0.1:{port}", 1).start()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "pyrtu", "gateway", "--listen", "127.0.0.1:0",
+         "--port", f"tcp://127.0.0.1:{port}=1-9", "--timeout", "0.5",
+         *(["--json"] if json_lines else [])],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=peer_env(),
+    )  # fmt: skip
+    second = None
+    try:
+        if json_lines:
+            assert proc.stdout is not None
+            listen = json.loads(proc.stdout.readline())["listen"]
+        else:
+            assert proc.stderr is not None
+            m = re.search(r"listening on (\S+:\d+),", proc.stderr.readline())
+            assert m is not None
+            listen = m.group(1)
+        with TcpClient(f"tcp://{listen}", timeout=5.0) as c:
+            assert pdu.parse_registers(c.request(1, read) or b"", 2) == pattern.holdings(1, 3, 2)
+            first.stop()
+            refused = 0
+            for _ in range(10):
+                with pytest.raises(ExceptionResponseError) as info:
+                    c.request(1, read)
+                assert info.value.code == 0x0A
+                refused += 1
+            second = libmodbus_server(peer_binaries, f"tcp:127.0.0.1:{port}", 1).start()
+            end = time.monotonic() + 60.0
+            while True:
+                try:
+                    got = c.request(1, read)
+                    break
+                except ExceptionResponseError as exc:
+                    assert exc.code == 0x0A and time.monotonic() < end
+                    refused += 1
+                    time.sleep(0.1)
+            assert pdu.parse_registers(got or b"", 2) == pattern.holdings(1, 3, 2)
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=15)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+        first.stop()
+        if second is not None:
+            second.stop()
+    assert proc.returncode == 0, err
+    assert "Traceback" not in err
+    where = f"tcp://127.0.0.1:{port}"
+    if not json_lines:
+        failed = [line for line in err.splitlines() if "failed" in line]
+        back = [line for line in err.splitlines() if "is back after" in line]
+        assert len(failed) == 1 and where in failed[0] and "0x0A" in failed[0], err
+        assert len(back) == 1 and where in back[0], err
+        assert f"{refused} bus unavailable); 1 bus failures, 1 recovered" in err, err
+        return
+    lines = [json.loads(line) for line in out.splitlines()]
+    events = [(e["bus"], e["up"]) for e in lines if e["type"] == "bus"]
+    assert events == [(where, False), (where, True)], out
+    stopped = lines[-1]
+    assert (stopped["bus_failures"], stopped["bus_recoveries"]) == (1, 1)
+    assert stopped["bus_unavailable"] == refused and stopped["no_route"] == 0
+    assert stopped["bus_down"] == [False]

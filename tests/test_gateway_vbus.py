@@ -105,7 +105,7 @@ def test_a_bus_whose_adapter_is_pulled_out_comes_back_and_the_other_goes_on(
     0.4 s here) and logged once as back.  Bound: back within 20 s of the replug."""
     from pyrtu._reconnect import Backoff
     from pyrtu.errors import ExceptionResponseError
-    from pyrtu.gateway import GatewayLimits, ReopeningBus
+    from pyrtu.gateway import BusEvent, GatewayLimits, ReopeningBus
     from pyrtu.vbus import VirtualBus
 
     read = pdu.read_request(3, 0, COUNT)
@@ -123,12 +123,14 @@ def test_a_bus_whose_adapter_is_pulled_out_comes_back_and_the_other_goes_on(
         pyrtu_slave_process(bus_b.path(1), 2),
     ):
         name = bus_a.path(0)
+        events: list[BusEvent] = []
 
         async def main() -> dict[str, object]:
             a = await ReopeningBus(bus_a.path(0), opener(bus_a.path(0))).open()
             b = await ReopeningBus(bus_b.path(0), opener(bus_b.path(0))).open()
             limits = GatewayLimits(backoff=Backoff(initial=0.1, maximum=0.4))
-            gw = await Gateway([(a, [1]), (b, [2])], limits).start("127.0.0.1", 0)
+            gw = Gateway([(a, [1]), (b, [2])], limits, on_bus=events.append)
+            await gw.start("127.0.0.1", 0)
             assert gw.address is not None
             c = await AsyncTcpClient.connect(f"tcp://{gw.address[0]}:{gw.address[1]}", timeout=5.0)
 
@@ -172,3 +174,5 @@ def test_a_bus_whose_adapter_is_pulled_out_comes_back_and_the_other_goes_on(
     back = [r for r in caplog.records if "is back after" in r.getMessage()]
     assert len(failed) == 1 and name in failed[0].getMessage(), caplog.text
     assert len(back) == 1 and name in back[0].getMessage(), caplog.text
+    assert [(e.bus, e.name, e.up) for e in events] == [(0, name, False), (0, name, True)]
+    assert events[1].attempts >= 1 and events[1].seconds is not None

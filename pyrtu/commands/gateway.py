@@ -178,7 +178,9 @@ def _configure(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "-d", "--duration", type=positive_seconds, metavar="SECONDS", help="stop after this time"
     )
-    add_json_option(p, "JSON lines: ready, stopped (with the counters)")
+    add_json_option(
+        p, "JSON lines: ready, bus (a port failed or is back), stopped (with the counters)"
+    )
     add_serial_options(p, timeout=0.5)
 
 
@@ -251,7 +253,9 @@ async def _serve(args: argparse.Namespace) -> dict[str, Any]:
     try:
         for spec in args.port:
             buses.append(await _open_bus(spec, args))
-        gw = G.Gateway(list(zip(buses, units, strict=True)), limits)
+        gw = G.Gateway(
+            list(zip(buses, units, strict=True)), limits, on_bus=lambda ev: _bus_event(args, ev)
+        )
         host, port = args.listen
         try:
             await gw.start(host, port, rtu=args.listen_rtu)
@@ -276,6 +280,19 @@ async def _serve(args: argparse.Namespace) -> dict[str, Any]:
     finally:
         for bus in buses:
             await bus.close()
+
+
+def _bus_event(args: argparse.Namespace, ev: G.BusEvent) -> None:
+    """A bus's port failed or is back: one JSON line, or one line on stderr."""
+    if args.json:
+        emit({"type": "bus", "bus": ev.name, "up": ev.up, "error": ev.error,
+              "attempts": ev.attempts, "seconds": ev.seconds})  # fmt: skip
+    elif ev.up:
+        print(f"pyrtu gateway: bus {ev.name} is back after {ev.seconds or 0.0:.1f} s "
+              f"({ev.attempts} attempts)", file=sys.stderr, flush=True)  # fmt: skip
+    else:
+        print(f"pyrtu gateway: bus {ev.name} failed: {ev.error}; its requests get exception "
+              "0x0A until it is back (retrying)", file=sys.stderr, flush=True)  # fmt: skip
 
 
 def _ready(args: argparse.Namespace, gw: G.Gateway) -> None:

@@ -67,7 +67,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -113,6 +113,7 @@ __all__ = [
     "MAX_QUEUED_PER_CONNECTION",
     "MAX_WRITE_BUFFER",
     "Bus",
+    "BusEvent",
     "FairQueue",
     "Gateway",
     "GatewayLimits",
@@ -135,6 +136,19 @@ class Bus(Protocol):
     async def request(self, slave: int, pdu: bytes) -> bytes | None: ...
 
 
+@dataclass(frozen=True)
+class BusEvent:
+    """A bus's port failed (``up`` False: the first failure of an outage, reported
+    once) or is back (``up`` True, with the outage's ``attempts`` and ``seconds``)."""
+
+    bus: int  # its index in the gateway's buses
+    name: str
+    up: bool
+    error: str  # what failed (the first error of the outage)
+    attempts: int = 1
+    seconds: float | None = None
+
+
 def _bus_name(bus: object, index: int) -> str:
     for attr in ("name", "url", "where"):
         name = getattr(bus, attr, None)
@@ -146,6 +160,7 @@ def _bus_name(bus: object, index: int) -> str:
 
 @dataclass
 class _BusState:
+    index: int
     bus: Bus
     queue: FairQueue
     name: str
@@ -177,6 +192,8 @@ class Gateway:
 
     ``buses``: (bus, units) pairs; ``units`` are the unit ids routed to that bus
     (unit id = slave address on the bus), or a mapping unit id -> slave address.
+    ``on_bus`` is called with a `BusEvent` when a bus's port fails (once per outage)
+    and when it is back.
     ``await start(host, port)`` listens; ``address`` is then the (host, port)
     bound; ``await close()`` stops.
     """
@@ -185,6 +202,7 @@ class Gateway:
         self,
         buses: Sequence[tuple[Bus, Iterable[int] | Mapping[int, int]]],
         limits: GatewayLimits | None = None,
+        on_bus: Callable[[BusEvent], None] | None = None,
     ) -> None:
         if not buses:
             raise ValueError("a gateway needs at least one bus")
@@ -193,6 +211,7 @@ class Gateway:
         lim = self.limits
         self._buses = [
             _BusState(
+                index,
                 bus,
                 FairQueue(lim.max_queued_per_connection, lim.max_queued_per_bus),
                 _bus_name(bus, index),
@@ -202,6 +221,7 @@ class Gateway:
             for index, (bus, _) in enumerate(buses)
         ]
         self._sweeper: asyncio.Task[None] | None = None
+        self.on_bus = on_bus
         self._connections: dict[int, _Connection] = {}
         self._next_id = 0
         self._server: asyncio.Server | None = None
@@ -491,12 +511,20 @@ class Gateway:
         outage = state.reconnect.recovered(time.monotonic())
         self.counters["bus_recoveries"] += 1
         if outage is not None:
+            seconds = outage.duration or 0.0
             log.warning(
-                "bus %s is back after %.1f s (%d attempts)",
-                state.name,
-                outage.duration or 0.0,
-                outage.attempts,
+                "bus %s is back after %.1f s (%d attempts)", state.name, seconds, outage.attempts
             )
+            self._event(
+                BusEvent(state.index, state.name, True, outage.error, outage.attempts, seconds)
+            )
+
+    def _event(self, event: BusEvent) -> None:
+        if self.on_bus is not None:
+            try:
+                self.on_bus(event)
+            except Exception:  # the hook's bug: the bus goes on
+                log.exception("the on_bus hook failed")
 
     def _port_failed(self, state: _BusState, exc: PortError) -> None:
         """The bus's port failed: report once per outage, answer what waits for it."""
@@ -507,6 +535,7 @@ class Gateway:
                 state.name,
                 exc,
             )
+            self._event(BusEvent(state.index, state.name, False, str(exc)))
         now = time.monotonic()
         while (job := state.queue.pop()) is not None:  # they would only fail in turn
             conn = self._connections.get(job.conn)
