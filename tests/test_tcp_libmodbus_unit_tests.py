@@ -23,9 +23,12 @@ libmodbus TCP server answers whatever the unit): this server serves 17 and 18.
 from __future__ import annotations
 
 import asyncio
+import os
 import shutil
+import socket
 import subprocess
 import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -108,6 +111,17 @@ class UnitTestApplication:
         return self.slave.execute(unit, request)
 
 
+def _drip(writer: asyncio.StreamWriter, adu: bytes) -> None:
+    """A byte every 5 ms, as unit-test-server's usleep(5000) loop: from a thread on a
+    duplicate of the socket (an event-loop timer wakes later under load; the client
+    passes its 7 ms byte timeout only with gaps under 7 ms, fails its 3 ms one)."""
+    sock = writer.get_extra_info("socket")
+    with socket.socket(fileno=os.dup(sock.fileno())) as dup:
+        for i in range(len(adu)):
+            time.sleep(0.005)
+            dup.send(adu[i : i + 1])
+
+
 async def _proxy(
     client_r: asyncio.StreamReader, client_w: asyncio.StreamWriter, server: tuple[str, int]
 ) -> None:
@@ -138,10 +152,8 @@ async def _proxy(
                 elif address == UT_REGISTERS_ADDRESS_INVALID_TID_OR_SLAVE:
                     adu = ((ev.transaction + 1) & 0xFFFF).to_bytes(2, "big") + adu[2:]
                 elif address == UT_REGISTERS_ADDRESS_BYTE_SLEEP_5_MS:
-                    for i in range(len(adu)):
-                        client_w.write(adu[i : i + 1])
-                        await client_w.drain()
-                        await asyncio.sleep(0.005)
+                    await client_w.drain()
+                    await asyncio.to_thread(_drip, client_w, adu)
                     continue
                 client_w.write(adu)
         client_w.close()
@@ -183,6 +195,7 @@ def unit_test_server() -> Iterator[tuple[int, TcpServer]]:
         loop.close()
 
 
+@pytest.mark.wall_clock  # the client's byte timeouts: 3 ms must fail, 7 ms pass (5 ms/byte)
 @pytest.mark.parametrize("mode", ["tcp", "tcppi"])
 def test_libmodbus_unit_test_client_passes_every_assertion(
     mode: str, unit_test_server: tuple[int, TcpServer], tmp_path: Path
