@@ -37,22 +37,12 @@ from ._slave_base import SlaveBase
 from .datastore import DataStore
 from .errors import NoResponseError
 from .gateway import Gateway, GatewayLimits
+from .gateway._plan import check_listen
 from .line import LineConfig
 
 UNIT_SELF = 0xFF
 #: unit 0 on TCP: the device itself too ([TCP] 4.4.1.2)
 UNIT_DIRECT = 0
-
-
-def check_listen(host: object, port: object) -> tuple[str, int]:
-    """(host, port) to listen on; TypeError/ValueError naming the argument."""
-    if not isinstance(host, str):
-        raise TypeError(f"host must be a string, not {type(host).__name__}")
-    if isinstance(port, bool) or not isinstance(port, int):
-        raise TypeError(f"port must be an integer 0..65535, not {port!r}")
-    if not 0 <= port <= 65535:
-        raise ValueError(f"port must be 0..65535 (0: any free port), not {port}")
-    return host, port
 
 
 def _check_address(address: object) -> None:

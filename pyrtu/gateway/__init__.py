@@ -97,6 +97,7 @@ from ._plan import (
     Job,
     QueueFull,
     Routes,
+    check_listen,
     exception_pdu,
     parse_units,
 )
@@ -263,6 +264,9 @@ class Gateway:
         over TCP there (``rtu_address``).  RuntimeError if already started."""
         if self._server is not None:
             raise RuntimeError(f"the gateway already listens on {self.address}")
+        check_listen(host, port)
+        if rtu is not None:
+            check_listen(*rtu)
         loop = asyncio.get_running_loop()
         server = await loop.create_server(lambda: _Connection(self), host, port)
         sock = server.sockets[0].getsockname()

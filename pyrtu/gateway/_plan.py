@@ -73,6 +73,17 @@ class GatewayLimits:
             raise TypeError(f"backoff must be a pyrtu._reconnect.Backoff, not {self.backoff!r}")
 
 
+def check_listen(host: object, port: object) -> tuple[str, int]:
+    """(host, port) to listen on; TypeError/ValueError naming the argument."""
+    if not isinstance(host, str):
+        raise TypeError(f"host must be a string, not {type(host).__name__}")
+    if isinstance(port, bool) or not isinstance(port, int):
+        raise TypeError(f"port must be an integer 0..65535, not {port!r}")
+    if not 0 <= port <= 65535:
+        raise ValueError(f"port must be 0..65535 (0: any free port), not {port}")
+    return host, port
+
+
 # -- routing ---------------------------------------------------------------------
 
 
