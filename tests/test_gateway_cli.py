@@ -265,3 +265,39 @@ def test_a_bus_that_goes_away_is_reported_once_and_reopened(
     assert (stopped["bus_failures"], stopped["bus_recoveries"]) == (1, 1)
     assert stopped["bus_unavailable"] == refused and stopped["no_route"] == 0
     assert stopped["bus_down"] == [False]
+
+
+def test_64_silent_connections_do_not_lock_the_command_out(
+    gateway_process: tuple[subprocess.Popen[str], str],
+) -> None:
+    """The reported lock-out, on the command with its defaults: 64 connections that
+    send nothing, drip one byte, or half a header take every --max-connections slot;
+    a client that talks is still served (a silent one gives way), and the summary
+    counts the evictions."""
+    import socket
+
+    from pyrtu import encode_mbap
+
+    proc, url = gateway_process
+    host, _, port = url[6:].rpartition(":")
+    request = encode_mbap(1, 1, pdu.read_request(pdu.READ_HOLDING_REGISTERS, 0, 2))
+    silent = []
+    try:
+        for i in range(64):
+            s = socket.create_connection((host, int(port)), timeout=5)
+            if i % 3:
+                s.sendall(request[: 1 if i % 3 == 1 else 3])
+            silent.append(s)
+        for _ in range(3):
+            with TcpClient(url, timeout=5.0) as c:
+                got = c.request(1, pdu.read_request(pdu.READ_HOLDING_REGISTERS, 0, 2))
+                assert pdu.parse_registers(got or b"", 2) == pattern.holdings(1, 0, 2)
+    finally:
+        for s in silent:
+            s.close()
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=10)
+    assert proc.returncode == 0, err
+    stopped = json.loads(out.splitlines()[-1])
+    assert stopped["evicted"] >= 1 and stopped["refused"] == 0
+    assert stopped["answers"] == 3
