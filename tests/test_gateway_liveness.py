@@ -255,19 +255,22 @@ def test_header_and_idle_timeouts_close_the_silent_and_spare_the_talkers(
     run,  # type: ignore[no-untyped-def]
 ) -> None:
     """header_timeout 2.5 s (a 12-byte request dripped at 1 byte/s takes 11 s),
-    idle_timeout 4 s.  Bounds: each is closed after its timeout (not before) and
-    within 10 s more (the sweep runs every timeout/4 s); a client polling every
-    0.5 s is never closed and is served throughout."""
+    idle_timeout 4 s (a silent Modbus TCP client, and one on the RTU listener).
+    Bounds: each is closed after its timeout (not before) and within 10 s more (the
+    sweep runs every timeout/4 s); a client polling every 0.5 s is never closed and
+    is served throughout."""
 
     async def main() -> None:
         bus = await AsyncTcpClient.connect(libmodbus_tcp, timeout=2.0, max_in_flight=1)
         limits = GatewayLimits(header_timeout=2.5, idle_timeout=4.0)
-        gw = await Gateway([(bus, parse_units("1"))], limits).start("127.0.0.1", 0)
-        assert gw.address is not None
+        gw = Gateway([(bus, parse_units("1"))], limits)
+        await gw.start("127.0.0.1", 0, rtu=("127.0.0.1", 0))
+        assert gw.address is not None and gw.rtu_address is not None
         loop = asyncio.get_running_loop()
         t0 = loop.time()
         silent = Silent()
         await silent.open(gw, 3)  # idle, drip, half header
+        silent.streams.append(await asyncio.open_connection(*gw.rtu_address))  # RTU, idle
         url = f"tcp://{gw.address[0]}:{gw.address[1]}"
         poller = await AsyncTcpClient.connect(url, timeout=5.0)
 
@@ -285,11 +288,12 @@ def test_header_and_idle_timeouts_close_the_silent_and_spare_the_talkers(
             assert pdu.parse_registers(got or b"", 4) == pattern.holdings(1, 0, 4)
             polls += 1
             await asyncio.sleep(0.5)
-        idle_at, drip_at, half_at = (w.result() for w in waits)
+        idle_at, drip_at, half_at, rtu_at = (w.result() for w in waits)
         assert limits.idle_timeout <= idle_at < limits.idle_timeout + 10.0
+        assert limits.idle_timeout <= rtu_at < limits.idle_timeout + 10.0
         assert limits.header_timeout <= drip_at < limits.header_timeout + 10.0
         assert limits.header_timeout <= half_at < limits.header_timeout + 10.0
-        assert gw.counters["header_timeouts"] == 2 and gw.counters["idle_timeouts"] == 1
+        assert gw.counters["header_timeouts"] == 2 and gw.counters["idle_timeouts"] == 2
         assert polls > 4 and gw.stats()["open_connections"] == 1  # the poller
         await poller.close()
         await silent.close()
