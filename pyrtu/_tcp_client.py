@@ -13,9 +13,11 @@ come back in any order.  No clock, no socket: time is an input::
         tid, answer = done      # the response PDU, None (broadcast), or a ModbusError
 
 Unit 0 is a broadcast (through a gateway): nothing comes back, the result is None
-at once.  An answer for no request in flight (a late one, after its timeout) is
-dropped and counted.  A header the framer cannot accept ends the connection: every
-request in flight fails with `FrameError` and ``broken`` is set.
+at once; unless ``answered=True``: a TCP device addressed with unit 0 directly
+answers it (Messaging on TCP/IP Implementation Guide 4.4.1.2).  An answer for no
+request in flight (a late one, after its timeout) is dropped and counted.  A header
+the framer cannot accept ends the connection: every request in flight fails with
+`FrameError` and ``broken`` is set.
 """
 
 from __future__ import annotations
@@ -97,9 +99,12 @@ class TcpClientProtocol:
                 return self._tid
         raise RuntimeError("no free transaction id")  # unreachable: max_in_flight < 65536
 
-    def send_request(self, unit: int, pdu: BytesLike, now: float) -> tuple[int, bytes]:
-        """A new transaction: its id and the bytes to write.  Raises before anything
-        is sent: ValueError/TypeError for bad arguments, RuntimeError when
+    def send_request(
+        self, unit: int, pdu: BytesLike, now: float, *, answered: bool | None = None
+    ) -> tuple[int, bytes]:
+        """A new transaction: its id and the bytes to write.  ``answered``: whether an
+        answer is awaited (None: for every unit but 0, the broadcast).  Raises before
+        anything is sent: ValueError/TypeError for bad arguments, RuntimeError when
         ``max_in_flight`` requests already wait or the connection is broken."""
         raw = check_header_args(0, unit, pdu)
         if self.broken is not None:
@@ -109,7 +114,8 @@ class TcpClientProtocol:
         tid = self._next_tid()
         data: bytes = self._framer.send(tid, unit, raw)
         self.counters["requests"] += 1
-        if unit == 0:
+        broadcast = unit == 0 if answered is None else not answered
+        if broadcast:
             self.counters["broadcasts"] += 1
             self._results.append((tid, None))
         else:

@@ -17,7 +17,16 @@ values with), ``url`` is the URL given.  ``line`` and ``port`` (the `LineConfig`
 the pyserial port of a serial master) do not exist: reading them raises
 AttributeError (``line``'s message names the URL and says why), so
 ``hasattr(m, "line")`` is False and ``getattr(m, "line", None)`` is None: code
-tells a serial master from a TCP one that way.  ``add_rule`` is accepted and does
+tells a serial master from a TCP one that way.
+
+Unit ids (Messaging on TCP/IP Implementation Guide 4.4.1.2): every method takes
+0..255 where a serial master takes 0..247.  0xFF (libmodbus's default, the guide's
+recommendation for a TCP device) and 248..254 address what is behind the
+connection; 0 in a method that reads (where a serial master refuses the broadcast)
+addresses the TCP device itself and its answer is awaited ("the value 0 is also
+accepted to communicate directly to a MODBUS/TCP device"); 0 in a write,
+``request`` or ``execute`` stays the broadcast (no answer awaited), as through a
+gateway.  ``add_rule`` is accepted and does
 nothing.  (Not None: a `LineConfig | None` would widen the type every caller of
 ``Master.line`` relies on.)
 """
@@ -25,7 +34,10 @@ nothing.  (Not None: a `LineConfig | None` would widen the type every caller of
 from __future__ import annotations
 
 import asyncio
+import functools
 import threading
+from collections.abc import Callable
+from contextvars import ContextVar
 from typing import Any
 
 from ._requests import Call
@@ -40,6 +52,69 @@ NO_LINE = (
     "{url}: a Modbus TCP master has no serial line (line and port are a serial "
     "master's; see url, timeout, retries)"
 )
+
+
+#: the unit id a method was called with, where the argument checks shared with the
+#: serial master (0..247) were given a stand-in address: set for the duration of the
+#: call (a context variable: each asyncio task has its own)
+_UNIT: ContextVar[int | None] = ContextVar("pyrtu_tcp_unit", default=None)
+_STAND_IN = 1
+
+#: the methods whose unit 0 is a broadcast (a serial master allows it); in the others
+#: unit 0 is the TCP device itself and is answered
+_BROADCASTING = frozenset(
+    {"request", "execute", "write_coil", "write_register", "write_coils", "write_registers",
+     "mask_write_register", "write_file_record"}
+)  # fmt: skip
+_ADDRESSED = frozenset(
+    {"read_coils", "read_discrete_inputs", "read_holding_registers", "read_input_registers",
+     "read_write_registers", "read_exception_status", "diagnostics", "get_comm_event_counter",
+     "get_comm_event_log", "report_server_id", "read_fifo_queue", "read_file_record",
+     "read_device_identification"}
+)  # fmt: skip
+
+
+def _tcp_unit(slave: object, broadcasting: bool) -> int | None:
+    """The unit id to send when ``slave`` is one only TCP allows, else None."""
+    if type(slave) is int and (248 <= slave <= 255 or (slave == 0 and not broadcasting)):
+        return slave
+    return None
+
+
+def _sync_method(base: Callable[..., Any], broadcasting: bool) -> Callable[..., Any]:
+    @functools.wraps(base)
+    def method(self: Any, slave: Any, *args: Any, **kwargs: Any) -> Any:
+        unit = _tcp_unit(slave, broadcasting)
+        if unit is None:
+            return base(self, slave, *args, **kwargs)
+        token = _UNIT.set(unit)
+        try:
+            return base(self, _STAND_IN, *args, **kwargs)
+        finally:
+            _UNIT.reset(token)
+
+    return method
+
+
+def _async_method(base: Callable[..., Any], broadcasting: bool) -> Callable[..., Any]:
+    @functools.wraps(base)
+    async def method(self: Any, slave: Any, *args: Any, **kwargs: Any) -> Any:
+        unit = _tcp_unit(slave, broadcasting)
+        if unit is None:
+            return await base(self, slave, *args, **kwargs)
+        token = _UNIT.set(unit)
+        try:
+            return await base(self, _STAND_IN, *args, **kwargs)
+        finally:
+            _UNIT.reset(token)
+
+    return method
+
+
+def _unit_of(call: Call) -> tuple[int, bool]:
+    """(unit id to send, whether an answer is awaited) of ``call``."""
+    unit = _UNIT.get()
+    return (call.slave if unit is None else unit), call.decode is not None
 
 
 class _TcpLine:
@@ -92,9 +167,10 @@ class TcpMaster(_TcpLine, Master):
 
     def _run(self, call: Call) -> Any:
         with self._lock:
+            unit, answered = _unit_of(call)
             for attempt in range(self._retries + 1):
                 try:
-                    answer = self._client.request(call.slave, call.pdu)
+                    answer = self._client.request(unit, call.pdu, answered=answered)
                     break
                 except NoResponseError:
                     if attempt == self._retries:
@@ -164,10 +240,11 @@ class AsyncTcpMaster(_TcpLine, AsyncMaster):
         return self._client
 
     async def _run(self, call: Call) -> Any:
+        unit, answered = _unit_of(call)  # (before the first await: the caller's context)
         client = await self._connected()
         for attempt in range(self._retries + 1):
             try:
-                answer = await client.request(call.slave, call.pdu)
+                answer = await client.request(unit, call.pdu, answered=answered)
                 break
             except NoResponseError:
                 if attempt == self._retries:
@@ -219,6 +296,12 @@ class AsyncRtuTcpMaster(AsyncMaster):
     def __init__(self, port: str, *args: Any, t35: float | None = None, **kwargs: Any) -> None:
         super().__init__(rtu_over_tcp(port), *args, t35=0.0 if t35 is None else t35, **kwargs)
 
+
+for _name in _BROADCASTING | _ADDRESSED:
+    setattr(TcpMaster, _name, _sync_method(getattr(Master, _name), _name in _BROADCASTING))
+    setattr(
+        AsyncTcpMaster, _name, _async_method(getattr(AsyncMaster, _name), _name in _BROADCASTING)
+    )
 
 TRANSPORTS["sync"].update({"tcp": TcpMaster, RTU_TCP_SCHEME: RtuTcpMaster})
 TRANSPORTS["async"].update({"tcp": AsyncTcpMaster, RTU_TCP_SCHEME: AsyncRtuTcpMaster})

@@ -113,10 +113,11 @@ class TcpClient:
         """When the latest answer was read (monotonic seconds), or None before the first."""
         return self._proto.answer_end
 
-    def request(self, unit: int, pdu: BytesLike) -> bytes | None:
-        """The response PDU of ``pdu`` sent to ``unit`` (None for unit 0, a broadcast)."""
+    def request(self, unit: int, pdu: BytesLike, *, answered: bool | None = None) -> bytes | None:
+        """The response PDU of ``pdu`` sent to ``unit`` (None for unit 0, a broadcast,
+        unless ``answered=True``: unit 0 to a TCP device itself, 4.4.1.2)."""
         proto = self._proto
-        tid, data = proto.send_request(unit, pdu, time.monotonic())
+        tid, data = proto.send_request(unit, pdu, time.monotonic(), answered=answered)
         try:
             self._send(data)
         except OSError as exc:
@@ -274,12 +275,15 @@ class AsyncTcpClient:
         """When the latest answer was read (monotonic seconds), or None before the first."""
         return self._conn.proto.answer_end
 
-    async def request(self, unit: int, pdu: BytesLike) -> bytes | None:
-        """The response PDU of ``pdu`` sent to ``unit`` (None for unit 0, a broadcast).
+    async def request(
+        self, unit: int, pdu: BytesLike, *, answered: bool | None = None
+    ) -> bytes | None:
+        """The response PDU of ``pdu`` sent to ``unit`` (None for unit 0, a broadcast,
+        unless ``answered=True``: unit 0 to a TCP device itself, 4.4.1.2).
         Cancelling the await forgets the request (a late answer is dropped)."""
         conn = self._conn
         async with self._window:
-            tid, data = conn.proto.send_request(unit, pdu, time.monotonic())
+            tid, data = conn.proto.send_request(unit, pdu, time.monotonic(), answered=answered)
             fut: asyncio.Future[bytes | None] = asyncio.get_running_loop().create_future()
             conn.waiters[tid] = fut
             if conn.transport is None or conn.transport.is_closing():

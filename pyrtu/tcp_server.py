@@ -3,9 +3,12 @@ the device simulators; the same DataStore and handlers as on the serial line.
 
 Messaging on TCP/IP Implementation Guide V1.0b, 3.1.3: the server answers with the
 request's transaction id, protocol id and unit id.  The unit ids served are the
-slave's addresses, plus 0xFF ("the server itself" for clients that address a
-TCP server directly) for its lowest address; 0 is a broadcast (executed, not
-answered); any other unit id gets exception 0x0A (gateway path unavailable).
+slave's addresses, plus 0xFF and 0 for its lowest address: a client addresses a
+TCP device directly with 0xFF, and "the value 0 is also accepted to communicate
+directly to a MODBUS/TCP device" (4.4.1.2; libmodbus's unit-test-client expects an
+answer to unit 0).  So on TCP, unit 0 is not a broadcast: it is executed by the
+lowest address and answered.  Any other unit id gets exception 0x0A (gateway path
+unavailable).
 
 It is the gateway's machinery (`pyrtu.gateway`) with the application in place of
 a serial bus: many connections, each read by an `MbapFramer` (a bad header closes
@@ -34,9 +37,40 @@ from ._slave_base import SlaveBase
 from .datastore import DataStore
 from .errors import NoResponseError
 from .gateway import Gateway, GatewayLimits
+from .gateway._plan import check_listen
 from .line import LineConfig
 
 UNIT_SELF = 0xFF
+#: unit 0 on TCP: the device itself too ([TCP] 4.4.1.2)
+UNIT_DIRECT = 0
+
+
+def _check_address(address: object) -> None:
+    if isinstance(address, (str, bytes)) or not isinstance(address, (int, Iterable)):
+        raise TypeError(f"address must be a slave address or an iterable of them, not {address!r}")
+    items = [address] if isinstance(address, int) else list(address)
+    for a in items:
+        if isinstance(a, bool) or not isinstance(a, int):
+            raise TypeError(f"address: a slave address is an integer 1..247, not {a!r}")
+        if not 1 <= a <= 247:
+            raise ValueError(f"address: a slave address is 1..247, not {a}")
+    if not items:
+        raise ValueError("address: a slave needs at least one address")
+
+
+def _check_store(store: object) -> None:
+    if store is None or isinstance(store, DataStore):
+        return
+    if isinstance(store, Mapping):
+        for address, each in store.items():
+            if isinstance(address, bool) or not isinstance(address, int):
+                raise TypeError(f"store: the keys are slave addresses, not {address!r}")
+            if not isinstance(each, DataStore):
+                raise TypeError(f"store[{address}] must be a DataStore, not {type(each).__name__}")
+        return
+    raise TypeError(
+        f"store must be a DataStore or a mapping address -> DataStore, not {type(store).__name__}"
+    )
 
 
 class Application(Protocol):
@@ -77,7 +111,7 @@ class TcpServer:
             )
         self.app = app
         units = {a: a for a in app.addresses}
-        units[UNIT_SELF] = min(app.addresses)
+        units[UNIT_SELF] = units[UNIT_DIRECT] = min(app.addresses)
         self._gateway = Gateway([(LocalBus(app), units)], limits)
 
     @classmethod
@@ -89,7 +123,10 @@ class TcpServer:
         **options: Any,
     ) -> TcpServer:
         """A slave on TCP only: the standard functions over ``store`` (``options``: the
-        `pyrtu.Slave` keywords functions, identification, server_id, ...)."""
+        `pyrtu.Slave` keywords functions, identification, server_id, ...).
+        TypeError/ValueError naming ``address`` or ``store`` when they are wrong."""
+        _check_address(address)
+        _check_store(store)
         return cls(SlaveBase(address, store, line=LineConfig(), **options), limits)
 
     @property
@@ -102,10 +139,14 @@ class TcpServer:
         return dict(self._gateway.counters)
 
     async def start(self, host: str = "127.0.0.1", port: int = 502) -> TcpServer:
-        await self._gateway.start(host, port)
+        """Listen on host:port (0: any free port, see ``address``).  RuntimeError if
+        it already listens (close it first); TypeError/ValueError naming ``host`` or
+        ``port`` before anything is bound."""
+        await self._gateway.start(*check_listen(host, port))
         return self
 
     async def serve_forever(self, host: str = "127.0.0.1", port: int = 502) -> None:
+        check_listen(host, port)
         await self.start(host, port)
         try:
             await asyncio.Event().wait()

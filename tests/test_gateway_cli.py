@@ -51,6 +51,16 @@ def pyrtu(*args: str) -> subprocess.CompletedProcess[str]:
             ["--listen", "127.0.0.1:0", "--port", "a", "--broadcast-delay", "-1"],
             "--broadcast-delay",
         ),
+        # the same port twice is a usage error, not "busy: another program holds it"
+        (["--listen", "127.0.0.1:0", "--port", "x=1-10", "--port", "x=11-20"], "--port: x"),
+        (["--listen", "127.0.0.1:0", "--port", "x=1", "--port", "./x=2"], "given twice"),
+        (["--listen", "127.0.0.1:0", "--port", "a", "--header-timeout", "-1"], "--header-timeout"),
+        (["--listen", "127.0.0.1:0", "--port", "a", "--idle-timeout", "x"], "--idle-timeout"),
+        (["--listen", "127.0.0.1:0", "--port", "a", "--unit-map", "256=1"], "--unit-map"),
+        (["--listen", "127.0.0.1:0", "--port", "a", "--unit-map", "255=0"], "--unit-map"),
+        (["--listen", "127.0.0.1:0", "--port", "a", "--unit-map", "255"], "--unit-map"),
+        (["--listen", "127.0.0.1:0", "--port", "a=1-5", "--unit-map", "255=9"], "--unit-map"),
+        (["--listen", "127.0.0.1:0", "--port", "a=1-5", "--unit-map", "3=1"], "--unit-map"),
     ],
 )
 def test_usage_errors(args: list[str], flag: str) -> None:
@@ -77,6 +87,13 @@ def test_help_documents_the_limits_and_their_defaults() -> None:
         assert f"{flag} {default}" in text
     limits = G.GatewayLimits()
     assert (limits.max_connections, limits.max_write_buffer) == (64, 256 * 1024)
+    for flag, seconds in (
+        ("--header-timeout", G.HEADER_TIMEOUT),
+        ("--idle-timeout", G.IDLE_TIMEOUT),
+    ):
+        assert re.search(rf"{flag} SECONDS [^-]{{0,80}}\(0: no limit; default {seconds:g}\)", text)
+        assert f"{flag} {seconds:g} s" in text
+    assert "--unit-map" in text and "255=1,0=1" in text
 
 
 def test_missing_serial_port_is_a_port_error() -> None:
@@ -119,3 +136,168 @@ def test_gateway_runs_and_reports(gateway_process: tuple[subprocess.Popen[str], 
     stopped = json.loads(out.splitlines()[-1])
     assert stopped["type"] == "stopped"
     assert (stopped["requests"], stopped["answers"], stopped["no_route"]) == (2, 1, 1)
+
+
+def test_unit_map_sends_0xff_and_0_to_a_slave_and_the_summary_counts(
+    peer_binaries: PeerBinaries,
+) -> None:
+    """--unit-map 255=1,0=1: libmodbus's default unit 0xFF and unit 0 (Messaging on
+    TCP/IP Implementation Guide 4.4.1.2) reach slave 1 and are answered under their
+    own unit id; the summary line counts what it says."""
+    import socket
+    import struct
+
+    from pyrtu import encode_mbap, parse_tcp_stream
+
+    port = free_tcp_port()
+    with libmodbus_server(peer_binaries, f"tcp:127.0.0.1:{port}", 1):
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "pyrtu", "gateway", "--listen", "127.0.0.1:0",
+             "--port", f"tcp://127.0.0.1:{port}=1-9", "--unit-map", "255=1,0=1",
+             "--timeout", "0.5"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=peer_env(),
+        )  # fmt: skip
+        try:
+            assert proc.stderr is not None
+            line = proc.stderr.readline()
+            m = re.search(r"listening on ([\d.]+):(\d+)", line)
+            assert m, line
+            read = pdu.read_request(pdu.READ_HOLDING_REGISTERS, 7, 2)
+            with socket.create_connection((m.group(1), int(m.group(2))), timeout=5) as s:
+                for tid, unit in ((1, 0xFF), (2, 0), (3, 1), (4, 10)):
+                    s.sendall(encode_mbap(tid, unit, read))
+                    head = b""
+                    while len(head) < 6:
+                        head += s.recv(6 - len(head))
+                    (length,) = struct.unpack(">H", head[4:])
+                    body = b""
+                    while len(body) < length:
+                        body += s.recv(length - len(body))
+                    (frame,) = parse_tcp_stream(head + body, "master")
+                    assert (frame.transaction, frame.unit) == (tid, unit)
+                    if unit == 10:
+                        assert frame.exception_code == 0x0A
+                    else:
+                        assert pdu.parse_registers(frame.pdu, 2) == pattern.holdings(1, 7, 2)
+            proc.send_signal(signal.SIGTERM)
+            _, err = proc.communicate(timeout=10)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+            proc.wait(10)
+    assert proc.returncode == 0, err
+    assert "4 requests, 3 answers, 1 exceptions" in err
+    assert "1 no route, 0 bus unavailable" in err and "0 bus failures" in err
+
+
+@pytest.mark.parametrize("json_lines", [True, False])
+def test_a_bus_that_goes_away_is_reported_once_and_reopened(
+    peer_binaries: PeerBinaries, json_lines: bool
+) -> None:
+    """The TCP server behind a --port stops: reported once (a JSON "bus" line, or one
+    line on stderr), 0x0A for its requests (counted as bus unavailable, not no
+    route); it starts again on the same port: the gateway reconnects on its back-off
+    schedule (0.5 s doubling), says so once, and serves."""
+    import time
+
+    port = free_tcp_port()
+    read = pdu.read_request(pdu.READ_HOLDING_REGISTERS, 3, 2)
+    first = libmodbus_server(peer_binaries, f"tcp:127.0.0.1:{port}", 1).start()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "pyrtu", "gateway", "--listen", "127.0.0.1:0",
+         "--port", f"tcp://127.0.0.1:{port}=1-9", "--timeout", "0.5",
+         *(["--json"] if json_lines else [])],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=peer_env(),
+    )  # fmt: skip
+    second = None
+    try:
+        if json_lines:
+            assert proc.stdout is not None
+            listen = json.loads(proc.stdout.readline())["listen"]
+        else:
+            assert proc.stderr is not None
+            m = re.search(r"listening on (\S+:\d+),", proc.stderr.readline())
+            assert m is not None
+            listen = m.group(1)
+        with TcpClient(f"tcp://{listen}", timeout=5.0) as c:
+            assert pdu.parse_registers(c.request(1, read) or b"", 2) == pattern.holdings(1, 3, 2)
+            first.stop()
+            refused = 0
+            for _ in range(10):
+                with pytest.raises(ExceptionResponseError) as info:
+                    c.request(1, read)
+                assert info.value.code == 0x0A
+                refused += 1
+            second = libmodbus_server(peer_binaries, f"tcp:127.0.0.1:{port}", 1).start()
+            end = time.monotonic() + 60.0
+            while True:
+                try:
+                    got = c.request(1, read)
+                    break
+                except ExceptionResponseError as exc:
+                    assert exc.code == 0x0A and time.monotonic() < end
+                    refused += 1
+                    time.sleep(0.1)
+            assert pdu.parse_registers(got or b"", 2) == pattern.holdings(1, 3, 2)
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=15)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+        first.stop()
+        if second is not None:
+            second.stop()
+    assert proc.returncode == 0, err
+    assert "Traceback" not in err
+    where = f"tcp://127.0.0.1:{port}"
+    if not json_lines:
+        failed = [line for line in err.splitlines() if "failed" in line]
+        back = [line for line in err.splitlines() if "is back after" in line]
+        assert len(failed) == 1 and where in failed[0] and "0x0A" in failed[0], err
+        assert len(back) == 1 and where in back[0], err
+        assert f"{refused} bus unavailable); 1 bus failures, 1 recovered" in err, err
+        return
+    lines = [json.loads(line) for line in out.splitlines()]
+    events = [(e["bus"], e["up"]) for e in lines if e["type"] == "bus"]
+    assert events == [(where, False), (where, True)], out
+    stopped = lines[-1]
+    assert (stopped["bus_failures"], stopped["bus_recoveries"]) == (1, 1)
+    assert stopped["bus_unavailable"] == refused and stopped["no_route"] == 0
+    assert stopped["bus_down"] == [False]
+
+
+def test_64_silent_connections_do_not_lock_the_command_out(
+    gateway_process: tuple[subprocess.Popen[str], str],
+) -> None:
+    """The reported lock-out, on the command with its defaults: 64 connections that
+    send nothing, drip one byte, or half a header take every --max-connections slot;
+    a client that talks is still served (a silent one gives way), and the summary
+    counts the evictions."""
+    import socket
+
+    from pyrtu import encode_mbap
+
+    proc, url = gateway_process
+    host, _, port = url[6:].rpartition(":")
+    request = encode_mbap(1, 1, pdu.read_request(pdu.READ_HOLDING_REGISTERS, 0, 2))
+    silent = []
+    try:
+        for i in range(64):
+            s = socket.create_connection((host, int(port)), timeout=5)
+            if i % 3:
+                s.sendall(request[: 1 if i % 3 == 1 else 3])
+            silent.append(s)
+        for _ in range(3):
+            with TcpClient(url, timeout=5.0) as c:
+                got = c.request(1, pdu.read_request(pdu.READ_HOLDING_REGISTERS, 0, 2))
+                assert pdu.parse_registers(got or b"", 2) == pattern.holdings(1, 0, 2)
+    finally:
+        for s in silent:
+            s.close()
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=10)
+    assert proc.returncode == 0, err
+    stopped = json.loads(out.splitlines()[-1])
+    assert stopped["evicted"] >= 1 and stopped["refused"] == 0
+    assert stopped["answers"] == 3

@@ -495,3 +495,37 @@ def test_ascii_bus_simulated_drive_through_the_gateway(
             if proc.poll() is None:
                 proc.send_signal(signal.SIGTERM)
             proc.communicate(timeout=15)
+
+
+def test_unit_map_brings_tcp_units_0xff_and_0_to_a_serial_slave(
+    pty_pair: tuple[str, str], peer_binaries: PeerBinaries
+) -> None:
+    """--unit-map 255=1,0=1: libmodbus's TCP client addressing unit 0, and pymodbus's
+    addressing 0xFF (libmodbus's and many HMIs' default), reach serial slave 1 and
+    get its answers; unit 0 mapped is answered, not broadcast."""
+    from pymodbus.client import ModbusTcpClient
+
+    gw_side, slave_side = pty_pair
+    with pyrtu_slave_process(slave_side, 1, t35=0):
+        gw = start_gateway(f"{gw_side}=1-9", "--unit-map", "255=1,0=1")
+        try:
+            device = f"tcp:{gw.host}:{gw.port}"
+            ops = ["r03:0:5", "w06:30:77", "r03:30:1", "r04:60000:1"]
+            r = libmodbus_script(peer_binaries, device, 0, ops, timeout_ms=2000)
+            assert r[0]["values"] == pattern.holdings(1, 0, 5)
+            assert r[1]["ok"] and r[2]["values"] == [77]
+            assert r[3]["exception"] == 2  # the slave's own exception, through unit 0
+            client = ModbusTcpClient(gw.host, port=gw.port, timeout=2, retries=0)
+            assert client.connect()
+            try:
+                rr = client.read_holding_registers(30, count=1, device_id=255)
+                assert not rr.isError() and rr.registers == [77]
+                rr = client.read_input_registers(3, count=4, device_id=255)
+                assert rr.registers == pattern.inputs(1, 3, 4)
+            finally:
+                client.close()
+            stats = gw.stop()
+        finally:
+            gw.kill()
+    assert stats["no_route"] == 0 and stats["broadcasts"] == 0 and stats["timeouts"] == 0
+    assert stats["answers"] == 5 and stats["exceptions"] == 1

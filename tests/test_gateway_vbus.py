@@ -93,3 +93,86 @@ def test_clients_share_the_bus_at_wire_pace(bus_paths: tuple[str, str]) -> None:
     # time: the loaded 2-core VM measured about 2 x (efficiency 0.5), so 4 x headroom;
     # a gateway pausing 100 ms per transaction (15 x the wire time) cannot pass it.
     assert elapsed < 60 * 8 * wire_seconds(), elapsed
+
+
+@pytest.mark.wall_clock
+def test_a_bus_whose_adapter_is_pulled_out_comes_back_and_the_other_goes_on(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """Two buses; bus A's adapter (the gateway's drop) is unplugged: reported once
+    (one warning, bus_failures 1), its requests get 0x0A at once while bus B is
+    served; replugged, it is reopened on the back-off schedule (0.1 s doubling to
+    0.4 s here) and logged once as back.  Bound: back within 20 s of the replug."""
+    from pyrtu._reconnect import Backoff
+    from pyrtu.errors import ExceptionResponseError
+    from pyrtu.gateway import BusEvent, GatewayLimits, ReopeningBus
+    from pyrtu.vbus import VirtualBus
+
+    read = pdu.read_request(3, 0, COUNT)
+
+    def opener(path: str):  # type: ignore[no-untyped-def]
+        async def open_master() -> AsyncMaster:
+            return AsyncMaster(path, BAUD, "N", timeout=0.5, retries=1)
+
+        return open_master
+
+    with (
+        VirtualBus(2, baudrate=BAUD, parity="N") as bus_a,
+        VirtualBus(2, baudrate=BAUD, parity="N") as bus_b,
+        pyrtu_slave_process(bus_a.path(1), 1),
+        pyrtu_slave_process(bus_b.path(1), 2),
+    ):
+        name = bus_a.path(0)
+        events: list[BusEvent] = []
+
+        async def main() -> dict[str, object]:
+            a = await ReopeningBus(bus_a.path(0), opener(bus_a.path(0))).open()
+            b = await ReopeningBus(bus_b.path(0), opener(bus_b.path(0))).open()
+            limits = GatewayLimits(backoff=Backoff(initial=0.1, maximum=0.4))
+            gw = Gateway([(a, [1]), (b, [2])], limits, on_bus=events.append)
+            await gw.start("127.0.0.1", 0)
+            assert gw.address is not None
+            c = await AsyncTcpClient.connect(f"tcp://{gw.address[0]}:{gw.address[1]}", timeout=5.0)
+
+            async def holdings(unit: int) -> list[int]:
+                return pdu.parse_registers(await c.request(unit, read) or b"", COUNT)
+
+            assert await holdings(1) == pattern.holdings(1, 0, COUNT)
+            assert await holdings(2) == pattern.holdings(2, 0, COUNT)
+            bus_a.unplug(0)
+            for _ in range(20):
+                with pytest.raises(ExceptionResponseError) as info:
+                    await holdings(1)
+                assert info.value.code == 0x0A
+                assert await holdings(2) == pattern.holdings(2, 0, COUNT)  # B carries on
+            assert gw.stats()["bus_down"] == [True, False]
+            bus_a.replug(0)
+            loop = asyncio.get_running_loop()
+            end = loop.time() + 20.0
+            while True:
+                try:
+                    got = await holdings(1)
+                    break
+                except ExceptionResponseError as exc:
+                    assert exc.code == 0x0A and loop.time() < end
+                    await asyncio.sleep(0.05)
+            assert got == pattern.holdings(1, 0, COUNT)
+            stats = gw.stats()
+            await c.close()
+            await gw.close()
+            await a.close()
+            await b.close()
+            return stats
+
+        with caplog.at_level("INFO", logger="pyrtu.gateway"):
+            stats = asyncio.run(main())
+    assert stats["bus_failures"] == 1 and stats["bus_recoveries"] == 1, stats
+    assert stats["bus_down"] == [False, False] and stats["bus_outages"] == [1, 0]
+    assert stats["bus_unavailable"] >= 20 and stats["no_route"] == 0
+    assert stats["timeouts"] == 0
+    failed = [r for r in caplog.records if "failed" in r.getMessage()]
+    back = [r for r in caplog.records if "is back after" in r.getMessage()]
+    assert len(failed) == 1 and name in failed[0].getMessage(), caplog.text
+    assert len(back) == 1 and name in back[0].getMessage(), caplog.text
+    assert [(e.bus, e.name, e.up) for e in events] == [(0, name, False), (0, name, True)]
+    assert events[1].attempts >= 1 and events[1].seconds is not None

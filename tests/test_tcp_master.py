@@ -228,3 +228,115 @@ def test_poller_over_modbus_tcp() -> None:
                 await asyncio.wait_for(watch(poller), 30.0)
 
     asyncio.run(main())
+
+
+@pytest.fixture
+def pyrtu_tcp_server() -> Iterator[str]:
+    """pyrtu's TcpServer for slave 4 (the pattern), in a thread's event loop."""
+    import threading
+
+    from pyrtu.tcp_server import TcpServer
+
+    loop = asyncio.new_event_loop()
+    thread = threading.Thread(target=loop.run_forever, daemon=True)
+    thread.start()
+    server = TcpServer.for_store(4, pattern.pattern_store(4))
+    asyncio.run_coroutine_threadsafe(server.start("127.0.0.1", 0), loop).result(10)
+    assert server.address is not None
+    try:
+        yield f"tcp://127.0.0.1:{server.address[1]}"
+    finally:
+        asyncio.run_coroutine_threadsafe(server.close(), loop).result(10)
+        loop.call_soon_threadsafe(loop.stop)
+        thread.join(10)
+        loop.close()
+
+
+def every_method(m: Master, unit: int) -> dict[str, object]:
+    """Each `Master` method once, to ``unit``: what it returned, or the device's
+    exception code (the request reached it and was answered)."""
+    from pyrtu import pdu
+
+    calls = {
+        "read_coils": lambda: m.read_coils(unit, 0, 5),
+        "read_discrete_inputs": lambda: m.read_discrete_inputs(unit, 3, 4),
+        "read_holding_registers": lambda: m.read_holding_registers(unit, 7, 3),
+        "read_input_registers": lambda: m.read_input_registers(unit, 2, 2),
+        "write_coil": lambda: m.write_coil(unit, 40, True),
+        "write_register": lambda: m.write_register(unit, 41, unit + 1000),
+        "write_coils": lambda: m.write_coils(unit, 42, [True, False]),
+        "write_registers": lambda: m.write_registers(unit, 43, [1, 2]),
+        "mask_write_register": lambda: m.mask_write_register(unit, 43, 0x00FF, 0x0100),
+        "read_write_registers": lambda: m.read_write_registers(unit, 41, 1, 50, [9]),
+        "read_exception_status": lambda: m.read_exception_status(unit),
+        "diagnostics": lambda: m.diagnostics(unit, 0, 0x1234),
+        "get_comm_event_counter": lambda: m.get_comm_event_counter(unit),
+        "get_comm_event_log": lambda: m.get_comm_event_log(unit),
+        "report_server_id": lambda: m.report_server_id(unit),
+        "read_fifo_queue": lambda: m.read_fifo_queue(unit, 0),
+        "read_file_record": lambda: m.read_file_record(unit, [(1, 0, 1)]),
+        "write_file_record": lambda: m.write_file_record(unit, [(1, 0, [5])]),
+        "read_device_identification": lambda: m.read_device_identification(unit),
+        "request": lambda: m.request(unit, pdu.read_request(3, 7, 1)),
+        "execute": lambda: m.execute(unit, 3, bytes.fromhex("00070001")),
+    }
+    out: dict[str, object] = {}
+    for name, call in calls.items():
+        try:
+            out[name] = call()
+        except ExceptionResponseError as exc:
+            out[name] = ("exception", exc.code)
+    return out
+
+
+def test_unit_0xff_and_0_in_every_method(pyrtu_tcp_server: str) -> None:
+    """Messaging on TCP/IP Implementation Guide 4.4.1.2: 0xFF addresses the TCP device
+    (libmodbus's default), and so does 0.  Every method takes 0xFF (a serial
+    master's check refused it: "slave must be 0..247"), reads take 0 and await the
+    answer, writes to 0 stay broadcasts; 256 is still refused before a byte is sent."""
+    with Master(pyrtu_tcp_server, timeout=2.0) as m:
+        direct = every_method(m, 4)
+        via_ff = every_method(m, 0xFF)
+        # the same answers, but for what the first round changed: the register the
+        # writes set (unit + 1000) and the device's event counters
+        assert via_ff["read_write_registers"] == [0xFF + 1000]
+        assert via_ff["get_comm_event_counter"][1] > direct["get_comm_event_counter"][1]  # type: ignore[index]
+        stateful = ("read_write_registers", "get_comm_event_counter", "get_comm_event_log")
+        assert {k: v for k, v in via_ff.items() if k not in stateful} == {
+            k: v for k, v in direct.items() if k not in stateful
+        }
+        assert direct["read_holding_registers"] == pattern.holdings(4, 7, 3)
+        assert m.read_holding_registers(0xFF, 7, 3) == pattern.holdings(4, 7, 3)
+        assert m.read_holding_registers(0, 7, 3) == pattern.holdings(4, 7, 3)  # answered
+        assert m.read_input_registers(0, 2, 2) == pattern.inputs(4, 2, 2)
+        assert m.report_server_id(0) == direct["report_server_id"]
+        assert m.write_register(0, 60, 606) is None  # a broadcast: no answer awaited
+        assert m.counters["broadcasts"] == 1
+        for bad, error in ((256, ValueError), (-1, ValueError), ("1", TypeError)):
+            with pytest.raises(error, match="slave"):
+                m.read_holding_registers(bad, 0, 1)  # type: ignore[arg-type]
+        with pytest.raises(ValueError, match="count"):  # the other checks still run
+            m.read_holding_registers(0xFF, 0, 0)
+        sent = m.counters["requests"]
+        with pytest.raises(ValueError, match="slave"):
+            m.write_register(300, 0, 1)
+        assert m.counters["requests"] == sent  # nothing was sent
+
+
+def test_async_unit_0xff_and_0_concurrently(pyrtu_tcp_server: str) -> None:
+    """The unit each await was given, even with several on the wire at once."""
+
+    async def main() -> None:
+        async with AsyncMaster(pyrtu_tcp_server, timeout=2.0, max_in_flight=4) as m:
+            got = await asyncio.gather(
+                *(m.read_holding_registers(unit, 10 * k, 2)
+                  for k, unit in enumerate([0xFF, 4, 0, 0xFF, 4, 0]))
+            )  # fmt: skip
+            assert got == [pattern.holdings(4, 10 * k, 2) for k in range(6)]
+            await m.write_registers(0xFF, 70, [1, 2, 3])
+            assert await m.read_holding_registers(0, 70, 3) == [1, 2, 3]
+            assert await m.request(0xFF, bytes.fromhex("0300460001")) == bytes.fromhex("03020001")
+            with pytest.raises(ValueError, match="slave"):
+                await m.read_coils(256, 0, 1)
+
+    asyncio.run(main())

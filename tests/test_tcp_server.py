@@ -65,10 +65,10 @@ def test_pymodbus_client_against_the_server(running) -> None:  # type: ignore[no
         assert rr.isError() and rr.exception_code == 2
         rr = client.read_input_registers(0, count=1, device_id=4)
         assert rr.isError() and rr.exception_code == 0x0A  # not this server's unit
-        client.write_register(60, 61, device_id=0, no_response_expected=True)  # broadcast
+        client.write_register(60, 61, device_id=0, no_response_expected=True)  # unit 0
     finally:
         client.close()
-    with Master(url, timeout=2.0) as m:  # the broadcast was executed, not answered
+    with Master(url, timeout=2.0) as m:  # unit 0, the device itself, executed it
         assert m.read_holding_registers(3, 60, 1) == [61]
 
 
@@ -163,3 +163,81 @@ def test_rejects_an_object_that_is_no_slave() -> None:
         TcpServer(object())  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="address"):
         TcpServer.for_store(300)
+
+
+def test_unit_0_and_0xff_are_the_device_itself_and_answered(
+    running, peer_binaries: PeerBinaries
+) -> None:  # type: ignore[no-untyped-def]
+    """Messaging on TCP/IP Implementation Guide 4.4.1.2: 0xFF addresses a TCP device
+    directly, "the value 0 is also accepted": libmodbus's client (its unit-test-client
+    asserts "Reply after a query with unit id == 0") gets answers for both, under
+    their own unit id; another unit id is still 0x0A."""
+    import struct
+
+    from pyrtu import encode_mbap, parse_tcp_stream
+
+    url = serve(running, TcpServer.for_store(7, pattern.pattern_store(7)))
+    device = "tcp:" + url[6:]
+    r = libmodbus_script(
+        peer_binaries, device, 0, ["r03:0:3", "slave:8", "r03:0:1"], timeout_ms=2000
+    )
+    assert r[0]["values"] == pattern.holdings(7, 0, 3)  # unit 0: answered, not a broadcast
+    assert r[2]["exception"] == 0x0A
+    host, port = url[6:].split(":")
+    with socket.create_connection((host, int(port)), timeout=5) as s:
+        for tid, unit in ((0x1234, 0), (0x1235, 0xFF)):
+            s.sendall(encode_mbap(tid, unit, pdu.write_register_request(9, tid)))
+            head = s.recv(6, socket.MSG_WAITALL)
+            body = s.recv(struct.unpack(">H", head[4:])[0], socket.MSG_WAITALL)
+            (answer,) = parse_tcp_stream(head + body, "master")
+            assert (answer.transaction, answer.unit) == (tid, unit)  # under its own unit id
+            assert answer.pdu == pdu.write_register_request(9, tid)
+
+
+def test_start_twice_raises_and_leaks_no_listener() -> None:
+    async def main() -> None:
+        server = TcpServer.for_store(1, pattern.pattern_store(1))
+        await server.start("127.0.0.1", 0)
+        first = server.address
+        assert first is not None
+        with pytest.raises(RuntimeError, match="already listens"):
+            await server.start("127.0.0.1", 0)
+        assert server.address == first
+        await server.close()
+        with pytest.raises(ConnectionRefusedError):  # nothing listens any more
+            await asyncio.open_connection(*first)
+        await server.start("127.0.0.1", 0)  # closed, it may start again
+        async with await AsyncTcpClient.connect(
+            f"tcp://127.0.0.1:{server.address[1]}",
+            timeout=2.0,  # type: ignore[index]
+        ) as c:
+            assert pdu.parse_registers(await c.request(1, pdu.read_request(3, 0, 1)) or b"", 1) == (
+                pattern.holdings(1, 0, 1)
+            )
+        await server.close()
+
+    asyncio.run(main())
+
+
+def test_arguments_are_checked_naming_them() -> None:
+    from pyrtu import DataStore
+
+    for address, error in (("x", TypeError), (1.5, TypeError), ([True], TypeError),
+                           (300, ValueError), ([], ValueError)):  # fmt: skip
+        with pytest.raises(error, match="address"):
+            TcpServer.for_store(address)  # type: ignore[arg-type]
+    for store in (42, "store", [DataStore()], {1: 42}):
+        with pytest.raises(TypeError, match="store"):
+            TcpServer.for_store(1, store)  # type: ignore[arg-type]
+    server = TcpServer.for_store(1, DataStore())
+
+    async def main() -> None:
+        for port, error in ((99999, ValueError), (-1, ValueError), ("502", TypeError),
+                            (True, TypeError)):  # fmt: skip
+            with pytest.raises(error, match="port"):
+                await server.start("127.0.0.1", port)  # type: ignore[arg-type]
+        with pytest.raises(TypeError, match="host"):
+            await server.start(5, 0)  # type: ignore[arg-type]
+        assert server.address is None  # nothing was bound
+
+    asyncio.run(main())

@@ -13,11 +13,22 @@ Answers of the gateway itself (Application Protocol 7): exception 0x0A for a
 unit id no bus carries, 0x0B when the device does not answer within --timeout
 (after --retries), 0x06 (busy) when a queue is full.  Unit 0 is a broadcast:
 sent to every bus, not answered, and the bus keeps --broadcast-delay (0.1 s)
-of silence after it (the devices' turnaround).  A malformed MBAP header closes that
-connection (reset after 5 s if it leaves answers unread).  Limits (defaults):
---max-connections 64, --max-queue 16 requests waiting per connection,
---max-bus-queue 256 per bus, --max-write-buffer 262144 bytes of unread answers
-before a client is reset.
+of silence after it (the devices' turnaround).  --unit-map TCP=SLAVE sends a
+TCP unit id no --port carries to a slave address: ``--unit-map 255=1,0=1`` for
+clients that address a TCP device with 0xFF or 0 (Messaging on TCP/IP
+Implementation Guide 4.4.1.2; libmodbus's default is 0xFF); a mapped 0 is then
+answered, not broadcast.  A malformed MBAP header closes that connection (reset
+after 5 s if it leaves answers unread).  Limits (defaults): --max-connections
+64, --max-queue 16 requests waiting per connection, --max-bus-queue 256 per bus,
+--max-write-buffer 262144 bytes of unread answers before a client is reset,
+--header-timeout 5 s for a request begun to be complete, --idle-timeout 120 s
+without a request; when the connections are all taken, one that never sent a
+whole request (else the longest idle) gives way to the newcomer.
+
+A bus whose port fails (a USB adapter pulled out, a TCP server gone) is logged
+once; its requests get 0x0A while it is down (counted as "bus unavailable");
+it is reopened on a back-off schedule (0.5 s doubling to 30 s) while the other
+buses carry on, and logged again when it is back.
 
 Runs until SIGINT/SIGTERM or --duration (exit 0), then prints the counters.
 """
@@ -26,6 +37,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import os
 import signal
 import sys
 import time
@@ -86,6 +98,30 @@ def bus_spec(text: str) -> BusSpec:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def unit_map(text: str) -> dict[int, int]:
+    """``TCP=SLAVE[,TCP=SLAVE...]``: TCP unit ids 0..255 to slave addresses 1..247."""
+    pairs: dict[int, int] = {}
+    for part in text.split(","):
+        unit_text, sep, slave_text = part.strip().partition("=")
+        try:
+            unit, slave = int(unit_text, 0), int(slave_text, 0)
+        except ValueError:
+            unit = slave = -1
+        if not sep or not 0 <= unit <= 255 or not 1 <= slave <= 247:
+            raise argparse.ArgumentTypeError(
+                f"expected TCP=SLAVE (unit id 0..255 = slave address 1..247), not {part!r}"
+            )
+        pairs[unit] = slave
+    return pairs
+
+
+def seconds_or_off(text: str) -> float:
+    value = seconds(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a time >= 0 (0: no limit), not {text!r}")
+    return value
+
+
 def _limit(text: str) -> int:
     try:
         value = int(text, 0)
@@ -123,6 +159,17 @@ def _configure(p: argparse.ArgumentParser) -> None:
     g.add_argument("--max-write-buffer", type=_limit, default=G.MAX_WRITE_BUFFER, metavar="BYTES",
                    help=f"unread answers before a client is closed "
                    f"(default {G.MAX_WRITE_BUFFER})")  # fmt: skip
+    g.add_argument("--header-timeout", type=seconds_or_off, default=G.HEADER_TIMEOUT,
+                   metavar="SECONDS", help="a request begun must be complete within this "
+                   f"(0: no limit; default {G.HEADER_TIMEOUT:g})")  # fmt: skip
+    g.add_argument("--idle-timeout", type=seconds_or_off, default=G.IDLE_TIMEOUT,
+                   metavar="SECONDS", help="close a connection without a request for this "
+                   f"long (0: no limit; default {G.IDLE_TIMEOUT:g})")  # fmt: skip
+    p.add_argument(
+        "--unit-map", action="append", type=unit_map, default=[], metavar="TCP=SLAVE[,...]",
+        help="route a TCP unit id no --port carries to a slave address on the bus that "
+        "carries it, e.g. 255=1,0=1 (0 mapped is answered, not broadcast)",
+    )  # fmt: skip
     p.add_argument(
         "--broadcast-delay", type=seconds, default=BROADCAST_DELAY, metavar="SECONDS",
         help="silence after a broadcast before the bus's next request: the devices' "
@@ -131,19 +178,48 @@ def _configure(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "-d", "--duration", type=positive_seconds, metavar="SECONDS", help="stop after this time"
     )
-    add_json_option(p, "JSON lines: ready, stopped (with the counters)")
+    add_json_option(
+        p, "JSON lines: ready, bus (a port failed or is back), stopped (with the counters)"
+    )
     add_serial_options(p, timeout=0.5)
 
 
-def _routes(specs: list[BusSpec]) -> list[frozenset[int]]:
+def _same_port(port: str) -> str:
+    return port if "://" in port else os.path.realpath(port)
+
+
+def _routes(specs: list[BusSpec], maps: list[dict[int, int]]) -> list[dict[int, int]]:
+    """Unit id -> slave address per bus; ValueError naming the flag (exit 2)."""
+    seen: dict[str, str] = {}
+    for s in specs:
+        key = _same_port(s.port)
+        if key in seen:
+            raise ValueError(
+                f"--port: {s.port} is given twice (as {seen[key]!r} too); give it once "
+                "with all its unit ids (SERIAL=1-10,11-20)"
+            )
+        seen[key] = s.port
     if len(specs) > 1 and any(s.units is None for s in specs):
         raise ValueError("--port: with several buses, give each its unit ids (SERIAL=1-10)")
-    units = [s.units if s.units is not None else frozenset(range(1, 248)) for s in specs]
+    units = [{u: u for u in (s.units if s.units is not None else range(1, 248))} for s in specs]
+    for mapping in maps:
+        for unit, slave in mapping.items():
+            if any(unit in bus for bus in units):
+                raise ValueError(f"--unit-map: unit id {unit} is already carried by a --port")
+            bus = next((b for b in units if slave in b and b[slave] == slave), None)
+            if bus is None:
+                raise ValueError(f"--unit-map: slave {slave} ({unit}={slave}) is on no --port")
+            bus[unit] = slave
     G.Routes(units)  # ValueError when a unit id is on two buses
     return units
 
 
-async def _open_bus(spec: BusSpec, args: argparse.Namespace) -> Any:
+async def _open_bus(spec: BusSpec, args: argparse.Namespace) -> G.ReopeningBus:
+    """The bus of ``spec``, opened; the gateway reopens it the same way after a failure."""
+    return await G.ReopeningBus(spec.port, lambda: _connect(spec, args)).open()
+
+
+async def _connect(spec: BusSpec, args: argparse.Namespace) -> Any:
     if spec.port.startswith("tcp://"):
         from ..tcp import AsyncTcpClient
 
@@ -163,25 +239,23 @@ async def _open_bus(spec: BusSpec, args: argparse.Namespace) -> Any:
     return master
 
 
-async def _close_bus(bus: Any) -> None:
-    result = bus.close()
-    if asyncio.iscoroutine(result):
-        await result
-
-
 async def _serve(args: argparse.Namespace) -> dict[str, Any]:
-    units = _routes(args.port)
+    units = _routes(args.port, args.unit_map)
     limits = G.GatewayLimits(
         max_connections=args.max_connections,
         max_queued_per_connection=args.max_queue,
         max_queued_per_bus=args.max_bus_queue,
         max_write_buffer=args.max_write_buffer,
+        header_timeout=args.header_timeout,
+        idle_timeout=args.idle_timeout,
     )
     buses: list[Any] = []
     try:
         for spec in args.port:
             buses.append(await _open_bus(spec, args))
-        gw = G.Gateway(list(zip(buses, units, strict=True)), limits)
+        gw = G.Gateway(
+            list(zip(buses, units, strict=True)), limits, on_bus=lambda ev: _bus_event(args, ev)
+        )
         host, port = args.listen
         try:
             await gw.start(host, port, rtu=args.listen_rtu)
@@ -205,7 +279,20 @@ async def _serve(args: argparse.Namespace) -> dict[str, Any]:
         return {"seconds": round(time.monotonic() - started, 3), **gw.stats()}
     finally:
         for bus in buses:
-            await _close_bus(bus)
+            await bus.close()
+
+
+def _bus_event(args: argparse.Namespace, ev: G.BusEvent) -> None:
+    """A bus's port failed or is back: one JSON line, or one line on stderr."""
+    if args.json:
+        emit({"type": "bus", "bus": ev.name, "up": ev.up, "error": ev.error,
+              "attempts": ev.attempts, "seconds": ev.seconds})  # fmt: skip
+    elif ev.up:
+        print(f"pyrtu gateway: bus {ev.name} is back after {ev.seconds or 0.0:.1f} s "
+              f"({ev.attempts} attempts)", file=sys.stderr, flush=True)  # fmt: skip
+    else:
+        print(f"pyrtu gateway: bus {ev.name} failed: {ev.error}; its requests get exception "
+              "0x0A until it is back (retrying)", file=sys.stderr, flush=True)  # fmt: skip
 
 
 def _ready(args: argparse.Namespace, gw: G.Gateway) -> None:
@@ -239,7 +326,10 @@ def _run(args: argparse.Namespace) -> int:
             f"pyrtu gateway: stopped after {stats['seconds']:.1f} s: {stats['connections']} "
             f"connections, {stats['requests']} requests, {stats['answers']} answers, "
             f"{stats['exceptions']} exceptions ({stats['timeouts']} timeouts, "
-            f"{stats['busy']} busy, {stats['no_route']} no route)",
+            f"{stats['busy']} busy, {stats['no_route']} no route, "
+            f"{stats['bus_unavailable']} bus unavailable); {stats['bus_failures']} bus "
+            f"failures, {stats['bus_recoveries']} recovered; {stats['evicted']} evicted, "
+            f"{stats['header_timeouts']} header and {stats['idle_timeouts']} idle timeouts",
             file=sys.stderr,
         )
     return EXIT_OK

@@ -1,0 +1,181 @@
+"""The gateway's connections: one asyncio protocol per TCP client (Modbus TCP, or
+RTU over TCP), reading requests into the gateway and writing its answers."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import socket
+import struct
+import time
+from typing import TYPE_CHECKING
+
+from .. import _backend
+from ..frames import FrameKind
+from ._live import Liveness
+
+if TYPE_CHECKING:
+    from . import Gateway
+
+log = logging.getLogger("pyrtu.gateway")
+
+
+def _reset(t: asyncio.Transport) -> None:
+    """Close at once with a reset: SO_LINGER 0 makes the kernel drop what is still
+    unsent and send RST, instead of keeping an orphan socket that goes on offering
+    answers to a client that takes none."""
+    sock = t.get_extra_info("socket")
+    if sock is not None:
+        with contextlib.suppress(OSError):
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+    t.abort()
+
+
+class _Connection(asyncio.Protocol):
+    def __init__(self, gateway: Gateway) -> None:
+        self.gateway = gateway
+        self.id = 0
+        self.transport: asyncio.Transport | None = None
+        self.framer = _backend.active.MbapFramer("slave")
+        self.closed = False
+        self.grace: asyncio.TimerHandle | None = None  # a closing connection's reset
+        self.live = Liveness(time.monotonic())
+        self.buffered = 0  # bytes read that no complete request has taken yet
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        assert isinstance(transport, asyncio.Transport)
+        self.transport = transport
+        sock = transport.get_extra_info("socket")
+        if sock is not None:
+            with contextlib.suppress(OSError):  # bound the kernel's share of unread answers
+                sock.setsockopt(
+                    socket.SOL_SOCKET, socket.SO_SNDBUF, self.gateway.limits.max_write_buffer
+                )
+        self.gateway._opened(self)
+
+    def data_received(self, data: bytes) -> None:
+        if self.closed:
+            return
+        framer = self.framer
+        framer.receive_data(data)
+        request = self.gateway._request
+        buffered = self.buffered + len(data)
+        completed = False
+        while (ev := framer.next_event()) is not None:
+            if ev.error is not None:
+                self.gateway.counters["bad_headers"] += 1
+                log.info("connection %d: bad MBAP header (%s): closed", self.id, ev.error)
+                self.close()
+                return
+            adu = ev.adu  # a whole ADU: transaction id, protocol 0, length, unit, PDU
+            buffered -= len(adu)
+            completed = True
+            request(self, (adu[0] << 8) | adu[1], adu[6], adu[7:])
+            if self.closed:
+                return
+        self.buffered = buffered
+        self.live.data(time.monotonic(), buffered > 0, completed)
+
+    def eof_received(self) -> bool | None:
+        return None  # close our side too
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self.closed = True
+        if self.grace is not None:
+            self.grace.cancel()
+            self.grace = None
+        self.gateway._closed(self)
+
+    def send(self, transaction: int, unit: int, pdu: bytes) -> None:
+        t = self.transport
+        if self.closed or t is None or t.is_closing():
+            self.gateway.counters["answers_dropped"] += 1
+            return
+        t.write(self.encode(transaction, unit, pdu))
+        if t.get_write_buffer_size() > self.gateway.limits.max_write_buffer:
+            self.gateway.counters["slow_clients"] += 1
+            log.info("connection %d does not read its answers: reset", self.id)
+            _reset(t)
+            self.closed = True  # read none of its requests still in the chunk
+
+    def encode(self, transaction: int, unit: int, pdu: bytes) -> bytes:
+        adu: bytes = self.framer.send(transaction, unit, pdu)
+        return adu
+
+    def close(self) -> None:
+        """Close: its queued requests are dropped; answers already written go out if
+        the client takes them within ``close_grace``, else it is reset (a client
+        that does not read would otherwise hold the connection forever: asyncio's
+        close waits for the write buffer to drain)."""
+        t = self.transport
+        if t is not None and not self.closed:
+            t.close()
+            if t.get_write_buffer_size():
+                loop = asyncio.get_running_loop()
+                self.grace = loop.call_later(self.gateway.limits.close_grace, _reset, t)
+            self.gateway._closed(self)
+        self.closed = True
+
+
+class _RtuConnection(_Connection):
+    """A client speaking RTU over TCP (RTU frames, CRC kept, no MBAP header): framed by
+    the RTU framer without wire timing (length prediction and CRC); bytes that make no
+    frame are skipped as on a serial line, not a reason to close.  Answers go back in
+    RTU frames; there is no transaction id (such clients send one request at a time)."""
+
+    def __init__(self, gateway: Gateway) -> None:
+        super().__init__(gateway)
+        self.rtu = _backend.active.Framer("slave", t15=0, t35=0)
+        self.timer: asyncio.TimerHandle | None = None
+
+    def data_received(self, data: bytes) -> None:
+        if self.closed:
+            return
+        now = time.monotonic()
+        self.rtu.receive_data(data, now)
+        completed = self._events()
+        if not self.closed:
+            self.live.data(now, not completed, completed)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if self.timer is not None:
+            self.timer.cancel()
+            self.timer = None
+        super().connection_lost(exc)
+
+    def _on_timer(self) -> None:
+        self.timer = None
+        if not self.closed:
+            now = time.monotonic()
+            self.rtu.handle_timer(now)
+            if self._events() and not self.closed:
+                self.live.data(now, False, True)
+
+    def _events(self) -> bool:
+        """Hand the framer's requests to the gateway; True if there was one."""
+        # bytes that make no frame yet wait for the framer's flush timeout (a silence)
+        if self.timer is not None:
+            self.timer.cancel()
+            self.timer = None
+        when = self.rtu.timer()
+        if when is not None:
+            loop = asyncio.get_running_loop()
+            self.timer = loop.call_later(max(0.0, when - time.monotonic()), self._on_timer)
+        completed = False
+        while (ev := self.rtu.next_event()) is not None:
+            if ev.error is not None:
+                self.gateway.counters["rtu_discarded_bytes"] += len(ev.adu)
+                continue
+            if ev.kind is not FrameKind.REQUEST:
+                continue
+            completed = True
+            self.gateway._request(self, 0, ev.address, ev.pdu)
+            if self.closed:
+                break
+        return completed
+
+    def encode(self, transaction: int, unit: int, pdu: bytes) -> bytes:
+        adu: bytes = _backend.active.add_crc(bytes((unit,)) + pdu)
+        self.rtu.send(adu)
+        return adu
