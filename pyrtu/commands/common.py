@@ -553,13 +553,26 @@ def emit(doc: Mapping[str, Any], out: IO[str] | None = None) -> None:
 # -- stopping ---------------------------------------------------------------------------------
 
 
+class SignalStop(BaseException):
+    """Raised by `stop_on_signals(interrupt=True)`'s handler: SIGINT or SIGTERM came
+    while the command may be blocked in a system call (a BaseException, so that no
+    ``except Exception`` on the way swallows it)."""
+
+
 @contextmanager
-def stop_on_signals() -> Iterator[threading.Event]:
-    """An event set by SIGINT or SIGTERM while the block runs (handlers restored after)."""
+def stop_on_signals(interrupt: bool = False) -> Iterator[threading.Event]:
+    """An event set by SIGINT or SIGTERM while the block runs (handlers restored after).
+
+    ``interrupt=True``: the handler also raises `SignalStop`, for a command that may
+    block in a system call Python restarts after a signal (PEP 475), such as opening
+    a FIFO that has no writer yet or reading one whose writer is silent; the
+    command catches it and ends as on any stop."""
     stop = threading.Event()
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
         stop.set()
+        if interrupt:
+            raise SignalStop(signal.Signals(signum).name)
 
     old: dict[signal.Signals, Any] = {}
     in_main = threading.current_thread() is threading.main_thread()
@@ -584,6 +597,7 @@ __all__ = [
     "EXIT_PORT",
     "EXIT_USAGE",
     "CommandSpec",
+    "SignalStop",
     "add_json_option",
     "add_serial_options",
     "classify",
