@@ -40,13 +40,17 @@ def check_baudrate(value: object) -> int:
     return value
 
 
+_PARITY_NAMES = {"NONE": "N", "EVEN": "E", "ODD": "O", "MARK": "M", "SPACE": "S"}
+
+
 def check_parity(value: object) -> str:
-    """``value`` as a parity letter (N, E, O, M, S; "even", "none"... are taken by
-    their first letter)."""
+    """``value`` as a parity letter: N, E, O, M, S or the names none, even, odd,
+    mark, space (any case)."""
     text = f"parity must be one of {', '.join(PARITIES)}, not {value!r}"
     if not isinstance(value, str):
         raise ArgumentTypeError(text)
-    letter = value.strip().upper()[:1]
+    word = value.strip().upper()
+    letter = _PARITY_NAMES.get(word, word)
     if letter not in PARITIES:
         raise ValueError(text)
     return letter

@@ -298,8 +298,9 @@ class _Loader:
         buses = [self.bus(i, t) for i, t in enumerate(self.tables(doc, "bus"))]
         if not buses:
             raise ConfigError(f"{self.source}: no [[bus]] table")
+        names = [b.name for b in buses]
         dup = first_duplicate(b.port for b in buses)
-        if dup is not None:
+        if dup is not None and len(set(names)) == len(names):  # a name twice: said first
             first, again = buses[dup[0]], buses[dup[1]]
             raise self.fail(
                 "bus", dup[1], f'bus[{dup[1]}] ("{again.name}")', "port",
