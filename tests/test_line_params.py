@@ -11,6 +11,7 @@ from types import ModuleType
 from typing import Any
 
 import pytest
+from cli_helpers import pyrtu as run_cli
 
 import pyrtu
 from pyrtu import LineConfig, Master
@@ -18,8 +19,6 @@ from pyrtu._portname import first_duplicate, port_key, same_port
 from pyrtu.aio import AsyncMaster, AsyncSlave
 from pyrtu.poller import ConfigError, load_config
 from pyrtu.vbus import VirtualBus
-
-from cli_helpers import pyrtu as run_cli
 
 #: (keyword, TOML text, CLI text, Python value, the words every path says)
 BAD = [
