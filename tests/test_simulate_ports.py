@@ -179,16 +179,22 @@ def test_two_simulators_at_one_address_are_warned_about(other: str) -> None:
 
 
 def test_one_simulator_alone_is_not_warned_about() -> None:
+    """Reads, repeated writes (FC 06, whose answer repeats the request) and FC 16 to
+    one simulator, another device on the bus: no warning."""
     with VirtualBus(3, baudrate=BAUD, parity="N") as bus:
         bg = Background("simulate", "cfw701", "-p", bus.paths[1], *SERIAL, "-a", 7, "--json")
         other = Background("simulate", "acu", "-p", bus.paths[2], *SERIAL, "-a", 3, "--json")
         try:
             next_json(bg, "ready")
             next_json(other, "ready")
-            with Master(bus.paths[0], BAUD, parity="N", timeout=1.0) as m:
-                for _ in range(20):
-                    assert m.read_holding_registers(7, 680, 2)
-                    assert m.read_holding_registers(3, 411, 1)
+            for t35 in (None, 0.0):  # a master that sends at once after each answer too
+                with Master(bus.paths[0], BAUD, parity="N", timeout=1.0, t35=t35) as m:
+                    for i in range(10):
+                        assert m.read_holding_registers(7, 680, 2)
+                        m.write_register(7, 683, 100 + i)  # FC 06 twice in a row: the
+                        m.write_register(7, 683, 200 + i)  # answer is the request's echo
+                        m.write_registers(7, 683, [300 + i])
+                        assert m.read_holding_registers(3, 411, 1)
             for p in (bg, other):
                 p.proc.send_signal(signal.SIGTERM)
             results = [bg.finish(), other.finish()]

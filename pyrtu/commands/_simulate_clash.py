@@ -7,9 +7,11 @@ garbage or nothing.  Nothing in the protocol says so, so the simulator listens:
 * bytes that arrive while it is sending its own answer (a slave never hears
   itself: the drops of `pyrtu.vbus` and half-duplex adapters without echo do
   not give a transmitter its own bytes, and the master waits for the answer);
-* a valid answer at one of its own addresses that it did not send (the other
-  device answered after it, with a longer response delay), seen by a monitor
-  framer fed with what the slave reads.
+* a valid answer at one of its own addresses, to the function of the last
+  request to them, that it did not send (the other device answered after it, with a longer
+  response delay), seen by a monitor framer fed with what the slave reads.  Not
+  for FC 05/06, whose answer is the request's echo: a monitor that did not hear
+  this simulator's own answer takes the master's next write for an answer.
 
 `ClashWatch` is sans-I/O (times are inputs); `watch_slave` puts it between a
 slave (`pyrtu.Slave` or `AsyncSlave`) and its `ServerProtocol`, forwarding every
@@ -28,6 +30,7 @@ from ..line import LineConfig
 __all__ = ["ClashWatch", "watch_slave"]
 
 _ANSWERS = (FrameKind.RESPONSE, FrameKind.EXCEPTION)
+_ECHOED = (5, 6)  # answers that repeat the request
 
 
 class ClashWatch:
@@ -38,6 +41,9 @@ class ClashWatch:
         self._framer = make_framer(line, "monitor")
         self._char = line.char_time
         self._tx: tuple[float, float] | None = None  # our last answer on the wire
+        self._function: int | None = None  # of the last request to us (FC 05/06: None)
+        # the pseudo-terminal's delivery runs up to ~0.1 ms ahead of the wire
+        self._margin = max(2 * self._char, 200e-6)
         #: what was seen (None: nothing yet); set once
         self.warning: str | None = None
 
@@ -57,11 +63,19 @@ class ClashWatch:
         tx = self._tx
         # a character needs a character time on the wire: bytes read before our
         # answer's last character left began while we were sending
-        if tx is not None and tx[0] + self._char <= now < tx[1]:
+        if tx is not None and tx[0] + self._char <= now < tx[1] - self._margin:
             return self._warn("bytes came in while this simulator was sending its answer")
         self._framer.receive_data(data, now)
         while (frame := self._framer.next_event()) is not None:
-            if frame.kind in _ANSWERS and frame.address in self.addresses:
+            if frame.kind == FrameKind.REQUEST and frame.address in self.addresses:
+                fc = frame.function
+                self._function = None if fc is None or fc in _ECHOED else fc
+            elif (
+                frame.kind in _ANSWERS
+                and frame.address in self.addresses
+                and frame.function is not None
+                and frame.function & 0x7F == self._function
+            ):
                 return self._warn(
                     f"an answer at address {frame.address} that this simulator did not send"
                 )
