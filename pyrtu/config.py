@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 from .errors import ArgumentTypeError
 from .rules import RuleTable, check_rules
-from .timing import TIMING_RULES, bits_per_char, check_baudrate, seconds_to_us
+from .timing import TIMING_RULES, bits_per_char, check_baudrate, check_timing, seconds_to_us
 
 ROLES = {"master": 0, "slave": 1, "monitor": 2}
 MAX_ADU_LIMIT = 1024
@@ -47,8 +47,7 @@ def core_options(
     if role not in ROLES:
         raise ValueError(f"role must be 'master', 'slave' or 'monitor', not {role!r}")
     check_baudrate(baudrate)
-    if timing not in TIMING_RULES:
-        raise ValueError(f"timing must be 'modbus' or 'weg', not {timing!r}")
+    check_timing(timing)
     if isinstance(max_adu, bool) or not isinstance(max_adu, int):
         raise ArgumentTypeError(f"max_adu must be 4..{MAX_ADU_LIMIT} bytes, not {max_adu!r}")
     if not 4 <= max_adu <= MAX_ADU_LIMIT:

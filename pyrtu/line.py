@@ -52,16 +52,17 @@ from .rules import RuleTable
 from .timing import (
     MAX_BAUDRATE,
     MIN_BAUDRATE,
+    MODES,
     Timing,
     apply_overrides,
     check_baudrate,
     check_bytesize,
+    check_mode,
     check_parity,
     check_stopbits,
+    check_timing,
     compute_timing,
 )
-
-MODES = ("rtu", "ascii")
 
 
 def _optional_seconds(name: str, value: object) -> None:
@@ -96,8 +97,7 @@ class LineConfig:
         parity = check_parity(self.parity)
         check_bytesize(self.bytesize)
         check_stopbits(self.stopbits)
-        if self.mode not in MODES:
-            raise ValueError(f"mode must be 'rtu' or 'ascii', not {self.mode!r}")
+        check_mode(self.mode)
         for name in ("t15", "t35", "flush_timeout"):
             _optional_seconds(name, getattr(self, name))
         inter = self.inter_char
@@ -215,7 +215,9 @@ __all__ = [
     "LineConfig",
     "check_baudrate",
     "check_bytesize",
+    "check_mode",
     "check_parity",
     "check_stopbits",
+    "check_timing",
     "split_field_error",
 ]

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from ._errtypes import ArgumentTypeError
 
 TIMING_RULES = ("modbus", "weg")
+MODES = ("rtu", "ascii")
 PARITIES = ("N", "E", "O", "M", "S")
 
 #: The baud rates every layer accepts (`LineConfig`, the framers, the masters and
@@ -37,6 +38,20 @@ def check_baudrate(value: object) -> int:
         raise ArgumentTypeError(text)
     if not MIN_BAUDRATE <= value <= MAX_BAUDRATE:
         raise ValueError(text)
+    return value
+
+
+def check_timing(value: object) -> str:
+    """``value`` as a timing rule above 19200 baud: "modbus" or "weg"."""
+    if not isinstance(value, str) or value not in TIMING_RULES:
+        raise ValueError(f"timing must be 'modbus' or 'weg', not {value!r}")
+    return value
+
+
+def check_mode(value: object) -> str:
+    """``value`` as a transmission mode: "rtu" or "ascii" (Serial Line V1.02, 2.5)."""
+    if not isinstance(value, str) or value not in MODES:
+        raise ValueError(f"mode must be 'rtu' or 'ascii', not {value!r}")
     return value
 
 
@@ -112,8 +127,7 @@ def _div_round(num: int, den: int) -> int:
 def compute_timing(baudrate: int, bits: int, rule: str = "modbus") -> Timing:
     """The pure-Python twin of rtu_timing_init (same integer arithmetic)."""
     check_baudrate(baudrate)
-    if rule not in TIMING_RULES:
-        raise ValueError(f"timing must be 'modbus' or 'weg', not {rule!r}")
+    check_timing(rule)
     if not 7 <= bits <= 12:
         raise ValueError(f"bits per character must be 7..12, not {bits}")
     bits_us = bits * 1_000_000

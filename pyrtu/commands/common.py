@@ -176,6 +176,8 @@ baudrate = line_value("baudrate", lambda t: int(t, 10), timing.check_baudrate)
 parity = line_value("parity", str, timing.check_parity)
 stopbits = line_value("stopbits", _number, timing.check_stopbits)
 bytesize = line_value("bytesize", lambda t: int(t, 10), timing.check_bytesize)
+mode = line_value("mode", str.lower, timing.check_mode)
+timing_rule = line_value("timing", str.lower, timing.check_timing)
 #: ``--count``: 1 or more (there is no "0 = unlimited": leave the option out)
 count = bounded_int(1, None, "a count")
 
@@ -271,7 +273,7 @@ def add_serial_options(
     )
     g.add_argument("--stopbits", type=stopbits, default=1, metavar="1|1.5|2", help="(default 1)")
     g.add_argument("--bytesize", type=bytesize, default=8, metavar="7|8", help="(default 8)")
-    g.add_argument("--mode", default="rtu", choices=["rtu", "ascii"], help="(default rtu)")
+    g.add_argument("--mode", type=mode, default="rtu", metavar="rtu|ascii", help="(default rtu)")
     g.add_argument(
         "--t35",
         type=seconds,
@@ -281,8 +283,9 @@ def add_serial_options(
     )
     g.add_argument(
         "--timing",
+        type=timing_rule,
         default="modbus",
-        choices=["modbus", "weg"],
+        metavar="modbus|weg",
         help="timing rule above 19200 baud (default modbus)",
     )
     add_exclusive_option(g)
