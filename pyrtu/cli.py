@@ -99,7 +99,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="pyrtu",
         description="Modbus RTU toolkit (pyrtu): read, write, poll, scan, identify, sniff, "
-        "simulate drives, run a virtual RS-485 bus, and a demo without hardware.",
+        "simulate drives, run a virtual RS-485 bus, and a demo without hardware.\n\n"
+        "Many points on many buses: pyrtu poll --config points.toml (the poller; "
+        "--duration S, --json).\nEach command's options: pyrtu COMMAND --help.",
         epilog=exit_code_table(),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 from .errors import ArgumentTypeError
 from .rules import RuleTable, check_rules
-from .timing import TIMING_RULES, bits_per_char, seconds_to_us
+from .timing import TIMING_RULES, bits_per_char, check_baudrate, check_timing, seconds_to_us
 
 ROLES = {"master": 0, "slave": 1, "monitor": 2}
 MAX_ADU_LIMIT = 1024
@@ -46,12 +46,8 @@ def core_options(
 ) -> CoreOptions:
     if role not in ROLES:
         raise ValueError(f"role must be 'master', 'slave' or 'monitor', not {role!r}")
-    if isinstance(baudrate, bool) or not isinstance(baudrate, int):
-        raise ArgumentTypeError(f"baudrate must be a positive integer, not {baudrate!r}")
-    if baudrate <= 0:
-        raise ValueError(f"baudrate must be a positive integer, not {baudrate!r}")
-    if timing not in TIMING_RULES:
-        raise ValueError(f"timing must be 'modbus' or 'weg', not {timing!r}")
+    check_baudrate(baudrate)
+    check_timing(timing)
     if isinstance(max_adu, bool) or not isinstance(max_adu, int):
         raise ArgumentTypeError(f"max_adu must be 4..{MAX_ADU_LIMIT} bytes, not {max_adu!r}")
     if not 4 <= max_adu <= MAX_ADU_LIMIT:

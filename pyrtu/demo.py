@@ -27,6 +27,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import shutil
 import sys
 import time
 from dataclasses import dataclass, field
@@ -123,6 +124,20 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--plain", action="store_true", help="plain lines even when the output is a terminal"
     )
+
+
+def pyrtu_command() -> str:
+    """How to run ``pyrtu`` from here: ``pyrtu`` when that is this installation on
+    PATH, else the script beside this interpreter (``.venv/bin/pyrtu`` after ``make
+    demo``, whose virtual environment is not activated), else ``python -m pyrtu``."""
+    here = os.path.join(os.path.dirname(sys.executable), "pyrtu")
+    found = shutil.which("pyrtu")
+    if found is not None and os.path.realpath(found) == os.path.realpath(here):
+        return "pyrtu"
+    if os.access(here, os.X_OK):
+        rel = os.path.relpath(here)
+        return rel if not rel.startswith("..") else here
+    return f"{sys.executable} -m pyrtu"
 
 
 def response_timeout(char_time: float) -> float:
@@ -354,6 +369,11 @@ class Demo:
         else:
             now = "--" if cfw.hz is None else f"{cfw.hz:.2f}"
             self.say(f"the CFW701 is at {now} Hz: ramping to {TARGET_HZ:g} Hz when the run ended")
+        print(
+            f"next: {pyrtu_command()} --help; the same bus by hand: README.md, "
+            '"A session without hardware"',
+            file=sys.stderr,
+        )
 
     def say(self, text: str) -> None:
         self.out.write(text + "\n")

@@ -10,10 +10,17 @@ written out in six places before it)::
     framer = pyrtu.Framer("master", line=line)
 
 Fields (all keyword, all checked in the constructor; a bad value raises
-ValueError naming the keyword):
+ValueError, or TypeError for a wrong type, naming the keyword).  This is the one
+validator of line parameters: the framers, `pyrtu.Master`/`AsyncMaster`,
+`Slave`/`AsyncSlave`, the virtual bus, the poller's TOML loader and the command
+line all check through it (or through the same `pyrtu.timing` checks), so a bad
+value gets the same words everywhere, e.g. ``baudrate must be an integer
+50..4000000, not 1000000000``:
 
-* ``baudrate``, ``parity`` ("N", "E", "O", "M", "S"), ``stopbits`` (1, 1.5, 2),
-  ``bytesize`` (7, 8): the byte format (Modbus over Serial Line V1.02, 2.5.1).
+* ``baudrate`` (50..4000000: `pyrtu.timing.MIN_BAUDRATE`/`MAX_BAUDRATE`, the
+  range termios names), ``parity`` ("N", "E", "O", "M", "S"), ``stopbits`` (1,
+  1.5, 2), ``bytesize`` (7, 8): the byte format (Modbus over Serial Line V1.02,
+  2.5.1).
 * ``mode``: "rtu" or "ascii" (2.5.1 / 2.5.2).
 * ``timing``: "modbus" (fixed 750 / 1750 us above 19200 baud, 2.5.1.1) or
   "weg" (the WEG manuals keep the 19200-baud values above 19200).
@@ -42,9 +49,20 @@ from typing import Any
 from .config import CoreOptions, core_options
 from .errors import ArgumentTypeError
 from .rules import RuleTable
-from .timing import Timing, apply_overrides, compute_timing
-
-MODES = ("rtu", "ascii")
+from .timing import (
+    MAX_BAUDRATE,
+    MIN_BAUDRATE,
+    MODES,
+    Timing,
+    apply_overrides,
+    check_baudrate,
+    check_bytesize,
+    check_mode,
+    check_parity,
+    check_stopbits,
+    check_timing,
+    compute_timing,
+)
 
 
 def _optional_seconds(name: str, value: object) -> None:
@@ -75,10 +93,11 @@ class LineConfig:
     inter_char: float = 1.0
 
     def __post_init__(self) -> None:
-        if not isinstance(self.parity, str):
-            raise ArgumentTypeError(f"parity must be one of N, E, O, M, S, not {self.parity!r}")
-        if self.mode not in MODES:
-            raise ValueError(f"mode must be 'rtu' or 'ascii', not {self.mode!r}")
+        check_baudrate(self.baudrate)
+        parity = check_parity(self.parity)
+        check_bytesize(self.bytesize)
+        check_stopbits(self.stopbits)
+        check_mode(self.mode)
         for name in ("t15", "t35", "flush_timeout"):
             _optional_seconds(name, getattr(self, name))
         inter = self.inter_char
@@ -92,8 +111,8 @@ class LineConfig:
         if not isinstance(self.strict, bool):
             raise ArgumentTypeError(f"strict must be True or False, not {self.strict!r}")
         # The framer's checks, with the framer's messages (they name the keyword).
-        options = core_options("master", **self._framer_kwargs(self.parity))
-        object.__setattr__(self, "parity", self.parity.upper()[:1])
+        options = core_options("master", **self._framer_kwargs(parity))
+        object.__setattr__(self, "parity", parity)
         object.__setattr__(self, "rules", MappingProxyType(dict(options.rules)))
         object.__setattr__(self, "_bits", options.bits)
         base = compute_timing(self.baudrate, options.bits, self.timing)
@@ -177,4 +196,28 @@ class LineConfig:
         return line.replace(**kwargs) if kwargs else line
 
 
-__all__ = ["MODES", "LineConfig"]
+def split_field_error(exc: BaseException, names: tuple[str, ...]) -> tuple[str | None, str]:
+    """``("baudrate", "must be ...")`` from the validators' ``"baudrate must be ..."``
+    (None and the whole message when it names none of ``names``): how the TOML loader
+    and the command line put the same words after their own ``file:line: key:`` or
+    ``argument --flag:``."""
+    text = str(exc)
+    for name in names:
+        if text.startswith(name + " "):
+            return name, text[len(name) + 1 :]
+    return None, text
+
+
+__all__ = [
+    "MAX_BAUDRATE",
+    "MIN_BAUDRATE",
+    "MODES",
+    "LineConfig",
+    "check_baudrate",
+    "check_bytesize",
+    "check_mode",
+    "check_parity",
+    "check_stopbits",
+    "check_timing",
+    "split_field_error",
+]

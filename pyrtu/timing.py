@@ -14,7 +14,81 @@ from dataclasses import dataclass
 from ._errtypes import ArgumentTypeError
 
 TIMING_RULES = ("modbus", "weg")
+MODES = ("rtu", "ascii")
 PARITIES = ("N", "E", "O", "M", "S")
+
+#: The baud rates every layer accepts (`LineConfig`, the framers, the masters and
+#: slaves, the virtual bus, the TOML loader and the command line check them here).
+#: 50 is the slowest rate termios names (B50); 4000000 the fastest one Linux names
+#: (B4000000) and the top of pyserial's ``Serial.BAUDRATES``.  Faster adapters exist,
+#: but the framers keep time in whole microseconds: at 4 Mbaud a 9-bit character
+#: (7N1) lasts 2.25 us, already rounded by 11 %; much above, t1.5 and the answer
+#: length timing lose their meaning.
+MIN_BAUDRATE = 50
+MAX_BAUDRATE = 4_000_000
+STOPBITS = (1, 1.5, 2)
+BYTESIZES = (7, 8)
+
+
+def check_baudrate(value: object) -> int:
+    """``value`` as a baud rate; the one check of every layer (TypeError for a
+    non-integer, ValueError out of range; both messages name ``baudrate``)."""
+    text = f"baudrate must be an integer {MIN_BAUDRATE}..{MAX_BAUDRATE}, not {value!r}"
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ArgumentTypeError(text)
+    if not MIN_BAUDRATE <= value <= MAX_BAUDRATE:
+        raise ValueError(text)
+    return value
+
+
+def check_timing(value: object) -> str:
+    """``value`` as a timing rule above 19200 baud: "modbus" or "weg"."""
+    if not isinstance(value, str) or value not in TIMING_RULES:
+        raise ValueError(f"timing must be 'modbus' or 'weg', not {value!r}")
+    return value
+
+
+def check_mode(value: object) -> str:
+    """``value`` as a transmission mode: "rtu" or "ascii" (Serial Line V1.02, 2.5)."""
+    if not isinstance(value, str) or value not in MODES:
+        raise ValueError(f"mode must be 'rtu' or 'ascii', not {value!r}")
+    return value
+
+
+_PARITY_NAMES = {"NONE": "N", "EVEN": "E", "ODD": "O", "MARK": "M", "SPACE": "S"}
+
+
+def check_parity(value: object) -> str:
+    """``value`` as a parity letter: N, E, O, M, S or the names none, even, odd,
+    mark, space (any case)."""
+    text = f"parity must be one of {', '.join(PARITIES)}, not {value!r}"
+    if not isinstance(value, str):
+        raise ArgumentTypeError(text)
+    word = value.strip().upper()
+    letter = _PARITY_NAMES.get(word, word)
+    if letter not in PARITIES:
+        raise ValueError(text)
+    return letter
+
+
+def check_bytesize(value: object) -> int:
+    """``value`` as data bits per character (7 or 8: Serial Line V1.02, 2.5)."""
+    text = f"bytesize must be 7 or 8, not {value!r}"
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ArgumentTypeError(text)
+    if value not in BYTESIZES:
+        raise ValueError(text)
+    return value
+
+
+def check_stopbits(value: object) -> float:
+    """``value`` as stop bits (1, 1.5 or 2)."""
+    text = f"stopbits must be 1, 1.5 or 2, not {value!r}"
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ArgumentTypeError(text)
+    if value not in STOPBITS:
+        raise ValueError(text)
+    return value
 
 
 @dataclass(frozen=True, slots=True)
@@ -40,19 +114,9 @@ class Timing:
 
 def bits_per_char(parity: str = "E", stopbits: float = 1, bytesize: int = 8) -> int:
     """Start bit + data bits + parity bit + stop bits (11 for 8E1, 8O1, 8N2; 10 for 8N1)."""
-    if not isinstance(parity, str):
-        raise ArgumentTypeError(f"parity must be one of {', '.join(PARITIES)}, not {parity!r}")
-    parity = parity.upper()[:1]
-    if parity not in PARITIES:
-        raise ValueError(f"parity must be one of {', '.join(PARITIES)}, not {parity!r}")
-    if isinstance(bytesize, bool) or not isinstance(bytesize, int):
-        raise ArgumentTypeError(f"bytesize must be 7 or 8, not {bytesize!r}")
-    if bytesize not in (7, 8):
-        raise ValueError(f"bytesize must be 7 or 8, not {bytesize!r}")
-    if isinstance(stopbits, bool) or not isinstance(stopbits, int | float):
-        raise ArgumentTypeError(f"stopbits must be 1, 1.5 or 2, not {stopbits!r}")
-    if stopbits not in (1, 1.5, 2):
-        raise ValueError(f"stopbits must be 1, 1.5 or 2, not {stopbits!r}")
+    parity = check_parity(parity)
+    bytesize = check_bytesize(bytesize)
+    stopbits = check_stopbits(stopbits)
     return 1 + bytesize + (0 if parity == "N" else 1) + int(stopbits + 0.5)
 
 
@@ -62,12 +126,8 @@ def _div_round(num: int, den: int) -> int:
 
 def compute_timing(baudrate: int, bits: int, rule: str = "modbus") -> Timing:
     """The pure-Python twin of rtu_timing_init (same integer arithmetic)."""
-    if isinstance(baudrate, bool) or not isinstance(baudrate, int):
-        raise ArgumentTypeError(f"baudrate must be a positive integer, not {baudrate!r}")
-    if baudrate <= 0:
-        raise ValueError(f"baudrate must be a positive integer, not {baudrate!r}")
-    if rule not in TIMING_RULES:
-        raise ValueError(f"timing must be 'modbus' or 'weg', not {rule!r}")
+    check_baudrate(baudrate)
+    check_timing(rule)
     if not 7 <= bits <= 12:
         raise ValueError(f"bits per character must be 7..12, not {bits}")
     bits_us = bits * 1_000_000

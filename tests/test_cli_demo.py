@@ -56,6 +56,14 @@ def test_demo_plain_lines_reach_30_hz() -> None:
     assert by_drive["WEG CFW100"][-1][0] == 0.0
     assert re.search(r"the CFW701 reached 30 Hz [\d.]+ s after the start", out)
     assert re.search(r"bus: \d+ transactions \(\d+/s\), 0 errors", out)
+    # the newcomer's next step: a pyrtu command that runs from here (after make demo
+    # the virtual environment is not activated: .venv/bin/pyrtu, not a bare pyrtu)
+    hint = re.search(r"^next: (.+) --help; the same bus by hand: README.md", r.err, re.M)
+    assert hint, r.err
+    version = subprocess.run(
+        [*hint.group(1).split(), "--version"], cwd=ROOT, env=env(), capture_output=True, text=True
+    )
+    assert version.returncode == 0 and version.stdout.startswith("pyrtu "), version
 
 
 def test_demo_live_view_on_a_terminal() -> None:

@@ -44,9 +44,10 @@ def test_seconds_refused(text: str) -> None:
 def test_positive_seconds_and_parity() -> None:
     with pytest.raises(argparse.ArgumentTypeError):
         common.positive_seconds("0")
-    assert common.parity("e") == "E"
-    with pytest.raises(argparse.ArgumentTypeError):
-        common.parity("even")
+    assert common.parity("e") == "E" and common.parity("even") == "E"
+    for bad in ("evens", "Nonsense", "EN", ""):
+        with pytest.raises(argparse.ArgumentTypeError, match="must be one of N, E, O, M, S"):
+            common.parity(bad)
 
 
 def test_exit_codes_of_errors() -> None:

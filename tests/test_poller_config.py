@@ -148,7 +148,7 @@ def test_semantic_errors_name_file_line_table_key() -> None:
     )
     msg = bad(MINIMAL.replace("address = 680\n", ""))
     assert msg == 'points.toml:7: point[0] ("cfw701.status"): address: missing'
-    assert "baudrate: must be a positive integer" in bad(MINIMAL.replace("19200", "-5"))
+    assert "baudrate: must be an integer 50..4000000, not -5" in bad(MINIMAL.replace("19200", "-5"))
     msg = bad(MINIMAL.replace('parity = "E"', 'parity = "E"\ntimeout = 0'))
     assert msg == 'points.toml:6: bus[0] ("line1"): timeout: must be a positive number of ' \
         "seconds, not 0"  # fmt: skip

@@ -28,13 +28,13 @@ import errno
 import json
 import math
 import re
-import signal
 import sys
-import threading
-from collections.abc import Callable, Iterator, Mapping
-from contextlib import contextmanager
-from types import FrameType
+from collections.abc import Callable, Mapping
 from typing import IO, TYPE_CHECKING, Any, NamedTuple
+
+from .. import timing
+from ..line import split_field_error
+from ._signals import SignalStop, stop_on_signals
 
 try:  # POSIX: pyserial lets termios.error through when a port refuses a format
     import termios
@@ -95,9 +95,9 @@ def exit_code_table() -> str:
 
 #: the longest time any option takes (about 31 years): beyond, microseconds overflow
 MAX_SECONDS = 1e9
-#: the fastest serial line the commands accept: the character time must stay a
-#: positive number of microseconds (the framer's clock) for every format
-MAX_BAUDRATE = 10_000_000
+#: the baud rates every layer accepts (`pyrtu.timing`: the range termios names)
+MAX_BAUDRATE = timing.MAX_BAUDRATE
+MIN_BAUDRATE = timing.MIN_BAUDRATE
 
 _DURATION = re.compile(r"^\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*(s|ms|us|µs)?\s*$")
 
@@ -143,8 +143,38 @@ def bounded_int(low: int, high: int | None, what: str = "an integer") -> Callabl
     return convert
 
 
-#: ``--baudrate``: 1..MAX_BAUDRATE
-baudrate = bounded_int(1, MAX_BAUDRATE, "a baud rate")
+def line_value(name: str, convert: Callable[[str], Any], check: Callable[[Any], Any]) -> Any:
+    """An argparse type for a line parameter: ``convert`` the text, then the check
+    `pyrtu.LineConfig` makes, with its words (``argument -b/--baudrate: must be an
+    integer 50..4000000, not 100000000``, as the TOML loader says after its
+    ``file:line: bus[0]: baudrate:`` and the API after ``baudrate``)."""
+
+    def parse(text: str) -> Any:
+        try:
+            value = convert(text.strip())
+        except ValueError:
+            value = text
+        try:
+            return check(value)
+        except ValueError as exc:  # ArgumentTypeError (a TypeError) included
+            raise argparse.ArgumentTypeError(split_field_error(exc, (name,))[1]) from None
+
+    parse.__name__ = name
+    return parse
+
+
+def _number(text: str) -> int | float:
+    value = float(text)
+    return int(value) if value.is_integer() and "." not in text else value
+
+
+#: ``--baudrate``, ``--parity``, ``--stopbits``, ``--bytesize``: LineConfig's checks
+baudrate = line_value("baudrate", lambda t: int(t, 10), timing.check_baudrate)
+parity = line_value("parity", str, timing.check_parity)
+stopbits = line_value("stopbits", _number, timing.check_stopbits)
+bytesize = line_value("bytesize", lambda t: int(t, 10), timing.check_bytesize)
+mode = line_value("mode", str.lower, timing.check_mode)
+timing_rule = line_value("timing", str.lower, timing.check_timing)
 #: ``--count``: 1 or more (there is no "0 = unlimited": leave the option out)
 count = bounded_int(1, None, "a count")
 
@@ -209,13 +239,6 @@ def slave_address(text: str) -> int:
     return value
 
 
-def parity(text: str) -> str:
-    value = text.strip().upper()[:1]
-    if value not in ("N", "E", "O") or len(text.strip()) != 1:
-        raise argparse.ArgumentTypeError(f"parity is N, E or O, not {text!r}")
-    return value
-
-
 # -- the serial options -----------------------------------------------------------------
 
 
@@ -235,7 +258,7 @@ def add_serial_options(
         type=baudrate,
         default=19200,
         metavar="BAUD",
-        help=f"(default 19200; at most {MAX_BAUDRATE})",
+        help=f"(default 19200; {MIN_BAUDRATE}..{MAX_BAUDRATE})",
     )
     g.add_argument(
         "-P",
@@ -243,11 +266,11 @@ def add_serial_options(
         type=parity,
         default=parity_default,
         metavar="N|E|O",
-        help=f"(default {parity_default}; pseudo-terminals and the virtual bus need N)",
+        help=f"(default {parity_default}; also M, S; pseudo-terminals and the virtual bus need N)",
     )
-    g.add_argument("--stopbits", type=float, default=1, choices=[1, 1.5, 2], help="(default 1)")
-    g.add_argument("--bytesize", type=int, default=8, choices=[7, 8], help="(default 8)")
-    g.add_argument("--mode", default="rtu", choices=["rtu", "ascii"], help="(default rtu)")
+    g.add_argument("--stopbits", type=stopbits, default=1, metavar="1|1.5|2", help="(default 1)")
+    g.add_argument("--bytesize", type=bytesize, default=8, metavar="7|8", help="(default 8)")
+    g.add_argument("--mode", type=mode, default="rtu", metavar="rtu|ascii", help="(default rtu)")
     g.add_argument(
         "--t35",
         type=seconds,
@@ -257,8 +280,9 @@ def add_serial_options(
     )
     g.add_argument(
         "--timing",
+        type=timing_rule,
         default="modbus",
-        choices=["modbus", "weg"],
+        metavar="modbus|weg",
         help="timing rule above 19200 baud (default modbus)",
     )
     add_exclusive_option(g)
@@ -526,29 +550,6 @@ def emit(doc: Mapping[str, Any], out: IO[str] | None = None) -> None:
     stream.flush()
 
 
-# -- stopping ---------------------------------------------------------------------------------
-
-
-@contextmanager
-def stop_on_signals() -> Iterator[threading.Event]:
-    """An event set by SIGINT or SIGTERM while the block runs (handlers restored after)."""
-    stop = threading.Event()
-
-    def on_signal(signum: int, frame: FrameType | None) -> None:
-        stop.set()
-
-    old: dict[signal.Signals, Any] = {}
-    in_main = threading.current_thread() is threading.main_thread()
-    if in_main:
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            old[sig] = signal.signal(sig, on_signal)
-    try:
-        yield stop
-    finally:
-        for sig, handler in old.items():
-            signal.signal(sig, handler)
-
-
 __all__ = [
     "EXIT_CODES",
     "EXIT_EXCEPTION",
@@ -560,6 +561,7 @@ __all__ = [
     "EXIT_PORT",
     "EXIT_USAGE",
     "CommandSpec",
+    "SignalStop",
     "add_json_option",
     "add_serial_options",
     "classify",

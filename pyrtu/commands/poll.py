@@ -11,10 +11,11 @@ Exit status: 0 when every transaction succeeded, otherwise the code of the most
 frequent kind of error (4 no response, 5 exception, 6 frame); 3 when the port
 fails (the poll stops).
 
-``pyrtu poll --config points.toml [--duration S] [--json]`` polls the points of a
-TOML file on all its buses instead (`pyrtu.commands.poll_config`); its exit status
-says what came in (3 a port never worked or is down, 4 a slave offline or a point
-never read, 5 a point dropped): ``pyrtu poll --config FILE --help``.
+``pyrtu poll --config points.toml [--duration S] [--json]`` is the poller: it polls
+every point of a TOML file (``[[bus]]``, ``[[device]]``, ``[[point]]`` tables; see
+docs/POLLER.md) on all its buses at once, with a live table or JSON lines; its exit
+status says what came in (3 a port never worked or is down, 4 a slave offline or a
+point never read, 5 a point dropped): ``pyrtu poll --config FILE --help``.
 """
 
 from __future__ import annotations
@@ -288,7 +289,7 @@ def _run(args: argparse.Namespace) -> int:
 COMMANDS = (
     CommandSpec(
         "poll",
-        "read repeatedly at a rate with live statistics (tx/s, latency p50/p99, errors)",
+        "read repeatedly with live statistics; poll --config FILE: the poller (TOML)",
         _configure,
         guarded("poll", _run),
         __doc__.strip() + "\n\n" + exit_code_table() if __doc__ else None,

@@ -20,6 +20,7 @@ one summary line (``"type": "summary"``).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 import time
 from collections.abc import Iterable, Iterator
@@ -29,6 +30,7 @@ from typing import Any
 from .common import (
     EXIT_OK,
     CommandSpec,
+    SignalStop,
     add_json_option,
     add_serial_options,
     count,
@@ -414,7 +416,9 @@ def _run(args: argparse.Namespace) -> int:
     t0: float | None = None
     reader: Any = None
     try:
-        with stop_on_signals() as stop:
+        # reading a capture may block in open() or read() (a FIFO whose writer has not
+        # come or is silent): there a signal interrupts the call (SignalStop)
+        with contextlib.suppress(SignalStop), stop_on_signals(args.capture is not None) as stop:
             if args.port is not None:
                 frames: Iterable[Seen] = from_port(args, stop)  # opens the port first
                 if not args.json:

@@ -43,7 +43,8 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, TypeGuard
 
-from ..line import LineConfig
+from .._portname import first_duplicate
+from ..line import LineConfig, split_field_error
 from .plan import Limits, Wire
 from .points import Point, PointError, check_unique
 from .profiles import device_limits, profile_points
@@ -95,12 +96,9 @@ def make_line(master: Mapping[str, Any]) -> LineConfig:
     kw = {k: master[k] for k in LINE_KEYS if k in master}
     try:
         return LineConfig(**kw)
-    except (ValueError, TypeError) as e:
-        msg = str(e)
-        for k in LINE_KEYS:
-            if msg.startswith(k + " "):
-                raise ValueError(f"{k}: {msg[len(k) + 1 :]}") from None
-        raise ValueError(msg) from None
+    except (ValueError, TypeError) as e:  # LineConfig's own words after "key: "
+        key, detail = split_field_error(e, LINE_KEYS)
+        raise ValueError(f"{key}: {detail}" if key else detail) from None
 
 
 @dataclass(frozen=True)
@@ -197,6 +195,13 @@ class PollerConfig:
         if len(set(names)) != len(names):
             dup = next(n for n in names if names.count(n) > 1)
             raise ConfigError(f"{self.source}: bus {dup!r} is declared twice")
+        twice = first_duplicate(b.port for b in self.buses)
+        if twice is not None:
+            a, b = self.buses[twice[0]], self.buses[twice[1]]
+            raise ConfigError(
+                f"{self.source}: bus {b.name!r}: port: {b.port!r} is the port of bus"
+                f" {a.name!r} already: one port is one bus (give each bus its own port)"
+            )
         if not self.points:
             raise ConfigError(f"{self.source}: no points to poll")
         try:
@@ -293,6 +298,15 @@ class _Loader:
         buses = [self.bus(i, t) for i, t in enumerate(self.tables(doc, "bus"))]
         if not buses:
             raise ConfigError(f"{self.source}: no [[bus]] table")
+        names = [b.name for b in buses]
+        dup = first_duplicate(b.port for b in buses)
+        if dup is not None and len(set(names)) == len(names):  # a name twice: said first
+            first, again = buses[dup[0]], buses[dup[1]]
+            raise self.fail(
+                "bus", dup[1], f'bus[{dup[1]}] ("{again.name}")', "port",
+                f"{again.port!r} is the port of bus[{dup[0]}] (\"{first.name}\") already:"
+                " one port is one bus (give each bus its own port)",
+            )  # fmt: skip
         devices: list[Device] = []
         points: list[Point] = []
         for i, t in enumerate(self.tables(doc, "device")):

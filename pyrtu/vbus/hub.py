@@ -15,7 +15,13 @@ from types import TracebackType
 
 from .._pure.vbus import OUT, Schedule
 from ..line import LineConfig
-from ..timing import bits_per_char
+from ..timing import (
+    bits_per_char,
+    check_baudrate,
+    check_bytesize,
+    check_parity,
+    check_stopbits,
+)
 from . import _cvbus
 from ._cvbus import CLoop, CSchedule
 from ._hubloop import _SPIN_NS, DEFAULT_LATENCY, HubLoops
@@ -109,14 +115,14 @@ class VirtualBus(HubLoops):
             raise ValueError(
                 f"a bus has 1..{MAX_DROPS} drops (247 slaves and a master), not {drops!r}"
             )
-        if baudrate <= 0:
-            raise ValueError("baudrate must be positive")
+        check_baudrate(baudrate)  # the checks and words of LineConfig (pyrtu.timing)
+        check_bytesize(bytesize)
+        if check_stopbits(stopbits) not in (1, 2):  # the capture header holds 1 or 2
+            raise ValueError(f"stopbits must be 1 or 2 on the virtual bus, not {stopbits!r}")
         if loop not in ("auto", "python"):
             raise ValueError(f"loop must be 'auto' or 'python', not {loop!r}")
-        if bytesize not in (5, 6, 7, 8) or stopbits not in (1, 2):
-            raise ValueError("bytesize must be 5..8 and stopbits 1 or 2")
         self.baudrate = baudrate
-        self.parity = normalize_parity(parity)
+        self.parity = normalize_parity(check_parity(parity))
         self.stopbits = stopbits
         self.bytesize = bytesize
         self.bits = bits_per_char(self.parity, stopbits, bytesize)

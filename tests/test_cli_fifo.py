@@ -1,0 +1,62 @@
+"""``pyrtu sniff --capture FIFO`` ends on SIGTERM and SIGINT while it waits for a
+writer (blocked in open) or for bytes from a silent one (blocked in read): a real
+FIFO, a real ``python -m pyrtu`` and a real signal."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from cli_helpers import ROOT, env
+
+
+def sniff_fifo(fifo: Path) -> subprocess.Popen[str]:
+    return subprocess.Popen(
+        [sys.executable, "-m", "pyrtu", "sniff", "--capture", str(fifo)],
+        cwd=ROOT,
+        env=env(),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def stopped_by(proc: subprocess.Popen[str], sig: signal.Signals) -> tuple[int, str, str]:
+    time.sleep(1.0)  # started and blocked in the FIFO by now
+    assert proc.poll() is None, proc.communicate()
+    proc.send_signal(sig)
+    try:
+        out, err = proc.communicate(timeout=10)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
+        pytest.fail(f"sniff --capture FIFO ignored {sig.name}")
+    return proc.returncode, out, err
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_no_writer_yet(tmp_path: Path, sig: signal.Signals) -> None:
+    fifo = tmp_path / "bus.fifo"
+    os.mkfifo(fifo)
+    code, out, err = stopped_by(sniff_fifo(fifo), sig)
+    assert code == 0, err
+    assert "0 frames" in out and "Traceback" not in err
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_a_silent_writer(tmp_path: Path, sig: signal.Signals) -> None:
+    fifo = tmp_path / "bus.fifo"
+    os.mkfifo(fifo)
+    proc = sniff_fifo(fifo)
+    writer = os.open(fifo, os.O_WRONLY)  # meets the reader's open; then writes nothing
+    try:
+        code, out, err = stopped_by(proc, sig)
+    finally:
+        os.close(writer)
+    assert code == 0, err
+    assert "0 frames" in out and "Traceback" not in err
