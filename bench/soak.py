@@ -84,9 +84,30 @@ class Tally:
     abuser_connects: int = 0
     abuser_closed: int = 0
     events: dict[str, int] = field(default_factory=lambda: defaultdict(int))
-    last_update: dict[int, float] = field(default_factory=dict)  # slave -> wall time
-    last_gw: dict[int, float] = field(default_factory=dict)  # unit -> wall time
+    #: faults replugged and waiting for their first good value, by the path that
+    #: shows it: ("slave", s) and ("poller", 0) for updates, ("unit", u) and
+    #: ("gateway", 0) for the gateway's answers
+    waiting: dict[tuple[str, int], list[Fault]] = field(default_factory=lambda: defaultdict(list))
+    event_log: list[str] = field(default_factory=list)
     lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def success(self, key: tuple[str, int], t: float) -> None:
+        """A good value through `key` at wall time `t` (call with the lock held): the
+        faults replugged before it on that path have recovered."""
+        for k in (key, (("poller", 0) if key[0] == "slave" else ("gateway", 0))):
+            faults = self.waiting.get(k)
+            if faults:
+                left = []
+                for f in faults:
+                    if f.replugged < t:
+                        f.recovered = t
+                    else:
+                        left.append(f)
+                self.waiting[k] = left
+
+
+#: the path whose first good value after the replug ends each kind of fault
+PATH = {"drive": "slave", "poller": "poller", "gwdrive": "unit", "gateway": "gateway"}
 
 
 def rss_kb(pid: int) -> tuple[int, int]:
@@ -192,7 +213,7 @@ def good_client(
                         tally.gw_exceptions += 1
                     if pdu[0] == 16 and body[1] in (2, 3, 4):
                         with tally.lock:  # the device's own refusal: it answered
-                            tally.last_gw[unit] = time.time()
+                            tally.success(("unit", unit), time.time())
                     elif body[1] in (0x0A, 0x0B):
                         stop.wait(0.02)  # the gateway's own answer: retry a little later
                     continue
@@ -204,7 +225,7 @@ def good_client(
                         if regs != want:
                             tally.wrong.append(f"gateway unit {unit} @{start}: {regs} != {want}")
                         tally.gw_answers += 1
-                        tally.last_gw[unit] = time.time()
+                        tally.success(("unit", unit), time.time())
         except ConnectionRefusedError:
             with tally.lock:
                 tally.gw_refused += 1
@@ -269,13 +290,15 @@ def read_poller(
             slave, reg = int(s), int(r)
             with tally.lock:
                 tally.updates += 1
-                tally.last_update[slave] = float(obj["time"])
+                tally.success(("slave", slave), float(obj["time"]))
                 if obj["value"] != known[slave][reg]:
                     tally.wrong.append(f"poller s{slave} r{reg}: {obj['value']}")
         else:
             kind = obj.get("event") or obj.get("type") or ("summary" if obj.get("summary") else "?")
             with tally.lock:
                 tally.events[str(kind)] += 1
+                if kind != "summary":
+                    tally.event_log.append(f"{time.time():.3f} {line.strip()}")
 
 
 def spawn(args: list[str], **kw: Any) -> subprocess.Popen[str]:
@@ -394,13 +417,14 @@ def phase(baud: int, args: argparse.Namespace, out: dict[str, Any]) -> None:
             f = Fault(kind, who, time.time())
             bus.unplug(drop, after_bytes=rng.randint(0, 6))
             time.sleep(args.down)
-            bus.replug(drop)
-            f.replugged = time.time()
-            injected.append(f)
+            with tally.lock:
+                bus.replug(drop)
+                f.replugged = time.time()
+                injected.append(f)
+                tally.waiting[(PATH[kind], who)].append(f)
             time.sleep(args.cycle)
-            settle(injected, tally, slaves)
         deadline = time.monotonic() + RECOVER_LIMIT
-        while time.monotonic() < deadline and not settle(injected, tally, slaves):
+        while time.monotonic() < deadline and not settle(injected, tally):
             time.sleep(0.2)
         mem1 = {name: rss_kb(p.pid) for name, p in procs.items()}
         alive = {name: p.poll() is None for name, p in procs.items()}
@@ -442,27 +466,21 @@ def phase(baud: int, args: argparse.Namespace, out: dict[str, Any]) -> None:
     }
     if args.keep:
         out[str(baud)]["dir"] = str(tmp)
+        (tmp / "poller-events.log").write_text("\n".join(tally.event_log) + "\n")
+        (tmp / "faults.log").write_text(
+            "".join(
+                f"{f.unplugged:.3f} {f.replugged:.3f} {f.recovered:.3f} {f.kind} {f.target}\n"
+                for f in injected
+            )
+        )
     else:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
-def settle(injected: list[Fault], tally: Tally, slaves: list[int]) -> bool:
-    """Mark faults recovered from what the paths delivered since; True if all are."""
+def settle(injected: list[Fault], tally: Tally) -> bool:
+    """True when every fault injected has recovered."""
     with tally.lock:
-        for f in injected:
-            if f.recovered or not f.replugged:
-                continue
-            if f.kind == "drive":
-                t = tally.last_update.get(f.target, 0.0)
-            elif f.kind == "poller":
-                t = max(tally.last_update.values(), default=0.0)
-            elif f.kind == "gwdrive":
-                t = tally.last_gw.get(f.target, 0.0)
-            else:
-                t = max(tally.last_gw.values(), default=0.0)
-            if t > f.replugged:
-                f.recovered = t
-    return all(f.recovered for f in injected)
+        return all(f.recovered for f in injected)
 
 
 def main(argv: list[str] | None = None) -> int:
