@@ -26,9 +26,33 @@ def sniff_fifo(fifo: Path) -> subprocess.Popen[str]:
     )
 
 
-def stopped_by(proc: subprocess.Popen[str], sig: signal.Signals) -> tuple[int, str, str]:
-    time.sleep(1.0)  # started and blocked in the FIFO by now
-    assert proc.poll() is None, proc.communicate()
+def blocked_on_the_fifo(proc: subprocess.Popen[str], fifo: Path, timeout: float = 60.0) -> None:
+    """Wait until the command sleeps in the FIFO: in open() waiting for a writer
+    (the kernel's wchan ``wait_for_partner``) or in read() with the FIFO open (its
+    descriptor in /proc/PID/fd), so that the signal finds its handlers installed
+    (a signal during the interpreter's start-up would prove nothing)."""
+    deadline = time.monotonic() + timeout
+    target = str(fifo)
+    while time.monotonic() < deadline:
+        assert proc.poll() is None, proc.communicate()
+        try:
+            wchan = Path(f"/proc/{proc.pid}/wchan").read_text()
+            fds = [
+                os.readlink(f"/proc/{proc.pid}/fd/{fd}")
+                for fd in os.listdir(f"/proc/{proc.pid}/fd")
+            ]
+        except OSError:
+            fds, wchan = [], ""
+        if wchan == "wait_for_partner" or (target in fds and "pipe" in wchan):
+            return
+        time.sleep(0.02)
+    pytest.fail(f"sniff never blocked on {fifo} (wchan {wchan!r})")
+
+
+def stopped_by(
+    proc: subprocess.Popen[str], fifo: Path, sig: signal.Signals
+) -> tuple[int, str, str]:
+    blocked_on_the_fifo(proc, fifo)
     proc.send_signal(sig)
     try:
         out, err = proc.communicate(timeout=10)
@@ -43,7 +67,7 @@ def stopped_by(proc: subprocess.Popen[str], sig: signal.Signals) -> tuple[int, s
 def test_no_writer_yet(tmp_path: Path, sig: signal.Signals) -> None:
     fifo = tmp_path / "bus.fifo"
     os.mkfifo(fifo)
-    code, out, err = stopped_by(sniff_fifo(fifo), sig)
+    code, out, err = stopped_by(sniff_fifo(fifo), fifo, sig)
     assert code == 0, err
     assert "0 frames" in out and "Traceback" not in err
 
@@ -55,7 +79,7 @@ def test_a_silent_writer(tmp_path: Path, sig: signal.Signals) -> None:
     proc = sniff_fifo(fifo)
     writer = os.open(fifo, os.O_WRONLY)  # meets the reader's open; then writes nothing
     try:
-        code, out, err = stopped_by(proc, sig)
+        code, out, err = stopped_by(proc, fifo, sig)
     finally:
         os.close(writer)
     assert code == 0, err

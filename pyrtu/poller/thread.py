@@ -4,17 +4,32 @@ for synchronous scripts (``Poller.running()``)."""
 from __future__ import annotations
 
 import queue
-from collections.abc import Callable, Iterator
-from typing import TYPE_CHECKING, Any
+from collections.abc import Awaitable, Callable, Coroutine, Iterator
+from typing import Any, Protocol
 
 from .._loopthread import LoopThread
 from .events import BusReport, Update
 from .points import Value
 
-if TYPE_CHECKING:
-    from .driver import Poller
-
 _QUEUE = 65536
+
+
+class _Poller(Protocol):
+    """What the thread facade uses of `pyrtu.poller.Poller` (which imports this
+    module for ``Poller.running()``; this one does not import it back)."""
+
+    _update_cbs: list[Callable[[Update], None]]
+
+    def start(self) -> Coroutine[Any, Any, None]: ...
+    def stop(self) -> Coroutine[Any, Any, None]: ...
+    def values(self) -> dict[str, Value]: ...
+    def latest(self) -> dict[str, Update]: ...
+    def age(self, name: str) -> float | None: ...
+    def report(self) -> list[BusReport]: ...
+    def summary(self) -> dict[str, Any]: ...
+    def write(self, name: str, value: object) -> Awaitable[None]: ...
+    def read(self, name: str) -> Awaitable[Value]: ...
+    def on_update(self, callback: Callable[[Update], None]) -> None: ...
 
 
 class PollerThread:
@@ -24,7 +39,7 @@ class PollerThread:
         p.values(); p.write("pump.reference", 30.0); p.report()
     """
 
-    def __init__(self, poller: Poller) -> None:
+    def __init__(self, poller: _Poller) -> None:
         self.poller = poller
         self._thread = LoopThread("pyrtu-poller", poller.start, poller.stop)
         self._loop = self._thread.loop  # microsecond timers (see pyrtu.aio)
