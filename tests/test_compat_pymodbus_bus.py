@@ -55,7 +55,9 @@ def sim_device(dev: int) -> SimDevice:
 
 
 @contextlib.contextmanager
-def pymodbus_server(port: str, dev: int) -> Iterator[dict[str, int]]:
+def pymodbus_server(
+    port: str, dev: int, device: SimDevice | None = None, baudrate: int = BAUD
+) -> Iterator[dict[str, int]]:
     """A pymodbus ModbusSerialServer serving ``dev`` on ``port``, in a thread with its
     own event loop; its framer is whatever the registry holds when it is created
     (``compat.install`` or stock).  Requests for other devices that its framer hands
@@ -74,10 +76,10 @@ def pymodbus_server(port: str, dev: int) -> Iterator[dict[str, int]]:
 
     async def main() -> None:
         server = ModbusSerialServer(
-            sim_device(dev),
+            device or sim_device(dev),
             framer=FramerType.RTU,
             port=port,
-            baudrate=BAUD,
+            baudrate=baudrate,
             parity="N",
             bytesize=8,
             stopbits=1,

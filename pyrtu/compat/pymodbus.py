@@ -21,7 +21,7 @@ See docs/COMPAT.md.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from typing import Any, ClassVar
 
@@ -29,7 +29,7 @@ from .. import _backend
 from .._backend import active
 from .._crcshapes import crc16_swapped
 from ..frames import FrameKind
-from ..rules import RuleTable
+from ..rules import RuleTable, check_rules
 from ._guard import require
 
 #: the pymodbus version found (checked against pyrtu.compat.TESTED before importing it)
@@ -56,7 +56,9 @@ _REQUEST = int(FrameKind.REQUEST)
 _UNKNOWN = int(FrameKind.UNKNOWN)
 _RESPONSE = int(FrameKind.RESPONSE)
 _EXCEPTION = int(FrameKind.EXCEPTION)
-_ECHOED = frozenset((5, 6, 8))  # function codes whose normal answer repeats the request
+#: function codes whose answer may repeat the request byte for byte (Application
+#: Protocol V1.1b 6.5, 6.6, 6.8, 6.15, 6.16)
+_ECHOED = frozenset((5, 6, 8, 21, 22))
 # Each call frames the bytes pymodbus holds as one burst (no silence inside it), then,
 # when that leaves bytes unresolved, closes them as a silence would: times are fixed.
 _NOW_US = 1 << 40
@@ -113,11 +115,15 @@ class PyrtuFramerRTU(FramerRTU):
         core.reset()
         core.feed(data, _NOW_US)
         ev = core.poll()
-        if ev is None:
+        if ev is None:  # what a silence after the bytes would resolve
             core.handle_timer(_CLOSED_US)
             ev = core.poll()
-            if ev is None or ev[3]:  # a run that more bytes may still complete
+            if ev is None:
                 return 0, 0, 0, self.EMPTY
+            if ev[3]:  # discarded for good only when a good frame follows
+                after = core.poll()
+                if after is None or after[3]:
+                    return 0, 0, 0, self.EMPTY
         adu = ev[6]
         if ev[3]:
             return ev[1], 0, 0, self.EMPTY
@@ -188,7 +194,7 @@ class PyrtuFramerRTU(FramerRTU):
                 and (not exp_devid or address == exp_devid)
                 and (not self._function or adu[1] & 0x7F == self._function)
                 # the echo of the request (an echoing adapter, a stale echo) is not its
-                # answer, unless the answer is the request itself (FC 5, 6, 8)
+                # answer, unless the answer is the request itself (FC 5, 6, 8, 21, 22)
                 and (adu != self._request or self._function in _ECHOED)
             )
         if not wanted:
@@ -223,8 +229,10 @@ def framer_class(
                 raise ValueError(f"device_ids must be 1..247 (Modbus serial addresses), not {i}")
         if not ids:
             raise ValueError("device_ids must name at least one device (None: all)")
-    if rules is not None and not isinstance(rules, RuleTable):
-        raise TypeError(f"rules must be a pyrtu.rules.RuleTable, not {type(rules).__name__}")
+    if rules is not None:
+        if not isinstance(rules, Mapping):
+            raise TypeError(f"rules must be a mapping (pyrtu.rules), not {type(rules).__name__}")
+        check_rules(rules)  # TypeError/ValueError naming the bad entry
     if backend is not None:
         _backend.backend(backend)  # ValueError/ImportError for a backend that cannot run
     if ids is None and rules is None and backend is None:
