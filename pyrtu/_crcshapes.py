@@ -43,13 +43,13 @@ class Crc16:
     digest_size = 2
     poly = 0x18005
     reverse = True
-    initCrc = 0xFFFF  # noqa: N815 (crcmod's attribute names)
-    xorOut = 0x0000  # noqa: N815
+    initCrc = 0xFFFF
+    xorOut = 0x0000
 
     __slots__ = ("crcValue",)
 
     def __init__(self, arg: BytesLike | None = None) -> None:
-        self.crcValue: int = 0xFFFF  # noqa: N815
+        self.crcValue: int = 0xFFFF
         if arg is not None:
             self.update(arg)
 

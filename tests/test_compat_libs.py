@@ -120,13 +120,13 @@ def test_crc_shapes_on_the_twin() -> None:
 
 
 def test_version_guard() -> None:
-    low, high = TESTED["pymodbus"]
+    low, _high = TESTED["pymodbus"]
     check_version("pymodbus", ".".join(map(str, low)))
     with pytest.raises(UnsupportedVersionError, match=r"pymodbus 3\.5\.0 is installed"):
         check_version("pymodbus", "3.5.0")
     with pytest.raises(UnsupportedVersionError, match=r"pymodbus 4\.0\.0 is installed"):
         check_version("pymodbus", "4.0.0")
-    with pytest.raises(ImportError, match="tested with minimalmodbus >= 2.1.0, < 2.2"):
+    with pytest.raises(ImportError, match=r"tested with minimalmodbus >= 2\.1\.0, < 2\.2"):
         check_version("minimalmodbus", "1.0.2")
     assert issubclass(UnsupportedVersionError, ImportError)
     assert parse_version("3.16.1rc2") == (3, 16, 1) and parse_version("v1.0") == (1, 0)

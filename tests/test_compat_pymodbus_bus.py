@@ -27,19 +27,19 @@ import pytest
 
 pytest.importorskip("pymodbus")
 
-from peers import pattern  # noqa: E402
-from pymodbus import FramerType  # noqa: E402
-from pymodbus.client import AsyncModbusSerialClient, ModbusSerialClient  # noqa: E402
-from pymodbus.exceptions import ModbusException  # noqa: E402
-from pymodbus.pdu import ModbusPDU  # noqa: E402
-from pymodbus.server import ModbusSerialServer  # noqa: E402
-from pymodbus.simulator import DataType, SimData, SimDevice  # noqa: E402
+from peers import pattern
+from pymodbus import FramerType
+from pymodbus.client import AsyncModbusSerialClient, ModbusSerialClient
+from pymodbus.exceptions import ModbusException
+from pymodbus.pdu import ModbusPDU
+from pymodbus.server import ModbusSerialServer
+from pymodbus.simulator import DataType, SimData, SimDevice
 
-import pyrtu.compat.pymodbus as compat  # noqa: E402
-from pyrtu import add_crc  # noqa: E402
-from pyrtu.datastore import DataStore  # noqa: E402
-from pyrtu.slave import Slave  # noqa: E402
-from pyrtu.vbus import Faults, VirtualBus  # noqa: E402
+import pyrtu.compat.pymodbus as compat
+from pyrtu import add_crc
+from pyrtu.datastore import DataStore
+from pyrtu.slave import Slave
+from pyrtu.vbus import Faults, VirtualBus
 
 BAUD = 19200
 PYMODBUS_DEV, PYRTU_DEV = 1, 2
@@ -49,9 +49,7 @@ logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
 
 def sim_device(dev: int) -> SimDevice:
     regs = pattern.holdings(dev, 0, 100)
-    return SimDevice(
-        id=dev, simdata=[SimData(0, values=regs, datatype=DataType.REGISTERS)]
-    )
+    return SimDevice(id=dev, simdata=[SimData(0, values=regs, datatype=DataType.REGISTERS)])
 
 
 @contextlib.contextmanager
@@ -136,8 +134,8 @@ def shared_bus_run(
 ) -> BusRun:
     """``n`` FC 03 reads alternating between the pymodbus server (device 1) and a pyrtu
     Slave (device 2) on one virtual bus, by a pymodbus AsyncModbusSerialClient (no
-    retries).  ``installed``: `compat.install()` in effect for the client and
-    ``install(device_ids={1})`` for both (the client ignores device_ids); ``batch_s``: the pymodbus server's drop
+    retries).  ``installed``: ``install(device_ids={1})`` in effect for the client and
+    the server (a client ignores device_ids); ``batch_s``: the pymodbus server's drop
     receives in bursts (an FTDI latency timer); ``bit_flip_rate``: seeded noise on every
     drop's transmissions."""
     faults = Faults(seed=seed, bit_flip_rate=bit_flip_rate) if bit_flip_rate else None
@@ -150,7 +148,9 @@ def shared_bus_run(
         bus = stack.enter_context(
             VirtualBus(3, baudrate=BAUD, parity="N", faults=faults, drop_faults=drop_faults)
         )
-        slave = Slave(bus.paths[2], address=PYRTU_DEV, store=pyrtu_store(PYRTU_DEV), baudrate=BAUD, parity="N")
+        slave = Slave(
+            bus.paths[2], address=PYRTU_DEV, store=pyrtu_store(PYRTU_DEV), baudrate=BAUD, parity="N"
+        )
         stack.callback(slave.close)
         slave.start()
         stack.callback(slave.stop)
@@ -168,7 +168,9 @@ def shared_bus_run(
                     dev = PYMODBUS_DEV if i % 2 == 0 else PYRTU_DEV
                     address = (i * 7) % 50
                     try:
-                        rr = await client.read_holding_registers(address, count=COUNT, device_id=dev)
+                        rr = await client.read_holding_registers(
+                            address, count=COUNT, device_id=dev
+                        )
                     except ModbusException as exc:
                         run.failed[dev] += 1
                         run.errors.append(f"{dev}: {type(exc).__name__}")
@@ -190,6 +192,7 @@ def shared_bus_run(
 
 
 # ================================================================ damaged answers
+
 
 def _answer(dev: int, address: int) -> bytes:
     body = b"".join(v.to_bytes(2, "big") for v in pattern.holdings(dev, address, COUNT))
