@@ -43,9 +43,8 @@ _HOOK = "modbus_rtu.RtuServer.after_read"
 _hook_installed: list[Any] = []
 
 
-def calculate_crc(data: bytes) -> int:
-    """modbus_tk's ``utils.calculate_crc`` in C: the CRC with its bytes swapped."""
-    return crc16_swapped(data)
+#: modbus_tk's ``utils.calculate_crc`` in C: the CRC with its bytes swapped
+calculate_crc = crc16_swapped
 
 
 def request_hook(device_ids: Iterable[int] | None = None) -> Any:

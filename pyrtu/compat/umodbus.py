@@ -46,9 +46,8 @@ _patches = Patches("umodbus")
 _crc16 = active.crc16
 
 
-def get_crc(msg: bytes) -> bytes:
-    """umodbus's ``get_crc`` in C: the CRC, low byte first."""
-    return crc16_bytes(msg)
+#: umodbus's ``get_crc`` in C: the CRC, low byte first
+get_crc = crc16_bytes
 
 
 def validate_crc(msg: bytes) -> None:
