@@ -392,3 +392,25 @@ def test_every_server_function_code_same_as_stock(backend_name: str) -> None:
     stock = run_server(False, None)
     assert sum("Error" not in r for r in stock) >= 15  # stock serves most of them
     assert run_server(True, backend_name) == stock
+
+
+def test_use_one_server() -> None:
+    import asyncio
+
+    from pymodbus.server import ModbusSerialServer
+
+    async def build() -> None:
+        server = ModbusSerialServer(make_device(SLAVE), framer=FramerType.RTU, port="/dev/null")
+        cls = compat.use(server, device_ids={SLAVE})
+        assert server.framer is cls and issubclass(cls, compat.PyrtuFramerRTU)
+        assert cls.device_ids == frozenset({SLAVE})
+        handler = server.callback_new_connection()  # what serving a port creates
+        assert isinstance(handler.framer, cls) and handler.framer.is_server
+        ascii_server = ModbusSerialServer(
+            make_device(SLAVE), framer=FramerType.ASCII, port="/dev/null"
+        )
+        with pytest.raises(ValueError, match="not RTU"):
+            compat.use(ascii_server)
+
+    asyncio.run(build())
+    assert FRAMER_NAME_TO_CLASS[FramerType.RTU] is FramerRTU

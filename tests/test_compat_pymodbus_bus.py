@@ -330,3 +330,12 @@ def test_shared_bus_installed_with_line_noise_never_wrong() -> None:
 def test_client_damaged_answers(damage: str, sync: bool) -> None:
     n = 4
     assert damaged_answer_run(damage, n, installed=True, sync=sync) == n
+
+
+@pytest.mark.wall_clock
+@pytest.mark.parametrize("sync", [True, False], ids=["sync", "asyncio"])
+@pytest.mark.parametrize("damage", ["leading 0x00", "stale echo"])
+def test_client_damaged_answers_stock_loses(damage: str, sync: bool) -> None:
+    """The same damaged answers without install(): stock pymodbus loses every one
+    (what the test above fixes), so that test fails on stock."""
+    assert damaged_answer_run(damage, 2, installed=False, sync=sync) == 0

@@ -186,8 +186,8 @@ class PyrtuFramerRTU(FramerRTU):
             wanted = (kind == _REQUEST or kind == _UNKNOWN) and (
                 ids is None or address == 0 or address in ids
             )
-            if not wanted and kind == _REQUEST:
-                self._context = adu
+            # another device's request: its answer comes next, told by its length
+            self._context = adu if kind == _REQUEST and not wanted else b""
         else:
             wanted = (
                 (kind == _RESPONSE or kind == _EXCEPTION or kind == _UNKNOWN)
