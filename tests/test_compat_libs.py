@@ -256,6 +256,7 @@ def _reply(req: bytes) -> bytes:
     return add_crc(b"\x01\x03\x04" + body)
 
 
+@pytest.mark.wall_clock  # stock umodbus frames by silence (its inter-byte timeout)
 @pytest.mark.parametrize("junk", sorted(JUNK))
 def test_umodbus_server_framed_by_pyrtu(junk: str) -> None:
     pytest.importorskip("umodbus")
@@ -269,7 +270,7 @@ def test_umodbus_server_framed_by_pyrtu(junk: str) -> None:
         with (
             VirtualBus(2, baudrate=BAUD, parity="N") as bus,
             umodbus_server(bus.paths[1], cls, ids),
-            serial.Serial(bus.paths[0], BAUD, timeout=0.3) as master,
+            serial.Serial(bus.paths[0], BAUD, timeout=1.0) as master,
         ):
             assert bus.wait_clients(1)
             time.sleep(0.05)
@@ -323,6 +324,8 @@ def modbus_tk_server(port_path: str) -> Iterator[None]:
         server.stop()
 
 
+@pytest.mark.wall_clock  # stock modbus_tk frames by silence (its inter-byte timeout)
+@pytest.mark.filterwarnings("ignore:isSet:DeprecationWarning")  # modbus_tk's own thread
 @pytest.mark.parametrize("junk", sorted(JUNK))
 def test_modbus_tk_server_framed_by_hook(junk: str) -> None:
     pytest.importorskip("modbus_tk")
@@ -338,7 +341,7 @@ def test_modbus_tk_server_framed_by_hook(junk: str) -> None:
             ctx(),
             VirtualBus(2, baudrate=BAUD, parity="N") as bus,
             modbus_tk_server(bus.paths[1]),
-            serial.Serial(bus.paths[0], BAUD, timeout=0.3) as master,
+            serial.Serial(bus.paths[0], BAUD, timeout=1.0) as master,
         ):
             assert bus.wait_clients(1)
             time.sleep(0.05)
