@@ -384,7 +384,7 @@ def run_server(installed: bool, backend: str | None) -> list[str]:
         ctx = compat.patched(device_ids={SLAVE}, backend=backend) if installed else _nothing()
         with ctx, pymodbus_server(bus.paths[1], SLAVE, make_device(SLAVE), baudrate=BAUD):
             assert bus.wait_clients(1)
-            with Master(bus.paths[0], BAUD, parity="N", timeout=0.5, retries=0) as m:
+            with Master(bus.paths[0], BAUD, parity="N", timeout=1.0, retries=0) as m:
                 return master_calls(m, SLAVE)
 
 
