@@ -162,7 +162,9 @@ def test_server_skips_other_devices_and_answers(backend_name: str) -> None:
     # the answer of the other device alone (its request came in an earlier read)
     f2 = cls(DecodePDU(True))
     assert f2.handleFrame(other_req, 0, 0) == (len(other_req), None)
+    assert f2.handleFrame(other_ans[:5], 0, 0) == (0, None)  # a partial read first
     assert f2.handleFrame(other_ans, 0, 0) == (len(other_ans), None)
+    assert f2._context == b""  # the answer ended the other device's transaction
     # broadcasts reach every server
     bcast = add_crc(b"\x00\x06\x00\x01\x00\x07")
     used, pdu = f2.handleFrame(bcast, 0, 0)

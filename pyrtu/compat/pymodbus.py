@@ -140,11 +140,11 @@ class PyrtuFramerRTU(FramerRTU):
         if self.is_server:
             core.reset()
             if self._context:  # the request before: its answer is told by its length
-                core.feed(self._context, _NOW_US)
+                core.feed(self._context, _NOW_US)  # (kept until a frame follows it)
                 ev = core.poll()
                 if ev is None or ev[3] or ev[1] != len(self._context):
                     core.reset()
-                self._context = b""
+                    self._context = b""
         else:
             core.expect(self._request)
         used = 0
