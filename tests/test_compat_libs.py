@@ -354,3 +354,36 @@ def test_modbus_tk_server_framed_by_hook(junk: str) -> None:
 @contextmanager
 def _null() -> Iterator[None]:
     yield
+
+
+@pytest.mark.parametrize(
+    ("module", "dist", "version"),
+    [
+        ("pymodbus", "pymodbus", "3.5.0"),
+        ("minimalmodbus", "minimalmodbus", "1.0.2"),
+        ("umodbus", "uModbus", "1.0.3"),
+        ("modbus_tk", "modbus_tk", "0.5.10"),
+    ],
+)
+def test_adapter_refuses_an_untested_version(
+    tmp_path: Path, module: str, dist: str, version: str
+) -> None:
+    """Importing an adapter with another version's metadata first on the path: a clear
+    UnsupportedVersionError naming that version, before the library is imported."""
+    info = tmp_path / f"{dist}-{version}.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {dist}\nVersion: {version}\n")
+    code = (
+        "import sys\n"
+        "from pyrtu.compat import UnsupportedVersionError\n"
+        "try:\n"
+        f"    import pyrtu.compat.{module}\n"
+        "except UnsupportedVersionError as exc:\n"
+        f"    print('refused' if {module!r} not in sys.modules else 'imported', exc)\n"
+    )
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join((str(tmp_path), str(ROOT))))
+    out = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60
+    )
+    assert out.stdout.startswith("refused "), out.stdout + out.stderr
+    assert f"{module} {version} is installed" in out.stdout
