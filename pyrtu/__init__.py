@@ -9,6 +9,7 @@ the import fail when the C core is missing.  ``pyrtu.BACKEND`` says which runs;
 from __future__ import annotations
 
 from . import _backend
+from ._crcshapes import Crc16, crc16_bytes, crc16_swapped
 from ._version import __version__ as __version__
 from .ascii import decode_ascii, encode_ascii
 from .frames import ErrorReason, Frame, FrameKind, FrameList
@@ -79,6 +80,7 @@ __all__ = [
     "EXCEPTION_NAMES",
     "BusFault",
     "CommEventLog",
+    "Crc16",
     "DataStore",
     "ErrorReason",
     "ExceptionResponseError",
@@ -108,8 +110,10 @@ __all__ = [
     "char_timing",
     "check_crc",
     "crc16",
+    "crc16_bytes",
     "crc16_path",
     "crc16_paths",
+    "crc16_swapped",
     "decode_ascii",
     "decode_float32",
     "decode_int32",

@@ -1,0 +1,59 @@
+"""pyrtu's C CRC inside minimalmodbus: one line for an existing program.
+
+    import pyrtu.compat.minimalmodbus
+    pyrtu.compat.minimalmodbus.install()
+
+minimalmodbus looks its CRC function up as the module attribute
+``minimalmodbus._calculate_crc`` at call time (building requests, checking answers);
+``install()`` replaces it by `pyrtu.crc16_bytes` (the two CRC bytes, low byte first,
+as minimalmodbus returns them).  Framing stays minimalmodbus's: it frames in the
+private ``Instrument._communicate`` and offers no hook.  Tested with the minimalmodbus
+versions in ``pyrtu.compat.TESTED``; others are refused.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+from .._crcshapes import crc16_bytes
+from ._guard import require
+from ._patch import Patches, patched_block
+
+VERSION = require("minimalmodbus")
+
+import minimalmodbus as _mm  # noqa: E402
+
+__all__ = ["VERSION", "install", "installed", "patched", "uninstall"]
+
+_patches = Patches("minimalmodbus")
+
+
+def _calculate_crc(inputbytes: bytes) -> bytes:
+    """minimalmodbus's ``_calculate_crc`` in C: the CRC, low byte first."""
+    if not isinstance(inputbytes, bytes):
+        raise TypeError(
+            f"The CRC input bytes should be bytes. Given: {inputbytes!r}"  # as minimalmodbus
+        )
+    return crc16_bytes(inputbytes)
+
+
+def install() -> None:
+    """minimalmodbus computes and checks its CRCs with pyrtu's CRC from now on."""
+    _patches.apply([(_mm, "_calculate_crc", _calculate_crc)])
+
+
+def uninstall() -> None:
+    """minimalmodbus's own CRC again."""
+    _patches.undo()
+
+
+def installed() -> bool:
+    return _patches.active
+
+
+@contextmanager
+def patched() -> Iterator[None]:
+    """`install` for a ``with`` block."""
+    with patched_block(install, uninstall):
+        yield
