@@ -588,6 +588,8 @@ def test_bad_arguments_name_the_argument(tmp_path: Path) -> None:
             ob.pending(-1)
         with pytest.raises(TypeError, match="after"):
             ob.pending(1, after="0")  # type: ignore[arg-type]
+        with pytest.raises(ValueError, match="after"):
+            ob.pending(1, after=-1)
         with pytest.raises(TypeError, match="seq"):
             ob.ack("1")  # type: ignore[arg-type]
         with pytest.raises(ValueError, match="seq"):

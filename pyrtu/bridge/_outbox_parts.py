@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import bisect
 import errno
+import fcntl
 import math
 import os
 from array import array
@@ -51,7 +52,32 @@ def io_error(directory: Path, action: str, name: str, exc: OSError) -> OutboxErr
     return error(f"outbox {directory}: {action} {name}: {exc.strerror or exc}", exc)
 
 
-def _int_field(name: str, value: object, minimum: int) -> None:
+def lock_directory(directory: Path) -> tuple[int, int]:
+    """Create the directory and lock it for this process: (its fd, the lock file's fd)."""
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        dir_fd = os.open(directory, os.O_RDONLY | os.O_DIRECTORY)
+    except OSError as exc:
+        raise io_error(directory, "opening", "the directory", exc) from exc
+    try:
+        lock_fd = os.open(directory / "lock", os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as exc:
+        os.close(dir_fd)
+        raise io_error(directory, "opening", "the lock file", exc) from exc
+    try:
+        fcntl.flock(lock_fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError as exc:
+        os.close(lock_fd)
+        os.close(dir_fd)
+        raise error(
+            f"outbox directory {directory} is in use by another Outbox "
+            f"(its lock file {directory / 'lock'} is held)",
+            exc,
+        ) from exc
+    return dir_fd, lock_fd
+
+
+def check_int(name: str, value: object, minimum: int) -> None:
     if isinstance(value, bool) or not isinstance(value, int):
         raise TypeError(f"{name} must be an int, not {type(value).__name__}")
     if value < minimum:
@@ -69,9 +95,9 @@ class OutboxLimits:
     policy: Literal["drop-oldest", "refuse"] = "drop-oldest"
 
     def __post_init__(self) -> None:
-        _int_field("segment_bytes", self.segment_bytes, 1024)
-        _int_field("max_bytes", self.max_bytes, 2 * self.segment_bytes)
-        _int_field("fsync_records", self.fsync_records, 1)
+        check_int("segment_bytes", self.segment_bytes, 1024)
+        check_int("max_bytes", self.max_bytes, 2 * self.segment_bytes)
+        check_int("fsync_records", self.fsync_records, 1)
         v = self.fsync_interval
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             raise TypeError(f"fsync_interval must be a number of seconds, not {type(v).__name__}")

@@ -27,7 +27,6 @@ Guarantees:
 from __future__ import annotations
 
 import bisect
-import fcntl
 import math
 import os
 from collections.abc import Callable, Iterator
@@ -44,8 +43,10 @@ from pyrtu.bridge._outbox_parts import (
     OutboxLimits,
     Segment,
     active_reader,
+    check_int,
     error,
     io_error,
+    lock_directory,
     recover_segment,
 )
 
@@ -98,26 +99,7 @@ class Outbox:
         self.appended = 0  # records appended since this Outbox was opened
         self.corrupt = 0  # bad regions (torn tail, bad checksum) found and skipped
         self.corrupt_bytes = 0
-        try:
-            self.directory.mkdir(parents=True, exist_ok=True)
-            self._dir_fd = os.open(self.directory, os.O_RDONLY | os.O_DIRECTORY)
-        except OSError as exc:
-            raise self._io_error("opening", "the directory", exc) from exc
-        try:
-            self._lock_fd = os.open(self.directory / "lock", os.O_RDWR | os.O_CREAT, 0o644)
-        except OSError as exc:
-            os.close(self._dir_fd)
-            raise self._io_error("opening", "the lock file", exc) from exc
-        try:
-            fcntl.flock(self._lock_fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError as exc:
-            os.close(self._lock_fd)
-            os.close(self._dir_fd)
-            raise error(
-                f"outbox directory {self.directory} is in use by another Outbox "
-                f"(its lock file {self.directory / 'lock'} is held)",
-                exc,
-            ) from exc
+        self._dir_fd, self._lock_fd = lock_directory(self.directory)
         self._closed = False
         try:
             self._recover()
@@ -455,12 +437,9 @@ class Outbox:
         the ack cursor, whichever is higher.  Records are read from disk and their
         checksums verified; only records made durable by flush() are returned.
         """
-        if isinstance(limit, bool) or not isinstance(limit, int):
-            raise TypeError(f"limit must be an int, not {type(limit).__name__}")
-        if limit < 0:
-            raise ValueError(f"limit must be >= 0, got {limit}")
-        if after is not None and (isinstance(after, bool) or not isinstance(after, int)):
-            raise TypeError(f"after must be an int or None, not {type(after).__name__}")
+        check_int("limit", limit, 0)
+        if after is not None:
+            check_int("after", after, 0)
         if self._closed:
             raise ValueError("pending on a closed Outbox")
         start = max(self._acked, after or 0) + 1
@@ -484,9 +463,8 @@ class Outbox:
         is delivered.  The cursor is persisted with the next flush(); fully acked
         segments are deleted at once.  Acking a lower number than before is a no-op.
         """
-        if isinstance(seq, bool) or not isinstance(seq, int):
-            raise TypeError(f"seq must be an int, not {type(seq).__name__}")
-        if not 0 <= seq < self._next_seq:
+        check_int("seq", seq, 0)
+        if seq >= self._next_seq:
             raise ValueError(f"seq must be in 0..{self._next_seq - 1} (appended so far), got {seq}")
         if self._closed:
             raise ValueError("ack on a closed Outbox")
