@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import hashlib
 import os
 import random
 import shutil
@@ -24,38 +23,9 @@ from typing import Any
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from outbox_helpers import SMALL, everything, fill, payload, run_child, segments
 
-from pyrtu.bridge import _outbox_format as fmt
 from pyrtu.bridge.outbox import Outbox, OutboxError, OutboxFull, OutboxLimits
-
-SMALL = OutboxLimits(max_bytes=1 << 20, segment_bytes=4096)
-
-
-def payload(seq: int) -> bytes:
-    """A record whose content is known from its sequence number (length 1..64)."""
-    digest = hashlib.blake2b(str(seq).encode(), digest_size=32).digest()
-    return (digest * 2)[: 1 + seq % 64]
-
-
-def fill(ob: Outbox, n: int, t0: float = 0.0) -> list[int]:
-    seqs = []
-    for i in range(n):
-        seqs.append(ob.append(payload(ob.next_seq), t0 + i))
-    return seqs
-
-
-def everything(ob: Outbox, after: int | None = None) -> list[tuple[int, bytes]]:
-    out: list[tuple[int, bytes]] = []
-    while True:
-        batch = ob.pending(97, after=out[-1][0] if out else after)
-        if not batch:
-            return out
-        out.extend(batch)
-
-
-def segments(d: Path) -> list[Path]:
-    return sorted(p for p in d.iterdir() if p.suffix == ".seg")
-
 
 # -- round trip, restart, acks ------------------------------------------------
 
@@ -92,13 +62,6 @@ def test_restart_keeps_pending_and_continues_the_numbers(tmp_path: Path) -> None
         assert ob.append(b"next", 1.0) == 301
     with Outbox(d, SMALL) as ob:  # close() flushed it
         assert ob.pending(1, after=300) == [(301, b"next")] and ob.next_seq == 302
-
-
-def run_child(code: str, *args: str) -> subprocess.CompletedProcess[bytes]:
-    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
-    return subprocess.run(
-        [sys.executable, "-c", textwrap.dedent(code), *args], capture_output=True, env=env
-    )
 
 
 def test_ack_deletes_fully_acked_segments_and_persists_with_flush(tmp_path: Path) -> None:
@@ -268,99 +231,6 @@ def test_sigkill_at_random_points_loses_at_most_the_unflushed_batch(tmp_path: Pa
             acked_floor = ob.acked
             kept = {s for s in got_seqs if s > ob.acked}
     assert len(handed) > 500  # the children did work between the kills
-
-
-# -- torn and corrupt records -----------------------------------------------
-
-
-def _one_segment(tmp_path: Path, n: int = 100) -> tuple[Path, Path]:
-    d = tmp_path / "ob"
-    with Outbox(d, OutboxLimits(max_bytes=1 << 22, segment_bytes=1 << 20)) as ob:
-        fill(ob, n)
-    (seg,) = segments(d)
-    return d, seg
-
-
-def _offset_of(seg: Path, seq: int) -> int:
-    data = seg.read_bytes()
-    off = fmt.SEG_HEAD.size
-    while off < len(data):
-        _m, n, s, _t, _c = fmt.REC_HEAD.unpack_from(data, off)
-        if s == seq:
-            return off
-        off += fmt.REC_HEAD.size + n
-    raise AssertionError(seq)
-
-
-def _flip(path: Path, off: int) -> None:
-    with open(path, "r+b") as f:
-        f.seek(off)
-        b = f.read(1)
-        f.seek(off)
-        f.write(bytes([b[0] ^ 0x40]))
-
-
-def test_torn_tail_is_truncated_counted_and_its_number_not_reused(tmp_path: Path) -> None:
-    d, seg = _one_segment(tmp_path)
-    size = seg.stat().st_size
-    os.truncate(seg, size - 5)  # the last record is cut short
-    with Outbox(d) as ob:
-        assert ob.corrupt == 1 and ob.corrupt_bytes == size - 5 - _offset_of(seg, 99) - (
-            fmt.REC_HEAD.size + len(payload(99))
-        )
-        got = everything(ob)
-        assert [s for s, _ in got] == list(range(1, 100))
-        assert all(rec == payload(s) for s, rec in got)
-        assert seg.stat().st_size == _offset_of(seg, 99) + fmt.REC_HEAD.size + len(payload(99))
-        assert ob.append(b"new", 0.0) == 101  # 100 was handed out once: never again
-
-
-@pytest.mark.parametrize("where", ["payload", "length", "seq", "crc", "magic"])
-def test_flipped_byte_skips_only_that_record(tmp_path: Path, where: str) -> None:
-    d, seg = _one_segment(tmp_path)
-    delta = {"magic": 1, "length": 5, "seq": 9, "crc": 25, "payload": 28}[where]
-    _flip(seg, _offset_of(seg, 50) + delta)
-    with Outbox(d) as ob:
-        got = everything(ob)
-        assert [s for s, _ in got] == [s for s in range(1, 101) if s != 50]
-        assert all(rec == payload(s) for s, rec in got)
-        assert ob.corrupt == 1 and ob.corrupt_bytes > 0 and ob.depth == 99
-        assert ob.next_seq == 101
-
-
-def test_corruption_while_open_is_skipped_and_counted_once(tmp_path: Path) -> None:
-    d = tmp_path / "ob"
-    with Outbox(d, OutboxLimits(max_bytes=1 << 22, segment_bytes=1 << 20)) as ob:
-        fill(ob, 100)
-        ob.flush()
-        (seg,) = segments(d)
-        _flip(seg, _offset_of(seg, 7) + 30)
-        for _ in range(2):
-            got = everything(ob)
-            assert [s for s, _ in got] == [s for s in range(1, 101) if s != 7]
-        assert ob.corrupt == 1
-
-
-def test_garbage_tail_and_bad_cursor_file(tmp_path: Path) -> None:
-    d, seg = _one_segment(tmp_path)
-    with Outbox(d) as ob:
-        ob.ack(30)
-    with open(seg, "ab") as f:
-        f.write(random.Random(3).randbytes(3000) + fmt.REC_MAGIC + b"\x00" * 40)
-    (d / "cursor").write_bytes(b"\xff" * 600)  # the cursor is unreadable: all pending again
-    with Outbox(d) as ob:
-        assert ob.corrupt == 2 and ob.acked == 0
-        assert [s for s, _ in everything(ob)] == list(range(1, 101))
-        assert ob.next_seq == 101
-
-
-def test_foreign_file_in_the_directory_is_an_error_naming_it(tmp_path: Path) -> None:
-    d, _seg = _one_segment(tmp_path)
-    (d / f"{'9' * 20}.seg").write_bytes(b"not a segment at all, but long enough")
-    with pytest.raises(OutboxError, match=r"99999999999999999999\.seg is not an outbox segment"):
-        Outbox(d)
-    Path(d / f"{'9' * 20}.seg").unlink()
-    Outbox(d).close()  # the failed open released the lock
 
 
 # -- the disk budget -----------------------------------------------------------

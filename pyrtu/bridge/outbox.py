@@ -142,7 +142,7 @@ class Outbox:
 
     def _recover_segment(self, path: Path, first: int, last: int) -> Segment | None:
         try:
-            seg, bad, bad_bytes = recover_segment(path, first, last, self._acked, self.limits)
+            seg, bad, bad_bytes = recover_segment(path, first, last, self._acked)
         except OutboxError:
             raise
         except OSError as exc:
@@ -413,7 +413,6 @@ class Outbox:
                     off,
                     seg.size,
                     last_seq=seg.first - 1,
-                    max_payload=self.limits.max_record,
                     max_seq=seg.last,
                     chunk=chunk,
                 ):
