@@ -130,6 +130,7 @@ CHUNK = st.one_of(
     st.tuples(st.just("cut"), st.binary(max_size=300), st.integers(1, 10_000)),
     st.tuples(st.just("junk"), st.binary(max_size=200)),
     st.tuples(st.just("skip"), st.integers(1, 5)),  # a gap in the numbers (a crash's)
+    st.tuples(st.just("replay"), st.binary(max_size=50)),  # valid, but an old number
 )
 
 
@@ -147,6 +148,10 @@ def _build(chunks: list[Any]) -> tuple[bytes, list[tuple[int, bytes]], bool]:
             continue
         if kind == "skip":
             seq += args[0]
+            continue
+        if kind == "replay":  # checksum right, number not above the last valid one
+            data += fmt.encode_record(intact[-1][0] if intact else 0, 0.0, args[0])
+            damaged = True
             continue
         body = args[0]
         assert isinstance(body, bytes)
