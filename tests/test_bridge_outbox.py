@@ -124,6 +124,7 @@ def test_flush_due_by_interval_and_by_count(tmp_path: Path) -> None:
     with Outbox(tmp_path / "ob", limits) as ob:
         assert ob.flush_at is None and not ob.flush_due(0.0)
         ob.append(b"a", 10.0)
+        assert ob.oldest_time == 10.0  # read from the bytes not yet written
         assert ob.flush_at == 10.5 and not ob.flush_due(10.49) and ob.flush_due(10.5)
         ob.append(b"b", 10.1)
         ob.append(b"c", 10.2)

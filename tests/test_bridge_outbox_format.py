@@ -164,8 +164,9 @@ def _build(chunks: list[Any]) -> tuple[bytes, list[tuple[int, bytes]], bool]:
         elif kind == "cut":
             cut = args[1]
             assert isinstance(cut, int)
-            rec = rec[: cut % len(rec)]
-            damaged = damaged or bool(rec)
+            at = cut % len(rec)
+            rec[at:] = bytes([rec[at] ^ 0xFF])  # cut short: what follows cannot complete it
+            damaged = True
         else:
             intact.append((seq, body))
         data += rec

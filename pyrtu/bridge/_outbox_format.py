@@ -95,6 +95,8 @@ def decode_state(data: bytes) -> State | None:
         if magic != STATE_MAGIC:
             continue
         state = State(*fields)
+        if max(state) > MAX_SEQ:  # no number this format writes is that large
+            continue
         if best is None or state.gen > best.gen:
             best = state
     return best
