@@ -242,3 +242,18 @@ def test_cursor_slots_survive_any_damage_to_the_other(data: bytes, flips: list[i
     assert fmt.decode_state(bytes(buf)) in (a, b)
     if flips:
         assert fmt.decode_state(bytes(buf)) == a or len(flips) % 2 == 0
+
+
+def test_a_cursor_slot_with_huge_numbers_is_not_trusted(tmp_path: Path) -> None:
+    d, _seg = _one_segment(tmp_path)
+    good = fmt.State(gen=4, acked=10, reserved=101, dropped=0)
+    forged = fmt.State(gen=5, acked=10, reserved=2**64 - 1, dropped=0)  # checksum right
+    buf = bytearray(fmt.STATE_SIZE)
+    for state in (good, forged):
+        off, raw = fmt.encode_state(state)
+        buf[off : off + len(raw)] = raw
+    assert fmt.decode_state(bytes(buf)) == good
+    (d / "cursor").write_bytes(bytes(buf))
+    with Outbox(d) as ob:
+        assert ob.acked == 10 and ob.next_seq == 101
+        assert ob.append(b"x", 0.0) == 101
