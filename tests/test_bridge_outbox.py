@@ -292,6 +292,26 @@ def test_drop_oldest_counts_drops_and_keeps_the_newest(tmp_path: Path) -> None:
         assert [s for s, _ in everything(ob)] == [s for s, _ in got]
 
 
+def test_drops_are_counted_on_disk_at_once(tmp_path: Path) -> None:
+    d = tmp_path / "ob"
+    r = run_child(
+        """
+        import os, signal, sys
+        from pyrtu.bridge.outbox import Outbox, OutboxLimits
+        ob = Outbox(sys.argv[1], OutboxLimits(max_bytes=8192, segment_bytes=2048))
+        while ob.dropped == 0:
+            ob.append(b"x" * 40, 0.0)
+        print(ob.dropped, ob.acked, flush=True)
+        os.kill(os.getpid(), signal.SIGKILL)  # no flush: the drop was written already
+        """,
+        str(d),
+    )
+    assert r.returncode == -signal.SIGKILL, r.stderr
+    dropped, acked = (int(x) for x in r.stdout.split())
+    with Outbox(d, OutboxLimits(max_bytes=8192, segment_bytes=2048)) as ob:
+        assert dropped > 0 and ob.dropped == dropped and ob.acked == acked
+
+
 def test_refuse_raises_outbox_full_and_loses_nothing(tmp_path: Path) -> None:
     d = tmp_path / "ob"
     limits = OutboxLimits(max_bytes=8192, segment_bytes=2048, policy="refuse")

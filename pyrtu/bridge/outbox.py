@@ -250,12 +250,17 @@ class Outbox:
         return seg
 
     def _make_room(self, size: int) -> None:
+        """Drop the oldest segments; the count is on disk before it returns (a crash
+        must not hide a drop)."""
         limit = self.limits.max_bytes
+        dropped = self._dropped
         while self._bytes_used + size > limit and self._segs and self._segs[0] is not self._active:
             seg = self._segs[0]
             self._dropped += seg.count - seg.acked_in(self._acked)
             self._acked = max(self._acked, seg.last)
             self._forget(seg)
+        if self._dropped != dropped:
+            self._save_state()
 
     def _forget(self, seg: Segment) -> None:
         """Delete a sealed segment that is acked or dropped; close its file descriptors."""
