@@ -250,17 +250,20 @@ class Outbox:
         return seg
 
     def _make_room(self, size: int) -> None:
-        """Drop the oldest segments; the count is on disk before it returns (a crash
-        must not hide a drop)."""
-        limit = self.limits.max_bytes
-        dropped = self._dropped
-        while self._bytes_used + size > limit and self._segs and self._segs[0] is not self._active:
-            seg = self._segs[0]
+        """Drop the oldest segments; the count is on disk before they go (a crash must
+        not hide a drop)."""
+        free, victims = self._bytes_used + size - self.limits.max_bytes, []
+        for seg in self._segs:
+            if free <= 0 or seg is self._active:
+                break
+            victims.append(seg)
+            free -= seg.size
             self._dropped += seg.count - seg.acked_in(self._acked)
             self._acked = max(self._acked, seg.last)
-            self._forget(seg)
-        if self._dropped != dropped:
+        if victims:  # the cursor first: a crash between must not bring them back unseen
             self._save_state()
+        for seg in victims:
+            self._forget(seg)
 
     def _forget(self, seg: Segment) -> None:
         """Delete a sealed segment that is acked or dropped; close its file descriptors."""
