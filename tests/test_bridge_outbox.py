@@ -6,6 +6,7 @@ tiny tmpfs, the lock is held by another process.
 
 from __future__ import annotations
 
+import array
 import contextlib
 import errno
 import os
@@ -534,6 +535,7 @@ def test_bad_arguments_name_the_argument(tmp_path: Path) -> None:
         with pytest.raises(ValueError, match="now"):
             ob.append(b"x", float("inf"))
         ob.append(bytearray(b"ok"), 0.0)
+        ob.append(memoryview(array.array("H", [1, 2])), 0.0)  # 2 items, 4 bytes
         ob.flush()
         with pytest.raises(TypeError, match="limit"):
             ob.pending(1.0)  # type: ignore[arg-type]
@@ -546,10 +548,10 @@ def test_bad_arguments_name_the_argument(tmp_path: Path) -> None:
         with pytest.raises(TypeError, match="seq"):
             ob.ack("1")  # type: ignore[arg-type]
         with pytest.raises(ValueError, match="seq"):
-            ob.ack(2)  # never appended
+            ob.ack(3)  # never appended
         with pytest.raises(ValueError, match="seq"):
             ob.ack(-1)
-        assert ob.pending(0) == [] and ob.pending(5) == [(1, b"ok")]
+        assert ob.pending(0) == [] and ob.pending(5) == [(1, b"ok"), (2, b"\x01\x00\x02\x00")]
     with pytest.raises(ValueError, match="closed"):
         ob.append(b"x", 0.0)
     ob.close()  # idempotent

@@ -178,8 +178,10 @@ class Outbox:
         `OutboxError`; in both cases the record is not accepted and nothing accepted
         before is lost.
         """
-        if not isinstance(record, (bytes, bytearray, memoryview)):
-            raise TypeError(f"record must be bytes, not {type(record).__name__}")
+        if not isinstance(record, bytes):
+            if not isinstance(record, (bytearray, memoryview)):
+                raise TypeError(f"record must be bytes, not {type(record).__name__}")
+            record = bytes(record)  # (a memoryview's len() counts items, not bytes)
         if isinstance(now, bool) or not isinstance(now, (int, float)):
             raise TypeError(f"now must be a number of seconds, not {type(now).__name__}")
         if not math.isfinite(now):
@@ -216,9 +218,7 @@ class Outbox:
         elif len(self._buf) >= WRITE_CHUNK:
             self._write_out()
         off = active.size
-        self._buf += fmt.encode_record(
-            seq, now, bytes(record) if not isinstance(record, bytes) else record
-        )
+        self._buf += fmt.encode_record(seq, now, record)
         active.note(seq, off, off + size)
         self._bytes_used += size
         self._total += 1
