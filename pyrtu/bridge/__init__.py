@@ -1,0 +1,1 @@
+"""pyrtu bridge: poller points to MQTT (issue 19)."""
