@@ -11,7 +11,7 @@ STAMP  := $(VENV)/.installed
 APT_PACKAGES := libmodbus-dev pkg-config socat
 
 .PHONY: demo test test-asan bench lint setup system-packages fuzz fuzz-ci fuzz-build fuzz-packages \
-	fuzz-python
+	fuzz-python fuzz-outbox
 
 # Developer targets compile the C core with -Werror (PYRTU_STRICT_BUILD=1, read by
 # pyrtu/_build_core.py), so that it stays -Wall -Wextra clean; `make demo` builds
@@ -116,6 +116,16 @@ fuzz-python: setup
 	  2>$(FUZZ_DIR)/fuzz_python.log || { tail -40 $(FUZZ_DIR)/fuzz_python.log; exit 1; }
 	@grep -E '^stat::(number_of_executed_units|average_exec_per_sec)' $(FUZZ_DIR)/fuzz_python.log
 
+# The bridge outbox's file format (fuzz/fuzz_outbox.py), atheris like fuzz-python.
+fuzz-outbox: setup
+	@$(PY) -c "import atheris" 2>/dev/null || $(PY) -m pip install -q atheris
+	mkdir -p $(FUZZ_DIR)/corpus/outbox
+	$(PY) fuzz/fuzz_outbox.py -max_total_time=$(FUZZ_SECONDS) -print_final_stats=1 $(FUZZ_ARGS) \
+	  -artifact_prefix=$(FUZZ_DIR)/crash-outbox- $(FUZZ_DIR)/corpus/outbox \
+	  2>$(FUZZ_DIR)/fuzz_outbox.log || { tail -40 $(FUZZ_DIR)/fuzz_outbox.log; exit 1; }
+	@grep -E '^stat::(number_of_executed_units|average_exec_per_sec)' $(FUZZ_DIR)/fuzz_outbox.log
+
 fuzz-ci:
 	$(MAKE) fuzz FUZZ_SECONDS=$(FUZZ_CI_SECONDS)
 	$(MAKE) fuzz-python FUZZ_SECONDS=$(FUZZ_CI_SECONDS)
+	$(MAKE) fuzz-outbox FUZZ_SECONDS=$(FUZZ_CI_SECONDS)
