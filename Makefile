@@ -34,7 +34,7 @@ system-packages:
 	  else echo "pyrtu: please install:$$missing (sudo apt-get install$$missing)"; exit 1; fi; \
 	fi
 
-$(STAMP): pyproject.toml setup.py pyrtu/_build_core.py pyrtu/_cdef.h $(wildcard csrc/*.c csrc/*.h) | system-packages
+$(STAMP): pyproject.toml setup.py pyrtu/_build_core.py pyrtu/_cdef.h $(wildcard csrc/*.c csrc/*.h csrc/python/*.c) | system-packages
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e '.[test]'
