@@ -8,7 +8,7 @@ bytes / mean (or median) time.  ``c noop`` is the empty cffi call
 (``rtu_crc_noop``): the floor under every cffi row.  ``c path <name>`` calls
 ``rtu_crc16_path`` straight through cffi with a preallocated buffer and result
 (the C cost plus one cffi call); ``c crc16`` is the C backend's public function,
-the builtin of pyrtu._crcfast when it is built (``builtin floor``, ``len(data)``, is
+the builtin of pyrtu._crcfast when it is built (``builtin noop``, ``len(data)``, is
 the floor under it), and ``c crc16 cffi`` the same through cffi.
 Peers (crcmod, pymodbus, minimalmodbus) are skipped when not installed.
 
@@ -122,7 +122,7 @@ def test_c_crc16_swapped_cffi(benchmark: Any, payload: tuple[str, bytes]) -> Non
     _run(benchmark, label, data, _crcshapes._crc16_swapped, data)
 
 
-def test_builtin_floor(benchmark: Any, payload: tuple[str, bytes]) -> None:
+def test_builtin_noop(benchmark: Any, payload: tuple[str, bytes]) -> None:
     """``len(data)``: a builtin called with one argument, the floor under the rows that
     call pyrtu._crcfast (its functions are builtins too)."""
     label, data = payload
