@@ -34,7 +34,7 @@ system-packages:
 	  else echo "pyrtu: please install:$$missing (sudo apt-get install$$missing)"; exit 1; fi; \
 	fi
 
-$(STAMP): pyproject.toml setup.py pyrtu/_build_core.py pyrtu/_cdef.h $(wildcard csrc/*.c csrc/*.h) | system-packages
+$(STAMP): pyproject.toml setup.py pyrtu/_build_core.py pyrtu/_cdef.h $(wildcard csrc/*.c csrc/*.h csrc/python/*.c) | system-packages
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e '.[test]'
@@ -53,7 +53,7 @@ test-asan: setup
 	cd $(ASAN_DIR) && \
 	  LD_PRELOAD="$$(gcc -print-file-name=libasan.so) $$(gcc -print-file-name=libubsan.so)" \
 	  ASAN_OPTIONS=detect_leaks=0:abort_on_error=1 UBSAN_OPTIONS=halt_on_error=1:print_stacktrace=1 \
-	  PYRTU_REQUIRE_C=1 ../../$(PY) -c "import pyrtu, sys; assert pyrtu.BACKEND == 'c' and '$(ASAN_DIR)' in pyrtu.__file__, pyrtu.__file__; print('sanitized core:', pyrtu.__file__)" && \
+	  PYRTU_REQUIRE_C=1 ../../$(PY) -c "import pyrtu, sys; assert pyrtu.BACKEND == 'c' and '$(ASAN_DIR)' in pyrtu.__file__ and '$(ASAN_DIR)' in pyrtu._cext.CRCFAST.__file__, pyrtu.__file__; print('sanitized core:', pyrtu.__file__)" && \
 	  LD_PRELOAD="$$(gcc -print-file-name=libasan.so) $$(gcc -print-file-name=libubsan.so)" \
 	  ASAN_OPTIONS=detect_leaks=0:abort_on_error=1 UBSAN_OPTIONS=halt_on_error=1:print_stacktrace=1 \
 	  PYRTU_REQUIRE_C=1 ../../$(PY) -m pytest -q -p no:cacheprovider -m 'not wall_clock' tests

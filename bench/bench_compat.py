@@ -15,7 +15,8 @@ Measurements, not tests (nothing is asserted): the numbers go to bench/RESULTS.m
 * per-frame decode inside pymodbus (``FramerRTU.decode`` and ``handleFrame``, 25- and
   255-byte FC 03 answers) and the CRC functions inside minimalmodbus, umodbus and
   modbus_tk (8 and 256 bytes): medians of 21 timeit repeats, stock and installed
-  interleaved.
+  interleaved; "installed via cffi" is the same replacement through the cffi core (as
+  before pyrtu._crcfast), measured in the same run.
 """
 
 from __future__ import annotations
@@ -133,6 +134,8 @@ def decode_figures() -> dict[str, Any]:
 
 
 def crc_figures() -> dict[str, Any]:
+    """Stock, installed (pyrtu._crcfast's builtins when built) and installed through
+    cffi (the shapes of pyrtu._crcshapes over the cffi core, as before _crcfast)."""
     import minimalmodbus
     import modbus_tk.utils
     import umodbus.client.serial.redundancy_check as rc
@@ -140,29 +143,46 @@ def crc_figures() -> dict[str, Any]:
     import pyrtu.compat.minimalmodbus as c_mm
     import pyrtu.compat.modbus_tk as c_tk
     import pyrtu.compat.umodbus as c_um
+    from pyrtu import _crcshapes
+
+    def mm_cffi(inputbytes: bytes) -> bytes:  # c_mm._calculate_crc over cffi
+        if not isinstance(inputbytes, bytes):
+            raise TypeError(f"The CRC input bytes should be bytes. Given: {inputbytes!r}")
+        return _crcshapes._crc16_bytes(inputbytes)
 
     cases = {
-        "minimalmodbus _calculate_crc": (minimalmodbus._calculate_crc, c_mm._calculate_crc),
-        "umodbus get_crc": (rc.get_crc, c_um.get_crc),
-        "modbus_tk calculate_crc": (modbus_tk.utils.calculate_crc, c_tk.calculate_crc),
+        "minimalmodbus _calculate_crc": (
+            minimalmodbus._calculate_crc,
+            c_mm._calculate_crc,
+            mm_cffi,
+        ),
+        "umodbus get_crc": (rc.get_crc, c_um.get_crc, _crcshapes._crc16_bytes),
+        "modbus_tk calculate_crc": (
+            modbus_tk.utils.calculate_crc,
+            c_tk.calculate_crc,
+            _crcshapes._crc16_swapped,
+        ),
     }
-    out: dict[str, Any] = {}
-    for name, (stock, ours) in cases.items():
+    out: dict[str, Any] = {"crc builtins": _crcshapes._fast is not None}
+    for name, (stock, ours, cffi) in cases.items():
         for size in (8, 256):
             data = random.Random(size).randbytes(size)
-            assert stock(data) == ours(data)
+            assert stock(data) == ours(data) == cffi(data)
             m = medians_us(
                 {
                     "stock": lambda stock=stock, data=data: stock(data),
                     "ours": lambda ours=ours, data=data: ours(data),
+                    "cffi": lambda cffi=cffi, data=data: cffi(data),
                 },
                 2000,
             )
-            s, o = m["stock"], m["ours"]
+            s, o, c = m["stock"], m["ours"], m["cffi"]
             out[f"{name} {size} B"] = {
-                "stock us": round(s, 2),
+                "stock us": round(s, 3),
                 "installed us": round(o, 3),
                 "ratio": round(s / o, 1),
+                "installed via cffi us": round(c, 3),
+                "ratio via cffi": round(s / c, 1),
             }
             print(f"{name} {size} B", out[f"{name} {size} B"], flush=True)
     return out
@@ -173,6 +193,7 @@ def main() -> int:
     parser.add_argument("--requests", type=int, default=100)
     parser.add_argument("--json", type=Path)
     parser.add_argument("--no-bus", action="store_true", help="timings only")
+    parser.add_argument("--crc-only", action="store_true", help="the CRC timings only")
     args = parser.parse_args()
     versions = {
         d: metadata.version(d) for d in ("pymodbus", "minimalmodbus", "umodbus", "modbus_tk")
@@ -184,9 +205,10 @@ def main() -> int:
         "machine": platform.machine(),
     }
     print(result, flush=True)
-    result["decode"] = decode_figures()
+    if not args.crc_only:
+        result["decode"] = decode_figures()
     result["crc"] = crc_figures()
-    if not args.no_bus:
+    if not (args.no_bus or args.crc_only):
         result["bus"] = bus_figures(args.requests)
     if args.json:
         args.json.write_text(json.dumps(result, indent=1) + "\n")

@@ -5,9 +5,11 @@
 Measurements, not tests: nothing about speed is asserted.  Groups "crc16 8 B",
 "crc16 256 B", "crc16 1 MiB"; ``extra_info["bytes"]`` gives the size, so GB/s is
 bytes / mean (or median) time.  ``c noop`` is the empty cffi call
-(``rtu_crc_noop``): the floor under every C row.  ``c path <name>`` calls
+(``rtu_crc_noop``): the floor under every cffi row.  ``c path <name>`` calls
 ``rtu_crc16_path`` straight through cffi with a preallocated buffer and result
-(the C cost plus one cffi call); ``c crc16`` is the public ``pyrtu`` function.
+(the C cost plus one cffi call); ``c crc16`` is the C backend's public function,
+the builtin of pyrtu._crcfast when it is built (``builtin noop``, ``len(data)``, is
+the floor under it), and ``c crc16 cffi`` the same through cffi.
 Peers (crcmod, pymodbus, minimalmodbus) are skipped when not installed.
 
 The same sizes measured in C alone (the function called in a loop; Zen 5 at about
@@ -89,6 +91,42 @@ def test_c_crc16(benchmark: Any, payload: tuple[str, bytes]) -> None:
     c = pyrtu.backend("c")
     result = _run(benchmark, label, data, c.crc16, data)
     assert _want(data) in (-1, result)
+
+
+def test_c_crc16_cffi(benchmark: Any, payload: tuple[str, bytes]) -> None:
+    """``c crc16`` through cffi (the C backend's function when pyrtu._crcfast is not
+    built, and before it was written): the same C, a cffi call's overhead."""
+    label, data = payload
+    cext = _c()
+    result = _run(benchmark, label, data, cext._cffi_crc16, data)
+    assert _want(data) in (-1, result)
+
+
+def test_c_crc16_swapped(benchmark: Any, payload: tuple[str, bytes]) -> None:
+    """``pyrtu.crc16_swapped``: modbus_tk's ``calculate_crc`` shape (pyrtu.compat)."""
+    label, data = payload
+    _c()
+    from pyrtu import _crcshapes
+
+    result = _run(benchmark, label, data, _crcshapes.crc16_swapped, data)
+    want = _want(data)
+    assert want == -1 or result == ((want & 0xFF) << 8 | want >> 8)
+
+
+def test_c_crc16_swapped_cffi(benchmark: Any, payload: tuple[str, bytes]) -> None:
+    """The same shape over cffi (what ``crc16_swapped`` was before pyrtu._crcfast)."""
+    label, data = payload
+    _c()
+    from pyrtu import _crcshapes
+
+    _run(benchmark, label, data, _crcshapes._crc16_swapped, data)
+
+
+def test_builtin_noop(benchmark: Any, payload: tuple[str, bytes]) -> None:
+    """``len(data)``: a builtin called with one argument, the floor under the rows that
+    call pyrtu._crcfast (its functions are builtins too)."""
+    label, data = payload
+    _run(benchmark, label, data, len, data)
 
 
 def test_c_rtu_crc16_raw(benchmark: Any, payload: tuple[str, bytes]) -> None:

@@ -36,6 +36,8 @@ if os.environ.get("PYRTU_SANITIZE") == "1":
     ]
     _flags += _san
     _link += _san
+# the same flags for the CPython-API CRC module (setup.py: pyrtu._crcfast)
+COMPILE_ARGS, LINK_ARGS = tuple(_flags), tuple(_link)
 
 # Binding-only helpers: cffi passes a ``bytes`` object to a ``const char *``
 # parameter without a copy and refuses every other type, which gives crc16 a

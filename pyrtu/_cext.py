@@ -1,12 +1,16 @@
 """The C backend: the names of the pure-Python twin over the cffi module.
 
-Imported only by pyrtu/__init__.py's backend selection; ImportError when the
+Imported only by pyrtu/_backend.py's backend selection; ImportError when the
 extension was not built.  Buffers reach C through ``ffi.from_buffer`` (no copy).
+crc16, add_crc and check_crc are the builtins of pyrtu._crcfast when that extension
+is built (a cffi call costs about ten times a builtin's), else cffi calls.
 """
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
+from types import ModuleType
 from typing import Any
 
 from ._framing import (
@@ -30,6 +34,7 @@ INT64_MAX = 2**63 - 1
 
 __all__ = [
     "BACKEND",
+    "CRCFAST",
     "Framer",
     "add_crc",
     "char_timing",
@@ -73,7 +78,9 @@ _crc16_bytes = lib.rtu_crc16_bytes
 _crc16 = lib.rtu_crc16
 
 
-def crc16(data: BytesLike, crc: int = 0xFFFF) -> int:
+# The CRC through cffi: the functions of this backend when pyrtu._crcfast is not built
+# (and the reference the tests hold the builtins to).
+def _cffi_crc16(data: BytesLike, crc: int = 0xFFFF) -> int:
     """CRC-16/MODBUS of ``data``, continuing from ``crc`` (0xFFFF to start)."""
     if crc is not True and crc is not False:  # cffi would take a bool as 0 / 1
         try:  # bytes: straight through cffi, which refuses any other type
@@ -84,14 +91,14 @@ def crc16(data: BytesLike, crc: int = 0xFFFF) -> int:
     return int(lib.rtu_crc16(buf, len(buf), _seed(crc)))
 
 
-def add_crc(data: BytesLike) -> bytes:
+def _cffi_add_crc(data: BytesLike) -> bytes:
     """``data`` with its CRC appended, low byte first (CFW100 4.2.4)."""
     raw = as_bytes(data)
     crc = _crc16(raw, len(raw), 0xFFFF)
     return raw + bytes((crc & 0xFF, crc >> 8))
 
 
-def check_crc(adu: BytesLike) -> bool:
+def _cffi_check_crc(adu: BytesLike) -> bool:
     """True when the last two bytes of ``adu`` are the CRC of the rest."""
     buf = _buffer(adu, "adu")
     n = len(buf)
@@ -99,6 +106,26 @@ def check_crc(adu: BytesLike) -> bool:
         return False
     crc = lib.rtu_crc16(buf, n - 2, 0xFFFF)
     return bool(buf[n - 2] == crc & 0xFF and buf[n - 1] == crc >> 8)
+
+
+def _load_crcfast() -> ModuleType | None:
+    """pyrtu._crcfast (csrc/python/rtu_crc_py.c): the same CRC as builtins, which cost
+    a tenth of a cffi call.  None when it is not built, and with PYRTU_PURE=1 (the twin
+    runs; nothing of it is loaded)."""
+    if os.environ.get("PYRTU_PURE") == "1":
+        return None
+    try:
+        from . import _crcfast
+    except ImportError:
+        return None
+    return _crcfast
+
+
+#: the CRC module in use (None: the CRC goes through cffi); chosen once, here
+CRCFAST = _load_crcfast()
+crc16 = _cffi_crc16 if CRCFAST is None else CRCFAST.crc16
+add_crc = _cffi_add_crc if CRCFAST is None else CRCFAST.add_crc
+check_crc = _cffi_check_crc if CRCFAST is None else CRCFAST.check_crc
 
 
 def lrc(data: BytesLike) -> int:

@@ -8,28 +8,33 @@
 * `Crc16` -- crcmod's ``Crc`` object (``crcmod.predefined.Crc("modbus")``): ``update``,
   ``crcValue``, ``digest``, ``hexdigest``, ``new``, ``copy``.
 
-All run on the active backend's ``crc16`` (the C core when it is built).
+All run on the active backend's CRC: with the C backend, the builtins of
+pyrtu._crcfast (csrc/python/rtu_crc_py.c) when that extension is built, else cffi calls.
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 from ._backend import active
 from ._types import BytesLike
 
 _crc16 = active.crc16
-# the C core's bytes entry point (one cffi call, no wrapper frame) for plain bytes: these
-# shapes replace pure-Python CRCs called per frame, where the call is the whole cost
+# pyrtu._crcfast when the C backend runs with it: its builtins are these shapes, with no
+# Python frame around them (the call is the whole cost of an 8-byte CRC)
+_fast = getattr(active, "CRCFAST", None)
+# else the cffi core's bytes entry point (one cffi call, no wrapper frame) for plain bytes
 _bytes_crc = getattr(active, "_crc16_bytes", None)
 
 
-def crc16_bytes(data: BytesLike) -> bytes:
+def _crc16_bytes(data: BytesLike) -> bytes:
     """The CRC of ``data`` as its two wire bytes, low byte first."""
     if _bytes_crc is not None and type(data) is bytes:
         return _bytes_crc(data, len(data), 0xFFFF).to_bytes(2, "little")  # type: ignore[no-any-return]
     return _crc16(data).to_bytes(2, "little")  # type: ignore[no-any-return]
 
 
-def crc16_swapped(data: BytesLike) -> int:
+def _crc16_swapped(data: BytesLike) -> int:
     """The CRC of ``data`` byte-swapped: ``crc16_swapped(d).to_bytes(2, "big")`` is
     ``crc16_bytes(d)``."""
     if _bytes_crc is not None and type(data) is bytes:
@@ -37,6 +42,13 @@ def crc16_swapped(data: BytesLike) -> int:
     else:
         crc = _crc16(data)
     return ((crc & 0xFF) << 8) | (crc >> 8)
+
+
+#: The CRC of ``data`` as its two wire bytes, low byte first.
+crc16_bytes: Callable[[BytesLike], bytes] = _crc16_bytes if _fast is None else _fast.crc16_bytes
+#: The CRC of ``data`` byte-swapped: ``crc16_swapped(d).to_bytes(2, "big")`` is
+#: ``crc16_bytes(d)``.
+crc16_swapped: Callable[[BytesLike], int] = _crc16_swapped if _fast is None else _fast.crc16_swapped
 
 
 class Crc16:
