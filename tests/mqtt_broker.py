@@ -121,6 +121,8 @@ class Broker:
             "max_inflight_messages 0",
             "set_tcp_nodelay true",
         ]
+        if os.geteuid() == 0:  # else mosquitto drops to its own user and cannot read our files
+            lines.append("user root")
         if users:
             pw = self.dir / "passwd"
             for i, (user, password) in enumerate(users.items()):
@@ -255,4 +257,50 @@ class Client:
         self.close()
 
 
-__all__ = ["Broker", "Client", "free_port", "make_ca", "need_mosquitto"]
+__all__ = ["Broker", "Client", "Gate", "free_port", "make_ca", "need_mosquitto"]
+
+
+class Gate:
+    """A TCP relay (socat, by pid) in front of a broker's port: the bridge connects
+    through it, so that a test decides when the bridge may reach the broker again."""
+
+    def __init__(self, broker: Broker) -> None:
+        self.broker = broker
+        self.port = free_port()
+        self.proc: subprocess.Popen[bytes] | None = None
+
+    @property
+    def url(self) -> str:
+        return f"mqtt://127.0.0.1:{self.port}"
+
+    def open(self, patience: float = 10.0) -> None:
+        socat = shutil.which("socat")
+        if socat is None:
+            pytest.skip("socat is not installed")
+        self.proc = subprocess.Popen(
+            [socat, f"TCP-LISTEN:{self.port},bind=127.0.0.1,reuseaddr,fork",
+             f"TCP:127.0.0.1:{self.broker.port}"],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        )  # fmt: skip
+        give_up = time.monotonic() + patience
+        while True:
+            try:
+                with socket.create_connection(("127.0.0.1", self.port), timeout=0.2):
+                    return
+            except OSError:
+                assert time.monotonic() < give_up, "socat did not listen"
+                time.sleep(0.02)
+
+    def close(self) -> None:
+        """Stop relaying (the relays of open connections end with it)."""
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(5)
+        # the forked children of open connections: ended by the broker's close
+
+    def __enter__(self) -> Gate:
+        self.open()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

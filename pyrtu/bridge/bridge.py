@@ -101,6 +101,7 @@ class Bridge:
         self._outbox_down = False
         self.reconnects = 0
         self.publish_errors = 0
+        self.final_stats: dict[str, Any] = {}
 
     # ------------------------------------------------------------------ life cycle
 
@@ -169,7 +170,9 @@ class Bridge:
         self._link = None
         if self._flush_timer is not None:
             self._flush_timer.cancel()
+            self._flush_timer = None
         self._commit_acks()
+        self.final_stats = self.stats()
         ob.flush()
         ob.close()
         self._outbox = None
@@ -198,6 +201,12 @@ class Bridge:
             await self.stop()
         if self.fatal is not None:
             raise self.fatal
+
+    @property
+    def halted(self) -> asyncio.Event:
+        """Set when the bridge cannot go on (`fatal` says why); made by `start`."""
+        assert self._stop is not None, "start the bridge first"
+        return self._stop
 
     def on_event(self, callback: Callable[[BridgeEvent], None]) -> None:
         """Call ``callback(event)`` for every `BridgeEvent` (on the loop)."""
