@@ -157,11 +157,13 @@ class Writer:
     async def _execute(self, key: tuple[str, int], cmd: Command) -> None:
         name = cmd.point.name
         bucket = self.queue.bucket(key, time.monotonic())
+        late = False
         while (wait := bucket.wait(time.monotonic())) > 0:
             if time.monotonic() + wait >= cmd.expires:
+                late = True  # its turn comes after its expiry
                 break
             await asyncio.sleep(wait)
-        if time.monotonic() >= cmd.expires:
+        if late or time.monotonic() >= cmd.expires:
             self.queue.expired += 1
             self._finish(cmd, result(name, False, id=cmd.id, error="expired",
                                      message="expired before its turn came"))  # fmt: skip
