@@ -105,10 +105,11 @@ class Bridge:
 
     # ------------------------------------------------------------------ life cycle
 
-    async def start(self) -> None:
+    async def start(self, poll: bool = True) -> None:
         """Open the outbox, start the poller (PortError when a port fails) and the
         connection to the broker (in the background: a broker that is down only
-        delays publishing).  OutboxError when the outbox cannot be opened."""
+        delays publishing).  OutboxError when the outbox cannot be opened.
+        ``poll=False``: no poller; values come through `feed`."""
         if self._running:
             return
         m = self.config.mqtt
@@ -121,9 +122,10 @@ class Bridge:
         self._acked_seq = first[0][0] - 1 if first else self._outbox.next_seq - 1
         self._stop = asyncio.Event()
         self._lost_ev = asyncio.Event()
-        self.poller.on_event(self._on_poller_event)
+        self.poller.on_event(self.feed)
         try:
-            await self.poller.start()
+            if poll:
+                await self.poller.start()
         except BaseException:
             self._outbox.close()
             self._outbox = None
@@ -222,7 +224,9 @@ class Bridge:
 
     # ------------------------------------------------------------------ the poller's side
 
-    def _on_poller_event(self, ev: Any) -> None:
+    def feed(self, ev: Any) -> None:
+        """Take a poller event (`Update`, `SlaveState`, `PointDropped`); the
+        poller's callback, also for values from elsewhere."""
         now = time.monotonic()
         if type(ev) is Update:
             p = ev.point

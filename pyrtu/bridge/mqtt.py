@@ -58,6 +58,48 @@ def tls_context(cfg: MqttConfig) -> ssl.SSLContext:
     return ctx
 
 
+class _Coalescing:
+    """The client's socket, with its sends gathered: paho writes one packet per
+    ``send`` (a system call each); this takes them into a buffer and `drain` hands
+    the buffer to the kernel at once, which is what makes thousands of small
+    publications a second cheap.  Past ``limit`` unsent bytes it answers as a full
+    socket would (BlockingIOError), so paho keeps the rest queued."""
+
+    def __init__(self, sock: Any, limit: int = 1 << 20) -> None:
+        self._sock = sock
+        self._buf = bytearray()
+        self._limit = limit
+        self.direct = False
+
+    def send(self, data: bytes | bytearray | memoryview) -> int:
+        if self.direct:  # closing: what is buffered, then this, straight to the kernel
+            self.drain()
+            if self._buf:
+                raise BlockingIOError
+            return int(self._sock.send(data))
+        if len(self._buf) >= self._limit:
+            raise BlockingIOError
+        self._buf += data
+        return len(data)
+
+    @property
+    def unsent(self) -> int:
+        return len(self._buf)
+
+    def drain(self) -> None:
+        """Write what the kernel takes (OSError: the connection failed)."""
+        buf = self._buf
+        while buf:
+            try:
+                n = self._sock.send(buf)
+            except (BlockingIOError, ssl.SSLWantWriteError, ssl.SSLWantReadError):
+                return
+            del buf[:n]
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._sock, name)
+
+
 class MqttLink:
     """A connection to the broker (see the module docstring).  Callbacks run on the
     loop: ``on_message(msg)``, ``on_ack(mid)`` (QoS 0: written; QoS 1/2: acknowledged),
@@ -83,6 +125,7 @@ class MqttLink:
         self._writing = False
         self._connack: asyncio.Future[tuple[int, str]] | None = None
         self._misc: asyncio.TimerHandle | None = None
+        self._out: _Coalescing | None = None
         self.connected = False
 
     def _make_client(self, password: str | None) -> paho.Client:
@@ -127,6 +170,8 @@ class MqttLink:
             self._teardown()
             raise ConnectionError(f"{self.cfg.broker}: the connection closed at once")
         self._fd = sock.fileno()
+        self._out = _Coalescing(sock)
+        c._sock = self._out  # type: ignore[assignment]
         c.on_socket_close = self._socket_closed
         c.on_socket_register_write = self._want_write
         c.on_socket_unregister_write = self._no_write
@@ -179,6 +224,8 @@ class MqttLink:
         if c is not None and graceful and self.connected and self._fd is not None:
             self.connected = False
             try:
+                if self._out is not None:
+                    self._out.direct = True
                 c.disconnect()
                 c.loop_write()
             except OSError:
@@ -187,14 +234,19 @@ class MqttLink:
 
     @property
     def pending_writes(self) -> int:
-        """Packets paho holds, not yet written to the socket."""
+        """Packets paho holds and bytes not yet written to the socket."""
         c = self.client
-        return 0 if c is None else len(c._out_packet)
+        return (0 if c is None else len(c._out_packet)) + (self._out.unsent if self._out else 0)
 
     # ---------------------------------------------------------------- the loop's side
 
     def _teardown(self) -> None:
         was = self.connected
+        self._teardown_quiet()
+        if was:
+            self._on_lost("closed")
+
+    def _teardown_quiet(self) -> None:
         self.connected = False
         if self._misc is not None:
             self._misc.cancel()
@@ -210,8 +262,7 @@ class MqttLink:
                 pass
         if self._connack is not None and not self._connack.done():
             self._connack.set_exception(ConnectionError(f"{self.cfg.broker}: connection closed"))
-        if was:
-            self._on_lost("closed")
+        self._out = None
 
     def _unwatch(self) -> None:
         if self._fd is not None and self._loop is not None:
@@ -240,8 +291,18 @@ class MqttLink:
 
     def _writable(self) -> None:
         c = self.client
-        if c is not None:
-            c.loop_write()
+        out = self._out
+        if c is None or out is None:
+            return
+        c.loop_write()  # paho's packets into the buffer
+        try:
+            out.drain()  # one system call for all of them
+        except OSError as e:
+            log.info("bridge: write to %s failed: %s", self.cfg.broker, e)
+            self._lost_now(str(e))
+            return
+        if not out.unsent and not c.want_write():
+            self._stop_writing()
 
     def _want_write(self, client: Any, userdata: Any, sock: Any) -> None:
         if not self._writing and self._fd is not None and self._loop is not None:
@@ -249,9 +310,20 @@ class MqttLink:
             self._loop.add_writer(self._fd, self._writable)
 
     def _no_write(self, client: Any, userdata: Any, sock: Any) -> None:
+        # paho has handed everything over; the buffer may still hold bytes
+        if self._out is None or not self._out.unsent:
+            self._stop_writing()
+
+    def _stop_writing(self) -> None:
         if self._writing and self._fd is not None and self._loop is not None:
             self._writing = False
             self._loop.remove_writer(self._fd)
+
+    def _lost_now(self, reason: str) -> None:
+        was = self.connected
+        self._teardown_quiet()
+        if was:
+            self._on_lost(reason)
 
     def _socket_closed(self, client: Any, userdata: Any, sock: Any) -> None:
         self._unwatch()
