@@ -164,19 +164,330 @@ def throughput(tmp: Path, n: int) -> dict[str, Any]:
     return out
 
 
+# ---------------------------------------------------------------------- 8 buses
+
+
+@contextlib.contextmanager
+def buses(n: int) -> Iterator[list[str]]:
+    """``n`` ``pyrtu vbus`` processes and one ``pyrtu simulate cv100`` serving a
+    drive (address 5) on each: the masters' drop paths."""
+    import bench_client as BC
+
+    with contextlib.ExitStack() as stack:
+        pairs = [stack.enter_context(BC.vbus(BAUD)) for _ in range(n)]
+        stack.enter_context(BC.drives([p[1] for p, _ in pairs], BAUD, "cv100"))
+        yield [p[0] for p, _ in pairs]
+
+
+def bus_config(url: str, outbox: Path, paths: list[str], extra: str = "",
+               interval: float = 0.001, edge: str = "bench") -> str:  # fmt: skip
+    """Every bus polled flat out (an interval below one transaction): the CV100's
+    status words and monitored values, 7 points in one FC 03."""
+    out = [f'[mqtt]\nurl = "{url}"\nedge = "{edge}"\noutbox = "{outbox}"\n{extra}\n']
+    for i, path in enumerate(paths):
+        out.append(f'[[bus]]\nname = "b{i}"\nport = "{path}"\nbaudrate = {BAUD}\n'
+                   'parity = "N"\ntimeout = 0.1\noffline_after = 2\n')  # fmt: skip
+        for a in range(CV_START, CV_START + CV_COUNT):
+            out.append(f'[[point]]\nname = "b{i}.{a:04x}"\nbus = "b{i}"\nslave = 5\n'
+                       f'table = "holding"\naddress = {a}\ninterval = {interval}\n')  # fmt: skip
+    return "".join(out)
+
+
+@contextlib.contextmanager
+def mosquitto_sub(port: int, topic: str, out: Path, *extra: str) -> Iterator[None]:
+    """mosquitto_sub (C, its own process) writing ``receipt-time payload`` lines."""
+    proc = subprocess.Popen([shutil.which("mosquitto_sub") or "mosquitto_sub", "-h", "127.0.0.1",
+                             "-p", str(port), "-q", "1", "-t", topic, "-F", "%U %t %p", *extra],
+                            stdout=open(out, "w"), stderr=subprocess.DEVNULL)  # noqa: SIM115  # fmt: skip
+    time.sleep(0.5)
+    try:
+        yield
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(5)
+
+
+def read_sub(path: Path) -> list[tuple[float, str, dict[str, Any]]]:
+    out = []
+    for line in path.read_text().splitlines():
+        t, topic, body = line.split(" ", 2)
+        if body.startswith("{"):
+            out.append((float(t), topic, json.loads(body)))
+    return out
+
+
+def wire_and_latency(tmp: Path, seconds: float) -> dict[str, Any]:
+    """The poller alone, then the bridge (QoS 0; the drives' values do not change,
+    so max_age 0.1 s publishes each of the 56 points 10 times a second, on the read
+    that finds it due) on the same 8 buses polled flat out: each bus's utilisation,
+    and the latency from an answer's last byte to mosquitto_sub's receipt."""
+    res: dict[str, Any] = {}
+    with buses(8) as paths, Broker(tmp) as broker:
+        cfg = parse_bridge_config(bus_config(broker.url, tmp / "ob-wire", paths,
+                                             "qos = 0\nmax_age = 0.1"), "bench")  # fmt: skip
+
+        async def alone() -> list[float]:
+            poller = Poller(cfg.poller, changes_only=False)
+            async with poller:
+                await asyncio.sleep(1.0)
+                poller.reset_stats()
+                await asyncio.sleep(seconds)
+                return [r.utilisation for r in poller.report()]
+
+        async def bridged() -> tuple[list[float], dict[str, Any]]:
+            bridge = Bridge(cfg)
+            async with bridge:
+                await asyncio.sleep(1.0)
+                bridge.poller.reset_stats()
+                await asyncio.sleep(seconds)
+                return [r.utilisation for r in bridge.poller.report()], bridge.stats()
+
+        u_alone = aio_run(alone())
+        sub = tmp / "latency.txt"
+        with mosquitto_sub(broker.port, "pyrtu/bench/#", sub):
+            u_bridge, stats = aio_run(bridged())
+        msgs = read_sub(sub)
+        lat = [(t - d["time"]) * 1e3 for t, _topic, d in msgs if d.get("quality") == "good"]
+        lat = lat[len(lat) // 10 :]  # the warm-up second out
+        res = {
+            "utilisation_alone": statistics.mean(u_alone),
+            "utilisation_bridge": statistics.mean(u_bridge),
+            "wire_ratio": statistics.mean(u_bridge) / statistics.mean(u_alone),
+            "updates_per_s": stats["updates"] / stats["seconds"],
+            "latency_ms": {"p50": pct(lat, 50), "p99": pct(lat, 99), "n": len(lat)},
+            "read_to_written_ms": {"p50": stats["publish_latency_p50_ms"],
+                                   "p99": stats["publish_latency_p99_ms"]},
+            "drops": stats["drops"],
+        }
+    return res
+
+
+def broker_outage(tmp: Path, outage: float) -> dict[str, Any]:
+    """8 buses polled, every point published every 50 ms (QoS 1); the broker
+    SIGKILLed for ``outage`` seconds, then started again: sequence numbers lost,
+    duplicates after de-duplication, order per point, backlog drain rate."""
+    from mqtt_broker import Client, Gate
+
+    with buses(8) as paths, Broker(tmp) as broker, Gate(broker) as gate:
+        cfg = parse_bridge_config(bus_config(gate.url, tmp / "ob-kill", paths,
+                                             "qos = 1\nmax_age = 0.05\nbackoff = 0.5\n"
+                                             "max_backoff = 2", interval=0.01), "bench")  # fmt: skip
+        subs = [Client(broker, ["pyrtu/bench/#"])]
+        marks: dict[str, float] = {}
+
+        async def main() -> dict[str, Any]:
+            bridge = Bridge(cfg)
+            async with bridge:
+                await asyncio.sleep(3.0)
+                a0, t0 = bridge.appended, time.monotonic()
+                await asyncio.sleep(3.0)
+                live = (bridge.appended - a0) / (time.monotonic() - t0)
+                gate.close()
+                broker.kill()
+                subs[0].close()
+                await asyncio.sleep(outage)
+                backlog = bridge.stats()["outbox_depth"]
+                broker.start()
+                subs.append(Client(broker, ["pyrtu/bench/#"]))
+                ack0 = bridge._window.acknowledged
+                gate.open()
+                t1 = time.monotonic()
+                while bridge.stats()["outbox_depth"] > 2 * live * 0.05 + 50:
+                    await asyncio.sleep(0.005)
+                drain_s = time.monotonic() - t1
+                acked = bridge._window.acknowledged - ack0
+                marks["drained"] = time.monotonic()
+                await asyncio.sleep(2.0)
+            return {"live_per_s": live, "backlog": backlog, "drain_s": drain_s,
+                    "drain_per_s": acked / drain_s, "final": bridge.final_stats}  # fmt: skip
+
+        r = aio_run(main())
+        time.sleep(0.5)
+        subs[1].close()
+        by_seq: dict[int, str] = {}
+        dups = conflicts = 0
+        per_point: dict[str, list[int]] = {}
+        historical = 0
+        for sub in subs:
+            for t, body, *_ in sub.messages:
+                if t.endswith("/status") or t.endswith("/stats"):
+                    continue
+                d = json.loads(body)
+                seq = d.pop("seq")
+                historical += bool(d.pop("historical", False))
+                key = t + json.dumps(d, sort_keys=True)
+                if seq in by_seq:
+                    dups += 1
+                    conflicts += by_seq[seq] != key
+                    continue
+                by_seq[seq] = key
+                per_point.setdefault(t, []).append(seq)
+        got = sorted(by_seq)
+        missing = (got[-1] - got[0] + 1) - len(got)
+        r.update(received=len(got), missing=missing, duplicates_removed=dups,
+                 conflicting=conflicts, historical=historical,
+                 out_of_order=sum(v != sorted(v) for v in per_point.values()),
+                 drain_ratio=r["drain_per_s"] / r["live_per_s"])  # fmt: skip
+        with Client(broker, ["pyrtu/bench/#"]) as late:
+            time.sleep(1.0)
+            topics = {m[0] for m in late.messages}
+        want = {f"pyrtu/bench/b{i}/5/b{i}.{a:04x}" for i in range(8)
+                for a in range(CV_START, CV_START + CV_COUNT)}  # fmt: skip
+        r["retained_missing"] = len(want - topics)
+        r["status_ok"] = all(f"pyrtu/bench/b{i}/5/status" in topics for i in range(8))
+        del r["final"]
+    return r
+
+
+def shared_subscription(tmp: Path, seconds: float) -> dict[str, Any]:
+    """Three ``pyrtu bridge`` processes (three buses, a drive each) into one
+    broker; two mosquitto_sub in one shared subscription: each update received
+    once by the group, each edge's sequence without gaps."""
+    with buses(3) as paths, Broker(tmp) as broker:
+        procs = []
+        outs = [tmp / "share-a.txt", tmp / "share-b.txt"]
+        with contextlib.ExitStack() as stack:
+            for o in outs:
+                stack.enter_context(mosquitto_sub(broker.port, "$share/g/pyrtu/+/+/+/+", o))
+            for i, path in enumerate(paths):
+                f = tmp / f"edge{i}.toml"
+                f.write_text(bus_config(broker.url, tmp / f"ob-edge{i}", [path],
+                                        "qos = 1\nmax_age = 0.02", 0.01, f"edge{i}"))  # fmt: skip
+                procs.append(subprocess.Popen([sys.executable, "-m", "pyrtu", "bridge",
+                                               "--config", str(f)],
+                                              stderr=subprocess.DEVNULL))  # fmt: skip
+            time.sleep(seconds)
+            for p in procs:
+                p.send_signal(signal.SIGTERM)
+            codes = [p.wait(30) for p in procs]
+            time.sleep(1.0)
+        seen: dict[str, list[int]] = {}
+        per_consumer = []
+        for o in outs:
+            msgs = [(topic, d) for _t, topic, d in read_sub(o) if "seq" in d]
+            per_consumer.append(len(msgs))
+            for topic, d in msgs:
+                seen.setdefault(topic.split("/")[1], []).append(d["seq"])
+        twice = sum(len(v) - len(set(v)) for v in seen.values())
+        gaps = {e: (max(v) - min(v) + 1) - len(set(v)) for e, v in seen.items()}
+    return {"edges": len(seen), "per_consumer": per_consumer, "received_twice": twice,
+            "gaps": gaps, "exit_codes": codes}  # fmt: skip
+
+
+def unplugged(tmp: Path, seconds: float) -> dict[str, Any]:
+    """Eight drives on one bus (bench_poller's farm), every point published on each
+    read; the eighth drive's process ended: the time until its points are stale, and
+    the others' publish rate before and after."""
+    import bench_poller as BP
+
+    with BP.farm(BAUD) as (path, sims), Broker(tmp) as broker:
+        pts, _devs = BP.points(0.05)
+        text = [f'[mqtt]\nurl = "{broker.url}"\nedge = "bench"\noutbox = "{tmp / "ob-unplug"}"\n'
+                "qos = 0\nmax_age = 0.0001\n",
+                f'[[bus]]\nname = "bus"\nport = "{path}"\nbaudrate = {BAUD}\nparity = "N"\n'
+                f"timeout = {BP.TIMEOUT}\noffline_after = 2\n"]  # fmt: skip
+        for slave, drive in enumerate(BP.DRIVES, start=1):
+            text.append(f'[[device]]\nbus = "bus"\nslave = {slave}\nprofile = "{drive}"\n'
+                        f'name = "d{slave}"\ninterval = 0.05\n')  # fmt: skip
+        cfg = parse_bridge_config("".join(text), "bench")
+        times: list[tuple[float, int, str]] = []
+
+        async def main() -> dict[str, Any]:
+            bridge = Bridge(cfg)
+            bridge.poller.on_update(lambda u: times.append((time.monotonic(), u.point.slave, "")))
+            stale_at: list[float] = []
+
+            def on_ev(ev: Any) -> None:
+                if ev.kind == "slave" and ev.detail["slave"] == 8 and not ev.detail["online"]:
+                    stale_at.append(time.monotonic())
+
+            bridge.on_event(on_ev)
+            async with bridge:
+                await asyncio.sleep(2.0)
+                a = bridge.stats()["published"]
+                t0 = time.monotonic()
+                await asyncio.sleep(seconds)
+                before = (bridge.stats()["published"] - a) / (time.monotonic() - t0)
+                n_before = sum(1 for t, s, _ in times if t >= t0 and s != 8)
+                rate_before = n_before / (time.monotonic() - t0)
+                killed = time.monotonic()
+                sims[7].send_signal(signal.SIGTERM)
+                while not stale_at:
+                    await asyncio.sleep(0.001)
+                await asyncio.sleep(1.0)
+                t1 = time.monotonic()
+                await asyncio.sleep(seconds)
+                n_after = sum(1 for t, s, _ in times if t >= t1 and s != 8)
+                rate_after = n_after / (time.monotonic() - t1)
+            return {"stale_after_s": stale_at[0] - killed,
+                    "bound_s": 2 * BP.TIMEOUT,
+                    "others_per_s_before": rate_before, "others_per_s_after": rate_after,
+                    "others_ratio": rate_after / rate_before, "published_per_s": before}  # fmt: skip
+
+        return dict(aio_run(main()))
+
+
+def write_latency(tmp: Path, n: int) -> dict[str, Any]:
+    """A client publishes set commands (QoS 1) carrying their send time; the time
+    from then to the write's answer on the bus, against one FC 06 transaction; and
+    commands that expire in the queue (write_rate 5/s, 1 s expiry): executed."""
+    from mqtt_broker import Client
+
+    with buses(1) as paths, Broker(tmp) as broker:
+        text = bus_config(broker.url, tmp / "ob-write", paths, "qos = 1\nwrite_rate = 1000", 0.01)
+        text += (f'[[point]]\nname = "ref"\nbus = "b0"\nslave = 5\ntable = "holding"\n'
+                 f"address = {0x3200 + 1}\nwritable = true\ninterval = 1\n")  # fmt: skip
+        cfg = parse_bridge_config(text, "bench")
+        lat: list[float] = []
+
+        async def main() -> dict[str, Any]:
+            bridge = Bridge(cfg)
+            async with bridge:
+                await asyncio.sleep(1.0)
+                cl = Client(broker, ["pyrtu/bench/b0/5/ref/set/result"])
+                w = bridge.writer
+                for i in range(n):
+                    t0 = time.time()
+                    done0 = w.queue.executed
+                    cl.client.publish("pyrtu/bench/b0/5/ref/set",
+                                      json.dumps({"value": 1000 + i, "time": t0}).encode(), 1)  # fmt: skip
+                    while w.queue.executed == done0:
+                        await asyncio.sleep(0.0002)
+                    lat.append((w.last_write_at - t0) * 1e3)
+                    await asyncio.sleep(0.02)
+                wire = bridge.poller.config.bus("b0").wire()
+                tx = wire.char * (8 + 8) + wire.t35 + wire.turnaround
+                cl.close()
+            return {"p50_ms": pct(lat, 50), "p99_ms": pct(lat, 99), "transaction_ms": tx * 1e3}
+
+        return dict(aio_run(main()))
+
+
 # ---------------------------------------------------------------------- main
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0] if __doc__ else None)
     ap.add_argument("--updates", type=int, default=100_000)
-    ap.add_argument("--only", default="throughput")
+    ap.add_argument("--only", default="throughput,wire,unplug,write,share,outage")
+    ap.add_argument("--seconds", type=float, default=5.0)
+    ap.add_argument("--outage", type=float, default=30.0)
     ns = ap.parse_args()
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         res: dict[str, Any] = {}
         if "throughput" in ns.only:
             res["throughput"] = throughput(tmp, ns.updates)
+        if "wire" in ns.only:
+            res["wire"] = wire_and_latency(tmp, ns.seconds)
+        if "unplug" in ns.only:
+            res["unplug"] = unplugged(tmp, ns.seconds)
+        if "write" in ns.only:
+            res["write"] = write_latency(tmp, 200)
+        if "share" in ns.only:
+            res["share"] = shared_subscription(tmp, ns.seconds)
+        if "outage" in ns.only:
+            res["outage"] = broker_outage(tmp, ns.outage)
         print(json.dumps(res, indent=1))
 
 

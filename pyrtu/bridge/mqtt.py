@@ -126,6 +126,7 @@ class MqttLink:
         self._connack: asyncio.Future[tuple[int, str]] | None = None
         self._misc: asyncio.TimerHandle | None = None
         self._out: _Coalescing | None = None
+        self._soon = False
         self.connected = False
 
     def _make_client(self, password: str | None) -> paho.Client:
@@ -140,7 +141,7 @@ class MqttLink:
         if self.cfg.tls:
             c.tls_set_context(tls_context(self.cfg))
         c.will_set(self.will_topic, b"offline", qos=1, retain=True)
-        c.max_inflight_messages_set(self.cfg.inflight)
+        c.max_inflight_messages_set(0)  # our Window bounds it (paho scans its queue per ack)
         c.max_queued_messages_set(0)
         c.suppress_exceptions = False
         c.on_connect = self._connected
@@ -290,6 +291,7 @@ class MqttLink:
             c.loop_read()
 
     def _writable(self) -> None:
+        self._soon = False
         c = self.client
         out = self._out
         if c is None or out is None:
@@ -301,13 +303,19 @@ class MqttLink:
             log.info("bridge: write to %s failed: %s", self.cfg.broker, e)
             self._lost_now(str(e))
             return
-        if not out.unsent and not c.want_write():
+        if out.unsent or c.want_write():  # the kernel's buffer is full: when it has room
+            if not self._writing and self._fd is not None and self._loop is not None:
+                self._writing = True
+                self._loop.add_writer(self._fd, self._writable)
+        else:
             self._stop_writing()
 
     def _want_write(self, client: Any, userdata: Any, sock: Any) -> None:
-        if not self._writing and self._fd is not None and self._loop is not None:
-            self._writing = True
-            self._loop.add_writer(self._fd, self._writable)
+        # written at the end of this turn of the loop: every publication of the turn
+        # in one send, without waiting for select() to say the socket is writable
+        if not self._soon and not self._writing and self._loop is not None:
+            self._soon = True
+            self._loop.call_soon(self._writable)
 
     def _no_write(self, client: Any, userdata: Any, sock: Any) -> None:
         # paho has handed everything over; the buffer may still hold bytes

@@ -40,7 +40,8 @@ class Writer:
         self.received = 0
         self.refusals: dict[str, int] = {}
         self.failures = 0
-        self.write_latency: list[float] = []  # arrival to the write's answer, seconds
+        self.write_latency: list[float] = []
+        self.last_write_at = 0.0  # when the last write's answer came (Unix)  # arrival to the write's answer, seconds
 
     def connected(self, link: MqttLink) -> None:
         self._link = link
@@ -171,6 +172,7 @@ class Writer:
         poller = self.bridge.poller
         try:
             await poller.write(name, cmd.value)
+            self.last_write_at = time.time()
             self.write_latency.append(time.monotonic() - cmd.received)
             del self.write_latency[:-1024]
             value = await poller.read(name)
