@@ -118,8 +118,7 @@ class Bridge:
                               policy=m.outbox_policy)  # type: ignore[arg-type]  # fmt: skip
         self._outbox = Outbox(m.outbox, limits)
         self._live_base = self._outbox.next_seq
-        first = self._outbox.pending(1)
-        self._acked_seq = first[0][0] - 1 if first else self._outbox.next_seq - 1
+        self._acked_seq = self._outbox.acked
         self._stop = asyncio.Event()
         self._lost_ev = asyncio.Event()
         self.poller.on_event(self.feed)
