@@ -454,6 +454,11 @@ class Bridge:
         for topic, (seq, body) in self._latest.items():
             if seq < oldest:  # delivered before: published again for the retained copy
                 link.publish(topic, payload(body, seq, False), qos, True)
+        if self.config.mqtt.discovery:
+            from .discovery import configs
+
+            for topic, doc in configs(self.config, self.topics):
+                link.publish(topic, doc, 1, True)
         subs = [self.topics.set_filter, *self.topics.extra_set_topics()]
         link.subscribe(subs)
         self.writer.connected(link)

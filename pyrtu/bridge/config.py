@@ -253,6 +253,8 @@ class BridgeConfig:
     mqtt: MqttConfig
     options: Mapping[str, PointOptions] = field(default_factory=dict)
     source: str = "<config>"
+    #: (bus, slave) -> (profile, name) of the ``[[device]]`` tables with a profile
+    drives: Mapping[tuple[str, int], tuple[str, str]] = field(default_factory=dict)
 
     def option(self, name: str) -> PointOptions:
         return self.options.get(name) or _NO_OPTIONS
@@ -331,6 +333,11 @@ def parse_bridge_config(text: str, source: str = "<config>", base: Path | None =
             if isinstance(t, dict):
                 picked.append((i, {k: t.pop(k) for k in POINT_KEYS if k in t}))
     poller = _Loader(text, source).load(doc)
+    drives: dict[tuple[str, int], tuple[str, str]] = {}
+    for t in doc.get("device", []) if isinstance(doc.get("device"), list) else []:
+        if isinstance(t, dict) and "profile" in t:
+            prof = str(t["profile"]).lower()
+            drives[(t["bus"], t["slave"])] = (prof, str(t.get("name", f"{prof}{t['slave']}")))
     n_profile = len(poller.points) - len(raw_points if isinstance(raw_points, list) else [])
     options: dict[str, PointOptions] = {}
     if dflt:
@@ -357,7 +364,7 @@ def parse_bridge_config(text: str, source: str = "<config>", base: Path | None =
             options.get(p.name, _NO_OPTIONS).check(p)
         except ValueError as e:  # a default that does not fit a profile point
             raise ConfigError(f"{source}: point {p.name!r}: {e} (from [defaults])") from None
-    cfg = BridgeConfig(poller, mqtt, options, source)
+    cfg = BridgeConfig(poller, mqtt, options, source, drives)
     from .topics import Topics  # the topics must be distinct and valid
 
     try:
