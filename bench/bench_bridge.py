@@ -19,7 +19,6 @@ import argparse
 import asyncio
 import contextlib
 import json
-import os
 import shutil
 import signal
 import statistics
@@ -37,9 +36,9 @@ ROOT = BENCH.parent
 sys.path[:0] = [str(ROOT / "tests"), str(BENCH)]
 
 import paho.mqtt.client as paho  # noqa: E402
+from mqtt_broker import Broker  # noqa: E402
 from paho.mqtt.enums import CallbackAPIVersion  # noqa: E402
 
-from mqtt_broker import Broker  # noqa: E402
 from pyrtu.aio import run as aio_run  # noqa: E402
 from pyrtu.bridge import parse_bridge_config  # noqa: E402
 from pyrtu.bridge.bridge import Bridge  # noqa: E402
@@ -55,7 +54,7 @@ CV_START, CV_COUNT = 0x3300, 7
 
 def pct(values: list[float], q: float) -> float:
     s = sorted(values)
-    return s[min(len(s) - 1, max(0, int(round(q / 100 * len(s) + 0.5)) - 1))] if s else float("nan")
+    return s[min(len(s) - 1, max(0, round(q / 100 * len(s) + 0.5) - 1))] if s else float("nan")
 
 
 # ---------------------------------------------------------------------- throughput
@@ -125,8 +124,10 @@ def bare_rate(port: int, qos: int, n: int) -> dict[str, float]:
     waiting for every acknowledgement (QoS 1) or every write (QoS 0)."""
     pts = _points(200)
     topics = [f"pyrtu/bench/bus/{p.slave}/{p.name}" for p in pts]
-    bodies = [split_record(record(topics[i % 200], pts[i % 200], i, time.time(), "good"))[1]
-              for i in range(200)]  # fmt: skip
+    bodies = [
+        split_record(record(topics[i % 200], pts[i % 200], i, time.time(), "good"))[1]
+        for i in range(200)
+    ]
     c = paho.Client(CallbackAPIVersion.VERSION2, client_id="bare", protocol=paho.MQTTv5)
     c.max_inflight_messages_set(1000)
     c.max_queued_messages_set(0)
@@ -179,26 +180,51 @@ def buses(n: int) -> Iterator[list[str]]:
         yield [p[0] for p, _ in pairs]
 
 
-def bus_config(url: str, outbox: Path, paths: list[str], extra: str = "",
-               interval: float = 0.001, edge: str = "bench") -> str:  # fmt: skip
+def bus_config(
+    url: str,
+    outbox: Path,
+    paths: list[str],
+    extra: str = "",
+    interval: float = 0.001,
+    edge: str = "bench",
+) -> str:
     """Every bus polled flat out (an interval below one transaction): the CV100's
     status words and monitored values, 7 points in one FC 03."""
     out = [f'[mqtt]\nurl = "{url}"\nedge = "{edge}"\noutbox = "{outbox}"\n{extra}\n']
     for i, path in enumerate(paths):
-        out.append(f'[[bus]]\nname = "b{i}"\nport = "{path}"\nbaudrate = {BAUD}\n'
-                   'parity = "N"\ntimeout = 0.1\noffline_after = 2\n')  # fmt: skip
+        out.append(
+            f'[[bus]]\nname = "b{i}"\nport = "{path}"\nbaudrate = {BAUD}\n'
+            'parity = "N"\ntimeout = 0.1\noffline_after = 2\n'
+        )
         for a in range(CV_START, CV_START + CV_COUNT):
-            out.append(f'[[point]]\nname = "b{i}.{a:04x}"\nbus = "b{i}"\nslave = 5\n'
-                       f'table = "holding"\naddress = {a}\ninterval = {interval}\n')  # fmt: skip
+            out.append(
+                f'[[point]]\nname = "b{i}.{a:04x}"\nbus = "b{i}"\nslave = 5\n'
+                f'table = "holding"\naddress = {a}\ninterval = {interval}\n'
+            )
     return "".join(out)
 
 
 @contextlib.contextmanager
 def mosquitto_sub(port: int, topic: str, out: Path, *extra: str) -> Iterator[None]:
     """mosquitto_sub (C, its own process) writing ``receipt-time payload`` lines."""
-    proc = subprocess.Popen([shutil.which("mosquitto_sub") or "mosquitto_sub", "-h", "127.0.0.1",
-                             "-p", str(port), "-q", "1", "-t", topic, "-F", "%U %t %p", *extra],
-                            stdout=open(out, "w"), stderr=subprocess.DEVNULL)  # noqa: SIM115  # fmt: skip
+    proc = subprocess.Popen(
+        [
+            shutil.which("mosquitto_sub") or "mosquitto_sub",
+            "-h",
+            "127.0.0.1",
+            "-p",
+            str(port),
+            "-q",
+            "1",
+            "-t",
+            topic,
+            "-F",
+            "%U %t %p",
+            *extra,
+        ],
+        stdout=open(out, "w"),
+        stderr=subprocess.DEVNULL,
+    )
     time.sleep(0.5)
     try:
         yield
@@ -223,8 +249,9 @@ def wire_and_latency(tmp: Path, seconds: float) -> dict[str, Any]:
     and the latency from an answer's last byte to mosquitto_sub's receipt."""
     res: dict[str, Any] = {}
     with buses(8) as paths, Broker(tmp) as broker:
-        cfg = parse_bridge_config(bus_config(broker.url, tmp / "ob-wire", paths,
-                                             "qos = 0\nmax_age = 0.1"), "bench")  # fmt: skip
+        cfg = parse_bridge_config(
+            bus_config(broker.url, tmp / "ob-wire", paths, "qos = 0\nmax_age = 0.1"), "bench"
+        )
 
         async def alone() -> list[float]:
             poller = Poller(cfg.poller, changes_only=False)
@@ -255,8 +282,10 @@ def wire_and_latency(tmp: Path, seconds: float) -> dict[str, Any]:
             "wire_ratio": statistics.mean(u_bridge) / statistics.mean(u_alone),
             "updates_per_s": stats["updates"] / stats["seconds"],
             "latency_ms": {"p50": pct(lat, 50), "p99": pct(lat, 99), "n": len(lat)},
-            "read_to_written_ms": {"p50": stats["publish_latency_p50_ms"],
-                                   "p99": stats["publish_latency_p99_ms"]},
+            "read_to_written_ms": {
+                "p50": stats["publish_latency_p50_ms"],
+                "p99": stats["publish_latency_p99_ms"],
+            },
             "drops": stats["drops"],
         }
     return res
@@ -269,9 +298,16 @@ def broker_outage(tmp: Path, outage: float) -> dict[str, Any]:
     from mqtt_broker import Client, Gate
 
     with buses(8) as paths, Broker(tmp) as broker, Gate(broker) as gate:
-        cfg = parse_bridge_config(bus_config(gate.url, tmp / "ob-kill", paths,
-                                             "qos = 1\nmax_age = 0.05\nbackoff = 0.5\n"
-                                             "max_backoff = 2", interval=0.01), "bench")  # fmt: skip
+        cfg = parse_bridge_config(
+            bus_config(
+                gate.url,
+                tmp / "ob-kill",
+                paths,
+                "qos = 1\nmax_age = 0.05\nbackoff = 0.5\nmax_backoff = 2",
+                interval=0.01,
+            ),
+            "bench",
+        )
         subs = [Client(broker, ["pyrtu/bench/#"])]
         marks: dict[str, float] = {}
 
@@ -298,8 +334,13 @@ def broker_outage(tmp: Path, outage: float) -> dict[str, Any]:
                 acked = bridge._window.acknowledged - ack0
                 marks["drained"] = time.monotonic()
                 await asyncio.sleep(2.0)
-            return {"live_per_s": live, "backlog": backlog, "drain_s": drain_s,
-                    "drain_per_s": acked / drain_s, "final": bridge.final_stats}  # fmt: skip
+            return {
+                "live_per_s": live,
+                "backlog": backlog,
+                "drain_s": drain_s,
+                "drain_per_s": acked / drain_s,
+                "final": bridge.final_stats,
+            }
 
         r = aio_run(main())
         time.sleep(0.5)
@@ -324,15 +365,23 @@ def broker_outage(tmp: Path, outage: float) -> dict[str, Any]:
                 per_point.setdefault(t, []).append(seq)
         got = sorted(by_seq)
         missing = (got[-1] - got[0] + 1) - len(got)
-        r.update(received=len(got), missing=missing, duplicates_removed=dups,
-                 conflicting=conflicts, historical=historical,
-                 out_of_order=sum(v != sorted(v) for v in per_point.values()),
-                 drain_ratio=r["drain_per_s"] / r["live_per_s"])  # fmt: skip
+        r.update(
+            received=len(got),
+            missing=missing,
+            duplicates_removed=dups,
+            conflicting=conflicts,
+            historical=historical,
+            out_of_order=sum(v != sorted(v) for v in per_point.values()),
+            drain_ratio=r["drain_per_s"] / r["live_per_s"],
+        )
         with Client(broker, ["pyrtu/bench/#"]) as late:
             time.sleep(1.0)
             topics = {m[0] for m in late.messages}
-        want = {f"pyrtu/bench/b{i}/5/b{i}.{a:04x}" for i in range(8)
-                for a in range(CV_START, CV_START + CV_COUNT)}  # fmt: skip
+        want = {
+            f"pyrtu/bench/b{i}/5/b{i}.{a:04x}"
+            for i in range(8)
+            for a in range(CV_START, CV_START + CV_COUNT)
+        }
         r["retained_missing"] = len(want - topics)
         r["status_ok"] = all(f"pyrtu/bench/b{i}/5/status" in topics for i in range(8))
         del r["final"]
@@ -351,11 +400,22 @@ def shared_subscription(tmp: Path, seconds: float) -> dict[str, Any]:
                 stack.enter_context(mosquitto_sub(broker.port, "$share/g/pyrtu/+/+/+/+", o))
             for i, path in enumerate(paths):
                 f = tmp / f"edge{i}.toml"
-                f.write_text(bus_config(broker.url, tmp / f"ob-edge{i}", [path],
-                                        "qos = 1\nmax_age = 0.02", 0.01, f"edge{i}"))  # fmt: skip
-                procs.append(subprocess.Popen([sys.executable, "-m", "pyrtu", "bridge",
-                                               "--config", str(f)],
-                                              stderr=subprocess.DEVNULL))  # fmt: skip
+                f.write_text(
+                    bus_config(
+                        broker.url,
+                        tmp / f"ob-edge{i}",
+                        [path],
+                        "qos = 1\nmax_age = 0.02",
+                        0.01,
+                        f"edge{i}",
+                    )
+                )
+                procs.append(
+                    subprocess.Popen(
+                        [sys.executable, "-m", "pyrtu", "bridge", "--config", str(f)],
+                        stderr=subprocess.DEVNULL,
+                    )
+                )
             time.sleep(seconds)
             for p in procs:
                 p.send_signal(signal.SIGTERM)
@@ -370,8 +430,13 @@ def shared_subscription(tmp: Path, seconds: float) -> dict[str, Any]:
                 seen.setdefault(topic.split("/")[1], []).append(d["seq"])
         twice = sum(len(v) - len(set(v)) for v in seen.values())
         gaps = {e: (max(v) - min(v) + 1) - len(set(v)) for e, v in seen.items()}
-    return {"edges": len(seen), "per_consumer": per_consumer, "received_twice": twice,
-            "gaps": gaps, "exit_codes": codes}  # fmt: skip
+    return {
+        "edges": len(seen),
+        "per_consumer": per_consumer,
+        "received_twice": twice,
+        "gaps": gaps,
+        "exit_codes": codes,
+    }
 
 
 def unplugged(tmp: Path, seconds: float) -> dict[str, Any]:
@@ -381,14 +446,17 @@ def unplugged(tmp: Path, seconds: float) -> dict[str, Any]:
     import bench_poller as BP
 
     with BP.farm(BAUD) as (path, sims), Broker(tmp) as broker:
-        pts, _devs = BP.points(0.05)
-        text = [f'[mqtt]\nurl = "{broker.url}"\nedge = "bench"\noutbox = "{tmp / "ob-unplug"}"\n'
-                "qos = 0\nmax_age = 0.0001\n",
-                f'[[bus]]\nname = "bus"\nport = "{path}"\nbaudrate = {BAUD}\nparity = "N"\n'
-                f"timeout = {BP.TIMEOUT}\noffline_after = 2\n"]  # fmt: skip
+        text = [
+            f'[mqtt]\nurl = "{broker.url}"\nedge = "bench"\noutbox = "{tmp / "ob-unplug"}"\n'
+            "qos = 0\nmax_age = 0.0001\n",
+            f'[[bus]]\nname = "bus"\nport = "{path}"\nbaudrate = {BAUD}\nparity = "N"\n'
+            f"timeout = {BP.TIMEOUT}\noffline_after = 2\n",
+        ]
         for slave, drive in enumerate(BP.DRIVES, start=1):
-            text.append(f'[[device]]\nbus = "bus"\nslave = {slave}\nprofile = "{drive}"\n'
-                        f'name = "d{slave}"\ninterval = 0.05\n')  # fmt: skip
+            text.append(
+                f'[[device]]\nbus = "bus"\nslave = {slave}\nprofile = "{drive}"\n'
+                f'name = "d{slave}"\ninterval = 0.05\n'
+            )
         cfg = parse_bridge_config("".join(text), "bench")
         times: list[tuple[float, int, str]] = []
 
@@ -419,10 +487,14 @@ def unplugged(tmp: Path, seconds: float) -> dict[str, Any]:
                 await asyncio.sleep(seconds)
                 n_after = sum(1 for t, s, _ in times if t >= t1 and s != 8)
                 rate_after = n_after / (time.monotonic() - t1)
-            return {"stale_after_s": stale_at[0] - killed,
-                    "bound_s": 2 * BP.TIMEOUT,
-                    "others_per_s_before": rate_before, "others_per_s_after": rate_after,
-                    "others_ratio": rate_after / rate_before, "published_per_s": before}  # fmt: skip
+            return {
+                "stale_after_s": stale_at[0] - killed,
+                "bound_s": 2 * BP.TIMEOUT,
+                "others_per_s_before": rate_before,
+                "others_per_s_after": rate_after,
+                "others_ratio": rate_after / rate_before,
+                "published_per_s": before,
+            }
 
         return dict(aio_run(main()))
 
@@ -435,8 +507,10 @@ def write_latency(tmp: Path, n: int) -> dict[str, Any]:
 
     with buses(1) as paths, Broker(tmp) as broker:
         text = bus_config(broker.url, tmp / "ob-write", paths, "qos = 1\nwrite_rate = 1000", 0.01)
-        text += (f'[[point]]\nname = "ref"\nbus = "b0"\nslave = 5\ntable = "holding"\n'
-                 f"address = {0x3200 + 1}\nwritable = true\ninterval = 1\n")  # fmt: skip
+        text += (
+            f'[[point]]\nname = "ref"\nbus = "b0"\nslave = 5\ntable = "holding"\n'
+            f"address = {0x3200 + 1}\nwritable = true\ninterval = 1\n"
+        )
         cfg = parse_bridge_config(text, "bench")
         lat: list[float] = []
 
@@ -449,8 +523,11 @@ def write_latency(tmp: Path, n: int) -> dict[str, Any]:
                 for i in range(n):
                     t0 = time.time()
                     done0 = w.queue.executed
-                    cl.client.publish("pyrtu/bench/b0/5/ref/set",
-                                      json.dumps({"value": 1000 + i, "time": t0}).encode(), 1)  # fmt: skip
+                    cl.client.publish(
+                        "pyrtu/bench/b0/5/ref/set",
+                        json.dumps({"value": 1000 + i, "time": t0}).encode(),
+                        1,
+                    )
                     while w.queue.executed == done0:
                         await asyncio.sleep(0.0002)
                     lat.append((w.last_write_at - t0) * 1e3)

@@ -61,8 +61,10 @@ def make_ca(directory: Path, host: str = "localhost") -> tuple[Path, Path, Path]
         .not_valid_before(now - datetime.timedelta(minutes=5))
         .not_valid_after(now + datetime.timedelta(days=2))
         .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
-        .add_extension(x509.KeyUsage(False, False, False, False, False, True, True, False, False),
-                       critical=True)  # fmt: skip
+        .add_extension(
+            x509.KeyUsage(False, False, False, False, False, True, True, False, False),
+            critical=True,
+        )
         .sign(ca_key, hashes.SHA256())
     )
     key = ec.generate_private_key(ec.SECP256R1())
@@ -83,7 +85,11 @@ def make_ca(directory: Path, host: str = "localhost") -> tuple[Path, Path, Path]
         .sign(ca_key, hashes.SHA256())
     )
     pem = serialization.Encoding.PEM
-    ca_path, cert_path, key_path = directory / "ca.pem", directory / "server.pem", directory / "server.key"
+    ca_path, cert_path, key_path = (
+        directory / "ca.pem",
+        directory / "server.pem",
+        directory / "server.key",
+    )
     ca_path.write_bytes(ca.public_bytes(pem))
     cert_path.write_bytes(cert.public_bytes(pem))
     key_path.write_bytes(
@@ -140,17 +146,20 @@ class Broker:
 
     @property
     def url(self) -> str:
-        return f"{'mqtts' if self.tls else 'mqtt'}://{'localhost' if self.tls else '127.0.0.1'}:{self.port}"
+        host = "localhost" if self.tls else "127.0.0.1"  # the certificate's name
+        return f"{'mqtts' if self.tls else 'mqtt'}://{host}:{self.port}"
 
     def start(self, patience: float = 10.0) -> Broker:
         assert self.proc is None or self.proc.poll() is not None, "already running"
-        err = open(self.log, "ab")  # noqa: SIM115 - the process holds it
+        err = open(self.log, "ab")
         self.proc = subprocess.Popen([MOSQUITTO, "-c", str(self.conf)], stdout=err, stderr=err)
         err.close()
         give_up = time.monotonic() + patience
         while True:
             if self.proc.poll() is not None:
-                raise RuntimeError(f"mosquitto exited {self.proc.returncode}: {self.log.read_text()}")
+                raise RuntimeError(
+                    f"mosquitto exited {self.proc.returncode}: {self.log.read_text()}"
+                )
             try:
                 with socket.create_connection(("127.0.0.1", self.port), timeout=0.2):
                     return self
@@ -188,8 +197,15 @@ class Client:
     """A paho MQTT 5 client on a thread of its own (loop_start) that records every
     message it receives: ``messages`` [(topic, payload, retain, properties, time)]."""
 
-    def __init__(self, broker: Broker, topics: list[str] | None = None, *, client_id: str = "",
-                 username: str | None = None, password: str | None = None) -> None:  # fmt: skip
+    def __init__(
+        self,
+        broker: Broker,
+        topics: list[str] | None = None,
+        *,
+        client_id: str = "",
+        username: str | None = None,
+        password: str | None = None,
+    ) -> None:
         import threading
 
         import paho.mqtt.client as mqtt
@@ -206,8 +222,9 @@ class Client:
             c.tls_set(ca_certs=str(broker.ca))
         subs = topics or []
 
-        def on_connect(client: object, userdata: object, flags: object, rc: object,
-                       props: object) -> None:  # fmt: skip
+        def on_connect(
+            client: object, userdata: object, flags: object, rc: object, props: object
+        ) -> None:
             if subs:
                 c.subscribe([(t, 1) for t in subs])
             else:
@@ -231,8 +248,15 @@ class Client:
         self.client = c
         assert self._ready.wait(10), "the test client did not connect"
 
-    def publish(self, topic: str, payload: bytes, *, qos: int = 1, retain: bool = False,
-                properties: object = None) -> None:  # fmt: skip
+    def publish(
+        self,
+        topic: str,
+        payload: bytes,
+        *,
+        qos: int = 1,
+        retain: bool = False,
+        properties: object = None,
+    ) -> None:
         info = self.client.publish(topic, payload, qos, retain, properties)  # type: ignore[arg-type]
         info.wait_for_publish(10)
 
@@ -278,10 +302,14 @@ class Gate:
         if socat is None:
             pytest.skip("socat is not installed")
         self.proc = subprocess.Popen(
-            [socat, f"TCP-LISTEN:{self.port},bind=127.0.0.1,reuseaddr,fork",
-             f"TCP:127.0.0.1:{self.broker.port}"],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-        )  # fmt: skip
+            [
+                socat,
+                f"TCP-LISTEN:{self.port},bind=127.0.0.1,reuseaddr,fork",
+                f"TCP:127.0.0.1:{self.broker.port}",
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
         give_up = time.monotonic() + patience
         while True:
             try:

@@ -16,8 +16,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-
 from mqtt_broker import Broker, Client, Gate
+
 from pyrtu.aio import run as aio_run
 from pyrtu.bridge import parse_bridge_config
 from pyrtu.bridge.bridge import Bridge, BridgeEvent
@@ -79,8 +79,17 @@ interval = {interval}
 """
 
 
-POINTS = ["weg.status", "weg.speed", "weg.current", "weg.fault", "weg.alarm",
-          "cv.status", "cv.speed", "cv.current", "cv.fault"]  # fmt: skip
+POINTS = [
+    "weg.status",
+    "weg.speed",
+    "weg.current",
+    "weg.fault",
+    "weg.alarm",
+    "cv.status",
+    "cv.speed",
+    "cv.current",
+    "cv.fault",
+]
 
 
 def topic(name: str) -> str:
@@ -124,13 +133,24 @@ def test_values_status_stale_and_the_last_will(tmp_path: Path) -> None:
                 bus.unplug(2)
                 sims[1].close()
                 await until(lambda: sub.on("pyrtu/e1/line/5/status")[-1:] == [b"offline"], "5 off")
-                await until(lambda: all(last(sub, topic(n))["quality"] == "stale"  # type: ignore[index]
-                                        for n in POINTS if n.startswith("cv")), "stale")  # fmt: skip
+                await until(
+                    lambda: all(
+                        last(sub, topic(n))["quality"] == "stale"  # type: ignore[index]
+                        for n in POINTS
+                        if n.startswith("cv")
+                    ),
+                    "stale",
+                )
                 path = bus.replug(2)
                 sims[1] = CV100Simulator()
                 sims[1].serve(path, 5, baudrate=BAUD, parity="N")
-                await until(lambda: all(last(sub, topic(n))["quality"] == "good"  # type: ignore[index]
-                                        for n in POINTS), "good again")  # fmt: skip
+                await until(
+                    lambda: all(
+                        last(sub, topic(n))["quality"] == "good"  # type: ignore[index]
+                        for n in POINTS
+                    ),
+                    "good again",
+                )
                 assert sub.on("pyrtu/e1/line/5/status")[-1] == b"online"
 
         aio_run(main())
@@ -140,11 +160,16 @@ def test_values_status_stale_and_the_last_will(tmp_path: Path) -> None:
         weg = last(sub, topic("weg.status"))
         assert weg is not None
         assert weg["value"] == CFW701Simulator().store.holding_registers.get(680)
-        assert set(weg) == {"value", "time", "quality", "seq"} and abs(weg["time"] - time.time()) < 600
+        assert (
+            set(weg) == {"value", "time", "quality", "seq"} and abs(weg["time"] - time.time()) < 600
+        )
         s = seqs(sub)
         assert s == sorted(s) and len(set(s)) == len(s)  # one edge, in order, never twice
-        stale = [json.loads(p) for t, p, *_ in sub.messages
-                 if t == topic("cv.speed") and json.loads(p)["quality"] == "stale"]  # fmt: skip
+        stale = [
+            json.loads(p)
+            for t, p, *_ in sub.messages
+            if t == topic("cv.speed") and json.loads(p)["quality"] == "stale"
+        ]
         assert stale and stale[0]["value"] == 50.0  # the last value read, marked stale
         assert [e.kind for e in events].count("slave") >= 4
         # a newcomer sees every retained topic
@@ -180,8 +205,9 @@ def test_a_broker_killed_and_restarted_loses_nothing(tmp_path: Path) -> None:
                 broker.start()
                 subs.append(Client(broker, ["pyrtu/e1/line/#"]))
                 gate.open()
-                await until(lambda: any(e.kind == "broker_up" and e.detail["down_s"]
-                                        for e in events), "up")  # fmt: skip
+                await until(
+                    lambda: any(e.kind == "broker_up" and e.detail["down_s"] for e in events), "up"
+                )
                 await until(lambda: bridge.stats()["outbox_depth"] < 50, "backlog drained")
                 await until(lambda: len(subs[1].messages) > 400, "values after")
             return bridge
@@ -219,14 +245,20 @@ def test_a_broker_killed_and_restarted_loses_nothing(tmp_path: Path) -> None:
 
 def test_refused_credentials_name_the_broker_and_the_user(tmp_path: Path) -> None:
     with Broker(tmp_path, users={"edge": "right-pw"}) as broker, drives() as (bus, _sims):
-        ok = toml(broker.url, bus.paths[0], tmp_path / "ob1", 'username = "edge"\npassword = "right-pw"')
-        bad = toml(broker.url, bus.paths[0], tmp_path / "ob2", 'username = "edge"\npassword = "wrong-pw"')
+        ok = toml(
+            broker.url, bus.paths[0], tmp_path / "ob1", 'username = "edge"\npassword = "right-pw"'
+        )
+        bad = toml(
+            broker.url, bus.paths[0], tmp_path / "ob2", 'username = "edge"\npassword = "wrong-pw"'
+        )
 
         async def run(text: str) -> Bridge:
             bridge = Bridge(parse_bridge_config(text, "b.toml"))
             await bridge.start()
-            await until(lambda: bridge.fatal is not None or bridge.stats()["acknowledged"] >= 9,
-                        "every point acknowledged, or the end")  # fmt: skip
+            await until(
+                lambda: bridge.fatal is not None or bridge.stats()["acknowledged"] >= 9,
+                "every point acknowledged, or the end",
+            )
             await bridge.stop()
             return bridge
 
@@ -249,8 +281,10 @@ def test_tls_verifies_the_broker_and_refuses_what_does_not(tmp_path: Path) -> No
         async def run(text: str) -> Bridge:
             bridge = Bridge(parse_bridge_config(text, "b.toml"))
             await bridge.start()
-            await until(lambda: bridge.fatal is not None or bridge.stats()["acknowledged"] >= 9,
-                        "every point acknowledged, or the end")  # fmt: skip
+            await until(
+                lambda: bridge.fatal is not None or bridge.stats()["acknowledged"] >= 9,
+                "every point acknowledged, or the end",
+            )
             await bridge.stop()
             return bridge
 

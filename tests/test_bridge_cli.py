@@ -7,6 +7,7 @@ numbers (none reused, none lost that was accepted before the last fsync)."""
 from __future__ import annotations
 
 import contextlib
+import itertools
 import json
 import os
 import signal
@@ -18,8 +19,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-
 from mqtt_broker import Broker, Client
+
 from pyrtu.devices import CFW701Simulator
 
 vbus = pytest.importorskip("pyrtu.vbus")
@@ -63,8 +64,12 @@ interval = 0.02
 
 
 def start(*args: str) -> subprocess.Popen[str]:
-    return subprocess.Popen([sys.executable, "-m", "pyrtu", "bridge", *args],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    return subprocess.Popen(
+        [sys.executable, "-m", "pyrtu", "bridge", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
 
 
 def first_lines(p: subprocess.Popen[str], n: int) -> list[dict[str, Any]]:
@@ -100,8 +105,9 @@ def test_sigterm_drains_and_exits_0(tmp_path: Path) -> None:
 def test_refused_credentials_exit_3(tmp_path: Path) -> None:
     with Broker(tmp_path, users={"edge": "good"}) as broker, drive() as bus:
         (tmp_path / "pw").write_text("not-the-password\n")
-        cfg = write_config(tmp_path, broker.url, bus.paths[0],
-                           'username = "edge"\npassword_file = "pw"')  # fmt: skip
+        cfg = write_config(
+            tmp_path, broker.url, bus.paths[0], 'username = "edge"\npassword_file = "pw"'
+        )
         p = start("--config", str(cfg))
         out, err = p.communicate(timeout=60)
         assert p.returncode == 3, err
@@ -113,8 +119,9 @@ def test_a_closed_pipe_ends_it_quietly(tmp_path: Path) -> None:
     with Broker(tmp_path) as broker, drive() as bus:
         cfg = write_config(tmp_path, broker.url, bus.paths[0])
         cmd = f"{sys.executable} -m pyrtu bridge --config {cfg} --json | head -1"
-        r = subprocess.run(["bash", "-o", "pipefail", "-c", cmd], capture_output=True,
-                           text=True, timeout=60)  # fmt: skip
+        r = subprocess.run(
+            ["bash", "-o", "pipefail", "-c", cmd], capture_output=True, text=True, timeout=60
+        )
         assert r.returncode == 0, r.stderr
         assert json.loads(r.stdout)["event"] in ("broker_up", "slave")
         assert "Traceback" not in r.stderr
@@ -126,7 +133,9 @@ def test_sigkill_and_restart_continue_the_sequence(tmp_path: Path) -> None:
     (from the next reserved block): no number carries two different values, none
     from before the kill is missing."""
     with Broker(tmp_path) as broker, drive() as bus, Client(broker, ["pyrtu/cli/line/#"]) as sub:
-        cfg = write_config(tmp_path, broker.url, bus.paths[0], "fsync_interval = 0\nmax_age = 0.001")
+        cfg = write_config(
+            tmp_path, broker.url, bus.paths[0], "fsync_interval = 0\nmax_age = 0.001"
+        )
         p = start("--config", str(cfg))
         sub.wait(lambda: len(sub.messages) > 300, "values")
         os.kill(p.pid, signal.SIGKILL)
@@ -150,7 +159,7 @@ def test_sigkill_and_restart_continue_the_sequence(tmp_path: Path) -> None:
         got = sorted(by_seq)
         # numbers are never reused: the restarted outbox skips the block it had
         # reserved, so there is exactly one gap, at the restart, and none before it
-        gaps = [(a, b) for a, b in zip(got, got[1:], strict=False) if b != a + 1]
+        gaps = [(a, b) for a, b in itertools.pairwise(got) if b != a + 1]
         assert len(gaps) == 1, gaps[:5]
         first_after = gaps[0][1]
         assert all(by_seq[n] for n in range(got[0], gaps[0][0] + 1))

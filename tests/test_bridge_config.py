@@ -74,21 +74,40 @@ def test_a_good_file_gives_the_poller_its_points_and_the_bridge_its_keys() -> No
 @pytest.mark.parametrize(
     ("change", "where", "message"),
     [
-        (('qos = 1', 'qos = 3'), "b.toml:4:", "mqtt: qos: must be an integer 0..2, not 3"),
-        (('qos = 1', 'qso = 1'), "b.toml:4:", "mqtt: qso: unknown key"),
+        (("qos = 1", "qos = 3"), "b.toml:4:", "mqtt: qos: must be an integer 0..2, not 3"),
+        (("qos = 1", "qso = 1"), "b.toml:4:", "mqtt: qso: unknown key"),
         (('url = "mqtt://127.0.0.1:1883"', 'url = "http://x"'), "b.toml:2:", "mqtt: url:"),
-        (('max_age = 30', 'max_age = -1'), "b.toml:5:", "mqtt: max_age: must be a non-negative"),
-        (("writable = true\nmin = 0", "writable = 1\nmin = 0"), "b.toml:24:",
-         'point[0] ("weg.ref"): writable: must be true or false'),
-        (("min = 0\nmax = 8192", "min = 10\nmax = 5"), "b.toml:26:",
-         'point[0] ("weg.ref"): max: must be at least min'),
-        (('topic = "plant/hall1/flag"', 'topic = "plant/+/flag"'), "b.toml:36:",
-         'point[1] ("flag"): topic: must be a non-empty string without +'),
-        (('table = "coils"', 'table = "discrete_inputs"'), "b.toml:35:",
-         "writable: the discrete_inputs table is read only"),
-        (("address = 683", "adress = 683"), "b.toml:23:", 'point[0] ("weg.ref"): adress: unknown key'),
-        (('topic = "plant/hall1/flag"', 'topic = "pyrtu/e1/line/1/weg.ref"'), "b.toml:",
-         "topic 'pyrtu/e1/line/1/weg.ref' is also point 'weg.ref'"),
+        (("max_age = 30", "max_age = -1"), "b.toml:5:", "mqtt: max_age: must be a non-negative"),
+        (
+            ("writable = true\nmin = 0", "writable = 1\nmin = 0"),
+            "b.toml:24:",
+            'point[0] ("weg.ref"): writable: must be true or false',
+        ),
+        (
+            ("min = 0\nmax = 8192", "min = 10\nmax = 5"),
+            "b.toml:26:",
+            'point[0] ("weg.ref"): max: must be at least min',
+        ),
+        (
+            ('topic = "plant/hall1/flag"', 'topic = "plant/+/flag"'),
+            "b.toml:36:",
+            'point[1] ("flag"): topic: must be a non-empty string without +',
+        ),
+        (
+            ('table = "coils"', 'table = "discrete_inputs"'),
+            "b.toml:35:",
+            "writable: the discrete_inputs table is read only",
+        ),
+        (
+            ("address = 683", "adress = 683"),
+            "b.toml:23:",
+            'point[0] ("weg.ref"): adress: unknown key',
+        ),
+        (
+            ('topic = "plant/hall1/flag"', 'topic = "pyrtu/e1/line/1/weg.ref"'),
+            "b.toml:",
+            "topic 'pyrtu/e1/line/1/weg.ref' is also point 'weg.ref'",
+        ),
     ],
 )
 def test_errors_name_the_file_the_line_and_the_key(
@@ -104,8 +123,12 @@ def test_errors_name_the_file_the_line_and_the_key(
 
 def test_no_mqtt_table_and_secrets() -> None:
     with pytest.raises(ConfigError, match=r"b.toml: no \[mqtt\] table"):
-        parse_bridge_config(GOOD.split("[[bus]]")[0].replace("[mqtt]", "[other]") +
-                            "[[bus]]" + GOOD.split("[[bus]]")[1], "b.toml")  # fmt: skip
+        parse_bridge_config(
+            GOOD.split("[[bus]]")[0].replace("[mqtt]", "[other]")
+            + "[[bus]]"
+            + GOOD.split("[[bus]]")[1],
+            "b.toml",
+        )
     with pytest.raises(ValueError, match="password_file: give password or password_file"):
         MqttConfig("mqtt://h", username="u", password="p", password_file="/x")
     with pytest.raises(ValueError, match="username: a password needs a username"):
@@ -117,8 +140,9 @@ def test_no_mqtt_table_and_secrets() -> None:
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "pyrtu", "bridge", *args],
-                          capture_output=True, text=True, timeout=60)  # fmt: skip
+    return subprocess.run(
+        [sys.executable, "-m", "pyrtu", "bridge", *args], capture_output=True, text=True, timeout=60
+    )
 
 
 def test_check_validates_without_opening_anything(tmp_path: Path) -> None:

@@ -27,8 +27,7 @@ def test_discovery_configs_and_a_command_as_home_assistant_sends_it(tmp_path: Pa
         assert speed["name"] == "speed" and speed["value_template"] == "{{ value_json.value }}"
         assert speed["device"]["model"] == "CFW701" and speed["device"]["manufacturer"] == "WEG"
         assert speed["device"]["name"] == "weg"
-        assert [a["topic"] for a in speed["availability"]] == ["pyrtu/e1/status",
-                                                               f"{BASE}/status"]  # fmt: skip
+        assert [a["topic"] for a in speed["availability"]] == ["pyrtu/e1/status", f"{BASE}/status"]
         assert speed["availability_mode"] == "all"
         ref = docs["homeassistant/number/pyrtu_e1/line_1_weg_ref/config"]
         assert ref["command_topic"] == f"{BASE}/weg.ref/set"

@@ -59,7 +59,7 @@ def test_payloads_and_records() -> None:
     doc = json.loads(payload(body, 42, False))
     assert doc == {"value": 30.5, "time": 1700000000.25, "quality": "good", "seq": 42}
     assert json.loads(payload(body, 42, True))["historical"] is True
-    for v in (None, float("nan"), True, 7, "text \"q\"", -1.5e-7):
+    for v in (None, float("nan"), True, 7, 'text "q"', -1.5e-7):
         d = json.loads(payload(split_record(record("t", SPEED, v, 1.0, "stale"))[1], 1, False))
         want = None if v is None or v != v else v
         assert d["value"] == want and d["quality"] == "stale"
@@ -121,7 +121,11 @@ def test_token_bucket_and_queue_bounds() -> None:
     assert q.known("id0") == (True, b"res") and q.duplicates == 2
     assert q.pop(("line", 1)) is cmds[0] and q.waiting == 1
     assert json.loads(result("p", False, error="busy", message="m")) == {
-        "ok": False, "point": "p", "error": "busy", "message": "m"}  # fmt: skip
+        "ok": False,
+        "point": "p",
+        "error": "busy",
+        "message": "m",
+    }
 
 
 def test_window_acknowledges_contiguously() -> None:

@@ -14,10 +14,10 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from mqtt_broker import Broker, Client
 from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 
-from mqtt_broker import Broker, Client
 from pyrtu._loopthread import LoopThread
 from pyrtu.bridge import parse_bridge_config
 from pyrtu.bridge.bridge import Bridge
@@ -108,8 +108,13 @@ def test_a_write_is_read_back_published_and_answered(tmp_path: Path) -> None:
     with rig(tmp_path) as (_b, sim, _bridge, cl):
         cl.publish(f"{BASE}/weg.ref/set", b'{"value": 1000, "id": "a1"}')
         (res,) = wait_results(cl, 1)
-        assert res == {"ok": True, "point": "weg.ref", "id": "a1", "value": 1000,
-                       "time": res["time"]}  # fmt: skip
+        assert res == {
+            "ok": True,
+            "point": "weg.ref",
+            "id": "a1",
+            "value": 1000,
+            "time": res["time"],
+        }
         assert ref(sim) == 1000
         # the value read back is published at once, as good
         cl.wait(lambda: json.loads(cl.on(f"{BASE}/weg.ref")[-1])["value"] == 1000, "read-back")

@@ -71,8 +71,9 @@ class Bridge:
         m = config.mqtt
         self.topics = Topics(config)
         self.poller = Poller(config.poller, master=master, changes_only=False)
-        self.reporter = Reporter(config.poller.points,
-                                 {p.name: config.max_age(p.name) for p in config.poller.points})  # fmt: skip
+        self.reporter = Reporter(
+            config.poller.points, {p.name: config.max_age(p.name) for p in config.poller.points}
+        )
         self.commands = CommandQueue(m.command_queue, m.write_rate)
         self.writer = Writer(self)
         self._topic = {p.name: self.topics.point[p.name] for p in config.poller.points}
@@ -113,9 +114,12 @@ class Bridge:
         if self._running:
             return
         m = self.config.mqtt
-        limits = OutboxLimits(max_bytes=m.outbox_max_bytes, fsync_interval=m.fsync_interval,
-                              segment_bytes=min(8 << 20, m.outbox_max_bytes // 4),
-                              policy=m.outbox_policy)  # type: ignore[arg-type]  # fmt: skip
+        limits = OutboxLimits(
+            max_bytes=m.outbox_max_bytes,
+            fsync_interval=m.fsync_interval,
+            segment_bytes=min(8 << 20, m.outbox_max_bytes // 4),
+            policy="refuse" if m.outbox_policy == "refuse" else "drop-oldest",
+        )
         self._outbox = Outbox(m.outbox, limits)
         self._live_base = self._outbox.next_seq
         self._acked_seq = self._outbox.acked
@@ -383,8 +387,13 @@ class Bridge:
             wait = self._reconnect.wait(time.monotonic())
             if wait > 0:
                 await asyncio.sleep(wait)
-            link = MqttLink(m, self.topics.edge_status, on_message=self.writer.on_message,
-                            on_ack=self._on_ack, on_lost=self._on_lost)  # fmt: skip
+            link = MqttLink(
+                m,
+                self.topics.edge_status,
+                on_message=self.writer.on_message,
+                on_ack=self._on_ack,
+                on_lost=self._on_lost,
+            )
             try:
                 await link.connect()
             except (BrokerRefused, ssl.SSLError, ssl.CertificateError) as e:
@@ -402,8 +411,11 @@ class Bridge:
             self._link = link
             self._lost_ev.clear()
             self._on_connected(link)
-            self._emit("broker_up", broker=m.broker,
-                       down_s=None if outage is None else round(outage.duration or 0, 3))  # fmt: skip
+            self._emit(
+                "broker_up",
+                broker=m.broker,
+                down_s=None if outage is None else round(outage.duration or 0, 3),
+            )
             await self._lost_ev.wait()
             self._link = None
             self._window.reset()

@@ -136,8 +136,12 @@ def parse(
     elif isinstance(doc, list):
         return Refusal("malformed", "a value or an object {value, id, time}, not a list")
     if retained:
-        return Refusal("retained", "retained set messages are refused (a setpoint is never "
-                       "replayed); publish without the retain flag", cid)  # fmt: skip
+        return Refusal(
+            "retained",
+            "retained set messages are refused (a setpoint is never "
+            "replayed); publish without the retain flag",
+            cid,
+        )
     return doc, cid, sent
 
 

@@ -44,7 +44,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
-from ..poller import ConfigError, PollerConfig, Point
+from ..poller import ConfigError, Point, PollerConfig
 from ..poller.config import _Loader, _locate
 
 if sys.version_info >= (3, 11):
@@ -131,15 +131,18 @@ class MqttConfig:
     def __post_init__(self) -> None:
         u = urlsplit(self.url) if isinstance(self.url, str) else None
         if u is None or u.scheme not in ("mqtt", "mqtts") or not u.hostname:
-            raise ValueError(f"url: must be mqtt://host[:port] or mqtts://host[:port], not "
-                             f"{self.url!r}")  # fmt: skip
+            raise ValueError(
+                f"url: must be mqtt://host[:port] or mqtts://host[:port], not {self.url!r}"
+            )
         try:
             u.port  # noqa: B018 - raises on a bad port
         except ValueError:
             raise ValueError(f"url: bad port in {self.url!r}") from None
         if u.path not in ("", "/") or u.query or u.username or u.password:
-            raise ValueError(f"url: only scheme, host and port, not {self.url!r} "
-                             "(user and password have their own keys)")  # fmt: skip
+            raise ValueError(
+                f"url: only scheme, host and port, not {self.url!r} "
+                "(user and password have their own keys)"
+            )
         edge = self.edge or _level("edge", socket.gethostname().split(".")[0] or "edge")
         object.__setattr__(self, "edge", _level("edge", edge))
         _level("prefix", self.prefix, slashes=True)
@@ -166,8 +169,9 @@ class MqttConfig:
             raise ValueError(f"outbox: must be a directory path, not {self.outbox!r}")
         _count("outbox_max_bytes", self.outbox_max_bytes, 1 << 16, 1 << 50)
         if self.outbox_policy not in ("drop-oldest", "refuse"):
-            raise ValueError(f"outbox_policy: must be drop-oldest or refuse, not "
-                             f"{self.outbox_policy!r}")  # fmt: skip
+            raise ValueError(
+                f"outbox_policy: must be drop-oldest or refuse, not {self.outbox_policy!r}"
+            )
         _seconds("fsync_interval", self.fsync_interval, zero_ok=True)
         _seconds("stats_interval", self.stats_interval)
         _seconds("max_age", self.max_age, zero_ok=True)
@@ -241,8 +245,9 @@ class PointOptions:
         if self.writable and point.table not in ("holding", "coils"):
             raise ValueError(f"writable: the {point.table} table is read only")
         if (self.min is not None or self.max is not None) and point.type in ("bool", "string"):
-            raise ValueError(f"{'min' if self.min is not None else 'max'}: a {point.type} "
-                             "point has no range")  # fmt: skip
+            raise ValueError(
+                f"{'min' if self.min is not None else 'max'}: a {point.type} point has no range"
+            )
 
 
 @dataclass(frozen=True)
@@ -288,7 +293,9 @@ def _error(where: str, label: str, msg: str) -> ConfigError:
     return ConfigError(f"{where}: {label}: {msg}")
 
 
-def parse_bridge_config(text: str, source: str = "<config>", base: Path | None = None) -> BridgeConfig:
+def parse_bridge_config(
+    text: str, source: str = "<config>", base: Path | None = None
+) -> BridgeConfig:
     """A bridge configuration from TOML text (``base``: the directory relative
     paths are taken from)."""
     try:
@@ -297,11 +304,14 @@ def parse_bridge_config(text: str, source: str = "<config>", base: Path | None =
         raise ConfigError(f"{source}: {e}") from None
     mqtt_t = doc.pop("mqtt", None)
     if not isinstance(mqtt_t, Mapping):
-        raise ConfigError(f"{source}: no [mqtt] table (the broker: url = \"mqtt://host\")")
+        raise ConfigError(f'{source}: no [mqtt] table (the broker: url = "mqtt://host")')
     for k in mqtt_t:
         if k not in MQTT_KEYS:
-            raise _error(_where(text, source, "mqtt", k), "mqtt",
-                         f"{k}: unknown key (known: {', '.join(MQTT_KEYS)})")  # fmt: skip
+            raise _error(
+                _where(text, source, "mqtt", k),
+                "mqtt",
+                f"{k}: unknown key (known: {', '.join(MQTT_KEYS)})",
+            )
     if "url" not in mqtt_t:
         raise _error(_where(text, source, "mqtt", None), "mqtt", "url: missing")
     kw = dict(mqtt_t)
@@ -311,9 +321,10 @@ def parse_bridge_config(text: str, source: str = "<config>", base: Path | None =
     try:
         mqtt = MqttConfig(**kw)
     except ValueError as e:
-        key, _, msg = str(e).partition(": ")
-        raise _error(_where(text, source, "mqtt", key if key in MQTT_KEYS else None), "mqtt",
-                     str(e)) from None  # fmt: skip
+        key = str(e).partition(": ")[0]
+        raise _error(
+            _where(text, source, "mqtt", key if key in MQTT_KEYS else None), "mqtt", str(e)
+        ) from None
     if not mqtt.outbox:
         d = base if base is not None else Path.cwd()
         object.__setattr__(mqtt, "outbox", str(d / f"outbox-{mqtt.edge}"))
@@ -323,8 +334,11 @@ def parse_bridge_config(text: str, source: str = "<config>", base: Path | None =
         for k in POINT_KEYS:
             if k in defaults:
                 if k == "topic":
-                    raise _error(_where(text, source, "defaults", k), "defaults",
-                                 "topic: a topic is one point's; not a default")  # fmt: skip
+                    raise _error(
+                        _where(text, source, "defaults", k),
+                        "defaults",
+                        "topic: a topic is one point's; not a default",
+                    )
                 dflt[k] = defaults.pop(k)
     raw_points = doc.get("point", [])
     picked: list[tuple[int, dict[str, Any]]] = []

@@ -24,8 +24,14 @@ if TYPE_CHECKING:
     from .topics import Topics
 
 #: the maker of each profile of pyrtu.devices (the manuals' own names)
-MAKERS = {"cfw100": "WEG", "cfw320": "WEG", "cfw701": "WEG", "act": "Bonfiglioli",
-          "acu": "Bonfiglioli", "cv100": None}  # fmt: skip
+MAKERS = {
+    "cfw100": "WEG",
+    "cfw320": "WEG",
+    "cfw701": "WEG",
+    "act": "Bonfiglioli",
+    "acu": "Bonfiglioli",
+    "cv100": None,
+}
 
 
 def _id(text: str) -> str:
@@ -59,7 +65,11 @@ def configs(cfg: BridgeConfig, topics: Topics) -> list[tuple[str, bytes]]:
         }
         if maker:
             device["manufacturer"] = maker
-        label = p.name[len(dev_name) + 1 :] if dev_name and p.name.startswith(dev_name + ".") else p.name
+        label = (
+            p.name[len(dev_name) + 1 :]
+            if dev_name and p.name.startswith(dev_name + ".")
+            else p.name
+        )
         doc: dict[str, Any] = {
             "name": label,
             "unique_id": _id(f"pyrtu_{m.edge}_{p.bus}_{p.slave}_{p.name}"),
@@ -96,8 +106,12 @@ def configs(cfg: BridgeConfig, topics: Topics) -> list[tuple[str, bytes]]:
 
 
 def _raw_bound(p: Point, low: bool) -> float:
-    lo, hi = {"uint16": (0, 0xFFFF), "int16": (-0x8000, 0x7FFF), "uint32": (0, 2**32 - 1),
-              "int32": (-(2**31), 2**31 - 1)}.get(p.type, (-3.4e38, 3.4e38))  # fmt: skip
+    lo, hi = {
+        "uint16": (0, 0xFFFF),
+        "int16": (-0x8000, 0x7FFF),
+        "uint32": (0, 2**32 - 1),
+        "int32": (-(2**31), 2**31 - 1),
+    }.get(p.type, (-3.4e38, 3.4e38))
     a, b = lo * p.scale + p.offset, hi * p.scale + p.offset
     return min(a, b) if low else max(a, b)
 

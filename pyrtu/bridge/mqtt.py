@@ -30,8 +30,13 @@ from .config import MqttConfig
 log = logging.getLogger("pyrtu.bridge")
 
 #: CONNACK reason codes that no retry can cure (MQTT 5 3.2.2.2)
-FATAL = {0x84: "unsupported protocol version", 0x85: "client identifier not valid",
-         0x86: "bad user name or password", 0x87: "not authorized", 0x8C: "bad authentication method"}  # fmt: skip
+FATAL = {
+    0x84: "unsupported protocol version",
+    0x85: "client identifier not valid",
+    0x86: "bad user name or password",
+    0x87: "not authorized",
+    0x8C: "bad authentication method",
+}
 
 
 class BrokerRefused(ConnectionRefusedError):
@@ -39,7 +44,7 @@ class BrokerRefused(ConnectionRefusedError):
 
 
 def publish_properties(expiry: int | None = None, correlation: bytes | None = None) -> Properties:
-    p = Properties(PacketTypes.PUBLISH)
+    p = Properties(PacketTypes.PUBLISH)  # type: ignore[no-untyped-call]
     if expiry is not None:
         p.MessageExpiryInterval = expiry
     if correlation is not None:
@@ -172,7 +177,7 @@ class MqttLink:
             raise ConnectionError(f"{self.cfg.broker}: the connection closed at once")
         self._fd = sock.fileno()
         self._out = _Coalescing(sock)
-        c._sock = self._out  # type: ignore[assignment]
+        c._sock = self._out
         c.on_socket_close = self._socket_closed
         c.on_socket_register_write = self._want_write
         c.on_socket_unregister_write = self._no_write

@@ -82,8 +82,9 @@ class Topics:
     def extra_set_topics(self) -> list[str]:
         """The set topics `set_filter` does not catch (overridden topics)."""
         lead = self.base.count("/") + 1
-        return [t for t in self.set if not (t.startswith(self.base + "/") and
-                                             t.count("/") == lead + 3)]  # fmt: skip
+        return [
+            t for t in self.set if not (t.startswith(self.base + "/") and t.count("/") == lead + 3)
+        ]
 
 
 def _json_value(value: object) -> str:

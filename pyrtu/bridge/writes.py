@@ -41,7 +41,7 @@ class Writer:
         self.refusals: dict[str, int] = {}
         self.failures = 0
         self.write_latency: list[float] = []
-        self.last_write_at = 0.0  # when the last write's answer came (Unix)  # arrival to the write's answer, seconds
+        self.last_write_at = 0.0  # when the last write's answer came (Unix)
 
     def connected(self, link: MqttLink) -> None:
         self._link = link
@@ -80,16 +80,26 @@ class Writer:
         corr = getattr(props, "CorrelationData", None)
         name = self.bridge.topics.set.get(topic)
         if name is None:
-            self._refuse(Refusal("unknown_point", f"no point has the set topic {topic!r}"),
-                         None, reply, corr)  # fmt: skip
+            self._refuse(
+                Refusal("unknown_point", f"no point has the set topic {topic!r}"), None, reply, corr
+            )
             return
         point = self.bridge.poller.point(name)
         opts = self.cfg.option(name)
         if not opts.writable:
-            self._refuse(Refusal("not_writable", f"point {name!r} is not writable (set "
-                                 "writable = true in its [[point]] table)"), name, reply, corr)  # fmt: skip
+            self._refuse(
+                Refusal(
+                    "not_writable",
+                    f"point {name!r} is not writable (set writable = true in its [[point]] table)",
+                ),
+                name,
+                reply,
+                corr,
+            )
             return
-        parsed = parse(msg.payload, max_payload=self.cfg.mqtt.max_payload, retained=msg.retain)
+        parsed = parse(
+            bytes(msg.payload), max_payload=self.cfg.mqtt.max_payload, retained=msg.retain
+        )
         if isinstance(parsed, Refusal):
             self._refuse(parsed, name, reply, corr)
             return
@@ -114,12 +124,24 @@ class Writer:
         cmd = Command(point, value, cid, expires, now, reply, None if corr is None else bytes(corr))
         if now >= expires:
             self.queue.expired += 1
-            self._finish(cmd, result(name, False, id=cid, error="expired",
-                                     message="the command had expired when it arrived"))  # fmt: skip
+            self._finish(
+                cmd,
+                result(
+                    name,
+                    False,
+                    id=cid,
+                    error="expired",
+                    message="the command had expired when it arrived",
+                ),
+            )
             return
         if not self.queue.push(cmd):
-            self._refuse(Refusal("busy", f"{self.queue.size} commands are waiting; try later",
-                                 cid), name, reply, corr)  # fmt: skip
+            self._refuse(
+                Refusal("busy", f"{self.queue.size} commands are waiting; try later", cid),
+                name,
+                reply,
+                corr,
+            )
             return
         key = (point.bus, point.slave)
         if key not in self._workers:
@@ -166,8 +188,12 @@ class Writer:
             await asyncio.sleep(wait)
         if late or time.monotonic() >= cmd.expires:
             self.queue.expired += 1
-            self._finish(cmd, result(name, False, id=cmd.id, error="expired",
-                                     message="expired before its turn came"))  # fmt: skip
+            self._finish(
+                cmd,
+                result(
+                    name, False, id=cmd.id, error="expired", message="expired before its turn came"
+                ),
+            )
             return
         poller = self.bridge.poller
         try:
@@ -178,8 +204,12 @@ class Writer:
             value = await poller.read(name)
         except ExceptionResponseError as e:
             self.failures += 1
-            self._finish(cmd, result(name, False, id=cmd.id, error="exception",
-                                     message=str(e), exception_code=e.code))  # fmt: skip
+            self._finish(
+                cmd,
+                result(
+                    name, False, id=cmd.id, error="exception", message=str(e), exception_code=e.code
+                ),
+            )
             return
         except NoResponseError as e:
             self.failures += 1

@@ -41,15 +41,32 @@ from .common import (
 
 def _configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", metavar="FILE", help="the TOML file: buses, points and [mqtt]")
-    p.add_argument("--check", nargs="?", const=True, default=None, metavar="FILE",
-                   help="validate the configuration (FILE or --config) and exit: nothing is "
-                   "opened")  # fmt: skip
-    p.add_argument("-d", "--duration", type=positive_seconds, default=None, metavar="SECONDS",
-                   help="stop after this time (default: on SIGINT/SIGTERM)")  # fmt: skip
-    p.add_argument("--drain", type=seconds, default=5.0, metavar="SECONDS",
-                   help="at the end, publish what waits for up to this long (default 5 s)")  # fmt: skip
-    p.add_argument("--json", action="store_true",
-                   help="one JSON object per event (and the stats) on stdout")  # fmt: skip
+    p.add_argument(
+        "--check",
+        nargs="?",
+        const=True,
+        default=None,
+        metavar="FILE",
+        help="validate the configuration (FILE or --config) and exit: nothing is opened",
+    )
+    p.add_argument(
+        "-d",
+        "--duration",
+        type=positive_seconds,
+        default=None,
+        metavar="SECONDS",
+        help="stop after this time (default: on SIGINT/SIGTERM)",
+    )
+    p.add_argument(
+        "--drain",
+        type=seconds,
+        default=5.0,
+        metavar="SECONDS",
+        help="at the end, publish what waits for up to this long (default 5 s)",
+    )
+    p.add_argument(
+        "--json", action="store_true", help="one JSON object per event (and the stats) on stdout"
+    )
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -70,20 +87,31 @@ def _run(args: argparse.Namespace) -> int:
         return EXIT_USAGE
     if args.check is not None:
         m = cfg.mqtt
-        doc = {"ok": True, "config": path, "broker": m.broker, "edge": m.edge,
-               "points": len(cfg.poller.points), "buses": len(cfg.poller.buses),
-               "writable": sum(1 for o in cfg.options.values() if o.writable)}  # fmt: skip
+        doc = {
+            "ok": True,
+            "config": path,
+            "broker": m.broker,
+            "edge": m.edge,
+            "points": len(cfg.poller.points),
+            "buses": len(cfg.poller.buses),
+            "writable": sum(1 for o in cfg.options.values() if o.writable),
+        }
         if args.json:
             emit(doc)
         else:
-            print(f"{path}: ok: {doc['points']} points on {doc['buses']} buses, "
-                  f"{doc['writable']} writable, broker {m.broker}, edge {m.edge!r}")  # fmt: skip
+            print(
+                f"{path}: ok: {doc['points']} points on {doc['buses']} buses, "
+                f"{doc['writable']} writable, broker {m.broker}, edge {m.edge!r}"
+            )
         return EXIT_OK
     try:
         import paho.mqtt.client  # noqa: F401
     except ImportError:
-        print("pyrtu bridge: error: the MQTT client is missing: pip install 'pyrtu[bridge]' "
-              "(paho-mqtt)", file=sys.stderr)  # fmt: skip
+        print(
+            "pyrtu bridge: error: the MQTT client is missing: pip install 'pyrtu[bridge]' "
+            "(paho-mqtt)",
+            file=sys.stderr,
+        )
         return EXIT_USAGE
     from ..aio import run as aio_run
 
