@@ -264,6 +264,7 @@ def test_refused_credentials_name_the_broker_and_the_user(tmp_path: Path) -> Non
 
         good = aio_run(run(ok))
         assert good.fatal is None
+        assert "right-pw" not in json.dumps(good.final_stats) + repr(good.config)
         refused = aio_run(run(bad))
         assert isinstance(refused.fatal, BrokerRefused)
         msg = str(refused.fatal)
@@ -296,3 +297,40 @@ def test_tls_verifies_the_broker_and_refuses_what_does_not(tmp_path: Path) -> No
         assert refused.fatal is not None
         assert "certificate does not verify" in str(refused.fatal)
         assert refused.stats()["published"] == 0  # never downgraded to plain text
+
+
+def test_a_full_outbox_refuses_new_updates_and_keeps_what_it_accepted(tmp_path: Path) -> None:
+    """The broker unreachable and an outbox of 64 KiB with policy "refuse" (as a disk
+    that fills): new updates are refused, counted in the drops and reported once;
+    once the broker is back every update accepted before is delivered, in order."""
+    with Broker(tmp_path) as broker, drives() as (bus, _sims):
+        gate = Gate(broker)  # closed: the bridge cannot reach the broker
+        extra = 'max_age = 0.001\noutbox_max_bytes = 65536\noutbox_policy = "refuse"'
+        cfg = parse_bridge_config(toml(gate.url, bus.paths[0], tmp_path / "ob", extra), "b.toml")
+        sub = Client(broker, ["pyrtu/e1/line/#"])
+        events: list[BridgeEvent] = []
+
+        async def main() -> tuple[int, int]:
+            bridge = Bridge(cfg)
+            bridge.on_event(events.append)
+            async with bridge:
+                await until(lambda: bridge.refused > 20, "the outbox full")
+                accepted = bridge.appended
+                gate.open()
+                await until(
+                    lambda: bridge.stats()["outbox_depth"] == 0 and bridge.appended > accepted + 50,
+                    "drained and accepting again",
+                )
+                return accepted, bridge.stats()["drops"]
+
+        try:
+            accepted, drops = aio_run(main())
+        finally:
+            gate.close()
+        assert drops > 20
+        errors = [e for e in events if e.kind == "outbox_error"]
+        assert len(errors) == 1 and "full" in errors[0].detail["message"]
+        sub.wait(lambda: len(seqs(sub)) >= accepted, "every accepted update")
+        got = sorted(set(seqs(sub)))
+        assert got[:accepted] == list(range(1, accepted + 1))
+        sub.close()
