@@ -74,6 +74,7 @@ class _Coalescing:
         self._sock = sock
         self._buf = bytearray()
         self._limit = limit
+        self._rbuf = bytearray()
         self.direct = False
 
     def send(self, data: bytes | bytearray | memoryview) -> int:
@@ -90,6 +91,23 @@ class _Coalescing:
     @property
     def unsent(self) -> int:
         return len(self._buf)
+
+    def recv(self, n: int) -> bytes:
+        """paho reads a packet in three small reads: served from one large read."""
+        rbuf = self._rbuf
+        if not rbuf:
+            data = self._sock.recv(65536)  # BlockingIOError when there is nothing
+            if not data:
+                return b""  # the broker closed the connection
+            rbuf += data
+        out = bytes(rbuf[:n])
+        del rbuf[:n]
+        return out
+
+    @property
+    def buffered(self) -> int:
+        """Bytes read from the socket that paho has not taken yet."""
+        return len(self._rbuf)
 
     def drain(self) -> None:
         """Write what the kernel takes (OSError: the connection failed)."""
@@ -294,6 +312,11 @@ class MqttLink:
         c = self.client
         if c is not None:
             c.loop_read()
+            # paho stops after a number of packets: what it left in the buffer is not
+            # signalled by the socket again
+            while self.client is not None and self._out is not None and self._out.buffered:
+                if self.client.loop_read() != paho.MQTT_ERR_SUCCESS:
+                    break
 
     def _writable(self) -> None:
         self._soon = False
