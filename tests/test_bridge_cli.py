@@ -164,3 +164,28 @@ def test_sigkill_and_restart_continue_the_sequence(tmp_path: Path) -> None:
         first_after = gaps[0][1]
         assert all(by_seq[n] for n in range(got[0], gaps[0][0] + 1))
         assert min(s for s in got if s >= first_after) == first_after
+
+
+def test_duration_ends_it_with_exit_0_and_a_broker_that_is_down_is_no_error(
+    tmp_path: Path,
+) -> None:
+    """No broker listens: the bridge polls into the outbox, reports the broker down
+    once, and --duration ends it (exit 0); the next run delivers the backlog."""
+    from mqtt_broker import free_port
+
+    with drive() as bus:
+        port = free_port()
+        cfg = write_config(tmp_path, f"mqtt://127.0.0.1:{port}", bus.paths[0])
+        p = start("--config", str(cfg), "--json", "--duration", "1.5")
+        out, err = p.communicate(timeout=60)
+        assert p.returncode == 0, err
+        lines = [json.loads(x) for x in out.splitlines()]
+        assert [e["event"] for e in lines].count("broker_down") == 1
+        end = lines[-1]
+        assert end["event"] == "end" and end["outbox_depth"] > 0 and end["drops"] == 0
+        with Broker(tmp_path, port=port) as _broker, Client(_broker, ["pyrtu/cli/line/#"]) as sub:
+            p = start("--config", str(cfg), "--duration", "3")
+            backlog = end["outbox_depth"]
+            sub.wait(lambda: sum(b"historical" in m[1] for m in sub.messages) >= backlog, "backlog")
+            p.communicate(timeout=60)
+            assert p.returncode == 0

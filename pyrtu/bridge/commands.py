@@ -38,6 +38,7 @@ class Command:
     received: float
     reply_to: str
     correlation: bytes | None = None
+    sent: float | None = None  # the sender's "time" (Unix), when it gave one
 
 
 @dataclass(frozen=True, slots=True)

@@ -42,6 +42,7 @@ class Writer:
         self.failures = 0
         self.write_latency: list[float] = []
         self.last_write_at = 0.0  # when the last write's answer came (Unix)
+        self.sent_to_written: list[float] = []  # commands with a "time": to the answer, s
 
     def connected(self, link: MqttLink) -> None:
         self._link = link
@@ -121,7 +122,9 @@ class Writer:
         expires = now + life
         if sent is not None:
             expires = min(expires, now + (sent + self.cfg.mqtt.command_expiry - time.time()))
-        cmd = Command(point, value, cid, expires, now, reply, None if corr is None else bytes(corr))
+        cmd = Command(
+            point, value, cid, expires, now, reply, None if corr is None else bytes(corr), sent
+        )
         if now >= expires:
             self.queue.expired += 1
             self._finish(
@@ -201,6 +204,9 @@ class Writer:
             self.last_write_at = time.time()
             self.write_latency.append(time.monotonic() - cmd.received)
             del self.write_latency[:-1024]
+            if cmd.sent is not None:  # from the sender's clock to the write's answer
+                self.sent_to_written.append(self.last_write_at - cmd.sent)
+                del self.sent_to_written[:-1024]
             value = await poller.read(name)
         except ExceptionResponseError as e:
             self.failures += 1
