@@ -46,6 +46,7 @@ from urllib.parse import urlsplit
 
 from ..poller import ConfigError, Point, PollerConfig
 from ..poller.config import _Loader, _locate
+from .topics import Topics
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -379,9 +380,7 @@ def parse_bridge_config(
         except ValueError as e:  # a default that does not fit a profile point
             raise ConfigError(f"{source}: point {p.name!r}: {e} (from [defaults])") from None
     cfg = BridgeConfig(poller, mqtt, options, source, drives)
-    from .topics import Topics  # the topics must be distinct and valid
-
-    try:
+    try:  # the topics must be distinct and valid
         Topics(cfg)
     except ValueError as e:
         raise ConfigError(f"{source}: {e}") from None
@@ -419,8 +418,6 @@ def make_bridge_config(
     if not mqtt.outbox:
         object.__setattr__(mqtt, "outbox", str(Path.cwd() / f"outbox-{mqtt.edge}"))
     cfg = BridgeConfig(poller, mqtt, opts, "<python>")
-    from .topics import Topics
-
     try:
         Topics(cfg)
     except ValueError as e:

@@ -29,12 +29,32 @@ from __future__ import annotations
 
 import json
 import math
-from typing import TYPE_CHECKING
+from typing import Protocol
 
-from ..poller import Point
+from ..poller import Point, PollerConfig
 
-if TYPE_CHECKING:
-    from .config import BridgeConfig
+
+class _Options(Protocol):
+    @property
+    def topic(self) -> str | None: ...
+
+
+class _Mqtt(Protocol):
+    @property
+    def prefix(self) -> str: ...
+    @property
+    def edge(self) -> str: ...
+
+
+class _Config(Protocol):
+    """What `Topics` reads of a `pyrtu.bridge.config.BridgeConfig`."""
+
+    @property
+    def mqtt(self) -> _Mqtt: ...
+    @property
+    def poller(self) -> PollerConfig: ...
+    def option(self, name: str) -> _Options: ...
+
 
 QUALITIES = ("good", "stale", "bad")
 ONLINE = b"online"
@@ -45,7 +65,7 @@ class Topics:
     """Every topic of one bridge (ValueError when two would be the same or a bus
     name is not one topic level)."""
 
-    def __init__(self, cfg: BridgeConfig) -> None:
+    def __init__(self, cfg: _Config) -> None:
         m = cfg.mqtt
         self.base = f"{m.prefix}/{m.edge}"
         self.edge_status = f"{self.base}/status"

@@ -14,16 +14,29 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import paho.mqtt.client as paho
 
 from ..errors import ExceptionResponseError, ModbusError, NoResponseError
-from .commands import Command, Refusal, check_value, parse, result
+from ..poller import Point, Poller
+from ..poller.points import Value
+from .commands import Command, CommandQueue, Refusal, check_value, parse, result
+from .config import BridgeConfig
 from .mqtt import MqttLink, publish_properties
+from .topics import Topics
 
-if TYPE_CHECKING:
-    from .bridge import Bridge
+
+class Host(Protocol):
+    """What a `Writer` uses of its `pyrtu.bridge.Bridge`."""
+
+    config: BridgeConfig
+    topics: Topics
+    poller: Poller
+    commands: CommandQueue
+
+    def publish_value(self, point: Point, value: Value, read_at: float) -> None: ...
+
 
 log = logging.getLogger("pyrtu.bridge")
 
@@ -31,7 +44,7 @@ log = logging.getLogger("pyrtu.bridge")
 class Writer:
     """Set commands of one bridge (see the module docstring)."""
 
-    def __init__(self, bridge: Bridge) -> None:
+    def __init__(self, bridge: Host) -> None:
         self.bridge = bridge
         self.queue = bridge.commands
         self.cfg = bridge.config
