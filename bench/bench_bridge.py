@@ -49,6 +49,8 @@ from pyrtu.poller import Point, Poller, Update  # noqa: E402
 RESULTS = BENCH / "RESULTS.md"
 HEADING = "## Bridge (issue 19)"
 BAUD = 115200
+#: the unplug run's poll interval per drive
+UNPLUG_INTERVAL = 0.05
 #: the CV100's status words and monitored values (U0): FC 03 0x3300 + 7 registers
 CV_START, CV_COUNT = 0x3300, 7
 
@@ -456,7 +458,7 @@ def unplugged(tmp: Path, seconds: float) -> dict[str, Any]:
         for slave, drive in enumerate(BP.DRIVES, start=1):
             text.append(
                 f'[[device]]\nbus = "bus"\nslave = {slave}\nprofile = "{drive}"\n'
-                f'name = "d{slave}"\ninterval = 0.05\n'
+                f'name = "d{slave}"\ninterval = {UNPLUG_INTERVAL}\n'
             )
         cfg = parse_bridge_config("".join(text), "bench")
         times: list[tuple[float, int, str]] = []
