@@ -189,3 +189,18 @@ def test_duration_ends_it_with_exit_0_and_a_broker_that_is_down_is_no_error(
             sub.wait(lambda: sum(b"historical" in m[1] for m in sub.messages) >= backlog, "backlog")
             p.communicate(timeout=60)
             assert p.returncode == 0
+
+
+def test_a_password_file_or_ca_that_cannot_be_read_exits_3(tmp_path: Path) -> None:
+    with drive() as bus:
+        cfg = write_config(tmp_path, "mqtt://127.0.0.1:1", bus.paths[0],
+                           'username = "edge"\npassword_file = "missing.pw"')  # fmt: skip
+        p = start("--config", str(cfg))
+        _out, err = p.communicate(timeout=60)
+        assert p.returncode == 3, err
+        assert "password_file" in err and "missing.pw" in err and "Traceback" not in err
+        cfg = write_config(tmp_path, "mqtts://127.0.0.1:1", bus.paths[0], 'ca = "nope.pem"')
+        p = start("--config", str(cfg))
+        _out, err = p.communicate(timeout=60)
+        assert p.returncode == 3, err
+        assert "nope.pem" in err and "Traceback" not in err

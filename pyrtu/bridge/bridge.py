@@ -35,7 +35,7 @@ from ..poller.points import Value
 from .commands import CommandQueue
 from .config import BridgeConfig, load_bridge_config
 from .delivery import Window
-from .mqtt import BrokerRefused, MqttLink
+from .mqtt import BrokerRefused, Credentials, MqttLink
 from .outbox import Outbox, OutboxError, OutboxLimits
 from .report import Reporter
 from .topics import OFFLINE, ONLINE, Topics, payload, record, split_record
@@ -103,6 +103,7 @@ class Bridge:
         self.reconnects = 0
         self.publish_errors = 0
         self.final_stats: dict[str, Any] = {}
+        self._credentials: Credentials | None = None
 
     # ------------------------------------------------------------------ life cycle
 
@@ -114,6 +115,7 @@ class Bridge:
         if self._running:
             return
         m = self.config.mqtt
+        self._credentials = Credentials.load(m)  # OSError: a file that cannot be used
         limits = OutboxLimits(
             max_bytes=m.outbox_max_bytes,
             fsync_interval=m.fsync_interval,
@@ -393,6 +395,7 @@ class Bridge:
                 on_message=self.writer.on_message,
                 on_ack=self._on_ack,
                 on_lost=self._on_lost,
+                credentials=self._credentials,
             )
             try:
                 await link.connect()

@@ -17,6 +17,7 @@ import asyncio
 import logging
 import ssl
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Any
 
 import paho.mqtt.client as paho
@@ -123,6 +124,29 @@ class _Coalescing:
         return getattr(self._sock, name)
 
 
+@dataclass(frozen=True)
+class Credentials:
+    """The password and the TLS context, read once when the bridge starts, so that a
+    missing password file or CA is an error then (exit 3), not a retry forever."""
+
+    password: str | None = field(default=None, repr=False)
+    tls: ssl.SSLContext | None = None
+
+    @classmethod
+    def load(cls, cfg: MqttConfig) -> Credentials:
+        """OSError naming the file (password_file, ca, cert, key) that cannot be used."""
+        try:
+            password = cfg.secret()
+        except OSError as e:
+            raise OSError(f"password_file {cfg.password_file}: {e.strerror or e}") from None
+        try:
+            ctx = tls_context(cfg) if cfg.tls else None
+        except (OSError, ssl.SSLError) as e:
+            names = ", ".join(f"{k} {v}" for k in ("ca", "cert", "key") if (v := getattr(cfg, k)))
+            raise OSError(f"TLS files ({names or 'the system CAs'}): {e}") from None
+        return cls(password, ctx)
+
+
 class MqttLink:
     """A connection to the broker (see the module docstring).  Callbacks run on the
     loop: ``on_message(msg)``, ``on_ack(mid)`` (QoS 0: written; QoS 1/2: acknowledged),
@@ -136,9 +160,11 @@ class MqttLink:
         on_message: Callable[[paho.MQTTMessage], None],
         on_ack: Callable[[int], None],
         on_lost: Callable[[str], None],
+        credentials: Credentials | None = None,
     ) -> None:
         self.cfg = cfg
         self.will_topic = will_topic
+        self.credentials = credentials or Credentials.load(cfg)
         self._on_message = on_message
         self._on_ack = on_ack
         self._on_lost = on_lost
@@ -152,7 +178,7 @@ class MqttLink:
         self._soon = False
         self.connected = False
 
-    def _make_client(self, password: str | None) -> paho.Client:
+    def _make_client(self) -> paho.Client:
         c = paho.Client(
             CallbackAPIVersion.VERSION2,
             client_id=self.cfg.client_id,
@@ -160,9 +186,9 @@ class MqttLink:
             reconnect_on_failure=False,
         )
         if self.cfg.username is not None:
-            c.username_pw_set(self.cfg.username, password)
-        if self.cfg.tls:
-            c.tls_set_context(tls_context(self.cfg))
+            c.username_pw_set(self.cfg.username, self.credentials.password)
+        if self.credentials.tls is not None:
+            c.tls_set_context(self.credentials.tls)
         c.will_set(self.will_topic, b"offline", qos=1, retain=True)
         c.max_inflight_messages_set(0)  # our Window bounds it (paho scans its queue per ack)
         c.max_queued_messages_set(0)
@@ -178,8 +204,7 @@ class MqttLink:
         """Connect (see the module docstring); raises on failure, the link closed."""
         loop = asyncio.get_running_loop()
         self._loop = loop
-        password = self.cfg.secret()
-        c = self._make_client(password)
+        c = self._make_client()
         self.client = c
         try:
             await asyncio.wait_for(loop.run_in_executor(None, c.reconnect), timeout)
@@ -387,4 +412,11 @@ class MqttLink:
         self._on_message(msg)
 
 
-__all__ = ["FATAL", "BrokerRefused", "MqttLink", "publish_properties", "tls_context"]
+__all__ = [
+    "FATAL",
+    "BrokerRefused",
+    "Credentials",
+    "MqttLink",
+    "publish_properties",
+    "tls_context",
+]

@@ -150,6 +150,13 @@ async def _serve(cfg: Any, args: argparse.Namespace) -> int:
         except OutboxError as e:
             print(f"pyrtu bridge: outbox error: {e}", file=sys.stderr)
             return EXIT_PORT
+        except OSError as e:
+            from ..errors import PortError
+
+            if isinstance(e, PortError):  # reported by guarded, as every command does
+                raise
+            print(f"pyrtu bridge: error: {e}", file=sys.stderr)
+            return EXIT_PORT
         fatal = bridge.halted
         waits = [asyncio.ensure_future(stop.wait()), asyncio.ensure_future(fatal.wait())]
         try:
