@@ -6,55 +6,24 @@ tiny tmpfs, the lock is held by another process.
 
 from __future__ import annotations
 
+import array
+import contextlib
 import errno
-import hashlib
 import os
 import random
 import shutil
 import signal
 import subprocess
 import sys
-import tempfile
 import textwrap
 import time
 from pathlib import Path
 from typing import Any
 
 import pytest
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
+from outbox_helpers import SMALL, everything, fill, payload, run_child, segments
 
-from pyrtu.bridge import _outbox_format as fmt
 from pyrtu.bridge.outbox import Outbox, OutboxError, OutboxFull, OutboxLimits
-
-SMALL = OutboxLimits(max_bytes=1 << 20, segment_bytes=4096)
-
-
-def payload(seq: int) -> bytes:
-    """A record whose content is known from its sequence number (length 1..64)."""
-    digest = hashlib.blake2b(str(seq).encode(), digest_size=32).digest()
-    return (digest * 2)[: 1 + seq % 64]
-
-
-def fill(ob: Outbox, n: int, t0: float = 0.0) -> list[int]:
-    seqs = []
-    for i in range(n):
-        seqs.append(ob.append(payload(ob.next_seq), t0 + i))
-    return seqs
-
-
-def everything(ob: Outbox, after: int | None = None) -> list[tuple[int, bytes]]:
-    out: list[tuple[int, bytes]] = []
-    while True:
-        batch = ob.pending(97, after=out[-1][0] if out else after)
-        if not batch:
-            return out
-        out.extend(batch)
-
-
-def segments(d: Path) -> list[Path]:
-    return sorted(p for p in d.iterdir() if p.suffix == ".seg")
-
 
 # -- round trip, restart, acks ------------------------------------------------
 
@@ -91,13 +60,6 @@ def test_restart_keeps_pending_and_continues_the_numbers(tmp_path: Path) -> None
         assert ob.append(b"next", 1.0) == 301
     with Outbox(d, SMALL) as ob:  # close() flushed it
         assert ob.pending(1, after=300) == [(301, b"next")] and ob.next_seq == 302
-
-
-def run_child(code: str, *args: str) -> subprocess.CompletedProcess[bytes]:
-    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
-    return subprocess.run(
-        [sys.executable, "-c", textwrap.dedent(code), *args], capture_output=True, env=env
-    )
 
 
 def test_ack_deletes_fully_acked_segments_and_persists_with_flush(tmp_path: Path) -> None:
@@ -160,12 +122,51 @@ def test_flush_due_by_interval_and_by_count(tmp_path: Path) -> None:
     with Outbox(tmp_path / "ob", limits) as ob:
         assert ob.flush_at is None and not ob.flush_due(0.0)
         ob.append(b"a", 10.0)
+        assert ob.oldest_time == 10.0  # read from the bytes not yet written
         assert ob.flush_at == 10.5 and not ob.flush_due(10.49) and ob.flush_due(10.5)
         ob.append(b"b", 10.1)
         ob.append(b"c", 10.2)
         assert ob.flush_due(10.2) and ob.flush_at == 10.0
         ob.flush()
         assert ob.flush_at is None and not ob.flush_due(99.0)
+
+
+def test_fsync_is_batched_one_per_flush_not_per_record(tmp_path: Path) -> None:
+    """The syscalls, counted with strace: 10,000 appends flushed every 1,000."""
+    strace = shutil.which("strace")
+    if strace is None:
+        pytest.skip("strace is not installed (apt-get install strace)")
+    code = textwrap.dedent(
+        """
+        import os, sys
+        from pyrtu.bridge.outbox import Outbox, OutboxLimits
+        ob = Outbox(sys.argv[1], OutboxLimits(fsync_records=1000))
+        os.write(1, b"BEGIN\\n")
+        for i in range(10_000):
+            ob.append(b"x" * 200, 0.0)
+            if ob.flush_due(0.0):
+                ob.flush()
+        os.write(1, b"END\\n")
+        ob.close()
+        """
+    )
+    trace = tmp_path / "trace"
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    r = subprocess.run(
+        [strace, "-f", "-e", "trace=fdatasync,fsync,write", "-e", "signal=none",
+         "-o", str(trace), sys.executable, "-c", code, str(tmp_path / "ob")],
+        capture_output=True, env=env,
+    )  # fmt: skip
+    if r.returncode != 0 and b"ptrace" in r.stderr:
+        pytest.skip(f"strace cannot trace here: {r.stderr.decode().strip()}")
+    assert r.returncode == 0 and r.stdout == b"BEGIN\nEND\n", r.stderr
+    lines = trace.read_text().splitlines()
+    begin = next(i for i, ln in enumerate(lines) if "BEGIN" in ln)
+    end = next(i for i, ln in enumerate(lines) if "END" in ln)
+    syncs = [ln for ln in lines[begin:end] if "fdatasync(" in ln]
+    # ten flushes, each one fdatasync of the segment; one more for the block of
+    # sequence numbers reserved in the cursor file at the first append
+    assert len(syncs) == 11, syncs
 
 
 # -- crash safety for real: SIGKILL at random points --------------------------
@@ -180,10 +181,10 @@ CHILD = textwrap.dedent(
         return (digest * 2)[: 1 + seq % 64]
 
     rng = random.Random(int(sys.argv[2]))
-    ob = Outbox(sys.argv[1], OutboxLimits(max_bytes=1 << 26, segment_bytes=8192))
+    ob = Outbox(sys.argv[1], OutboxLimits(max_bytes=int(sys.argv[3]), segment_bytes=8192))
     os.write(1, b"R %d\\n" % ob.next_seq)
     while True:
-        for _ in range(rng.randint(1, 400)):
+        for _ in range(rng.choice((rng.randint(1, 50), rng.randint(1, 3000)))):
             seq = ob.append(payload(ob.next_seq), 0.0)
             os.write(1, b"A %d\\n" % seq)
         if rng.random() < 0.3 and ob.durable_seq > ob.acked:
@@ -196,15 +197,26 @@ CHILD = textwrap.dedent(
 )
 
 
-def _run_child_and_kill(d: Path, seed: int, rng: random.Random) -> list[list[int]]:
+def _run_child_and_kill(d: Path, seed: int, rng: random.Random, budget: int) -> list[list[int]]:
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
     proc = subprocess.Popen(
-        [sys.executable, "-c", CHILD, str(d), str(seed)], stdout=subprocess.PIPE, env=env
+        [sys.executable, "-c", CHILD, str(d), str(seed), str(budget)],
+        stdout=subprocess.PIPE,
+        env=env,
     )
     assert proc.stdout is not None
-    first = proc.stdout.readline()  # opened: now let it run a random while
+    first = proc.stdout.readline()  # opened: now let it run a random while ...
     assert first.startswith(b"R "), first
-    time.sleep(rng.uniform(0.0, 0.4))
+    if rng.random() < 0.5:
+        time.sleep(rng.uniform(0.0, 0.4))
+    else:  # ... or until it has appended a random number of records (mid-batch)
+        count, target = 0, rng.randint(1, 20_000)
+        while count < target:
+            line = proc.stdout.readline()
+            first += line
+            count += line.startswith(b"A ")
+            if not line:
+                break
     proc.send_signal(signal.SIGKILL)
     rest = proc.stdout.read()
     proc.wait()
@@ -222,8 +234,10 @@ def test_sigkill_at_random_points_loses_at_most_the_unflushed_batch(tmp_path: Pa
     handed: list[int] = []  # every sequence number any child was given, in order
     kept: set[int] = set()  # what the last reopen found, closed cleanly after
     acked_floor = 0
-    for rnd in range(8):
-        events = _run_child_and_kill(d, rnd, rng)
+    for rnd in range(12):
+        # odd rounds: a budget of 8 segments, so the oldest are dropped as it runs
+        budget = 1 << 16 if rnd % 2 else 1 << 26
+        events = _run_child_and_kill(d, rnd, rng, budget)
         mine: list[int] = []  # the numbers this child was given
         flushed, acked_at_flush, acks = 0, 0, [acked_floor]
         for ev in events:
@@ -237,19 +251,21 @@ def test_sigkill_at_random_points_loses_at_most_the_unflushed_batch(tmp_path: Pa
         assert handed == sorted(set(handed)), "a sequence number was handed out twice"
         with Outbox(d, limits) as ob:
             assert ob.next_seq > handed[-1]  # never reused, even the unflushed ones
-            assert max(acked_at_flush, acked_floor) <= ob.acked <= max(acks)
+            assert max(acked_at_flush, acked_floor) <= ob.acked
+            assert ob.acked <= (max(acks) if budget > 1 << 16 else handed[-1])
             got = everything(ob)
             for seq, rec in got:
                 assert rec == payload(seq) and seq > ob.acked
             got_seqs = {s for s, _ in got}
             # records the child acked may be gone with their segments even if the kill
-            # came before the ack cursor was flushed: they were delivered
+            # came before the ack cursor was flushed: they were delivered (dropped
+            # ones are below the cursor: a drop writes it at once)
             floor = max(ob.acked, *acks)
             must = [s for s in sorted(kept) + mine if floor < s and (s in kept or s <= flushed)]
             missing = [s for s in must if s not in got_seqs]
             assert missing == [], f"round {rnd}: flushed records lost: {missing[:10]}"
             # what is back beyond the last flush is a prefix of the unflushed batch
-            tail = [s for s in mine if s > flushed]
+            tail = [s for s in mine if s > max(flushed, ob.acked)]  # (not dropped)
             extra = sorted(s for s in got_seqs if s in tail)
             assert extra == tail[: len(extra)]
             assert got_seqs <= kept | set(mine)  # nothing that was never appended
@@ -260,99 +276,6 @@ def test_sigkill_at_random_points_loses_at_most_the_unflushed_batch(tmp_path: Pa
     assert len(handed) > 500  # the children did work between the kills
 
 
-# -- torn and corrupt records -----------------------------------------------
-
-
-def _one_segment(tmp_path: Path, n: int = 100) -> tuple[Path, Path]:
-    d = tmp_path / "ob"
-    with Outbox(d, OutboxLimits(max_bytes=1 << 22, segment_bytes=1 << 20)) as ob:
-        fill(ob, n)
-    (seg,) = segments(d)
-    return d, seg
-
-
-def _offset_of(seg: Path, seq: int) -> int:
-    data = seg.read_bytes()
-    off = fmt.SEG_HEAD.size
-    while off < len(data):
-        _m, n, s, _t, _c = fmt.REC_HEAD.unpack_from(data, off)
-        if s == seq:
-            return off
-        off += fmt.REC_HEAD.size + n
-    raise AssertionError(seq)
-
-
-def _flip(path: Path, off: int) -> None:
-    with open(path, "r+b") as f:
-        f.seek(off)
-        b = f.read(1)
-        f.seek(off)
-        f.write(bytes([b[0] ^ 0x40]))
-
-
-def test_torn_tail_is_truncated_counted_and_its_number_not_reused(tmp_path: Path) -> None:
-    d, seg = _one_segment(tmp_path)
-    size = seg.stat().st_size
-    os.truncate(seg, size - 5)  # the last record is cut short
-    with Outbox(d) as ob:
-        assert ob.corrupt == 1 and ob.corrupt_bytes == size - 5 - _offset_of(seg, 99) - (
-            fmt.REC_HEAD.size + len(payload(99))
-        )
-        got = everything(ob)
-        assert [s for s, _ in got] == list(range(1, 100))
-        assert all(rec == payload(s) for s, rec in got)
-        assert seg.stat().st_size == _offset_of(seg, 99) + fmt.REC_HEAD.size + len(payload(99))
-        assert ob.append(b"new", 0.0) == 101  # 100 was handed out once: never again
-
-
-@pytest.mark.parametrize("where", ["payload", "length", "seq", "crc", "magic"])
-def test_flipped_byte_skips_only_that_record(tmp_path: Path, where: str) -> None:
-    d, seg = _one_segment(tmp_path)
-    delta = {"magic": 1, "length": 5, "seq": 9, "crc": 25, "payload": 28}[where]
-    _flip(seg, _offset_of(seg, 50) + delta)
-    with Outbox(d) as ob:
-        got = everything(ob)
-        assert [s for s, _ in got] == [s for s in range(1, 101) if s != 50]
-        assert all(rec == payload(s) for s, rec in got)
-        assert ob.corrupt == 1 and ob.corrupt_bytes > 0 and ob.depth == 99
-        assert ob.next_seq == 101
-
-
-def test_corruption_while_open_is_skipped_and_counted_once(tmp_path: Path) -> None:
-    d = tmp_path / "ob"
-    with Outbox(d, OutboxLimits(max_bytes=1 << 22, segment_bytes=1 << 20)) as ob:
-        fill(ob, 100)
-        ob.flush()
-        (seg,) = segments(d)
-        _flip(seg, _offset_of(seg, 7) + 30)
-        for _ in range(2):
-            got = everything(ob)
-            assert [s for s, _ in got] == [s for s in range(1, 101) if s != 7]
-        assert ob.corrupt == 1
-
-
-def test_garbage_tail_and_bad_cursor_file(tmp_path: Path) -> None:
-    d, seg = _one_segment(tmp_path)
-    with Outbox(d) as ob:
-        ob.ack(30)
-    with open(seg, "ab") as f:
-        f.write(random.Random(3).randbytes(3000) + fmt.REC_MAGIC + b"\x00" * 40)
-    (d / "cursor").write_bytes(b"\xff" * 600)  # the cursor is unreadable: all pending again
-    with Outbox(d) as ob:
-        assert ob.corrupt == 2 and ob.acked == 0
-        assert [s for s, _ in everything(ob)] == list(range(1, 101))
-        assert ob.next_seq == 101
-
-
-def test_foreign_file_in_the_directory_is_an_error_naming_it(tmp_path: Path) -> None:
-    d, _seg = _one_segment(tmp_path)
-    (d / f"{'9' * 20}.seg").write_bytes(b"not a segment at all, but long enough")
-    with pytest.raises(OutboxError, match=r"99999999999999999999\.seg is not an outbox segment"):
-        Outbox(d)
-    Path(d / f"{'9' * 20}.seg").unlink()
-    Outbox(d).close()  # the failed open released the lock
-
-
 # -- the disk budget -----------------------------------------------------------
 
 
@@ -360,8 +283,9 @@ def test_drop_oldest_counts_drops_and_keeps_the_newest(tmp_path: Path) -> None:
     d = tmp_path / "ob"
     limits = OutboxLimits(max_bytes=8192, segment_bytes=2048)
     with Outbox(d, limits) as ob:
-        fill(ob, 1000)
-        assert ob.bytes_used <= limits.max_bytes
+        for _ in range(1000):
+            ob.append(payload(ob.next_seq), 0.0)
+            assert ob.bytes_used <= limits.max_bytes
         assert ob.dropped > 0 and ob.dropped + ob.depth == 1000
         ob.flush()
         got = everything(ob)
@@ -372,6 +296,26 @@ def test_drop_oldest_counts_drops_and_keeps_the_newest(tmp_path: Path) -> None:
         assert [s for s, _ in everything(ob)] == [s for s, _ in got]
 
 
+def test_drops_are_counted_on_disk_at_once(tmp_path: Path) -> None:
+    d = tmp_path / "ob"
+    r = run_child(
+        """
+        import os, signal, sys
+        from pyrtu.bridge.outbox import Outbox, OutboxLimits
+        ob = Outbox(sys.argv[1], OutboxLimits(max_bytes=8192, segment_bytes=2048))
+        while ob.dropped == 0:
+            ob.append(b"x" * 40, 0.0)
+        print(ob.dropped, ob.acked, flush=True)
+        os.kill(os.getpid(), signal.SIGKILL)  # no flush: the drop was written already
+        """,
+        str(d),
+    )
+    assert r.returncode == -signal.SIGKILL, r.stderr
+    dropped, acked = (int(x) for x in r.stdout.split())
+    with Outbox(d, OutboxLimits(max_bytes=8192, segment_bytes=2048)) as ob:
+        assert dropped > 0 and ob.dropped == dropped and ob.acked == acked
+
+
 def test_refuse_raises_outbox_full_and_loses_nothing(tmp_path: Path) -> None:
     d = tmp_path / "ob"
     limits = OutboxLimits(max_bytes=8192, segment_bytes=2048, policy="refuse")
@@ -380,6 +324,7 @@ def test_refuse_raises_outbox_full_and_loses_nothing(tmp_path: Path) -> None:
         with pytest.raises(OutboxFull, match="max_bytes=8192") as info:
             for _ in range(1000):
                 accepted.append(ob.append(payload(ob.next_seq), 0.0))
+                assert ob.bytes_used <= limits.max_bytes
         assert isinstance(info.value, OutboxError) and isinstance(info.value, OSError)
         assert 50 < len(accepted) < 1000 and ob.dropped == 0 and ob.depth == len(accepted)
         with pytest.raises(OutboxFull):
@@ -407,8 +352,9 @@ def tiny_fs(tmp_path: Path) -> Any:
         pytest.skip(f"cannot mount a tmpfs here (needs root): {r.stderr.decode().strip()}")
     try:
         yield mnt
-    finally:
-        subprocess.run(["umount", str(mnt)], check=True)
+    finally:  # lazily if a failed test left a file open there
+        if subprocess.run(["umount", str(mnt)], capture_output=True).returncode:
+            subprocess.run(["umount", "-l", str(mnt)], check=True)
 
 
 def _fill_disk(ob: Outbox) -> tuple[list[int], int, OutboxError]:
@@ -429,31 +375,36 @@ def test_disk_full_is_a_clear_error_and_loses_nothing_accepted(tiny_fs: Path) ->
     d = tiny_fs / "ob"
     limits = OutboxLimits(max_bytes=1 << 30, segment_bytes=16384)
     ob = Outbox(d, limits)
-    accepted, flushed, exc = _fill_disk(ob)
-    everyone = list(accepted)
-    assert exc.errno == errno.ENOSPC and "disk is full" in str(exc) and str(d) in str(exc)
-    assert flushed > 100
-    with pytest.raises(OutboxError, match="disk is full"):  # refused while full
-        ob.append(b"more", 0.0)
-    with pytest.raises(OutboxError, match="disk is full"):
-        ob.flush()
-    ob.ack(flushed // 2)  # the broker took some: their segments go, space is back
-    ob.flush()  # now what was accepted is written
-    assert [s for s, _ in everything(ob)] == [s for s in accepted if s > flushed // 2]
-    # fill it again, then give up: close fails, the flushed records are all there
-    accepted, flushed, exc = _fill_disk(ob)
-    everyone += accepted
-    assert exc.errno == errno.ENOSPC
-    with pytest.raises(OutboxError, match="disk is full"):
-        ob.close()
-    assert ob.closed
-    with Outbox(d, limits) as again:  # reopening on a full disk works
-        got = everything(again)
-        assert [s for s, _ in got if s <= flushed] == [
-            s for s in everyone if again.acked < s <= flushed
-        ]
-        assert all(rec == payload(s) * 3 for s, rec in got)
-        again.ack(again.next_seq - 1)
+    try:
+        accepted, flushed, exc = _fill_disk(ob)
+        everyone = list(accepted)
+        assert exc.errno == errno.ENOSPC and str(exc).startswith(f"outbox {d}: the disk is full")
+        assert "records already accepted are kept" in str(exc)
+        assert flushed > 100 and accepted[-1] > flushed  # some accepted, not yet written
+        with pytest.raises(OutboxError, match="disk is full"):  # refused while full
+            ob.append(b"more", 0.0)
+        with pytest.raises(OutboxError, match="disk is full"):
+            ob.flush()
+        ob.ack(flushed // 2)  # the broker took some: their segments go, space is back
+        ob.flush()  # now what was accepted is written
+        assert [s for s, _ in everything(ob)] == [s for s in accepted if s > flushed // 2]
+        # fill it again, then give up: close fails, the flushed records are all there
+        accepted, flushed, exc = _fill_disk(ob)
+        everyone += accepted
+        assert exc.errno == errno.ENOSPC
+        with pytest.raises(OutboxError, match="disk is full"):
+            ob.close()
+        assert ob.closed
+        with Outbox(d, limits) as again:  # reopening on a full disk works
+            got = everything(again)
+            assert [s for s, _ in got if s <= flushed] == [
+                s for s in everyone if again.acked < s <= flushed
+            ]
+            assert all(rec == payload(s) * 3 for s, rec in got)
+            again.ack(again.next_seq - 1)
+    finally:
+        with contextlib.suppress(OutboxError):
+            ob.close()  # (a failed assertion must not leave the tmpfs busy)
 
 
 # -- the lock -----------------------------------------------------------------
@@ -581,6 +532,7 @@ def test_bad_arguments_name_the_argument(tmp_path: Path) -> None:
         with pytest.raises(ValueError, match="now"):
             ob.append(b"x", float("inf"))
         ob.append(bytearray(b"ok"), 0.0)
+        ob.append(memoryview(array.array("H", [1, 2])), 0.0)  # 2 items, 4 bytes
         ob.flush()
         with pytest.raises(TypeError, match="limit"):
             ob.pending(1.0)  # type: ignore[arg-type]
@@ -593,73 +545,10 @@ def test_bad_arguments_name_the_argument(tmp_path: Path) -> None:
         with pytest.raises(TypeError, match="seq"):
             ob.ack("1")  # type: ignore[arg-type]
         with pytest.raises(ValueError, match="seq"):
-            ob.ack(2)  # never appended
+            ob.ack(3)  # never appended
         with pytest.raises(ValueError, match="seq"):
             ob.ack(-1)
-        assert ob.pending(0) == [] and ob.pending(5) == [(1, b"ok")]
+        assert ob.pending(0) == [] and ob.pending(5) == [(1, b"ok"), (2, b"\x01\x00\x02\x00")]
     with pytest.raises(ValueError, match="closed"):
         ob.append(b"x", 0.0)
     ob.close()  # idempotent
-
-
-# -- the sequence and ack invariants, by hypothesis ------------------------------
-
-OPS = st.lists(
-    st.one_of(
-        st.tuples(st.just("append"), st.integers(0, 300), st.integers(1, 40)),
-        st.tuples(st.just("flush"), st.just(0), st.just(0)),
-        st.tuples(st.just("ack"), st.integers(0, 10_000), st.just(0)),
-        st.tuples(st.just("pending"), st.integers(0, 50), st.integers(-1, 400)),
-        st.tuples(st.just("reopen"), st.just(0), st.just(0)),
-    ),
-    max_size=40,
-)
-
-
-@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(ops=OPS, policy=st.sampled_from(["drop-oldest", "refuse"]))
-def test_sequence_and_ack_invariants(ops: list[tuple[str, int, int]], policy: str) -> None:
-    limits = OutboxLimits(max_bytes=6144, segment_bytes=2048, policy=policy)  # type: ignore[arg-type]
-    d = Path(tempfile.mkdtemp(prefix="obx-"))
-    try:
-        ob = Outbox(d, limits)
-        model: list[tuple[int, bytes]] = []  # every record accepted, in order
-        by_ack = 0  # records released by the caller's acks (not by drops)
-        last_seq = 0
-        for op, a, b in ops:
-            if op == "append":
-                for i in range(b):
-                    rec = bytes([i]) * (a % 200)
-                    try:
-                        seq = ob.append(rec, float(i))
-                    except OutboxFull:
-                        assert policy == "refuse"
-                        break
-                    assert seq > last_seq
-                    last_seq = seq
-                    model.append((seq, rec))
-            elif op == "flush":
-                ob.flush()
-                assert ob.durable_seq == ob.next_seq - 1
-            elif op == "ack" and model:
-                seq = min(a, ob.next_seq - 1)
-                by_ack += sum(1 for s, _ in model if ob.acked < s <= seq)
-                ob.ack(seq)
-            elif op == "pending":
-                after = None if b < 0 else b
-                got = ob.pending(a, after=after)
-                start = max(ob.acked, after or 0)
-                want = [r for r in model if start < r[0] <= ob.durable_seq][:a]
-                assert got == want
-            elif op == "reopen":
-                ob.close()
-                ob = Outbox(d, limits)
-                assert ob.next_seq == last_seq + 1 or not model
-            assert ob.depth == sum(1 for s, _ in model if s > ob.acked)
-            assert len(model) == ob.depth + ob.dropped + by_ack
-            if policy == "refuse":
-                assert ob.dropped == 0
-            assert ob.bytes_used <= limits.max_bytes
-        ob.close()
-    finally:
-        shutil.rmtree(d)

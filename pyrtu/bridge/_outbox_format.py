@@ -95,6 +95,8 @@ def decode_state(data: bytes) -> State | None:
         if magic != STATE_MAGIC:
             continue
         state = State(*fields)
+        if max(state) > MAX_SEQ:  # no number this format writes is that large
+            continue
         if best is None or state.gen > best.gen:
             best = state
     return best
@@ -151,13 +153,13 @@ class _Chunks:
         return -1
 
 
-def _record_at(ch: _Chunks, off: int, last_seq: int, max_seq: int, max_payload: int) -> Item | None:
+def _record_at(ch: _Chunks, off: int, last_seq: int, max_seq: int) -> Item | None:
     v = ch.view(off, REC_HEAD.size)
     if v is None:
         return None
     buf, i = v
     magic, n, seq, t, crc = REC_HEAD.unpack_from(buf, i)
-    if magic != REC_MAGIC or n > max_payload or not last_seq < seq <= max_seq:
+    if magic != REC_MAGIC or not last_seq < seq <= max_seq:
         return None
     pre = buf[i : i + REC_PRE.size]
     start = off + REC_HEAD.size
@@ -177,21 +179,21 @@ def scan(
     end: int,
     *,
     last_seq: int,
-    max_payload: int,
     max_seq: int = MAX_SEQ,
     chunk: int = 1 << 18,
 ) -> Iterator[Item]:
     """The records of [start, end) in file order, and the bad regions between them.
 
-    A record is valid when its magic, length, checksum are right and its sequence
-    number is above the previous one (`last_seq` to begin with) and <= `max_seq`.
+    A record is valid when its magic and checksum are right, it ends by `end` and
+    its sequence number is above the previous one (`last_seq` to begin with) and
+    <= `max_seq`.
     After a bad record the scan resynchronises at the next offset where a valid
     record starts; a bad region running to `end` is a torn tail.
     """
     ch = _Chunks(read, end, chunk)
     off = start
     while off < ch.end:
-        item = _record_at(ch, off, last_seq, max_seq, max_payload)
+        item = _record_at(ch, off, last_seq, max_seq)
         if item is not None:
             yield item
             last_seq = item.seq
@@ -203,7 +205,7 @@ def scan(
             if cand < 0:
                 yield Item(off, max(off, ch.end), -1, 0.0, None)
                 return
-            if _record_at(ch, cand, last_seq, max_seq, max_payload) is not None:
+            if _record_at(ch, cand, last_seq, max_seq) is not None:
                 break
         yield Item(off, cand, -1, 0.0, None)
         off = cand

@@ -69,6 +69,8 @@ def lock_directory(directory: Path) -> tuple[int, int]:
     except OSError as exc:
         os.close(lock_fd)
         os.close(dir_fd)
+        if exc.errno not in (errno.EAGAIN, errno.EWOULDBLOCK, errno.EACCES):
+            raise io_error(directory, "locking", "the lock file", exc) from exc
         raise error(
             f"outbox directory {directory} is in use by another Outbox "
             f"(its lock file {directory / 'lock'} is held)",
@@ -151,7 +153,7 @@ class Segment:
 
 
 def recover_segment(
-    path: Path, first: int, last: int, acked: int, limits: OutboxLimits
+    path: Path, first: int, last: int, acked: int
 ) -> tuple[Segment | None, int, int]:
     """Scan one segment file after a restart and repair it.
 
@@ -175,9 +177,7 @@ def recover_segment(
             return os.pread(fd, n, off)
 
         end = fmt.SEG_HEAD.size
-        for item in fmt.scan(
-            read, end, size, last_seq=max(last, first - 1), max_payload=limits.max_record
-        ):
+        for item in fmt.scan(read, end, size, last_seq=max(last, first - 1)):
             if item.seq < 0:
                 seg.bad.add(item.off)
                 bad += 1

@@ -142,7 +142,7 @@ class Outbox:
 
     def _recover_segment(self, path: Path, first: int, last: int) -> Segment | None:
         try:
-            seg, bad, bad_bytes = recover_segment(path, first, last, self._acked, self.limits)
+            seg, bad, bad_bytes = recover_segment(path, first, last, self._acked)
         except OutboxError:
             raise
         except OSError as exc:
@@ -178,8 +178,10 @@ class Outbox:
         `OutboxError`; in both cases the record is not accepted and nothing accepted
         before is lost.
         """
-        if not isinstance(record, (bytes, bytearray, memoryview)):
-            raise TypeError(f"record must be bytes, not {type(record).__name__}")
+        if not isinstance(record, bytes):
+            if not isinstance(record, (bytearray, memoryview)):
+                raise TypeError(f"record must be bytes, not {type(record).__name__}")
+            record = bytes(record)  # (a memoryview's len() counts items, not bytes)
         if isinstance(now, bool) or not isinstance(now, (int, float)):
             raise TypeError(f"now must be a number of seconds, not {type(now).__name__}")
         if not math.isfinite(now):
@@ -216,9 +218,7 @@ class Outbox:
         elif len(self._buf) >= WRITE_CHUNK:
             self._write_out()
         off = active.size
-        self._buf += fmt.encode_record(
-            seq, now, bytes(record) if not isinstance(record, bytes) else record
-        )
+        self._buf += fmt.encode_record(seq, now, record)
         active.note(seq, off, off + size)
         self._bytes_used += size
         self._total += 1
@@ -250,11 +250,19 @@ class Outbox:
         return seg
 
     def _make_room(self, size: int) -> None:
-        limit = self.limits.max_bytes
-        while self._bytes_used + size > limit and self._segs and self._segs[0] is not self._active:
-            seg = self._segs[0]
+        """Drop the oldest segments; the count is on disk before they go (a crash must
+        not hide a drop)."""
+        free, victims = self._bytes_used + size - self.limits.max_bytes, []
+        for seg in self._segs:
+            if free <= 0 or seg is self._active:
+                break
+            victims.append(seg)
+            free -= seg.size
             self._dropped += seg.count - seg.acked_in(self._acked)
             self._acked = max(self._acked, seg.last)
+        if victims:  # the cursor first: a crash between must not bring them back unseen
+            self._save_state()
+        for seg in victims:
             self._forget(seg)
 
     def _forget(self, seg: Segment) -> None:
@@ -413,7 +421,6 @@ class Outbox:
                     off,
                     seg.size,
                     last_seq=seg.first - 1,
-                    max_payload=self.limits.max_record,
                     max_seq=seg.last,
                     chunk=chunk,
                 ):

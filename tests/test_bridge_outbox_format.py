@@ -1,0 +1,259 @@
+"""The outbox's file format under damage: torn tails, flipped bytes, garbage, and
+hypothesis-generated segment and cursor files (pyrtu.bridge._outbox_format)."""
+
+from __future__ import annotations
+
+import os
+import random
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from outbox_helpers import everything, fill, payload, segments
+
+from pyrtu.bridge import _outbox_format as fmt
+from pyrtu.bridge.outbox import Outbox, OutboxError, OutboxLimits
+
+# -- torn and corrupt records -----------------------------------------------
+
+
+def _one_segment(tmp_path: Path, n: int = 100) -> tuple[Path, Path]:
+    d = tmp_path / "ob"
+    with Outbox(d, OutboxLimits(max_bytes=1 << 22, segment_bytes=1 << 20)) as ob:
+        fill(ob, n)
+    (seg,) = segments(d)
+    return d, seg
+
+
+def _offset_of(seg: Path, seq: int) -> int:
+    data = seg.read_bytes()
+    off = fmt.SEG_HEAD.size
+    while off < len(data):
+        _m, n, s, _t, _c = fmt.REC_HEAD.unpack_from(data, off)
+        if s == seq:
+            return off
+        off += fmt.REC_HEAD.size + n
+    raise AssertionError(seq)
+
+
+def _flip(path: Path, off: int) -> None:
+    with open(path, "r+b") as f:
+        f.seek(off)
+        b = f.read(1)
+        f.seek(off)
+        f.write(bytes([b[0] ^ 0x40]))
+
+
+def test_torn_tail_is_truncated_counted_and_its_number_not_reused(tmp_path: Path) -> None:
+    d, seg = _one_segment(tmp_path)
+    size = seg.stat().st_size
+    os.truncate(seg, size - 5)  # the last record is cut short
+    with Outbox(d) as ob:
+        assert ob.corrupt == 1 and ob.corrupt_bytes == size - 5 - _offset_of(seg, 99) - (
+            fmt.REC_HEAD.size + len(payload(99))
+        )
+        got = everything(ob)
+        assert [s for s, _ in got] == list(range(1, 100))
+        assert all(rec == payload(s) for s, rec in got)
+        assert seg.stat().st_size == _offset_of(seg, 99) + fmt.REC_HEAD.size + len(payload(99))
+        assert ob.append(b"new", 0.0) == 101  # 100 was handed out once: never again
+
+
+@pytest.mark.parametrize("where", ["payload", "length", "seq", "crc", "magic"])
+def test_flipped_byte_skips_only_that_record(tmp_path: Path, where: str) -> None:
+    d, seg = _one_segment(tmp_path)
+    delta = {"magic": 1, "length": 5, "seq": 9, "crc": 25, "payload": 28}[where]
+    _flip(seg, _offset_of(seg, 50) + delta)
+    with Outbox(d) as ob:
+        got = everything(ob)
+        assert [s for s, _ in got] == [s for s in range(1, 101) if s != 50]
+        assert all(rec == payload(s) for s, rec in got)
+        assert ob.corrupt == 1 and ob.corrupt_bytes > 0 and ob.depth == 99
+        assert ob.next_seq == 101
+
+
+def test_corruption_while_open_is_skipped_and_counted_once(tmp_path: Path) -> None:
+    d = tmp_path / "ob"
+    with Outbox(d, OutboxLimits(max_bytes=1 << 22, segment_bytes=1 << 20)) as ob:
+        fill(ob, 100)
+        ob.flush()
+        (seg,) = segments(d)
+        _flip(seg, _offset_of(seg, 7) + 30)
+        for _ in range(2):
+            got = everything(ob)
+            assert [s for s, _ in got] == [s for s in range(1, 101) if s != 7]
+        assert ob.corrupt == 1
+
+
+def test_garbage_tail_and_bad_cursor_file(tmp_path: Path) -> None:
+    d, seg = _one_segment(tmp_path)
+    with Outbox(d) as ob:
+        ob.ack(30)
+    with open(seg, "ab") as f:
+        f.write(random.Random(3).randbytes(3000) + fmt.REC_MAGIC + b"\x00" * 40)
+    (d / "cursor").write_bytes(b"\xff" * 600)  # the cursor is unreadable: all pending again
+    with Outbox(d) as ob:
+        assert ob.corrupt == 2 and ob.acked == 0
+        assert [s for s, _ in everything(ob)] == list(range(1, 101))
+        assert ob.next_seq == 101
+
+
+def test_foreign_file_in_the_directory_is_an_error_naming_it(tmp_path: Path) -> None:
+    d, _seg = _one_segment(tmp_path)
+    (d / f"{'9' * 20}.seg").write_bytes(b"not a segment at all, but long enough")
+    with pytest.raises(OutboxError, match=r"99999999999999999999\.seg is not an outbox segment"):
+        Outbox(d)
+    Path(d / f"{'9' * 20}.seg").unlink()
+    Outbox(d).close()  # the failed open released the lock
+
+
+def test_reopening_with_smaller_segments_keeps_every_record(tmp_path: Path) -> None:
+    d = tmp_path / "ob"
+    with Outbox(d, OutboxLimits(max_bytes=1 << 22, segment_bytes=1 << 20)) as ob:
+        big = [ob.append(bytes([i]) * 3000, 0.0) for i in range(10)]
+    with Outbox(d, OutboxLimits(max_bytes=1 << 22, segment_bytes=1024)) as ob:
+        assert everything(ob) == [(s, bytes([s - 1]) * 3000) for s in big]
+        assert ob.corrupt == 0
+
+
+# -- fuzzing the format ------------------------------------------------------
+
+CHUNK = st.one_of(
+    st.tuples(st.just("intact"), st.binary(max_size=300)),
+    st.tuples(
+        st.just("flip"), st.binary(max_size=300), st.integers(0, 10_000), st.integers(1, 255)
+    ),
+    st.tuples(st.just("cut"), st.binary(max_size=300), st.integers(1, 10_000)),
+    st.tuples(st.just("junk"), st.binary(max_size=200)),
+    st.tuples(st.just("skip"), st.integers(1, 5)),  # a gap in the numbers (a crash's)
+    st.tuples(st.just("replay"), st.binary(max_size=50)),  # valid, but an old number
+)
+
+
+def _build(chunks: list[Any]) -> tuple[bytes, list[tuple[int, bytes]], bool]:
+    """A segment (first sequence 1) of damaged and intact records, the intact ones,
+    and whether anything in it is damaged."""
+    data = bytearray(fmt.segment_header(1))
+    damaged = False
+    intact: list[tuple[int, bytes]] = []
+    seq = 1
+    for kind, *args in chunks:
+        if kind == "junk":
+            data += args[0]
+            damaged = damaged or bool(args[0])
+            continue
+        if kind == "skip":
+            seq += args[0]
+            continue
+        if kind == "replay":  # checksum right, number not above the last valid one
+            data += fmt.encode_record(intact[-1][0] if intact else 0, 0.0, args[0])
+            damaged = True
+            continue
+        body = args[0]
+        assert isinstance(body, bytes)
+        rec = bytearray(fmt.encode_record(seq, float(seq), body))
+        if kind == "flip":
+            pos, bits = args[1], args[2]
+            assert isinstance(pos, int) and isinstance(bits, int)
+            rec[pos % len(rec)] ^= bits
+            damaged = True
+        elif kind == "cut":
+            cut = args[1]
+            assert isinstance(cut, int)
+            at = cut % len(rec)
+            rec[at:] = bytes([rec[at] ^ 0xFF])  # cut short: what follows cannot complete it
+            damaged = True
+        else:
+            intact.append((seq, body))
+        data += rec
+        seq += 1
+    return bytes(data), intact, damaged
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(chunks=st.lists(CHUNK, max_size=30), chunk=st.sampled_from([29, 64, 1000, 1 << 18]))
+def test_scan_finds_exactly_the_intact_records(
+    chunks: list[tuple[object, ...]], chunk: int
+) -> None:
+    data, intact, _damaged = _build(chunks)
+    items = list(
+        fmt.scan(
+            lambda off, n: data[off : off + n],
+            fmt.SEG_HEAD.size,
+            len(data),
+            last_seq=0,
+            chunk=chunk,
+        )
+    )
+    # the items tile the segment: every byte is in one record or one bad region
+    starts = [fmt.SEG_HEAD.size] + [i.end for i in items[:-1]]
+    assert [i.off for i in items] == (starts if items else [])
+    assert (items[-1].end if items else fmt.SEG_HEAD.size) == len(data)
+    assert all(i.end > i.off for i in items)
+    assert [(i.seq, i.payload) for i in items if i.seq >= 0] == intact
+    assert all(i.time == float(i.seq) for i in items if i.seq >= 0)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(chunks=st.lists(CHUNK, max_size=20), state=st.binary(max_size=600))
+def test_recovery_of_fuzzed_files(chunks: list[Any], state: bytes) -> None:
+    data, intact, damaged = _build(chunks)
+    d = Path(tempfile.mkdtemp(prefix="obx-fuzz-"))
+    try:
+        (d / fmt.segment_name(1)).write_bytes(data)
+        (d / "cursor").write_bytes(state)  # random: almost never a valid slot
+        with Outbox(d) as ob:
+            got = everything(ob)
+            assert got == [r for r in intact if r[0] > ob.acked]
+            assert ob.depth == len(got)
+            assert ob.next_seq > max([s for s, _ in intact] + [ob.acked])
+            bad_cursor = bool(state.strip(b"\0")) and fmt.decode_state(state) is None
+            assert (ob.corrupt > 0) == (damaged or bad_cursor)
+            corrupt = ob.corrupt
+            seq = ob.append(b"after", 1.0)
+            ob.flush()
+            assert ob.pending(1, after=seq - 1) == [(seq, b"after")]
+        with Outbox(d) as ob:  # what recovery repaired stays repaired
+            assert everything(ob)[-1] == (seq, b"after")
+            assert ob.corrupt <= corrupt  # the torn tail, if any, is gone
+    finally:
+        shutil.rmtree(d)
+
+
+@settings(max_examples=500, deadline=None)
+@given(data=st.binary(max_size=fmt.STATE_SIZE + 10), flips=st.lists(st.integers(0, 600)))
+def test_cursor_slots_survive_any_damage_to_the_other(data: bytes, flips: list[int]) -> None:
+    assert fmt.decode_state(data) is None or isinstance(fmt.decode_state(data), fmt.State)
+    a = fmt.State(7, 100, 200, 3)
+    b = fmt.State(8, 150, 200, 4)
+    buf = bytearray(fmt.STATE_SIZE)
+    for st_ in (a, b):
+        off, raw = fmt.encode_state(st_)
+        buf[off : off + len(raw)] = raw
+    assert fmt.decode_state(bytes(buf)) == b
+    # damage confined to one slot leaves the other one readable
+    slot_b = fmt.encode_state(b)[0]
+    for f in flips:
+        buf[slot_b + f % (fmt.STATE.size + fmt.CRC.size)] ^= 0xA5
+    assert fmt.decode_state(bytes(buf)) in (a, b)
+    if flips:
+        assert fmt.decode_state(bytes(buf)) == a or len(flips) % 2 == 0
+
+
+def test_a_cursor_slot_with_huge_numbers_is_not_trusted(tmp_path: Path) -> None:
+    d, _seg = _one_segment(tmp_path)
+    good = fmt.State(gen=4, acked=10, reserved=101, dropped=0)
+    forged = fmt.State(gen=5, acked=10, reserved=2**64 - 1, dropped=0)  # checksum right
+    buf = bytearray(fmt.STATE_SIZE)
+    for state in (good, forged):
+        off, raw = fmt.encode_state(state)
+        buf[off : off + len(raw)] = raw
+    assert fmt.decode_state(bytes(buf)) == good
+    (d / "cursor").write_bytes(bytes(buf))
+    with Outbox(d) as ob:
+        assert ob.acked == 10 and ob.next_seq == 101
+        assert ob.append(b"x", 0.0) == 101
