@@ -136,10 +136,15 @@ def test_sigkill_and_restart_continue_the_sequence(tmp_path: Path) -> None:
         cfg = write_config(
             tmp_path, broker.url, bus.paths[0], "fsync_interval = 0\nmax_age = 0.001"
         )
+        status = Client(broker, ["pyrtu/cli/status"])
         p = start("--config", str(cfg))
         sub.wait(lambda: len(sub.messages) > 300, "values")
         os.kill(p.pid, signal.SIGKILL)
         p.communicate(timeout=10)
+        # the broker publishes the last will: the edge is offline
+        status.wait(lambda: status.on("pyrtu/cli/status")[-1:] == [b"offline"], "the will")
+        assert status.on("pyrtu/cli/status") == [b"online", b"offline"]
+        status.close()
         mark = len(sub.messages)
         p = start("--config", str(cfg))
         sub.wait(lambda: len(sub.messages) > mark + 300, "values after the restart")
