@@ -63,7 +63,27 @@ interval = 0.02
     return f
 
 
+STARTED: list[subprocess.Popen[str]] = []
+
+
+@pytest.fixture(autouse=True)
+def _no_bridge_left() -> Iterator[None]:
+    """A test that fails while a bridge runs does not leave it running."""
+    yield
+    while STARTED:
+        p = STARTED.pop()
+        if p.poll() is None:
+            p.kill()
+            p.communicate(timeout=10)
+
+
 def start(*args: str) -> subprocess.Popen[str]:
+    p = _popen(*args)
+    STARTED.append(p)
+    return p
+
+
+def _popen(*args: str) -> subprocess.Popen[str]:
     return subprocess.Popen(
         [sys.executable, "-m", "pyrtu", "bridge", *args],
         stdout=subprocess.PIPE,

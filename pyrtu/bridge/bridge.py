@@ -462,6 +462,7 @@ class Bridge:
         link.publish(self.topics.edge_status, ONLINE, 1, True)
         for (bus, slave), online in self._slaves.items():
             self._publish_slave(bus, slave, online)
+        self._acked_seq = max(self._acked_seq, ob.acked)  # past what drop-oldest dropped
         self._cursor = self._acked_seq
         oldest = self._acked_seq + 1
         self._historical_below = ob.next_seq
