@@ -741,7 +741,11 @@ def main() -> None:
     ap.add_argument("--only", default="throughput,wire,unplug,write,share,outage")
     ap.add_argument("--seconds", type=float, default=5.0)
     ap.add_argument("--outage", type=float, default=30.0)
-    ap.add_argument("--write", action="store_true", help="write the section of bench/RESULTS.md")
+    ap.add_argument(
+        "--write",
+        action="store_true",
+        help="write the section of bench/RESULTS.md and bench/bridge_results.json",
+    )
     ns = ap.parse_args()
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
@@ -766,8 +770,8 @@ def main() -> None:
             "cpus": os.cpu_count(),
         }
         print(json.dumps(res, indent=1))
-        (BENCH / "bridge_results.json").write_text(json.dumps(res, indent=1) + "\n")
         if ns.write:
+            (BENCH / "bridge_results.json").write_text(json.dumps(res, indent=1) + "\n")
             write_section(section(res, " ".join(["python bench/bench_bridge.py", *sys.argv[1:]])))
 
 
