@@ -171,3 +171,18 @@ def test_relative_paths_are_the_files_and_the_outbox_defaults_next_to_it(tmp_pat
     assert cfg.mqtt.outbox == str(tmp_path / "outbox-e1")
     (tmp_path / "pw").write_text("s3cret\n")
     assert cfg.mqtt.secret() == "s3cret"
+
+
+def test_defaults_carry_bridge_keys_but_not_a_topic() -> None:
+    text = GOOD.replace("[[bus]]", "[defaults]\nmax_age = 7\ndeadband = 0\n\n[[bus]]", 1)
+    cfg = parse_bridge_config(text, "b.toml")
+    assert cfg.max_age("weg.status") == 7  # a profile point too
+    assert cfg.max_age("weg.ref") == 5  # its own key wins
+    bad = GOOD.replace("[[bus]]", '[defaults]\ntopic = "x/y"\n\n[[bus]]', 1)
+    with pytest.raises(ConfigError, match=r"^b.toml:8: defaults: topic: a topic is one point's"):
+        parse_bridge_config(bad, "b.toml")
+    rw = GOOD.replace("[[bus]]", "[defaults]\nwritable = true\n\n[[bus]]", 1)
+    assert parse_bridge_config(rw, "b.toml").option("weg.status").writable
+    ro = rw + '[[point]]\nname = "in"\nbus = "line"\nslave = 3\ntable = "input"\naddress = 0\n'
+    with pytest.raises(ConfigError, match="writable: the input table is read only"):
+        parse_bridge_config(ro, "b.toml")
