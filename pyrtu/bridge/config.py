@@ -372,7 +372,8 @@ def parse_bridge_config(
         except ValueError as e:
             key = str(e).partition(": ")[0]
             line = _locate(text, "point", i, key if key in own else None)
-            raise ConfigError(f"{source}:{line}: {label}: {e}") from None
+            note = " (from [defaults])" if key not in own and key in dflt else ""
+            raise ConfigError(f"{source}:{line}: {label}: {e}{note}") from None
         options[point.name] = opts
     for p in poller.points:
         try:
