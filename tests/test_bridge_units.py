@@ -143,3 +143,41 @@ def test_window_acknowledges_contiguously() -> None:
     w.sent(13, 4, 0.0)
     w.reset()
     assert len(w) == 0 and not w.acked(4, 1.0)
+
+
+def test_memory_stays_bounded_whatever_the_backlog(tmp_path: object) -> None:
+    """50 000 updates while no broker is reachable: the backlog is on disk; the
+    process keeps a fixed window of recent records (under 3 MB here, where the
+    backlog in memory would take 12 MB)."""
+    import asyncio
+    import time
+    import tracemalloc
+    from pathlib import Path
+
+    from pyrtu.aio import run as aio_run
+    from pyrtu.bridge import MqttConfig, make_bridge_config
+    from pyrtu.bridge.bridge import Bridge
+    from pyrtu.poller import Bus, Update, make_config
+
+    pts = [Point(f"p{i}", "line", 1, "holding", i) for i in range(100)]
+    poller = make_config([Bus("line", "/dev/null-never-opened")], pts)
+    mqtt = MqttConfig("mqtt://127.0.0.1:1", edge="e", outbox=str(Path(str(tmp_path)) / "ob"))
+    bridge = Bridge(make_bridge_config(poller, mqtt))
+
+    async def main() -> tuple[int, int]:
+        await bridge.start(poll=False)
+        tracemalloc.start()
+        base = tracemalloc.get_traced_memory()[0]
+        for i in range(50_000):
+            bridge.feed(Update(pts[i % 100], i, time.time()))
+            if i % 5000 == 0:
+                await asyncio.sleep(0)
+        grown = tracemalloc.get_traced_memory()[0] - base
+        tracemalloc.stop()
+        depth = bridge.stats()["outbox_depth"]
+        await bridge.stop(drain=0)
+        return grown, depth
+
+    grown, depth = aio_run(main())
+    assert depth == 50_000
+    assert grown < 3_000_000, grown
