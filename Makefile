@@ -8,7 +8,7 @@ PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
-APT_PACKAGES := libmodbus-dev pkg-config socat
+APT_PACKAGES := libmodbus-dev pkg-config socat mosquitto mosquitto-clients
 
 .PHONY: demo test test-asan bench lint setup system-packages fuzz fuzz-ci fuzz-build fuzz-packages \
 	fuzz-python fuzz-outbox

@@ -177,6 +177,10 @@ def _register_builtins() -> None:
 
     for spec in gateway.COMMANDS:
         register(*spec)
+    from .commands import bridge
+
+    for spec in bridge.COMMANDS:
+        register(*spec)
 
 
 _register_builtins()

@@ -1,0 +1,525 @@
+"""`Bridge`: the poller's points to an MQTT broker through the durable outbox, and
+set commands back to the drives.
+
+::
+
+    async with Bridge(load_bridge_config("bridge.toml")) as bridge:
+        await asyncio.sleep(3600)
+
+The poller hands every value it reads to the `Reporter` (report by exception,
+qualities); what is to be published becomes an outbox record (its sequence number
+is the outbox's) and is published at once when the broker is connected and nothing
+older waits, else later from the outbox, in order, flagged ``historical``.  The
+outbox forgets a record once the broker acknowledged it and everything before it.
+A connection that ends is reported once and retried with the shared back-off
+(`pyrtu._reconnect`); the polls go on meanwhile.  On every connection the edge's
+``online``, the slaves' states and the latest value of every point the backlog
+does not hold are published again (retained): after a broker restart no retained
+topic stays missing.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import ssl
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from .._reconnect import Backoff, Reconnect
+from ..poller import Point, PointDropped, Poller, SlaveState, Update
+from ..poller.points import Value
+from .commands import CommandQueue
+from .config import BridgeConfig, load_bridge_config
+from .delivery import Window
+from .mqtt import BrokerRefused, Credentials, MqttLink
+from .outbox import Outbox, OutboxError, OutboxLimits
+from .report import Reporter
+from .topics import OFFLINE, ONLINE, Topics, payload, record, split_record
+from .writes import Writer
+
+log = logging.getLogger("pyrtu.bridge")
+
+_LIVE = 8192  # records kept in memory for the live path (more: read back from disk)
+_BATCH = 512  # records read from the outbox at a time
+
+
+@dataclass(frozen=True, slots=True)
+class BridgeEvent:
+    """Something the bridge reports: ``kind`` is ``broker_down``, ``broker_up``,
+    ``slave``, ``dropped``, ``outbox_error``, ``fatal`` or ``stats``."""
+
+    kind: str
+    time: float
+    detail: dict[str, Any] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"event": self.kind, "time": round(self.time, 6), **self.detail}
+
+
+class Bridge:
+    """The bridge of one edge (see the module docstring).  ``config``: a
+    `BridgeConfig` or a TOML path; ``master``: as `Poller`'s."""
+
+    def __init__(self, config: BridgeConfig | str, *, master: Any = "aio") -> None:
+        if isinstance(config, str):
+            config = load_bridge_config(config)
+        self.config = config
+        m = config.mqtt
+        self.topics = Topics(config)
+        self.poller = Poller(config.poller, master=master, changes_only=False)
+        self.reporter = Reporter(
+            config.poller.points, {p.name: config.max_age(p.name) for p in config.poller.points}
+        )
+        self.commands = CommandQueue(m.command_queue, m.write_rate)
+        self.writer = Writer(self)
+        self._topic = {p.name: self.topics.point[p.name] for p in config.poller.points}
+        self._outbox: Outbox | None = None
+        self._link: MqttLink | None = None
+        self._window = Window(m.inflight)
+        self._reconnect = Reconnect(Backoff(m.backoff, m.max_backoff))
+        self._live: deque[tuple[int, bytes, float]] = deque()
+        self._live_base = 0  # every record from this seq on is in _live or published
+        self._cursor = 0  # the last seq handed to the client on this connection
+        self._historical_below = 0  # records below this seq are published as historical
+        self._latest: dict[str, tuple[int, bytes]] = {}  # topic -> (seq, body) last appended
+        self._slaves: dict[tuple[str, int], bool] = {}
+        self._event_cbs: list[Callable[[BridgeEvent], None]] = []
+        self._tasks: list[asyncio.Task[None]] = []
+        self._flush_timer: asyncio.TimerHandle | None = None
+        self._ack_pending = False
+        self._lost_ev: asyncio.Event | None = None  # made in start (loop-bound)
+        self._acked_seq = 0  # every record up to this seq is acknowledged
+        self._stop: asyncio.Event | None = None
+        self.fatal: BaseException | None = None
+        self._running = False
+        self._t0 = time.monotonic()
+        self.appended = 0
+        self.refused = 0  # updates the outbox did not accept (disk full, budget)
+        self._outbox_down = False
+        self.reconnects = 0
+        self.publish_errors = 0
+        self.final_stats: dict[str, Any] = {}
+        self._credentials: Credentials | None = None
+
+    # ------------------------------------------------------------------ life cycle
+
+    async def start(self, poll: bool = True) -> None:
+        """Open the outbox, start the poller (PortError when a port fails) and the
+        connection to the broker (in the background: a broker that is down only
+        delays publishing).  OutboxError when the outbox cannot be opened.
+        ``poll=False``: no poller; values come through `feed`."""
+        if self._running:
+            return
+        m = self.config.mqtt
+        self._credentials = Credentials.load(m)  # OSError: a file that cannot be used
+        limits = OutboxLimits(
+            max_bytes=m.outbox_max_bytes,
+            fsync_interval=m.fsync_interval,
+            segment_bytes=min(8 << 20, m.outbox_max_bytes // 4),
+            policy="refuse" if m.outbox_policy == "refuse" else "drop-oldest",
+        )
+        self._outbox = Outbox(m.outbox, limits)
+        self._live_base = self._outbox.next_seq
+        self._acked_seq = self._outbox.acked
+        self._stop = asyncio.Event()
+        self._lost_ev = asyncio.Event()
+        self.poller.on_event(self.feed)
+        try:
+            if poll:
+                await self.poller.start()
+        except BaseException:
+            self._outbox.close()
+            self._outbox = None
+            raise
+        self._running = True
+        self._t0 = time.monotonic()
+        self._tasks = [
+            asyncio.create_task(self._connector(), name="pyrtu-bridge-mqtt"),
+            asyncio.create_task(self._stats_loop(), name="pyrtu-bridge-stats"),
+        ]
+
+    async def stop(self, drain: float = 5.0) -> None:
+        """Stop polling, publish what waits (up to ``drain`` seconds while the broker
+        is connected), say ``offline``, disconnect, flush and close the outbox."""
+        if not self._running:
+            return
+        self._running = False
+        await self.poller.stop()
+        await self.writer.stop()
+        ob = self._outbox
+        assert ob is not None
+        self._flush()
+        end = time.monotonic() + drain
+        while self._connected() and ob.depth > 0 and time.monotonic() < end:
+            self._pump()
+            await asyncio.sleep(0.01)
+            self._flush()
+        for t in self._tasks:
+            t.cancel()
+        for t in self._tasks:
+            try:
+                await t
+            except (asyncio.CancelledError, Exception):
+                pass
+        self._tasks = []
+        link = self._link
+        if link is not None and link.connected:
+            link.publish(self.topics.edge_status, OFFLINE, 1, True)
+            for _ in range(50):  # let the offline status out before DISCONNECT
+                if link.pending_writes == 0:
+                    break
+                await asyncio.sleep(0.002)
+            link.close(graceful=True)
+        self._link = None
+        if self._flush_timer is not None:
+            self._flush_timer.cancel()
+            self._flush_timer = None
+        self._commit_acks()
+        self.final_stats = self.stats()
+        ob.flush()
+        ob.close()
+        self._outbox = None
+
+    async def __aenter__(self) -> Bridge:
+        await self.start()
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.stop()
+
+    async def run(self, duration: float | None = None) -> None:
+        """Start, run for ``duration`` seconds (None: until cancelled or a fatal error
+        such as refused credentials, raised), stop."""
+        await self.start()
+        assert self._stop is not None
+        try:
+            if duration is None:
+                await self._stop.wait()
+            else:
+                try:
+                    await asyncio.wait_for(self._stop.wait(), duration)
+                except TimeoutError:
+                    pass
+        finally:
+            await self.stop()
+        if self.fatal is not None:
+            raise self.fatal
+
+    @property
+    def halted(self) -> asyncio.Event:
+        """Set when the bridge cannot go on (`fatal` says why); made by `start`."""
+        assert self._stop is not None, "start the bridge first"
+        return self._stop
+
+    def on_event(self, callback: Callable[[BridgeEvent], None]) -> None:
+        """Call ``callback(event)`` for every `BridgeEvent` (on the loop)."""
+        self._event_cbs.append(callback)
+
+    def _emit(self, kind: str, **detail: Any) -> None:
+        ev = BridgeEvent(kind, time.time(), detail)
+        for cb in self._event_cbs:
+            try:
+                cb(ev)
+            except Exception:
+                log.exception("bridge event callback %r failed", cb)
+
+    # ------------------------------------------------------------------ the poller's side
+
+    def feed(self, ev: Any) -> None:
+        """Take a poller event (`Update`, `SlaveState`, `PointDropped`); the
+        poller's callback, also for values from elsewhere."""
+        now = time.monotonic()
+        if type(ev) is Update:
+            p = ev.point
+            if self.reporter.update(p, ev.value, ev.time, now):
+                self._append(p, ev.value, ev.time, "good")
+        elif isinstance(ev, SlaveState):
+            self._slaves[(ev.bus, ev.slave)] = ev.online
+            for p, v, t, q in self.reporter.slave_state(ev.bus, ev.slave, ev.online, now):
+                self._append(p, v, t, q)
+            self._publish_slave(ev.bus, ev.slave, ev.online)
+            self._emit("slave", bus=ev.bus, slave=ev.slave, online=ev.online)
+        elif isinstance(ev, PointDropped):
+            p, v, t, q = self.reporter.dropped(ev.point, ev.time, now)
+            self._append(p, v, t, q)
+            self._emit("dropped", point=ev.point.name, reason=ev.reason)
+
+    def publish_value(self, point: Point, value: Value, read_at: float) -> None:
+        """Publish a value read now (a write's read-back), whatever its deadband."""
+        self.reporter.update(point, value, read_at, time.monotonic(), force=True)
+        self._append(point, value, read_at, "good")
+
+    def _append(self, point: Point, value: Value | None, read_at: float, quality: str) -> None:
+        ob = self._outbox
+        if ob is None:
+            return
+        topic = self._topic[point.name]
+        rec = record(topic, point, value, read_at, quality)
+        now = time.monotonic()
+        try:
+            seq = ob.append(rec, now)
+        except (OutboxError, ValueError) as e:
+            self.refused += 1
+            if not self._outbox_down:
+                self._outbox_down = True
+                log.error("bridge: the outbox refuses updates: %s", e)
+                self._emit("outbox_error", message=str(e))
+            return
+        if self._outbox_down:
+            self._outbox_down = False
+            log.warning("bridge: the outbox accepts updates again")
+        self.appended += 1
+        body = rec[len(topic) + 1 :]
+        self._latest[topic] = (seq, body)
+        live = self._live
+        live.append((seq, rec, read_at))
+        if len(live) > _LIVE:
+            live.popleft()
+            self._live_base = live[0][0]
+        if self._flush_timer is None:
+            self._schedule_flush()
+        self._pump()
+
+    # ------------------------------------------------------------------ publishing
+
+    def _connected(self) -> bool:
+        return self._link is not None and self._link.connected
+
+    def _pump(self) -> None:
+        """Hand records to the client in sequence order while the window has room."""
+        link = self._link
+        if link is None or not link.connected:
+            return
+        win = self._window
+        qos = self.config.mqtt.qos
+        live = self._live
+        ob = self._outbox
+        assert ob is not None
+        while not win.full:
+            while live and live[0][0] <= self._cursor:
+                live.popleft()
+            if self._cursor + 1 >= self._live_base:
+                if not live:
+                    return
+                seq, rec, read_at = live.popleft()
+                self._send(link, seq, rec, read_at, qos)
+                continue
+            batch = ob.pending(min(_BATCH, win.window - len(win)), after=self._cursor)
+            if not batch:
+                return  # the rest is not durable yet: after the next flush
+            for seq, rec in batch:
+                if seq >= self._live_base:
+                    # nothing older is left on disk (dropped): _live has the rest
+                    self._cursor = max(self._cursor, self._live_base - 1)
+                    break
+                self._send(link, seq, rec, 0.0, qos)
+
+    def _send(self, link: MqttLink, seq: int, rec: bytes, read_at: float, qos: int) -> None:
+        topic, body = split_record(rec)
+        mid = link.publish(topic, payload(body, seq, seq < self._historical_below), qos, True)
+        self._cursor = seq
+        if mid < 0:
+            self.publish_errors += 1
+            return
+        self._window.sent(seq, mid, read_at)
+
+    def _on_ack(self, mid: int) -> None:
+        if self._window.acked(mid, time.time()) and not self._ack_pending:
+            self._ack_pending = True
+            asyncio.get_running_loop().call_soon(self._commit_acks)
+
+    def _commit_acks(self) -> None:
+        self._ack_pending = False
+        c = self._window.contiguous
+        ob = self._outbox
+        if c is not None and ob is not None and c > self._acked_seq:
+            self._acked_seq = c
+            ob.ack(c)
+            if self._flush_timer is None:
+                self._schedule_flush()
+        self._pump()
+
+    def _schedule_flush(self) -> None:
+        ob = self._outbox
+        if ob is None:
+            return
+        at = ob.flush_at
+        if at is None:
+            return
+        loop = asyncio.get_running_loop()
+        delay = max(0.0, at - time.monotonic())
+        self._flush_timer = loop.call_later(delay, self._flush_tick)
+
+    def _flush_tick(self) -> None:
+        self._flush_timer = None
+        self._flush()
+        self._pump()  # records now durable may be published from the outbox
+        self._schedule_flush()
+
+    def _flush(self) -> None:
+        ob = self._outbox
+        if ob is None:
+            return
+        try:
+            if ob.flush_due(time.monotonic()) or not self._running:
+                ob.flush()
+        except OutboxError as e:
+            if not self._outbox_down:
+                self._outbox_down = True
+                log.error("bridge: outbox flush failed: %s", e)
+                self._emit("outbox_error", message=str(e))
+
+    def _publish_slave(self, bus: str, slave: int, online: bool) -> None:
+        link = self._link
+        if link is not None and link.connected:
+            t = self.topics.slave_status.get((bus, slave))
+            if t is not None:
+                link.publish(t, ONLINE if online else OFFLINE, 1, True)
+
+    # ------------------------------------------------------------------ the connection
+
+    async def _connector(self) -> None:
+        m = self.config.mqtt
+        assert self._lost_ev is not None
+        while self._running:
+            wait = self._reconnect.wait(time.monotonic())
+            if wait > 0:
+                await asyncio.sleep(wait)
+            link = MqttLink(
+                m,
+                self.topics.edge_status,
+                on_message=self.writer.on_message,
+                on_ack=self._on_ack,
+                on_lost=self._on_lost,
+                credentials=self._credentials,
+            )
+            try:
+                await link.connect()
+            except (BrokerRefused, ssl.SSLError, ssl.CertificateError) as e:
+                self._fatal(e)
+                return
+            except (OSError, TimeoutError, ConnectionError) as e:
+                if self._reconnect.failed(time.monotonic(), e):
+                    log.warning("bridge: broker %s unreachable: %s (retrying)", m.broker, e)
+                    self._emit("broker_down", broker=m.broker, error=str(e) or type(e).__name__)
+                continue
+            outage = self._reconnect.recovered(time.monotonic())
+            if outage is not None:
+                log.warning("bridge: broker %s back after %.1f s", m.broker, outage.duration or 0)
+            self.reconnects += 1
+            self._link = link
+            self._lost_ev.clear()
+            self._on_connected(link)
+            self._emit(
+                "broker_up",
+                broker=m.broker,
+                down_s=None if outage is None else round(outage.duration or 0, 3),
+            )
+            await self._lost_ev.wait()
+            self._link = None
+            self._window.reset()
+            # what was handed to the client and not acknowledged comes from the outbox
+            live = self._live
+            self._live_base = max(self._live_base, live[0][0] if live else self._next_seq())
+            if self._running:
+                now = time.monotonic()
+                if self._reconnect.failed(now, "connection lost"):
+                    log.warning("bridge: lost the broker %s (retrying)", m.broker)
+                    self._emit("broker_down", broker=m.broker, error="connection lost")
+
+    def _on_lost(self, reason: str) -> None:
+        if self._lost_ev is not None:
+            self._lost_ev.set()
+
+    def _next_seq(self) -> int:
+        return self._outbox.next_seq if self._outbox is not None else 0
+
+    def _fatal(self, e: BaseException) -> None:
+        if isinstance(e, ssl.SSLCertVerificationError):
+            e = ConnectionRefusedError(
+                f"broker {self.config.mqtt.broker}: its certificate does not verify: "
+                f"{e.verify_message or e}"
+            )
+        elif isinstance(e, ssl.SSLError | ssl.CertificateError) and not isinstance(
+            e, BrokerRefused
+        ):
+            e = ConnectionRefusedError(f"broker {self.config.mqtt.broker}: TLS: {e}")
+        log.error("bridge: %s", e)
+        self.fatal = e
+        self._emit("fatal", message=str(e))
+        if self._stop is not None:
+            self._stop.set()
+
+    def _on_connected(self, link: MqttLink) -> None:
+        """Status, slaves, the latest values the backlog does not hold, subscriptions,
+        then the backlog and the live records."""
+        ob = self._outbox
+        assert ob is not None
+        link.publish(self.topics.edge_status, ONLINE, 1, True)
+        for (bus, slave), online in self._slaves.items():
+            self._publish_slave(bus, slave, online)
+        self._acked_seq = max(self._acked_seq, ob.acked)  # past what drop-oldest dropped
+        self._cursor = self._acked_seq
+        oldest = self._acked_seq + 1
+        self._historical_below = ob.next_seq
+        qos = self.config.mqtt.qos
+        for topic, (seq, body) in self._latest.items():
+            if seq < oldest:  # delivered before: published again for the retained copy
+                link.publish(topic, payload(body, seq, False), qos, True)
+        if self.config.mqtt.discovery:
+            from .discovery import configs
+
+            for topic, doc in configs(self.config, self.topics):
+                link.publish(topic, doc, 1, True)
+        subs = [self.topics.set_filter, *self.topics.extra_set_topics()]
+        link.subscribe(subs)
+        self.writer.connected(link)
+        self._pump()
+
+    # ------------------------------------------------------------------ figures
+
+    def stats(self) -> dict[str, Any]:
+        """The bridge's figures (JSON-ready; no secret in them)."""
+        ob = self._outbox
+        win = self._window
+        now = time.monotonic()
+        p50, p99 = win.latency(50), win.latency(99)
+        oldest = ob.oldest_time if ob is not None else None
+        return {
+            "edge": self.config.mqtt.edge,
+            "seconds": round(now - self._t0, 3),
+            "connected": self._connected(),
+            "broker": self.config.mqtt.broker,
+            "updates": self.appended,
+            "published": win.published,
+            "acknowledged": win.acknowledged,
+            "outbox_depth": ob.depth if ob is not None else 0,
+            "outbox_bytes": ob.bytes_used if ob is not None else 0,
+            "oldest_unsent_s": None if oldest is None else round(max(0.0, now - oldest), 3),
+            "publish_latency_p50_ms": None if p50 is None else round(p50 * 1e3, 3),
+            "publish_latency_p99_ms": None if p99 is None else round(p99 * 1e3, 3),
+            "drops": (ob.dropped if ob is not None else 0) + self.refused,
+            "connections": self.reconnects,
+            "outages": self._reconnect.outages,
+            "commands": self.writer.stats(),
+            "buses": [r.as_dict() for r in self.poller.report()],
+        }
+
+    async def _stats_loop(self) -> None:
+        import json
+
+        every = self.config.mqtt.stats_interval
+        while True:
+            await asyncio.sleep(every)
+            doc = self.stats()
+            link = self._link
+            if link is not None and link.connected:
+                link.publish(self.topics.stats, json.dumps(doc).encode(), 0, False)
+            self._emit("stats", **doc)
+
+
+__all__ = ["Bridge", "BridgeEvent"]

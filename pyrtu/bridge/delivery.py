@@ -1,0 +1,77 @@
+"""What has been handed to the broker and what it has acknowledged (sans-I/O).
+
+Records are published in sequence order, at most ``window`` of them awaiting the
+broker's acknowledgement.  `Window.sent` records a publication (its seq, the
+client's message id, the time the value was read); `Window.acked` one
+acknowledgement, which may come for any message id; `Window.contiguous` is then the
+highest seq up to which every publication has been acknowledged: what the outbox
+may forget.  `reset` forgets the publications in flight (the connection ended):
+they are published again from the outbox, with the same sequence numbers.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+from ..poller.events import percentile
+
+
+@dataclass(slots=True)
+class _Sent:
+    seq: int
+    read_at: float  # Unix time the value was read off the wire (0: unknown)
+    done: bool = False
+
+
+class Window:
+    """Publications awaiting acknowledgement (see the module docstring)."""
+
+    def __init__(self, window: int) -> None:
+        self.window = window
+        self._order: deque[_Sent] = deque()
+        self._by_mid: dict[int, _Sent] = {}
+        self.contiguous: int | None = None
+        self.latencies: deque[float] = deque(maxlen=4096)
+        self.published = 0
+        self.acknowledged = 0
+
+    def __len__(self) -> int:
+        return len(self._order)
+
+    @property
+    def full(self) -> bool:
+        return len(self._order) >= self.window
+
+    def sent(self, seq: int, mid: int, read_at: float) -> None:
+        s = _Sent(seq, read_at)
+        self._order.append(s)
+        self._by_mid[mid] = s
+        self.published += 1
+
+    def acked(self, mid: int, now: float) -> bool:
+        """An acknowledgement at ``now`` (Unix); True when `contiguous` moved."""
+        s = self._by_mid.pop(mid, None)
+        if s is None:
+            return False  # not a point's record (status, result, stats)
+        s.done = True
+        self.acknowledged += 1
+        if s.read_at:
+            self.latencies.append(now - s.read_at)
+        moved = False
+        order = self._order
+        while order and order[0].done:
+            self.contiguous = order.popleft().seq
+            moved = True
+        return moved
+
+    def reset(self) -> None:
+        self._order.clear()
+        self._by_mid.clear()
+
+    def latency(self, q: float) -> float | None:
+        """Percentile ``q`` of read-to-acknowledgement times (seconds) lately."""
+        return percentile(sorted(self.latencies), q)
+
+
+__all__ = ["Window"]

@@ -1,0 +1,97 @@
+"""Report by exception, with qualities (sans-I/O: time is an input).
+
+The poller hands over every value it reads; `Reporter` says which of them to
+publish: the first of a point, one that differs from the last published beyond
+the point's ``deadband``, one whose quality changes (``stale`` back to ``good``),
+and an unchanged one whose last publication is ``max_age`` old (0: never).  When a
+slave goes offline every one of its points is published again as ``stale`` (the
+last value read and when it was read: never a last good value passed off as live),
+and a point the poller drops (it cannot be read) as ``bad``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+
+from ..poller import Point
+from ..poller.points import Value
+
+
+@dataclass(slots=True)
+class _State:
+    point: Point
+    max_age: float
+    value: Value | None = None  # the last value read
+    time: float = 0.0  # when it was read (Unix time)
+    published: Value | None = None
+    published_at: float = -1e300  # the reporter's clock
+    quality: str = ""  # of the last publication ("": none yet)
+
+
+#: what to publish: (point, value, time read, quality)
+Report = tuple[Point, Value | None, float, str]
+
+
+class Reporter:
+    """Which values to publish (see the module docstring)."""
+
+    def __init__(self, points: Iterable[Point], max_age: Mapping[str, float]) -> None:
+        self._s = {p.name: _State(p, max_age.get(p.name, 0.0)) for p in points}
+        self._by_slave: dict[tuple[str, int], list[_State]] = {}
+        for s in self._s.values():
+            self._by_slave.setdefault((s.point.bus, s.point.slave), []).append(s)
+
+    def update(
+        self, point: Point, value: Value, time: float, now: float, force: bool = False
+    ) -> bool:
+        """A value read at ``time`` (Unix) and seen at ``now`` (any clock): whether
+        to publish it (as ``good``); ``force``: publish it whatever it is."""
+        s = self._s[point.name]
+        s.value = value
+        s.time = time
+        if (
+            force
+            or s.quality != "good"
+            or point.changed(s.published, value)
+            or (s.max_age > 0 and now - s.published_at >= s.max_age)
+        ):
+            s.published = value
+            s.published_at = now
+            s.quality = "good"
+            return True
+        return False
+
+    def slave_state(self, bus: str, slave: int, online: bool, now: float) -> list[Report]:
+        """A slave went offline: every one of its points as ``stale``.  Online: nothing
+        now; each point's next value is published (its quality changes)."""
+        out: list[Report] = []
+        if online:
+            return out
+        for s in self._by_slave.get((bus, slave), ()):
+            if s.quality == "bad":
+                continue
+            s.quality = "stale"
+            s.published_at = now
+            out.append((s.point, s.value, s.time, "stale"))
+        return out
+
+    def dropped(self, point: Point, time: float, now: float) -> Report:
+        """The point cannot be read (found out at ``time``, Unix): ``bad``, value null."""
+        s = self._s[point.name]
+        s.quality = "bad"
+        s.published = None
+        s.published_at = now
+        return (point, None, time, "bad")
+
+    def quality(self, name: str) -> str:
+        """The quality last published for a point ("" before the first)."""
+        return self._s[name].quality
+
+    def last(self, name: str) -> tuple[Value | None, float]:
+        """The last value read of a point and when (None, 0.0: never)."""
+        s = self._s[name]
+        return s.value, s.time
+
+
+__all__ = ["Report", "Reporter"]

@@ -1,0 +1,207 @@
+"""Set commands through a real mosquitto to the simulated CFW701 on the virtual
+bus: written ahead of the polls, read back, the value published at once, the
+result on ``/set/result`` or the MQTT 5 response topic with its correlation
+data; repeated ids executed once; bad commands refused with a result saying why
+and nothing sent; expired commands never executed; a flood bounded."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from mqtt_broker import Broker, Client
+from paho.mqtt.packettypes import PacketTypes
+from paho.mqtt.properties import Properties
+
+from pyrtu._loopthread import LoopThread
+from pyrtu.bridge import parse_bridge_config
+from pyrtu.bridge.bridge import Bridge
+from pyrtu.devices import CFW701Simulator
+from pyrtu.devices import weg as W
+
+vbus = pytest.importorskip("pyrtu.vbus")
+
+BAUD = 115200
+BASE = "pyrtu/e1/line/1"
+
+
+def config(url: str, port: str, outbox: Path, extra: str = "") -> str:
+    return f"""
+[mqtt]
+url = "{url}"
+edge = "e1"
+outbox = "{outbox}"
+command_expiry = 5
+{extra}
+[[bus]]
+name = "line"
+port = "{port}"
+baudrate = {BAUD}
+parity = "N"
+timeout = 0.1
+[[device]]
+bus = "line"
+slave = 1
+profile = "cfw701"
+name = "weg"
+interval = 0.05
+[[point]]
+name = "weg.ref"
+bus = "line"
+slave = 1
+table = "holding"
+address = {W.P_REFERENCE}
+writable = true
+min = 0
+max = 8192
+interval = 1
+[[point]]
+name = "weg.speed_rw"
+bus = "line"
+slave = 1
+table = "holding"
+address = {W.P_MOTOR_SPEED}
+writable = true
+interval = 1
+"""
+
+
+@contextlib.contextmanager
+def rig(tmp: Path, extra: str = "") -> Iterator[tuple[Broker, CFW701Simulator, Bridge, Client]]:
+    with Broker(tmp) as broker, vbus.VirtualBus(2, baudrate=BAUD, parity="N") as bus:
+        sim = CFW701Simulator()
+        sim.serve(bus.paths[1], 1, baudrate=BAUD, parity="N")
+        try:
+            cfg = parse_bridge_config(config(broker.url, bus.paths[0], tmp / "ob", extra), "b.toml")
+            bridge = Bridge(cfg)
+            thread = LoopThread("bridge", bridge.start, bridge.stop)
+            thread.start()
+            try:
+                with Client(broker, ["pyrtu/e1/#"]) as cl:
+                    cl.wait(lambda: bool(cl.on(f"{BASE}/weg.ref")), "the bridge publishing")
+                    yield broker, sim, bridge, cl
+            finally:
+                thread.stop()
+        finally:
+            sim.close()
+
+
+def results(cl: Client, point: str = "weg.ref") -> list[dict[str, Any]]:
+    return [json.loads(p) for p in cl.on(f"{BASE}/{point}/set/result")]
+
+
+def wait_results(cl: Client, n: int, point: str = "weg.ref") -> list[dict[str, Any]]:
+    cl.wait(lambda: len(results(cl, point)) >= n, f"{n} results")
+    return results(cl, point)
+
+
+def ref(sim: CFW701Simulator) -> int:
+    return int(sim.store.holding_registers.get(W.P_REFERENCE))
+
+
+def test_a_write_is_read_back_published_and_answered(tmp_path: Path) -> None:
+    with rig(tmp_path) as (_b, sim, _bridge, cl):
+        cl.publish(f"{BASE}/weg.ref/set", b'{"value": 1000, "id": "a1"}')
+        (res,) = wait_results(cl, 1)
+        assert res == {
+            "ok": True,
+            "point": "weg.ref",
+            "id": "a1",
+            "value": 1000,
+            "time": res["time"],
+        }
+        assert ref(sim) == 1000
+        # the value read back is published at once, as good
+        cl.wait(lambda: json.loads(cl.on(f"{BASE}/weg.ref")[-1])["value"] == 1000, "read-back")
+        # the same id again, another value: executed once, the result sent again
+        cl.publish(f"{BASE}/weg.ref/set", b'{"value": 2000, "id": "a1"}')
+        again = wait_results(cl, 2)[1]
+        assert again == res and ref(sim) == 1000
+        # a bare value, and the MQTT 5 response topic with its correlation data
+        props = Properties(PacketTypes.PUBLISH)
+        props.ResponseTopic = "client/replies"
+        props.CorrelationData = b"\x01req-7"
+        with Client(_b, ["client/replies"]) as asker:
+            asker.publish(f"{BASE}/weg.ref/set", b"3000", properties=props)
+            asker.wait(lambda: bool(asker.messages), "the reply")
+            topic, body, _retain, rprops, _t = asker.messages[0]
+        assert topic == "client/replies" and json.loads(body)["ok"] is True
+        assert rprops.CorrelationData == b"\x01req-7"  # type: ignore[attr-defined]
+        assert ref(sim) == 3000
+
+
+@pytest.mark.parametrize(
+    ("topic", "payload", "retain", "error"),
+    [
+        ("weg.ref", b'{"value": 9000}', False, "validation"),  # above max
+        ("weg.ref", b'{"value": -1}', False, "validation"),  # below min
+        ("weg.ref", b'"fast"', False, "validation"),  # not a number
+        ("weg.ref", b"true", False, "validation"),  # a bool is no number here
+        ("weg.ref", b"{nope", False, "malformed"),
+        ("weg.ref", b'{"value": 1, "extra": 2}', False, "malformed"),
+        ("weg.ref", b"NaN", False, "malformed"),
+        ("weg.ref", b"[1, 2]", False, "malformed"),
+        ("weg.ref", b"1" * 2000, False, "too_large"),
+        ("weg.ref", b"1234", True, "retained"),
+        ("weg.status", b"1", False, "not_writable"),
+        ("no.such.point", b"1", False, "unknown_point"),
+        ("weg.ref", b'{"value": 77, "time": 1000000000}', False, "expired"),
+    ],
+)
+def test_bad_commands_get_a_result_and_nothing_is_sent(
+    tmp_path: Path, topic: str, payload: bytes, retain: bool, error: str
+) -> None:
+    with rig(tmp_path) as (_b, sim, bridge, cl):
+        before = ref(sim)
+        writes_before = bridge.poller.summary()["slaves"][0]["requests"]
+        cl.publish(f"{BASE}/{topic}/set", payload, retain=retain)
+        (res,) = wait_results(cl, 1, topic)
+        assert res["ok"] is False and res["error"] == error, res
+        assert res["message"]
+        assert ref(sim) == before
+        assert bridge.commands.executed == 0
+        assert bridge.poller.summary()["slaves"][0]["requests"] >= writes_before
+        if retain:  # clear it, as a well-behaved client would
+            cl.publish(f"{BASE}/{topic}/set", b"", retain=True)
+
+
+def test_an_exception_answer_is_the_result(tmp_path: Path) -> None:
+    with rig(tmp_path) as (_b, _sim, _bridge, cl):
+        cl.publish(f"{BASE}/weg.speed_rw/set", b"12")  # P002 is read-only: exception 3
+        (res,) = wait_results(cl, 1, "weg.speed_rw")
+        assert res["ok"] is False and res["error"] == "exception" and res["exception_code"] == 3
+
+
+@pytest.mark.wall_clock
+def test_commands_expire_in_the_queue_and_a_flood_is_bounded(tmp_path: Path) -> None:
+    """write_rate 2/s: of 6 commands with an MQTT 5 expiry of 1 s, those whose turn
+    comes after their expiry are answered expired and never written; with a queue of
+    3, a flood of 40 is refused busy beyond it while the polls go on."""
+    with rig(tmp_path, "write_rate = 2\ncommand_queue = 3") as (_b, sim, bridge, cl):
+        props = Properties(PacketTypes.PUBLISH)
+        props.MessageExpiryInterval = 1
+        for i in range(6):
+            cl.publish(f"{BASE}/weg.ref/set", b'{"value": %d}' % (100 + i), properties=props)
+        res = wait_results(cl, 6)
+        kinds = [r.get("error", "ok") for r in res]
+        assert set(kinds) <= {"ok", "expired", "busy"}
+        assert kinds.count("expired") >= 1 and kinds.count("ok") >= 1
+        done = [r["value"] for r in res if r["ok"]]
+        assert ref(sim) == done[-1]
+        assert bridge.commands.executed == len(done)
+        values_before = len(cl.on(f"{BASE}/weg.status"))
+        for i in range(40):
+            cl.client.publish(f"{BASE}/weg.ref/set", b"%d" % i, 1)
+        res = wait_results(cl, 46)
+        assert sum(r.get("error") == "busy" for r in res[6:]) >= 30
+        stats = bridge.stats()["commands"]
+        assert stats["busy"] >= 30
+        assert stats["waiting"] <= 3
+        time.sleep(0.5)
+        assert bridge.stats()["buses"][0]["transactions"] > 0
+        del values_before
