@@ -33,7 +33,7 @@ from types import ModuleType
 from typing import Any, NamedTuple, Protocol
 
 from . import _backend
-from ._pure.predict import DIR_REQUEST, PRED_LENGTH, make_rules, predict
+from ._pure.predict import DIR_REQUEST, PRED_LENGTH, PRED_UNKNOWN, make_rules, predict
 from ._slave_diag import LineState
 from .ascii import encode_ascii, make_framer
 from .errors import SlaveException
@@ -43,6 +43,9 @@ from .line import LineConfig
 log = logging.getLogger("pyrtu.slave")
 
 _MIN_ADU = 4
+#: the longest request length guessed from the address alone: FC 01..06 requests
+#: (Application Protocol V1.1b 6.1-6.6); the shortest (FC 07, 11, 12, 17) are 4 bytes
+_GUESS_MAX = 8
 _REQUEST = 0  # FrameKind.REQUEST, RTU_KIND_REQUEST
 
 COUNTER_NAMES = (
@@ -127,8 +130,6 @@ class ServerProtocol:
         self._sending: Response | None = None
         self._last_valid: float | None = None
         self._tripped = False
-        #: the frame ends of the bytes being given (see `wake_at`): (time, bytes then)
-        self._bound: tuple[float, int] | None = None
 
     def reconfigure(self, line: LineConfig) -> None:
         """Take ``line`` (new rules, say) from now on; bytes being framed are dropped."""
@@ -173,9 +174,19 @@ class ServerProtocol:
         self._received += len(data)
         head = self._head
         head += data
-        self._bound = nap
-        core = self._core
         now_us = round(now * 1_000_000)
+        if nap is not None:
+            # read late after a nap: the bytes came while the port was not watched,
+            # at the character rate after the ones read before it (a frame is one
+            # continuous stream, Serial Line V1.02 2.5.1.1, and a nap ends by the
+            # end of the frame in progress, plus its turnaround), and are timed so.
+            # Timed by the late read they would show the framer a silence that
+            # never was, as long as the nap outlasted the frame, and a lenient
+            # framer drops a frame cut by a silence of flush_timeout (50 ms).
+            at, then = nap
+            stamp = round((at + (self._received - then) * self.char_time) * 1_000_000)
+            now_us = min(stamp, now_us)
+        core = self._core
         took = core.feed(data, now_us)
         self._core_events(core, now)
         stalled = 1 if took == 0 else 0
@@ -186,7 +197,6 @@ class ServerProtocol:
             stalled = stalled + 1 if took == 0 else 0
             if stalled > 2:
                 raise RuntimeError("framer made no progress (internal error)")
-        self._bound = None
         excess = len(head) - (self._received - self._framed)
         if excess > 0:
             del head[:excess]
@@ -265,7 +275,8 @@ class ServerProtocol:
 
         A request to this slave (or a broadcast) whose length the rules give
         (Application Protocol V1.1b section 6, and the registered rules; from the
-        address alone, the last request's length): its end at the character rate,
+        address alone, the last request's length up to 8 bytes; without a rule for
+        its function, that function's last length): its end at the character rate,
         plus the turnaround when it will be answered, less ``lead`` (at most half
         the turnaround, so that the request is in): the driver reads the request,
         prepares the response during the turnaround and sends it at its time
@@ -290,13 +301,17 @@ class ServerProtocol:
             length = 0
             if n >= 2:
                 status, length = predict(self._rules, DIR_REQUEST, bytes(head), n)
-                if status != PRED_LENGTH:
+                if status == PRED_UNKNOWN:  # no rule: this function's last length
                     length = self._last_length if head[1] == self._last_function else 0
+                elif status != PRED_LENGTH:  # the rule needs more bytes: needed()
+                    length = 0
             else:
                 # the function code is not in yet: guess the last request's length (a
-                # master polls the same requests); a wrong guess costs a later answer
-                # or one more wake-up, never an early answer (see receive_data)
-                length = self._last_length
+                # master polls the same requests), but no more than _GUESS_MAX: a
+                # guess too long answers late by what it is too long (past the
+                # master's timeout, from a long write to a short read), one too short
+                # costs one more wake-up; never an early answer (see receive_data)
+                length = min(self._last_length, _GUESS_MAX)
             if n < length <= self.max_adu:
                 self._nap = (now, self._received)
                 end = now + (length - n) * char
@@ -343,7 +358,7 @@ class ServerProtocol:
             if ev.error is not None:
                 self.state.discard_seen(ev.error.value, ev.start, ev.end)
             else:
-                self._on_frame(ev.kind, wire, ev.message, ev.offset, ev.end, now)
+                self._on_frame(ev.kind, wire, ev.message, ev.end, now)
 
     def _core_events(self, core: Any, now: float) -> None:
         """RTU: the core's events, (offset, length, kind, error, start_us, end_us, adu)."""
@@ -356,10 +371,10 @@ class ServerProtocol:
                 assert reason is not None
                 self.state.discard_seen(reason.value, start_us / 1e6, end_us / 1e6)
             else:
-                self._on_frame(kind, adu, adu[:-2], offset, end_us / 1e6, now)
+                self._on_frame(kind, adu, adu[:-2], end_us / 1e6, now)
 
     def _on_frame(
-        self, kind: int, raw: bytes, message: bytes, offset: int, end: float | None, now: float
+        self, kind: int, raw: bytes, message: bytes, end: float | None, now: float
     ) -> None:
         """A frame checked by its CRC or LRC: ``raw`` as on the wire, ``message`` the
         address and PDU, ``kind`` a `FrameKind` (RTU_KIND_*), ``end`` its last byte's
@@ -401,13 +416,6 @@ class ServerProtocol:
             self.state.not_answered()
         if end is None:
             end = now
-        bound = self._bound
-        if bound is not None and offset < bound[1]:
-            # read late after a nap: the frame's last byte came at the character
-            # rate after the bytes read before it (see wake_at)
-            at = bound[0] + (offset + len(raw) - bound[1]) * self.char_time
-            if at < end:
-                end = at
         self._pending = Response(
             unit,
             self._encode(bytes((unit,)) + response),
