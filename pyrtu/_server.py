@@ -140,7 +140,8 @@ class ServerProtocol:
         self._received = 0  # bytes given to the framer
         self._framed = 0  # of which the framer has ended (frames and discards)
         self._head = bytearray()  # RTU: the bytes of the frame in progress
-        self._nap: tuple[float, int] | None = None  # see `wake_at`
+        #: napping (see `wake_at`): (since, bytes given by then, bytes it waits for)
+        self._nap: tuple[float, int, int] | None = None
         self._rules = make_rules(line.rules)
         self._last_length = 0  # of the last request to this slave (see wake_at)
         self._last_function = -1
@@ -176,16 +177,29 @@ class ServerProtocol:
         head += data
         now_us = round(now * 1_000_000)
         if nap is not None:
-            # read late after a nap: the bytes came while the port was not watched,
-            # at the character rate after the ones read before it (a frame is one
-            # continuous stream, Serial Line V1.02 2.5.1.1, and a nap ends by the
-            # end of the frame in progress, plus its turnaround), and are timed so.
-            # Timed by the late read they would show the framer a silence that
-            # never was, as long as the nap outlasted the frame, and a lenient
-            # framer drops a frame cut by a silence of flush_timeout (50 ms).
-            at, then = nap
-            stamp = round((at + (self._received - then) * self.char_time) * 1_000_000)
-            now_us = min(stamp, now_us)
+            # read late after a nap, not watching the port.  The bytes the nap was
+            # for (the rest of the frame in progress: of a request to this slave as
+            # far as its CRC checks, else as many as the nap was sized for) came at
+            # the character rate after the ones read before it (a frame is one
+            # continuous stream, Serial Line V1.02 2.5.1.1), and are timed so; any
+            # after them, by the read.  Timed by the late read, they would show the
+            # framer a silence that never was, as long as the nap outlasted the
+            # frame (a lenient framer drops a frame cut by a silence of
+            # flush_timeout, 50 ms), and hide the one that followed them.
+            at, then, sized = nap
+            ends = self._request_end(len(data)) or min(len(data), sized)
+            done = self._received - len(data) + ends - then
+            stamp = round((at + done * self.char_time) * 1_000_000)
+            self._feed(data[:ends], min(stamp, now_us), now)
+            data = data[ends:]
+        if data:
+            self._feed(data, now_us, now)
+        excess = len(head) - (self._received - self._framed)
+        if excess > 0:
+            del head[:excess]
+
+    def _feed(self, data: bytes, now_us: int, now: float) -> None:
+        """RTU: ``data`` to the framer's core, arrived by ``now_us``; its frames out."""
         core = self._core
         took = core.feed(data, now_us)
         self._core_events(core, now)
@@ -197,9 +211,29 @@ class ServerProtocol:
             stalled = stalled + 1 if took == 0 else 0
             if stalled > 2:
                 raise RuntimeError("framer made no progress (internal error)")
-        excess = len(head) - (self._received - self._framed)
-        if excess > 0:
-            del head[:excess]
+
+    def _request_end(self, count: int) -> int:
+        """How many of the ``count`` bytes just added to the head end the request to
+        this slave (or broadcast) begun before them, its CRC checking: its length
+        from the rules, else (no rule) the first that checks; 0: none ends in them."""
+        head = self._head
+        n = len(head)
+        before = n - count
+        if before < 1 or n < _MIN_ADU or not (head[0] == 0 or head[0] in self.app.addresses):
+            return 0
+        status, length = predict(self._rules, DIR_REQUEST, bytes(head), n)
+        if status == PRED_LENGTH:
+            ok = before < length <= n and self.backend.check_crc(head[:length])
+            return length - before if ok else 0
+        if status != PRED_UNKNOWN:
+            return 0
+        crc16 = self.backend.crc16
+        crc = crc16(head[: _MIN_ADU - 2])
+        for end in range(_MIN_ADU, n + 1):  # a silence-delimited frame: its CRC
+            if end > before and head[end - 2] == crc & 0xFF and head[end - 1] == crc >> 8:
+                return end - before
+            crc = crc16(head[end - 2 : end - 1], crc)
+        return 0
 
     def handle_timer(self, now: float) -> None:
         """Let the time up to ``now`` end what it ends (frames, the watchdog)."""
@@ -313,7 +347,7 @@ class ServerProtocol:
                 # costs one more wake-up; never an early answer (see receive_data)
                 length = min(self._last_length, _GUESS_MAX)
             if n < length <= self.max_adu:
-                self._nap = (now, self._received)
+                self._nap = (now, self._received, length - n)
                 end = now + (length - n) * char
                 if unit == 0 or self.state.listen_only:
                     return end  # not answered
@@ -322,7 +356,7 @@ class ServerProtocol:
         need = self.needed()
         if need <= 0:
             return None
-        self._nap = (now, self._received)
+        self._nap = (now, self._received, need)
         return now + need * char
 
     @property
