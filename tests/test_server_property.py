@@ -210,7 +210,9 @@ class Driver:
                     return
 
 
-def check(backend: ModuleType, baud: int, parity: str, lead: float, script: list[Item], seed: int) -> None:
+def check(
+    backend: ModuleType, baud: int, parity: str, lead: float, script: list[Item], seed: int
+) -> None:
     line = LineConfig(baudrate=baud, parity=parity)
     char, t35 = line.char_time, line.t35_time
     store = DataStore()
