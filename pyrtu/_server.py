@@ -187,7 +187,9 @@ class ServerProtocol:
             # frame (a lenient framer drops a frame cut by a silence of
             # flush_timeout, 50 ms), and hide the one that followed them.
             at, then, sized = nap
-            ends = self._request_end(len(data)) or min(len(data), sized)
+            ends = sized  # the nap's length held (the hot path: a master's poll)
+            if len(data) != sized:
+                ends = self._request_end(len(data)) or min(len(data), sized)
             done = self._received - len(data) + ends - then
             stamp = round((at + done * self.char_time) * 1_000_000)
             self._feed(data[:ends], min(stamp, now_us), now)
