@@ -36,6 +36,7 @@ from . import _backend
 from ._pure.predict import DIR_REQUEST, PRED_LENGTH, PRED_UNKNOWN, make_rules, predict
 from ._slave_diag import LineState
 from .ascii import encode_ascii, make_framer
+from .config import DEFAULT_FLUSH_US
 from .errors import SlaveException
 from .frames import ERROR_BY_CODE, Frame
 from .line import LineConfig
@@ -142,10 +143,17 @@ class ServerProtocol:
         self._head = bytearray()  # RTU: the bytes of the frame in progress
         #: napping (see `wake_at`): (since, bytes given by then, bytes it waits for)
         self._nap: tuple[float, int, int] | None = None
+        #: the last bytes read after a nap: (from, to) in the stream, and when
+        self._late: tuple[int, int, float] | None = None
         self._rules = make_rules(line.rules)
         self._last_length = 0  # of the last request to this slave (see wake_at)
         self._last_function = -1
         self.max_adu = line.max_adu
+        #: the longest nap (see `wake_at`): half the silence after which a lenient
+        #: framer drops an incomplete frame, so that no timing of the bytes read
+        #: after a nap invents a silence that long
+        flush = DEFAULT_FLUSH_US / 1e6 if line.flush_timeout is None else line.flush_timeout
+        self._nap_limit = max(flush, line.t35_time) / 2
         #: the silence kept after a request (t3.5 in RTU; none in ASCII)
         self.turnaround = line.frame_gap
         self.char_time = line.char_time
@@ -177,23 +185,27 @@ class ServerProtocol:
         head += data
         now_us = round(now * 1_000_000)
         if nap is not None:
-            # read late after a nap, not watching the port.  The bytes the nap was
-            # for (the rest of the frame in progress: of a request to this slave as
-            # far as its CRC checks, else as many as the nap was sized for) came at
-            # the character rate after the ones read before it (a frame is one
-            # continuous stream, Serial Line V1.02 2.5.1.1), and are timed so; any
-            # after them, by the read.  Timed by the late read, they would show the
-            # framer a silence that never was, as long as the nap outlasted the
-            # frame (a lenient framer drops a frame cut by a silence of
-            # flush_timeout, 50 ms), and hide the one that followed them.
+            # read late after a nap, not watching the port.  The bytes that end the
+            # frame in progress came at the character rate after the ones read
+            # before it (a frame is one continuous stream, Serial Line V1.02
+            # 2.5.1.1), and are timed so: those the nap was sized for, or else
+            # those that end a request to this slave, its CRC checking.  Timed by
+            # the late read, they would show the framer a silence that never was,
+            # the nap's excess over the frame (a guess too long), and a lenient
+            # framer drops a frame cut by a silence of flush_timeout.  The bytes
+            # after them, and all when no request ends in them (noise that looked
+            # like one, and what came after it), by the read; a nap never lasts more
+            # than half the flush timeout (`_sleep`), so that no timing invents a
+            # silence that long.  A frame all in these bytes may have come at any
+            # time in the nap: its answer's time counts from the read (`_on_frame`).
             at, then, sized = nap
-            ends = sized  # the nap's length held (the hot path: a master's poll)
-            if len(data) != sized:
-                ends = self._request_end(len(data)) or min(len(data), sized)
-            done = self._received - len(data) + ends - then
-            stamp = round((at + done * self.char_time) * 1_000_000)
-            self._feed(data[:ends], min(stamp, now_us), now)
-            data = data[ends:]
+            count = len(data)
+            ends = count if count == sized else self._request_end(count)
+            if ends:
+                stamp = at + (self._received - count + ends - then) * self.char_time
+                self._late = (then, self._received, now)
+                self._feed(data[:ends], min(round(stamp * 1_000_000), now_us), now)
+                data = data[ends:]
         if data:
             self._feed(data, now_us, now)
         excess = len(head) - (self._received - self._framed)
@@ -231,7 +243,7 @@ class ServerProtocol:
             return 0
         crc16 = self.backend.crc16
         crc = crc16(head[: _MIN_ADU - 2])
-        for end in range(_MIN_ADU, n + 1):  # a silence-delimited frame: its CRC
+        for end in range(_MIN_ADU, n + 1):  # framed by its silence: where its CRC checks
             if end > before and head[end - 2] == crc & 0xFF and head[end - 1] == crc >> 8:
                 return end - before
             crc = crc16(head[end - 2 : end - 1], crc)
@@ -318,14 +330,17 @@ class ServerProtocol:
         prepares the response during the turnaround and sends it at its time
         (`deadline`); with ``lead`` 0 it reads, executes and sends in one wake-up, a
         little late.  Any other frame in progress: ``needed()`` characters (the
-        least it can still take).  RTU only (ASCII frames end at a delimiter, not at
-        a length); none while a response waits or an echo is due.
+        least it can still take).  Never more than half the flush timeout (a frame
+        longer on the wire takes one wake-up more per such nap).  RTU only (ASCII
+        frames end at a delimiter, not at a length); none while a response waits or
+        an echo is due.
 
         The bytes the driver reads after the nap must be given to `receive_data`
         (even none): the frame they end is taken to have ended by its last byte's
         time at the character rate from ``now``, not by the late read (a frame is
         sent as a continuous stream, Serial Line V1.02 2.5.1.1), so the response
-        still goes out t3.5 after the frame's end on the line.
+        still goes out t3.5 after the frame's end on the line, and the framer sees
+        no silence inside it whatever the nap's excess over it.
         """
         head = self._head
         n = len(head)
@@ -349,17 +364,25 @@ class ServerProtocol:
                 # costs one more wake-up; never an early answer (see receive_data)
                 length = min(self._last_length, _GUESS_MAX)
             if n < length <= self.max_adu:
-                self._nap = (now, self._received, length - n)
                 end = now + (length - n) * char
-                if unit == 0 or self.state.listen_only:
-                    return end  # not answered
-                turnaround = self.turnaround
-                return end + turnaround - min(lead, 0.5 * turnaround)
+                if unit != 0 and not self.state.listen_only:  # answered: the turnaround
+                    turnaround = self.turnaround
+                    end += turnaround - min(lead, 0.5 * turnaround)
+                return self._sleep(now, length - n, end)
         need = self.needed()
         if need <= 0:
             return None
-        self._nap = (now, self._received, need)
-        return now + need * char
+        return self._sleep(now, need, now + need * char)
+
+    def _sleep(self, now: float, count: int, until: float) -> float:
+        """A nap from ``now`` for ``count`` more bytes until ``until``, or the longest
+        nap (`_nap_limit`, and as many bytes as come in it): when it ends."""
+        limit = now + self._nap_limit
+        if until > limit:
+            until = limit
+            count = min(count, int(self._nap_limit / self.char_time))
+        self._nap = (now, self._received, count)
+        return until
 
     @property
     def pending(self) -> Response | None:
@@ -394,7 +417,7 @@ class ServerProtocol:
             if ev.error is not None:
                 self.state.discard_seen(ev.error.value, ev.start, ev.end)
             else:
-                self._on_frame(ev.kind, wire, ev.message, ev.end, now)
+                self._on_frame(ev.kind, wire, ev.message, ev.offset, ev.end, now)
 
     def _core_events(self, core: Any, now: float) -> None:
         """RTU: the core's events, (offset, length, kind, error, start_us, end_us, adu)."""
@@ -407,10 +430,10 @@ class ServerProtocol:
                 assert reason is not None
                 self.state.discard_seen(reason.value, start_us / 1e6, end_us / 1e6)
             else:
-                self._on_frame(kind, adu, adu[:-2], end_us / 1e6, now)
+                self._on_frame(kind, adu, adu[:-2], offset, end_us / 1e6, now)
 
     def _on_frame(
-        self, kind: int, raw: bytes, message: bytes, end: float | None, now: float
+        self, kind: int, raw: bytes, message: bytes, offset: int, end: float | None, now: float
     ) -> None:
         """A frame checked by its CRC or LRC: ``raw`` as on the wire, ``message`` the
         address and PDU, ``kind`` a `FrameKind` (RTU_KIND_*), ``end`` its last byte's
@@ -450,7 +473,10 @@ class ServerProtocol:
             return
         if self._pending is not None:
             self.state.not_answered()
-        if end is None:
+        late = self._late
+        if late is not None and late[0] <= offset and offset + len(raw) <= late[1]:
+            end = late[2]  # a frame all in the bytes read after a nap: see receive_data
+        elif end is None:
             end = now
         self._pending = Response(
             unit,

@@ -125,8 +125,8 @@ def test_the_reported_sequence_on_synthetic_time(backend: ModuleType, baud: int)
 def test_a_nap_longer_than_the_request_loses_nothing(backend: ModuleType) -> None:
     """A vendor function without a length rule is guessed at its last length: after a
     long one, a short one ends long before the nap.  Read late, its bytes are timed
-    at the character rate after the first one, so it is answered (not dropped as cut
-    by a silence of the flush timeout) no sooner than t3.5 after its real end."""
+    at the character rate after the first two, so it is answered at t3.5 after its
+    real end (not at t3.5 after the late read)."""
     line = LineConfig(baudrate=9600, parity="N")
     h = Line(backend, line)
     h.app.register_function(0x41, lambda slave, unit, pdu: pdu[:4])
@@ -138,7 +138,9 @@ def test_a_nap_longer_than_the_request_loses_nothing(backend: ModuleType) -> Non
     proto = h.proto
     proto.receive_data(adu[:2], t0)
     at = proto.wake_at(t0)
-    assert at is not None and at > t0 + 100 * h.char  # the guess: the last length
+    # the guess: the last length, 124 bytes, for a nap of at most half the flush
+    # timeout (25 ms, 24 characters): it outlasts the 7-byte request all the same
+    assert at == pytest.approx(t0 + 0.025)
     proto.receive_data(adu[2:], at)  # read late, all of it
     if proto.pending is None:
         proto.handle_timer(at)
@@ -248,3 +250,30 @@ def test_minimalmodbus_reads_after_the_long_write(backend: ModuleType) -> None:
         finally:
             inst.serial.close()
         assert slave.counters["bus_communication_error_count"] == 0
+
+
+def test_a_nap_lasts_at_most_half_the_flush_timeout(backend: ModuleType) -> None:
+    """A 255-byte write at 9600 baud (266 ms): naps of 25 ms at most (half the flush
+    timeout), so that nothing read after one can show the framer a silence it would
+    end a frame on; the write is answered at t3.5 after its end all the same."""
+    line = LineConfig(baudrate=9600, parity="N")
+    h = Line(backend, line)
+    proto = h.proto
+    naps: list[float] = []
+    wake_at = proto.wake_at
+
+    def recording(now: float, lead: float = 0.0) -> float | None:
+        at = wake_at(now, lead)
+        if at is not None:
+            naps.append(at - now)
+        return at
+
+    proto.wake_at = recording  # type: ignore[method-assign]
+    write = P.write_registers_request(0, list(range(123)))
+    end = h.now + 0.2 + (len(write) + 3) * h.char  # its last byte (see Line.transact)
+    out = h.transact(write)
+    assert out == backend.add_crc(bytes((ADDRESS,)) + write[:5])
+    sent = h.now - len(out) * h.char
+    assert end + line.t35_time - 1e-6 <= sent <= end + line.t35_time + 1e-3
+    assert max(naps) == pytest.approx(0.025)
+    assert len(naps) >= 266 // 25
