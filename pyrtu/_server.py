@@ -204,7 +204,8 @@ class ServerProtocol:
             if ends:
                 stamp = at + (self._received - count + ends - then) * self.char_time
                 self._late = (then, self._received, now)
-                self._feed(data[:ends], min(round(stamp * 1_000_000), now_us), now)
+                # (down to the microsecond: the answer is due when the nap ends)
+                self._feed(data[:ends], min(int(stamp * 1_000_000), now_us), now)
                 data = data[ends:]
         if data:
             self._feed(data, now_us, now)
