@@ -8,13 +8,15 @@ an unknown function), to this slave and to another, the other slave's responses,
 broadcasts and noise, each after a silence of t3.5 or more (up to past the
 framer's flush timeout).  The bytes of a frame follow each other at the character
 rate; the host gets them in random batches (a USB adapter's latency, short of
-t3.5 as on any line where silences delimit frames), and the
-driver wakes a little late, as `Slave` (a lead of `PREPARE`) or `AsyncSlave`
-(none) drive the protocol: the first bytes, the naps of `wake_at`, the deadline.
-The master waits for each answer before it goes on.  Every request to this slave
-gets exactly one answer, of its function, no sooner than t3.5 after its last
-byte; nothing else is answered.  Both backends.  (Noise whose CRC checks with
-the bytes after it is left out: a lenient framer takes that for a frame.)
+t3.5 as on any line where silences delimit frames), and the driver wakes a
+little late, as `Slave` (a lead of `PREPARE`) or `AsyncSlave` (none) drive the
+protocol: the first bytes, the naps of `wake_at`, the deadline.  The master
+waits for each answer before it goes on.  Every request to this slave gets
+exactly one answer, of its function, no sooner than t3.5 after its last byte
+(and, a length rule sizing it and no noise before it, no later than 4 characters
+plus the delays); nothing else is answered.  Both backends.  (Noise whose CRC
+checks with the bytes after it is left out: a lenient framer takes that for a
+frame.)
 """
 
 from __future__ import annotations
