@@ -14,7 +14,9 @@ deadline is a ``loop.call_at`` timer.  When the first bytes of a frame come, the
 reader is set aside until the protocol's `wake_at` (the frame's end, and for a
 request to this slave the end of its t3.5 as well): the rest is read, the request
 executed and the response written in that one wake-up (lenient mode): two
-wake-ups per transaction.  (asyncio's epoll loop rounds its waits up to whole
+wake-ups per transaction, three for a request longer than 8 bytes (its length is
+known once 8 bytes are in), and one more per 25 ms of a longer one (see
+`pyrtu.slave`).  (asyncio's epoll loop rounds its waits up to whole
 milliseconds, so the answer goes out up to 1 ms after its time; preparing it
 sooner would only add a wake-up with the same rounding.)  A port
 without a file descriptor (a pyserial URL) is read by a worker thread with

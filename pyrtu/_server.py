@@ -33,9 +33,10 @@ from types import ModuleType
 from typing import Any, NamedTuple, Protocol
 
 from . import _backend
-from ._pure.predict import DIR_REQUEST, PRED_LENGTH, make_rules, predict
+from ._pure.predict import DIR_REQUEST, PRED_LENGTH, PRED_UNKNOWN, make_rules, predict
 from ._slave_diag import LineState
 from .ascii import encode_ascii, make_framer
+from .config import DEFAULT_FLUSH_US
 from .errors import SlaveException
 from .frames import ERROR_BY_CODE, Frame
 from .line import LineConfig
@@ -43,6 +44,9 @@ from .line import LineConfig
 log = logging.getLogger("pyrtu.slave")
 
 _MIN_ADU = 4
+#: the longest request length guessed from the address alone: FC 01..06 requests
+#: (Application Protocol V1.1b 6.1-6.6); the shortest (FC 07, 11, 12, 17) are 4 bytes
+_GUESS_MAX = 8
 _REQUEST = 0  # FrameKind.REQUEST, RTU_KIND_REQUEST
 
 COUNTER_NAMES = (
@@ -127,8 +131,6 @@ class ServerProtocol:
         self._sending: Response | None = None
         self._last_valid: float | None = None
         self._tripped = False
-        #: the frame ends of the bytes being given (see `wake_at`): (time, bytes then)
-        self._bound: tuple[float, int] | None = None
 
     def reconfigure(self, line: LineConfig) -> None:
         """Take ``line`` (new rules, say) from now on; bytes being framed are dropped."""
@@ -139,11 +141,19 @@ class ServerProtocol:
         self._received = 0  # bytes given to the framer
         self._framed = 0  # of which the framer has ended (frames and discards)
         self._head = bytearray()  # RTU: the bytes of the frame in progress
-        self._nap: tuple[float, int] | None = None  # see `wake_at`
+        #: napping (see `wake_at`): (since, bytes given by then, bytes it waits for)
+        self._nap: tuple[float, int, int] | None = None
+        #: the last bytes read after a nap: (from, to) in the stream, and when
+        self._late: tuple[int, int, float] | None = None
         self._rules = make_rules(line.rules)
         self._last_length = 0  # of the last request to this slave (see wake_at)
         self._last_function = -1
         self.max_adu = line.max_adu
+        #: the longest nap (see `wake_at`): half the silence after which a lenient
+        #: framer drops an incomplete frame, so that no timing of the bytes read
+        #: after a nap invents a silence that long
+        flush = DEFAULT_FLUSH_US / 1e6 if line.flush_timeout is None else line.flush_timeout
+        self._nap_limit = max(flush, line.t35_time) / 2
         #: the silence kept after a request (t3.5 in RTU; none in ASCII)
         self.turnaround = line.frame_gap
         self.char_time = line.char_time
@@ -173,9 +183,39 @@ class ServerProtocol:
         self._received += len(data)
         head = self._head
         head += data
-        self._bound = nap
-        core = self._core
         now_us = round(now * 1_000_000)
+        if nap is not None:
+            # read late after a nap, not watching the port.  The bytes that end the
+            # frame in progress came at the character rate after the ones read
+            # before it (a frame is one continuous stream, Serial Line V1.02
+            # 2.5.1.1), and are timed so: those the nap was sized for, or else
+            # those that end a request to this slave, its CRC checking.  Timed by
+            # the late read, they would show the framer a silence that never was,
+            # the nap's excess over the frame (a guess too long), and a lenient
+            # framer drops a frame cut by a silence of flush_timeout.  The bytes
+            # after them, and all when no request ends in them (noise that looked
+            # like one, and what came after it), by the read; a nap never lasts more
+            # than half the flush timeout (`_sleep`), so that no timing invents a
+            # silence that long.  A frame all in these bytes may have come at any
+            # time in the nap: its answer's time counts from the read (`_on_frame`).
+            at, then, sized = nap
+            count = len(data)
+            ends = count if count == sized else self._request_end(count)
+            if ends:
+                stamp = at + (self._received - count + ends - then) * self.char_time
+                self._late = (then, self._received, now)
+                # (down to the microsecond: the answer is due when the nap ends)
+                self._feed(data[:ends], min(int(stamp * 1_000_000), now_us), now)
+                data = data[ends:]
+        if data:
+            self._feed(data, now_us, now)
+        excess = len(head) - (self._received - self._framed)
+        if excess > 0:
+            del head[:excess]
+
+    def _feed(self, data: bytes, now_us: int, now: float) -> None:
+        """RTU: ``data`` to the framer's core, arrived by ``now_us``; its frames out."""
+        core = self._core
         took = core.feed(data, now_us)
         self._core_events(core, now)
         stalled = 1 if took == 0 else 0
@@ -186,10 +226,29 @@ class ServerProtocol:
             stalled = stalled + 1 if took == 0 else 0
             if stalled > 2:
                 raise RuntimeError("framer made no progress (internal error)")
-        self._bound = None
-        excess = len(head) - (self._received - self._framed)
-        if excess > 0:
-            del head[:excess]
+
+    def _request_end(self, count: int) -> int:
+        """How many of the ``count`` bytes just added to the head end the request to
+        this slave (or broadcast) begun before them, its CRC checking: its length
+        from the rules, else (no rule) the first that checks; 0: none ends in them."""
+        head = self._head
+        n = len(head)
+        before = n - count
+        if before < 1 or n < _MIN_ADU or not (head[0] == 0 or head[0] in self.app.addresses):
+            return 0
+        status, length = predict(self._rules, DIR_REQUEST, bytes(head), n)
+        if status == PRED_LENGTH:
+            ok = before < length <= n and self.backend.check_crc(head[:length])
+            return length - before if ok else 0
+        if status != PRED_UNKNOWN:
+            return 0
+        crc16 = self.backend.crc16
+        crc = crc16(head[: _MIN_ADU - 2])
+        for end in range(_MIN_ADU, n + 1):  # framed by its silence: where its CRC checks
+            if end > before and head[end - 2] == crc & 0xFF and head[end - 1] == crc >> 8:
+                return end - before
+            crc = crc16(head[end - 2 : end - 1], crc)
+        return 0
 
     def handle_timer(self, now: float) -> None:
         """Let the time up to ``now`` end what it ends (frames, the watchdog)."""
@@ -265,20 +324,24 @@ class ServerProtocol:
 
         A request to this slave (or a broadcast) whose length the rules give
         (Application Protocol V1.1b section 6, and the registered rules; from the
-        address alone, the last request's length): its end at the character rate,
+        address alone, the last request's length up to 8 bytes; without a rule for
+        its function, that function's last length): its end at the character rate,
         plus the turnaround when it will be answered, less ``lead`` (at most half
         the turnaround, so that the request is in): the driver reads the request,
         prepares the response during the turnaround and sends it at its time
         (`deadline`); with ``lead`` 0 it reads, executes and sends in one wake-up, a
         little late.  Any other frame in progress: ``needed()`` characters (the
-        least it can still take).  RTU only (ASCII frames end at a delimiter, not at
-        a length); none while a response waits or an echo is due.
+        least it can still take).  Never more than half the flush timeout (a frame
+        longer on the wire takes one wake-up more per such nap).  RTU only (ASCII
+        frames end at a delimiter, not at a length); none while a response waits or
+        an echo is due.
 
         The bytes the driver reads after the nap must be given to `receive_data`
         (even none): the frame they end is taken to have ended by its last byte's
         time at the character rate from ``now``, not by the late read (a frame is
         sent as a continuous stream, Serial Line V1.02 2.5.1.1), so the response
-        still goes out t3.5 after the frame's end on the line.
+        still goes out t3.5 after the frame's end on the line, and the framer sees
+        no silence inside it whatever the nap's excess over it.
         """
         head = self._head
         n = len(head)
@@ -290,25 +353,37 @@ class ServerProtocol:
             length = 0
             if n >= 2:
                 status, length = predict(self._rules, DIR_REQUEST, bytes(head), n)
-                if status != PRED_LENGTH:
+                if status == PRED_UNKNOWN:  # no rule: this function's last length
                     length = self._last_length if head[1] == self._last_function else 0
+                elif status != PRED_LENGTH:  # the rule needs more bytes: needed()
+                    length = 0
             else:
                 # the function code is not in yet: guess the last request's length (a
-                # master polls the same requests); a wrong guess costs a later answer
-                # or one more wake-up, never an early answer (see receive_data)
-                length = self._last_length
+                # master polls the same requests), but no more than _GUESS_MAX: a
+                # guess too long answers late by what it is too long (past the
+                # master's timeout, from a long write to a short read), one too short
+                # costs one more wake-up; never an early answer (see receive_data)
+                length = min(self._last_length, _GUESS_MAX)
             if n < length <= self.max_adu:
-                self._nap = (now, self._received)
                 end = now + (length - n) * char
-                if unit == 0 or self.state.listen_only:
-                    return end  # not answered
-                turnaround = self.turnaround
-                return end + turnaround - min(lead, 0.5 * turnaround)
+                if unit != 0 and not self.state.listen_only:  # answered: the turnaround
+                    turnaround = self.turnaround
+                    end += turnaround - min(lead, 0.5 * turnaround)
+                return self._sleep(now, length - n, end)
         need = self.needed()
         if need <= 0:
             return None
-        self._nap = (now, self._received)
-        return now + need * char
+        return self._sleep(now, need, now + need * char)
+
+    def _sleep(self, now: float, count: int, until: float) -> float:
+        """A nap from ``now`` for ``count`` more bytes until ``until``, or the longest
+        nap (`_nap_limit`, and as many bytes as come in it): when it ends."""
+        limit = now + self._nap_limit
+        if until > limit:
+            until = limit
+            count = min(count, int(self._nap_limit / self.char_time))
+        self._nap = (now, self._received, count)
+        return until
 
     @property
     def pending(self) -> Response | None:
@@ -399,15 +474,11 @@ class ServerProtocol:
             return
         if self._pending is not None:
             self.state.not_answered()
-        if end is None:
+        late = self._late
+        if late is not None and late[0] <= offset and offset + len(raw) <= late[1]:
+            end = late[2]  # a frame all in the bytes read after a nap: see receive_data
+        elif end is None:
             end = now
-        bound = self._bound
-        if bound is not None and offset < bound[1]:
-            # read late after a nap: the frame's last byte came at the character
-            # rate after the bytes read before it (see wake_at)
-            at = bound[0] + (offset + len(raw) - bound[1]) * self.char_time
-            if at < end:
-                end = at
         self._pending = Response(
             unit,
             self._encode(bytes((unit,)) + response),

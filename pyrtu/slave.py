@@ -25,10 +25,16 @@ protocol's `wake_at`: for a request to this slave, `PREPARE` before the end of t
 request (its length from the rules) plus t3.5; it reads the rest, executes the
 request, and writes the response at its time after one more short wait.  Three
 wake-ups per transaction (the first byte, the request, the answer) instead of one
-per byte (lenient mode; strict mode sees every gap).  The serving thread's timer
-slack is set to 1 µs (Linux) so that the answer's wait ends on time.  The lock is held only while
-the protocol runs, never while waiting.  Ports without a file descriptor (pyserial
-URLs) are read with a 50 ms timeout, which bounds `stop` there.
+per byte (lenient mode; strict mode sees every gap); four for a request longer
+than 8 bytes (a write of several registers or coils), whose length the first byte
+cannot tell: the slave wakes once more when 8 bytes are in, rather than sleep
+through the next request for the last one's length; and one more per half flush
+timeout (25 ms) of a longer request (at 9600 baud, one of over 24 bytes), so that
+the bytes read after a nap never hide or invent a silence the framer acts on.
+The serving thread's timer slack is set to 1 µs (Linux) so that the answer's wait
+ends on time.  The lock is held only while the protocol runs, never while waiting.
+Ports without a file descriptor (pyserial URLs) are read with a 50 ms timeout,
+which bounds `stop` there.
 
 The diagnostic counters, event log and listen-only mode of the serial line
 (FC 08, 11, 12) are per port (`pyrtu._slave_diag.LineState`).

@@ -456,7 +456,8 @@ def test_driven_naps_never_answer_early(
 ) -> None:
     """Whatever the guess and the driver's lateness, the answer goes out no sooner
     than t3.5 after the request's last byte, and on time plus the lateness when
-    the guess holds; a repeated request takes two wake-ups."""
+    the guess holds; a repeated request takes two wake-ups, three when it is longer
+    than the 8 bytes guessed from the address alone."""
     h = Harness(backend)
     adu = h.adu(message)
     for i, first in enumerate([read_request(), message, message]):
@@ -465,7 +466,7 @@ def test_driven_naps_never_answer_early(
         assert sent >= end + T35 - 1e-9
         if i == 2:  # the same request again: the guess holds
             assert sent <= end + T35 + latency + CHAR + 1e-9
-            assert wakeups == 2
+            assert wakeups == (2 if len(request) <= 8 else 3)
         h.now = sent + (len(adu) + 60) * CHAR + T35
 
 
