@@ -24,6 +24,7 @@ from pyrtu.errors import (
 def test_every_command_is_registered_in_order() -> None:
     names = ["read", "write", "poll", "scan", "info", "sniff", "simulate", "vbus", "demo"]
     names.append("gateway")  # registered after the built-ins (pyrtu.commands.gateway)
+    names.append("bridge")  # then the MQTT bridge (pyrtu.commands.bridge)
     assert list(COMMANDS) == names
 
 
