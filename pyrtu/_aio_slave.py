@@ -10,16 +10,15 @@ slaves (ports) share one event loop and one thread::
                 tg.create_task(s.serve())
 
 A port with a file descriptor is watched with ``loop.add_reader``; the protocol's
-deadline is a ``loop.call_at`` timer.  When the first bytes of a frame come, the
-reader is set aside until the protocol's `wake_at` (the frame's end, and for a
-request to this slave the end of its t3.5 as well): the rest is read, the request
-executed and the response written in that one wake-up (lenient mode): two
-wake-ups per transaction, three for a request longer than 8 bytes (its length is
-known once 8 bytes are in), and one more per 25 ms of a longer one (see
-`pyrtu.slave`).  (asyncio's epoll loop rounds its waits up to whole
-milliseconds, so the answer goes out up to 1 ms after its time; preparing it
-sooner would only add a wake-up with the same rounding.)  A port
-without a file descriptor (a pyserial URL) is read by a worker thread with
+deadline is a timer of `pyrtu._ptimer` (the loop's own on `pyrtu.aio.run`'s loop, a
+timerfd on loops whose timers are whole milliseconds: asyncio's epoll loop, uvloop).
+When the first bytes of a frame come, the reader is set aside until the protocol's
+`wake_at` (the frame's end, and for a request to this slave the end of its t3.5 as
+well): the rest is read, the request executed and the response written in that one
+wake-up (lenient mode): two wake-ups per transaction, three for a request longer
+than 8 bytes (its length is known once 8 bytes are in), and one more per 25 ms of a
+longer one (see `pyrtu.slave`).  A port without a file descriptor (a pyserial URL)
+is read by a worker thread with
 pyserial's generic reads, which hands the bytes to the loop.
 
 A port that fails (unplugged) ends `serve` with the `PortError`; the port is
@@ -36,6 +35,7 @@ import threading
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
+from . import _ptimer
 from ._slave_base import SlaveBase, line_from_keywords
 from .datastore import DataStore
 from .errors import PortError
@@ -95,7 +95,7 @@ class AsyncSlave(SlaveBase):
         self._loop: asyncio.AbstractEventLoop | None = None
         self._done: asyncio.Future[None] | None = None
         self._task: asyncio.Task[None] | None = None
-        self._timer: asyncio.TimerHandle | None = None
+        self._timer: asyncio.TimerHandle | _ptimer.TimerHandle | None = None
         self._timer_at: float | None = None
         self._reading = False  # the reader is installed (not set aside for a frame)
         self._resume_at: float | None = None  # when a set-aside reader comes back
@@ -285,7 +285,7 @@ class AsyncSlave(SlaveBase):
         if self._timer is not None:
             self._timer.cancel()
         self._timer_at = at
-        self._timer = None if at is None else self._loop.call_at(at, self._on_timer)
+        self._timer = None if at is None else _ptimer.call_at(self._loop, at, self._on_timer)
 
     def _on_timer(self) -> None:
         assert self._loop is not None

@@ -19,6 +19,7 @@ Deadlines are ``time.monotonic()`` seconds, as the protocols give them.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import ctypes
 import heapq
 import itertools
@@ -97,13 +98,30 @@ class _TimerFd:
             raise OSError(err, f"timerfd_create: {os.strerror(err)}")
         self.fd = fd
         _slack.tighten_this_thread()  # the loop's thread: 1 us of slack on its waits
-        self._loop = loop
         self._heap: list[tuple[float, int, TimerHandle]] = []
         self._seq = itertools.count()
         self._armed: float | None = None
         self._spec = _Itimerspec()
-        loop.add_reader(fd, self._fire)
-        weakref.finalize(loop, os.close, fd)
+        try:
+            loop.add_reader(fd, self._fire)
+        except BaseException:
+            os.close(fd)
+            raise
+        # the descriptor goes with the loop: closed by loop.close() (wrapped here),
+        # or when the loop is collected if its close cannot be wrapped.  Nothing
+        # here refers to the loop, so the weak mapping below can let it go.
+        closer = weakref.finalize(loop, os.close, fd)
+        close = loop.close
+
+        def close_too() -> None:
+            try:
+                close()
+            finally:
+                _timers.pop(loop, None)
+                closer()
+
+        with contextlib.suppress(AttributeError, TypeError):
+            loop.close = close_too  # type: ignore[method-assign]
 
     def add(self, handle: TimerHandle) -> None:
         heapq.heappush(self._heap, (handle.when, next(self._seq), handle))

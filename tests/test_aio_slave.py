@@ -10,8 +10,9 @@ import asyncio
 import os
 import random
 import socket
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from types import ModuleType
+from typing import Any
 
 import pytest
 import serial
@@ -61,8 +62,22 @@ def test_master_against_async_slave_on_a_pty(link: PtyLink, backend: ModuleType)
     asyncio.run(main())
 
 
+def _uvloop_run(main: Any) -> Any:
+    uvloop = pytest.importorskip("uvloop")
+    return uvloop.run(main)
+
+
+#: the event loops the slaves keep their timing on (pyrtu._ptimer)
+RUNNERS: dict[str, Callable[[Any], Any]] = {
+    "asyncio": asyncio.run,
+    "pyrtu": aio_run,
+    "uvloop": _uvloop_run,
+}
+
+
+@pytest.mark.parametrize("runner", sorted(RUNNERS))
 @pytest.mark.parametrize("mode", ["rtu", "ascii"])
-def test_three_async_slaves_share_a_virtual_bus(mode: str) -> None:
+def test_three_async_slaves_share_a_virtual_bus(mode: str, runner: str) -> None:
     """Drop 0: the sync master; drops 1-3: AsyncSlaves 1-3 in one loop (spec timing)."""
 
     async def main(bus: VirtualBus) -> None:
@@ -98,7 +113,7 @@ def test_three_async_slaves_share_a_virtual_bus(mode: str) -> None:
         assert all(t.done() for t in tasks)
 
     with VirtualBus(4, baudrate=BAUD, parity="E") as bus:
-        asyncio.run(main(bus))
+        RUNNERS[runner](main(bus))
 
 
 def test_many_ports_in_one_loop() -> None:

@@ -91,3 +91,18 @@ def test_wake_ups_on_a_foreign_loop_are_late_by_characters_not_a_millisecond(
         return lates[len(lates) // 2]
 
     assert RUNNERS[runner](main()) < 3 * 10 / 115200
+
+
+@linux
+@pytest.mark.parametrize("runner", sorted(RUNNERS))
+def test_the_timerfd_goes_with_its_loop(runner: str) -> None:
+    """A loop that used precise timers leaves no descriptor behind once closed."""
+    import os
+
+    async def main() -> None:
+        await _ptimer.sleep_until(time.monotonic() + 0.001)
+
+    before = len(os.listdir("/proc/self/fd"))
+    for _ in range(5):
+        RUNNERS[runner](main())
+    assert len(os.listdir("/proc/self/fd")) == before
