@@ -123,9 +123,7 @@ def test_c_noop(benchmark: Any, payload: tuple[str, bytes], _noop_lib: Any) -> N
     _run(benchmark, label, data, _noop_lib.bench_noop)
 
 
-def test_c_noop_same_arguments(
-    benchmark: Any, payload: tuple[str, bytes], _noop_lib: Any
-) -> None:
+def test_c_noop_same_arguments(benchmark: Any, payload: tuple[str, bytes], _noop_lib: Any) -> None:
     """An empty C function with crc16's arguments (bytes, length, seed): the floor of
     any cffi call of this shape."""
     label, data = payload
