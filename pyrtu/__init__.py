@@ -1,7 +1,8 @@
 """pyrtu: a Modbus RTU toolkit whose hot path is C.
 
-The backend is chosen once, here: the C core when it is built, else the
-pure-Python twin.  ``PYRTU_PURE=1`` forces the twin; ``PYRTU_REQUIRE_C=1`` makes
+The backend is chosen once, by `pyrtu._backend` at import: the C core when it is
+built, else the pure-Python twin; this package re-exports its names.
+``PYRTU_PURE=1`` forces the twin; ``PYRTU_REQUIRE_C=1`` makes
 the import fail when the C core is missing.  ``pyrtu.BACKEND`` says which runs;
 ``pyrtu.backend(name)`` returns either one (both expose the same names).
 """

@@ -39,22 +39,15 @@ if os.environ.get("PYRTU_SANITIZE") == "1":
 # the same flags for the CPython-API CRC module (setup.py: pyrtu._crcfast)
 COMPILE_ARGS, LINK_ARGS = tuple(_flags), tuple(_link)
 
-# Binding-only helpers: cffi passes a ``bytes`` object to a ``const char *``
+# Binding-only helper: cffi passes a ``bytes`` object to a ``const char *``
 # parameter without a copy and refuses every other type, which gives crc16 a
-# fast path that checks the type for free; the empty call with the same
-# arguments is the benchmarks' floor for a call of this shape.
+# fast path that checks the type for free.
 _BINDING = """
 #include "rtu.h"
 #include "rtu_vbus.h"
 static uint16_t rtu_crc16_bytes(const char *data, size_t len, uint16_t crc)
 {
     return rtu_crc16((const uint8_t *)data, len, crc);
-}
-static uint16_t rtu_noop_bytes(const char *data, size_t len, uint16_t crc)
-{
-    (void)data;
-    (void)len;
-    return crc;
 }
 """
 

@@ -26,10 +26,8 @@ extern const uint8_t rtu_auchCRCLo[256];
 uint16_t rtu_crc16(const uint8_t *data, size_t len, uint16_t crc);
 int rtu_crc16_path_available(int path);
 int rtu_crc16_path(int path, const uint8_t *data, size_t len, uint16_t crc, uint16_t *out);
-void rtu_crc_noop(void);
-/* binding helpers, defined in pyrtu/_build_core.py */
+/* binding helper, defined in pyrtu/_build_core.py */
 uint16_t rtu_crc16_bytes(const char *data, size_t len, uint16_t crc);
-uint16_t rtu_noop_bytes(const char *data, size_t len, uint16_t crc);
 
 uint8_t rtu_lrc(const uint8_t *data, size_t len);
 

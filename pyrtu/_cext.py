@@ -1,7 +1,8 @@
 """The C backend: the names of the pure-Python twin over the cffi module.
 
-Imported only by pyrtu/_backend.py's backend selection; ImportError when the
-extension was not built.  Buffers reach C through ``ffi.from_buffer`` (no copy).
+Imported by pyrtu/_backend.py's backend selection (and bench/bench_crc.py's C-only
+rows), nowhere else in the package; ImportError when the extension was not built.
+Buffers reach C through ``ffi.from_buffer`` (no copy).
 crc16, add_crc and check_crc are the builtins of pyrtu._crcfast when that extension
 is built (a cffi call costs about ten times a builtin's), else cffi calls.
 """

@@ -413,9 +413,13 @@ class ClientProtocol:
         header first), so the header is read first there.  Once
         bytes came: ``needed() - 1`` character times from now, so that the driver
         reads the last byte as it comes (a wait for input) and the next silence
-        counts from the answer's real end.  Never past ``wait_limit()``; ``now`` in
-        other states, and on a line without wire timing (t3.5 = 0: pseudo-terminals,
-        TCP links), whose bytes come in bursts rather than at the character rate."""
+        counts from the answer's real end.  Never past the end of the attempt (the
+        timeout, or the settling time after a frame that was not the answer), so a
+        driver needs no cap of its own: not ``deadline()``, whose silence timer only
+        matters when no byte comes (the bytes read after the sleep carry their own
+        times).  ``now`` in other states, and on a line without wire timing (t3.5 =
+        0: pseudo-terminals, TCP links), whose bytes come in bursts rather than at
+        the character rate."""
         if self.state is not _ANSWER or self.gap <= 0:
             return now
         start = now
@@ -435,14 +439,6 @@ class ClientProtocol:
             # from 0.977 to 0.995, CPU per transaction unchanged)
             needed -= 1
         return min(start + needed * self._char, self._limit)
-
-    def wait_limit(self) -> float:
-        """ANSWER: when the attempt ends if no valid answer comes (the timeout, or the
-        settling time after a frame that was not the answer).  A driver sleeping
-        ``needed()`` character times caps the sleep here, not at ``deadline()``: the
-        framer's silence timer only matters when no byte comes, and the bytes read
-        after the sleep carry their own times."""
-        return self._limit
 
     def needed(self) -> int:
         """ANSWER: bytes that must still arrive before the answer can be complete (a
@@ -554,7 +550,7 @@ class ClientProtocol:
                 raise RuntimeError("framer made no progress (internal error)")
 
     def _core_events(self, core: Any, now: float) -> None:
-        """RTU: the core's events, (offset, length, kind, error, start_us, end_us, adu)."""
+        """RTU: the core's events, as ``take()`` gives them: (error, end_us, adu)."""
         take = core.take
         while self.state is _ANSWER and (ev := take()) is not None:
             error, end_us, adu = ev

@@ -12,7 +12,6 @@ so both backends raise the same exceptions.
 from __future__ import annotations
 
 import enum
-import struct
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -29,7 +28,6 @@ MAX_LENGTH = 254  # unit id + a PDU of 253 bytes (Application Protocol 4.1)
 MAX_PDU = MAX_LENGTH - 1
 MAX_ADU = 6 + MAX_LENGTH
 
-_HEADER = struct.Struct(">HHHB")
 
 # (offset, length, kind, error, adu)
 MbapEvent = tuple[int, int, int, int, bytes]
@@ -157,15 +155,6 @@ def check_header_args(transaction: int, unit: int, pdu: BytesLike) -> bytes:
     if not 1 <= len(raw) <= MAX_PDU:
         raise ValueError(f"pdu must be 1..{MAX_PDU} bytes, not {len(raw)}")
     return raw
-
-
-def decode_header(adu: BytesLike) -> tuple[int, int, int, int]:
-    """(transaction, protocol, length, unit) of the first 7 bytes of ``adu``."""
-    raw = as_bytes(adu, "adu")
-    if len(raw) < HEADER_LEN:
-        raise ValueError(f"adu must hold the 7-byte MBAP header, not {len(raw)} bytes")
-    t, p, n, u = _HEADER.unpack_from(raw)
-    return int(t), int(p), int(n), int(u)
 
 
 class MbapCore(Protocol):

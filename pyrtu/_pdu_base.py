@@ -1,6 +1,7 @@
 """PDU constants, data classes and the slave side: request decoders, response encoders.
 
-Shared by `pyrtu.pdu` (which re-exports every public name here) and the slave.
+Imported only by `pyrtu.pdu`, which re-exports every public name here; the slave
+(`pyrtu._slave_base`) reaches the decoders and encoders through `pyrtu.pdu`.
 Decoders raise `SlaveException` with the code the specification prescribes: 3 for a
 malformed request or a quantity out of range, 2 for an address range running past
 0xFFFF (Application Protocol V1.1b, figures of section 6).
