@@ -1056,4 +1056,3 @@ int rtu_crc16_path(int path, const uint8_t *data, size_t len, uint16_t crc,
     }
     return RTU_OK;
 }
-
