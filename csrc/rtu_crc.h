@@ -79,7 +79,6 @@ int rtu_crc16_path_available(int path);
 int rtu_crc16_path(int path, const uint8_t *data, size_t len, uint16_t crc,
                    uint16_t *out);
 
-
 #ifdef __cplusplus
 }
 #endif
