@@ -22,14 +22,19 @@ from __future__ import annotations
 
 import argparse
 import logging
-import os
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import NoReturn
 
 from .commands import poll_config
-from .commands.common import EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, exit_code_table
+from .commands.common import (
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    EXIT_USAGE,
+    exit_code_table,
+    silence_stdout,
+)
 
 __all__ = ["COMMANDS", "Command", "build_parser", "command", "main", "register"]
 
@@ -144,14 +149,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help(sys.stderr)
         return EXIT_USAGE
     try:
-        return run(args)
+        code = run(args)
     except KeyboardInterrupt:
         return EXIT_INTERRUPTED
     except BrokenPipeError:  # output piped into head, less, ...
-        # Python flushes stdout at exit: point it at /dev/null so that does not fail too
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, sys.stdout.fileno())
+        silence_stdout()
         return EXIT_OK
+    try:  # a command that stopped quietly on a closed pipe may leave output buffered
+        sys.stdout.flush()
+    except BrokenPipeError:
+        silence_stdout()
+    return code
 
 
 def _logging(verbose: int) -> None:

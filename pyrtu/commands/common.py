@@ -27,6 +27,7 @@ import argparse
 import errno
 import json
 import math
+import os
 import re
 import sys
 from collections.abc import Callable, Mapping
@@ -485,6 +486,17 @@ def in_cli_terms(exc: BaseException) -> BaseException:
     out = PortError(exc.port, text.removeprefix(f"{exc.port}: "))
     out.__cause__ = exc.__cause__
     return out
+
+
+def silence_stdout() -> None:
+    """The reader of stdout went away (``| head``): point stdout at /dev/null, so that
+    what is still buffered, flushed when Python exits, does not fail there too (a
+    "BrokenPipeError ... Exception ignored" and exit status 120)."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, sys.stdout.fileno())
+    finally:
+        os.close(devnull)
 
 
 def report_error(

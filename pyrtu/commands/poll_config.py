@@ -44,6 +44,7 @@ from .common import (
     jsonable,
     positive_seconds,
     report_error,
+    silence_stdout,
 )
 from .poll_table import LiveTable, fmt_value, ms
 
@@ -140,9 +141,7 @@ def main(argv: Sequence[str], setup_logging: Callable[[int], None] | None = None
     if out.closed:
         # the reader went away (| head): Python flushes stdout at exit, so point it
         # at /dev/null for that not to fail too
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, sys.stdout.fileno())
-        os.close(devnull)
+        silence_stdout()
         return EXIT_OK
     return code
 
