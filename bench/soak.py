@@ -80,6 +80,7 @@ class Tally:
     gw_answers: int = 0
     gw_exceptions: int = 0
     gw_errors: int = 0
+    gw_error_examples: list[str] = field(default_factory=list)
     gw_refused: int = 0
     abuser_connects: int = 0
     abuser_closed: int = 0
@@ -233,9 +234,11 @@ def good_client(
                 sock.close()
             sock = None
             stop.wait(0.2)
-        except (OSError, ConnectionError):
+        except (OSError, ConnectionError) as e:
             with tally.lock:
                 tally.gw_errors += 1
+                if len(tally.gw_error_examples) < 5:
+                    tally.gw_error_examples.append(f"{time.time():.3f} {type(e).__name__}: {e}")
             if sock:
                 sock.close()
             sock = None
@@ -454,6 +457,7 @@ def phase(baud: int, args: argparse.Namespace, out: dict[str, Any]) -> None:
         "gateway_answers": tally.gw_answers,
         "gateway_exceptions": tally.gw_exceptions,
         "good_client_errors": tally.gw_errors,
+        "good_client_error_examples": tally.gw_error_examples,
         "good_client_refused": tally.gw_refused,
         "abuser_connects": tally.abuser_connects,
         "abusers_closed_by_gateway": tally.abuser_closed,
