@@ -358,7 +358,8 @@ class Bridge:
         return self._link is not None and self._link.connected
 
     def _pump(self) -> None:
-        """Hand records to the client in sequence order while the window has room."""
+        """Hand records to the client in sequence order while the window has room,
+        and write them to the socket at once (`MqttLink.write_now`)."""
         link = self._link
         if link is None or not link.connected:
             return
@@ -372,19 +373,21 @@ class Bridge:
                 live.popleft()
             if self._cursor + 1 >= self._live_base:
                 if not live:
-                    return
+                    break
                 seq, rec, read_at = live.popleft()
                 self._send(link, seq, rec, read_at, qos)
                 continue
             batch = ob.pending(min(_BATCH, win.window - len(win)), after=self._cursor)
             if not batch:
-                return  # the rest is not durable yet: after the next flush
+                break  # the rest is not durable yet: after the next flush
             for seq, rec in batch:
                 if seq >= self._live_base:
                     # nothing older is left on disk (dropped): _live has the rest
                     self._cursor = max(self._cursor, self._live_base - 1)
                     break
                 self._send(link, seq, rec, 0.0, qos)
+        # to the kernel now: a live value waits for no timer and no other task
+        link.write_now()
 
     def _send(self, link: MqttLink, seq: int, rec: bytes, read_at: float, qos: int) -> None:
         topic, body = split_record(rec)
