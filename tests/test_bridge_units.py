@@ -52,6 +52,21 @@ def test_an_offline_slave_makes_its_points_stale_then_good_again() -> None:
     assert r.slave_state("line", 1, False, 5.0) == [(SPEED, 30.0, 103.0, "stale")]
 
 
+def test_a_bus_down_makes_every_point_of_the_bus_stale_once() -> None:
+    far = Point("f.status", "other", 1, "holding", 680)
+    r = Reporter([SPEED, STATUS, OTHER, far], {})
+    for p in (SPEED, OTHER, far):
+        r.update(p, 1, 100.0, 0.0)
+    r.dropped(STATUS, 101.0, 1.0)
+    # every point of the bus "line" (both slaves), the bad one left bad
+    assert r.bus_down("line", 2.0) == [(SPEED, 1, 100.0, "stale"), (OTHER, 1, 100.0, "stale")]
+    assert r.quality("f.status") == "good"  # another bus
+    # already stale: not published stale again (a slave offline during the outage)
+    assert r.slave_state("line", 1, False, 3.0) == [] and r.bus_down("line", 3.0) == []
+    # back: the next read of each point is published as good, unchanged or not
+    assert r.update(SPEED, 1, 104.0, 4.0) and r.quality("d.speed") == "good"
+
+
 def test_payloads_and_records() -> None:
     rec = record("p/e/line/1/d.speed", SPEED, 30.5, 1700000000.25, "good")
     topic, body = split_record(rec)

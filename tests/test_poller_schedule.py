@@ -450,3 +450,71 @@ def test_a_failed_port_is_not_the_slaves_fault() -> None:
     assert sched.take_urgent() == [write, *reads]
     nxt = sched.next_request(probe_at)  # the queue is empty again: the probe is next
     assert nxt is not None and nxt.kind == "probe"
+
+
+def test_offline_after_back_to_back_failures() -> None:
+    """After a failure the slave's next block goes next (a confirmation): a slave
+    that dies is offline ``offline_after`` timeouts after its first unanswered
+    request, not ``offline_after`` turns of the schedule apart; the others are
+    delayed once by at most those timeouts, and a dead slave costs the bus no more
+    transactions than before it went offline."""
+    # eight slaves, a block each, every 0.2 s: half the wire
+    points = [pt(a, slave=s, interval=0.2) for s in range(1, 9) for a in range(3)]
+    sched = BusScheduler("b", points, WIRE, offline_after=2, backoff=0.5)
+    bus = FakeBus(sched)
+    bus.run(1.0)
+    bus.dead.add(8)
+    bus.run(3.0)
+    failed = [(r, s, e) for r, s, e, k in bus.done if k != "ok"]
+    first_start = failed[0][1]
+    off = next(e for e in bus.events if isinstance(e, SlaveState) and not e.online)
+    assert off.slave == 8
+    # back to back: the two failures are consecutive transactions on the bus, and
+    # offline comes offline_after timeouts (plus a t3.5 each) after the first began
+    i = next(k for k, d in enumerate(bus.done) if d[3] != "ok")
+    assert [d[0].slave for d in bus.done[i : i + 2]] == [8, 8]
+    assert [d[3] for d in bus.done[i : i + 2]] == ["NoResponseError"] * 2
+    assert off.time - first_start <= 2 * (TIMEOUT + WIRE.t35) + 1e-9
+    # before the confirmation, the same slave's failures were a cycle apart
+    assert bus.done[i + 1][1] - bus.done[i][2] <= WIRE.t35 + 1e-9
+    # the others: every block still read at its interval, late at most once by
+    # the two timeouts
+    for s in range(1, 8):
+        starts = sorted(st for r, st, _, k in bus.done if r.slave == s and r.address == 0)
+        gaps = [b - a for a, b in itertools.pairwise(starts) if a > 1.0]
+        assert max(gaps) <= 0.2 + 2 * (TIMEOUT + WIRE.t35) + 1e-9
+        assert sum(g > 0.2 + 0.01 for g in gaps) <= 1
+
+
+def test_a_confirmed_transient_failure_keeps_the_slave_online() -> None:
+    """One unanswered request: the confirmation answers, the slave stays online and
+    its blocks keep their beat."""
+    sched = BusScheduler("b", [pt(0, interval=0.1), pt(0, slave=2, interval=0.1)], WIRE,
+                         offline_after=2)  # fmt: skip
+    req = sched.next_request(0.0)
+    assert req is not None and req.slave == 1
+    sched.on_failure(req, NoResponseError("no answer", 1, 3), TIMEOUT)
+    assert sched.deadline() == float("-inf")  # the confirmation is due at once
+    conf = sched.next_request(TIMEOUT)
+    assert conf is not None and (conf.slave, conf.kind) == (1, "poll")
+    events = sched.on_response(conf, [5], TIMEOUT + 0.01)
+    assert not any(isinstance(e, SlaveState) and not e.online for e in events)
+    assert sched.online(1) is True
+    nxt = sched.next_request(TIMEOUT + 0.01)
+    assert nxt is not None and nxt.slave == 2  # slave 2 was due: no second confirmation
+    sched.on_response(nxt, [0], TIMEOUT + 0.02)
+    # neither block is issued twice in a row from stale heap entries
+    seen = []
+    t = 0.2
+    while t < 1.0:
+        r = sched.next_request(t)
+        if r is None:
+            t = max(t + 1e-6, sched.deadline() or t)
+            continue
+        seen.append((r.slave, round(t, 3)))
+        t += 0.01
+        sched.on_response(r, [0], t)
+    # slave 1 read every 0.1 s from 0.2 on, once each (its beat restarted by the
+    # confirmation at 0.1); slave 2 caught up from 0.1
+    ones = [t for s, t in seen if s == 1]
+    assert len(ones) >= 8 and all(b - a >= 0.08 for a, b in itertools.pairwise(ones))

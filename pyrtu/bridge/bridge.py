@@ -16,6 +16,13 @@ A connection that ends is reported once and retried with the shared back-off
 ``online``, the slaves' states and the latest value of every point the backlog
 does not hold are published again (retained): after a broker restart no retained
 topic stays missing.
+
+A bus whose port fails (a `PortState` down: a drop unplugged, a TCP peer gone)
+has every point republished as ``stale`` and every slave's status ``offline``
+while its ``{bus}/status`` topic says ``down`` and why; when the port is back the
+bus says ``up``, each point comes back ``good`` with its next read and each slave
+``online`` with its first value (or, if it no longer answers, stays ``offline``
+when the poller says so).
 """
 
 from __future__ import annotations
@@ -30,7 +37,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .._reconnect import Backoff, Reconnect
-from ..poller import Point, PointDropped, Poller, SlaveState, Update
+from ..poller import Point, PointDropped, Poller, PortState, SlaveState, Update
 from ..poller.points import Value
 from .commands import CommandQueue
 from .config import BridgeConfig, load_bridge_config
@@ -38,7 +45,7 @@ from .delivery import Window
 from .mqtt import BrokerRefused, Credentials, MqttLink
 from .outbox import Outbox, OutboxError, OutboxLimits
 from .report import Reporter
-from .topics import OFFLINE, ONLINE, Topics, payload, record, split_record
+from .topics import OFFLINE, ONLINE, Topics, bus_payload, payload, record, split_record
 from .writes import Writer
 
 log = logging.getLogger("pyrtu.bridge")
@@ -50,7 +57,7 @@ _BATCH = 512  # records read from the outbox at a time
 @dataclass(frozen=True, slots=True)
 class BridgeEvent:
     """Something the bridge reports: ``kind`` is ``broker_down``, ``broker_up``,
-    ``slave``, ``dropped``, ``outbox_error``, ``fatal`` or ``stats``."""
+    ``port``, ``slave``, ``dropped``, ``outbox_error``, ``fatal`` or ``stats``."""
 
     kind: str
     time: float
@@ -87,6 +94,11 @@ class Bridge:
         self._historical_below = 0  # records below this seq are published as historical
         self._latest: dict[str, tuple[int, bytes]] = {}  # topic -> (seq, body) last appended
         self._slaves: dict[tuple[str, int], bool] = {}
+        self._ports: dict[str, PortState] = {}  # the last port event of each bus
+        self._port_down: set[str] = set()
+        # buses whose "up" and slaves whose "online" wait for their first value
+        self._bus_unseen: set[str] = {b.name for b in config.poller.buses}
+        self._resume: set[tuple[str, int]] = set()
         self._event_cbs: list[Callable[[BridgeEvent], None]] = []
         self._tasks: list[asyncio.Task[None]] = []
         self._flush_timer: asyncio.TimerHandle | None = None
@@ -235,10 +247,13 @@ class Bridge:
         now = time.monotonic()
         if type(ev) is Update:
             p = ev.point
+            if self._bus_unseen or self._resume:
+                self._first_value(p.bus, p.slave)
             if self.reporter.update(p, ev.value, ev.time, now):
                 self._append(p, ev.value, ev.time, "good")
         elif isinstance(ev, SlaveState):
             self._slaves[(ev.bus, ev.slave)] = ev.online
+            self._resume.discard((ev.bus, ev.slave))
             for p, v, t, q in self.reporter.slave_state(ev.bus, ev.slave, ev.online, now):
                 self._append(p, v, t, q)
             self._publish_slave(ev.bus, ev.slave, ev.online)
@@ -247,6 +262,59 @@ class Bridge:
             p, v, t, q = self.reporter.dropped(ev.point, ev.time, now)
             self._append(p, v, t, q)
             self._emit("dropped", point=ev.point.name, reason=ev.reason)
+        elif isinstance(ev, PortState):
+            self._port(ev, now)
+
+    def _port(self, ev: PortState, now: float) -> None:
+        """A bus's port failed or is back (see the module docstring)."""
+        bus = ev.bus
+        self._ports[bus] = ev
+        self._bus_unseen.discard(bus)
+        mine = [k for k in self.topics.slave_status if k[0] == bus]
+        if not ev.up:
+            self._port_down.add(bus)
+            self._resume.difference_update(mine)
+            for p, v, t, q in self.reporter.bus_down(bus, now):
+                self._append(p, v, t, q)
+            for _, slave in mine:
+                self._publish_slave(bus, slave, False)
+        else:
+            self._port_down.discard(bus)
+            # the slaves online before the outage: online again with their first value
+            self._resume.update(k for k in mine if self._slaves.get(k))
+        self._publish_bus(bus)
+        self._emit("port", bus=bus, port=ev.port, up=ev.up, error=ev.error)
+
+    def _first_value(self, bus: str, slave: int) -> None:
+        """A value read: the bus's port works, the slave answers."""
+        if bus in self._bus_unseen:
+            self._bus_unseen.discard(bus)
+            self._publish_bus(bus)
+        if (bus, slave) in self._resume:
+            self._resume.discard((bus, slave))
+            self._publish_slave(bus, slave, True)
+
+    def _slave_shown(self, bus: str, slave: int) -> bool:
+        """What a slave's status topic says: online when the poller says so, the
+        bus's port is up and, after an outage, the slave answered again."""
+        return (
+            self._slaves.get((bus, slave), False)
+            and bus not in self._port_down
+            and (bus, slave) not in self._resume
+        )
+
+    def _publish_bus(self, bus: str) -> None:
+        link = self._link
+        t = self.topics.bus_status.get(bus)
+        if link is None or not link.connected or t is None or bus in self._bus_unseen:
+            return
+        ev = self._ports.get(bus)
+        port = str(next(b.port for b in self.config.poller.buses if b.name == bus))
+        if ev is None:  # values came, no outage yet
+            doc = bus_payload("up", port, "", None, time.time())
+        else:
+            doc = bus_payload("up" if ev.up else "down", ev.port, ev.error, ev.since, ev.time)
+        link.publish(t, doc, 1, True)
 
     def publish_value(self, point: Point, value: Value, read_at: float) -> None:
         """Publish a value read now (a write's read-back), whatever its deadband."""
@@ -290,7 +358,8 @@ class Bridge:
         return self._link is not None and self._link.connected
 
     def _pump(self) -> None:
-        """Hand records to the client in sequence order while the window has room."""
+        """Hand records to the client in sequence order while the window has room,
+        and write them to the socket at once (`MqttLink.write_now`)."""
         link = self._link
         if link is None or not link.connected:
             return
@@ -304,19 +373,21 @@ class Bridge:
                 live.popleft()
             if self._cursor + 1 >= self._live_base:
                 if not live:
-                    return
+                    break
                 seq, rec, read_at = live.popleft()
                 self._send(link, seq, rec, read_at, qos)
                 continue
             batch = ob.pending(min(_BATCH, win.window - len(win)), after=self._cursor)
             if not batch:
-                return  # the rest is not durable yet: after the next flush
+                break  # the rest is not durable yet: after the next flush
             for seq, rec in batch:
                 if seq >= self._live_base:
                     # nothing older is left on disk (dropped): _live has the rest
                     self._cursor = max(self._cursor, self._live_base - 1)
                     break
                 self._send(link, seq, rec, 0.0, qos)
+        # to the kernel now: a live value waits for no timer and no other task
+        link.write_now()
 
     def _send(self, link: MqttLink, seq: int, rec: bytes, read_at: float, qos: int) -> None:
         topic, body = split_record(rec)
@@ -460,8 +531,11 @@ class Bridge:
         ob = self._outbox
         assert ob is not None
         link.publish(self.topics.edge_status, ONLINE, 1, True)
-        for (bus, slave), online in self._slaves.items():
-            self._publish_slave(bus, slave, online)
+        for bus in self.topics.bus_status:
+            self._publish_bus(bus)
+        for bus, slave in self.topics.slave_status:
+            if (bus, slave) in self._slaves or bus in self._port_down:
+                self._publish_slave(bus, slave, self._slave_shown(bus, slave))
         self._acked_seq = max(self._acked_seq, ob.acked)  # past what drop-oldest dropped
         self._cursor = self._acked_seq
         oldest = self._acked_seq + 1

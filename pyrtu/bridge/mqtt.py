@@ -9,6 +9,11 @@ never the password), `ssl.SSLCertVerificationError` when its certificate does no
 verify (never downgraded), OSError when it cannot be reached.  Afterwards the
 loop reads the socket, writes when paho has bytes queued, and pings every
 keepalive; ``on_lost`` is called once when the connection ends.
+
+Publications are written at the end of the loop's turn, all of the turn's in one
+send; `MqttLink.write_now` writes them at once instead (the bridge's live values:
+no timer, no wait for the other tasks of the turn), up to `IMMEDIATE` times a turn,
+so that a burst or a backlog still goes in few sends.
 """
 
 from __future__ import annotations
@@ -29,6 +34,9 @@ from paho.mqtt.subscribeoptions import SubscribeOptions
 from .config import MqttConfig
 
 log = logging.getLogger("pyrtu.bridge")
+
+#: publications written at once in one turn of the loop; more wait for its end
+IMMEDIATE = 8
 
 #: CONNACK reason codes that no retry can cure (MQTT 5 3.2.2.2)
 FATAL = {
@@ -176,6 +184,7 @@ class MqttLink:
         self._misc: asyncio.TimerHandle | None = None
         self._out: _Coalescing | None = None
         self._soon = False
+        self._turn = 0  # publications written at once in this turn of the loop
         self.connected = False
 
     def _make_client(self) -> paho.Client:
@@ -345,6 +354,7 @@ class MqttLink:
 
     def _writable(self) -> None:
         self._soon = False
+        self._turn = 0
         c = self.client
         out = self._out
         if c is None or out is None:
@@ -369,6 +379,27 @@ class MqttLink:
         if not self._soon and not self._writing and self._loop is not None:
             self._soon = True
             self._loop.call_soon(self._writable)
+
+    def write_now(self) -> None:
+        """Write what is queued to the kernel now rather than at the end of the
+        loop's turn; past `IMMEDIATE` calls in one turn (or while the kernel's
+        buffer is full) it is left for the turn's end.  Acknowledgements of QoS 0
+        publications (``on_ack``) come from within this call."""
+        c, out, loop = self.client, self._out, self._loop
+        if c is None or out is None or loop is None or self._writing:
+            return
+        if self._turn >= IMMEDIATE:
+            return
+        self._turn += 1
+        if not self._soon:  # the turn's end resets the count
+            self._soon = True
+            loop.call_soon(self._writable)
+        c.loop_write()
+        try:
+            out.drain()
+        except OSError as e:
+            log.info("bridge: write to %s failed: %s", self.cfg.broker, e)
+            self._lost_now(str(e))
 
     def _no_write(self, client: Any, userdata: Any, sock: Any) -> None:
         # paho has handed everything over; the buffer may still hold bytes

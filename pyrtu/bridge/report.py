@@ -6,7 +6,9 @@ the point's ``deadband``, one whose quality changes (``stale`` back to ``good``)
 and an unchanged one whose last publication is ``max_age`` old (0: never).  When a
 slave goes offline every one of its points is published again as ``stale`` (the
 last value read and when it was read: never a last good value passed off as live),
-and a point the poller drops (it cannot be read) as ``bad``.
+and a point the poller drops (it cannot be read) as ``bad``; the same ``stale``
+for every point of a bus whose port fails (`bus_down`: an outage says nothing of
+the slaves, but the values are no longer live).
 """
 
 from __future__ import annotations
@@ -65,11 +67,21 @@ class Reporter:
     def slave_state(self, bus: str, slave: int, online: bool, now: float) -> list[Report]:
         """A slave went offline: every one of its points as ``stale``.  Online: nothing
         now; each point's next value is published (its quality changes)."""
-        out: list[Report] = []
         if online:
-            return out
-        for s in self._by_slave.get((bus, slave), ()):
-            if s.quality == "bad":
+            return []
+        return self._stale(self._by_slave.get((bus, slave), ()), now)
+
+    def bus_down(self, bus: str, now: float) -> list[Report]:
+        """The bus's port failed: every point of the bus as ``stale`` (each point's
+        next value, after the port is back, is published as ``good``)."""
+        mine = (s for (b, _), states in self._by_slave.items() if b == bus for s in states)
+        return self._stale(mine, now)
+
+    @staticmethod
+    def _stale(states: Iterable[_State], now: float) -> list[Report]:
+        out: list[Report] = []
+        for s in states:
+            if s.quality in ("bad", "stale"):
                 continue
             s.quality = "stale"
             s.published_at = now

@@ -5,7 +5,10 @@ Topics, under ``{prefix}/{edge}``:
 =========================================  ===============================================
 ``{prefix}/{edge}/status``                 ``online`` / ``offline`` (the last will), retained
 ``{prefix}/{edge}/stats``                  the bridge's figures every ``stats_interval``
+``{prefix}/{edge}/{bus}/status``           the bus's port: JSON ``{"state": "up"|"down",
+                                           "port", "error", "since", "time"}``, retained
 ``{prefix}/{edge}/{bus}/{slave}/status``   ``online`` / ``offline`` per slave, retained
+                                           (``offline`` too while the bus's port is down)
 ``{prefix}/{edge}/{bus}/{slave}/{point}``  a point's value (or its ``topic``), retained
 ``{point topic}/set``                      a command to write a writable point
 ``{point topic}/set/result``               the result when the command names no
@@ -75,6 +78,7 @@ class Topics:
         self.point: dict[str, str] = {}
         self.set: dict[str, str] = {}  # set topic -> point name
         self.slave_status: dict[tuple[str, int], str] = {}
+        self.bus_status: dict[str, str] = {}
         owner: dict[str, str] = {self.edge_status: "the edge status", self.stats: "the stats"}
 
         def claim(topic: str, what: str) -> None:
@@ -85,6 +89,9 @@ class Topics:
         for b in cfg.poller.buses:
             if "/" in b.name or "+" in b.name or "#" in b.name or "\n" in b.name:
                 raise ValueError(f"bus {b.name!r}: a bus name is one topic level (no / + #)")
+            t = f"{self.base}/{b.name}/status"
+            claim(t, f"bus {b.name}'s status")
+            self.bus_status[b.name] = t
         for p in cfg.poller.points:
             key = (p.bus, p.slave)
             if key not in self.slave_status:
@@ -135,6 +142,14 @@ def split_record(rec: bytes) -> tuple[str, bytes]:
     return rec[:nl].decode(), rec[nl + 1 :]
 
 
+def bus_payload(state: str, port: str, error: str, since: float | None, time: float) -> bytes:
+    """A bus status: ``state`` ``up`` or ``down``, the port, the outage's error
+    (``""`` when none), when the outage began (null when up and none was seen)."""
+    return json.dumps(
+        {"state": state, "port": port, "error": error, "since": since, "time": time}
+    ).encode()
+
+
 def payload(body: bytes, seq: int, historical: bool) -> bytes:
     """The published payload of a record's body."""
     if historical:
@@ -142,4 +157,13 @@ def payload(body: bytes, seq: int, historical: bool) -> bytes:
     return body + b',"seq":%d}' % seq
 
 
-__all__ = ["OFFLINE", "ONLINE", "QUALITIES", "Topics", "payload", "record", "split_record"]
+__all__ = [
+    "OFFLINE",
+    "ONLINE",
+    "QUALITIES",
+    "Topics",
+    "bus_payload",
+    "payload",
+    "record",
+    "split_record",
+]

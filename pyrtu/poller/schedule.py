@@ -7,8 +7,10 @@ when the transaction gave up); when nothing is due it sleeps until `deadline()`
 (or until a write is submitted).  The order:
 
 1. writes and on-demand reads (`submit_write`, `submit_read`), first come first served;
-2. a probe of an offline slave whose back-off has run out;
-3. the poll block with the earliest due time, if it is due.
+2. a confirmation: after a failed transaction of an online slave, that slave's
+   earliest-due block, at once (even before its due time);
+3. a probe of an offline slave whose back-off has run out;
+4. the poll block with the earliest due time, if it is due.
 
 Every transaction's wire-busy time is counted (from `next_request` to the end of
 the answer or the timeout, plus the part of the mandatory t3.5 silence that
@@ -19,7 +21,12 @@ configured rates exceed the wire, an `Overload` event says so and names the
 points that lag.
 
 Slave health: ``offline_after`` consecutive failed transactions (no answer, or
-garbage) take a slave offline (`SlaveState` event): its blocks leave the schedule
+garbage) take a slave offline (`SlaveState` event).  After each failure the
+slave's next block goes next (a confirmation), so the failures are back to back
+and the slave is offline ``offline_after`` timeouts after its first unanswered
+request, not ``offline_after`` turns of the schedule apart; a dead slave costs the
+bus no more (those transactions were due anyway), the others wait at most
+``offline_after`` timeouts, once.  Offline, its blocks leave the schedule
 and one short request (one register or bit) probes it, after a back-off that
 doubles from ``backoff`` to ``max_backoff`` and never less than what keeps the
 probes within ``share`` of the bus time (default 5 %).  Any answer, even an
@@ -156,6 +163,7 @@ class BusScheduler:
         self._seq = itertools.count()
         self._tags = itertools.count(1)
         self._urgent: list[Request] = []
+        self._confirm: int | None = None  # the slave whose failure is to be confirmed
         self._health: dict[int, _Health] = {}
         self._stats = _Stats()
         self._overloaded = False
@@ -254,25 +262,51 @@ class BusScheduler:
             req = self._urgent.pop(0)
             req.issued = now
             return req
+        if self._confirm is not None:
+            task = self._confirmation()
+            if task is not None:
+                return self._issue(task, now)
         probe = self._due_probe(now)
         if probe is not None:
             return probe
         heap = self._heap
         while heap:
-            due, _, task = heap[0]
-            if not task.alive or task.suspended:
+            due, seq, task = heap[0]
+            if not task.alive or task.suspended or seq != task.seq:
                 heapq.heappop(heap)
                 continue
             if due > now:
                 return None
             heapq.heappop(heap)
-            task.late = now - due
-            nxt = due + task.block.interval
-            task.due = now if nxt + task.block.interval < now else nxt
-            b = task.block
-            return Request(POLL, b.slave, b.table, b.address, b.count, b.function, (), b,
-                           issued=now, cost=task.cost, task=task)  # fmt: skip
+            return self._issue(task, now)
         return None
+
+    def _confirmation(self) -> _Task | None:
+        """The block that confirms the last failure: the failing slave's earliest
+        due one waiting in the schedule (taken out of the heap: its entry goes
+        stale)."""
+        slave, self._confirm = self._confirm, None
+        best: _Task | None = None
+        for task in self._tasks:
+            if (task.block.slave == slave and task.alive and not task.suspended
+                    and task.seq >= 0 and (best is None or task.due < best.due)):  # fmt: skip
+                best = task
+        if best is not None:
+            best.seq = -1  # out of the heap (in flight) until requeued
+        return best
+
+    def _issue(self, task: _Task, now: float) -> Request:
+        due, interval = task.due, task.block.interval
+        task.late = max(0.0, now - due)
+        if due > now:  # a confirmation ahead of its time: the beat starts again from now
+            task.due = now + interval
+        else:
+            nxt = due + interval
+            task.due = now if nxt + interval < now else nxt
+        task.seq = -1
+        b = task.block
+        return Request(POLL, b.slave, b.table, b.address, b.count, b.function, (), b,
+                       issued=now, cost=task.cost, task=task)  # fmt: skip
 
     def _due_probe(self, now: float) -> Request | None:
         best: tuple[float, int] | None = None
@@ -292,11 +326,13 @@ class BusScheduler:
     def deadline(self) -> float | None:
         """The earliest time `next_request` has something (None: never, until a
         submit); at or before now when something is ready."""
-        if self._urgent:
+        if self._urgent or self._confirm is not None:
             return float("-inf")
         best: float | None = None
         heap = self._heap
-        while heap and (not heap[0][2].alive or heap[0][2].suspended):
+        while heap and (
+            not heap[0][2].alive or heap[0][2].suspended or heap[0][1] != heap[0][2].seq
+        ):
             heapq.heappop(heap)
         if heap:
             best = heap[0][0]
@@ -417,12 +453,15 @@ class BusScheduler:
             st.online = False
             h.backoff = self.backoff
             h.probe_due = now + max(self.backoff, busy * (1 / self.share - 1))
+            if self._confirm == req.slave:
+                self._confirm = None
             for task in self._tasks:
                 if task.block.slave == req.slave:
                     task.suspended = True
             events.append(SlaveState(self.bus, req.slave, False, now + self.stamp_offset))
         else:
             self._requeue(req)
+            self._confirm = req.slave
         self._check_load(now, events)
         return events
 
