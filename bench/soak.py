@@ -235,6 +235,8 @@ def good_client(
             sock = None
             stop.wait(0.2)
         except (OSError, ConnectionError) as e:
+            if stop.is_set():
+                break  # the run is over: the gateway is being stopped
             with tally.lock:
                 tally.gw_errors += 1
                 if len(tally.gw_error_examples) < 5:
@@ -302,6 +304,21 @@ def read_poller(
                 tally.events[str(kind)] += 1
                 if kind != "summary":
                     tally.event_log.append(f"{time.time():.3f} {line.strip()}")
+
+
+def read_gateway(proc: subprocess.Popen[str], tally: Tally) -> None:
+    """The gateway's JSON lines after "ready" (its bus events): counted, and drained so
+    that its stdout never fills."""
+    assert proc.stdout is not None
+    for line in proc.stdout:
+        try:
+            obj = json.loads(line)
+        except ValueError:
+            continue
+        state = {True: " up", False: " down"}.get(obj.get("up"), "")
+        kind = f"gateway {obj.get('type', '?')}{state}"
+        with tally.lock:
+            tally.events[kind] += 1
 
 
 def spawn(args: list[str], **kw: Any) -> subprocess.Popen[str]:
@@ -385,6 +402,9 @@ def phase(baud: int, args: argparse.Namespace, out: dict[str, Any]) -> None:
         ready = json.loads(procs["gateway"].stdout.readline())
         host, port = ready.get("listen", "127.0.0.1:0").rsplit(":", 1)
         addr = (host, int(port))
+        threads.append(
+            threading.Thread(target=read_gateway, args=(procs["gateway"], tally), daemon=True)
+        )
         for k in range(args.clients):
             threads.append(
                 threading.Thread(
@@ -453,7 +473,7 @@ def phase(baud: int, args: argparse.Namespace, out: dict[str, Any]) -> None:
         "wrong_values": len(tally.wrong),
         "wrong_examples": tally.wrong[:5],
         "poller_updates": tally.updates,
-        "poller_events": dict(tally.events),
+        "events": dict(tally.events),
         "gateway_answers": tally.gw_answers,
         "gateway_exceptions": tally.gw_exceptions,
         "good_client_errors": tally.gw_errors,

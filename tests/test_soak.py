@@ -41,6 +41,11 @@ def test_the_short_soak_recovers_every_fault_and_reads_no_wrong_value(tmp_path: 
     assert all(r["all_alive_at_end"].values()), r["all_alive_at_end"]
     assert set(r["exit_codes"].values()) == {0}, r["exit_codes"]
     assert r["poller_updates"] > 0 and r["gateway_answers"] > 0
-    assert r["poller_events"].get("port", 0) >= 2  # the poller's own port: down, up
+    # each outage reported once, and its end once: the poller's own port (a "port"
+    # event each way) and the gateway's bus
+    assert r["events"].get("port") == 2 * r["recovery_s"]["poller"]["n"], r["events"]
+    assert r["events"].get("gateway bus down") == r["recovery_s"]["gateway"]["n"], r["events"]
+    assert r["events"].get("gateway bus up") == r["recovery_s"]["gateway"]["n"], r["events"]
+    assert r["good_client_errors"] == 0, r["good_client_error_examples"]
     assert r["abusers_closed_by_gateway"] > 0 and r["good_client_refused"] == 0
     assert run.returncode == 0, run.stderr[-3000:]
