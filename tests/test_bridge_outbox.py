@@ -446,6 +446,7 @@ def test_second_outbox_on_the_same_directory_is_refused(tmp_path: Path) -> None:
 # -- bounded memory -----------------------------------------------------------
 
 
+@pytest.mark.rss
 def test_memory_stays_bounded_with_two_million_records_unacked(tmp_path: Path) -> None:
     """The broker is down: 2 million records pile up; the process does not grow.
 
