@@ -45,7 +45,7 @@ from typing import Any
 from urllib.parse import urlsplit
 
 from ..poller import ConfigError, Point, PollerConfig
-from ..poller.config import _Loader, _locate
+from ..poller.config import _Loader, _locate, read_config_text
 from .topics import Topics
 
 if sys.version_info >= (3, 11):
@@ -392,15 +392,7 @@ def load_bridge_config(path: str | Path) -> BridgeConfig:
     """A bridge configuration from a TOML file; `ConfigError` names the file, the
     line and the key on any problem.  Nothing is opened (no port, no broker)."""
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ConfigError(f"{p}: no such file") from None
-    except UnicodeDecodeError as e:
-        raise ConfigError(f"{p}: not UTF-8 text ({e.reason} at byte {e.start})") from None
-    except OSError as e:
-        raise ConfigError(f"{p}: cannot read: {e.strerror or e}") from None
-    return parse_bridge_config(text, p.name or str(p), p.resolve().parent)
+    return parse_bridge_config(read_config_text(p), p.name or str(p), p.resolve().parent)
 
 
 def make_bridge_config(

@@ -431,19 +431,25 @@ def parse_config(text: str, source: str = "<config>") -> PollerConfig:
     return _Loader(text, source).load(doc)
 
 
-def load_config(path: str | Path) -> PollerConfig:
-    """A configuration from a TOML file; `ConfigError` names the file on any problem
-    (missing, unreadable, not UTF-8, bad TOML, bad values)."""
+def read_config_text(path: str | Path) -> str:
+    """The text of a configuration file; `ConfigError` names the file when it is
+    missing, unreadable or not UTF-8 (the poller's and the bridge's loaders)."""
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8")
+        return p.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise ConfigError(f"{p}: no such file") from None
     except UnicodeDecodeError as e:
         raise ConfigError(f"{p}: not UTF-8 text ({e.reason} at byte {e.start})") from None
     except OSError as e:
         raise ConfigError(f"{p}: cannot read: {e.strerror or e}") from None
-    return parse_config(text, p.name if p.name else str(p))
+
+
+def load_config(path: str | Path) -> PollerConfig:
+    """A configuration from a TOML file; `ConfigError` names the file on any problem
+    (missing, unreadable, not UTF-8, bad TOML, bad values)."""
+    p = Path(path)
+    return parse_config(read_config_text(p), p.name if p.name else str(p))
 
 
 def make_config(
