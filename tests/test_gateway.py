@@ -5,9 +5,7 @@ test_gateway_serial.py).  Loopback addresses only."""
 from __future__ import annotations
 
 import asyncio
-import socket
 import struct
-import threading
 from collections.abc import Iterator
 
 import pytest
@@ -90,35 +88,6 @@ def test_limits_are_validated() -> None:
 
 
 # -- the asyncio gateway, a libmodbus TCP server behind it ---------------------------
-
-
-@pytest.fixture
-def libmodbus_tcp(peer_binaries: PeerBinaries) -> Iterator[str]:
-    port = free_tcp_port()
-    with libmodbus_server(peer_binaries, f"tcp:127.0.0.1:{port}", 1):
-        yield f"tcp://127.0.0.1:{port}"
-
-
-@pytest.fixture
-def silent_tcp() -> Iterator[str]:
-    """A server that accepts and reads but never answers: a dead device."""
-    listener = socket.socket()
-    listener.bind(("127.0.0.1", 0))
-    listener.listen(8)
-    held: list[socket.socket] = []
-
-    def run() -> None:
-        while True:
-            try:
-                held.append(listener.accept()[0])
-            except OSError:
-                return
-
-    threading.Thread(target=run, daemon=True).start()
-    yield f"tcp://127.0.0.1:{listener.getsockname()[1]}"
-    listener.close()
-    for s in held:
-        s.close()
 
 
 async def open_gateway(

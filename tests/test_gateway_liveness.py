@@ -5,13 +5,10 @@ and a libmodbus TCP server as the bus."""
 from __future__ import annotations
 
 import asyncio
-import socket
-import threading
 from collections.abc import Iterator
 
 import pytest
 from peers import pattern
-from peers.tools import PeerBinaries, free_tcp_port, libmodbus_server
 
 from pyrtu import encode_mbap, pdu
 from pyrtu.gateway import Gateway, GatewayLimits, parse_units
@@ -75,35 +72,6 @@ def test_limits_validate_the_timeouts() -> None:
 
 
 # -- with sockets --------------------------------------------------------------------
-
-
-@pytest.fixture
-def libmodbus_tcp(peer_binaries: PeerBinaries) -> Iterator[str]:
-    port = free_tcp_port()
-    with libmodbus_server(peer_binaries, f"tcp:127.0.0.1:{port}", 1):
-        yield f"tcp://127.0.0.1:{port}"
-
-
-@pytest.fixture
-def silent_tcp() -> Iterator[str]:
-    """A server that accepts and reads but never answers: a dead device."""
-    listener = socket.socket()
-    listener.bind(("127.0.0.1", 0))
-    listener.listen(8)
-    held: list[socket.socket] = []
-
-    def run() -> None:
-        while True:
-            try:
-                held.append(listener.accept()[0])
-            except OSError:
-                return
-
-    threading.Thread(target=run, daemon=True).start()
-    yield f"tcp://127.0.0.1:{listener.getsockname()[1]}"
-    listener.close()
-    for s in held:
-        s.close()
 
 
 async def until(check: object, timeout: float = 20.0) -> None:

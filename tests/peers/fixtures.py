@@ -8,15 +8,26 @@ sys.path under pytest's default import mode); the helpers are in `peers.tools`.
   the command that installs them: CI installs them, and the interop matrix must
   not shrink silently.
 * `pty_pair`: two pseudo-terminals joined by socat (fails without socat).
+* `libmodbus_tcp`: a libmodbus TCP server (slave 1) on a free port, as a tcp:// URL.
+* `silent_tcp`: a TCP server that accepts and reads but never answers (a dead device).
 """
 
 from __future__ import annotations
 
+import socket
+import threading
 from collections.abc import Iterator
 
 import pytest
 
-from .tools import PeerBinaries, PeerBuildError, build_peers, socat_pair
+from .tools import (
+    PeerBinaries,
+    PeerBuildError,
+    build_peers,
+    free_tcp_port,
+    libmodbus_server,
+    socat_pair,
+)
 
 
 @pytest.fixture(scope="session")
@@ -36,3 +47,33 @@ def pty_pair() -> Iterator[tuple[str, str]]:
             yield pair
     except PeerBuildError as exc:
         pytest.fail(str(exc), pytrace=False)
+
+
+@pytest.fixture
+def libmodbus_tcp(peer_binaries: PeerBinaries) -> Iterator[str]:
+    """A libmodbus TCP server serving slave 1 on a free loopback port."""
+    port = free_tcp_port()
+    with libmodbus_server(peer_binaries, f"tcp:127.0.0.1:{port}", 1):
+        yield f"tcp://127.0.0.1:{port}"
+
+
+@pytest.fixture
+def silent_tcp() -> Iterator[str]:
+    """A server that accepts and reads but never answers: a dead device."""
+    listener = socket.socket()
+    listener.bind(("127.0.0.1", 0))
+    listener.listen(8)
+    held: list[socket.socket] = []
+
+    def run() -> None:
+        while True:
+            try:
+                held.append(listener.accept()[0])
+            except OSError:
+                return
+
+    threading.Thread(target=run, daemon=True).start()
+    yield f"tcp://127.0.0.1:{listener.getsockname()[1]}"
+    listener.close()
+    for s in held:
+        s.close()
