@@ -35,7 +35,7 @@ from typing import IO, TYPE_CHECKING, Any, NamedTuple
 
 from .. import timing
 from ..line import split_field_error
-from ._signals import SignalStop, stop_on_signals
+from ._signals import SignalStop, stop_on_signals, stop_when_stdout_closes
 
 try:  # POSIX: pyserial lets termios.error through when a port refuses a format
     import termios
@@ -586,4 +586,5 @@ __all__ = [
     "seconds",
     "serial_kwargs",
     "stop_on_signals",
+    "stop_when_stdout_closes",
 ]

@@ -56,6 +56,7 @@ from .common import (
     positive_seconds,
     seconds,
     serial_kwargs,
+    stop_when_stdout_closes,
 )
 
 #: up to this many connections the gateway runs on `pyrtu.aio.run`'s select() loop
@@ -266,6 +267,7 @@ async def _serve(args: argparse.Namespace) -> dict[str, Any]:
         loop = asyncio.get_running_loop()
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.add_signal_handler(sig, stop.set)
+        unwatch = stop_when_stdout_closes(loop, stop)  # | head -1
         started = time.monotonic()
         _ready(args, gw)
         try:
@@ -273,6 +275,7 @@ async def _serve(args: argparse.Namespace) -> dict[str, Any]:
         except asyncio.TimeoutError:
             pass
         finally:
+            unwatch()
             for sig in (signal.SIGINT, signal.SIGTERM):
                 loop.remove_signal_handler(sig)
             await gw.close()
