@@ -10,7 +10,7 @@ is built (a cffi call costs about ten times a builtin's), else cffi calls.
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from types import ModuleType
 from typing import Any
 
@@ -47,6 +47,7 @@ __all__ = [
     "lib",
     "lrc",
     "parse_stream",
+    "request_predictor",
 ]
 
 _PATHS = {
@@ -180,6 +181,27 @@ def _config(options: CoreOptions) -> Any:
             ):
                 raise ValueError(f"rules[{fc}]: the C core refuses {rule!r}")
     return cfg
+
+
+class _RequestPredictor:
+    """``rtu_predict`` over the request rules of a line (see `FramerCore`'s owner,
+    `pyrtu._server`): (RTU_PRED_*, length) for the bytes of a request so far."""
+
+    __slots__ = ("_cfg", "_length", "_rules")
+
+    def __init__(self, options: CoreOptions) -> None:
+        self._cfg = _config(options)  # owns the rules the pointer below points into
+        self._rules = ffi.addressof(self._cfg, "rules")
+        self._length = ffi.new("size_t *")
+
+    def __call__(self, adu: bytes) -> tuple[int, int]:
+        status = lib.rtu_predict(self._rules, lib.RTU_DIR_REQUEST, adu, len(adu), self._length)
+        return int(status), int(self._length[0])
+
+
+def request_predictor(options: CoreOptions) -> Callable[[bytes], tuple[int, int]]:
+    """The request-length predictor of ``options``' rules, as the C core predicts."""
+    return _RequestPredictor(options)
 
 
 # bound once: a ``lib.name`` lookup per call costs more than the call (cffi's lib_getattr)

@@ -13,6 +13,7 @@ from collections import deque
 from collections.abc import Callable, Iterable, Sequence
 from typing import Protocol
 
+from ._feed import feed_all
 from ._types import BytesLike
 from .config import CoreOptions, core_options, to_microseconds
 from .frames import (
@@ -29,6 +30,12 @@ from .timing import TIMING_RULES, Timing, compute_timing
 
 # (offset, length, kind, error, start_us, end_us, adu)
 Event = tuple[int, int, int, int, int, int, bytes]
+
+#: a backend's ``request_predictor(options)(adu) -> (status, length)`` statuses:
+#: rtu_predict's RTU_PRED_* (csrc/rtu.h), the same in the twin
+PRED_LENGTH = 0  # length is the ADU's length
+PRED_NEED = 1  # more bytes needed; length is how many to decide
+PRED_UNKNOWN = 2  # no rule for this function
 
 
 class FramerCore(Protocol):
@@ -191,6 +198,12 @@ class FramerBase:
     def _make_core(self, options: CoreOptions) -> FramerCore:
         raise NotImplementedError
 
+    @property
+    def core(self) -> FramerCore:
+        """The core this framer drives: the feed/take interface the protocols use (the
+        ASCII framer has one too, `pyrtu.ascii.AsciiCore`)."""
+        return self._core
+
     def _drain(self) -> None:
         while (ev := self._core.poll()) is not None:
             self._events.append(event_to_frame(ev))
@@ -200,19 +213,8 @@ class FramerBase:
         raw = data if type(data) is bytes else as_bytes(data)
         now_us = time_us(now, "now")
         core = self._core
-        took = core.feed(raw, now_us)
-        self._drain()  # a silence before the new bytes may end what is buffered
-        if took == len(raw):
-            return
-        pos = took
-        stalled = 1 if took == 0 else 0
-        while pos < len(raw):
-            took = core.feed(raw[pos:], now_us)
-            self._drain()
-            pos += took
-            stalled = stalled + 1 if took == 0 else 0
-            if stalled > 2:
-                raise RuntimeError("framer made no progress (internal error)")
+        # a silence before the new bytes may end what is buffered: events after each feed
+        feed_all(lambda chunk: core.feed(chunk, now_us), raw, self._drain)
 
     def next_event(self) -> Frame | None:
         """The next frame or discard event, or None when there is none yet."""

@@ -17,6 +17,7 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Protocol, overload
 
+from ._feed import feed_all
 from ._framing import as_bytes
 from ._types import BytesLike
 from .config import ROLES
@@ -211,13 +212,7 @@ class MbapFramerBase:
             self._core.close()
             self._drain()
             return
-        pos, size, feed = 0, len(raw), self._core.feed
-        while pos < size:
-            took = feed(raw[pos:] if pos else raw)
-            self._drain()
-            if took == 0:
-                raise RuntimeError("MbapFramer made no progress (internal error)")
-            pos += took
+        feed_all(self._core.feed, raw, self._drain)
 
     def next_event(self) -> MbapFrame | None:
         """The next ADU or discard event, or None when there is none yet."""

@@ -1,16 +1,28 @@
 """The Modbus serial server (slave) as a sans-I/O state machine, in h11's shape.
 
 Bytes and times go in, response bytes and the earliest time they may go out come
-out; nothing here reads a port, sleeps or looks at a clock::
+out; nothing here reads a port, sleeps or looks at a clock.  A driver is a short
+interpreter of the protocol's next action (see docs/PROTOCOL.md)::
 
     proto = ServerProtocol(line, app)        # line: a LineConfig
-    proto.receive_data(chunk, now)        # bytes read at ``now`` (seconds, monotonic)
-    nap = proto.wake_at(now)              # may sleep until then, not watching the port
-    proto.handle_timer(now)               # when ``now >= proto.deadline()``
-    adu = proto.data_to_send(now)         # the response, once its time has come
-    if adu:
-        start, end = port.write(adu)
-        proto.transmitted(end)            # end of transmission: the echo window
+    while True:
+        action = proto.next_action(now())
+        if isinstance(action, Reply):        # write it now, then say when it ended
+            start, end = port.write(action.data)
+            proto.transmitted(end)
+        elif isinstance(action, Listen) and action.needed:
+            sleep_until(action.until)        # the rest of a frame: not watching the port
+            proto.receive_data(port.read_available(), now())   # even b""
+        else:                                # Listen: until action.until; Idle: no limit
+            data = port.read(timeout=...)
+            if data:
+                proto.receive_data(data, now())
+
+`receive_data`, `handle_timer`, `deadline`, `wake_at`, `data_to_send` and
+`transmitted` are the steps `next_action` is made of, public for tests and drivers
+with needs of their own.  RTU and ASCII differ only below the framer core's
+feed/take interface (`pyrtu._framing.FramerCore`, `pyrtu.ascii.AsciiCore`) and in a
+codec chosen once per line (`_Codec`).
 
 The request frames the framer (slave role) cuts from the line are executed by the
 *application* (`pyrtu.Slave`, `pyrtu.aio.AsyncSlave`: the DataStore, the standard
@@ -29,16 +41,18 @@ from __future__ import annotations
 import contextlib
 import logging
 from collections.abc import Callable
+from dataclasses import dataclass
 from types import ModuleType
 from typing import Any, NamedTuple, Protocol
 
 from . import _backend
-from ._pure.predict import DIR_REQUEST, PRED_LENGTH, PRED_UNKNOWN, make_rules, predict
+from ._feed import feed_all
+from ._framing import PRED_LENGTH, PRED_UNKNOWN, FramerCore
 from ._slave_diag import LineState
-from .ascii import encode_ascii, make_framer
+from .ascii import INTER_CHAR_LIMIT, ascii_message, delimiter_table, encode_ascii, make_framer
 from .config import DEFAULT_FLUSH_US
 from .errors import SlaveException
-from .frames import ERROR_BY_CODE, Frame
+from .frames import ERROR_BY_CODE
 from .line import LineConfig
 
 log = logging.getLogger("pyrtu.slave")
@@ -75,15 +89,72 @@ class Application(Protocol):
         ...
 
 
-class Framer(Protocol):
-    """The framer face the protocol uses (RTU `Framer` and `AsciiFramer` alike)."""
+@dataclass(slots=True)
+class ServerAction:
+    """What the driver of a `ServerProtocol` does next (`ServerProtocol.next_action`):
+    one of `Reply`, `Listen`, `Idle`."""
 
-    def receive_data(self, data: bytes, now: float) -> None: ...
-    def next_event(self) -> Frame | None: ...
-    def timer(self) -> float | None: ...
-    def handle_timer(self, now: float) -> None: ...
-    def needed(self) -> int: ...
-    def send(self, adu: bytes) -> Any: ...
+
+@dataclass(slots=True)
+class Reply(ServerAction):
+    """Write ``data`` now (it became due at ``at``), then call
+    `ServerProtocol.transmitted` with the time its last byte left the wire."""
+
+    data: bytes
+    at: float
+
+
+@dataclass(slots=True)
+class Listen(ServerAction):
+    """Wait for input until ``until`` at the latest, then ask again.
+
+    ``needed`` 0: watch the port, give what comes to `receive_data` as it comes.
+    ``needed`` n > 0: the rest of a frame, about n bytes, is due by ``until``; the
+    driver may sleep until then without watching the port (one wake-up for the whole
+    frame), then read what there is and give it to `receive_data`, even nothing."""
+
+    until: float
+    needed: int = 0
+
+
+@dataclass(slots=True)
+class Idle(ServerAction):
+    """Nothing to do until bytes come: watch the port with no time limit."""
+
+
+_IDLE = Idle()
+
+
+class _Codec(NamedTuple):
+    """What differs between RTU and ASCII above the framer core, chosen once per line."""
+
+    encode: Callable[[bytes], bytes]  # address + PDU -> the frame on the wire
+    message: Callable[[bytes], bytes]  # a frame the core checked -> address + PDU
+    incoming: Callable[[bytes, LineState], bytes]  # bytes read -> bytes for the core
+    by_length: bool  # frames end at a length the rules predict (naps: see wake_at)
+    boundary: float  # the silence that tells damaged messages apart (LineState)
+
+
+def _strip_crc(adu: bytes) -> bytes:
+    return adu[:-2]
+
+
+def _as_read(data: bytes, state: LineState) -> bytes:
+    return data
+
+
+def _ascii_delimiter(data: bytes, state: LineState) -> bytes:
+    """ASCII: the frame end the master chose (FC 08 sub-function 0x03) as LF."""
+    char = state.ascii_delimiter
+    return data if char == 0x0A else data.translate(delimiter_table(char))
+
+
+def _codec(line: LineConfig, backend: ModuleType) -> _Codec:
+    if line.mode == "ascii":
+        return _Codec(encode_ascii, ascii_message, _ascii_delimiter, False, INTER_CHAR_LIMIT)
+    # damaged messages are told apart by the spec's t3.5 (whatever t35 says)
+    spec = line.replace(t15=None, t35=None).t35_time
+    return _Codec(backend.add_crc, _strip_crc, _as_read, True, spec)
 
 
 class Response(NamedTuple):
@@ -135,17 +206,23 @@ class ServerProtocol:
     def reconfigure(self, line: LineConfig) -> None:
         """Take ``line`` (new rules, say) from now on; bytes being framed are dropped."""
         self.line = line
-        self.framer: Framer = make_framer(line, "slave", self.backend)
-        #: RTU: the framer's core, driven directly (the hot path: no Frame objects)
-        self._core: Any = getattr(self.framer, "_core", None)
+        #: the slave-role framer of the line (RTU or ASCII); the protocol drives its core
+        self.framer = make_framer(line, "slave", self.backend)
+        self._core: FramerCore = self.framer.core
+        self._codec = codec = _codec(line, self.backend)
+        self._encode = codec.encode
+        self._message = codec.message
         self._received = 0  # bytes given to the framer
         self._framed = 0  # of which the framer has ended (frames and discards)
-        self._head = bytearray()  # RTU: the bytes of the frame in progress
+        self._head = bytearray()  # the bytes of the frame in progress
+        self._fresh = False  # bytes came since the last next_action
         #: napping (see `wake_at`): (since, bytes given by then, bytes it waits for)
         self._nap: tuple[float, int, int] | None = None
         #: the last bytes read after a nap: (from, to) in the stream, and when
         self._late: tuple[int, int, float] | None = None
-        self._rules = make_rules(line.rules)
+        self._predict: Callable[[bytes], tuple[int, int]] = self.backend.request_predictor(
+            line.options("slave")
+        )
         self._last_length = 0  # of the last request to this slave (see wake_at)
         self._last_function = -1
         self.max_adu = line.max_adu
@@ -157,13 +234,7 @@ class ServerProtocol:
         #: the silence kept after a request (t3.5 in RTU; none in ASCII)
         self.turnaround = line.frame_gap
         self.char_time = line.char_time
-        self._ascii = line.mode == "ascii"
-        self._encode: Callable[[bytes], bytes] = (
-            encode_ascii if self._ascii else self.backend.add_crc
-        )
-        # damaged messages are told apart by the spec's t3.5 (whatever t35 says)
-        spec = line.replace(t15=None, t35=None).t35_time
-        self.state.boundary = 1.0 if self._ascii else spec
+        self.state.boundary = codec.boundary
 
     # ----------------------------------------------------------------- inputs
 
@@ -173,13 +244,8 @@ class ServerProtocol:
         nap, self._nap = self._nap, None
         if not data:
             return
-        if self._core is None:  # ASCII
-            if self.state.ascii_delimiter != 0x0A:
-                data = data.translate(_delimiter_table(self.state.ascii_delimiter))
-            self._received += len(data)
-            self.framer.receive_data(data, now)
-            self._drain(now)
-            return
+        data = self._codec.incoming(data, self.state)
+        self._fresh = True
         self._received += len(data)
         head = self._head
         head += data
@@ -214,18 +280,10 @@ class ServerProtocol:
             del head[:excess]
 
     def _feed(self, data: bytes, now_us: int, now: float) -> None:
-        """RTU: ``data`` to the framer's core, arrived by ``now_us``; its frames out."""
+        """``data`` to the framer's core, arrived by ``now_us``; its frames out (a
+        silence before the bytes, or a frame ended in them: the core takes fewer)."""
         core = self._core
-        took = core.feed(data, now_us)
-        self._core_events(core, now)
-        stalled = 1 if took == 0 else 0
-        while took < len(data):  # a silence before the bytes, or a frame ended in them
-            data = data[took:]
-            took = core.feed(data, now_us)
-            self._core_events(core, now)
-            stalled = stalled + 1 if took == 0 else 0
-            if stalled > 2:
-                raise RuntimeError("framer made no progress (internal error)")
+        feed_all(lambda chunk: core.feed(chunk, now_us), data, lambda: self._core_events(now))
 
     def _request_end(self, count: int) -> int:
         """How many of the ``count`` bytes just added to the head end the request to
@@ -236,7 +294,7 @@ class ServerProtocol:
         before = n - count
         if before < 1 or n < _MIN_ADU or not (head[0] == 0 or head[0] in self.app.addresses):
             return 0
-        status, length = predict(self._rules, DIR_REQUEST, bytes(head), n)
+        status, length = self._predict(bytes(head))
         if status == PRED_LENGTH:
             ok = before < length <= n and self.backend.check_crc(head[:length])
             return length - before if ok else 0
@@ -253,16 +311,10 @@ class ServerProtocol:
     def handle_timer(self, now: float) -> None:
         """Let the time up to ``now`` end what it ends (frames, the watchdog)."""
         core = self._core
-        if core is None:
-            timer = self.framer.timer()
-            if timer is not None and now >= timer:
-                self.framer.handle_timer(now)
-                self._drain(now)
-        else:
-            deadline = core.deadline()
-            if deadline is not None and now >= deadline / 1e6:
-                core.handle_timer(round(now * 1_000_000))
-                self._core_events(core, now)
+        deadline = core.deadline()
+        if deadline is not None and now >= deadline / 1e6:
+            core.handle_timer(round(now * 1_000_000))
+            self._core_events(now)
         if (
             self.watchdog is not None
             and self._last_valid is not None
@@ -293,12 +345,8 @@ class ServerProtocol:
 
     def deadline(self) -> float | None:
         """When `handle_timer` or `data_to_send` has work (None: only bytes will do)."""
-        core = self._core
-        if core is None:
-            at = self.framer.timer()
-        else:
-            timer = core.deadline()
-            at = None if timer is None else timer / 1e6
+        timer = self._core.deadline()
+        at = None if timer is None else timer / 1e6
         if self._pending is not None and (at is None or self._pending.earliest < at):
             at = self._pending.earliest
         if self.watchdog is not None and self._last_valid is not None and not self._tripped:
@@ -311,9 +359,9 @@ class ServerProtocol:
         """A lower bound on the bytes the frame being received still needs (0: unknown
         or none): the framer's, and where it predicts one, in RTU at least the rest of
         the shortest ADU (address, function, CRC: 4 bytes, Serial Line V1.02 2.5.1.1)."""
-        needed = self.framer.needed()
+        needed = self._core.needed()
         started = self._received - self._framed
-        if needed and 0 < started < _MIN_ADU and not self._ascii:
+        if needed and 0 < started < _MIN_ADU:  # (ASCII: always 0)
             return max(needed, _MIN_ADU - started)
         return needed
 
@@ -345,14 +393,14 @@ class ServerProtocol:
         """
         head = self._head
         n = len(head)
-        if self._ascii or n == 0 or self._pending is not None or self._echo is not None:
+        if n == 0 or not self._codec.by_length or self._pending is not None or self._echo:
             return None
         unit = head[0]
         char = self.char_time
         if unit == 0 or unit in self.app.addresses:
             length = 0
             if n >= 2:
-                status, length = predict(self._rules, DIR_REQUEST, bytes(head), n)
+                status, length = self._predict(bytes(head))
                 if status == PRED_UNKNOWN:  # no rule: this function's last length
                     length = self._last_length if head[1] == self._last_function else 0
                 elif status != PRED_LENGTH:  # the rule needs more bytes: needed()
@@ -397,32 +445,43 @@ class ServerProtocol:
             return None
         self._pending = None
         self._sending = pending
-        if self._core is None:
-            self.framer.send(pending.adu)
-        else:
-            self._core.sent(pending.adu)
+        self._core.sent(pending.adu)
         self.state.answered(pending.exception)
         self.counters["exceptions" if pending.exception is not None else "responses"] += 1
         if log.isEnabledFor(logging.DEBUG):
             log.debug("TX unit %d: %s", pending.unit, pending.adu.hex(" "))
         return pending.adu
 
+    def next_action(self, now: float, *, lead: float = 0.0, nap: bool = True) -> ServerAction:
+        """What the driver does next, at ``now``: the one entry point of a driver.
+
+        Lets the time up to ``now`` act (`handle_timer`), then: `Reply` when a
+        response's time has come (it is handed out: write it, then `transmitted`);
+        after new bytes, `Listen` with ``needed`` > 0 when the driver may sleep
+        through the rest of a frame (``nap``: the driver can, e.g. a port with a file
+        descriptor in lenient mode; ``lead``: see `wake_at`); else `Listen` until the
+        next deadline (`deadline`), or `Idle` when only bytes will do."""
+        fresh, self._fresh = self._fresh, False
+        due = self.deadline()
+        if due is not None and now >= due:
+            self.handle_timer(now)
+        pending = self._pending
+        if pending is not None and now >= pending.earliest:
+            self.data_to_send(now)
+            return Reply(pending.adu, pending.earliest)
+        if fresh and nap:
+            until = self.wake_at(now, lead)
+            if until is not None:
+                assert self._nap is not None
+                return Listen(until, max(1, self._nap[2]))
+        due = self.deadline()
+        return _IDLE if due is None else Listen(due)
+
     # ------------------------------------------------------------------ frames
 
-    def _drain(self, now: float) -> None:
-        """ASCII: the framer's Frame events."""
-        framer = self.framer
-        while (ev := framer.next_event()) is not None:
-            wire = ev.wire
-            self._framed = ev.offset + len(wire)
-            if ev.error is not None:
-                self.state.discard_seen(ev.error.value, ev.start, ev.end)
-            else:
-                self._on_frame(ev.kind, wire, ev.message, ev.offset, ev.end, now)
-
-    def _core_events(self, core: Any, now: float) -> None:
-        """RTU: the core's events, (offset, length, kind, error, start_us, end_us, adu)."""
-        poll = core.poll
+    def _core_events(self, now: float) -> None:
+        """The core's events, (offset, length, kind, error, start_us, end_us, adu)."""
+        poll = self._core.poll
         while (ev := poll()) is not None:
             offset, length, kind, error, start_us, end_us, adu = ev
             self._framed = offset + length
@@ -431,7 +490,7 @@ class ServerProtocol:
                 assert reason is not None
                 self.state.discard_seen(reason.value, start_us / 1e6, end_us / 1e6)
             else:
-                self._on_frame(kind, adu, adu[:-2], offset, end_us / 1e6, now)
+                self._on_frame(kind, adu, self._message(adu), offset, end_us / 1e6, now)
 
     def _on_frame(
         self, kind: int, raw: bytes, message: bytes, offset: int, end: float | None, now: float
@@ -452,9 +511,8 @@ class ServerProtocol:
             self.counters["ignored"] += 1
             return
         broadcast = unit == 0
-        if not self._ascii:
-            self._last_length = len(raw)
-            self._last_function = raw[1]
+        self._last_length = len(raw)  # (used by wake_at: RTU only)
+        self._last_function = raw[1]
         request = message[1:]
         self.state.request_received(broadcast)
         self.counters["broadcasts" if broadcast else "requests"] += 1
@@ -487,18 +545,12 @@ class ServerProtocol:
         )
 
 
-_TABLES: dict[int, bytes] = {}
-
-
-def _delimiter_table(char: int) -> bytes:
-    """Incoming bytes with ``char`` as the frame end (FC 08 sub-function 0x03)."""
-    table = _TABLES.get(char)
-    if table is None:
-        mapping = bytearray(range(256))
-        mapping[char] = 0x0A
-        mapping[0x0A] = 0x00  # a LF is no longer a delimiter: it breaks the frame
-        table = _TABLES[char] = bytes(mapping)
-    return table
-
-
-__all__ = ["Application", "Response", "ServerProtocol"]
+__all__ = [
+    "Application",
+    "Idle",
+    "Listen",
+    "Reply",
+    "Response",
+    "ServerAction",
+    "ServerProtocol",
+]

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 from .._framing import (
     Event,
@@ -18,7 +18,7 @@ from ..timing import Timing, compute_timing
 from .crc import add_crc, check_crc, crc16, crc16_path, crc16_paths, lrc
 from .framer import CoreFramer
 from .head import Config
-from .predict import make_rules
+from .predict import DIR_REQUEST, make_rules, predict
 from .stream import CoreParser, Entry
 
 BACKEND = "python"
@@ -34,6 +34,7 @@ __all__ = [
     "crc16_paths",
     "lrc",
     "parse_stream",
+    "request_predictor",
 ]
 
 
@@ -52,6 +53,17 @@ def _config(options: CoreOptions) -> Config:
         flush_us=flush_us_for(options, t35),
         rules=make_rules(options.rules),
     )
+
+
+def request_predictor(options: CoreOptions) -> Callable[[bytes], tuple[int, int]]:
+    """The request-length predictor of ``options``' rules (the twin of the C core's
+    ``rtu_predict``): (PRED_*, length) for the bytes of a request so far."""
+    rules = make_rules(options.rules)
+
+    def request_length(adu: bytes) -> tuple[int, int]:
+        return predict(rules, DIR_REQUEST, adu, len(adu))
+
+    return request_length
 
 
 class _Core:
