@@ -9,17 +9,20 @@ slaves (ports) share one event loop and one thread::
             for s in slaves:
                 tg.create_task(s.serve())
 
-A port with a file descriptor is watched with ``loop.add_reader``; the protocol's
-deadline is a timer of `pyrtu._ptimer` (the loop's own on `pyrtu.aio.run`'s loop, a
-timerfd on loops whose timers are whole milliseconds: asyncio's epoll loop, uvloop).
+The driver interprets the protocol's next action (`ServerProtocol.next_action`):
+`Reply` is written at once, `Listen` is a timer at its ``until`` (with ``needed``:
+the reader set aside until then), `Idle` no timer.  A port with a file descriptor
+is watched with ``loop.add_reader``; timers are those of `pyrtu._ptimer` (the
+loop's own on `pyrtu.aio.run`'s loop, a timerfd on loops whose timers are whole
+milliseconds: asyncio's epoll loop, uvloop).
 When the first bytes of a frame come, the reader is set aside until the protocol's
 `wake_at` (the frame's end, and for a request to this slave the end of its t3.5 as
 well): the rest is read, the request executed and the response written in that one
 wake-up (lenient mode): two wake-ups per transaction, three for a request longer
 than 8 bytes (its length is known once 8 bytes are in), and one more per 25 ms of a
 longer one (see `pyrtu.slave`).  A port without a file descriptor (a pyserial URL)
-is read by a worker thread with
-pyserial's generic reads, which hands the bytes to the loop.
+is read by a worker thread with pyserial's generic reads, which hands the bytes to
+the loop.
 
 A port that fails (unplugged) ends `serve` with the `PortError`; the port is
 closed, its reader removed, and the other slaves of the loop go on.
@@ -36,6 +39,7 @@ from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 from . import _ptimer
+from ._server import Listen, Reply
 from ._slave_base import SlaveBase, line_from_keywords
 from .datastore import DataStore
 from .errors import PortError
@@ -130,7 +134,7 @@ class AsyncSlave(SlaveBase):
                     target=self._read_thread, name=f"pyrtu-aslave {self.port.name}", daemon=True
                 )
                 self._thread.start()
-            self._rearm(loop.time())
+            self._after(loop.time())
             await done
         finally:
             if self._done is done:  # not already torn down by `stop`
@@ -225,7 +229,7 @@ class AsyncSlave(SlaveBase):
         now = self._loop.time()
         if data or napped:
             self.protocol.receive_data(data, now)  # after a nap even nothing: it ends it
-        self._after(now, bool(data))
+        self._after(now)
 
     def _read_thread(self) -> None:
         """A port without a file descriptor: pyserial's reads, bytes to the loop."""
@@ -247,39 +251,36 @@ class AsyncSlave(SlaveBase):
             return
         now = self._loop.time()
         self.protocol.receive_data(data, now)
-        self._after(now, False)  # no nap: the reader thread reads on its own
+        self._after(now)  # (no nap: the reader thread reads on its own)
 
     # ------------------------------------------------------------- time, sending
 
-    def _after(self, now: float, read: bool) -> None:
-        """The protocol saw bytes (``read``: from the port's descriptor, all there
-        were) or time: act on it, then wait for what comes next."""
+    def _after(self, now: float) -> None:
+        """The protocol saw bytes or time: carry out its actions, up to the next wait."""
+        if self._out is not None or self._done is None or self._done.done():
+            return  # a response is being written: its end comes back here
         proto = self.protocol
-        due = proto.deadline()
-        if due is not None and now >= due:
-            proto.handle_timer(now)
-        adu = None
-        if self._out is None:
-            adu = proto.data_to_send(now)
-            if adu is not None:
-                self._write(adu, now)
+        nap = self._skip and self._reading
+        action = proto.next_action(now, nap=nap)
+        while isinstance(action, Reply):
+            if not self._write(action.data, now):
+                return  # written in part (the writer goes on) or the port failed
+            action = proto.next_action(now, nap=nap)
         if self._done is None or self._done.done():
             return
-        if read and adu is None and self._skip and self._reading:
-            at = proto.wake_at(now)
-            if at is not None:
+        at = None
+        if isinstance(action, Listen):
+            at = action.until
+            if action.needed:
                 # the rest of a frame the protocol sized (and the answer's time): one
-                # wake-up for all of it, with the reader set aside
+                # wake-up for all of it, with the reader set aside; the framer's silence
+                # timer counts from the last byte read, which says nothing meanwhile
                 self._remove_reader()
                 self._resume_at = at
-        self._rearm(now)
+        self._rearm(at)
 
-    def _rearm(self, now: float) -> None:
+    def _rearm(self, at: float | None) -> None:
         assert self._loop is not None
-        # napping: only the nap's end (the framer's silence timer counts from the last
-        # byte read, which says nothing while the port is not watched; the watchdog
-        # is looked at after the nap)
-        at = self._resume_at if self._resume_at is not None else self.protocol.deadline()
         if at == self._timer_at:
             return
         if self._timer is not None:
@@ -295,9 +296,9 @@ class AsyncSlave(SlaveBase):
             self._add_reader()
             self._read_now(False, True)  # what came while the reader was set aside
             return
-        self._after(self._loop.time(), False)
+        self._after(self._loop.time())
 
-    def _write(self, adu: bytes, now: float) -> None:
+    def _write(self, adu: bytes, now: float) -> bool:
         port = self.port
         fd = port.fd
         if fd is None:
@@ -305,25 +306,26 @@ class AsyncSlave(SlaveBase):
                 _start, end = port.write(adu)  # pyserial's write: URL ports have no wire
             except PortError as exc:
                 self._fail(exc)
-                return
+                return False
             self.protocol.transmitted(end)
-            return
+            return True
         try:
             n = os.write(fd, adu)
         except BlockingIOError:
             n = 0
         except OSError as exc:
             self._fail(PortError(port.name, f"write failed: {exc}"))
-            return
+            return False
         # a real line: the bytes leave the wire one character time each after now
         end = now + len(adu) * port.char_time if port.has_wire else now
         if n == len(adu):
             self.protocol.transmitted(end)
-            return
+            return True
         self._out = memoryview(adu)[n:]
         self._out_end = end
         assert self._loop is not None
         self._loop.add_writer(fd, self._on_writable)
+        return False
 
     def _on_writable(self) -> None:
         fd = self.port.fd
@@ -343,7 +345,7 @@ class AsyncSlave(SlaveBase):
             self._loop.remove_writer(fd)
             now = self._loop.time()
             self.protocol.transmitted(max(self._out_end, now))
-            self._after(now, False)
+            self._after(now)
 
 
 __all__ = ["AsyncSlave"]

@@ -17,12 +17,12 @@ wait) plus ``response_delay``.  With ``echo=True`` (an adapter that echoes)
 the frame equal to what it just sent is dropped.
 
 All of that is the sans-I/O server protocol (`pyrtu._server.ServerProtocol`); this
-module only moves bytes and times.  The loop waits in ``select`` on the port's file
-descriptor and a wake-up pipe (`stop` writes to it), until bytes come or the
-protocol's deadline (a frame's silence, the response's time, the watchdog).  When
-the first bytes of a frame come it sleeps, not watching the port, until the
-protocol's `wake_at`: for a request to this slave, `PREPARE` before the end of the
-request (its length from the rules) plus t3.5; it reads the rest, executes the
+module only interprets its next action (`ServerProtocol.next_action`): `Reply`,
+write it; `Listen` with ``needed``, sleep through the rest of a frame, not watching
+the port, then read it; `Listen` until a time or `Idle`, wait in ``select`` on the
+port's file descriptor and a wake-up pipe (`stop` writes to it).  For a request to
+this slave the protocol sizes the nap to `PREPARE` before the end of the request
+(its length from the rules) plus t3.5: the slave reads the rest, executes the
 request, and writes the response at its time after one more short wait.  Three
 wake-ups per transaction (the first byte, the request, the answer) instead of one
 per byte (lenient mode; strict mode sees every gap); four for a request longer
@@ -51,6 +51,7 @@ import time
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
+from ._server import Listen, Reply, ServerAction
 from ._slack import swap_timer_slack
 from ._slave_base import STANDARD_FUNCTIONS, Handler, SlaveBase, line_from_keywords
 from .datastore import DataStore
@@ -128,7 +129,6 @@ class Slave(SlaveBase):
         self._sleep_fds = [self._wake_r]
         #: sleep through the known rest of a frame (not in strict mode: every gap counts)
         self._skip = not self.line_config.strict and fd is not None
-        self._nap: float | None = None  # napping until then (the port not watched)
         #: the error that ended serve_forever in the background thread, if any
         self.error: BaseException | None = None
 
@@ -143,11 +143,11 @@ class Slave(SlaveBase):
             if self._serving:
                 raise RuntimeError("this slave is already serving")
             self._serving = True
-            self._nap = None
         slack = swap_timer_slack(_TIMER_SLACK_NS)
         try:
+            action = self._next()
             while not self._stop.is_set():
-                self._step(None)
+                action = self._do(action, None)
         finally:
             if slack is not None:
                 swap_timer_slack(slack)
@@ -207,86 +207,73 @@ class Slave(SlaveBase):
         """One step of the loop: wait up to ``timeout`` for bytes, act on what came; a
         request that began is read to its end and a response that became due is
         sent before returning (after its t3.5 and delay)."""
-        self._step(_monotonic() + timeout)
+        action = self._do(self._next(), _monotonic() + timeout)
         while not self._stop.is_set():
-            with self._lock:
-                pending = self.protocol.pending
-            if pending is None and self._nap is None:
+            if isinstance(action, Listen) and not action.needed:
+                with self._lock:
+                    if self.protocol.pending is None:
+                        return
+            elif not isinstance(action, Reply | Listen):
                 return
-            self._step(self.protocol.deadline())
+            action = self._do(action, None)
 
-    # ------------------------------------------------------------------ one step
+    # ------------------------------------------------------------------ the interpreter
 
-    def _step(self, until: float | None) -> None:
-        """Wait for bytes, the protocol's deadline or ``until`` (or, napping, for the
-        end of the nap); feed what came; send the response whose time has come."""
-        if self._nap is not None:
-            self._nap_step(self._nap)
-            return
-        proto = self.protocol
+    def _next(self) -> ServerAction:
+        with self._lock:
+            return self.protocol.next_action(_monotonic(), lead=PREPARE, nap=self._skip)
+
+    def _do(self, action: ServerAction, until: float | None) -> ServerAction:
+        """Carry out ``action`` (waiting no later than ``until``); the next action."""
+        if isinstance(action, Reply):
+            _start, end = self.port.write(action.data)
+            with self._lock:
+                self.protocol.transmitted(end)
+        elif isinstance(action, Listen) and action.needed:
+            # the rest of a frame the protocol sized: sleep through it, not watching the
+            # port (only stop() wakes this), then read it all, even nothing
+            timeout = action.until - _monotonic()
+            if timeout > 0 and self._wait(self._sleep_fds, timeout) and self._woken():
+                return action
+            port = self.port
+            assert port.fd is not None
+            rest = read_fd(port, port.fd, False)
+            with self._lock:
+                self.protocol.receive_data(rest, _monotonic())
+        else:
+            at = action.until if isinstance(action, Listen) else None
+            if until is not None and (at is None or until < at):
+                at = until
+            data = self._read(at, until is None)
+            if data is None:
+                return action  # stopped
+            if data:
+                with self._lock:
+                    self.protocol.receive_data(data, _monotonic())
+        return self._next()
+
+    def _read(self, deadline: float | None, serving: bool) -> bytes | None:
+        """The bytes that come by ``deadline`` (None: no limit; b"": none came); None
+        when `stop` woke the wait.  Ports without a file descriptor: at most `_POLL`
+        while ``serving`` (so that `stop` is seen)."""
         port = self.port
         fd = port.fd
-        with self._lock:
-            due = proto.deadline()
-        deadline = due if until is None or (due is not None and due < until) else until
         if fd is None:
             timeout = _POLL if deadline is None else max(0.0, deadline - _monotonic())
-            data = port.read(min(timeout, _POLL) if until is None else timeout)
-        else:
-            wait = None if deadline is None else max(0.0, deadline - _monotonic())
-            readable = False
-            for ready in self._wait(self._wait_fds, wait):
-                if ready == self._wake_r:
-                    self._drain_wake()
-                    if self._stop.is_set():
-                        return
-                else:
-                    readable = True
-            data = read_fd(port, fd, True) if readable else b""
-        now = _monotonic()
-        with self._lock:
-            if data:
-                proto.receive_data(data, now)
-            if due is not None and now >= due:
-                proto.handle_timer(now)
-            adu = proto.data_to_send(now)
-            if adu is None and data and self._skip:
-                self._nap = proto.wake_at(now, PREPARE)
-        if adu is not None:
-            self._send(adu)
+            return port.read(min(timeout, _POLL) if serving else timeout)
+        wait = None if deadline is None else max(0.0, deadline - _monotonic())
+        readable = False
+        for ready in self._wait(self._wait_fds, wait):
+            if ready != self._wake_r:
+                readable = True
+            elif self._woken():
+                return None
+        return read_fd(port, fd, True) if readable else b""
 
-    def _nap_step(self, until: float) -> None:
-        """Sleep through the rest of a frame the protocol sized, not watching the port
-        (only stop() wakes this), then read it all: for a request to this slave, its
-        end plus t3.5 has come, and the response goes out at once."""
-        self._nap = None
-        timeout = until - _monotonic()
-        if timeout > 0 and self._wait(self._sleep_fds, timeout):
-            self._drain_wake()
-            if self._stop.is_set():
-                return
-        port = self.port
-        assert port.fd is not None
-        data = read_fd(port, port.fd, False)
-        now = _monotonic()
-        proto = self.protocol
-        with self._lock:
-            proto.receive_data(data, now)  # even nothing: that ends the nap
-            adu = proto.data_to_send(now)
-            if adu is None:
-                due = proto.deadline()
-                if due is not None and now >= due:
-                    proto.handle_timer(now)
-                    adu = proto.data_to_send(now)
-                if adu is None and data:
-                    self._nap = proto.wake_at(now, PREPARE)
-        if adu is not None:
-            self._send(adu)
-
-    def _send(self, adu: bytes) -> None:
-        _start, end = self.port.write(adu)
-        with self._lock:
-            self.protocol.transmitted(end)
+    def _woken(self) -> bool:
+        """The wake-up pipe spoke: drained; True when it says stop."""
+        self._drain_wake()
+        return self._stop.is_set()
 
     @staticmethod
     def _wait(fds: list[int], timeout: float | None) -> list[int]:

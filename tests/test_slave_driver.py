@@ -12,6 +12,7 @@ import pytest
 from ptylink import PtyLink, RawPort, make_store
 
 from pyrtu import add_crc
+from pyrtu._server import ServerAction
 from pyrtu._slack import swap_timer_slack as _timer_slack
 from pyrtu.line import LineConfig
 from pyrtu.master import Master
@@ -34,14 +35,14 @@ def test_idle_slave_does_not_poll(link: PtyLink) -> None:
     (a 50 ms poll would make six or more)."""
     slave = Slave(link.path_b, store=make_store(), parity="N", t35=0)
     steps = 0
-    step = slave._step
+    step = slave._do
 
-    def counting(until: float | None) -> None:
+    def counting(action: ServerAction, until: float | None) -> ServerAction:
         nonlocal steps
         steps += 1
-        step(until)
+        return step(action, until)
 
-    slave._step = counting  # type: ignore[method-assign]
+    slave._do = counting  # type: ignore[method-assign]
     slave.start()
     time.sleep(0.3)
     slave.stop()
