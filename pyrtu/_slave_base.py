@@ -207,7 +207,14 @@ class SlaveBase:
                 log.exception("on_watchdog callback failed")
 
     def execute(self, unit: int, request: bytes) -> bytes | None:
-        """The response PDU of ``request`` (unit 0: a broadcast), None for no answer."""
+        """The response PDU of ``request`` (unit 0: a broadcast), None for no answer.
+        Safe from any thread: it runs under the driver's guard (the sync `Slave`'s
+        lock), so a slave served on TCP too (`pyrtu.tcp_server`) executes one request
+        at a time."""
+        with self._guard():
+            return self._execute(unit, request)
+
+    def _execute(self, unit: int, request: bytes) -> bytes | None:
         fc = request[0]
         try:
             for hook in self._hooks:

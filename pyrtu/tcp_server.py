@@ -29,13 +29,11 @@ execution step runs under the slave's lock (the serial side runs in its thread).
 from __future__ import annotations
 
 import asyncio
-import contextlib
 from collections.abc import Iterable, Mapping
 from typing import Any, Protocol
 
 from ._slave_base import SlaveBase
 from .datastore import DataStore
-from .errors import NoResponseError
 from .gateway import Gateway, GatewayLimits
 from .gateway._plan import check_listen
 from .line import LineConfig
@@ -84,21 +82,17 @@ class Application(Protocol):
 
 
 class LocalBus:
-    """An application in place of a serial bus: `execute` is the transaction."""
+    """An application in place of a serial bus: `execute` is the transaction (the
+    application guards it: `SlaveBase.execute` takes the sync Slave's lock)."""
 
     def __init__(self, app: Application) -> None:
         self.app = app
-        guard = getattr(app, "_guard", None)  # SlaveBase: the sync Slave's lock
-        self._guard: Any = guard if callable(guard) else contextlib.nullcontext
 
     async def request(self, slave: int, pdu: bytes) -> bytes | None:
-        with self._guard():
-            response = self.app.execute(slave, pdu)
-        if slave == 0:
-            return None
-        if response is None:  # listen-only mode, or a handler that stays silent
-            raise NoResponseError(f"unit {slave} does not answer", slave, pdu[0])
-        return response
+        """The answer PDU (an exception answer too, as bytes); None: no answer (a
+        broadcast, listen-only mode, a handler that stays silent)."""
+        response = self.app.execute(slave, pdu)
+        return None if slave == 0 else response
 
 
 class TcpServer:

@@ -479,12 +479,8 @@ class Gateway:
                     self._recovered(state)
                 if job.slave == 0:
                     answer = None  # a broadcast: nothing to answer
-                elif not answer:
-                    answer = self._failed(
-                        state,
-                        job,
-                        NoResponseError(f"unit {job.unit}: no answer PDU", job.unit, job.pdu[0]),
-                    )
+                elif not answer:  # the bus got no answer (a local application's silence)
+                    answer = self._target_failed(job)
             now = monotonic()
             state.transactions += 1
             state.busy_seconds += now - started
@@ -574,7 +570,9 @@ class Gateway:
                 log.info("unit %d: %s", job.unit, exc)
         else:  # a bus's bug: the bus goes on, the client gets an answer, the log the trace
             log.error("unit %d: the bus failed", job.unit, exc_info=exc)
-        if job.slave == 0:
-            return None
+        return None if job.slave == 0 else self._target_failed(job)
+
+    def _target_failed(self, job: Job) -> bytes:
+        """Exception 0x0B, gateway target device failed to respond ([AP] 7)."""
         self.counters["timeouts"] += 1
-        return exception_pdu(function, GATEWAY_TARGET_FAILED)
+        return exception_pdu(job.pdu[0], GATEWAY_TARGET_FAILED)

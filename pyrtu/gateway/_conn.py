@@ -68,10 +68,11 @@ class _Connection(asyncio.Protocol):
                 log.info("connection %d: bad MBAP header (%s): closed", self.id, ev.error)
                 self.close()
                 return
-            adu = ev.adu  # a whole ADU: transaction id, protocol 0, length, unit, PDU
-            buffered -= len(adu)
+            buffered -= len(ev.adu)
             completed = True
-            request(self, (adu[0] << 8) | adu[1], adu[6], adu[7:])
+            # the request's own fields go back in its answer ([TCP] 3.1.3); its
+            # protocol id is 0 (the framer refuses any other: a bad header, above)
+            request(self, ev.transaction, ev.unit, ev.pdu)
             if self.closed:
                 return
         self.buffered = buffered
