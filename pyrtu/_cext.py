@@ -195,6 +195,7 @@ class _RequestPredictor:
         self._length = ffi.new("size_t *")
 
     def __call__(self, adu: bytes) -> tuple[int, int]:
+        self._length[0] = 0  # (what the core leaves for "no rule": 0, as the twin)
         status = lib.rtu_predict(self._rules, lib.RTU_DIR_REQUEST, adu, len(adu), self._length)
         return int(status), int(self._length[0])
 
