@@ -11,7 +11,7 @@ import numbers
 import operator
 from collections import deque
 from collections.abc import Callable, Iterable, Sequence
-from typing import Protocol
+from typing import Generic, Protocol, TypeVar
 
 from ._feed import feed_all
 from ._types import BytesLike
@@ -49,6 +49,25 @@ class FramerCore(Protocol):
     def expect(self, adu: bytes) -> None: ...
     def take(self) -> tuple[int, int, bytes] | None: ...
     def counts(self) -> tuple[Sequence[int], Sequence[int], int]: ...
+
+
+E = TypeVar("E")
+
+
+class EventQueue(Generic[E]):
+    """The events a framer made and its owner has not taken yet (h11's next_event)."""
+
+    _events: deque[E]
+
+    def next_event(self) -> E | None:
+        """The next frame or discard event, or None when there is none yet."""
+        return self._events.popleft() if self._events else None
+
+    def events(self) -> list[E]:
+        """All events available now."""
+        out = list(self._events)
+        self._events.clear()
+        return out
 
 
 def as_bytes(data: BytesLike, name: str = "data") -> bytes:
@@ -140,7 +159,7 @@ def counters_dict(frames: Sequence[int], discarded: Sequence[int], events: int) 
     return out
 
 
-class FramerBase:
+class FramerBase(EventQueue[Frame]):
     """A sans-I/O Modbus RTU connection (in the spirit of h11).
 
     Feed bytes with ``receive_data(data, now)`` (``now``: seconds on a monotonic
@@ -215,16 +234,6 @@ class FramerBase:
         core = self._core
         # a silence before the new bytes may end what is buffered: events after each feed
         feed_all(lambda chunk: core.feed(chunk, now_us), raw, self._drain)
-
-    def next_event(self) -> Frame | None:
-        """The next frame or discard event, or None when there is none yet."""
-        return self._events.popleft() if self._events else None
-
-    def events(self) -> list[Frame]:
-        """All events available now."""
-        out = list(self._events)
-        self._events.clear()
-        return out
 
     def timer(self) -> float | None:
         """When ``handle_timer`` must run (seconds), or None when no timer is needed."""

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from typing import Protocol, overload
 
 from ._feed import feed_all
-from ._framing import as_bytes
+from ._framing import EventQueue, as_bytes
 from ._types import BytesLike
 from .config import ROLES
 from .frames import FrameKind
@@ -167,7 +167,7 @@ class MbapCore(Protocol):
     def counts(self) -> tuple[Sequence[int], Sequence[int], int]: ...
 
 
-class MbapFramerBase:
+class MbapFramerBase(EventQueue[MbapFrame]):
     """A sans-I/O Modbus TCP stream (in the spirit of h11): one direction of a connection.
 
     ``receive_data(data)`` takes bytes as read from the socket, in any pieces;
@@ -213,16 +213,6 @@ class MbapFramerBase:
             self._drain()
             return
         feed_all(self._core.feed, raw, self._drain)
-
-    def next_event(self) -> MbapFrame | None:
-        """The next ADU or discard event, or None when there is none yet."""
-        return self._events.popleft() if self._events else None
-
-    def events(self) -> list[MbapFrame]:
-        """All events available now."""
-        out = list(self._events)
-        self._events.clear()
-        return out
 
     @property
     def needed(self) -> int:

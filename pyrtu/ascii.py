@@ -14,7 +14,7 @@ from types import ModuleType
 from typing import Any
 
 from ._backend import active
-from ._framing import Event
+from ._framing import Event, EventQueue
 from ._types import BytesLike
 from .config import ROLES, to_microseconds
 from .frames import CODE_BY_ERROR, ERROR_BY_CODE, ErrorReason, Frame, FrameKind
@@ -231,7 +231,7 @@ def delimiter_table(char: int) -> bytes:
     return table
 
 
-class AsciiFramer:
+class AsciiFramer(EventQueue[Frame]):
     """Sans-I/O receiver for ASCII mode, with the same face as ``Framer``.
 
     Frames are delimited by ':' and CR LF; a ':' restarts a frame (2.5.2.1);
@@ -279,16 +279,6 @@ class AsciiFramer:
     def receive_data(self, data: BytesLike, now: float) -> None:
         self.core.feed(memoryview(data).cast("B").tobytes(), to_microseconds(now))
         self._drain()
-
-    def next_event(self) -> Frame | None:
-        """The next `Frame` (a frame or a discard event), or None."""
-        return self._events.popleft() if self._events else None
-
-    def events(self) -> list[Frame]:
-        """All events available now."""
-        out = list(self._events)
-        self._events.clear()
-        return out
 
     def send(self, frame: BytesLike) -> bytes:
         """Record that ``frame`` (an ASCII frame) is transmitted by this side; returns
