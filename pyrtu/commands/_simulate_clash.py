@@ -104,6 +104,14 @@ class _Watched:
         if text is not None:
             self._warn(text)
 
+    def next_action(self, now: float, **options: Any) -> Any:
+        """The drivers' entry point: a `Reply` handed out is an answer being sent."""
+        action = self._proto.next_action(now, **options)
+        data = getattr(action, "data", None)
+        if data is not None:
+            self._watch.sending(data, now)
+        return action
+
     def data_to_send(self, now: float) -> bytes | None:
         adu: bytes | None = self._proto.data_to_send(now)
         if adu is not None:
