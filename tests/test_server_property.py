@@ -30,7 +30,7 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from pyrtu import pdu as P
-from pyrtu._server import ServerProtocol
+from pyrtu._server import Listen, Reply, ServerAction, ServerProtocol
 from pyrtu._slave_base import SlaveBase
 from pyrtu.datastore import DataStore
 from pyrtu.line import LineConfig
@@ -174,51 +174,42 @@ class Driver:
         self.line = line
         self.lead = lead
         self.now = now
-        self.nap: float | None = None
+        self.action: ServerAction | None = None  # the one carried over between runs
         self.answers: list[tuple[float, bytes]] = []
 
     def late(self) -> float:
         return self.line.rng.choice([0.0, 0.0, self.line.rng.uniform(0, JITTER)])
 
     def run(self, until: float, stop_on_answer: bool = False) -> None:
-        """Serve up to ``until`` (or the first answer)."""
+        """Serve up to ``until`` (or the first answer), interpreting the protocol's
+        next actions as the drivers do."""
         proto = self.proto
         while True:
-            if self.nap is not None:
-                if self.nap > until:
-                    return
-                self.now = max(self.now, self.nap) + self.late()
-                self.nap = None
-                data = self.line.read(self.now)
-                proto.receive_data(data, self.now)  # even nothing: it ends the nap
-                adu = proto.data_to_send(self.now)
-                if adu is None:
-                    due = proto.deadline()
-                    if due is not None and self.now >= due:
-                        proto.handle_timer(self.now)
-                        adu = proto.data_to_send(self.now)
-                    if adu is None and data:
-                        self.nap = proto.wake_at(self.now, self.lead)
-            else:
-                due = proto.deadline()
-                ready = self.line.next_ready()
-                wake = min((t for t in (due, ready) if t is not None), default=None)
-                if wake is None or wake > until:
-                    return
-                self.now = max(self.now, wake) + self.late()
-                data = self.line.read(self.now)
-                if data:
-                    proto.receive_data(data, self.now)
-                if due is not None and self.now >= due:
-                    proto.handle_timer(self.now)
-                adu = proto.data_to_send(self.now)
-                if adu is None and data:
-                    self.nap = proto.wake_at(self.now, self.lead)
-            if adu is not None:
-                self.answers.append((self.now, adu))
-                proto.transmitted(self.now + len(adu) * self.line.char)
+            action = self.action or proto.next_action(self.now, lead=self.lead)
+            self.action = None
+            if isinstance(action, Reply):
+                self.answers.append((self.now, action.data))
+                proto.transmitted(self.now + len(action.data) * self.line.char)
                 if stop_on_answer:
                     return
+                continue
+            if isinstance(action, Listen) and action.needed:  # a nap
+                if action.until > until:
+                    self.action = action  # goes on in the next run
+                    return
+                self.now = max(self.now, action.until) + self.late()
+                proto.receive_data(self.line.read(self.now), self.now)  # even nothing
+                continue
+            due = action.until if isinstance(action, Listen) else None
+            ready = self.line.next_ready()
+            wake = min((t for t in (due, ready) if t is not None), default=None)
+            if wake is None or wake > until:
+                self.action = action
+                return
+            self.now = max(self.now, wake) + self.late()
+            data = self.line.read(self.now)
+            if data:
+                proto.receive_data(data, self.now)
 
 
 def noise_makes_a_frame(backend: ModuleType, script: list[Item], wires: list[bytes]) -> bool:

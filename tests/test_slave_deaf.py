@@ -24,7 +24,7 @@ import pytest
 from peers.tools import minimal_instrument
 
 from pyrtu import pdu as P
-from pyrtu._server import ServerProtocol
+from pyrtu._server import Listen, Reply, ServerProtocol
 from pyrtu._slave_base import SlaveBase
 from pyrtu.aio import AsyncSlave
 from pyrtu.datastore import DataStore
@@ -80,22 +80,21 @@ class Line:
             ready = sum(1 for t in arrival if t <= now)
             proto.receive_data(adu[got:ready], now)
             got = ready
-            due = proto.deadline()
-            if due is not None and now >= due:
-                proto.handle_timer(now)
-            out = proto.data_to_send(now)
-            if out is not None:
-                proto.transmitted(now + len(out) * self.char)
-                self.now = now + len(out) * self.char
-                return out
-            at = proto.wake_at(now, PREPARE) if got else None
-            if at is None:
-                at = proto.deadline()
-            if at is None:
-                if got == len(adu):
-                    break
-                at = arrival[got]
-            now = max(now, at)
+            action = proto.next_action(now, lead=PREPARE)
+            if isinstance(action, Reply):
+                proto.transmitted(now + len(action.data) * self.char)
+                self.now = now + len(action.data) * self.char
+                return action.data
+            if isinstance(action, Listen) and action.needed:  # a nap: then read it all
+                now = max(now, action.until)
+                continue
+            # watching the port: the next byte or the protocol's deadline
+            wakes = [arrival[got]] if got < len(adu) else []
+            if isinstance(action, Listen):
+                wakes.append(action.until)
+            if not wakes:
+                break
+            now = max(now, min(wakes))
         self.now = now
         return None
 
