@@ -1,23 +1,41 @@
 """The sans-I/O Modbus client (master) protocol: one transaction at a time on a line.
 
 No clock, no port, no sleeps: time is an input (``now``, seconds on a monotonic
-clock) and the driver does the I/O.  The shape, in the spirit of h11::
+clock) and the driver does the I/O.  The protocol tells its driver the one next
+thing to do, as aioquic's connection hands out its datagrams and its timer; a
+driver is a short interpreter of three actions::
 
     proto = ClientProtocol(LineConfig(baudrate=9600), timeout=0.5)
-    proto.start(1, pdu.read_request(3, 0, 10), decode, now)
-    while not proto.done:
-        if proto.state is State.SEND:            # the line is quiet: transmit
-            start, end = port.write(proto.data_to_send())
-            proto.transmitted(end)               # end of transmission is an input
-            continue
-        # wait for bytes, at most until proto.deadline(); a driver that can sleep may
-        # first sleep proto.needed() character times (fewer bytes end nothing)
-        data = port.read(...)
-        if data:
-            proto.receive_data(data, now)
-        else:
-            proto.handle_timer(now)
-    value = proto.result()                       # or raises the transaction's error
+    proto.start(1, pdu.read_request(3, 0, 10), decode, now())
+    while True:
+        action = proto.next_action(now())
+        if isinstance(action, Send):             # the line is quiet: transmit
+            start, end = port.write(action.data)
+            proto.transmitted(end, start)        # end of transmission is an input
+        elif isinstance(action, Wait):           # sleep, or wait for input, then read
+            proto.wait_done(read(action), now())
+        else:                                    # Done
+            value = action.result()              # or raises the transaction's error
+            break
+
+The actions (one type per stream, `Action`):
+
+`Send` ``(data)``
+    write ``data`` now, then report its end with ``transmitted(end, start)``.
+`Wait` ``(until, listen)``
+    ``listen`` true: wait for input until ``until`` (wake as soon as bytes come)
+    and read them; false: sleep until ``until`` whatever comes (bytes arriving
+    meanwhile are useless before then: the rest of a predicted answer, or input
+    on a line that must stay quiet first), then read what is there.  Either
+    way report what was read (``b""``: nothing) with ``wait_done(data, now)``.
+    ``until`` may be in the past: read what is there without waiting.
+`Done` ``(value, error, end)``
+    the transaction is over: ``result()`` returns ``value`` or raises ``error``;
+    ``end`` is when the answer's last byte arrived (None without an answer).
+
+Every decision is the protocol's: when to look for stale input before sending,
+how long to sleep while an answer comes in (``ready_at``: its predicted length,
+the slave's learned turnaround), when to wake on input, when the attempt ends.
 
 States: ``IDLE`` -> ``QUIET`` (waiting for the earliest send time: t3.5 after the
 line went quiet, the broadcast turnaround, the settling time after a failure;
@@ -25,7 +43,9 @@ bytes that arrive now are stale and restart the silence) -> ``SEND`` (the ADU is
 ready) -> ``ANSWER`` (the echo of an echoing adapter first, then the answer, fed
 to the framer) -> ``DONE`` (a result or a typed error).  A failed attempt with
 retries left goes back to ``QUIET``.  ``abort(now)`` (a cancelled driver) ends the
-transaction and makes the next one wait out a late answer.
+transaction and makes the next one wait out a late answer.  The lower-level
+inputs (``receive_data``, ``handle_timer``, ``deadline``) stay available to a
+driver that keeps its own loop.
 
 Frames that are not the answer (another slave or function, data the decoder
 refuses, frames damaged on the line) are dropped and counted; the wait goes on
@@ -42,7 +62,7 @@ import enum
 import logging
 from collections.abc import Callable
 from types import ModuleType
-from typing import Any
+from typing import Any, NamedTuple, Union
 
 from . import _backend
 from .ascii import encode_ascii, make_framer
@@ -72,6 +92,40 @@ class State(enum.Enum):
     SEND = "send"
     ANSWER = "answer"
     DONE = "done"
+
+
+class Send(NamedTuple):
+    """Write ``data`` now, then call ``transmitted(end, start)``."""
+
+    data: bytes
+
+
+class Wait(NamedTuple):
+    """Wait until ``until`` (monotonic seconds; may be past: no wait), then read
+    what the port has and call ``wait_done(data, now)``.  ``listen``: wake as soon
+    as input comes; else sleep until ``until`` whatever comes."""
+
+    until: float
+    listen: bool
+
+
+class Done(NamedTuple):
+    """The transaction is over: ``value`` or ``error``; ``end``: when the answer's
+    last byte arrived (None: no answer, e.g. a broadcast or an error)."""
+
+    value: Any
+    error: BaseException | None
+    end: float | None
+
+    def result(self) -> Any:
+        """The value, or raise the transaction's error."""
+        if self.error is not None:
+            raise self.error
+        return self.value
+
+
+#: what `ClientProtocol.next_action` hands the driver
+Action = Union[Send, Wait, Done]
 
 
 # module constants: an enum member lookup costs a class attribute access (3.11)
@@ -162,6 +216,8 @@ class ClientProtocol:
         self._result: Any = None
         self._error: Exception | None = None
         self._dbg = False  # debug logging on for this transaction
+        self._checked = False  # SEND: the driver just read and found no input
+        self._nap = False  # ANSWER: sleep on ready_at before waiting for input
         #: per slave: how long past t3.5 its answers start (see _learn_turnaround)
         self._turn: dict[int, float] = {}
         #: per request ADU: the length of its last answer (see ready_at)
@@ -222,6 +278,7 @@ class ClientProtocol:
             self._adu = self.encode(slave, pdu)
         self._slave, self._fc, self._decode = slave, pdu[0], decode
         self._attempt = 0
+        self._checked = False
         self._result = self._error = None
         self._give_up = now + self.timeout
         ready = self.send_at() if self.gap > 0 or self.failed_at else self.quiet_until
@@ -289,6 +346,7 @@ class ClientProtocol:
         else:
             self._restart(self._adu)
         self.state = _ANSWER
+        self._nap = True
 
     # ------------------------------------------------------------- inputs
 
@@ -302,6 +360,7 @@ class ClientProtocol:
             # before the request (or between transactions): a late answer, noise
             self._discard("stale", len(data))
             log.debug("stale input dropped: %s", data.hex(" "))
+            self._checked = False
             if state is _SEND:
                 self.state = _QUIET
                 self._check_quiet(now)
@@ -327,10 +386,46 @@ class ClientProtocol:
         else:
             self._feed(core, data, now)
         if self.state is _ANSWER:
+            self._nap = True
             if self._bad is not None:
                 self._limit = min(self._end + self.timeout, now + self.settle)
             elif first and not self.echo and self.gap > 0:
                 self._learn_turnaround(len(data), now)
+
+    def next_action(self, now: float) -> Action:
+        """What the driver does next (see the module docstring): `Send` the request,
+        `Wait` (a sleep on ``ready_at`` while an answer comes in, a wait for input
+        until the attempt's deadline, a sleep to the send time, or a look for stale
+        input just before the request goes), or `Done` (then the protocol is idle
+        again).  Call it after each of the protocol's inputs."""
+        state = self.state
+        if state is _ANSWER:
+            if self._nap:  # bytes are due: sleep until they can all be in
+                self._nap = False
+                until = self.ready_at(now)
+                if until > now:
+                    return Wait(until, False)
+            return Wait(self.deadline() or now, True)
+        if state is _SEND:
+            if self._checked:
+                return Send(self._adu)
+            return Wait(now, False)  # pending input first: stale, it restarts the silence
+        if state is _QUIET:
+            return Wait(min(self.send_at(), self._give_up), False)
+        if state is _DONE:
+            self.state = _IDLE
+            error, self._error = self._error, None
+            answered = error is None and self._decode is not None
+            return Done(self._result, error, self.answer_end if answered else None)
+        raise RuntimeError("no transaction (start one first)")
+
+    def wait_done(self, data: bytes, now: float) -> None:
+        """A `Wait` ended at ``now`` with ``data`` read (b"": none came)."""
+        if data:
+            self.receive_data(data, now)
+        else:
+            self._checked = True
+            self.handle_timer(now)
 
     def handle_timer(self, now: float) -> None:
         """Time passed up to ``now`` (call it at ``deadline()``)."""
@@ -662,4 +757,13 @@ class ClientProtocol:
         self._fail(error, now)
 
 
-__all__ = ["ONE_WAKE_CHAR", "ClientProtocol", "State", "new_counters"]
+__all__ = [
+    "ONE_WAKE_CHAR",
+    "Action",
+    "ClientProtocol",
+    "Done",
+    "Send",
+    "State",
+    "Wait",
+    "new_counters",
+]
