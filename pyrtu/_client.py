@@ -18,24 +18,11 @@ driver is a short interpreter of three actions::
             value = action.result()              # or raises the transaction's error
             break
 
-The actions (one type per stream, `Action`):
-
-`Send` ``(data)``
-    write ``data`` now, then report its end with ``transmitted(end, start)``.
-`Wait` ``(until, listen)``
-    ``listen`` true: wait for input until ``until`` (wake as soon as bytes come)
-    and read them; false: sleep until ``until`` whatever comes (bytes arriving
-    meanwhile are useless before then: the rest of a predicted answer, or input
-    on a line that must stay quiet first), then read what is there.  Either
-    way report what was read (``b""``: nothing) with ``wait_done(data, now)``.
-    ``until`` may be in the past: read what is there without waiting.
-`Done` ``(value, error, end)``
-    the transaction is over: ``result()`` returns ``value`` or raises ``error``;
-    ``end`` is when the answer's last byte arrived (None without an answer).
-
-Every decision is the protocol's: when to look for stale input before sending,
-how long to sleep while an answer comes in (``ready_at``: its predicted length,
-the slave's learned turnaround), when to wake on input, when the attempt ends.
+The actions (`Send`, `Wait`, `Done`: one type per stream, `Action`) are described
+in `pyrtu._client_actions`.  Every decision is the protocol's: when to look for
+stale input before sending, how long to sleep while an answer comes in
+(``ready_at``, in `pyrtu._client_timing`: its predicted length, the slave's
+learned turnaround), when to wake on input, when the attempt ends.
 
 States: ``IDLE`` -> ``QUIET`` (waiting for the earliest send time: t3.5 after the
 line went quiet, the broadcast turnaround, the settling time after a failure;
@@ -58,13 +45,14 @@ or does not come back: `BusFault`.
 
 from __future__ import annotations
 
-import enum
 import logging
 from collections.abc import Callable
 from types import ModuleType
-from typing import Any, NamedTuple, Union
+from typing import Any
 
 from . import _backend
+from ._client_actions import Action, Decoder, Done, Send, State, Wait, new_counters
+from ._client_timing import ONE_WAKE_CHAR, AnswerTiming
 from .ascii import encode_ascii, make_framer
 from .errors import BusFault, ExceptionResponseError, FrameError, NoResponseError
 from .frames import ERROR_BY_CODE
@@ -74,85 +62,19 @@ from .line import LineConfig
 log = logging.getLogger("pyrtu.master")
 _debug = log.isEnabledFor
 
-DISCARD_REASONS = (
-    "crc",
-    "t1.5",
-    "overflow",
-    "unknown_function",
-    "truncated",
-    "stale",
-    "unexpected",
-)
-Decoder = Callable[[bytes], Any]
-
-
-class State(enum.Enum):
-    IDLE = "idle"
-    QUIET = "quiet"
-    SEND = "send"
-    ANSWER = "answer"
-    DONE = "done"
-
-
-class Send(NamedTuple):
-    """Write ``data`` now, then call ``transmitted(end, start)``."""
-
-    data: bytes
-
-
-class Wait(NamedTuple):
-    """Wait until ``until`` (monotonic seconds; may be past: no wait), then read
-    what the port has and call ``wait_done(data, now)``.  ``listen``: wake as soon
-    as input comes; else sleep until ``until`` whatever comes."""
-
-    until: float
-    listen: bool
-
-
-class Done(NamedTuple):
-    """The transaction is over: ``value`` or ``error``; ``end``: when the answer's
-    last byte arrived (None: no answer, e.g. a broadcast or an error)."""
-
-    value: Any
-    error: BaseException | None
-    end: float | None
-
-    def result(self) -> Any:
-        """The value, or raise the transaction's error."""
-        if self.error is not None:
-            raise self.error
-        return self.value
-
-
-#: what `ClientProtocol.next_action` hands the driver
-Action = Union[Send, Wait, Done]
-
-
 # module constants: an enum member lookup costs a class attribute access (3.11)
 _IDLE, _QUIET, _SEND, _ANSWER, _DONE = State.IDLE, State.QUIET, State.SEND, State.ANSWER, State.DONE
 _DEBUG = logging.DEBUG
-#: `ClientProtocol.ready_at` reads a repeated request's whole answer in one wake-up
-#: where a character lasts at least this long (up to 19200 baud): many times the
-#: lateness of a timed wake-up, so the last byte is still read as it comes
-ONE_WAKE_CHAR = 0.0005
 _ADUS_MAX = 1024
 #: the core's error codes (RTU_ERR_*) as the discard reasons of the counters
 _REASONS: tuple[str | None, ...] = tuple(r.value if r else None for r in ERROR_BY_CODE)
-
-
-def new_counters() -> dict[str, int]:
-    """The master's counters, all zero."""
-    keys = ["requests", "responses", "broadcasts", "exceptions", "timeouts", "crc_errors"]
-    keys += ["frame_errors", "echo_mismatches", "retries", "discarded_bytes"]
-    keys += [f"discarded_{r}" for r in DISCARD_REASONS]
-    return dict.fromkeys(keys, 0)
 
 
 def _identity(pdu: bytes) -> bytes:
     return pdu
 
 
-class ClientProtocol:
+class ClientProtocol(AnswerTiming):
     """A Modbus master's transactions on one line (see the module docstring).
 
     ``line``: the `LineConfig`; ``timeout``: seconds from the end of transmission
@@ -178,21 +100,13 @@ class ClientProtocol:
         self.echo = echo
         self.broadcast_delay = broadcast_delay
         self._backend = backend or _backend.active
-        #: the inter-frame silence kept before a request (seconds; 0: none)
-        self.gap = line.frame_gap
-        self.settle = max(0.02, 3 * self.gap)
         self.counters = new_counters()
-        self._framer: Any = make_framer(line, "master", self._backend)
-        # RTU: the backend's core framer, driven directly (events as the core's tuples,
-        # no Frame objects: the hot path); ASCII: the AsciiFramer's Frame events
-        self._core: Any = getattr(self._framer, "_core", None)
-        self._char = line.char_time
-        #: learn answer lengths only where ready_at uses them (a timed, slow line)
-        self._one_wake = self.gap > 0 and self._char >= ONE_WAKE_CHAR
-        self._max_adu = line.max_adu
         self._add_crc: Callable[[bytes], bytes] = self._backend.add_crc
         #: RTU ADUs already built, by (slave, PDU): a poller repeats the same requests
         self._adus: dict[tuple[int, bytes], bytes] = {}
+        #: per request ADU: the length of its last answer (see ready_at)
+        self._sizes: dict[bytes, int] = {}
+        self._configure(line)
         self.state = _IDLE
         # the line, across transactions
         self.tx_end = 0.0  # end of our last transmission
@@ -220,14 +134,16 @@ class ClientProtocol:
         self._nap = False  # ANSWER: sleep on ready_at before waiting for input
         #: per slave: how long past t3.5 its answers start (see _learn_turnaround)
         self._turn: dict[int, float] = {}
-        #: per request ADU: the length of its last answer (see ready_at)
-        self._sizes: dict[bytes, int] = {}
 
     def set_line(self, line: LineConfig) -> None:
         """A new line configuration (new length rules); between transactions only."""
         if self.state not in (_IDLE, _DONE):
             raise RuntimeError(f"a transaction is in progress ({self.state.value})")
+        self._configure(line)
+
+    def _configure(self, line: LineConfig) -> None:
         self.line = line
+        #: the inter-frame silence kept before a request (seconds; 0: none)
         self.gap = line.frame_gap
         self.settle = max(0.02, 3 * self.gap)
         self._char = line.char_time
@@ -236,8 +152,10 @@ class ClientProtocol:
         self._max_adu = line.max_adu
         self._adus.clear()
         self._sizes.clear()
-        self._framer = make_framer(line, "master", self._backend)
-        self._core = getattr(self._framer, "_core", None)
+        self._framer: Any = make_framer(line, "master", self._backend)
+        # RTU: the backend's core framer, driven directly (events as the core's tuples,
+        # no Frame objects: the hot path); ASCII: the AsciiFramer's Frame events
+        self._core: Any = getattr(self._framer, "_core", None)
 
     # ------------------------------------------------------------- transaction
 
@@ -289,15 +207,6 @@ class ClientProtocol:
         self.state = _QUIET
         self._give_up = now + self.timeout
         self._check_quiet(now)
-
-    def send_at(self) -> float:
-        """QUIET: the earliest time the request may go out."""
-        ready = self.quiet_until
-        if self.gap > 0:
-            ready = max(ready, self.tx_end + self.gap, self.last_rx + self.gap)
-        if self.failed_at:
-            ready = max(ready, self.failed_at + self.settle, self.last_rx + self.settle)
-        return ready
 
     def _check_quiet(self, now: float) -> None:
         if self.state is _QUIET and (self.send_at() <= now or now >= self._give_up):
@@ -466,85 +375,6 @@ class ClientProtocol:
             return self._limit if timer is None else min(timer, self._limit)
         deadline = core.deadline()  # _timer inlined (the hot path)
         return self._limit if deadline is None else min(deadline / 1e6, self._limit)
-
-    def _learn_turnaround(self, size: int, now: float) -> None:
-        """The first bytes of an answer still coming: its first byte arrived about
-        ``size`` characters before ``now`` (the slave sends its characters back to
-        back, Serial Line V1.02 2.5.1.1), so the slave took that long past t3.5 to
-        answer (an upper bound within a character: the bytes were read at ``now``,
-        at or after the last one came).  Kept per slave as a slowly rising minimum
-        of these estimates, so that `ready_at` puts the first sleep where the first
-        bytes are in (a slave that answers sooner lowers it at once)."""
-        turn = now - size * self._char - (self._end + self.gap)
-        turn = turn if turn > 0.0 else 0.0
-        old = self._turn.get(self._slave)
-        if old is None or turn <= old:
-            if old is None and len(self._turn) >= 256:
-                self._turn.clear()
-            self._turn[self._slave] = turn
-        else:
-            self._turn[self._slave] = old + (turn - old) / 16
-
-    def turnaround(self, slave: int) -> float | None:
-        """The slave's learned turnaround past t3.5 (seconds; see `ready_at`), None
-        before one of its answers was seen arriving on a timed line."""
-        return self._turn.get(slave)
-
-    def ready_at(self, now: float) -> float:
-        """ANSWER: the earliest time the bytes still needed can all be in, so a driver
-        may sleep until then instead of waking per byte.  Before any byte of the
-        answer came: from the end of transmission plus t3.5 (the slave keeps that
-        silence before it answers, Serial Line V1.02 2.5.1.1; not with an echo, which
-        comes at once) plus the slave's learned turnaround (`turnaround`), so that
-        the first sleep does not end before the first bytes are in, ``needed()``
-        character times; or, where a character lasts at least `ONE_WAKE_CHAR` and
-        for a request whose answer was seen before (a poller repeats its requests),
-        that answer's length less one character: one wake-up for the whole answer
-        instead of one for its header and one for the rest (an exception answer,
-        shorter, is then read at the normal answer's end).  At faster rates a timed
-        wake-up's lateness is about a character, the whole answer would often be in
-        by then, and the next t3.5 would count from that late read (measured at
-        115200 on the virtual bus: 0.92 of the wire limit against 0.955 with the
-        header first), so the header is read first there.  Once
-        bytes came: ``needed() - 1`` character times from now, so that the driver
-        reads the last byte as it comes (a wait for input) and the next silence
-        counts from the answer's real end.  Never past the end of the attempt (the
-        timeout, or the settling time after a frame that was not the answer), so a
-        driver needs no cap of its own: not ``deadline()``, whose silence timer only
-        matters when no byte comes (the bytes read after the sleep carry their own
-        times).  ``now`` in other states, and on a line without wire timing (t3.5 =
-        0: pseudo-terminals, TCP links), whose bytes come in bursts rather than at
-        the character rate."""
-        if self.state is not _ANSWER or self.gap <= 0:
-            return now
-        start = now
-        needed = self.needed()
-        if not self._heard and not self._echo_left:
-            start = max(now, self._end + self.gap + self._turn.get(self._slave, 0.0))
-            if self._one_wake:
-                size = self._sizes.get(self._adu, 0)
-                if size > needed:
-                    needed = size - 1
-        elif needed:
-            # once bytes of the answer are in, wake a character early and read the
-            # last byte as it comes: a sleep would end up to a character (plus the
-            # timer's lateness) after it, and the next request's t3.5 counts from
-            # when the answer's end was read (measured on the virtual bus at 115200:
-            # the master's delay past t3.5 from 145 to 62 µs, the wire efficiency
-            # from 0.977 to 0.995, CPU per transaction unchanged)
-            needed -= 1
-        return min(start + needed * self._char, self._limit)
-
-    def needed(self) -> int:
-        """ANSWER: bytes that must still arrive before the answer can be complete (a
-        lower bound: the echo still expected plus the framer's ``needed()``); 0 when
-        unknown (ASCII, an unknown layout) or in another state."""
-        if self.state is not _ANSWER:
-            return 0
-        if self._decode is None:
-            return len(self._echo_left)
-        framer = self._framer if self._core is None else self._core
-        return len(self._echo_left) + int(framer.needed())
 
     def abort(self, now: float) -> None:
         """The driver gave up on the transaction (cancelled): the line keeps what it

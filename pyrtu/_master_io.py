@@ -70,10 +70,10 @@ def run_sync(port: Port, proto: ClientProtocol, call: Call) -> Any:
     try:
         while True:
             action = proto.next_action(_monotonic())
-            if type(action) is Wait:
+            if isinstance(action, Wait):
                 data = wait(action)
                 proto.wait_done(data, _monotonic())
-            elif type(action) is Send:
+            elif isinstance(action, Send):
                 start, end = port.write(action.data)
                 proto.transmitted(end, start)
             else:

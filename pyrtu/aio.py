@@ -187,10 +187,10 @@ class AsyncMaster(MasterBase):
         try:
             while True:
                 action = proto.next_action(_monotonic())
-                if type(action) is Wait:
+                if isinstance(action, Wait):
                     data = await self._wait(action)
                     proto.wait_done(data, _monotonic())
-                elif type(action) is Send:
+                elif isinstance(action, Send):
                     start, end = await self._transmit(action.data)
                     proto.transmitted(end, start)
                 else:
@@ -202,8 +202,9 @@ class AsyncMaster(MasterBase):
     async def _run_callbacks(self, proto: ClientProtocol) -> Any:
         """The transaction driven by the loop's callbacks (descriptor ports without a
         wire: pseudo-terminals, virtual bus drops): each wake-up (the timer or the
-        descriptor of a `Wait`) runs `_Drive.step` in the callback itself, and the awaiting task wakes once, when the
-        transaction is over.  (The loop's ``time()`` is `time.monotonic`.)"""
+        descriptor of a `Wait`) runs `_Drive.step` in the callback itself, and the
+        awaiting task wakes once, when the transaction is over.  (The loop's
+        ``time()`` is `time.monotonic`.)"""
         fut: asyncio.Future[Any] = asyncio.get_running_loop().create_future()
         drive = _Drive(self, proto, fut)
         drive.step()
@@ -409,7 +410,7 @@ class _Drive:
                 proto.wait_done(read_now(port, fd), _monotonic())
             while True:
                 action = proto.next_action(_monotonic())
-                if type(action) is Wait:
+                if isinstance(action, Wait):
                     if action.until > _monotonic():
                         self._timer = _ptimer.call_at(self._loop, action.until, self._wake)
                         if action.listen:
@@ -417,7 +418,7 @@ class _Drive:
                             self._loop.add_reader(fd, self._wake)
                         return
                     proto.wait_done(read_now(port, fd), _monotonic())
-                elif type(action) is Send:
+                elif isinstance(action, Send):
                     start, end = port.write(action.data)
                     proto.transmitted(end, start)
                 else:
