@@ -309,18 +309,19 @@ class ClientProtocol(AnswerTiming):
         again).  Call it after each of the protocol's inputs."""
         state = self.state
         if state is _ANSWER:
+            needed = self.needed()
             if self._nap:  # bytes are due: sleep until they can all be in
                 self._nap = False
                 until = self.ready_at(now)
                 if until > now:
-                    return Wait(until, False)
-            return Wait(self.deadline() or now, True)
+                    return Wait(until, False, needed)
+            return Wait(self.deadline() or now, True, needed)
         if state is _SEND:
             if self._checked:
                 return Send(self._adu)
-            return Wait(now, False)  # pending input first: stale, it restarts the silence
+            return Wait(now, False, 0)  # pending input first: stale, it restarts the silence
         if state is _QUIET:
-            return Wait(min(self.send_at(), self._give_up), False)
+            return Wait(min(self.send_at(), self._give_up), False, 0)
         if state is _DONE:
             self.state = _IDLE
             error, self._error = self._error, None

@@ -5,13 +5,16 @@ type per stream, `Action`); a driver carries it out and reports back:
 
 `Send` ``(data)``
     write ``data`` now, then report its end with ``transmitted(end, start)``.
-`Wait` ``(until, listen)``
+`Wait` ``(until, listen, needed)``
     ``listen`` true: wait for input until ``until`` (wake as soon as bytes come)
     and read them; false: sleep until ``until`` whatever comes (bytes arriving
     meanwhile are useless before then: the rest of a predicted answer, or input
     on a line that must stay quiet first), then read what is there.  Either
     way report what was read (``b""``: nothing) with ``wait_done(data, now)``.
     ``until`` may be in the past: read what is there without waiting.
+    ``needed``: the bytes the protocol still awaits (a lower bound); 0: none
+    (a wait for the send time, a look for stale input), so that a driver may as
+    well wake on input (it is stale) and need not expect any after the wait.
 `Done` ``(value, error, end)``
     the transaction is over: ``result()`` returns ``value`` or raises ``error``;
     ``end`` is when the answer's last byte arrived (None without an answer).
@@ -56,10 +59,12 @@ class Send(NamedTuple):
 class Wait(NamedTuple):
     """Wait until ``until`` (monotonic seconds; may be past: no wait), then read
     what the port has and call ``wait_done(data, now)``.  ``listen``: wake as soon
-    as input comes; else sleep until ``until`` whatever comes."""
+    as input comes; else sleep until ``until`` whatever comes.  ``needed``: the
+    bytes still awaited (0: none, input now would be stale)."""
 
     until: float
     listen: bool
+    needed: int
 
 
 class Done(NamedTuple):

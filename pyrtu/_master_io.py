@@ -3,12 +3,14 @@
 All policy (silences, echo, retries, late answers, settling, when to sleep and
 when to wait for input) is in `pyrtu._client.ClientProtocol`, which hands out one
 action at a time (`Send`, `Wait`, `Done`); `run_sync` interprets them, with one
-way of waiting per kind of port: a descriptor (`_wait_fd`: sleeps and ``poll()``)
+way of waiting per kind of port: a descriptor (`_wait_fd`: sleeps, ``select()``
+and ``poll()``)
 or pyserial's generic timed read (`_wait_generic`: URL ports, Windows).
 """
 
 from __future__ import annotations
 
+import select
 import time
 from collections.abc import Callable
 from typing import Any
@@ -30,10 +32,19 @@ def read_now(port: Port, fd: int) -> bytes:
 
 
 def _wait_fd(port: Port, fd: int, action: Wait) -> bytes:
-    """A `Wait` on a descriptor: a sleep then one read, or ``poll()`` until input
-    (millisecond timeouts: fine for the deadlines of a wait for input)."""
-    wait = action.until - _monotonic()
-    if not action.listen:
+    """A `Wait` on a descriptor: a sleep then one read (the bytes are due), or a
+    wait for input: ``select()`` to the microsecond where nothing is awaited (the
+    send time: stale input is read as it comes), else ``poll()`` (millisecond
+    timeouts: fine for the deadline of an answer)."""
+    until, listen, needed = action
+    wait = until - _monotonic()
+    if not (listen or needed):
+        if fd < 1024:
+            ready = bool(select.select((fd,), (), (), wait if wait > 0 else 0.0)[0])
+        else:
+            ready = bool(port._poll.poll(wait * 1000.0 if wait > 0 else 0))
+        return read_fd(port, fd, True) if ready else b""
+    if not listen:
         if wait > 0:
             _sleep(wait)
         return read_now(port, fd)

@@ -376,7 +376,7 @@ class _Drive:
     protocol's actions, where each `Wait` is a timer (and a reader when it
     listens) that calls `step` again."""
 
-    __slots__ = ("_fd", "_fut", "_loop", "_port", "_proto", "_reading", "_timer")
+    __slots__ = ("_fd", "_fut", "_loop", "_needed", "_port", "_proto", "_reading", "_timer")
 
     def __init__(self, master: AsyncMaster, proto: ClientProtocol, fut: asyncio.Future[Any]):
         self._loop = fut.get_loop()
@@ -386,6 +386,7 @@ class _Drive:
         self._fut = fut
         self._timer: asyncio.TimerHandle | _ptimer.TimerHandle | None = None
         self._reading = False
+        self._needed = 0  # the pending Wait's
 
     def stop(self) -> None:
         """Cancel the pending wait (the transaction ended or was cancelled)."""
@@ -399,27 +400,35 @@ class _Drive:
     def _wake(self) -> None:
         self.stop()
         if not self._fut.done():  # cancelled meanwhile: the task aborts the protocol
-            self.step(True)
+            self.step(self._needed)
 
-    def step(self, woke: bool = False) -> None:
+    def _read(self, needed: int) -> None:
+        """The read that ends a `Wait`: the bytes first where they are due, else a
+        poll first (nothing is expected)."""
+        port = self._port
+        data = read_now(port, self._fd) if needed else port.read(0)
+        self._proto.wait_done(data, _monotonic())
+
+    def step(self, woke: int | None = None) -> None:
         """Carry out the protocol's actions until one must wait or it is done;
-        ``woke``: a wait just ended (read what came first)."""
-        proto, port, fd = self._proto, self._port, self._fd
+        ``woke``: a wait just ended (its ``needed``: read what came first)."""
+        proto, fd = self._proto, self._fd
         try:
-            if woke:
-                proto.wait_done(read_now(port, fd), _monotonic())
+            if woke is not None:
+                self._read(woke)
             while True:
                 action = proto.next_action(_monotonic())
                 if isinstance(action, Wait):
                     if action.until > _monotonic():
                         self._timer = _ptimer.call_at(self._loop, action.until, self._wake)
+                        self._needed = action.needed
                         if action.listen:
                             self._reading = True
                             self._loop.add_reader(fd, self._wake)
                         return
-                    proto.wait_done(read_now(port, fd), _monotonic())
+                    self._read(action.needed)
                 elif isinstance(action, Send):
-                    start, end = port.write(action.data)
+                    start, end = self._port.write(action.data)
                     proto.transmitted(end, start)
                 else:
                     self._fut.set_result(action.result())

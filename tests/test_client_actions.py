@@ -32,7 +32,7 @@ def started(backend: ModuleType, line: LineConfig = LINE, **kw: object) -> Clien
 
 def send(p: ClientProtocol, now: float) -> float:
     """The look for stale input, then the request: its end."""
-    assert p.next_action(now) == Wait(now, False)  # read what is pending, no wait
+    assert p.next_action(now) == Wait(now, False, 0)  # read what is pending, no wait
     p.wait_done(b"", now)
     action = p.next_action(now)
     assert type(action) is Send
@@ -46,17 +46,17 @@ def test_a_transaction_as_actions(backend: ModuleType) -> None:
     end = send(p, 100.0)
     # a timed line: sleep until the answer's first bytes can be in (t3.5 + 5 chars)
     nap = p.next_action(end)
-    assert nap == Wait(pytest.approx(end + T35 + 5 * CHAR), False)
+    assert nap == Wait(pytest.approx(end + T35 + 5 * CHAR), False, 5)
     ans = answer(backend)
     t = end + T35 + 5 * CHAR
     p.wait_done(ans[:5], t)
-    # the rest but its last byte is predicted: sleep on it, then wait for the last one
-    assert p.next_action(t) == Wait(pytest.approx(t + 19 * CHAR), False)
+    # the rest but its last byte is predicted (20 needed): sleep on it
+    assert p.next_action(t) == Wait(pytest.approx(t + 19 * CHAR), False, 20)
     t += 19 * CHAR
     p.wait_done(ans[5:-1], t)
     # one byte needed: no sleep, listen for it (it is read as it comes, so the next
     # silence counts from the answer's real end), until the framer's silence timer
-    assert p.next_action(t) == Wait(pytest.approx(t + T35, abs=5e-5), True)
+    assert p.next_action(t) == Wait(pytest.approx(t + T35, abs=5e-5), True, 1)
     p.wait_done(ans[-1:], t + CHAR)
     done = p.next_action(t + CHAR)
     assert done == Done(VALUES, None, pytest.approx(t + CHAR))
@@ -67,11 +67,11 @@ def test_a_transaction_as_actions(backend: ModuleType) -> None:
 
 def test_stale_input_before_the_request_restarts_the_silence(backend: ModuleType) -> None:
     p = started(backend)
-    assert p.next_action(100.0) == Wait(100.0, False)
+    assert p.next_action(100.0) == Wait(100.0, False, 0)
     p.wait_done(b"\x01\x02", 100.001)  # a late answer, noise: not the request's turn
     assert p.counters["discarded_stale"] == 2
     quiet = p.next_action(100.001)
-    assert quiet == Wait(pytest.approx(100.001 + T35), False)  # a sleep to the send time
+    assert quiet == Wait(pytest.approx(100.001 + T35), False, 0)  # a sleep to the send time
     p.wait_done(b"", quiet.until)  # woke at the send time, nothing came: send at once
     assert type(p.next_action(quiet.until)) is Send
 
@@ -79,7 +79,7 @@ def test_stale_input_before_the_request_restarts_the_silence(backend: ModuleType
 def test_an_untimed_line_waits_for_input_at_once(backend: ModuleType) -> None:
     p = started(backend, LineConfig(baudrate=9600, parity="N", t35=0))
     end = send(p, 100.0)
-    assert p.next_action(end) == Wait(end + 0.5, True)  # no sleep on the prediction
+    assert p.next_action(end) == Wait(end + 0.5, True, 5)  # no sleep on the prediction
 
 
 def test_done_carries_the_error_and_no_end(backend: ModuleType) -> None:
@@ -106,7 +106,7 @@ def test_a_broadcast_is_done_after_the_write(backend: ModuleType) -> None:
     assert p.next_action(100.01) == Done(None, None, None)
     # the turnaround delay before the next request is a sleep
     p.start(*read_holding_registers(1, 0, 10), now=100.02)
-    assert p.next_action(100.02) == Wait(pytest.approx(100.0 + 8 * CHAR + 0.1), False)
+    assert p.next_action(100.02) == Wait(pytest.approx(100.0 + 8 * CHAR + 0.1), False, 0)
 
 
 def test_an_echo_is_slept_on_then_the_answer(backend: ModuleType) -> None:
