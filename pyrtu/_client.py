@@ -312,8 +312,7 @@ class ClientProtocol(AnswerTiming):
             needed = self.needed()
             if self._nap:  # bytes are due: sleep until they can all be in
                 self._nap = False
-                until = self.ready_at(now)
-                if until > now:
+                if self.gap > 0 and (until := self._ready_at(now, needed)) > now:
                     return Wait(until, False, needed)
             return Wait(self.deadline() or now, True, needed)
         if state is _SEND:

@@ -96,8 +96,11 @@ class AnswerTiming:
         in bursts, not at the character rate)."""
         if self.state is not _ANSWER or self.gap <= 0:
             return now
+        return self._ready_at(now, self.needed())
+
+    def _ready_at(self, now: float, needed: int) -> float:
+        """`ready_at` in ANSWER on a timed line, ``needed()`` given."""
         start = now
-        needed = self.needed()
         if not self._heard and not self._echo_left:
             start = max(now, self._end + self.gap + self._turn.get(self._slave, 0.0))
             if self._one_wake:
