@@ -2,27 +2,12 @@
 
 No clock, no port, no sleeps: time is an input (``now``, seconds on a monotonic
 clock) and the driver does the I/O.  The protocol tells its driver the one next
-thing to do, as aioquic's connection hands out its datagrams and its timer; a
-driver is a short interpreter of three actions::
-
-    proto = ClientProtocol(LineConfig(baudrate=9600), timeout=0.5)
-    proto.start(1, pdu.read_request(3, 0, 10), decode, now())
-    while True:
-        action = proto.next_action(now())
-        if isinstance(action, Send):             # the line is quiet: transmit
-            start, end = port.write(action.data)
-            proto.transmitted(end, start)        # end of transmission is an input
-        elif isinstance(action, Wait):           # sleep, or wait for input, then read
-            proto.wait_done(read(action), now())
-        else:                                    # Done
-            value = action.result()              # or raises the transaction's error
-            break
-
-The actions (`Send`, `Wait`, `Done`: one type per stream, `Action`) are described
-in `pyrtu._client_actions`.  Every decision is the protocol's: when to look for
-stale input before sending, how long to sleep while an answer comes in
-(``ready_at``, in `pyrtu._client_timing`: its predicted length, the slave's
-learned turnaround), when to wake on input, when the attempt ends.
+thing to do (`ClientProtocol.next_action`: `Send`, `Wait`, `Done`, described in
+`pyrtu._client_actions`), as aioquic's connection hands out its datagrams and
+its timer.  Every decision is the protocol's: when to look for stale input
+before sending, how long to sleep while an answer comes in (``ready_at``, in
+`pyrtu._client_timing`: its predicted length, the slave's learned turnaround),
+when to wake on input, when the attempt ends.
 
 States: ``IDLE`` -> ``QUIET`` (waiting for the earliest send time: t3.5 after the
 line went quiet, the broadcast turnaround, the settling time after a failure;
@@ -75,13 +60,27 @@ def _identity(pdu: bytes) -> bytes:
 
 
 class ClientProtocol(AnswerTiming):
-    """A Modbus master's transactions on one line (see the module docstring).
+    """A Modbus master's transactions on one line, for a driver to carry out::
 
-    ``line``: the `LineConfig`; ``timeout``: seconds from the end of transmission
-    to a valid answer; ``retries``: repeats after `NoResponseError` and
-    `FrameError`; ``echo``: the adapter reads back what it sends (RS-485 without
-    echo suppression); ``broadcast_delay``: the silence after a broadcast (Serial
-    Line V1.02, 2.4.1 "turnaround delay"); ``backend``: the framer's backend.
+        proto = ClientProtocol(LineConfig(baudrate=9600), timeout=0.5)
+        proto.start(1, pdu.read_request(3, 0, 10), decode, now())
+        while True:
+            action = proto.next_action(now())
+            if isinstance(action, Send):         # the line is quiet: transmit
+                start, end = port.write(action.data)
+                proto.transmitted(end, start)    # end of transmission is an input
+            elif isinstance(action, Wait):       # sleep, or wait for input; read
+                proto.wait_done(read(action), now())
+            else:                                # Done
+                value = action.result()          # or raises the transaction's error
+                break
+
+    (docs/PROTOCOL.md has a working one.)  ``line``: the `LineConfig`;
+    ``timeout``: seconds from the end of transmission to a valid answer;
+    ``retries``: repeats after `NoResponseError` and `FrameError`; ``echo``: the
+    adapter reads back what it sends (RS-485 without echo suppression);
+    ``broadcast_delay``: the silence after a broadcast (Serial Line V1.02, 2.4.1
+    "turnaround delay"); ``backend``: the framer's backend.
     """
 
     def __init__(
