@@ -1,23 +1,13 @@
 """The sans-I/O Modbus client (master) protocol: one transaction at a time on a line.
 
 No clock, no port, no sleeps: time is an input (``now``, seconds on a monotonic
-clock) and the driver does the I/O.  The shape, in the spirit of h11::
-
-    proto = ClientProtocol(LineConfig(baudrate=9600), timeout=0.5)
-    proto.start(1, pdu.read_request(3, 0, 10), decode, now)
-    while not proto.done:
-        if proto.state is State.SEND:            # the line is quiet: transmit
-            start, end = port.write(proto.data_to_send())
-            proto.transmitted(end)               # end of transmission is an input
-            continue
-        # wait for bytes, at most until proto.deadline(); a driver that can sleep may
-        # first sleep proto.needed() character times (fewer bytes end nothing)
-        data = port.read(...)
-        if data:
-            proto.receive_data(data, now)
-        else:
-            proto.handle_timer(now)
-    value = proto.result()                       # or raises the transaction's error
+clock) and the driver does the I/O.  The protocol tells its driver the one next
+thing to do (`ClientProtocol.next_action`: `Send`, `Wait`, `Done`, described in
+`pyrtu._client_actions`), as aioquic's connection hands out its datagrams and
+its timer.  Every decision is the protocol's: when to look for stale input
+before sending, how long to sleep while an answer comes in (``ready_at``, in
+`pyrtu._client_timing`: its predicted length, the slave's learned turnaround),
+when to wake on input, when the attempt ends.
 
 States: ``IDLE`` -> ``QUIET`` (waiting for the earliest send time: t3.5 after the
 line went quiet, the broadcast turnaround, the settling time after a failure;
@@ -25,7 +15,9 @@ bytes that arrive now are stale and restart the silence) -> ``SEND`` (the ADU is
 ready) -> ``ANSWER`` (the echo of an echoing adapter first, then the answer, fed
 to the framer) -> ``DONE`` (a result or a typed error).  A failed attempt with
 retries left goes back to ``QUIET``.  ``abort(now)`` (a cancelled driver) ends the
-transaction and makes the next one wait out a late answer.
+transaction and makes the next one wait out a late answer.  The lower-level
+inputs (``receive_data``, ``handle_timer``, ``deadline``) stay available to a
+driver that keeps its own loop.
 
 Frames that are not the answer (another slave or function, data the decoder
 refuses, frames damaged on the line) are dropped and counted; the wait goes on
@@ -38,13 +30,14 @@ or does not come back: `BusFault`.
 
 from __future__ import annotations
 
-import enum
 import logging
 from collections.abc import Callable
 from types import ModuleType
 from typing import Any
 
 from . import _backend
+from ._client_actions import Action, Decoder, Done, Send, State, Wait, new_counters
+from ._client_timing import ONE_WAKE_CHAR, AnswerTiming
 from .ascii import encode_ascii, make_framer
 from .errors import BusFault, ExceptionResponseError, FrameError, NoResponseError
 from .frames import ERROR_BY_CODE
@@ -54,58 +47,40 @@ from .line import LineConfig
 log = logging.getLogger("pyrtu.master")
 _debug = log.isEnabledFor
 
-DISCARD_REASONS = (
-    "crc",
-    "t1.5",
-    "overflow",
-    "unknown_function",
-    "truncated",
-    "stale",
-    "unexpected",
-)
-Decoder = Callable[[bytes], Any]
-
-
-class State(enum.Enum):
-    IDLE = "idle"
-    QUIET = "quiet"
-    SEND = "send"
-    ANSWER = "answer"
-    DONE = "done"
-
-
 # module constants: an enum member lookup costs a class attribute access (3.11)
 _IDLE, _QUIET, _SEND, _ANSWER, _DONE = State.IDLE, State.QUIET, State.SEND, State.ANSWER, State.DONE
 _DEBUG = logging.DEBUG
-#: `ClientProtocol.ready_at` reads a repeated request's whole answer in one wake-up
-#: where a character lasts at least this long (up to 19200 baud): many times the
-#: lateness of a timed wake-up, so the last byte is still read as it comes
-ONE_WAKE_CHAR = 0.0005
 _ADUS_MAX = 1024
 #: the core's error codes (RTU_ERR_*) as the discard reasons of the counters
 _REASONS: tuple[str | None, ...] = tuple(r.value if r else None for r in ERROR_BY_CODE)
-
-
-def new_counters() -> dict[str, int]:
-    """The master's counters, all zero."""
-    keys = ["requests", "responses", "broadcasts", "exceptions", "timeouts", "crc_errors"]
-    keys += ["frame_errors", "echo_mismatches", "retries", "discarded_bytes"]
-    keys += [f"discarded_{r}" for r in DISCARD_REASONS]
-    return dict.fromkeys(keys, 0)
 
 
 def _identity(pdu: bytes) -> bytes:
     return pdu
 
 
-class ClientProtocol:
-    """A Modbus master's transactions on one line (see the module docstring).
+class ClientProtocol(AnswerTiming):
+    """A Modbus master's transactions on one line, for a driver to carry out::
 
-    ``line``: the `LineConfig`; ``timeout``: seconds from the end of transmission
-    to a valid answer; ``retries``: repeats after `NoResponseError` and
-    `FrameError`; ``echo``: the adapter reads back what it sends (RS-485 without
-    echo suppression); ``broadcast_delay``: the silence after a broadcast (Serial
-    Line V1.02, 2.4.1 "turnaround delay"); ``backend``: the framer's backend.
+        proto = ClientProtocol(LineConfig(baudrate=9600), timeout=0.5)
+        proto.start(1, pdu.read_request(3, 0, 10), decode, now())
+        while True:
+            action = proto.next_action(now())
+            if isinstance(action, Send):         # the line is quiet: transmit
+                start, end = port.write(action.data)
+                proto.transmitted(end, start)    # end of transmission is an input
+            elif isinstance(action, Wait):       # sleep, or wait for input; read
+                proto.wait_done(read(action), now())
+            else:                                # Done
+                value = action.result()          # or raises the transaction's error
+                break
+
+    (docs/PROTOCOL.md has a working one.)  ``line``: the `LineConfig`;
+    ``timeout``: seconds from the end of transmission to a valid answer;
+    ``retries``: repeats after `NoResponseError` and `FrameError`; ``echo``: the
+    adapter reads back what it sends (RS-485 without echo suppression);
+    ``broadcast_delay``: the silence after a broadcast (Serial Line V1.02, 2.4.1
+    "turnaround delay"); ``backend``: the framer's backend.
     """
 
     def __init__(
@@ -124,21 +99,13 @@ class ClientProtocol:
         self.echo = echo
         self.broadcast_delay = broadcast_delay
         self._backend = backend or _backend.active
-        #: the inter-frame silence kept before a request (seconds; 0: none)
-        self.gap = line.frame_gap
-        self.settle = max(0.02, 3 * self.gap)
         self.counters = new_counters()
-        self._framer: Any = make_framer(line, "master", self._backend)
-        # RTU: the backend's core framer, driven directly (events as the core's tuples,
-        # no Frame objects: the hot path); ASCII: the AsciiFramer's Frame events
-        self._core: Any = getattr(self._framer, "_core", None)
-        self._char = line.char_time
-        #: learn answer lengths only where ready_at uses them (a timed, slow line)
-        self._one_wake = self.gap > 0 and self._char >= ONE_WAKE_CHAR
-        self._max_adu = line.max_adu
         self._add_crc: Callable[[bytes], bytes] = self._backend.add_crc
         #: RTU ADUs already built, by (slave, PDU): a poller repeats the same requests
         self._adus: dict[tuple[int, bytes], bytes] = {}
+        #: per request ADU: the length of its last answer (see ready_at)
+        self._sizes: dict[bytes, int] = {}
+        self._configure(line)
         self.state = _IDLE
         # the line, across transactions
         self.tx_end = 0.0  # end of our last transmission
@@ -162,16 +129,20 @@ class ClientProtocol:
         self._result: Any = None
         self._error: Exception | None = None
         self._dbg = False  # debug logging on for this transaction
+        self._checked = False  # SEND: the driver just read and found no input
+        self._nap = False  # ANSWER: sleep on ready_at before waiting for input
         #: per slave: how long past t3.5 its answers start (see _learn_turnaround)
         self._turn: dict[int, float] = {}
-        #: per request ADU: the length of its last answer (see ready_at)
-        self._sizes: dict[bytes, int] = {}
 
     def set_line(self, line: LineConfig) -> None:
         """A new line configuration (new length rules); between transactions only."""
         if self.state not in (_IDLE, _DONE):
             raise RuntimeError(f"a transaction is in progress ({self.state.value})")
+        self._configure(line)
+
+    def _configure(self, line: LineConfig) -> None:
         self.line = line
+        #: the inter-frame silence kept before a request (seconds; 0: none)
         self.gap = line.frame_gap
         self.settle = max(0.02, 3 * self.gap)
         self._char = line.char_time
@@ -180,8 +151,10 @@ class ClientProtocol:
         self._max_adu = line.max_adu
         self._adus.clear()
         self._sizes.clear()
-        self._framer = make_framer(line, "master", self._backend)
-        self._core = getattr(self._framer, "_core", None)
+        self._framer: Any = make_framer(line, "master", self._backend)
+        # RTU: the backend's core framer, driven directly (events as the core's tuples,
+        # no Frame objects: the hot path); ASCII: the AsciiFramer's Frame events
+        self._core: Any = getattr(self._framer, "_core", None)
 
     # ------------------------------------------------------------- transaction
 
@@ -222,6 +195,7 @@ class ClientProtocol:
             self._adu = self.encode(slave, pdu)
         self._slave, self._fc, self._decode = slave, pdu[0], decode
         self._attempt = 0
+        self._checked = False
         self._result = self._error = None
         self._give_up = now + self.timeout
         ready = self.send_at() if self.gap > 0 or self.failed_at else self.quiet_until
@@ -232,15 +206,6 @@ class ClientProtocol:
         self.state = _QUIET
         self._give_up = now + self.timeout
         self._check_quiet(now)
-
-    def send_at(self) -> float:
-        """QUIET: the earliest time the request may go out."""
-        ready = self.quiet_until
-        if self.gap > 0:
-            ready = max(ready, self.tx_end + self.gap, self.last_rx + self.gap)
-        if self.failed_at:
-            ready = max(ready, self.failed_at + self.settle, self.last_rx + self.settle)
-        return ready
 
     def _check_quiet(self, now: float) -> None:
         if self.state is _QUIET and (self.send_at() <= now or now >= self._give_up):
@@ -289,6 +254,7 @@ class ClientProtocol:
         else:
             self._restart(self._adu)
         self.state = _ANSWER
+        self._nap = True
 
     # ------------------------------------------------------------- inputs
 
@@ -302,6 +268,7 @@ class ClientProtocol:
             # before the request (or between transactions): a late answer, noise
             self._discard("stale", len(data))
             log.debug("stale input dropped: %s", data.hex(" "))
+            self._checked = False
             if state is _SEND:
                 self.state = _QUIET
                 self._check_quiet(now)
@@ -327,10 +294,46 @@ class ClientProtocol:
         else:
             self._feed(core, data, now)
         if self.state is _ANSWER:
+            self._nap = True
             if self._bad is not None:
                 self._limit = min(self._end + self.timeout, now + self.settle)
             elif first and not self.echo and self.gap > 0:
                 self._learn_turnaround(len(data), now)
+
+    def next_action(self, now: float) -> Action:
+        """What the driver does next (see the module docstring): `Send` the request,
+        `Wait` (a sleep on ``ready_at`` while an answer comes in, a wait for input
+        until the attempt's deadline, a sleep to the send time, or a look for stale
+        input just before the request goes), or `Done` (then the protocol is idle
+        again).  Call it after each of the protocol's inputs."""
+        state = self.state
+        if state is _ANSWER:
+            needed = self.needed()
+            if self._nap:  # bytes are due: sleep until they can all be in
+                self._nap = False
+                if self.gap > 0 and (until := self._ready_at(now, needed)) > now:
+                    return Wait(until, False, needed)
+            return Wait(self.deadline() or now, True, needed)
+        if state is _SEND:
+            if self._checked:
+                return Send(self._adu)
+            return Wait(now, False, 0)  # pending input first: stale, it restarts the silence
+        if state is _QUIET:
+            return Wait(min(self.send_at(), self._give_up), False, 0)
+        if state is _DONE:
+            self.state = _IDLE
+            error, self._error = self._error, None
+            answered = error is None and self._decode is not None
+            return Done(self._result, error, self.answer_end if answered else None)
+        raise RuntimeError("no transaction (start one first)")
+
+    def wait_done(self, data: bytes, now: float) -> None:
+        """A `Wait` ended at ``now`` with ``data`` read (b"": none came)."""
+        if data:
+            self.receive_data(data, now)
+        else:
+            self._checked = True
+            self.handle_timer(now)
 
     def handle_timer(self, now: float) -> None:
         """Time passed up to ``now`` (call it at ``deadline()``)."""
@@ -371,85 +374,6 @@ class ClientProtocol:
             return self._limit if timer is None else min(timer, self._limit)
         deadline = core.deadline()  # _timer inlined (the hot path)
         return self._limit if deadline is None else min(deadline / 1e6, self._limit)
-
-    def _learn_turnaround(self, size: int, now: float) -> None:
-        """The first bytes of an answer still coming: its first byte arrived about
-        ``size`` characters before ``now`` (the slave sends its characters back to
-        back, Serial Line V1.02 2.5.1.1), so the slave took that long past t3.5 to
-        answer (an upper bound within a character: the bytes were read at ``now``,
-        at or after the last one came).  Kept per slave as a slowly rising minimum
-        of these estimates, so that `ready_at` puts the first sleep where the first
-        bytes are in (a slave that answers sooner lowers it at once)."""
-        turn = now - size * self._char - (self._end + self.gap)
-        turn = turn if turn > 0.0 else 0.0
-        old = self._turn.get(self._slave)
-        if old is None or turn <= old:
-            if old is None and len(self._turn) >= 256:
-                self._turn.clear()
-            self._turn[self._slave] = turn
-        else:
-            self._turn[self._slave] = old + (turn - old) / 16
-
-    def turnaround(self, slave: int) -> float | None:
-        """The slave's learned turnaround past t3.5 (seconds; see `ready_at`), None
-        before one of its answers was seen arriving on a timed line."""
-        return self._turn.get(slave)
-
-    def ready_at(self, now: float) -> float:
-        """ANSWER: the earliest time the bytes still needed can all be in, so a driver
-        may sleep until then instead of waking per byte.  Before any byte of the
-        answer came: from the end of transmission plus t3.5 (the slave keeps that
-        silence before it answers, Serial Line V1.02 2.5.1.1; not with an echo, which
-        comes at once) plus the slave's learned turnaround (`turnaround`), so that
-        the first sleep does not end before the first bytes are in, ``needed()``
-        character times; or, where a character lasts at least `ONE_WAKE_CHAR` and
-        for a request whose answer was seen before (a poller repeats its requests),
-        that answer's length less one character: one wake-up for the whole answer
-        instead of one for its header and one for the rest (an exception answer,
-        shorter, is then read at the normal answer's end).  At faster rates a timed
-        wake-up's lateness is about a character, the whole answer would often be in
-        by then, and the next t3.5 would count from that late read (measured at
-        115200 on the virtual bus: 0.92 of the wire limit against 0.955 with the
-        header first), so the header is read first there.  Once
-        bytes came: ``needed() - 1`` character times from now, so that the driver
-        reads the last byte as it comes (a wait for input) and the next silence
-        counts from the answer's real end.  Never past the end of the attempt (the
-        timeout, or the settling time after a frame that was not the answer), so a
-        driver needs no cap of its own: not ``deadline()``, whose silence timer only
-        matters when no byte comes (the bytes read after the sleep carry their own
-        times).  ``now`` in other states, and on a line without wire timing (t3.5 =
-        0: pseudo-terminals, TCP links), whose bytes come in bursts rather than at
-        the character rate."""
-        if self.state is not _ANSWER or self.gap <= 0:
-            return now
-        start = now
-        needed = self.needed()
-        if not self._heard and not self._echo_left:
-            start = max(now, self._end + self.gap + self._turn.get(self._slave, 0.0))
-            if self._one_wake:
-                size = self._sizes.get(self._adu, 0)
-                if size > needed:
-                    needed = size - 1
-        elif needed:
-            # once bytes of the answer are in, wake a character early and read the
-            # last byte as it comes: a sleep would end up to a character (plus the
-            # timer's lateness) after it, and the next request's t3.5 counts from
-            # when the answer's end was read (measured on the virtual bus at 115200:
-            # the master's delay past t3.5 from 145 to 62 µs, the wire efficiency
-            # from 0.977 to 0.995, CPU per transaction unchanged)
-            needed -= 1
-        return min(start + needed * self._char, self._limit)
-
-    def needed(self) -> int:
-        """ANSWER: bytes that must still arrive before the answer can be complete (a
-        lower bound: the echo still expected plus the framer's ``needed()``); 0 when
-        unknown (ASCII, an unknown layout) or in another state."""
-        if self.state is not _ANSWER:
-            return 0
-        if self._decode is None:
-            return len(self._echo_left)
-        framer = self._framer if self._core is None else self._core
-        return len(self._echo_left) + int(framer.needed())
 
     def abort(self, now: float) -> None:
         """The driver gave up on the transaction (cancelled): the line keeps what it
@@ -662,4 +586,13 @@ class ClientProtocol:
         self._fail(error, now)
 
 
-__all__ = ["ONE_WAKE_CHAR", "ClientProtocol", "State", "new_counters"]
+__all__ = [
+    "ONE_WAKE_CHAR",
+    "Action",
+    "ClientProtocol",
+    "Done",
+    "Send",
+    "State",
+    "Wait",
+    "new_counters",
+]

@@ -36,8 +36,8 @@ from typing import Any
 from . import _ptimer
 from . import _requests as R
 from . import pdu as P
-from ._client import State
-from ._master_io import read_now, send_request
+from ._client import ClientProtocol, Send, Wait
+from ._master_io import read_now
 from ._requests import Call
 from ._slack import tighten_this_thread
 from ._transports import transport_for
@@ -47,7 +47,6 @@ from .master import MasterBase, make_line
 from .rules import LengthRule, RuleTable
 
 _monotonic = time.monotonic
-_QUIET, _SEND, _ANSWER = State.QUIET, State.SEND, State.ANSWER
 
 
 class AsyncMaster(MasterBase):
@@ -147,16 +146,20 @@ class AsyncMaster(MasterBase):
         self._inflight = None
         return data
 
-    async def _input(self, deadline: float | None) -> bytes:
-        """Input up to ``deadline`` (b"" when none came)."""
-        if deadline is None:
-            deadline = _monotonic() + 1.0
-        if self._fd is None:
-            return await self._read_thread(deadline)
-        data = self.port.read(0)
-        if not data and deadline > _monotonic() and await self._readable(deadline):
-            data = self.port.read(0)
-        return data
+    async def _wait(self, action: Wait) -> bytes:
+        """A `Wait` as this task's awaits: a timer, the descriptor (``listen``) or a
+        thread read (no descriptor); then the bytes read (b"": none)."""
+        until = action.until
+        if action.listen and self._fd is None:
+            return await self._read_thread(until)
+        if until > _monotonic():
+            if action.listen:
+                await self._readable(until)
+            else:
+                await _ptimer.sleep_until(until)
+        if self._inflight is not None:  # a thread read a cancel left behind
+            return await self._read_thread(until)
+        return self.port.read(0)
 
     async def _transmit(self, adu: bytes) -> tuple[float, float]:
         port = self.port
@@ -165,13 +168,6 @@ class AsyncMaster(MasterBase):
         # a real line: Port.write waits for the drain (tcdrain), off the loop's thread
         loop = asyncio.get_running_loop()
         return await loop.run_in_executor(None, port.write, adu)
-
-    async def _nap(self) -> None:
-        """Sleep until the bytes the answer still needs can all be in (no wake per byte)."""
-        now = _monotonic()
-        until = self._proto.ready_at(now)
-        if until > now:
-            await _ptimer.sleep_until(until)
 
     async def _run(self, call: Call) -> Any:
         async with self._lock:
@@ -185,57 +181,30 @@ class AsyncMaster(MasterBase):
                 return await self._run_callbacks(proto)
             return await self._run_task(proto)
 
-    async def _run_task(self, proto: Any) -> Any:
-        """The transaction as this task's loop: ports without a descriptor (thread
-        reads) and real lines (the write's drain runs in an executor)."""
-        port = self.port
+    async def _run_task(self, proto: ClientProtocol) -> Any:
+        """The protocol's actions as this task's loop: ports without a descriptor
+        (thread reads) and real lines (the write's drain runs in an executor)."""
         try:
             while True:
-                state = proto.state
-                if state is _QUIET and self._fd is not None:
-                    # a timer, not a reader: bytes that come meanwhile are read
-                    # (as stale, restarting the silence) before the request goes
-                    deadline = proto.deadline()
-                    if deadline is not None and deadline > _monotonic():
-                        await _ptimer.sleep_until(deadline)
-                    stale = port.read(0)
-                    if stale:
-                        proto.receive_data(stale, _monotonic())
-                    else:
-                        proto.handle_timer(_monotonic())
-                elif state is _ANSWER or state is _QUIET:
-                    data = await self._input(proto.deadline())
-                    now = _monotonic()
-                    if not data:
-                        proto.handle_timer(now)
-                        continue
-                    proto.receive_data(data, now)
-                    if proto.state is _ANSWER:
-                        await self._nap()
-                elif state is _SEND:
-                    if self._inflight is not None:  # a read a cancel left behind
-                        stale = await self._read_thread(_monotonic())
-                    else:
-                        stale = port.read(0)
-                    if stale:
-                        proto.receive_data(stale, _monotonic())
-                        continue
-                    start, end = await self._transmit(proto.data_to_send())
+                action = proto.next_action(_monotonic())
+                if isinstance(action, Wait):
+                    data = await self._wait(action)
+                    proto.wait_done(data, _monotonic())
+                elif isinstance(action, Send):
+                    start, end = await self._transmit(action.data)
                     proto.transmitted(end, start)
-                    if proto.state is _ANSWER:
-                        await self._nap()
                 else:
-                    return proto.result()
+                    return action.result()
         except BaseException:
             proto.abort(_monotonic())
             raise
 
-    async def _run_callbacks(self, proto: Any) -> Any:
+    async def _run_callbacks(self, proto: ClientProtocol) -> Any:
         """The transaction driven by the loop's callbacks (descriptor ports without a
-        wire: pseudo-terminals, virtual bus drops): each wake-up (a timer at the
-        protocol's send time or ``ready_at``, or the descriptor readable) runs
-        `_step` in the callback itself, and the awaiting task wakes once, when the
-        transaction is over.  (The loop's ``time()`` is `time.monotonic`.)"""
+        wire: pseudo-terminals, virtual bus drops): each wake-up (the timer or the
+        descriptor of a `Wait`) runs `_Drive.step` in the callback itself, and the
+        awaiting task wakes once, when the transaction is over.  (The loop's
+        ``time()`` is `time.monotonic`.)"""
         fut: asyncio.Future[Any] = asyncio.get_running_loop().create_future()
         drive = _Drive(self, proto, fut)
         drive.step()
@@ -404,20 +373,20 @@ class AsyncMaster(MasterBase):
 
 class _Drive:
     """One transaction of an `AsyncMaster` driven from the loop's callbacks: the
-    sync driver's loop (`pyrtu._master_io.run_sync`), where each wait is a timer or
-    a reader that calls `step` again instead of a sleep."""
+    protocol's actions, where each `Wait` is a timer (and a reader when it
+    listens) that calls `step` again."""
 
-    __slots__ = ("_fd", "_fut", "_loop", "_port", "_proto", "_reading", "_timed", "_timer")
+    __slots__ = ("_fd", "_fut", "_loop", "_needed", "_port", "_proto", "_reading", "_timer")
 
-    def __init__(self, master: AsyncMaster, proto: Any, fut: asyncio.Future[Any]) -> None:
+    def __init__(self, master: AsyncMaster, proto: ClientProtocol, fut: asyncio.Future[Any]):
         self._loop = fut.get_loop()
         self._port = master.port
         self._fd: int = master._fd  # type: ignore[assignment]
         self._proto = proto
         self._fut = fut
-        self._timed = proto.gap > 0
         self._timer: asyncio.TimerHandle | _ptimer.TimerHandle | None = None
         self._reading = False
+        self._needed = 0  # the pending Wait's
 
     def stop(self) -> None:
         """Cancel the pending wait (the transaction ended or was cancelled)."""
@@ -428,73 +397,47 @@ class _Drive:
             self._reading = False
             self._loop.remove_reader(self._fd)
 
-    def _wait(self, until: float, reader: bool) -> None:
-        self._timer = _ptimer.call_at(self._loop, until, self._wake)
-        if reader:
-            self._reading = True
-            self._loop.add_reader(self._fd, self._wake)
-
     def _wake(self) -> None:
         self.stop()
         if not self._fut.done():  # cancelled meanwhile: the task aborts the protocol
-            self.step()
+            self.step(self._needed)
 
-    def step(self) -> None:
-        """Run the protocol until it must wait (a timer or the descriptor) or is done."""
-        proto, port, fut = self._proto, self._port, self._fut
-        checked = False  # QUIET just found no input
+    def _read(self, needed: int) -> None:
+        """The read that ends a `Wait`: the bytes first where they are due, else a
+        poll first (nothing is expected)."""
+        port = self._port
+        data = read_now(port, self._fd) if needed else port.read(0)
+        self._proto.wait_done(data, _monotonic())
+
+    def step(self, woke: int | None = None) -> None:
+        """Carry out the protocol's actions until one must wait or it is done;
+        ``woke``: a wait just ended (its ``needed``: read what came first)."""
+        proto, fd = self._proto, self._fd
         try:
+            if woke is not None:
+                self._read(woke)
             while True:
-                state = proto.state
-                if state is _ANSWER:
-                    data = read_now(port, self._fd)
-                    now = _monotonic()
-                    if data:
-                        proto.receive_data(data, now)
-                        if self._timed and proto.state is _ANSWER:
-                            until = proto.ready_at(now)
-                            if until > now:  # sleep on needed(), no wake per byte
-                                self._wait(until, False)
-                                return
-                        continue
-                    deadline = proto.deadline()
-                    if deadline is None:
-                        deadline = now + 1.0
-                    if deadline > now:
-                        self._wait(deadline, True)
+                action = proto.next_action(_monotonic())
+                if isinstance(action, Wait):
+                    if action.until > _monotonic():
+                        self._timer = _ptimer.call_at(self._loop, action.until, self._wake)
+                        self._needed = action.needed
+                        if action.listen:
+                            self._reading = True
+                            self._loop.add_reader(fd, self._wake)
                         return
-                    proto.handle_timer(now)
-                elif state is _SEND:
-                    sent = send_request(port, proto, checked)
-                    checked = False
-                    if sent and self._timed and proto.state is _ANSWER:
-                        now = _monotonic()
-                        until = proto.ready_at(now)
-                        if until > now:
-                            self._wait(until, False)
-                            return
-                elif state is _QUIET:
-                    # a timer, not a reader: bytes that come meanwhile are read (as
-                    # stale, restarting the silence) before the request goes
-                    deadline = proto.deadline()
-                    now = _monotonic()
-                    if deadline is not None and deadline > now:
-                        self._wait(deadline, False)
-                        return
-                    stale = port.read(0)
-                    checked = not stale  # nothing came: SEND need not look again
-                    if stale:
-                        proto.receive_data(stale, now)
-                    else:
-                        proto.handle_timer(now)
+                    self._read(action.needed)
+                elif isinstance(action, Send):
+                    start, end = self._port.write(action.data)
+                    proto.transmitted(end, start)
                 else:
-                    fut.set_result(proto.result())
+                    self._fut.set_result(action.result())
                     return
         except Exception as exc:  # the typed errors, PortError; the task re-raises
             self.stop()
             proto.abort(_monotonic())
-            if not fut.done():
-                fut.set_exception(exc)
+            if not self._fut.done():
+                self._fut.set_exception(exc)
 
 
 def new_event_loop() -> asyncio.AbstractEventLoop:

@@ -1,21 +1,34 @@
 """The sans-I/O Modbus protocols, public: bytes and times in, actions out.
 
+No port, no clock, no sleep inside: time is an input and the driver does the I/O.
 A driver (a thread with ``select``, an asyncio loop, anything that can read and
 write bytes and tell the time) asks the protocol for its next action and carries
-it out; docs/PROTOCOL.md shows a custom driver for each.
+it out; docs/PROTOCOL.md shows a custom driver for each side.
+
+* client (master): `ClientProtocol.next_action(now)` -> `Send` | `Wait` | `Done`
+* server (slave): `ServerProtocol.next_action(now)` -> `Reply` | `Listen` | `Idle`
 """
 
 from __future__ import annotations
 
-# -- the server (slave) protocol: ServerProtocol.next_action(now) -> ServerAction
+# the client (master) side: one transaction at a time, handed out as actions
+from .._client import ClientProtocol
+from .._client_actions import Action, Done, Send, State, Wait
+
+# the server (slave) side: requests in, answers out at their time
 from .._server import Application, Idle, Listen, Reply, ServerAction, ServerProtocol
 
 __all__ = [
-    # server
+    "Action",
     "Application",
+    "ClientProtocol",
+    "Done",
     "Idle",
     "Listen",
     "Reply",
+    "Send",
     "ServerAction",
     "ServerProtocol",
+    "State",
+    "Wait",
 ]
