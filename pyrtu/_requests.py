@@ -1,15 +1,25 @@
 """The master's requests: argument checks, the request PDU and the answer's decoder.
 
-One function per `Master` method, shared by the sync `Master` and `pyrtu.aio.AsyncMaster`
-so that both check arguments (before a byte is sent) and decode answers identically.
-Each returns a `Call`: (slave, request PDU, decoder), the decoder None when no answer
-is awaited (a broadcast, FC 08 sub-function 4).
+One function per `Master` method, shared by the sync `Master`, `pyrtu.aio.AsyncMaster`
+and the poller so that all check arguments (before a byte is sent) and decode answers
+identically.  Each returns a `Call`: (slave, request PDU, decoder), the decoder None
+when no answer is awaited (a broadcast, FC 08 sub-function 4).
+
+`REQUESTS` is the table of the twenty methods: a `Request` per method name (function
+code, whether slave 0 broadcasts, the builder of its `Call` and what is done to the
+decoded answer), and for the two that are more than one transaction
+(``read_device_identification`` pages, ``execute`` with length rules) a plan: a
+generator that yields the Calls (and `Rules` to register first) and returns the
+value.  A driver runs a request with `Steps` (sans-I/O: Calls out, answers in) and
+gives its caller ``(value, end_time)``; `BY_FUNCTION` finds the poller's reads and
+writes by function code.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Sequence
-from typing import Any, NamedTuple
+from collections.abc import Callable, Generator, Iterable, Sequence
+from dataclasses import dataclass
+from typing import Any, Generic, NamedTuple, TypeVar
 
 from . import pdu as P
 from .errors import FrameError
@@ -218,3 +228,146 @@ def execute(
     if len(request) > P.MAX_PDU:
         raise ValueError(f"execute: a {len(request)}-byte PDU exceeds {P.MAX_PDU} bytes")
     return Call(s, request, None if s == 0 else (lambda p: p[1:]))
+
+
+# ------------------------------------------------------------------- the table
+
+T = TypeVar("T")
+
+
+class Rules(NamedTuple):
+    """A plan's step: register length rules for ``function`` before the next Call."""
+
+    function: int
+    request_rule: LengthRule | None
+    response_rule: LengthRule | None
+
+
+Plan = Generator[Call | Rules, Any, Any]
+
+
+@dataclass(frozen=True, slots=True)
+class Request(Generic[T]):
+    """One master method: ``build(slave, *args) -> Call`` (one transaction), or
+    ``plan(slave, *args)`` (several; see the module doc); ``post`` turns the decoded
+    answer (None for a broadcast) into the method's value.  ``broadcasting``: slave 0
+    is a broadcast in this method (on TCP, unit 0 of the others is the device)."""
+
+    name: str
+    function: int
+    broadcasting: bool
+    build: Callable[..., Call] | None = None
+    post: Callable[[Any], T] | None = None
+    plan: Callable[..., Plan] | None = None
+
+
+def _device_id_plan(slave: int, read_code: int = 1, object_id: int = 0) -> Plan:
+    s = device_id_check(slave, read_code, object_id)
+    out: dict[int, bytes] = {}
+    asked: set[int] = set()
+    oid: int | None = object_id
+    while oid is not None:
+        asked.add(oid)
+        page = yield device_id_page(s, read_code, oid)
+        oid = device_id_next(s, read_code, page, out, asked)
+    return out
+
+
+def _execute_plan(
+    slave: int,
+    function: int,
+    data: bytes = b"",
+    *,
+    request_rule: LengthRule | None = None,
+    response_rule: LengthRule | None = None,
+) -> Plan:
+    call = execute(slave, function, data, request_rule, response_rule)
+    if request_rule is not None or response_rule is not None:
+        yield Rules(function, request_rule, response_rule)
+    return (yield call) or b""
+
+
+def _or(empty: T) -> Callable[[T | None], T]:
+    return lambda value: empty if value is None else value
+
+
+_TABLE: tuple[Request[Any], ...] = (
+    Request("request", 0, True, raw_request, _or(b"")),
+    Request("execute", 0, True, plan=_execute_plan),
+    Request("read_coils", P.READ_COILS, False, read_coils),
+    Request("read_discrete_inputs", P.READ_DISCRETE_INPUTS, False, read_discrete_inputs),
+    Request("read_holding_registers", P.READ_HOLDING_REGISTERS, False, read_holding_registers),
+    Request("read_input_registers", P.READ_INPUT_REGISTERS, False, read_input_registers),
+    Request("write_coil", P.WRITE_SINGLE_COIL, True, write_coil),
+    Request("write_register", P.WRITE_SINGLE_REGISTER, True, write_register),
+    Request("write_coils", P.WRITE_MULTIPLE_COILS, True, write_coils),
+    Request("write_registers", P.WRITE_MULTIPLE_REGISTERS, True, write_registers),
+    Request("mask_write_register", P.MASK_WRITE_REGISTER, True, mask_write_register),
+    Request("read_write_registers", P.READ_WRITE_REGISTERS, False, read_write_registers),
+    Request("read_exception_status", P.READ_EXCEPTION_STATUS, False, read_exception_status),
+    Request("diagnostics", P.DIAGNOSTICS, False, diagnostics, _or(0)),
+    Request("get_comm_event_counter", P.GET_COMM_EVENT_COUNTER, False, get_comm_event_counter),
+    Request("get_comm_event_log", P.GET_COMM_EVENT_LOG, False, get_comm_event_log),
+    Request("report_server_id", P.REPORT_SERVER_ID, False, report_server_id),
+    Request("read_fifo_queue", P.READ_FIFO_QUEUE, False, read_fifo_queue),
+    Request("read_file_record", P.READ_FILE_RECORD, False, read_file_record),
+    Request("write_file_record", P.WRITE_FILE_RECORD, True, write_file_record),
+    Request("read_device_identification", P.ENCAPSULATED_INTERFACE, False, plan=_device_id_plan),
+)
+
+#: method name -> Request (the twenty methods of `Master` and `AsyncMaster`)
+REQUESTS: dict[str, Request[Any]] = {r.name: r for r in _TABLE}
+#: function code -> Request, for the one-transaction requests (what the poller sends)
+BY_FUNCTION: dict[int, Request[Any]] = {
+    r.function: r for r in _TABLE if r.build is not None and r.function
+}
+
+#: (slave, broadcasting) -> (the slave the argument checks see, the unit id sent in
+#: its place or None): how a transport widens the serial line's 0..247
+Address = Callable[[Any, bool], tuple[Any, int | None]]
+
+
+class Steps:
+    """The transactions of one `Request`, sans-I/O: `next` gives the driver the next
+    `Call` (or `Rules` to register, answered with None), or None when done; then
+    `value` is the method's value.  A FrameError from the plan's own checks (a
+    device pointing back at a page already read) goes to ``bad`` (the link's
+    counter) before it is raised."""
+
+    __slots__ = ("_gen", "_post", "_unit", "bad", "value")
+
+    def __init__(
+        self, req: Request[Any], slave: Any, args: tuple[Any, ...], kwargs: dict[str, Any],
+        address: Address, bad: Callable[[], None],
+    ) -> None:  # fmt: skip
+        s, self._unit = address(slave, req.broadcasting)
+        if req.plan is not None:
+            self._gen: Plan = req.plan(s, *args, **kwargs)
+        else:
+            assert req.build is not None
+            self._gen = _single(req.build(s, *args, **kwargs))
+        self._post = req.post
+        self.bad = bad
+        self.value: Any = None
+
+    def next(self, answer: Any) -> Call | Rules | None:
+        try:
+            step = self._gen.send(answer)
+        except StopIteration as stop:
+            self.value = stop.value if self._post is None else self._post(stop.value)
+            return None
+        except FrameError:
+            self.bad()
+            raise
+        if self._unit is not None and isinstance(step, Call):
+            return step._replace(slave=self._unit)
+        return step
+
+
+def _single(call: Call) -> Plan:
+    return (yield call)
+
+
+def serial_address(slave: Any, broadcasting: bool) -> tuple[Any, int | None]:
+    """A serial line's addresses: the slave as given (the checks allow 0..247)."""
+    return slave, None

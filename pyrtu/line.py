@@ -196,6 +196,50 @@ class LineConfig:
         return line.replace(**kwargs) if kwargs else line
 
 
+#: The one table of the line keywords' defaults (the constructors that take the
+#: keywords, `pyrtu.Master`, `pyrtu.Slave`, their asyncio twins, the framers and the
+#: virtual bus, default to these; ``rules`` None is no vendor rules).
+LINE_DEFAULTS: MappingProxyType[str, Any] = MappingProxyType(
+    {
+        f.name: (None if f.default is dataclasses.MISSING else f.default)
+        for f in dataclasses.fields(LineConfig)
+    }
+)
+
+
+def line_from(line: LineConfig | None, where: str = "", **keywords: Any) -> LineConfig:
+    """The `LineConfig` of a constructor that takes ``line=`` or the line keywords:
+    ``line`` as given, or a new one from ``keywords`` (those left at their defaults
+    may be passed too).  TypeError when both are given, when ``line`` is not a
+    LineConfig, or for a keyword that is not a line keyword (named)."""
+    prefix = f"{where}: " if where else ""
+    unknown = [k for k in keywords if k not in LINE_DEFAULTS]
+    if unknown:
+        raise TypeError(f"{prefix}unknown line keyword {', '.join(unknown)}")
+    if line is None:
+        return LineConfig(**{k: v for k, v in keywords.items() if k != "rules" or v is not None})
+    if not isinstance(line, LineConfig):
+        raise TypeError(f"{prefix}line must be a LineConfig, not {type(line).__name__}")
+    given = [k for k, v in keywords.items() if v != LINE_DEFAULTS[k] and not _same(v, k)]
+    if given:
+        raise TypeError(f"{prefix}give line= or the line keywords ({', '.join(given)}), not both")
+    return line
+
+
+def _same(value: object, key: str) -> bool:
+    """Whether ``value`` is the default of ``key`` written another way (rules: {})."""
+    return key == "rules" and value is None
+
+
+def adopt_port_format(line: LineConfig, port: Any) -> LineConfig:
+    """``line`` with the byte format of ``port`` (an open pyserial object passed in
+    keeps its own format: the line follows it)."""
+    fmt = {k: getattr(port, k) for k in ("baudrate", "parity", "stopbits", "bytesize")}
+    if all(getattr(line, k) == v for k, v in fmt.items()):
+        return line
+    return line.replace(**fmt)
+
+
 def split_field_error(exc: BaseException, names: tuple[str, ...]) -> tuple[str | None, str]:
     """``("baudrate", "must be ...")`` from the validators' ``"baudrate must be ..."``
     (None and the whole message when it names none of ``names``): how the TOML loader
@@ -209,6 +253,7 @@ def split_field_error(exc: BaseException, names: tuple[str, ...]) -> tuple[str |
 
 
 __all__ = [
+    "LINE_DEFAULTS",
     "MAX_BAUDRATE",
     "MIN_BAUDRATE",
     "MODES",
@@ -219,5 +264,6 @@ __all__ = [
     "check_parity",
     "check_stopbits",
     "check_timing",
+    "line_from",
     "split_field_error",
 ]
