@@ -17,6 +17,7 @@ writes by function code.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Generator, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any, Generic, NamedTuple, TypeVar
@@ -328,13 +329,15 @@ Address = Callable[[Any, bool], tuple[Any, int | None]]
 
 
 class Steps:
-    """The transactions of one `Request`, sans-I/O: `next` gives the driver the next
-    `Call` (or `Rules` to register, answered with None), or None when done; then
-    `value` is the method's value.  A FrameError from the plan's own checks (a
-    device pointing back at a page already read) goes to ``bad`` (the link's
-    counter) before it is raised."""
+    """The transactions of one `Request`, sans-I/O: ``next(answer, end)`` takes the
+    previous step's answer and end time (None, None at first and after `Rules`) and
+    gives the driver the next `Call` (or `Rules` to register), or None when done;
+    then `value` is the method's value and `end` when its last answer ended
+    (monotonic seconds; when it finished, for one not answered).  A FrameError from
+    the plan's own checks (a device pointing back at a page already read) goes to
+    ``bad`` (the link's counter) before it is raised."""
 
-    __slots__ = ("_gen", "_post", "_unit", "bad", "value")
+    __slots__ = ("_gen", "_post", "_unit", "bad", "end", "value")
 
     def __init__(
         self, req: Request[Any], slave: Any, args: tuple[Any, ...], kwargs: dict[str, Any],
@@ -349,12 +352,17 @@ class Steps:
         self._post = req.post
         self.bad = bad
         self.value: Any = None
+        self.end: float | None = None
 
-    def next(self, answer: Any) -> Call | Rules | None:
+    def next(self, answer: Any = None, end: float | None = None) -> Call | Rules | None:
+        if end is not None:
+            self.end = end
         try:
             step = self._gen.send(answer)
         except StopIteration as stop:
             self.value = stop.value if self._post is None else self._post(stop.value)
+            if self.end is None:
+                self.end = time.monotonic()
             return None
         except FrameError:
             self.bad()

@@ -71,21 +71,11 @@ class _TcpBase:
     def port(self) -> Any:
         raise AttributeError(NO_PORT.format(url=self.url))
 
-    @property
-    def mode(self) -> str:
-        return "tcp"
-
-    @property
-    def t35(self) -> float:
-        return 0.0
-
-    @property
-    def echo(self) -> bool:
-        return False
-
-    @property
-    def broadcast_delay(self) -> float:
-        return 0.0
+    # no wire timing, no echo: the master keeps no silence, a broadcast returns at once
+    mode = "tcp"
+    t35 = 0.0
+    echo = False
+    broadcast_delay = 0.0
 
     @staticmethod
     def address(slave: Any, broadcasting: bool) -> tuple[Any, int | None]:

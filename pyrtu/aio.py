@@ -220,19 +220,19 @@ class AsyncMaster(MasterBase):
         (the transactions of a multi-page request are separate: other callers may
         interleave)."""
         steps = self._steps(req, slave, args, kwargs)
-        end = None
-        step = steps.next(None)
+        step = steps.next()
         while step is not None:
-            if isinstance(step, Rules):
-                await self.add_rule(*step)
-                answer = None
-            elif self._tcp is not None:
-                answer, end = await self._tcp.transact(step)
-            else:
-                answer = await self._run(step)
-                end = self._serial_link.end_of(step)
-            step = steps.next(answer)
-        return steps.value, _monotonic() if end is None else end
+            step = steps.next(*await self._step(step))
+        return steps.value, steps.end  # type: ignore[return-value]
+
+    async def _step(self, step: Call | Rules) -> tuple[Any, float | None]:
+        if isinstance(step, Rules):
+            await self.add_rule(*step)
+            return None, None
+        if self._tcp is not None:
+            return await self._tcp.transact(step)
+        answer = await self._run(step)
+        return answer, self._serial_link.end_of(step)
 
     async def add_rule(
         self, function: int, request_rule: LengthRule | None, response_rule: LengthRule | None

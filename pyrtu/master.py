@@ -63,6 +63,18 @@ from .rules import LengthRule, RuleTable, check_rules
 _monotonic = time.monotonic
 
 
+def _of_proto(name: str, settable: bool = False) -> Any:
+    """A link property that is the client protocol's attribute ``name``."""
+
+    def get(link: SerialLink) -> Any:
+        return getattr(link.proto, name)
+
+    def put(link: SerialLink, value: Any) -> None:
+        setattr(link.proto, name, value)
+
+    return property(get, put if settable else None)
+
+
 class SerialLink:
     """A serial line as a master's link (`pyrtu._links`): the port and the client
     protocol.  Every option is checked before the port is opened."""
@@ -93,45 +105,17 @@ class SerialLink:
             backend=be,
         )
 
-    @property
-    def line(self) -> LineConfig:
-        return self.proto.line
+    line = _of_proto("line")
+    t35 = _of_proto("gap")
+    timeout = _of_proto("timeout", settable=True)
+    retries = _of_proto("retries", settable=True)
+    echo = _of_proto("echo")
+    broadcast_delay = _of_proto("broadcast_delay")
+    last_answer_time = _of_proto("answer_end")
 
     @property
     def mode(self) -> str:
         return self.proto.line.mode
-
-    @property
-    def t35(self) -> float:
-        return self.proto.gap
-
-    @property
-    def timeout(self) -> float:
-        return self.proto.timeout
-
-    @timeout.setter
-    def timeout(self, value: float) -> None:
-        self.proto.timeout = value
-
-    @property
-    def retries(self) -> int:
-        return self.proto.retries
-
-    @retries.setter
-    def retries(self, value: int) -> None:
-        self.proto.retries = value
-
-    @property
-    def echo(self) -> bool:
-        return self.proto.echo
-
-    @property
-    def broadcast_delay(self) -> float:
-        return self.proto.broadcast_delay
-
-    @property
-    def last_answer_time(self) -> float | None:
-        return self.proto.answer_end
 
     @property
     def counters(self) -> dict[str, int]:
@@ -345,17 +329,16 @@ class Master(MasterBase):
         answer's last byte came (monotonic seconds)."""
         with self._lock:
             steps = self._steps(req, slave, args, kwargs)
-            link = self._tcp
-            end = None
-            step = steps.next(None)
+            step = steps.next()
             while step is not None:
-                if isinstance(step, Rules):
-                    link.set_rules(*step)
-                    answer = None
-                else:
-                    answer, end = link.transact(step)
-                step = steps.next(answer)
-            return steps.value, _monotonic() if end is None else end
+                step = steps.next(*self._step(step))
+            return steps.value, steps.end  # type: ignore[return-value]
+
+    def _step(self, step: Call | Rules) -> tuple[Any, float | None]:
+        if isinstance(step, Rules):
+            self._link.set_rules(*step)
+            return None, None
+        return self._tcp.transact(step)
 
     def _call(self, name: str, slave: Any, *args: Any, **kwargs: Any) -> Any:
         return self.transact(R.REQUESTS[name], slave, *args, **kwargs)[0]
