@@ -23,7 +23,7 @@ from .frames import (
     event_counters_template,
     make_frame,
 )
-from .line import LineConfig
+from .line import LineConfig, line_from
 from .rules import RuleTable
 from .timing import TIMING_RULES, Timing, compute_timing
 
@@ -106,17 +106,6 @@ def check_core_limits(options: CoreOptions) -> None:
         )
 
 
-_DEFAULTS = (19200, "E", 1, 8, "modbus", None, None, False, 256, None, None)
-
-
-def _check_line(line: object, given: tuple[object, ...], where: str) -> None:
-    """``line=`` replaces the line keywords: refuse both at once."""
-    if not isinstance(line, LineConfig):
-        raise TypeError(f"{where}: line must be a LineConfig, not {type(line).__name__}")
-    if given != _DEFAULTS:
-        raise TypeError(f"{where}: give line= or the line keywords (baudrate=...), not both")
-
-
 def event_to_frame(ev: Event) -> Frame:
     offset, _length, kind, error, start_us, end_us, adu = ev
     return make_frame(kind, adu, offset, start_us / 1e6, end_us / 1e6, error)
@@ -161,24 +150,13 @@ class FramerBase:
         flush_timeout: float | None = None,
         line: LineConfig | None = None,
     ) -> None:
-        given = (baudrate, parity, stopbits, bytesize, timing, t15, t35, strict, max_adu)
+        kw = dict(baudrate=baudrate, parity=parity, stopbits=stopbits, bytesize=bytesize,
+                  timing=timing, t15=t15, t35=t35, strict=strict, max_adu=max_adu, rules=rules,
+                  flush_timeout=flush_timeout)  # fmt: skip
         if line is None:
-            self.options = core_options(
-                role,
-                baudrate=baudrate,
-                parity=parity,
-                stopbits=stopbits,
-                bytesize=bytesize,
-                timing=timing,
-                t15=t15,
-                t35=t35,
-                strict=strict,
-                max_adu=max_adu,
-                rules=rules,
-                flush_timeout=flush_timeout,
-            )
+            self.options = core_options(role, **kw)  # type: ignore[arg-type]
         else:
-            _check_line(line, (*given, rules, flush_timeout), "Framer")
+            line = line_from(line, "Framer", **kw)  # (refuses line= with keywords)
             if line.mode != "rtu":
                 raise ValueError(
                     "line: Framer frames RTU; for ASCII use pyrtu.ascii.make_framer(line)"
@@ -379,24 +357,13 @@ def make_parse_stream(parse: StreamParser) -> Callable[..., FrameList]:
         kind and discarded bytes by reason.  ``line``: a `LineConfig` instead of the
         line keywords.
         """
+        kw = dict(baudrate=baudrate, parity=parity, stopbits=stopbits, bytesize=bytesize,
+                  timing=timing, t15=t15, t35=t35, strict=strict, max_adu=max_adu,
+                  rules=rules)  # fmt: skip
         if line is not None:
-            given = (baudrate, parity, stopbits, bytesize, timing, t15, t35, strict, max_adu)
-            _check_line(line, (*given, rules, None), "parse_stream")
-            options = line.options(role)
+            options = line_from(line, "parse_stream", **kw).options(role)
         else:
-            options = core_options(
-                role,
-                baudrate=baudrate,
-                parity=parity,
-                stopbits=stopbits,
-                bytesize=bytesize,
-                timing=timing,
-                t15=t15,
-                t35=t35,
-                strict=strict,
-                max_adu=max_adu,
-                rules=rules,
-            )
+            options = core_options(role, **kw)  # type: ignore[arg-type]
         raw = as_bytes(data)
         offsets, us = stream_times(len(raw), times, chunks)
         return parse(options, raw, offsets, us)
