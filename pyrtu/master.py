@@ -198,13 +198,13 @@ class MasterBase:
         max_in_flight: int = 1,
     ) -> None:
         scheme = scheme_of(port)
-        if scheme == RTU_TCP_SCHEME and t35 is None and line is None:
-            t35 = 0.0  # a socket has no wire timing
         cfg = line_from(
             line, baudrate=baudrate, parity=parity, stopbits=stopbits, bytesize=bytesize,
             mode=mode, timing=timing, t15=t15, t35=t35, rules=rules, max_adu=max_adu,
             strict=strict,
         )  # fmt: skip
+        if scheme == RTU_TCP_SCHEME and cfg.t35 is None:
+            cfg = cfg.replace(t35=0.0)  # a socket has no wire timing
         options = dict(
             timeout=check_seconds("timeout", timeout, positive=True),
             retries=check_retries(retries),

@@ -22,6 +22,7 @@ from peers.tools import (
 
 from pyrtu import ExceptionResponseError, Master, NoResponseError, PortError
 from pyrtu.aio import AsyncMaster
+from pyrtu.line import LineConfig
 
 pytest_plugins = ["peers.fixtures"]
 
@@ -143,6 +144,14 @@ def test_masters_over_rtu_tcp(rtu_device_server: str) -> None:
         m.write_register(4, 8, 99)
         assert m.read_holding_registers(4, 8, 1) == [99]
         assert m.counters["crc_errors"] == 0
+
+
+def test_rtu_tcp_master_with_a_line(rtu_device_server: str) -> None:
+    """``line=`` on rtu+tcp://: the socket has no wire timing, so t3.5 is 0 unless the
+    line sets it (``line=`` was refused as "not both" with the implied t35=0)."""
+    with Master(rtu_device_server, line=LineConfig(baudrate=9600), timeout=1.0) as m:
+        assert m.t35 == 0 and m.line.baudrate == 9600
+        assert m.read_holding_registers(4, 5, 2) == pattern.holdings(4, 5, 2)
 
 
 def test_async_master_over_rtu_tcp(rtu_device_server: str) -> None:
