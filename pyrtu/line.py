@@ -1,5 +1,11 @@
 """`LineConfig`: one validated description of a serial line, for every layer.
 
+(`pyrtu.config` holds the framer core's internal options a LineConfig makes;
+`pyrtu.poller.config` the poller's buses and points, each bus with its LineConfig.)
+The public constructors that take the line keywords turn them into a LineConfig
+with `line_from` (``line=`` or the keywords, not both; an unknown one is a
+TypeError), whose defaults are `LINE_DEFAULTS` (the dataclass's own).
+
 The framer, the client and server protocols, the sync and asyncio drivers, the
 CLI and the virtual bus all take a `LineConfig` (the ten framer keywords were
 written out in six places before it)::

@@ -1,5 +1,9 @@
 """The poller's configuration: buses, devices and points, in Python or TOML.
 
+(Not the line: each `Bus` makes its `pyrtu.line.LineConfig` once, from its line
+keywords, and its master is opened with it; `pyrtu.config` is the framer core's
+options.)
+
 Minimal TOML (``[[bus]]`` keys are `pyrtu.Master`'s keywords; ``[[point]]`` keys
 are `Point`'s fields)::
 
