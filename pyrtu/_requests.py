@@ -24,6 +24,7 @@ from typing import Any, Generic, NamedTuple, TypeVar
 
 from . import pdu as P
 from .errors import FrameError
+from .functions import FUNCTION_NAMES
 from .rules import LengthRule
 
 
@@ -217,8 +218,9 @@ def execute(
     slave: int,
     function: int,
     data: bytes,
-    request_rule: LengthRule | None,
-    response_rule: LengthRule | None,
+    *,
+    request_rule: LengthRule | None = None,
+    response_rule: LengthRule | None = None,
 ) -> Call:
     s = P.check_slave(f"function {function}", slave, broadcast=True)
     if isinstance(function, bool) or not isinstance(function, int) or not 1 <= function <= 127:
@@ -274,17 +276,11 @@ def _device_id_plan(slave: int, read_code: int = 1, object_id: int = 0) -> Plan:
     return out
 
 
-def _execute_plan(
-    slave: int,
-    function: int,
-    data: bytes = b"",
-    *,
-    request_rule: LengthRule | None = None,
-    response_rule: LengthRule | None = None,
-) -> Plan:
-    call = execute(slave, function, data, request_rule, response_rule)
-    if request_rule is not None or response_rule is not None:
-        yield Rules(function, request_rule, response_rule)
+def _execute_plan(slave: int, function: int, data: bytes = b"", **rules: LengthRule | None) -> Plan:
+    """`execute`: its length rules (``request_rule``, ``response_rule``) first."""
+    call = execute(slave, function, data, **rules)
+    if any(rule is not None for rule in rules.values()):
+        yield Rules(function, rules.get("request_rule"), rules.get("response_rule"))
     return (yield call) or b""
 
 
@@ -292,27 +288,31 @@ def _or(empty: T) -> Callable[[T | None], T]:
     return lambda value: empty if value is None else value
 
 
+#: the builders of the one-transaction requests, named as the master's methods (their
+#: function codes are `pyrtu.functions.FUNCTION_NAMES`'; those that broadcast to
+#: slave 0 are `pyrtu.pdu.BROADCAST_FUNCTIONS`)
+_BUILDERS: tuple[Callable[..., Call], ...] = (
+    read_coils, read_discrete_inputs, read_holding_registers, read_input_registers,
+    write_coil, write_register, write_coils, write_registers, mask_write_register,
+    read_write_registers, read_exception_status, diagnostics, get_comm_event_counter,
+    get_comm_event_log, report_server_id, read_fifo_queue, read_file_record,
+    write_file_record,
+)  # fmt: skip
+_CODES = {name: code for code, name in FUNCTION_NAMES.items()}
+#: what a method returns where its answer is None (FC 08 sub-function 4 is not answered)
+_POST: dict[str, Callable[[Any], Any]] = {"diagnostics": _or(0)}
+
+
+def _entry(build: Callable[..., Call]) -> Request[Any]:
+    code = _CODES[build.__name__]
+    broadcasting = code in P.BROADCAST_FUNCTIONS
+    return Request(build.__name__, code, broadcasting, build, _POST.get(build.__name__))
+
+
 _TABLE: tuple[Request[Any], ...] = (
     Request("request", 0, True, raw_request, _or(b"")),
     Request("execute", 0, True, plan=_execute_plan),
-    Request("read_coils", P.READ_COILS, False, read_coils),
-    Request("read_discrete_inputs", P.READ_DISCRETE_INPUTS, False, read_discrete_inputs),
-    Request("read_holding_registers", P.READ_HOLDING_REGISTERS, False, read_holding_registers),
-    Request("read_input_registers", P.READ_INPUT_REGISTERS, False, read_input_registers),
-    Request("write_coil", P.WRITE_SINGLE_COIL, True, write_coil),
-    Request("write_register", P.WRITE_SINGLE_REGISTER, True, write_register),
-    Request("write_coils", P.WRITE_MULTIPLE_COILS, True, write_coils),
-    Request("write_registers", P.WRITE_MULTIPLE_REGISTERS, True, write_registers),
-    Request("mask_write_register", P.MASK_WRITE_REGISTER, True, mask_write_register),
-    Request("read_write_registers", P.READ_WRITE_REGISTERS, False, read_write_registers),
-    Request("read_exception_status", P.READ_EXCEPTION_STATUS, False, read_exception_status),
-    Request("diagnostics", P.DIAGNOSTICS, False, diagnostics, _or(0)),
-    Request("get_comm_event_counter", P.GET_COMM_EVENT_COUNTER, False, get_comm_event_counter),
-    Request("get_comm_event_log", P.GET_COMM_EVENT_LOG, False, get_comm_event_log),
-    Request("report_server_id", P.REPORT_SERVER_ID, False, report_server_id),
-    Request("read_fifo_queue", P.READ_FIFO_QUEUE, False, read_fifo_queue),
-    Request("read_file_record", P.READ_FILE_RECORD, False, read_file_record),
-    Request("write_file_record", P.WRITE_FILE_RECORD, True, write_file_record),
+    *(_entry(build) for build in _BUILDERS),
     Request("read_device_identification", P.ENCAPSULATED_INTERFACE, False, plan=_device_id_plan),
 )
 

@@ -21,7 +21,7 @@ from ._version import __version__
 from .ascii import make_framer
 from .datastore import DataStore
 from .errors import SlaveException
-from .line import LineConfig, adopt_port_format, line_from
+from .line import LineConfig, adopt_port_format
 from .port import Port
 from .rules import LengthRule, check_rules
 
@@ -357,10 +357,8 @@ class SlaveBase:
         return P.device_id_response(self.identification.page(read_code, object_id))
 
 
-def line_from_keywords(line: LineConfig | None, **keywords: Any) -> LineConfig:
-    """The slave's line: ``line`` as given, or built from the keywords (not both;
-    `pyrtu.line.line_from`)."""
-    return line_from(line, **keywords)
-
-
-__all__ = ["STANDARD_FUNCTIONS", "Handler", "SlaveBase", "line_from_keywords"]
+__all__ = [
+    "STANDARD_FUNCTIONS",
+    "Handler",
+    "SlaveBase",
+]

@@ -50,7 +50,7 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Any
+from typing import Any, TypedDict
 
 from .config import CoreOptions, core_options
 from .errors import ArgumentTypeError
@@ -202,6 +202,35 @@ class LineConfig:
         return line.replace(**kwargs) if kwargs else line
 
 
+class FormatKeywords(TypedDict, total=False):
+    """The line keywords of ``parse_stream`` (the fields of `LineConfig`; the
+    constructors that take them as ``**keywords`` type them with these)."""
+
+    baudrate: int
+    parity: str
+    stopbits: float
+    bytesize: int
+    timing: str
+    t15: float | None
+    t35: float | None
+    strict: bool
+    max_adu: int
+    rules: RuleTable | None
+
+
+class FramerKeywords(FormatKeywords, total=False):
+    """The line keywords of `pyrtu.Framer`."""
+
+    flush_timeout: float | None
+
+
+class LineKeywords(FramerKeywords, total=False):
+    """Every line keyword (`pyrtu.Slave`, `pyrtu.aio.AsyncSlave`)."""
+
+    mode: str
+    inter_char: float
+
+
 #: The one table of the line keywords' defaults (the constructors that take the
 #: keywords, `pyrtu.Master`, `pyrtu.Slave`, their asyncio twins, the framers and the
 #: virtual bus, default to these; ``rules`` None is no vendor rules).
@@ -221,7 +250,9 @@ def line_from(line: LineConfig | None, where: str = "", **keywords: Any) -> Line
     prefix = f"{where}: " if where else ""
     unknown = [k for k in keywords if k not in LINE_DEFAULTS]
     if unknown:
-        raise TypeError(f"{prefix}unknown line keyword {', '.join(unknown)}")
+        raise TypeError(
+            f"{where or 'line_from'}() got an unexpected keyword argument {unknown[0]!r}"
+        )
     if line is None:
         return LineConfig(**{k: v for k, v in keywords.items() if k != "rules" or v is not None})
     if not isinstance(line, LineConfig):
@@ -263,7 +294,10 @@ __all__ = [
     "MAX_BAUDRATE",
     "MIN_BAUDRATE",
     "MODES",
+    "FormatKeywords",
+    "FramerKeywords",
     "LineConfig",
+    "LineKeywords",
     "check_baudrate",
     "check_bytesize",
     "check_mode",

@@ -92,7 +92,7 @@ def test_line_from_is_the_one_rule() -> None:
     assert line_from(None, baudrate=9600, rules=None) == line
     with pytest.raises(TypeError, match="give line= or the line keywords \\(mode\\)"):
         line_from(line, mode="ascii")
-    with pytest.raises(TypeError, match="unknown line keyword colour"):
+    with pytest.raises(TypeError, match="unexpected keyword argument .colour."):
         line_from(None, colour="red")
     with pytest.raises(TypeError, match="line must be a LineConfig"):
         line_from("9600,8N1")  # type: ignore[arg-type]
