@@ -11,7 +11,7 @@ import numbers
 import operator
 from collections import deque
 from collections.abc import Callable, Iterable, Sequence
-from typing import Protocol
+from typing import Protocol, Unpack
 
 from ._types import BytesLike
 from .config import CoreOptions, core_options, to_microseconds
@@ -23,8 +23,7 @@ from .frames import (
     event_counters_template,
     make_frame,
 )
-from .line import LineConfig, line_from
-from .rules import RuleTable
+from .line import FormatKeywords, FramerKeywords, LineConfig, check_keywords, line_from
 from .timing import TIMING_RULES, Timing, compute_timing
 
 # (offset, length, kind, error, start_us, end_us, adu)
@@ -137,26 +136,14 @@ class FramerBase:
         self,
         role: str = "master",
         *,
-        baudrate: int = 19200,
-        parity: str = "E",
-        stopbits: float = 1,
-        bytesize: int = 8,
-        timing: str = "modbus",
-        t15: float | None = None,
-        t35: float | None = None,
-        strict: bool = False,
-        max_adu: int = 256,
-        rules: RuleTable | None = None,
-        flush_timeout: float | None = None,
         line: LineConfig | None = None,
+        **keywords: Unpack[FramerKeywords],
     ) -> None:
-        kw = dict(baudrate=baudrate, parity=parity, stopbits=stopbits, bytesize=bytesize,
-                  timing=timing, t15=t15, t35=t35, strict=strict, max_adu=max_adu, rules=rules,
-                  flush_timeout=flush_timeout)  # fmt: skip
+        check_keywords(keywords, FramerKeywords.__optional_keys__, "Framer")
         if line is None:
-            self.options = core_options(role, **kw)  # type: ignore[arg-type]
+            self.options = core_options(role, **keywords)
         else:
-            line = line_from(line, "Framer", **kw)  # (refuses line= with keywords)
+            line = line_from(line, "Framer", **keywords)  # (refuses line= with keywords)
             if line.mode != "rtu":
                 raise ValueError(
                     "line: Framer frames RTU; for ASCII use pyrtu.ascii.make_framer(line)"
@@ -337,33 +324,23 @@ def make_parse_stream(parse: StreamParser) -> Callable[..., FrameList]:
         *,
         times: Iterable[float] | None = None,
         chunks: Iterable[tuple[int, float]] | None = None,
-        baudrate: int = 19200,
-        parity: str = "E",
-        stopbits: float = 1,
-        bytesize: int = 8,
-        timing: str = "modbus",
-        t15: float | None = None,
-        t35: float | None = None,
-        strict: bool = False,
-        max_adu: int = 256,
-        rules: RuleTable | None = None,
         line: LineConfig | None = None,
+        **keywords: Unpack[FormatKeywords],
     ) -> FrameList:
         """Every frame and discard run in ``data`` (a capture), as a lazy sequence.
 
         ``times``: per-byte arrival times (seconds); ``chunks``: ``[(offset, time), ...]``,
         the bytes from ``offset`` to the next chunk arrived by ``time``.  Without either,
         only prediction and CRC split the stream.  The result's ``counters`` give frames by
-        kind and discarded bytes by reason.  ``line``: a `LineConfig` instead of the
-        line keywords.
+        kind and discarded bytes by reason.  The line: the line keywords (baudrate,
+        parity, stopbits, bytesize, timing, t15, t35, strict, max_adu, rules) or
+        ``line``, a `LineConfig`.
         """
-        kw = dict(baudrate=baudrate, parity=parity, stopbits=stopbits, bytesize=bytesize,
-                  timing=timing, t15=t15, t35=t35, strict=strict, max_adu=max_adu,
-                  rules=rules)  # fmt: skip
+        check_keywords(keywords, FormatKeywords.__optional_keys__, "parse_stream")
         if line is not None:
-            options = line_from(line, "parse_stream", **kw).options(role)
+            options = line_from(line, "parse_stream", **keywords).options(role)
         else:
-            options = core_options(role, **kw)  # type: ignore[arg-type]
+            options = core_options(role, **keywords)
         raw = as_bytes(data)
         offsets, us = stream_times(len(raw), times, chunks)
         return parse(options, raw, offsets, us)

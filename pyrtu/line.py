@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any, TypedDict
@@ -248,11 +249,7 @@ def line_from(line: LineConfig | None, where: str = "", **keywords: Any) -> Line
     may be passed too).  TypeError when both are given, when ``line`` is not a
     LineConfig, or for a keyword that is not a line keyword (named)."""
     prefix = f"{where}: " if where else ""
-    unknown = [k for k in keywords if k not in LINE_DEFAULTS]
-    if unknown:
-        raise TypeError(
-            f"{where or 'line_from'}() got an unexpected keyword argument {unknown[0]!r}"
-        )
+    check_keywords(keywords, LINE_DEFAULTS, where or "line_from")
     if line is None:
         return LineConfig(**{k: v for k, v in keywords.items() if k != "rules" or v is not None})
     if not isinstance(line, LineConfig):
@@ -261,6 +258,15 @@ def line_from(line: LineConfig | None, where: str = "", **keywords: Any) -> Line
     if given:
         raise TypeError(f"{prefix}give line= or the line keywords ({', '.join(given)}), not both")
     return line
+
+
+def check_keywords(keywords: Mapping[str, object], known: Iterable[str], where: str) -> None:
+    """TypeError, in Python's words, for a keyword of ``keywords`` not in ``known``
+    (the line keywords of a constructor that takes them as ``**keywords``)."""
+    allowed = set(known)
+    for key in keywords:
+        if key not in allowed:
+            raise TypeError(f"{where}() got an unexpected keyword argument {key!r}")
 
 
 def _same(value: object, key: str) -> bool:
@@ -300,6 +306,7 @@ __all__ = [
     "LineKeywords",
     "check_baudrate",
     "check_bytesize",
+    "check_keywords",
     "check_mode",
     "check_parity",
     "check_stopbits",
