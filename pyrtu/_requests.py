@@ -372,6 +372,14 @@ class Steps:
         return step
 
 
+def call_of(req: Request[Any], slave: Any, args: Any, kwargs: Any, address: Address) -> Call:
+    """The Call of a one-transaction request (``req.build``), with the unit id the
+    link's ``address`` puts in place of the slave; argument errors raise here."""
+    s, unit = address(slave, req.broadcasting)
+    call = req.build(s, *args, **kwargs)  # type: ignore[misc]
+    return call if unit is None else call._replace(slave=unit)
+
+
 def _single(call: Call) -> Plan:
     return (yield call)
 

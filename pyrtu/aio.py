@@ -219,7 +219,12 @@ class AsyncMaster(MasterBase):
         """As `pyrtu.Master.transact`: ``(value, end_time)`` of the request ``req``
         (the transactions of a multi-page request are separate: other callers may
         interleave)."""
-        steps = self._steps(req, slave, args, kwargs)
+        request = R.REQUESTS[req] if isinstance(req, str) else req
+        if request.build is not None:  # one transaction: no plan to step through
+            call = R.call_of(request, slave, args, kwargs, self._link.address)
+            value, end = await self._transact(call)
+            return (value if request.post is None else request.post(value)), end
+        steps = self._steps(request, slave, args, kwargs)
         step = steps.next()
         while step is not None:
             step = steps.next(*await self._step(step))
@@ -229,10 +234,13 @@ class AsyncMaster(MasterBase):
         if isinstance(step, Rules):
             await self.add_rule(*step)
             return None, None
+        return await self._transact(step)
+
+    async def _transact(self, call: Call) -> tuple[Any, float]:
         if self._tcp is not None:
-            return await self._tcp.transact(step)
-        answer = await self._run(step)
-        return answer, self._serial_link.end_of(step)
+            return await self._tcp.transact(call)
+        answer = await self._run(call)
+        return answer, self._serial_link.end_of(call)
 
     async def add_rule(
         self, function: int, request_rule: LengthRule | None, response_rule: LengthRule | None

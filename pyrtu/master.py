@@ -314,10 +314,10 @@ class Master(MasterBase):
         if scheme == TCP_SCHEME:
             from ._tcp_master import TcpLink  # (loads the TCP module only when used)
 
-            self._tcp: TcpLink | SerialLink = TcpLink(port, options["timeout"], options["retries"])
+            self._conn: TcpLink | SerialLink = TcpLink(port, options["timeout"], options["retries"])
         else:
-            self._tcp = self._serial(port, scheme, line, options)
-        return self._tcp
+            self._conn = self._serial(port, scheme, line, options)
+        return self._conn
 
     # ----------------------------------------------------------------- plumbing
 
@@ -327,8 +327,13 @@ class Master(MasterBase):
         """Run the request ``req`` (a `pyrtu._requests.Request` or a method name) with
         the method's arguments: ``(value, end_time)``, ``end_time`` being when the
         answer's last byte came (monotonic seconds)."""
+        request = R.REQUESTS[req] if isinstance(req, str) else req
         with self._lock:
-            steps = self._steps(req, slave, args, kwargs)
+            if request.build is not None:  # one transaction: no plan to step through
+                call = R.call_of(request, slave, args, kwargs, self._link.address)
+                value, end = self._conn.transact(call)
+                return (value if request.post is None else request.post(value)), end
+            steps = self._steps(request, slave, args, kwargs)
             step = steps.next()
             while step is not None:
                 step = steps.next(*self._step(step))
@@ -338,10 +343,10 @@ class Master(MasterBase):
         if isinstance(step, Rules):
             self._link.set_rules(*step)
             return None, None
-        return self._tcp.transact(step)
+        return self._conn.transact(step)
 
     def _call(self, name: str, slave: Any, *args: Any, **kwargs: Any) -> Any:
-        return self.transact(R.REQUESTS[name], slave, *args, **kwargs)[0]
+        return self.transact(name, slave, *args, **kwargs)[0]
 
     def add_rule(
         self, function: int, request_rule: LengthRule | None, response_rule: LengthRule | None
@@ -361,7 +366,7 @@ class Master(MasterBase):
     def close(self) -> None:
         """Close the port (a pyserial object passed in is left open)."""
         with self._lock:
-            self._tcp.close()
+            self._conn.close()
 
     def __enter__(self) -> Master:
         return self
