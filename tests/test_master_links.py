@@ -36,6 +36,7 @@ def test_import_pyrtu_loads_neither_poller_nor_asyncio() -> None:
         "assert 'asyncio' not in sys.modules\n"
         "from pyrtu.poller import Poller\n"
         "assert pyrtu.Poller is Poller and 'Poller' in pyrtu.__all__\n"
+        "assert not hasattr(pyrtu, 'NoSuchName')\n"
         "print('ok')\n"
     )
     out = subprocess.run(
