@@ -79,8 +79,6 @@ class SerialLink:
     """A serial line as a master's link (`pyrtu._links`): the port and the client
     protocol.  Every option is checked before the port is opened."""
 
-    url: str
-
     def __init__(
         self,
         port: Any,
@@ -152,6 +150,10 @@ class SerialLink:
 
     def close(self) -> None:
         self.port.close()
+
+    @property
+    def url(self) -> str:
+        raise AttributeError(f"{self.port.name}: a serial master has no url (see port, line)")
 
     def describe(self) -> str:
         return f"{self.port.name} {self.mode} {self.port.baudrate} baud"
@@ -245,7 +247,7 @@ class MasterBase:
     @property
     def url(self) -> str:
         """The ``tcp://`` URL of a TCP master (a serial master has none)."""
-        return self._link.url  # type: ignore[attr-defined,no-any-return]
+        return self._link.url
 
     @property
     def mode(self) -> str:
