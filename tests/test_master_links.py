@@ -143,3 +143,26 @@ def test_tcp_master_has_no_port_but_says_why() -> None:
             getattr(m, name)
     with pytest.raises(PortError):
         asyncio.run(m.read_coils(1, 0, 1))
+
+
+def test_poller_opens_its_master_from_the_bus_line() -> None:
+    """The poller's bus makes its LineConfig once; the master it opens uses that very
+    object (it was opened from the raw keywords, validating them again)."""
+    from pyrtu.poller import Bus
+    from pyrtu.poller.masters import open_async_master
+    from pyrtu.vbus import VirtualBus
+
+    with VirtualBus(2, parity="N") as vbus:
+        bus = Bus("b", vbus.paths[0], {"parity": "N", "baudrate": 19200, "timeout": 0.3})
+        assert bus.master_options == {"timeout": 0.3}
+
+        async def main() -> None:
+            master = open_async_master(bus)
+            try:
+                assert master.line is bus.line  # type: ignore[attr-defined]
+            finally:
+                await master.close()
+
+        asyncio.run(main())
+    rtu_tcp = Bus("r", RTU_TCP, {"parity": "N"})
+    assert rtu_tcp.line.t35 == 0  # priced as the master runs it: no wire timing
