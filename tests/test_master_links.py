@@ -5,6 +5,7 @@ keywords checked the same way on every transport (issue 18, items 3 and 4)."""
 from __future__ import annotations
 
 import asyncio
+import re
 import subprocess
 import sys
 import time
@@ -93,7 +94,7 @@ def test_line_from_is_the_one_rule() -> None:
     assert line_from(None, baudrate=9600, rules=None) == line
     with pytest.raises(TypeError, match="give line= or the line keywords \\(mode\\)"):
         line_from(line, mode="ascii")
-    with pytest.raises(TypeError, match="unexpected keyword argument .colour."):
+    with pytest.raises(TypeError, match=r"unexpected keyword argument .colour."):
         line_from(None, colour="red")
     with pytest.raises(TypeError, match="line must be a LineConfig"):
         line_from("9600,8N1")  # type: ignore[arg-type]
@@ -139,7 +140,7 @@ def test_tcp_master_has_no_port_but_says_why() -> None:
     """``.line`` and ``.port`` on a TCP link: AttributeError naming the URL."""
     m = AsyncMaster(TCP)  # connects on first use
     for name in ("line", "port"):
-        with pytest.raises(AttributeError, match="tcp://127.0.0.1:1"):
+        with pytest.raises(AttributeError, match=re.escape(TCP)):
             getattr(m, name)
     with pytest.raises(PortError):
         asyncio.run(m.read_coils(1, 0, 1))
