@@ -9,6 +9,8 @@ the import fail when the C core is missing.  ``pyrtu.BACKEND`` says which runs;
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any
+
 from . import _backend
 from ._crcshapes import Crc16, crc16_bytes, crc16_swapped
 from ._version import __version__ as __version__
@@ -41,7 +43,6 @@ encode_mbap = _active.encode_mbap
 
 
 # The thin API over the core: imported after the backend is chosen (they use it).
-from . import _tcp_master  # noqa: E402,F401  (registers tcp:// and rtu+tcp:// masters)
 from .data import (  # noqa: E402
     decode_float32,
     decode_int32,
@@ -67,11 +68,23 @@ from .errors import (  # noqa: E402
 )
 from .master import Master  # noqa: E402
 from .pdu import CommEventLog  # noqa: E402
-from .poller import Poller  # noqa: E402  (after Master: the poller drives it)
 from .slave import Slave  # noqa: E402
 
 backend = _backend.backend
 available_backends = _backend.available_backends
+
+if TYPE_CHECKING:
+    from .poller import Poller
+
+
+def __getattr__(name: str) -> Any:
+    """``pyrtu.Poller`` on first use: ``import pyrtu`` loads neither the poller nor
+    asyncio."""
+    if name == "Poller":
+        from .poller import Poller
+
+        return Poller
+    raise AttributeError(f"module 'pyrtu' has no attribute {name!r}")
 
 
 __all__ = [

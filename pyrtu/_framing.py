@@ -11,7 +11,7 @@ import numbers
 import operator
 from collections import deque
 from collections.abc import Callable, Iterable, Sequence
-from typing import Generic, Protocol, TypeVar
+from typing import TYPE_CHECKING, Generic, Protocol, TypeVar
 
 from ._feed import feed_all
 from ._types import BytesLike
@@ -24,9 +24,11 @@ from .frames import (
     event_counters_template,
     make_frame,
 )
-from .line import LineConfig
-from .rules import RuleTable
+from .line import FormatKeywords, FramerKeywords, LineConfig, check_keywords, line_from
 from .timing import TIMING_RULES, Timing, compute_timing
+
+if TYPE_CHECKING:  # Unpack is in typing from Python 3.11 (annotations only)
+    from typing import Unpack
 
 # (offset, length, kind, error, start_us, end_us, adu)
 Event = tuple[int, int, int, int, int, int, bytes]
@@ -132,17 +134,6 @@ def check_core_limits(options: CoreOptions) -> None:
         )
 
 
-_DEFAULTS = (19200, "E", 1, 8, "modbus", None, None, False, 256, None, None)
-
-
-def _check_line(line: object, given: tuple[object, ...], where: str) -> None:
-    """``line=`` replaces the line keywords: refuse both at once."""
-    if not isinstance(line, LineConfig):
-        raise TypeError(f"{where}: line must be a LineConfig, not {type(line).__name__}")
-    if given != _DEFAULTS:
-        raise TypeError(f"{where}: give line= or the line keywords (baudrate=...), not both")
-
-
 def event_to_frame(ev: Event) -> Frame:
     offset, _length, kind, error, start_us, end_us, adu = ev
     return make_frame(kind, adu, offset, start_us / 1e6, end_us / 1e6, error)
@@ -174,37 +165,14 @@ class FramerBase(EventQueue[Frame]):
         self,
         role: str = "master",
         *,
-        baudrate: int = 19200,
-        parity: str = "E",
-        stopbits: float = 1,
-        bytesize: int = 8,
-        timing: str = "modbus",
-        t15: float | None = None,
-        t35: float | None = None,
-        strict: bool = False,
-        max_adu: int = 256,
-        rules: RuleTable | None = None,
-        flush_timeout: float | None = None,
         line: LineConfig | None = None,
+        **keywords: Unpack[FramerKeywords],
     ) -> None:
-        given = (baudrate, parity, stopbits, bytesize, timing, t15, t35, strict, max_adu)
+        check_keywords(keywords, FramerKeywords.__optional_keys__, "Framer")
         if line is None:
-            self.options = core_options(
-                role,
-                baudrate=baudrate,
-                parity=parity,
-                stopbits=stopbits,
-                bytesize=bytesize,
-                timing=timing,
-                t15=t15,
-                t35=t35,
-                strict=strict,
-                max_adu=max_adu,
-                rules=rules,
-                flush_timeout=flush_timeout,
-            )
+            self.options = core_options(role, **keywords)
         else:
-            _check_line(line, (*given, rules, flush_timeout), "Framer")
+            line = line_from(line, "Framer", **keywords)  # (refuses line= with keywords)
             if line.mode != "rtu":
                 raise ValueError(
                     "line: Framer frames RTU; for ASCII use pyrtu.ascii.make_framer(line)"
@@ -370,44 +338,23 @@ def make_parse_stream(parse: StreamParser) -> Callable[..., FrameList]:
         *,
         times: Iterable[float] | None = None,
         chunks: Iterable[tuple[int, float]] | None = None,
-        baudrate: int = 19200,
-        parity: str = "E",
-        stopbits: float = 1,
-        bytesize: int = 8,
-        timing: str = "modbus",
-        t15: float | None = None,
-        t35: float | None = None,
-        strict: bool = False,
-        max_adu: int = 256,
-        rules: RuleTable | None = None,
         line: LineConfig | None = None,
+        **keywords: Unpack[FormatKeywords],
     ) -> FrameList:
         """Every frame and discard run in ``data`` (a capture), as a lazy sequence.
 
         ``times``: per-byte arrival times (seconds); ``chunks``: ``[(offset, time), ...]``,
         the bytes from ``offset`` to the next chunk arrived by ``time``.  Without either,
         only prediction and CRC split the stream.  The result's ``counters`` give frames by
-        kind and discarded bytes by reason.  ``line``: a `LineConfig` instead of the
-        line keywords.
+        kind and discarded bytes by reason.  The line: the line keywords (baudrate,
+        parity, stopbits, bytesize, timing, t15, t35, strict, max_adu, rules) or
+        ``line``, a `LineConfig`.
         """
+        check_keywords(keywords, FormatKeywords.__optional_keys__, "parse_stream")
         if line is not None:
-            given = (baudrate, parity, stopbits, bytesize, timing, t15, t35, strict, max_adu)
-            _check_line(line, (*given, rules, None), "parse_stream")
-            options = line.options(role)
+            options = line_from(line, "parse_stream", **keywords).options(role)
         else:
-            options = core_options(
-                role,
-                baudrate=baudrate,
-                parity=parity,
-                stopbits=stopbits,
-                bytesize=bytesize,
-                timing=timing,
-                t15=t15,
-                t35=t35,
-                strict=strict,
-                max_adu=max_adu,
-                rules=rules,
-            )
+            options = core_options(role, **keywords)
         raw = as_bytes(data)
         offsets, us = stream_times(len(raw), times, chunks)
         return parse(options, raw, offsets, us)

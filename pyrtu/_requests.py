@@ -1,18 +1,30 @@
 """The master's requests: argument checks, the request PDU and the answer's decoder.
 
-One function per `Master` method, shared by the sync `Master` and `pyrtu.aio.AsyncMaster`
-so that both check arguments (before a byte is sent) and decode answers identically.
-Each returns a `Call`: (slave, request PDU, decoder), the decoder None when no answer
-is awaited (a broadcast, FC 08 sub-function 4).
+One function per `Master` method, shared by the sync `Master`, `pyrtu.aio.AsyncMaster`
+and the poller so that all check arguments (before a byte is sent) and decode answers
+identically.  Each returns a `Call`: (slave, request PDU, decoder), the decoder None
+when no answer is awaited (a broadcast, FC 08 sub-function 4).
+
+`REQUESTS` is the table of the twenty methods: a `Request` per method name (function
+code, whether slave 0 broadcasts, the builder of its `Call` and what is done to the
+decoded answer), and for the two that are more than one transaction
+(``read_device_identification`` pages, ``execute`` with length rules) a plan: a
+generator that yields the Calls (and `Rules` to register first) and returns the
+value.  A driver runs a request with `Steps` (sans-I/O: Calls out, answers in) and
+gives its caller ``(value, end_time)``; `BY_FUNCTION` finds the poller's reads and
+writes by function code.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Sequence
-from typing import Any, NamedTuple
+import time
+from collections.abc import Callable, Generator, Iterable, Sequence
+from dataclasses import dataclass
+from typing import Any, Generic, NamedTuple, TypeVar
 
 from . import pdu as P
 from .errors import FrameError
+from .functions import FUNCTION_NAMES
 from .rules import LengthRule
 
 
@@ -206,8 +218,9 @@ def execute(
     slave: int,
     function: int,
     data: bytes,
-    request_rule: LengthRule | None,
-    response_rule: LengthRule | None,
+    *,
+    request_rule: LengthRule | None = None,
+    response_rule: LengthRule | None = None,
 ) -> Call:
     s = P.check_slave(f"function {function}", slave, broadcast=True)
     if isinstance(function, bool) or not isinstance(function, int) or not 1 <= function <= 127:
@@ -218,3 +231,159 @@ def execute(
     if len(request) > P.MAX_PDU:
         raise ValueError(f"execute: a {len(request)}-byte PDU exceeds {P.MAX_PDU} bytes")
     return Call(s, request, None if s == 0 else (lambda p: p[1:]))
+
+
+# ------------------------------------------------------------------- the table
+
+T = TypeVar("T")
+
+
+class Rules(NamedTuple):
+    """A plan's step: register length rules for ``function`` before the next Call."""
+
+    function: int
+    request_rule: LengthRule | None
+    response_rule: LengthRule | None
+
+
+Plan = Generator[Call | Rules, Any, Any]
+
+
+@dataclass(frozen=True, slots=True)
+class Request(Generic[T]):
+    """One master method: ``build(slave, *args) -> Call`` (one transaction), or
+    ``plan(slave, *args)`` (several; see the module doc); ``post`` turns the decoded
+    answer (None for a broadcast) into the method's value.  ``broadcasting``: slave 0
+    is a broadcast in this method (on TCP, unit 0 of the others is the device)."""
+
+    name: str
+    function: int
+    broadcasting: bool
+    build: Callable[..., Call] | None = None
+    post: Callable[[Any], T] | None = None
+    plan: Callable[..., Plan] | None = None
+
+
+def _device_id_plan(slave: int, read_code: int = 1, object_id: int = 0) -> Plan:
+    s = device_id_check(slave, read_code, object_id)
+    out: dict[int, bytes] = {}
+    asked: set[int] = set()
+    oid: int | None = object_id
+    while oid is not None:
+        asked.add(oid)
+        page = yield device_id_page(s, read_code, oid)
+        oid = device_id_next(s, read_code, page, out, asked)
+    return out
+
+
+def _execute_plan(slave: int, function: int, data: bytes = b"", **rules: LengthRule | None) -> Plan:
+    """`execute`: its length rules (``request_rule``, ``response_rule``) first."""
+    call = execute(slave, function, data, **rules)
+    if any(rule is not None for rule in rules.values()):
+        yield Rules(function, rules.get("request_rule"), rules.get("response_rule"))
+    return (yield call) or b""
+
+
+def _or(empty: T) -> Callable[[T | None], T]:
+    return lambda value: empty if value is None else value
+
+
+#: the builders of the one-transaction requests, named as the master's methods (their
+#: function codes are `pyrtu.functions.FUNCTION_NAMES`'; those that broadcast to
+#: slave 0 are `pyrtu.pdu.BROADCAST_FUNCTIONS`)
+_BUILDERS: tuple[Callable[..., Call], ...] = (
+    read_coils, read_discrete_inputs, read_holding_registers, read_input_registers,
+    write_coil, write_register, write_coils, write_registers, mask_write_register,
+    read_write_registers, read_exception_status, diagnostics, get_comm_event_counter,
+    get_comm_event_log, report_server_id, read_fifo_queue, read_file_record,
+    write_file_record,
+)  # fmt: skip
+_CODES = {name: code for code, name in FUNCTION_NAMES.items()}
+#: what a method returns where its answer is None (FC 08 sub-function 4 is not answered)
+_POST: dict[str, Callable[[Any], Any]] = {"diagnostics": _or(0)}
+
+
+def _entry(build: Callable[..., Call]) -> Request[Any]:
+    code = _CODES[build.__name__]
+    broadcasting = code in P.BROADCAST_FUNCTIONS
+    return Request(build.__name__, code, broadcasting, build, _POST.get(build.__name__))
+
+
+_TABLE: tuple[Request[Any], ...] = (
+    Request("request", 0, True, raw_request, _or(b"")),
+    Request("execute", 0, True, plan=_execute_plan),
+    *(_entry(build) for build in _BUILDERS),
+    Request("read_device_identification", P.ENCAPSULATED_INTERFACE, False, plan=_device_id_plan),
+)
+
+#: method name -> Request (the twenty methods of `Master` and `AsyncMaster`)
+REQUESTS: dict[str, Request[Any]] = {r.name: r for r in _TABLE}
+#: function code -> Request, for the one-transaction requests (what the poller sends)
+BY_FUNCTION: dict[int, Request[Any]] = {
+    r.function: r for r in _TABLE if r.build is not None and r.function
+}
+
+#: (slave, broadcasting) -> (the slave the argument checks see, the unit id sent in
+#: its place or None): how a transport widens the serial line's 0..247
+Address = Callable[[Any, bool], tuple[Any, int | None]]
+
+
+class Steps:
+    """The transactions of one `Request`, sans-I/O: ``next(answer, end)`` takes the
+    previous step's answer and end time (None, None at first and after `Rules`) and
+    gives the driver the next `Call` (or `Rules` to register), or None when done;
+    then `value` is the method's value and `end` when its last answer ended
+    (monotonic seconds; when it finished, for one not answered).  A FrameError from
+    the plan's own checks (a device pointing back at a page already read) goes to
+    ``bad`` (the link's counter) before it is raised."""
+
+    __slots__ = ("_gen", "_post", "_unit", "bad", "end", "value")
+
+    def __init__(
+        self, req: Request[Any], slave: Any, args: tuple[Any, ...], kwargs: dict[str, Any],
+        address: Address, bad: Callable[[], None],
+    ) -> None:  # fmt: skip
+        s, self._unit = address(slave, req.broadcasting)
+        if req.plan is not None:
+            self._gen: Plan = req.plan(s, *args, **kwargs)
+        else:
+            assert req.build is not None
+            self._gen = _single(req.build(s, *args, **kwargs))
+        self._post = req.post
+        self.bad = bad
+        self.value: Any = None
+        self.end: float | None = None
+
+    def next(self, answer: Any = None, end: float | None = None) -> Call | Rules | None:
+        if end is not None:
+            self.end = end
+        try:
+            step = self._gen.send(answer)
+        except StopIteration as stop:
+            self.value = stop.value if self._post is None else self._post(stop.value)
+            if self.end is None:
+                self.end = time.monotonic()
+            return None
+        except FrameError:
+            self.bad()
+            raise
+        if self._unit is not None and isinstance(step, Call):
+            return step._replace(slave=self._unit)
+        return step
+
+
+def call_of(req: Request[Any], slave: Any, args: Any, kwargs: Any, address: Address) -> Call:
+    """The Call of a one-transaction request (``req.build``), with the unit id the
+    link's ``address`` puts in place of the slave; argument errors raise here."""
+    s, unit = address(slave, req.broadcasting)
+    call = req.build(s, *args, **kwargs)  # type: ignore[misc]
+    return call if unit is None else call._replace(slave=unit)
+
+
+def _single(call: Call) -> Plan:
+    return (yield call)
+
+
+def serial_address(slave: Any, broadcasting: bool) -> tuple[Any, int | None]:
+    """A serial line's addresses: the slave as given (the checks allow 0..247)."""
+    return slave, None

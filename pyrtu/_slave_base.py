@@ -21,9 +21,9 @@ from ._version import __version__
 from .ascii import make_framer
 from .datastore import DataStore
 from .errors import SlaveException
-from .line import LineConfig
+from .line import LineConfig, adopt_port_format
 from .port import Port
-from .rules import LengthRule, RuleTable, check_rules
+from .rules import LengthRule, check_rules
 
 log = logging.getLogger("pyrtu.slave")
 
@@ -109,10 +109,7 @@ class SlaveBase:
         """The port is open: the line as the port has it (an adopted serial object
         may differ from the keywords), and the protocol on it."""
         self.port = port
-        line = self.line_config.replace(
-            baudrate=port.baudrate, parity=port.parity, stopbits=port.stopbits,
-            bytesize=port.bytesize,
-        )  # fmt: skip
+        line = adopt_port_format(self.line_config, port)
         self.line_config = line
         #: the silence kept after a request before answering (seconds; 0: none)
         self.t35 = line.frame_gap
@@ -367,37 +364,8 @@ class SlaveBase:
         return P.device_id_response(self.identification.page(read_code, object_id))
 
 
-_LINE_DEFAULTS = (19200, "E", 1, 8, "rtu", None, None, "modbus", None, 256)
-
-
-def line_from_keywords(
-    line: LineConfig | None,
-    *,
-    baudrate: int,
-    parity: str,
-    stopbits: float,
-    bytesize: int,
-    mode: str,
-    t15: float | None,
-    t35: float | None,
-    timing: str,
-    rules: RuleTable | None,
-    max_adu: int,
-    strict: bool,
-) -> LineConfig:
-    """The slave's line: ``line`` as given, or built from the keywords (not both)."""
-    if line is not None:
-        if not isinstance(line, LineConfig):
-            raise TypeError(f"line must be a LineConfig, not {type(line).__name__}")
-        given = (baudrate, parity, stopbits, bytesize, mode, t15, t35, timing, rules, max_adu)
-        if given != _LINE_DEFAULTS or strict:
-            raise TypeError("give line= or the line keywords (baudrate=...), not both")
-        return line
-    return LineConfig(
-        baudrate=baudrate, parity=parity, stopbits=stopbits, bytesize=bytesize, mode=mode,
-        timing=timing, t15=t15, t35=t35, max_adu=max_adu, strict=strict,
-        rules=check_rules(rules),
-    )  # fmt: skip
-
-
-__all__ = ["STANDARD_FUNCTIONS", "Handler", "SlaveBase", "line_from_keywords"]
+__all__ = [
+    "STANDARD_FUNCTIONS",
+    "Handler",
+    "SlaveBase",
+]

@@ -26,25 +26,26 @@ late answer may come, and the next transaction waits it out before sending.
 from __future__ import annotations
 
 import asyncio
+import functools
 import sys
 import time
 from collections.abc import Iterable, Sequence
 from concurrent.futures import Future as ThreadFuture
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from . import _ptimer
 from . import _requests as R
 from . import pdu as P
 from ._client import ClientProtocol, Send, Wait
+from ._links import TCP_SCHEME, Link
 from ._master_io import read_now
-from ._requests import Call
+from ._requests import Call, Request, Rules
 from ._slack import tighten_this_thread
-from ._transports import transport_for
 from .errors import PortError
 from .line import LineConfig
-from .master import MasterBase, make_line
-from .rules import LengthRule, RuleTable
+from .master import Master, MasterBase
+from .rules import LengthRule
 
 _monotonic = time.monotonic
 
@@ -52,66 +53,30 @@ _monotonic = time.monotonic
 class AsyncMaster(MasterBase):
     """A Modbus master on one serial line for asyncio (see the module docstring)."""
 
-    def __new__(cls, port: Any = None, *args: Any, **kwargs: Any) -> AsyncMaster:
-        # tcp://, rtu+tcp://: the transport's subclass (pyrtu._transports)
-        sub = transport_for("async", port) if cls is AsyncMaster else None
-        return super().__new__(sub or cls)
+    _PIPELINES = True  # tcp:// ports keep up to max_in_flight requests on the wire
 
-    def __init__(
-        self,
-        port: Any,
-        baudrate: int = 19200,
-        parity: str = "E",
-        stopbits: float = 1,
-        bytesize: int = 8,
-        timeout: float = 1.0,
-        retries: int = 0,
-        mode: str = "rtu",
-        echo: bool = False,
-        rs485: Any = None,
-        *,
-        t15: float | None = None,
-        t35: float | None = None,
-        timing: str = "modbus",
-        broadcast_delay: float = 0.1,
-        rules: RuleTable | None = None,
-        max_adu: int = 256,
-        strict: bool = False,
-        backend: str | None = None,
-        line: LineConfig | None = None,
-        exclusive: bool = True,
-        max_in_flight: int = 1,
-    ) -> None:
-        # ``max_in_flight``: requests on the wire at once, for ``tcp://`` ports (their
-        # class takes it); a serial line (and rtu+tcp://) carries one at a time
-        if isinstance(max_in_flight, bool) or not isinstance(max_in_flight, int):
-            raise TypeError(f"max_in_flight must be an integer, not {max_in_flight!r}")
-        if max_in_flight != 1:
-            raise ValueError(
-                f"max_in_flight must be 1 on a serial line, not {max_in_flight} "
-                "(only tcp:// ports keep several requests on the wire)"
-            )
-        cfg = make_line(
-            line,
-            baudrate=baudrate,
-            parity=parity,
-            stopbits=stopbits,
-            bytesize=bytesize,
-            mode=mode,
-            timing=timing,
-            t15=t15,
-            t35=t35,
-            rules=rules,
-            max_adu=max_adu,
-            strict=strict,
-        )
-        self._setup(port, cfg, timeout, retries, echo, rs485, broadcast_delay, backend, exclusive)
+    def _open(
+        self, port: Any, scheme: str | None, line: LineConfig, options: dict[str, Any],
+        max_in_flight: int,
+    ) -> Link:  # fmt: skip
         self._lock = asyncio.Lock()
-        self._fd = self.port.fd
         self._reader: ThreadPoolExecutor | None = None
         self._inflight: ThreadFuture[bytes] | None = None  # a thread read a cancel left
+        if scheme == TCP_SCHEME:
+            from ._tcp_master import AsyncTcpLink  # (loads the TCP module only when used)
+
+            self._tcp: AsyncTcpLink | None = AsyncTcpLink(
+                port, options["timeout"], options["retries"], max_in_flight
+            )
+            return self._tcp
+        self._tcp = None
+        link = self._serial(port, scheme, line, options)
+        self._serial_link = link
+        self._proto = link.proto
+        self._fd = link.port.fd
         if self._fd is None:
-            self._reader = ThreadPoolExecutor(1, thread_name_prefix=f"pyrtu-read-{self.port.name}")
+            self._reader = ThreadPoolExecutor(1, thread_name_prefix=f"pyrtu-read-{link.port.name}")
+        return link
 
     # ------------------------------------------------------------- the driver
 
@@ -217,20 +182,47 @@ class AsyncMaster(MasterBase):
 
     # ------------------------------------------------------------- plumbing
 
+    async def transact(
+        self, req: Request[Any] | str, slave: Any, *args: Any, **kwargs: Any
+    ) -> tuple[Any, float]:
+        """As `pyrtu.Master.transact`: ``(value, end_time)`` of the request ``req``
+        (the transactions of a multi-page request are separate: other callers may
+        interleave)."""
+        request = R.REQUESTS[req] if isinstance(req, str) else req
+        if request.build is not None:  # one transaction: no plan to step through
+            call = R.call_of(request, slave, args, kwargs, self._link.address)
+            value, end = await self._transact(call)
+            return (value if request.post is None else request.post(value)), end
+        steps = self._steps(request, slave, args, kwargs)
+        step = steps.next()
+        while step is not None:
+            step = steps.next(*await self._step(step))
+        return steps.value, steps.end  # type: ignore[return-value]
+
+    async def _step(self, step: Call | Rules) -> tuple[Any, float | None]:
+        if isinstance(step, Rules):
+            await self.add_rule(*step)
+            return None, None
+        return await self._transact(step)
+
+    async def _transact(self, call: Call) -> tuple[Any, float]:
+        if self._tcp is not None:
+            return await self._tcp.transact(call)
+        answer = await self._run(call)
+        return answer, self._serial_link.end_of(call)
+
     async def add_rule(
         self, function: int, request_rule: LengthRule | None, response_rule: LengthRule | None
     ) -> None:
         """Register length rules for a (vendor) function code in the framer."""
         async with self._lock:
-            self._set_rules(function, request_rule, response_rule)
-
-    @property
-    def counters(self) -> dict[str, int]:
-        """As `pyrtu.Master.counters`."""
-        return dict(self._proto.counters)
+            self._link.set_rules(function, request_rule, response_rule)
 
     async def close(self) -> None:
         """Close the port once the transaction in progress (if any) is over."""
+        if self._tcp is not None:
+            await self._tcp.close()
+            return
         async with self._lock:
             self._close_now()
 
@@ -246,129 +238,62 @@ class AsyncMaster(MasterBase):
         await self.close()
 
     # ---------------------------------------------------------------- requests
+    # `pyrtu.Master`'s methods as coroutines, made from the one table of requests
+    # (`pyrtu._requests.REQUESTS`, `_install` below); typed here for users' mypy.
+    # fmt: off
+    if TYPE_CHECKING:
+        async def request(self, slave: int, pdu: bytes) -> bytes: ...
+        async def execute(self, slave: int, function: int, data: bytes = b"", *,
+                          request_rule: LengthRule | None = None,
+                          response_rule: LengthRule | None = None) -> bytes: ...
+        async def read_coils(self, slave: int, address: int, count: int) -> list[bool]: ...
+        async def read_discrete_inputs(self, slave: int, address: int,
+                                       count: int) -> list[bool]: ...
+        async def read_holding_registers(self, slave: int, address: int,
+                                         count: int) -> list[int]: ...
+        async def read_input_registers(self, slave: int, address: int,
+                                       count: int) -> list[int]: ...
+        async def write_coil(self, slave: int, address: int, value: bool) -> None: ...
+        async def write_register(self, slave: int, address: int, value: int) -> None: ...
+        async def write_coils(self, slave: int, address: int, values: Iterable[bool]) -> None: ...
+        async def write_registers(self, slave: int, address: int,
+                                  values: Iterable[int]) -> None: ...
+        async def mask_write_register(self, slave: int, address: int, and_mask: int,
+                                      or_mask: int) -> None: ...
+        async def read_write_registers(self, slave: int, read_address: int, read_count: int,
+                                       write_address: int, values: Iterable[int]) -> list[int]: ...
+        async def read_exception_status(self, slave: int) -> int: ...
+        async def diagnostics(self, slave: int, sub_function: int, data: int = 0) -> int: ...
+        async def get_comm_event_counter(self, slave: int) -> tuple[int, int]: ...
+        async def get_comm_event_log(self, slave: int) -> P.CommEventLog: ...
+        async def report_server_id(self, slave: int) -> bytes: ...
+        async def read_fifo_queue(self, slave: int, address: int) -> list[int]: ...
+        async def read_file_record(self, slave: int,
+                                   items: Sequence[tuple[int, int, int]]) -> list[list[int]]: ...
+        async def write_file_record(self, slave: int,
+                                    items: Sequence[tuple[int, int, Sequence[int]]]) -> None: ...
+        async def read_device_identification(self, slave: int, read_code: int = 1,
+                                             object_id: int = 0) -> dict[int, bytes]: ...
+    # fmt: on
 
-    async def request(self, slave: int, pdu: bytes) -> bytes:
-        """As `pyrtu.Master.request`: request PDU in, response PDU out."""
-        return await self._run(R.raw_request(slave, pdu)) or b""
 
-    async def execute(
-        self,
-        slave: int,
-        function: int,
-        data: bytes = b"",
-        *,
-        request_rule: LengthRule | None = None,
-        response_rule: LengthRule | None = None,
-    ) -> bytes:
-        """As `pyrtu.Master.execute`."""
-        call = R.execute(slave, function, data, request_rule, response_rule)
-        if request_rule is not None or response_rule is not None:
-            await self.add_rule(function, request_rule, response_rule)
-        return await self._run(call) or b""
+def _install(cls: type[AsyncMaster]) -> None:
+    """The request methods of ``cls``: each is `AsyncMaster.transact` of its table
+    entry, with the sync `pyrtu.Master` method's name, signature and docstring."""
 
-    async def read_coils(self, slave: int, address: int, count: int) -> list[bool]:
-        """FC 01."""
-        return await self._run(R.read_coils(slave, address, count))  # type: ignore[no-any-return]
+    def method(req: Request[Any]) -> Any:
+        async def run(self: AsyncMaster, slave: Any, *args: Any, **kwargs: Any) -> Any:
+            return (await self.transact(req, slave, *args, **kwargs))[0]
 
-    async def read_discrete_inputs(self, slave: int, address: int, count: int) -> list[bool]:
-        """FC 02."""
-        return await self._run(R.read_discrete_inputs(slave, address, count))  # type: ignore[no-any-return]
+        functools.update_wrapper(run, getattr(Master, req.name))
+        run.__qualname__ = f"{cls.__name__}.{req.name}"
+        return run
 
-    async def read_holding_registers(self, slave: int, address: int, count: int) -> list[int]:
-        """FC 03."""
-        return await self._run(R.read_holding_registers(slave, address, count))  # type: ignore[no-any-return]
+    for req in R.REQUESTS.values():
+        setattr(cls, req.name, method(req))
 
-    async def read_input_registers(self, slave: int, address: int, count: int) -> list[int]:
-        """FC 04."""
-        return await self._run(R.read_input_registers(slave, address, count))  # type: ignore[no-any-return]
 
-    async def write_coil(self, slave: int, address: int, value: bool) -> None:
-        """FC 05 (slave 0 broadcasts)."""
-        await self._run(R.write_coil(slave, address, value))
-
-    async def write_register(self, slave: int, address: int, value: int) -> None:
-        """FC 06 (slave 0 broadcasts)."""
-        await self._run(R.write_register(slave, address, value))
-
-    async def write_coils(self, slave: int, address: int, values: Iterable[bool]) -> None:
-        """FC 15 (slave 0 broadcasts)."""
-        await self._run(R.write_coils(slave, address, values))
-
-    async def write_registers(self, slave: int, address: int, values: Iterable[int]) -> None:
-        """FC 16 (slave 0 broadcasts)."""
-        await self._run(R.write_registers(slave, address, values))
-
-    async def mask_write_register(
-        self, slave: int, address: int, and_mask: int, or_mask: int
-    ) -> None:
-        """FC 22."""
-        await self._run(R.mask_write_register(slave, address, and_mask, or_mask))
-
-    async def read_write_registers(
-        self,
-        slave: int,
-        read_address: int,
-        read_count: int,
-        write_address: int,
-        values: Iterable[int],
-    ) -> list[int]:
-        """FC 23."""
-        call = R.read_write_registers(slave, read_address, read_count, write_address, values)
-        return await self._run(call)  # type: ignore[no-any-return]
-
-    async def read_exception_status(self, slave: int) -> int:
-        """FC 07."""
-        return await self._run(R.read_exception_status(slave))  # type: ignore[no-any-return]
-
-    async def diagnostics(self, slave: int, sub_function: int, data: int = 0) -> int:
-        """FC 08 (sub-function 0x04 is never answered: 0 once sent)."""
-        return await self._run(R.diagnostics(slave, sub_function, data)) or 0
-
-    async def get_comm_event_counter(self, slave: int) -> tuple[int, int]:
-        """FC 11."""
-        return await self._run(R.get_comm_event_counter(slave))  # type: ignore[no-any-return]
-
-    async def get_comm_event_log(self, slave: int) -> P.CommEventLog:
-        """FC 12."""
-        return await self._run(R.get_comm_event_log(slave))  # type: ignore[no-any-return]
-
-    async def report_server_id(self, slave: int) -> bytes:
-        """FC 17."""
-        return await self._run(R.report_server_id(slave))  # type: ignore[no-any-return]
-
-    async def read_fifo_queue(self, slave: int, address: int) -> list[int]:
-        """FC 24."""
-        return await self._run(R.read_fifo_queue(slave, address))  # type: ignore[no-any-return]
-
-    async def read_file_record(
-        self, slave: int, items: Sequence[tuple[int, int, int]]
-    ) -> list[list[int]]:
-        """FC 20."""
-        return await self._run(R.read_file_record(slave, items))  # type: ignore[no-any-return]
-
-    async def write_file_record(
-        self, slave: int, items: Sequence[tuple[int, int, Sequence[int]]]
-    ) -> None:
-        """FC 21 (slave 0 broadcasts)."""
-        await self._run(R.write_file_record(slave, items))
-
-    async def read_device_identification(
-        self, slave: int, read_code: int = 1, object_id: int = 0
-    ) -> dict[int, bytes]:
-        """FC 43/14 (pages are separate transactions; other callers may interleave)."""
-        s = R.device_id_check(slave, read_code, object_id)
-        out: dict[int, bytes] = {}
-        asked: set[int] = set()
-        oid: int | None = object_id
-        while oid is not None:
-            asked.add(oid)
-            page = await self._run(R.device_id_page(s, read_code, oid))
-            try:
-                oid = R.device_id_next(s, read_code, page, out, asked)
-            except Exception:
-                self._proto.counters["frame_errors"] += 1
-                raise
-        return out
+_install(AsyncMaster)
 
 
 class _Drive:

@@ -1,4 +1,11 @@
-"""Checking the framer's keyword arguments once, for both backends."""
+"""The framer core's options (`CoreOptions`): what the C core and its Python twin
+are configured with, checked once for both backends.
+
+Not a user-facing configuration: a serial line is described by `pyrtu.line.LineConfig`
+(``LineConfig.options(role)`` makes these), and the poller's buses, devices and
+points by `pyrtu.poller.config`.  `core_options` is the framer keywords' validator,
+which `LineConfig` calls in its constructor so that both say the same words.
+"""
 
 from __future__ import annotations
 

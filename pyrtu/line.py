@@ -1,5 +1,11 @@
 """`LineConfig`: one validated description of a serial line, for every layer.
 
+(`pyrtu.config` holds the framer core's internal options a LineConfig makes;
+`pyrtu.poller.config` the poller's buses and points, each bus with its LineConfig.)
+The public constructors that take the line keywords turn them into a LineConfig
+with `line_from` (``line=`` or the keywords, not both; an unknown one is a
+TypeError), whose defaults are `LINE_DEFAULTS` (the dataclass's own).
+
 The framer, the client and server protocols, the sync and asyncio drivers, the
 CLI and the virtual bus all take a `LineConfig` (the ten framer keywords were
 written out in six places before it)::
@@ -42,9 +48,10 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Any
+from typing import Any, TypedDict
 
 from .config import CoreOptions, core_options
 from .errors import ArgumentTypeError
@@ -196,6 +203,86 @@ class LineConfig:
         return line.replace(**kwargs) if kwargs else line
 
 
+class FormatKeywords(TypedDict, total=False):
+    """The line keywords of ``parse_stream`` (the fields of `LineConfig`; the
+    constructors that take them as ``**keywords`` type them with these)."""
+
+    baudrate: int
+    parity: str
+    stopbits: float
+    bytesize: int
+    timing: str
+    t15: float | None
+    t35: float | None
+    strict: bool
+    max_adu: int
+    rules: RuleTable | None
+
+
+class FramerKeywords(FormatKeywords, total=False):
+    """The line keywords of `pyrtu.Framer`."""
+
+    flush_timeout: float | None
+
+
+class LineKeywords(FramerKeywords, total=False):
+    """Every line keyword (`pyrtu.Slave`, `pyrtu.aio.AsyncSlave`)."""
+
+    mode: str
+    inter_char: float
+
+
+#: The one table of the line keywords' defaults (the constructors that take the
+#: keywords, `pyrtu.Master`, `pyrtu.Slave`, their asyncio twins, the framers and the
+#: virtual bus, default to these; ``rules`` None is no vendor rules).
+LINE_DEFAULTS: MappingProxyType[str, Any] = MappingProxyType(
+    {
+        f.name: (None if f.default is dataclasses.MISSING else f.default)
+        for f in dataclasses.fields(LineConfig)
+    }
+)
+
+
+def line_from(line: LineConfig | None, where: str = "", **keywords: Any) -> LineConfig:
+    """The `LineConfig` of a constructor that takes ``line=`` or the line keywords:
+    ``line`` as given, or a new one from ``keywords`` (those left at their defaults
+    may be passed too).  TypeError when both are given, when ``line`` is not a
+    LineConfig, or for a keyword that is not a line keyword (named)."""
+    prefix = f"{where}: " if where else ""
+    check_keywords(keywords, LINE_DEFAULTS, where or "line_from")
+    if line is None:
+        return LineConfig(**{k: v for k, v in keywords.items() if k != "rules" or v is not None})
+    if not isinstance(line, LineConfig):
+        raise TypeError(f"{prefix}line must be a LineConfig, not {type(line).__name__}")
+    given = [k for k, v in keywords.items() if v != LINE_DEFAULTS[k] and not _same(v, k)]
+    if given:
+        raise TypeError(f"{prefix}give line= or the line keywords ({', '.join(given)}), not both")
+    return line
+
+
+def check_keywords(keywords: Mapping[str, object], known: Iterable[str], where: str) -> None:
+    """TypeError, in Python's words, for a keyword of ``keywords`` not in ``known``
+    (the line keywords of a constructor that takes them as ``**keywords``)."""
+    allowed = set(known)
+    for key in keywords:
+        if key not in allowed:
+            raise TypeError(f"{where}() got an unexpected keyword argument {key!r}")
+
+
+def _same(value: object, key: str) -> bool:
+    """Whether ``value`` is the default of ``key`` written another way (rules: {})."""
+    return key == "rules" and value is None
+
+
+def adopt_port_format(line: LineConfig, port: Any) -> LineConfig:
+    """``line`` with the byte format of ``port`` (an open pyserial object passed in
+    keeps its own format: the line follows it)."""
+    fmt = {k: getattr(port, k) for k in ("baudrate", "parity", "stopbits", "bytesize")}
+    if all(getattr(line, k) == v for k, v in fmt.items()):
+        return line
+    return line.replace(**fmt)
+
+
 def split_field_error(exc: BaseException, names: tuple[str, ...]) -> tuple[str | None, str]:
     """``("baudrate", "must be ...")`` from the validators' ``"baudrate must be ..."``
     (None and the whole message when it names none of ``names``): how the TOML loader
@@ -209,15 +296,21 @@ def split_field_error(exc: BaseException, names: tuple[str, ...]) -> tuple[str |
 
 
 __all__ = [
+    "LINE_DEFAULTS",
     "MAX_BAUDRATE",
     "MIN_BAUDRATE",
     "MODES",
+    "FormatKeywords",
+    "FramerKeywords",
     "LineConfig",
+    "LineKeywords",
     "check_baudrate",
     "check_bytesize",
+    "check_keywords",
     "check_mode",
     "check_parity",
     "check_stopbits",
     "check_timing",
+    "line_from",
     "split_field_error",
 ]

@@ -1,4 +1,11 @@
-"""The Modbus master (client) over a serial line, RTU or ASCII.
+"""The Modbus master (client): one class on any transport.
+
+The port string picks the master's link (`pyrtu._links`): a serial line, RTU or
+ASCII (a device path, a pyserial object or URL), ``rtu+tcp://host:port`` (RTU
+frames over a socket, ``t35`` 0 unless given) or ``tcp://host:port`` (Modbus TCP,
+`pyrtu._tcp_master`).  The request methods are one table (`pyrtu._requests`)
+shared with `pyrtu.aio.AsyncMaster` and the poller; ``transact`` runs one with
+the answer's end time.
 
 ::
 
@@ -28,8 +35,8 @@ exception response).
 
 from __future__ import annotations
 
-import math
 import threading
+import time
 from collections.abc import Iterable, Sequence
 from typing import Any
 
@@ -37,78 +44,46 @@ from . import _backend
 from . import _requests as R
 from . import pdu as P
 from ._client import ClientProtocol
+from ._links import (
+    RTU_TCP_SCHEME,
+    TCP_SCHEME,
+    Link,
+    check_in_flight,
+    check_retries,
+    check_seconds,
+    scheme_of,
+)
 from ._master_io import run_sync
-from ._requests import Call
-from ._transports import transport_for
+from ._requests import Call, Request, Rules, Steps
 from .errors import PortError
-from .line import LineConfig
+from .line import LineConfig, adopt_port_format, line_from
 from .port import Port, open_line_port
 from .rules import LengthRule, RuleTable, check_rules
 
-_LINE_DEFAULTS: dict[str, Any] = dict(
-    baudrate=19200,
-    parity="E",
-    stopbits=1,
-    bytesize=8,
-    mode="rtu",
-    timing="modbus",
-    t15=None,
-    t35=None,
-    rules=None,
-    max_adu=256,
-    strict=False,
-)
+_monotonic = time.monotonic
 
 
-def check_seconds(name: str, value: object, positive: bool = False) -> float:
-    """A finite duration in seconds; ValueError naming ``name`` otherwise."""
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise ValueError(f"{name} must be a finite number of seconds, not {value!r}")
-    if value < 0 or (positive and value == 0):
-        raise ValueError(
-            f"{name} must be {'positive' if positive else 'non-negative'}, not {value!r}"
-        )
-    return float(value)
+def _of_proto(name: str, settable: bool = False) -> Any:
+    """A link property that is the client protocol's attribute ``name``."""
+
+    def get(link: SerialLink) -> Any:
+        return getattr(link.proto, name)
+
+    def put(link: SerialLink, value: Any) -> None:
+        setattr(link.proto, name, value)
+
+    return property(get, put if settable else None)
 
 
-def check_retries(retries: object) -> int:
-    if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
-        raise ValueError(f"retries must be a non-negative integer, not {retries!r}")
-    return retries
+class SerialLink:
+    """A serial line as a master's link (`pyrtu._links`): the port and the client
+    protocol.  Every option is checked before the port is opened."""
 
-
-def make_line(line: LineConfig | None, **kwargs: Any) -> LineConfig:
-    """The LineConfig of a master or slave: ``line``, or one from the line keywords
-    (TypeError when both are given)."""
-    if line is None:
-        kwargs["rules"] = kwargs["rules"] or {}
-        return LineConfig(**kwargs)
-    if not isinstance(line, LineConfig):
-        raise TypeError(f"line must be a LineConfig, not {type(line).__name__}")
-    given = [k for k, v in kwargs.items() if v != _LINE_DEFAULTS[k]]
-    if given:
-        raise TypeError(f"give line= or the line keywords ({', '.join(given)}), not both")
-    return line
-
-
-def adopt_port_format(line: LineConfig, p: Port) -> LineConfig:
-    """A pyserial object passed in keeps its own format: the line follows it."""
-    fmt = dict(baudrate=p.baudrate, parity=p.parity, stopbits=p.stopbits, bytesize=p.bytesize)
-    if all(getattr(line, k) == v for k, v in fmt.items()):
-        return line
-    return line.replace(**fmt)
-
-
-class MasterBase:
-    """What the sync and asyncio masters share: options, the protocol, counters."""
-
-    port: Port
-    _proto: ClientProtocol
-
-    def _setup(
+    def __init__(
         self,
         port: Any,
         line: LineConfig,
+        *,
         timeout: float,
         retries: int,
         echo: bool,
@@ -117,13 +92,9 @@ class MasterBase:
         backend: str | None,
         exclusive: bool,
     ) -> None:
-        timeout = check_seconds("timeout", timeout, positive=True)
-        retries = check_retries(retries)
-        broadcast_delay = check_seconds("broadcast_delay", broadcast_delay)
         be = _backend.backend(backend)
-        # every option is checked before the port is opened
-        self.port = open_line_port(port, line, rs485, exclusive)
-        self._proto = ClientProtocol(
+        self.port: Port = open_line_port(port, line, rs485, exclusive)
+        self.proto = ClientProtocol(
             adopt_port_format(line, self.port),
             timeout=timeout,
             retries=retries,
@@ -132,75 +103,76 @@ class MasterBase:
             backend=be,
         )
 
-    @property
-    def line(self) -> LineConfig:
-        """The line's configuration."""
-        return self._proto.line
+    line = _of_proto("line")
+    t35 = _of_proto("gap")
+    timeout = _of_proto("timeout", settable=True)
+    retries = _of_proto("retries", settable=True)
+    echo = _of_proto("echo")
+    broadcast_delay = _of_proto("broadcast_delay")
+    last_answer_time = _of_proto("answer_end")
 
     @property
     def mode(self) -> str:
-        return self._proto.line.mode
+        return self.proto.line.mode
 
     @property
-    def t35(self) -> float:
-        """The inter-frame silence the master keeps before a request (seconds; 0: none)."""
-        return self._proto.gap
+    def counters(self) -> dict[str, int]:
+        return dict(self.proto.counters)
 
-    @property
-    def timeout(self) -> float:
-        return self._proto.timeout
+    address = staticmethod(R.serial_address)
 
-    @timeout.setter
-    def timeout(self, value: float) -> None:
-        self._proto.timeout = check_seconds("timeout", value, positive=True)
+    def count_bad(self) -> None:
+        self.proto.counters["frame_errors"] += 1
 
-    @property
-    def retries(self) -> int:
-        return self._proto.retries
-
-    @retries.setter
-    def retries(self, value: int) -> None:
-        self._proto.retries = check_retries(value)
-
-    @property
-    def echo(self) -> bool:
-        return self._proto.echo
-
-    @property
-    def broadcast_delay(self) -> float:
-        return self._proto.broadcast_delay
-
-    @property
-    def last_answer_time(self) -> float | None:
-        """When the last byte of the latest answer arrived (monotonic seconds), or
-        None before the first answer."""
-        return self._proto.answer_end
-
-    def _set_rules(self, function: int, request_rule: Any, response_rule: Any) -> None:
+    def set_rules(
+        self, function: int, request_rule: LengthRule | None, response_rule: LengthRule | None
+    ) -> None:
         new = check_rules({function: (request_rule, response_rule)})
-        rules = dict(self._proto.line.rules)
+        rules = dict(self.proto.line.rules)
         if rules.get(function) != new[function]:
             rules.update(new)
-            self._proto.set_line(self._proto.line.replace(rules=rules))
+            self.proto.set_line(self.proto.line.replace(rules=rules))
 
-    def __repr__(self) -> str:
-        return (
-            f"<pyrtu.{type(self).__name__} {self.port.name} {self.mode} {self.port.baudrate} baud>"
-        )
+    def check_open(self) -> None:
+        if self.port.closed:
+            raise PortError(self.port.name, "the master is closed")
+
+    def end_of(self, call: Call) -> float:
+        """When the answer to ``call`` ended (now for one not awaited)."""
+        end = self.proto.answer_end
+        return _monotonic() if call.decode is None or end is None else end
+
+    def transact(self, call: Call) -> tuple[Any, float]:
+        """One transaction (blocking)."""
+        self.check_open()
+        value = run_sync(self.port, self.proto, call)
+        return value, self.end_of(call)
+
+    def close(self) -> None:
+        self.port.close()
+
+    @property
+    def url(self) -> str:
+        raise AttributeError(f"{self.port.name}: a serial master has no url (see port, line)")
+
+    def describe(self) -> str:
+        return f"{self.port.name} {self.mode} {self.port.baudrate} baud"
 
 
-class Master(MasterBase):
-    """A Modbus master on one serial line (see the module docstring).
+class MasterBase:
+    """The one master class's shared part (`Master`, and `pyrtu.aio.AsyncMaster`
+    for asyncio): the keywords, the link the port string picks, the properties.
 
     ``line``: a `LineConfig` instead of the line keywords (baudrate, parity,
-    stopbits, bytesize, mode, timing, t15, t35, rules, max_adu, strict);
-    ``exclusive``: lock the port against other processes (passed to open_port).
+    stopbits, bytesize, mode, timing, t15, t35, rules, max_adu, strict), checked on
+    every transport; ``exclusive``: lock the port against other processes (passed
+    to open_port); ``max_in_flight``: requests on the wire at once (more than 1
+    only for an `AsyncMaster` on ``tcp://``).
     """
 
-    def __new__(cls, port: Any = None, *args: Any, **kwargs: Any) -> Master:
-        # tcp://, rtu+tcp://: the transport's subclass (pyrtu._transports)
-        sub = transport_for("sync", port) if cls is Master else None
-        return super().__new__(sub or cls)
+    _link: Link
+    #: whether this class keeps several requests on a tcp:// connection at once
+    _PIPELINES = False
 
     def __init__(
         self,
@@ -225,50 +197,178 @@ class Master(MasterBase):
         backend: str | None = None,
         line: LineConfig | None = None,
         exclusive: bool = True,
+        max_in_flight: int = 1,
     ) -> None:
-        cfg = make_line(
-            line,
-            baudrate=baudrate,
-            parity=parity,
-            stopbits=stopbits,
-            bytesize=bytesize,
-            mode=mode,
-            timing=timing,
-            t15=t15,
-            t35=t35,
-            rules=rules,
-            max_adu=max_adu,
+        scheme = scheme_of(port)
+        cfg = line_from(
+            line, baudrate=baudrate, parity=parity, stopbits=stopbits, bytesize=bytesize,
+            mode=mode, timing=timing, t15=t15, t35=t35, rules=rules, max_adu=max_adu,
             strict=strict,
+        )  # fmt: skip
+        if scheme == RTU_TCP_SCHEME and cfg.t35 is None:
+            cfg = cfg.replace(t35=0.0)  # a socket has no wire timing
+        options = dict(
+            timeout=check_seconds("timeout", timeout, positive=True),
+            retries=check_retries(retries),
+            echo=echo,
+            rs485=rs485,
+            broadcast_delay=check_seconds("broadcast_delay", broadcast_delay),
+            backend=backend,
+            exclusive=exclusive,
         )
+        in_flight = check_in_flight(max_in_flight, self._PIPELINES and scheme == TCP_SCHEME)
+        _backend.backend(backend)  # (checked before a port is opened or connected)
+        self._link = self._open(port, scheme, cfg, options, in_flight)
+
+    def _open(
+        self, port: Any, scheme: str | None, line: LineConfig, options: dict[str, Any],
+        max_in_flight: int,
+    ) -> Link:  # fmt: skip
+        raise NotImplementedError
+
+    @staticmethod
+    def _serial(port: Any, scheme: str | None, line: LineConfig, options: Any) -> SerialLink:
+        if scheme == RTU_TCP_SCHEME:
+            from .tcp import rtu_over_tcp  # (loads the TCP module only when used)
+
+            port = rtu_over_tcp(port)
+        return SerialLink(port, line, **options)
+
+    @property
+    def line(self) -> LineConfig:
+        """The line's configuration (a TCP master has none: AttributeError)."""
+        return self._link.line
+
+    @property
+    def port(self) -> Port:
+        """The serial port (a TCP master has none: AttributeError)."""
+        return self._link.port  # type: ignore[no-any-return]
+
+    @property
+    def url(self) -> str:
+        """The ``tcp://`` URL of a TCP master (a serial master has none)."""
+        return self._link.url
+
+    @property
+    def mode(self) -> str:
+        """ "rtu", "ascii" or "tcp"."""
+        return self._link.mode
+
+    @property
+    def t35(self) -> float:
+        """The inter-frame silence the master keeps before a request (seconds; 0: none)."""
+        return self._link.t35
+
+    @property
+    def timeout(self) -> float:
+        return self._link.timeout
+
+    @timeout.setter
+    def timeout(self, value: float) -> None:
+        self._link.timeout = check_seconds("timeout", value, positive=True)
+
+    @property
+    def retries(self) -> int:
+        return self._link.retries
+
+    @retries.setter
+    def retries(self, value: int) -> None:
+        self._link.retries = check_retries(value)
+
+    @property
+    def echo(self) -> bool:
+        return self._link.echo
+
+    @property
+    def broadcast_delay(self) -> float:
+        return self._link.broadcast_delay
+
+    @property
+    def last_answer_time(self) -> float | None:
+        """When the last byte of the latest answer arrived (monotonic seconds), or
+        None before the first answer."""
+        return self._link.last_answer_time
+
+    @property
+    def counters(self) -> dict[str, int]:
+        """requests, responses, broadcasts, exceptions, timeouts, crc_errors, frame_errors,
+        echo_mismatches, retries, discarded bytes (total and per reason)."""
+        return self._link.counters
+
+    def _steps(self, req: Request[Any] | str, slave: Any, args: Any, kwargs: Any) -> Steps:
+        request = R.REQUESTS[req] if isinstance(req, str) else req
+        link = self._link
+        return Steps(request, slave, args, kwargs, link.address, link.count_bad)
+
+    def __repr__(self) -> str:
+        return f"<pyrtu.{type(self).__name__} {self._link.describe()}>"
+
+
+class Master(MasterBase):
+    """A Modbus master on one serial line, or on ``tcp://`` / ``rtu+tcp://`` (see the
+    module docstring and `MasterBase` for the keywords)."""
+
+    def _open(
+        self, port: Any, scheme: str | None, line: LineConfig, options: dict[str, Any],
+        max_in_flight: int,
+    ) -> Link:  # fmt: skip
         self._lock = threading.RLock()
-        self._setup(port, cfg, timeout, retries, echo, rs485, broadcast_delay, backend, exclusive)
+        if scheme == TCP_SCHEME:
+            from ._tcp_master import TcpLink  # (loads the TCP module only when used)
+
+            self._conn: TcpLink | SerialLink = TcpLink(port, options["timeout"], options["retries"])
+        else:
+            self._conn = self._serial(port, scheme, line, options)
+        return self._conn
 
     # ----------------------------------------------------------------- plumbing
 
-    def _run(self, call: Call) -> Any:
+    def transact(
+        self, req: Request[Any] | str, slave: Any, *args: Any, **kwargs: Any
+    ) -> tuple[Any, float]:
+        """Run the request ``req`` (a `pyrtu._requests.Request` or a method name) with
+        the method's arguments: ``(value, end_time)``, ``end_time`` being when the
+        answer's last byte came (monotonic seconds)."""
+        request = R.REQUESTS[req] if isinstance(req, str) else req
         with self._lock:
-            if self.port.closed:
-                raise PortError(self.port.name, "the master is closed")
-            return run_sync(self.port, self._proto, call)
+            if request.build is not None:  # one transaction: no plan to step through
+                call = R.call_of(request, slave, args, kwargs, self._link.address)
+                value, end = self._conn.transact(call)
+                return (value if request.post is None else request.post(value)), end
+            steps = self._steps(request, slave, args, kwargs)
+            step = steps.next()
+            while step is not None:
+                step = steps.next(*self._step(step))
+            return steps.value, steps.end  # type: ignore[return-value]
+
+    def _step(self, step: Call | Rules) -> tuple[Any, float | None]:
+        if isinstance(step, Rules):
+            self._link.set_rules(*step)
+            return None, None
+        return self._conn.transact(step)
+
+    def _call(self, name: str, slave: Any, *args: Any, **kwargs: Any) -> Any:
+        return self.transact(name, slave, *args, **kwargs)[0]
 
     def add_rule(
         self, function: int, request_rule: LengthRule | None, response_rule: LengthRule | None
     ) -> None:
-        """Register length rules for a (vendor) function code in the framer."""
+        """Register length rules for a (vendor) function code in the framer (nothing
+        on TCP: the MBAP length ends every answer)."""
         with self._lock:
-            self._set_rules(function, request_rule, response_rule)
+            self._link.set_rules(function, request_rule, response_rule)
 
     @property
     def counters(self) -> dict[str, int]:
         """requests, responses, broadcasts, exceptions, timeouts, crc_errors, frame_errors,
         echo_mismatches, retries, discarded bytes (total and per reason)."""
         with self._lock:
-            return dict(self._proto.counters)
+            return self._link.counters
 
     def close(self) -> None:
         """Close the port (a pyserial object passed in is left open)."""
         with self._lock:
-            self.port.close()
+            self._conn.close()
 
     def __enter__(self) -> Master:
         return self
@@ -282,7 +382,7 @@ class Master(MasterBase):
         """Send a request PDU (function code + data, e.g. from `pyrtu.pdu`) and return
         the response PDU (function code + data).  An exception response raises
         `ExceptionResponseError`; slave 0 broadcasts and returns b""."""
-        return self._run(R.raw_request(slave, pdu)) or b""
+        return self._call("request", slave, pdu)  # type: ignore[no-any-return]
 
     def execute(
         self,
@@ -297,48 +397,46 @@ class Master(MasterBase):
         (after the function code).  ``response_rule`` frames a vendor response by its
         length (no wait for silence).  Slave 0 broadcasts for any function (the master
         cannot tell a vendor write from a read) and returns b""."""
-        call = R.execute(slave, function, data, request_rule, response_rule)
-        if request_rule is not None or response_rule is not None:
-            self.add_rule(function, request_rule, response_rule)
-        return self._run(call) or b""
+        rules = dict(request_rule=request_rule, response_rule=response_rule)
+        return self._call("execute", slave, function, data, **rules)  # type: ignore[no-any-return]
 
     # ---------------------------------------------------------------- bit/word access
 
     def read_coils(self, slave: int, address: int, count: int) -> list[bool]:
         """FC 01: ``count`` coils from ``address``."""
-        return self._run(R.read_coils(slave, address, count))  # type: ignore[no-any-return]
+        return self._call("read_coils", slave, address, count)  # type: ignore[no-any-return]
 
     def read_discrete_inputs(self, slave: int, address: int, count: int) -> list[bool]:
         """FC 02."""
-        return self._run(R.read_discrete_inputs(slave, address, count))  # type: ignore[no-any-return]
+        return self._call("read_discrete_inputs", slave, address, count)  # type: ignore[no-any-return]
 
     def read_holding_registers(self, slave: int, address: int, count: int) -> list[int]:
         """FC 03."""
-        return self._run(R.read_holding_registers(slave, address, count))  # type: ignore[no-any-return]
+        return self._call("read_holding_registers", slave, address, count)  # type: ignore[no-any-return]
 
     def read_input_registers(self, slave: int, address: int, count: int) -> list[int]:
         """FC 04."""
-        return self._run(R.read_input_registers(slave, address, count))  # type: ignore[no-any-return]
+        return self._call("read_input_registers", slave, address, count)  # type: ignore[no-any-return]
 
     def write_coil(self, slave: int, address: int, value: bool) -> None:
         """FC 05 (slave 0 broadcasts)."""
-        self._run(R.write_coil(slave, address, value))
+        self._call("write_coil", slave, address, value)
 
     def write_register(self, slave: int, address: int, value: int) -> None:
         """FC 06 (slave 0 broadcasts)."""
-        self._run(R.write_register(slave, address, value))
+        self._call("write_register", slave, address, value)
 
     def write_coils(self, slave: int, address: int, values: Iterable[bool]) -> None:
         """FC 15 (slave 0 broadcasts)."""
-        self._run(R.write_coils(slave, address, values))
+        self._call("write_coils", slave, address, values)
 
     def write_registers(self, slave: int, address: int, values: Iterable[int]) -> None:
         """FC 16 (slave 0 broadcasts)."""
-        self._run(R.write_registers(slave, address, values))
+        self._call("write_registers", slave, address, values)
 
     def mask_write_register(self, slave: int, address: int, and_mask: int, or_mask: int) -> None:
         """FC 22: register = (register AND and_mask) OR (or_mask AND NOT and_mask)."""
-        self._run(R.mask_write_register(slave, address, and_mask, or_mask))
+        self._call("mask_write_register", slave, address, and_mask, or_mask)
 
     def read_write_registers(
         self,
@@ -349,68 +447,57 @@ class Master(MasterBase):
         values: Iterable[int],
     ) -> list[int]:
         """FC 23: write ``values`` at ``write_address``, then read ``read_count`` registers."""
-        call = R.read_write_registers(slave, read_address, read_count, write_address, values)
-        return self._run(call)  # type: ignore[no-any-return]
+        args = (read_address, read_count, write_address, values)
+        return self._call("read_write_registers", slave, *args)  # type: ignore[no-any-return]
 
     # ----------------------------------------------------------- serial-line functions
 
     def read_exception_status(self, slave: int) -> int:
         """FC 07: the slave's eight exception status bits."""
-        return self._run(R.read_exception_status(slave))  # type: ignore[no-any-return]
+        return self._call("read_exception_status", slave)  # type: ignore[no-any-return]
 
     def diagnostics(self, slave: int, sub_function: int, data: int = 0) -> int:
         """FC 08: the data word of the answer.  Sub-function 0x04 (force listen only
         mode) is never answered: it returns 0 once sent."""
-        return self._run(R.diagnostics(slave, sub_function, data)) or 0
+        return self._call("diagnostics", slave, sub_function, data)  # type: ignore[no-any-return]
 
     def get_comm_event_counter(self, slave: int) -> tuple[int, int]:
         """FC 11: (status, event count); status 0xFFFF means busy."""
-        return self._run(R.get_comm_event_counter(slave))  # type: ignore[no-any-return]
+        return self._call("get_comm_event_counter", slave)  # type: ignore[no-any-return]
 
     def get_comm_event_log(self, slave: int) -> P.CommEventLog:
         """FC 12: status, event count, message count and up to 64 events (newest first)."""
-        return self._run(R.get_comm_event_log(slave))  # type: ignore[no-any-return]
+        return self._call("get_comm_event_log", slave)  # type: ignore[no-any-return]
 
     def report_server_id(self, slave: int) -> bytes:
         """FC 17: the data after the byte count: server ID, run indicator (0xFF on,
         0x00 off), additional data, as the device sends them."""
-        return self._run(R.report_server_id(slave))  # type: ignore[no-any-return]
+        return self._call("report_server_id", slave)  # type: ignore[no-any-return]
 
     def read_fifo_queue(self, slave: int, address: int) -> list[int]:
         """FC 24: the FIFO queue at ``address`` (up to 31 registers)."""
-        return self._run(R.read_fifo_queue(slave, address))  # type: ignore[no-any-return]
+        return self._call("read_fifo_queue", slave, address)  # type: ignore[no-any-return]
 
     def read_file_record(
         self, slave: int, items: Sequence[tuple[int, int, int]]
     ) -> list[list[int]]:
         """FC 20: ``[(file, record, length), ...]`` -> the records' registers."""
-        return self._run(R.read_file_record(slave, items))  # type: ignore[no-any-return]
+        return self._call("read_file_record", slave, items)  # type: ignore[no-any-return]
 
     def write_file_record(
         self, slave: int, items: Sequence[tuple[int, int, Sequence[int]]]
     ) -> None:
         """FC 21: ``[(file, record, values), ...]`` (slave 0 broadcasts)."""
-        self._run(R.write_file_record(slave, items))
+        self._call("write_file_record", slave, items)
 
     def read_device_identification(
         self, slave: int, read_code: int = 1, object_id: int = 0
     ) -> dict[int, bytes]:
         """FC 43/14: ``{object_id: value}``; read codes 1-3 stream and follow More Follows
-        / Next Object until complete, read code 4 reads one object."""
-        s = R.device_id_check(slave, read_code, object_id)
-        out: dict[int, bytes] = {}
-        asked: set[int] = set()
-        oid: int | None = object_id
-        with self._lock:
-            while oid is not None:
-                asked.add(oid)
-                page = self._run(R.device_id_page(s, read_code, oid))
-                try:
-                    oid = R.device_id_next(s, read_code, page, out, asked)
-                except Exception:
-                    self._proto.counters["frame_errors"] += 1
-                    raise
-            return out
+        / Next Object until complete, read code 4 reads one object (the pages are one
+        transaction after another, none in between)."""
+        args = (read_code, object_id)
+        return self._call("read_device_identification", slave, *args)  # type: ignore[no-any-return]
 
 
 __all__ = ["Master"]

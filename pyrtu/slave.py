@@ -49,15 +49,17 @@ import select
 import threading
 import time
 from collections.abc import Callable, Iterable, Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ._server import Listen, Reply, ServerAction
 from ._slack import swap_timer_slack
-from ._slave_base import STANDARD_FUNCTIONS, Handler, SlaveBase, line_from_keywords
+from ._slave_base import STANDARD_FUNCTIONS, Handler, SlaveBase
 from .datastore import DataStore
-from .line import LineConfig
+from .line import LineConfig, LineKeywords, line_from
 from .port import open_line_port, read_fd
-from .rules import RuleTable
+
+if TYPE_CHECKING:  # Unpack is in typing from Python 3.11 (annotations only)
+    from typing import Unpack
 
 log = logging.getLogger("pyrtu.slave")
 _monotonic = time.monotonic
@@ -81,19 +83,8 @@ class Slave(SlaveBase):
         address: int | Iterable[int] = 1,
         store: DataStore | Mapping[int, DataStore] | None = None,
         *,
-        baudrate: int = 19200,
-        parity: str = "E",
-        stopbits: float = 1,
-        bytesize: int = 8,
-        mode: str = "rtu",
         echo: bool = False,
         rs485: Any = None,
-        t15: float | None = None,
-        t35: float | None = None,
-        timing: str = "modbus",
-        rules: RuleTable | None = None,
-        max_adu: int = 256,
-        strict: bool = False,
         backend: str | None = None,
         functions: Iterable[int] | None = None,
         identification: dict[int, bytes] | None = None,
@@ -104,13 +95,10 @@ class Slave(SlaveBase):
         run_indicator: bool = True,
         exclusive: bool = True,
         line: LineConfig | None = None,
+        **line_keywords: Unpack[LineKeywords],
     ) -> None:
         self._lock = threading.RLock()
-        config = line_from_keywords(
-            line, baudrate=baudrate, parity=parity, stopbits=stopbits, bytesize=bytesize,
-            mode=mode, t15=t15, t35=t35, timing=timing, rules=rules, max_adu=max_adu,
-            strict=strict,
-        )  # fmt: skip
+        config = line_from(line, "Slave", **line_keywords)
         super().__init__(
             address, store, line=config, echo=echo, backend=backend, functions=functions,
             identification=identification, response_delay=response_delay, watchdog=watchdog,

@@ -290,4 +290,4 @@ def test_max_in_flight_is_for_tcp_only(tmp_path: Path) -> None:
     with pytest.raises(TypeError, match="max_in_flight must be an integer"):
         AsyncMaster(missing, 9600, max_in_flight=True)
     tcp = AsyncMaster("tcp://127.0.0.1:1", max_in_flight=4)  # connects on first use
-    assert type(tcp).__name__ != "AsyncMaster"
+    assert type(tcp) is AsyncMaster and tcp.mode == "tcp"  # one class, a TCP link

@@ -47,7 +47,8 @@ def _definitions(path: Path) -> list[str]:
     funcs = (ast.FunctionDef, ast.AsyncFunctionDef)
     for node in ast.parse(path.read_text(encoding="utf-8")).body:
         if isinstance(node, funcs):
-            defs.append(node.name)
+            if not node.name.startswith("__"):  # a module's __getattr__: Python calls it
+                defs.append(node.name)
         elif isinstance(node, ast.ClassDef):
             defs.append(node.name)
             defs += [

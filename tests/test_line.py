@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from types import ModuleType
 
 import pytest
@@ -96,3 +97,29 @@ def test_virtual_bus_takes_a_line() -> None:
     assert bus.char_time == pytest.approx(line.char_time, abs=1e-6)
     with pytest.raises(TypeError, match="LineConfig"):
         VirtualBus(2, line={"baudrate": 9600})  # type: ignore[arg-type]
+
+
+def test_line_and_keywords_refused_the_same_way_everywhere(
+    backend: ModuleType, tmp_path: Path
+) -> None:
+    """One rule (`pyrtu.line.line_from`) for ``line=`` with line keywords: every
+    constructor refuses both, naming the keyword given (the virtual bus ignored
+    the keywords, the framers and slaves said only "baudrate=...")."""
+    from pyrtu.aio import AsyncMaster
+    from pyrtu.master import Master
+    from pyrtu.slave import Slave
+    from pyrtu.vbus import VirtualBus
+
+    line = LineConfig(baudrate=9600)
+    missing = str(tmp_path / "no-such-port")
+    makers = [
+        lambda: backend.Framer("slave", line=line, parity="N"),
+        lambda: backend.parse_stream(b"", line=line, parity="N"),
+        lambda: VirtualBus(2, line=line, parity="N"),
+        lambda: Master(missing, line=line, parity="N"),
+        lambda: AsyncMaster(missing, line=line, parity="N"),
+        lambda: Slave(missing, line=line, parity="N"),
+    ]
+    for make in makers:
+        with pytest.raises(TypeError, match=r"give line= or the line keywords \(parity\)"):
+            make()

@@ -22,6 +22,7 @@ from peers.tools import (
 
 from pyrtu import ExceptionResponseError, Master, NoResponseError, PortError
 from pyrtu.aio import AsyncMaster
+from pyrtu.line import LineConfig
 
 pytest_plugins = ["peers.fixtures"]
 
@@ -44,7 +45,7 @@ def tcp_server(
 def test_master_over_modbus_tcp(tcp_server: tuple[str, int]) -> None:
     url, _ = tcp_server
     with Master(url, timeout=2.0) as m:
-        assert type(m).__name__ == "TcpMaster" and isinstance(m, Master)
+        assert type(m) is Master and m.mode == "tcp"  # one class, a TCP link
         assert m.read_holding_registers(1, 0, 10) == pattern.holdings(1, 0, 10)
         assert m.read_input_registers(1, 3, 4) == pattern.inputs(1, 3, 4)
         assert m.read_coils(1, 0, 30) == pattern.coils(1, 0, 30)
@@ -138,11 +139,19 @@ def rtu_device_server(tmp_path: Path) -> Iterator[str]:
 
 def test_masters_over_rtu_tcp(rtu_device_server: str) -> None:
     with Master(rtu_device_server, timeout=1.0) as m:
-        assert type(m).__name__ == "RtuTcpMaster" and m.t35 == 0
+        assert type(m) is Master and m.mode == "rtu" and m.t35 == 0
         assert m.read_holding_registers(4, 5, 5) == pattern.holdings(4, 5, 5)
         m.write_register(4, 8, 99)
         assert m.read_holding_registers(4, 8, 1) == [99]
         assert m.counters["crc_errors"] == 0
+
+
+def test_rtu_tcp_master_with_a_line(rtu_device_server: str) -> None:
+    """``line=`` on rtu+tcp://: the socket has no wire timing, so t3.5 is 0 unless the
+    line sets it (``line=`` was refused as "not both" with the implied t35=0)."""
+    with Master(rtu_device_server, line=LineConfig(baudrate=9600), timeout=1.0) as m:
+        assert m.t35 == 0 and m.line.baudrate == 9600
+        assert m.read_holding_registers(4, 5, 2) == pattern.holdings(4, 5, 2)
 
 
 def test_async_master_over_rtu_tcp(rtu_device_server: str) -> None:

@@ -12,11 +12,11 @@ import threading
 from typing import Any
 
 from .._slave_base import SlaveBase
-from ..line import LineConfig
+from ..line import LINE_DEFAULTS, LineConfig
 from ..tcp_server import TcpServer
 
 #: `pyrtu.Slave` keywords that belong to the serial line (not to a TCP-only slave)
-_LINE_KEYS = frozenset({"mode", "rules", "max_adu", "timing", "t15", "t35", "strict"})
+_LINE_KEYS = frozenset(LINE_DEFAULTS)
 
 
 def tcp_only_slave(sim: Any, address: int) -> SlaveBase:

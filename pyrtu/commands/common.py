@@ -34,7 +34,7 @@ from collections.abc import Callable, Mapping
 from typing import IO, TYPE_CHECKING, Any, NamedTuple
 
 from .. import timing
-from ..line import split_field_error
+from ..line import LINE_DEFAULTS, split_field_error
 from ._signals import SignalStop, stop_on_signals, stop_when_stdout_closes
 
 try:  # POSIX: pyserial lets termios.error through when a port refuses a format
@@ -371,9 +371,7 @@ def open_master(args: argparse.Namespace, **overrides: Any) -> Master:
     return Master(args.port, line=line_config(args, **line_fields), **kwargs)
 
 
-_LINE_FIELDS = frozenset(
-    "baudrate parity stopbits bytesize mode timing t15 t35 rules max_adu strict".split()
-)
+_LINE_FIELDS = frozenset(LINE_DEFAULTS)  # the LineConfig fields
 
 
 # -- errors -------------------------------------------------------------------------------

@@ -1,5 +1,9 @@
 """The poller's configuration: buses, devices and points, in Python or TOML.
 
+(Not the line: each `Bus` makes its `pyrtu.line.LineConfig` once, from its line
+keywords, and its master is opened with it; `pyrtu.config` is the framer core's
+options.)
+
 Minimal TOML (``[[bus]]`` keys are `pyrtu.Master`'s keywords; ``[[point]]`` keys
 are `Point`'s fields)::
 
@@ -43,6 +47,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, TypeGuard
 
+from .._links import RTU_TCP_SCHEME, scheme_of
 from .._portname import first_duplicate
 from ..line import LineConfig, split_field_error
 from .plan import Limits, Wire
@@ -124,7 +129,10 @@ class Bus:
             wrong = None if k in LINE_KEYS else _check_master(k, v)
             if wrong:
                 raise ValueError(f"{k}: {wrong}")
-        object.__setattr__(self, "_line", make_line(self.master))
+        line = dict(self.master)
+        if scheme_of(self.port) == RTU_TCP_SCHEME:
+            line.setdefault("t35", 0.0)  # as the master: a socket has no wire timing
+        object.__setattr__(self, "_line", make_line(line))
         if not (_real(self.share) and 0 < self.share <= 1):
             raise ValueError(f"share: must be a fraction in (0, 1], not {self.share!r}")
         oa = self.offline_after
@@ -140,6 +148,12 @@ class Bus:
         """The bus's line configuration (from the Master keywords)."""
         line: LineConfig = self.__dict__["_line"]
         return line
+
+    @property
+    def master_options(self) -> dict[str, Any]:
+        """The bus's Master keywords other than the line's (the master is opened with
+        ``line=bus.line`` and these: the line is checked once, here)."""
+        return {k: v for k, v in self.master.items() if k not in LINE_KEYS}
 
     def wire(self) -> Wire:
         """The bus's wire model from its line (an estimated turnaround of t3.5 until

@@ -38,7 +38,7 @@ from .._reconnect import Backoff, Reconnect
 from ..errors import PortError
 from .config import Bus, ConfigError, Device, PollerConfig, load_config, make_config
 from .events import BusReport, Event, PortState, SlaveStats, Tracker, Update
-from .masters import FACTORIES, METHODS, AsyncMasterLike, is_port_error, open_master
+from .masters import BY_FUNCTION, FACTORIES, AsyncMasterLike, is_port_error, open_master
 from .points import Point, Value, encode_point
 from .schedule import BusScheduler, Request
 from .thread import PollerThread
@@ -260,7 +260,7 @@ class Poller:
                 continue
             fut = run.pending.pop(req.tag, None) if req.tag else None
             try:
-                data = await getattr(master, METHODS[req.function])(*self._args(req))
+                data, answered = await master.transact(BY_FUNCTION[req.function], *self._args(req))
             except asyncio.CancelledError:
                 # abandoned, not failed: nothing counts, the block or probe stays due
                 # (a probe left "in flight" would never be sent after a restart)
@@ -280,7 +280,7 @@ class Poller:
                 events = sched.on_failure(req, exc, end)
             else:
                 self._port_ok(run, clock())
-                end = master.last_answer_time or clock()
+                end = answered
                 events = sched.on_response(req, data, end)
                 if fut is not None and not fut.done():
                     fut.set_result(data)

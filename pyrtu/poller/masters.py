@@ -1,5 +1,6 @@
-"""The masters a `Poller` drives: anything with `pyrtu.Master`'s method names as
-coroutines (`pyrtu.aio.AsyncMaster`'s API), ``last_answer_time`` and ``close()``.
+"""The masters a `Poller` drives: anything with `pyrtu.aio.AsyncMaster`'s
+``transact`` (a request of the masters' one table in, ``(value, end_time)`` out)
+and ``close()``.
 
 The default is `pyrtu.aio.AsyncMaster` (``loop.add_reader`` on the port, one
 wake-up per answer; ports without a descriptor are read in a thread of its own).
@@ -13,43 +14,26 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import functools
-from collections.abc import Callable, Sequence
-from typing import Any, Protocol, TypeVar
+from collections.abc import Callable
+from typing import Any, Protocol
 
+from .. import _requests as R
+from .._requests import Request
 from ..aio import AsyncMaster
 from ..errors import ModbusError, PortError
 from ..master import Master
 from .config import Bus
 
-T = TypeVar("T")
-
-#: read and write function codes -> the master's method names
-METHODS = {1: "read_coils", 2: "read_discrete_inputs", 3: "read_holding_registers",
-           4: "read_input_registers", 5: "write_coil", 6: "write_register",
-           15: "write_coils", 16: "write_registers"}  # fmt: skip
+#: the requests the poller sends, by function code (the masters' one table)
+BY_FUNCTION: dict[int, Request[Any]] = R.BY_FUNCTION
 
 
 class AsyncMasterLike(Protocol):
-    """What a poller needs of a master (`pyrtu.aio.AsyncMaster` has it)."""
+    """What a poller needs of a master (`pyrtu.aio.AsyncMaster` has it): one request
+    of the table (`pyrtu._requests.Request`) with its arguments in, ``(value,
+    end_time)`` out, ``end_time`` being when the answer's last byte came."""
 
-    @property
-    def last_answer_time(self) -> float | None: ...
-
-    async def read_coils(self, slave: int, address: int, count: int) -> list[bool]: ...
-
-    async def read_discrete_inputs(self, slave: int, address: int, count: int) -> list[bool]: ...
-
-    async def read_holding_registers(self, slave: int, address: int, count: int) -> list[int]: ...
-
-    async def read_input_registers(self, slave: int, address: int, count: int) -> list[int]: ...
-
-    async def write_coil(self, slave: int, address: int, value: bool) -> None: ...
-
-    async def write_register(self, slave: int, address: int, value: int) -> None: ...
-
-    async def write_coils(self, slave: int, address: int, values: Sequence[bool]) -> None: ...
-
-    async def write_registers(self, slave: int, address: int, values: Sequence[int]) -> None: ...
+    async def transact(self, req: Request[Any], slave: int, *args: Any) -> tuple[Any, float]: ...
 
     async def close(self) -> None: ...
 
@@ -60,55 +44,31 @@ class ThreadMaster:
     def __init__(self, master: Master) -> None:
         self.master = master
         self._pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="pyrtu-poll")
-        self.last_answer_time: float | None = None
 
     @classmethod
     def open(cls, bus: Bus) -> ThreadMaster:
         """A `pyrtu.Master` on the bus's port with its keywords (PortError if the port
         cannot be opened)."""
-        return cls(Master(bus.port, **dict(bus.master)))
+        return cls(Master(bus.port, line=bus.line, **bus.master_options))
 
-    async def _run(self, fn: Callable[..., T], *args: Any) -> T:
+    async def transact(self, req: Request[Any], slave: int, *args: Any) -> tuple[Any, float]:
+        """`pyrtu.Master.transact` on the worker thread."""
         loop = asyncio.get_running_loop()
-        return await loop.run_in_executor(self._pool, functools.partial(self._call, fn, *args))
+        call = functools.partial(self.master.transact, req, slave, *args)
+        return await loop.run_in_executor(self._pool, call)
 
-    def _call(self, fn: Callable[..., T], *args: Any) -> T:
-        try:
-            return fn(*args)
-        finally:
-            self.last_answer_time = self.master.last_answer_time
-
-    async def read_coils(self, slave: int, address: int, count: int) -> list[bool]:
-        return await self._run(self.master.read_coils, slave, address, count)
-
-    async def read_discrete_inputs(self, slave: int, address: int, count: int) -> list[bool]:
-        return await self._run(self.master.read_discrete_inputs, slave, address, count)
-
-    async def read_holding_registers(self, slave: int, address: int, count: int) -> list[int]:
-        return await self._run(self.master.read_holding_registers, slave, address, count)
-
-    async def read_input_registers(self, slave: int, address: int, count: int) -> list[int]:
-        return await self._run(self.master.read_input_registers, slave, address, count)
-
-    async def write_coil(self, slave: int, address: int, value: bool) -> None:
-        await self._run(self.master.write_coil, slave, address, value)
-
-    async def write_register(self, slave: int, address: int, value: int) -> None:
-        await self._run(self.master.write_register, slave, address, value)
-
-    async def write_coils(self, slave: int, address: int, values: Sequence[bool]) -> None:
-        await self._run(self.master.write_coils, slave, address, values)
-
-    async def write_registers(self, slave: int, address: int, values: Sequence[int]) -> None:
-        await self._run(self.master.write_registers, slave, address, values)
+    @property
+    def last_answer_time(self) -> float | None:
+        return self.master.last_answer_time
 
     @property
     def counters(self) -> dict[str, int]:
         return self.master.counters
 
     async def close(self) -> None:
+        loop = asyncio.get_running_loop()
         try:
-            await self._run(self.master.close)
+            await loop.run_in_executor(self._pool, self.master.close)
         finally:
             self._pool.shutdown(wait=False)
 
@@ -121,7 +81,7 @@ def open_thread_master(bus: Bus) -> AsyncMasterLike:
 def open_async_master(bus: Bus) -> AsyncMasterLike:
     """A `pyrtu.aio.AsyncMaster` on the bus's port with its keywords (call it in the
     event loop's thread)."""
-    return AsyncMaster(bus.port, **dict(bus.master))
+    return AsyncMaster(bus.port, line=bus.line, **bus.master_options)
 
 
 #: the masters `Poller(master=...)` names
@@ -147,8 +107,8 @@ def is_port_error(exc: BaseException) -> bool:
 
 
 __all__ = [
+    "BY_FUNCTION",
     "FACTORIES",
-    "METHODS",
     "AsyncMasterLike",
     "ThreadMaster",
     "is_port_error",

@@ -14,7 +14,7 @@ from dataclasses import fields, replace
 from types import TracebackType
 
 from .._pure.vbus import OUT, Schedule
-from ..line import LineConfig
+from ..line import LineConfig, line_from
 from ..timing import (
     bits_per_char,
     check_baudrate,
@@ -107,8 +107,8 @@ class VirtualBus(HubLoops):
         loop: str = "auto",
     ) -> None:
         if line is not None:  # the line's byte format sets the character time
-            if not isinstance(line, LineConfig):
-                raise TypeError(f"line must be a LineConfig, not {type(line).__name__}")
+            fmt = dict(baudrate=baudrate, parity=parity, stopbits=stopbits, bytesize=bytesize)
+            line = line_from(line, "VirtualBus", **fmt)  # (not line= and keywords both)
             baudrate, parity = line.baudrate, line.parity
             stopbits, bytesize = int(line.stopbits), line.bytesize
         if isinstance(drops, bool) or not isinstance(drops, int) or not 1 <= drops <= MAX_DROPS:
