@@ -224,3 +224,65 @@ def test_the_bridge_never_fsyncs_on_the_event_loop(
     assert total >= 2
     assert thread is not None and not thread.is_alive()
     assert stats["acknowledged"] >= 2000 and stats["drops"] == 0
+
+
+def test_qos0_publications_are_acknowledged_once_written_without_paho_callbacks(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """At QoS 0 a publication is acknowledged (the outbox forgets it) once paho has
+    written it, found through its MQTTMessageInfo, not through paho's on_publish,
+    for which paho builds a ReasonCode and a Properties object per message (half
+    the bridge's CPU per update at QoS 0): every update reaches a subscriber, the
+    outbox empties, and paho builds no such pair per publication."""
+    from mqtt_broker import Client
+    from paho.mqtt.properties import Properties
+
+    built = [0]
+    real_init = Properties.__init__
+
+    def counting(self: Any, *args: Any, **kw: Any) -> None:
+        if threading.get_ident() == loop_thread[0]:  # the bridge's (not the subscriber's)
+            built[0] += 1
+        real_init(self, *args, **kw)
+
+    loop_thread = [0]
+
+    points = [Point(f"p{i}", "bus", 1, "holding", i) for i in range(20)]
+    text = (
+        f'[mqtt]\nurl = "URL"\nedge = "e"\noutbox = "{tmp_path / "ob"}"\nqos = 0\n'
+        '[[bus]]\nname = "bus"\nport = "/dev/null"\nbaudrate = 115200\n'
+    ) + "".join(
+        f'[[point]]\nname = "{p.name}"\nbus = "bus"\nslave = 1\ntable = "holding"\n'
+        f"address = {p.address}\n"
+        for p in points
+    )
+    with Broker(tmp_path) as broker:
+        cfg = parse_bridge_config(text.replace("URL", broker.url), "b.toml")
+        sub = Client(broker, ["pyrtu/e/bus/1/#"])
+
+        async def main() -> dict[str, Any]:
+            bridge = Bridge(cfg)
+            await bridge.start(poll=False)
+            await until(lambda: bool(bridge.stats()["connected"]), "connected")
+            loop_thread[0] = threading.get_ident()
+            monkeypatch.setattr(Properties, "__init__", counting)
+            for i in range(2000):
+                bridge.feed(Update(points[i % 20], i, time.time()))
+                if i % 100 == 99:
+                    await asyncio.sleep(0.005)
+            await until(lambda: bridge.stats()["outbox_depth"] == 0, "every update written")
+            stats = bridge.stats()
+            monkeypatch.undo()
+            await bridge.stop()
+            return stats
+
+        stats = aio_run(main())
+        assert stats["published"] == stats["acknowledged"] >= 2000
+        sub.wait(
+            lambda: (
+                sum(1 for t, *_ in list(sub.messages) if t.startswith("pyrtu/e/bus/1/p")) >= 2000
+            ),
+            "every update at the subscriber",
+        )
+        sub.close()
+    assert built[0] < 100, f"{built[0]} paho Properties built by the bridge for 2000 publications"
