@@ -652,6 +652,7 @@ def write_latency(tmp: Path, n: int) -> dict[str, Any]:
 
 
 LOAD0 = os.getloadavg()[0]
+T0 = time.time()
 
 
 def _f(v: float, nd: int = 1) -> str:
@@ -684,6 +685,11 @@ def section(r: dict[str, Any], cmd: str) -> str:
     )
     L = [HEADING, "", f"`{cmd}` ({how}).", ""]
     m = r.get("machine", {})
+    if m.get("started_utc"):
+        L.append(
+            f"Run {m['started_utc']} UTC, {m.get('duration_s', 0) // 60} min "
+            f"{m.get('duration_s', 0) % 60} s."
+        )
     L.append(
         f"Machine: {m.get('cpus')} CPUs shared with other jobs; 1-minute load average "
         f"{_f(m.get('load_avg_1m_before', 0), 2)} before, "
@@ -941,7 +947,16 @@ def main() -> None:
         action="store_true",
         help="write the section of bench/RESULTS.md and bench/bridge_results.json",
     )
+    ap.add_argument(
+        "--section",
+        metavar="COMMAND",
+        help="only write the section of bench/RESULTS.md again from bench/bridge_results.json "
+        "(COMMAND: the command line that made them)",
+    )
     ns = ap.parse_args()
+    if ns.section:
+        write_section(section(json.loads((BENCH / "bridge_results.json").read_text()), ns.section))
+        return
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         res: dict[str, Any] = {}
@@ -960,6 +975,8 @@ def main() -> None:
             res["outage"] = broker_outage(tmp, ns.outage)
             res["outage_s"] = ns.outage
         res["machine"] = {
+            "started_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime(T0)),
+            "duration_s": round(time.time() - T0),
             "load_avg_1m_before": LOAD0,
             "load_avg_1m_after": os.getloadavg()[0],
             "cpus": os.cpu_count(),

@@ -564,8 +564,10 @@ def test_silent_slave_offline_offline_after_timeouts_after_its_first_unanswered_
     assert sched.online(1) is False
     assert sched.on_silence(conf, due + 0.01) == []  # once
     # the request in flight then fails: nothing more, and the first probe keeps
-    # the initial back-off (not doubled)
-    assert _fail(sched, conf, end1 + TIMEOUT + SETTLE + SEND + TIMEOUT) == []
+    # the initial back-off (not doubled), counted from that failure as before
+    end2 = end1 + TIMEOUT + SETTLE + SEND + TIMEOUT
+    assert _fail(sched, conf, end2) == []
+    busy2 = end2 - (end1 + TIMEOUT)  # the second transaction's wire time
     t, probes = due + 0.01, []
     while t < due + 3.0:
         r = sched.next_request(t)
@@ -580,9 +582,9 @@ def test_silent_slave_offline_offline_after_timeouts_after_its_first_unanswered_
         else:
             sched.on_response(r, [0], t + 0.003)
             t += 0.003
-    # the first probe after the back-off counted from the declaration (as when the
-    # second failure took it offline: never less than share keeps), not doubled
-    assert probes[0] == pytest.approx(due + max(0.5, TIMEOUT * (1 / 0.05 - 1)), abs=0.005)
+    # the first probe after the back-off counted from the second failure (as when
+    # that failure took it offline: never less than share keeps), not doubled
+    assert probes[0] == pytest.approx(end2 + max(0.5, busy2 * (1 / 0.05 - 1)), abs=0.005)
 
 
 def test_a_late_answer_brings_the_slave_back_at_once() -> None:

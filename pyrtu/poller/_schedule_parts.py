@@ -54,6 +54,7 @@ class _Health:
     turnaround: float | None = None
     probing: bool = False
     last_fail: int = -1  # the number of its last back-to-back failure (schedule._ended)
+    silenced: object = None  # the request in flight when on_silence took it offline
     silent_from: float | None = None  # the end of its first unanswered request (at latest)
 
 

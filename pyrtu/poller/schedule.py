@@ -370,7 +370,7 @@ class BusScheduler:
         h.failures = 0
         h.probing = False
         h.backoff = 0.0
-        h.silent_from = None
+        h.silent_from = h.silenced = None
         was = st.online
         st.online = True
         if not h.offline:
@@ -414,8 +414,11 @@ class BusScheduler:
                     h.silent_from = now - self.timeout
                 h.last_fail = self._ended
         h.failures += 1
-        if h.offline and req.kind == POLL:
-            pass  # the poll in flight when on_silence took the slave offline
+        if h.offline and req is h.silenced:
+            # in flight when on_silence took the slave offline: the first probe waits
+            # as it would have after this failure (its wire time keeps the share)
+            h.silenced = None
+            h.probe_due = max(h.probe_due, now + max(self.backoff, busy * (1 / self.share - 1)))
         elif h.offline:
             h.probing = False
             floor = busy * (1 / self.share - 1)
@@ -435,20 +438,16 @@ class BusScheduler:
         st.online = False
         h.backoff = self.backoff
         h.probe_due = now + max(self.backoff, busy * (1 / self.share - 1))
-        if self._confirm == slave:
-            self._confirm = None
+        self._confirm = None if self._confirm == slave else self._confirm
         for task in self._tasks:
-            if task.block.slave == slave:
-                task.suspended = True
+            task.suspended = task.suspended or task.block.slave == slave
         return SlaveState(self.bus, slave, False, now + self.stamp_offset)
 
     def offline_due(self, req: Request) -> float | None:
-        """When ``req``'s slave is to go offline if ``req`` is still unanswered (the
-        driver calls `on_silence` then), or None: ``req`` is the ``offline_after``-th
-        request in a row to a slave silent since the end of the first, which was
-        unanswered for its whole timeout, each right after the previous one (no
-        other transaction between); due ``offline_after`` x ``timeout`` after that
-        end."""
+        """When ``req``'s slave goes offline if ``req`` is still unanswered (then the
+        driver calls `on_silence`): ``offline_after`` x ``timeout`` after the end of
+        the first of ``offline_after`` requests in a row (no other transaction
+        between) to a silent slave; None if ``req`` is not such a last request."""
         h = self._health.get(req.slave)
         if (h is None or h.offline or h.silent_from is None or self.timeout is None
                 or h.failures < self.offline_after - 1 or h.last_fail != self._ended):  # fmt: skip
@@ -456,15 +455,13 @@ class BusScheduler:
         return h.silent_from + self.offline_after * self.timeout
 
     def on_silence(self, req: Request, now: float) -> list[Event]:
-        """``req`` (armed by `offline_due`) is still unanswered at its due time: its
-        slave goes offline now (`SlaveState`); ``req``'s outcome is still to be
-        reported (an answer brings the slave back at once)."""
-        h = self._health.get(req.slave)
-        due = self.offline_due(req)
+        """``req`` is unanswered at its `offline_due`: its slave goes offline now; its
+        outcome is still to come (an answer brings the slave back at once)."""
+        h, due = self._health.get(req.slave), self.offline_due(req)
         if h is None or due is None or now < due:
             return []
-        st = self._stats.slaves[req.slave]
-        return [self._offline(req.slave, h, st, self.timeout or 0.0, now)]
+        h.silenced = req
+        return [self._offline(req.slave, h, self._stats.slaves[req.slave], 0.0, now)]
 
     def on_port_failure(self, req: Request) -> None:
         """The port failed during ``req`` (a drop unplugged, a TCP connection lost):
@@ -472,8 +469,10 @@ class BusScheduler:
         failure towards ``offline_after``).  A poll block keeps its place in the
         schedule and a probe is due again; a write or read is the driver's to fail.
         The same for a transaction abandoned (the driver stopped during it)."""
+        h = self._health.get(req.slave)
+        if h is not None and req is h.silenced:
+            h.silenced = None
         if req.kind == PROBE:
-            h = self._health.get(req.slave)
             if h is not None:
                 h.probing = False
         elif req.kind == POLL:
