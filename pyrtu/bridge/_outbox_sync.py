@@ -19,13 +19,9 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from pyrtu.bridge import _outbox_format as fmt
 from pyrtu.bridge._outbox_parts import RESERVE, OutboxError, OutboxLimits, Segment, io_error
-
-if TYPE_CHECKING:
-    from pyrtu.bridge.outbox import Outbox
 
 
 @dataclass(eq=False)
@@ -86,7 +82,7 @@ class Flusher:
     the thread.
     """
 
-    def __init__(self, outbox: Outbox, done: Callable[[OutboxError | None], None]) -> None:
+    def __init__(self, outbox: Flushing, done: Callable[[OutboxError | None], None]) -> None:
         self._outbox = outbox
         self._done = done
         self._queue: queue.SimpleQueue[Batch | None] = queue.SimpleQueue()
@@ -222,6 +218,10 @@ class Flushing:
     _unflushed_since: float | None
     _dirty_since: float | None
     _write_out: Callable[[], None]
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
 
     def flush(self) -> None:
         """Write and fsync everything appended so far, and the ack cursor, on this

@@ -462,10 +462,6 @@ class Outbox(Flushing):
         """Every record with a sequence number <= durable_seq has been flushed."""
         return self._durable_seq
 
-    @property
-    def closed(self) -> bool:
-        return self._closed
-
     def stats(self) -> dict[str, int | float | None]:
         return {
             "depth": self.depth,
