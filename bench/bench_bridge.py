@@ -911,12 +911,15 @@ def section(r: dict[str, Any], cmd: str) -> str:
 
 
 def write_section(text: str) -> None:
+    """The section replaced where it is (or added at the end)."""
     old = RESULTS.read_text()
     i = old.find(HEADING)
-    if i >= 0:
-        j = old.find("\n## ", i + len(HEADING))
-        old = old[:i] + (old[j + 1 :] if j >= 0 else "")
-    RESULTS.write_text(old.rstrip("\n") + "\n\n" + text)
+    if i < 0:
+        RESULTS.write_text(old.rstrip("\n") + "\n\n" + text)
+        return
+    j = old.find("\n## ", i + len(HEADING))
+    rest = old[j + 1 :] if j >= 0 else ""
+    RESULTS.write_text(old[:i] + text.rstrip("\n") + "\n" + ("\n" + rest if rest else ""))
 
 
 def main() -> None:
