@@ -5,6 +5,7 @@ back-off and its share of the bus, the figures."""
 from __future__ import annotations
 
 import itertools
+import time
 from collections import Counter
 from collections.abc import Callable, Sequence
 
@@ -714,3 +715,68 @@ def test_timeout_is_checked() -> None:
     for bad in (0, -0.1, float("nan")):
         with pytest.raises(ValueError, match="timeout"):
             BusScheduler("b", [pt(0)], WIRE, timeout=bad)
+
+
+# ---------------------------------------------------------------------- through the driver
+
+
+@pytest.mark.wall_clock
+def test_the_poller_arms_the_silence_timer_on_the_virtual_bus() -> None:
+    """The real driver on the virtual bus: a CFW701 at 1 answers, nobody answers at
+    7.  Slave 7 goes offline while its second request still waits (before that
+    request's failure is reported: the master pauses ``settle``, 20 ms, after the
+    first failure, so the second failure comes at least that much after the
+    timer's time), never before 2 x timeout after the end of the first (its
+    failure's report minus the timeout); the second failure adds no event."""
+    import asyncio
+
+    from pyrtu.devices import CFW701Simulator
+    from pyrtu.poller import Bus, Poller, make_config
+
+    vbus = pytest.importorskip("pyrtu.vbus")
+    timeout = 0.1
+    with vbus.VirtualBus(2, baudrate=115200, parity="N") as bus:
+        sim = CFW701Simulator()
+        sim.serve(bus.paths[1], 1, baudrate=115200, parity="N")
+        try:
+            master = {"baudrate": 115200, "parity": "N", "timeout": timeout}
+            line = Bus("line", bus.paths[0], master, offline_after=2, backoff=5.0, max_backoff=5.0)
+            points = [Point("a", "line", 1, "holding", 0, interval=0.02),
+                      Point("b", "line", 7, "holding", 0, interval=0.02)]  # fmt: skip
+            poller = Poller(make_config([line], points), changes_only=False)
+            sched = poller.scheduler("line")
+            failures: list[float] = []
+            offline: list[tuple[float, int]] = []
+            second: list[SlaveState] = []  # events of the second failure
+            real = sched.on_failure
+
+            def failed(req: Request, error: BaseException, now: float) -> list[Event]:
+                if req.slave == 7:
+                    failures.append(now)
+                events = real(req, error, now)
+                if req.slave == 7 and len(failures) == 2:
+                    second.extend(e for e in events if isinstance(e, SlaveState))
+                return events
+
+            sched.on_failure = failed  # type: ignore[method-assign]
+
+            def on_event(ev: Event) -> None:
+                if isinstance(ev, SlaveState) and ev.slave == 7 and not ev.online:
+                    offline.append((ev.time - sched.stamp_offset, len(failures)))
+
+            poller.on_event(on_event)
+
+            async def main() -> None:
+                async with poller:
+                    give_up = time.monotonic() + 30
+                    while len(failures) < 2 or not offline:
+                        assert time.monotonic() < give_up, "slave 7 never went offline"
+                        await asyncio.sleep(0.01)
+
+            asyncio.run(main())
+        finally:
+            sim.close()
+    (at, failed_before), *_ = offline
+    assert failed_before == 1 and second == [], "offline only when the second failure ended"
+    assert at >= failures[0] - timeout + 2 * timeout - 1e-6
+    assert at < failures[1]
