@@ -5,6 +5,7 @@ back-off and its share of the bus, the figures."""
 from __future__ import annotations
 
 import itertools
+import time
 from collections import Counter
 from collections.abc import Callable, Sequence
 
@@ -518,3 +519,264 @@ def test_a_confirmed_transient_failure_keeps_the_slave_online() -> None:
     # confirmation at 0.1); slave 2 caught up from 0.1
     ones = [t for s, t in seen if s == 1]
     assert len(ones) >= 8 and all(b - a >= 0.08 for a, b in itertools.pairwise(ones))
+
+
+# ---------------------------------------------------------------------- the silence timer
+
+#: a request's wait before its answer can begin: the t3.5 silence and 8 bytes on the wire
+SEND = WIRE.t35 + 8 * WIRE.char
+#: the master's pause after a failed transaction (pyrtu's settle: a late answer may come)
+SETTLE = 0.02
+
+
+def _silent_bus(offline_after: int = 2, **kw: object) -> BusScheduler:
+    points = [pt(0, interval=0.05), pt(0, slave=2, interval=0.05)]
+    return BusScheduler("b", points, WIRE, offline_after=offline_after,  # type: ignore[arg-type]
+                        timeout=TIMEOUT, **kw)  # fmt: skip
+
+
+def _fail(sched: BusScheduler, req: Request, at: float) -> list[Event]:
+    return sched.on_failure(req, NoResponseError("no answer", req.slave, 3), at)
+
+
+def test_silent_slave_offline_offline_after_timeouts_after_its_first_unanswered_request() -> None:
+    """Asked twice back to back and silent for offline_after x timeout from the end
+    of its first unanswered request: offline then, while the second request still
+    waits (each failed transaction costs the t3.5, the request, the timeout and the
+    master's settling pause, so waiting for the second's own timeout came later)."""
+    sched = _silent_bus()
+    t0 = 1.0
+    req = sched.next_request(t0)
+    assert req is not None and req.slave == 1
+    assert sched.offline_due(req) is None  # nothing unanswered yet
+    end1 = t0 + SEND  # the request's last byte: its timeout starts here
+    assert _fail(sched, req, end1 + TIMEOUT) == []
+    conf = sched.next_request(end1 + TIMEOUT)
+    assert conf is not None and (conf.slave, conf.kind) == (1, "poll")
+    due = sched.offline_due(conf)
+    assert due == pytest.approx(end1 + 2 * TIMEOUT)
+    # the second request goes out after the settling pause: its own timeout would
+    # end later than the bound
+    assert end1 + TIMEOUT + SETTLE + SEND + TIMEOUT > due
+    assert sched.on_silence(conf, due - 1e-6) == []  # not yet
+    (off,) = sched.on_silence(conf, due)
+    assert isinstance(off, SlaveState) and (off.slave, off.online) == (1, False)
+    assert off.time == due
+    assert sched.online(1) is False
+    assert sched.on_silence(conf, due + 0.01) == []  # once
+    # the request in flight then fails: nothing more, and the first probe keeps
+    # the initial back-off (not doubled), counted from that failure as before
+    end2 = end1 + TIMEOUT + SETTLE + SEND + TIMEOUT
+    assert _fail(sched, conf, end2) == []
+    busy2 = end2 - (end1 + TIMEOUT)  # the second transaction's wire time
+    t, probes = due + 0.01, []
+    while t < due + 3.0:
+        r = sched.next_request(t)
+        if r is None:
+            t = max(t + 1e-4, sched.deadline() or t)
+            continue
+        assert r.slave == 2 or r.kind == "probe"  # slave 1's blocks left the schedule
+        if r.kind == "probe":
+            probes.append(t)
+            _fail(sched, r, t + SEND + TIMEOUT)
+            t += SEND + TIMEOUT
+        else:
+            sched.on_response(r, [0], t + 0.003)
+            t += 0.003
+    # the first probe after the back-off counted from the second failure (as when
+    # that failure took it offline: never less than share keeps), not doubled
+    assert probes[0] == pytest.approx(end2 + max(0.5, busy2 * (1 / 0.05 - 1)), abs=0.005)
+
+
+def test_a_late_answer_brings_the_slave_back_at_once() -> None:
+    """Offline by the timer, then the request in flight is answered (within its own
+    timeout): back online at once, its values delivered, its blocks due at once."""
+    sched = _silent_bus()
+    req = sched.next_request(0.0)
+    assert req is not None
+    _fail(sched, req, SEND + TIMEOUT)
+    conf = sched.next_request(SEND + TIMEOUT)
+    assert conf is not None
+    due = sched.offline_due(conf)
+    assert due is not None
+    sched.on_silence(conf, due)
+    events = sched.on_response(conf, [7], due + 0.005)
+    back = [e for e in events if isinstance(e, SlaveState)]
+    assert [(e.slave, e.online) for e in back] == [(1, True)]
+    assert [e.value for e in events if isinstance(e, Update)] == [7]
+    assert sched.online(1) is True
+    assert sched.offline_due(conf) is None
+    nxt = sched.next_request(due + 0.005)
+    assert nxt is not None and nxt.slave in (1, 2)
+    kinds = {(nxt.slave, nxt.kind)}
+    sched.on_response(nxt, [0], due + 0.008)
+    nxt2 = sched.next_request(due + 0.008)
+    assert nxt2 is not None
+    kinds.add((nxt2.slave, nxt2.kind))
+    assert (1, "poll") in kinds  # slave 1's block is due at once, no probe
+
+
+def test_a_slave_that_answers_within_its_timeout_is_never_offline() -> None:
+    """Slow answers (just within the timeout) never arm the timer; one unanswered
+    request followed by an answer disarms it; the next silence starts afresh."""
+    sched = _silent_bus()
+    t = 0.0
+    for _ in range(50):
+        r = sched.next_request(t)
+        if r is None:
+            t = max(t + 1e-4, sched.deadline() or t)
+            continue
+        assert sched.offline_due(r) is None
+        t += SEND + TIMEOUT * 0.99
+        events = sched.on_response(r, [0], t)
+        assert not any(isinstance(e, SlaveState) and not e.online for e in events)
+    assert sched.online(1) is True and sched.online(2) is True
+    # one unanswered, the confirmation answers: nothing armed afterwards
+    r = sched.next_request(t)
+    while r is None or r.slave != 1:
+        if r is not None:
+            sched.on_response(r, [0], t + 0.003)
+        t += 0.003
+        r = sched.next_request(t)
+    _fail(sched, r, t + SEND + TIMEOUT)
+    t += SEND + TIMEOUT
+    conf = sched.next_request(t)
+    assert conf is not None and conf.slave == 1 and sched.offline_due(conf) is not None
+    sched.on_response(conf, [0], t + 0.003)
+    t += 0.003
+    assert sched.on_silence(conf, t + 1.0) == []  # answered: the timer is disarmed
+    assert sched.online(1) is True
+    # a new silence counts from its own first unanswered request
+    r = sched.next_request(t)
+    while r is None or r.slave != 1:
+        if r is not None:
+            sched.on_response(r, [0], t + 0.003)
+        t += 0.003
+        r = sched.next_request(t)
+    _fail(sched, r, t + SEND + TIMEOUT)
+    conf = sched.next_request(t + SEND + TIMEOUT)
+    assert conf is not None
+    assert sched.offline_due(conf) == pytest.approx(t + SEND + 2 * TIMEOUT)
+
+
+def test_the_silence_timer_needs_back_to_back_silent_failures() -> None:
+    """No timer: without a timeout, with offline_after 1 (the first failure is the
+    offline one), after a garbled answer (the slave is not silent), or when another
+    transaction came between the failure and the next request (a queued write goes
+    first): then the last request gets its whole timeout, as before."""
+    plain = BusScheduler("b", [pt(0)], WIRE, offline_after=2)
+    r = plain.next_request(0.0)
+    assert r is not None
+    _fail(plain, r, 0.1)
+    conf = plain.next_request(0.1)
+    assert conf is not None and plain.offline_due(conf) is None
+
+    one = _silent_bus(offline_after=1)
+    r = one.next_request(0.0)
+    assert r is not None and one.offline_due(r) is None
+    assert any(isinstance(e, SlaveState) for e in _fail(one, r, SEND + TIMEOUT))
+
+    garbled = _silent_bus()
+    r = garbled.next_request(0.0)
+    assert r is not None
+    garbled.on_failure(r, FrameError("bad crc", 1, 3), 0.01)
+    conf = garbled.next_request(0.01)
+    assert conf is not None and conf.slave == 1 and garbled.offline_due(conf) is None
+
+    between = _silent_bus()
+    r = between.next_request(0.0)
+    assert r is not None
+    _fail(between, r, SEND + TIMEOUT)
+    w = between.submit_write(2, "holding", 0, [1])
+    assert between.next_request(SEND + TIMEOUT) is w
+    between.on_response(w, None, SEND + TIMEOUT + 0.005)
+    conf = between.next_request(SEND + TIMEOUT + 0.005)
+    assert conf is not None and conf.slave == 1
+    assert between.offline_due(conf) is None
+    # its failure then takes the slave offline by the count, as without a timer
+    assert any(isinstance(e, SlaveState) for e in _fail(between, conf, 0.3))
+
+
+def test_offline_after_three_arms_on_the_third_request() -> None:
+    sched = _silent_bus(offline_after=3)
+    r = sched.next_request(0.0)
+    assert r is not None
+    _fail(sched, r, SEND + TIMEOUT)
+    second = sched.next_request(SEND + TIMEOUT)
+    assert second is not None and sched.offline_due(second) is None
+    end2 = SEND + TIMEOUT + SETTLE + SEND + TIMEOUT
+    _fail(sched, second, end2)
+    third = sched.next_request(end2)
+    assert third is not None and third.slave == 1
+    assert sched.offline_due(third) == pytest.approx(SEND + 3 * TIMEOUT)
+
+
+def test_timeout_is_checked() -> None:
+    for bad in (0, -0.1, float("nan")):
+        with pytest.raises(ValueError, match="timeout"):
+            BusScheduler("b", [pt(0)], WIRE, timeout=bad)
+
+
+# ---------------------------------------------------------------------- through the driver
+
+
+@pytest.mark.wall_clock
+def test_the_poller_arms_the_silence_timer_on_the_virtual_bus() -> None:
+    """The real driver on the virtual bus: a CFW701 at 1 answers, nobody answers at
+    7.  Slave 7 goes offline while its second request still waits (before that
+    request's failure is reported: the master pauses ``settle``, 20 ms, after the
+    first failure, so the second failure comes at least that much after the
+    timer's time), never before 2 x timeout after the end of the first (its
+    failure's report minus the timeout); the second failure adds no event."""
+    import asyncio
+
+    from pyrtu.devices import CFW701Simulator
+    from pyrtu.poller import Bus, Poller, make_config
+
+    vbus = pytest.importorskip("pyrtu.vbus")
+    timeout = 0.1
+    with vbus.VirtualBus(2, baudrate=115200, parity="N") as bus:
+        sim = CFW701Simulator()
+        sim.serve(bus.paths[1], 1, baudrate=115200, parity="N")
+        try:
+            master = {"baudrate": 115200, "parity": "N", "timeout": timeout}
+            line = Bus("line", bus.paths[0], master, offline_after=2, backoff=5.0, max_backoff=5.0)
+            points = [Point("a", "line", 1, "holding", 0, interval=0.02),
+                      Point("b", "line", 7, "holding", 0, interval=0.02)]  # fmt: skip
+            poller = Poller(make_config([line], points), changes_only=False)
+            sched = poller.scheduler("line")
+            failures: list[float] = []
+            offline: list[tuple[float, int]] = []
+            second: list[SlaveState] = []  # events of the second failure
+            real = sched.on_failure
+
+            def failed(req: Request, error: BaseException, now: float) -> list[Event]:
+                if req.slave == 7:
+                    failures.append(now)
+                events = real(req, error, now)
+                if req.slave == 7 and len(failures) == 2:
+                    second.extend(e for e in events if isinstance(e, SlaveState))
+                return events
+
+            sched.on_failure = failed  # type: ignore[method-assign]
+
+            def on_event(ev: Event) -> None:
+                if isinstance(ev, SlaveState) and ev.slave == 7 and not ev.online:
+                    offline.append((ev.time - sched.stamp_offset, len(failures)))
+
+            poller.on_event(on_event)
+
+            async def main() -> None:
+                async with poller:
+                    give_up = time.monotonic() + 30
+                    while len(failures) < 2 or not offline:
+                        assert time.monotonic() < give_up, "slave 7 never went offline"
+                        await asyncio.sleep(0.01)
+
+            asyncio.run(main())
+        finally:
+            sim.close()
+    (at, failed_before), *_ = offline
+    assert failed_before == 1 and second == [], "offline only when the second failure ended"
+    assert at >= failures[0] - timeout + 2 * timeout - 1e-6
+    assert at < failures[1]

@@ -39,6 +39,7 @@ from typing import Any
 from .._reconnect import Backoff, Reconnect
 from ..poller import Point, PointDropped, Poller, PortState, SlaveState, Update
 from ..poller.points import Value
+from ._outbox_sync import Flusher
 from .commands import CommandQueue
 from .config import BridgeConfig, load_bridge_config
 from .delivery import Window
@@ -101,7 +102,7 @@ class Bridge:
         self._resume: set[tuple[str, int]] = set()
         self._event_cbs: list[Callable[[BridgeEvent], None]] = []
         self._tasks: list[asyncio.Task[None]] = []
-        self._flush_timer: asyncio.TimerHandle | None = None
+        self._flusher: Flusher | None = None
         self._ack_pending = False
         self._lost_ev: asyncio.Event | None = None  # made in start (loop-bound)
         self._acked_seq = 0  # every record up to this seq is acknowledged
@@ -135,6 +136,8 @@ class Bridge:
             policy="refuse" if m.outbox_policy == "refuse" else "drop-oldest",
         )
         self._outbox = Outbox(m.outbox, limits)
+        self._flusher = Flusher(self._outbox, self._flushed)
+        self._flusher.start()  # the fsyncs on their own thread
         self._live_base = self._outbox.next_seq
         self._acked_seq = self._outbox.acked
         self._stop = asyncio.Event()
@@ -144,6 +147,7 @@ class Bridge:
             if poll:
                 await self.poller.start()
         except BaseException:
+            await self._flusher.stop()
             self._outbox.close()
             self._outbox = None
             raise
@@ -162,14 +166,14 @@ class Bridge:
         self._running = False
         await self.poller.stop()
         await self.writer.stop()
-        ob = self._outbox
-        assert ob is not None
-        self._flush()
+        ob, flusher = self._outbox, self._flusher
+        assert ob is not None and flusher is not None
+        flusher.submit()
         end = time.monotonic() + drain
         while self._connected() and ob.depth > 0 and time.monotonic() < end:
             self._pump()
             await asyncio.sleep(0.01)
-            self._flush()
+            flusher.submit()
         for t in self._tasks:
             t.cancel()
         for t in self._tasks:
@@ -187,12 +191,9 @@ class Bridge:
                 await asyncio.sleep(0.002)
             link.close(graceful=True)
         self._link = None
-        if self._flush_timer is not None:
-            self._flush_timer.cancel()
-            self._flush_timer = None
         self._commit_acks()
+        await flusher.stop()  # the last batch, then the thread joined
         self.final_stats = self.stats()
-        ob.flush()
         ob.close()
         self._outbox = None
 
@@ -348,8 +349,8 @@ class Bridge:
         if len(live) > _LIVE:
             live.popleft()
             self._live_base = live[0][0]
-        if self._flush_timer is None:
-            self._schedule_flush()
+        if self._flusher is not None:
+            self._flusher.poke()
         self._pump()
 
     # ------------------------------------------------------------------ publishing
@@ -410,39 +411,19 @@ class Bridge:
         if c is not None and ob is not None and c > self._acked_seq:
             self._acked_seq = c
             ob.ack(c)
-            if self._flush_timer is None:
-                self._schedule_flush()
+            if self._flusher is not None:
+                self._flusher.poke()
         self._pump()
 
-    def _schedule_flush(self) -> None:
-        ob = self._outbox
-        if ob is None:
-            return
-        at = ob.flush_at
-        if at is None:
-            return
-        loop = asyncio.get_running_loop()
-        delay = max(0.0, at - time.monotonic())
-        self._flush_timer = loop.call_later(delay, self._flush_tick)
-
-    def _flush_tick(self) -> None:
-        self._flush_timer = None
-        self._flush()
-        self._pump()  # records now durable may be published from the outbox
-        self._schedule_flush()
-
-    def _flush(self) -> None:
-        ob = self._outbox
-        if ob is None:
-            return
-        try:
-            if ob.flush_due(time.monotonic()) or not self._running:
-                ob.flush()
-        except OutboxError as e:
-            if not self._outbox_down:
-                self._outbox_down = True
-                log.error("bridge: outbox flush failed: %s", e)
-                self._emit("outbox_error", message=str(e))
+    def _flushed(self, error: OutboxError | None) -> None:
+        """A batch of the outbox's fsyncs is done (on its thread): its records may be
+        published from the outbox now; an error is reported once."""
+        if error is None:
+            self._pump()
+        elif not self._outbox_down:
+            self._outbox_down = True
+            log.error("bridge: outbox flush failed: %s", error)
+            self._emit("outbox_error", message=str(error))
 
     def _publish_slave(self, bus: str, slave: int, online: bool) -> None:
         link = self._link

@@ -21,6 +21,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import ssl
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -185,6 +186,7 @@ class MqttLink:
         self._out: _Coalescing | None = None
         self._soon = False
         self._turn = 0  # publications written at once in this turn of the loop
+        self._q0: deque[tuple[int, paho.MQTTMessageInfo]] = deque()  # QoS 0 not yet written
         self.connected = False
 
     def _make_client(self) -> paho.Client:
@@ -204,7 +206,9 @@ class MqttLink:
         c.suppress_exceptions = False
         c.on_connect = self._connected
         c.on_disconnect = self._disconnected
-        c.on_publish = self._published
+        # QoS 0 publications are acknowledged once written (`_written`): paho's
+        # on_publish would build a reason code and properties for each of them
+        c.on_publish = None if self.cfg.qos == 0 else self._published
         c.on_message = self._message
         c.connect_async(self.cfg.host, self.cfg.port, self.cfg.keepalive, clean_start=True)
         return c
@@ -274,7 +278,15 @@ class MqttLink:
         info = c.publish(topic, payload, qos, retain, props)
         if info.rc != paho.MQTT_ERR_SUCCESS:
             return -1
+        if qos == 0 and c.on_publish is None:
+            self._q0.append((info.mid, info))
         return info.mid
+
+    def _written(self) -> None:
+        """QoS 0 publications paho has written (into the socket's buffer): on_ack."""
+        q0 = self._q0
+        while q0 and q0[0][1].is_published():
+            self._on_ack(q0.popleft()[0])
 
     def close(self, *, graceful: bool = True) -> None:
         """Disconnect (a DISCONNECT first when ``graceful``: the will is not sent)."""
@@ -306,6 +318,7 @@ class MqttLink:
 
     def _teardown_quiet(self) -> None:
         self.connected = False
+        self._q0.clear()  # not written: lost with the connection, as QoS 0 allows
         if self._misc is not None:
             self._misc.cancel()
             self._misc = None
@@ -360,6 +373,7 @@ class MqttLink:
         if c is None or out is None:
             return
         c.loop_write()  # paho's packets into the buffer
+        self._written()
         try:
             out.drain()  # one system call for all of them
         except OSError as e:
@@ -395,6 +409,7 @@ class MqttLink:
             self._soon = True
             loop.call_soon(self._writable)
         c.loop_write()
+        self._written()
         try:
             out.drain()
         except OSError as e:

@@ -29,6 +29,7 @@ from __future__ import annotations
 import bisect
 import math
 import os
+import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import TracebackType
@@ -49,11 +50,12 @@ from pyrtu.bridge._outbox_parts import (
     lock_directory,
     recover_segment,
 )
+from pyrtu.bridge._outbox_sync import Flushing
 
 __all__ = ["Outbox", "OutboxError", "OutboxFull", "OutboxLimits"]
 
 
-class Outbox:
+class Outbox(Flushing):
     """A durable, bounded, on-disk queue of records with sequence numbers (see module doc).
 
     Not thread-safe: one driver calls it.  Time is an input (`now` in seconds, any
@@ -81,6 +83,7 @@ class Outbox:
         self._unsynced: list[tuple[Segment, int]] = []  # sealed, written, not fsynced yet
         self._read_cache: tuple[Segment, int] | None = None
         self._dir_dirty = False
+        self._state_lock = threading.Lock()
         self._write_failed = False
         self._next_seq = 1
         self._durable_seq = 0
@@ -139,6 +142,7 @@ class Outbox:
             self._open_active(tail)
         self._dir_dirty = True
         self._sync_dir()
+        self._save_state(reserved=self._next_seq + RESERVE)  # ahead of the first append
 
     def _recover_segment(self, path: Path, first: int, last: int) -> Segment | None:
         try:
@@ -315,76 +319,6 @@ class Outbox:
     def _io_error(self, action: str, name: str, exc: OSError) -> OutboxError:
         return io_error(self.directory, action, name, exc)
 
-    # -- flushing ------------------------------------------------------------
-
-    def flush(self) -> None:
-        """Write and fsync everything appended so far, and the ack cursor."""
-        if self._closed:
-            raise ValueError("flush on a closed Outbox")
-        if self._unflushed or self._buf or self._unsynced:
-            self._write_out()
-            try:
-                while self._unsynced:
-                    os.fdatasync(self._unsynced[0][1])
-                    os.close(self._unsynced.pop(0)[1])
-                if self._fd >= 0:
-                    os.fdatasync(self._fd)
-            except OSError as exc:
-                raise self._io_error("fsyncing", "a segment", exc) from exc
-        self._sync_dir()
-        if self._saved != (self._acked, self._saved[1], self._dropped):
-            self._save_state()
-        self._durable_seq = self._next_seq - 1
-        self._unflushed = 0
-        self._unflushed_since = None
-        self._dirty_since = None
-
-    def _sync_dir(self) -> None:
-        if self._dir_dirty:
-            try:
-                os.fsync(self._dir_fd)
-            except OSError as exc:
-                raise self._io_error("fsyncing", "the directory", exc) from exc
-            self._dir_dirty = False
-
-    def _save_state(self, reserved: int | None = None) -> None:
-        res = self._saved[1] if reserved is None else reserved
-        state = fmt.State(self._gen + 1, self._acked, res, self._dropped)
-        off, data = fmt.encode_state(state)
-        try:
-            os.pwrite(self._state_fd, data, off)
-            os.fdatasync(self._state_fd)
-        except OSError as exc:
-            raise self._io_error("writing", "cursor", exc) from exc
-        self._gen = state.gen
-        self._reserved = res
-        self._saved = (self._acked, res, self._dropped)
-
-    def flush_due(self, now: float) -> bool:
-        """Whether the driver should call flush() now: fsync_records appends, or
-        fsync_interval after the first unflushed append (or after this method first
-        saw acks not yet on disk)."""
-        if self._unflushed >= self.limits.fsync_records:
-            return True
-        if self._unflushed_since is not None:
-            return now >= self._unflushed_since + self.limits.fsync_interval
-        if (self._acked, self._dropped) != (self._saved[0], self._saved[2]):
-            if self._dirty_since is None:
-                self._dirty_since = now
-            return now >= self._dirty_since + self.limits.fsync_interval
-        return False
-
-    @property
-    def flush_at(self) -> float | None:
-        """When flush() is due (None: nothing to flush); see flush_due()."""
-        if self._unflushed_since is not None:
-            if self._unflushed >= self.limits.fsync_records:
-                return self._unflushed_since
-            return self._unflushed_since + self.limits.fsync_interval
-        if self._dirty_since is not None:
-            return self._dirty_since + self.limits.fsync_interval
-        return None
-
     # -- reading and acknowledging ---------------------------------------------
 
     def _reader(self, seg: Segment) -> Callable[[int, int], bytes]:
@@ -527,10 +461,6 @@ class Outbox:
     def durable_seq(self) -> int:
         """Every record with a sequence number <= durable_seq has been flushed."""
         return self._durable_seq
-
-    @property
-    def closed(self) -> bool:
-        return self._closed
 
     def stats(self) -> dict[str, int | float | None]:
         return {

@@ -135,11 +135,14 @@ class Poller:
         now = time.monotonic()
         for bus in self.config.buses:
             mine = [p for p in self.config.points if p.bus == bus.name]
+            # the silence timer: a transaction's wait for its answer, every attempt
+            wait = float(bus.master.get("timeout", 1.0)) * (1 + int(bus.master.get("retries", 0)))
             try:
                 sched = BusScheduler(
                     bus.name, mine, bus.wire(), self.config.limits(bus.name), bus.limits,
                     share=bus.share, offline_after=bus.offline_after, backoff=bus.backoff,
                     max_backoff=bus.max_backoff, stamp_offset=self._offset, now=now,
+                    timeout=wait,
                 )  # fmt: skip
             except ValueError as e:
                 raise ConfigError(f"{self.config.source}: bus {bus.name!r}: {e}") from None
@@ -259,6 +262,9 @@ class Poller:
                 await self._nap(run, None if dl is None else dl - clock())
                 continue
             fut = run.pending.pop(req.tag, None) if req.tag else None
+            due = sched.offline_due(req)
+            timer = None if due is None else asyncio.get_running_loop().call_later(
+                max(0.0, due - clock()), self._silent, run, req)  # fmt: skip
             try:
                 data, answered = await master.transact(BY_FUNCTION[req.function], *self._args(req))
             except asyncio.CancelledError:
@@ -284,8 +290,15 @@ class Poller:
                 events = sched.on_response(req, data, end)
                 if fut is not None and not fut.done():
                     fut.set_result(data)
+            finally:
+                if timer is not None:
+                    timer.cancel()
             if events:
                 self._dispatch(events)
+
+    def _silent(self, run: _BusRun, req: Request) -> None:
+        """``req`` still unanswered at `BusScheduler.offline_due`: its slave is offline."""
+        self._dispatch(run.sched.on_silence(req, time.monotonic()))
 
     async def _nap(self, run: _BusRun, delay: float | None) -> None:
         """Sleep ``delay`` seconds (None: until woken), or until a submit or `stop`

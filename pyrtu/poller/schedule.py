@@ -20,19 +20,19 @@ t3.5 and the slave's measured turnaround) sums to the bus's *load*: above 1 the
 configured rates exceed the wire, an `Overload` event says so and names the
 points that lag.
 
-Slave health: ``offline_after`` consecutive failed transactions (no answer, or
-garbage) take a slave offline (`SlaveState` event).  After each failure the
-slave's next block goes next (a confirmation), so the failures are back to back
-and the slave is offline ``offline_after`` timeouts after its first unanswered
-request, not ``offline_after`` turns of the schedule apart; a dead slave costs the
-bus no more (those transactions were due anyway), the others wait at most
-``offline_after`` timeouts, once.  Offline, its blocks leave the schedule
-and one short request (one register or bit) probes it, after a back-off that
-doubles from ``backoff`` to ``max_backoff`` and never less than what keeps the
-probes within ``share`` of the bus time (default 5 %).  Any answer, even an
-exception, brings it back online with its blocks due at once.  Exception 2 on a
-block splits it in two and remembers the cut; on a single point it drops the point
-(`PointDropped`, once).
+Slave health (docs/POLLER.md): ``offline_after`` consecutive failed transactions
+(no answer, or garbage) take a slave offline (`SlaveState` event); after each
+failure the slave's next block goes next (a confirmation), so the failures are
+back to back.  With ``timeout`` (the master's, per transaction) a slave that is
+asked ``offline_after`` times and silent for ``offline_after`` x ``timeout`` from
+the end of its first unanswered request is offline then, while the last request
+is still waiting for its answer: the driver arms `offline_due` and calls
+`on_silence`; a late answer brings it back at once.  Offline, its blocks leave
+the schedule and one short request probes it, after a back-off that doubles from
+``backoff`` to ``max_backoff``, never less than what keeps the probes within
+``share`` of the bus time.  Any answer, even an exception, brings it back online
+with its blocks due at once.  Exception 2 on a block splits it in two and
+remembers the cut; on a single point it drops the point (`PointDropped`, once).
 """
 
 from __future__ import annotations
@@ -40,9 +40,19 @@ from __future__ import annotations
 import heapq
 import itertools
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
 
 from ..errors import ExceptionResponseError, FrameError, NoResponseError
+from ._schedule_parts import (
+    _WRITE_FUNCTIONS,
+    POLL,
+    PROBE,
+    READ,
+    WRITE,
+    Request,
+    _Health,
+    _Stats,
+    _Task,
+)
 from .events import (
     BusReport,
     Event,
@@ -54,60 +64,6 @@ from .events import (
 )
 from .plan import FUNCTIONS, Block, Cuts, Limits, Wire, chunks, gaps, plan, split
 from .points import Point
-
-POLL, PROBE, WRITE, READ = "poll", "probe", "write", "read"
-_WRITE_FUNCTIONS = {("coils", True): 5, ("coils", False): 15, ("holding", True): 6,
-                    ("holding", False): 16}  # fmt: skip
-
-
-@dataclass(eq=False)
-class Request:
-    """One transaction to perform.  ``kind``: poll, probe, write, read.  Reads:
-    ``count`` registers or bits of ``table`` at ``address``; writes: ``values``
-    (function 5/6 for one value, 15/16 for several)."""
-
-    kind: str
-    slave: int
-    table: str
-    address: int
-    count: int
-    function: int
-    values: tuple[int | bool, ...] = ()
-    block: Block | None = None
-    tag: int = 0
-    issued: float = 0.0
-    cost: float = 0.0
-    task: _Task | None = field(default=None, repr=False)
-
-
-@dataclass(eq=False)
-class _Task:
-    block: Block
-    due: float
-    cost: float
-    late: float = 0.0
-    alive: bool = True
-    suspended: bool = False
-    seq: int = 0
-
-
-@dataclass
-class _Health:
-    failures: int = 0
-    offline: bool = False
-    probe_due: float = 0.0
-    backoff: float = 0.0
-    probe: tuple[str, int] = ("holding", 0)
-    turnaround: float | None = None
-    probing: bool = False
-
-
-@dataclass
-class _Stats:
-    started: float | None = None
-    busy: float = 0.0
-    transactions: int = 0
-    slaves: dict[int, SlaveStats] = field(default_factory=dict)
 
 
 class BusScheduler:
@@ -126,6 +82,7 @@ class BusScheduler:
         backoff: float = 0.5,
         max_backoff: float = 30.0,
         stamp_offset: float = 0.0,
+        timeout: float | None = None,
         now: float = 0.0,
     ) -> None:
         if not 0 < share <= 1:
@@ -136,6 +93,10 @@ class BusScheduler:
             raise ValueError(f"offline_after must be a positive integer, not {offline_after!r}")
         if not 0 < backoff <= max_backoff:
             raise ValueError(f"backoff must be > 0 and <= max_backoff, not {backoff!r}")
+        if timeout is not None and not timeout > 0:
+            raise ValueError(f"timeout must be > 0 seconds (or None), not {timeout!r}")
+        #: a transaction's response timeout (all its attempts): the silence timer
+        self.timeout = timeout
         self.bus = bus
         self.wire = wire
         self.share = float(share)
@@ -170,6 +131,7 @@ class BusScheduler:
         self._load = 0.0
         self._since_check = 0
         self._prev_end: float | None = None
+        self._ended = 0  # transactions ended (never reset: back-to-back failures)
         for p in self._points:
             self._slave(p.slave)
         for slave, h in self._health.items():
@@ -357,6 +319,7 @@ class BusScheduler:
             after = self._prev_end if start is None else max(self._prev_end, start)
             busy += min(self.wire.t35, max(0.0, issued - after))
         self._prev_end = now
+        self._ended += 1
         self._stats.busy += busy
         self._stats.transactions += 1
         st = self._stats.slaves.get(req.slave)
@@ -407,6 +370,7 @@ class BusScheduler:
         h.failures = 0
         h.probing = False
         h.backoff = 0.0
+        h.silent_from = h.silenced = None
         was = st.online
         st.online = True
         if not h.offline:
@@ -442,28 +406,62 @@ class BusScheduler:
             st.frame_errors += 1
         else:
             st.timeouts += 1
+            if isinstance(error, NoResponseError) and not h.offline and self.timeout:
+                # its timeout ran from the end of the request: that end is at or
+                # before ``now - timeout`` (so the timer never cuts a window short);
+                # the silence counts from the first of back-to-back failures only
+                if h.silent_from is None or h.last_fail != self._ended - 1:
+                    h.silent_from = now - self.timeout
+                h.last_fail = self._ended
         h.failures += 1
-        if h.offline:
+        if h.offline and req is h.silenced:
+            # in flight when on_silence took the slave offline: the first probe waits
+            # as it would have after this failure (its wire time keeps the share)
+            h.silenced = None
+            h.probe_due = max(h.probe_due, now + max(self.backoff, busy * (1 / self.share - 1)))
+        elif h.offline:
             h.probing = False
             floor = busy * (1 / self.share - 1)
             h.backoff = min(self.max_backoff, max(self.backoff, 2 * h.backoff))
             h.probe_due = now + max(h.backoff, floor)
         elif h.failures >= self.offline_after:
-            h.offline = True
-            st.online = False
-            h.backoff = self.backoff
-            h.probe_due = now + max(self.backoff, busy * (1 / self.share - 1))
-            if self._confirm == req.slave:
-                self._confirm = None
-            for task in self._tasks:
-                if task.block.slave == req.slave:
-                    task.suspended = True
-            events.append(SlaveState(self.bus, req.slave, False, now + self.stamp_offset))
+            events.append(self._offline(req.slave, h, st, busy, now))
         else:
             self._requeue(req)
             self._confirm = req.slave
         self._check_load(now, events)
         return events
+
+    def _offline(self, slave: int, h: _Health, st: SlaveStats, busy: float, now: float) -> Event:
+        h.offline = True
+        h.silent_from = None
+        st.online = False
+        h.backoff = self.backoff
+        h.probe_due = now + max(self.backoff, busy * (1 / self.share - 1))
+        self._confirm = None if self._confirm == slave else self._confirm
+        for task in self._tasks:
+            task.suspended = task.suspended or task.block.slave == slave
+        return SlaveState(self.bus, slave, False, now + self.stamp_offset)
+
+    def offline_due(self, req: Request) -> float | None:
+        """When ``req``'s slave goes offline if ``req`` is still unanswered (then the
+        driver calls `on_silence`): ``offline_after`` x ``timeout`` after the end of
+        the first of ``offline_after`` requests in a row (no other transaction
+        between) to a silent slave; None if ``req`` is not such a last request."""
+        h = self._health.get(req.slave)
+        if (h is None or h.offline or h.silent_from is None or self.timeout is None
+                or h.failures < self.offline_after - 1 or h.last_fail != self._ended):  # fmt: skip
+            return None
+        return h.silent_from + self.offline_after * self.timeout
+
+    def on_silence(self, req: Request, now: float) -> list[Event]:
+        """``req`` is unanswered at its `offline_due`: its slave goes offline now; its
+        outcome is still to come (an answer brings the slave back at once)."""
+        h, due = self._health.get(req.slave), self.offline_due(req)
+        if h is None or due is None or now < due:
+            return []
+        h.silenced = req
+        return [self._offline(req.slave, h, self._stats.slaves[req.slave], 0.0, now)]
 
     def on_port_failure(self, req: Request) -> None:
         """The port failed during ``req`` (a drop unplugged, a TCP connection lost):
@@ -471,8 +469,10 @@ class BusScheduler:
         failure towards ``offline_after``).  A poll block keeps its place in the
         schedule and a probe is due again; a write or read is the driver's to fail.
         The same for a transaction abandoned (the driver stopped during it)."""
+        h = self._health.get(req.slave)
+        if h is not None and req is h.silenced:
+            h.silenced = None
         if req.kind == PROBE:
-            h = self._health.get(req.slave)
             if h is not None:
                 h.probing = False
         elif req.kind == POLL:
