@@ -297,6 +297,26 @@ class _Blocks:
         return self._blocks[b][0][i - self._starts[b]]
 
 
+def _collect_events(
+    ctype: str, cap: int, parse: Callable[[Any, int, Any], int], what: str
+) -> list[tuple[Any, int]]:
+    """Run a C parser call ``parse(out, cap, n_out)`` into arrays of ``ctype`` until it
+    returns RTU_OK, doubling the array (up to 4 Mi entries) while it says RTU_ENOSPC;
+    the filled blocks ``(array, count)`` in order."""
+    blocks: list[tuple[Any, int]] = []
+    n_out = ffi.new("size_t *")
+    while True:
+        out = ffi.new(ctype, cap)
+        status = parse(out, cap, n_out)
+        if n_out[0]:
+            blocks.append((out, int(n_out[0])))
+        if status == lib.RTU_OK:
+            return blocks
+        if status != lib.RTU_ENOSPC:
+            raise ValueError(f"{what} failed with status {status}")
+        cap = min(cap * 2, 1 << 22)
+
+
 class CFrameList(FrameList):
     """Entries live in C arrays (blocks of rtu_event); frames are built on access."""
 
@@ -336,12 +356,10 @@ def _parse(
     parser = ffi.new("rtu_parser *")
     if lib.rtu_parser_init(parser, cfg) != lib.RTU_OK:
         raise ValueError(f"parse_stream: the C core refuses the configuration {options}")
-    blocks: list[tuple[Any, int]] = []
-    cap = max(64, len(data) // 8)
-    n_out = ffi.new("size_t *")
-    while True:
-        out = ffi.new("rtu_event[]", cap)
-        status = lib.rtu_parse(
+    blocks = _collect_events(
+        "rtu_event[]",
+        max(64, len(data) // 8),
+        lambda out, cap, n_out: lib.rtu_parse(
             parser,
             data,
             len(data),
@@ -353,14 +371,9 @@ def _parse(
             out,
             cap,
             n_out,
-        )
-        if n_out[0]:
-            blocks.append((out, int(n_out[0])))
-        if status == lib.RTU_OK:
-            break
-        if status != lib.RTU_ENOSPC:
-            raise ValueError(f"parse_stream: rtu_parse failed with status {status}")
-        cap = min(cap * 2, 1 << 22)
+        ),
+        "parse_stream: rtu_parse",
+    )
     c = parser.counters
     counters = counters_dict(list(c.frames), list(c.discarded), int(c.discard_events))
     return CFrameList(data, blocks, counters)
@@ -457,20 +470,13 @@ def _parse_tcp(role: int, data: bytes) -> CMbapFrameList:
     parser = ffi.new("rtu_mbap_parser *")
     if lib.rtu_mbap_parser_init(parser, role) != lib.RTU_OK:
         raise ValueError(f"parse_tcp_stream: cannot initialise the parser for role {role}")
-    blocks: list[tuple[Any, int]] = []
-    # An ADU is 8..260 bytes: len // 8 + 1 entries always suffice; start smaller.
-    cap = max(64, len(data) // 64)
-    n_out = ffi.new("size_t *")
-    while True:
-        out = ffi.new("rtu_mbap_event[]", cap)
-        status = lib.rtu_mbap_parse(parser, data, len(data), out, cap, n_out)
-        if n_out[0]:
-            blocks.append((out, int(n_out[0])))
-        if status == lib.RTU_OK:
-            break
-        if status != lib.RTU_ENOSPC:
-            raise ValueError(f"parse_tcp_stream: rtu_mbap_parse failed with status {status}")
-        cap = min(cap * 2, 1 << 22)
+    blocks = _collect_events(
+        "rtu_mbap_event[]",
+        # An ADU is 8..260 bytes: len // 8 + 1 entries always suffice; start smaller.
+        max(64, len(data) // 64),
+        lambda out, cap, n_out: lib.rtu_mbap_parse(parser, data, len(data), out, cap, n_out),
+        "parse_tcp_stream: rtu_mbap_parse",
+    )
     c = parser.counters
     counters = mbap_counters_dict(list(c.frames), list(c.discarded), int(c.discard_events))
     return CMbapFrameList(data, blocks, counters)
