@@ -367,9 +367,8 @@ class WegSimulator(DriveSimulator):
         return weg.decode_status(self.get(weg.P_STATUS), self.model.name)
 
     def speed_hz(self) -> float:
-        with self.lock:
-            self.update()
-            return self.motor.frequency
+        """The motor's speed now, in Hz (the drive profile's name; `frequency_hz` too)."""
+        return self.frequency_hz()
 
     # -- the slave ------------------------------------------------------------------------
 
