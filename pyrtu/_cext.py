@@ -24,7 +24,7 @@ from ._framing import (
     make_parse_stream,
 )
 from ._rtu_core import ffi, lib
-from ._types import BytesLike
+from ._types import BytesLike, crc_seed
 from .config import CoreOptions, flush_us_for
 from .frames import FrameList
 from .timing import Timing
@@ -68,14 +68,6 @@ def _buffer(data: BytesLike, name: str) -> Any:
         return ffi.from_buffer("uint8_t[]", memoryview(data).tobytes())
 
 
-def _seed(crc: int) -> int:
-    if isinstance(crc, bool) or not isinstance(crc, int):
-        raise TypeError(f"crc must be an integer 0..0xFFFF, not {type(crc).__name__}")
-    if not 0 <= crc <= 0xFFFF:
-        raise ValueError(f"crc must be an integer 0..0xFFFF, not {crc!r}")
-    return crc
-
-
 _crc16_bytes = lib.rtu_crc16_bytes
 _crc16 = lib.rtu_crc16
 
@@ -90,7 +82,7 @@ def _cffi_crc16(data: BytesLike, crc: int = 0xFFFF) -> int:
         except (TypeError, OverflowError):
             pass
     buf = _buffer(data, "data")
-    return int(lib.rtu_crc16(buf, len(buf), _seed(crc)))
+    return int(lib.rtu_crc16(buf, len(buf), crc_seed(crc)))
 
 
 def _cffi_add_crc(data: BytesLike) -> bytes:
@@ -147,7 +139,7 @@ def crc16_path(path: str, data: BytesLike, crc: int = 0xFFFF) -> int:
         raise ValueError(f"crc16_path: unknown path {path!r} (known: {', '.join(_PATHS)})")
     buf = _buffer(data, "data")
     out = ffi.new("uint16_t *")
-    status = lib.rtu_crc16_path(_PATHS[path], buf, len(buf), _seed(crc), out)
+    status = lib.rtu_crc16_path(_PATHS[path], buf, len(buf), crc_seed(crc), out)
     if status == lib.RTU_EUNSUPPORTED:
         raise ValueError(f"crc16_path: this CPU cannot run the {path!r} path")
     if status != lib.RTU_OK:
