@@ -24,7 +24,7 @@ from ._framing import (
     make_parse_stream,
 )
 from ._rtu_core import ffi, lib
-from ._types import BytesLike
+from ._types import BytesLike, crc_seed
 from .config import CoreOptions, flush_us_for
 from .frames import FrameList
 from .timing import Timing
@@ -68,14 +68,6 @@ def _buffer(data: BytesLike, name: str) -> Any:
         return ffi.from_buffer("uint8_t[]", memoryview(data).tobytes())
 
 
-def _seed(crc: int) -> int:
-    if isinstance(crc, bool) or not isinstance(crc, int):
-        raise TypeError(f"crc must be an integer 0..0xFFFF, not {type(crc).__name__}")
-    if not 0 <= crc <= 0xFFFF:
-        raise ValueError(f"crc must be an integer 0..0xFFFF, not {crc!r}")
-    return crc
-
-
 _crc16_bytes = lib.rtu_crc16_bytes
 _crc16 = lib.rtu_crc16
 
@@ -90,7 +82,7 @@ def _cffi_crc16(data: BytesLike, crc: int = 0xFFFF) -> int:
         except (TypeError, OverflowError):
             pass
     buf = _buffer(data, "data")
-    return int(lib.rtu_crc16(buf, len(buf), _seed(crc)))
+    return int(lib.rtu_crc16(buf, len(buf), crc_seed(crc)))
 
 
 def _cffi_add_crc(data: BytesLike) -> bytes:
@@ -147,7 +139,7 @@ def crc16_path(path: str, data: BytesLike, crc: int = 0xFFFF) -> int:
         raise ValueError(f"crc16_path: unknown path {path!r} (known: {', '.join(_PATHS)})")
     buf = _buffer(data, "data")
     out = ffi.new("uint16_t *")
-    status = lib.rtu_crc16_path(_PATHS[path], buf, len(buf), _seed(crc), out)
+    status = lib.rtu_crc16_path(_PATHS[path], buf, len(buf), crc_seed(crc), out)
     if status == lib.RTU_EUNSUPPORTED:
         raise ValueError(f"crc16_path: this CPU cannot run the {path!r} path")
     if status != lib.RTU_OK:
@@ -297,6 +289,26 @@ class _Blocks:
         return self._blocks[b][0][i - self._starts[b]]
 
 
+def _collect_events(
+    ctype: str, cap: int, parse: Callable[[Any, int, Any], int], what: str
+) -> list[tuple[Any, int]]:
+    """Run a C parser call ``parse(out, cap, n_out)`` into arrays of ``ctype`` until it
+    returns RTU_OK, doubling the array (up to 4 Mi entries) while it says RTU_ENOSPC;
+    the filled blocks ``(array, count)`` in order."""
+    blocks: list[tuple[Any, int]] = []
+    n_out = ffi.new("size_t *")
+    while True:
+        out = ffi.new(ctype, cap)
+        status = parse(out, cap, n_out)
+        if n_out[0]:
+            blocks.append((out, int(n_out[0])))
+        if status == lib.RTU_OK:
+            return blocks
+        if status != lib.RTU_ENOSPC:
+            raise ValueError(f"{what} failed with status {status}")
+        cap = min(cap * 2, 1 << 22)
+
+
 class CFrameList(FrameList):
     """Entries live in C arrays (blocks of rtu_event); frames are built on access."""
 
@@ -336,12 +348,10 @@ def _parse(
     parser = ffi.new("rtu_parser *")
     if lib.rtu_parser_init(parser, cfg) != lib.RTU_OK:
         raise ValueError(f"parse_stream: the C core refuses the configuration {options}")
-    blocks: list[tuple[Any, int]] = []
-    cap = max(64, len(data) // 8)
-    n_out = ffi.new("size_t *")
-    while True:
-        out = ffi.new("rtu_event[]", cap)
-        status = lib.rtu_parse(
+    blocks = _collect_events(
+        "rtu_event[]",
+        max(64, len(data) // 8),
+        lambda out, cap, n_out: lib.rtu_parse(
             parser,
             data,
             len(data),
@@ -353,14 +363,9 @@ def _parse(
             out,
             cap,
             n_out,
-        )
-        if n_out[0]:
-            blocks.append((out, int(n_out[0])))
-        if status == lib.RTU_OK:
-            break
-        if status != lib.RTU_ENOSPC:
-            raise ValueError(f"parse_stream: rtu_parse failed with status {status}")
-        cap = min(cap * 2, 1 << 22)
+        ),
+        "parse_stream: rtu_parse",
+    )
     c = parser.counters
     counters = counters_dict(list(c.frames), list(c.discarded), int(c.discard_events))
     return CFrameList(data, blocks, counters)
@@ -457,20 +462,13 @@ def _parse_tcp(role: int, data: bytes) -> CMbapFrameList:
     parser = ffi.new("rtu_mbap_parser *")
     if lib.rtu_mbap_parser_init(parser, role) != lib.RTU_OK:
         raise ValueError(f"parse_tcp_stream: cannot initialise the parser for role {role}")
-    blocks: list[tuple[Any, int]] = []
-    # An ADU is 8..260 bytes: len // 8 + 1 entries always suffice; start smaller.
-    cap = max(64, len(data) // 64)
-    n_out = ffi.new("size_t *")
-    while True:
-        out = ffi.new("rtu_mbap_event[]", cap)
-        status = lib.rtu_mbap_parse(parser, data, len(data), out, cap, n_out)
-        if n_out[0]:
-            blocks.append((out, int(n_out[0])))
-        if status == lib.RTU_OK:
-            break
-        if status != lib.RTU_ENOSPC:
-            raise ValueError(f"parse_tcp_stream: rtu_mbap_parse failed with status {status}")
-        cap = min(cap * 2, 1 << 22)
+    blocks = _collect_events(
+        "rtu_mbap_event[]",
+        # An ADU is 8..260 bytes: len // 8 + 1 entries always suffice; start smaller.
+        max(64, len(data) // 64),
+        lambda out, cap, n_out: lib.rtu_mbap_parse(parser, data, len(data), out, cap, n_out),
+        "parse_tcp_stream: rtu_mbap_parse",
+    )
     c = parser.counters
     counters = mbap_counters_dict(list(c.frames), list(c.discarded), int(c.discard_events))
     return CMbapFrameList(data, blocks, counters)

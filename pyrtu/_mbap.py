@@ -13,15 +13,15 @@ from __future__ import annotations
 
 import enum
 from collections import deque
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Protocol, overload
+from typing import Protocol
 
 from ._feed import feed_all
 from ._framing import EventQueue, as_bytes
 from ._types import BytesLike
 from .config import ROLES
-from .frames import FrameKind
+from .frames import FrameKind, LazyFrames
 
 HEADER_LEN = 7
 MIN_LENGTH = 2  # unit id + a PDU of at least the function code
@@ -235,7 +235,7 @@ class MbapFramerBase(EventQueue[MbapFrame]):
         return mbap_counters_dict(*self._core.counts())
 
 
-class MbapFrameList(Sequence[MbapFrame]):
+class MbapFrameList(LazyFrames[MbapFrame]):
     """A lazy sequence of the ADUs and discard events of a Modbus TCP capture.
 
     Backed by compact arrays (offset, length, kind, error per entry); ``len()`` is
@@ -244,13 +244,13 @@ class MbapFrameList(Sequence[MbapFrame]):
     """
 
     counters: dict[str, int]
+    _data: bytes
 
     def __init__(self, data: bytes, count: int) -> None:
-        self._data = data
-        self._count = count
+        super().__init__(data, count)
 
-    def __len__(self) -> int:
-        return self._count
+    def _name(self) -> str:
+        return MbapFrameList.__name__
 
     def _entry(self, i: int) -> tuple[int, int, int, int]:
         raise NotImplementedError
@@ -263,34 +263,6 @@ class MbapFrameList(Sequence[MbapFrame]):
             offset=offset,
             error=MBAP_ERROR_BY_CODE[error],
         )
-
-    @overload
-    def __getitem__(self, i: int) -> MbapFrame: ...
-    @overload
-    def __getitem__(self, i: slice) -> list[MbapFrame]: ...
-    def __getitem__(self, i: int | slice) -> MbapFrame | list[MbapFrame]:
-        if isinstance(i, slice):
-            return [self._make(j) for j in range(*i.indices(self._count))]
-        if i < 0:
-            i += self._count
-        if not 0 <= i < self._count:
-            raise IndexError(f"MbapFrameList index {i} out of range ({self._count} entries)")
-        return self._make(i)
-
-    def __iter__(self) -> Iterator[MbapFrame]:
-        for i in range(self._count):
-            yield self._make(i)
-
-    def frames(self) -> Iterator[MbapFrame]:
-        """The ADUs only (no discard events)."""
-        return (f for f in self if f.error is None)
-
-    def errors(self) -> Iterator[MbapFrame]:
-        """The discard events only."""
-        return (f for f in self if f.error is not None)
-
-    def __repr__(self) -> str:
-        return f"<MbapFrameList of {self._count} entries>"
 
 
 def make_parse_tcp_stream(

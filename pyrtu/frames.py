@@ -6,7 +6,7 @@ import enum
 import operator
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
-from typing import overload
+from typing import Protocol, TypeVar, overload
 
 
 class FrameKind(enum.IntEnum):
@@ -143,13 +143,20 @@ def event_counters_template() -> dict[str, int]:
     return dict.fromkeys(keys, 0)
 
 
-class FrameList(Sequence[Frame]):
-    """A lazy sequence of the frames parse_stream found.
+class _HasError(Protocol):
+    @property
+    def error(self) -> object: ...
 
-    Backed by compact arrays (offset, length, kind, error, start, end per
-    entry); ``len()`` is immediate and Frame objects are built only when an
-    item is read.  Subclasses provide ``_entry(i)``.
-    """
+
+F = TypeVar("F", bound=_HasError)
+
+
+class LazyFrames(Sequence[F]):
+    """A lazy sequence of frames and discard events over a capture's bytes: ``len()``
+    is immediate and an item is built (``_make(i)``) only when it is read.  The base of
+    `FrameList` (RTU/ASCII) and `pyrtu.MbapFrameList` (Modbus TCP)."""
+
+    _data: bytes | memoryview
 
     def __init__(self, data: bytes | memoryview, count: int) -> None:
         self._data = data
@@ -157,6 +164,59 @@ class FrameList(Sequence[Frame]):
 
     def __len__(self) -> int:
         return self._count
+
+    def _make(self, i: int) -> F:
+        raise NotImplementedError
+
+    def _name(self) -> str:
+        """The public class's name, for messages (not the backend's subclass)."""
+        return LazyFrames.__name__
+
+    @overload
+    def __getitem__(self, i: int) -> F: ...
+    @overload
+    def __getitem__(self, i: slice) -> list[F]: ...
+    def __getitem__(self, i: int | slice) -> F | list[F]:
+        if isinstance(i, slice):
+            return [self._make(j) for j in range(*i.indices(self._count))]
+        try:
+            i = operator.index(i)
+        except TypeError:
+            raise TypeError(
+                f"{self._name()} indices must be integers or slices, not {type(i).__name__}"
+            ) from None
+        if i < 0:
+            i += self._count
+        if not 0 <= i < self._count:
+            raise IndexError(f"{self._name()} index {i} out of range ({self._count} entries)")
+        return self._make(i)
+
+    def __iter__(self) -> Iterator[F]:
+        for i in range(self._count):
+            yield self._make(i)
+
+    def frames(self) -> Iterator[F]:
+        """The good frames only (no discard events)."""
+        return (f for f in self if f.error is None)
+
+    def errors(self) -> Iterator[F]:
+        """The discard events only."""
+        return (f for f in self if f.error is not None)
+
+    def __repr__(self) -> str:
+        return f"<{self._name()} of {self._count} entries>"
+
+
+class FrameList(LazyFrames[Frame]):
+    """A lazy sequence of the frames parse_stream found.
+
+    Backed by compact arrays (offset, length, kind, error, start, end per
+    entry); ``len()`` is immediate and Frame objects are built only when an
+    item is read.  Subclasses provide ``_entry(i)``.
+    """
+
+    def _name(self) -> str:
+        return FrameList.__name__
 
     def _entry(self, i: int) -> tuple[int, int, int, int, int | None, int | None]:
         raise NotImplementedError
@@ -171,37 +231,3 @@ class FrameList(Sequence[Frame]):
             None if end is None else end / 1e6,
             error,
         )
-
-    @overload
-    def __getitem__(self, i: int) -> Frame: ...
-    @overload
-    def __getitem__(self, i: slice) -> list[Frame]: ...
-    def __getitem__(self, i: int | slice) -> Frame | list[Frame]:
-        if isinstance(i, slice):
-            return [self._make(j) for j in range(*i.indices(self._count))]
-        try:
-            i = operator.index(i)
-        except TypeError:
-            raise TypeError(
-                f"FrameList indices must be integers or slices, not {type(i).__name__}"
-            ) from None
-        if i < 0:
-            i += self._count
-        if not 0 <= i < self._count:
-            raise IndexError(f"FrameList index {i} out of range ({self._count} entries)")
-        return self._make(i)
-
-    def __iter__(self) -> Iterator[Frame]:
-        for i in range(self._count):
-            yield self._make(i)
-
-    def frames(self) -> Iterator[Frame]:
-        """The good frames only (no discard events)."""
-        return (f for f in self if f.error is None)
-
-    def errors(self) -> Iterator[Frame]:
-        """The discard events only."""
-        return (f for f in self if f.error is not None)
-
-    def __repr__(self) -> str:
-        return f"<FrameList of {self._count} entries>"

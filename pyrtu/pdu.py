@@ -13,7 +13,8 @@ defined in `pyrtu._pdu_base` and re-exported here under the same names.
 from __future__ import annotations
 
 import struct
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
+from typing import Any
 
 from ._pdu_base import (
     _BHH,
@@ -253,21 +254,27 @@ def fifo_request(address: int) -> bytes:
     return bytes((READ_FIFO_QUEUE,)) + address.to_bytes(2, "big")
 
 
+def _file_items(where: str, items: object, third: str) -> Iterator[tuple[int, Any, Any, Any]]:
+    """``(i, file, record, third)`` of each FC 20/21 sub-request, its file number
+    (1..65535) and record number (0..9999) checked; the third field is the caller's."""
+    shape = f"(file, record, {third})"
+    for i, item in enumerate(_sequence(where, items, shape, "items")):
+        if not isinstance(item, tuple | list):
+            raise ArgumentTypeError(f"{where}: item {i} must be {shape}, not {item!r}")
+        if len(item) != 3:
+            raise ValueError(f"{where}: item {i} must be {shape}, not {item!r}")
+        file, record, value = item
+        _int(where, f"item {i} file", file, 1, 0xFFFF)
+        _int(where, f"item {i} record", record, 0, MAX_RECORD)
+        yield i, file, record, value
+
+
 def read_file_request(items: Iterable[tuple[int, int, int]]) -> bytes:
     """FC 20: ``[(file, record, length), ...]``; the answer must fit one PDU."""
     where = "read_file_record"
     body = bytearray()
     answer = 0
-    for i, item in enumerate(_sequence(where, items, "(file, record, length)", "items")):
-        if not isinstance(item, tuple | list):
-            raise ArgumentTypeError(
-                f"{where}: item {i} must be (file, record, length), not {item!r}"
-            )
-        if len(item) != 3:
-            raise ValueError(f"{where}: item {i} must be (file, record, length), not {item!r}")
-        file, record, length = item
-        _int(where, f"item {i} file", file, 1, 0xFFFF)
-        _int(where, f"item {i} record", record, 0, MAX_RECORD)
+    for i, file, record, length in _file_items(where, items, "length"):
         _int(where, f"item {i} length", length, 1, (MAX_FILE_BYTES - 2) // 2)
         body += struct.pack(">BHHH", FILE_REFERENCE_TYPE, file, record, length)
         answer += 2 + 2 * length
@@ -284,16 +291,7 @@ def write_file_request(items: Iterable[tuple[int, int, Sequence[int]]]) -> bytes
     """FC 21: ``[(file, record, values), ...]``."""
     where = "write_file_record"
     body = bytearray()
-    for i, item in enumerate(_sequence(where, items, "(file, record, values)", "items")):
-        if not isinstance(item, tuple | list):
-            raise ArgumentTypeError(
-                f"{where}: item {i} must be (file, record, values), not {item!r}"
-            )
-        if len(item) != 3:
-            raise ValueError(f"{where}: item {i} must be (file, record, values), not {item!r}")
-        file, record, values = item
-        _int(where, f"item {i} file", file, 1, 0xFFFF)
-        _int(where, f"item {i} record", record, 0, MAX_RECORD)
+    for _, file, record, values in _file_items(where, items, "values"):
         words = check_words(where, values, (MAX_FILE_BYTES - 7) // 2)
         body += struct.pack(">BHHH", FILE_REFERENCE_TYPE, file, record, len(words))
         body += _pack_words(words)

@@ -178,12 +178,7 @@ class Port:
         if fd is None:
             self._write_generic(data)
         else:
-            try:
-                n = os.write(fd, data)
-            except BlockingIOError:
-                n = 0
-            except OSError as exc:
-                raise PortError(self.name, f"write failed: {exc}") from exc
+            n = self._write_some(fd, data)
             if n < len(data):
                 self._write_rest(
                     fd, memoryview(data)[n:], start + 1.0 + len(data) * self.char_time * 2
@@ -205,13 +200,16 @@ class Port:
             if left <= 0:
                 raise PortError(self.name, f"write timed out with {len(view)} bytes unsent")
             select.select((), (fd,), (), left)
-            try:
-                n = os.write(fd, view)
-            except BlockingIOError:
-                n = 0
-            except OSError as exc:
-                raise PortError(self.name, f"write failed: {exc}") from exc
-            view = view[n:]
+            view = view[self._write_some(fd, view) :]
+
+    def _write_some(self, fd: int, data: bytes | memoryview) -> int:
+        """One non-blocking write: the bytes written (0 when the buffer is full)."""
+        try:
+            return os.write(fd, data)
+        except BlockingIOError:
+            return 0
+        except OSError as exc:
+            raise PortError(self.name, f"write failed: {exc}") from exc
 
     def _write_generic(self, data: bytes) -> None:
         try:

@@ -247,6 +247,24 @@ def test_capture_is_lazy_and_grows_in_blocks(backend: ModuleType) -> None:
     assert len(backend.parse_tcp_stream(b"")) == 0
 
 
+def test_capture_index_is_checked_as_a_frame_list_is(backend: ModuleType) -> None:
+    # MbapFrameList and FrameList share their sequence part (frames.LazyFrames): a
+    # non-integer index is a TypeError naming the list, an index out of range an
+    # IndexError naming it, a numpy-style integer (__index__) an index
+    result = backend.parse_tcp_stream(bytes.fromhex("0001 0000 0002 01 07") * 3, "slave")
+    with pytest.raises(TypeError, match="MbapFrameList indices must be integers or slices"):
+        result["1"]
+    with pytest.raises(IndexError, match=r"MbapFrameList index 3 out of range \(3 entries\)"):
+        result[3]
+
+    class Two:
+        def __index__(self) -> int:
+            return 2
+
+    assert result[Two()].offset == 16
+    assert repr(result) == "<MbapFrameList of 3 entries>"
+
+
 def test_framer_and_parser_agree(backend: ModuleType) -> None:
     data = stream_of(backend, 25) + bytes.fromhex("0001 0000 0100")
     f = backend.MbapFramer("monitor")

@@ -5,7 +5,6 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 
 from .._framing import (
-    Event,
     FramerBase,
     check_core_limits,
     counters_dict,
@@ -66,41 +65,23 @@ def request_predictor(options: CoreOptions) -> Callable[[bytes], tuple[int, int]
     return request_length
 
 
-class _Core:
+class _Core(CoreFramer):
+    """The twin's framer with the rest of the core interface: feed, poll, sent,
+    reset, handle_timer, deadline and needed are `CoreFramer`'s own."""
+
     def __init__(self, options: CoreOptions) -> None:
-        self.f = CoreFramer(_config(options))
-
-    def feed(self, data: bytes, now_us: int) -> int:
-        return self.f.feed(data, now_us)
-
-    def poll(self) -> Event | None:
-        return self.f.poll()
+        super().__init__(_config(options))
 
     def take(self) -> tuple[int, int, bytes] | None:
-        ev = self.f.poll()
+        ev = self.poll()
         return None if ev is None else (ev[3], ev[5], ev[6])
 
     def expect(self, adu: bytes) -> None:
-        self.f.reset()
-        self.f.sent(adu)
-
-    def handle_timer(self, now_us: int) -> None:
-        self.f.handle_timer(now_us)
-
-    def deadline(self) -> int | None:
-        return self.f.deadline()
-
-    def sent(self, adu: bytes) -> None:
-        self.f.sent(adu)
-
-    def reset(self) -> None:
-        self.f.reset()
-
-    def needed(self) -> int:
-        return self.f.needed()
+        self.reset()
+        self.sent(adu)
 
     def counts(self) -> tuple[Sequence[int], Sequence[int], int]:
-        return self.f.frames, self.f.discarded, self.f.discard_events
+        return self.frames, self.discarded, self.discard_events
 
 
 class Framer(FramerBase):

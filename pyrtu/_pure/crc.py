@@ -7,6 +7,7 @@ Serial Line V1.02, 6.2.2), generated from the reflected polynomial 0xA001.
 from __future__ import annotations
 
 from .._types import BytesLike as Buffer
+from .._types import crc_seed
 
 
 def _make_tables() -> tuple[bytes, bytes]:
@@ -36,18 +37,10 @@ def _as_bytes(data: Buffer, name: str = "data") -> memoryview:
     return view.cast("B") if view.format != "B" or view.ndim != 1 else view
 
 
-def _check_seed(crc: int) -> int:
-    if isinstance(crc, bool) or not isinstance(crc, int):
-        raise TypeError(f"crc must be an integer 0..0xFFFF, not {type(crc).__name__}")
-    if not 0 <= crc <= 0xFFFF:
-        raise ValueError(f"crc must be an integer 0..0xFFFF, not {crc!r}")
-    return crc
-
-
 def crc16(data: Buffer, crc: int = 0xFFFF) -> int:
     """CRC-16/MODBUS of ``data``, continuing from ``crc`` (0xFFFF to start)."""
     view = _as_bytes(data)
-    crc = _check_seed(crc)
+    crc = crc_seed(crc)
     table = _TABLE16
     for byte in view.tobytes():
         crc = (crc >> 8) ^ table[(crc ^ byte) & 0xFF]

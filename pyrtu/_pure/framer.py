@@ -17,7 +17,7 @@ from .head import (
     MARK_T35,
     ROLE_MASTER,
     Config,
-    Context,
+    CoreState,
     View,
     head_needed,
     sat_add,
@@ -34,13 +34,9 @@ FRAMER_CAP = 2 * 1024
 Event = tuple[int, int, int, int, int, int, bytes]
 
 
-class CoreFramer:
+class CoreFramer(CoreState):
     def __init__(self, cfg: Config) -> None:
-        self.cfg = cfg
-        self.ctx = Context()
-        self.frames = [0, 0, 0, 0]
-        self.discarded = [0] * 6
-        self.discard_events = 0
+        super().__init__(cfg)
         self.buf = bytearray()
         self.times: list[int] = []
         self.marks: list[tuple[int, int]] = []

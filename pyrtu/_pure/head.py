@@ -8,6 +8,7 @@ discard one byte so the caller slides to the next frame start.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 from ..rules import RULE_COUNT, RULE_NONE
@@ -78,6 +79,19 @@ class Context:
             self.pending = False
 
 
+class CoreState:
+    """What the framer and the parser both keep: the configuration, the request
+    context and the counters of rtu_counters (frames by kind, discarded bytes by
+    error, discard runs)."""
+
+    def __init__(self, cfg: Config) -> None:
+        self.cfg = cfg
+        self.ctx = Context()
+        self.frames = [0, 0, 0, 0]
+        self.discarded = [0] * 6
+        self.discard_events = 0
+
+
 @dataclass
 class View:
     data: bytes  # the window, starting at the head byte
@@ -138,6 +152,19 @@ def _check(cfg: Config, v: View, length: int) -> int:
     return 0
 
 
+def _later_heads(v: View, n: int) -> Iterator[tuple[int, View]]:
+    """``(rel, view)`` for each t3.5 boundary inside the first ``n`` bytes of ``v``
+    (not at its start), in order: where a later frame could begin."""
+    for i in range(v.mi, len(v.marks)):
+        pos, flags = v.marks[i]
+        rel = pos - v.base
+        if rel >= n:
+            break
+        if rel == 0 or not flags & MARK_T35:
+            continue
+        yield rel, View(v.data[rel:], pos, v.marks, i + 1, v.silent_end, v.closed, v.timed)
+
+
 def try_head(cfg: Config, ctx: Context, v: View, allow_skip: bool) -> tuple[int, int, int]:
     """(ACT_*, length, kind-or-error)."""
     d = v.data
@@ -188,14 +215,7 @@ def try_head(cfg: Config, ctx: Context, v: View, allow_skip: bool) -> tuple[int,
 
     if not v.closed and (can_wait or (v.timed and not v.silent_end and n < cfg.max_adu)):
         if allow_skip:
-            for i in range(v.mi, len(v.marks)):
-                pos, flags = v.marks[i]
-                rel = pos - v.base
-                if rel >= n:
-                    break
-                if rel == 0 or not flags & MARK_T35:
-                    continue
-                sub = View(d[rel:], pos, v.marks, i + 1, v.silent_end, v.closed, v.timed)
+            for rel, sub in _later_heads(v, n):
                 if try_head(cfg, ctx, sub, False)[0] == ACT_FRAME:
                     return ACT_DISCARD, rel, ERR_TRUNCATED
         return ACT_WAIT, 0, 0
@@ -245,14 +265,7 @@ def head_needed(cfg: Config, ctx: Context, v: View) -> int:
             if n < length <= cfg.max_adu and (least == 0 or length < least):
                 least = length
     need = least - n if least > n else 0
-    for i in range(v.mi, len(v.marks)):
-        pos, flags = v.marks[i]
-        rel = pos - v.base
-        if rel >= n:
-            break
-        if rel == 0 or not flags & MARK_T35:
-            continue
-        sub = View(d[rel:], pos, v.marks, i + 1, v.silent_end, v.closed, v.timed)
+    for _, sub in _later_heads(v, n):
         s = head_needed(cfg, ctx, sub)
         if s and (need == 0 or s < need):
             need = s

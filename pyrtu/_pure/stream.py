@@ -8,7 +8,7 @@ from .head import (
     MARK_T15,
     MARK_T35,
     Config,
-    Context,
+    CoreState,
     View,
     sat_mul,
     sat_sub,
@@ -50,13 +50,9 @@ def marks_from_chunks(
     return marks
 
 
-class CoreParser:
+class CoreParser(CoreState):
     def __init__(self, cfg: Config) -> None:
-        self.cfg = cfg
-        self.ctx = Context()
-        self.frames = [0, 0, 0, 0]
-        self.discarded = [0] * 6
-        self.discard_events = 0
+        super().__init__(cfg)
 
     def parse(self, data: bytes, offsets: list[int], times: list[int]) -> list[Entry]:
         cfg = self.cfg

@@ -240,6 +240,11 @@ def slave_address(text: str) -> int:
     return value
 
 
+def add_slave_option(p: argparse.ArgumentParser, help: str = "slave address (default 1)") -> None:
+    """``-a/--slave`` (0..247, default 1), shared by the commands that address one slave."""
+    p.add_argument("-a", "--slave", type=slave_address, default=1, metavar="N", help=help)
+
+
 # -- the serial options -----------------------------------------------------------------
 
 

@@ -17,12 +17,12 @@ from .common import (
     CommandSpec,
     add_json_option,
     add_serial_options,
+    add_slave_option,
     emit,
     exit_code_table,
     guarded,
     object_id,
     open_master,
-    slave_address,
 )
 from .io import DEVICES
 
@@ -54,14 +54,7 @@ def profile_identify(master: Any, device: str, slave: int) -> dict[str, str]:
 
 def _configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("port", metavar="PORT", help="serial device or pyserial URL")
-    p.add_argument(
-        "-a",
-        "--slave",
-        type=slave_address,
-        default=1,
-        metavar="N",
-        help="slave address (default 1)",
-    )
+    add_slave_option(p)
     p.add_argument(
         "--level",
         choices=sorted(LEVELS, key=LEVELS.__getitem__),

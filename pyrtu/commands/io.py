@@ -24,6 +24,7 @@ from .common import (
     CommandSpec,
     add_json_option,
     add_serial_options,
+    add_slave_option,
     emit,
     exit_code_table,
     guarded,
@@ -31,7 +32,6 @@ from .common import (
     open_master,
     register_address,
     show_address,
-    slave_address,
 )
 
 if TYPE_CHECKING:
@@ -66,8 +66,10 @@ DEVICES = ("cfw100", "cfw320", "cfw701", "cv100", "act", "acu")
 Value = int | float | str | bool
 
 
-def _add_value_format(p: argparse.ArgumentParser) -> None:
-    """--type and --order, shared by read and write."""
+def _add_item_options(p: argparse.ArgumentParser, slave_help: str, table_help: str) -> None:
+    """-a/--slave, -T/--table, --type and --order, shared by read and write."""
+    add_slave_option(p, slave_help)
+    p.add_argument("-T", "--table", type=table, default="holding", metavar="TABLE", help=table_help)
     p.add_argument(
         "-t", "--type", dest="kind", default="uint16", choices=TYPES, help="(default uint16)"
     )
@@ -259,23 +261,7 @@ def add_read_arguments(p: argparse.ArgumentParser) -> None:
         metavar="COUNT",
         help="how many values (default 1; string: how many registers, default 1)",
     )
-    p.add_argument(
-        "-a",
-        "--slave",
-        type=slave_address,
-        default=1,
-        metavar="N",
-        help="slave address (default 1)",
-    )
-    p.add_argument(
-        "-T",
-        "--table",
-        type=table,
-        default="holding",
-        metavar="TABLE",
-        help="holding (default), input, coils or discrete",
-    )
-    _add_value_format(p)
+    _add_item_options(p, "slave address (default 1)", "holding (default), input, coils or discrete")
     p.add_argument(
         "--profile",
         choices=DEVICES,
@@ -380,23 +366,11 @@ def _configure_write(p: argparse.ArgumentParser) -> None:
         metavar="VALUE",
         help="values of --type (registers) or bits 1/0/on/off (coils); a string is one value",
     )
-    p.add_argument(
-        "-a",
-        "--slave",
-        type=slave_address,
-        default=1,
-        metavar="N",
-        help="slave address (default 1; 0 broadcasts)",
+    _add_item_options(
+        p,
+        "slave address (default 1; 0 broadcasts)",
+        "holding (default) or coils (input registers and discrete inputs are read-only)",
     )
-    p.add_argument(
-        "-T",
-        "--table",
-        type=table,
-        default="holding",
-        metavar="TABLE",
-        help="holding (default) or coils (input registers and discrete inputs are read-only)",
-    )
-    _add_value_format(p)
     p.add_argument(
         "-f",
         "--function",

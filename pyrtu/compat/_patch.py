@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import AbstractContextManager, contextmanager
 from types import ModuleType
 from typing import Any
 
@@ -40,3 +40,23 @@ def patched_block(install: Callable[[], None], uninstall: Callable[[], None]) ->
         yield
     finally:
         uninstall()
+
+
+def crc_adapter_api(
+    patches: Patches, install: Callable[[], None]
+) -> tuple[Callable[[], None], Callable[[], bool], Callable[[], AbstractContextManager[None]]]:
+    """``uninstall``, ``installed`` and ``patched`` of a CRC adapter whose ``install``
+    applies ``patches`` (the three are the same for every such adapter)."""
+
+    def uninstall() -> None:
+        patches.undo()
+
+    def installed() -> bool:
+        return patches.active
+
+    def patched() -> AbstractContextManager[None]:
+        return patched_block(install, uninstall)
+
+    uninstall.__doc__ = f"{patches.name}'s own CRC again."
+    patched.__doc__ = "`install` for a ``with`` block."
+    return uninstall, installed, patched

@@ -13,12 +13,9 @@ versions in ``pyrtu.compat.TESTED``; others are refused.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from contextlib import contextmanager
-
 from .._crcshapes import crc16_bytes
 from ._guard import require
-from ._patch import Patches, patched_block
+from ._patch import Patches, crc_adapter_api
 
 VERSION = require("minimalmodbus")
 
@@ -43,17 +40,4 @@ def install() -> None:
     _patches.apply([(_mm, "_calculate_crc", _calculate_crc)])
 
 
-def uninstall() -> None:
-    """minimalmodbus's own CRC again."""
-    _patches.undo()
-
-
-def installed() -> bool:
-    return _patches.active
-
-
-@contextmanager
-def patched() -> Iterator[None]:
-    """`install` for a ``with`` block."""
-    with patched_block(install, uninstall):
-        yield
+uninstall, installed, patched = crc_adapter_api(_patches, install)

@@ -24,15 +24,13 @@ Tested with the umodbus versions in ``pyrtu.compat.TESTED``; others are refused.
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from typing import Any
 
 from .._backend import active
 from .._crcshapes import crc16_bytes
 from ..frames import FrameKind
 from ._guard import require
-from ._patch import Patches, patched_block
+from ._patch import Patches, crc_adapter_api
 
 VERSION = require("umodbus")
 
@@ -67,20 +65,7 @@ def install() -> None:
     )
 
 
-def uninstall() -> None:
-    """umodbus's own CRC again."""
-    _patches.undo()
-
-
-def installed() -> bool:
-    return _patches.active
-
-
-@contextmanager
-def patched() -> Iterator[None]:
-    """`install` for a ``with`` block."""
-    with patched_block(install, uninstall):
-        yield
+uninstall, installed, patched = crc_adapter_api(_patches, install)
 
 
 class PyrtuRTUServer(_server_rtu.RTUServer):  # type: ignore[misc]

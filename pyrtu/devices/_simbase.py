@@ -93,6 +93,12 @@ class DriveSimulator(ABC):
             t = self.motor.time_to_reference()
             return t if math.isfinite(t) else math.inf
 
+    def frequency_hz(self) -> float:
+        """The motor's output frequency now, in Hz (negative: reverse)."""
+        with self.lock:
+            self.update()
+            return self.motor.frequency
+
     # -- telegrams ------------------------------------------------------------------
 
     def telegram(self, unit: int = 0, pdu: bytes = b"") -> None:

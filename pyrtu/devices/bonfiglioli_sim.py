@@ -387,11 +387,6 @@ class VectronSimulator(DriveSimulator):
             self.update()
             return B.VectronStatus.decode(self.status_word())
 
-    def frequency_hz(self) -> float:
-        with self.lock:
-            self.update()
-            return self.motor.frequency
-
     # -- the slave --------------------------------------------------------------------------------
 
     def slave_options(self) -> dict[str, Any]:
@@ -433,14 +428,7 @@ class VectronSimulator(DriveSimulator):
         return b"\x03\x02" + (int(value) & 0xFFFF).to_bytes(2, "big")
 
     def _fc06(self, slave: Slave, unit: int, pdu: bytes) -> bytes:
-        self._length(pdu, 5)
-        self._call(
-            self.write_parameter,
-            int.from_bytes(pdu[1:3], "big"),
-            int.from_bytes(pdu[3:5], "big"),
-            2,
-        )
-        return pdu
+        return self._write(pdu, 2)
 
     def _fc100(self, slave: Slave, unit: int, pdu: bytes) -> bytes:
         self._length(pdu, 3)
@@ -448,12 +436,16 @@ class VectronSimulator(DriveSimulator):
         return bytes([B.FC_READ_32]) + (int(value) & 0xFFFFFFFF).to_bytes(4, "big")
 
     def _fc101(self, slave: Slave, unit: int, pdu: bytes) -> bytes:
-        self._length(pdu, 7)
+        return self._write(pdu, 4)
+
+    def _write(self, pdu: bytes, width: int) -> bytes:
+        """FC 6 (``width`` 2) or 101 (4): the parameter, then the value; the echo."""
+        self._length(pdu, 3 + width)
         self._call(
             self.write_parameter,
             int.from_bytes(pdu[1:3], "big"),
-            int.from_bytes(pdu[3:7], "big"),
-            4,
+            int.from_bytes(pdu[3 : 3 + width], "big"),
+            width,
         )
         return pdu
 

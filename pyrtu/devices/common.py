@@ -9,30 +9,37 @@ from typing import Protocol
 from ..rules import LengthRule
 
 
+def _unsigned(value: int, bits: int) -> int:
+    """A signed or unsigned ``bits``-wide value as two's complement (ValueError if wider)."""
+    if not -(1 << (bits - 1)) <= value < 1 << bits:
+        raise ValueError(f"{value} does not fit in {bits} bits")
+    return value & ((1 << bits) - 1)
+
+
+def _signed(value: int, bits: int) -> int:
+    """The low ``bits`` of ``value`` read as a signed number."""
+    value &= (1 << bits) - 1
+    return value - (1 << bits) if value >> (bits - 1) else value
+
+
 def u16(value: int) -> int:
     """A signed or unsigned 16-bit value as it goes in a register (0..65535)."""
-    if not -0x8000 <= value <= 0xFFFF:
-        raise ValueError(f"{value} does not fit in 16 bits")
-    return value & 0xFFFF
+    return _unsigned(value, 16)
 
 
 def s16(value: int) -> int:
     """A register value read as a signed 16-bit number."""
-    value &= 0xFFFF
-    return value - 0x10000 if value & 0x8000 else value
+    return _signed(value, 16)
 
 
 def u32(value: int) -> int:
     """A signed or unsigned 32-bit value as two's complement (0..2**32-1)."""
-    if not -0x8000_0000 <= value <= 0xFFFF_FFFF:
-        raise ValueError(f"{value} does not fit in 32 bits")
-    return value & 0xFFFF_FFFF
+    return _unsigned(value, 32)
 
 
 def s32(value: int) -> int:
     """A 32-bit field read as a signed number."""
-    value &= 0xFFFF_FFFF
-    return value - 0x1_0000_0000 if value & 0x8000_0000 else value
+    return _signed(value, 32)
 
 
 def scaled(raw: int, decimals: int) -> float:
@@ -60,6 +67,20 @@ def word_of(flags: Mapping[str, bool], layout: Mapping[int, str]) -> int:
         if on:
             word |= 1 << by_name[name]
     return word
+
+
+def masked_word(obj: object, masks: Mapping[str, int]) -> int:
+    """The OR of the ``masks`` (``{field: mask}``) whose boolean field of ``obj`` is set."""
+    word = 0
+    for name, mask in masks.items():
+        if getattr(obj, name):
+            word |= mask
+    return word
+
+
+def masked_flags(word: int, masks: Mapping[str, int]) -> dict[str, bool]:
+    """``{field: bool}``: whether each mask of ``masks`` is set in ``word``."""
+    return {name: bool(word & mask) for name, mask in masks.items()}
 
 
 @dataclass(frozen=True)

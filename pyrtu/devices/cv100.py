@@ -27,7 +27,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 from ..rules import CV100 as CV100_RULES
-from .common import FlagWord, MasterLike, u16
+from .common import FlagWord, MasterLike, masked_flags, masked_word, u16
 
 #: function-code group -> high byte of the register address (section 5)
 GROUPS: Mapping[str, int] = {
@@ -228,34 +228,25 @@ class ControlWord1:
     fault_reset: bool = False
 
     def encode(self) -> int:
-        word = int(self.command)
-        for flag, bit in (
-            (self.reverse, CW1_REVERSE),
-            (self.jog_forward, CW1_JOG_FORWARD),
-            (self.jog_reverse, CW1_JOG_REVERSE),
-            (self.acc_dec_enable, CW1_ACC_DEC_ENABLE),
-            (self.enable, CW1_ENABLE),
-            (self.main_reference, CW1_MAIN_REFERENCE),
-            (self.fault_reset, CW1_FAULT_RESET),
-        ):
-            if flag:
-                word |= bit
-        return word
+        return int(self.command) | masked_word(self, _CW1_MASKS)
 
     @classmethod
     def decode(cls, word: int) -> ControlWord1:
         cmd = word & 0b111
         command = Command(cmd) if cmd in Command._value2member_map_ else Command.NONE
-        return cls(
-            command,
-            bool(word & CW1_REVERSE),
-            bool(word & CW1_JOG_FORWARD),
-            bool(word & CW1_JOG_REVERSE),
-            bool(word & CW1_ACC_DEC_ENABLE),
-            bool(word & CW1_ENABLE),
-            bool(word & CW1_MAIN_REFERENCE),
-            bool(word & CW1_FAULT_RESET),
-        )
+        return cls(command, **masked_flags(word, _CW1_MASKS))
+
+
+#: the flag fields of `ControlWord1` and their bits
+_CW1_MASKS = {
+    "reverse": CW1_REVERSE,
+    "jog_forward": CW1_JOG_FORWARD,
+    "jog_reverse": CW1_JOG_REVERSE,
+    "acc_dec_enable": CW1_ACC_DEC_ENABLE,
+    "enable": CW1_ENABLE,
+    "main_reference": CW1_MAIN_REFERENCE,
+    "fault_reset": CW1_FAULT_RESET,
+}
 
 
 CW2_OPERATION_DISABLE = 1 << 0
@@ -272,21 +263,20 @@ class ControlWord2:
     enable: bool = True
 
     def encode(self) -> int:
-        return (
-            self.operation_disable * CW2_OPERATION_DISABLE
-            | self.run * CW2_RUN
-            | self.aux_reference * CW2_AUX_REFERENCE
-            | self.enable * CW2_ENABLE
-        )
+        return masked_word(self, _CW2_MASKS)
 
     @classmethod
     def decode(cls, word: int) -> ControlWord2:
-        return cls(
-            bool(word & CW2_OPERATION_DISABLE),
-            bool(word & CW2_RUN),
-            bool(word & CW2_AUX_REFERENCE),
-            bool(word & CW2_ENABLE),
-        )
+        return cls(**masked_flags(word, _CW2_MASKS))
+
+
+#: the fields of `ControlWord2` and their bits
+_CW2_MASKS = {
+    "operation_disable": CW2_OPERATION_DISABLE,
+    "run": CW2_RUN,
+    "aux_reference": CW2_AUX_REFERENCE,
+    "enable": CW2_ENABLE,
+}
 
 
 # -- status words 1-3 ------------------------------------------------------------

@@ -407,11 +407,6 @@ class CV100Simulator(DriveSimulator):
                 C.flags(int(regs.get(C.STATUS_WORD_3)), C.STATUS_3_BITS),
             )
 
-    def frequency_hz(self) -> float:
-        with self.lock:
-            self.update()
-            return self.motor.frequency
-
     # -- the slave ------------------------------------------------------------------------
 
     def slave_options(self) -> dict[str, Any]:

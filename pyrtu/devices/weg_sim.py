@@ -32,7 +32,8 @@ the CFW320/CFW701 are stopped.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
 from .. import pdu as P
@@ -349,16 +350,20 @@ class WegSimulator(DriveSimulator):
 
     def inject_fault(self, code: int) -> None:
         """A drive fault (P049 = ``code``): the motor coasts until a reset."""
-        with self.lock:
-            self.update()
+        with self._changing():
             self.fault_code = code
-            self._retarget()
-            self._refresh()
 
     def set_undervoltage(self, on: bool) -> None:
+        with self._changing():
+            self.undervoltage = on
+
+    @contextmanager
+    def _changing(self) -> Iterator[None]:
+        """Under the lock: the model brought to now, the caller's change of the drive's
+        state, then the motor's reference and the registers following it."""
         with self.lock:
             self.update()
-            self.undervoltage = on
+            yield
             self._retarget()
             self._refresh()
 
@@ -367,9 +372,8 @@ class WegSimulator(DriveSimulator):
         return weg.decode_status(self.get(weg.P_STATUS), self.model.name)
 
     def speed_hz(self) -> float:
-        with self.lock:
-            self.update()
-            return self.motor.frequency
+        """The motor's speed now, in Hz (the drive profile's name; `frequency_hz` too)."""
+        return self.frequency_hz()
 
     # -- the slave ------------------------------------------------------------------------
 

@@ -344,15 +344,29 @@ class _Loader:
                 raise ConfigError(f"{self.source}:{line}: point[{idx}] {m.group(2)}") from None
             raise
 
+    def check_keys(
+        self,
+        array: str,
+        i: int,
+        label: str,
+        t: Mapping[str, Any],
+        known: Sequence[str],
+        required: Sequence[str],
+        present: Mapping[str, Any],
+    ) -> None:
+        """Fails at the first key of ``t`` not in ``known``, then at the first of
+        ``required`` not in ``present`` (``t``, or ``t`` with the defaults)."""
+        for k in t:
+            if k not in known:
+                raise self.fail(array, i, label, k, f"unknown key (known: {', '.join(known)})")
+        for k in required:
+            if k not in present:
+                raise self.fail(array, i, label, None, f"{k}: missing")
+
     def bus(self, i: int, t: Mapping[str, Any]) -> Bus:
         label = f"bus[{i}]" + (f' ("{t["name"]}")' if isinstance(t.get("name"), str) else "")
         known = ("name", "port", *MASTER_KEYS, *POLLER_KEYS, *LIMIT_KEYS)
-        for k in t:
-            if k not in known:
-                raise self.fail("bus", i, label, k, f"unknown key (known: {', '.join(known)})")
-        for k in ("name", "port"):
-            if k not in t:
-                raise self.fail("bus", i, label, None, f"{k}: missing")
+        self.check_keys("bus", i, label, t, known, ("name", "port"), t)
         master = {k: t[k] for k in MASTER_KEYS if k in t}
         poller = {k: t[k] for k in POLLER_KEYS if k in t}
         limits = self.limits("bus", i, label, t)
@@ -377,12 +391,7 @@ class _Loader:
     ) -> tuple[Device, list[Point]]:
         label = f"device[{i}]"
         known = ("bus", "slave", "profile", "name", "interval", *LIMIT_KEYS)
-        for k in t:
-            if k not in known:
-                raise self.fail("device", i, label, k, f"unknown key (known: {', '.join(known)})")
-        for k in ("bus", "slave"):
-            if k not in t:
-                raise self.fail("device", i, label, None, f"{k}: missing")
+        self.check_keys("device", i, label, t, known, ("bus", "slave"), t)
         if t["bus"] not in [b.name for b in buses]:
             raise self.fail("device", i, label, "bus", f"no bus named {t['bus']!r}")
         s = t["slave"]
@@ -412,15 +421,9 @@ class _Loader:
     def point(self, i: int, t: Mapping[str, Any], defaults: Mapping[str, Any]) -> Point:
         name = t.get("name")
         label = f"point[{i}]" + (f' ("{name}")' if isinstance(name, str) else "")
-        for k in t:
-            if k not in POINT_KEYS:
-                raise self.fail(
-                    "point", i, label, k, f"unknown key (known: {', '.join(POINT_KEYS)})"
-                )
         merged = {**defaults, **t}
-        for k in ("name", "bus", "slave", "table", "address"):
-            if k not in merged:
-                raise self.fail("point", i, label, None, f"{k}: missing")
+        required = ("name", "bus", "slave", "table", "address")
+        self.check_keys("point", i, label, t, POINT_KEYS, required, merged)
         try:
             return Point(**merged)
         except PointError as e:

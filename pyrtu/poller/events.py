@@ -9,10 +9,15 @@ Every event but `Update` has ``as_dict()``: its ``pyrtu poll --json`` line, with
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 from .points import Point, Value
+
+
+def _fields(event: Any) -> dict[str, Any]:
+    """A flat event's fields in their order (the JSON keys after ``"event"``)."""
+    return {f.name: getattr(event, f.name) for f in fields(event)}
 
 
 @dataclass(frozen=True, slots=True)
@@ -44,8 +49,7 @@ class SlaveState:
     time: float
 
     def as_dict(self) -> dict[str, Any]:
-        return {"event": "slave", "bus": self.bus, "slave": self.slave, "online": self.online,
-                "time": self.time}  # fmt: skip
+        return {"event": "slave", **_fields(self)}
 
 
 @dataclass(frozen=True, slots=True)
@@ -68,9 +72,7 @@ class PortState:
     time: float
 
     def as_dict(self) -> dict[str, Any]:
-        return {"event": "port", "bus": self.bus, "port": self.port, "up": self.up,
-                "error": self.error, "since": self.since, "attempts": self.attempts,
-                "time": self.time}  # fmt: skip
+        return {"event": "port", **_fields(self)}
 
 
 @dataclass(frozen=True, slots=True)

@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import Any
 
 from .. import _backend
-from .._pure.vbus import _TIME_LIMIT, COUNTERS
+from .._pure.vbus import COUNTERS, _time
 
 __all__ = ["CLoop", "CSchedule", "available"]
 
@@ -24,14 +24,6 @@ def _lib() -> tuple[Any, Any]:
     if _C is None:
         raise ImportError("the pyrtu C core is not built")
     return _C.ffi, _C.lib
-
-
-def _time(t: int, name: str) -> int:
-    if isinstance(t, bool) or not isinstance(t, int):
-        raise TypeError(f"{name} must be an integer (ns), not {type(t).__name__}")
-    if not -_TIME_LIMIT <= t <= _TIME_LIMIT:
-        raise ValueError(f"{name} must be within +-2**62 ns, not {t!r}")
-    return t
 
 
 class CSchedule:

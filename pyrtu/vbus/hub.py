@@ -11,7 +11,6 @@ import threading
 import time
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import fields, replace
-from types import TracebackType
 
 from .._pure.vbus import OUT, Schedule
 from ..line import LineConfig, line_from
@@ -228,12 +227,7 @@ class VirtualBus(HubLoops):
         self.start()
         return self
 
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
     def start(self) -> VirtualBus:
