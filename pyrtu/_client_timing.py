@@ -12,6 +12,7 @@ from __future__ import annotations
 from typing import Any
 
 from ._client_actions import State
+from ._framing import FramerCore
 
 _ANSWER = State.ANSWER
 #: `ClientProtocol.ready_at` reads a repeated request's whole answer in one wake-up
@@ -36,8 +37,7 @@ class AnswerTiming:
     _slave: int
     _adu: bytes
     _decode: Any
-    _framer: Any
-    _core: Any
+    _core: FramerCore
     _heard: bool
     _echo_left: bytes
     _end: float
@@ -121,5 +121,4 @@ class AnswerTiming:
             return 0
         if self._decode is None:
             return len(self._echo_left)
-        framer = self._framer if self._core is None else self._core
-        return len(self._echo_left) + int(framer.needed())
+        return len(self._echo_left) + self._core.needed()
