@@ -36,7 +36,7 @@ from types import ModuleType
 from typing import Any
 
 from . import _backend
-from ._client_actions import Action, Decoder, Done, Send, State, Wait, new_counters
+from ._client_actions import Action, Decoder, Done, Send, State, Wait, answer_pdu, new_counters
 from ._client_timing import ONE_WAKE_CHAR, AnswerTiming
 from ._feed import feed_all
 from ._framing import FramerCore
@@ -463,6 +463,10 @@ class ClientProtocol(AnswerTiming):
                 )
             if message[1] & 0x80:
                 c["exceptions"] += 1
+                if self._decode is answer_pdu:  # an exchange: the answer is its value
+                    self.answer_end = end
+                    self._finish(message[1:])
+                    return
                 code = message[2] if len(message) > 2 else 0
                 # answered: no late answer to wait out (failed_at stays 0)
                 self._fail(ExceptionResponseError(slave, fc, code), 0.0)
