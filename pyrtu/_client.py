@@ -37,7 +37,7 @@ from typing import Any
 
 from . import _backend
 from ._client_actions import Action, Decoder, Done, Send, State, Wait, answer_pdu, new_counters
-from ._client_timing import ONE_WAKE_CHAR, AnswerTiming
+from ._client_timing import LATE_WAKE_CHAR, AnswerTiming
 from ._feed import feed_all
 from ._framing import FramerCore
 from .ascii import ascii_message, encode_ascii, make_framer
@@ -155,8 +155,10 @@ class ClientProtocol(AnswerTiming):
         self.gap = line.frame_gap
         self.settle = max(0.02, 3 * self.gap)
         self._char = line.char_time
-        #: learn answer lengths only where ready_at uses them (a timed, slow line)
-        self._one_wake = self.gap > 0 and self._char >= ONE_WAKE_CHAR
+        #: learn answer lengths where ready_at uses them (a timed line)
+        self._one_wake = self.gap > 0
+        #: see ready_at: wake-ups late by a character or more settle on the answer's end
+        self._late_wakes = self._one_wake and self._char < LATE_WAKE_CHAR
         self._adus.clear()
         self._sizes.clear()
         # what differs between RTU and ASCII, chosen once per line: the framer's core
@@ -300,6 +302,8 @@ class ClientProtocol(AnswerTiming):
                 self._limit = min(self._end + self.timeout, now + self.settle)
             elif first and not self.echo and self.gap > 0:
                 self._learn_turnaround(len(data), now)
+        elif first and self._late_wakes and not self.echo:
+            self._woke_late()
 
     def next_action(self, now: float) -> Action:
         """What the driver does next (see the module docstring): `Send` the request,
@@ -547,7 +551,6 @@ class ClientProtocol(AnswerTiming):
 
 
 __all__ = [
-    "ONE_WAKE_CHAR",
     "Action",
     "ClientProtocol",
     "Done",
