@@ -36,9 +36,11 @@ from types import ModuleType
 from typing import Any
 
 from . import _backend
-from ._client_actions import Action, Decoder, Done, Send, State, Wait, new_counters
-from ._client_timing import ONE_WAKE_CHAR, AnswerTiming
-from .ascii import encode_ascii, make_framer
+from ._client_actions import Action, Decoder, Done, Send, State, Wait, answer_pdu, new_counters
+from ._client_timing import LATE_WAKE_CHAR, AnswerTiming
+from ._feed import feed_all
+from ._framing import FramerCore
+from .ascii import ascii_message, encode_ascii, make_framer
 from .errors import BusFault, ExceptionResponseError, FrameError, NoResponseError
 from .frames import ERROR_BY_CODE
 from .functions import function_name
@@ -57,6 +59,14 @@ _REASONS: tuple[str | None, ...] = tuple(r.value if r else None for r in ERROR_B
 
 def _identity(pdu: bytes) -> bytes:
     return pdu
+
+
+def _strip_crc(adu: bytes) -> bytes:
+    return adu[:-2]
+
+
+#: ASCII requests have no max_adu check (as before: the limit is RTU's)
+_NO_LIMIT = 1 << 62
 
 
 class ClientProtocol(AnswerTiming):
@@ -100,7 +110,6 @@ class ClientProtocol(AnswerTiming):
         self.broadcast_delay = broadcast_delay
         self._backend = backend or _backend.active
         self.counters = new_counters()
-        self._add_crc: Callable[[bytes], bytes] = self._backend.add_crc
         #: RTU ADUs already built, by (slave, PDU): a poller repeats the same requests
         self._adus: dict[tuple[int, bytes], bytes] = {}
         #: per request ADU: the length of its last answer (see ready_at)
@@ -146,15 +155,24 @@ class ClientProtocol(AnswerTiming):
         self.gap = line.frame_gap
         self.settle = max(0.02, 3 * self.gap)
         self._char = line.char_time
-        #: learn answer lengths only where ready_at uses them (a timed, slow line)
-        self._one_wake = self.gap > 0 and self._char >= ONE_WAKE_CHAR
-        self._max_adu = line.max_adu
+        #: learn answer lengths where ready_at uses them (a timed line)
+        self._one_wake = self.gap > 0
+        #: see ready_at: wake-ups late by a character or more settle on the answer's end
+        self._late_wakes = self._one_wake and self._char < LATE_WAKE_CHAR
         self._adus.clear()
         self._sizes.clear()
-        self._framer: Any = make_framer(line, "master", self._backend)
-        # RTU: the backend's core framer, driven directly (events as the core's tuples,
-        # no Frame objects: the hot path); ASCII: the AsciiFramer's Frame events
-        self._core: Any = getattr(self._framer, "_core", None)
+        # what differs between RTU and ASCII, chosen once per line: the framer's core
+        # (the same feed/take interface for both, driven directly: events as the
+        # core's tuples, no Frame objects), how a request is wrapped and checked, how
+        # a frame the core checked becomes address + PDU
+        self._core: FramerCore = make_framer(line, "master", self._backend).core
+        self._wrap: Callable[[bytes], bytes]
+        self._message: Callable[[bytes], bytes]
+        if line.mode == "ascii":
+            self._wrap, self._message, self._max_adu = encode_ascii, ascii_message, _NO_LIMIT
+        else:
+            self._wrap, self._message = self._backend.add_crc, _strip_crc
+            self._max_adu = line.max_adu
 
     # ------------------------------------------------------------- transaction
 
@@ -164,11 +182,8 @@ class ClientProtocol(AnswerTiming):
 
     def encode(self, slave: int, pdu: bytes) -> bytes:
         """The ADU of ``pdu`` to ``slave`` in the line's mode; ValueError past max_adu."""
-        message = bytes((slave,)) + pdu
-        if self.line.mode == "ascii":
-            return encode_ascii(message)
-        adu: bytes = self._backend.add_crc(message)
-        if len(adu) > self.line.max_adu:
+        adu = self._wrap(bytes((slave,)) + pdu)
+        if len(adu) > self._max_adu:
             raise ValueError(f"{function_name(pdu[0])}: a {len(adu)}-byte request exceeds max_adu")
         return adu
 
@@ -180,19 +195,14 @@ class ClientProtocol(AnswerTiming):
         is sent) for a request longer than ``max_adu``."""
         if self.state not in (_IDLE, _DONE):
             raise RuntimeError(f"a transaction is in progress ({self.state.value})")
-        if self._core is not None:  # RTU (the hot path): encode() inlined, and cached
-            key = (slave, pdu)
-            adu = self._adus.get(key)
-            if adu is None:
-                adu = self._add_crc(bytes((slave,)) + pdu)
-                if len(adu) > self._max_adu:
-                    self.encode(slave, pdu)  # raises its ValueError
-                if len(self._adus) >= _ADUS_MAX:
-                    self._adus.clear()
-                self._adus[key] = adu
-            self._adu = adu
-        else:
-            self._adu = self.encode(slave, pdu)
+        key = (slave, pdu)  # the hot path: encode() cached
+        adu = self._adus.get(key)
+        if adu is None:
+            adu = self.encode(slave, pdu)  # raises its ValueError past max_adu
+            if len(self._adus) >= _ADUS_MAX:
+                self._adus.clear()
+            self._adus[key] = adu
+        self._adu = adu
         self._slave, self._fc, self._decode = slave, pdu[0], decode
         self._attempt = 0
         self._checked = False
@@ -243,16 +253,14 @@ class ClientProtocol(AnswerTiming):
         self._heard = False
         self._limit = end + self.timeout
         if self._decode is None:
-            self._restart(None)
+            self._core.reset()
             c["broadcasts"] += 1
             self.quiet_until = end + self.broadcast_delay
             if not self._echo_left:
                 self._finish(None)
                 return
-        elif (core := self._core) is not None:  # _restart inlined (the hot path)
-            core.expect(self._adu)
         else:
-            self._restart(self._adu)
+            self._core.expect(self._adu)  # a fresh framer, told of the request
         self.state = _ANSWER
         self._nap = True
 
@@ -287,18 +295,15 @@ class ClientProtocol(AnswerTiming):
                 return
             if not data:
                 return
-        core = self._core
-        if core is None:
-            self._framer.receive_data(data, now)
-            self._events(now)
-        else:
-            self._feed(core, data, now)
+        self._feed(data, now)
         if self.state is _ANSWER:
             self._nap = True
             if self._bad is not None:
                 self._limit = min(self._end + self.timeout, now + self.settle)
             elif first and not self.echo and self.gap > 0:
                 self._learn_turnaround(len(data), now)
+        elif first and self._late_wakes and not self.echo:
+            self._woke_late()
 
     def next_action(self, now: float) -> Action:
         """What the driver does next (see the module docstring): `Send` the request,
@@ -344,15 +349,11 @@ class ClientProtocol(AnswerTiming):
         if state is not _ANSWER:
             return
         if not self._echo_left:
-            timer = self._timer()
-            if timer is not None and now >= timer:
-                core = self._core
-                if core is None:
-                    self._framer.handle_timer(now)
-                    self._events(now)
-                else:
-                    core.handle_timer(round(now * 1_000_000))
-                    self._core_events(core, now)
+            core = self._core
+            timer = core.deadline()
+            if timer is not None and now >= timer / 1e6:
+                core.handle_timer(round(now * 1_000_000))
+                self._drain(now)
                 if self.state is not _ANSWER:
                     return
         if now >= self._limit:
@@ -368,11 +369,7 @@ class ClientProtocol(AnswerTiming):
             return None
         if self._echo_left or not self._heard:
             return self._limit  # no byte of the answer yet: the framer has no timer
-        core = self._core
-        if core is None:
-            timer = self._framer.timer()
-            return self._limit if timer is None else min(timer, self._limit)
-        deadline = core.deadline()  # _timer inlined (the hot path)
+        deadline = self._core.deadline()
         return self._limit if deadline is None else min(deadline / 1e6, self._limit)
 
     def abort(self, now: float) -> None:
@@ -431,63 +428,26 @@ class ClientProtocol(AnswerTiming):
         self._echo_left = expected[n:]
         return data[n:]
 
-    def _restart(self, adu: bytes | None) -> None:
-        """A fresh framer for the answer (told of the request: its prediction)."""
+    def _feed(self, data: bytes, now: float) -> None:
+        """Bytes into the framer's core, its events handled as they come (a silence
+        before the new bytes may end what is buffered: the core takes fewer); once
+        the transaction is done the rest is left unfed."""
         core = self._core
-        if core is None:
-            self._framer.restart(adu)
-            return
-        core.reset()
-        if adu is not None:
-            core.sent(adu)
-
-    def _timer(self) -> float | None:
-        core = self._core
-        if core is None:
-            timer: float | None = self._framer.timer()
-            return timer
-        deadline = core.deadline()
-        return None if deadline is None else deadline / 1e6
-
-    def _feed(self, core: Any, data: bytes, now: float) -> None:
-        """RTU: bytes into the core framer, its events handled as they come (a silence
-        before the new bytes may end what is buffered: the core takes fewer)."""
         now_us = round(now * 1_000_000)
         took = core.feed(data, now_us)
-        # the common case, a whole answer in one read: its event at once
-        take = core.take
-        while self.state is _ANSWER and (ev := take()) is not None:
-            error, end_us, adu = ev
-            if error:
-                self._event(now, _REASONS[error], b"", len(adu), end_us / 1e6)
-            else:
-                self._event(now, None, adu[:-2], len(adu), end_us / 1e6)
-        if took == len(data):
-            return
-        stalled = 1 if took == 0 else 0
-        while took < len(data) and self.state is _ANSWER:
-            data = data[took:]
-            took = core.feed(data, now_us)
-            self._core_events(core, now)
-            stalled = stalled + 1 if took == 0 else 0
-            if stalled > 2:
-                raise RuntimeError("framer made no progress (internal error)")
+        if not self._drain(now) and took < len(data):  # the rest: feed until taken
+            feed_all(lambda chunk: core.feed(chunk, now_us), data[took:], lambda: self._drain(now))
 
-    def _core_events(self, core: Any, now: float) -> None:
-        """RTU: the core's events, as ``take()`` gives them: (error, end_us, adu)."""
-        take = core.take
+    def _drain(self, now: float) -> bool:
+        """The core's events, as ``take()`` gives them: (error, end_us, adu); True once
+        the transaction is done."""
+        take = self._core.take
+        message = self._message
         while self.state is _ANSWER and (ev := take()) is not None:
             error, end_us, adu = ev
             reason = _REASONS[error]
-            self._event(now, reason, b"" if reason else adu[:-2], len(adu), end_us / 1e6)
-
-    def _events(self, now: float) -> None:
-        """ASCII: the AsciiFramer's Frame events."""
-        framer = self._framer
-        while self.state is _ANSWER and (ev := framer.next_event()) is not None:
-            error = ev.error
-            reason = error.value if error is not None else None
-            self._event(now, reason, ev.message, len(ev.wire), ev.end)
+            self._event(now, reason, b"" if reason else message(adu), len(adu), end_us / 1e6)
+        return self.state is not _ANSWER
 
     def _event(
         self, now: float, reason: str | None, message: bytes, size: int, end: float | None
@@ -507,6 +467,10 @@ class ClientProtocol(AnswerTiming):
                 )
             if message[1] & 0x80:
                 c["exceptions"] += 1
+                if self._decode is answer_pdu:  # an exchange: the answer is its value
+                    self.answer_end = end
+                    self._finish(message[1:])
+                    return
                 code = message[2] if len(message) > 2 else 0
                 # answered: no late answer to wait out (failed_at stays 0)
                 self._fail(ExceptionResponseError(slave, fc, code), 0.0)
@@ -587,7 +551,6 @@ class ClientProtocol(AnswerTiming):
 
 
 __all__ = [
-    "ONE_WAKE_CHAR",
     "Action",
     "ClientProtocol",
     "Done",

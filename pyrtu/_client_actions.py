@@ -42,6 +42,14 @@ DISCARD_REASONS = (
 Decoder = Callable[[bytes], Any]
 
 
+def answer_pdu(pdu: bytes) -> bytes:
+    """The decoder of an exchange (`pyrtu.Master.exchange`): the response PDU as it
+    came.  The client protocols hand an exception response over through it too, as
+    its PDU (function code | 0x80, exception code), instead of raising
+    `ExceptionResponseError`."""
+    return pdu
+
+
 class State(enum.Enum):
     IDLE = "idle"
     QUIET = "quiet"
@@ -94,4 +102,14 @@ def new_counters() -> dict[str, int]:
     return dict.fromkeys(keys, 0)
 
 
-__all__ = ["DISCARD_REASONS", "Action", "Decoder", "Done", "Send", "State", "Wait", "new_counters"]
+__all__ = [
+    "DISCARD_REASONS",
+    "Action",
+    "Decoder",
+    "Done",
+    "Send",
+    "State",
+    "Wait",
+    "answer_pdu",
+    "new_counters",
+]

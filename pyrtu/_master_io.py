@@ -42,13 +42,13 @@ def _wait_fd(port: Port, fd: int, action: Wait) -> bytes:
         if fd < 1024:
             ready = bool(select.select((fd,), (), (), wait if wait > 0 else 0.0)[0])
         else:
-            ready = bool(port._poll.poll(wait * 1000.0 if wait > 0 else 0))
+            ready = port.readable(wait)
         return read_fd(port, fd, True) if ready else b""
     if not listen:
         if wait > 0:
             _sleep(wait)
         return read_now(port, fd)
-    if port._poll.poll(wait * 1000.0 if wait > 0 else 0):
+    if port.readable(wait):
         return read_fd(port, fd, True)
     return b""
 

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from typing import Any, Generic, NamedTuple, TypeVar
 
 from . import pdu as P
+from ._client_actions import answer_pdu
 from .errors import FrameError
 from .functions import FUNCTION_NAMES
 from .rules import LengthRule
@@ -198,20 +199,27 @@ def device_id_next(
     return int(page.next_object)
 
 
-def raw_request(slave: int, pdu: bytes) -> Call:
+def raw_request(slave: int, pdu: bytes, *, name: str = "request") -> Call:
     """Any request PDU (function code + data) -> the response PDU.  Slave 0 broadcasts
     (no answer awaited; the result is b"")."""
-    s = P.check_slave("request", slave, broadcast=True)
+    s = P.check_slave(name, slave, broadcast=True)
     if not isinstance(pdu, bytes | bytearray | memoryview):
-        raise TypeError(f"request: pdu must be bytes, not {type(pdu).__name__}")
+        raise TypeError(f"{name}: pdu must be bytes, not {type(pdu).__name__}")
     raw = bytes(pdu)
     if not raw:
-        raise ValueError("request: pdu is empty (it starts with the function code)")
+        raise ValueError(f"{name}: pdu is empty (it starts with the function code)")
     if not 1 <= raw[0] <= 127:
-        raise ValueError(f"request: function must be 1..127, not {raw[0]}")
+        raise ValueError(f"{name}: function must be 1..127, not {raw[0]}")
     if len(raw) > P.MAX_PDU:
-        raise ValueError(f"request: a {len(raw)}-byte PDU exceeds {P.MAX_PDU} bytes")
+        raise ValueError(f"{name}: a {len(raw)}-byte PDU exceeds {P.MAX_PDU} bytes")
     return Call(s, raw, None if s == 0 else bytes)
+
+
+def exchange(slave: int, pdu: bytes) -> Call:
+    """As `raw_request`, but an exception response is the result too (its PDU, by
+    `answer_pdu`: the client protocols do not raise for it)."""
+    call = raw_request(slave, pdu, name="exchange")
+    return call if call.decode is None else call._replace(decode=answer_pdu)
 
 
 def execute(
@@ -311,6 +319,7 @@ def _entry(build: Callable[..., Call]) -> Request[Any]:
 
 _TABLE: tuple[Request[Any], ...] = (
     Request("request", 0, True, raw_request, _or(b"")),
+    Request("exchange", 0, True, exchange, _or(b"")),
     Request("execute", 0, True, plan=_execute_plan),
     *(_entry(build) for build in _BUILDERS),
     Request("read_device_identification", P.ENCAPSULATED_INTERFACE, False, plan=_device_id_plan),

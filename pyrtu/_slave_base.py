@@ -15,10 +15,10 @@ from typing import Any
 
 from . import _backend
 from . import pdu as P
+from ._framing import check_core_limits
 from ._server import ServerProtocol
 from ._slave_diag import DeviceIdentification, LineState
 from ._version import __version__
-from .ascii import make_framer
 from .datastore import DataStore
 from .errors import SlaveException
 from .line import LineConfig, adopt_port_format
@@ -103,7 +103,8 @@ class SlaveBase:
         self._handlers: dict[int, _Builtin] = self._builtins()
         self._broadcast_ok = set(P.BROADCAST_FUNCTIONS)
         self._hooks: list[Callable[[int, bytes], object]] = []
-        make_framer(line, "slave", self._backend)  # checks the options before the port is opened
+        if line.mode == "rtu":  # the core's limits, checked before the port is opened
+            check_core_limits(line.options("slave"))
 
     def _setup_line(self, port: Port) -> None:
         """The port is open: the line as the port has it (an adopted serial object

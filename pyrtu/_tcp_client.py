@@ -40,6 +40,7 @@ class _Pending:
     unit: int
     function: int
     deadline: float
+    raw: bool = False  # an exception response is the result, as its PDU
 
 
 def check_timeout(timeout: object, name: str = "timeout") -> float:
@@ -100,26 +101,34 @@ class TcpClientProtocol:
         raise RuntimeError("no free transaction id")  # unreachable: max_in_flight < 65536
 
     def send_request(
-        self, unit: int, pdu: BytesLike, now: float, *, answered: bool | None = None
+        self,
+        unit: int,
+        pdu: BytesLike,
+        now: float,
+        *,
+        answered: bool | None = None,
+        raw: bool = False,
     ) -> tuple[int, bytes]:
         """A new transaction: its id and the bytes to write.  ``answered``: whether an
-        answer is awaited (None: for every unit but 0, the broadcast).  Raises before
-        anything is sent: ValueError/TypeError for bad arguments, RuntimeError when
-        ``max_in_flight`` requests already wait or the connection is broken."""
-        raw = check_header_args(0, unit, pdu)
+        answer is awaited (None: for every unit but 0, the broadcast); ``raw``: an
+        exception response is the result (its PDU), not `ExceptionResponseError`.
+        Raises before anything is sent: ValueError/TypeError for bad arguments,
+        RuntimeError when ``max_in_flight`` requests already wait or the connection
+        is broken."""
+        body = check_header_args(0, unit, pdu)
         if self.broken is not None:
             raise PortError(self.where, f"the connection is unusable: {self.broken}")
         if len(self._pending) >= self.max_in_flight:
             raise RuntimeError(f"{self.max_in_flight} requests already in flight")
         tid = self._next_tid()
-        data: bytes = self._framer.send(tid, unit, raw)
+        data: bytes = self._framer.send(tid, unit, body)
         self.counters["requests"] += 1
         broadcast = unit == 0 if answered is None else not answered
         if broadcast:
             self.counters["broadcasts"] += 1
             self._results.append((tid, None))
         else:
-            self._pending[tid] = _Pending(unit, data[7], now + self.timeout)
+            self._pending[tid] = _Pending(unit, data[7], now + self.timeout, raw)
         return tid, data
 
     def receive_data(self, data: BytesLike, now: float) -> None:
@@ -165,6 +174,8 @@ class TcpClientProtocol:
                 self._results.append(
                     (tid, FrameError(f"exception response of {len(pdu)} bytes", unit, fc))
                 )
+            elif pending.raw:
+                self._results.append((tid, pdu))
             else:
                 self._results.append((tid, ExceptionResponseError(unit, fc, pdu[1])))
             return

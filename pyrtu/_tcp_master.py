@@ -38,6 +38,7 @@ import asyncio
 import time
 from typing import Any
 
+from ._client_actions import answer_pdu
 from ._links import check_in_flight
 from ._requests import Call
 from .errors import NoResponseError
@@ -132,10 +133,10 @@ class TcpLink(_TcpBase):
         return self._client.last_answer_time
 
     def transact(self, call: Call) -> tuple[Any, float]:
-        answered = call.decode is not None
+        answered, raw = call.decode is not None, call.decode is answer_pdu
         for attempt in range(self.retries + 1):
             try:
-                answer = self._client.request(call.slave, call.pdu, answered=answered)
+                answer = self._client.request(call.slave, call.pdu, answered=answered, raw=raw)
                 break
             except NoResponseError:
                 if attempt == self.retries:
@@ -193,10 +194,10 @@ class AsyncTcpLink(_TcpBase):
 
     async def transact(self, call: Call) -> tuple[Any, float]:
         client = await self._connected()
-        answered = call.decode is not None
+        answered, raw = call.decode is not None, call.decode is answer_pdu
         for attempt in range(self.retries + 1):
             try:
-                answer = await client.request(call.slave, call.pdu, answered=answered)
+                answer = await client.request(call.slave, call.pdu, answered=answered, raw=raw)
                 break
             except NoResponseError:
                 if attempt == self.retries:

@@ -243,6 +243,7 @@ class AsyncMaster(MasterBase):
     # fmt: off
     if TYPE_CHECKING:
         async def request(self, slave: int, pdu: bytes) -> bytes: ...
+        async def exchange(self, slave: int, pdu: bytes) -> bytes: ...
         async def execute(self, slave: int, function: int, data: bytes = b"", *,
                           request_rule: LengthRule | None = None,
                           response_rule: LengthRule | None = None) -> bytes: ...
@@ -282,7 +283,14 @@ def _install(cls: type[AsyncMaster]) -> None:
     entry, with the sync `pyrtu.Master` method's name, signature and docstring."""
 
     def method(req: Request[Any]) -> Any:
+        build, post = req.build, req.post
+
         async def run(self: AsyncMaster, slave: Any, *args: Any, **kwargs: Any) -> Any:
+            if build is not None and self._tcp is None:
+                # one transaction on a serial link (the hot path): `transact` without
+                # the answer's end time, which the method does not return
+                value = await self._run(R.call_of(req, slave, args, kwargs, self._link.address))
+                return value if post is None else post(value)
             return (await self.transact(req, slave, *args, **kwargs))[0]
 
         functools.update_wrapper(run, getattr(Master, req.name))

@@ -196,7 +196,9 @@ class AsciiCore:
         """ASCII frames carry their own delimiters: nothing to predict."""
 
     def expect(self, adu: bytes) -> None:
-        """As `sent`: nothing to predict."""
+        """``reset()`` then ``sent(adu)``, as the RTU core's: a fresh framer for the
+        answer to ``adu``."""
+        self.reset()
 
     def needed(self) -> int:
         """0: ASCII frames end at CR LF, not at a predicted length (wake on any byte)."""

@@ -384,6 +384,12 @@ class Master(MasterBase):
         `ExceptionResponseError`; slave 0 broadcasts and returns b""."""
         return self._call("request", slave, pdu)  # type: ignore[no-any-return]
 
+    def exchange(self, slave: int, pdu: bytes) -> bytes:
+        """As `request`, but an exception response is returned as its PDU (function
+        code | 0x80, exception code) instead of raised (a gateway forwards it as it
+        came).  Slave 0 broadcasts and returns b""."""
+        return self._call("exchange", slave, pdu)  # type: ignore[no-any-return]
+
     def execute(
         self,
         slave: int,

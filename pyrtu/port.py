@@ -141,14 +141,18 @@ class Port:
         fd = self.fd
         if fd is None:
             return self._read_generic(timeout)
-        try:
-            # poll rounds a fractional millisecond timeout up: never early
-            ready = self._poll.poll(timeout * 1000.0 if timeout > 0 else 0)
-        except (OSError, ValueError) as exc:
-            raise PortError(self.name, f"read failed: {exc}") from exc
-        if not ready:
+        if not self.readable(timeout):
             return b""
         return read_fd(self, fd, True)
+
+    def readable(self, timeout: float) -> bool:
+        """A port with a descriptor (``fd`` not None, POSIX): wait up to ``timeout``
+        seconds for input with ``poll()`` (it rounds a fractional millisecond up:
+        never early); True when there is some.  `PortError` when the wait fails."""
+        try:
+            return bool(self._poll.poll(timeout * 1000.0 if timeout > 0 else 0))
+        except (OSError, ValueError) as exc:
+            raise PortError(self.name, f"read failed: {exc}") from exc
 
     def _read_generic(self, timeout: float) -> bytes:
         ser = self.serial

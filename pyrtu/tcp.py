@@ -113,11 +113,16 @@ class TcpClient:
         """When the latest answer was read (monotonic seconds), or None before the first."""
         return self._proto.answer_end
 
-    def request(self, unit: int, pdu: BytesLike, *, answered: bool | None = None) -> bytes | None:
+    def request(
+        self, unit: int, pdu: BytesLike, *, answered: bool | None = None, raw: bool = False
+    ) -> bytes | None:
         """The response PDU of ``pdu`` sent to ``unit`` (None for unit 0, a broadcast,
-        unless ``answered=True``: unit 0 to a TCP device itself, 4.4.1.2)."""
+        unless ``answered=True``: unit 0 to a TCP device itself, 4.4.1.2).  An
+        exception response raises `ExceptionResponseError`, or with ``raw=True`` is
+        returned as its PDU (function code | 0x80, exception code)."""
         proto = self._proto
-        tid, data = proto.send_request(unit, pdu, time.monotonic(), answered=answered)
+        now = time.monotonic()
+        tid, data = proto.send_request(unit, pdu, now, answered=answered, raw=raw)
         try:
             self._send(data)
         except OSError as exc:
@@ -276,14 +281,17 @@ class AsyncTcpClient:
         return self._conn.proto.answer_end
 
     async def request(
-        self, unit: int, pdu: BytesLike, *, answered: bool | None = None
+        self, unit: int, pdu: BytesLike, *, answered: bool | None = None, raw: bool = False
     ) -> bytes | None:
         """The response PDU of ``pdu`` sent to ``unit`` (None for unit 0, a broadcast,
-        unless ``answered=True``: unit 0 to a TCP device itself, 4.4.1.2).
-        Cancelling the await forgets the request (a late answer is dropped)."""
+        unless ``answered=True``: unit 0 to a TCP device itself, 4.4.1.2).  An
+        exception response raises `ExceptionResponseError`, or with ``raw=True`` is
+        returned as its PDU (function code | 0x80, exception code).  Cancelling the
+        await forgets the request (a late answer is dropped)."""
         conn = self._conn
         async with self._window:
-            tid, data = conn.proto.send_request(unit, pdu, time.monotonic(), answered=answered)
+            now = time.monotonic()
+            tid, data = conn.proto.send_request(unit, pdu, now, answered=answered, raw=raw)
             fut: asyncio.Future[bytes | None] = asyncio.get_running_loop().create_future()
             conn.waiters[tid] = fut
             if conn.transport is None or conn.transport.is_closing():
@@ -303,6 +311,11 @@ class AsyncTcpClient:
         if transport is not None:
             transport.close()
         await asyncio.sleep(0)
+
+    async def exchange(self, unit: int, pdu: BytesLike) -> bytes | None:
+        """`request` with ``raw=True``: an exception response as its PDU (the gateway's
+        bus interface, as `pyrtu.aio.AsyncMaster.exchange`)."""
+        return await self.request(unit, pdu, raw=True)
 
     async def __aenter__(self) -> AsyncTcpClient:
         return self

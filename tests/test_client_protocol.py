@@ -13,7 +13,7 @@ from typing import Any
 import pytest
 
 from pyrtu import pdu as P
-from pyrtu._client import ONE_WAKE_CHAR, ClientProtocol, State
+from pyrtu._client import ClientProtocol, State
 from pyrtu._requests import read_holding_registers, write_register
 from pyrtu.ascii import encode_ascii
 from pyrtu.errors import BusFault, ExceptionResponseError, FrameError, NoResponseError
@@ -357,18 +357,18 @@ def test_a_repeated_request_is_read_in_one_wake_up(backend: ModuleType) -> None:
     the same request ends a character before that answer's end (one wake-up for the
     whole answer, the last byte read as it comes), not after its 5-byte header; an
     exception answer, shorter, is still taken; another request, or another line,
-    starts from the header again; `needed` stays the framer's lower bound.  Above
-    19200 baud (a character shorter than a timed wake-up's lateness allows) the
-    header is read first every time."""
+    starts from the header again; `needed` stays the framer's lower bound.  At any
+    baud rate (38400 here; the wake-ups settle on the answer's end, see
+    test_a_late_one_wake_up_moves_the_next_one_earlier)."""
     fast = LineConfig(baudrate=38400, parity="N")
-    assert fast.char_time < ONE_WAKE_CHAR <= LineConfig(baudrate=19200, parity="E").char_time
     q = proto(backend, fast)
-    for now in (1.0, 2.0):
+    answer = regs(backend, 1, list(range(10)))
+    for now, first in ((1.0, 5), (2.0, len(answer) - 1)):
         q.start(*read_holding_registers(1, 0, 10), now=now)
         end = now + 8 * fast.char_time
         q.transmitted(end, now)
-        assert q.ready_at(end) == pytest.approx(end + fast.t35_time + 5 * fast.char_time)
-        q.receive_data(regs(backend, 1, list(range(10))), end + fast.t35_time + 25 * fast.char_time)
+        assert q.ready_at(end) == pytest.approx(end + fast.t35_time + first * fast.char_time)
+        q.receive_data(answer, end + fast.t35_time + 25 * fast.char_time)
         assert q.result() == list(range(10))
     line = LineConfig(baudrate=19200, parity="N")
     char, t35 = line.char_time, line.t35_time
@@ -445,3 +445,62 @@ def test_ready_at_leaves_the_last_byte_to_a_wait_for_input(backend: ModuleType) 
         p.receive_data(answer[5:24], t)
         assert p.needed() == 1
         assert p.ready_at(t) == pytest.approx(t + (1 - early) * line.char_time)
+
+
+def test_a_late_one_wake_up_moves_the_next_one_earlier(backend: ModuleType) -> None:
+    """A `ready_at` wake-up that finds the whole answer in was late by an unknown
+    time: the learned turnaround drops a quarter character each time (never below
+    0), so that the wake-ups settle on the answer's end; an early one (bytes still
+    coming) learns the turnaround from them again."""
+    line = LineConfig(baudrate=115200, parity="N")
+    char, t35 = line.char_time, line.t35_time
+    p = proto(backend, line)
+    answer = regs(backend, 1, list(range(10)))
+    t = 1.0
+
+    def start() -> float:
+        nonlocal t
+        t += 1.0
+        p.start(*read_holding_registers(1, 0, 10), now=t)
+        p.transmitted(t + 8 * char, t)
+        return t + 8 * char
+
+    end = start()  # the first answer: the header, then the rest (turnaround 4 chars)
+    p.receive_data(answer[:5], end + t35 + 9 * char)
+    assert p.turnaround(1) == pytest.approx(4 * char)
+    p.receive_data(answer[5:], end + t35 + 29 * char)
+    assert p.result() == list(range(10))
+    for k in (1, 2):  # late wake-ups: the whole answer in one read
+        end = start()
+        assert p.ready_at(end) == pytest.approx(
+            end + t35 + (4 - (k - 1) / 4) * char + (len(answer) - 1) * char
+        )
+        p.receive_data(answer, end + t35 + 40 * char)
+        assert p.result() == list(range(10))
+        assert p.turnaround(1) == pytest.approx((4 - k / 4) * char)
+    end = start()  # an early one: bytes still coming, the turnaround learned again
+    p.receive_data(answer[:20], end + t35 + 23 * char)
+    assert p.turnaround(1) == pytest.approx(3 * char)
+    p.receive_data(answer[20:], end + t35 + 28 * char)
+    assert p.result() == list(range(10))
+
+
+def test_a_whole_answer_in_one_read_keeps_the_turnaround_on_a_slow_line(
+    backend: ModuleType,
+) -> None:
+    """Up to 19200 baud the one wake-up comes a character before the answer's end and
+    the last byte is waited for as input: a whole answer read at once (the driver was
+    late for other reasons) leaves the learned turnaround as it is."""
+    line = LineConfig(baudrate=9600, parity="N")
+    char, t35 = line.char_time, line.t35_time
+    p = proto(backend, line)
+    answer = regs(backend, 1, list(range(10)))
+    for t in (2.0, 3.0):
+        p.start(*read_holding_registers(1, 0, 10), now=t)
+        end = t + 8 * char
+        p.transmitted(end, t)
+        if t == 2.0:
+            p.receive_data(answer[:5], end + t35 + 7 * char)
+        p.receive_data(answer if t == 3.0 else answer[5:], end + t35 + 40 * char)
+        assert p.result() == list(range(10))
+        assert p.turnaround(1) == pytest.approx(2 * char)

@@ -77,7 +77,6 @@ from ..errors import (
     GATEWAY_TARGET_FAILED,
     ILLEGAL_FUNCTION,
     SLAVE_DEVICE_BUSY,
-    ExceptionResponseError,
     ModbusError,
     NoResponseError,
     PortError,
@@ -130,7 +129,12 @@ __all__ = [
 
 class Bus(Protocol):
     """What a bus behind the gateway offers: `pyrtu.aio.AsyncMaster` (a serial
-    line), `pyrtu.tcp.AsyncTcpClient` (another Modbus TCP server).  A bus may also
+    line), `pyrtu.tcp.AsyncTcpClient` (another Modbus TCP server).  ``request``
+    returns the answer PDU, an exception answer too (as its bytes, as
+    `pyrtu.tcp_server.LocalBus` does); a bus whose ``request`` raises
+    `ExceptionResponseError` instead (`AsyncMaster`, `AsyncTcpClient`) offers
+    ``exchange``, of the same shape, which the gateway calls when a bus has it: an
+    exception raised is a target that failed to respond (0x0B).  A bus may also
     have ``async reopen()``, which the gateway calls to bring it back after a
     `PortError` (raising `PortError` or `OSError` while the port is still gone)."""
 
@@ -458,6 +462,8 @@ class Gateway:
         connections = self._connections
         counters = self.counters
         monotonic = time.monotonic
+        # the answer PDU, an exception answer as its bytes (see Bus)
+        send = getattr(state.bus, "exchange", None) or state.bus.request
         while True:
             if state.reopen is not None and state.reconnect.down:
                 await self._reopen(state)
@@ -471,7 +477,7 @@ class Gateway:
                 continue
             started = monotonic()
             try:
-                answer = await state.bus.request(job.slave, job.pdu)
+                answer = await send(job.slave, job.pdu)
             except Exception as exc:  # (CancelledError is no Exception: it ends the worker)
                 answer = self._failed(state, job, exc)
             else:
@@ -553,11 +559,10 @@ class Gateway:
 
     def _failed(self, state: _BusState, job: Job, exc: Exception) -> bytes | None:
         """The gateway's answer when the bus's request raised ``exc`` (None for a
-        broadcast): the device's exception, 0x0B when it did not answer (within the
-        timeout, after the retries, or not validly), 0x0A when the bus is unavailable."""
+        broadcast): 0x0B when the device did not answer (within the timeout, after the
+        retries, or not validly), 0x0A when the bus is unavailable.  (The device's
+        exception answers are no exceptions: the bus's ``exchange`` returns them.)"""
         function = job.pdu[0]
-        if isinstance(exc, ExceptionResponseError):
-            return None if job.slave == 0 else exception_pdu(function, exc.code)
         if isinstance(exc, PortError):
             self._port_failed(state, exc)
             if job.slave == 0:

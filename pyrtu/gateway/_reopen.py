@@ -45,6 +45,15 @@ class ReopeningBus:
         result: bytes | None = await bus.request(slave, pdu)
         return result
 
+    async def exchange(self, slave: int, pdu: bytes) -> bytes | None:
+        """As the bus's ``exchange``: an exception answer as its PDU (what the gateway
+        calls)."""
+        bus = self._bus
+        if bus is None:
+            raise PortError(self.name, "the port is closed")
+        result: bytes | None = await getattr(bus, "exchange", bus.request)(slave, pdu)
+        return result
+
     async def reopen(self) -> None:
         """Close what is left of the failed port and open it again."""
         await self.close()
