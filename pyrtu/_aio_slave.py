@@ -38,6 +38,7 @@ import threading
 from typing import TYPE_CHECKING, Any
 
 from . import _ptimer
+from ._closing import AsyncClosing
 from ._server import Listen, Reply
 from ._slave_base import PortSlave
 from .errors import PortError
@@ -51,7 +52,7 @@ log = logging.getLogger("pyrtu.slave")
 _POLL = 0.05  # the reader thread of a port without a file descriptor
 
 
-class AsyncSlave(PortSlave["AsyncSlave"]):
+class AsyncSlave(PortSlave["AsyncSlave"], AsyncClosing):
     """A Modbus slave on asyncio, serving one or several addresses on one port."""
 
     _where = "AsyncSlave"
@@ -122,12 +123,6 @@ class AsyncSlave(PortSlave["AsyncSlave"]):
     async def close(self) -> None:
         await self.stop()
         self.port.close()
-
-    async def __aenter__(self) -> AsyncSlave:
-        return self
-
-    async def __aexit__(self, *exc: object) -> None:
-        await self.close()
 
     def __repr__(self) -> str:
         return f"<pyrtu.AsyncSlave {sorted(self.addresses)} on {self.port.name} {self.mode}>"

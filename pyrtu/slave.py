@@ -50,6 +50,7 @@ import threading
 import time
 from typing import TYPE_CHECKING, Any
 
+from ._closing import Closing
 from ._server import Listen, Reply, ServerAction
 from ._slack import swap_timer_slack
 from ._slave_base import STANDARD_FUNCTIONS, Handler, PortSlave
@@ -71,7 +72,7 @@ _TIMER_SLACK_NS = 1000
 _SELECT_LIMIT = 1024  # FD_SETSIZE
 
 
-class Slave(PortSlave["Slave"]):
+class Slave(PortSlave["Slave"], Closing):
     """A Modbus slave serving one or several addresses on one port."""
 
     _where = "Slave"
@@ -150,12 +151,6 @@ class Slave(PortSlave["Slave"]):
             with contextlib.suppress(OSError):
                 os.close(fd)
         self._wake_r = self._wake_w = -1
-
-    def __enter__(self) -> Slave:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def __repr__(self) -> str:
         return f"<pyrtu.Slave {sorted(self.addresses)} on {self.port.name} {self.mode}>"

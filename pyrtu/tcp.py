@@ -24,12 +24,12 @@ import contextlib
 import select
 import socket
 import time
-from types import TracebackType
 from typing import Any
 from urllib.parse import urlsplit
 
 import serial
 
+from ._closing import AsyncClosing, Closing
 from ._tcp_client import TcpClientProtocol, check_timeout
 from ._types import BytesLike
 from .errors import ModbusError, PortError
@@ -77,7 +77,7 @@ def rtu_over_tcp(url: str) -> Any:
         raise PortError(url, f"cannot connect: {exc}") from exc
 
 
-class TcpClient:
+class TcpClient(Closing):
     """A blocking Modbus TCP client: one request at a time on one connection."""
 
     def __init__(
@@ -158,12 +158,6 @@ class TcpClient:
     def close(self) -> None:
         self._sock.close()
 
-    def __enter__(self) -> TcpClient:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
     def __repr__(self) -> str:
         return f"TcpClient({self.where!r})"
 
@@ -221,7 +215,7 @@ class _ClientConnection(asyncio.Protocol):
             self.timer = loop.call_at(loop.time() + delay, self.on_timer)
 
 
-class AsyncTcpClient:
+class AsyncTcpClient(AsyncClosing):
     """An asyncio Modbus TCP client: up to ``max_in_flight`` requests on the wire at once."""
 
     def __init__(self, conn: _ClientConnection, host: str, port: int, max_in_flight: int) -> None:
@@ -303,17 +297,6 @@ class AsyncTcpClient:
         if transport is not None:
             transport.close()
         await asyncio.sleep(0)
-
-    async def __aenter__(self) -> AsyncTcpClient:
-        return self
-
-    async def __aexit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        await self.close()
 
     def __repr__(self) -> str:
         return f"AsyncTcpClient({self.where!r})"
