@@ -69,6 +69,7 @@ from .timing import (
     check_stopbits,
     check_timing,
     compute_timing,
+    positive_seconds,
 )
 
 
@@ -107,14 +108,7 @@ class LineConfig:
         check_mode(self.mode)
         for name in ("t15", "t35", "flush_timeout"):
             _optional_seconds(name, getattr(self, name))
-        inter = self.inter_char
-        if (
-            isinstance(inter, bool)
-            or not isinstance(inter, int | float)
-            or not math.isfinite(inter)
-            or inter <= 0
-        ):
-            raise ValueError(f"inter_char must be a positive number of seconds, not {inter!r}")
+        positive_seconds(self.inter_char, "inter_char")
         if not isinstance(self.strict, bool):
             raise ArgumentTypeError(f"strict must be True or False, not {self.strict!r}")
         # The framer's checks, with the framer's messages (they name the keyword).
