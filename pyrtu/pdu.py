@@ -16,6 +16,7 @@ import struct
 from collections.abc import Iterable, Iterator, Sequence
 from typing import Any
 
+from . import functions
 from ._pdu_base import (
     _BHH,
     _READ_LIMITS,
@@ -79,21 +80,17 @@ from ._pdu_base import (
     unpack_bits,
 )
 from .errors import ArgumentTypeError, FrameError
+from .functions import *  # noqa: F403  (the function codes and names, re-exported)
 from .functions import (
     DIAGNOSTICS,
     ENCAPSULATED_INTERFACE,
-    FUNCTION_NAMES,
     GET_COMM_EVENT_COUNTER,
     GET_COMM_EVENT_LOG,
     MASK_WRITE_REGISTER,
     MEI_DEVICE_ID,
-    READ_COILS,
-    READ_DISCRETE_INPUTS,
     READ_EXCEPTION_STATUS,
     READ_FIFO_QUEUE,
     READ_FILE_RECORD,
-    READ_HOLDING_REGISTERS,
-    READ_INPUT_REGISTERS,
     READ_WRITE_REGISTERS,
     REPORT_SERVER_ID,
     WRITE_FILE_RECORD,
@@ -435,7 +432,6 @@ __all__ = [
     "BROADCAST_FUNCTIONS",
     "COIL_OFF",
     "COIL_ON",
-    "DIAGNOSTICS",
     "DIAG_BUS_CHAR_OVERRUN_COUNT",
     "DIAG_BUS_COMM_ERROR_COUNT",
     "DIAG_BUS_EXCEPTION_ERROR_COUNT",
@@ -451,12 +447,7 @@ __all__ = [
     "DIAG_SLAVE_MESSAGE_COUNT",
     "DIAG_SLAVE_NAK_COUNT",
     "DIAG_SLAVE_NO_RESPONSE_COUNT",
-    "ENCAPSULATED_INTERFACE",
     "FILE_REFERENCE_TYPE",
-    "FUNCTION_NAMES",
-    "GET_COMM_EVENT_COUNTER",
-    "GET_COMM_EVENT_LOG",
-    "MASK_WRITE_REGISTER",
     "MAX_FIFO",
     "MAX_FILE_BYTES",
     "MAX_PDU",
@@ -467,21 +458,6 @@ __all__ = [
     "MAX_RW_WRITE",
     "MAX_WRITE_COILS",
     "MAX_WRITE_REGISTERS",
-    "MEI_DEVICE_ID",
-    "READ_COILS",
-    "READ_DISCRETE_INPUTS",
-    "READ_EXCEPTION_STATUS",
-    "READ_FIFO_QUEUE",
-    "READ_FILE_RECORD",
-    "READ_HOLDING_REGISTERS",
-    "READ_INPUT_REGISTERS",
-    "READ_WRITE_REGISTERS",
-    "REPORT_SERVER_ID",
-    "WRITE_FILE_RECORD",
-    "WRITE_MULTIPLE_COILS",
-    "WRITE_MULTIPLE_REGISTERS",
-    "WRITE_SINGLE_COIL",
-    "WRITE_SINGLE_REGISTER",
     "ArgumentTypeError",
     "CommEventLog",
     "DeviceIdPage",
@@ -513,7 +489,6 @@ __all__ = [
     "exception_response",
     "fifo_request",
     "fifo_response",
-    "function_name",
     "mask_write_request",
     "pack_bits",
     "parse_bits",
@@ -540,3 +515,4 @@ __all__ = [
     "write_register_request",
     "write_registers_request",
 ]
+__all__ += functions.__all__
