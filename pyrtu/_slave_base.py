@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 from . import _backend
 from . import pdu as P
+from ._forward import Forward, Settable
 from ._server import ServerProtocol
 from ._slave_diag import DeviceIdentification, LineState
 from ._version import __version__
@@ -209,17 +210,10 @@ class SlaveBase:
             out["event_counter"] = self.line.event_counter
             return out
 
-    @property
-    def listen_only(self) -> bool:
-        return self.line.listen_only
-
-    @property
-    def busy(self) -> bool:
-        return self.line.busy
-
-    @busy.setter
-    def busy(self, value: bool) -> None:
-        self.line.busy = bool(value)
+    #: listen-only mode (FC 08 sub-function 04 sets it), the line state's flag; read-only
+    listen_only = Forward[bool]("line")
+    #: the busy status FC 11 and FC 12 report (0xFFFF while set; the owner sets it)
+    busy = Settable[bool]("line", bool)
 
     # --------------------------------------------------- the protocol's application
 
