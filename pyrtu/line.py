@@ -197,14 +197,23 @@ class LineConfig:
         return line.replace(**kwargs) if kwargs else line
 
 
-class FormatKeywords(TypedDict, total=False):
-    """The line keywords of ``parse_stream`` (the fields of `LineConfig`; the
-    constructors that take them as ``**keywords`` type them with these)."""
+class ByteFormat(TypedDict, total=False):
+    """The byte format of a serial port (`pyrtu.port.open_port`'s keywords)."""
 
     baudrate: int
     parity: str
     stopbits: float
     bytesize: int
+
+
+#: the keywords of the byte format, in `ByteFormat`'s order
+BYTE_FORMAT: tuple[str, ...] = tuple(ByteFormat.__annotations__)
+
+
+class FormatKeywords(ByteFormat, total=False):
+    """The line keywords of ``parse_stream`` (the fields of `LineConfig`; the
+    constructors that take them as ``**keywords`` type them with these)."""
+
     timing: str
     t15: float | None
     t35: float | None
@@ -271,7 +280,7 @@ def _same(value: object, key: str) -> bool:
 def adopt_port_format(line: LineConfig, port: Any) -> LineConfig:
     """``line`` with the byte format of ``port`` (an open pyserial object passed in
     keeps its own format: the line follows it)."""
-    fmt = {k: getattr(port, k) for k in ("baudrate", "parity", "stopbits", "bytesize")}
+    fmt = {k: getattr(port, k) for k in BYTE_FORMAT}
     if all(getattr(line, k) == v for k, v in fmt.items()):
         return line
     return line.replace(**fmt)
