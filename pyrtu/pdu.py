@@ -13,8 +13,8 @@ defined in `pyrtu._pdu_base` and re-exported here under the same names.
 from __future__ import annotations
 
 import struct
-from collections.abc import Iterable, Iterator, Sequence
-from typing import Any
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from typing import Any, TypeVar
 
 from . import functions
 from ._pdu_base import (
@@ -100,6 +100,8 @@ from .functions import (
     WRITE_SINGLE_REGISTER,
     function_name,
 )
+
+T = TypeVar("T")
 
 # --------------------------------------------------------------------------- checks
 
@@ -196,20 +198,25 @@ def write_register_request(address: int, value: int) -> bytes:
     return _BHH(WRITE_SINGLE_REGISTER, address, value)
 
 
-def write_coils_request(address: int, values: Iterable[object]) -> bytes:
-    where = "write_coils"
+def _written(
+    where: str, address: int, values: Iterable[object], check: Callable[..., list[T]], limit: int
+) -> list[T]:
+    """The values of a multiple write (FC 15, FC 16) checked by ``check`` (`check_bits`,
+    `check_words`) after the start address, then the span they cover."""
     check_address(where, address)
-    bits = check_bits(where, values, MAX_WRITE_COILS)
-    check_span(where, address, len(bits))
+    items = check(where, values, limit)
+    check_span(where, address, len(items))
+    return items
+
+
+def write_coils_request(address: int, values: Iterable[object]) -> bytes:
+    bits = _written("write_coils", address, values, check_bits, MAX_WRITE_COILS)
     packed = pack_bits(bits)
     return _BHH(WRITE_MULTIPLE_COILS, address, len(bits)) + bytes((len(packed),)) + packed
 
 
 def write_registers_request(address: int, values: Iterable[int]) -> bytes:
-    where = "write_registers"
-    check_address(where, address)
-    words = check_words(where, values, MAX_WRITE_REGISTERS)
-    check_span(where, address, len(words))
+    words = _written("write_registers", address, values, check_words, MAX_WRITE_REGISTERS)
     n = len(words)
     return _BHH(WRITE_MULTIPLE_REGISTERS, address, n) + bytes((2 * n,)) + _pack_words(words)
 
