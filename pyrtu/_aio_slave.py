@@ -35,55 +35,29 @@ import contextlib
 import logging
 import os
 import threading
-from collections.abc import Callable, Iterable, Mapping
 from typing import TYPE_CHECKING, Any
 
 from . import _ptimer
+from ._closing import AsyncClosing
 from ._server import Listen, Reply
-from ._slave_base import SlaveBase
-from .datastore import DataStore
+from ._slave_base import PortSlave
 from .errors import PortError
-from .line import LineConfig, LineKeywords, line_from
-from .port import open_line_port, read_fd
+from .port import read_fd
 
 if TYPE_CHECKING:  # Unpack is in typing from Python 3.11 (annotations only)
-    from typing import Unpack
+    pass
 
 log = logging.getLogger("pyrtu.slave")
 
 _POLL = 0.05  # the reader thread of a port without a file descriptor
 
 
-class AsyncSlave(SlaveBase):
+class AsyncSlave(PortSlave["AsyncSlave"], AsyncClosing):
     """A Modbus slave on asyncio, serving one or several addresses on one port."""
 
-    def __init__(
-        self,
-        port: Any,
-        address: int | Iterable[int] = 1,
-        store: DataStore | Mapping[int, DataStore] | None = None,
-        *,
-        echo: bool = False,
-        rs485: Any = None,
-        backend: str | None = None,
-        functions: Iterable[int] | None = None,
-        identification: dict[int, bytes] | None = None,
-        response_delay: float = 0.0,
-        watchdog: float | None = None,
-        on_watchdog: Callable[[AsyncSlave], object] | None = None,
-        server_id: bytes = b"pyrtu",
-        run_indicator: bool = True,
-        exclusive: bool = True,
-        line: LineConfig | None = None,
-        **line_keywords: Unpack[LineKeywords],
-    ) -> None:
-        config = line_from(line, "AsyncSlave", **line_keywords)
-        super().__init__(
-            address, store, line=config, echo=echo, backend=backend, functions=functions,
-            identification=identification, response_delay=response_delay, watchdog=watchdog,
-            on_watchdog=on_watchdog, server_id=server_id, run_indicator=run_indicator,
-        )  # fmt: skip
-        self._setup_line(open_line_port(port, config, rs485, exclusive))
+    _where = "AsyncSlave"
+
+    def _driver_state(self) -> None:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._done: asyncio.Future[None] | None = None
         self._task: asyncio.Task[None] | None = None
@@ -94,9 +68,6 @@ class AsyncSlave(SlaveBase):
         self._out: memoryview | None = None  # the unwritten rest of a response
         self._thread: threading.Thread | None = None
         self._thread_stop = threading.Event()
-        self._skip = not self.line_config.strict and self.port.fd is not None
-        #: the error that ended `serve`, if any
-        self.error: BaseException | None = None
 
     def _guard(self) -> Any:
         return contextlib.nullcontext()  # one thread: the loop's
@@ -152,12 +123,6 @@ class AsyncSlave(SlaveBase):
     async def close(self) -> None:
         await self.stop()
         self.port.close()
-
-    async def __aenter__(self) -> AsyncSlave:
-        return self
-
-    async def __aexit__(self, *exc: object) -> None:
-        await self.close()
 
     def __repr__(self) -> str:
         return f"<pyrtu.AsyncSlave {sorted(self.addresses)} on {self.port.name} {self.mode}>"

@@ -26,7 +26,7 @@ from ._framing import (
 from ._rtu_core import ffi, lib
 from ._types import BytesLike, crc_seed
 from .config import CoreOptions, flush_us_for
-from .frames import FrameList
+from .frames import FrameList, LazyFrames
 from .timing import Timing
 
 BACKEND = "c"
@@ -309,8 +309,9 @@ def _collect_events(
         cap = min(cap * 2, 1 << 22)
 
 
-class CFrameList(FrameList):
-    """Entries live in C arrays (blocks of rtu_event); frames are built on access."""
+class _CEntries(LazyFrames[Any]):
+    """A capture's entries in C arrays (the blocks of `_collect_events`); its frames
+    are built on access (`CFrameList`, `CMbapFrameList`)."""
 
     def __init__(
         self, data: bytes, blocks: list[tuple[Any, int]], counters: dict[str, int]
@@ -318,6 +319,10 @@ class CFrameList(FrameList):
         super().__init__(data, sum(n for _, n in blocks))
         self._entries = _Blocks(blocks)
         self.counters = counters
+
+
+class CFrameList(_CEntries, FrameList):
+    """Entries live in C arrays (blocks of rtu_event); frames are built on access."""
 
     def _entry(self, i: int) -> tuple[int, int, int, int, int | None, int | None]:
         e = self._entries[i]
@@ -443,15 +448,8 @@ class MbapFramer(MbapFramerBase):
         return _mbap_encode(transaction, unit, pdu)
 
 
-class CMbapFrameList(MbapFrameList):
+class CMbapFrameList(_CEntries, MbapFrameList):
     """Entries live in C arrays (blocks of rtu_mbap_event); frames are built on access."""
-
-    def __init__(
-        self, data: bytes, blocks: list[tuple[Any, int]], counters: dict[str, int]
-    ) -> None:
-        super().__init__(data, sum(n for _, n in blocks))
-        self._entries = _Blocks(blocks)
-        self.counters = counters
 
     def _entry(self, i: int) -> tuple[int, int, int, int]:
         e = self._entries[i]

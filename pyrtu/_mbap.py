@@ -11,7 +11,6 @@ so both backends raise the same exceptions.
 
 from __future__ import annotations
 
-import enum
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -21,7 +20,7 @@ from ._feed import feed_all
 from ._framing import EventQueue, as_bytes
 from ._types import BytesLike
 from .config import ROLES
-from .frames import FrameKind, LazyFrames
+from .frames import FrameKind, LazyFrames, Reason
 
 HEADER_LEN = 7
 MIN_LENGTH = 2  # unit id + a PDU of at least the function code
@@ -34,15 +33,12 @@ MAX_ADU = 6 + MAX_LENGTH
 MbapEvent = tuple[int, int, int, int, bytes]
 
 
-class MbapError(str, enum.Enum):
+class MbapError(Reason):
     """Why bytes of a Modbus TCP stream were discarded."""
 
     PROTOCOL = "protocol_id"  # protocol id other than 0: not Modbus
     LENGTH = "length"  # length field outside 2..254
     TRUNCATED = "truncated"  # the stream ended inside an ADU
-
-    def __str__(self) -> str:
-        return self.value
 
 
 #: The C core's RTU_MBAP_ERR_* codes in order; index 0 is "no error".

@@ -13,38 +13,18 @@ import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from . import functions as fc
 from .errors import SlaveException
-from .functions import (
-    DIAGNOSTICS,
-    ENCAPSULATED_INTERFACE,
-    GET_COMM_EVENT_COUNTER,
-    GET_COMM_EVENT_LOG,
-    MASK_WRITE_REGISTER,
-    MEI_DEVICE_ID,
-    READ_COILS,
-    READ_DISCRETE_INPUTS,
-    READ_FIFO_QUEUE,
-    READ_FILE_RECORD,
-    READ_HOLDING_REGISTERS,
-    READ_INPUT_REGISTERS,
-    REPORT_SERVER_ID,
-    WRITE_FILE_RECORD,
-    WRITE_MULTIPLE_COILS,
-    WRITE_MULTIPLE_REGISTERS,
-    WRITE_SINGLE_COIL,
-    WRITE_SINGLE_REGISTER,
-    function_name,
-)
 
 #: Functions a master may broadcast (slave 0): the writes (Serial Line V1.02, 2.2).
 BROADCAST_FUNCTIONS = frozenset(
     {
-        WRITE_SINGLE_COIL,
-        WRITE_SINGLE_REGISTER,
-        WRITE_MULTIPLE_COILS,
-        WRITE_MULTIPLE_REGISTERS,
-        WRITE_FILE_RECORD,
-        MASK_WRITE_REGISTER,
+        fc.WRITE_SINGLE_COIL,
+        fc.WRITE_SINGLE_REGISTER,
+        fc.WRITE_MULTIPLE_COILS,
+        fc.WRITE_MULTIPLE_REGISTERS,
+        fc.WRITE_FILE_RECORD,
+        fc.MASK_WRITE_REGISTER,
     }
 )
 
@@ -123,10 +103,10 @@ def _u16(data: bytes, at: int) -> int:
 
 
 _READ_LIMITS = {
-    READ_COILS: MAX_READ_BITS,
-    READ_DISCRETE_INPUTS: MAX_READ_BITS,
-    READ_HOLDING_REGISTERS: MAX_READ_REGISTERS,
-    READ_INPUT_REGISTERS: MAX_READ_REGISTERS,
+    fc.READ_COILS: MAX_READ_BITS,
+    fc.READ_DISCRETE_INPUTS: MAX_READ_BITS,
+    fc.READ_HOLDING_REGISTERS: MAX_READ_REGISTERS,
+    fc.READ_INPUT_REGISTERS: MAX_READ_REGISTERS,
 }
 
 
@@ -157,7 +137,7 @@ class DeviceIdPage:
 def _need(pdu: bytes, length: int) -> None:
     if len(pdu) != length:
         raise SlaveException(
-            3, f"{function_name(pdu[0])}: request PDU of {len(pdu)} bytes, expected {length}"
+            3, f"{fc.function_name(pdu[0])}: request PDU of {len(pdu)} bytes, expected {length}"
         )
 
 
@@ -171,7 +151,7 @@ def decode_read(pdu: bytes) -> tuple[int, int]:
     _need(pdu, 5)
     address, count = _u16(pdu, 1), _u16(pdu, 3)
     if not 1 <= count <= _READ_LIMITS[pdu[0]]:
-        raise SlaveException(3, f"{function_name(pdu[0])}: quantity {count} out of range")
+        raise SlaveException(3, f"{fc.function_name(pdu[0])}: quantity {count} out of range")
     _span_ok(address, count)
     return address, count
 
@@ -180,7 +160,7 @@ def decode_write_single(pdu: bytes) -> tuple[int, int]:
     """FC 05/06 -> (address, value); FC 05 values other than 0x0000/0xFF00 give 3."""
     _need(pdu, 5)
     address, value = _u16(pdu, 1), _u16(pdu, 3)
-    if pdu[0] == WRITE_SINGLE_COIL and value not in (COIL_ON, COIL_OFF):
+    if pdu[0] == fc.WRITE_SINGLE_COIL and value not in (COIL_ON, COIL_OFF):
         raise SlaveException(3, f"write_coil: value 0x{value:04X} is neither 0xFF00 nor 0x0000")
     return address, value
 
@@ -282,7 +262,7 @@ def decode_write_file(pdu: bytes) -> list[tuple[int, int, list[int]]]:
 
 def decode_device_id(pdu: bytes) -> tuple[int, int]:
     """FC 43/14 -> (read_code, object_id); other MEI types give exception 1."""
-    if len(pdu) < 2 or pdu[1] != MEI_DEVICE_ID:
+    if len(pdu) < 2 or pdu[1] != fc.MEI_DEVICE_ID:
         raise SlaveException(1, "encapsulated interface: only MEI type 14 is supported")
     _need(pdu, 4)
     if not 1 <= pdu[2] <= 4:
@@ -308,13 +288,15 @@ def exception_response(function: int, code: int) -> bytes:
 
 def diagnostics_response(sub_function: int, data: int) -> bytes:
     return (
-        bytes((DIAGNOSTICS,)) + sub_function.to_bytes(2, "big") + (data & 0xFFFF).to_bytes(2, "big")
+        bytes((fc.DIAGNOSTICS,))
+        + sub_function.to_bytes(2, "big")
+        + (data & 0xFFFF).to_bytes(2, "big")
     )
 
 
 def event_counter_response(status: int, count: int) -> bytes:
     return (
-        bytes((GET_COMM_EVENT_COUNTER,))
+        bytes((fc.GET_COMM_EVENT_COUNTER,))
         + status.to_bytes(2, "big")
         + (count & 0xFFFF).to_bytes(2, "big")
     )
@@ -325,28 +307,28 @@ def event_log_response(log: CommEventLog) -> bytes:
         (x & 0xFFFF).to_bytes(2, "big") for x in (log.status, log.event_count, log.message_count)
     )
     body += bytes(log.events[:64])
-    return bytes((GET_COMM_EVENT_LOG, len(body))) + body
+    return bytes((fc.GET_COMM_EVENT_LOG, len(body))) + body
 
 
 def server_id_response(data: bytes) -> bytes:
-    return bytes((REPORT_SERVER_ID, len(data))) + data
+    return bytes((fc.REPORT_SERVER_ID, len(data))) + data
 
 
 def fifo_response(values: Sequence[int]) -> bytes:
     body = len(values).to_bytes(2, "big") + _pack_words(values)
-    return bytes((READ_FIFO_QUEUE,)) + len(body).to_bytes(2, "big") + body
+    return bytes((fc.READ_FIFO_QUEUE,)) + len(body).to_bytes(2, "big") + body
 
 
 def read_file_response(records: Sequence[Sequence[int]]) -> bytes:
     body = b"".join(bytes((1 + 2 * len(r), FILE_REFERENCE_TYPE)) + _pack_words(r) for r in records)
-    return bytes((READ_FILE_RECORD, len(body))) + body
+    return bytes((fc.READ_FILE_RECORD, len(body))) + body
 
 
 def device_id_response(page: DeviceIdPage) -> bytes:
     head = bytes(
         (
-            ENCAPSULATED_INTERFACE,
-            MEI_DEVICE_ID,
+            fc.ENCAPSULATED_INTERFACE,
+            fc.MEI_DEVICE_ID,
             page.read_code,
             page.conformity,
             0xFF if page.more_follows else 0x00,

@@ -11,19 +11,23 @@ from __future__ import annotations
 import contextlib
 import logging
 from collections.abc import Callable, Iterable, Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 from . import _backend
 from . import pdu as P
+from ._forward import Forward, Settable
 from ._framing import check_core_limits
 from ._server import ServerProtocol
 from ._slave_diag import DeviceIdentification, LineState
 from ._version import __version__
 from .datastore import DataStore
 from .errors import SlaveException
-from .line import LineConfig, adopt_port_format
-from .port import Port
+from .line import LINE_DEFAULTS, LineConfig, LineKeywords, adopt_port_format, line_from
+from .port import Port, open_line_port
 from .rules import LengthRule, check_rules
+
+if TYPE_CHECKING:  # Unpack is in typing from Python 3.11 (annotations only)
+    from typing import Unpack
 
 log = logging.getLogger("pyrtu.slave")
 
@@ -31,6 +35,32 @@ Handler = Callable[[Any, int, bytes], "bytes | None"]
 _Builtin = Callable[[int, bytes], "bytes | None"]
 
 STANDARD_FUNCTIONS = frozenset({1, 2, 3, 4, 5, 6, 7, 8, 11, 12, 15, 16, 17, 20, 21, 22, 23, 24, 43})
+
+S = TypeVar("S")
+
+
+class SlaveKeywords(LineKeywords, Generic[S], total=False):
+    """The keywords of `pyrtu.Slave` and `pyrtu.aio.AsyncSlave` (``S``: the class the
+    watchdog callback receives): the line keywords, the port's (``rs485``,
+    ``exclusive``: `pyrtu.port.open_port`) and the slave's, whose defaults are those
+    of `SlaveBase`."""
+
+    echo: bool
+    rs485: Any
+    backend: str | None
+    functions: Iterable[int] | None
+    identification: dict[int, bytes] | None
+    response_delay: float
+    watchdog: float | None
+    on_watchdog: Callable[[S], object] | None
+    server_id: bytes
+    run_indicator: bool
+    exclusive: bool
+
+
+#: the keywords a driver passes on to `open_line_port`, and those of `SlaveBase`
+_PORT_KEYS = ("rs485", "exclusive")
+_SLAVE_KEYS = frozenset(SlaveKeywords.__annotations__) - set(LINE_DEFAULTS) - set(_PORT_KEYS)
 
 
 def _addresses(address: int | Iterable[int]) -> frozenset[int]:
@@ -181,17 +211,10 @@ class SlaveBase:
             out["event_counter"] = self.line.event_counter
             return out
 
-    @property
-    def listen_only(self) -> bool:
-        return self.line.listen_only
-
-    @property
-    def busy(self) -> bool:
-        return self.line.busy
-
-    @busy.setter
-    def busy(self, value: bool) -> None:
-        self.line.busy = bool(value)
+    #: listen-only mode (FC 08 sub-function 04 sets it), the line state's flag; read-only
+    listen_only = Forward[bool]("line")
+    #: the busy status FC 11 and FC 12 report (0xFFFF while set; the owner sets it)
+    busy = Settable[bool]("line", bool)
 
     # --------------------------------------------------- the protocol's application
 
@@ -365,8 +388,45 @@ class SlaveBase:
         return P.device_id_response(self.identification.page(read_code, object_id))
 
 
+class PortSlave(SlaveBase, Generic[S]):
+    """A slave on a serial port (`pyrtu.Slave`, `pyrtu.aio.AsyncSlave`): their one
+    constructor.  The line comes from ``line=`` or the line keywords, the slave's
+    options are checked, the port is opened and the protocol set on it; then the
+    driver sets up its own state (`_driver_state`)."""
+
+    #: the constructor's name in the errors about its keywords
+    _where = "PortSlave"
+
+    def __init__(
+        self,
+        port: Any,
+        address: int | Iterable[int] = 1,
+        store: DataStore | Mapping[int, DataStore] | None = None,
+        *,
+        line: LineConfig | None = None,
+        **options: Unpack[SlaveKeywords[S]],
+    ) -> None:
+        ports: dict[str, Any] = {k: v for k, v in options.items() if k in _PORT_KEYS}
+        slave: dict[str, Any] = {k: v for k, v in options.items() if k in _SLAVE_KEYS}
+        keywords = {k: v for k, v in options.items() if k not in _SLAVE_KEYS and k not in ports}
+        config = line_from(line, self._where, **keywords)
+        super().__init__(address, store, line=config, **slave)
+        self._setup_line(open_line_port(port, config, **ports))
+        #: sleep through the known rest of a frame (not in strict mode: every gap
+        #: counts; not on a port without a file descriptor)
+        self._skip = not self.line_config.strict and self.port.fd is not None
+        #: the error that ended serving, if any
+        self.error: BaseException | None = None
+        self._driver_state()
+
+    def _driver_state(self) -> None:
+        """The driver's own state, once the port is open (its threads, timers, pipes)."""
+
+
 __all__ = [
     "STANDARD_FUNCTIONS",
     "Handler",
+    "PortSlave",
     "SlaveBase",
+    "SlaveKeywords",
 ]

@@ -22,7 +22,6 @@ the framer cannot accept ends the connection: every request in flight fails with
 
 from __future__ import annotations
 
-import math
 from collections import deque
 from dataclasses import dataclass
 
@@ -31,6 +30,7 @@ from ._mbap import check_header_args
 from ._types import BytesLike
 from .errors import ExceptionResponseError, FrameError, ModbusError, NoResponseError, PortError
 from .frames import FrameKind
+from .timing import positive_seconds
 
 Result = tuple[int, bytes | ModbusError | None]
 
@@ -44,14 +44,7 @@ class _Pending:
 
 
 def check_timeout(timeout: object, name: str = "timeout") -> float:
-    if (
-        isinstance(timeout, bool)
-        or not isinstance(timeout, int | float)
-        or not math.isfinite(timeout)
-        or timeout <= 0
-    ):
-        raise ValueError(f"{name} must be a positive number of seconds, not {timeout!r}")
-    return float(timeout)
+    return positive_seconds(timeout, name)
 
 
 class TcpClientProtocol:

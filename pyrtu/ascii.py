@@ -19,6 +19,7 @@ from ._types import BytesLike
 from .config import ROLES, to_microseconds
 from .frames import CODE_BY_ERROR, ERROR_BY_CODE, ErrorReason, Frame, FrameKind
 from .line import LineConfig
+from .timing import positive_seconds
 
 ASCII_MAX_FRAME = 513  # ':' + 2 x 255 + CR LF (2.5.2.1)
 INTER_CHAR_LIMIT = 1.0  # seconds (2.5.2.1)
@@ -258,12 +259,8 @@ class AsciiFramer(EventQueue[Frame]):
             if not isinstance(line, LineConfig):
                 raise TypeError(f"line must be a LineConfig, not {type(line).__name__}")
             inter_char = line.inter_char
-        elif (
-            isinstance(inter_char, bool)
-            or not isinstance(inter_char, int | float)
-            or not 0 < inter_char < float("inf")
-        ):
-            raise ValueError(f"inter_char must be a positive number of seconds, not {inter_char!r}")
+        else:
+            positive_seconds(inter_char, "inter_char")
         self.role = role
         self.line = line
         self.inter_char_us = to_microseconds(inter_char)

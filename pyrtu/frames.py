@@ -22,7 +22,15 @@ class FrameKind(enum.IntEnum):
         return self.name.lower()
 
 
-class ErrorReason(str, enum.Enum):
+class Reason(str, enum.Enum):
+    """A reason that is its own text: ``str(r)`` and ``r == "crc"`` both give the value
+    (`ErrorReason`, `pyrtu._mbap.MbapError`)."""
+
+    def __str__(self) -> str:
+        return str.__str__(self)
+
+
+class ErrorReason(Reason):
     """Why bytes were discarded."""
 
     CRC = "crc"
@@ -30,9 +38,6 @@ class ErrorReason(str, enum.Enum):
     OVERFLOW = "overflow"
     UNKNOWN_FUNCTION = "unknown_function"
     TRUNCATED = "truncated"
-
-    def __str__(self) -> str:
-        return self.value
 
 
 #: C error codes (RTU_ERR_*) in order; index 0 is "no error".

@@ -69,6 +69,7 @@ from .timing import (
     check_stopbits,
     check_timing,
     compute_timing,
+    positive_seconds,
 )
 
 
@@ -107,14 +108,7 @@ class LineConfig:
         check_mode(self.mode)
         for name in ("t15", "t35", "flush_timeout"):
             _optional_seconds(name, getattr(self, name))
-        inter = self.inter_char
-        if (
-            isinstance(inter, bool)
-            or not isinstance(inter, int | float)
-            or not math.isfinite(inter)
-            or inter <= 0
-        ):
-            raise ValueError(f"inter_char must be a positive number of seconds, not {inter!r}")
+        positive_seconds(self.inter_char, "inter_char")
         if not isinstance(self.strict, bool):
             raise ArgumentTypeError(f"strict must be True or False, not {self.strict!r}")
         # The framer's checks, with the framer's messages (they name the keyword).
@@ -203,14 +197,23 @@ class LineConfig:
         return line.replace(**kwargs) if kwargs else line
 
 
-class FormatKeywords(TypedDict, total=False):
-    """The line keywords of ``parse_stream`` (the fields of `LineConfig`; the
-    constructors that take them as ``**keywords`` type them with these)."""
+class ByteFormat(TypedDict, total=False):
+    """The byte format of a serial port (`pyrtu.port.open_port`'s keywords)."""
 
     baudrate: int
     parity: str
     stopbits: float
     bytesize: int
+
+
+#: the keywords of the byte format, in `ByteFormat`'s order
+BYTE_FORMAT: tuple[str, ...] = tuple(ByteFormat.__annotations__)
+
+
+class FormatKeywords(ByteFormat, total=False):
+    """The line keywords of ``parse_stream`` (the fields of `LineConfig`; the
+    constructors that take them as ``**keywords`` type them with these)."""
+
     timing: str
     t15: float | None
     t35: float | None
@@ -277,7 +280,7 @@ def _same(value: object, key: str) -> bool:
 def adopt_port_format(line: LineConfig, port: Any) -> LineConfig:
     """``line`` with the byte format of ``port`` (an open pyserial object passed in
     keeps its own format: the line follows it)."""
-    fmt = {k: getattr(port, k) for k in ("baudrate", "parity", "stopbits", "bytesize")}
+    fmt = {k: getattr(port, k) for k in BYTE_FORMAT}
     if all(getattr(line, k) == v for k, v in fmt.items()):
         return line
     return line.replace(**fmt)

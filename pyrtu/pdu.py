@@ -13,9 +13,10 @@ defined in `pyrtu._pdu_base` and re-exported here under the same names.
 from __future__ import annotations
 
 import struct
-from collections.abc import Iterable, Iterator, Sequence
-from typing import Any
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from typing import Any, TypeVar
 
+from . import functions
 from ._pdu_base import (
     _BHH,
     _READ_LIMITS,
@@ -79,21 +80,17 @@ from ._pdu_base import (
     unpack_bits,
 )
 from .errors import ArgumentTypeError, FrameError
+from .functions import *  # noqa: F403  (the function codes and names, re-exported)
 from .functions import (
     DIAGNOSTICS,
     ENCAPSULATED_INTERFACE,
-    FUNCTION_NAMES,
     GET_COMM_EVENT_COUNTER,
     GET_COMM_EVENT_LOG,
     MASK_WRITE_REGISTER,
     MEI_DEVICE_ID,
-    READ_COILS,
-    READ_DISCRETE_INPUTS,
     READ_EXCEPTION_STATUS,
     READ_FIFO_QUEUE,
     READ_FILE_RECORD,
-    READ_HOLDING_REGISTERS,
-    READ_INPUT_REGISTERS,
     READ_WRITE_REGISTERS,
     REPORT_SERVER_ID,
     WRITE_FILE_RECORD,
@@ -103,6 +100,8 @@ from .functions import (
     WRITE_SINGLE_REGISTER,
     function_name,
 )
+
+T = TypeVar("T")
 
 # --------------------------------------------------------------------------- checks
 
@@ -199,20 +198,25 @@ def write_register_request(address: int, value: int) -> bytes:
     return _BHH(WRITE_SINGLE_REGISTER, address, value)
 
 
-def write_coils_request(address: int, values: Iterable[object]) -> bytes:
-    where = "write_coils"
+def _written(
+    where: str, address: int, values: Iterable[object], check: Callable[..., list[T]], limit: int
+) -> list[T]:
+    """The values of a multiple write (FC 15, FC 16) checked by ``check`` (`check_bits`,
+    `check_words`) after the start address, then the span they cover."""
     check_address(where, address)
-    bits = check_bits(where, values, MAX_WRITE_COILS)
-    check_span(where, address, len(bits))
+    items = check(where, values, limit)
+    check_span(where, address, len(items))
+    return items
+
+
+def write_coils_request(address: int, values: Iterable[object]) -> bytes:
+    bits = _written("write_coils", address, values, check_bits, MAX_WRITE_COILS)
     packed = pack_bits(bits)
     return _BHH(WRITE_MULTIPLE_COILS, address, len(bits)) + bytes((len(packed),)) + packed
 
 
 def write_registers_request(address: int, values: Iterable[int]) -> bytes:
-    where = "write_registers"
-    check_address(where, address)
-    words = check_words(where, values, MAX_WRITE_REGISTERS)
-    check_span(where, address, len(words))
+    words = _written("write_registers", address, values, check_words, MAX_WRITE_REGISTERS)
     n = len(words)
     return _BHH(WRITE_MULTIPLE_REGISTERS, address, n) + bytes((2 * n,)) + _pack_words(words)
 
@@ -435,7 +439,6 @@ __all__ = [
     "BROADCAST_FUNCTIONS",
     "COIL_OFF",
     "COIL_ON",
-    "DIAGNOSTICS",
     "DIAG_BUS_CHAR_OVERRUN_COUNT",
     "DIAG_BUS_COMM_ERROR_COUNT",
     "DIAG_BUS_EXCEPTION_ERROR_COUNT",
@@ -451,12 +454,7 @@ __all__ = [
     "DIAG_SLAVE_MESSAGE_COUNT",
     "DIAG_SLAVE_NAK_COUNT",
     "DIAG_SLAVE_NO_RESPONSE_COUNT",
-    "ENCAPSULATED_INTERFACE",
     "FILE_REFERENCE_TYPE",
-    "FUNCTION_NAMES",
-    "GET_COMM_EVENT_COUNTER",
-    "GET_COMM_EVENT_LOG",
-    "MASK_WRITE_REGISTER",
     "MAX_FIFO",
     "MAX_FILE_BYTES",
     "MAX_PDU",
@@ -467,21 +465,6 @@ __all__ = [
     "MAX_RW_WRITE",
     "MAX_WRITE_COILS",
     "MAX_WRITE_REGISTERS",
-    "MEI_DEVICE_ID",
-    "READ_COILS",
-    "READ_DISCRETE_INPUTS",
-    "READ_EXCEPTION_STATUS",
-    "READ_FIFO_QUEUE",
-    "READ_FILE_RECORD",
-    "READ_HOLDING_REGISTERS",
-    "READ_INPUT_REGISTERS",
-    "READ_WRITE_REGISTERS",
-    "REPORT_SERVER_ID",
-    "WRITE_FILE_RECORD",
-    "WRITE_MULTIPLE_COILS",
-    "WRITE_MULTIPLE_REGISTERS",
-    "WRITE_SINGLE_COIL",
-    "WRITE_SINGLE_REGISTER",
     "ArgumentTypeError",
     "CommEventLog",
     "DeviceIdPage",
@@ -513,7 +496,6 @@ __all__ = [
     "exception_response",
     "fifo_request",
     "fifo_response",
-    "function_name",
     "mask_write_request",
     "pack_bits",
     "parse_bits",
@@ -540,3 +522,4 @@ __all__ = [
     "write_register_request",
     "write_registers_request",
 ]
+__all__ += functions.__all__

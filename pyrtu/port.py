@@ -50,10 +50,11 @@ except ImportError:
     _HAVE_TERMIOS = False
 
 from .errors import PortError
+from .line import BYTE_FORMAT, LINE_DEFAULTS, ByteFormat, LineConfig, check_keywords
 from .timing import bits_per_char
 
-if TYPE_CHECKING:
-    from .line import LineConfig
+if TYPE_CHECKING:  # Unpack is in typing from Python 3.11 (annotations only)
+    from typing import Unpack
 
 _READ_SIZE = 4096
 _PTY_MAJORS = frozenset(range(136, 144)) | {2, 3}  # Unix98 pty slaves, legacy BSD ptys
@@ -255,14 +256,7 @@ def _check_format(
 
 
 def open_port(
-    port: Any,
-    *,
-    baudrate: int = 19200,
-    parity: str = "E",
-    stopbits: float = 1,
-    bytesize: int = 8,
-    rs485: Any = None,
-    exclusive: bool = True,
+    port: Any, *, rs485: Any = None, exclusive: bool = True, **byte_format: Unpack[ByteFormat]
 ) -> Port:
     """Open (or adopt) a serial port; PortError names the port and the setting.
 
@@ -271,7 +265,14 @@ def open_port(
     ``exclusive=True``, ...) gets `PortError` ("busy") instead of splitting the
     bytes with the first; ``False`` shares the port.  The lock is advisory: a
     program that takes none is not stopped.  Adopted serial objects keep theirs.
+    The byte format (``baudrate``, ``parity``, ``stopbits``, ``bytesize``) defaults
+    to the line's (`pyrtu.line.LINE_DEFAULTS`: 19200 8E1).
     """
+    check_keywords(byte_format, BYTE_FORMAT, "open_port")
+    baudrate: int = byte_format.get("baudrate", LINE_DEFAULTS["baudrate"])
+    parity: str = byte_format.get("parity", LINE_DEFAULTS["parity"])
+    stopbits: float = byte_format.get("stopbits", LINE_DEFAULTS["stopbits"])
+    bytesize: int = byte_format.get("bytesize", LINE_DEFAULTS["bytesize"])
     if not isinstance(port, str):
         if not (hasattr(port, "read") and hasattr(port, "write")):
             raise TypeError(f"port must be a path, a pyserial URL or a serial object, not {port!r}")
@@ -348,12 +349,5 @@ __all__ = ["Port", "open_port"]
 
 def open_line_port(port: Any, line: LineConfig, rs485: Any = None, exclusive: bool = True) -> Port:
     """`open_port` with the byte format of ``line`` (the drivers' one way to open)."""
-    return open_port(
-        port,
-        baudrate=line.baudrate,
-        parity=line.parity,
-        stopbits=line.stopbits,
-        bytesize=line.bytesize,
-        rs485=rs485,
-        exclusive=exclusive,
-    )
+    fmt: dict[str, Any] = {k: getattr(line, k) for k in BYTE_FORMAT}
+    return open_port(port, rs485=rs485, exclusive=exclusive, **fmt)

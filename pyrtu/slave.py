@@ -48,18 +48,16 @@ import os
 import select
 import threading
 import time
-from collections.abc import Callable, Iterable, Mapping
 from typing import TYPE_CHECKING, Any
 
+from ._closing import Closing
 from ._server import Listen, Reply, ServerAction
 from ._slack import swap_timer_slack
-from ._slave_base import STANDARD_FUNCTIONS, Handler, SlaveBase
-from .datastore import DataStore
-from .line import LineConfig, LineKeywords, line_from
-from .port import open_line_port, read_fd
+from ._slave_base import STANDARD_FUNCTIONS, Handler, PortSlave
+from .port import read_fd
 
 if TYPE_CHECKING:  # Unpack is in typing from Python 3.11 (annotations only)
-    from typing import Unpack
+    pass
 
 log = logging.getLogger("pyrtu.slave")
 _monotonic = time.monotonic
@@ -74,37 +72,13 @@ _TIMER_SLACK_NS = 1000
 _SELECT_LIMIT = 1024  # FD_SETSIZE
 
 
-class Slave(SlaveBase):
+class Slave(PortSlave["Slave"], Closing):
     """A Modbus slave serving one or several addresses on one port."""
 
-    def __init__(
-        self,
-        port: Any,
-        address: int | Iterable[int] = 1,
-        store: DataStore | Mapping[int, DataStore] | None = None,
-        *,
-        echo: bool = False,
-        rs485: Any = None,
-        backend: str | None = None,
-        functions: Iterable[int] | None = None,
-        identification: dict[int, bytes] | None = None,
-        response_delay: float = 0.0,
-        watchdog: float | None = None,
-        on_watchdog: Callable[[Slave], object] | None = None,
-        server_id: bytes = b"pyrtu",
-        run_indicator: bool = True,
-        exclusive: bool = True,
-        line: LineConfig | None = None,
-        **line_keywords: Unpack[LineKeywords],
-    ) -> None:
+    _where = "Slave"
+
+    def _driver_state(self) -> None:
         self._lock = threading.RLock()
-        config = line_from(line, "Slave", **line_keywords)
-        super().__init__(
-            address, store, line=config, echo=echo, backend=backend, functions=functions,
-            identification=identification, response_delay=response_delay, watchdog=watchdog,
-            on_watchdog=on_watchdog, server_id=server_id, run_indicator=run_indicator,
-        )  # fmt: skip
-        self._setup_line(open_line_port(port, config, rs485, exclusive))
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._serving = False
@@ -115,10 +89,6 @@ class Slave(SlaveBase):
         #: the port and the wake-up pipe; the pipe alone (sleeping through a frame)
         self._wait_fds = [self._wake_r] if fd is None else [fd, self._wake_r]
         self._sleep_fds = [self._wake_r]
-        #: sleep through the known rest of a frame (not in strict mode: every gap counts)
-        self._skip = not self.line_config.strict and fd is not None
-        #: the error that ended serve_forever in the background thread, if any
-        self.error: BaseException | None = None
 
     def _guard(self) -> Any:
         return self._lock
@@ -181,12 +151,6 @@ class Slave(SlaveBase):
             with contextlib.suppress(OSError):
                 os.close(fd)
         self._wake_r = self._wake_w = -1
-
-    def __enter__(self) -> Slave:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def __repr__(self) -> str:
         return f"<pyrtu.Slave {sorted(self.addresses)} on {self.port.name} {self.mode}>"

@@ -24,12 +24,13 @@ import contextlib
 import select
 import socket
 import time
-from types import TracebackType
 from typing import Any
 from urllib.parse import urlsplit
 
 import serial
 
+from ._closing import AsyncClosing, Closing
+from ._forward import Forward, Settable
 from ._tcp_client import TcpClientProtocol, check_timeout
 from ._types import BytesLike
 from .errors import ModbusError, PortError
@@ -77,7 +78,23 @@ def rtu_over_tcp(url: str) -> Any:
         raise PortError(url, f"cannot connect: {exc}") from exc
 
 
-class TcpClient:
+class _ClientState:
+    """What a TCP client reads from (and sets on) its protocol."""
+
+    _proto: TcpClientProtocol
+    timeout = Settable[float]("_proto", check_timeout)
+    last_answer_time = Forward[float | None](
+        "_proto",
+        "answer_end",
+        "When the latest answer was read (monotonic seconds), or None before the first.",
+    )
+
+    @property
+    def counters(self) -> dict[str, int]:
+        return dict(self._proto.counters)
+
+
+class TcpClient(_ClientState, Closing):
     """A blocking Modbus TCP client: one request at a time on one connection."""
 
     def __init__(
@@ -95,23 +112,6 @@ class TcpClient:
             raise PortError(self.where, f"cannot connect: {exc.strerror or exc}") from exc
         self._sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self._sock.setblocking(False)
-
-    @property
-    def counters(self) -> dict[str, int]:
-        return dict(self._proto.counters)
-
-    @property
-    def timeout(self) -> float:
-        return self._proto.timeout
-
-    @timeout.setter
-    def timeout(self, value: float) -> None:
-        self._proto.timeout = check_timeout(value)
-
-    @property
-    def last_answer_time(self) -> float | None:
-        """When the latest answer was read (monotonic seconds), or None before the first."""
-        return self._proto.answer_end
 
     def request(
         self, unit: int, pdu: BytesLike, *, answered: bool | None = None, raw: bool = False
@@ -162,12 +162,6 @@ class TcpClient:
 
     def close(self) -> None:
         self._sock.close()
-
-    def __enter__(self) -> TcpClient:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def __repr__(self) -> str:
         return f"TcpClient({self.where!r})"
@@ -226,11 +220,12 @@ class _ClientConnection(asyncio.Protocol):
             self.timer = loop.call_at(loop.time() + delay, self.on_timer)
 
 
-class AsyncTcpClient:
+class AsyncTcpClient(_ClientState, AsyncClosing):
     """An asyncio Modbus TCP client: up to ``max_in_flight`` requests on the wire at once."""
 
     def __init__(self, conn: _ClientConnection, host: str, port: int, max_in_flight: int) -> None:
         self._conn = conn
+        self._proto = conn.proto
         self.host, self.port = host, port
         self.where = conn.where
         self._window = asyncio.Semaphore(max_in_flight)
@@ -262,23 +257,6 @@ class AsyncTcpClient:
             with contextlib.suppress(OSError):
                 sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         return cls(conn, host, port, max_in_flight)
-
-    @property
-    def counters(self) -> dict[str, int]:
-        return dict(self._conn.proto.counters)
-
-    @property
-    def timeout(self) -> float:
-        return self._conn.proto.timeout
-
-    @timeout.setter
-    def timeout(self, value: float) -> None:
-        self._conn.proto.timeout = check_timeout(value)
-
-    @property
-    def last_answer_time(self) -> float | None:
-        """When the latest answer was read (monotonic seconds), or None before the first."""
-        return self._conn.proto.answer_end
 
     async def request(
         self, unit: int, pdu: BytesLike, *, answered: bool | None = None, raw: bool = False
@@ -316,17 +294,6 @@ class AsyncTcpClient:
         """`request` with ``raw=True``: an exception response as its PDU (the gateway's
         bus interface, as `pyrtu.aio.AsyncMaster.exchange`)."""
         return await self.request(unit, pdu, raw=True)
-
-    async def __aenter__(self) -> AsyncTcpClient:
-        return self
-
-    async def __aexit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        await self.close()
 
     def __repr__(self) -> str:
         return f"AsyncTcpClient({self.where!r})"

@@ -32,6 +32,7 @@ import asyncio
 from collections.abc import Iterable, Mapping
 from typing import Any, Protocol
 
+from ._closing import AsyncClosing
 from ._slave_base import SlaveBase
 from .datastore import DataStore
 from .gateway import Gateway, GatewayLimits
@@ -95,7 +96,7 @@ class LocalBus:
         return None if slave == 0 else response
 
 
-class TcpServer:
+class TcpServer(AsyncClosing):
     """Serves ``app`` over Modbus TCP (see the module docstring)."""
 
     def __init__(self, app: Application, limits: GatewayLimits | None = None) -> None:
@@ -149,12 +150,6 @@ class TcpServer:
 
     async def close(self) -> None:
         await self._gateway.close()
-
-    async def __aenter__(self) -> TcpServer:
-        return self
-
-    async def __aexit__(self, *exc: object) -> None:
-        await self.close()
 
     def __repr__(self) -> str:
         return f"TcpServer({self.app!r}, address={self.address})"

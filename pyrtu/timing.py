@@ -150,6 +150,19 @@ def seconds_to_us(value: float, name: str) -> int:
     return round(value * 1_000_000)
 
 
+def positive_seconds(value: object, name: str) -> float:
+    """``value`` as float seconds: ValueError naming ``name`` unless it is a finite
+    number above 0 (an inter-character limit, a timeout)."""
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, int | float)
+        or not math.isfinite(value)
+        or value <= 0
+    ):
+        raise ValueError(f"{name} must be a positive number of seconds, not {value!r}")
+    return float(value)
+
+
 def apply_overrides(base: Timing, t15: float | None, t35: float | None) -> Timing:
     t15_us = base.t15_us if t15 is None else seconds_to_us(t15, "t15")
     t35_us = base.t35_us if t35 is None else seconds_to_us(t35, "t35")

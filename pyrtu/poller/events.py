@@ -118,6 +118,10 @@ def percentile(sorted_values: list[float], q: float) -> float | None:
     return sorted_values[int(rank) - 1]
 
 
+#: the fields of `SlaveStats` its dict shows as they are, in this order
+_SLAVE_COUNTS = ("bus", "slave", "requests", "responses", "timeouts", "exceptions", "frame_errors")
+
+
 @dataclass
 class SlaveStats:
     """Counts of one slave's transactions, the wire time they took (``busy``,
@@ -146,13 +150,7 @@ class SlaveStats:
         state = {None: "unknown", True: "online", False: "offline"}[self.online]
         rate = self.success_rate
         return {
-            "bus": self.bus,
-            "slave": self.slave,
-            "requests": self.requests,
-            "responses": self.responses,
-            "timeouts": self.timeouts,
-            "exceptions": self.exceptions,
-            "frame_errors": self.frame_errors,
+            **{name: getattr(self, name) for name in _SLAVE_COUNTS},
             "state": state,
             "busy_s": round(self.busy, 4),
             "success_rate": None if rate is None else round(rate, 4),
