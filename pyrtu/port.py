@@ -255,6 +255,60 @@ def _check_format(
         raise PortError(name, f"the port refused {bytesize} data bits ({fmt})")
 
 
+def _rs485_mode(rs485: Any) -> Any:
+    """The pyserial RS-485 settings ``rs485`` asks for (None: leave the port's)."""
+    if rs485 is None or rs485 is False:
+        return None
+    return serial.rs485.RS485Settings() if rs485 is True else rs485
+
+
+def _adopt(
+    port: Any, baudrate: int, parity: str, stopbits: float, bytesize: int, rs485: Any
+) -> Port:
+    """A serial object the caller opened (or will let us open); its own settings win."""
+    if not (hasattr(port, "read") and hasattr(port, "write")):
+        raise TypeError(f"port must be a path, a pyserial URL or a serial object, not {port!r}")
+    name = str(getattr(port, "port", None) or getattr(port, "name", None) or repr(port))
+    try:
+        mode = _rs485_mode(rs485)
+        if mode is not None:
+            port.rs485_mode = mode
+        if not getattr(port, "is_open", True):
+            port.open()
+    except ValueError as exc:
+        raise PortError(name, f"the port refused RS-485 mode: {exc}") from exc
+    except (serial.SerialException, OSError, _TermiosError) as exc:
+        raise PortError(name, f"cannot open: {exc}") from exc
+    baud = int(getattr(port, "baudrate", baudrate) or baudrate)
+    p = str(getattr(port, "parity", parity) or parity).upper()[:1]
+    sb = getattr(port, "stopbits", stopbits) or stopbits
+    bs = getattr(port, "bytesize", bytesize) or bytesize
+    return Port(port, name, False, baud, p, sb, bs)
+
+
+def _open_error(exc: BaseException, port: str, fmt: str, parity: str, stopbits: float) -> PortError:
+    """The `PortError` for a port pyserial could not open (what the OS said, in our words)."""
+    # termios.error (not an OSError) escapes pyserial when tcsetattr refuses parity
+    code = getattr(exc, "errno", None)
+    if isinstance(exc, _TermiosError) and exc.args:
+        code = exc.args[0]
+    text = str(exc)
+    if code in (errno.EWOULDBLOCK, errno.EAGAIN) and "exclusive" in text:
+        return PortError(
+            port,
+            "busy: another program holds it (ports are opened exclusively;"
+            " pass exclusive=False to share it)",
+        )
+    if code == errno.EINVAL or "Invalid argument" in text:
+        hint = " (pseudo-terminals carry no parity: use parity='N')" if parity != "N" else ""
+        return PortError(
+            port,
+            f"the port refused the format {fmt}, parity {parity}, {stopbits} stop bit(s) "
+            f"(EINVAL){hint}: {text}",
+        )
+    return PortError(port, f"cannot open: {text}")
+
+
 def open_port(
     port: Any, *, rs485: Any = None, exclusive: bool = True, **byte_format: Unpack[ByteFormat]
 ) -> Port:
@@ -274,30 +328,11 @@ def open_port(
     stopbits: float = byte_format.get("stopbits", LINE_DEFAULTS["stopbits"])
     bytesize: int = byte_format.get("bytesize", LINE_DEFAULTS["bytesize"])
     if not isinstance(port, str):
-        if not (hasattr(port, "read") and hasattr(port, "write")):
-            raise TypeError(f"port must be a path, a pyserial URL or a serial object, not {port!r}")
-        name = str(getattr(port, "port", None) or getattr(port, "name", None) or repr(port))
-        try:
-            if rs485 is not None and rs485 is not False:
-                port.rs485_mode = serial.rs485.RS485Settings() if rs485 is True else rs485
-            if not getattr(port, "is_open", True):
-                port.open()
-        except ValueError as exc:
-            raise PortError(name, f"the port refused RS-485 mode: {exc}") from exc
-        except (serial.SerialException, OSError, _TermiosError) as exc:
-            raise PortError(name, f"cannot open: {exc}") from exc
-        baud = int(getattr(port, "baudrate", baudrate) or baudrate)
-        p = str(getattr(port, "parity", parity) or parity).upper()[:1]
-        sb = getattr(port, "stopbits", stopbits) or stopbits
-        bs = getattr(port, "bytesize", bytesize) or bytesize
-        return Port(port, name, False, baud, p, sb, bs)
-
+        return _adopt(port, baudrate, parity, stopbits, bytesize, rs485)
     parity = parity.upper()[:1]
     bits_per_char(parity, stopbits, bytesize)  # ValueError for a bad format
     fmt = _describe(baudrate, bytesize, parity, stopbits)
-    mode = None
-    if rs485 is not None and rs485 is not False:
-        mode = serial.rs485.RS485Settings() if rs485 is True else rs485
+    mode = _rs485_mode(rs485)
     try:
         ser = serial.serial_for_url(port, do_not_open=True)
         ser.baudrate = baudrate
@@ -315,25 +350,7 @@ def open_port(
         what = "RS-485 mode" if "RS485" in str(exc) else f"the format {fmt}"
         raise PortError(port, f"the port refused {what}: {exc}") from exc
     except (serial.SerialException, OSError, _TermiosError) as exc:
-        # termios.error (not an OSError) escapes pyserial when tcsetattr refuses parity
-        code = getattr(exc, "errno", None)
-        if isinstance(exc, _TermiosError) and exc.args:
-            code = exc.args[0]
-        text = str(exc)
-        if code in (errno.EWOULDBLOCK, errno.EAGAIN) and "exclusive" in text:
-            raise PortError(
-                port,
-                "busy: another program holds it (ports are opened exclusively;"
-                " pass exclusive=False to share it)",
-            ) from exc
-        if code == errno.EINVAL or "Invalid argument" in text:
-            hint = " (pseudo-terminals carry no parity: use parity='N')" if parity != "N" else ""
-            raise PortError(
-                port,
-                f"the port refused the format {fmt}, parity {parity}, {stopbits} stop bit(s) "
-                f"(EINVAL){hint}: {text}",
-            ) from exc
-        raise PortError(port, f"cannot open: {text}") from exc
+        raise _open_error(exc, port, fmt, parity, stopbits) from exc
     fd = _posix_fd(ser)
     if fd is not None:
         try:
