@@ -14,7 +14,7 @@ APT_PACKAGES := libmodbus-dev pkg-config socat mosquitto mosquitto-clients
 	fuzz-python fuzz-outbox
 
 # Developer targets compile the C core with -Werror (PYRTU_STRICT_BUILD=1, read by
-# pyrtu/_build_core.py), so that it stays -Wall -Wextra clean; `make demo` builds
+# pyrtu/core/_build_core.py), so that it stays -Wall -Wextra clean; `make demo` builds
 # it as a user's `pip install .` does, where a new compiler's warning is no error.
 setup test test-asan bench lint: export PYRTU_STRICT_BUILD := 1
 
@@ -34,7 +34,7 @@ system-packages:
 	  else echo "pyrtu: please install:$$missing (sudo apt-get install$$missing)"; exit 1; fi; \
 	fi
 
-$(STAMP): pyproject.toml setup.py pyrtu/_build_core.py pyrtu/_cdef.h $(wildcard csrc/*.c csrc/*.h csrc/python/*.c) | system-packages
+$(STAMP): pyproject.toml setup.py pyrtu/core/_build_core.py pyrtu/core/_cdef.h $(wildcard csrc/*.c csrc/*.h csrc/python/*.c) | system-packages
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e '.[test]'
@@ -54,7 +54,7 @@ test-asan: setup
 	cd $(ASAN_DIR) && \
 	  LD_PRELOAD="$$(gcc -print-file-name=libasan.so) $$(gcc -print-file-name=libubsan.so)" \
 	  ASAN_OPTIONS=detect_leaks=0:abort_on_error=1 UBSAN_OPTIONS=halt_on_error=1:print_stacktrace=1 \
-	  PYRTU_REQUIRE_C=1 ../../$(PY) -c "import pyrtu, sys; assert pyrtu.BACKEND == 'c' and '$(ASAN_DIR)' in pyrtu.__file__ and '$(ASAN_DIR)' in pyrtu._cext.CRCFAST.__file__, pyrtu.__file__; print('sanitized core:', pyrtu.__file__)" && \
+	  PYRTU_REQUIRE_C=1 ../../$(PY) -c "import pyrtu, sys; assert pyrtu.BACKEND == 'c' and '$(ASAN_DIR)' in pyrtu.__file__ and '$(ASAN_DIR)' in pyrtu.core._cext.CRCFAST.__file__, pyrtu.__file__; print('sanitized core:', pyrtu.__file__)" && \
 	  LD_PRELOAD="$$(gcc -print-file-name=libasan.so) $$(gcc -print-file-name=libubsan.so)" \
 	  ASAN_OPTIONS=detect_leaks=0:abort_on_error=1 UBSAN_OPTIONS=halt_on_error=1:print_stacktrace=1 \
 	  PYRTU_REQUIRE_C=1 ../../$(PY) -m pytest -q -p no:cacheprovider -m 'not wall_clock and not rss' tests

@@ -1,14 +1,14 @@
 """Build glue: compiles the C core through cffi, or falls back to the pure-Python twin.
 
-The cffi build script is pyrtu/_build_core.py (build time only). When no working C
+The cffi build script is pyrtu/core/_build_core.py (build time only). When no working C
 compiler is present the install still succeeds, without the extension, and says so;
 `import pyrtu` then selects the pure-Python backend (PYRTU_REQUIRE_C=1 refuses that).
 Set PYRTU_REQUIRE_C=1 at build time to make a failed compile fail the install.
 
-A second extension, ``pyrtu._crcfast`` (csrc/python/rtu_crc_py.c with csrc/rtu_crc.c,
+A second extension, ``pyrtu.core._crcfast`` (csrc/python/rtu_crc_py.c with csrc/rtu_crc.c,
 the CPython API), gives the C backend's CRC functions a builtin's call cost; it is
 optional in the same way (without it, the CRC goes through cffi) and is compiled with
-the core's flags (PYRTU_STRICT_BUILD, PYRTU_SANITIZE: see pyrtu/_build_core.py).
+the core's flags (PYRTU_STRICT_BUILD, PYRTU_SANITIZE: see pyrtu/core/_build_core.py).
 """
 
 import importlib.util
@@ -18,12 +18,12 @@ import sys
 from setuptools import Extension, setup
 from setuptools.command.build_ext import build_ext
 
-CRCFAST = "pyrtu._crcfast"
+CRCFAST = "pyrtu.core._crcfast"
 
 
 def _core_flags() -> tuple[list[str], list[str]]:
-    """The compile and link flags of pyrtu/_build_core.py (one place for them)."""
-    path = os.path.join(os.path.dirname(os.path.abspath(__file__)), "pyrtu", "_build_core.py")
+    """The compile and link flags of pyrtu/core/_build_core.py (one place for them)."""
+    path = os.path.join(os.path.dirname(os.path.abspath(__file__)), "pyrtu", "core", "_build_core.py")
     spec = importlib.util.spec_from_file_location("_pyrtu_build_core", path)
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
@@ -66,7 +66,7 @@ class OptionalBuildExt(build_ext):
 _compile_args, _link_args = _core_flags()
 
 setup(
-    cffi_modules=["pyrtu/_build_core.py:ffibuilder"],
+    cffi_modules=["pyrtu/core/_build_core.py:ffibuilder"],
     ext_modules=[
         Extension(
             CRCFAST,

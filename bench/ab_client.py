@@ -4,7 +4,7 @@
 
 bench_client.py measures the master of this tree inside its own process (pymodbus
 imported, buses and loops already made) and the tree before in a fresh one; this
-runs both trees' `Master` and `AsyncMaster` (on `pyrtu.aio.run`) the same way, a
+runs both trees' `Master` and `AsyncMaster` (on `pyrtu.drivers.aio.run`) the same way, a
 fresh interpreter each, interleaved with the libmodbus client on the same bus and
 slave (bench_client.py's buses, slave and programs): medians of the rounds.
 """

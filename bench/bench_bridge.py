@@ -41,10 +41,10 @@ import paho.mqtt.client as paho  # noqa: E402
 from mqtt_broker import Broker  # noqa: E402
 from paho.mqtt.enums import CallbackAPIVersion  # noqa: E402
 
-from pyrtu.aio import run as aio_run  # noqa: E402
 from pyrtu.bridge import parse_bridge_config  # noqa: E402
 from pyrtu.bridge.bridge import Bridge  # noqa: E402
 from pyrtu.bridge.topics import payload, record, split_record  # noqa: E402
+from pyrtu.drivers.aio import run as aio_run  # noqa: E402
 from pyrtu.poller import Point, Poller, SlaveState, Update  # noqa: E402
 
 RESULTS = BENCH / "RESULTS.md"

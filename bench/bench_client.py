@@ -8,7 +8,7 @@ the CPU figures are the master's own:
 
 1. single bus, FC 03 x 10 registers, byte-timed delivery, specification timing on
    both sides, the pyrtu slave (tests/peers/pyrtu_slave.py) on drop 1, at 9600 and
-   115200 baud 8N1: the sync `Master` and `AsyncMaster` (on `pyrtu.aio.run`'s
+   115200 baud 8N1: the sync `Master` and `AsyncMaster` (on `pyrtu.drivers.aio.run`'s
    microsecond-timer loop): transactions/s, ratio to the wire limit
    1 / (33 characters + 2 x t3.5), master CPU per transaction (thread CPU time);
 2. pymodbus's ``AsyncModbusSerialClient`` on the same bus against the same slave,
@@ -50,11 +50,11 @@ from peers.tools import (  # type: ignore[import-not-found]  # noqa: E402
     libmodbus_bench,
 )
 
-from pyrtu.aio import AsyncMaster  # noqa: E402
-from pyrtu.aio import run as aio_run  # noqa: E402
-from pyrtu.errors import FrameError, NoResponseError  # noqa: E402
-from pyrtu.line import LineConfig  # noqa: E402
-from pyrtu.master import Master  # noqa: E402
+from pyrtu.core.line import LineConfig  # noqa: E402
+from pyrtu.drivers.aio import AsyncMaster  # noqa: E402
+from pyrtu.drivers.aio import run as aio_run  # noqa: E402
+from pyrtu.drivers.master import Master  # noqa: E402
+from pyrtu.pdu.errors import FrameError, NoResponseError  # noqa: E402
 
 SLAVE = 7
 COUNT = 10
@@ -224,7 +224,7 @@ def pymodbus_master(path: str, baudrate: int, n: int) -> dict[str, float]:
 
 _BASELINE = r"""
 import sys, time
-from pyrtu.master import Master
+from pyrtu.drivers.master import Master
 path, n, baud = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
 with Master(path, baud, parity="N", timeout=1.0) as m:
     for _ in range(5):
@@ -235,10 +235,10 @@ with Master(path, baud, parity="N", timeout=1.0) as m:
     print(n / (time.perf_counter() - t0), (time.thread_time() - c0) / n * 1e6)
 """
 
-#: the AsyncMaster of the checkout before, on `pyrtu.aio.run` as `async_master`
+#: the AsyncMaster of the checkout before, on `pyrtu.drivers.aio.run` as `async_master`
 _BASELINE_ASYNC = r"""
 import sys, time
-from pyrtu.aio import AsyncMaster, run
+from pyrtu.drivers.aio import AsyncMaster, run
 path, n, baud = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
 async def main():
     async with AsyncMaster(path, baud, parity="N", timeout=1.0) as m:
@@ -282,9 +282,9 @@ def baseline_master(
 def protocol_only(baudrate: int, n: int = 20000) -> float:
     """CPU per transaction of the client protocol alone, synthetic time, no I/O (hot
     caches): start, send, the answer in two reads, the result."""
-    from pyrtu import _backend
-    from pyrtu._client import ClientProtocol
-    from pyrtu._requests import read_holding_registers
+    from pyrtu.core import _backend
+    from pyrtu.pdu.requests import read_holding_registers
+    from pyrtu.protocol.client import ClientProtocol
 
     be = _backend.active
     proto = ClientProtocol(LineConfig(baudrate=baudrate, parity="N"), timeout=1.0, backend=be)
@@ -449,7 +449,7 @@ def _uvloop_run(main: Any) -> Any:
     return uvloop.run(main)
 
 
-#: the masters' event loops: pyrtu.aio.run's select() loop, plain asyncio.run (epoll),
+#: the masters' event loops: pyrtu.drivers.aio.run's select() loop, plain asyncio.run (epoll),
 #: uvloop (libuv)
 EVENT_LOOPS: dict[str, Any] = {"pyrtu": aio_run, "asyncio": asyncio.run, "uvloop": _uvloop_run}
 
@@ -498,7 +498,7 @@ def section(data: dict[str, Any]) -> str:
         "master's thread.  Specification timing on both sides (t3.5 = 3.5 characters up to",
         "19200 baud, 1750 µs above).  Wire limit = 1 / (33 characters + 2 x t3.5).  Medians",
         f"over {data['rounds']} interleaved rounds.  The asyncio master runs on",
-        "`pyrtu.aio.run` (a select() loop: microsecond timers; the default epoll loop",
+        "`pyrtu.drivers.aio.run` (a select() loop: microsecond timers; the default epoll loop",
         "rounds every timer up to a millisecond).",
         "",
         "| baud | master | transactions/s | wire limit /s | ratio | master CPU µs/tx |",
@@ -679,7 +679,7 @@ def main() -> None:
     ap.add_argument(
         "--loops",
         action="store_true",
-        help="--buses buses at 115200 under pyrtu.aio.run, asyncio.run and uvloop,"
+        help="--buses buses at 115200 under pyrtu.drivers.aio.run, asyncio.run and uvloop,"
         " interleaved --rounds times; prints table rows",
     )
     args = ap.parse_args()

@@ -16,7 +16,7 @@ Measurements, not tests (nothing is asserted): the numbers go to bench/RESULTS.m
   255-byte FC 03 answers) and the CRC functions inside minimalmodbus, umodbus and
   modbus_tk (8 and 256 bytes): medians of 21 timeit repeats, stock and installed
   interleaved; "installed via cffi" is the same replacement through the cffi core (as
-  before pyrtu._crcfast), measured in the same run.
+  before pyrtu.core._crcfast), measured in the same run.
 """
 
 from __future__ import annotations
@@ -134,8 +134,8 @@ def decode_figures() -> dict[str, Any]:
 
 
 def crc_figures() -> dict[str, Any]:
-    """Stock, installed (pyrtu._crcfast's builtins when built) and installed through
-    cffi (the shapes of pyrtu._crcshapes over the cffi core, as before _crcfast)."""
+    """Stock, installed (pyrtu.core._crcfast's builtins when built) and installed through
+    cffi (the shapes of pyrtu.core.crcshapes over the cffi core, as before _crcfast)."""
     import minimalmodbus
     import modbus_tk.utils
     import umodbus.client.serial.redundancy_check as rc
@@ -143,7 +143,7 @@ def crc_figures() -> dict[str, Any]:
     import pyrtu.compat.minimalmodbus as c_mm
     import pyrtu.compat.modbus_tk as c_tk
     import pyrtu.compat.umodbus as c_um
-    from pyrtu import _crcshapes
+    from pyrtu.core import crcshapes as _crcshapes
 
     def mm_cffi(inputbytes: bytes) -> bytes:  # c_mm._calculate_crc over cffi
         if not isinstance(inputbytes, bytes):

@@ -8,11 +8,11 @@ bytes / mean (or median) time.  ``c noop`` is an empty cffi call with no argumen
 ``c noop same arguments`` one with crc16's (bytes, length, seed): the floors under
 the cffi rows.  Both are functions of a small cffi module this file compiles at run
 time into a temporary directory (`_noop_lib`, the same out-of-line API mode as
-pyrtu._rtu_core), so that the shipped extension carries no benchmark-only code.
+pyrtu.core._rtu_core), so that the shipped extension carries no benchmark-only code.
 ``c path <name>`` calls
 ``rtu_crc16_path`` straight through cffi with a preallocated buffer and result
 (the C cost plus one cffi call); ``c crc16`` is the C backend's public function,
-the builtin of pyrtu._crcfast when it is built (``builtin noop``, ``len(data)``, is
+the builtin of pyrtu.core._crcfast when it is built (``builtin noop``, ``len(data)``, is
 the floor under it), and ``c crc16 cffi`` the same through cffi.
 Peers (crcmod, pymodbus, minimalmodbus) are skipped when not installed.
 
@@ -56,7 +56,7 @@ def payload(request: pytest.FixtureRequest) -> tuple[str, bytes]:
 def _c() -> Any:
     if "c" not in pyrtu.available_backends():
         pytest.skip("the C core is not built")
-    from pyrtu import _cext
+    from pyrtu.core import _cext
 
     return _cext
 
@@ -81,7 +81,7 @@ _NOOP_CDEF = """
 void bench_noop(void);
 uint16_t bench_noop_bytes(const char *data, size_t len, uint16_t crc);
 """
-# the same shapes as the core's crc16 bindings (pyrtu/_build_core.py), doing nothing
+# the same shapes as the core's crc16 bindings (pyrtu/core/_build_core.py), doing nothing
 _NOOP_SOURCE = """
 #include <stddef.h>
 #include <stdint.h>
@@ -140,7 +140,7 @@ def test_c_crc16(benchmark: Any, payload: tuple[str, bytes]) -> None:
 
 
 def test_c_crc16_cffi(benchmark: Any, payload: tuple[str, bytes]) -> None:
-    """``c crc16`` through cffi (the C backend's function when pyrtu._crcfast is not
+    """``c crc16`` through cffi (the C backend's function when pyrtu.core._crcfast is not
     built, and before it was written): the same C, a cffi call's overhead."""
     label, data = payload
     cext = _c()
@@ -152,7 +152,7 @@ def test_c_crc16_swapped(benchmark: Any, payload: tuple[str, bytes]) -> None:
     """``pyrtu.crc16_swapped``: modbus_tk's ``calculate_crc`` shape (pyrtu.compat)."""
     label, data = payload
     _c()
-    from pyrtu import _crcshapes
+    from pyrtu.core import crcshapes as _crcshapes
 
     result = _run(benchmark, label, data, _crcshapes.crc16_swapped, data)
     want = _want(data)
@@ -160,17 +160,17 @@ def test_c_crc16_swapped(benchmark: Any, payload: tuple[str, bytes]) -> None:
 
 
 def test_c_crc16_swapped_cffi(benchmark: Any, payload: tuple[str, bytes]) -> None:
-    """The same shape over cffi (what ``crc16_swapped`` was before pyrtu._crcfast)."""
+    """The same shape over cffi (what ``crc16_swapped`` was before pyrtu.core._crcfast)."""
     label, data = payload
     _c()
-    from pyrtu import _crcshapes
+    from pyrtu.core import crcshapes as _crcshapes
 
     _run(benchmark, label, data, _crcshapes._crc16_swapped, data)
 
 
 def test_builtin_noop(benchmark: Any, payload: tuple[str, bytes]) -> None:
     """``len(data)``: a builtin called with one argument, the floor under the rows that
-    call pyrtu._crcfast (its functions are builtins too)."""
+    call pyrtu.core._crcfast (its functions are builtins too)."""
     label, data = payload
     _run(benchmark, label, data, len, data)
 

@@ -37,10 +37,10 @@ from pathlib import Path
 from typing import Any
 
 from pyrtu import Master
-from pyrtu.aio import run as aio_run
 from pyrtu.devices import cv100 as C
 from pyrtu.devices import simulator
-from pyrtu.errors import FrameError, NoResponseError
+from pyrtu.drivers.aio import run as aio_run
+from pyrtu.pdu.errors import FrameError, NoResponseError
 from pyrtu.poller import (
     Bus,
     Cuts,
@@ -342,7 +342,7 @@ def overhead(seconds: float, baud: int = 115200) -> dict[str, float]:
     """CPU per transaction of a bare `AsyncMaster` loop and of the poller, reading
     the same 10 registers of one CV100 back to back (the poller's cost on top of
     its master): three runs of ``seconds / 3`` each, interleaved, medians."""
-    from pyrtu.aio import AsyncMaster
+    from pyrtu.drivers.aio import AsyncMaster
 
     with farm(baud) as (path, _sims):
 

@@ -46,7 +46,7 @@ from peers.tools import (
     socat_pair,
 )
 
-from pyrtu.master import Master
+from pyrtu.drivers.master import Master
 from pyrtu.vbus import VirtualBus
 
 pytest_plugins = ["peers.fixtures"]

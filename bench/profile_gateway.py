@@ -8,7 +8,7 @@ libmodbus TCP client's ``bench`` (tests/peers/libmodbus_client.c: N FC 03 reads 
 10 registers, one in flight, every answer checked), each a process of its own, so
 this process's CPU is the gateway's alone.
 
-``--bus pty`` (the default): the bus is `pyrtu.aio.AsyncMaster` on a pseudo-terminal
+``--bus pty`` (the default): the bus is `pyrtu.drivers.aio.AsyncMaster` on a pseudo-terminal
 pair (socat, ``t35=0``) with the pyrtu slave of tests/peers/pyrtu_slave.py (its own
 process) on the other end: the whole path, TCP receive -> queue -> serial
 transaction -> TCP send.  ``--bus instant``: a bus whose ``request`` returns the
@@ -104,7 +104,7 @@ async def bus(kind: str) -> AsyncIterator[object]:
     if kind == "instant":
         yield InstantBus()
         return
-    from pyrtu.aio import AsyncMaster
+    from pyrtu.drivers.aio import AsyncMaster
 
     with socat_pair() as (gw_side, dev_side), pyrtu_slave_process(dev_side, 1, t35=0):
         async with AsyncMaster(gw_side, 115200, "N", t35=0.0, timeout=0.5) as master:

@@ -41,7 +41,7 @@ from peers.tools import (  # type: ignore[import-not-found]  # noqa: E402
 )
 
 from pyrtu import crc16  # noqa: E402
-from pyrtu.master import Master  # noqa: E402
+from pyrtu.drivers.master import Master  # noqa: E402
 
 REQUEST = bytes.fromhex("01030000000ac5cd")  # FC 03, slave 1, 10 registers from 0
 ANSWER = 25

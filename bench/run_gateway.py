@@ -45,8 +45,8 @@ from peers.tools import socat_pair  # noqa: E402
 
 import pyrtu  # noqa: E402
 from pyrtu import pdu  # noqa: E402
-from pyrtu.aio import AsyncMaster  # noqa: E402
-from pyrtu.aio import run as aio_run  # noqa: E402
+from pyrtu.drivers.aio import AsyncMaster  # noqa: E402
+from pyrtu.drivers.aio import run as aio_run  # noqa: E402
 from pyrtu.tcp import AsyncTcpClient  # noqa: E402
 
 RESULTS = BENCH / "RESULTS.md"
@@ -181,7 +181,7 @@ async def load(url: str, clients: int, seconds: float, target: str) -> tuple[int
 async def direct(
     path: str, timing: list[str], seconds: float, target: str
 ) -> tuple[int, float, float]:
-    """The same reads by `pyrtu.aio.AsyncMaster` on the line itself, no gateway:
+    """The same reads by `pyrtu.drivers.aio.AsyncMaster` on the line itself, no gateway:
     (transactions, seconds, CPU seconds of this process)."""
     unit, address, count = TARGETS[target]
     t35 = 0.0 if timing else None
@@ -295,7 +295,7 @@ def section(
         "`t35=0` on both sides; virtual bus: `pyrtu vbus`, specification timing (t3.5 = "
         "1750 µs), wire limit = 1 / (request + response characters + 2 x t3.5).  Gateway "
         "CPU: its process's user+system time over the transactions forwarded.  Clients 0: "
-        "the same reads by `pyrtu.aio.AsyncMaster` on the line directly (no gateway, no "
+        "the same reads by `pyrtu.drivers.aio.AsyncMaster` on the line directly (no gateway, no "
         "TCP; its CPU in the last column), the reference for the gateway's own cost.",
         "",
         "| line | device | clients | transactions/s | wire limit /s | efficiency "

@@ -54,7 +54,7 @@ END = "<!-- slave:end -->"
 
 
 def make_store() -> Any:
-    from pyrtu.datastore import DataStore
+    from pyrtu.protocol.datastore import DataStore
 
     store = DataStore()
     store.holding_registers.add_range(0, [(SLAVE * 1000 + i) & 0xFFFF for i in range(100)])
@@ -67,7 +67,7 @@ def make_store() -> Any:
 def serve(kind: str, path: str, baudrate: int) -> None:
     """Serve on ``path``; answer "cpu" lines on stdin with "<process_time> <requests>"."""
     if kind in ("sync", "baseline"):
-        from pyrtu.slave import Slave
+        from pyrtu.drivers.slave import Slave
 
         slave = Slave(path, SLAVE, make_store(), baudrate=baudrate, parity="N")
         slave.start()
@@ -77,8 +77,8 @@ def serve(kind: str, path: str, baudrate: int) -> None:
                 print(time.process_time(), slave.counters["requests"], flush=True)
         slave.close()
         return
-    from pyrtu._aio_slave import AsyncSlave
-    from pyrtu.aio import run as aio_run
+    from pyrtu.drivers.aio import run as aio_run
+    from pyrtu.drivers.aio_slave import AsyncSlave
 
     async def main() -> None:
         loop = asyncio.get_running_loop()
@@ -92,7 +92,7 @@ def serve(kind: str, path: str, baudrate: int) -> None:
                 print(time.process_time(), aslave.counters["requests"], flush=True)
         await aslave.close()
 
-    aio_run(main())  # pyrtu.aio.run: a select() loop, microsecond timers
+    aio_run(main())  # pyrtu.drivers.aio.run: a select() loop, microsecond timers
 
 
 class SlaveProcess:
@@ -158,8 +158,8 @@ def baseline_tree(rev: str, into: str) -> str:
 
 
 def measure(kind: str, baudrate: int, tree: str | None = None) -> dict[str, Any]:
-    from pyrtu.errors import ModbusError
-    from pyrtu.master import Master
+    from pyrtu.drivers.master import Master
+    from pyrtu.pdu.errors import ModbusError
     from pyrtu.vbus import VirtualBus
 
     errors = total = switches = 0
@@ -201,7 +201,7 @@ def measure(kind: str, baudrate: int, tree: str | None = None) -> dict[str, Any]
                     rates.append(n / wall)
         finally:
             slave.close()
-    from pyrtu.line import LineConfig
+    from pyrtu.core.line import LineConfig
 
     line = LineConfig(baudrate=baudrate, parity="N")
     # request 8 + answer 25 characters, and the t3.5 before each (the wire limit)
@@ -239,7 +239,7 @@ def instructions(kind: str, tree: str | None = None) -> float:
     """Instructions per transaction of the slave process (all its threads) under
     callgrind: a long and a short run of the same load, the difference over the
     difference of the requests served, so that start-up and shut-down cancel."""
-    from pyrtu.master import Master
+    from pyrtu.drivers.master import Master
     from pyrtu.vbus import VirtualBus
 
     totals: list[tuple[int, int]] = []
@@ -414,7 +414,7 @@ def main() -> None:
         kind, path, baud = args.serve
         serve(kind, path, int(baud))
         return
-    from pyrtu._backend import active
+    from pyrtu.core._backend import active
 
     kinds = args.kinds.split(",") + (["baseline"] if args.baseline else [])
     with tempfile.TemporaryDirectory() as tmp:

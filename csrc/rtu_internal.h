@@ -40,7 +40,7 @@ int rtu_config_valid(const rtu_config *cfg);
 /* Time arithmetic that saturates instead of overflowing (signed overflow is
  * undefined behaviour in C99, 6.5p5).  Times live in [-INT64_MAX, INT64_MAX]:
  * INT64_MIN is RTU_NO_TIME, never a result.  The pure-Python twin clamps after
- * each step in the same order (pyrtu/_pure/head.py, sat_*). */
+ * each step in the same order (pyrtu/core/_pure/head.py, sat_*). */
 #define RTU_TIME_MIN (-INT64_MAX)
 
 static inline int64_t rtu_time_clamp(int64_t a)

@@ -6,7 +6,7 @@
  * is a start bit, the data bits, parity and stop bits); a character is delivered
  * when its last bit is sent; a character that overlaps another drop's character in
  * time collides and reaches the receivers corrupted (XOR of the two, or inverted).
- * The twin is pyrtu/_pure/vbus.py; the order of every step below is the twin's.
+ * The twin is pyrtu/core/_pure/vbus.py; the order of every step below is the twin's.
  */
 #include "rtu_vbus.h"
 

@@ -11,7 +11,7 @@
  * rtu_vbus_service, and when to call it next (rtu_vbus_deadline).  Times are
  * integer nanoseconds on one monotonic clock.  Every state object is allocated by
  * the caller; no clock, no I/O, no allocation.  The pure-Python twin is
- * pyrtu/_pure/vbus.py (it adds capture and seeded line faults, which the C
+ * pyrtu/core/_pure/vbus.py (it adds capture and seeded line faults, which the C
  * schedule leaves to the Python loop).
  *
  * The I/O thread (rtu_vbus_io) reads the drops' pseudo-terminal masters with

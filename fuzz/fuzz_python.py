@@ -20,9 +20,9 @@ import atheris
 
 with atheris.instrument_imports():
     import pyrtu
-    from pyrtu import _pdu_base as B
     from pyrtu import pdu as P
-    from pyrtu.errors import FrameError, SlaveException
+    from pyrtu.pdu import base as B
+    from pyrtu.pdu.errors import FrameError, SlaveException
 
 C = pyrtu.backend("c")
 PY = pyrtu.backend("python")

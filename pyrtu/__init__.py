@@ -1,6 +1,6 @@
 """pyrtu: a Modbus RTU toolkit whose hot path is C.
 
-The backend is chosen once, by `pyrtu._backend` at import: the C core when it is
+The backend is chosen once, by `pyrtu.core._backend` at import: the C core when it is
 built, else the pure-Python twin; this package re-exports its names.
 ``PYRTU_PURE=1`` forces the twin; ``PYRTU_REQUIRE_C=1`` makes
 the import fail when the C core is missing.  ``pyrtu.BACKEND`` says which runs;
@@ -11,14 +11,15 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from . import _backend
-from ._crcshapes import Crc16, crc16_bytes, crc16_swapped
+from pyrtu.core import _backend
+from pyrtu.core.ascii import decode_ascii, encode_ascii
+from pyrtu.core.crcshapes import Crc16, crc16_bytes, crc16_swapped
+from pyrtu.core.frames import ErrorReason, Frame, FrameKind, FrameList
+from pyrtu.core.line import LineConfig
+from pyrtu.core.rules import BONFIGLIOLI, CV100, LengthRule
+from pyrtu.core.timing import Timing
+
 from ._version import __version__ as __version__
-from .ascii import decode_ascii, encode_ascii
-from .frames import ErrorReason, Frame, FrameKind, FrameList
-from .line import LineConfig
-from .rules import BONFIGLIOLI, CV100, LengthRule
-from .timing import Timing
 
 _active = _backend.active
 _C = _backend.C
@@ -35,7 +36,7 @@ Framer = _active.Framer
 parse_stream = _active.parse_stream
 
 # Modbus TCP: MBAP framing (Messaging on TCP/IP Implementation Guide V1.0b, 3.1.3)
-from ._mbap import MbapError, MbapFrame, MbapFrameList  # noqa: E402
+from pyrtu.core.mbap import MbapError, MbapFrame, MbapFrameList  # noqa: E402
 
 MbapFramer = _active.MbapFramer
 parse_tcp_stream = _active.parse_tcp_stream
@@ -43,7 +44,9 @@ encode_mbap = _active.encode_mbap
 
 
 # The thin API over the core: imported after the backend is chosen (they use it).
-from .data import (  # noqa: E402
+from pyrtu.drivers.master import Master  # noqa: E402
+from pyrtu.drivers.slave import Slave  # noqa: E402
+from pyrtu.pdu.data import (  # noqa: E402
     decode_float32,
     decode_int32,
     decode_string,
@@ -55,8 +58,7 @@ from .data import (  # noqa: E402
     encode_uint32,
     encode_values,
 )
-from .datastore import DataStore, Table  # noqa: E402
-from .errors import (  # noqa: E402
+from pyrtu.pdu.errors import (  # noqa: E402
     EXCEPTION_NAMES,
     BusFault,
     ExceptionResponseError,
@@ -66,9 +68,9 @@ from .errors import (  # noqa: E402
     PortError,
     SlaveException,
 )
-from .master import Master  # noqa: E402
+from pyrtu.protocol.datastore import DataStore, Table  # noqa: E402
+
 from .pdu import CommEventLog  # noqa: E402
-from .slave import Slave  # noqa: E402
 
 backend = _backend.backend
 available_backends = _backend.available_backends

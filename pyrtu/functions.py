@@ -1,59 +1,74 @@
-"""Modbus function codes and their names: a leaf module (it imports nothing of pyrtu).
+"""`pyrtu.functions`: function codes and names, at the path the documentation shows.
 
-Application Protocol V1.1b section 5.1 (public function codes) and section 6; the
-names are the `pyrtu.Master` methods that send them.
+The code lives in `pyrtu.pdu.functions`; this module re-exports its public names.
 """
 
-from __future__ import annotations
-
-READ_COILS = 0x01
-READ_DISCRETE_INPUTS = 0x02
-READ_HOLDING_REGISTERS = 0x03
-READ_INPUT_REGISTERS = 0x04
-WRITE_SINGLE_COIL = 0x05
-WRITE_SINGLE_REGISTER = 0x06
-READ_EXCEPTION_STATUS = 0x07
-DIAGNOSTICS = 0x08
-GET_COMM_EVENT_COUNTER = 0x0B
-GET_COMM_EVENT_LOG = 0x0C
-WRITE_MULTIPLE_COILS = 0x0F
-WRITE_MULTIPLE_REGISTERS = 0x10
-REPORT_SERVER_ID = 0x11
-READ_FILE_RECORD = 0x14
-WRITE_FILE_RECORD = 0x15
-MASK_WRITE_REGISTER = 0x16
-READ_WRITE_REGISTERS = 0x17
-READ_FIFO_QUEUE = 0x18
-ENCAPSULATED_INTERFACE = 0x2B
-MEI_DEVICE_ID = 0x0E
-
-FUNCTION_NAMES: dict[int, str] = {
-    READ_COILS: "read_coils",
-    READ_DISCRETE_INPUTS: "read_discrete_inputs",
-    READ_HOLDING_REGISTERS: "read_holding_registers",
-    READ_INPUT_REGISTERS: "read_input_registers",
-    WRITE_SINGLE_COIL: "write_coil",
-    WRITE_SINGLE_REGISTER: "write_register",
-    READ_EXCEPTION_STATUS: "read_exception_status",
-    DIAGNOSTICS: "diagnostics",
-    GET_COMM_EVENT_COUNTER: "get_comm_event_counter",
-    GET_COMM_EVENT_LOG: "get_comm_event_log",
-    WRITE_MULTIPLE_COILS: "write_coils",
-    WRITE_MULTIPLE_REGISTERS: "write_registers",
-    REPORT_SERVER_ID: "report_server_id",
-    READ_FILE_RECORD: "read_file_record",
-    WRITE_FILE_RECORD: "write_file_record",
-    MASK_WRITE_REGISTER: "mask_write_register",
-    READ_WRITE_REGISTERS: "read_write_registers",
-    READ_FIFO_QUEUE: "read_fifo_queue",
-    ENCAPSULATED_INTERFACE: "read_device_identification",
-}
-
-
-def function_name(function: int) -> str:
-    """The method name of a function code (``"function 0x41"`` for others)."""
-    return FUNCTION_NAMES.get(function, f"function 0x{function:02X}")
-
+from pyrtu.pdu.functions import (
+    DIAGNOSTICS as DIAGNOSTICS,
+)
+from pyrtu.pdu.functions import (
+    ENCAPSULATED_INTERFACE as ENCAPSULATED_INTERFACE,
+)
+from pyrtu.pdu.functions import (
+    FUNCTION_NAMES as FUNCTION_NAMES,
+)
+from pyrtu.pdu.functions import (
+    GET_COMM_EVENT_COUNTER as GET_COMM_EVENT_COUNTER,
+)
+from pyrtu.pdu.functions import (
+    GET_COMM_EVENT_LOG as GET_COMM_EVENT_LOG,
+)
+from pyrtu.pdu.functions import (
+    MASK_WRITE_REGISTER as MASK_WRITE_REGISTER,
+)
+from pyrtu.pdu.functions import (
+    MEI_DEVICE_ID as MEI_DEVICE_ID,
+)
+from pyrtu.pdu.functions import (
+    READ_COILS as READ_COILS,
+)
+from pyrtu.pdu.functions import (
+    READ_DISCRETE_INPUTS as READ_DISCRETE_INPUTS,
+)
+from pyrtu.pdu.functions import (
+    READ_EXCEPTION_STATUS as READ_EXCEPTION_STATUS,
+)
+from pyrtu.pdu.functions import (
+    READ_FIFO_QUEUE as READ_FIFO_QUEUE,
+)
+from pyrtu.pdu.functions import (
+    READ_FILE_RECORD as READ_FILE_RECORD,
+)
+from pyrtu.pdu.functions import (
+    READ_HOLDING_REGISTERS as READ_HOLDING_REGISTERS,
+)
+from pyrtu.pdu.functions import (
+    READ_INPUT_REGISTERS as READ_INPUT_REGISTERS,
+)
+from pyrtu.pdu.functions import (
+    READ_WRITE_REGISTERS as READ_WRITE_REGISTERS,
+)
+from pyrtu.pdu.functions import (
+    REPORT_SERVER_ID as REPORT_SERVER_ID,
+)
+from pyrtu.pdu.functions import (
+    WRITE_FILE_RECORD as WRITE_FILE_RECORD,
+)
+from pyrtu.pdu.functions import (
+    WRITE_MULTIPLE_COILS as WRITE_MULTIPLE_COILS,
+)
+from pyrtu.pdu.functions import (
+    WRITE_MULTIPLE_REGISTERS as WRITE_MULTIPLE_REGISTERS,
+)
+from pyrtu.pdu.functions import (
+    WRITE_SINGLE_COIL as WRITE_SINGLE_COIL,
+)
+from pyrtu.pdu.functions import (
+    WRITE_SINGLE_REGISTER as WRITE_SINGLE_REGISTER,
+)
+from pyrtu.pdu.functions import (
+    function_name as function_name,
+)
 
 __all__ = [
     "DIAGNOSTICS",

@@ -26,8 +26,8 @@ from typing import Any
 
 import serial
 
-from pyrtu.datastore import DataStore
-from pyrtu.slave import Slave
+from pyrtu.drivers.slave import Slave
+from pyrtu.protocol.datastore import DataStore
 
 Filter = Callable[[bytes], bytes]
 Answer = Callable[[bytes, int], list[tuple[float, bytes]]]

@@ -18,9 +18,9 @@ from ptylink import PtyLink, ScriptedSlave, make_store, serving
 
 from pyrtu import add_crc
 from pyrtu import pdu as P
-from pyrtu.aio import AsyncMaster, new_event_loop, run
-from pyrtu.errors import ExceptionResponseError, FrameError, ModbusError, PortError
-from pyrtu.line import LineConfig
+from pyrtu.core.line import LineConfig
+from pyrtu.drivers.aio import AsyncMaster, new_event_loop, run
+from pyrtu.pdu.errors import ExceptionResponseError, FrameError, ModbusError, PortError
 
 vbus = pytest.importorskip("pyrtu.vbus")
 MODES = ("rtu", "ascii")
@@ -81,7 +81,7 @@ def _uvloop_run(main: Any) -> Any:
     return uvloop.run(main)
 
 
-#: every event loop the masters keep their timing on (pyrtu._ptimer: a timerfd on
+#: every event loop the masters keep their timing on (pyrtu.drivers._ptimer: a timerfd on
 #: the loops whose own timers are whole milliseconds)
 RUNNERS: dict[str, Callable[[Any], Any]] = {
     "pyrtu": run,

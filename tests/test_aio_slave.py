@@ -1,4 +1,4 @@
-"""AsyncSlave (pyrtu._aio_slave) served by plain ``asyncio.run``, polled by the sync
+"""AsyncSlave (pyrtu.drivers.aio_slave) served by plain ``asyncio.run``, polled by the sync
 pyrtu.Master (in a worker thread): on pseudo-terminals and on the virtual bus, RTU
 and ASCII; many slaves (ports) in one loop; stop and cancellation; a port that
 vanishes (a virtual-bus drop unplugged) ends only its own slave and leaks no file
@@ -19,10 +19,10 @@ import serial
 from ptylink import PtyLink, make_store
 
 from pyrtu import add_crc
-from pyrtu._aio_slave import AsyncSlave
-from pyrtu.aio import run as aio_run
-from pyrtu.errors import NoResponseError, PortError
-from pyrtu.master import Master
+from pyrtu.drivers.aio import run as aio_run
+from pyrtu.drivers.aio_slave import AsyncSlave
+from pyrtu.drivers.master import Master
+from pyrtu.pdu.errors import NoResponseError, PortError
 from pyrtu.vbus import VirtualBus
 
 BAUD = 38400
@@ -67,7 +67,7 @@ def _uvloop_run(main: Any) -> Any:
     return uvloop.run(main)
 
 
-#: the event loops the slaves keep their timing on (pyrtu._ptimer)
+#: the event loops the slaves keep their timing on (pyrtu.drivers._ptimer)
 RUNNERS: dict[str, Callable[[Any], Any]] = {
     "asyncio": asyncio.run,
     "pyrtu": aio_run,
@@ -181,7 +181,7 @@ def test_stop_and_cancel(link: PtyLink) -> None:
 def test_close_while_serve_runs_in_a_task_of_its_own(link: PtyLink, runner: str) -> None:
     """``serve()`` in the caller's own task (not `start`), then `close`: the port leaves
     the loop before its descriptor is closed.  It used to stay registered, and
-    pyrtu.aio.run's select loop then died with EBADF, taking every other slave in the
+    pyrtu.drivers.aio.run's select loop then died with EBADF, taking every other slave in the
     loop with it."""
 
     async def main() -> None:

@@ -10,7 +10,7 @@ import pytest
 from ptylink import PtyLink
 
 from pyrtu import pdu as P
-from pyrtu.master import Master
+from pyrtu.drivers.master import Master
 
 WRONG_TYPES: list[tuple[Callable[[], object], str]] = [
     # the values were iterated or read as numbers: "'int' object is not iterable",

@@ -18,11 +18,11 @@ from typing import Any
 import pytest
 from mqtt_broker import Broker, Client, Gate
 
-from pyrtu.aio import run as aio_run
 from pyrtu.bridge import parse_bridge_config
 from pyrtu.bridge.bridge import Bridge, BridgeEvent
 from pyrtu.bridge.mqtt import BrokerRefused
 from pyrtu.devices import CFW701Simulator, CV100Simulator, DriveSimulator
+from pyrtu.drivers.aio import run as aio_run
 
 vbus = pytest.importorskip("pyrtu.vbus")
 

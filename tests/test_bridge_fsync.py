@@ -25,11 +25,11 @@ import pytest
 from mqtt_broker import Broker
 from outbox_helpers import SMALL, everything, payload
 
-from pyrtu.aio import run as aio_run
 from pyrtu.bridge import parse_bridge_config
 from pyrtu.bridge._outbox_sync import Flusher
 from pyrtu.bridge.bridge import Bridge
 from pyrtu.bridge.outbox import Outbox, OutboxError, OutboxLimits
+from pyrtu.drivers.aio import run as aio_run
 from pyrtu.poller import Point, Update
 
 #: a safety net, not a measurement: conditions are awaited, never timed

@@ -11,10 +11,10 @@ from pathlib import Path
 from mqtt_broker import Broker, Client
 from test_bridge_broker import until
 
-from pyrtu.aio import run as aio_run
 from pyrtu.bridge import mqtt as bridge_mqtt
 from pyrtu.bridge import parse_bridge_config
 from pyrtu.bridge.bridge import Bridge
+from pyrtu.drivers.aio import run as aio_run
 from pyrtu.poller import Point, Update
 
 

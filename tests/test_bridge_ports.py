@@ -13,9 +13,9 @@ from typing import Any
 from mqtt_broker import Broker, Client
 from test_bridge_broker import POINTS, drives, last, toml, topic, until
 
-from pyrtu.aio import run as aio_run
 from pyrtu.bridge import parse_bridge_config
 from pyrtu.bridge.bridge import Bridge, BridgeEvent
+from pyrtu.drivers.aio import run as aio_run
 
 BUS = "pyrtu/e1/line/status"
 SLAVES = ("pyrtu/e1/line/1/status", "pyrtu/e1/line/5/status")

@@ -169,9 +169,9 @@ def test_memory_stays_bounded_whatever_the_backlog(tmp_path: object) -> None:
     import tracemalloc
     from pathlib import Path
 
-    from pyrtu.aio import run as aio_run
     from pyrtu.bridge import MqttConfig, make_bridge_config
     from pyrtu.bridge.bridge import Bridge
+    from pyrtu.drivers.aio import run as aio_run
     from pyrtu.poller import Bus, Update, make_config
 
     pts = [Point(f"p{i}", "line", 1, "holding", i) for i in range(100)]

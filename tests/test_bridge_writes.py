@@ -18,11 +18,11 @@ from mqtt_broker import Broker, Client
 from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 
-from pyrtu._loopthread import LoopThread
 from pyrtu.bridge import parse_bridge_config
 from pyrtu.bridge.bridge import Bridge
 from pyrtu.devices import CFW701Simulator
 from pyrtu.devices import weg as W
+from pyrtu.drivers._loopthread import LoopThread
 
 vbus = pytest.importorskip("pyrtu.vbus")
 

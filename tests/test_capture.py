@@ -13,8 +13,8 @@ from types import ModuleType
 
 import pytest
 
-from pyrtu import _backend
-from pyrtu.frames import ErrorReason
+from pyrtu.core import _backend
+from pyrtu.core.frames import ErrorReason
 from pyrtu.vbus.capture import (
     RECORD,
     CaptureError,

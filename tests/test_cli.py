@@ -20,11 +20,11 @@ from typing import Any
 import pytest
 from cli_helpers import Background, pyrtu
 
-from pyrtu.datastore import DataStore
 from pyrtu.devices import ACUSimulator, CFW701Simulator, CV100Simulator
 from pyrtu.devices import weg as W
-from pyrtu.master import Master
-from pyrtu.slave import Slave
+from pyrtu.drivers.master import Master
+from pyrtu.drivers.slave import Slave
+from pyrtu.protocol.datastore import DataStore
 from pyrtu.vbus import VirtualBus
 
 BAUD = 38400
@@ -141,8 +141,8 @@ def test_read_for_people_with_a_profile(bus: Bus) -> None:
     assert "TX" not in r.err
     verbose = pyrtu("-vv", "read", bus.port, *SERIAL, "--slave", CFW, "680")
     assert verbose.code == 0
-    assert re.search(r"pyrtu.master: TX slave 1 fc 3: 01 03 02 a8 00 01", verbose.err)
-    assert re.search(r"pyrtu.master: RX slave 1 fc 3: 01 03 02 ", verbose.err)
+    assert re.search(r"pyrtu.drivers.master: TX slave 1 fc 3: 01 03 02 a8 00 01", verbose.err)
+    assert re.search(r"pyrtu.drivers.master: RX slave 1 fc 3: 01 03 02 ", verbose.err)
 
 
 @pytest.mark.parametrize(

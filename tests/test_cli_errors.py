@@ -16,9 +16,9 @@ from cli_helpers import Background, pyrtu
 
 from pyrtu import Master, Slave
 from pyrtu.cli import main
-from pyrtu.datastore import DataStore
-from pyrtu.errors import PortError
-from pyrtu.port import open_port
+from pyrtu.drivers.port import open_port
+from pyrtu.pdu.errors import PortError
+from pyrtu.protocol.datastore import DataStore
 from pyrtu.vbus import BusDirectoryBusy, VirtualBus
 from pyrtu.vbus.capture import RECORD
 
@@ -147,7 +147,7 @@ def test_usage_errors_are_json_too(capsys: pytest.CaptureFixture[str]) -> None:
 
 
 def test_the_interrupted_message_says_it_once() -> None:
-    from pyrtu.commands.common import report_error
+    from pyrtu.cli.common import report_error
 
     class Err:
         text = ""
@@ -321,7 +321,7 @@ def test_demo_at_1200_baud() -> None:
 
 
 def test_the_drop_cap_is_the_buses() -> None:
-    from pyrtu.commands.vbus import MAX_DROPS as CLI_MAX
+    from pyrtu.cli.vbus import MAX_DROPS as CLI_MAX
     from pyrtu.vbus import MAX_DROPS
 
     assert CLI_MAX == MAX_DROPS == 248

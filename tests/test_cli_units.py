@@ -9,9 +9,8 @@ from collections import Counter
 import pytest
 
 import pyrtu
-from pyrtu.cli import COMMANDS, main
-from pyrtu.commands import common, io, poll, scan, sniff
-from pyrtu.errors import (
+from pyrtu.cli import COMMANDS, common, io, main, poll, scan, sniff
+from pyrtu.pdu.errors import (
     BusFault,
     ExceptionResponseError,
     FrameError,
@@ -23,8 +22,8 @@ from pyrtu.errors import (
 
 def test_every_command_is_registered_in_order() -> None:
     names = ["read", "write", "poll", "scan", "info", "sniff", "simulate", "vbus", "demo"]
-    names.append("gateway")  # registered after the built-ins (pyrtu.commands.gateway)
-    names.append("bridge")  # then the MQTT bridge (pyrtu.commands.bridge)
+    names.append("gateway")  # registered after the built-ins (pyrtu.cli.gateway)
+    names.append("bridge")  # then the MQTT bridge (pyrtu.cli.bridge)
     assert list(COMMANDS) == names
 
 

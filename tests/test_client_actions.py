@@ -9,10 +9,10 @@ from types import ModuleType
 
 import pytest
 
-from pyrtu._client import ClientProtocol, Done, Send, State, Wait
-from pyrtu._requests import read_holding_registers, write_register
-from pyrtu.errors import ExceptionResponseError, NoResponseError
-from pyrtu.line import LineConfig
+from pyrtu.core.line import LineConfig
+from pyrtu.pdu.errors import ExceptionResponseError, NoResponseError
+from pyrtu.pdu.requests import read_holding_registers, write_register
+from pyrtu.protocol.client import ClientProtocol, Done, Send, State, Wait
 
 LINE = LineConfig(baudrate=9600, parity="N")
 CHAR, T35 = LINE.char_time, LINE.t35_time

@@ -6,10 +6,10 @@ from __future__ import annotations
 
 from types import ModuleType
 
-from pyrtu._client import ClientProtocol, State
-from pyrtu._requests import read_holding_registers
-from pyrtu.ascii import AsciiCore, encode_ascii
-from pyrtu.line import LineConfig
+from pyrtu.core.ascii import AsciiCore, encode_ascii
+from pyrtu.core.line import LineConfig
+from pyrtu.pdu.requests import read_holding_registers
+from pyrtu.protocol.client import ClientProtocol, State
 
 ASCII = LineConfig(mode="ascii", parity="N")
 

@@ -13,11 +13,11 @@ from typing import Any
 import pytest
 
 from pyrtu import pdu as P
-from pyrtu._client import ClientProtocol, State
-from pyrtu._requests import read_holding_registers, write_register
-from pyrtu.ascii import encode_ascii
-from pyrtu.errors import BusFault, ExceptionResponseError, FrameError, NoResponseError
-from pyrtu.line import LineConfig
+from pyrtu.core.ascii import encode_ascii
+from pyrtu.core.line import LineConfig
+from pyrtu.pdu.errors import BusFault, ExceptionResponseError, FrameError, NoResponseError
+from pyrtu.pdu.requests import read_holding_registers, write_register
+from pyrtu.protocol.client import ClientProtocol, State
 
 LINE = LineConfig(baudrate=9600, parity="N")  # char 1042 us, t3.5 3646 us
 CHAR = LINE.char_time

@@ -29,8 +29,8 @@ import pyrtu  # noqa: E402
 from pyrtu import add_crc  # noqa: E402
 from pyrtu.compat import TESTED, UnsupportedVersionError  # noqa: E402
 from pyrtu.compat._guard import check_version, parse_version, require  # noqa: E402
-from pyrtu.datastore import DataStore  # noqa: E402
-from pyrtu.slave import Slave  # noqa: E402
+from pyrtu.drivers.slave import Slave  # noqa: E402
+from pyrtu.protocol.datastore import DataStore  # noqa: E402
 from pyrtu.vbus import VirtualBus  # noqa: E402
 
 BAUD = 115200

@@ -31,11 +31,11 @@ from test_compat_pymodbus_bus import pymodbus_server
 import pyrtu
 import pyrtu.compat.pymodbus as compat
 from pyrtu import add_crc
-from pyrtu.datastore import DataStore
-from pyrtu.errors import ModbusError
-from pyrtu.master import Master
-from pyrtu.rules import LengthRule, RuleTable
-from pyrtu.slave import Slave
+from pyrtu.core.rules import LengthRule, RuleTable
+from pyrtu.drivers.master import Master
+from pyrtu.drivers.slave import Slave
+from pyrtu.pdu.errors import ModbusError
+from pyrtu.protocol.datastore import DataStore
 from pyrtu.vbus import VirtualBus
 
 BACKENDS = ["c", "python"]

@@ -37,8 +37,8 @@ from pymodbus.simulator import DataType, SimData, SimDevice
 
 import pyrtu.compat.pymodbus as compat
 from pyrtu import add_crc
-from pyrtu.datastore import DataStore
-from pyrtu.slave import Slave
+from pyrtu.drivers.slave import Slave
+from pyrtu.protocol.datastore import DataStore
 from pyrtu.vbus import Faults, VirtualBus
 
 BAUD = 19200

@@ -21,7 +21,7 @@ pytestmark = pytest.mark.skipif(
 
 @pytest.fixture
 def core() -> tuple[Any, Any]:
-    from pyrtu._rtu_core import ffi, lib
+    from pyrtu.core._rtu_core import ffi, lib
 
     return ffi, lib
 

@@ -93,7 +93,7 @@ def _c_backend() -> ModuleType:
 
 def _cext_lib() -> Any:
     _c_backend()
-    from pyrtu import _cext
+    from pyrtu.core import _cext
 
     return _cext.lib
 
@@ -300,7 +300,7 @@ def test_generator_script_agrees_and_rtu_crc_c_is_current() -> None:
 
 
 def test_python_twin_tables() -> None:
-    from pyrtu._pure import crc as pure_crc
+    from pyrtu.core._pure import crc as pure_crc
 
     assert list(pure_crc.AUCH_CRC_HI) == AUCH_HI
     assert list(pure_crc.AUCH_CRC_LO) == AUCH_LO
@@ -324,7 +324,7 @@ def test_appendix_b_loop_with_the_c_tables() -> None:
 
 def test_c_status_codes() -> None:
     lib = _cext_lib()
-    from pyrtu._cext import ffi
+    from pyrtu.core._cext import ffi
 
     out = ffi.new("uint16_t *")
     assert lib.RTU_OK == 0 and lib.RTU_EINVAL == -1 and lib.RTU_EUNSUPPORTED == -2

@@ -1,4 +1,4 @@
-"""pyrtu._crcfast: the C core's CRC-16/MODBUS as CPython builtins (issue 20).
+"""pyrtu.core._crcfast: the C core's CRC-16/MODBUS as CPython builtins (issue 20).
 
 csrc/python/rtu_crc_py.c must give what the cffi functions of the C backend and the
 pure-Python twin give -- the same CRC (Modbus over Serial Line V1.02, 6.2.2: 0xA001
@@ -23,8 +23,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import pyrtu
-from pyrtu import _crcshapes
-from pyrtu._pure import crc as twin
+from pyrtu.core import crcshapes as _crcshapes
+from pyrtu.core._pure import crc as twin
 
 ROOT = Path(__file__).resolve().parent.parent
 POLY = 0xA001
@@ -44,20 +44,20 @@ def _cext() -> ModuleType:
         if os.environ.get("PYRTU_REQUIRE_C") == "1":
             pytest.fail("PYRTU_REQUIRE_C=1 but the C core is not built")
         pytest.skip("the C core is not built here")
-    from pyrtu import _cext
+    from pyrtu.core import _cext
 
     return _cext
 
 
 def _fast() -> ModuleType:
-    """pyrtu._crcfast; a build that has the C core but not it fails with PYRTU_REQUIRE_C=1."""
+    """pyrtu.core._crcfast; a build that has the C core but not it fails with PYRTU_REQUIRE_C=1."""
     _cext()
     try:
-        from pyrtu import _crcfast
+        from pyrtu.core import _crcfast
     except ImportError as exc:
         if os.environ.get("PYRTU_REQUIRE_C") == "1":
-            pytest.fail(f"PYRTU_REQUIRE_C=1 but pyrtu._crcfast is not built ({exc})")
-        pytest.skip("pyrtu._crcfast is not built here")
+            pytest.fail(f"PYRTU_REQUIRE_C=1 but pyrtu.core._crcfast is not built ({exc})")
+        pytest.skip("pyrtu.core._crcfast is not built here")
     return _crcfast
 
 
@@ -321,7 +321,7 @@ def test_one_argument_functions_bind_like_the_twin(
     for name in ("add_crc", "check_crc"):
         want = _outcome(getattr(twin, name), *args, **kwargs)
         assert _outcome(getattr(fast, name), *args, **kwargs) == want, name
-    # the shapes: crc16_bytes(data) / crc16_swapped(data) as in pyrtu._crcshapes
+    # the shapes: crc16_bytes(data) / crc16_swapped(data) as in pyrtu.core.crcshapes
     for fast_fn, py_fn in (
         (fast.crc16_bytes, _crcshapes._crc16_bytes),
         (fast.crc16_swapped, _crcshapes._crc16_swapped),
@@ -357,7 +357,7 @@ def test_the_c_backend_and_the_shapes_use_it() -> None:
 def _probe(**env: str) -> list[str]:
     code = (
         "import sys, pyrtu, pyrtu.compat.modbus_tk as tk;"
-        "print(pyrtu.BACKEND, 'pyrtu._crcfast' in sys.modules,"
+        "print(pyrtu.BACKEND, 'pyrtu.core._crcfast' in sys.modules,"
         " type(pyrtu.crc16).__name__, type(pyrtu.crc16_swapped).__name__,"
         " type(tk.calculate_crc).__name__)"
     )

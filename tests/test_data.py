@@ -7,7 +7,7 @@ import struct
 
 import pytest
 
-from pyrtu.data import (
+from pyrtu.pdu.data import (
     FLOAT32_MAX,
     ORDERS,
     decode_float32,

@@ -6,8 +6,8 @@ import threading
 
 import pytest
 
-from pyrtu.datastore import DataStore
-from pyrtu.errors import SlaveException
+from pyrtu.pdu.errors import SlaveException
+from pyrtu.protocol.datastore import DataStore
 
 
 def code(call: object) -> int:

@@ -1,6 +1,6 @@
 """No dead code in the private layers, and no benchmark-only code in the shipped core.
 
-A private module (``pyrtu/_*.py``, ``pyrtu/_pure/``) has no users outside the
+A private module (``pyrtu/_*.py``, ``pyrtu/core/_pure/``) has no users outside the
 project, so a function, class or method of one that nothing in pyrtu/, tests/ or
 bench/ names is dead: it only misleads a reader (``_mbap.decode_header`` and
 ``ClientProtocol.wait_limit`` were such, issue 18).
@@ -70,11 +70,11 @@ def test_private_modules_define_nothing_unused() -> None:
 
 def test_shipped_core_has_no_benchmark_only_function() -> None:
     """The empty functions bench/bench_crc.py measures as the floor of a cffi call
-    live in a module the benchmark compiles itself, not in pyrtu._rtu_core."""
+    live in a module the benchmark compiles itself, not in pyrtu.core._rtu_core."""
     if "c" not in pyrtu.available_backends():
         if os.environ.get("PYRTU_REQUIRE_C") == "1":
             pytest.fail("PYRTU_REQUIRE_C=1 but the C core is not built")
         pytest.skip("the C core is not built here")
-    from pyrtu._rtu_core import lib
+    from pyrtu.core._rtu_core import lib
 
     assert [name for name in dir(lib) if "noop" in name] == []

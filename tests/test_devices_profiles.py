@@ -30,8 +30,8 @@ from pyrtu.devices import (
 )
 from pyrtu.devices import bonfiglioli as B
 from pyrtu.devices import cv100 as C
-from pyrtu.errors import ExceptionResponseError
-from pyrtu.master import Master
+from pyrtu.drivers.master import Master
+from pyrtu.pdu.errors import ExceptionResponseError
 from pyrtu.vbus import VirtualBus
 
 BAUD = 57600

@@ -300,10 +300,10 @@ _KEYWORD = re.compile(r"[(,\s\[]([a-z_]\w*)=")
 
 def _resolve(name: str) -> object | None:
     import pyrtu
-    import pyrtu.aio
+    import pyrtu.drivers.aio
     import pyrtu.vbus
 
-    spaces = [pyrtu, pyrtu.aio, pyrtu.vbus]
+    spaces = [pyrtu, pyrtu.drivers.aio, pyrtu.vbus]
     parts = name.split(".")
     if parts[0] == "pyrtu":
         parts = parts[1:]
@@ -381,8 +381,7 @@ def commands_of(block: Block) -> list[Command]:
 @pytest.mark.parametrize("block", CONSOLE, ids=lambda b: b.id)
 def test_console_commands_parse(block: Block) -> None:
     """Every ``$ pyrtu ...`` line is a command line the parser accepts."""
-    from pyrtu.cli import build_parser
-    from pyrtu.commands import poll_config
+    from pyrtu.cli import build_parser, poll_config
 
     commands = commands_of(block)
     assert commands, f"{block.id}: no pyrtu command"

@@ -13,9 +13,9 @@ from peers.tools import free_tcp_port, pymodbus_server
 from ptylink import PtyLink, make_store
 
 from pyrtu import pdu
-from pyrtu.aio import AsyncSlave
-from pyrtu.line import LineConfig
-from pyrtu.slave import Slave
+from pyrtu.core.line import LineConfig
+from pyrtu.drivers.aio import AsyncSlave
+from pyrtu.drivers.slave import Slave
 from pyrtu.tcp import AsyncTcpClient, TcpClient
 
 

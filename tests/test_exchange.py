@@ -11,11 +11,11 @@ import pytest
 from peers.tools import pyrtu_slave_process
 
 from pyrtu import ExceptionResponseError, Master
-from pyrtu._client import ClientProtocol, State
-from pyrtu._requests import REQUESTS, exchange, read_holding_registers
-from pyrtu.aio import AsyncMaster
+from pyrtu.core.line import LineConfig
+from pyrtu.drivers.aio import AsyncMaster
 from pyrtu.gateway import Gateway
-from pyrtu.line import LineConfig
+from pyrtu.pdu.requests import REQUESTS, exchange, read_holding_registers
+from pyrtu.protocol.client import ClientProtocol, State
 from pyrtu.tcp import AsyncTcpClient
 
 pytest_plugins = ["peers.fixtures"]

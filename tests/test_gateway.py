@@ -445,7 +445,7 @@ def test_rtu_over_tcp_listener(libmodbus_tcp: str, run) -> None:  # type: ignore
     from pymodbus.client import ModbusTcpClient
 
     from pyrtu import add_crc
-    from pyrtu.aio import AsyncMaster
+    from pyrtu.drivers.aio import AsyncMaster
 
     async def main() -> None:
         gw, clients = await open_gateway([(libmodbus_tcp, "1-5")])

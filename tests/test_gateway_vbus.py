@@ -18,7 +18,7 @@ from peers.tools import peer_env, pyrtu_slave_process
 
 import pyrtu
 from pyrtu import pdu
-from pyrtu.aio import AsyncMaster
+from pyrtu.drivers.aio import AsyncMaster
 from pyrtu.gateway import Gateway
 from pyrtu.tcp import AsyncTcpClient
 
@@ -103,9 +103,9 @@ def test_a_bus_whose_adapter_is_pulled_out_comes_back_and_the_other_goes_on(
     (one warning, bus_failures 1), its requests get 0x0A at once while bus B is
     served; replugged, it is reopened on the back-off schedule (0.1 s doubling to
     0.4 s here) and logged once as back.  Bound: back within 20 s of the replug."""
-    from pyrtu._reconnect import Backoff
-    from pyrtu.errors import ExceptionResponseError
+    from pyrtu.drivers.reconnect import Backoff
     from pyrtu.gateway import BusEvent, GatewayLimits, ReopeningBus
+    from pyrtu.pdu.errors import ExceptionResponseError
     from pyrtu.vbus import VirtualBus
 
     read = pdu.read_request(3, 0, COUNT)

@@ -20,9 +20,9 @@ MODULES = sorted(
     for m in pkgutil.walk_packages(pyrtu.__path__, "pyrtu.")
     if "_build_core" not in m.name and not m.name.endswith("__main__")
 )
-LEAVES = ("pyrtu.functions", "pyrtu._errtypes")
+LEAVES = ("pyrtu.pdu.functions", "pyrtu.core._errtypes")
 # the low layers import leaves only
-LOW = ("pyrtu.timing", "pyrtu.rules")
+LOW = ("pyrtu.core.timing", "pyrtu.core.rules")
 
 _PROBE = """
 import importlib, sys
@@ -101,7 +101,7 @@ def test_no_module_level_import_cycles() -> None:
     package is always initialised first), so edges into a package root from inside
     it are left out."""
     graph = _module_graph()
-    assert "pyrtu.functions" in graph and "pyrtu.errors" in graph
+    assert "pyrtu.pdu.functions" in graph and "pyrtu.pdu.errors" in graph
     inner = {m: {d for d in ds if not m.startswith(d + ".")} for m, ds in graph.items()}
     assert _cycles(inner) == []
 
@@ -113,12 +113,12 @@ def test_no_deferred_import_cycles_in_the_layers() -> None:
     core = {
         m
         for m in graph
-        if not m.startswith(("pyrtu.commands", "pyrtu.devices", "pyrtu.vbus"))
-        and m not in ("pyrtu", "pyrtu.cli", "pyrtu.demo", "pyrtu.__main__")
+        if not m.startswith(("pyrtu.cli", "pyrtu.devices", "pyrtu.vbus"))
+        and m not in ("pyrtu", "pyrtu.cli", "pyrtu.cli.demo", "pyrtu.__main__")
     }
     inner = {m: {d for d in graph[m] if d in core and not m.startswith(d + ".")} for m in core}
     assert _cycles(inner) == []
-    assert "pyrtu._pdu_base" not in graph["pyrtu.errors"]
+    assert "pyrtu.pdu.base" not in graph["pyrtu.pdu.errors"]
 
 
 @pytest.mark.parametrize("name", LEAVES)
@@ -136,7 +136,7 @@ def test_leaf_modules_import_nothing_of_pyrtu(name: str) -> None:
 
 
 def test_no_function_imports_the_package_root() -> None:
-    """Layers reach the backend through pyrtu._backend, never ``import pyrtu`` inside a
+    """Layers reach the backend through pyrtu.core._backend, never ``import pyrtu`` inside a
     function (which is how cycles hide)."""
     import ast
     import pathlib

@@ -41,10 +41,10 @@ from peers.tools import (
     pyrtu_slave_process,
 )
 
-from pyrtu.datastore import DataStore
-from pyrtu.errors import ExceptionResponseError, FrameError, ModbusError, NoResponseError
-from pyrtu.master import Master
-from pyrtu.slave import Slave
+from pyrtu.drivers.master import Master
+from pyrtu.drivers.slave import Slave
+from pyrtu.pdu.errors import ExceptionResponseError, FrameError, ModbusError, NoResponseError
+from pyrtu.protocol.datastore import DataStore
 from pyrtu.vbus import Faults, VirtualBus
 
 pytest_plugins = ["peers.fixtures"]

@@ -8,9 +8,9 @@ from types import ModuleType
 import pytest
 
 from pyrtu import BONFIGLIOLI
-from pyrtu.ascii import AsciiFramer, make_framer
-from pyrtu.line import LineConfig
-from pyrtu.timing import Timing
+from pyrtu.core.ascii import AsciiFramer, make_framer
+from pyrtu.core.line import LineConfig
+from pyrtu.core.timing import Timing
 
 
 def test_defaults_and_derived_timing() -> None:
@@ -102,12 +102,12 @@ def test_virtual_bus_takes_a_line() -> None:
 def test_line_and_keywords_refused_the_same_way_everywhere(
     backend: ModuleType, tmp_path: Path
 ) -> None:
-    """One rule (`pyrtu.line.line_from`) for ``line=`` with line keywords: every
+    """One rule (`pyrtu.core.line.line_from`) for ``line=`` with line keywords: every
     constructor refuses both, naming the keyword given (the virtual bus ignored
     the keywords, the framers and slaves said only "baudrate=...")."""
-    from pyrtu.aio import AsyncMaster
-    from pyrtu.master import Master
-    from pyrtu.slave import Slave
+    from pyrtu.drivers.aio import AsyncMaster
+    from pyrtu.drivers.master import Master
+    from pyrtu.drivers.slave import Slave
     from pyrtu.vbus import VirtualBus
 
     line = LineConfig(baudrate=9600)

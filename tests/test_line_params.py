@@ -15,8 +15,8 @@ from cli_helpers import pyrtu as run_cli
 
 import pyrtu
 from pyrtu import LineConfig, Master
-from pyrtu._portname import first_duplicate, port_key, same_port
-from pyrtu.aio import AsyncMaster, AsyncSlave
+from pyrtu.drivers._portname import first_duplicate, port_key, same_port
+from pyrtu.drivers.aio import AsyncMaster, AsyncSlave
 from pyrtu.poller import ConfigError, load_config
 from pyrtu.vbus import VirtualBus
 

@@ -62,7 +62,7 @@ def test_ascii_lrc_and_codec(backend: ModuleType, t: Telegram) -> None:
 @pytest.mark.parametrize("t", ASCII, ids=_ids(ASCII))
 def test_ascii_framer(t: Telegram) -> None:
     role = "slave" if t.kind == "request" else "master"
-    f = pyrtu.ascii.AsciiFramer(role)
+    f = pyrtu.core.ascii.AsciiFramer(role)
     for i, byte in enumerate(t.adu):  # one character at a time
         f.receive_data(bytes((byte,)), 1.0 + i * 0.001)
     frame = f.next_event()

@@ -14,7 +14,9 @@ import pytest
 from ptylink import PtyLink, make_store, serving
 
 from pyrtu import pdu as P
-from pyrtu.errors import (
+from pyrtu.drivers.master import Master
+from pyrtu.drivers.slave import Slave
+from pyrtu.pdu.errors import (
     BusFault,
     ExceptionResponseError,
     FrameError,
@@ -23,8 +25,6 @@ from pyrtu.errors import (
     PortError,
     SlaveException,
 )
-from pyrtu.master import Master
-from pyrtu.slave import Slave
 
 MODES = ("rtu", "ascii")
 
@@ -367,7 +367,7 @@ def test_pyserial_url_and_object(link: PtyLink, backend: ModuleType) -> None:
 
 def test_counters_and_logging(bus: tuple[Master, Slave], caplog: pytest.LogCaptureFixture) -> None:
     master, _slave = bus
-    with caplog.at_level(logging.DEBUG, logger="pyrtu.master"):
+    with caplog.at_level(logging.DEBUG, logger="pyrtu.drivers.master"):
         master.read_holding_registers(1, 0, 2)
     tx = [r.getMessage() for r in caplog.records if r.getMessage().startswith("TX")]
     rx = [r.getMessage() for r in caplog.records if r.getMessage().startswith("RX")]

@@ -12,15 +12,15 @@ import pytest
 from ptylink import PtyLink, ScriptedSlave, make_store, serving
 
 from pyrtu import BONFIGLIOLI, CV100, add_crc, encode_ascii
-from pyrtu.errors import (
+from pyrtu.drivers.master import Master
+from pyrtu.drivers.slave import Slave
+from pyrtu.pdu.errors import (
     BusFault,
     ExceptionResponseError,
     FrameError,
     NoResponseError,
     SlaveException,
 )
-from pyrtu.master import Master
-from pyrtu.slave import Slave
 
 
 @pytest.fixture

@@ -13,11 +13,11 @@ import time
 import pytest
 from ptylink import PtyLink, make_store, serving
 
-from pyrtu import _requests as R
-from pyrtu.aio import AsyncMaster
-from pyrtu.errors import PortError
-from pyrtu.line import LINE_DEFAULTS, LineConfig, line_from
-from pyrtu.master import Master
+from pyrtu.core.line import LINE_DEFAULTS, LineConfig, line_from
+from pyrtu.drivers.aio import AsyncMaster
+from pyrtu.drivers.master import Master
+from pyrtu.pdu import requests as R
+from pyrtu.pdu.errors import PortError
 from pyrtu.poller.masters import ThreadMaster
 
 #: ports nothing listens on: the keywords must be refused before any connection
@@ -30,7 +30,7 @@ def test_import_pyrtu_loads_neither_poller_nor_asyncio() -> None:
     master and asyncio itself load only when used; ``pyrtu.Poller`` still works."""
     probe = (
         "import pyrtu, sys\n"
-        "loaded = [m for m in ('pyrtu.poller', 'pyrtu.aio', 'pyrtu.tcp', 'pyrtu._tcp_master',"
+        "loaded = [m for m in ('pyrtu.poller', 'pyrtu.drivers.aio', 'pyrtu.tcp', 'pyrtu.tcp.link',"
         " 'asyncio') if m in sys.modules]\n"
         "assert not loaded, loaded\n"
         "m = pyrtu.Master\n"

@@ -12,8 +12,8 @@ from ptylink import PtyLink, ScriptedSlave
 from vectors import TELEGRAMS, Telegram
 
 from pyrtu import BONFIGLIOLI, decode_ascii
-from pyrtu.errors import ExceptionResponseError
-from pyrtu.master import Master
+from pyrtu.drivers.master import Master
+from pyrtu.pdu.errors import ExceptionResponseError
 
 
 def _message(t: Telegram) -> bytes:

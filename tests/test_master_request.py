@@ -5,11 +5,11 @@ from __future__ import annotations
 import pytest
 from ptylink import PtyLink, make_store, serving
 
-from pyrtu import _master_io as mio
 from pyrtu import pdu as P
-from pyrtu.errors import ExceptionResponseError
-from pyrtu.line import LineConfig
-from pyrtu.master import Master
+from pyrtu.core.line import LineConfig
+from pyrtu.drivers import sync_io as mio
+from pyrtu.drivers.master import Master
+from pyrtu.pdu.errors import ExceptionResponseError
 
 
 def test_request_raw_pdu(backend: object) -> None:
@@ -114,8 +114,8 @@ def test_cached_reads_still_check_their_arguments(backend: object) -> None:
     """The Calls of reads are cached by (function, slave, address, count): arguments
     equal to a cached key but of another type (True == 1, 1.0 == 1) must still fail
     their checks, and a different slave gets its own ADU (CRC)."""
-    from pyrtu import _requests as R
-    from pyrtu._client import ClientProtocol
+    from pyrtu.pdu import requests as R
+    from pyrtu.protocol.client import ClientProtocol
 
     good = R.read_holding_registers(1, 0, 10)
     assert R.read_holding_registers(1, 0, 10) is good  # cached
@@ -134,7 +134,7 @@ def test_cached_reads_still_check_their_arguments(backend: object) -> None:
 
 
 def test_unhashable_read_arguments_name_the_argument() -> None:
-    from pyrtu import _requests as R
+    from pyrtu.pdu import requests as R
 
     for args, name in (([1], 0, 10), "slave"), ((1, {}, 10), "address"):
         with pytest.raises(TypeError, match=name):

@@ -9,7 +9,7 @@ from pathlib import Path
 
 USER_CODE = """
 import pyrtu
-from pyrtu.aio import AsyncMaster
+from pyrtu.drivers.aio import AsyncMaster
 
 
 async def main() -> None:
@@ -40,8 +40,8 @@ def test_users_mypy_sees_the_methods_types(tmp_path: Path) -> None:
         '"list[int]"',
         '"dict[int, bytes]"',
         '"tuple[int, int]"',
-        '"pyrtu.line.LineConfig"',
+        '"pyrtu.core.line.LineConfig"',
         '"list[bool]"',
     ], out.stdout
-    # the slave's line keywords are typed too (one TypedDict, pyrtu.line.LineKeywords)
+    # the slave's line keywords are typed too (one TypedDict, pyrtu.core.line.LineKeywords)
     assert 'Argument "baudrate" to "Slave" has incompatible type "str"' in out.stdout

@@ -13,9 +13,9 @@ from collections.abc import Iterator
 import pytest
 from ptylink import make_store, serving
 
-from pyrtu.errors import FrameError, ModbusError, NoResponseError
-from pyrtu.master import Master
-from pyrtu.slave import Slave
+from pyrtu.drivers.master import Master
+from pyrtu.drivers.slave import Slave
+from pyrtu.pdu.errors import FrameError, ModbusError, NoResponseError
 
 vbus = pytest.importorskip("pyrtu.vbus")
 VirtualBus = vbus.VirtualBus

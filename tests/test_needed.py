@@ -170,7 +170,7 @@ def test_frame_after_a_gap_bounds_the_wait(backend: ModuleType) -> None:
 
 
 def test_needed_with_line_config(backend: ModuleType) -> None:
-    from pyrtu.line import LineConfig
+    from pyrtu.core.line import LineConfig
 
     line = LineConfig(baudrate=9600, parity="N", stopbits=2, rules=VENDOR_RULES)
     f = backend.Framer("master", line=line)

@@ -169,18 +169,18 @@ def test_compiler_warnings_fail_only_a_strict_build(tmp_path: Path) -> None:
         pytest.skip(f"this compiler does not warn about {WARNING_CFLAGS}: {log[-500:]}")
     assert plain.returncode == 0, log[-3000:]
     assert "-Werror=frame-larger-than" not in log
-    assert list((lib / "pyrtu").glob("_rtu_core*.so")), log[-3000:]
+    assert list((lib / "pyrtu" / "core").glob("_rtu_core*.so")), log[-3000:]
 
     strict, lib = _build_core(tmp_path / "strict", PYRTU_STRICT_BUILD="1")
     log = strict.stdout + strict.stderr
     assert strict.returncode != 0, log[-3000:]
     assert "-Werror=frame-larger-than" in log, log[-3000:]
-    assert not list((lib / "pyrtu").glob("_rtu_core*.so"))
+    assert not list((lib / "pyrtu" / "core").glob("_rtu_core*.so"))
 
 
 def test_sdist_and_wheel_carry_the_crc_builtins(tmp_path: Path) -> None:
     """The sdist holds csrc/python/ (MANIFEST.in), and the wheel built from it holds both
-    extensions: the cffi core and pyrtu._crcfast (setup.py), with its type stub."""
+    extensions: the cffi core and pyrtu.core._crcfast (setup.py), with its type stub."""
     cc = (sysconfig.get_config_var("CC") or "cc").split()[0]
     if shutil.which(os.environ.get("CC", cc)) is None:
         pytest.skip("no C compiler here")
@@ -196,7 +196,7 @@ def test_sdist_and_wheel_carry_the_crc_builtins(tmp_path: Path) -> None:
     (tarball,) = (tmp_path / "sdist").glob("pyrtu-*.tar.gz")
     with tarfile.open(tarball) as tar:
         members = {m.name.split("/", 1)[1] for m in tar.getmembers() if "/" in m.name}
-    assert {"csrc/python/rtu_crc_py.c", "csrc/rtu_crc.c", "pyrtu/_crcfast.pyi"} <= members
+    assert {"csrc/python/rtu_crc_py.c", "csrc/rtu_crc.c", "pyrtu/core/_crcfast.pyi"} <= members
     cmd = [sys.executable, "-m", "pip", "wheel", "--no-build-isolation", "--no-deps"]
     cmd += ["--no-index", "-w", str(tmp_path / "dist"), str(tarball)]
     # PYRTU_REQUIRE_C=1: a failed compile of either extension fails the build
@@ -204,6 +204,6 @@ def test_sdist_and_wheel_carry_the_crc_builtins(tmp_path: Path) -> None:
     assert wheel.returncode == 0, wheel.stdout[-3000:] + wheel.stderr[-3000:]
     (whl,) = (tmp_path / "dist").glob("pyrtu-*.whl")
     names = zipfile.ZipFile(whl).namelist()
-    assert [n for n in names if n.startswith("pyrtu/_crcfast.") and n.endswith(".so")], names
-    assert [n for n in names if n.startswith("pyrtu/_rtu_core.") and n.endswith(".so")], names
-    assert "pyrtu/_crcfast.pyi" in names
+    assert [n for n in names if n.startswith("pyrtu/core/_crcfast.") and n.endswith(".so")], names
+    assert [n for n in names if n.startswith("pyrtu/core/_rtu_core.") and n.endswith(".so")], names
+    assert "pyrtu/core/_crcfast.pyi" in names

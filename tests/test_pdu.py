@@ -7,7 +7,7 @@ from collections.abc import Callable
 import pytest
 
 from pyrtu import pdu as P
-from pyrtu.errors import FrameError, SlaveException
+from pyrtu.pdu.errors import FrameError, SlaveException
 
 
 def test_request_bytes() -> None:

@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from pyrtu.data import encode_float32, encode_string, encode_uint32
+from pyrtu.pdu.data import encode_float32, encode_string, encode_uint32
 from pyrtu.poller import Cuts, Limits, Point, PointError, Wire, merge_pays, plan, split
 from pyrtu.poller.plan import chunks, response_size
 

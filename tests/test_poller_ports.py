@@ -13,9 +13,10 @@ from collections.abc import Callable
 
 import pytest
 
-from pyrtu.commands._simulate_tcp import tcp_only_slave
+from pyrtu.cli._simulate_tcp import tcp_only_slave
 from pyrtu.devices import CFW701Simulator, CV100Simulator
-from pyrtu.errors import PortError
+from pyrtu.gateway.server import TcpServer
+from pyrtu.pdu.errors import PortError
 from pyrtu.poller import (
     Bus,
     Point,
@@ -27,7 +28,6 @@ from pyrtu.poller import (
     profile_points,
 )
 from pyrtu.poller.events import Event
-from pyrtu.tcp_server import TcpServer
 
 vbus = pytest.importorskip("pyrtu.vbus")
 VirtualBus = vbus.VirtualBus

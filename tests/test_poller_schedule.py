@@ -11,7 +11,7 @@ from collections.abc import Callable, Sequence
 
 import pytest
 
-from pyrtu.errors import ExceptionResponseError, FrameError, NoResponseError
+from pyrtu.pdu.errors import ExceptionResponseError, FrameError, NoResponseError
 from pyrtu.poller import (
     BusScheduler,
     Limits,

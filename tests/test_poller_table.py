@@ -7,7 +7,7 @@ from __future__ import annotations
 import io
 import os
 
-from pyrtu.commands.poll_table import LiveTable
+from pyrtu.cli.poll_table import LiveTable
 from pyrtu.poller import Bus, Point, Poller, make_config
 from pyrtu.poller.events import Update
 

@@ -13,10 +13,10 @@ from collections.abc import Callable, Iterator
 
 import pytest
 
-from pyrtu.aio import AsyncMaster
 from pyrtu.devices import CFW701Simulator, CV100Simulator, DriveSimulator
 from pyrtu.devices import cv100 as C
 from pyrtu.devices import weg as W
+from pyrtu.drivers.aio import AsyncMaster
 from pyrtu.poller import (
     Bus,
     Overload,

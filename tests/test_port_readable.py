@@ -9,7 +9,7 @@ import os
 import pytest
 
 from pyrtu import Slave
-from pyrtu.port import open_port
+from pyrtu.drivers.port import open_port
 
 pytest_plugins = ["peers.fixtures"]
 

@@ -13,8 +13,8 @@ from collections.abc import Iterator
 
 import pytest
 
-from pyrtu.errors import PortError
-from pyrtu.port import Port, open_port
+from pyrtu.drivers.port import Port, open_port
+from pyrtu.pdu.errors import PortError
 
 BAUD = 921600
 #: more than a pty's buffer holds (about 15 KiB here), so the first os.write is partial

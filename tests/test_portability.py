@@ -52,8 +52,8 @@ sys.path.insert(0, sys.argv[2])
 import pyrtu
 import pyrtu.cli
 from pyrtu import data, pdu
-from pyrtu.ascii import AsciiFramer
-from pyrtu.port import open_port
+from pyrtu.core.ascii import AsciiFramer
+from pyrtu.drivers.port import open_port
 from pyrtu.vbus import read_capture
 
 assert pyrtu.BACKEND == sys.argv[3], pyrtu.BACKEND

@@ -1,4 +1,4 @@
-"""pyrtu._ptimer: timers to the microsecond on any asyncio loop (timerfd on Linux)."""
+"""pyrtu.drivers._ptimer: timers to the microsecond on any asyncio loop (timerfd on Linux)."""
 
 from __future__ import annotations
 
@@ -10,12 +10,12 @@ from typing import Any
 
 import pytest
 
-import pyrtu.aio
-from pyrtu import _ptimer
+import pyrtu.drivers.aio
+from pyrtu.drivers import _ptimer
 
 RUNNERS: dict[str, Callable[[Coroutine[Any, Any, Any]], Any]] = {
     "asyncio.run": asyncio.run,
-    "pyrtu.aio.run": pyrtu.aio.run,
+    "pyrtu.drivers.aio.run": pyrtu.drivers.aio.run,
 }
 try:
     import uvloop
@@ -67,13 +67,13 @@ def test_the_select_loop_keeps_its_own_timers_and_others_get_a_timerfd() -> None
         h.cancel()
         return type(h).__module__
 
-    assert pyrtu.aio.run(kind()) == "asyncio.events"
-    assert asyncio.run(kind()) == "pyrtu._ptimer"
+    assert pyrtu.drivers.aio.run(kind()) == "asyncio.events"
+    assert asyncio.run(kind()) == "pyrtu.drivers._ptimer"
 
 
 @linux
 @pytest.mark.wall_clock
-@pytest.mark.parametrize("runner", sorted(set(RUNNERS) - {"pyrtu.aio.run"}))
+@pytest.mark.parametrize("runner", sorted(set(RUNNERS) - {"pyrtu.drivers.aio.run"}))
 def test_wake_ups_on_a_foreign_loop_are_late_by_characters_not_a_millisecond(
     runner: str,
 ) -> None:

@@ -1,4 +1,4 @@
-"""The shared retry schedule (pyrtu._reconnect): report once, back off, recover."""
+"""The shared retry schedule (pyrtu.drivers.reconnect): report once, back off, recover."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import random
 
 import pytest
 
-from pyrtu._reconnect import Backoff, Reconnect
+from pyrtu.drivers.reconnect import Backoff, Reconnect
 
 
 def test_first_failure_is_reported_once_and_waits_grow_to_the_maximum() -> None:

@@ -1,6 +1,6 @@
 """The server protocol's one entry point for drivers (`ServerProtocol.next_action`),
 its RTU and ASCII framer cores behind one feed/take interface, the one feed loop
-(`pyrtu._feed.feed_all`) and the active backend's request predictor."""
+(`pyrtu.core.feed.feed_all`) and the active backend's request predictor."""
 
 from __future__ import annotations
 
@@ -8,11 +8,11 @@ from types import ModuleType
 
 import pytest
 
-from pyrtu._feed import feed_all
-from pyrtu._framing import PRED_LENGTH, PRED_NEED, PRED_UNKNOWN, FramerCore
-from pyrtu.ascii import AsciiCore, AsciiFramer, encode_ascii
-from pyrtu.frames import ErrorReason, FrameKind
-from pyrtu.line import LineConfig
+from pyrtu.core.ascii import AsciiCore, AsciiFramer, encode_ascii
+from pyrtu.core.feed import feed_all
+from pyrtu.core.frames import ErrorReason, FrameKind
+from pyrtu.core.framing import PRED_LENGTH, PRED_NEED, PRED_UNKNOWN, FramerCore
+from pyrtu.core.line import LineConfig
 from pyrtu.protocol import Idle, Listen, Reply, ServerAction, ServerProtocol
 
 BAUD = 19200

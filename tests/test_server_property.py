@@ -30,12 +30,12 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from pyrtu import pdu as P
-from pyrtu._server import Listen, Reply, ServerAction, ServerProtocol
-from pyrtu._slave_base import SlaveBase
-from pyrtu.datastore import DataStore
-from pyrtu.line import LineConfig
-from pyrtu.rules import LengthRule
-from pyrtu.slave import PREPARE
+from pyrtu.core.line import LineConfig
+from pyrtu.core.rules import LengthRule
+from pyrtu.drivers.slave import PREPARE
+from pyrtu.drivers.slave_base import SlaveBase
+from pyrtu.protocol.datastore import DataStore
+from pyrtu.protocol.server import Listen, Reply, ServerAction, ServerProtocol
 
 ADDRESS = 5
 OTHER = 9

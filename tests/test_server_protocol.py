@@ -1,4 +1,4 @@
-"""The sans-I/O server protocol (pyrtu._server) driven with synthetic time: no
+"""The sans-I/O server protocol (pyrtu.protocol.server) driven with synthetic time: no
 ports, no sleeps.  Every path on both backends: normal, exception, broadcast,
 ASCII, garbage, split requests, other addresses, turnaround, listen-only, echo,
 watchdog, and the driver's `needed` hint."""
@@ -10,12 +10,12 @@ from types import ModuleType
 import pytest
 
 from pyrtu import pdu as P
-from pyrtu._server import ServerProtocol
-from pyrtu._slave_base import SlaveBase
-from pyrtu.ascii import encode_ascii
-from pyrtu.datastore import DataStore
-from pyrtu.line import LineConfig
-from pyrtu.rules import LengthRule
+from pyrtu.core.ascii import encode_ascii
+from pyrtu.core.line import LineConfig
+from pyrtu.core.rules import LengthRule
+from pyrtu.drivers.slave_base import SlaveBase
+from pyrtu.protocol.datastore import DataStore
+from pyrtu.protocol.server import ServerProtocol
 
 BAUD = 9600
 LINE = LineConfig(baudrate=BAUD, parity="N")

@@ -12,10 +12,10 @@ import pytest
 from ptylink import PtyLink, RawPort, make_store, serving
 
 from pyrtu import add_crc, encode_ascii
-from pyrtu.datastore import DataStore
-from pyrtu.errors import ExceptionResponseError, NoResponseError, SlaveException
-from pyrtu.master import Master
-from pyrtu.slave import Slave
+from pyrtu.drivers.master import Master
+from pyrtu.drivers.slave import Slave
+from pyrtu.pdu.errors import ExceptionResponseError, NoResponseError, SlaveException
+from pyrtu.protocol.datastore import DataStore
 
 
 @pytest.fixture

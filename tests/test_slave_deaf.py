@@ -24,14 +24,14 @@ import pytest
 from peers.tools import minimal_instrument
 
 from pyrtu import pdu as P
-from pyrtu._server import Listen, Reply, ServerProtocol
-from pyrtu._slave_base import SlaveBase
-from pyrtu.aio import AsyncSlave
-from pyrtu.datastore import DataStore
-from pyrtu.errors import ExceptionResponseError, SlaveException
-from pyrtu.line import LineConfig
-from pyrtu.master import Master
-from pyrtu.slave import PREPARE, Slave
+from pyrtu.core.line import LineConfig
+from pyrtu.drivers.aio import AsyncSlave
+from pyrtu.drivers.master import Master
+from pyrtu.drivers.slave import PREPARE, Slave
+from pyrtu.drivers.slave_base import SlaveBase
+from pyrtu.pdu.errors import ExceptionResponseError, SlaveException
+from pyrtu.protocol.datastore import DataStore
+from pyrtu.protocol.server import Listen, Reply, ServerProtocol
 from pyrtu.vbus import VirtualBus
 
 ADDRESS = 5

@@ -12,11 +12,11 @@ import pytest
 from ptylink import PtyLink, RawPort, make_store
 
 from pyrtu import add_crc
-from pyrtu._server import ServerAction
-from pyrtu._slack import swap_timer_slack as _timer_slack
-from pyrtu.line import LineConfig
-from pyrtu.master import Master
-from pyrtu.slave import Slave
+from pyrtu.core.line import LineConfig
+from pyrtu.drivers._slack import swap_timer_slack as _timer_slack
+from pyrtu.drivers.master import Master
+from pyrtu.drivers.slave import Slave
+from pyrtu.protocol.server import ServerAction
 from pyrtu.vbus import VirtualBus
 
 

@@ -12,9 +12,9 @@ import pytest
 from ptylink import PtyLink, RawPort, ScriptedSlave, make_store, serving
 
 from pyrtu import add_crc
-from pyrtu.errors import ExceptionResponseError, FrameError
-from pyrtu.master import Master
-from pyrtu.slave import Slave
+from pyrtu.drivers.master import Master
+from pyrtu.drivers.slave import Slave
+from pyrtu.pdu.errors import ExceptionResponseError, FrameError
 
 OBJECTS = {
     0: b"pyrtu project",

@@ -14,7 +14,7 @@ from peers import pattern
 from peers.tools import PeerBinaries, free_tcp_port, libmodbus_script, libmodbus_server
 
 from pyrtu import pdu
-from pyrtu.frames import FrameKind
+from pyrtu.core.frames import FrameKind
 
 pytest_plugins = ["peers.fixtures"]
 

@@ -20,8 +20,8 @@ from pyrtu import (
     encode_mbap,
     pdu,
 )
-from pyrtu._tcp_client import TcpClientProtocol
 from pyrtu.tcp import AsyncTcpClient, TcpClient, parse_tcp_url
+from pyrtu.tcp.protocol import TcpClientProtocol
 
 pytest_plugins = ["peers.fixtures"]
 

@@ -36,9 +36,9 @@ import pytest
 from peers.tools import free_tcp_port
 
 from pyrtu import DataStore, MbapFramer
-from pyrtu._slave_base import SlaveBase
-from pyrtu.line import LineConfig
-from pyrtu.tcp_server import TcpServer
+from pyrtu.core.line import LineConfig
+from pyrtu.drivers.slave_base import SlaveBase
+from pyrtu.gateway.server import TcpServer
 
 EXAMPLES = Path("/usr/share/doc/libmodbus-dev/examples")
 

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from pyrtu import add_crc
-from pyrtu.timing import bits_per_char
+from pyrtu.core.timing import bits_per_char
 from pyrtu.vbus import (
     Faults,
     VirtualBus,

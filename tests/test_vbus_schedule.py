@@ -1,4 +1,4 @@
-"""The virtual bus's sans-I/O schedule: csrc/rtu_vbus.c and its twin pyrtu/_pure/vbus.py.
+"""The virtual bus's sans-I/O schedule: csrc/rtu_vbus.c and its twin pyrtu/core/_pure/vbus.py.
 
 Synthetic time (integer ns) in, deliveries out: no pty, no clock.  The two must agree
 on every output (bytes per drop, deadlines, unplugs due, counters) and on the
@@ -16,7 +16,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import pyrtu
-from pyrtu._pure.vbus import OUT, QUEUE, Schedule
+from pyrtu.core._pure.vbus import OUT, QUEUE, Schedule
 from pyrtu.vbus import collision_byte
 
 C = 86_806  # ns: a 10-bit character at 115200 baud

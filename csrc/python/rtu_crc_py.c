@@ -1,5 +1,5 @@
 /*
- * rtu_crc_py.c -- pyrtu._crcfast: the CRC-16/MODBUS of csrc/rtu_crc.c as
+ * rtu_crc_py.c -- pyrtu.core._crcfast: the CRC-16/MODBUS of csrc/rtu_crc.c as
  * CPython builtins.
  *
  * Spec: "Modbus over Serial Line V1.02", 6.2.2 (CRC checking: polynomial
@@ -11,7 +11,7 @@
  * Why a second extension beside the cffi core: a cffi call costs some
  * 200 ns, a builtin called with METH_FASTCALL about 30 ns, and the CRC of an
  * 8-byte frame about 3 ns.  The functions take what the pure-Python twin
- * (pyrtu/_pure/crc.py) takes and raise what it raises, with the same
+ * (pyrtu/core/_pure/crc.py) takes and raise what it raises, with the same
  * messages: any buffer (bytes without a buffer request; a strided one is
  * read in logical order from a copy, as memoryview.tobytes() gives it), a
  * TypeError naming the argument for anything else, and for crc16 a seed
@@ -19,8 +19,8 @@
  *
  * This file uses the CPython API, so it lives below csrc/, not in it: the
  * fuzz harnesses (the Makefile compiles the .c files of csrc/ itself) and
- * the cffi build (pyrtu/_build_core.py, the same files) do not take it.
- * setup.py builds it with csrc/rtu_crc.c as the module pyrtu._crcfast.
+ * the cffi build (pyrtu/core/_build_core.py, the same files) do not take it.
+ * setup.py builds it with csrc/rtu_crc.c as the module pyrtu.core._crcfast.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -371,11 +371,11 @@ static PyMethodDef rtu_py_methods[] = {
 PyDoc_STRVAR(rtu_py_module_doc,
              "CRC-16/MODBUS (Modbus over Serial Line V1.02, 6.2.2) of pyrtu's C core as\n"
              "builtins: the C backend's crc16, add_crc and check_crc, and the call shapes\n"
-             "of pyrtu._crcshapes.");
+             "of pyrtu.core.crcshapes.");
 
 static struct PyModuleDef rtu_py_module = {
     PyModuleDef_HEAD_INIT,
-    "pyrtu._crcfast",
+    "pyrtu.core._crcfast",
     rtu_py_module_doc,
     0,
     rtu_py_methods,

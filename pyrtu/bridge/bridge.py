@@ -12,7 +12,7 @@ is the outbox's) and is published at once when the broker is connected and nothi
 older waits, else later from the outbox, in order, flagged ``historical``.  The
 outbox forgets a record once the broker acknowledged it and everything before it.
 A connection that ends is reported once and retried with the shared back-off
-(`pyrtu._reconnect`); the polls go on meanwhile.  On every connection the edge's
+(`pyrtu.drivers.reconnect`); the polls go on meanwhile.  On every connection the edge's
 ``online``, the slaves' states and the latest value of every point the backlog
 does not hold are published again (retained): after a broker restart no retained
 topic stays missing.
@@ -36,7 +36,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from .._reconnect import Backoff, Reconnect
+from pyrtu.drivers.reconnect import Backoff, Reconnect
+
 from ..poller import Point, PointDropped, Poller, PortState, SlaveState, Update
 from ..poller.points import Value
 from ._outbox_sync import Flusher

@@ -18,7 +18,8 @@ from typing import Any, Protocol
 
 import paho.mqtt.client as paho
 
-from ..errors import ExceptionResponseError, ModbusError, NoResponseError
+from pyrtu.pdu.errors import ExceptionResponseError, ModbusError, NoResponseError
+
 from ..poller import Point, Poller
 from ..poller.points import Value
 from .commands import Command, CommandQueue, Refusal, check_value, parse, result

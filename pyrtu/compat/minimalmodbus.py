@@ -13,7 +13,8 @@ versions in ``pyrtu.compat.TESTED``; others are refused.
 
 from __future__ import annotations
 
-from .._crcshapes import crc16_bytes
+from pyrtu.core.crcshapes import crc16_bytes
+
 from ._guard import require
 from ._patch import Patches, crc_adapter_api
 

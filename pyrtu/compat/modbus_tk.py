@@ -25,9 +25,10 @@ from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
-from .._backend import active
-from .._crcshapes import crc16_swapped
-from ..frames import FrameKind
+from pyrtu.core._backend import active
+from pyrtu.core.crcshapes import crc16_swapped
+from pyrtu.core.frames import FrameKind
+
 from ._guard import require
 from ._patch import Patches
 

@@ -25,11 +25,12 @@ from collections.abc import Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from typing import Any, ClassVar
 
-from .. import _backend
-from .._backend import active
-from .._crcshapes import crc16_swapped
-from ..frames import FrameKind
-from ..rules import RuleTable, check_rules
+from pyrtu.core import _backend
+from pyrtu.core._backend import active
+from pyrtu.core.crcshapes import crc16_swapped
+from pyrtu.core.frames import FrameKind
+from pyrtu.core.rules import RuleTable, check_rules
+
 from ._guard import require
 
 #: the pymodbus version found (checked against pyrtu.compat.TESTED before importing it)
@@ -83,7 +84,7 @@ class PyrtuFramerRTU(FramerRTU):
 
     #: the addresses a server answers (None: all); set by framer_class()/install()
     device_ids: ClassVar[frozenset[int] | None] = None
-    #: vendor length rules (pyrtu.rules), passed to the framer core
+    #: vendor length rules (pyrtu.core.rules), passed to the framer core
     rules: ClassVar[RuleTable | None] = None
     #: the pyrtu backend ("c" or "python"; None: the active one)
     backend: ClassVar[str | None] = None

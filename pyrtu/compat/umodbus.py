@@ -26,9 +26,10 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from .._backend import active
-from .._crcshapes import crc16_bytes
-from ..frames import FrameKind
+from pyrtu.core._backend import active
+from pyrtu.core.crcshapes import crc16_bytes
+from pyrtu.core.frames import FrameKind
+
 from ._guard import require
 from ._patch import Patches, crc_adapter_api
 

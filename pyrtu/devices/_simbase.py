@@ -1,6 +1,6 @@
 """The part every drive simulator shares: its data store, clock, lock, the lazy
 time line, the serial supervision, and the binding to `pyrtu.Slave` (or, for many drives
-in one event loop, `pyrtu.aio.AsyncSlave`)."""
+in one event loop, `pyrtu.drivers.aio.AsyncSlave`)."""
 
 from __future__ import annotations
 
@@ -9,10 +9,11 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
-from .._aio_slave import AsyncSlave
-from ..datastore import DataStore
-from ..rules import LengthRule
-from ..slave import Slave
+from pyrtu.core.rules import LengthRule
+from pyrtu.drivers.aio_slave import AsyncSlave
+from pyrtu.drivers.slave import Slave
+from pyrtu.protocol.datastore import DataStore
+
 from .motor import Clock, Motor, Supervision, Timeline, monotonic
 
 Handler = Callable[[Slave, int, bytes], "bytes | None"]

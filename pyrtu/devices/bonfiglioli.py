@@ -25,7 +25,8 @@ import enum
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from ..rules import BONFIGLIOLI
+from pyrtu.core.rules import BONFIGLIOLI
+
 from .common import FlagWord, MasterLike, s16, s32, scaled, u16, u32, unscaled
 
 FC_READ_32 = 100

@@ -39,9 +39,10 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..errors import SlaveException
-from ..rules import BONFIGLIOLI as RULES
-from ..slave import Slave
+from pyrtu.core.rules import BONFIGLIOLI as RULES
+from pyrtu.drivers.slave import Slave
+from pyrtu.pdu.errors import SlaveException
+
 from . import bonfiglioli as B
 from ._simbase import DriveSimulator, HandlerSpec
 from .bonfiglioli import DriveState, Parameter, Type, VabusError

@@ -6,7 +6,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, fields
 from typing import Protocol
 
-from ..rules import LengthRule
+from pyrtu.core.rules import LengthRule
 
 
 def _unsigned(value: int, bits: int) -> int:

@@ -26,7 +26,8 @@ import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-from ..rules import CV100 as CV100_RULES
+from pyrtu.core.rules import CV100 as CV100_RULES
+
 from .common import FlagWord, MasterLike, masked_flags, masked_word, u16
 
 #: function-code group -> high byte of the register address (section 5)

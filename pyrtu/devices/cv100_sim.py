@@ -36,10 +36,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from pyrtu.core.rules import CV100 as CV100_RULES
+from pyrtu.drivers.slave import Slave
+from pyrtu.pdu.errors import SlaveException
+
 from .. import pdu as P
-from ..errors import SlaveException
-from ..rules import CV100 as CV100_RULES
-from ..slave import Slave
 from . import cv100 as C
 from ._simbase import DriveSimulator, HandlerSpec
 from .motor import Clock, monotonic

@@ -36,9 +36,10 @@ from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
+from pyrtu.drivers.slave import Slave
+from pyrtu.pdu.errors import SlaveException
+
 from .. import pdu as P
-from ..errors import SlaveException
-from ..slave import Slave
 from . import weg
 from ._simbase import DriveSimulator, HandlerSpec
 from .motor import Clock, monotonic

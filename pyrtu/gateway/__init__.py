@@ -11,7 +11,7 @@ id addresses a device behind a gateway) and Application Protocol V1.1b, section 
 * `Gateway`: the asyncio driver: a listener, one `MbapFramer` per connection (and
   optionally a second listener for RTU over TCP, one RTU framer per connection), one
   worker per bus that runs one transaction at a time through the bus's `request`
-  (`pyrtu.aio.AsyncMaster`, whose sans-I/O engine keeps t3.5 and nothing more).
+  (`pyrtu.drivers.aio.AsyncMaster`, whose sans-I/O engine keeps t3.5 and nothing more).
 
 What the gateway answers itself (transaction id, protocol id and unit id copied
 from the request, [TCP] 3.1.3):
@@ -22,7 +22,7 @@ from the request, [TCP] 3.1.3):
   gone): 0x0A at once to every request for it while it is down.  The failure is
   logged once (a warning), counted (``bus_failures``; ``bus_unavailable`` counts
   the requests so answered) and shown in ``stats()["bus_down"]``; the gateway
-  retries on the shared back-off schedule (`pyrtu._reconnect`): through the
+  retries on the shared back-off schedule (`pyrtu.drivers.reconnect`): through the
   bus's ``reopen()`` if it has one, else by letting the next request through
   when a retry is due.  The other buses carry on; when the port is back, one
   log line says so.
@@ -71,8 +71,8 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from .._reconnect import Reconnect
-from ..errors import (
+from pyrtu.drivers.reconnect import Reconnect
+from pyrtu.pdu.errors import (
     GATEWAY_PATH_UNAVAILABLE,
     GATEWAY_TARGET_FAILED,
     ILLEGAL_FUNCTION,
@@ -81,6 +81,7 @@ from ..errors import (
     NoResponseError,
     PortError,
 )
+
 from ._conn import _Connection, _RtuConnection
 from ._live import HEADER, pick_victim
 from ._plan import (
@@ -128,10 +129,10 @@ __all__ = [
 
 
 class Bus(Protocol):
-    """What a bus behind the gateway offers: `pyrtu.aio.AsyncMaster` (a serial
+    """What a bus behind the gateway offers: `pyrtu.drivers.aio.AsyncMaster` (a serial
     line), `pyrtu.tcp.AsyncTcpClient` (another Modbus TCP server).  ``request``
     returns the answer PDU, an exception answer too (as its bytes, as
-    `pyrtu.tcp_server.LocalBus` does); a bus whose ``request`` raises
+    `pyrtu.gateway.server.LocalBus` does); a bus whose ``request`` raises
     `ExceptionResponseError` instead (`AsyncMaster`, `AsyncTcpClient`) offers
     ``exchange``, of the same shape, which the gateway calls when a bus has it: an
     exception raised is a target that failed to respond (0x0B).  A bus may also

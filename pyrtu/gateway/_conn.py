@@ -11,8 +11,9 @@ import struct
 import time
 from typing import TYPE_CHECKING
 
-from .. import _backend
-from ..frames import FrameKind
+from pyrtu.core import _backend
+from pyrtu.core.frames import FrameKind
+
 from ._live import Liveness
 
 if TYPE_CHECKING:

@@ -8,7 +8,7 @@ from collections import OrderedDict, deque
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
-from .._reconnect import Backoff
+from pyrtu.drivers.reconnect import Backoff
 
 #: Defaults of the limits (documented in the README and ``pyrtu gateway --help``).
 MAX_CONNECTIONS = 64
@@ -56,7 +56,7 @@ class GatewayLimits:
     #: seconds a connection may stay without a complete request while nothing of
     #: its is queued, on a bus or unsent; then it is closed (0: no limit)
     idle_timeout: float = IDLE_TIMEOUT
-    #: how a bus whose port failed is retried (`pyrtu._reconnect.Backoff`)
+    #: how a bus whose port failed is retried (`pyrtu.drivers.reconnect.Backoff`)
     backoff: Backoff = field(default_factory=Backoff)
 
     def __post_init__(self) -> None:
@@ -70,7 +70,9 @@ class GatewayLimits:
         for name in ("close_grace", "header_timeout", "idle_timeout"):
             _seconds(name, getattr(self, name))
         if not isinstance(self.backoff, Backoff):
-            raise TypeError(f"backoff must be a pyrtu._reconnect.Backoff, not {self.backoff!r}")
+            raise TypeError(
+                f"backoff must be a pyrtu.drivers.reconnect.Backoff, not {self.backoff!r}"
+            )
 
 
 def check_listen(host: object, port: object) -> tuple[str, int]:

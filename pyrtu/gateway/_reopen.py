@@ -7,7 +7,7 @@ import logging
 from collections.abc import Awaitable, Callable
 from typing import Any
 
-from ..errors import PortError
+from pyrtu.pdu.errors import PortError
 
 log = logging.getLogger("pyrtu.gateway")
 
@@ -23,9 +23,9 @@ async def close_bus(bus: Any) -> None:
 
 class ReopeningBus:
     """A bus made by ``opener`` (an async function returning a fresh
-    `pyrtu.aio.AsyncMaster` or `pyrtu.tcp.AsyncTcpClient`), made again by
+    `pyrtu.drivers.aio.AsyncMaster` or `pyrtu.tcp.AsyncTcpClient`), made again by
     `reopen` when its port failed: the gateway calls `reopen` on its back-off
-    schedule (`pyrtu._reconnect`) until it works.  ``name`` names the port in the
+    schedule (`pyrtu.drivers.reconnect`) until it works.  ``name`` names the port in the
     gateway's log lines."""
 
     def __init__(self, name: str, opener: Opener) -> None:

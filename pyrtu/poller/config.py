@@ -1,7 +1,7 @@
 """The poller's configuration: buses, devices and points, in Python or TOML.
 
-(Not the line: each `Bus` makes its `pyrtu.line.LineConfig` once, from its line
-keywords, and its master is opened with it; `pyrtu.config` is the framer core's
+(Not the line: each `Bus` makes its `pyrtu.core.line.LineConfig` once, from its line
+keywords, and its master is opened with it; `pyrtu.core.options` is the framer core's
 options.)
 
 Minimal TOML (``[[bus]]`` keys are `pyrtu.Master`'s keywords; ``[[point]]`` keys
@@ -47,9 +47,10 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, TypeGuard
 
-from .._links import RTU_TCP_SCHEME, scheme_of
-from .._portname import first_duplicate
-from ..line import LineConfig, split_field_error
+from pyrtu.core.line import LineConfig, split_field_error
+from pyrtu.drivers._portname import first_duplicate
+from pyrtu.drivers.links import RTU_TCP_SCHEME, scheme_of
+
 from .plan import Limits, Wire
 from .points import Point, PointError, check_unique
 from .profiles import device_limits, profile_points

@@ -20,7 +20,7 @@ slave online/offline, dropped points and overload.
 
 A port that fails (cannot be opened or connected, a drop unplugged, a TCP peer
 gone) is reported once (`PortState` and one log line), closed, and opened again
-on the back-off of `pyrtu._reconnect` (the bus's ``backoff`` doubling to
+on the back-off of `pyrtu.drivers.reconnect` (the bus's ``backoff`` doubling to
 ``max_backoff``) while the other buses poll on; what failed because the port did
 is not counted against the slaves.
 """
@@ -34,8 +34,9 @@ from collections.abc import AsyncIterator, Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from .._reconnect import Backoff, Reconnect
-from ..errors import PortError
+from pyrtu.drivers.reconnect import Backoff, Reconnect
+from pyrtu.pdu.errors import PortError
+
 from .config import Bus, ConfigError, Device, PollerConfig, load_config, make_config
 from .events import BusReport, Event, PortState, SlaveStats, Tracker, Update
 from .masters import BY_FUNCTION, FACTORIES, AsyncMasterLike, is_port_error, open_master
@@ -86,7 +87,7 @@ class Poller:
 
     ``config``: a `PollerConfig` (`load_config`, `make_config`) or a TOML path;
     or ``buses``/``points``/``devices`` directly.  ``master``: ``"aio"`` (the
-    default: `pyrtu.aio.AsyncMaster`), ``"thread"`` (a sync `pyrtu.Master` on a
+    default: `pyrtu.drivers.aio.AsyncMaster`), ``"thread"`` (a sync `pyrtu.Master` on a
     worker thread per bus) or a function ``Bus -> master``.
     ``changes_only``: deliver a value only when it changed beyond its deadband.
     """

@@ -1,8 +1,8 @@
-"""The masters a `Poller` drives: anything with `pyrtu.aio.AsyncMaster`'s
+"""The masters a `Poller` drives: anything with `pyrtu.drivers.aio.AsyncMaster`'s
 ``transact`` (a request of the masters' one table in, ``(value, end_time)`` out)
 and ``close()``.
 
-The default is `pyrtu.aio.AsyncMaster` (``loop.add_reader`` on the port, one
+The default is `pyrtu.drivers.aio.AsyncMaster` (``loop.add_reader`` on the port, one
 wake-up per answer; ports without a descriptor are read in a thread of its own).
 `ThreadMaster` runs a sync `pyrtu.Master` on a worker thread of its own per bus:
 the fallback (``Poller(master="thread")``) for ports or drivers only the sync
@@ -17,11 +17,12 @@ import functools
 from collections.abc import Callable
 from typing import Any, Protocol
 
-from .. import _requests as R
-from .._requests import Request
-from ..aio import AsyncMaster
-from ..errors import ModbusError, PortError
-from ..master import Master
+from pyrtu.drivers.aio import AsyncMaster
+from pyrtu.drivers.master import Master
+from pyrtu.pdu import requests as R
+from pyrtu.pdu.errors import ModbusError, PortError
+from pyrtu.pdu.requests import Request
+
 from .config import Bus
 
 #: the requests the poller sends, by function code (the masters' one table)
@@ -29,8 +30,8 @@ BY_FUNCTION: dict[int, Request[Any]] = R.BY_FUNCTION
 
 
 class AsyncMasterLike(Protocol):
-    """What a poller needs of a master (`pyrtu.aio.AsyncMaster` has it): one request
-    of the table (`pyrtu._requests.Request`) with its arguments in, ``(value,
+    """What a poller needs of a master (`pyrtu.drivers.aio.AsyncMaster` has it): one request
+    of the table (`pyrtu.pdu.requests.Request`) with its arguments in, ``(value,
     end_time)`` out, ``end_time`` being when the answer's last byte came."""
 
     async def transact(self, req: Request[Any], slave: int, *args: Any) -> tuple[Any, float]: ...
@@ -79,7 +80,7 @@ def open_thread_master(bus: Bus) -> AsyncMasterLike:
 
 
 def open_async_master(bus: Bus) -> AsyncMasterLike:
-    """A `pyrtu.aio.AsyncMaster` on the bus's port with its keywords (call it in the
+    """A `pyrtu.drivers.aio.AsyncMaster` on the bus's port with its keywords (call it in the
     event loop's thread)."""
     return AsyncMaster(bus.port, line=bus.line, **bus.master_options)
 

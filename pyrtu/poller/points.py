@@ -9,7 +9,7 @@ how often it is read (interval, in seconds) and reported (deadband)::
 
 Every field is checked when the point is made; a bad one raises `PointError`
 (a ValueError) whose ``field`` names it and whose message says what is wrong.
-Decoding reuses the helpers of `pyrtu.data`.
+Decoding reuses the helpers of `pyrtu.pdu.data`.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from ..data import (
+from pyrtu.pdu.data import (
     ORDERS,
     decode_float32,
     decode_int32,

@@ -41,7 +41,8 @@ import heapq
 import itertools
 from collections.abc import Iterable, Mapping, Sequence
 
-from ..errors import ExceptionResponseError, FrameError, NoResponseError
+from pyrtu.pdu.errors import ExceptionResponseError, FrameError, NoResponseError
+
 from ._schedule_parts import (
     _WRITE_FUNCTIONS,
     POLL,

@@ -7,7 +7,8 @@ import queue
 from collections.abc import Awaitable, Callable, Coroutine, Iterator
 from typing import Any, Protocol
 
-from .._loopthread import LoopThread
+from pyrtu.drivers._loopthread import LoopThread
+
 from .events import BusReport, Update
 from .points import Value
 
@@ -42,7 +43,7 @@ class PollerThread:
     def __init__(self, poller: _Poller) -> None:
         self.poller = poller
         self._thread = LoopThread("pyrtu-poller", poller.start, poller.stop)
-        self._loop = self._thread.loop  # microsecond timers (see pyrtu.aio)
+        self._loop = self._thread.loop  # microsecond timers (see pyrtu.drivers.aio)
 
     def start(self) -> PollerThread:
         """Start the thread; raises what `Poller.start` raised (not a port that

@@ -12,11 +12,11 @@ it out; docs/PROTOCOL.md shows a custom driver for each side.
 from __future__ import annotations
 
 # the client (master) side: one transaction at a time, handed out as actions
-from .._client import ClientProtocol
-from .._client_actions import Action, Done, Send, State, Wait
+from pyrtu.protocol.client import ClientProtocol
+from pyrtu.protocol.client_actions import Action, Done, Send, State, Wait
 
 # the server (slave) side: requests in, answers out at their time
-from .._server import Application, Idle, Listen, Reply, ServerAction, ServerProtocol
+from pyrtu.protocol.server import Application, Idle, Listen, Reply, ServerAction, ServerProtocol
 
 __all__ = [
     "Action",

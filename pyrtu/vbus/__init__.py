@@ -43,7 +43,7 @@ specification) uses 11-bit characters; no parity bit is carried or checked.
 Timing
 ------
 
-The wire is a sans-I/O schedule (csrc/rtu_vbus.c, twin pyrtu/_pure/vbus.py) on
+The wire is a sans-I/O schedule (csrc/rtu_vbus.c, twin pyrtu/core/_pure/vbus.py) on
 `time.perf_counter_ns` (CLOCK_MONOTONIC on Linux; also the clock of capture times).
 One hub thread drives it: by default in C (csrc/rtu_vbus_io.c: ``ppoll`` until the
 next delivery, no GIL), or in a Python ``select`` loop for the pure backend, a

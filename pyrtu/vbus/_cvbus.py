@@ -1,6 +1,6 @@
 """The C schedule (csrc/rtu_vbus.c) and I/O thread (csrc/rtu_vbus_io.c) for the hub.
 
-`CSchedule` has the interface of the twin `pyrtu._pure.vbus.Schedule` (without its
+`CSchedule` has the interface of the twin `pyrtu.core._pure.vbus.Schedule` (without its
 Python-only capture and line faults); `CLoop` runs the C I/O thread's loop.  Both
 exist only when the C core is built (`available`).
 """
@@ -9,8 +9,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from .. import _backend
-from .._pure.vbus import COUNTERS, _time
+from pyrtu.core import _backend
+from pyrtu.core._pure.vbus import COUNTERS, _time
 
 __all__ = ["CLoop", "CSchedule", "available"]
 

@@ -3,7 +3,7 @@
 The C loop (`HubLoops._c_loop`) runs csrc/rtu_vbus_io.c (the schedule and the pty
 I/O in C; a cffi call releases the GIL) and comes back to Python only for inotify
 events, unplugs and stop requests.  The Python loop (`HubLoops._loop`) runs the twin
-schedule (pyrtu/_pure/vbus.py) in a select() loop: the pure backend, a capture,
+schedule (pyrtu/core/_pure/vbus.py) in a select() loop: the pure backend, a capture,
 or seeded line faults.
 """
 
@@ -19,7 +19,8 @@ import threading
 import time
 from collections.abc import Callable
 
-from .._pure.vbus import Schedule
+from pyrtu.core._pure.vbus import Schedule
+
 from ._cvbus import CLoop, CSchedule
 from ._os import OpenWatch, set_realtime, set_timer_slack
 from ._state import DropState

@@ -11,7 +11,7 @@ import termios
 import tty
 from dataclasses import dataclass
 
-from .._slack import set_timer_slack
+from pyrtu.drivers._slack import set_timer_slack
 
 __all__ = ["OpenWatch", "Pty", "open_pty", "set_realtime", "set_timer_slack"]
 

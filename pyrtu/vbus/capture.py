@@ -56,7 +56,7 @@ from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from typing import IO, Any
 
-from .._backend import backend as _backend_named
+from pyrtu.core._backend import backend as _backend_named
 
 __all__ = [
     "MAGIC",

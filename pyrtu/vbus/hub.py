@@ -12,15 +12,16 @@ import time
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import fields, replace
 
-from .._pure.vbus import OUT, Schedule
-from ..line import LineConfig, line_from
-from ..timing import (
+from pyrtu.core._pure.vbus import OUT, Schedule
+from pyrtu.core.line import LineConfig, line_from
+from pyrtu.core.timing import (
     bits_per_char,
     check_baudrate,
     check_bytesize,
     check_parity,
     check_stopbits,
 )
+
 from . import _cvbus
 from ._cvbus import CLoop, CSchedule
 from ._hubloop import _SPIN_NS, DEFAULT_LATENCY, HubLoops
@@ -78,7 +79,7 @@ class VirtualBus(HubLoops):
         loop: ``"auto"`` (default): the C loop (csrc/rtu_vbus_io.c: the schedule and
             the pty I/O in C, no GIL) when the C core is the backend and no capture
             and no line faults are asked for, else the Python loop (the twin
-            schedule, pyrtu/_pure/vbus.py, and a select() loop); ``"python"``
+            schedule, pyrtu/core/_pure/vbus.py, and a select() loop); ``"python"``
             forces the Python loop.  `loop` attribute: the one running.  A bus on
             the C loop moves to the Python loop when line faults are set on it.
 
@@ -114,7 +115,7 @@ class VirtualBus(HubLoops):
             raise ValueError(
                 f"a bus has 1..{MAX_DROPS} drops (247 slaves and a master), not {drops!r}"
             )
-        check_baudrate(baudrate)  # the checks and words of LineConfig (pyrtu.timing)
+        check_baudrate(baudrate)  # the checks and words of LineConfig (pyrtu.core.timing)
         check_bytesize(bytesize)
         if check_stopbits(stopbits) not in (1, 2):  # the capture header holds 1 or 2
             raise ValueError(f"stopbits must be 1 or 2 on the virtual bus, not {stopbits!r}")

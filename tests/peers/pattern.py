@@ -22,7 +22,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from pyrtu.datastore import DataStore
+    from pyrtu.protocol.datastore import DataStore
 
 N_BITS = 2000
 N_REGS = 1000
@@ -62,7 +62,7 @@ def inputs(slave: int, address: int, count: int) -> list[int]:
 
 def pattern_store(slave: int) -> DataStore:
     """A pyrtu DataStore holding the four tables of slave `slave`."""
-    from pyrtu.datastore import DataStore  # here: pymodbus_server.py runs without pyrtu
+    from pyrtu.protocol.datastore import DataStore  # here: pymodbus_server.py runs without pyrtu
 
     store = DataStore()
     store.coils.add_range(0, coils(slave, 0, N_BITS))

@@ -22,7 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import pattern
 
-from pyrtu.slave import Slave
+from pyrtu.drivers.slave import Slave
 
 
 def main(argv: list[str] | None = None) -> int:

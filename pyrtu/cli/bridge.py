@@ -1,0 +1,195 @@
+"""``pyrtu bridge --config FILE``: the poller's points to an MQTT broker and back.
+
+Polls the points of a TOML file (the poller's, see ``pyrtu poll --config``) and
+publishes them to the broker of its ``[mqtt]`` table: one retained topic per point
+(``{prefix}/{edge}/{bus}/{slave}/{point}``, JSON with value, time, quality and
+sequence number), the edge's and each slave's status, stats every
+``stats_interval``; writes of ``writable`` points from ``{point topic}/set``.
+Updates go through a durable outbox on disk: a broker that is down delays them,
+never loses them.  See docs/BRIDGE.md.
+
+``pyrtu bridge --check FILE`` validates a configuration without opening anything.
+Exit status: 0 after SIGINT/SIGTERM or --duration (what waits is published
+first, up to --drain seconds); 2 for a configuration error (the file, line and
+key named) before anything is opened; 3 when a port or the outbox cannot be
+opened, or the broker refuses the credentials or its certificate does not verify.
+With ``--json``: one JSON object per event (broker down/up, slave online/offline,
+stats) on stdout.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import signal
+import sys
+from typing import Any
+
+from pyrtu.cli.common import (
+    EXIT_OK,
+    EXIT_PORT,
+    EXIT_USAGE,
+    CommandSpec,
+    emit,
+    exit_code_table,
+    guarded,
+    positive_seconds,
+    report_error,
+    seconds,
+)
+
+
+def _configure(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", metavar="FILE", help="the TOML file: buses, points and [mqtt]")
+    p.add_argument(
+        "--check",
+        nargs="?",
+        const=True,
+        default=None,
+        metavar="FILE",
+        help="validate the configuration (FILE or --config) and exit: nothing is opened",
+    )
+    p.add_argument(
+        "-d",
+        "--duration",
+        type=positive_seconds,
+        default=None,
+        metavar="SECONDS",
+        help="stop after this time (default: on SIGINT/SIGTERM)",
+    )
+    p.add_argument(
+        "--drain",
+        type=seconds,
+        default=5.0,
+        metavar="SECONDS",
+        help="at the end, publish what waits for up to this long (default 5 s)",
+    )
+    p.add_argument(
+        "--json", action="store_true", help="one JSON object per event (and the stats) on stdout"
+    )
+
+
+def _run(args: argparse.Namespace) -> int:
+    from pyrtu.poller import ConfigError
+
+    path = args.check if isinstance(args.check, str) else args.config
+    if path is None:
+        print("pyrtu bridge: error: --config FILE (or --check FILE) is required", file=sys.stderr)
+        return EXIT_USAGE
+    from pyrtu.bridge.config import load_bridge_config
+
+    try:
+        cfg = load_bridge_config(path)
+    except ConfigError as e:
+        print(f"pyrtu bridge: config error: {e}", file=sys.stderr)
+        if args.json:
+            emit({"ok": False, "error": "usage", "exit_code": EXIT_USAGE, "message": str(e)})
+        return EXIT_USAGE
+    if args.check is not None:
+        m = cfg.mqtt
+        doc = {
+            "ok": True,
+            "config": path,
+            "broker": m.broker,
+            "edge": m.edge,
+            "points": len(cfg.poller.points),
+            "buses": len(cfg.poller.buses),
+            "writable": sum(1 for o in cfg.options.values() if o.writable),
+        }
+        if args.json:
+            emit(doc)
+        else:
+            print(
+                f"{path}: ok: {doc['points']} points on {doc['buses']} buses, "
+                f"{doc['writable']} writable, broker {m.broker}, edge {m.edge!r}"
+            )
+        return EXIT_OK
+    try:
+        import paho.mqtt.client  # noqa: F401
+    except ImportError:
+        print(
+            "pyrtu bridge: error: the MQTT client is missing: pip install 'pyrtu[bridge]' "
+            "(paho-mqtt)",
+            file=sys.stderr,
+        )
+        return EXIT_USAGE
+    from pyrtu.drivers.aio import run as aio_run
+
+    return int(aio_run(_serve(cfg, args)))
+
+
+async def _serve(cfg: Any, args: argparse.Namespace) -> int:
+    from pyrtu.bridge.bridge import Bridge, BridgeEvent
+    from pyrtu.bridge.outbox import OutboxError
+
+    bridge = Bridge(cfg)
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    closed = False
+
+    def on_event(ev: BridgeEvent) -> None:
+        nonlocal closed
+        if closed:
+            return
+        try:
+            if args.json:
+                emit(ev.as_dict())
+            elif ev.kind != "stats":
+                detail = ", ".join(f"{k} {v}" for k, v in ev.detail.items())
+                print(f"pyrtu bridge: {ev.kind}: {detail}", file=sys.stderr, flush=True)
+        except BrokenPipeError:
+            closed = True  # | head: stop quietly
+            stop.set()
+
+    bridge.on_event(on_event)
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    try:
+        try:
+            await bridge.start()
+        except OutboxError as e:
+            print(f"pyrtu bridge: outbox error: {e}", file=sys.stderr)
+            return EXIT_PORT
+        except OSError as e:
+            from pyrtu.pdu.errors import PortError
+
+            if isinstance(e, PortError):  # reported by guarded, as every command does
+                raise
+            print(f"pyrtu bridge: error: {e}", file=sys.stderr)
+            return EXIT_PORT
+        fatal = bridge.halted
+        waits = [asyncio.ensure_future(stop.wait()), asyncio.ensure_future(fatal.wait())]
+        try:
+            await asyncio.wait(waits, timeout=args.duration, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            for w in waits:
+                w.cancel()
+        await bridge.stop(drain=args.drain)
+    finally:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.remove_signal_handler(sig)
+    if bridge.fatal is not None:
+        return report_error("bridge", _as_port_error(bridge.fatal), args.json and not closed)
+    if args.json and not closed:
+        try:
+            emit({"event": "end", **bridge.final_stats})
+        except BrokenPipeError:
+            pass
+    return EXIT_OK
+
+
+def _as_port_error(e: BaseException) -> BaseException:
+    return e if isinstance(e, OSError) else ConnectionRefusedError(str(e))
+
+
+COMMANDS = (
+    CommandSpec(
+        "bridge",
+        "the poller's points to an MQTT broker, set commands back (see docs/BRIDGE.md)",
+        _configure,
+        guarded("bridge", _run),
+        (__doc__ or "").strip() + "\n\n" + exit_code_table(),
+    ),
+)
+
+__all__ = ["COMMANDS"]

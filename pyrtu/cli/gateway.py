@@ -1,0 +1,349 @@
+"""``pyrtu gateway --listen HOST:PORT --port SERIAL[=UNITS] ...``: Modbus TCP to RTU.
+
+Many Modbus TCP clients share the serial buses behind one listener (and, with
+--listen-rtu, clients speaking RTU over TCP on a second one): one
+transaction at a time per bus at full wire rate (t3.5 between frames, no fixed
+pause), a fair queue per bus (connections served in turn), the unit id as the
+slave address.  ``--port`` may be repeated, each with the unit ids it carries
+(``--port /dev/ttyUSB0=1-10 --port /dev/ttyUSB1=11-20,30``; one ``--port``
+without ``=`` carries 1-247); ``--port tcp://HOST:PORT=UNITS`` forwards to
+another Modbus TCP server.  All serial buses share the serial options.
+
+Answers of the gateway itself (Application Protocol 7): exception 0x0A for a
+unit id no bus carries, 0x0B when the device does not answer within --timeout
+(after --retries), 0x06 (busy) when a queue is full.  Unit 0 is a broadcast:
+sent to every bus, not answered, and the bus keeps --broadcast-delay (0.1 s)
+of silence after it (the devices' turnaround).  --unit-map TCP=SLAVE sends a
+TCP unit id no --port carries to a slave address: ``--unit-map 255=1,0=1`` for
+clients that address a TCP device with 0xFF or 0 (Messaging on TCP/IP
+Implementation Guide 4.4.1.2; libmodbus's default is 0xFF); a mapped 0 is then
+answered, not broadcast.  A malformed MBAP header closes that connection (reset
+after 5 s if it leaves answers unread).  Limits (defaults): --max-connections
+64, --max-queue 16 requests waiting per connection, --max-bus-queue 256 per bus,
+--max-write-buffer 262144 bytes of unread answers before a client is reset,
+--header-timeout 5 s for a request begun to be complete, --idle-timeout 120 s
+without a request; when the connections are all taken, one that never sent a
+whole request (else the longest idle) gives way to the newcomer.
+
+A bus whose port fails (a USB adapter pulled out, a TCP server gone) is logged
+once; its requests get 0x0A while it is down (counted as "bus unavailable");
+it is reopened on a back-off schedule (0.5 s doubling to 30 s) while the other
+buses carry on, and logged again when it is back.
+
+Runs until SIGINT/SIGTERM or --duration (exit 0), then prints the counters.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import os
+import signal
+import sys
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from pyrtu import gateway as G
+from pyrtu.cli.common import (
+    EXIT_OK,
+    CommandSpec,
+    add_json_option,
+    add_serial_options,
+    emit,
+    exit_code_table,
+    guarded,
+    positive_seconds,
+    seconds,
+    serial_kwargs,
+    stop_when_stdout_closes,
+)
+
+#: up to this many connections the gateway runs on `pyrtu.drivers.aio.run`'s select() loop
+#: (microsecond timers: the serial side keeps t3.5 to the microsecond, where the
+#: default epoll loop rounds every wait up to a millisecond, a large part of a
+#: 115200-baud transaction); select() takes descriptors below 1024, so beyond this
+#: the default loop serves
+SELECT_LOOP_CONNECTIONS = 900
+
+#: the silence kept after a broadcast (the Serial Line spec's turnaround delay, 2.1:
+#: "typically 100 ms to 200 ms"): `pyrtu.drivers.aio.AsyncMaster`'s default
+BROADCAST_DELAY = 0.1
+
+
+@dataclass(frozen=True)
+class BusSpec:
+    port: str
+    units: frozenset[int] | None  # None: 1-247
+
+
+def listen_address(text: str) -> tuple[str, int]:
+    """HOST:PORT (``[::1]:502`` for IPv6)."""
+    host, sep, port = text.rpartition(":")
+    host = host[1:-1] if host.startswith("[") and host.endswith("]") else host
+    if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+        raise argparse.ArgumentTypeError(f"expected HOST:PORT (port 0..65535), not {text!r}")
+    return host, int(port)
+
+
+def bus_spec(text: str) -> BusSpec:
+    """SERIAL or SERIAL=UNITS (unit ids ``1-10,20``)."""
+    port, sep, units = text.rpartition("=")
+    if not sep:
+        return BusSpec(text, None)
+    if not port:
+        raise argparse.ArgumentTypeError(f"expected SERIAL=UNITS, not {text!r}")
+    try:
+        return BusSpec(port, G.parse_units(units))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def unit_map(text: str) -> dict[int, int]:
+    """``TCP=SLAVE[,TCP=SLAVE...]``: TCP unit ids 0..255 to slave addresses 1..247."""
+    pairs: dict[int, int] = {}
+    for part in text.split(","):
+        unit_text, sep, slave_text = part.strip().partition("=")
+        try:
+            unit, slave = int(unit_text, 0), int(slave_text, 0)
+        except ValueError:
+            unit = slave = -1
+        if not sep or not 0 <= unit <= 255 or not 1 <= slave <= 247:
+            raise argparse.ArgumentTypeError(
+                f"expected TCP=SLAVE (unit id 0..255 = slave address 1..247), not {part!r}"
+            )
+        pairs[unit] = slave
+    return pairs
+
+
+def seconds_or_off(text: str) -> float:
+    value = seconds(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a time >= 0 (0: no limit), not {text!r}")
+    return value
+
+
+def _limit(text: str) -> int:
+    try:
+        value = int(text, 0)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, not {text!r}")
+    return value
+
+
+def _configure(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "-l", "--listen", required=True, type=listen_address, metavar="HOST:PORT",
+        help="address to listen on for Modbus TCP clients (port 0: any free port)",
+    )  # fmt: skip
+    p.add_argument(
+        "--listen-rtu", type=listen_address, metavar="HOST:PORT",
+        help="also listen for RTU over TCP (RTU frames with their CRC, no MBAP header)",
+    )  # fmt: skip
+    p.add_argument(
+        "-p", "--port", required=True, action="append", type=bus_spec, metavar="SERIAL[=UNITS]",
+        help="a bus: serial port (or tcp://HOST:PORT) and its unit ids; repeat for more",
+    )  # fmt: skip
+    g = p.add_argument_group("limits")
+    g.add_argument("--max-connections", type=_limit, default=G.MAX_CONNECTIONS, metavar="N",
+                   help=f"TCP connections at once (default {G.MAX_CONNECTIONS}). Up to "
+                        f"{SELECT_LOOP_CONNECTIONS} the gateway runs on a select() loop, "
+                        "whose timers keep t3.5 to the microsecond; above, on asyncio's "
+                        "default loop, whose timers round up to milliseconds")  # fmt: skip
+    g.add_argument("--max-queue", type=_limit, default=G.MAX_QUEUED_PER_CONNECTION, metavar="N",
+                   help="requests waiting per connection "
+                   f"(default {G.MAX_QUEUED_PER_CONNECTION})")  # fmt: skip
+    g.add_argument("--max-bus-queue", type=_limit, default=G.MAX_QUEUED_PER_BUS, metavar="N",
+                   help=f"requests waiting per bus (default {G.MAX_QUEUED_PER_BUS})")  # fmt: skip
+    g.add_argument("--max-write-buffer", type=_limit, default=G.MAX_WRITE_BUFFER, metavar="BYTES",
+                   help=f"unread answers before a client is closed "
+                   f"(default {G.MAX_WRITE_BUFFER})")  # fmt: skip
+    g.add_argument("--header-timeout", type=seconds_or_off, default=G.HEADER_TIMEOUT,
+                   metavar="SECONDS", help="a request begun must be complete within this "
+                   f"(0: no limit; default {G.HEADER_TIMEOUT:g})")  # fmt: skip
+    g.add_argument("--idle-timeout", type=seconds_or_off, default=G.IDLE_TIMEOUT,
+                   metavar="SECONDS", help="close a connection without a request for this "
+                   f"long (0: no limit; default {G.IDLE_TIMEOUT:g})")  # fmt: skip
+    p.add_argument(
+        "--unit-map", action="append", type=unit_map, default=[], metavar="TCP=SLAVE[,...]",
+        help="route a TCP unit id no --port carries to a slave address on the bus that "
+        "carries it, e.g. 255=1,0=1 (0 mapped is answered, not broadcast)",
+    )  # fmt: skip
+    p.add_argument(
+        "--broadcast-delay", type=seconds, default=BROADCAST_DELAY, metavar="SECONDS",
+        help="silence after a broadcast before the bus's next request: the devices' "
+        f"turnaround (default {BROADCAST_DELAY})",
+    )  # fmt: skip
+    p.add_argument(
+        "-d", "--duration", type=positive_seconds, metavar="SECONDS", help="stop after this time"
+    )
+    add_json_option(
+        p, "JSON lines: ready, bus (a port failed or is back), stopped (with the counters)"
+    )
+    add_serial_options(p, timeout=0.5)
+
+
+def _same_port(port: str) -> str:
+    return port if "://" in port else os.path.realpath(port)
+
+
+def _routes(specs: list[BusSpec], maps: list[dict[int, int]]) -> list[dict[int, int]]:
+    """Unit id -> slave address per bus; ValueError naming the flag (exit 2)."""
+    seen: dict[str, str] = {}
+    for s in specs:
+        key = _same_port(s.port)
+        if key in seen:
+            raise ValueError(
+                f"--port: {s.port} is given twice (as {seen[key]!r} too); give it once "
+                "with all its unit ids (SERIAL=1-10,11-20)"
+            )
+        seen[key] = s.port
+    if len(specs) > 1 and any(s.units is None for s in specs):
+        raise ValueError("--port: with several buses, give each its unit ids (SERIAL=1-10)")
+    units = [{u: u for u in (s.units if s.units is not None else range(1, 248))} for s in specs]
+    for mapping in maps:
+        for unit, slave in mapping.items():
+            if any(unit in bus for bus in units):
+                raise ValueError(f"--unit-map: unit id {unit} is already carried by a --port")
+            bus = next((b for b in units if slave in b and b[slave] == slave), None)
+            if bus is None:
+                raise ValueError(f"--unit-map: slave {slave} ({unit}={slave}) is on no --port")
+            bus[unit] = slave
+    G.Routes(units)  # ValueError when a unit id is on two buses
+    return units
+
+
+async def _open_bus(spec: BusSpec, args: argparse.Namespace) -> G.ReopeningBus:
+    """The bus of ``spec``, opened; the gateway reopens it the same way after a failure."""
+    return await G.ReopeningBus(spec.port, lambda: _connect(spec, args)).open()
+
+
+async def _connect(spec: BusSpec, args: argparse.Namespace) -> Any:
+    if spec.port.startswith("tcp://"):
+        from pyrtu.tcp import AsyncTcpClient
+
+        return await AsyncTcpClient.connect(spec.port, timeout=args.timeout, max_in_flight=1)
+    from pyrtu.drivers.aio import AsyncMaster
+
+    options: dict[str, Any] = serial_kwargs(args)
+    options.update(timeout=args.timeout, retries=args.retries, mode=args.mode,
+                   timing=args.timing, echo=args.echo,
+                   broadcast_delay=args.broadcast_delay)  # fmt: skip
+    if args.t35 is not None:
+        options["t35"] = args.t35
+    master = AsyncMaster(spec.port, **options)
+    opened = getattr(master, "open", None)
+    if opened is not None:
+        await opened()
+    return master
+
+
+async def _serve(args: argparse.Namespace) -> dict[str, Any]:
+    units = _routes(args.port, args.unit_map)
+    limits = G.GatewayLimits(
+        max_connections=args.max_connections,
+        max_queued_per_connection=args.max_queue,
+        max_queued_per_bus=args.max_bus_queue,
+        max_write_buffer=args.max_write_buffer,
+        header_timeout=args.header_timeout,
+        idle_timeout=args.idle_timeout,
+    )
+    buses: list[Any] = []
+    try:
+        for spec in args.port:
+            buses.append(await _open_bus(spec, args))
+        gw = G.Gateway(
+            list(zip(buses, units, strict=True)), limits, on_bus=lambda ev: _bus_event(args, ev)
+        )
+        host, port = args.listen
+        try:
+            await gw.start(host, port, rtu=args.listen_rtu)
+        except OSError as exc:
+            flag = "--listen" if gw.address is None else "--listen-rtu"
+            raise OSError(exc.errno, f"{flag}: {exc.strerror}") from exc
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, stop.set)
+        unwatch = stop_when_stdout_closes(loop, stop)  # | head -1
+        started = time.monotonic()
+        _ready(args, gw)
+        try:
+            await asyncio.wait_for(stop.wait(), args.duration)
+        except asyncio.TimeoutError:
+            pass
+        finally:
+            unwatch()
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                loop.remove_signal_handler(sig)
+            await gw.close()
+        return {"seconds": round(time.monotonic() - started, 3), **gw.stats()}
+    finally:
+        for bus in buses:
+            await bus.close()
+
+
+def _bus_event(args: argparse.Namespace, ev: G.BusEvent) -> None:
+    """A bus's port failed or is back: one JSON line, or one line on stderr."""
+    if args.json:
+        emit({"type": "bus", "bus": ev.name, "up": ev.up, "error": ev.error,
+              "attempts": ev.attempts, "seconds": ev.seconds})  # fmt: skip
+    elif ev.up:
+        print(f"pyrtu gateway: bus {ev.name} is back after {ev.seconds or 0.0:.1f} s "
+              f"({ev.attempts} attempts)", file=sys.stderr, flush=True)  # fmt: skip
+    else:
+        print(f"pyrtu gateway: bus {ev.name} failed: {ev.error}; its requests get exception "
+              "0x0A until it is back (retrying)", file=sys.stderr, flush=True)  # fmt: skip
+
+
+def _ready(args: argparse.Namespace, gw: G.Gateway) -> None:
+    assert gw.address is not None
+    host, port = gw.address
+    buses = [s.port for s in args.port]
+    rtu = None if gw.rtu_address is None else "{}:{}".format(*gw.rtu_address)
+    if args.json:
+        emit({"type": "ready", "listen": f"{host}:{port}", "listen_rtu": rtu, "buses": buses})
+    else:
+        also = f" (RTU over TCP on {rtu})" if rtu else ""
+        print(
+            f"pyrtu gateway: listening on {host}:{port}{also}, buses {', '.join(buses)}; "
+            "Ctrl-C to stop",
+            file=sys.stderr,
+            flush=True,
+        )
+
+
+def _run(args: argparse.Namespace) -> int:
+    if args.max_connections <= SELECT_LOOP_CONNECTIONS:
+        from pyrtu.drivers.aio import run as aio_run
+
+        stats = aio_run(_serve(args))
+    else:
+        stats = asyncio.run(_serve(args))
+    if args.json:
+        emit({"type": "stopped", **stats})
+    else:
+        print(
+            f"pyrtu gateway: stopped after {stats['seconds']:.1f} s: {stats['connections']} "
+            f"connections, {stats['requests']} requests, {stats['answers']} answers, "
+            f"{stats['exceptions']} exceptions ({stats['timeouts']} timeouts, "
+            f"{stats['busy']} busy, {stats['no_route']} no route, "
+            f"{stats['bus_unavailable']} bus unavailable); {stats['bus_failures']} bus "
+            f"failures, {stats['bus_recoveries']} recovered; {stats['evicted']} evicted, "
+            f"{stats['header_timeouts']} header and {stats['idle_timeouts']} idle timeouts",
+            file=sys.stderr,
+        )
+    return EXIT_OK
+
+
+COMMANDS = (
+    CommandSpec(
+        "gateway",
+        "Modbus TCP to RTU gateway: many TCP clients onto serial buses",
+        _configure,
+        guarded("gateway", _run),
+        (__doc__ or "").strip() + "\n\n" + exit_code_table(),
+    ),
+)

@@ -1,0 +1,370 @@
+"""``pyrtu simulate DEVICE --port PATH``: a simulated drive on a serial port.
+
+DEVICE is one of cfw100, cfw320, cfw701 (WEG), cv100 (CV100/FV100), act, acu
+(Bonfiglioli Vectron): the simulators of `pyrtu.devices`, which answer as their
+manuals say (function codes, exceptions, identification, response delay, motor
+ramps, status words, serial watchdog).  ``--address`` defaults to the address of
+the manual's examples.  Put it on a drop of ``pyrtu vbus`` (with ``--parity N``:
+pseudo-terminals carry no parity) or on a real port.
+
+Runs until SIGINT/SIGTERM or ``--duration``, then prints the counters;
+``--watch`` prints the drive's frequency and status word every second.
+
+``--port`` may be given several times: one drive per port, each with its own
+state, all served by one event loop in this process (cheaper than a process per
+drive when one machine simulates many buses); ``--watch`` then prints a line per
+port and the counters are added up.  A port given twice (also as ``./P`` and
+``P``, or a symlink and its target) is a usage error (exit 2).
+
+A port that cannot be opened at the start is an error (exit 3: a wrong path is
+said at once).  A port that fails while served (a USB adapter pulled, a
+virtual-bus drop unplugged) is reported once (one line on stderr; ``--json``:
+a "port_lost" line), tried again with growing waits (0.5 s doubling to 30 s) and
+served again when it opens ("port_back"); the drive keeps its state and the
+other drives carry on meanwhile.  The exit status after SIGINT/SIGTERM or
+``--duration`` is 0 when every port is served at the end, 3 when a port was still
+down (each named on stderr).
+
+Two simulators (or devices) answering one address on one bus garble each
+other's answers: a simulator that hears bytes on the line while it answers, or
+an answer at its own address that it did not send, warns once on stderr
+("warning" in ``--json``) and goes on serving.
+"""
+
+from __future__ import annotations
+
+import argparse
+import inspect
+import sys
+import threading
+import time
+from typing import Any
+
+from pyrtu.cli._simulate_clash import watch_slave
+from pyrtu.cli._simulate_many import DriveLoop, DriveThread, PortKeeper, PortReport
+from pyrtu.cli._simulate_tcp import TcpThread, tcp_only_slave
+from pyrtu.cli.common import (
+    EXIT_OK,
+    EXIT_PORT,
+    CommandSpec,
+    add_json_option,
+    add_serial_options,
+    describe_format,
+    emit,
+    exit_code_table,
+    guarded,
+    positive_seconds,
+    serial_kwargs,
+    stop_on_signals,
+)
+from pyrtu.cli.gateway import listen_address
+from pyrtu.cli.io import DEVICES
+from pyrtu.drivers._portname import first_duplicate
+
+VENDORS = {
+    "cfw100": "WEG CFW100",
+    "cfw320": "WEG CFW320",
+    "cfw701": "WEG CFW701",
+    "cv100": "CV100/FV100",
+    "act": "Bonfiglioli Vectron ACT",
+    "acu": "Bonfiglioli Vectron ACU",
+}
+
+
+def make_simulator(device: str, state: str | None = None, mode: str = "rtu") -> Any:
+    """The simulator of ``device``; ``state`` where the simulator has states."""
+    from pyrtu.devices import SIMULATORS, simulator
+
+    options: dict[str, Any] = {}
+    params = inspect.signature(SIMULATORS[device]).parameters
+    if state is not None:
+        if "state" not in params:
+            raise ValueError(
+                f"the {device} simulator has no --state (it starts as its manual says)"
+            )
+        options["state"] = state
+    if mode != "rtu":
+        options["mode"] = mode
+    return simulator(device, **options)
+
+
+def frequency_of(sim: Any) -> float:
+    reader = getattr(sim, "frequency_hz", None) or sim.speed_hz
+    value: float = reader()
+    return value
+
+
+def status_of(sim: Any) -> str:
+    status = sim.status()
+    describe = getattr(status, "describe", None)
+    return str(describe() if describe is not None else status)
+
+
+def _configure(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "device",
+        metavar="DEVICE",
+        type=str.lower,
+        choices=DEVICES,
+        help="cfw100, cfw320, cfw701, cv100, act or acu",
+    )
+    p.add_argument(
+        "-p",
+        "--port",
+        metavar="PATH",
+        action="append",
+        help="serial port to serve; give it again for one more drive (one per port)",
+    )
+    p.add_argument(
+        "--tcp",
+        type=listen_address,
+        metavar="HOST:PORT",
+        help="also (or only, without --port) serve the drive over Modbus TCP",
+    )
+    p.add_argument(
+        "-a",
+        "--address",
+        type=int,
+        metavar="N",
+        help="slave address (default: the manual's example address)",
+    )
+    p.add_argument(
+        "--state",
+        choices=["manual", "stopped"],
+        help="WEG and CV100: start in the state of the manual's examples (default) or stopped",
+    )
+    p.add_argument(
+        "-d", "--duration", type=positive_seconds, metavar="SECONDS", help="stop after this time"
+    )
+    p.add_argument("--watch", action="store_true", help="print frequency and status every second")
+    add_json_option(p, "JSON lines: ready, status (--watch), stopped")
+    add_serial_options(p, timeout=None)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from pyrtu.devices import EXAMPLE_ADDRESS
+
+    device: str = args.device
+    address = args.address if args.address is not None else EXAMPLE_ADDRESS[device]
+    if not 1 <= address <= 247:
+        raise ValueError(f"--address: a slave address is 1..247, not {address}")
+    ports: list[str] = args.port or []
+    if not ports and args.tcp is None:
+        raise ValueError("give --port PATH, --tcp HOST:PORT or both")
+    twice = first_duplicate(ports)
+    if twice is not None:
+        a, b = ports[twice[0]], ports[twice[1]]
+        same = f"{a} is given twice" if a == b else f"{a} and {b} are one port"
+        raise ValueError(f"--port: {same} (one drive per port: give each port once)")
+    if len(ports) > 1 and args.tcp is not None:
+        raise ValueError("--tcp serves one drive: give it with a single --port")
+    args.ports = ports
+    args.port = ", ".join(ports) or None  # what an error message names
+    options = serial_kwargs(args)
+    options.update(mode=args.mode, timing=args.timing, exclusive=args.exclusive)
+    if args.t35 is not None:
+        options["t35"] = args.t35
+    if len(ports) > 1:
+        return _run_many(args, device, address, ports, options)
+    sim = make_simulator(device, args.state, args.mode)
+    with stop_on_signals() as stop:  # before the "ready" line: a signal after it stops cleanly
+        tcp = None
+        drive = None
+        try:
+            if ports:
+                drive = DriveThread(lambda: _watched(args, sim.serve(ports[0], address, **options)))
+            if args.tcp is not None:
+                app = drive.slave if drive is not None else tcp_only_slave(sim, address)
+                tcp = TcpThread(app, *args.tcp)
+                args.tcp = tcp.address  # the port bound (0: any free port)
+        except BaseException:
+            sim.close()
+            raise
+        started = time.monotonic()
+        keeper = PortKeeper(drive, ports) if drive is not None else None
+        try:
+            functions = drive.slave.functions if drive is not None else app.functions
+            _ready(args, device, address, sorted(functions))
+            _serve(args, stop, started, keeper, [sim])
+        finally:
+            counters = drive.counters if drive is not None else _tcp_counters(tcp)
+            if tcp is not None:
+                tcp.stop()
+            sim.close()
+    _stopped(args, time.monotonic() - started, counters)
+    return _still_down(args, keeper)
+
+
+def _run_many(
+    args: argparse.Namespace, device: str, address: int, ports: list[str], options: dict[str, Any]
+) -> int:
+    """One drive per port, served by `DriveLoop` (one event loop, one thread)."""
+    sims = [make_simulator(device, args.state, args.mode) for _ in ports]
+    with stop_on_signals() as stop:
+        drives = DriveLoop(
+            lambda i: sims[i].make_async_slave(ports[i], address, **options), len(ports)
+        )
+        drives.start()
+        started = time.monotonic()
+        keeper = PortKeeper(drives, ports)
+        try:
+            _ready(args, device, address, sorted(drives.slaves[0].functions))
+            _serve(args, stop, started, keeper, sims, ports)
+        finally:
+            drives.stop()
+    _stopped(args, time.monotonic() - started, drives.counters)
+    return _still_down(args, keeper)
+
+
+def _serve(
+    args: argparse.Namespace,
+    stop: threading.Event,
+    started: float,
+    keeper: PortKeeper | None,
+    sims: list[Any],
+    ports: list[str] | None = None,
+) -> None:
+    """Until a signal or ``--duration``: keep the ports served (``keeper``: a failed
+    port is reported once and reopened when it is back), print the ``--watch`` lines
+    (one per drive; with ``ports``, each names its port)."""
+    deadline = None if args.duration is None else started + args.duration
+    next_watch = started + 1.0
+    while not stop.is_set():
+        now = time.monotonic()
+        if deadline is not None and now >= deadline:
+            break
+        if keeper is not None:
+            for report in keeper.step(now):
+                _port_report(args, report)
+        if args.watch and now >= next_watch:
+            next_watch += 1.0
+            for i, sim in enumerate(sims):
+                _watch(args, sim, now - started, None if ports is None else ports[i])
+        wake = min(next_watch if args.watch else now + 0.2, now + 0.2)
+        retry = keeper.wait(now) if keeper is not None else None
+        if retry is not None:
+            wake = min(wake, now + retry)
+        if deadline is not None:
+            wake = min(wake, deadline)
+        stop.wait(max(0.0, wake - now))
+
+
+def _watched(args: argparse.Namespace, slave: Any) -> Any:
+    """``slave`` with a `ClashWatch`: a warning when another device answers at its address."""
+    port = slave.port.name
+
+    def warn(text: str) -> None:
+        print(f"pyrtu simulate: warning: {port}: {text}", file=sys.stderr, flush=True)
+        if args.json:
+            emit({"type": "warning", "port": port, "message": text})
+
+    watch_slave(slave, warn)
+    return slave
+
+
+def _port_report(args: argparse.Namespace, report: PortReport) -> None:
+    """A port lost (once per outage) or back: one line on stderr, a JSON event."""
+    error = report.error.removeprefix(f"{report.port}: ")
+    if report.kind == "lost":
+        text = (
+            f"{report.port}: port lost: {error}; reopening it when it is back "
+            "(retries with back-off), the other drives carry on"
+        )
+        doc: dict[str, Any] = {"type": "port_lost", "port": report.port, "error": error}
+    else:
+        outage = report.outage
+        seconds = outage.duration if outage is not None and outage.duration is not None else 0.0
+        attempts = outage.attempts if outage is not None else 0
+        text = f"{report.port}: port back after {seconds:.1f} s ({attempts} failed attempts)"
+        doc = {"type": "port_back", "port": report.port, "seconds": round(seconds, 3)}
+        doc["attempts"] = attempts
+    print(f"pyrtu simulate: {text}", file=sys.stderr, flush=True)
+    if args.json:
+        emit(doc)
+
+
+def _still_down(args: argparse.Namespace, keeper: PortKeeper | None) -> int:
+    """Exit 0, or 3 when a port was still down at the end (named, with its error)."""
+    down = keeper.down() if keeper is not None else []
+    if not down:
+        return EXIT_OK
+    now = time.monotonic()
+    for port, outage in down:
+        message = (
+            f"{port}: still down at the end, for {now - outage.since:.1f} s"
+            f" ({outage.attempts} attempts to reopen it): {outage.error.removeprefix(port + ': ')}"
+        )
+        print(f"pyrtu simulate: port error: {message}", file=sys.stderr)
+        if args.json:
+            emit({"ok": False, "error": "port", "exit_code": EXIT_PORT, "message": message})
+    return EXIT_PORT
+
+
+def _stopped(args: argparse.Namespace, elapsed: float, counters: dict[str, int]) -> None:
+    if args.json:
+        emit({"type": "stopped", "seconds": round(elapsed, 3), "counters": counters})
+    else:
+        print(
+            f"pyrtu simulate: stopped after {elapsed:.1f} s: {counters['requests']} requests, "
+            f"{counters['responses']} responses, {counters['exceptions']} exceptions",
+            file=sys.stderr,
+        )
+
+
+def _tcp_counters(tcp: Any) -> dict[str, int]:
+    c = tcp.server.counters if tcp is not None else {}
+    return {
+        "requests": c.get("requests", 0),
+        "responses": c.get("answers", 0),
+        "exceptions": c.get("exceptions", 0),
+    }
+
+
+def _ready(args: argparse.Namespace, device: str, address: int, functions: list[int]) -> None:
+    tcp = None if args.tcp is None else f"{args.tcp[0]}:{args.tcp[1]}"
+    # the serial format only where there is a serial port (--tcp alone has none)
+    fmt = f"{describe_format(args)} {args.mode.upper()}" if args.ports else None
+    if args.json:
+        emit(
+            {
+                "type": "ready",
+                "device": device,
+                "address": address,
+                "port": args.ports[0] if args.ports else None,
+                "ports": args.ports,
+                "tcp": tcp,
+                "format": fmt,
+                "functions": functions,
+            }
+        )
+    else:
+        where = [f" on {args.port}, {fmt}"] if fmt else [""]
+        where += [f"Modbus TCP on {tcp}"] if tcp else []
+        print(
+            f"pyrtu simulate: {VENDORS[device]} at address {address}{', '.join(where)} "
+            f"(functions {', '.join(map(str, functions))}); Ctrl-C to stop",
+            file=sys.stderr,
+            flush=True,
+        )
+
+
+def _watch(args: argparse.Namespace, sim: Any, t: float, port: str | None = None) -> None:
+    hz, text = frequency_of(sim), status_of(sim)
+    if args.json:
+        line: dict[str, Any] = {"type": "status", "t": round(t, 3)}
+        line.update({"port": port} if port is not None else {})
+        emit({**line, "frequency_hz": round(hz, 3), "status": text})
+    else:
+        where = f"{port}  " if port is not None else ""
+        print(f"{t:7.1f} s  {where}{hz:7.2f} Hz  {text}", flush=True)
+
+
+COMMANDS = (
+    CommandSpec(
+        "simulate",
+        "run a simulated drive (cfw100, cfw320, cfw701, cv100, act, acu) on a port",
+        _configure,
+        guarded("simulate", _run),
+        (__doc__ or "").strip() + "\n\n" + exit_code_table(),
+    ),
+)

@@ -1,0 +1,252 @@
+/* cffi declarations of the C core (csrc/rtu.h, csrc/rtu_crc.h): the one place
+ * the Python side learns the C API.  Read by pyrtu/core/_build_core.py. */
+
+#define RTU_OK ...
+#define RTU_EINVAL ...
+#define RTU_EUNSUPPORTED ...
+#define RTU_ENOSPC ...
+
+#define RTU_CRC_BYTEWISE ...
+#define RTU_CRC_SLICE8 ...
+#define RTU_CRC_CLMUL ...
+#define RTU_CRC_VCLMUL ...
+
+#define RTU_TIMING_MODBUS ...
+#define RTU_TIMING_WEG ...
+#define RTU_RULE_NONE ...
+#define RTU_RULE_FIXED ...
+#define RTU_RULE_COUNT ...
+#define RTU_RULE_MEI ...
+#define RTU_DIR_REQUEST ...
+#define RTU_DIR_RESPONSE ...
+#define RTU_MAX_ADU_LIMIT ...
+
+extern const uint8_t rtu_auchCRCHi[256];
+extern const uint8_t rtu_auchCRCLo[256];
+uint16_t rtu_crc16(const uint8_t *data, size_t len, uint16_t crc);
+int rtu_crc16_path_available(int path);
+int rtu_crc16_path(int path, const uint8_t *data, size_t len, uint16_t crc, uint16_t *out);
+/* binding helper, defined in pyrtu/core/_build_core.py */
+uint16_t rtu_crc16_bytes(const char *data, size_t len, uint16_t crc);
+
+uint8_t rtu_lrc(const uint8_t *data, size_t len);
+
+typedef struct {
+    int64_t char_us;
+    int64_t t15_us;
+    int64_t t35_us;
+} rtu_timing;
+int rtu_timing_init(rtu_timing *t, uint32_t baudrate, unsigned bits_per_char, int rule);
+
+typedef struct {
+    uint8_t type;
+    uint8_t off;
+    uint8_t width;
+    uint8_t mul;
+    int16_t add;
+} rtu_rule;
+typedef struct { ...; } rtu_rules;
+
+typedef struct {
+    uint64_t offset;
+    uint32_t length;
+    uint8_t kind;
+    uint8_t error;
+    int64_t start_us;
+    int64_t end_us;
+    ...;
+} rtu_event;
+
+typedef struct {
+    uint64_t pos;
+    uint32_t flags;
+    ...;
+} rtu_mark;
+
+typedef struct {
+    int role;
+    int strict;
+    uint32_t max_adu;
+    rtu_timing timing;
+    int64_t flush_us;
+    rtu_rules rules;
+} rtu_config;
+
+typedef struct {
+    uint64_t frames[4];
+    uint64_t discarded[6];
+    uint64_t discard_events;
+} rtu_counters;
+
+int rtu_config_init(rtu_config *c, int role, uint32_t baudrate, unsigned bits_per_char, int rule);
+int rtu_rules_set(rtu_rules *r, int direction, unsigned function, rtu_rule rule);
+int rtu_predict(const rtu_rules *r, int direction, const uint8_t *adu, size_t n, size_t *length);
+
+typedef struct {
+    rtu_config cfg;
+    rtu_counters counters;
+    rtu_event event;
+    ...;
+} rtu_framer;
+
+int rtu_framer_init(rtu_framer *f, const rtu_config *cfg);
+void rtu_framer_reset(rtu_framer *f);
+size_t rtu_framer_feed(rtu_framer *f, const uint8_t *data, size_t len, int64_t now_us);
+void rtu_framer_handle_timer(rtu_framer *f, int64_t now_us);
+int64_t rtu_framer_deadline(const rtu_framer *f);
+int rtu_framer_poll(rtu_framer *f);
+const uint8_t *rtu_framer_event_data(const rtu_framer *f);
+void rtu_framer_sent(rtu_framer *f, const uint8_t *adu, size_t len);
+size_t rtu_framer_needed(const rtu_framer *f);
+
+typedef struct {
+    rtu_counters counters;
+    ...;
+} rtu_parser;
+
+int rtu_marks_from_chunks(const rtu_timing *t, const uint64_t *offsets, const int64_t *times,
+                          size_t nchunks, uint64_t total, rtu_mark *out, size_t *nout);
+int rtu_parser_init(rtu_parser *p, const rtu_config *cfg);
+int rtu_parse(rtu_parser *p, const uint8_t *data, size_t len, const rtu_mark *marks, size_t nmarks,
+              const uint64_t *offsets, const int64_t *times, size_t nchunks, rtu_event *out,
+              size_t cap, size_t *nout);
+
+/* ---- Modbus TCP: MBAP framing (csrc/rtu_mbap.c) ---- */
+#define RTU_MBAP_HEADER_LEN ...
+#define RTU_MBAP_MAX_LENGTH ...
+#define RTU_MBAP_COMPLETE ...
+#define RTU_MBAP_NEED ...
+#define RTU_MBAP_INVALID ...
+#define RTU_MBAP_NERR ...
+
+typedef struct {
+    uint64_t offset;
+    uint64_t length;
+    uint8_t kind;
+    uint8_t error;
+    ...;
+} rtu_mbap_event;
+
+typedef struct {
+    uint64_t frames[4];
+    uint64_t discarded[4];
+    uint64_t discard_events;
+} rtu_mbap_counters;
+
+typedef struct {
+    int error;
+    rtu_mbap_counters counters;
+    rtu_mbap_event event;
+    ...;
+} rtu_mbap_framer;
+
+typedef struct {
+    rtu_mbap_counters counters;
+    ...;
+} rtu_mbap_parser;
+
+int rtu_mbap_inspect(const uint8_t *data, size_t n, size_t *length, int *error);
+int rtu_mbap_encode(uint16_t transaction, uint8_t unit, const uint8_t *pdu, size_t pdu_len,
+                    uint8_t *out, size_t cap, size_t *nout);
+int rtu_mbap_framer_init(rtu_mbap_framer *f, int role);
+size_t rtu_mbap_framer_feed(rtu_mbap_framer *f, const uint8_t *data, size_t len);
+void rtu_mbap_framer_close(rtu_mbap_framer *f);
+int rtu_mbap_framer_poll(rtu_mbap_framer *f);
+const uint8_t *rtu_mbap_framer_event_data(const rtu_mbap_framer *f);
+size_t rtu_mbap_framer_needed(const rtu_mbap_framer *f);
+int rtu_mbap_parser_init(rtu_mbap_parser *p, int role);
+int rtu_mbap_parse(rtu_mbap_parser *p, const uint8_t *data, size_t len, rtu_mbap_event *out,
+                   size_t cap, size_t *nout);
+
+/* ---- the virtual bus: sans-I/O schedule and I/O thread (csrc/rtu_vbus*.c) ---- */
+#define RTU_VBUS_MAX_DROPS ...
+#define RTU_VBUS_QUEUE ...
+#define RTU_VBUS_OUT ...
+#define RTU_VBUS_MAX_CHAR_NS ...
+#define RTU_VBUS_MAX_LEAD_NS ...
+#define RTU_VBUS_IO_STOPPED ...
+#define RTU_VBUS_IO_WATCH ...
+#define RTU_VBUS_IO_UNPLUG ...
+#define RTU_VBUS_IO_ERRNO ...
+
+typedef struct {
+    uint64_t tx_bytes;
+    uint64_t rx_bytes;
+    uint64_t collided_bytes;
+    uint64_t collisions;
+    uint64_t overruns;
+    uint64_t unheard;
+    uint64_t batches;
+} rtu_vbus_drop_counters;
+
+typedef struct {
+    int64_t q_time[...];
+    uint8_t q_byte[...];
+    uint32_t q_head;
+    uint32_t q_len;
+    int64_t tx_free;
+    int64_t rx_end;
+    int64_t last_start;
+    uint8_t last_byte;
+    uint8_t has_last;
+    uint8_t alive;
+    uint8_t cut;
+    uint8_t echo;
+    uint8_t due;
+    int64_t unplug_left;
+    int64_t event_at;
+    int64_t batch_ns;
+    uint32_t batch_bytes;
+    uint32_t hold_len;
+    int64_t hold_deadline;
+    int64_t hold_end;
+    uint32_t out_len;
+    int64_t episode;
+    rtu_vbus_drop_counters counters;
+    uint8_t hold[...];
+    uint8_t out[...];
+    ...;
+} rtu_vbus_drop;
+
+typedef struct {
+    uint32_t ndrops;
+    int64_t char_ns;
+    int64_t lead_ns;
+    uint64_t wire_bytes;
+    uint64_t collisions;
+    uint64_t collided;
+    int64_t coll_until;
+    ...;
+} rtu_vbus;
+
+int rtu_vbus_init(rtu_vbus *s, rtu_vbus_drop *drops, uint32_t ndrops, int64_t char_ns,
+                  int64_t lead_ns);
+int rtu_vbus_plug(rtu_vbus *s, uint32_t drop);
+int rtu_vbus_unplug(rtu_vbus *s, uint32_t drop);
+int rtu_vbus_set_echo(rtu_vbus *s, uint32_t drop, int on);
+int rtu_vbus_set_batch(rtu_vbus *s, uint32_t drop, int64_t batch_ns, uint32_t batch_bytes);
+int rtu_vbus_set_unplug_after(rtu_vbus *s, uint32_t drop, int64_t left);
+int rtu_vbus_cut(rtu_vbus *s, uint32_t drop, int64_t at);
+int rtu_vbus_clear_hold(rtu_vbus *s, uint32_t drop);
+size_t rtu_vbus_space(const rtu_vbus *s, uint32_t drop);
+int rtu_vbus_transmit(rtu_vbus *s, uint32_t drop, const uint8_t *data, size_t len, int64_t now);
+int64_t rtu_vbus_deadline(const rtu_vbus *s);
+int rtu_vbus_service(rtu_vbus *s, int64_t now);
+int rtu_vbus_take_due(rtu_vbus *s);
+int rtu_vbus_written(rtu_vbus *s, uint32_t drop, size_t n, int heard);
+int rtu_vbus_busy(const rtu_vbus *s);
+
+typedef struct rtu_vbus_io rtu_vbus_io;
+size_t rtu_vbus_io_size(void);
+int rtu_vbus_io_init(rtu_vbus_io *io, rtu_vbus *s, int wake_fd, int watch_fd, int64_t anchor_ns);
+void rtu_vbus_io_destroy(rtu_vbus_io *io);
+void rtu_vbus_io_lock(rtu_vbus_io *io);
+void rtu_vbus_io_unlock(rtu_vbus_io *io);
+int rtu_vbus_io_set_fd(rtu_vbus_io *io, uint32_t drop, int fd, int heard);
+int rtu_vbus_io_set_heard(rtu_vbus_io *io, uint32_t drop, int heard);
+void rtu_vbus_io_stop(rtu_vbus_io *io);
+int rtu_vbus_io_run(rtu_vbus_io *io);
+int rtu_vbus_io_errno(const rtu_vbus_io *io);
+int64_t rtu_vbus_io_now(void);
+uint64_t rtu_vbus_io_wakeups(rtu_vbus_io *io);
+int64_t rtu_vbus_io_wake_estimate(rtu_vbus_io *io);

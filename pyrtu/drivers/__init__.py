@@ -1,0 +1,8 @@
+"""The drivers: the only I/O of pyrtu, thin interpreters of the protocols' actions.
+
+`port` (the serial port), `links` (a master's transport: serial, ``tcp://``,
+``rtu+tcp://``), `master` (`Master`) and `sync_io` (its blocking loop), `aio`
+(`AsyncMaster`, `AsyncSlave`, the asyncio loop helpers), `slave`/`aio_slave`/
+`slave_base` (the slaves), `_ptimer` (exact timers on any asyncio loop),
+`reconnect` (the one retry schedule for ports that fail).
+"""

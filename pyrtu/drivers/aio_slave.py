@@ -1,0 +1,304 @@
+"""`AsyncSlave`: the Modbus slave on asyncio (re-exported by `pyrtu.drivers.aio`).
+
+Same keywords as `pyrtu.Slave`, same protocol underneath (`pyrtu.protocol.server`); many
+slaves (ports) share one event loop and one thread::
+
+    async def main():
+        slaves = [AsyncSlave(path, address=1, store=store, parity="N") for path in paths]
+        async with asyncio.TaskGroup() as tg:
+            for s in slaves:
+                tg.create_task(s.serve())
+
+The driver interprets the protocol's next action (`ServerProtocol.next_action`):
+`Reply` is written at once, `Listen` is a timer at its ``until`` (with ``needed``:
+the reader set aside until then), `Idle` no timer.  A port with a file descriptor
+is watched with ``loop.add_reader``; timers are those of `pyrtu.drivers._ptimer` (the
+loop's own on `pyrtu.drivers.aio.run`'s loop, a timerfd on loops whose timers are whole
+milliseconds: asyncio's epoll loop, uvloop).
+When the first bytes of a frame come, the reader is set aside until the protocol's
+`wake_at` (the frame's end, and for a request to this slave the end of its t3.5 as
+well): the rest is read, the request executed and the response written in that one
+wake-up (lenient mode): two wake-ups per transaction, three for a request longer
+than 8 bytes (its length is known once 8 bytes are in), and one more per 25 ms of a
+longer one (see `pyrtu.drivers.slave`).  A port without a file descriptor (a pyserial URL)
+is read by a worker thread with pyserial's generic reads, which hands the bytes to
+the loop.
+
+A port that fails (unplugged) ends `serve` with the `PortError`; the port is
+closed, its reader removed, and the other slaves of the loop go on.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import os
+import threading
+from typing import TYPE_CHECKING, Any
+
+from pyrtu.core._closing import AsyncClosing
+from pyrtu.drivers import _ptimer
+from pyrtu.drivers.port import read_fd
+from pyrtu.drivers.slave_base import PortSlave
+from pyrtu.pdu.errors import PortError
+from pyrtu.protocol.server import Listen, Reply
+
+if TYPE_CHECKING:  # Unpack is in typing from Python 3.11 (annotations only)
+    pass
+
+log = logging.getLogger("pyrtu.drivers.slave")
+
+_POLL = 0.05  # the reader thread of a port without a file descriptor
+
+
+class AsyncSlave(PortSlave["AsyncSlave"], AsyncClosing):
+    """A Modbus slave on asyncio, serving one or several addresses on one port."""
+
+    _where = "AsyncSlave"
+
+    def _driver_state(self) -> None:
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._done: asyncio.Future[None] | None = None
+        self._task: asyncio.Task[None] | None = None
+        self._timer: asyncio.TimerHandle | _ptimer.TimerHandle | None = None
+        self._timer_at: float | None = None
+        self._reading = False  # the reader is installed (not set aside for a frame)
+        self._resume_at: float | None = None  # when a set-aside reader comes back
+        self._out: memoryview | None = None  # the unwritten rest of a response
+        self._thread: threading.Thread | None = None
+        self._thread_stop = threading.Event()
+
+    def _guard(self) -> Any:
+        return contextlib.nullcontext()  # one thread: the loop's
+
+    # ------------------------------------------------------------------ serving
+
+    async def serve(self) -> None:
+        """Serve until `stop` (or cancellation); a failing port raises `PortError`."""
+        if self._done is not None:
+            raise RuntimeError("this slave is already serving")
+        if self.port.closed:
+            raise PortError(self.port.name, "the port is closed")
+        loop = asyncio.get_running_loop()
+        self._loop = loop
+        done = self._done = loop.create_future()
+        self.error = None
+        try:
+            if self.port.fd is not None:
+                self._add_reader()
+            else:
+                self._thread_stop.clear()
+                self._thread = threading.Thread(
+                    target=self._read_thread, name=f"pyrtu-aslave {self.port.name}", daemon=True
+                )
+                self._thread.start()
+            self._after(loop.time())
+            await done
+        finally:
+            if self._done is done:  # not already torn down by `stop`
+                self._teardown()
+
+    def start(self) -> asyncio.Task[None]:
+        """Serve in a task of the running loop; returns it."""
+        if self._task is not None and not self._task.done():
+            raise RuntimeError("this slave is already started")
+        self._task = asyncio.get_running_loop().create_task(self.serve())
+        return self._task
+
+    async def stop(self) -> None:
+        """Stop serving (at once; the task of `start` ends).  The port is off the
+        loop when this returns, even if `serve` runs in a task of the caller's that
+        has not resumed yet, so `close` never closes a descriptor the loop watches."""
+        done = self._done
+        if done is not None and not done.done():
+            done.set_result(None)
+            self._teardown()
+        task = self._task
+        if task is not None:
+            self._task = None
+            with contextlib.suppress(PortError, asyncio.CancelledError):
+                await task
+
+    async def close(self) -> None:
+        await self.stop()
+        self.port.close()
+
+    def __repr__(self) -> str:
+        return f"<pyrtu.AsyncSlave {sorted(self.addresses)} on {self.port.name} {self.mode}>"
+
+    def _teardown(self) -> None:
+        self.protocol.drop_response()
+        if self._timer is not None:
+            self._timer.cancel()
+        self._timer = self._timer_at = None
+        self._remove_reader()
+        if self._out is not None and self.port.fd is not None and self._loop is not None:
+            self._loop.remove_writer(self.port.fd)
+        self._out = None
+        self._resume_at = None
+        thread, self._thread = self._thread, None
+        if thread is not None:
+            self._thread_stop.set()
+            thread.join(2 * _POLL + 1.0)
+        self._done = None
+
+    def _fail(self, exc: BaseException) -> None:
+        """The port failed: end `serve` with the error, close the port (no fd left)."""
+        log.error("slave on %s stopped: %s", self.port.name, exc)
+        self.error = exc
+        self._remove_reader()
+        if self._out is not None and self._loop is not None and self.port.fd is not None:
+            self._loop.remove_writer(self.port.fd)
+            self._out = None
+        self.port.close()
+        if self._done is not None and not self._done.done():
+            self._done.set_exception(exc)
+
+    # ------------------------------------------------------------------ reading
+
+    def _add_reader(self) -> None:
+        fd = self.port.fd
+        if not self._reading and fd is not None and self._loop is not None:
+            self._loop.add_reader(fd, self._on_readable)
+            self._reading = True
+
+    def _remove_reader(self) -> None:
+        fd = self.port.fd
+        if self._reading and fd is not None and self._loop is not None:
+            self._loop.remove_reader(fd)
+        self._reading = False
+
+    def _on_readable(self) -> None:
+        self._read_now(True, False)
+
+    def _read_now(self, readable: bool, napped: bool) -> None:
+        assert self._loop is not None and self.port.fd is not None
+        try:
+            data = read_fd(self.port, self.port.fd, readable)
+        except PortError as exc:
+            self._fail(exc)
+            return
+        now = self._loop.time()
+        if data or napped:
+            self.protocol.receive_data(data, now)  # after a nap even nothing: it ends it
+        self._after(now)
+
+    def _read_thread(self) -> None:
+        """A port without a file descriptor: pyserial's reads, bytes to the loop."""
+        loop = self._loop
+        assert loop is not None
+        while not self._thread_stop.is_set():
+            try:
+                data = self.port.read(_POLL)
+            except PortError as exc:
+                with contextlib.suppress(RuntimeError):  # the loop is closed
+                    loop.call_soon_threadsafe(self._fail, exc)
+                return
+            if data:
+                with contextlib.suppress(RuntimeError):
+                    loop.call_soon_threadsafe(self._on_data, data)
+
+    def _on_data(self, data: bytes) -> None:
+        if self._done is None or self._loop is None:
+            return
+        now = self._loop.time()
+        self.protocol.receive_data(data, now)
+        self._after(now)  # (no nap: the reader thread reads on its own)
+
+    # ------------------------------------------------------------- time, sending
+
+    def _after(self, now: float) -> None:
+        """The protocol saw bytes or time: carry out its actions, up to the next wait."""
+        if self._out is not None or self._done is None or self._done.done():
+            return  # a response is being written: its end comes back here
+        proto = self.protocol
+        nap = self._skip and self._reading
+        action = proto.next_action(now, nap=nap)
+        while isinstance(action, Reply):
+            if not self._write(action.data, now):
+                return  # written in part (the writer goes on) or the port failed
+            action = proto.next_action(now, nap=nap)
+        if self._done is None or self._done.done():
+            return
+        at = None
+        if isinstance(action, Listen):
+            at = action.until
+            if action.needed:
+                # the rest of a frame the protocol sized (and the answer's time): one
+                # wake-up for all of it, with the reader set aside; the framer's silence
+                # timer counts from the last byte read, which says nothing meanwhile
+                self._remove_reader()
+                self._resume_at = at
+        self._rearm(at)
+
+    def _rearm(self, at: float | None) -> None:
+        assert self._loop is not None
+        if at == self._timer_at:
+            return
+        if self._timer is not None:
+            self._timer.cancel()
+        self._timer_at = at
+        self._timer = None if at is None else _ptimer.call_at(self._loop, at, self._on_timer)
+
+    def _on_timer(self) -> None:
+        assert self._loop is not None
+        self._timer = self._timer_at = None
+        if self._resume_at is not None:
+            self._resume_at = None
+            self._add_reader()
+            self._read_now(False, True)  # what came while the reader was set aside
+            return
+        self._after(self._loop.time())
+
+    def _write(self, adu: bytes, now: float) -> bool:
+        port = self.port
+        fd = port.fd
+        if fd is None:
+            try:
+                _start, end = port.write(adu)  # pyserial's write: URL ports have no wire
+            except PortError as exc:
+                self._fail(exc)
+                return False
+            self.protocol.transmitted(end)
+            return True
+        try:
+            n = os.write(fd, adu)
+        except BlockingIOError:
+            n = 0
+        except OSError as exc:
+            self._fail(PortError(port.name, f"write failed: {exc}"))
+            return False
+        # a real line: the bytes leave the wire one character time each after now
+        end = now + len(adu) * port.char_time if port.has_wire else now
+        if n == len(adu):
+            self.protocol.transmitted(end)
+            return True
+        self._out = memoryview(adu)[n:]
+        self._out_end = end
+        assert self._loop is not None
+        self._loop.add_writer(fd, self._on_writable)
+        return False
+
+    def _on_writable(self) -> None:
+        fd = self.port.fd
+        out = self._out
+        if fd is None or out is None or self._loop is None:
+            return
+        try:
+            n = os.write(fd, out)
+        except BlockingIOError:
+            return
+        except OSError as exc:
+            self._fail(PortError(self.port.name, f"write failed: {exc}"))
+            return
+        self._out = out[n:]
+        if not self._out:
+            self._out = None
+            self._loop.remove_writer(fd)
+            now = self._loop.time()
+            self.protocol.transmitted(max(self._out_end, now))
+            self._after(now)
+
+
+__all__ = ["AsyncSlave"]

@@ -1,0 +1,110 @@
+"""A master's transport ("link"), as libmodbus has its ``modbus_backend_t``.
+
+`pyrtu.Master` and `pyrtu.drivers.aio.AsyncMaster` are one class each whatever the port:
+the port string picks the link object they drive (`scheme_of`): a serial line
+(`pyrtu.drivers.master.SerialLink`: a device path, a pyserial object or URL, and
+``rtu+tcp://`` RTU frames over a socket), or Modbus TCP (``tcp://``,
+`pyrtu.tcp.link.TcpLink` / `AsyncTcpLink`, imported only when such a port is
+opened, so ``import pyrtu`` loads neither TCP nor asyncio).
+
+A link answers for the master's properties (`Link`), maps the unit ids its
+transport allows (``address``, see `pyrtu.pdu.requests.Steps`) and runs one
+transaction: ``transact(call) -> (value, end_time)``, ``end_time`` being when the
+answer's last byte came (monotonic seconds; now for a broadcast).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Protocol
+
+from pyrtu.core.line import LineConfig
+from pyrtu.core.rules import LengthRule
+from pyrtu.pdu.requests import Call
+
+#: the URL schemes whose link is not a serial line
+TCP_SCHEME = "tcp"
+RTU_TCP_SCHEME = "rtu+tcp"
+
+
+def scheme_of(port: object) -> str | None:
+    """``"tcp"`` or ``"rtu+tcp"`` for those URLs; None for a serial port."""
+    if not isinstance(port, str) or "://" not in port:
+        return None
+    scheme = port.split("://", 1)[0].lower()
+    return scheme if scheme in (TCP_SCHEME, RTU_TCP_SCHEME) else None
+
+
+def check_seconds(name: str, value: object, positive: bool = False) -> float:
+    """A finite duration in seconds; ValueError naming ``name`` otherwise."""
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise ValueError(f"{name} must be a finite number of seconds, not {value!r}")
+    if value < 0 or (positive and value == 0):
+        raise ValueError(
+            f"{name} must be {'positive' if positive else 'non-negative'}, not {value!r}"
+        )
+    return float(value)
+
+
+def check_retries(retries: object) -> int:
+    if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
+        raise ValueError(f"retries must be a non-negative integer, not {retries!r}")
+    return retries
+
+
+def check_in_flight(value: object, tcp: bool) -> int:
+    """``max_in_flight``: requests on the wire at once; only an asyncio master on
+    ``tcp://`` keeps more than one."""
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise TypeError(f"max_in_flight must be an integer, not {value!r}")
+    if value < 1 or (value != 1 and not tcp):
+        raise ValueError(
+            f"max_in_flight must be 1 on a serial line, not {value} "
+            "(only tcp:// ports keep several requests on the wire)"
+        )
+    return value
+
+
+class Link(Protocol):
+    """What a master asks of its transport (besides ``transact``, sync or async)."""
+
+    @property
+    def line(self) -> LineConfig: ...
+    @property
+    def port(self) -> Any: ...
+    @property
+    def mode(self) -> str: ...
+    @property
+    def t35(self) -> float: ...
+    @property
+    def echo(self) -> bool: ...
+    @property
+    def broadcast_delay(self) -> float: ...
+    @property
+    def last_answer_time(self) -> float | None: ...
+    @property
+    def counters(self) -> dict[str, int]: ...
+    @property
+    def url(self) -> str: ...
+
+    timeout: float
+    retries: int
+
+    def address(self, slave: Any, broadcasting: bool) -> tuple[Any, int | None]: ...
+    def count_bad(self) -> None: ...
+    def set_rules(
+        self, function: int, request_rule: LengthRule | None, response_rule: LengthRule | None
+    ) -> None: ...
+    def describe(self) -> str: ...
+
+
+__all__ = [
+    "RTU_TCP_SCHEME",
+    "TCP_SCHEME",
+    "Call",
+    "Link",
+    "check_in_flight",
+    "check_retries",
+    "check_seconds",
+    "scheme_of",
+]

@@ -1,0 +1,213 @@
+"""The Modbus TCP links of `pyrtu.Master` and `pyrtu.drivers.aio.AsyncMaster` (``tcp://``).
+
+``Master("tcp://host:port")`` is the same class as a serial master with this link
+(`pyrtu.drivers.links`) in place of the serial line: the same methods, argument checks
+and decoders (`pyrtu.pdu.requests`), with the transport of `pyrtu.tcp`: MBAP frames,
+transaction ids, no CRC and no wire timing (the length field ends each answer).
+``timeout`` and ``retries`` keep their meaning (a retry after `NoResponseError`
+only); the line keywords are checked and otherwise unused, so code can switch
+transports by the port string (a misspelled keyword is a TypeError on every
+transport).  The asyncio master keeps up to ``max_in_flight`` requests on the
+connection at once (``asyncio.gather`` of several awaits), for servers that answer
+pipelined requests (libmodbus does; pymodbus 3.16's server does not: keep 1).
+
+What `pyrtu.Master` says of its serial line, a TCP master answers for TCP:
+``mode`` is ``"tcp"``, ``t35``, ``broadcast_delay`` are 0.0 (no wire timing: the
+master keeps no silence and a broadcast returns at once), ``echo`` is False,
+``last_answer_time`` is when the latest answer was read (what the poller stamps
+values with), ``url`` is the URL given.  ``line`` and ``port`` (the `LineConfig` and
+the pyserial port of a serial master) do not exist: reading them raises
+AttributeError (``line``'s message names the URL and says why), so
+``hasattr(m, "line")`` is False and ``getattr(m, "line", None)`` is None: code
+tells a serial master from a TCP one that way.  (Not None: a `LineConfig | None`
+would widen the type every caller of ``Master.line`` relies on.)
+
+Unit ids (Messaging on TCP/IP Implementation Guide 4.4.1.2): every method takes
+0..255 where a serial master takes 0..247.  0xFF (libmodbus's default, the guide's
+recommendation for a TCP device) and 248..254 address what is behind the
+connection; 0 in a method that reads (where a serial master refuses the broadcast)
+addresses the TCP device itself and its answer is awaited ("the value 0 is also
+accepted to communicate directly to a MODBUS/TCP device"); 0 in a write,
+``request`` or ``execute`` stays the broadcast (no answer awaited), as through a
+gateway.  ``add_rule`` is accepted and does nothing.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from typing import Any
+
+from pyrtu.core.line import LineConfig
+from pyrtu.core.rules import LengthRule
+from pyrtu.drivers.links import check_in_flight
+from pyrtu.pdu.errors import NoResponseError
+from pyrtu.pdu.requests import Call
+from pyrtu.protocol.client_actions import answer_pdu
+from pyrtu.tcp import AsyncTcpClient, TcpClient, parse_tcp_url
+
+NO_LINE = (
+    "{url}: a Modbus TCP master has no serial line (line and port are a serial "
+    "master's; see url, timeout, retries)"
+)
+NO_PORT = "{url}: a Modbus TCP master has no serial port (see url)"
+
+#: the slave the argument checks shared with the serial master (0..247) see in
+#: place of a unit id only TCP allows
+_STAND_IN = 1
+
+
+class _TcpBase:
+    """What both TCP links answer for a serial master's line properties."""
+
+    url: str
+    timeout: float
+    retries: int
+
+    @property
+    def line(self) -> LineConfig:
+        raise AttributeError(NO_LINE.format(url=self.url))
+
+    @property
+    def port(self) -> Any:
+        raise AttributeError(NO_PORT.format(url=self.url))
+
+    # no wire timing, no echo: the master keeps no silence, a broadcast returns at once
+    mode = "tcp"
+    t35 = 0.0
+    echo = False
+    broadcast_delay = 0.0
+
+    @staticmethod
+    def address(slave: Any, broadcasting: bool) -> tuple[Any, int | None]:
+        """The unit ids only TCP allows (see the module doc) go in place of a stand-in."""
+        if type(slave) is int and (248 <= slave <= 255 or (slave == 0 and not broadcasting)):
+            return _STAND_IN, slave
+        return slave, None
+
+    def count_bad(self) -> None:
+        self._counters()["frame_errors"] = self._counters().get("frame_errors", 0) + 1
+
+    def _counters(self) -> dict[str, int]:
+        raise NotImplementedError
+
+    def set_rules(
+        self, function: int, request_rule: LengthRule | None, response_rule: LengthRule | None
+    ) -> None:
+        """Length rules are not needed on TCP (the MBAP length ends every answer)."""
+
+    def describe(self) -> str:
+        return f"{self.url} Modbus TCP"
+
+
+def _result(call: Call, answer: bytes | None, end: float | None) -> tuple[Any, float]:
+    value = None if call.decode is None or answer is None else call.decode(answer)
+    return value, time.monotonic() if end is None or answer is None else end
+
+
+class TcpLink(_TcpBase):
+    """`pyrtu.Master`'s link on a Modbus TCP connection (blocking, one at a time)."""
+
+    def __init__(self, url: str, timeout: float, retries: int) -> None:
+        self.url = url
+        self.retries = retries
+        self._client = TcpClient(url, timeout=timeout)
+
+    @property
+    def timeout(self) -> float:
+        return self._client.timeout
+
+    @timeout.setter
+    def timeout(self, value: float) -> None:
+        self._client.timeout = value
+
+    def _counters(self) -> dict[str, int]:
+        return self._client._proto.counters
+
+    @property
+    def counters(self) -> dict[str, int]:
+        return self._client.counters
+
+    @property
+    def last_answer_time(self) -> float | None:
+        return self._client.last_answer_time
+
+    def transact(self, call: Call) -> tuple[Any, float]:
+        answered, raw = call.decode is not None, call.decode is answer_pdu
+        for attempt in range(self.retries + 1):
+            try:
+                answer = self._client.request(call.slave, call.pdu, answered=answered, raw=raw)
+                break
+            except NoResponseError:
+                if attempt == self.retries:
+                    raise
+        return _result(call, answer, self._client.last_answer_time)
+
+    def close(self) -> None:
+        self._client.close()
+
+
+class AsyncTcpLink(_TcpBase):
+    """`pyrtu.drivers.aio.AsyncMaster`'s link on a Modbus TCP connection; connects on the
+    first request, keeps up to ``max_in_flight`` requests on the wire."""
+
+    def __init__(self, url: str, timeout: float, retries: int, max_in_flight: int) -> None:
+        parse_tcp_url(url)  # ValueError now, not at the first request
+        self.url = url
+        self.retries = retries
+        self._timeout = timeout
+        self._max_in_flight = check_in_flight(max_in_flight, True)
+        self._client: AsyncTcpClient | None = None
+        self._connecting: asyncio.Lock | None = None
+
+    @property
+    def timeout(self) -> float:
+        return self._timeout
+
+    @timeout.setter
+    def timeout(self, value: float) -> None:
+        self._timeout = value
+        if self._client is not None:
+            self._client.timeout = value
+
+    def _counters(self) -> dict[str, int]:
+        return {} if self._client is None else self._client._conn.proto.counters
+
+    @property
+    def counters(self) -> dict[str, int]:
+        return {} if self._client is None else self._client.counters
+
+    @property
+    def last_answer_time(self) -> float | None:
+        return None if self._client is None else self._client.last_answer_time
+
+    async def _connected(self) -> AsyncTcpClient:
+        if self._client is None:
+            if self._connecting is None:
+                self._connecting = asyncio.Lock()
+            async with self._connecting:
+                if self._client is None:
+                    self._client = await AsyncTcpClient.connect(
+                        self.url, timeout=self._timeout, max_in_flight=self._max_in_flight
+                    )
+        return self._client
+
+    async def transact(self, call: Call) -> tuple[Any, float]:
+        client = await self._connected()
+        answered, raw = call.decode is not None, call.decode is answer_pdu
+        for attempt in range(self.retries + 1):
+            try:
+                answer = await client.request(call.slave, call.pdu, answered=answered, raw=raw)
+                break
+            except NoResponseError:
+                if attempt == self.retries:
+                    raise
+        # (pipelined: this answer's time is the latest read when the await resumed)
+        return _result(call, answer, client.last_answer_time)
+
+    async def close(self) -> None:
+        if self._client is not None:
+            await self._client.close()
+
+
+__all__ = ["AsyncTcpLink", "TcpLink"]

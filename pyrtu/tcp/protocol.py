@@ -1,0 +1,223 @@
+"""The sans-I/O Modbus TCP client: requests out, answers matched by transaction id.
+
+Messaging on TCP/IP Implementation Guide V1.0b, 3.1.3: the client picks the
+transaction id; the server copies it, the protocol id and the unit id into its
+answer, so several requests may be in flight on one connection and answers may
+come back in any order.  No clock, no socket: time is an input::
+
+    proto = TcpClientProtocol(timeout=1.0)
+    tid, data = proto.send_request(unit, pdu, now)   # write ``data``
+    proto.receive_data(chunk, now)                    # bytes read from the socket
+    proto.handle_timer(now)                           # when now >= proto.deadline()
+    while (done := proto.next_result()) is not None:
+        tid, answer = done      # the response PDU, None (broadcast), or a ModbusError
+
+Unit 0 is a broadcast (through a gateway): nothing comes back, the result is None
+at once; unless ``answered=True``: a TCP device addressed with unit 0 directly
+answers it (Messaging on TCP/IP Implementation Guide 4.4.1.2).  An answer for no
+request in flight (a late one, after its timeout) is dropped and counted.  A header
+the framer cannot accept ends the connection: every request in flight fails with
+`FrameError` and ``broken`` is set.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+from pyrtu.core import _backend
+from pyrtu.core._types import BytesLike
+from pyrtu.core.frames import FrameKind
+from pyrtu.core.mbap import check_header_args
+from pyrtu.core.timing import positive_seconds
+from pyrtu.pdu.errors import (
+    ExceptionResponseError,
+    FrameError,
+    ModbusError,
+    NoResponseError,
+    PortError,
+)
+
+Result = tuple[int, bytes | ModbusError | None]
+
+
+@dataclass
+class _Pending:
+    unit: int
+    function: int
+    deadline: float
+    raw: bool = False  # an exception response is the result, as its PDU
+
+
+def check_timeout(timeout: object, name: str = "timeout") -> float:
+    return positive_seconds(timeout, name)
+
+
+class TcpClientProtocol:
+    """One Modbus TCP connection seen from the client (see the module docstring)."""
+
+    def __init__(
+        self, *, timeout: float = 1.0, max_in_flight: int = 16, where: str = "tcp"
+    ) -> None:
+        self.where = where
+        self.timeout = check_timeout(timeout)
+        if isinstance(max_in_flight, bool) or not isinstance(max_in_flight, int):
+            raise TypeError(f"max_in_flight must be an integer, not {max_in_flight!r}")
+        if not 1 <= max_in_flight <= 65535:
+            raise ValueError(f"max_in_flight must be 1..65535, not {max_in_flight}")
+        self.max_in_flight = max_in_flight
+        self._framer = _backend.active.MbapFramer("master")
+        self._pending: dict[int, _Pending] = {}
+        self._results: deque[Result] = deque()
+        self._tid = 0
+        self.broken: ModbusError | None = None
+        #: when the latest answer to a request in flight arrived (the ``now`` of its
+        #: `receive_data`), None before the first
+        self.answer_end: float | None = None
+        self.counters = dict.fromkeys(
+            # the names of `pyrtu.Master.counters` where they mean the same
+            (
+                "requests",
+                "responses",
+                "broadcasts",
+                "exceptions",
+                "timeouts",
+                "frame_errors",
+                "late",
+            ),
+            0,
+        )
+
+    @property
+    def in_flight(self) -> int:
+        return len(self._pending)
+
+    def _next_tid(self) -> int:
+        for _ in range(65536):
+            self._tid = (self._tid + 1) & 0xFFFF
+            if self._tid not in self._pending:
+                return self._tid
+        raise RuntimeError("no free transaction id")  # unreachable: max_in_flight < 65536
+
+    def send_request(
+        self,
+        unit: int,
+        pdu: BytesLike,
+        now: float,
+        *,
+        answered: bool | None = None,
+        raw: bool = False,
+    ) -> tuple[int, bytes]:
+        """A new transaction: its id and the bytes to write.  ``answered``: whether an
+        answer is awaited (None: for every unit but 0, the broadcast); ``raw``: an
+        exception response is the result (its PDU), not `ExceptionResponseError`.
+        Raises before anything is sent: ValueError/TypeError for bad arguments,
+        RuntimeError when ``max_in_flight`` requests already wait or the connection
+        is broken."""
+        body = check_header_args(0, unit, pdu)
+        if self.broken is not None:
+            raise PortError(self.where, f"the connection is unusable: {self.broken}")
+        if len(self._pending) >= self.max_in_flight:
+            raise RuntimeError(f"{self.max_in_flight} requests already in flight")
+        tid = self._next_tid()
+        data: bytes = self._framer.send(tid, unit, body)
+        self.counters["requests"] += 1
+        broadcast = unit == 0 if answered is None else not answered
+        if broadcast:
+            self.counters["broadcasts"] += 1
+            self._results.append((tid, None))
+        else:
+            self._pending[tid] = _Pending(unit, data[7], now + self.timeout, raw)
+        return tid, data
+
+    def receive_data(self, data: BytesLike, now: float) -> None:
+        """Bytes read from the connection (``b""``: the server closed it)."""
+        if self.broken is not None:
+            return
+        self._framer.receive_data(data)
+        while (ev := self._framer.next_event()) is not None:
+            if ev.error is not None:
+                if ev.error.value == "truncated":
+                    continue  # the close below fails what is in flight
+                self._fail_all(FrameError(f"bad MBAP header from the server ({ev.error})"))
+                return
+            self._answer(ev.transaction, ev.unit, ev.kind, ev.pdu, now)
+        if not data:
+            self.connection_lost("the server closed the connection")
+
+    def _answer(self, tid: int, unit: int, kind: FrameKind, pdu: bytes, now: float) -> None:
+        pending = self._pending.pop(tid, None)
+        if pending is None:
+            self.counters["late"] += 1
+            return
+        self.answer_end = now
+        fc = pending.function
+        if unit != pending.unit or pdu[0] & 0x7F != fc:
+            self.counters["frame_errors"] += 1
+            self._results.append(
+                (
+                    tid,
+                    FrameError(
+                        f"answer to unit {pending.unit} function {fc} came back as unit "
+                        f"{unit} function {pdu[0]}",
+                        pending.unit,
+                        fc,
+                    ),
+                )
+            )
+            return
+        if kind is FrameKind.EXCEPTION:
+            self.counters["exceptions"] += 1
+            if len(pdu) != 2:
+                self.counters["frame_errors"] += 1
+                self._results.append(
+                    (tid, FrameError(f"exception response of {len(pdu)} bytes", unit, fc))
+                )
+            elif pending.raw:
+                self._results.append((tid, pdu))
+            else:
+                self._results.append((tid, ExceptionResponseError(unit, fc, pdu[1])))
+            return
+        self.counters["responses"] += 1
+        self._results.append((tid, pdu))
+
+    def _fail_all(self, error: ModbusError) -> None:
+        self.broken = error
+        for tid in sorted(self._pending):
+            self._results.append((tid, error))
+        self._pending.clear()
+
+    def connection_lost(self, reason: str) -> None:
+        """The connection ended: every request in flight fails with `PortError`."""
+        if self.broken is None:
+            self._fail_all(PortError(self.where, reason))
+
+    def deadline(self) -> float | None:
+        """When the oldest request in flight times out, or None."""
+        if not self._pending:
+            return None
+        return min(p.deadline for p in self._pending.values())
+
+    def handle_timer(self, now: float) -> None:
+        expired = [tid for tid, p in self._pending.items() if p.deadline <= now]
+        for tid in expired:
+            p = self._pending.pop(tid)
+            self.counters["timeouts"] += 1
+            self._results.append(
+                (
+                    tid,
+                    NoResponseError(
+                        f"no answer from unit {p.unit} (function {p.function}) "
+                        f"within {self.timeout} s",
+                        p.unit,
+                        p.function,
+                    ),
+                )
+            )
+
+    def cancel(self, tid: int) -> None:
+        """Forget a request (its caller gave up): a late answer is dropped."""
+        self._pending.pop(tid, None)
+
+    def next_result(self) -> Result | None:
+        return self._results.popleft() if self._results else None
