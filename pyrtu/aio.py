@@ -1,24 +1,7 @@
 """`pyrtu.aio`: the asyncio master and slave, at the path the documentation shows.
 
-The code lives in `pyrtu.drivers.aio`; this module re-exports its public names.
+The code lives in `pyrtu.drivers.aio`; this module re-exports its public names (its ``__all__``).
 """
 
-from pyrtu.drivers.aio import (
-    AsyncMaster as AsyncMaster,
-)
-from pyrtu.drivers.aio import (
-    AsyncSlave as AsyncSlave,
-)
-from pyrtu.drivers.aio import (
-    new_event_loop as new_event_loop,
-)
-from pyrtu.drivers.aio import (
-    run as run,
-)
-
-__all__ = [
-    "AsyncMaster",
-    "AsyncSlave",
-    "new_event_loop",
-    "run",
-]
+from pyrtu.drivers.aio import *  # noqa: F403
+from pyrtu.drivers.aio import __all__ as __all__
