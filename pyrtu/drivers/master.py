@@ -42,6 +42,7 @@ from typing import Any
 
 from pyrtu import pdu as P
 from pyrtu.core import _backend
+from pyrtu.core._forward import Forward, Settable
 from pyrtu.core.line import LineConfig, adopt_port_format, line_from
 from pyrtu.core.rules import LengthRule, RuleTable, check_rules
 from pyrtu.drivers.links import (
@@ -234,60 +235,28 @@ class MasterBase:
             port = rtu_over_tcp(port)
         return SerialLink(port, line, **options)
 
-    @property
-    def line(self) -> LineConfig:
-        """The line's configuration (a TCP master has none: AttributeError)."""
-        return self._link.line
-
-    @property
-    def port(self) -> Port:
-        """The serial port (a TCP master has none: AttributeError)."""
-        return self._link.port  # type: ignore[no-any-return]
-
-    @property
-    def url(self) -> str:
-        """The ``tcp://`` URL of a TCP master (a serial master has none)."""
-        return self._link.url
-
-    @property
-    def mode(self) -> str:
-        """ "rtu", "ascii" or "tcp"."""
-        return self._link.mode
-
-    @property
-    def t35(self) -> float:
-        """The inter-frame silence the master keeps before a request (seconds; 0: none)."""
-        return self._link.t35
-
-    @property
-    def timeout(self) -> float:
-        return self._link.timeout
-
-    @timeout.setter
-    def timeout(self, value: float) -> None:
-        self._link.timeout = check_seconds("timeout", value, positive=True)
-
-    @property
-    def retries(self) -> int:
-        return self._link.retries
-
-    @retries.setter
-    def retries(self, value: int) -> None:
-        self._link.retries = check_retries(value)
-
-    @property
-    def echo(self) -> bool:
-        return self._link.echo
-
-    @property
-    def broadcast_delay(self) -> float:
-        return self._link.broadcast_delay
-
-    @property
-    def last_answer_time(self) -> float | None:
-        """When the last byte of the latest answer arrived (monotonic seconds), or
-        None before the first answer."""
-        return self._link.last_answer_time
+    # what the link answers for (`pyrtu.drivers.links.Link`)
+    line = Forward[LineConfig](
+        "_link", doc="The line's configuration (a TCP master has none: AttributeError)."
+    )
+    port = Forward[Port]("_link", doc="The serial port (a TCP master has none: AttributeError).")
+    url = Forward[str](
+        "_link", doc="The ``tcp://`` URL of a TCP master (a serial master has none)."
+    )
+    mode = Forward[str]("_link", doc='"rtu", "ascii" or "tcp".')
+    t35 = Forward[float](
+        "_link",
+        doc="The inter-frame silence the master keeps before a request (seconds; 0: none).",
+    )
+    timeout = Settable[float]("_link", lambda value: check_seconds("timeout", value, True))
+    retries = Settable[int]("_link", check_retries)
+    echo = Forward[bool]("_link")
+    broadcast_delay = Forward[float]("_link")
+    last_answer_time = Forward[float | None](
+        "_link",
+        doc="When the last byte of the latest answer arrived (monotonic seconds), or None"
+        " before the first answer.",
+    )
 
     @property
     def counters(self) -> dict[str, int]:
