@@ -187,6 +187,20 @@ def call_at(
     return h
 
 
+def rearm(
+    old: asyncio.TimerHandle | None, when: float | None, callback: Callable[[], object]
+) -> asyncio.TimerHandle | None:
+    """Cancel ``old`` and schedule ``callback`` at ``when`` (a ``time.monotonic()``
+    time; None: no timer) on the running loop's own timers (millisecond work:
+    connection and framer timeouts); the new handle."""
+    if old is not None:
+        old.cancel()
+    if when is None:
+        return None
+    loop = asyncio.get_running_loop()
+    return loop.call_at(loop.time() + max(0.0, when - time.monotonic()), callback)
+
+
 async def sleep_until(when: float) -> None:
     """Sleep until ``time.monotonic()`` reaches `when`, to the microsecond."""
     loop = asyncio.get_running_loop()

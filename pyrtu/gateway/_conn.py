@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 
 from pyrtu.core import _backend
 from pyrtu.core.frames import FrameKind
+from pyrtu.drivers._ptimer import rearm
 
 from ._live import Liveness
 
@@ -157,13 +158,7 @@ class _RtuConnection(_Connection):
     def _events(self) -> bool:
         """Hand the framer's requests to the gateway; True if there was one."""
         # bytes that make no frame yet wait for the framer's flush timeout (a silence)
-        if self.timer is not None:
-            self.timer.cancel()
-            self.timer = None
-        when = self.rtu.timer()
-        if when is not None:
-            loop = asyncio.get_running_loop()
-            self.timer = loop.call_later(max(0.0, when - time.monotonic()), self._on_timer)
+        self.timer = rearm(self.timer, self.rtu.timer(), self._on_timer)
         completed = False
         while (ev := self.rtu.next_event()) is not None:
             if ev.error is not None:

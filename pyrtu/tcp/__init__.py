@@ -32,6 +32,7 @@ import serial
 from pyrtu.core._closing import AsyncClosing, Closing
 from pyrtu.core._forward import Forward, Settable
 from pyrtu.core._types import BytesLike
+from pyrtu.drivers._ptimer import rearm
 from pyrtu.pdu.errors import ModbusError, PortError
 from pyrtu.tcp.protocol import TcpClientProtocol, check_timeout
 
@@ -210,14 +211,7 @@ class _ClientConnection(asyncio.Protocol):
         self.arm()
 
     def arm(self) -> None:
-        if self.timer is not None:
-            self.timer.cancel()
-            self.timer = None
-        deadline = self.proto.deadline()
-        if deadline is not None:
-            loop = asyncio.get_running_loop()
-            delay = max(0.0, deadline - time.monotonic())
-            self.timer = loop.call_at(loop.time() + delay, self.on_timer)
+        self.timer = rearm(self.timer, self.proto.deadline(), self.on_timer)
 
 
 class AsyncTcpClient(_ClientState, AsyncClosing):
