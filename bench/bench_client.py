@@ -224,7 +224,7 @@ def pymodbus_master(path: str, baudrate: int, n: int) -> dict[str, float]:
 
 _BASELINE = r"""
 import sys, time
-from pyrtu.drivers.master import Master
+from pyrtu import Master
 path, n, baud = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
 with Master(path, baud, parity="N", timeout=1.0) as m:
     for _ in range(5):
@@ -238,7 +238,7 @@ with Master(path, baud, parity="N", timeout=1.0) as m:
 #: the AsyncMaster of the checkout before, on `pyrtu.drivers.aio.run` as `async_master`
 _BASELINE_ASYNC = r"""
 import sys, time
-from pyrtu.drivers.aio import AsyncMaster, run
+from pyrtu.aio import AsyncMaster, run
 path, n, baud = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
 async def main():
     async with AsyncMaster(path, baud, parity="N", timeout=1.0) as m:

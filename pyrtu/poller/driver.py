@@ -11,18 +11,17 @@
         print(poller.values())
         poller.write("pump.reference", 30.0)
 
-One asyncio task per bus runs its `BusScheduler` against a master (an object with
-`pyrtu.Master`'s method names as coroutines); buses run concurrently, each bus
-one transaction at a time.  Every value is stamped with the time (``time.time()``
-clock) the answer's last byte arrived; `updates` and `on_update` deliver changes
-only (beyond each point's deadband), `events` and `on_event` also port up/down,
-slave online/offline, dropped points and overload.
+One asyncio task per bus runs its `BusScheduler` against a master (`AsyncMasterLike`:
+``transact`` and ``close``); buses run concurrently, each one transaction at a time.
+Every value is stamped with the time (``time.time()`` clock) the answer's last byte
+arrived; `updates` and `on_update` deliver changes only (beyond each point's
+deadband), `events` and `on_event` also port up/down, slave online/offline, dropped
+points and overload.
 
-A port that fails (cannot be opened or connected, a drop unplugged, a TCP peer
-gone) is reported once (`PortState` and one log line), closed, and opened again
-on the back-off of `pyrtu.drivers.reconnect` (the bus's ``backoff`` doubling to
-``max_backoff``) while the other buses poll on; what failed because the port did
-is not counted against the slaves.
+A port that fails (not opened or connected, a drop unplugged, a TCP peer gone) is
+reported once (`PortState`, one log line), closed and reopened on the back-off of
+`pyrtu.drivers.reconnect` (``backoff`` doubling to ``max_backoff``) while the other
+buses poll on; what failed because the port did is not counted against the slaves.
 """
 
 from __future__ import annotations

@@ -475,14 +475,7 @@ class ClientProtocol(AnswerTiming):
                     (now - self._end) * 1e3,
                 )
             if message[1] & 0x80:
-                c["exceptions"] += 1
-                if self._decode is answer_pdu:  # an exchange: the answer is its value
-                    self.answer_end = end
-                    self._finish(message[1:])
-                    return
-                code = message[2] if len(message) > 2 else 0
-                # answered: no late answer to wait out (failed_at stays 0)
-                self._fail(ExceptionResponseError(slave, fc, code), 0.0)
+                self._exception_answer(message, end)
                 return
             decode = self._decode or _identity
             try:
@@ -501,11 +494,28 @@ class ClientProtocol(AnswerTiming):
                     self._sizes.clear()
                 self._sizes[self._adu] = size
             return
+        self._not_the_answer(now, reason, message, size)
+
+    def _exception_answer(self, message: bytes, end: float | None) -> None:
+        """The slave's exception response to our request (function | 0x80, code)."""
+        self.counters["exceptions"] += 1
+        if self._decode is answer_pdu:  # an exchange: the answer is its value
+            self.answer_end = end
+            self._finish(message[1:])
+            return
+        code = message[2] if len(message) > 2 else 0
+        # answered: no late answer to wait out (failed_at stays 0)
+        self._fail(ExceptionResponseError(self._slave, self._fc, code), 0.0)
+
+    def _not_the_answer(self, now: float, reason: str | None, message: bytes, size: int) -> None:
+        """Bytes discarded, or a frame that is not the answer: counted, remembered as
+        the error should no answer come, and a settling time to wait."""
+        slave, fc = self._slave, self._fc
         self._settle(now)
         if reason is not None:
             self._discard(reason, size)
             if reason == "crc":
-                c["crc_errors"] += 1
+                self.counters["crc_errors"] += 1
             self._bad = self._bad or FrameError(
                 f"{function_name(fc)}: slave {slave}: {size} bytes discarded ({reason})",
                 slave,
