@@ -6,6 +6,7 @@ real TCP server."""
 from __future__ import annotations
 
 import asyncio
+import math
 from collections.abc import Iterator
 
 import pytest
@@ -56,8 +57,9 @@ def test_slave_constructor_errors_name_the_class(link: PtyLink, cls: type) -> No
         cls(link.path_b, pairty="N")
     with pytest.raises(TypeError, match=rf"^{name}: give line= or the line keywords \(parity\)"):
         cls(link.path_b, line=LineConfig(), parity="O")
-    with pytest.raises(ValueError, match="response_delay must be a non-negative"):
-        cls(link.path_b, parity="N", response_delay=-1)
+    for delay in (-1, math.inf, math.nan):  # infinity: a slave that never answers
+        with pytest.raises(ValueError, match="response_delay must be a non-negative"):
+            cls(link.path_b, parity="N", response_delay=delay)
     with pytest.raises(ValueError, match=r"a slave address is 1\.\.247, not 0"):
         cls(link.path_b, address=0, parity="N")
 
