@@ -6,6 +6,7 @@ Real ptys (no mock): the master end of the pair is read, or not, by the test."""
 
 from __future__ import annotations
 
+import gc
 import os
 import pty
 import threading
@@ -69,3 +70,35 @@ def test_a_failed_write_is_a_port_error_naming_the_port(pty_port: tuple[int, Por
     with pytest.raises(PortError, match="write failed") as info:
         port.write(b"ab")
     assert port.name in str(info.value)
+
+
+def test_closing_a_port_whose_descriptor_vanished_never_closes_its_number_again() -> None:
+    """The descriptor closed under the port (as above), then `Port.close`: pyserial's
+    own close fails on it and used to leave its object open, holding the number; when
+    the object was collected, io.IOBase's finalizer closed that number again, by then
+    another file's (an event loop's timer descriptor: uvloop aborted the whole test
+    run).  Now the port's object is closed and its abort pipes with it."""
+    master, slave = pty.openpty()
+    port = open_port(os.ttyname(slave), baudrate=BAUD, parity="N")
+    os.close(slave)
+    try:
+        fd = port.fd
+        assert fd is not None
+        pipes = [port.serial.pipe_abort_read_r, port.serial.pipe_abort_write_w]
+        os.close(fd)
+        port.close()
+        assert not port.serial.is_open
+        for p in pipes:  # pyserial's abort pipes are not left behind
+            with pytest.raises(OSError):
+                os.fstat(p)
+        spare = os.open(os.devnull, os.O_RDONLY)
+        reused = os.dup2(spare, fd)  # another file under the port's old number
+        os.close(spare)
+        try:
+            del port
+            gc.collect()
+            os.fstat(reused)  # still open: nobody closed it behind its owner's back
+        finally:
+            os.close(reused)
+    finally:
+        os.close(master)

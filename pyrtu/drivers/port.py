@@ -228,8 +228,34 @@ class Port:
             return
         self.closed = True
         if self.owned:
-            with contextlib.suppress(serial.SerialException, OSError):  # already gone
+            try:
                 self.serial.close()
+            except (serial.SerialException, OSError):  # already gone
+                _forget(self.serial)
+
+
+def _forget(ser: Any) -> None:
+    """pyserial's close failed (its descriptor was already closed under it) and left
+    the object open, holding the descriptor's number: its finalizer (io.IOBase's
+    ``__del__``) would close that number again whenever it is collected, by then
+    somebody else's file (an event loop's epoll or timer descriptor: uvloop aborts
+    the process).  Mark it closed without touching that number, and close the POSIX
+    ``Serial``'s abort pipes, which it closes only after the descriptor."""
+    if getattr(ser, "fd", None) is not None:
+        ser.fd = None
+        for name in (
+            "pipe_abort_read_w",
+            "pipe_abort_read_r",
+            "pipe_abort_write_w",
+            "pipe_abort_write_r",
+        ):
+            fd = getattr(ser, name, None)
+            if isinstance(fd, int):
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+                setattr(ser, name, None)
+    with contextlib.suppress(Exception):
+        ser.is_open = False
 
 
 def _check_format(
