@@ -18,7 +18,6 @@ from __future__ import annotations
 import math
 from typing import Any, Protocol
 
-from pyrtu.core.line import LineConfig
 from pyrtu.core.rules import LengthRule
 from pyrtu.pdu.requests import Call
 
@@ -66,29 +65,18 @@ def check_in_flight(value: object, tcp: bool) -> int:
 
 
 class Link(Protocol):
-    """What a master asks of its transport (besides ``transact``, sync or async)."""
+    """What a master calls on its transport (besides ``transact``, sync or async).
 
-    @property
-    def line(self) -> LineConfig: ...
-    @property
-    def port(self) -> Any: ...
-    @property
-    def mode(self) -> str: ...
-    @property
-    def t35(self) -> float: ...
-    @property
-    def echo(self) -> bool: ...
-    @property
-    def broadcast_delay(self) -> float: ...
-    @property
-    def last_answer_time(self) -> float | None: ...
-    @property
-    def counters(self) -> dict[str, int]: ...
-    @property
-    def url(self) -> str: ...
+    A link also has what `pyrtu.drivers.master.MasterBase` forwards to it by name
+    (``line``, ``port``, ``url``, ``mode``, ``t35``, ``echo``, ``broadcast_delay``,
+    ``last_answer_time``; a TCP link raises AttributeError for ``line`` and
+    ``port``): those are declared once, typed and documented, on MasterBase."""
 
     timeout: float
     retries: int
+
+    @property
+    def counters(self) -> dict[str, int]: ...
 
     def address(self, slave: Any, broadcasting: bool) -> tuple[Any, int | None]: ...
     def count_bad(self) -> None: ...
