@@ -15,10 +15,10 @@ answer's last byte came (monotonic seconds; now for a broadcast).
 
 from __future__ import annotations
 
-import math
 from typing import Any, Protocol
 
 from pyrtu.core.rules import LengthRule
+from pyrtu.core.timing import check_seconds
 from pyrtu.pdu.requests import Call
 
 #: the URL schemes whose link is not a serial line
@@ -32,17 +32,6 @@ def scheme_of(port: object) -> str | None:
         return None
     scheme = port.split("://", 1)[0].lower()
     return scheme if scheme in (TCP_SCHEME, RTU_TCP_SCHEME) else None
-
-
-def check_seconds(name: str, value: object, positive: bool = False) -> float:
-    """A finite duration in seconds; ValueError naming ``name`` otherwise."""
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise ValueError(f"{name} must be a finite number of seconds, not {value!r}")
-    if value < 0 or (positive and value == 0):
-        raise ValueError(
-            f"{name} must be {'positive' if positive else 'non-negative'}, not {value!r}"
-        )
-    return float(value)
 
 
 def check_retries(retries: object) -> int:
