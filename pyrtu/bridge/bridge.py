@@ -36,6 +36,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from pyrtu.core._closing import AsyncService
 from pyrtu.drivers.reconnect import Backoff, Reconnect
 
 from ..poller import Point, PointDropped, Poller, PortState, SlaveState, Update
@@ -69,7 +70,7 @@ class BridgeEvent:
         return {"event": self.kind, "time": round(self.time, 6), **self.detail}
 
 
-class Bridge:
+class Bridge(AsyncService):
     """The bridge of one edge (see the module docstring).  ``config``: a
     `BridgeConfig` or a TOML path; ``master``: as `Poller`'s."""
 
@@ -197,13 +198,6 @@ class Bridge:
         self.final_stats = self.stats()
         ob.close()
         self._outbox = None
-
-    async def __aenter__(self) -> Bridge:
-        await self.start()
-        return self
-
-    async def __aexit__(self, *exc: object) -> None:
-        await self.stop()
 
     async def run(self, duration: float | None = None) -> None:
         """Start, run for ``duration`` seconds (None: until cancelled or a fatal error

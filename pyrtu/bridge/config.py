@@ -44,6 +44,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
+from ..core.timing import check_seconds
 from ..poller import ConfigError, Point, PollerConfig
 from ..poller.config import _Loader, _locate, read_config_text
 from .topics import Topics
@@ -60,13 +61,6 @@ _FORBIDDEN = re.compile(r"[+#\x00\n]")
 
 def _real(v: object) -> bool:
     return not isinstance(v, bool) and isinstance(v, int | float) and math.isfinite(v)
-
-
-def _seconds(key: str, v: object, *, zero_ok: bool = False) -> float:
-    if not _real(v) or v < 0 or (v == 0 and not zero_ok):  # type: ignore[operator]
-        what = "a non-negative" if zero_ok else "a positive"
-        raise ValueError(f"{key}: must be {what} number of seconds, not {v!r}")
-    return float(v)  # type: ignore[arg-type]
 
 
 def _count(key: str, v: object, lo: int, hi: int) -> int:
@@ -173,16 +167,16 @@ class MqttConfig:
             raise ValueError(
                 f"outbox_policy: must be drop-oldest or refuse, not {self.outbox_policy!r}"
             )
-        _seconds("fsync_interval", self.fsync_interval, zero_ok=True)
-        _seconds("stats_interval", self.stats_interval)
-        _seconds("max_age", self.max_age, zero_ok=True)
-        _seconds("command_expiry", self.command_expiry)
+        check_seconds("fsync_interval:", self.fsync_interval)  # (the key and its colon)
+        check_seconds("stats_interval:", self.stats_interval, True)
+        check_seconds("max_age:", self.max_age)
+        check_seconds("command_expiry:", self.command_expiry, True)
         if not _real(self.write_rate) or self.write_rate <= 0:
             raise ValueError(f"write_rate: must be a positive number, not {self.write_rate!r}")
         _count("command_queue", self.command_queue, 1, 1 << 20)
         _count("max_payload", self.max_payload, 16, 1 << 20)
         _count("inflight", self.inflight, 1, 65535)
-        _seconds("backoff", self.backoff)
+        check_seconds("backoff:", self.backoff, True)
         if not _real(self.max_backoff) or self.max_backoff < self.backoff:
             raise ValueError(f"max_backoff: must be at least backoff, not {self.max_backoff!r}")
         if not isinstance(self.discovery, bool):
@@ -239,7 +233,7 @@ class PointOptions:
         if self.min is not None and self.max is not None and self.min > self.max:
             raise ValueError(f"max: must be at least min ({self.min}), not {self.max!r}")
         if self.max_age is not None:
-            _seconds("max_age", self.max_age, zero_ok=True)
+            check_seconds("max_age:", self.max_age)
 
     def check(self, point: Point) -> None:
         """ValueError when the keys do not fit the point."""

@@ -22,9 +22,9 @@ import asyncio
 import logging
 import ssl
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 import paho.mqtt.client as paho
 from paho.mqtt.enums import CallbackAPIVersion
@@ -33,6 +33,8 @@ from paho.mqtt.properties import Properties
 from paho.mqtt.subscribeoptions import SubscribeOptions
 
 from .config import MqttConfig
+
+_T = TypeVar("_T")
 
 log = logging.getLogger("pyrtu.bridge")
 
@@ -219,14 +221,11 @@ class MqttLink:
         self._loop = loop
         c = self._make_client()
         self.client = c
-        try:
-            await asyncio.wait_for(loop.run_in_executor(None, c.reconnect), timeout)
-        except TimeoutError:
-            self._teardown()
-            raise TimeoutError(f"no connection to {self.cfg.broker} within {timeout:g} s") from None
-        except BaseException:
-            self._teardown()
-            raise
+        await self._or_teardown(
+            lambda: loop.run_in_executor(None, c.reconnect),
+            timeout,
+            f"no connection to {self.cfg.broker} within {timeout:g} s",
+        )
         sock = c.socket()
         if sock is None:
             self._teardown()
@@ -241,16 +240,13 @@ class MqttLink:
         self._writing = False
         if c.want_write():
             self._want_write(c, None, sock)
-        self._connack = loop.create_future()
+        self._connack = connack = loop.create_future()
         self._schedule_misc()
-        try:
-            rc, reason = await asyncio.wait_for(asyncio.shield(self._connack), timeout)
-        except TimeoutError:
-            self._teardown()
-            raise TimeoutError(f"{self.cfg.broker}: no CONNACK within {timeout:g} s") from None
-        except BaseException:
-            self._teardown()
-            raise
+        rc, reason = await self._or_teardown(
+            lambda: asyncio.shield(connack),
+            timeout,
+            f"{self.cfg.broker}: no CONNACK within {timeout:g} s",
+        )
         if rc != 0:
             self._teardown()
             user = f"user {self.cfg.username!r}" if self.cfg.username is not None else "anonymous"
@@ -309,6 +305,21 @@ class MqttLink:
         return (0 if c is None else len(c._out_packet)) + (self._out.unsent if self._out else 0)
 
     # ---------------------------------------------------------------- the loop's side
+
+    async def _or_teardown(
+        self, step: Callable[[], Awaitable[_T]], timeout: float, late: str
+    ) -> _T:
+        """A step of `connect`: ``step()`` awaited within ``timeout`` seconds; when it
+        fails the half-made connection is torn down (TimeoutError(``late``) when the
+        time ran out)."""
+        try:
+            return await asyncio.wait_for(step(), timeout)
+        except TimeoutError:
+            self._teardown()
+            raise TimeoutError(late) from None
+        except BaseException:
+            self._teardown()
+            raise
 
     def _teardown(self) -> None:
         was = self.connected

@@ -25,14 +25,12 @@ import signal
 import sys
 from typing import Any
 
+from pyrtu.cli._subcommand import subcommand
 from pyrtu.cli.common import (
     EXIT_OK,
     EXIT_PORT,
     EXIT_USAGE,
-    CommandSpec,
     emit,
-    exit_code_table,
-    guarded,
     positive_seconds,
     report_error,
     seconds,
@@ -183,12 +181,12 @@ def _as_port_error(e: BaseException) -> BaseException:
 
 
 COMMANDS = (
-    CommandSpec(
+    subcommand(
         "bridge",
         "the poller's points to an MQTT broker, set commands back (see docs/BRIDGE.md)",
         _configure,
-        guarded("bridge", _run),
-        (__doc__ or "").strip() + "\n\n" + exit_code_table(),
+        _run,
+        __doc__,
     ),
 )
 

@@ -45,14 +45,12 @@ from dataclasses import dataclass
 from typing import Any
 
 from pyrtu import gateway as G
+from pyrtu.cli._subcommand import subcommand
 from pyrtu.cli.common import (
     EXIT_OK,
-    CommandSpec,
     add_json_option,
     add_serial_options,
     emit,
-    exit_code_table,
-    guarded,
     positive_seconds,
     seconds,
     serial_kwargs,
@@ -339,11 +337,11 @@ def _run(args: argparse.Namespace) -> int:
 
 
 COMMANDS = (
-    CommandSpec(
+    subcommand(
         "gateway",
         "Modbus TCP to RTU gateway: many TCP clients onto serial buses",
         _configure,
-        guarded("gateway", _run),
-        (__doc__ or "").strip() + "\n\n" + exit_code_table(),
+        _run,
+        __doc__,
     ),
 )

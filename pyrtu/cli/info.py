@@ -12,15 +12,13 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from pyrtu.cli._subcommand import subcommand
 from pyrtu.cli.common import (
     EXIT_OK,
-    CommandSpec,
     add_json_option,
     add_serial_options,
     add_slave_option,
     emit,
-    exit_code_table,
-    guarded,
     object_id,
     open_master,
 )
@@ -130,11 +128,5 @@ def _run(args: argparse.Namespace) -> int:
 
 
 COMMANDS = (
-    CommandSpec(
-        "info",
-        "device identification of a slave (FC 43/14)",
-        _configure,
-        guarded("info", _run),
-        (__doc__ or "").strip() + "\n\n" + exit_code_table(),
-    ),
+    subcommand("info", "device identification of a slave (FC 43/14)", _configure, _run, __doc__),
 )

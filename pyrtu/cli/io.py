@@ -18,15 +18,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from pyrtu.cli._subcommand import subcommand
 from pyrtu.cli.common import (
     EXIT_OK,
-    CommandSpec,
     add_json_option,
     add_serial_options,
     add_slave_option,
     emit,
-    exit_code_table,
-    guarded,
     integer,
     open_master,
     register_address,
@@ -476,25 +474,23 @@ def _run_write(args: argparse.Namespace) -> int:
 _EPILOG = __doc__.split("\n\n", 1)[1] if __doc__ else ""
 
 COMMANDS = (
-    CommandSpec(
+    subcommand(
         "read",
         "read registers or bits of a slave (FC 01-04), typed",
         _configure_read,
-        guarded("read", _run_read),
+        _run_read,
         "Read registers (FC 03/04) or bits (FC 01/02) of a slave and print them, typed.\n\n"
         + _EPILOG
-        + "\nexample: pyrtu read /dev/ttyUSB0 --slave 1 680 2 --profile cfw701\n\n"
-        + exit_code_table(),
+        + "\nexample: pyrtu read /dev/ttyUSB0 --slave 1 680 2 --profile cfw701",
     ),
-    CommandSpec(
+    subcommand(
         "write",
         "write registers or coils of a slave (FC 05/06/15/16), typed",
         _configure_write,
-        guarded("write", _run_write),
+        _run_write,
         "Write holding registers (FC 06 one, FC 16 several) or coils (FC 05 one, FC 15\n"
         "several); --function forces one.\n\n"
         + _EPILOG
-        + "\nexample: pyrtu write /dev/ttyUSB0 --slave 1 --type float32 --order CDAB 100 1.5\n\n"
-        + exit_code_table(),
+        + "\nexample: pyrtu write /dev/ttyUSB0 --slave 1 --type float32 --order CDAB 100 1.5",
     ),
 )

@@ -16,15 +16,13 @@ import sys
 import time
 from typing import TYPE_CHECKING, Any
 
+from pyrtu.cli._subcommand import subcommand
 from pyrtu.cli.common import (
     EXIT_NO_RESPONSE,
     EXIT_OK,
-    CommandSpec,
     add_json_option,
     add_serial_options,
     emit,
-    exit_code_table,
-    guarded,
     open_master,
     register_address,
 )
@@ -210,11 +208,7 @@ def _line(entry: dict[str, Any]) -> str:
 
 
 COMMANDS = (
-    CommandSpec(
-        "scan",
-        "find the slaves on a bus (one short probe per address)",
-        _configure,
-        guarded("scan", _run),
-        (__doc__ or "").strip() + "\n\n" + exit_code_table(),
+    subcommand(
+        "scan", "find the slaves on a bus (one short probe per address)", _configure, _run, __doc__
     ),
 )

@@ -43,16 +43,14 @@ from typing import Any
 from pyrtu.cli._simulate_clash import watch_slave
 from pyrtu.cli._simulate_many import DriveLoop, DriveThread, PortKeeper, PortReport
 from pyrtu.cli._simulate_tcp import TcpThread, tcp_only_slave
+from pyrtu.cli._subcommand import subcommand
 from pyrtu.cli.common import (
     EXIT_OK,
     EXIT_PORT,
-    CommandSpec,
     add_json_option,
     add_serial_options,
     describe_format,
     emit,
-    exit_code_table,
-    guarded,
     positive_seconds,
     serial_kwargs,
     stop_on_signals,
@@ -360,11 +358,11 @@ def _watch(args: argparse.Namespace, sim: Any, t: float, port: str | None = None
 
 
 COMMANDS = (
-    CommandSpec(
+    subcommand(
         "simulate",
         "run a simulated drive (cfw100, cfw320, cfw701, cv100, act, acu) on a port",
         _configure,
-        guarded("simulate", _run),
-        (__doc__ or "").strip() + "\n\n" + exit_code_table(),
+        _run,
+        __doc__,
     ),
 )

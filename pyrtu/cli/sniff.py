@@ -27,17 +27,15 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
+from pyrtu.cli._subcommand import subcommand
 from pyrtu.cli.common import (
     EXIT_OK,
-    CommandSpec,
     SignalStop,
     add_json_option,
     add_serial_options,
     count,
     emit,
-    exit_code_table,
     framing_kwargs,
-    guarded,
     positive_seconds,
     serial_kwargs,
     stop_on_signals,
@@ -527,11 +525,11 @@ def _document(seen: Seen, at: float, decoder: Decoder, d: Decoded) -> dict[str, 
 
 
 COMMANDS = (
-    CommandSpec(
+    subcommand(
         "sniff",
         "decode the traffic of a bus (a live port or a capture), device-aware",
         _configure,
-        guarded("sniff", _run),
-        (__doc__ or "").strip() + "\n\n" + exit_code_table(),
+        _run,
+        __doc__,
     ),
 )

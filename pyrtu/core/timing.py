@@ -150,17 +150,29 @@ def seconds_to_us(value: float, name: str) -> int:
     return round(value * 1_000_000)
 
 
+def check_seconds(
+    name: str, value: object, positive: bool = False, *, wrong_type: type[Exception] = ValueError
+) -> float:
+    """``value`` as float seconds: a finite number, above 0 with ``positive``, else
+    at least 0 (NaN and infinity refused).  Otherwise "``name`` must be a positive
+    (non-negative) number of seconds, not ..." as ``wrong_type`` for what is not a
+    number (bool included) and as ValueError for a number out of range; ``name`` is
+    the argument in the caller's terms (a keyword, a TOML key with its colon).  The
+    one duration check of every layer: masters, slaves, the gateway, the bridge,
+    `pyrtu.drivers.reconnect.Backoff`."""
+    error: type[Exception] = wrong_type
+    if not isinstance(value, bool) and isinstance(value, int | float):
+        if 0 < value < math.inf if positive else 0 <= value < math.inf:  # (NaN fails)
+            return float(value)
+        error = ValueError
+    what = "a positive" if positive else "a non-negative"
+    raise error(f"{name} must be {what} number of seconds, not {value!r}")
+
+
 def positive_seconds(value: object, name: str) -> float:
     """``value`` as float seconds: ValueError naming ``name`` unless it is a finite
-    number above 0 (an inter-character limit, a timeout)."""
-    if (
-        isinstance(value, bool)
-        or not isinstance(value, int | float)
-        or not math.isfinite(value)
-        or value <= 0
-    ):
-        raise ValueError(f"{name} must be a positive number of seconds, not {value!r}")
-    return float(value)
+    number above 0 (an inter-character limit, a timeout): `check_seconds`."""
+    return check_seconds(name, value, True)
 
 
 def apply_overrides(base: Timing, t15: float | None, t35: float | None) -> Timing:

@@ -15,11 +15,10 @@ answer's last byte came (monotonic seconds; now for a broadcast).
 
 from __future__ import annotations
 
-import math
 from typing import Any, Protocol
 
-from pyrtu.core.line import LineConfig
 from pyrtu.core.rules import LengthRule
+from pyrtu.core.timing import check_seconds
 from pyrtu.pdu.requests import Call
 
 #: the URL schemes whose link is not a serial line
@@ -33,17 +32,6 @@ def scheme_of(port: object) -> str | None:
         return None
     scheme = port.split("://", 1)[0].lower()
     return scheme if scheme in (TCP_SCHEME, RTU_TCP_SCHEME) else None
-
-
-def check_seconds(name: str, value: object, positive: bool = False) -> float:
-    """A finite duration in seconds; ValueError naming ``name`` otherwise."""
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise ValueError(f"{name} must be a finite number of seconds, not {value!r}")
-    if value < 0 or (positive and value == 0):
-        raise ValueError(
-            f"{name} must be {'positive' if positive else 'non-negative'}, not {value!r}"
-        )
-    return float(value)
 
 
 def check_retries(retries: object) -> int:
@@ -66,29 +54,18 @@ def check_in_flight(value: object, tcp: bool) -> int:
 
 
 class Link(Protocol):
-    """What a master asks of its transport (besides ``transact``, sync or async)."""
+    """What a master calls on its transport (besides ``transact``, sync or async).
 
-    @property
-    def line(self) -> LineConfig: ...
-    @property
-    def port(self) -> Any: ...
-    @property
-    def mode(self) -> str: ...
-    @property
-    def t35(self) -> float: ...
-    @property
-    def echo(self) -> bool: ...
-    @property
-    def broadcast_delay(self) -> float: ...
-    @property
-    def last_answer_time(self) -> float | None: ...
-    @property
-    def counters(self) -> dict[str, int]: ...
-    @property
-    def url(self) -> str: ...
+    A link also has what `pyrtu.drivers.master.MasterBase` forwards to it by name
+    (``line``, ``port``, ``url``, ``mode``, ``t35``, ``echo``, ``broadcast_delay``,
+    ``last_answer_time``; a TCP link raises AttributeError for ``line`` and
+    ``port``): those are declared once, typed and documented, on MasterBase."""
 
     timeout: float
     retries: int
+
+    @property
+    def counters(self) -> dict[str, int]: ...
 
     def address(self, slave: Any, broadcasting: bool) -> tuple[Any, int | None]: ...
     def count_bad(self) -> None: ...

@@ -235,7 +235,7 @@ class MasterBase:
             port = rtu_over_tcp(port)
         return SerialLink(port, line, **options)
 
-    # what the link answers for (`pyrtu.drivers.links.Link`)
+    # what the link answers for, read by name (declared here only, see `pyrtu.drivers.links.Link`)
     line = Forward[LineConfig](
         "_link", doc="The line's configuration (a TCP master has none: AttributeError)."
     )

@@ -35,6 +35,7 @@ import errno
 import os
 import select
 import time
+from dataclasses import InitVar, dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import serial
@@ -105,27 +106,25 @@ def read_fd(port: Port, fd: int, readable: bool) -> bytes:
     return data
 
 
+@dataclass(eq=False, repr=False)
 class Port:
-    """An open serial port with the few operations the master and slave need."""
+    """An open serial port with the few operations the master and slave need.
 
-    def __init__(
-        self,
-        ser: Any,
-        name: str,
-        owned: bool,
-        baudrate: int,
-        parity: str = "N",
-        stopbits: float = 1,
-        bytesize: int = 8,
-    ) -> None:
+    ``ser``: the pyserial object (kept as ``serial``); ``owned``: opened here (so
+    `close` closes it); ``baudrate`` .. ``bytesize``: the byte format it runs."""
+
+    ser: InitVar[Any]
+    name: str
+    owned: bool
+    baudrate: int
+    parity: str = "N"
+    stopbits: float = 1
+    bytesize: int = 8
+    serial: Any = field(init=False)
+
+    def __post_init__(self, ser: Any) -> None:
         self.serial = ser
-        self.name = name
-        self.owned = owned
-        self.baudrate = baudrate
-        self.parity = parity
-        self.stopbits = stopbits
-        self.bytesize = bytesize
-        self.char_time = bits_per_char(parity, stopbits, bytesize) / baudrate
+        self.char_time = bits_per_char(self.parity, self.stopbits, self.bytesize) / self.baudrate
         self.fd = _posix_fd(ser)
         if self.fd is not None:  # select.poll is POSIX only, as the fd path is
             self._poll = select.poll()

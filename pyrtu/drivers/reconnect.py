@@ -16,14 +16,7 @@ import math
 import random
 from dataclasses import dataclass
 
-
-def _check_seconds(name: str, value: object, *, zero_ok: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise TypeError(f"{name} must be a number of seconds, not {type(value).__name__}")
-    v = float(value)
-    if math.isnan(v) or math.isinf(v) or v < 0 or (v == 0 and not zero_ok):
-        raise ValueError(f"{name} must be a finite number of seconds > 0, got {value!r}")
-    return v
+from pyrtu.core.timing import check_seconds
 
 
 @dataclass(frozen=True)
@@ -36,8 +29,8 @@ class Backoff:
     jitter: float = 0.1
 
     def __post_init__(self) -> None:
-        _check_seconds("initial", self.initial)
-        _check_seconds("maximum", self.maximum)
+        check_seconds("initial", self.initial, True, wrong_type=TypeError)
+        check_seconds("maximum", self.maximum, True, wrong_type=TypeError)
         if self.maximum < self.initial:
             raise ValueError(f"maximum ({self.maximum}) must be >= initial ({self.initial})")
         if isinstance(self.factor, bool) or not isinstance(self.factor, (int, float)):

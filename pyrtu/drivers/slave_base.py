@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import math
 from collections.abc import Callable, Iterable, Mapping
 from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
@@ -21,6 +20,7 @@ from pyrtu.core._forward import Forward, Settable
 from pyrtu.core.framing import check_core_limits
 from pyrtu.core.line import LINE_DEFAULTS, LineConfig, LineKeywords, adopt_port_format, line_from
 from pyrtu.core.rules import LengthRule, check_rules
+from pyrtu.core.timing import check_seconds
 from pyrtu.drivers.port import Port, open_line_port
 from pyrtu.pdu.errors import SlaveException
 from pyrtu.protocol.datastore import DataStore
@@ -74,13 +74,6 @@ def _addresses(address: int | Iterable[int]) -> frozenset[int]:
     return frozenset(items)
 
 
-def _seconds(name: str, value: object) -> float:
-    """A finite, non-negative number of seconds (infinity and NaN refused too)."""
-    if isinstance(value, bool) or not isinstance(value, int | float) or not 0 <= value < math.inf:
-        raise ValueError(f"{name} must be a non-negative number of seconds, not {value!r}")
-    return float(value)
-
-
 class SlaveBase:
     """A Modbus slave serving one or several addresses on one port (driver-neutral)."""
 
@@ -112,7 +105,7 @@ class SlaveBase:
             if missing:
                 raise ValueError(f"store: no DataStore for address(es) {sorted(missing)}")
         self.functions = set(STANDARD_FUNCTIONS if functions is None else functions)
-        self.response_delay = _seconds("response_delay", response_delay)
+        self.response_delay = check_seconds("response_delay", response_delay)
         if watchdog is not None and (
             isinstance(watchdog, bool) or not isinstance(watchdog, int | float) or watchdog <= 0
         ):

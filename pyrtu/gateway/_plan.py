@@ -3,11 +3,11 @@ fair queue of each bus.  See `pyrtu.gateway` for the whole."""
 
 from __future__ import annotations
 
-import math
 from collections import OrderedDict, deque
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
+from pyrtu.core.timing import check_seconds
 from pyrtu.drivers.reconnect import Backoff
 
 #: Defaults of the limits (documented in the README and ``pyrtu gateway --help``).
@@ -29,14 +29,6 @@ def _positive_int(name: str, value: object) -> int:
     if value < 1:
         raise ValueError(f"{name} must be a positive integer, not {value!r}")
     return value
-
-
-def _seconds(name: str, value: object) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise TypeError(f"{name} must be a number of seconds, not {value!r}")
-    if not 0 <= value < math.inf:  # (NaN fails too)
-        raise ValueError(f"{name} must be finite and >= 0 seconds, not {value!r}")
-    return float(value)
 
 
 @dataclass(frozen=True)
@@ -68,7 +60,7 @@ class GatewayLimits:
         ):
             _positive_int(name, getattr(self, name))
         for name in ("close_grace", "header_timeout", "idle_timeout"):
-            _seconds(name, getattr(self, name))
+            check_seconds(name, getattr(self, name), wrong_type=TypeError)
         if not isinstance(self.backoff, Backoff):
             raise TypeError(
                 f"backoff must be a pyrtu.drivers.reconnect.Backoff, not {self.backoff!r}"

@@ -33,6 +33,7 @@ from collections.abc import AsyncIterator, Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from pyrtu.core._closing import AsyncService
 from pyrtu.drivers.reconnect import Backoff, Reconnect
 from pyrtu.pdu.errors import PortError
 
@@ -81,7 +82,7 @@ class _BusRun:
         return "up" if self.worked else "unknown"
 
 
-class Poller:
+class Poller(AsyncService):
     """Keeps declared points fresh on many buses (see the module docstring).
 
     ``config``: a `PollerConfig` (`load_config`, `make_config`) or a TOML path;
@@ -222,13 +223,6 @@ class Poller:
             log.warning("bus %s: closing the port took more than %.1f s", run.bus.name, limit)
         elif closing.exception() is not None:  # closing a vanished port
             log.info("bus %s: close: %s", run.bus.name, closing.exception())
-
-    async def __aenter__(self) -> Poller:
-        await self.start()
-        return self
-
-    async def __aexit__(self, *exc: object) -> None:
-        await self.stop()
 
     async def run(self, duration: float | None = None) -> None:
         """Start, poll for ``duration`` seconds (None: until cancelled), stop."""
