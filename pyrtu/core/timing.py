@@ -150,17 +150,15 @@ def seconds_to_us(value: float, name: str) -> int:
     return round(value * 1_000_000)
 
 
-def check_seconds(
-    name: str, value: object, positive: bool = False, *, wrong_type: type[Exception] = ValueError
-) -> float:
+def check_seconds(name: str, value: object, positive: bool = False) -> float:
     """``value`` as float seconds: a finite number, above 0 with ``positive``, else
     at least 0 (NaN and infinity refused).  Otherwise "``name`` must be a positive
-    (non-negative) number of seconds, not ..." as ``wrong_type`` for what is not a
-    number (bool included) and as ValueError for a number out of range; ``name`` is
-    the argument in the caller's terms (a keyword, a TOML key with its colon).  The
-    one duration check of every layer: masters, slaves, the gateway, the bridge,
-    `pyrtu.drivers.reconnect.Backoff`."""
-    error: type[Exception] = wrong_type
+    (non-negative) number of seconds, not ...": an `ArgumentTypeError` (a TypeError
+    that is a ValueError too) for what is not a number (bool included), a ValueError
+    for a number out of range; ``name`` is the argument in the caller's terms (a
+    keyword, a TOML key with its colon).  The one duration check of every layer:
+    masters, slaves, the gateway, the bridge, `pyrtu.drivers.reconnect.Backoff`."""
+    error: type[Exception] = ArgumentTypeError
     if not isinstance(value, bool) and isinstance(value, int | float):
         if 0 < value < math.inf if positive else 0 <= value < math.inf:  # (NaN fails)
             return float(value)

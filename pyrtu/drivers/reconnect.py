@@ -29,8 +29,8 @@ class Backoff:
     jitter: float = 0.1
 
     def __post_init__(self) -> None:
-        check_seconds("initial", self.initial, True, wrong_type=TypeError)
-        check_seconds("maximum", self.maximum, True, wrong_type=TypeError)
+        check_seconds("initial", self.initial, True)
+        check_seconds("maximum", self.maximum, True)
         if self.maximum < self.initial:
             raise ValueError(f"maximum ({self.maximum}) must be >= initial ({self.initial})")
         if isinstance(self.factor, bool) or not isinstance(self.factor, (int, float)):

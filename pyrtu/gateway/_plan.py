@@ -60,7 +60,7 @@ class GatewayLimits:
         ):
             _positive_int(name, getattr(self, name))
         for name in ("close_grace", "header_timeout", "idle_timeout"):
-            check_seconds(name, getattr(self, name), wrong_type=TypeError)
+            check_seconds(name, getattr(self, name))
         if not isinstance(self.backoff, Backoff):
             raise TypeError(
                 f"backoff must be a pyrtu.drivers.reconnect.Backoff, not {self.backoff!r}"
