@@ -1,0 +1,105 @@
+"""The asyncio floor under `AsyncMaster`'s CPU per transaction (issue 18, target (a)).
+
+    python bench/async_floor.py [--rounds N] [--bauds 9600 115200]
+
+On bench_client.py's virtual bus and pyrtu slave, interleaved in each round, each in
+a fresh interpreter: the libmodbus client (C), the sync `Master`, `AsyncMaster` on
+`pyrtu.drivers.aio.run`, and FLOOR: the least an asyncio master can do on the same
+loop for the same transaction (FC 03 x 10), written out by hand: one timer for t3.5
+after the answer, the write, one timer for the answer's end (a reader for what is
+still missing), the future the awaiting coroutine wakes on; no protocol, no framer,
+no checks.  Three loop iterations per transaction (two timed wake-ups and the
+task's wake-up): what `AsyncMaster` cannot go below on an asyncio loop.  Medians of
+the rounds, and each master's ratio to libmodbus.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import tempfile
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import bench_client as B
+
+ROOT = str(Path(__file__).resolve().parent.parent)
+
+#: the hand-written floor (see the module docstring); prints tx/s and CPU us per tx
+FLOOR = r"""
+import asyncio, os, sys, time
+import serial
+from pyrtu.core import _backend
+from pyrtu.core.line import LineConfig
+from pyrtu.drivers.aio import run
+path, n, baud = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+ser = serial.Serial(path, baud, timeout=0)  # (kept: its descriptor is read)
+fd = ser.fd
+req = _backend.active.add_crc(bytes.fromhex("07030000000a"))
+line = LineConfig(baudrate=baud, parity="N")
+t35, answer_time = line.t35_time, line.t35_time + 33 * line.char_time
+async def main():
+    loop = asyncio.get_running_loop()
+    last = [time.monotonic()]
+    async def one():
+        fut, buf, reading = loop.create_future(), bytearray(), [False]
+        def got():
+            try:
+                buf.extend(os.read(fd, 256))
+            except BlockingIOError:
+                pass
+            if len(buf) >= 25:
+                if reading[0]:
+                    loop.remove_reader(fd)
+                last[0] = time.monotonic()
+                fut.set_result(bytes(buf))
+            elif not reading[0]:
+                reading[0] = True
+                loop.add_reader(fd, got)
+        def send():
+            try:
+                os.read(fd, 256)
+            except BlockingIOError:
+                pass
+            os.write(fd, req)
+            loop.call_at(time.monotonic() + answer_time, got)
+        loop.call_at(last[0] + t35, send)
+        return await fut
+    for _ in range(5):
+        await one()
+    c0, t0 = time.thread_time(), time.perf_counter()
+    for _ in range(n):
+        await one()
+    print(n / (time.perf_counter() - t0), (time.thread_time() - c0) / n * 1e6)
+run(main())
+"""
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--rounds", type=int, default=5)
+    ap.add_argument("--bauds", type=int, nargs="+", default=[9600, 115200])
+    args = ap.parse_args()
+    peers = B.build_peers(Path(tempfile.mkdtemp(prefix="pyrtu-peers-")))
+    programs = {"floor": FLOOR, "Master": B._BASELINE, "AsyncMaster": B._BASELINE_ASYNC}
+    print("| baud | program | µs/tx | / libmodbus |")
+    print("|---:|---|---:|---:|")
+    for baud in args.bauds:
+        n = 40 if baud < 19200 else 300
+        runs: dict[str, list[float]] = {}
+        with B.vbus(baud) as (paths, _hub), B.slave(paths[1], baud):
+            for _ in range(args.rounds):
+                for name, program in programs.items():
+                    r = B.baseline_master(ROOT, paths[0], baud, n, program)
+                    runs.setdefault(name, []).append(r["cpu_us"])
+                lm = B.libmodbus_master(peers, paths[0], baud, n)
+                runs.setdefault("libmodbus", []).append(lm["cpu_us"])
+        med = {k: statistics.median(v) for k, v in runs.items()}
+        for name in [*programs, "libmodbus"]:
+            print(f"| {baud} | {name} | {med[name]:.0f} | {med[name] / med['libmodbus']:.2f}x |")
+
+
+if __name__ == "__main__":
+    main()
