@@ -185,10 +185,14 @@ rtu_verdict rtu_try_head(const rtu_config *cfg, const rtu_context *ctx, const rt
     }
 
     /* 2. Silence-delimited lengths ([SL] 2.5.1.1): every t3.5 boundary in the
-     * window (strict mode: only the first), then the end if silence follows. */
-    int stop = 0;
+     * window (strict mode: only the first), then the end if silence follows.
+     * Lenient mode keeps bytes across a gap that does not close the frame: while
+     * a predicted length is still to come, the header says the frame goes on,
+     * and a CRC that happens to check on a shorter prefix (1 in 65536) must not
+     * cut it (it is a frame once the silence closes, or never). */
+    int stop = can_wait && !cfg->strict && !v->closed;
     rtu_crc_run run = {0, 0xFFFF}; /* the marks ascend, and n is past them all */
-    for (size_t i = 0; i < v->nmarks; i++) {
+    for (size_t i = 0; !stop && i < v->nmarks; i++) {
         const uint64_t rel = v->marks[i].pos - v->base;
         if (rel >= n) {
             break;

@@ -139,6 +139,45 @@ def test_usb_batched_frame_across_a_gap(backend: ModuleType) -> None:
     assert all(e.error for e in s.events())
 
 
+#: an FC 03 answer of 4 registers (13 bytes) whose first 12 bytes also end in a CRC
+#: that checks: CRC16(03 03 08 03ff 0400 0401 04) = 0x0302.  Seen on the virtual bus
+#: under load (tests/test_aio_master.py, slave 3 at register 23): the 13th byte came
+#: after a t3.5 gap and the master took the 12 bytes as an answer, "response PDU has 9
+#: bytes, expected 10".
+PREFIX_CHECKS = bytes.fromhex("03 03 08 03ff 0400 0401 0402 0300")
+
+
+def test_a_prefix_whose_crc_checks_does_not_cut_a_predicted_frame(backend: ModuleType) -> None:
+    """Lenient mode keeps bytes across a gap while the header promises more: the
+    12-byte prefix is no frame, the whole answer is; strict mode closes the frame at
+    the gap (the prefix is then a frame of its own, as [SL] 2.5.1.1 says)."""
+    answer = PREFIX_CHECKS
+    assert backend.add_crc(answer[:10]) == answer[:12]  # the coincidence itself
+    assert backend.add_crc(answer[:11]) == answer
+    char = 286e-6  # 38400 baud 8N1; t3.5 = 1.75 ms above 19200
+    for role in ("master", "monitor", "slave"):
+        f = backend.Framer(role, baudrate=38400, parity="N")
+        f.receive_data(answer[:12], 1.0)
+        f.handle_timer(1.0 + 0.003)  # t3.5 passes, the flush does not
+        assert f.next_event() is None, role
+        f.receive_data(answer[12:], 1.006 + char)
+        ev = f.next_event()
+        assert ev is not None and ev.error is None and ev.adu == answer, role
+    s = backend.Framer("master", baudrate=38400, parity="N", strict=True)
+    s.receive_data(answer[:12], 1.0)
+    s.handle_timer(1.003)
+    ev = s.next_event()
+    assert ev is not None and ev.error is None and ev.adu == answer[:12]
+    # lenient, and the silence closes the frame (the flush): the prefix is a frame then
+    f = backend.Framer("master", baudrate=38400, parity="N", flush_timeout=0.02)
+    f.receive_data(answer[:12], 1.0)
+    f.handle_timer(1.003)
+    assert f.next_event() is None
+    f.handle_timer(1.02)
+    ev = f.next_event()
+    assert ev is not None and ev.error is None and ev.adu == answer[:12]
+
+
 def test_valid_frame_after_gap_beats_incomplete_bytes(backend: ModuleType) -> None:
     f = backend.Framer("slave", baudrate=19200)
     junk = bytes.fromhex("0110000000020400")  # FC 16 head that promises 13 bytes

@@ -206,12 +206,18 @@ def try_head(cfg: Config, ctx: Context, v: View, allow_skip: bool) -> tuple[int,
             return ACT_FRAME, length, KIND_EXCEPTION if d[1] & 0x80 else kind
         pnotes[k] = note
 
-    # Silence-delimited lengths: each t3.5 boundary (strict: the first), then the end.
-    boundaries = [
-        pos - v.base for pos, flags in v.marks[v.mi :] if flags & MARK_T35 and 0 < pos - v.base < n
-    ]
-    if v.silent_end:
-        boundaries.append(n)
+    # Silence-delimited lengths: each t3.5 boundary (strict: the first), then the end;
+    # none in lenient mode while a predicted length may still come and the silence
+    # does not close the frame (a CRC that checks on a prefix must not cut it).
+    boundaries = []
+    if not (can_wait and not cfg.strict and not v.closed):
+        boundaries = [
+            pos - v.base
+            for pos, flags in v.marks[v.mi :]
+            if flags & MARK_T35 and 0 < pos - v.base < n
+        ]
+        if v.silent_end:
+            boundaries.append(n)
     for p in boundaries:
         note = _check(cfg, v, p)
         if not note:
