@@ -12,9 +12,8 @@ slave (bench_client.py's buses, slave and programs): medians of the rounds.
 from __future__ import annotations
 
 import argparse
-import statistics
 import sys
-import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -30,23 +29,17 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--bauds", type=int, nargs="+", default=[9600, 115200])
     args = ap.parse_args()
-    peers = B.build_peers(Path(tempfile.mkdtemp(prefix="pyrtu-peers-")))
     programs = {"Master": B._BASELINE, "AsyncMaster": B._BASELINE_ASYNC}
+
+    def one_round(i: int, path: str, baud: int, n: int) -> Iterator[tuple[str, float]]:
+        trees = [(args.before, "before"), (ROOT, "now")]
+        for name, program in programs.items():
+            for tree, label in trees[:: 1 if i % 2 else -1]:  # either first in turn
+                yield f"{name} {label}", B.baseline_master(tree, path, baud, n, program)["cpu_us"]
+
     print("| baud | master | before µs/tx | now µs/tx | now / before | now / libmodbus |")
     print("|---:|---|---:|---:|---:|---:|")
-    for baud in args.bauds:
-        n = 40 if baud < 19200 else 300
-        runs: dict[str, list[float]] = {}
-        with B.vbus(baud) as (paths, _hub), B.slave(paths[1], baud):
-            for i in range(args.rounds):
-                trees = [(args.before, "before"), (ROOT, "now")]
-                for name, program in programs.items():
-                    for tree, label in trees[:: 1 if i % 2 else -1]:  # either first in turn
-                        r = B.baseline_master(tree, paths[0], baud, n, program)
-                        runs.setdefault(f"{name} {label}", []).append(r["cpu_us"])
-                lm = B.libmodbus_master(peers, paths[0], baud, n)
-                runs.setdefault("libmodbus", []).append(lm["cpu_us"])
-        med = {k: statistics.median(v) for k, v in runs.items()}
+    for baud, med in B.cpu_rounds(args.bauds, args.rounds, one_round):
         for name in programs:
             b, a = med[f"{name} before"], med[f"{name} now"]
             print(

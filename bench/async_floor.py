@@ -16,9 +16,8 @@ the rounds, and each master's ratio to libmodbus.
 from __future__ import annotations
 
 import argparse
-import statistics
 import sys
-import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -82,21 +81,15 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--bauds", type=int, nargs="+", default=[9600, 115200])
     args = ap.parse_args()
-    peers = B.build_peers(Path(tempfile.mkdtemp(prefix="pyrtu-peers-")))
     programs = {"floor": FLOOR, "Master": B._BASELINE, "AsyncMaster": B._BASELINE_ASYNC}
+
+    def one_round(i: int, path: str, baud: int, n: int) -> Iterator[tuple[str, float]]:
+        for name, program in programs.items():
+            yield name, B.baseline_master(ROOT, path, baud, n, program)["cpu_us"]
+
     print("| baud | program | µs/tx | / libmodbus |")
     print("|---:|---|---:|---:|")
-    for baud in args.bauds:
-        n = 40 if baud < 19200 else 300
-        runs: dict[str, list[float]] = {}
-        with B.vbus(baud) as (paths, _hub), B.slave(paths[1], baud):
-            for _ in range(args.rounds):
-                for name, program in programs.items():
-                    r = B.baseline_master(ROOT, paths[0], baud, n, program)
-                    runs.setdefault(name, []).append(r["cpu_us"])
-                lm = B.libmodbus_master(peers, paths[0], baud, n)
-                runs.setdefault("libmodbus", []).append(lm["cpu_us"])
-        med = {k: statistics.median(v) for k, v in runs.items()}
+    for baud, med in B.cpu_rounds(args.bauds, args.rounds, one_round):
         for name in [*programs, "libmodbus"]:
             print(f"| {baud} | {name} | {med[name]:.0f} | {med[name] / med['libmodbus']:.2f}x |")
 

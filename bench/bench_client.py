@@ -35,7 +35,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -250,6 +250,28 @@ async def main():
         print(n / (time.perf_counter() - t0), (time.thread_time() - c0) / n * 1e6)
 run(main())
 """
+
+
+def cpu_rounds(
+    bauds: Iterable[int],
+    rounds: int,
+    one_round: Callable[[int, str, int, int], Iterable[tuple[str, float]]],
+) -> Iterator[tuple[int, dict[str, float]]]:
+    """Per baud rate, on one virtual bus and slave: ``rounds`` rounds of
+    ``one_round(i, path, baudrate, n)`` (its (name, CPU µs per transaction) pairs, each
+    program in a fresh interpreter), each followed by the libmodbus client; the
+    medians by name ("libmodbus" included).  ``n``: transactions per program."""
+    peers = build_peers(Path(tempfile.mkdtemp(prefix="pyrtu-peers-")))
+    for baud in bauds:
+        n = 40 if baud < 19200 else 300
+        runs: dict[str, list[float]] = {}
+        with vbus(baud) as (paths, _hub), slave(paths[1], baud):
+            for i in range(rounds):
+                for name, cpu in one_round(i, paths[0], baud, n):
+                    runs.setdefault(name, []).append(cpu)
+                lm = libmodbus_master(peers, paths[0], baud, n)
+                runs.setdefault("libmodbus", []).append(lm["cpu_us"])
+        yield baud, {k: statistics.median(v) for k, v in runs.items()}
 
 
 def libmodbus_master(binaries: PeerBinaries, path: str, baudrate: int, n: int) -> dict[str, float]:
