@@ -102,6 +102,17 @@ def test_no_wake_per_byte_on_a_timed_line(monkeypatch: pytest.MonkeyPatch) -> No
 
         m.port.read = counting_read  # type: ignore[method-assign]
         monkeypatch.setattr(mio, "read_fd", counting_ready)
+        # a repeated request's exchange reads in the backend's Exchanger (one call)
+        exchanger = m._conn.exchanger  # type: ignore[attr-defined]
+        real_run = exchanger.run
+
+        def counting_run(*args: object) -> object:
+            r = real_run(*args)
+            if r.reads:  # its bytes, and as many entries as it made reads
+                reads.extend([len(r.data)] + [0] * (r.reads - 1))
+            return r
+
+        monkeypatch.setattr(exchanger, "run", counting_run)
         for _ in range(10):
             assert m.read_holding_registers(1, 0, 10) == [1000 + i for i in range(10)]
         assert sum(reads) == 10 * 25

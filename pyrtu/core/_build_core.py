@@ -46,6 +46,7 @@ COMPILE_ARGS, LINK_ARGS = tuple(_flags), tuple(_link)
 _BINDING = """
 #include "rtu.h"
 #include "rtu_vbus.h"
+#include "rtu_xfer.h"
 static uint16_t rtu_crc16_bytes(const char *data, size_t len, uint16_t crc)
 {
     return rtu_crc16((const uint8_t *)data, len, crc);

@@ -250,3 +250,38 @@ int rtu_vbus_io_errno(const rtu_vbus_io *io);
 int64_t rtu_vbus_io_now(void);
 uint64_t rtu_vbus_io_wakeups(rtu_vbus_io *io);
 int64_t rtu_vbus_io_wake_estimate(rtu_vbus_io *io);
+
+/* csrc/rtu_xfer.h: one master exchange on a serial descriptor */
+#define RTU_XFER_ANSWER 0
+#define RTU_XFER_STALE 1
+#define RTU_XFER_SHORT 2
+#define RTU_XFER_ERRNO 3
+#define RTU_XFER_GONE 4
+#define RTU_XFER_STAGE_WRITE 1
+#define RTU_XFER_STAGE_READ 2
+typedef struct {
+    int fd;
+    int drain;
+    const uint8_t *req;
+    size_t req_len;
+    int64_t send_at;
+    int64_t first_wake;
+    int64_t timeout_ns;
+    int64_t char_ns;
+    size_t expect;
+    size_t short_len;
+    uint8_t *buf;
+    size_t cap;
+    int status;
+    int sent;
+    int err;
+    int stage;
+    int64_t start;
+    int64_t end;
+    size_t first_n;
+    int64_t first_t;
+    size_t n;
+    int64_t last_t;
+    uint32_t reads;
+} rtu_xfer;
+int rtu_xfer_io_run(rtu_xfer *x);

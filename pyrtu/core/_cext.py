@@ -9,6 +9,7 @@ is built (a cffi call costs about ten times a builtin's), else cffi calls.
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Callable, Sequence
 from types import ModuleType
@@ -28,6 +29,7 @@ from pyrtu.core.framing import (
 )
 from pyrtu.core.options import CoreOptions, flush_us_for
 from pyrtu.core.timing import Timing
+from pyrtu.core.xfer import CAPACITY, XferResult, check_plan
 
 BACKEND = "c"
 NO_TIME = -(2**63)
@@ -475,3 +477,52 @@ def _parse_tcp(role: int, data: bytes) -> CMbapFrameList:
 parse_tcp_stream = make_parse_tcp_stream(_parse_tcp)
 encode_mbap = make_encode_mbap(_mbap_encode)
 __all__ += ["MbapFramer", "encode_mbap", "parse_tcp_stream"]
+
+
+class Exchanger:
+    """One master exchange per call, in C (csrc/rtu_xfer_io.c; `pyrtu.core.xfer`)."""
+
+    def __init__(self) -> None:
+        self._x = ffi.new("rtu_xfer *")
+        self._buf = ffi.new("uint8_t[]", CAPACITY)
+        self._x.buf = self._buf
+        self._x.cap = CAPACITY
+
+    def run(
+        self,
+        fd: int,
+        drain: bool,
+        request: bytes,
+        send_at: float,
+        first_wake: float,
+        timeout: float,
+        char: float,
+        expect: int,
+        short_len: int,
+    ) -> XferResult:
+        check_plan(request, first_wake, timeout, char, expect, short_len)
+        x = self._x
+        req = ffi.from_buffer("uint8_t[]", request)
+        x.fd, x.drain, x.req, x.req_len = fd, drain, req, len(request)
+        x.send_at = math.ceil(send_at * 1e9)  # never before it
+        x.first_wake, x.timeout_ns = int(first_wake * 1e9), int(timeout * 1e9)
+        x.char_ns, x.expect, x.short_len = max(1, int(char * 1e9)), expect, short_len
+        if lib.rtu_xfer_io_run(x) != lib.RTU_OK:
+            raise ValueError(f"fd must be an open descriptor, not {fd}")
+        n = x.n
+        return XferResult(
+            x.status,
+            bool(x.sent),
+            x.start * 1e-9,
+            x.end * 1e-9,
+            ffi.buffer(self._buf, n)[:] if n else b"",
+            x.first_n,
+            x.first_t * 1e-9,
+            x.last_t * 1e-9,
+            x.err,
+            x.stage,
+            x.reads,
+        )
+
+
+__all__ += ["Exchanger"]

@@ -46,6 +46,7 @@ from pyrtu.pdu import requests as R
 from pyrtu.pdu.errors import PortError
 from pyrtu.pdu.requests import Call, Request, Rules
 from pyrtu.protocol.client import ClientProtocol, Send, Wait
+from pyrtu.protocol.client_actions import Done
 
 _monotonic = time.monotonic
 
@@ -159,6 +160,7 @@ class AsyncMaster(MasterBase):
                     start, end = await self._transmit(action.data)
                     proto.transmitted(end, start)
                 else:
+                    assert isinstance(action, Done)  # (no Exchange asked for)
                     return action.result()
         except BaseException:
             proto.abort(_monotonic())
@@ -364,6 +366,7 @@ class _Drive:
                     start, end = self._port.write(action.data)
                     proto.transmitted(end, start)
                 else:
+                    assert isinstance(action, Done)  # (no Exchange asked for)
                     self._fut.set_result(action.result())
                     return
         except Exception as exc:  # the typed errors, PortError; the task re-raises

@@ -103,6 +103,8 @@ class SerialLink:
             broadcast_delay=broadcast_delay,
             backend=be,
         )
+        #: a repeated request's exchange in one call (see pyrtu.drivers.sync_io)
+        self.exchanger = be.Exchanger() if self.port.fd is not None else None
 
     line = _of_proto("line")
     t35 = _of_proto("gap")
@@ -146,7 +148,7 @@ class SerialLink:
     def transact(self, call: Call) -> tuple[Any, float]:
         """One transaction (blocking)."""
         self.check_open()
-        value = run_sync(self.port, self.proto, call)
+        value = run_sync(self.port, self.proto, call, self.exchanger)
         return value, self.end_of(call)
 
     def close(self) -> None:

@@ -2,23 +2,30 @@
 
 All policy (silences, echo, retries, late answers, settling, when to sleep and
 when to wait for input) is in `pyrtu.protocol.ClientProtocol`, which hands out one
-action at a time (`Send`, `Wait`, `Done`); `run_sync` interprets them, with one
-way of waiting per kind of port: a descriptor (`_wait_fd`: sleeps, ``select()``
-and ``poll()``)
-or pyserial's generic timed read (`_wait_generic`: URL ports, Windows).
+action at a time (`Send`, `Wait`, `Exchange`, `Done`); `run_sync` interprets them,
+with one way of waiting per kind of port: a descriptor (`_wait_fd`: sleeps,
+``select()`` and ``poll()``) or pyserial's generic timed read (`_wait_generic`: URL
+ports, Windows).  On a descriptor it asks for `Exchange`: a repeated request's
+whole exchange in one call of the backend's `Exchanger` (C: csrc/rtu_xfer_io.c,
+the GIL released), so that Python runs once per transaction instead of once per
+wake-up.
 """
 
 from __future__ import annotations
 
+import os
 import select
 import time
 from collections.abc import Callable
 from typing import Any
 
+from pyrtu.core import xfer
 from pyrtu.drivers._slack import tighten_this_thread
 from pyrtu.drivers.port import Port, read_fd
+from pyrtu.pdu.errors import PortError
 from pyrtu.pdu.requests import Call
 from pyrtu.protocol.client import ClientProtocol, Send, Wait
+from pyrtu.protocol.client_actions import Exchange
 
 _monotonic = time.monotonic
 _sleep = time.sleep
@@ -71,22 +78,60 @@ def waiter(port: Port) -> Callable[[Wait], bytes]:
     return lambda action: _wait_fd(port, fd, action)
 
 
-def run_sync(port: Port, proto: ClientProtocol, call: Call) -> Any:
-    """Run ``call`` through ``proto`` on ``port``; the result or the typed error."""
+def exchange(port: Port, fd: int, proto: ClientProtocol, action: Exchange, run: Any) -> None:
+    """Carry out an `Exchange` with the exchanger's ``run`` and report it to ``proto``
+    (as the `Wait`, `Send` and `Wait` steps it stands for would); `PortError` as
+    `Port.read` and `Port.write` raise them."""
+    r: xfer.XferResult = run(
+        fd,
+        port.has_wire,
+        *action[:3],
+        action.timeout,
+        port.char_time,
+        action.expect,
+        action.short_len,
+    )
+    if r.sent:  # the look at the send time found the line quiet, then it went
+        proto.wait_done(b"", r.start)
+        proto.transmitted(r.end, r.start)
+    if r.status == xfer.ERRNO:
+        what = "write" if r.stage == xfer.STAGE_WRITE else "read"
+        raise PortError(port.name, f"{what} failed: {OSError(r.err, os.strerror(r.err))}")
+    if r.status == xfer.GONE:
+        raise PortError(port.name, "the device reports data but returns none (disconnected?)")
+    data = r.data
+    if not r.sent:
+        proto.wait_done(data, r.last_t if data else _monotonic())
+        return
+    if r.first_n:
+        proto.receive_data(data[: r.first_n], r.first_t)
+    if len(data) > r.first_n:
+        proto.receive_data(data[r.first_n :], r.last_t)
+
+
+def run_sync(port: Port, proto: ClientProtocol, call: Call, exchanger: Any = None) -> Any:
+    """Run ``call`` through ``proto`` on ``port``; the result or the typed error.
+    ``exchanger``: the backend's `pyrtu.core.xfer.Exchanger` for this port (None: the
+    steps one by one)."""
     slave, pdu, decode = call
     proto.start(slave, pdu, decode, _monotonic())
     if proto.gap > 0:
         tighten_this_thread()  # silences and sleeps on ready_at wake on time
+    fd = port.fd
+    run = exchanger.run if exchanger is not None and fd is not None else None
     wait = waiter(port)
     try:
         while True:
-            action = proto.next_action(_monotonic())
+            action = proto.next_action(_monotonic(), run is not None)
             if isinstance(action, Wait):
                 data = wait(action)
                 proto.wait_done(data, _monotonic())
             elif isinstance(action, Send):
                 start, end = port.write(action.data)
                 proto.transmitted(end, start)
+            elif isinstance(action, Exchange):
+                assert fd is not None
+                exchange(port, fd, proto, action, run)
             else:
                 break
     except BaseException:

@@ -6,6 +6,7 @@ write bytes and tell the time) asks the protocol for its next action and carries
 it out; docs/PROTOCOL.md shows a custom driver for each side.
 
 * client (master): `ClientProtocol.next_action(now)` -> `Send` | `Wait` | `Done`
+  (and `Exchange` for a driver that asks: ``next_action(now, exchange=True)``)
 * server (slave): `ServerProtocol.next_action(now)` -> `Reply` | `Listen` | `Idle`
 """
 
@@ -13,7 +14,7 @@ from __future__ import annotations
 
 # the client (master) side: one transaction at a time, handed out as actions
 from pyrtu.protocol.client import ClientProtocol
-from pyrtu.protocol.client_actions import Action, Done, Send, State, Wait
+from pyrtu.protocol.client_actions import Action, Done, Exchange, Send, State, Wait
 
 # the server (slave) side: requests in, answers out at their time
 from pyrtu.protocol.server import Application, Idle, Listen, Reply, ServerAction, ServerProtocol
@@ -23,6 +24,7 @@ __all__ = [
     "Application",
     "ClientProtocol",
     "Done",
+    "Exchange",
     "Idle",
     "Listen",
     "Reply",

@@ -47,6 +47,7 @@ from pyrtu.protocol.client_actions import (
     Action,
     Decoder,
     Done,
+    Exchange,
     Send,
     State,
     Wait,
@@ -73,6 +74,12 @@ def _identity(pdu: bytes) -> bytes:
 def _strip_crc(adu: bytes) -> bytes:
     return adu[:-2]
 
+
+#: functions whose answer's length follows from the request ([MB] 6.1-6.6, 6.11,
+#: 6.12, 6.16, 6.17): a learned length holds for the next answer (see `Exchange`)
+_FIXED_ANSWER = frozenset((1, 2, 3, 4, 5, 6, 15, 16, 22, 23))
+#: an RTU exception answer: address, function | 0x80, code, CRC ([MB] 7)
+_EXCEPTION_ADU = 5
 
 #: ASCII requests have no max_adu check (as before: the limit is RTU's)
 _NO_LIMIT = 1 << 62
@@ -168,6 +175,8 @@ class ClientProtocol(AnswerTiming):
         self._one_wake = self.gap > 0
         #: see ready_at: wake-ups late by a character or more settle on the answer's end
         self._late_wakes = self._one_wake and self._char < LATE_WAKE_CHAR
+        #: a repeated request may go as one `Exchange` (a timed, lenient RTU line)
+        self._exchange = self._one_wake and line.mode == "rtu" and not line.strict
         self._adus.clear()
         self._sizes.clear()
         # what differs between RTU and ASCII, chosen once per line: the framer's core
@@ -314,13 +323,19 @@ class ClientProtocol(AnswerTiming):
         elif first and self._late_wakes and not self.echo:
             self._woke_late()
 
-    def next_action(self, now: float) -> Action:
+    def next_action(self, now: float, exchange: bool = False) -> Action:
         """What the driver does next (see the module docstring): `Send` the request,
         `Wait` (a sleep on ``ready_at`` while an answer comes in, a wait for input
         until the attempt's deadline, a sleep to the send time, or a look for stale
         input just before the request goes), or `Done` (then the protocol is idle
-        again).  Call it after each of the protocol's inputs."""
+        again).  Call it after each of the protocol's inputs.  ``exchange``: the
+        driver can carry out an `Exchange` (`pyrtu.core.xfer`), handed out instead
+        of those steps where the request is one whose answer length is known."""
         state = self.state
+        if exchange and (state is _SEND or state is _QUIET):
+            plan = self._exchange_plan()
+            if plan is not None:
+                return plan
         if state is _ANSWER:
             needed = self.needed()
             if self._nap:  # bytes are due: sleep until they can all be in
@@ -340,6 +355,26 @@ class ClientProtocol(AnswerTiming):
             answered = error is None and self._decode is not None
             return Done(self._result, error, self.answer_end if answered else None)
         raise RuntimeError("no transaction (start one first)")
+
+    def _exchange_plan(self) -> Exchange | None:
+        """SEND or QUIET: the whole exchange of a repeated request, on the times
+        `send_at` and `ready_at` would give (None where it does not apply: ASCII, an
+        echo, strict framing, a broadcast, an answer of unknown or variable length)."""
+        if not self._exchange or self.echo or self._decode is None:
+            return None
+        size = self._sizes.get(self._adu, 0)
+        if size < _EXCEPTION_ADU or self._fc not in _FIXED_ANSWER:
+            return None
+        send_at = self.send_at() if self.state is _QUIET else 0.0
+        first = self.gap + self._turn.get(self._slave, 0.0) + (size - 1) * self._char
+        return Exchange(
+            self._adu,
+            min(send_at, self._give_up),
+            min(first, self.timeout),
+            self.timeout,
+            size,
+            _EXCEPTION_ADU,
+        )
 
     def wait_done(self, data: bytes, now: float) -> None:
         """A `Wait` ended at ``now`` with ``data`` read (b"": none came)."""

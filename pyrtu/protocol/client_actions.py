@@ -15,6 +15,14 @@ type per stream, `Action`); a driver carries it out and reports back:
     ``needed``: the bytes the protocol still awaits (a lower bound); 0: none
     (a wait for the send time, a look for stale input), so that a driver may as
     well wake on input (it is stale) and need not expect any after the wait.
+`Exchange` ``(data, send_at, first_wake, timeout, expect, short_len)``
+    only for a driver that asks (``next_action(now, exchange=True)``), in place of
+    the look, `Send` and `Wait` steps of a repeated request on a timed RTU line
+    (its answer's length learned, no echo): `pyrtu.core.xfer.Exchanger` carries the
+    steps out in one call, with the protocol's times.  The driver reports what it
+    saw with the same inputs: input found at the send time (nothing sent) with
+    ``wait_done(data, now)``; else ``transmitted(end, start)``, then the first
+    read's bytes and the rest with ``receive_data`` at their times.
 `Done` ``(value, error, end)``
     the transaction is over: ``result()`` returns ``value`` or raises ``error``;
     ``end`` is when the answer's last byte arrived (None without an answer).
@@ -69,6 +77,20 @@ class Wait(NamedTuple):
     needed: int
 
 
+class Exchange(NamedTuple):
+    """Look for stale input at ``send_at`` (then send nothing), send ``data``, read
+    first at ``first_wake`` seconds after the end of transmission and on until
+    ``expect`` bytes (``short_len`` for an exception answer) or ``timeout`` seconds
+    after it; then report as the module docstring says."""
+
+    data: bytes
+    send_at: float
+    first_wake: float
+    timeout: float
+    expect: int
+    short_len: int
+
+
 class Done(NamedTuple):
     """The transaction is over: ``value`` or ``error``; ``end``: when the answer's
     last byte arrived (None: no answer, e.g. a broadcast or an error)."""
@@ -85,7 +107,7 @@ class Done(NamedTuple):
 
 
 #: what `ClientProtocol.next_action` hands the driver
-Action = Send | Wait | Done
+Action = Send | Wait | Exchange | Done
 
 
 def new_counters() -> dict[str, int]:
@@ -101,6 +123,7 @@ __all__ = [
     "Action",
     "Decoder",
     "Done",
+    "Exchange",
     "Send",
     "State",
     "Wait",

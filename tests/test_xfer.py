@@ -1,0 +1,207 @@
+"""The exchange step (pyrtu.core.xfer: csrc/rtu_xfer_io.c and its twin
+pyrtu/core/_pure/xfer.py) on a real pseudo-terminal, on both backends: what it sends,
+reads and reports, and that C and the twin agree, errors included."""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+import tty
+from collections.abc import Iterator
+from types import ModuleType
+
+import pytest
+
+from pyrtu.core import xfer
+
+REQUEST = bytes.fromhex("0703000000 0a c4 6f".replace(" ", ""))
+CHAR = 10 / 115200
+
+
+@pytest.fixture
+def pty() -> Iterator[tuple[int, int]]:
+    """(device, line): ``line`` is the tty end the exchanger uses (raw, non-blocking),
+    ``device`` the other end, which plays the slave."""
+    device, line = os.openpty()
+    tty.setraw(line)
+    os.set_blocking(line, False)
+    yield device, line
+    for fd in (device, line):
+        try:
+            os.close(fd)
+        except OSError:
+            pass
+
+
+def answer_of(count: int, backend: ModuleType) -> bytes:
+    return backend.add_crc(bytes((7, 3, 2 * count)) + bytes(range(2 * count)))  # type: ignore[no-any-return]
+
+
+def play(device: int, replies: list[tuple[float, bytes]], got: list[bytes]) -> threading.Thread:
+    """A slave thread: read the request, then write each reply chunk ``delay``
+    seconds after the previous one."""
+
+    def run() -> None:
+        got.append(os.read(device, 256))
+        for delay, chunk in replies:
+            time.sleep(delay)
+            os.write(device, chunk)
+
+    t = threading.Thread(target=run, daemon=True)
+    t.start()
+    return t
+
+
+def run(
+    backend: ModuleType,
+    line: int,
+    *,
+    expect: int,
+    timeout: float = 0.5,
+    send_at: float = 0.0,
+    first_wake: float = 0.002,
+) -> xfer.XferResult:
+    ex = backend.Exchanger()
+    return ex.run(line, False, REQUEST, send_at, first_wake, timeout, CHAR, expect, 5)  # type: ignore[no-any-return]
+
+
+def test_an_answer_in_pieces_is_read_whole(backend: ModuleType, pty: tuple[int, int]) -> None:
+    device, line = pty
+    answer = answer_of(10, backend)
+    got: list[bytes] = []
+    t = play(device, [(0.003, answer[:5]), (0.003, answer[5:])], got)
+    r = run(backend, line, expect=len(answer))
+    t.join(2)
+    assert got == [REQUEST]
+    assert r.status == xfer.ANSWER and r.sent and r.data == answer
+    assert 1 <= r.first_n <= len(answer) and 1 <= r.reads <= 4
+    assert r.start <= r.end <= r.first_t <= r.last_t
+    assert r.err == r.stage == 0
+
+
+def test_stale_input_at_the_send_time_sends_nothing(
+    backend: ModuleType, pty: tuple[int, int]
+) -> None:
+    device, line = pty
+    os.write(device, b"\x01\x02\x03")
+    time.sleep(0.01)
+    r = run(backend, line, expect=25, send_at=time.monotonic() + 0.002)
+    assert r.status == xfer.STALE and not r.sent and r.data == b"\x01\x02\x03"
+    assert r.last_t >= r.start  # (start: 0, nothing was written)
+    os.set_blocking(device, False)
+    with pytest.raises(BlockingIOError):
+        os.read(device, 64)  # the request never went
+
+
+def test_the_send_time_is_kept(backend: ModuleType, pty: tuple[int, int]) -> None:
+    device, line = pty
+    answer = answer_of(2, backend)
+    got: list[bytes] = []
+    t = play(device, [(0.0, answer)], got)
+    at = time.monotonic() + 0.02
+    r = run(backend, line, expect=len(answer), send_at=at)
+    t.join(2)
+    assert r.status == xfer.ANSWER and r.start >= at
+
+
+def test_an_exception_answer_ends_the_exchange(backend: ModuleType, pty: tuple[int, int]) -> None:
+    device, line = pty
+    exc = backend.add_crc(bytes((7, 0x83, 2)))
+    got: list[bytes] = []
+    t = play(device, [(0.002, exc)], got)
+    r = run(backend, line, expect=25, timeout=5.0)
+    t.join(2)
+    assert r.status == xfer.ANSWER and r.data == exc
+    assert r.last_t - r.end < 2.5  # not the 5 s deadline
+
+
+def test_no_answer_ends_at_the_deadline(backend: ModuleType, pty: tuple[int, int]) -> None:
+    device, line = pty
+    got: list[bytes] = []
+    t = play(device, [], got)
+    r = run(backend, line, expect=25, timeout=0.05)
+    t.join(2)
+    assert r.status == xfer.SHORT and r.sent and r.data == b"" and r.first_n == 0
+    assert time.monotonic() - r.end >= 0.05
+
+
+def test_a_short_answer_is_reported_with_its_bytes(
+    backend: ModuleType, pty: tuple[int, int]
+) -> None:
+    device, line = pty
+    got: list[bytes] = []
+    t = play(device, [(0.001, b"\x07\x03\x14\x00")], got)
+    r = run(backend, line, expect=25, timeout=0.1)
+    t.join(2)
+    assert r.status == xfer.SHORT and r.data == b"\x07\x03\x14\x00" and r.reads == 1
+
+
+def test_a_vanished_device_is_an_error(backend: ModuleType, pty: tuple[int, int]) -> None:
+    device, line = pty
+    got: list[bytes] = []
+    t = play(device, [], got)
+    t.join(2)
+    os.close(device)  # the other end goes: the tty reports EIO (a pulled adapter)
+    r = run(backend, line, expect=25, timeout=0.2)
+    assert r.status in (xfer.ERRNO, xfer.GONE)
+    if r.status == xfer.ERRNO:
+        assert r.err and r.stage in (xfer.STAGE_READ, xfer.STAGE_WRITE)
+
+
+def test_the_backends_agree(both: tuple[ModuleType, ModuleType]) -> None:
+    """The same scenarios on C and on the twin report the same (times aside)."""
+    outcomes = []
+    for backend in both:
+        seen = []
+        for replies, expect, timeout in (
+            ([(0.002, answer_of(10, backend))], 25, 0.5),
+            ([(0.002, answer_of(10, backend)[:7])], 25, 0.05),
+            ([(0.002, backend.add_crc(b"\x07\x83\x02"))], 25, 0.5),
+            ([], 25, 0.02),
+        ):
+            device, line = os.openpty()
+            try:
+                tty.setraw(line)
+                os.set_blocking(line, False)
+                got: list[bytes] = []
+                t = play(device, replies, got)
+                r = run(backend, line, expect=expect, timeout=timeout)
+                t.join(2)
+                seen.append((r.status, r.sent, r.data, got))
+            finally:
+                os.close(device)
+                os.close(line)
+        outcomes.append(seen)
+    assert outcomes[0] == outcomes[1]
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"request": b""}, "request must not be empty"),
+        ({"expect": 0}, "expect must be 1..4096, not 0"),
+        ({"expect": 5000}, "expect must be 1..4096, not 5000"),
+        ({"short_len": 30}, r"short_len must be 0..expect \(25\), not 30"),
+        ({"char": 0.0}, "char must be a positive number of seconds, not 0.0"),
+        ({"timeout": -1.0}, "first_wake and timeout must be non-negative"),
+        ({"fd": -1}, "fd must be an open descriptor, not -1"),
+    ],
+)
+def test_bad_arguments_are_refused_alike(
+    backend: ModuleType, change: dict[str, object], message: str
+) -> None:
+    args: dict[str, object] = {
+        "fd": 0,
+        "drain": False,
+        "request": REQUEST,
+        "send_at": 0.0,
+        "first_wake": 0.0,
+        "timeout": 0.1,
+        "char": CHAR,
+        "expect": 25,
+        "short_len": 5,
+    }
+    args.update(change)
+    with pytest.raises(ValueError, match=message):
+        backend.Exchanger().run(**args)
