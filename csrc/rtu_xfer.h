@@ -62,4 +62,19 @@ typedef struct {
  * argument, RTU_EUNSUPPORTED where there is no POSIX I/O. */
 int rtu_xfer_io_run(rtu_xfer *x);
 
+/* A thread of its own that runs exchanges for an event loop (AsyncMaster): the
+ * caller fills the rtu_xfer it was started with, submits, and watches notify_fd,
+ * to which the thread writes one byte when the exchange is over (then x's results
+ * and rtu_xfer_worker_rc are valid).  The worker is caller-allocated
+ * (rtu_xfer_worker_size bytes) and must not be freed before rtu_xfer_worker_stop
+ * returned.  The thread blocks every signal (they are the main thread's). */
+#define RTU_EBUSY (-4) /* an exchange is under way */
+typedef struct rtu_xfer_worker rtu_xfer_worker;
+size_t rtu_xfer_worker_size(void);
+int rtu_xfer_worker_start(rtu_xfer_worker *w, rtu_xfer *x, int notify_fd);
+int rtu_xfer_worker_submit(rtu_xfer_worker *w);
+int rtu_xfer_worker_rc(rtu_xfer_worker *w);
+/* ends the thread after the exchange under way (if any) and joins it */
+void rtu_xfer_worker_stop(rtu_xfer_worker *w);
+
 #endif

@@ -13,6 +13,7 @@ from pyrtu.core.line import LineConfig
 from pyrtu.pdu.errors import ExceptionResponseError, NoResponseError
 from pyrtu.pdu.requests import read_holding_registers, write_register
 from pyrtu.protocol.client import ClientProtocol, Done, Send, State, Wait
+from pyrtu.protocol.client_actions import Exchange
 
 LINE = LineConfig(baudrate=9600, parity="N")
 CHAR, T35 = LINE.char_time, LINE.t35_time
@@ -116,3 +117,60 @@ def test_an_echo_is_slept_on_then_the_answer(backend: ModuleType) -> None:
     assert type(wake) is Wait and not wake.listen and wake.until > end
     p.wait_done(bytes(backend.add_crc(bytes.fromhex("01030000000a"))), wake.until)
     assert p.counters["echo_mismatches"] == 0 and p.state is State.ANSWER
+
+
+def test_a_repeated_request_is_offered_as_one_exchange(backend: ModuleType) -> None:
+    """A driver that asks gets an `Exchange` for a request whose answer it has seen:
+    the protocol's own times (t3.5 after the answer, the first read a character
+    before the learned answer's end), its length and the exception's; reported
+    through the usual inputs, the transaction ends as the steps would end it."""
+    p = started(backend)
+    assert type(p.next_action(100.0, exchange=True)) is Wait  # no answer length learned yet
+    end = send(p, 100.0)
+    ans = answer(backend)
+    t = end + T35 + len(ans) * CHAR
+    p.wait_done(ans, t)
+    assert p.next_action(t).result() == VALUES
+    p.start(*read_holding_registers(1, 0, 10), now=t)
+    plan = p.next_action(t, exchange=True)
+    assert type(plan) is Exchange
+    assert plan.data == p.encode(1, read_holding_registers(1, 0, 10).pdu)
+    assert plan.send_at == pytest.approx(t + T35)  # t3.5 after the answer's last byte
+    turn = p.turnaround(1) or 0.0
+    assert plan.first_wake == pytest.approx(T35 + turn + (len(ans) - 1) * CHAR)
+    assert (plan.timeout, plan.expect, plan.short_len) == (0.5, len(ans), 5)
+    # stale input at the send time: nothing sent, the silence starts again
+    p.wait_done(b"\x00\x01", plan.send_at)
+    again = p.next_action(plan.send_at, exchange=True)
+    assert type(again) is Exchange
+    assert again.send_at == pytest.approx(plan.send_at + T35)
+    assert p.counters["discarded_stale"] == 2
+    # sent at that time, the answer in two reads
+    start = again.send_at
+    p.wait_done(b"", start)
+    stop = start + 8 * CHAR
+    p.transmitted(stop, start)
+    first = stop + again.first_wake
+    p.receive_data(ans[:-1], first)
+    p.receive_data(ans[-1:], first + CHAR)
+    done = p.next_action(first + CHAR, exchange=True)
+    assert type(done) is Done and done.result() == VALUES
+    assert done.end == pytest.approx(first + CHAR, abs=1e-6)
+
+
+def test_no_exchange_where_it_does_not_apply(backend: ModuleType) -> None:
+    """ASCII, an echo, strict framing, a line without timing, a broadcast: the steps."""
+    for line, kw in (
+        (LINE.replace(mode="ascii"), {}),
+        (LINE, {"echo": True}),
+        (LINE.replace(strict=True), {}),
+        (LineConfig(baudrate=9600, parity="N", t35=0), {}),
+    ):
+        p = ClientProtocol(line, timeout=0.5, backend=backend, **kw)  # type: ignore[arg-type]
+        p._sizes[p.encode(1, read_holding_registers(1, 0, 10).pdu)] = 25
+        p.start(*read_holding_registers(1, 0, 10), now=100.0)
+        assert type(p.next_action(100.0, exchange=True)) is not Exchange, line
+    p = ClientProtocol(LINE, timeout=0.5, backend=backend)
+    call = write_register(0, 1, 7)
+    p.start(*call, now=100.0)  # a broadcast: no answer awaited
+    assert type(p.next_action(100.0, exchange=True)) is not Exchange

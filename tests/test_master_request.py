@@ -9,7 +9,12 @@ from pyrtu import pdu as P
 from pyrtu.core.line import LineConfig
 from pyrtu.drivers import sync_io as mio
 from pyrtu.drivers.master import Master
-from pyrtu.pdu.errors import ExceptionResponseError
+from pyrtu.pdu.errors import (
+    ExceptionResponseError,
+    ModbusError,
+    NoResponseError,
+    PortError,
+)
 
 
 def test_request_raw_pdu(backend: object) -> None:
@@ -150,3 +155,60 @@ def test_unhashable_read_arguments_name_the_argument() -> None:
     for args, name in (([1], 0, 10), "slave"), ((1, {}, 10), "address"):
         with pytest.raises(TypeError, match=name):
             R.read_coils(*args)  # type: ignore[arg-type]
+
+
+def test_a_repeated_read_goes_as_one_exchange(backend: object) -> None:
+    """On a descriptor, the second and later reads of a request are one call of the
+    backend's Exchanger each (C or the twin): same answers, one exchange per read."""
+    vbus = pytest.importorskip("pyrtu.vbus")
+    name = backend.BACKEND  # type: ignore[attr-defined]
+    with (
+        vbus.VirtualBus(2, baudrate=115200, parity="N") as bus,
+        serving(bus.paths[1], store=make_store(), baudrate=115200),
+        Master(bus.paths[0], 115200, parity="N", timeout=1.0, backend=name) as m,
+    ):
+        exchanger = m._conn.exchanger  # type: ignore[attr-defined]
+        assert type(exchanger).__module__.startswith(
+            "pyrtu.core._cext" if name == "c" else "pyrtu.core._pure"
+        )
+        calls = []
+        real_run = exchanger.run
+
+        def counting_run(*args: object) -> object:
+            r = real_run(*args)
+            calls.append(r)
+            return r
+
+        exchanger.run = counting_run
+        for _ in range(10):
+            assert m.read_holding_registers(1, 0, 10) == [1000 + i for i in range(10)]
+        assert len(calls) >= 9 and all(r.sent for r in calls)
+        assert m.counters["responses"] == 10 and m.counters["timeouts"] == 0
+
+
+def test_a_drop_pulled_out_under_an_exchange_is_a_port_error(backend: object) -> None:
+    """The master's drop vanishes while a repeated request is under way in the
+    Exchanger: `PortError` naming the port (or no answer), never a hang; the master
+    opened again on the replugged drop reads again."""
+    vbus = pytest.importorskip("pyrtu.vbus")
+    name = backend.BACKEND  # type: ignore[attr-defined]
+    with (
+        vbus.VirtualBus(2, baudrate=115200, parity="N") as bus,
+        serving(bus.paths[1], store=make_store(), baudrate=115200),
+    ):
+        m = Master(bus.paths[0], 115200, parity="N", timeout=0.3, backend=name)
+        try:
+            for _ in range(3):
+                assert m.read_holding_registers(1, 0, 1) == [1000]
+            bus.unplug(0, after_bytes=3)
+            with pytest.raises(ModbusError) as info:
+                for _ in range(5):
+                    m.read_holding_registers(1, 0, 1)
+            assert isinstance(info.value, PortError | NoResponseError), info.value
+            if isinstance(info.value, PortError):
+                assert bus.paths[0] in str(info.value)
+        finally:
+            m.close()
+        bus.replug(0)
+        with Master(bus.paths[0], 115200, parity="N", timeout=0.5, backend=name) as again:
+            assert again.read_holding_registers(1, 0, 1) == [1000]

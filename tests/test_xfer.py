@@ -80,6 +80,20 @@ def test_an_answer_in_pieces_is_read_whole(backend: ModuleType, pty: tuple[int, 
     assert r.err == r.stage == 0
 
 
+def test_a_real_line_is_drained_and_timed(backend: ModuleType, pty: tuple[int, int]) -> None:
+    """``drain``: tcdrain after the write, and the transmission never ends before its
+    characters' time on the line."""
+    device, line = pty
+    answer = answer_of(2, backend)
+    got: list[bytes] = []
+    t = play(device, [(0.002, answer)], got)
+    slow = 10 / 1200  # 1200 baud: 8 characters take 66.7 ms
+    r = backend.Exchanger().run(line, True, REQUEST, 0.0, 0.0, 0.5, slow, len(answer), 5)
+    t.join(2)
+    assert r.status == xfer.ANSWER and r.data == answer and got == [REQUEST]
+    assert r.end >= r.start + len(REQUEST) * slow - 1e-6
+
+
 def test_stale_input_at_the_send_time_sends_nothing(
     backend: ModuleType, pty: tuple[int, int]
 ) -> None:
@@ -205,3 +219,30 @@ def test_bad_arguments_are_refused_alike(
     args.update(change)
     with pytest.raises(ValueError, match=message):
         backend.Exchanger().run(**args)
+
+
+def test_the_async_exchanger_runs_on_its_thread(backend: ModuleType, pty: tuple[int, int]) -> None:
+    """`AsyncExchanger`: submit returns at once, the pipe wakes the caller when the
+    exchange is over, the report is `Exchanger`'s; one exchange at a time."""
+    import select
+
+    device, line = pty
+    answer = answer_of(10, backend)
+    ax = backend.AsyncExchanger()
+    try:
+        for _ in range(2):
+            got: list[bytes] = []
+            t = play(device, [(0.003, answer)], got)
+            ax.submit(line, False, REQUEST, 0.0, 0.002, 0.5, CHAR, len(answer), 5)
+            with pytest.raises(RuntimeError, match="under way"):
+                ax.submit(line, False, REQUEST, 0.0, 0.002, 0.5, CHAR, len(answer), 5)
+            assert select.select([ax.fd], [], [], 2.0)[0] == [ax.fd]
+            r = ax.result()
+            t.join(2)
+            assert r is not None and r.status == xfer.ANSWER and r.data == answer
+            assert got == [REQUEST]
+            assert ax.result() == r  # the last exchange's report, until the next
+    finally:
+        ax.close()
+    with pytest.raises(ValueError, match="closed"):
+        ax.submit(line, False, REQUEST, 0.0, 0.002, 0.5, CHAR, 25, 5)

@@ -285,3 +285,10 @@ typedef struct {
     uint32_t reads;
 } rtu_xfer;
 int rtu_xfer_io_run(rtu_xfer *x);
+#define RTU_EBUSY -4
+typedef struct rtu_xfer_worker rtu_xfer_worker;
+size_t rtu_xfer_worker_size(void);
+int rtu_xfer_worker_start(rtu_xfer_worker *w, rtu_xfer *x, int notify_fd);
+int rtu_xfer_worker_submit(rtu_xfer_worker *w);
+int rtu_xfer_worker_rc(rtu_xfer_worker *w);
+void rtu_xfer_worker_stop(rtu_xfer_worker *w);

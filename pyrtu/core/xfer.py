@@ -66,6 +66,38 @@ class Exchanger(Protocol):
         ...
 
 
+class AsyncExchanger(Protocol):
+    """A backend's exchanges on a thread of their own, for an event loop
+    (``backend.AsyncExchanger()``: one per port; C: csrc/rtu_xfer_io.c's worker).
+    `submit` takes `Exchanger.run`'s arguments and returns at once; the loop watches
+    ``fd`` (readable once the exchange is over) and calls `result`."""
+
+    fd: int
+
+    def submit(
+        self,
+        fd: int,
+        drain: bool,
+        request: bytes,
+        send_at: float,
+        first_wake: float,
+        timeout: float,
+        char: float,
+        expect: int,
+        short_len: int,
+    ) -> None:
+        """Start an exchange (RuntimeError while one is under way)."""
+        ...
+
+    def result(self) -> XferResult | None:
+        """The report of the last exchange (None: one is under way)."""
+        ...
+
+    def close(self) -> None:
+        """End the thread, after the exchange under way (if any)."""
+        ...
+
+
 def check_plan(
     request: bytes, first_wake: float, timeout: float, char: float, expect: int, short_len: int
 ) -> None:
@@ -91,6 +123,7 @@ __all__ = [
     "STAGE_READ",
     "STAGE_WRITE",
     "STALE",
+    "AsyncExchanger",
     "Exchanger",
     "XferResult",
     "check_plan",

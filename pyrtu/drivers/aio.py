@@ -15,9 +15,12 @@ transaction at a time through a first-come-first-served queue (an
 parallel.  Waiting is a timer or ``loop.add_reader`` on the port's file
 descriptor, run from the loop's callbacks (the awaiting task wakes once per
 transaction); while an answer comes in, the driver sleeps the character times
-of the bytes it still needs instead of waking per byte.  Ports without a descriptor (pyserial
-URLs such as ``loop://``, Windows COM ports) are read with pyserial's blocking
-reads in a worker thread of their own.
+of the bytes it still needs instead of waking per byte.  A repeated request on a
+descriptor goes as one `Exchange` on the port's exchange thread (the backend's
+`AsyncExchanger`: a C thread without the GIL, which keeps t3.5 and the reads'
+times with ``clock_nanosleep``), and the loop wakes once, when it is over.  Ports
+without a descriptor (pyserial URLs such as ``loop://``, Windows COM ports) are read
+with pyserial's blocking reads in a worker thread of their own.
 
 Cancelling an ``await`` leaves the bus consistent: the protocol notes that a
 late answer may come, and the next transaction waits it out before sending.
@@ -29,7 +32,7 @@ import asyncio
 import functools
 import sys
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import Future as ThreadFuture
 from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any
@@ -37,16 +40,17 @@ from typing import TYPE_CHECKING, Any
 from pyrtu import pdu as P
 from pyrtu.core.line import LineConfig
 from pyrtu.core.rules import LengthRule
+from pyrtu.core.xfer import AsyncExchanger, XferResult
 from pyrtu.drivers import _ptimer
 from pyrtu.drivers._slack import tighten_this_thread
 from pyrtu.drivers.links import TCP_SCHEME, Link
 from pyrtu.drivers.master import Master, MasterBase
-from pyrtu.drivers.sync_io import read_now
+from pyrtu.drivers.sync_io import plan_of, read_now, report
 from pyrtu.pdu import requests as R
 from pyrtu.pdu.errors import PortError
 from pyrtu.pdu.requests import Call, Request, Rules
 from pyrtu.protocol.client import ClientProtocol, Send, Wait
-from pyrtu.protocol.client_actions import Done
+from pyrtu.protocol.client_actions import Done, Exchange
 
 _monotonic = time.monotonic
 
@@ -75,6 +79,11 @@ class AsyncMaster(MasterBase):
         self._serial_link = link
         self._proto = link.proto
         self._fd = link.port.fd
+        # a repeated request's Exchange on a thread of the backend's (see _submit)
+        self._ax: AsyncExchanger | None = None
+        self._ax_call: Callable[[XferResult], None] | None = None
+        self._ax_over: asyncio.Future[None] | None = None  # the exchange under way
+        self._ax_loop: asyncio.AbstractEventLoop | None = None  # the loop watching it
         if self._fd is None:
             self._reader = ThreadPoolExecutor(1, thread_name_prefix=f"pyrtu-read-{link.port.name}")
         return link
@@ -135,11 +144,66 @@ class AsyncMaster(MasterBase):
         loop = asyncio.get_running_loop()
         return await loop.run_in_executor(None, port.write, adu)
 
+    # ------------------------------------------------------- the exchange thread
+
+    def _submit(self, action: Exchange, then: Callable[[XferResult], None]) -> None:
+        """Start an `Exchange` on the port's exchange thread (the backend's
+        `AsyncExchanger`: C, without the GIL); ``then(report)`` runs in the loop when
+        it is over (the thread's pipe wakes the loop: one wake-up per transaction)."""
+        loop = asyncio.get_running_loop()
+        ax = self._ax
+        if ax is None:
+            ax = self._ax = self._proto._backend.AsyncExchanger()
+        assert self._fd is not None
+        ax.submit(*plan_of(self.port, self._fd, action))
+        self._ax_call, self._ax_over = then, loop.create_future()
+        if self._ax_loop is not loop:  # watched once per loop, until close
+            if self._ax_loop is not None and not self._ax_loop.is_closed():
+                self._ax_loop.remove_reader(ax.fd)
+            loop.add_reader(ax.fd, self._exchanged)
+            self._ax_loop = loop
+
+    def _exchanged(self) -> None:
+        ax = self._ax
+        assert ax is not None
+        r = ax.result()
+        if r is None:
+            return  # (a stale wake-up: still under way)
+        then, over = self._ax_call, self._ax_over
+        self._ax_call = self._ax_over = None
+        if over is not None and not over.done():
+            over.set_result(None)
+        if then is not None:  # None: the transaction was cancelled meanwhile
+            then(r)
+
+    async def _exchange(self, action: Exchange) -> XferResult:
+        """An `Exchange` as this task's await."""
+        fut: asyncio.Future[XferResult] = asyncio.get_running_loop().create_future()
+
+        def then(r: XferResult) -> None:
+            if not fut.done():
+                fut.set_result(r)
+
+        self._submit(action, then)
+        try:
+            return await fut
+        except BaseException:
+            self._ax_call = None
+            raise
+
+    async def _exchange_over(self) -> None:
+        """Wait for an exchange a cancelled transaction left under way (it ends by its
+        deadline): the port is the thread's until then."""
+        over = self._ax_over
+        if over is not None:
+            await asyncio.shield(over)
+
     async def _run(self, call: Call) -> Any:
         async with self._lock:
             port = self.port
             if port.closed:
                 raise PortError(port.name, "the master is closed")
+            await self._exchange_over()
             proto = self._proto
             slave, pdu, decode = call
             proto.start(slave, pdu, decode, _monotonic())
@@ -151,16 +215,18 @@ class AsyncMaster(MasterBase):
         """The protocol's actions as this task's loop: ports without a descriptor
         (thread reads) and real lines (the write's drain runs in an executor)."""
         try:
+            exchange = self._fd is not None
             while True:
-                action = proto.next_action(_monotonic())
+                action = proto.next_action(_monotonic(), exchange)
                 if isinstance(action, Wait):
                     data = await self._wait(action)
                     proto.wait_done(data, _monotonic())
                 elif isinstance(action, Send):
                     start, end = await self._transmit(action.data)
                     proto.transmitted(end, start)
+                elif isinstance(action, Exchange):
+                    report(self.port, proto, await self._exchange(action))
                 else:
-                    assert isinstance(action, Done)  # (no Exchange asked for)
                     return action.result()
         except BaseException:
             proto.abort(_monotonic())
@@ -226,9 +292,15 @@ class AsyncMaster(MasterBase):
             await self._tcp.close()
             return
         async with self._lock:
+            await self._exchange_over()
             self._close_now()
 
     def _close_now(self) -> None:
+        if self._ax is not None:
+            if self._ax_loop is not None and not self._ax_loop.is_closed():
+                self._ax_loop.remove_reader(self._ax.fd)
+            self._ax.close()  # (idle: close waited for the exchange under way)
+            self._ax = self._ax_loop = None
         self.port.close()
         if self._reader is not None:
             self._reader.shutdown(wait=False, cancel_futures=True)
@@ -311,9 +383,12 @@ class _Drive:
     protocol's actions, where each `Wait` is a timer (and a reader when it
     listens) that calls `step` again."""
 
-    __slots__ = ("_fd", "_fut", "_loop", "_needed", "_port", "_proto", "_reading", "_timer")
+    __slots__ = (
+        "_fd", "_fut", "_loop", "_master", "_needed", "_port", "_proto", "_reading", "_timer"
+    )  # fmt: skip
 
     def __init__(self, master: AsyncMaster, proto: ClientProtocol, fut: asyncio.Future[Any]):
+        self._master = master
         self._loop = fut.get_loop()
         self._port = master.port
         self._fd: int = master._fd  # type: ignore[assignment]
@@ -325,6 +400,7 @@ class _Drive:
 
     def stop(self) -> None:
         """Cancel the pending wait (the transaction ended or was cancelled)."""
+        self._master._ax_call = None  # an exchange under way ends unheard
         if self._timer is not None:
             self._timer.cancel()
             self._timer = None
@@ -344,6 +420,22 @@ class _Drive:
         data = read_now(port, self._fd) if needed else port.read(0)
         self._proto.wait_done(data, _monotonic())
 
+    def _exchanged(self, r: XferResult) -> None:
+        if self._fut.done():
+            return  # cancelled meanwhile: the task aborted the protocol
+        try:
+            report(self._port, self._proto, r)
+        except Exception as exc:  # PortError
+            self._fail(exc)
+            return
+        self.step()
+
+    def _fail(self, exc: Exception) -> None:
+        self.stop()
+        self._proto.abort(_monotonic())
+        if not self._fut.done():
+            self._fut.set_exception(exc)
+
     def step(self, woke: int | None = None) -> None:
         """Carry out the protocol's actions until one must wait or it is done;
         ``woke``: a wait just ended (its ``needed``: read what came first)."""
@@ -352,7 +444,7 @@ class _Drive:
             if woke is not None:
                 self._read(woke)
             while True:
-                action = proto.next_action(_monotonic())
+                action = proto.next_action(_monotonic(), True)
                 if isinstance(action, Wait):
                     if action.until > _monotonic():
                         self._timer = _ptimer.call_at(self._loop, action.until, self._wake)
@@ -365,15 +457,15 @@ class _Drive:
                 elif isinstance(action, Send):
                     start, end = self._port.write(action.data)
                     proto.transmitted(end, start)
+                elif isinstance(action, Exchange):
+                    self._master._submit(action, self._exchanged)
+                    return
                 else:
-                    assert isinstance(action, Done)  # (no Exchange asked for)
+                    assert isinstance(action, Done)
                     self._fut.set_result(action.result())
                     return
         except Exception as exc:  # the typed errors, PortError; the task re-raises
-            self.stop()
-            proto.abort(_monotonic())
-            if not self._fut.done():
-                self._fut.set_exception(exc)
+            self._fail(exc)
 
 
 def new_event_loop() -> asyncio.AbstractEventLoop:

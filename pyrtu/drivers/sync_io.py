@@ -78,19 +78,15 @@ def waiter(port: Port) -> Callable[[Wait], bytes]:
     return lambda action: _wait_fd(port, fd, action)
 
 
-def exchange(port: Port, fd: int, proto: ClientProtocol, action: Exchange, run: Any) -> None:
-    """Carry out an `Exchange` with the exchanger's ``run`` and report it to ``proto``
-    (as the `Wait`, `Send` and `Wait` steps it stands for would); `PortError` as
-    `Port.read` and `Port.write` raise them."""
-    r: xfer.XferResult = run(
-        fd,
-        port.has_wire,
-        *action[:3],
-        action.timeout,
-        port.char_time,
-        action.expect,
-        action.short_len,
-    )
+def plan_of(port: Port, fd: int, action: Exchange) -> tuple[Any, ...]:
+    """An `Exchange` as the arguments of `Exchanger.run` (and `AsyncExchanger.submit`)."""
+    return (fd, port.has_wire, action.data, action.send_at, action.first_wake, action.timeout,
+            port.char_time, action.expect, action.short_len)  # fmt: skip
+
+
+def report(port: Port, proto: ClientProtocol, r: xfer.XferResult) -> None:
+    """Tell ``proto`` what an exchange saw (as the `Wait`, `Send` and `Wait` steps it
+    stands for would); `PortError` as `Port.read` and `Port.write` raise them."""
     if r.sent:  # the look at the send time found the line quiet, then it went
         proto.wait_done(b"", r.start)
         proto.transmitted(r.end, r.start)
@@ -130,8 +126,8 @@ def run_sync(port: Port, proto: ClientProtocol, call: Call, exchanger: Any = Non
                 start, end = port.write(action.data)
                 proto.transmitted(end, start)
             elif isinstance(action, Exchange):
-                assert fd is not None
-                exchange(port, fd, proto, action, run)
+                assert fd is not None and run is not None
+                report(port, proto, run(*plan_of(port, fd, action)))
             else:
                 break
     except BaseException:

@@ -9,7 +9,9 @@ import errno
 import os
 import select
 import termios
+import threading
 import time
+from typing import Any
 
 from pyrtu.core.xfer import (
     ANSWER,
@@ -183,3 +185,84 @@ class Exchanger:
             if not state[4]:
                 state[4:6] = [len(self._buf), self._last]
         state[0] = ANSWER
+
+
+class AsyncExchanger:
+    """The twin of rtu_xfer_worker: exchanges on a thread of their own, for an event
+    loop; `submit`, then watch `fd`; `result` once it is readable."""
+
+    def __init__(self) -> None:
+        r, w = os.pipe()
+        os.set_blocking(r, False)
+        os.set_blocking(w, False)
+        self.fd, self._w = r, w
+        self._ex = Exchanger()
+        self._cv = threading.Condition()
+        self._job: tuple[Any, ...] | None = None
+        self._busy = False
+        self._closed = False
+        self._report: XferResult | None = None
+        self._thread = threading.Thread(target=self._main, name="pyrtu-exchange", daemon=True)
+        self._thread.start()
+
+    def _main(self) -> None:
+        while True:
+            with self._cv:
+                while self._job is None and not self._closed:
+                    self._cv.wait()
+                job, self._job = self._job, None
+                if job is None:
+                    return
+            report = self._ex.run(*job)
+            with self._cv:
+                self._report, self._busy = report, False
+            try:
+                os.write(self._w, b"\x01")
+            except BlockingIOError:  # a full pipe already holds a wake-up
+                pass
+
+    def submit(
+        self,
+        fd: int,
+        drain: bool,
+        request: bytes,
+        send_at: float,
+        first_wake: float,
+        timeout: float,
+        char: float,
+        expect: int,
+        short_len: int,
+    ) -> None:
+        check_plan(request, first_wake, timeout, char, expect, short_len)
+        if fd < 0:
+            raise ValueError(f"fd must be an open descriptor, not {fd}")
+        with self._cv:
+            if self._closed:
+                raise ValueError("this exchanger is closed")
+            if self._busy:
+                raise RuntimeError("an exchange is under way")
+            self._busy = True
+            self._job = (fd, drain, request, send_at, first_wake, timeout, char, expect, short_len)
+            self._cv.notify()
+
+    def result(self) -> XferResult | None:
+        """The exchange's report once it is over (`fd` readable), else None."""
+        try:
+            os.read(self.fd, 64)
+        except BlockingIOError:
+            pass
+        with self._cv:
+            if self._busy:
+                return None
+            return self._report  # (the last exchange's, until the next one)
+
+    def close(self) -> None:
+        """End the thread (after the exchange under way, if any)."""
+        with self._cv:
+            if self._closed:
+                return
+            self._closed = True
+            self._cv.notify()
+        self._thread.join()
+        os.close(self.fd)
+        os.close(self._w)
