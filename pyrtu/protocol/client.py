@@ -47,7 +47,6 @@ from pyrtu.protocol.client_actions import (
     Action,
     Decoder,
     Done,
-    Exchange,
     Send,
     State,
     Wait,
@@ -74,12 +73,6 @@ def _identity(pdu: bytes) -> bytes:
 def _strip_crc(adu: bytes) -> bytes:
     return adu[:-2]
 
-
-#: functions whose answer's length follows from the request ([MB] 6.1-6.6, 6.11,
-#: 6.12, 6.16, 6.17): a learned length holds for the next answer (see `Exchange`)
-_FIXED_ANSWER = frozenset((1, 2, 3, 4, 5, 6, 15, 16, 22, 23))
-#: an RTU exception answer: address, function | 0x80, code, CRC ([MB] 7)
-_EXCEPTION_ADU = 5
 
 #: ASCII requests have no max_adu check (as before: the limit is RTU's)
 _NO_LIMIT = 1 << 62
@@ -355,26 +348,6 @@ class ClientProtocol(AnswerTiming):
             answered = error is None and self._decode is not None
             return Done(self._result, error, self.answer_end if answered else None)
         raise RuntimeError("no transaction (start one first)")
-
-    def _exchange_plan(self) -> Exchange | None:
-        """SEND or QUIET: the whole exchange of a repeated request, on the times
-        `send_at` and `ready_at` would give (None where it does not apply: ASCII, an
-        echo, strict framing, a broadcast, an answer of unknown or variable length)."""
-        if not self._exchange or self.echo or self._decode is None:
-            return None
-        size = self._sizes.get(self._adu, 0)
-        if size < _EXCEPTION_ADU or self._fc not in _FIXED_ANSWER:
-            return None
-        send_at = self.send_at() if self.state is _QUIET else 0.0
-        first = self.gap + self._turn.get(self._slave, 0.0) + (size - 1) * self._char
-        return Exchange(
-            self._adu,
-            min(send_at, self._give_up),
-            min(first, self.timeout),
-            self.timeout,
-            size,
-            _EXCEPTION_ADU,
-        )
 
     def wait_done(self, data: bytes, now: float) -> None:
         """A `Wait` ended at ``now`` with ``data`` read (b"": none came)."""

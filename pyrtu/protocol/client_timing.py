@@ -4,7 +4,8 @@ The timing half of `pyrtu.protocol.ClientProtocol` (a base class: it reads the
 protocol's state): the earliest send time (t3.5 after the line went quiet, the
 broadcast turnaround, the settling time after a failure), the bytes an answer
 still needs, and the sleep that reads them in as few wake-ups as the line
-allows (``ready_at``, which `ClientProtocol.next_action` turns into a `Wait`).
+allows (``ready_at``, which `ClientProtocol.next_action` turns into a `Wait`), and
+those times for a repeated request as one `Exchange` (``_exchange_plan``).
 """
 
 from __future__ import annotations
@@ -12,9 +13,15 @@ from __future__ import annotations
 from typing import Any
 
 from pyrtu.core.framing import FramerCore
-from pyrtu.protocol.client_actions import State
+from pyrtu.protocol.client_actions import Exchange, State
 
-_ANSWER = State.ANSWER
+_ANSWER, _QUIET = State.ANSWER, State.QUIET
+#: functions whose answer's length follows from the request ([MB] 6.1-6.6, 6.11,
+#: 6.12, 6.16, 6.17): a learned length holds for the next answer (see `Exchange`)
+_FIXED_ANSWER = frozenset((1, 2, 3, 4, 5, 6, 15, 16, 22, 23))
+#: an RTU exception answer: address, function | 0x80, code, CRC ([MB] 7)
+_EXCEPTION_ADU = 5
+
 #: where a character is shorter than this (above 19200 baud), a timed wake-up is
 #: typically a character or more late: a whole answer in the wake-up's read lowers
 #: the turnaround (`AnswerTiming._woke_late`); slower, the wake-up a character
@@ -28,6 +35,11 @@ class AnswerTiming:
     # the protocol's state these read (set by ClientProtocol)
     state: State
     gap: float
+    timeout: float
+    echo: bool
+    _exchange: bool
+    _give_up: float
+    _fc: int
     settle: float
     quiet_until: float
     tx_end: float
@@ -135,3 +147,23 @@ class AnswerTiming:
         if self._decode is None:
             return len(self._echo_left)
         return len(self._echo_left) + self._core.needed()
+
+    def _exchange_plan(self) -> Exchange | None:
+        """SEND or QUIET: the whole exchange of a repeated request, on the times
+        `send_at` and `ready_at` would give (None where it does not apply: ASCII, an
+        echo, strict framing, a broadcast, an answer of unknown or variable length)."""
+        if not self._exchange or self.echo or self._decode is None:
+            return None
+        size = self._sizes.get(self._adu, 0)
+        if size < _EXCEPTION_ADU or self._fc not in _FIXED_ANSWER:
+            return None
+        send_at = self.send_at() if self.state is _QUIET else 0.0
+        first = self.gap + self._turn.get(self._slave, 0.0) + (size - 1) * self._char
+        return Exchange(
+            self._adu,
+            min(send_at, self._give_up),
+            min(first, self.timeout),
+            self.timeout,
+            size,
+            _EXCEPTION_ADU,
+        )
