@@ -126,6 +126,8 @@ def _run_vbus(args: argparse.Namespace) -> int:
     except BusDirectoryBusy as exc:
         print(f"pyrtu vbus: port error: --dir {exc}", file=sys.stderr)
         return EXIT_PORT
+    except BrokenPipeError:  # stdout closed (| head -1): the command's end, not --dir's
+        raise
     except OSError as exc:
         what = f"{exc.filename}: {exc.strerror}" if exc.filename and exc.strerror else str(exc)
         print(f"pyrtu vbus: port error: {_flag_of(exc, args)} {what}", file=sys.stderr)
