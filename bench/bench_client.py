@@ -150,13 +150,21 @@ def slave(path: str, baudrate: int) -> Iterator[int]:
 DRIVES = {
     "cfw100": (1, DRIVE_START, DRIVE_COUNT, DRIVE_DELAY),  # P001-P007
     "cv100": (5, 0x3300, 7, 0.0),  # status words and monitored values (U0)
+    # not a drive: bench/floor_slave.c, the least a slave keeping t3.5 does (C, one
+    # process per bus), so that a run shows what the bus itself allows the master
+    "floor": (5, 0x3300, 7, 0.0),
 }
 
 
 @contextlib.contextmanager
 def drives(paths: list[str], baudrate: int, name: str = "cfw100") -> Iterator[int]:
     """One ``pyrtu simulate`` process, a drive on each of ``paths`` (``--port`` given
-    once per path: the drives share one event loop)."""
+    once per path: the drives share one event loop); "floor": bench/floor_slave.c on
+    each."""
+    if name == "floor":
+        with floor_slaves(paths, baudrate) as pid:
+            yield pid
+        return
     argv = [sys.executable, "-m", "pyrtu", "simulate", name, "--json"]
     for path in paths:
         argv += ["--port", path]
@@ -165,6 +173,23 @@ def drives(paths: list[str], baudrate: int, name: str = "cfw100") -> Iterator[in
         if '"ready"' not in lines[0]:
             raise RuntimeError(f"pyrtu simulate did not start: {lines[0]!r}")
         yield proc.pid
+
+
+@contextlib.contextmanager
+def floor_slaves(paths: list[str], baudrate: int) -> Iterator[int]:
+    """bench/floor_slave.c (compiled here with the system's cc) on each of ``paths``;
+    the first one's pid."""
+    exe = Path(tempfile.mkdtemp(prefix="pyrtu-floor-")) / "floor_slave"
+    subprocess.run(["cc", "-O2", "-o", str(exe), str(BENCH / "floor_slave.c")], check=True)
+    t35_us = round(LineConfig(baudrate=baudrate, parity="N").t35_time * 1e6)
+    with contextlib.ExitStack() as stack:
+        pids = []
+        for path in paths:
+            proc, lines = stack.enter_context(process([str(exe), path, str(t35_us)], 1))
+            if lines[0] != "READY":
+                raise RuntimeError(f"floor_slave did not start: {lines[0]!r}")
+            pids.append(proc.pid)
+        yield pids[0]
 
 
 def sync_master(path: str, baudrate: int, n: int) -> dict[str, float]:

@@ -25,6 +25,7 @@
 #define RTU_XFER_SHORT 2  /* the deadline came (or a signal) with fewer bytes */
 #define RTU_XFER_ERRNO 3  /* a system call failed: x->err, x->stage */
 #define RTU_XFER_GONE 4   /* the descriptor reported input but gave none (unplugged) */
+#define RTU_XFER_CANCELLED 5 /* the cancel descriptor became readable */
 
 #define RTU_XFER_STAGE_WRITE 1
 #define RTU_XFER_STAGE_READ 2
@@ -33,13 +34,15 @@ typedef struct {
     /* what the protocol decided (times: CLOCK_MONOTONIC nanoseconds) */
     int fd;
     int drain;          /* tcdrain() after the write: a real line, not a pty */
+    int look;           /* look for stale input before the write (a master) */
+    int cancel_fd;      /* readable: end the exchange (-1: none) */
     const uint8_t *req; /* the request ADU */
     size_t req_len;
     int64_t send_at;    /* not before (the silence before the request) */
     int64_t first_wake; /* the first read, ns after the end of transmission */
     int64_t timeout_ns; /* the deadline, ns after the end of transmission */
     int64_t char_ns;    /* one character on the line */
-    size_t expect;      /* the answer's length */
+    size_t expect;      /* the answer's length (0: none awaited, a slave's response) */
     size_t short_len;   /* the length of an exception answer (0: none) */
     uint8_t *buf;       /* the bytes read: stale input, or the answer */
     size_t cap;

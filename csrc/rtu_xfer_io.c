@@ -6,15 +6,17 @@
  *
  * Steps, each on the protocol's numbers ([SL] 2.5.1.1 timing, [SL] 2.4.1 timeout):
  *   1. sleep until send_at (absolute CLOCK_MONOTONIC);
- *   2. input pending now is stale: read it, send nothing (RTU_XFER_STALE);
+ *   2. (look) input pending now is stale: read it, send nothing (RTU_XFER_STALE);
  *   3. write the request (waiting for room if the output buffer is full), tcdrain
  *      on a real line;
  *   4. sleep until end + first_wake, read what came;
  *   5. until `expect` bytes (an exception answer: short_len) or the deadline:
  *      sleep until all but the last character can be in, then wait for input
  *      (the last byte is read as it comes, so its time is the answer's end).
+ *   (expect 0: nothing awaited, a slave's response: done after step 3.)
  * A signal (EINTR) ends the step early with what it has (RTU_XFER_SHORT), so that
- * Python runs its handler at once.
+ * Python runs its handler at once; the cancel descriptor, when readable, ends it too
+ * (RTU_XFER_CANCELLED), before the write if it is not due yet.
  */
 #if defined(__linux__)
 #define _GNU_SOURCE /* ppoll */
@@ -172,13 +174,84 @@ static size_t wanted(const rtu_xfer *x)
     return x->expect;
 }
 
+/* The cancel descriptor became readable (a stop asked for): 1, else 0. */
+static int cancelled(const rtu_xfer *x)
+{
+    struct pollfd p;
+    if (x->cancel_fd < 0)
+        return 0;
+    p.fd = x->cancel_fd;
+    p.events = POLLIN;
+    p.revents = 0;
+    return poll(&p, 1, 0) > 0;
+}
+
+/* Sleep until `t` (absolute) watching only the cancel descriptor: 0 the time came,
+ * 1 cancelled or a signal (the exchange ends there). */
+static int pause_until(rtu_xfer *x, int64_t t)
+{
+    if (x->cancel_fd < 0)
+        return sleep_until(t) != 0;
+    while (now_ns() < t) {
+        int r = wait_fd(x->cancel_fd, POLLIN, t);
+        if (r > 0) {
+            x->status = RTU_XFER_CANCELLED;
+            return 1;
+        }
+        if (r < 0)
+            return 1;
+    }
+    return 0;
+}
+
+/* Wait for input on the line until `t` (absolute), and for the cancel descriptor:
+ * >0 input, 0 the time came, <0 the exchange ends (an error, a signal, a cancel). */
+static int wait_input(rtu_xfer *x, int64_t t)
+{
+    struct pollfd p[2];
+    nfds_t n = 1;
+    int64_t rel = t - now_ns();
+    int r;
+    p[0].fd = x->fd;
+    p[0].events = POLLIN;
+    p[0].revents = 0;
+    if (x->cancel_fd >= 0) {
+        p[1].fd = x->cancel_fd;
+        p[1].events = POLLIN;
+        p[1].revents = 0;
+        n = 2;
+    }
+    if (rel < 0)
+        rel = 0;
+#if defined(__linux__)
+    {
+        struct timespec ts;
+        ts.tv_sec = (time_t)(rel / 1000000000);
+        ts.tv_nsec = (long)(rel % 1000000000);
+        r = ppoll(p, n, &ts, NULL);
+    }
+#else
+    r = poll(p, n, (int)((rel + 999999) / 1000000));
+#endif
+    if (r < 0) {
+        if (errno != EINTR)
+            failed(x, RTU_XFER_STAGE_READ);
+        return -1;
+    }
+    if (n == 2 && p[1].revents != 0) {
+        x->status = RTU_XFER_CANCELLED;
+        return -1;
+    }
+    return r > 0 && p[0].revents != 0;
+}
+
 int rtu_xfer_io_run(rtu_xfer *x)
 {
     int64_t deadline;
     int r;
     if (x == NULL || x->fd < 0 || x->req == NULL || x->req_len == 0 || x->buf == NULL ||
-        x->cap == 0 || x->expect == 0 || x->expect > x->cap || x->short_len > x->expect ||
-        x->char_ns <= 0 || x->first_wake < 0 || x->timeout_ns < 0)
+        x->cap == 0 || x->expect > x->cap || x->short_len > x->expect || x->char_ns <= 0 ||
+        x->first_wake < 0 || x->timeout_ns < 0)
         return RTU_EINVAL;
     x->status = RTU_XFER_SHORT;
     x->sent = x->err = x->stage = 0;
@@ -186,29 +259,39 @@ int rtu_xfer_io_run(rtu_xfer *x)
     x->first_n = x->n = 0;
     x->reads = 0;
     /* 1-2: the silence before the request, then a look for stale input */
-    if (sleep_until(x->send_at) != 0)
-        return RTU_OK; /* a signal: nothing sent */
-    r = wait_fd(x->fd, POLLIN, 0);
-    if (r > 0) {
-        if (take(x, 1) < 0)
-            return RTU_OK;
-        if (x->n > 0) {
-            x->status = RTU_XFER_STALE;
+    if (cancelled(x)) {
+        x->status = RTU_XFER_CANCELLED;
+        return RTU_OK;
+    }
+    if (pause_until(x, x->send_at))
+        return RTU_OK; /* a signal or a cancel: nothing sent */
+    if (x->look) {
+        r = wait_fd(x->fd, POLLIN, 0);
+        if (r > 0) {
+            if (take(x, 1) < 0)
+                return RTU_OK;
+            if (x->n > 0) {
+                x->status = RTU_XFER_STALE;
+                return RTU_OK;
+            }
+        }
+        if (r < 0) {
+            if (errno != EINTR)
+                return failed(x, RTU_XFER_STAGE_READ);
             return RTU_OK;
         }
-    }
-    if (r < 0) {
-        if (errno != EINTR)
-            return failed(x, RTU_XFER_STAGE_READ);
-        return RTU_OK;
     }
     /* 3 */
     transmit(x);
     if (!x->sent)
         return RTU_OK;
+    if (x->expect == 0) { /* nothing awaited (a slave's response) */
+        x->status = RTU_XFER_ANSWER;
+        return RTU_OK;
+    }
     deadline = x->end + x->timeout_ns;
     /* 4: the first read, where the protocol expects the answer in */
-    if (sleep_until(x->end + x->first_wake) != 0)
+    if (pause_until(x, x->end + x->first_wake))
         return RTU_OK;
     if (take(x, 0) < 0)
         return RTU_OK;
@@ -219,19 +302,16 @@ int rtu_xfer_io_run(rtu_xfer *x)
         size_t left = wanted(x) - x->n;
         if (x->n > 0 && left > 1) {
             int64_t t = x->last_t + (int64_t)(left - 1) * x->char_ns;
-            if (sleep_until(t < deadline ? t : deadline) != 0)
+            if (pause_until(x, t < deadline ? t : deadline))
                 return RTU_OK;
             if ((r = take(x, 0)) < 0)
                 return RTU_OK;
             if (r > 0)
                 goto got;
         }
-        r = wait_fd(x->fd, POLLIN, deadline);
-        if (r < 0) {
-            if (errno != EINTR)
-                return failed(x, RTU_XFER_STAGE_READ);
+        r = wait_input(x, deadline);
+        if (r < 0)
             return RTU_OK;
-        }
         if (r == 0)
             return RTU_OK; /* the deadline */
         if (take(x, 1) < 0)

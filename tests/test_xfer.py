@@ -194,8 +194,8 @@ def test_the_backends_agree(both: tuple[ModuleType, ModuleType]) -> None:
     ("change", "message"),
     [
         ({"request": b""}, "request must not be empty"),
-        ({"expect": 0}, "expect must be 1..4096, not 0"),
-        ({"expect": 5000}, "expect must be 1..4096, not 5000"),
+        ({"expect": -1}, "expect must be 0..4096, not -1"),
+        ({"expect": 5000}, "expect must be 0..4096, not 5000"),
         ({"short_len": 30}, r"short_len must be 0..expect \(25\), not 30"),
         ({"char": 0.0}, "char must be a positive number of seconds, not 0.0"),
         ({"timeout": -1.0}, "first_wake and timeout must be non-negative"),
@@ -246,3 +246,46 @@ def test_the_async_exchanger_runs_on_its_thread(backend: ModuleType, pty: tuple[
         ax.close()
     with pytest.raises(ValueError, match="closed"):
         ax.submit(line, False, REQUEST, 0.0, 0.002, 0.5, CHAR, 25, 5)
+
+
+def test_a_response_goes_at_its_time(backend: ModuleType, pty: tuple[int, int]) -> None:
+    """Nothing awaited (``expect`` 0, a slave's response): written at ``send_at``,
+    without a look for input (``look`` false: input pending then is not the
+    writer's business)."""
+    device, line = pty
+    os.write(device, b"\x09")  # input waiting on the line: sent all the same
+    answer = answer_of(2, backend)
+    at = time.monotonic() + 0.01
+    r = backend.Exchanger().run(line, False, answer, at, 0.0, 0.0, CHAR, 0, 0, look=False)
+    assert r.status == xfer.ANSWER and r.sent and r.start >= at and r.data == b""
+    assert os.read(device, 64) == answer
+
+
+def test_cancel_ends_an_exchange(backend: ModuleType, pty: tuple[int, int]) -> None:
+    """`AsyncExchanger.cancel`: before the send time nothing is written; while an
+    answer is awaited the wait ends at once; either way the report comes."""
+    import select
+
+    device, line = pty
+    os.set_blocking(device, False)
+    ax = backend.AsyncExchanger()
+    try:
+        ax.submit(line, False, REQUEST, time.monotonic() + 5.0, 0.0, 0.5, CHAR, 25, 5)
+        time.sleep(0.02)
+        ax.cancel()
+        assert select.select([ax.fd], [], [], 2.0)[0] == [ax.fd]
+        r = ax.result()
+        assert r is not None and r.status == xfer.CANCELLED and not r.sent
+        with pytest.raises(BlockingIOError):
+            os.read(device, 64)  # nothing went
+        start = time.monotonic()
+        ax.submit(line, False, REQUEST, 0.0, 0.0, 5.0, CHAR, 25, 5)  # no answer will come
+        time.sleep(0.02)
+        ax.cancel()
+        assert select.select([ax.fd], [], [], 2.0)[0] == [ax.fd]
+        r = ax.result()
+        assert r is not None and r.status == xfer.CANCELLED and r.sent
+        assert time.monotonic() - start < 2.5  # not the 5 s deadline
+        assert os.read(device, 64) == REQUEST
+    finally:
+        ax.close()

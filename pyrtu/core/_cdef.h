@@ -257,11 +257,14 @@ int64_t rtu_vbus_io_wake_estimate(rtu_vbus_io *io);
 #define RTU_XFER_SHORT 2
 #define RTU_XFER_ERRNO 3
 #define RTU_XFER_GONE 4
+#define RTU_XFER_CANCELLED 5
 #define RTU_XFER_STAGE_WRITE 1
 #define RTU_XFER_STAGE_READ 2
 typedef struct {
     int fd;
     int drain;
+    int look;
+    int cancel_fd;
     const uint8_t *req;
     size_t req_len;
     int64_t send_at;

@@ -14,24 +14,24 @@ from pyrtu.core._rtu_core import ffi, lib
 from pyrtu.core.xfer import CAPACITY, XferResult, check_plan
 
 
-def _plan(
-    x: Any,
-    fd: int,
-    drain: bool,
-    request: bytes,
-    send_at: float,
-    first_wake: float,
-    timeout: float,
-    char: float,
-    expect: int,
-    short_len: int,
-) -> Any:
-    """Fill ``x`` (an rtu_xfer) for one exchange; the request's C view (keep it alive)."""
+def _new_xfer(cancel_fd: int) -> tuple[Any, Any]:
+    """An rtu_xfer with its read buffer (keep both alive as long as the C side may
+    use them)."""
+    x = ffi.new("rtu_xfer *")
+    buf = ffi.new("uint8_t[]", CAPACITY)
+    x.buf, x.cap, x.cancel_fd = buf, CAPACITY, cancel_fd
+    return x, buf
+
+
+def _plan(x: Any, args: tuple[Any, ...], look: bool) -> Any:
+    """Fill ``x`` for one exchange (``args``: `Exchanger.run`'s, through
+    ``short_len``); the request's C view (keep it alive until the exchange is over)."""
+    fd, drain, request, send_at, first_wake, timeout, char, expect, short_len = args
     check_plan(request, first_wake, timeout, char, expect, short_len)
     if fd < 0:
         raise ValueError(f"fd must be an open descriptor, not {fd}")
     req = ffi.from_buffer("uint8_t[]", request)
-    x.fd, x.drain, x.req, x.req_len = fd, drain, req, len(request)
+    x.fd, x.drain, x.look, x.req, x.req_len = fd, drain, look, req, len(request)
     x.send_at = math.ceil(send_at * 1e9)  # never before it
     x.first_wake, x.timeout_ns = int(first_wake * 1e9), int(timeout * 1e9)
     x.char_ns, x.expect, x.short_len = max(1, int(char * 1e9)), expect, short_len
@@ -55,14 +55,18 @@ def _report(x: Any, buf: Any) -> XferResult:
     )
 
 
+def _drain_pipe(fd: int) -> None:
+    try:
+        os.read(fd, 64)
+    except BlockingIOError:
+        pass
+
+
 class Exchanger:
     """One master exchange per call, in C (csrc/rtu_xfer_io.c; `pyrtu.core.xfer`)."""
 
     def __init__(self) -> None:
-        self._x = ffi.new("rtu_xfer *")
-        self._buf = ffi.new("uint8_t[]", CAPACITY)
-        self._x.buf = self._buf
-        self._x.cap = CAPACITY
+        self._x, self._buf = _new_xfer(-1)
 
     def run(
         self,
@@ -75,17 +79,24 @@ class Exchanger:
         char: float,
         expect: int,
         short_len: int,
+        look: bool = True,
     ) -> XferResult:
         x = self._x
-        _req = _plan(x, fd, drain, request, send_at, first_wake, timeout, char, expect, short_len)
+        _req = _plan(
+            x, (fd, drain, request, send_at, first_wake, timeout, char, expect, short_len), look
+        )
         if lib.rtu_xfer_io_run(x) != lib.RTU_OK:
             raise ValueError(f"fd must be an open descriptor, not {fd}")
         return _report(x, self._buf)
 
 
-def _stop_worker(worker: Any, x: Any, buf: Any, fds: tuple[int, int]) -> None:
-    """End the worker's thread (after its exchange under way), then free its pipe;
-    holds ``x`` and ``buf`` until the thread is gone."""
+def _stop_worker(worker: Any, keep: tuple[Any, ...], fds: tuple[int, ...]) -> None:
+    """Cancel the worker's exchange under way, end its thread, then free its pipes;
+    ``keep`` (the rtu_xfer and its buffer) lives until the thread is gone."""
+    try:
+        os.write(fds[3], b"\x01")
+    except BlockingIOError:
+        pass
     lib.rtu_xfer_worker_stop(worker)
     for fd in fds:
         os.close(fd)
@@ -94,26 +105,25 @@ def _stop_worker(worker: Any, x: Any, buf: Any, fds: tuple[int, int]) -> None:
 class AsyncExchanger:
     """Exchanges on a C thread of their own, for an event loop
     (`pyrtu.core.xfer.AsyncExchanger`): `submit`, then watch `fd`; `result` once it
-    is readable."""
+    is readable; `cancel`."""
 
     def __init__(self) -> None:
-        self._x = ffi.new("rtu_xfer *")
-        self._buf = ffi.new("uint8_t[]", CAPACITY)
-        self._x.buf = self._buf
-        self._x.cap = CAPACITY
-        self._req: Any = None
         r, w = os.pipe()
-        os.set_blocking(r, False)
-        os.set_blocking(w, False)
-        self.fd = r
+        cr, cw = os.pipe()
+        for fd in (r, w, cr, cw):
+            os.set_blocking(fd, False)
+        self.fd, self._cr, self._cw = r, cr, cw
+        self._x, self._buf = _new_xfer(cr)
+        self._req: Any = None
         self._worker = ffi.new("char[]", lib.rtu_xfer_worker_size())
         worker = ffi.cast("rtu_xfer_worker *", self._worker)
         if lib.rtu_xfer_worker_start(worker, self._x, w) != lib.RTU_OK:
-            os.close(r)
-            os.close(w)
+            for fd in (r, w, cr, cw):
+                os.close(fd)
             raise OSError("pyrtu: the exchange thread could not be started")
         self._w = worker
-        self._stop = weakref.finalize(self, _stop_worker, worker, self._x, self._buf, (r, w))
+        keep = (self._x, self._buf, self._worker)
+        self._stop = weakref.finalize(self, _stop_worker, worker, keep, (r, w, cr, cw))
 
     def submit(
         self,
@@ -126,32 +136,39 @@ class AsyncExchanger:
         char: float,
         expect: int,
         short_len: int,
+        look: bool = True,
     ) -> None:
         if not self._stop.alive:
             raise ValueError("this exchanger is closed")
         if lib.rtu_xfer_worker_rc(self._w) == lib.RTU_EBUSY:
             raise RuntimeError("an exchange is under way")
         self._req = _plan(
-            self._x, fd, drain, request, send_at, first_wake, timeout, char, expect, short_len
+            self._x,
+            (fd, drain, request, send_at, first_wake, timeout, char, expect, short_len),
+            look,
         )
+        _drain_pipe(self._cr)  # an old cancel
         lib.rtu_xfer_worker_submit(self._w)
 
     def result(self) -> XferResult | None:
-        """The exchange's report once it is over (`fd` readable), else None."""
-        try:
-            os.read(self.fd, 64)
-        except BlockingIOError:
-            pass
+        """The report of the last exchange (None: one is under way)."""
+        _drain_pipe(self.fd)
         rc = lib.rtu_xfer_worker_rc(self._w)
         if rc == lib.RTU_EBUSY:
             return None
-        self._req = None
         if rc != lib.RTU_OK:
             raise ValueError("fd must be an open descriptor")
         return _report(self._x, self._buf)
 
+    def cancel(self) -> None:
+        """End the exchange under way (its report still comes: CANCELLED)."""
+        try:
+            os.write(self._cw, b"\x01")
+        except BlockingIOError:
+            pass
+
     def close(self) -> None:
-        """End the thread (after the exchange under way, if any)."""
+        """End the thread (the exchange under way, if any, cancelled)."""
         self._stop()
 
 

@@ -5,8 +5,10 @@ The client protocol decides every time and length (`pyrtu.protocol.client_action
 Exchange`); an exchanger carries them out in one call: sleep to the send time, look
 for stale input (then nothing is sent), write the request, sleep to the first read,
 read the rest as it comes (all but the last character slept through), until the
-answer's length (an exception answer's shorter one) or the deadline.  Times are
-monotonic seconds (``time.monotonic``'s clock).
+answer's length (an exception answer's shorter one) or the deadline.  With nothing
+awaited (``expect`` 0) it is a write at a time: a slave's response at the end of its
+turnaround (`pyrtu.protocol.server.Reply` handed out ahead).  Times are monotonic
+seconds (``time.monotonic``'s clock).
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ from __future__ import annotations
 from typing import NamedTuple, Protocol
 
 #: how an exchange ended (`XferResult.status`)
-ANSWER, STALE, SHORT, ERRNO, GONE = range(5)
+ANSWER, STALE, SHORT, ERRNO, GONE, CANCELLED = range(6)
 #: where an ERRNO exchange failed (`XferResult.stage`)
 STAGE_WRITE, STAGE_READ = 1, 2
 #: bytes an exchange reads at most (an answer is at most 256; the rest is noise)
@@ -22,13 +24,14 @@ CAPACITY = 4096
 
 
 class XferResult(NamedTuple):
-    """What an exchange saw.  ``status``: ANSWER (the expected bytes came), STALE
-    (input was pending at the send time: nothing sent, ``data`` holds it), SHORT
-    (the deadline, or a signal, with fewer bytes), ERRNO (``err`` at ``stage``),
-    GONE (the descriptor reported input but gave none).  ``sent``: the request was
-    written, from ``start`` to ``end`` (its transmission's end); ``data[:first_n]``
-    came in the first read of the answer, at ``first_t``; ``last_t``: when the last
-    read returned; ``reads``: the reads that returned bytes."""
+    """What an exchange saw.  ``status``: ANSWER (the expected bytes came; with none
+    expected, the request went), STALE (input was pending at the send time: nothing
+    sent, ``data`` holds it), SHORT (the deadline, or a signal, with fewer bytes),
+    ERRNO (``err`` at ``stage``), GONE (the descriptor reported input but gave
+    none), CANCELLED (`AsyncExchanger.cancel`).  ``sent``: the request was written,
+    from ``start`` to ``end`` (its transmission's end); ``data[:first_n]`` came in
+    the first read of the answer, at ``first_t``; ``last_t``: when the last read
+    returned; ``reads``: the reads that returned bytes."""
 
     status: int
     sent: bool
@@ -44,7 +47,15 @@ class XferResult(NamedTuple):
 
 
 class Exchanger(Protocol):
-    """A backend's exchange step (``backend.Exchanger()``: one per port)."""
+    """A backend's exchange step (``backend.Exchanger()``: one per port).
+
+    ``run(fd, drain, request, send_at, first_wake, timeout, char, expect, short_len,
+    look=True)`` carries out one exchange on ``fd``: ``drain``: tcdrain after the
+    write (a real line); ``first_wake``: seconds after the end of transmission;
+    ``timeout``: the deadline, seconds after it; ``char``: one character's time;
+    ``expect``: the answer's length (0: none awaited); ``short_len``: an exception
+    answer's (0: none); ``look``: input pending at the send time is stale and nothing
+    is sent (a master).  ValueError for arguments out of range."""
 
     def run(
         self,
@@ -57,20 +68,19 @@ class Exchanger(Protocol):
         char: float,
         expect: int,
         short_len: int,
-    ) -> XferResult:
-        """Carry out one exchange on ``fd`` (``drain``: tcdrain after the write, a
-        real line); ``first_wake``: seconds after the end of transmission;
-        ``timeout``: the deadline, seconds after it; ``char``: one character's time;
-        ``expect``: the answer's length; ``short_len``: an exception answer's (0:
-        none).  ValueError for arguments out of range."""
-        ...
+        look: bool = True,
+    ) -> XferResult: ...
 
 
 class AsyncExchanger(Protocol):
     """A backend's exchanges on a thread of their own, for an event loop
     (``backend.AsyncExchanger()``: one per port; C: csrc/rtu_xfer_io.c's worker).
-    `submit` takes `Exchanger.run`'s arguments and returns at once; the loop watches
-    ``fd`` (readable once the exchange is over) and calls `result`."""
+    `submit` takes `Exchanger.run`'s arguments and returns at once (RuntimeError while
+    an exchange is under way); the loop watches ``fd`` (readable once it is over) and
+    calls `result` (the last exchange's report; None while one is under way);
+    `cancel` ends the exchange under way (before its write if that is not due yet:
+    the report still comes, status CANCELLED); `close` ends the thread, the exchange
+    under way cancelled."""
 
     fd: int
 
@@ -85,17 +95,14 @@ class AsyncExchanger(Protocol):
         char: float,
         expect: int,
         short_len: int,
-    ) -> None:
-        """Start an exchange (RuntimeError while one is under way)."""
-        ...
+        look: bool = True,
+    ) -> None: ...
 
-    def result(self) -> XferResult | None:
-        """The report of the last exchange (None: one is under way)."""
-        ...
+    def result(self) -> XferResult | None: ...
 
-    def close(self) -> None:
-        """End the thread, after the exchange under way (if any)."""
-        ...
+    def cancel(self) -> None: ...
+
+    def close(self) -> None: ...
 
 
 def check_plan(
@@ -104,8 +111,8 @@ def check_plan(
     """The arguments both backends refuse, with the same messages."""
     if not request:
         raise ValueError("request must not be empty")
-    if not 0 < expect <= CAPACITY:
-        raise ValueError(f"expect must be 1..{CAPACITY}, not {expect}")
+    if not 0 <= expect <= CAPACITY:
+        raise ValueError(f"expect must be 0..{CAPACITY}, not {expect}")
     if not 0 <= short_len <= expect:
         raise ValueError(f"short_len must be 0..expect ({expect}), not {short_len}")
     if not char > 0:
@@ -116,6 +123,7 @@ def check_plan(
 
 __all__ = [
     "ANSWER",
+    "CANCELLED",
     "CAPACITY",
     "ERRNO",
     "GONE",

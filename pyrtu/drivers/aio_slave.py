@@ -10,19 +10,23 @@ slaves (ports) share one event loop and one thread::
                 tg.create_task(s.serve())
 
 The driver interprets the protocol's next action (`ServerProtocol.next_action`):
-`Reply` is written at once, `Listen` is a timer at its ``until`` (with ``needed``:
-the reader set aside until then), `Idle` no timer.  A port with a file descriptor
-is watched with ``loop.add_reader``; timers are those of `pyrtu.drivers._ptimer` (the
-loop's own on `pyrtu.drivers.aio.run`'s loop, a timerfd on loops whose timers are whole
-milliseconds: asyncio's epoll loop, uvloop).
+`Reply` is written when due (on a descriptor: handed out ahead, written at its time
+by the port's exchange thread), `Listen` is a timer at its ``until`` (with
+``needed``: the reader set aside until then), `Idle` no timer.  A port with a file
+descriptor is watched with ``loop.add_reader``; timers are those of
+`pyrtu.drivers._ptimer` (the loop's own on `pyrtu.drivers.aio.run`'s loop, a timerfd on
+loops whose timers are whole milliseconds: asyncio's epoll loop, uvloop).
 When the first bytes of a frame come, the reader is set aside until the protocol's
-`wake_at` (the frame's end, and for a request to this slave the end of its t3.5 as
-well): the rest is read, the request executed and the response written in that one
-wake-up (lenient mode): two wake-ups per transaction, three for a request longer
-than 8 bytes (its length is known once 8 bytes are in), and one more per 25 ms of a
-longer one (see `pyrtu.drivers.slave`).  A port without a file descriptor (a pyserial URL)
-is read by a worker thread with pyserial's generic reads, which hands the bytes to
-the loop.
+`wake_at` (for a request to this slave: `PREPARE` before the end of its t3.5): the
+rest is read and the request executed in that wake-up (lenient mode), and the
+response goes to the port's exchange thread (the backend's `AsyncExchanger`,
+`pyrtu.core.xfer`: a C thread without the GIL), which writes it at its time to the
+microsecond whatever the loop is doing; the loop wakes once more when it is written.
+Three wake-ups per transaction, four for a request longer than 8 bytes (its length
+is known once 8 bytes are in), and one more per 25 ms of a longer one (see
+`pyrtu.drivers.slave`).  A port without a file descriptor (a pyserial URL) is read by
+a worker thread with pyserial's generic reads, which hands the bytes to the loop;
+its responses are written when due.
 
 A port that fails (unplugged) ends `serve` with the `PortError`; the port is
 closed, its reader removed, and the other slaves of the loop go on.
@@ -37,9 +41,11 @@ import os
 import threading
 from typing import TYPE_CHECKING, Any
 
+from pyrtu.core import xfer
 from pyrtu.core._closing import AsyncClosing
 from pyrtu.drivers import _ptimer
 from pyrtu.drivers.port import read_fd
+from pyrtu.drivers.slave import PREPARE
 from pyrtu.drivers.slave_base import PortSlave
 from pyrtu.pdu.errors import PortError
 from pyrtu.protocol.server import Listen, Reply
@@ -50,6 +56,9 @@ if TYPE_CHECKING:  # Unpack is in typing from Python 3.11 (annotations only)
 log = logging.getLogger("pyrtu.drivers.slave")
 
 _POLL = 0.05  # the reader thread of a port without a file descriptor
+#: a response is handed to the port's exchange thread this long before its time (the
+#: thread writes it then); the nap ends `PREPARE` before it (see `_after`)
+_AHEAD = 2 * PREPARE
 
 
 class AsyncSlave(PortSlave["AsyncSlave"], AsyncClosing):
@@ -68,6 +77,11 @@ class AsyncSlave(PortSlave["AsyncSlave"], AsyncClosing):
         self._out: memoryview | None = None  # the unwritten rest of a response
         self._thread: threading.Thread | None = None
         self._thread_stop = threading.Event()
+        #: the port's exchange thread (the backend's AsyncExchanger): a response
+        #: written at its time, to the microsecond, whatever the loop is doing
+        self._ax: xfer.AsyncExchanger | None = None
+        self._ax_loop: asyncio.AbstractEventLoop | None = None
+        self._replying = False  # a response is with the exchange thread
 
     def _guard(self) -> Any:
         return contextlib.nullcontext()  # one thread: the loop's
@@ -129,6 +143,7 @@ class AsyncSlave(PortSlave["AsyncSlave"], AsyncClosing):
 
     def _teardown(self) -> None:
         self.protocol.drop_response()
+        self._close_exchanger()
         if self._timer is not None:
             self._timer.cancel()
         self._timer = self._timer_at = None
@@ -147,6 +162,7 @@ class AsyncSlave(PortSlave["AsyncSlave"], AsyncClosing):
         """The port failed: end `serve` with the error, close the port (no fd left)."""
         log.error("slave on %s stopped: %s", self.port.name, exc)
         self.error = exc
+        self._close_exchanger()
         self._remove_reader()
         if self._out is not None and self._loop is not None and self.port.fd is not None:
             self._loop.remove_writer(self.port.fd)
@@ -209,16 +225,26 @@ class AsyncSlave(PortSlave["AsyncSlave"], AsyncClosing):
     # ------------------------------------------------------------- time, sending
 
     def _after(self, now: float) -> None:
-        """The protocol saw bytes or time: carry out its actions, up to the next wait."""
-        if self._out is not None or self._done is None or self._done.done():
+        """The protocol saw bytes or time: carry out its actions, up to the next wait.
+
+        On a descriptor the nap ends `PREPARE` before a response's time (the rest of
+        the request read, the response made meanwhile) and the response goes to the
+        port's exchange thread, which writes it at its time; elsewhere it is written
+        when due."""
+        if self._out is not None or self._replying or self._done is None or self._done.done():
             return  # a response is being written: its end comes back here
         proto = self.protocol
         nap = self._skip and self._reading
-        action = proto.next_action(now, nap=nap)
+        fd = self.port.fd
+        lead, ahead = (PREPARE, _AHEAD) if fd is not None else (0.0, 0.0)
+        action = proto.next_action(now, nap=nap, lead=lead, ahead=ahead)
         while isinstance(action, Reply):
+            if action.at > now and fd is not None:
+                self._reply_at(fd, action)
+                return  # its end comes back through _replied
             if not self._write(action.data, now):
                 return  # written in part (the writer goes on) or the port failed
-            action = proto.next_action(now, nap=nap)
+            action = proto.next_action(now, nap=nap, lead=lead, ahead=ahead)
         if self._done is None or self._done.done():
             return
         at = None
@@ -250,6 +276,47 @@ class AsyncSlave(PortSlave["AsyncSlave"], AsyncClosing):
             self._read_now(False, True)  # what came while the reader was set aside
             return
         self._after(self._loop.time())
+
+    def _reply_at(self, fd: int, action: Reply) -> None:
+        """Hand a response to the port's exchange thread, to be written at its time."""
+        loop = self._loop
+        assert loop is not None
+        ax = self._ax
+        if ax is None:
+            ax = self._ax = self.protocol.backend.AsyncExchanger()
+        port = self.port
+        ax.submit(fd, port.has_wire, action.data, action.at, 0.0, 0.0, port.char_time, 0, 0,
+                  look=False)  # fmt: skip
+        self._replying = True
+        if self._ax_loop is not loop:
+            loop.add_reader(ax.fd, self._replied)
+            self._ax_loop = loop
+
+    def _replied(self) -> None:
+        ax, loop = self._ax, self._loop
+        if ax is None or loop is None or (r := ax.result()) is None:
+            return
+        self._replying = False
+        if r.status == xfer.ERRNO:
+            self._fail(
+                PortError(self.port.name, f"write failed: {OSError(r.err, os.strerror(r.err))}")
+            )
+            return
+        if r.sent:
+            self.protocol.transmitted(r.end)
+        self._after(loop.time())
+
+    def _close_exchanger(self) -> None:
+        """The exchange thread ends (a response it holds is cancelled: never sent
+        late), before the port can close under it."""
+        ax, self._ax = self._ax, None
+        self._replying = False
+        if ax is None:
+            return
+        if self._ax_loop is not None and not self._ax_loop.is_closed():
+            self._ax_loop.remove_reader(ax.fd)
+        self._ax_loop = None
+        ax.close()
 
     def _write(self, adu: bytes, now: float) -> bool:
         port = self.port

@@ -104,7 +104,9 @@ class ServerAction:
 @dataclass(slots=True)
 class Reply(ServerAction):
     """Write ``data`` now (it became due at ``at``), then call
-    `ServerProtocol.transmitted` with the time its last byte left the wire."""
+    `ServerProtocol.transmitted` with the time its last byte left the wire.  Handed
+    out ahead (``next_action(now, ahead=...)``), ``at`` may be later than ``now``:
+    then write it at ``at``."""
 
     data: bytes
     at: float
@@ -458,7 +460,9 @@ class ServerProtocol:
             log.debug("TX unit %d: %s", pending.unit, pending.adu.hex(" "))
         return pending.adu
 
-    def next_action(self, now: float, *, lead: float = 0.0, nap: bool = True) -> ServerAction:
+    def next_action(
+        self, now: float, *, lead: float = 0.0, nap: bool = True, ahead: float = 0.0
+    ) -> ServerAction:
         """What the driver does next, at ``now``: the one entry point of a driver.
 
         Lets the time up to ``now`` act (`handle_timer`), then: `Reply` when a
@@ -466,14 +470,17 @@ class ServerProtocol:
         after new bytes, `Listen` with ``needed`` > 0 when the driver may sleep
         through the rest of a frame (``nap``: the driver can, e.g. a port with a file
         descriptor in lenient mode; ``lead``: see `wake_at`); else `Listen` until the
-        next deadline (`deadline`), or `Idle` when only bytes will do."""
+        next deadline (`deadline`), or `Idle` when only bytes will do.  ``ahead``: a
+        driver that can write at a given time (`pyrtu.core.xfer`'s exchangers) gets
+        the response that long before its time, as a `Reply` whose ``at`` is still
+        to come, and a `Listen` that ends then."""
         fresh, self._fresh = self._fresh, False
         due = self.deadline()
         if due is not None and now >= due:
             self.handle_timer(now)
         pending = self._pending
-        if pending is not None and now >= pending.earliest:
-            self.data_to_send(now)
+        if pending is not None and now >= pending.earliest - ahead:
+            self.data_to_send(max(now, pending.earliest))
             return Reply(pending.adu, pending.earliest)
         if fresh and nap:
             until = self.wake_at(now, lead)
@@ -481,6 +488,8 @@ class ServerProtocol:
                 assert self._nap is not None
                 return Listen(until, max(1, self._nap[2]))
         due = self.deadline()
+        if pending is not None and ahead and due is not None and pending.earliest <= due:
+            due = pending.earliest - ahead
         return _IDLE if due is None else Listen(due)
 
     # ------------------------------------------------------------------ frames

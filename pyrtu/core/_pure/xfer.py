@@ -1,20 +1,21 @@
 """The twin of csrc/rtu_xfer_io.c: one master exchange on a serial descriptor, in
 Python (`pyrtu.core.xfer` has the contract).  Step for step as the C file: sleep to
 the send time, look for stale input, write (tcdrain on a real line), sleep to the
-first read, then sleep through all but the last character and wait for it."""
+first read, then sleep through all but the last character and wait for it; a
+readable cancel descriptor ends it (`AsyncExchanger.cancel`)."""
 
 from __future__ import annotations
 
 import errno
 import os
 import select
-import termios
 import threading
 import time
 from typing import Any
 
 from pyrtu.core.xfer import (
     ANSWER,
+    CANCELLED,
     CAPACITY,
     ERRNO,
     GONE,
@@ -38,30 +39,45 @@ class _Failed(Exception):
         self.status, self.err, self.stage = status, err, stage
 
 
-def _sleep_until(t: float) -> None:
-    left = t - _now()
-    if left > 0:
-        time.sleep(left)
-
-
-def _wait_fd(fd: int, events: int, t: float) -> bool:
-    """``events`` on ``fd`` before ``t`` (a past ``t``: a look)."""
+def _wait_fd(fd: int, events: int, t: float, cancel: int = -1) -> bool:
+    """``events`` on ``fd`` before ``t`` (a past ``t``: a look); `_Failed` CANCELLED
+    when ``cancel`` becomes readable first."""
     p = select.poll()
     p.register(fd, events)
+    if cancel >= 0:
+        p.register(cancel, select.POLLIN)
     left = t - _now()
     try:
-        return bool(p.poll(left * 1000.0 if left > 0 else 0))
+        ready = p.poll(left * 1000.0 if left > 0 else 0)
     except OSError as exc:
         raise _Failed(ERRNO, exc.errno or 0, STAGE_READ) from None
+    if any(fd_ == cancel for fd_, _ in ready):
+        raise _Failed(CANCELLED)
+    return bool(ready)
+
+
+def _pause_until(t: float, cancel: int) -> None:
+    """Sleep until ``t``, watching only ``cancel`` (-1: none)."""
+    if cancel < 0:
+        left = t - _now()
+        if left > 0:
+            time.sleep(left)
+        return
+    while _now() < t:
+        p = select.poll()
+        p.register(cancel, select.POLLIN)
+        if p.poll(max(0.0, (t - _now()) * 1000.0)):
+            raise _Failed(CANCELLED)
 
 
 class Exchanger:
     """One master exchange per call (`pyrtu.core.xfer.Exchanger`)."""
 
-    def __init__(self) -> None:
+    def __init__(self, cancel_fd: int = -1) -> None:
         self._buf = bytearray()
         self._last = 0.0
         self._reads = 0
+        self._cancel = cancel_fd
 
     def _take(self, fd: int, readable: bool) -> bool:
         """Read what ``fd`` has; True when bytes came."""
@@ -93,6 +109,7 @@ class Exchanger:
         char: float,
         expect: int,
         short_len: int,
+        look: bool = True,
     ) -> XferResult:
         check_plan(request, first_wake, timeout, char, expect, short_len)
         if fd < 0:
@@ -103,25 +120,14 @@ class Exchanger:
         state = [SHORT, False, 0.0, 0.0, 0, 0.0]  # status, sent, start, end, first_n, first_t
         err = stage = 0
         try:
-            self._steps(
-                fd, drain, request, send_at, first_wake, timeout, char, expect, short_len, state
-            )
+            self._steps(fd, drain, request, send_at, first_wake, timeout, char, expect,
+                        short_len, look, state)  # fmt: skip
         except _Failed as f:
             state[0], err, stage = f.status, f.err, f.stage
         status, sent, start, end, first_n, first_t = state
-        return XferResult(
-            int(status),
-            bool(sent),
-            float(start),
-            float(end),
-            bytes(self._buf),
-            int(first_n),
-            float(first_t),
-            self._last,
-            err,
-            stage,
-            self._reads,
-        )
+        return XferResult(int(status), bool(sent), float(start), float(end), bytes(self._buf),
+                          int(first_n), float(first_t), self._last, err, stage,
+                          self._reads)  # fmt: skip
 
     def _wanted(self, expect: int, short_len: int) -> int:
         buf = self._buf
@@ -129,23 +135,9 @@ class Exchanger:
             return short_len
         return expect
 
-    def _steps(
-        self,
-        fd: int,
-        drain: bool,
-        request: bytes,
-        send_at: float,
-        first_wake: float,
-        timeout: float,
-        char: float,
-        expect: int,
-        short_len: int,
-        state: list[float | int | bool],
-    ) -> None:
-        _sleep_until(send_at)
-        if _wait_fd(fd, select.POLLIN, 0.0) and self._take(fd, True):
-            state[0] = STALE
-            return
+    def _transmit(self, fd: int, drain: bool, request: bytes, char: float,
+                  state: list[float | int | bool]) -> float:  # fmt: skip
+        """Step 3: the request on the line; the end of transmission."""
         start = _now()
         view = memoryview(request)
         limit = start + 1.0 + 2 * len(request) * char
@@ -160,6 +152,8 @@ class Exchanger:
                 raise _Failed(ERRNO, errno.ETIMEDOUT, STAGE_WRITE)
             _wait_fd(fd, select.POLLOUT, limit)
         if drain:
+            import termios  # (POSIX only: a drained line is a real serial port)
+
             try:
                 termios.tcdrain(fd)
             except termios.error as exc:
@@ -168,18 +162,32 @@ class Exchanger:
         if drain:
             end = max(end, start + len(request) * char)
         state[1:4] = [True, start, end]
+        return end
+
+    def _steps(self, fd: int, drain: bool, request: bytes, send_at: float, first_wake: float,
+               timeout: float, char: float, expect: int, short_len: int, look: bool,
+               state: list[float | int | bool]) -> None:  # fmt: skip
+        cancel = self._cancel
+        _pause_until(send_at, cancel)
+        if look and _wait_fd(fd, select.POLLIN, 0.0) and self._take(fd, True):
+            state[0] = STALE
+            return
+        end = self._transmit(fd, drain, request, char, state)
+        if expect == 0:  # nothing awaited (a slave's response)
+            state[0] = ANSWER
+            return
         deadline = end + timeout
-        _sleep_until(end + first_wake)
+        _pause_until(end + first_wake, cancel)
         self._take(fd, False)
         state[4:6] = [len(self._buf), self._last]
         while len(self._buf) < self._wanted(expect, short_len):
             left = self._wanted(expect, short_len) - len(self._buf)
             got = False
             if self._buf and left > 1:
-                _sleep_until(min(self._last + (left - 1) * char, deadline))
+                _pause_until(min(self._last + (left - 1) * char, deadline), cancel)
                 got = self._take(fd, False)
             if not got:
-                if not _wait_fd(fd, select.POLLIN, deadline):
+                if not _wait_fd(fd, select.POLLIN, deadline, cancel):
                     return  # the deadline
                 self._take(fd, True)
             if not state[4]:
@@ -189,14 +197,16 @@ class Exchanger:
 
 class AsyncExchanger:
     """The twin of rtu_xfer_worker: exchanges on a thread of their own, for an event
-    loop; `submit`, then watch `fd`; `result` once it is readable."""
+    loop; `submit`, then watch `fd`; `result` once it is readable; `cancel` ends the
+    exchange under way."""
 
     def __init__(self) -> None:
         r, w = os.pipe()
-        os.set_blocking(r, False)
-        os.set_blocking(w, False)
-        self.fd, self._w = r, w
-        self._ex = Exchanger()
+        cr, cw = os.pipe()
+        for fd in (r, w, cr, cw):
+            os.set_blocking(fd, False)
+        self.fd, self._w, self._cr, self._cw = r, w, cr, cw
+        self._ex = Exchanger(cr)
         self._cv = threading.Condition()
         self._job: tuple[Any, ...] | None = None
         self._busy = False
@@ -232,6 +242,7 @@ class AsyncExchanger:
         char: float,
         expect: int,
         short_len: int,
+        look: bool = True,
     ) -> None:
         check_plan(request, first_wake, timeout, char, expect, short_len)
         if fd < 0:
@@ -241,28 +252,43 @@ class AsyncExchanger:
                 raise ValueError("this exchanger is closed")
             if self._busy:
                 raise RuntimeError("an exchange is under way")
+            _drain_pipe(self._cr)  # an old cancel
             self._busy = True
-            self._job = (fd, drain, request, send_at, first_wake, timeout, char, expect, short_len)
+            self._job = (fd, drain, request, send_at, first_wake, timeout, char, expect,
+                         short_len, look)  # fmt: skip
             self._cv.notify()
 
     def result(self) -> XferResult | None:
-        """The exchange's report once it is over (`fd` readable), else None."""
-        try:
-            os.read(self.fd, 64)
-        except BlockingIOError:
-            pass
+        """The report of the last exchange (None: one is under way)."""
+        _drain_pipe(self.fd)
         with self._cv:
             if self._busy:
                 return None
             return self._report  # (the last exchange's, until the next one)
 
+    def cancel(self) -> None:
+        """End the exchange under way (before its write if that is not due yet); its
+        report still comes (status CANCELLED)."""
+        try:
+            os.write(self._cw, b"\x01")
+        except BlockingIOError:
+            pass
+
     def close(self) -> None:
-        """End the thread (after the exchange under way, if any)."""
+        """End the thread (the exchange under way is cancelled first)."""
         with self._cv:
             if self._closed:
                 return
             self._closed = True
             self._cv.notify()
+        self.cancel()
         self._thread.join()
-        os.close(self.fd)
-        os.close(self._w)
+        for fd in (self.fd, self._w, self._cr, self._cw):
+            os.close(fd)
+
+
+def _drain_pipe(fd: int) -> None:
+    try:
+        os.read(fd, 64)
+    except BlockingIOError:
+        pass
