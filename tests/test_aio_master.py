@@ -294,3 +294,35 @@ def test_max_in_flight_is_for_tcp_only(tmp_path: Path) -> None:
         AsyncMaster(missing, 9600, max_in_flight=True)
     tcp = AsyncMaster("tcp://127.0.0.1:1", max_in_flight=4)  # connects on first use
     assert type(tcp) is AsyncMaster and tcp.mode == "tcp"  # one class, a TCP link
+
+
+@pytest.mark.wall_clock
+@pytest.mark.parametrize("runner", sorted(RUNNERS))
+def test_a_cancelled_exchange_frees_the_port_at_once(runner: str, backend: ModuleType) -> None:
+    """A repeated read (an `Exchange` on the port's exchange thread) cancelled while it
+    waits for an answer that will not come: the thread's exchange ends at once, the
+    next read waits for nothing but the protocol's settling, and close is prompt
+    (bounds: a fraction of the 2 s response timeout)."""
+    timeout = 2.0
+    with vbus.VirtualBus(2, baudrate=115200, parity="N") as bus:
+
+        async def main() -> None:
+            m = AsyncMaster(bus.paths[0], 115200, parity="N", timeout=timeout,
+                            backend=backend.BACKEND)  # fmt: skip
+            try:
+                with serving(bus.paths[1], store=make_store(), baudrate=115200):
+                    for _ in range(3):  # the answer's length learned: exchanges from now
+                        assert await m.read_holding_registers(1, 0, 2) == [1000, 1001]
+                assert m._ax is not None  # the exchange thread ran them
+                start = time.monotonic()
+                with pytest.raises(asyncio.TimeoutError):  # nobody answers now
+                    await asyncio.wait_for(m.read_holding_registers(1, 0, 2), 0.05)
+                with serving(bus.paths[1], store=make_store(), baudrate=115200):
+                    assert await m.read_holding_registers(1, 0, 2) == [1000, 1001]
+                assert time.monotonic() - start < timeout / 2
+            finally:
+                start = time.monotonic()
+                await m.close()
+                assert time.monotonic() - start < timeout / 2
+
+        RUNNERS[runner](main())

@@ -188,12 +188,19 @@ class AsyncMaster(MasterBase):
         try:
             return await fut
         except BaseException:
-            self._ax_call = None
+            self._cancel_exchange()
             raise
 
+    def _cancel_exchange(self) -> None:
+        """The transaction was cancelled: end its exchange under way (at once, with
+        whatever it read; its report comes unheard)."""
+        self._ax_call = None
+        if self._ax_over is not None and self._ax is not None:
+            self._ax.cancel()
+
     async def _exchange_over(self) -> None:
-        """Wait for an exchange a cancelled transaction left under way (it ends by its
-        deadline): the port is the thread's until then."""
+        """Wait for the end of an exchange a cancelled transaction left under way (it
+        was cancelled, and ends at once): the port is the thread's until then."""
         over = self._ax_over
         if over is not None:
             await asyncio.shield(over)
@@ -245,6 +252,7 @@ class AsyncMaster(MasterBase):
             return await fut
         except BaseException:
             drive.stop()
+            self._cancel_exchange()
             proto.abort(_monotonic())
             raise
 
