@@ -63,7 +63,8 @@ def run(
     first_wake: float = 0.002,
 ) -> xfer.XferResult:
     ex = backend.Exchanger()
-    return ex.run(line, False, REQUEST, send_at, first_wake, timeout, CHAR, expect, 5)  # type: ignore[no-any-return]
+    plan = xfer.XferPlan(line, False, REQUEST, send_at, CHAR, first_wake, timeout, expect, 5)
+    return ex.run(plan)  # type: ignore[no-any-return]
 
 
 def test_an_answer_in_pieces_is_read_whole(backend: ModuleType, pty: tuple[int, int]) -> None:
@@ -88,7 +89,8 @@ def test_a_real_line_is_drained_and_timed(backend: ModuleType, pty: tuple[int, i
     got: list[bytes] = []
     t = play(device, [(0.002, answer)], got)
     slow = 10 / 1200  # 1200 baud: 8 characters take 66.7 ms
-    r = backend.Exchanger().run(line, True, REQUEST, 0.0, 0.0, 0.5, slow, len(answer), 5)
+    plan = xfer.XferPlan(line, True, REQUEST, 0.0, slow, 0.0, 0.5, len(answer), 5)
+    r = backend.Exchanger().run(plan)
     t.join(2)
     assert r.status == xfer.ANSWER and r.data == answer and got == [REQUEST]
     assert r.end >= r.start + len(REQUEST) * slow - 1e-6
@@ -218,7 +220,7 @@ def test_bad_arguments_are_refused_alike(
     }
     args.update(change)
     with pytest.raises(ValueError, match=message):
-        backend.Exchanger().run(**args)
+        backend.Exchanger().run(xfer.XferPlan(**args))  # type: ignore[arg-type]
 
 
 def test_the_async_exchanger_runs_on_its_thread(backend: ModuleType, pty: tuple[int, int]) -> None:
@@ -233,9 +235,11 @@ def test_the_async_exchanger_runs_on_its_thread(backend: ModuleType, pty: tuple[
         for _ in range(2):
             got: list[bytes] = []
             t = play(device, [(0.003, answer)], got)
-            ax.submit(line, False, REQUEST, 0.0, 0.002, 0.5, CHAR, len(answer), 5)
+            ax.submit(xfer.XferPlan(line, False, REQUEST, 0.0, CHAR, 0.002, 0.5, len(answer), 5))
             with pytest.raises(RuntimeError, match="under way"):
-                ax.submit(line, False, REQUEST, 0.0, 0.002, 0.5, CHAR, len(answer), 5)
+                ax.submit(
+                    xfer.XferPlan(line, False, REQUEST, 0.0, CHAR, 0.002, 0.5, len(answer), 5)
+                )
             assert select.select([ax.fd], [], [], 2.0)[0] == [ax.fd]
             r = ax.result()
             t.join(2)
@@ -245,7 +249,7 @@ def test_the_async_exchanger_runs_on_its_thread(backend: ModuleType, pty: tuple[
     finally:
         ax.close()
     with pytest.raises(ValueError, match="closed"):
-        ax.submit(line, False, REQUEST, 0.0, 0.002, 0.5, CHAR, 25, 5)
+        ax.submit(xfer.XferPlan(line, False, REQUEST, 0.0, CHAR, 0.002, 0.5, 25, 5))
 
 
 def test_a_response_goes_at_its_time(backend: ModuleType, pty: tuple[int, int]) -> None:
@@ -256,7 +260,7 @@ def test_a_response_goes_at_its_time(backend: ModuleType, pty: tuple[int, int]) 
     os.write(device, b"\x09")  # input waiting on the line: sent all the same
     answer = answer_of(2, backend)
     at = time.monotonic() + 0.01
-    r = backend.Exchanger().run(line, False, answer, at, 0.0, 0.0, CHAR, 0, 0, look=False)
+    r = backend.Exchanger().run(xfer.XferPlan(line, False, answer, at, CHAR, look=False))
     assert r.status == xfer.ANSWER and r.sent and r.start >= at and r.data == b""
     assert os.read(device, 64) == answer
 
@@ -270,7 +274,9 @@ def test_cancel_ends_an_exchange(backend: ModuleType, pty: tuple[int, int]) -> N
     os.set_blocking(device, False)
     ax = backend.AsyncExchanger()
     try:
-        ax.submit(line, False, REQUEST, time.monotonic() + 5.0, 0.0, 0.5, CHAR, 25, 5)
+        ax.submit(
+            xfer.XferPlan(line, False, REQUEST, time.monotonic() + 5.0, CHAR, 0.0, 0.5, 25, 5)
+        )
         time.sleep(0.02)
         ax.cancel()
         assert select.select([ax.fd], [], [], 2.0)[0] == [ax.fd]
@@ -279,7 +285,9 @@ def test_cancel_ends_an_exchange(backend: ModuleType, pty: tuple[int, int]) -> N
         with pytest.raises(BlockingIOError):
             os.read(device, 64)  # nothing went
         start = time.monotonic()
-        ax.submit(line, False, REQUEST, 0.0, 0.0, 5.0, CHAR, 25, 5)  # no answer will come
+        ax.submit(
+            xfer.XferPlan(line, False, REQUEST, 0.0, CHAR, 0.0, 5.0, 25, 5)
+        )  # no answer comes
         time.sleep(0.02)
         ax.cancel()
         assert select.select([ax.fd], [], [], 2.0)[0] == [ax.fd]

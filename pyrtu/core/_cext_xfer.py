@@ -11,7 +11,7 @@ import weakref
 from typing import Any
 
 from pyrtu.core._rtu_core import ffi, lib
-from pyrtu.core.xfer import CAPACITY, XferResult, check_plan
+from pyrtu.core.xfer import CAPACITY, XferPlan, XferResult, check_plan
 
 
 def _new_xfer(cancel_fd: int) -> tuple[Any, Any]:
@@ -23,18 +23,16 @@ def _new_xfer(cancel_fd: int) -> tuple[Any, Any]:
     return x, buf
 
 
-def _plan(x: Any, args: tuple[Any, ...], look: bool) -> Any:
-    """Fill ``x`` for one exchange (``args``: `Exchanger.run`'s, through
-    ``short_len``); the request's C view (keep it alive until the exchange is over)."""
-    fd, drain, request, send_at, first_wake, timeout, char, expect, short_len = args
-    check_plan(request, first_wake, timeout, char, expect, short_len)
-    if fd < 0:
-        raise ValueError(f"fd must be an open descriptor, not {fd}")
-    req = ffi.from_buffer("uint8_t[]", request)
-    x.fd, x.drain, x.look, x.req, x.req_len = fd, drain, look, req, len(request)
-    x.send_at = math.ceil(send_at * 1e9)  # never before it
-    x.first_wake, x.timeout_ns = int(first_wake * 1e9), int(timeout * 1e9)
-    x.char_ns, x.expect, x.short_len = max(1, int(char * 1e9)), expect, short_len
+def _plan(x: Any, plan: XferPlan) -> Any:
+    """Fill ``x`` for one exchange; the request's C view (keep it alive until the
+    exchange is over)."""
+    check_plan(plan)
+    req = ffi.from_buffer("uint8_t[]", plan.request)
+    x.fd, x.drain, x.look, x.req, x.req_len = plan.fd, plan.drain, plan.look, req, len(req)
+    x.send_at = math.ceil(plan.send_at * 1e9)  # never before it
+    x.first_wake, x.timeout_ns = int(plan.first_wake * 1e9), int(plan.timeout * 1e9)
+    x.char_ns = max(1, int(plan.char * 1e9))
+    x.expect, x.short_len = plan.expect, plan.short_len
     return req
 
 
@@ -68,25 +66,11 @@ class Exchanger:
     def __init__(self) -> None:
         self._x, self._buf = _new_xfer(-1)
 
-    def run(
-        self,
-        fd: int,
-        drain: bool,
-        request: bytes,
-        send_at: float,
-        first_wake: float,
-        timeout: float,
-        char: float,
-        expect: int,
-        short_len: int,
-        look: bool = True,
-    ) -> XferResult:
+    def run(self, plan: XferPlan) -> XferResult:
         x = self._x
-        _req = _plan(
-            x, (fd, drain, request, send_at, first_wake, timeout, char, expect, short_len), look
-        )
+        _req = _plan(x, plan)
         if lib.rtu_xfer_io_run(x) != lib.RTU_OK:
-            raise ValueError(f"fd must be an open descriptor, not {fd}")
+            raise ValueError(f"fd must be an open descriptor, not {plan.fd}")
         return _report(x, self._buf)
 
 
@@ -125,28 +109,12 @@ class AsyncExchanger:
         keep = (self._x, self._buf, self._worker)
         self._stop = weakref.finalize(self, _stop_worker, worker, keep, (r, w, cr, cw))
 
-    def submit(
-        self,
-        fd: int,
-        drain: bool,
-        request: bytes,
-        send_at: float,
-        first_wake: float,
-        timeout: float,
-        char: float,
-        expect: int,
-        short_len: int,
-        look: bool = True,
-    ) -> None:
+    def submit(self, plan: XferPlan) -> None:
         if not self._stop.alive:
             raise ValueError("this exchanger is closed")
         if lib.rtu_xfer_worker_rc(self._w) == lib.RTU_EBUSY:
             raise RuntimeError("an exchange is under way")
-        self._req = _plan(
-            self._x,
-            (fd, drain, request, send_at, first_wake, timeout, char, expect, short_len),
-            look,
-        )
+        self._req = _plan(self._x, plan)
         _drain_pipe(self._cr)  # an old cancel
         lib.rtu_xfer_worker_submit(self._w)
 

@@ -46,57 +46,45 @@ class XferResult(NamedTuple):
     reads: int
 
 
+class XferPlan(NamedTuple):
+    """One exchange, as the protocol decided it: on ``fd``, ``request`` written at
+    ``send_at`` (``drain``: tcdrain after the write, a real line; ``look``: input
+    pending then is stale and nothing is sent, a master), ``char`` one character's
+    time; the first read ``first_wake`` seconds after the end of transmission, the
+    deadline ``timeout`` seconds after it, ``expect`` the answer's length (0: none
+    awaited, a slave's response), ``short_len`` an exception answer's (0: none)."""
+
+    fd: int
+    drain: bool
+    request: bytes
+    send_at: float
+    char: float
+    first_wake: float = 0.0
+    timeout: float = 0.0
+    expect: int = 0
+    short_len: int = 0
+    look: bool = True
+
+
 class Exchanger(Protocol):
-    """A backend's exchange step (``backend.Exchanger()``: one per port).
+    """A backend's exchange step (``backend.Exchanger()``: one per port): ``run(plan)``
+    carries out one `XferPlan` (ValueError for values out of range)."""
 
-    ``run(fd, drain, request, send_at, first_wake, timeout, char, expect, short_len,
-    look=True)`` carries out one exchange on ``fd``: ``drain``: tcdrain after the
-    write (a real line); ``first_wake``: seconds after the end of transmission;
-    ``timeout``: the deadline, seconds after it; ``char``: one character's time;
-    ``expect``: the answer's length (0: none awaited); ``short_len``: an exception
-    answer's (0: none); ``look``: input pending at the send time is stale and nothing
-    is sent (a master).  ValueError for arguments out of range."""
-
-    def run(
-        self,
-        fd: int,
-        drain: bool,
-        request: bytes,
-        send_at: float,
-        first_wake: float,
-        timeout: float,
-        char: float,
-        expect: int,
-        short_len: int,
-        look: bool = True,
-    ) -> XferResult: ...
+    def run(self, plan: XferPlan) -> XferResult: ...
 
 
 class AsyncExchanger(Protocol):
     """A backend's exchanges on a thread of their own, for an event loop
     (``backend.AsyncExchanger()``: one per port; C: csrc/rtu_xfer_io.c's worker).
-    `submit` takes `Exchanger.run`'s arguments and returns at once (RuntimeError while
-    an exchange is under way); the loop watches ``fd`` (readable once it is over) and
-    calls `result` (the last exchange's report; None while one is under way);
-    `cancel` ends the exchange under way (before its write if that is not due yet:
-    the report still comes, status CANCELLED); `close` ends the thread, the exchange
-    under way cancelled."""
+    ``submit(plan)`` returns at once (RuntimeError while an exchange is under way);
+    the loop watches ``fd`` (readable once it is over) and calls `result` (the last
+    exchange's report; None while one is under way); `cancel` ends the exchange under
+    way (before its write if that is not due yet: the report still comes, status
+    CANCELLED); `close` ends the thread, the exchange under way cancelled."""
 
     fd: int
 
-    def submit(
-        self,
-        fd: int,
-        drain: bool,
-        request: bytes,
-        send_at: float,
-        first_wake: float,
-        timeout: float,
-        char: float,
-        expect: int,
-        short_len: int,
-        look: bool = True,
-    ) -> None: ...
+    def submit(self, plan: XferPlan) -> None: ...
 
     def result(self) -> XferResult | None: ...
 
@@ -105,20 +93,20 @@ class AsyncExchanger(Protocol):
     def close(self) -> None: ...
 
 
-def check_plan(
-    request: bytes, first_wake: float, timeout: float, char: float, expect: int, short_len: int
-) -> None:
-    """The arguments both backends refuse, with the same messages."""
-    if not request:
+def check_plan(plan: XferPlan) -> None:
+    """The values both backends refuse, with the same messages."""
+    if not plan.request:
         raise ValueError("request must not be empty")
-    if not 0 <= expect <= CAPACITY:
-        raise ValueError(f"expect must be 0..{CAPACITY}, not {expect}")
-    if not 0 <= short_len <= expect:
-        raise ValueError(f"short_len must be 0..expect ({expect}), not {short_len}")
-    if not char > 0:
-        raise ValueError(f"char must be a positive number of seconds, not {char}")
-    if not first_wake >= 0 or not timeout >= 0:
+    if not 0 <= plan.expect <= CAPACITY:
+        raise ValueError(f"expect must be 0..{CAPACITY}, not {plan.expect}")
+    if not 0 <= plan.short_len <= plan.expect:
+        raise ValueError(f"short_len must be 0..expect ({plan.expect}), not {plan.short_len}")
+    if not plan.char > 0:
+        raise ValueError(f"char must be a positive number of seconds, not {plan.char}")
+    if not plan.first_wake >= 0 or not plan.timeout >= 0:
         raise ValueError("first_wake and timeout must be non-negative numbers of seconds")
+    if plan.fd < 0:
+        raise ValueError(f"fd must be an open descriptor, not {plan.fd}")
 
 
 __all__ = [
@@ -133,6 +121,7 @@ __all__ = [
     "STALE",
     "AsyncExchanger",
     "Exchanger",
+    "XferPlan",
     "XferResult",
     "check_plan",
 ]

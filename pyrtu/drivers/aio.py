@@ -155,7 +155,7 @@ class AsyncMaster(MasterBase):
         if ax is None:
             ax = self._ax = self._proto._backend.AsyncExchanger()
         assert self._fd is not None
-        ax.submit(*plan_of(self.port, self._fd, action))
+        ax.submit(plan_of(self.port, self._fd, action))
         self._ax_call, self._ax_over = then, loop.create_future()
         if self._ax_loop is not loop:  # watched once per loop, until close
             if self._ax_loop is not None and not self._ax_loop.is_closed():

@@ -285,8 +285,9 @@ class AsyncSlave(PortSlave["AsyncSlave"], AsyncClosing):
         if ax is None:
             ax = self._ax = self.protocol.backend.AsyncExchanger()
         port = self.port
-        ax.submit(fd, port.has_wire, action.data, action.at, 0.0, 0.0, port.char_time, 0, 0,
-                  look=False)  # fmt: skip
+        ax.submit(
+            xfer.XferPlan(fd, port.has_wire, action.data, action.at, port.char_time, look=False)
+        )
         self._replying = True
         if self._ax_loop is not loop:
             loop.add_reader(ax.fd, self._replied)

@@ -78,10 +78,12 @@ def waiter(port: Port) -> Callable[[Wait], bytes]:
     return lambda action: _wait_fd(port, fd, action)
 
 
-def plan_of(port: Port, fd: int, action: Exchange) -> tuple[Any, ...]:
-    """An `Exchange` as the arguments of `Exchanger.run` (and `AsyncExchanger.submit`)."""
-    return (fd, port.has_wire, action.data, action.send_at, action.first_wake, action.timeout,
-            port.char_time, action.expect, action.short_len)  # fmt: skip
+def plan_of(port: Port, fd: int, action: Exchange) -> xfer.XferPlan:
+    """An `Exchange` on ``port`` as the backend's exchangers take it."""
+    return xfer.XferPlan(
+        fd, port.has_wire, action.data, action.send_at, port.char_time, action.first_wake,
+        action.timeout, action.expect, action.short_len,
+    )  # fmt: skip
 
 
 def report(port: Port, proto: ClientProtocol, r: xfer.XferResult) -> None:
@@ -127,7 +129,7 @@ def run_sync(port: Port, proto: ClientProtocol, call: Call, exchanger: Any = Non
                 proto.transmitted(end, start)
             elif isinstance(action, Exchange):
                 assert fd is not None and run is not None
-                report(port, proto, run(*plan_of(port, fd, action)))
+                report(port, proto, run(plan_of(port, fd, action)))
             else:
                 break
     except BaseException:

@@ -11,7 +11,6 @@ import os
 import select
 import threading
 import time
-from typing import Any
 
 from pyrtu.core.xfer import (
     ANSWER,
@@ -23,6 +22,7 @@ from pyrtu.core.xfer import (
     STAGE_READ,
     STAGE_WRITE,
     STALE,
+    XferPlan,
     XferResult,
     check_plan,
 )
@@ -98,30 +98,15 @@ class Exchanger:
             raise _Failed(GONE)
         return False
 
-    def run(
-        self,
-        fd: int,
-        drain: bool,
-        request: bytes,
-        send_at: float,
-        first_wake: float,
-        timeout: float,
-        char: float,
-        expect: int,
-        short_len: int,
-        look: bool = True,
-    ) -> XferResult:
-        check_plan(request, first_wake, timeout, char, expect, short_len)
-        if fd < 0:
-            raise ValueError(f"fd must be an open descriptor, not {fd}")
+    def run(self, plan: XferPlan) -> XferResult:
+        check_plan(plan)
         self._buf = bytearray()
         self._last = 0.0
         self._reads = 0
         state = [SHORT, False, 0.0, 0.0, 0, 0.0]  # status, sent, start, end, first_n, first_t
         err = stage = 0
         try:
-            self._steps(fd, drain, request, send_at, first_wake, timeout, char, expect,
-                        short_len, look, state)  # fmt: skip
+            self._steps(plan, state)
         except _Failed as f:
             state[0], err, stage = f.status, f.err, f.stage
         status, sent, start, end, first_n, first_t = state
@@ -164,27 +149,26 @@ class Exchanger:
         state[1:4] = [True, start, end]
         return end
 
-    def _steps(self, fd: int, drain: bool, request: bytes, send_at: float, first_wake: float,
-               timeout: float, char: float, expect: int, short_len: int, look: bool,
-               state: list[float | int | bool]) -> None:  # fmt: skip
+    def _steps(self, plan: XferPlan, state: list[float | int | bool]) -> None:
+        fd, expect, short_len = plan.fd, plan.expect, plan.short_len
         cancel = self._cancel
-        _pause_until(send_at, cancel)
-        if look and _wait_fd(fd, select.POLLIN, 0.0) and self._take(fd, True):
+        _pause_until(plan.send_at, cancel)
+        if plan.look and _wait_fd(fd, select.POLLIN, 0.0) and self._take(fd, True):
             state[0] = STALE
             return
-        end = self._transmit(fd, drain, request, char, state)
+        end = self._transmit(fd, plan.drain, plan.request, plan.char, state)
         if expect == 0:  # nothing awaited (a slave's response)
             state[0] = ANSWER
             return
-        deadline = end + timeout
-        _pause_until(end + first_wake, cancel)
+        deadline = end + plan.timeout
+        _pause_until(end + plan.first_wake, cancel)
         self._take(fd, False)
         state[4:6] = [len(self._buf), self._last]
         while len(self._buf) < self._wanted(expect, short_len):
             left = self._wanted(expect, short_len) - len(self._buf)
             got = False
             if self._buf and left > 1:
-                _pause_until(min(self._last + (left - 1) * char, deadline), cancel)
+                _pause_until(min(self._last + (left - 1) * plan.char, deadline), cancel)
                 got = self._take(fd, False)
             if not got:
                 if not _wait_fd(fd, select.POLLIN, deadline, cancel):
@@ -208,7 +192,7 @@ class AsyncExchanger:
         self.fd, self._w, self._cr, self._cw = r, w, cr, cw
         self._ex = Exchanger(cr)
         self._cv = threading.Condition()
-        self._job: tuple[Any, ...] | None = None
+        self._job: XferPlan | None = None
         self._busy = False
         self._closed = False
         self._report: XferResult | None = None
@@ -223,7 +207,7 @@ class AsyncExchanger:
                 job, self._job = self._job, None
                 if job is None:
                     return
-            report = self._ex.run(*job)
+            report = self._ex.run(job)
             with self._cv:
                 self._report, self._busy = report, False
             try:
@@ -231,22 +215,8 @@ class AsyncExchanger:
             except BlockingIOError:  # a full pipe already holds a wake-up
                 pass
 
-    def submit(
-        self,
-        fd: int,
-        drain: bool,
-        request: bytes,
-        send_at: float,
-        first_wake: float,
-        timeout: float,
-        char: float,
-        expect: int,
-        short_len: int,
-        look: bool = True,
-    ) -> None:
-        check_plan(request, first_wake, timeout, char, expect, short_len)
-        if fd < 0:
-            raise ValueError(f"fd must be an open descriptor, not {fd}")
+    def submit(self, plan: XferPlan) -> None:
+        check_plan(plan)
         with self._cv:
             if self._closed:
                 raise ValueError("this exchanger is closed")
@@ -254,8 +224,7 @@ class AsyncExchanger:
                 raise RuntimeError("an exchange is under way")
             _drain_pipe(self._cr)  # an old cancel
             self._busy = True
-            self._job = (fd, drain, request, send_at, first_wake, timeout, char, expect,
-                         short_len, look)  # fmt: skip
+            self._job = plan
             self._cv.notify()
 
     def result(self) -> XferResult | None:
