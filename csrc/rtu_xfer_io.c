@@ -69,15 +69,12 @@ static int sleep_until(int64_t t)
 #endif
 }
 
-/* Wait for `events` on fd until `t` (absolute; a past `t`: a look).  >0 ready, 0
- * the time came, <0 error (errno; EINTR: a signal). */
-static int wait_fd(int fd, short events, int64_t t)
+/* poll() the n descriptors until `t` (absolute; a past `t`: a look), to the
+ * nanosecond where ppoll() exists.  >0 ready, 0 the time came, <0 error (errno;
+ * EINTR: a signal). */
+static int poll_until(struct pollfd *p, nfds_t n, int64_t t)
 {
-    struct pollfd p;
     int64_t rel = t - now_ns();
-    p.fd = fd;
-    p.events = events;
-    p.revents = 0;
     if (rel < 0)
         rel = 0;
 #if defined(__linux__)
@@ -85,11 +82,21 @@ static int wait_fd(int fd, short events, int64_t t)
         struct timespec ts;
         ts.tv_sec = (time_t)(rel / 1000000000);
         ts.tv_nsec = (long)(rel % 1000000000);
-        return ppoll(&p, 1, &ts, NULL);
+        return ppoll(p, n, &ts, NULL);
     }
 #else
-    return poll(&p, 1, (int)((rel + 999999) / 1000000));
+    return poll(p, n, (int)((rel + 999999) / 1000000));
 #endif
+}
+
+/* Wait for `events` on fd until `t` (see poll_until). */
+static int wait_fd(int fd, short events, int64_t t)
+{
+    struct pollfd p;
+    p.fd = fd;
+    p.events = events;
+    p.revents = 0;
+    return poll_until(&p, 1, t);
 }
 
 /* Read what the descriptor has into buf; 1 bytes came, 0 none (EAGAIN), -1 done
@@ -210,7 +217,6 @@ static int wait_input(rtu_xfer *x, int64_t t)
 {
     struct pollfd p[2];
     nfds_t n = 1;
-    int64_t rel = t - now_ns();
     int r;
     p[0].fd = x->fd;
     p[0].events = POLLIN;
@@ -221,18 +227,7 @@ static int wait_input(rtu_xfer *x, int64_t t)
         p[1].revents = 0;
         n = 2;
     }
-    if (rel < 0)
-        rel = 0;
-#if defined(__linux__)
-    {
-        struct timespec ts;
-        ts.tv_sec = (time_t)(rel / 1000000000);
-        ts.tv_nsec = (long)(rel % 1000000000);
-        r = ppoll(p, n, &ts, NULL);
-    }
-#else
-    r = poll(p, n, (int)((rel + 999999) / 1000000));
-#endif
+    r = poll_until(p, n, t);
     if (r < 0) {
         if (errno != EINTR)
             failed(x, RTU_XFER_STAGE_READ);
