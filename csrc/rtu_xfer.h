@@ -11,7 +11,7 @@
  * comes, and returns what it saw and when, for the protocol to judge.  It keeps
  * no state between calls and decides nothing about the bytes but their count
  * (and an exception answer's shorter length, [MB] 7).  The pure-Python twin is
- * pyrtu/core/_pure/xfer.py.
+ * pyrtu/drivers/_pyxfer.py.
  */
 #ifndef RTU_XFER_H
 #define RTU_XFER_H

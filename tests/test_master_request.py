@@ -169,7 +169,7 @@ def test_a_repeated_read_goes_as_one_exchange(backend: object) -> None:
     ):
         exchanger = m._conn.exchanger  # type: ignore[attr-defined]
         assert type(exchanger).__module__.startswith(
-            "pyrtu.core._cext" if name == "c" else "pyrtu.core._pure"
+            "pyrtu.drivers._cxfer" if name == "c" else "pyrtu.drivers._pyxfer"
         )
         calls = []
         real_run = exchanger.run

@@ -1,5 +1,5 @@
-"""The exchange step (pyrtu.core.xfer: csrc/rtu_xfer_io.c and its twin
-pyrtu/core/_pure/xfer.py) on a real pseudo-terminal, on both backends: what it sends,
+"""The exchange step (pyrtu.drivers.xfer: csrc/rtu_xfer_io.c and its twin
+pyrtu/drivers/_pyxfer.py) on a real pseudo-terminal, on both backends: what it sends,
 reads and reports, and that C and the twin agree, errors included."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from types import ModuleType
 
 import pytest
 
-from pyrtu.core import xfer
+from pyrtu.drivers import exchangers, xfer
 
 REQUEST = bytes.fromhex("0703000000 0a c4 6f".replace(" ", ""))
 CHAR = 10 / 115200
@@ -62,7 +62,7 @@ def run(
     send_at: float = 0.0,
     first_wake: float = 0.002,
 ) -> xfer.XferResult:
-    ex = backend.Exchanger()
+    ex = exchangers.exchanger(backend)
     plan = xfer.XferPlan(line, False, REQUEST, send_at, CHAR, first_wake, timeout, expect, 5)
     return ex.run(plan)  # type: ignore[no-any-return]
 
@@ -90,7 +90,7 @@ def test_a_real_line_is_drained_and_timed(backend: ModuleType, pty: tuple[int, i
     t = play(device, [(0.002, answer)], got)
     slow = 10 / 1200  # 1200 baud: 8 characters take 66.7 ms
     plan = xfer.XferPlan(line, True, REQUEST, 0.0, slow, 0.0, 0.5, len(answer), 5)
-    r = backend.Exchanger().run(plan)
+    r = exchangers.exchanger(backend).run(plan)
     t.join(2)
     assert r.status == xfer.ANSWER and r.data == answer and got == [REQUEST]
     assert r.end >= r.start + len(REQUEST) * slow - 1e-6
@@ -220,7 +220,7 @@ def test_bad_arguments_are_refused_alike(
     }
     args.update(change)
     with pytest.raises(ValueError, match=message):
-        backend.Exchanger().run(xfer.XferPlan(**args))  # type: ignore[arg-type]
+        exchangers.exchanger(backend).run(xfer.XferPlan(**args))  # type: ignore[arg-type]
 
 
 def test_the_async_exchanger_runs_on_its_thread(backend: ModuleType, pty: tuple[int, int]) -> None:
@@ -230,7 +230,7 @@ def test_the_async_exchanger_runs_on_its_thread(backend: ModuleType, pty: tuple[
 
     device, line = pty
     answer = answer_of(10, backend)
-    ax = backend.AsyncExchanger()
+    ax = exchangers.async_exchanger(backend)
     try:
         for _ in range(2):
             got: list[bytes] = []
@@ -260,7 +260,7 @@ def test_a_response_goes_at_its_time(backend: ModuleType, pty: tuple[int, int]) 
     os.write(device, b"\x09")  # input waiting on the line: sent all the same
     answer = answer_of(2, backend)
     at = time.monotonic() + 0.01
-    r = backend.Exchanger().run(xfer.XferPlan(line, False, answer, at, CHAR, look=False))
+    r = exchangers.exchanger(backend).run(xfer.XferPlan(line, False, answer, at, CHAR, look=False))
     assert r.status == xfer.ANSWER and r.sent and r.start >= at and r.data == b""
     assert os.read(device, 64) == answer
 
@@ -272,7 +272,7 @@ def test_cancel_ends_an_exchange(backend: ModuleType, pty: tuple[int, int]) -> N
 
     device, line = pty
     os.set_blocking(device, False)
-    ax = backend.AsyncExchanger()
+    ax = exchangers.async_exchanger(backend)
     try:
         ax.submit(
             xfer.XferPlan(line, False, REQUEST, time.monotonic() + 5.0, CHAR, 0.0, 0.5, 25, 5)

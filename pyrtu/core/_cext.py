@@ -475,7 +475,3 @@ def _parse_tcp(role: int, data: bytes) -> CMbapFrameList:
 parse_tcp_stream = make_parse_tcp_stream(_parse_tcp)
 encode_mbap = make_encode_mbap(_mbap_encode)
 __all__ += ["MbapFramer", "encode_mbap", "parse_tcp_stream"]
-
-from pyrtu.core._cext_xfer import AsyncExchanger, Exchanger  # noqa: E402  (after lib)
-
-__all__ += ["AsyncExchanger", "Exchanger"]

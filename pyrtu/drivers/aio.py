@@ -40,8 +40,7 @@ from typing import TYPE_CHECKING, Any
 from pyrtu import pdu as P
 from pyrtu.core.line import LineConfig
 from pyrtu.core.rules import LengthRule
-from pyrtu.core.xfer import AsyncExchanger, XferResult
-from pyrtu.drivers import _ptimer
+from pyrtu.drivers import _ptimer, exchangers, xfer
 from pyrtu.drivers._slack import tighten_this_thread
 from pyrtu.drivers.links import TCP_SCHEME, Link
 from pyrtu.drivers.master import Master, MasterBase
@@ -80,8 +79,8 @@ class AsyncMaster(MasterBase):
         self._proto = link.proto
         self._fd = link.port.fd
         # a repeated request's Exchange on a thread of the backend's (see _submit)
-        self._ax: AsyncExchanger | None = None
-        self._ax_call: Callable[[XferResult], None] | None = None
+        self._ax: xfer.AsyncExchanger | None = None
+        self._ax_call: Callable[[xfer.XferResult], None] | None = None
         self._ax_over: asyncio.Future[None] | None = None  # the exchange under way
         self._ax_loop: asyncio.AbstractEventLoop | None = None  # the loop watching it
         if self._fd is None:
@@ -146,14 +145,14 @@ class AsyncMaster(MasterBase):
 
     # ------------------------------------------------------- the exchange thread
 
-    def _submit(self, action: Exchange, then: Callable[[XferResult], None]) -> None:
+    def _submit(self, action: Exchange, then: Callable[[xfer.XferResult], None]) -> None:
         """Start an `Exchange` on the port's exchange thread (the backend's
         `AsyncExchanger`: C, without the GIL); ``then(report)`` runs in the loop when
         it is over (the thread's pipe wakes the loop: one wake-up per transaction)."""
         loop = asyncio.get_running_loop()
         ax = self._ax
         if ax is None:
-            ax = self._ax = self._proto._backend.AsyncExchanger()
+            ax = self._ax = exchangers.async_exchanger(self._proto._backend)
         assert self._fd is not None
         ax.submit(plan_of(self.port, self._fd, action))
         self._ax_call, self._ax_over = then, loop.create_future()
@@ -176,11 +175,11 @@ class AsyncMaster(MasterBase):
         if then is not None:  # None: the transaction was cancelled meanwhile
             then(r)
 
-    async def _exchange(self, action: Exchange) -> XferResult:
+    async def _exchange(self, action: Exchange) -> xfer.XferResult:
         """An `Exchange` as this task's await."""
-        fut: asyncio.Future[XferResult] = asyncio.get_running_loop().create_future()
+        fut: asyncio.Future[xfer.XferResult] = asyncio.get_running_loop().create_future()
 
-        def then(r: XferResult) -> None:
+        def then(r: xfer.XferResult) -> None:
             if not fut.done():
                 fut.set_result(r)
 
@@ -428,7 +427,7 @@ class _Drive:
         data = read_now(port, self._fd) if needed else port.read(0)
         self._proto.wait_done(data, _monotonic())
 
-    def _exchanged(self, r: XferResult) -> None:
+    def _exchanged(self, r: xfer.XferResult) -> None:
         if self._fut.done():
             return  # cancelled meanwhile: the task aborted the protocol
         try:

@@ -20,7 +20,7 @@ When the first bytes of a frame come, the reader is set aside until the protocol
 `wake_at` (for a request to this slave: `PREPARE` before the end of its t3.5): the
 rest is read and the request executed in that wake-up (lenient mode), and the
 response goes to the port's exchange thread (the backend's `AsyncExchanger`,
-`pyrtu.core.xfer`: a C thread without the GIL), which writes it at its time to the
+`pyrtu.drivers.xfer`: a C thread without the GIL), which writes it at its time to the
 microsecond whatever the loop is doing; the loop wakes once more when it is written.
 Three wake-ups per transaction, four for a request longer than 8 bytes (its length
 is known once 8 bytes are in), and one more per 25 ms of a longer one (see
@@ -41,9 +41,8 @@ import os
 import threading
 from typing import TYPE_CHECKING, Any
 
-from pyrtu.core import xfer
 from pyrtu.core._closing import AsyncClosing
-from pyrtu.drivers import _ptimer
+from pyrtu.drivers import _ptimer, exchangers, xfer
 from pyrtu.drivers.port import read_fd
 from pyrtu.drivers.slave import PREPARE
 from pyrtu.drivers.slave_base import PortSlave
@@ -283,7 +282,7 @@ class AsyncSlave(PortSlave["AsyncSlave"], AsyncClosing):
         assert loop is not None
         ax = self._ax
         if ax is None:
-            ax = self._ax = self.protocol.backend.AsyncExchanger()
+            ax = self._ax = exchangers.async_exchanger(self.protocol.backend)
         port = self.port
         ax.submit(
             xfer.XferPlan(fd, port.has_wire, action.data, action.at, port.char_time, look=False)

@@ -45,6 +45,7 @@ from pyrtu.core import _backend
 from pyrtu.core._forward import Forward, Settable
 from pyrtu.core.line import LineConfig, adopt_port_format, line_from
 from pyrtu.core.rules import LengthRule, RuleTable, check_rules
+from pyrtu.drivers import exchangers
 from pyrtu.drivers.links import (
     RTU_TCP_SCHEME,
     TCP_SCHEME,
@@ -104,7 +105,7 @@ class SerialLink:
             backend=be,
         )
         #: a repeated request's exchange in one call (see pyrtu.drivers.sync_io)
-        self.exchanger = be.Exchanger() if self.port.fd is not None else None
+        self.exchanger = exchangers.exchanger(be) if self.port.fd is not None else None
 
     line = _of_proto("line")
     t35 = _of_proto("gap")

@@ -19,7 +19,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from pyrtu.core import xfer
+from pyrtu.drivers import xfer
 from pyrtu.drivers._slack import tighten_this_thread
 from pyrtu.drivers.port import Port, read_fd
 from pyrtu.pdu.errors import PortError
@@ -109,7 +109,7 @@ def report(port: Port, proto: ClientProtocol, r: xfer.XferResult) -> None:
 
 def run_sync(port: Port, proto: ClientProtocol, call: Call, exchanger: Any = None) -> Any:
     """Run ``call`` through ``proto`` on ``port``; the result or the typed error.
-    ``exchanger``: the backend's `pyrtu.core.xfer.Exchanger` for this port (None: the
+    ``exchanger``: the backend's `pyrtu.drivers.xfer.Exchanger` for this port (None: the
     steps one by one)."""
     slave, pdu, decode = call
     proto.start(slave, pdu, decode, _monotonic())

@@ -322,7 +322,7 @@ class ClientProtocol(AnswerTiming):
         until the attempt's deadline, a sleep to the send time, or a look for stale
         input just before the request goes), or `Done` (then the protocol is idle
         again).  Call it after each of the protocol's inputs.  ``exchange``: the
-        driver can carry out an `Exchange` (`pyrtu.core.xfer`), handed out instead
+        driver can carry out an `Exchange` (`pyrtu.drivers.xfer`), handed out instead
         of those steps where the request is one whose answer length is known."""
         state = self.state
         if exchange and (state is _SEND or state is _QUIET):

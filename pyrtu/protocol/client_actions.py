@@ -18,7 +18,7 @@ type per stream, `Action`); a driver carries it out and reports back:
 `Exchange` ``(data, send_at, first_wake, timeout, expect, short_len)``
     only for a driver that asks (``next_action(now, exchange=True)``), in place of
     the look, `Send` and `Wait` steps of a repeated request on a timed RTU line
-    (its answer's length learned, no echo): `pyrtu.core.xfer.Exchanger` carries the
+    (its answer's length learned, no echo): `pyrtu.drivers.xfer.Exchanger` carries the
     steps out in one call, with the protocol's times.  The driver reports what it
     saw with the same inputs: input found at the send time (nothing sent) with
     ``wait_done(data, now)``; else ``transmitted(end, start)``, then the first

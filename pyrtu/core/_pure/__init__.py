@@ -9,7 +9,6 @@ from pyrtu.core._pure.framer import CoreFramer
 from pyrtu.core._pure.head import Config
 from pyrtu.core._pure.predict import DIR_REQUEST, make_rules, predict
 from pyrtu.core._pure.stream import CoreParser, Entry
-from pyrtu.core._pure.xfer import AsyncExchanger, Exchanger
 from pyrtu.core.frames import FrameList
 from pyrtu.core.framing import (
     FramerBase,
@@ -25,8 +24,6 @@ BACKEND = "python"
 
 __all__ = [
     "BACKEND",
-    "AsyncExchanger",
-    "Exchanger",
     "Framer",
     "add_crc",
     "char_timing",

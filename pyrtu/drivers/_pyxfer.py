@@ -1,8 +1,9 @@
 """The twin of csrc/rtu_xfer_io.c: one master exchange on a serial descriptor, in
-Python (`pyrtu.core.xfer` has the contract).  Step for step as the C file: sleep to
-the send time, look for stale input, write (tcdrain on a real line), sleep to the
-first read, then sleep through all but the last character and wait for it; a
-readable cancel descriptor ends it (`AsyncExchanger.cancel`)."""
+Python (`pyrtu.drivers.xfer` has the contract; pyrtu/drivers/_cxfer.py the C one).
+Step for step as the C file: sleep to the send time, look for stale input, write
+(tcdrain on a real line), sleep to the first read, then sleep through all but the
+last character and wait for it; a readable cancel descriptor ends it
+(`AsyncExchanger.cancel`)."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import select
 import threading
 import time
 
-from pyrtu.core.xfer import (
+from pyrtu.drivers.xfer import (
     ANSWER,
     CANCELLED,
     CAPACITY,
@@ -71,7 +72,7 @@ def _pause_until(t: float, cancel: int) -> None:
 
 
 class Exchanger:
-    """One master exchange per call (`pyrtu.core.xfer.Exchanger`)."""
+    """One master exchange per call (`pyrtu.drivers.xfer.Exchanger`)."""
 
     def __init__(self, cancel_fd: int = -1) -> None:
         self._buf = bytearray()

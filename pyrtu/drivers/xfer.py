@@ -1,5 +1,6 @@
-"""One master exchange on a serial descriptor: what the drivers hand the backend's
-`Exchanger` and what it reports (csrc/rtu_xfer.h; the twin: pyrtu/core/_pure/xfer.py).
+"""One master exchange on a serial descriptor: what the drivers hand an `Exchanger` and
+what it reports (C: csrc/rtu_xfer_io.c through pyrtu/drivers/_cxfer.py; the twin:
+pyrtu/drivers/_pyxfer.py; `pyrtu.drivers.exchangers` picks the one of a backend).
 
 The client protocol decides every time and length (`pyrtu.protocol.client_actions.
 Exchange`); an exchanger carries them out in one call: sleep to the send time, look
@@ -67,15 +68,16 @@ class XferPlan(NamedTuple):
 
 
 class Exchanger(Protocol):
-    """A backend's exchange step (``backend.Exchanger()``: one per port): ``run(plan)``
+    """An exchange step (`pyrtu.drivers.exchangers.exchanger`: one per port): ``run(plan)``
     carries out one `XferPlan` (ValueError for values out of range)."""
 
     def run(self, plan: XferPlan) -> XferResult: ...
 
 
 class AsyncExchanger(Protocol):
-    """A backend's exchanges on a thread of their own, for an event loop
-    (``backend.AsyncExchanger()``: one per port; C: csrc/rtu_xfer_io.c's worker).
+    """Exchanges on a thread of their own, for an event loop (one per port:
+    `pyrtu.drivers.exchangers.async_exchanger`; C: csrc/rtu_xfer_io.c's worker,
+    without the GIL).
     ``submit(plan)`` returns at once (RuntimeError while an exchange is under way);
     the loop watches ``fd`` (readable once it is over) and calls `result` (the last
     exchange's report; None while one is under way); `cancel` ends the exchange under

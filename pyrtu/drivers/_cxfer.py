@@ -1,7 +1,7 @@
-"""The C backend's exchange step (csrc/rtu_xfer_io.c; `pyrtu.core.xfer` has the
-contract, pyrtu/core/_pure/xfer.py the twin): `Exchanger` runs one exchange per call
-(the GIL released), `AsyncExchanger` on a C thread of its own for an event loop.
-Re-exported by pyrtu/core/_cext.py."""
+"""The exchange step in C (csrc/rtu_xfer_io.c; `pyrtu.drivers.xfer` has the contract,
+pyrtu/drivers/_pyxfer.py the twin): `Exchanger` runs one exchange per call (the GIL
+released), `AsyncExchanger` on a C thread of its own for an event loop.  Imported by
+`pyrtu.drivers.xfer` only when the C core is built."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import weakref
 from typing import Any
 
 from pyrtu.core._rtu_core import ffi, lib
-from pyrtu.core.xfer import CAPACITY, XferPlan, XferResult, check_plan
+from pyrtu.drivers.xfer import CAPACITY, XferPlan, XferResult, check_plan
 
 
 def _new_xfer(cancel_fd: int) -> tuple[Any, Any]:
@@ -61,7 +61,7 @@ def _drain_pipe(fd: int) -> None:
 
 
 class Exchanger:
-    """One master exchange per call, in C (csrc/rtu_xfer_io.c; `pyrtu.core.xfer`)."""
+    """One master exchange per call, in C (csrc/rtu_xfer_io.c; `pyrtu.drivers.xfer`)."""
 
     def __init__(self) -> None:
         self._x, self._buf = _new_xfer(-1)
@@ -88,7 +88,7 @@ def _stop_worker(worker: Any, keep: tuple[Any, ...], fds: tuple[int, ...]) -> No
 
 class AsyncExchanger:
     """Exchanges on a C thread of their own, for an event loop
-    (`pyrtu.core.xfer.AsyncExchanger`): `submit`, then watch `fd`; `result` once it
+    (`pyrtu.drivers.xfer.AsyncExchanger`): `submit`, then watch `fd`; `result` once it
     is readable; `cancel`."""
 
     def __init__(self) -> None:

@@ -1,0 +1,35 @@
+"""The exchangers of a backend: C (pyrtu/drivers/_cxfer.py over csrc/rtu_xfer_io.c)
+for the C core, the twin (pyrtu/drivers/_pyxfer.py) for the pure-Python one; the
+contract is `pyrtu.drivers.xfer`.  Each master or slave asks once, for its own
+backend (``backend=`` of the constructors)."""
+
+from __future__ import annotations
+
+from types import ModuleType
+
+from pyrtu.drivers.xfer import AsyncExchanger, Exchanger
+
+
+def _impl(backend: ModuleType) -> ModuleType:
+    if getattr(backend, "BACKEND", "python") == "c":
+        from pyrtu.drivers import _cxfer
+
+        return _cxfer
+    from pyrtu.drivers import _pyxfer
+
+    return _pyxfer
+
+
+def exchanger(backend: ModuleType) -> Exchanger:
+    """A new `Exchanger` of ``backend``'s kind (a `pyrtu.core._backend` module)."""
+    ex: Exchanger = _impl(backend).Exchanger()
+    return ex
+
+
+def async_exchanger(backend: ModuleType) -> AsyncExchanger:
+    """A new `AsyncExchanger` of ``backend``'s kind: its thread starts now."""
+    ax: AsyncExchanger = _impl(backend).AsyncExchanger()
+    return ax
+
+
+__all__ = ["async_exchanger", "exchanger"]
