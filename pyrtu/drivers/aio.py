@@ -200,9 +200,18 @@ class AsyncMaster(MasterBase):
     async def _exchange_over(self) -> None:
         """Wait for the end of an exchange a cancelled transaction left under way (it
         was cancelled, and ends at once): the port is the thread's until then."""
-        over = self._ax_over
-        if over is not None:
+        over, ax = self._ax_over, self._ax
+        if over is None or ax is None:
+            return
+        if over.get_loop() is asyncio.get_running_loop():
             await asyncio.shield(over)
+            return
+        # left by a loop that has ended (asyncio.run returned meanwhile): its reader
+        # will not run; the thread's report comes all the same
+        ax.cancel()
+        while ax.result() is None:
+            await asyncio.sleep(0.001)
+        self._ax_call = self._ax_over = None
 
     async def _run(self, call: Call) -> Any:
         async with self._lock:
@@ -407,7 +416,6 @@ class _Drive:
 
     def stop(self) -> None:
         """Cancel the pending wait (the transaction ended or was cancelled)."""
-        self._master._ax_call = None  # an exchange under way ends unheard
         if self._timer is not None:
             self._timer.cancel()
             self._timer = None
