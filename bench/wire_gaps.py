@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import itertools
 import statistics
 import sys
 import tempfile
@@ -43,7 +44,7 @@ def turnarounds(path: str, char: float) -> tuple[list[float], list[float]]:
         runs.append((end - off, t))
     slave: list[float] = []
     master: list[float] = []
-    for (n0, t0), (n1, t1) in zip(runs, runs[1:], strict=False):
+    for (n0, t0), (n1, t1) in itertools.pairwise(runs):
         gap = (t1 - n1 * char - t0) * 1e6
         (slave if n0 == REQUEST else master).append(gap)
     return slave, master
@@ -80,7 +81,9 @@ def main() -> None:
     char = LineConfig(baudrate=115200, parity="N").char_time
     print(f"{args.loop}, {args.buses} buses, {args.drive}: ratios "
           + " ".join(f"{r:.3f}" for r in e["ratios"]))  # fmt: skip
-    print("| bus | slave turnaround p10 / median / p90 µs | master turnaround p10 / median / p90 µs |")
+    print(
+        "| bus | slave turnaround p10 / median / p90 µs | master turnaround p10 / median / p90 µs |"
+    )
     print("|---:|---:|---:|")
     for i, path in enumerate(captures):
         slave, master = turnarounds(path, char)

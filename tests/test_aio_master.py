@@ -329,23 +329,34 @@ def test_a_cancelled_exchange_frees_the_port_at_once(runner: str, backend: Modul
 
 
 def test_an_exchange_left_by_an_ended_loop_is_waited_out_in_the_next(backend: ModuleType) -> None:
-    """asyncio.run returns while an exchange is under way (its task cancelled): the
-    same AsyncMaster used from a new asyncio.run waits for that exchange's end on the
-    thread, then reads, instead of failing on the old loop's future."""
+    """A loop that ended while a cancelled transaction's exchange was still under way
+    on the thread (its report had not reached that loop): the same AsyncMaster used
+    from a new loop cancels the exchange and waits for its end on the thread, then
+    reads, instead of awaiting the ended loop's future."""
     with (
         vbus.VirtualBus(2, baudrate=115200, parity="N") as bus,
         serving(bus.paths[1], store=make_store(), baudrate=115200) as slave,
     ):
         m = AsyncMaster(bus.paths[0], 115200, parity="N", timeout=1.0, backend=backend.BACKEND)
+        old = asyncio.new_event_loop()
 
-        async def learn_then_leave() -> None:
+        async def learn() -> None:
             for _ in range(3):
                 assert await m.read_holding_registers(1, 0, 2) == [1000, 1001]
-            slave.stop()  # nobody answers: the next exchange waits for its deadline
-            task = asyncio.get_running_loop().create_task(m.read_holding_registers(1, 0, 2))
-            await asyncio.sleep(0.05)
-            assert m._ax_over is not None  # under way on the thread
-            task.cancel()
+
+        old.run_until_complete(learn())
+        ax = m._ax
+        assert ax is not None
+        slave.stop()  # nobody answers: the next exchange waits for its 1 s deadline
+        ax.cancel = lambda: None  # type: ignore[method-assign]  # (the old loop's cancel is lost)
+        task = old.create_task(m.read_holding_registers(1, 0, 2))
+        old.run_until_complete(asyncio.sleep(0.05))
+        task.cancel()
+        old.run_until_complete(asyncio.gather(task, return_exceptions=True))
+        assert m._ax_over is not None  # still under way on the thread
+        old.close()
+        del ax.cancel
+        slave.start()
 
         async def again() -> list[int]:
             try:
@@ -353,6 +364,4 @@ def test_an_exchange_left_by_an_ended_loop_is_waited_out_in_the_next(backend: Mo
             finally:
                 await m.close()
 
-        asyncio.run(learn_then_leave())
-        slave.start()
         assert asyncio.run(again()) == [1000, 1001]
