@@ -333,10 +333,7 @@ def test_an_exchange_left_by_an_ended_loop_is_waited_out_in_the_next(backend: Mo
     on the thread (its report had not reached that loop): the same AsyncMaster used
     from a new loop cancels the exchange and waits for its end on the thread, then
     reads, instead of awaiting the ended loop's future."""
-    with (
-        vbus.VirtualBus(2, baudrate=115200, parity="N") as bus,
-        serving(bus.paths[1], store=make_store(), baudrate=115200) as slave,
-    ):
+    with vbus.VirtualBus(2, baudrate=115200, parity="N") as bus:
         m = AsyncMaster(bus.paths[0], 115200, parity="N", timeout=1.0, backend=backend.BACKEND)
         old = asyncio.new_event_loop()
 
@@ -344,10 +341,12 @@ def test_an_exchange_left_by_an_ended_loop_is_waited_out_in_the_next(backend: Mo
             for _ in range(3):
                 assert await m.read_holding_registers(1, 0, 2) == [1000, 1001]
 
-        old.run_until_complete(learn())
+        with serving(bus.paths[1], store=make_store(), baudrate=115200):
+            old.run_until_complete(learn())
+        # the slave's port is closed: nobody hears the next request, which waits for
+        # its 1 s deadline on the thread
         ax = m._ax
         assert ax is not None
-        slave.stop()  # nobody answers: the next exchange waits for its 1 s deadline
         ax.cancel = lambda: None  # type: ignore[method-assign]  # (the old loop's cancel is lost)
         task = old.create_task(m.read_holding_registers(1, 0, 2))
         old.run_until_complete(asyncio.sleep(0.05))
@@ -356,7 +355,6 @@ def test_an_exchange_left_by_an_ended_loop_is_waited_out_in_the_next(backend: Mo
         assert m._ax_over is not None  # still under way on the thread
         old.close()
         del ax.cancel
-        slave.start()
 
         async def again() -> list[int]:
             try:
@@ -364,4 +362,5 @@ def test_an_exchange_left_by_an_ended_loop_is_waited_out_in_the_next(backend: Mo
             finally:
                 await m.close()
 
-        assert asyncio.run(again()) == [1000, 1001]
+        with serving(bus.paths[1], store=make_store(), baudrate=115200):
+            assert asyncio.run(again()) == [1000, 1001]
