@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import pytest
 from ptylink import PtyLink, make_store, serving
 
@@ -212,3 +214,42 @@ def test_a_drop_pulled_out_under_an_exchange_is_a_port_error(backend: object) ->
         bus.replug(0)
         with Master(bus.paths[0], 115200, parity="N", timeout=0.5, backend=name) as again:
             assert again.read_holding_registers(1, 0, 1) == [1000]
+
+
+@pytest.mark.wall_clock
+def test_a_signal_ends_a_blocking_exchange_at_once(backend: object) -> None:
+    """A signal's handler runs during a repeated read that waits in the Exchanger (C:
+    with the GIL released) as it does in a Python sleep: the handler's exception ends
+    the read at once, not at the 5 s deadline (bound: a tenth of it)."""
+    import signal
+    import threading
+    import time
+
+    vbus = pytest.importorskip("pyrtu.vbus")
+    name = backend.BACKEND  # type: ignore[attr-defined]
+
+    class Stop(Exception):
+        pass
+
+    def handler(signum: int, frame: object) -> None:
+        raise Stop
+
+    with vbus.VirtualBus(2, baudrate=115200, parity="N") as bus:
+        m = Master(bus.paths[0], 115200, parity="N", timeout=5.0, backend=name)
+        try:
+            with serving(bus.paths[1], store=make_store(), baudrate=115200):
+                for _ in range(3):  # the answer's length learned: exchanges from now
+                    assert m.read_holding_registers(1, 0, 1) == [1000]
+            old = signal.signal(signal.SIGUSR1, handler)
+            timer = threading.Timer(0.2, os.kill, (os.getpid(), signal.SIGUSR1))
+            try:
+                start = time.monotonic()
+                timer.start()
+                with pytest.raises(Stop):
+                    m.read_holding_registers(1, 0, 1)  # nobody answers now
+                assert time.monotonic() - start < 0.5
+            finally:
+                timer.cancel()
+                signal.signal(signal.SIGUSR1, old)
+        finally:
+            m.close()
