@@ -14,6 +14,25 @@ from types import ModuleType
 import pytest
 
 from pyrtu.drivers import exchangers, xfer
+from pyrtu.protocol.client_actions import Exchange
+
+
+def plan(
+    fd: int,
+    drain: bool,
+    request: bytes,
+    send_at: float,
+    char: float,
+    first_wake: float = 0.0,
+    timeout: float = 0.0,
+    expect: int = 0,
+    short_len: int = 0,
+    look: bool = True,
+) -> xfer.XferPlan:
+    """An exchange's plan from its values one by one."""
+    ex = Exchange(request, send_at, first_wake, timeout, expect, short_len)
+    return xfer.XferPlan(fd, drain, char, ex, look)
+
 
 REQUEST = bytes.fromhex("0703000000 0a c4 6f".replace(" ", ""))
 CHAR = 10 / 115200
@@ -63,8 +82,7 @@ def run(
     first_wake: float = 0.002,
 ) -> xfer.XferResult:
     ex = exchangers.exchanger(backend)
-    plan = xfer.XferPlan(line, False, REQUEST, send_at, CHAR, first_wake, timeout, expect, 5)
-    return ex.run(plan)  # type: ignore[no-any-return]
+    return ex.run(plan(line, False, REQUEST, send_at, CHAR, first_wake, timeout, expect, 5))  # type: ignore[no-any-return]
 
 
 def test_an_answer_in_pieces_is_read_whole(backend: ModuleType, pty: tuple[int, int]) -> None:
@@ -89,8 +107,8 @@ def test_a_real_line_is_drained_and_timed(backend: ModuleType, pty: tuple[int, i
     got: list[bytes] = []
     t = play(device, [(0.002, answer)], got)
     slow = 10 / 1200  # 1200 baud: 8 characters take 66.7 ms
-    plan = xfer.XferPlan(line, True, REQUEST, 0.0, slow, 0.0, 0.5, len(answer), 5)
-    r = exchangers.exchanger(backend).run(plan)
+    slow_plan = plan(line, True, REQUEST, 0.0, slow, 0.0, 0.5, len(answer), 5)
+    r = exchangers.exchanger(backend).run(slow_plan)
     t.join(2)
     assert r.status == xfer.ANSWER and r.data == answer and got == [REQUEST]
     assert r.end >= r.start + len(REQUEST) * slow - 1e-6
@@ -220,7 +238,7 @@ def test_bad_arguments_are_refused_alike(
     }
     args.update(change)
     with pytest.raises(ValueError, match=message):
-        exchangers.exchanger(backend).run(xfer.XferPlan(**args))  # type: ignore[arg-type]
+        exchangers.exchanger(backend).run(plan(**args))  # type: ignore[arg-type]
 
 
 def test_the_async_exchanger_runs_on_its_thread(backend: ModuleType, pty: tuple[int, int]) -> None:
@@ -235,11 +253,9 @@ def test_the_async_exchanger_runs_on_its_thread(backend: ModuleType, pty: tuple[
         for _ in range(2):
             got: list[bytes] = []
             t = play(device, [(0.003, answer)], got)
-            ax.submit(xfer.XferPlan(line, False, REQUEST, 0.0, CHAR, 0.002, 0.5, len(answer), 5))
+            ax.submit(plan(line, False, REQUEST, 0.0, CHAR, 0.002, 0.5, len(answer), 5))
             with pytest.raises(RuntimeError, match="under way"):
-                ax.submit(
-                    xfer.XferPlan(line, False, REQUEST, 0.0, CHAR, 0.002, 0.5, len(answer), 5)
-                )
+                ax.submit(plan(line, False, REQUEST, 0.0, CHAR, 0.002, 0.5, len(answer), 5))
             assert select.select([ax.fd], [], [], 2.0)[0] == [ax.fd]
             r = ax.result()
             t.join(2)
@@ -249,7 +265,7 @@ def test_the_async_exchanger_runs_on_its_thread(backend: ModuleType, pty: tuple[
     finally:
         ax.close()
     with pytest.raises(ValueError, match="closed"):
-        ax.submit(xfer.XferPlan(line, False, REQUEST, 0.0, CHAR, 0.002, 0.5, 25, 5))
+        ax.submit(plan(line, False, REQUEST, 0.0, CHAR, 0.002, 0.5, 25, 5))
 
 
 def test_a_response_goes_at_its_time(backend: ModuleType, pty: tuple[int, int]) -> None:
@@ -260,7 +276,7 @@ def test_a_response_goes_at_its_time(backend: ModuleType, pty: tuple[int, int]) 
     os.write(device, b"\x09")  # input waiting on the line: sent all the same
     answer = answer_of(2, backend)
     at = time.monotonic() + 0.01
-    r = exchangers.exchanger(backend).run(xfer.XferPlan(line, False, answer, at, CHAR, look=False))
+    r = exchangers.exchanger(backend).run(plan(line, False, answer, at, CHAR, look=False))
     assert r.status == xfer.ANSWER and r.sent and r.start >= at and r.data == b""
     assert os.read(device, 64) == answer
 
@@ -274,9 +290,7 @@ def test_cancel_ends_an_exchange(backend: ModuleType, pty: tuple[int, int]) -> N
     os.set_blocking(device, False)
     ax = exchangers.async_exchanger(backend)
     try:
-        ax.submit(
-            xfer.XferPlan(line, False, REQUEST, time.monotonic() + 5.0, CHAR, 0.0, 0.5, 25, 5)
-        )
+        ax.submit(plan(line, False, REQUEST, time.monotonic() + 5.0, CHAR, 0.0, 0.5, 25, 5))
         time.sleep(0.02)
         ax.cancel()
         assert select.select([ax.fd], [], [], 2.0)[0] == [ax.fd]
@@ -285,9 +299,7 @@ def test_cancel_ends_an_exchange(backend: ModuleType, pty: tuple[int, int]) -> N
         with pytest.raises(BlockingIOError):
             os.read(device, 64)  # nothing went
         start = time.monotonic()
-        ax.submit(
-            xfer.XferPlan(line, False, REQUEST, 0.0, CHAR, 0.0, 5.0, 25, 5)
-        )  # no answer comes
+        ax.submit(plan(line, False, REQUEST, 0.0, CHAR, 0.0, 5.0, 25, 5))  # no answer comes
         time.sleep(0.02)
         ax.cancel()
         assert select.select([ax.fd], [], [], 2.0)[0] == [ax.fd]

@@ -11,6 +11,7 @@ import weakref
 from typing import Any
 
 from pyrtu.core._rtu_core import ffi, lib
+from pyrtu.drivers._pipes import drain, poke
 from pyrtu.drivers.xfer import CAPACITY, XferPlan, XferResult, check_plan
 
 
@@ -27,12 +28,13 @@ def _plan(x: Any, plan: XferPlan) -> Any:
     """Fill ``x`` for one exchange; the request's C view (keep it alive until the
     exchange is over)."""
     check_plan(plan)
-    req = ffi.from_buffer("uint8_t[]", plan.request)
+    ex = plan.exchange
+    req = ffi.from_buffer("uint8_t[]", ex.data)
     x.fd, x.drain, x.look, x.req, x.req_len = plan.fd, plan.drain, plan.look, req, len(req)
-    x.send_at = math.ceil(plan.send_at * 1e9)  # never before it
-    x.first_wake, x.timeout_ns = int(plan.first_wake * 1e9), int(plan.timeout * 1e9)
+    x.send_at = math.ceil(ex.send_at * 1e9)  # never before it
+    x.first_wake, x.timeout_ns = int(ex.first_wake * 1e9), int(ex.timeout * 1e9)
     x.char_ns = max(1, int(plan.char * 1e9))
-    x.expect, x.short_len = plan.expect, plan.short_len
+    x.expect, x.short_len = ex.expect, ex.short_len
     return req
 
 
@@ -53,13 +55,6 @@ def _report(x: Any, buf: Any) -> XferResult:
     )
 
 
-def _drain_pipe(fd: int) -> None:
-    try:
-        os.read(fd, 64)
-    except BlockingIOError:
-        pass
-
-
 class Exchanger:
     """One master exchange per call, in C (csrc/rtu_xfer_io.c; `pyrtu.drivers.xfer`)."""
 
@@ -77,10 +72,7 @@ class Exchanger:
 def _stop_worker(worker: Any, keep: tuple[Any, ...], fds: tuple[int, ...]) -> None:
     """Cancel the worker's exchange under way, end its thread, then free its pipes;
     ``keep`` (the rtu_xfer and its buffer) lives until the thread is gone."""
-    try:
-        os.write(fds[3], b"\x01")
-    except BlockingIOError:
-        pass
+    poke(fds[3])
     lib.rtu_xfer_worker_stop(worker)
     for fd in fds:
         os.close(fd)
@@ -115,12 +107,12 @@ class AsyncExchanger:
         if lib.rtu_xfer_worker_rc(self._w) == lib.RTU_EBUSY:
             raise RuntimeError("an exchange is under way")
         self._req = _plan(self._x, plan)
-        _drain_pipe(self._cr)  # an old cancel
+        drain(self._cr)  # an old cancel
         lib.rtu_xfer_worker_submit(self._w)
 
     def result(self) -> XferResult | None:
         """The report of the last exchange (None: one is under way)."""
-        _drain_pipe(self.fd)
+        drain(self.fd)
         rc = lib.rtu_xfer_worker_rc(self._w)
         if rc == lib.RTU_EBUSY:
             return None
@@ -130,10 +122,7 @@ class AsyncExchanger:
 
     def cancel(self) -> None:
         """End the exchange under way (its report still comes: CANCELLED)."""
-        try:
-            os.write(self._cw, b"\x01")
-        except BlockingIOError:
-            pass
+        poke(self._cw)
 
     def close(self) -> None:
         """End the thread (the exchange under way, if any, cancelled)."""

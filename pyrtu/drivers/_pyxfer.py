@@ -13,6 +13,7 @@ import select
 import threading
 import time
 
+from pyrtu.drivers._pipes import drain, poke
 from pyrtu.drivers.xfer import (
     ANSWER,
     CANCELLED,
@@ -151,18 +152,19 @@ class Exchanger:
         return end
 
     def _steps(self, plan: XferPlan, state: list[float | int | bool]) -> None:
-        fd, expect, short_len = plan.fd, plan.expect, plan.short_len
+        fd, ex = plan.fd, plan.exchange
+        expect, short_len = ex.expect, ex.short_len
         cancel = self._cancel
-        _pause_until(plan.send_at, cancel)
+        _pause_until(ex.send_at, cancel)
         if plan.look and _wait_fd(fd, select.POLLIN, 0.0) and self._take(fd, True):
             state[0] = STALE
             return
-        end = self._transmit(fd, plan.drain, plan.request, plan.char, state)
+        end = self._transmit(fd, plan.drain, ex.data, plan.char, state)
         if expect == 0:  # nothing awaited (a slave's response)
             state[0] = ANSWER
             return
-        deadline = end + plan.timeout
-        _pause_until(end + plan.first_wake, cancel)
+        deadline = end + ex.timeout
+        _pause_until(end + ex.first_wake, cancel)
         self._take(fd, False)
         state[4:6] = [len(self._buf), self._last]
         while len(self._buf) < self._wanted(expect, short_len):
@@ -211,10 +213,7 @@ class AsyncExchanger:
             report = self._ex.run(job)
             with self._cv:
                 self._report, self._busy = report, False
-            try:
-                os.write(self._w, b"\x01")
-            except BlockingIOError:  # a full pipe already holds a wake-up
-                pass
+            poke(self._w)
 
     def submit(self, plan: XferPlan) -> None:
         check_plan(plan)
@@ -223,14 +222,14 @@ class AsyncExchanger:
                 raise ValueError("this exchanger is closed")
             if self._busy:
                 raise RuntimeError("an exchange is under way")
-            _drain_pipe(self._cr)  # an old cancel
+            drain(self._cr)  # an old cancel
             self._busy = True
             self._job = plan
             self._cv.notify()
 
     def result(self) -> XferResult | None:
         """The report of the last exchange (None: one is under way)."""
-        _drain_pipe(self.fd)
+        drain(self.fd)
         with self._cv:
             if self._busy:
                 return None
@@ -239,10 +238,7 @@ class AsyncExchanger:
     def cancel(self) -> None:
         """End the exchange under way (before its write if that is not due yet); its
         report still comes (status CANCELLED)."""
-        try:
-            os.write(self._cw, b"\x01")
-        except BlockingIOError:
-            pass
+        poke(self._cw)
 
     def close(self) -> None:
         """End the thread (the exchange under way is cancelled first)."""
@@ -255,10 +251,3 @@ class AsyncExchanger:
         self._thread.join()
         for fd in (self.fd, self._w, self._cr, self._cw):
             os.close(fd)
-
-
-def _drain_pipe(fd: int) -> None:
-    try:
-        os.read(fd, 64)
-    except BlockingIOError:
-        pass

@@ -47,6 +47,7 @@ from pyrtu.drivers.port import read_fd
 from pyrtu.drivers.slave import PREPARE
 from pyrtu.drivers.slave_base import PortSlave
 from pyrtu.pdu.errors import PortError
+from pyrtu.protocol.client_actions import Exchange
 from pyrtu.protocol.server import Listen, Reply
 
 if TYPE_CHECKING:  # Unpack is in typing from Python 3.11 (annotations only)
@@ -285,7 +286,13 @@ class AsyncSlave(PortSlave["AsyncSlave"], AsyncClosing):
             ax = self._ax = exchangers.async_exchanger(self.protocol.backend)
         port = self.port
         ax.submit(
-            xfer.XferPlan(fd, port.has_wire, action.data, action.at, port.char_time, look=False)
+            xfer.XferPlan(
+                fd,
+                port.has_wire,
+                port.char_time,
+                Exchange(action.data, action.at, 0.0, 0.0, 0, 0),
+                look=False,
+            )
         )
         self._replying = True
         if self._ax_loop is not loop:

@@ -79,11 +79,8 @@ def waiter(port: Port) -> Callable[[Wait], bytes]:
 
 
 def plan_of(port: Port, fd: int, action: Exchange) -> xfer.XferPlan:
-    """An `Exchange` on ``port`` as the backend's exchangers take it."""
-    return xfer.XferPlan(
-        fd, port.has_wire, action.data, action.send_at, port.char_time, action.first_wake,
-        action.timeout, action.expect, action.short_len,
-    )  # fmt: skip
+    """An `Exchange` on ``port`` as the exchangers take it."""
+    return xfer.XferPlan(fd, port.has_wire, port.char_time, action)
 
 
 def report(port: Port, proto: ClientProtocol, r: xfer.XferResult) -> None:

@@ -16,6 +16,8 @@ from __future__ import annotations
 
 from typing import NamedTuple, Protocol
 
+from pyrtu.protocol.client_actions import Exchange
+
 #: how an exchange ended (`XferResult.status`)
 ANSWER, STALE, SHORT, ERRNO, GONE, CANCELLED = range(6)
 #: where an ERRNO exchange failed (`XferResult.stage`)
@@ -25,46 +27,52 @@ CAPACITY = 4096
 
 
 class XferResult(NamedTuple):
-    """What an exchange saw.  ``status``: ANSWER (the expected bytes came; with none
-    expected, the request went), STALE (input was pending at the send time: nothing
-    sent, ``data`` holds it), SHORT (the deadline, or a signal, with fewer bytes),
-    ERRNO (``err`` at ``stage``), GONE (the descriptor reported input but gave
-    none), CANCELLED (`AsyncExchanger.cancel`).  ``sent``: the request was written,
-    from ``start`` to ``end`` (its transmission's end); ``data[:first_n]`` came in
-    the first read of the answer, at ``first_t``; ``last_t``: when the last read
-    returned; ``reads``: the reads that returned bytes."""
+    """What an exchange saw."""
 
     status: int
+    """ANSWER (the expected bytes came; with none expected, the request went), STALE
+    (input was pending at the send time: nothing sent, `data` holds it), SHORT (the
+    deadline, or a signal, with fewer bytes), ERRNO (`err` at `stage`), GONE (the
+    descriptor reported input but gave none), CANCELLED (`AsyncExchanger.cancel`)"""
     sent: bool
+    """the request was written"""
     start: float
+    """when the write began"""
     end: float
+    """when its transmission ended"""
     data: bytes
+    """what was read: the answer, or the stale input"""
     first_n: int
+    """``data[:first_n]`` came in the first read of the answer"""
     first_t: float
+    """when that read returned"""
     last_t: float
+    """when the last read returned"""
     err: int
+    """the errno of ERRNO"""
     stage: int
+    """where ERRNO happened: STAGE_WRITE, STAGE_READ"""
     reads: int
+    """the reads that returned bytes"""
 
 
 class XferPlan(NamedTuple):
-    """One exchange, as the protocol decided it: on ``fd``, ``request`` written at
-    ``send_at`` (``drain``: tcdrain after the write, a real line; ``look``: input
-    pending then is stale and nothing is sent, a master), ``char`` one character's
-    time; the first read ``first_wake`` seconds after the end of transmission, the
-    deadline ``timeout`` seconds after it, ``expect`` the answer's length (0: none
-    awaited, a slave's response), ``short_len`` an exception answer's (0: none)."""
+    """One exchange: the protocol's `Exchange` (the request, its times, the answer's
+    length) on a port."""
 
     fd: int
+    """the serial port's descriptor"""
     drain: bool
-    request: bytes
-    send_at: float
+    """tcdrain after the write (a real line, not a pty)"""
     char: float
-    first_wake: float = 0.0
-    timeout: float = 0.0
-    expect: int = 0
-    short_len: int = 0
+    """one character's time on the line (seconds)"""
+    exchange: Exchange
+    """what the protocol decided: ``data`` written at ``send_at``, the first read
+    ``first_wake`` and the deadline ``timeout`` seconds after the end of
+    transmission, ``expect`` the answer's length (0: none awaited, a slave's
+    response), ``short_len`` an exception answer's (0: none)"""
     look: bool = True
+    """input pending at the send time is stale and nothing is sent (a master)"""
 
 
 class Exchanger(Protocol):
@@ -97,15 +105,16 @@ class AsyncExchanger(Protocol):
 
 def check_plan(plan: XferPlan) -> None:
     """The values both backends refuse, with the same messages."""
-    if not plan.request:
+    ex = plan.exchange
+    if not ex.data:
         raise ValueError("request must not be empty")
-    if not 0 <= plan.expect <= CAPACITY:
-        raise ValueError(f"expect must be 0..{CAPACITY}, not {plan.expect}")
-    if not 0 <= plan.short_len <= plan.expect:
-        raise ValueError(f"short_len must be 0..expect ({plan.expect}), not {plan.short_len}")
+    if not 0 <= ex.expect <= CAPACITY:
+        raise ValueError(f"expect must be 0..{CAPACITY}, not {ex.expect}")
+    if not 0 <= ex.short_len <= ex.expect:
+        raise ValueError(f"short_len must be 0..expect ({ex.expect}), not {ex.short_len}")
     if not plan.char > 0:
         raise ValueError(f"char must be a positive number of seconds, not {plan.char}")
-    if not plan.first_wake >= 0 or not plan.timeout >= 0:
+    if not ex.first_wake >= 0 or not ex.timeout >= 0:
         raise ValueError("first_wake and timeout must be non-negative numbers of seconds")
     if plan.fd < 0:
         raise ValueError(f"fd must be an open descriptor, not {plan.fd}")
