@@ -328,6 +328,7 @@ def test_a_cancelled_exchange_frees_the_port_at_once(runner: str, backend: Modul
         RUNNERS[runner](main())
 
 
+@pytest.mark.wall_clock  # the read after it: within 0.5 s (the old exchange's deadline 1 s)
 def test_an_exchange_left_by_an_ended_loop_is_waited_out_in_the_next(backend: ModuleType) -> None:
     """A loop that ended while a cancelled transaction's exchange was still under way
     on the thread (its report had not reached that loop): the same AsyncMaster used

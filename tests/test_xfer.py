@@ -139,6 +139,7 @@ def test_the_send_time_is_kept(backend: ModuleType, pty: tuple[int, int]) -> Non
     assert r.status == xfer.ANSWER and r.start >= at
 
 
+@pytest.mark.wall_clock  # bounded by half the exchange's deadline
 def test_an_exception_answer_ends_the_exchange(backend: ModuleType, pty: tuple[int, int]) -> None:
     device, line = pty
     exc = backend.add_crc(bytes((7, 0x83, 2)))
@@ -150,6 +151,7 @@ def test_an_exception_answer_ends_the_exchange(backend: ModuleType, pty: tuple[i
     assert r.last_t - r.end < 2.5  # not the 5 s deadline
 
 
+@pytest.mark.wall_clock  # bounded by half the exchange's deadline
 def test_no_answer_ends_at_the_deadline(backend: ModuleType, pty: tuple[int, int]) -> None:
     device, line = pty
     got: list[bytes] = []
@@ -281,6 +283,7 @@ def test_a_response_goes_at_its_time(backend: ModuleType, pty: tuple[int, int]) 
     assert os.read(device, 64) == answer
 
 
+@pytest.mark.wall_clock  # bounded by half the exchange's deadline
 def test_cancel_ends_an_exchange(backend: ModuleType, pty: tuple[int, int]) -> None:
     """`AsyncExchanger.cancel`: before the send time nothing is written; while an
     answer is awaited the wait ends at once; either way the report comes."""
