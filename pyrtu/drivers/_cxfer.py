@@ -1,7 +1,7 @@
 """The exchange step in C (csrc/rtu_xfer_io.c; `pyrtu.drivers.xfer` has the contract,
 pyrtu/drivers/_pyxfer.py the twin): `Exchanger` runs one exchange per call (the GIL
 released), `AsyncExchanger` on a C thread of its own for an event loop.  Imported by
-`pyrtu.drivers.xfer` only when the C core is built."""
+`pyrtu.drivers.exchangers` only for the C backend (the extension is built then)."""
 
 from __future__ import annotations
 
