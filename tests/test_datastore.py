@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 
 import pytest
 
@@ -188,3 +189,75 @@ def test_lock_serialises_owner_and_requests() -> None:
         a, b = hr.read(0, 2)
         assert a == b  # never half a write
     thread.join()
+
+
+def test_bulk_owner_access_is_a_loop_of_set() -> None:
+    store = DataStore()
+    hr = store.holding_registers
+    hr.add_range(0, [0] * 3)
+    hr.add_range(3, [0] * 2, read_only=True)  # adjacent: one bulk write spans both
+    hr.add_range(10, [0] * 2)
+    hr.set_each({4: 5, 0: 1, 11: 7})
+    hr.set_each([(1, 2), (2, 3), (3, 4)])
+    hr.set_many(10, [8])
+    assert hr.get_many(0, 5) == [1, 2, 3, 4, 5] and hr.get_many(10, 2) == [8, 7]
+    # the values before a bad address or value stay stored, as with `set`
+    with pytest.raises(KeyError, match="address 5"):
+        hr.set_many(3, [40, 50, 60])
+    assert hr.get_many(3, 2) == [40, 50]
+    for bad in (True, -1, 0x10000, 1.0, "1"):
+        with pytest.raises(ValueError, match=r"holding_registers\[1\]"):
+            hr.set_each({0: 9, 1: bad, 2: 9})
+        assert hr.get_many(0, 3) == [9, 2, 3]
+        hr.set(0, 1)
+    with pytest.raises(KeyError, match="address 5"):
+        hr.get_many(3, 3)
+    assert hr.get_many(0, 0) == []
+    coils = store.coils
+    coils.add_range(0, [False] * 3)
+    coils.set_each({0: 1, 2: True})
+    coils.set_many(1, [0])
+    assert coils.get_many(0, 3) == [True, False, True]
+    assert all(type(v) is bool for v in coils.get_many(0, 3))
+    with pytest.raises(ValueError, match="a bit"):
+        coils.set_each({0: 2})
+
+
+def test_version_changes_with_every_value_change() -> None:
+    store = DataStore()
+    hr = store.holding_registers
+    seen = []
+
+    def on_write(address: int, values: list[int | bool]) -> None:
+        seen.append(hr.version)
+        if values[0] == 13:
+            raise SlaveException(4, "no")
+
+    hr.add_range(0, [0] * 4, on_write=on_write, on_read=lambda a, n: None)
+    versions = [hr.version]
+
+    def changed() -> bool:
+        versions.append(hr.version)
+        return versions[-1] != versions[-2]
+
+    hr.read(0, 4)
+    hr.get(0)
+    hr.get_many(0, 4)
+    hr.check_read(0, 4)
+    hr.check_write(0, [1])
+    assert not changed()  # looks change nothing
+    changes: list[Callable[[], None]] = [
+        lambda: hr.set(0, 1),
+        lambda: hr.set_each({1: 2}),
+        lambda: hr.set_many(2, [3]),
+        lambda: hr.write(3, [4]),
+    ]
+    for change in changes:
+        change()
+        assert changed()
+    assert code(lambda: hr.write(0, [13])) == 4  # rolled back: a change too
+    assert changed() and versions[-1] != seen[-1] and hr.get(0) == 1
+    assert code(lambda: hr.write(9, [1])) == 2 and not changed()
+    store.input_registers.add_range(0, [0])
+    store.input_registers.set(0, 5)
+    assert not changed()  # another table's

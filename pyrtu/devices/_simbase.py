@@ -7,18 +7,44 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Mapping
-from typing import Any
+from typing import Any, Generic, TypeVar
 
 from pyrtu.core.rules import LengthRule
 from pyrtu.drivers.aio_slave import AsyncSlave
 from pyrtu.drivers.slave import Slave
-from pyrtu.protocol.datastore import DataStore
+from pyrtu.protocol.datastore import DataStore, Table
 
 from .motor import Clock, Motor, Supervision, Timeline, monotonic
 
 Handler = Callable[[Slave, int, bytes], "bytes | None"]
 #: (handler, request rule, response rule, executed when broadcast)
 HandlerSpec = tuple[Handler, LengthRule | None, LengthRule | None, bool]
+InputsT = TypeVar("InputsT", bound=tuple[object, ...])
+
+
+class Outputs(Generic[InputsT]):
+    """Registers a simulator computes from its model, kept in ``table``:
+    ``compute(inputs)`` gives their values (address -> value) from ``inputs`` (a tuple
+    of everything they depend on) alone.  `show` computes them again only when the
+    inputs changed, and writes them again only when the inputs or the table's values
+    (`Table.version`) changed since it last wrote them."""
+
+    def __init__(self, table: Table, compute: Callable[[InputsT], Mapping[int, int]]) -> None:
+        self.table = table
+        self.compute = compute
+        self.values: Mapping[int, int] = {}
+        self._inputs: InputsT | None = None
+        self._version = -1
+
+    def show(self, inputs: InputsT) -> None:
+        """Make the table show the values of ``inputs`` (under the table's lock)."""
+        if inputs != self._inputs:
+            self.values = self.compute(inputs)
+            self._inputs = inputs
+        elif self.table.version == self._version:
+            return  # the table still holds them
+        self.table.set_each(self.values)
+        self._version = self.table.version
 
 
 class DriveSimulator(ABC):
@@ -59,9 +85,13 @@ class DriveSimulator(ABC):
     def update(self, now: float | None = None) -> float:
         """Bring the model to ``now`` (default: the clock); returns the time."""
         with self.lock:
-            t = self.timeline.run(now, self._next_event, self._advance, self._fire)
+            t = self._run(now)
             self._refresh()
             return t
+
+    def _run(self, now: float | None) -> float:
+        """The model (not yet the registers) to ``now`` (None: the clock)."""
+        return self.timeline.run(now, self._next_event, self._advance, self._fire)
 
     def _next_event(self) -> float | None:
         return self.supervision.deadline()
@@ -103,14 +133,17 @@ class DriveSimulator(ABC):
     # -- telegrams ------------------------------------------------------------------
 
     def telegram(self, unit: int = 0, pdu: bytes = b"") -> None:
-        """A valid telegram for this drive arrived (the slave's ``on_request``)."""
+        """A valid telegram for this drive arrived (the slave's ``on_request``): the
+        model to now, the drive's reaction, then the registers (once)."""
         with self.lock:
-            now = self.update()
+            now = self._run(None)
             self._on_telegram(now, unit, pdu)
             self.supervision.feed(now)
+            self._refresh()
 
     def _on_telegram(self, now: float, unit: int, pdu: bytes) -> None:
-        """A valid telegram at ``now``, before the watchdog restarts (subclasses extend)."""
+        """A valid telegram at ``now``, before the watchdog restarts and the registers
+        follow the model (subclasses extend)."""
         self.telegrams += 1
 
     def _check_mode(self, mode: str) -> str:

@@ -52,8 +52,6 @@ from .motor import Clock, monotonic
 FAULT_LOCK_TIME = 15.0
 RESPONSE_DELAY = 0.010
 
-_DYNAMIC = frozenset({11, 210, 228, 229, 241, 249, 250, 260, 270, 282, 283, 411})
-
 
 class ParameterError(Exception):
     def __init__(self, exception: int, error: VabusError) -> None:
@@ -111,30 +109,6 @@ class VectronSimulator(DriveSimulator):
         """A parameter's present value (the active data set's for four-valued ones)."""
         values = self.ram[number]
         return values[self._active_set() - 1] if len(values) == 4 else values[0]
-
-    def _dynamic(self, number: int) -> int:
-        f = self.motor.frequency
-        if number == B.P_ERROR_REGISTER:
-            return int(self.error_register)
-        if number in (B.P_STATOR_FREQUENCY, B.P_ACTUAL_FREQUENCY):
-            return round(f * 100)
-        if number in (282, 283):
-            return (
-                round(self._line_value() * 100)
-                if number == 282
-                else round(self.motor.reference * 100)
-            )
-        if number == B.P_ACTIVE_DATA_SET:
-            return self._active_set()
-        if number == B.P_CURRENT_ERROR:
-            return self.current_error
-        if number == B.P_WARNINGS:
-            return self.warnings
-        if number == 250:
-            return self.ram[B.P_CONTROL_WORD][0] & 0xFF if self.value(B.P_LOCAL_REMOTE) == 2 else 0
-        if number == B.P_STATUS_WORD:
-            return self.status_word()
-        return self.ram[number][0]
 
     def _running(self) -> bool:
         return (
@@ -366,8 +340,25 @@ class VectronSimulator(DriveSimulator):
 
     def _refresh(self) -> None:
         """The actual values (status word, frequencies, errors) into the parameters."""
-        for number in _DYNAMIC:
-            self.ram[number] = [self._dynamic(number)]
+        ram, m = self.ram, self.motor
+        frequency = round(m.frequency * 100)
+        remote_contacts = self.value(B.P_LOCAL_REMOTE) == 2
+        values = {
+            B.P_ERROR_REGISTER: int(self.error_register),
+            B.P_STATOR_FREQUENCY: frequency,
+            228: ram[228][0],  # as stored
+            229: ram[229][0],
+            B.P_ACTUAL_FREQUENCY: frequency,
+            B.P_ACTIVE_DATA_SET: self._active_set(),
+            250: ram[B.P_CONTROL_WORD][0] & 0xFF if remote_contacts else 0,  # digital inputs
+            B.P_CURRENT_ERROR: self.current_error,
+            B.P_WARNINGS: self.warnings,
+            282: round(self._line_value() * 100),
+            283: round(m.reference * 100),
+            B.P_STATUS_WORD: self.status_word(),
+        }
+        for number, value in values.items():
+            ram[number] = [value]
 
     def power_cycle(self) -> None:
         """Mains off/on (or Programming 34 = 123): RAM values from the EEPROM, state

@@ -34,7 +34,7 @@ manual's examples': running forward at the main reference 50.00 Hz, 30.0 A, A1.0
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 from pyrtu.core.rules import CV100 as CV100_RULES
 from pyrtu.drivers.slave import Slave
@@ -42,12 +42,18 @@ from pyrtu.pdu.errors import SlaveException
 
 from .. import pdu as P
 from . import cv100 as C
-from ._simbase import DriveSimulator, HandlerSpec
+from ._simbase import DriveSimulator, HandlerSpec, Outputs
 from .motor import Clock, monotonic
 
 GROUP_SIZE = 64
 ACCESS_SECONDS = 300.0
 FAULT_EXTERNAL = 15
+
+# the function codes the simulator reads or writes itself
+A0_00 = C.register("A0.00")  # user password
+A0_06 = C.register("A0.06")  # acceleration time 1
+A0_07 = C.register("A0.07")  # deceleration time 1
+U0_00 = C.register("U0.00")  # factory password
 
 
 @dataclass(frozen=True)
@@ -61,9 +67,9 @@ class Code:
 
 
 KNOWN: dict[int, Code] = {
-    C.register("A0.00"): Code("User password"),
-    C.register("A0.06"): Code("Acceleration time 1", 60, 1, 36000),
-    C.register("A0.07"): Code("Deceleration time 1", 60, 1, 36000),
+    A0_00: Code("User password"),
+    A0_06: Code("Acceleration time 1", 60, 1, 36000),
+    A0_07: Code("Deceleration time 1", 60, 1, 36000),
     C.register("A1.01"): Code("A1.01 (read in the manual's RTU example)", 5000),
     C.register("A2.01"): Code("A2.01 (written in the manual's ASCII example)"),
     C.register("A2.03"): Code("Main reference frequency control", always_saved=True),
@@ -75,12 +81,106 @@ KNOWN: dict[int, Code] = {
     C.register("B0.11"): Code("Motor parameters auto-tuning", reserved=True),
     C.register("B4.02"): Code("Parameters protection setting", always_saved=True),
     C.register("B4.04"): Code("Parameters copy", reserved=True),
-    C.register("U0.00"): Code("Factory password"),
+    U0_00: Code("Factory password"),
     C.register("U0.01"): Code("Machine model setting", always_saved=True),
     C.register("U0.09"): Code("VFD series selection", always_saved=True),
 }
 _CONTROL_RANGES = ((0x3200, 4), (0x3205, 1), (0x3207, 1), (0x3209, 3), (0x3212, 1))
 _STATUS_FIRST, _STATUS_LAST = C.STATUS_WORD_1, C.STATUS_WORD_3
+
+
+class _StatusInputs(NamedTuple):
+    """Everything the status parameters (0x33xx) are computed from."""
+
+    frequency: float  # the motor's, signed Hz
+    reference: float
+    run: bool
+    jog: str | None
+    reverse: bool
+    main_reference: bool
+    reference_hz: float
+    command_source: int
+    fault_code: int
+    alarm_code: int
+    undervoltage: bool
+    first_fault: int
+    second_fault: int
+    latest_fault: int
+    max_hz: float
+    rated_current: float
+    accel_time: int  # A0.06, raw
+    decel_time: int  # A0.07, raw
+
+
+# status words 2 and 3: name -> bit (`cv100.flags_word` of one name)
+_BIT_2 = {name: 1 << bit for bit, name in C.STATUS_2_BITS.items()}
+_BIT_3 = {name: 1 << bit for bit, name in C.STATUS_3_BITS.items()}
+
+
+def _status_parameters(s: _StatusInputs) -> dict[int, int]:
+    """The status parameters' values (address -> value), from ``s`` alone."""
+    f = abs(s.frequency)
+    running = f != 0.0 or ((s.run or s.jog is not None) and s.reference != 0.0)
+    if s.frequency or s.reference:
+        reverse = (s.frequency or s.reference) < 0
+    else:
+        reverse = s.reverse if s.run else s.jog == "reverse"
+    at_ref = running and s.frequency == s.reference and s.jog is None
+    code = s.fault_code or s.alarm_code
+    w1 = C.StatusWord1(
+        0,
+        running,
+        reverse,
+        at_ref,
+        s.command_source == 2,
+        s.main_reference,
+        bool(s.alarm_code),
+        code,
+    )
+    w2 = _BIT_2["jog"] if running and s.jog else _BIT_2["common"] if running else 0
+    if s.undervoltage:
+        w2 |= _BIT_2["undervoltage"]
+    w3 = _BIT_3["speed_control"]
+    if running:
+        w3 |= _BIT_3[
+            "constant_speed"
+            if at_ref and f
+            else "zero_speed"
+            if not f
+            else "accelerating"
+            if abs(s.reference) > f
+            else "decelerating"
+        ]
+    if s.fault_code:
+        w3 |= _BIT_3["failure"]
+    current = s.rated_current * f / s.max_hz if s.max_hz else 0.0
+    voltage = 380.0 * f / s.max_hz if s.max_hz else 0.0
+    values = {
+        C.STATUS_WORD_1: w1.encode(),
+        C.MAIN_REFERENCE: round(s.reference_hz * 100),
+        C.SLAVE_MODEL: 100,
+        C.VFD_MODEL: 1,
+        C.SOFTWARE_VERSION: 100,
+        C.OPERATING_FREQUENCY: round(f * 100),
+        C.OUTPUT_CURRENT: round(current * 10),
+        C.OUTPUT_VOLTAGE: round(voltage),
+        C.OUTPUT_POWER: round(1.732 * voltage * current * 0.85 / 100),
+        C.ROTARY_SPEED: round(f * 30),
+        C.BUS_VOLTAGE: 400 if s.undervoltage else 540,
+        C.OUTPUT_TORQUE: round(100 * f / s.max_hz) if s.max_hz else 0,
+        C.FIRST_FAULT: s.first_fault,
+        C.SECOND_FAULT: s.second_fault,
+        C.LATEST_FAULT: s.latest_fault,
+        C.FREQUENCY_SETTING: round(abs(s.reference) * 100),
+        0x3316: round(abs(s.reference) * 30),
+        C.ACCEL_TIME_1: s.accel_time,
+        C.DECEL_TIME_1: s.decel_time,
+        C.COMMAND_SOURCE: s.command_source,
+        C.STATUS_WORD_2: w2,
+        C.MAIN_REFERENCE_SELECTOR: 2 if s.main_reference else 0,
+        C.STATUS_WORD_3: w3,
+    }
+    return {a: v & 0xFFFF for a, v in values.items()}
 
 
 class CV100Simulator(DriveSimulator):
@@ -126,6 +226,8 @@ class CV100Simulator(DriveSimulator):
         self._user_until = -1.0
         self._factory_until = -1.0
         self._saving = False
+        #: the status parameters (0x33xx), shown by `_refresh`
+        self._status = Outputs(self.store.holding_registers, _status_parameters)
         regs = self.store.holding_registers
         self.eeprom: dict[int, int] = {}
         for high in C.GROUPS.values():
@@ -161,28 +263,28 @@ class CV100Simulator(DriveSimulator):
 
     def _check_access(self, address: int, writing: bool) -> None:
         now = self.timeline.now
-        if address >> 8 == C.GROUPS["U0"] and address != C.register("U0.00"):
+        if address >> 8 == C.GROUPS["U0"] and address != U0_00:
             if now > self._factory_until:
                 raise SlaveException(4, "group U0 needs the factory password in U0.00")
-        elif address != C.register("A0.00") and self.user_password and now > self._user_until:
+        elif address != A0_00 and self.user_password and now > self._user_until:
             raise SlaveException(4, "function codes need the user password in A0.00")
 
     def _on_read_code(self, address: int, count: int) -> None:
         self.update()
         for a in range(address, address + count):
             self._check_access(a, False)
-        for pw in (C.register("A0.00"), C.register("U0.00")):
+        for pw in (A0_00, U0_00):
             if address <= pw < address + count:
                 self.store.holding_registers.set(pw, 0)
 
     def _validate_code(self, address: int, value: int | bool) -> bool:
         value = int(value)
-        if address == C.register("A0.00"):
+        if address == A0_00:
             ok = value == self.user_password if self.user_password else value == 0
             if not ok:
                 raise SlaveException(4, "the user password cannot be set or changed by the host")
             return True
-        if address == C.register("U0.00"):
+        if address == U0_00:
             if value != self.factory_password:
                 raise SlaveException(4, "wrong factory password")
             return True
@@ -197,11 +299,11 @@ class CV100Simulator(DriveSimulator):
     def _on_write_code(self, address: int, values: list[int | bool]) -> None:
         now = self.update()
         for a, v in zip(range(address, address + len(values)), values, strict=True):
-            if a == C.register("A0.00"):
+            if a == A0_00:
                 if self.user_password:
                     self._user_until = now + ACCESS_SECONDS
                 continue
-            if a == C.register("U0.00"):
+            if a == U0_00:
                 self._factory_until = now + ACCESS_SECONDS
                 continue
             code = KNOWN.get(a)
@@ -234,7 +336,7 @@ class CV100Simulator(DriveSimulator):
                 if cw.run:
                     self.run, self.reverse, self.jog = True, False, None
         elif address in (C.ACCEL_TIME_SETTING, C.DECEL_TIME_SETTING):
-            code = C.register("A0.06" if address == C.ACCEL_TIME_SETTING else "A0.07")
+            code = A0_06 if address == C.ACCEL_TIME_SETTING else A0_07
             self.store.holding_registers.set(code, value)
             self.eeprom[code] = value
 
@@ -279,9 +381,7 @@ class CV100Simulator(DriveSimulator):
 
     def _retarget(self) -> None:
         m = self.motor
-        m.set_ramp_times(
-            self.max_hz, self._raw(C.register("A0.06")) / 10, self._raw(C.register("A0.07")) / 10
-        )
+        m.set_ramp_times(self.max_hz, self._raw(A0_06) / 10, self._raw(A0_07) / 10)
         if self.fault_code or self.operation_disabled or self.undervoltage:
             m.reference = 0.0
             m.coast()
@@ -297,72 +397,30 @@ class CV100Simulator(DriveSimulator):
         self.update()
 
     def _refresh(self) -> None:
-        m = self.motor
-        f = abs(m.frequency)
-        running = f != 0.0 or ((self.run or self.jog is not None) and m.reference != 0.0)
-        if m.frequency or m.reference:
-            reverse = (m.frequency or m.reference) < 0
-        else:
-            reverse = self.reverse if self.run else self.jog == "reverse"
-        log = self.fault_log
-        at_ref = running and m.at_reference and self.jog is None
-        code = self.fault_code or self.alarm_code
-        w1 = C.StatusWord1(
-            0,
-            running,
-            reverse,
-            at_ref,
-            self.command_source == 2,
+        self._status.show(self._status_inputs())
+
+    def _status_inputs(self) -> _StatusInputs:
+        m, log = self.motor, self.fault_log
+        return _StatusInputs(
+            m.frequency,
+            m.reference,
+            self.run,
+            self.jog,
+            self.reverse,
             self.main_reference,
-            bool(self.alarm_code),
-            code,
+            self.reference_hz(),
+            self.command_source,
+            self.fault_code,
+            self.alarm_code,
+            self.undervoltage,
+            log[0] if log else 0,
+            log[1] if len(log) > 1 else 0,
+            log[-1] if log else 0,
+            self.max_hz,
+            self.rated_current,
+            self._raw(A0_06),
+            self._raw(A0_07),
         )
-        w2 = {"jog"} if running and self.jog else {"common"} if running else set()
-        if self.undervoltage:
-            w2.add("undervoltage")
-        w3 = {"speed_control"}
-        if running:
-            w3.add(
-                "constant_speed"
-                if at_ref and f
-                else "zero_speed"
-                if not f
-                else "accelerating"
-                if abs(m.reference) > f
-                else "decelerating"
-            )
-        if self.fault_code:
-            w3.add("failure")
-        current = self.rated_current * f / self.max_hz if self.max_hz else 0.0
-        voltage = 380.0 * f / self.max_hz if self.max_hz else 0.0
-        values = {
-            C.STATUS_WORD_1: w1.encode(),
-            C.MAIN_REFERENCE: round(self.reference_hz() * 100),
-            C.SLAVE_MODEL: 100,
-            C.VFD_MODEL: 1,
-            C.SOFTWARE_VERSION: 100,
-            C.OPERATING_FREQUENCY: round(f * 100),
-            C.OUTPUT_CURRENT: round(current * 10),
-            C.OUTPUT_VOLTAGE: round(voltage),
-            C.OUTPUT_POWER: round(1.732 * voltage * current * 0.85 / 100),
-            C.ROTARY_SPEED: round(f * 30),
-            C.BUS_VOLTAGE: 400 if self.undervoltage else 540,
-            C.OUTPUT_TORQUE: round(100 * f / self.max_hz) if self.max_hz else 0,
-            C.FIRST_FAULT: log[0] if log else 0,
-            C.SECOND_FAULT: log[1] if len(log) > 1 else 0,
-            C.LATEST_FAULT: log[-1] if log else 0,
-            C.FREQUENCY_SETTING: round(abs(m.reference) * 100),
-            0x3316: round(abs(m.reference) * 30),
-            C.ACCEL_TIME_1: self._raw(C.register("A0.06")),
-            C.DECEL_TIME_1: self._raw(C.register("A0.07")),
-            C.COMMAND_SOURCE: self.command_source,
-            C.STATUS_WORD_2: C.flags_word(frozenset(w2), C.STATUS_2_BITS),
-            C.MAIN_REFERENCE_SELECTOR: 2 if self.main_reference else 0,
-            C.STATUS_WORD_3: C.flags_word(frozenset(w3), C.STATUS_3_BITS),
-        }
-        regs = self.store.holding_registers
-        for a, v in values.items():
-            regs.set(a, v & 0xFFFF)
 
     def _on_telegram(self, now: float, unit: int, pdu: bytes) -> None:
         super()._on_telegram(now, unit, pdu)

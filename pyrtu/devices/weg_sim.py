@@ -34,14 +34,14 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
-from typing import Any
+from typing import Any, NamedTuple
 
 from pyrtu.drivers.slave import Slave
 from pyrtu.pdu.errors import SlaveException
 
 from .. import pdu as P
 from . import weg
-from ._simbase import DriveSimulator, HandlerSpec
+from ._simbase import DriveSimulator, HandlerSpec, Outputs
 from .motor import Clock, monotonic
 from .weg import ErrorAction, InterfaceStatus, WegModel, WegParam
 
@@ -59,6 +59,79 @@ def _runs(params: dict[int, WegParam]) -> list[tuple[int, list[WegParam]]]:
         else:
             runs.append((number, [p]))
     return runs
+
+
+class _OutputInputs(NamedTuple):
+    """Everything the output parameters (P001-P007, P048/P049, P316, P680/P681) are
+    computed from."""
+
+    commands: tuple[bool, bool, bool, bool, bool, int, bool]  # `WegSimulator._commands`
+    frequency: float  # the motor's, signed Hz
+    reference: float
+    rated_hz: float  # P403
+    rated_current: int  # P401, raw
+    fault_code: int
+    alarm_code: int
+    undervoltage: bool
+    config_mode: bool
+    fire_mode: bool
+    watchdog_tripped: bool
+    seen_traffic: bool
+    model: str
+
+
+def _status(s: _OutputInputs) -> weg.WegStatus:
+    """P680, from ``s`` alone."""
+    remote, run, enable, jog, ramp2, ref, dirbit = s.commands
+    f = s.frequency
+    enabled = enable and not (bool(s.fault_code) or s.undervoltage or s.config_mode)
+    running = enabled and (f != 0.0 or run or jog)
+    forward = f > 0 if f != 0.0 else weg.reference_direction(4 if dirbit else 0, ref)
+    cfw320 = s.model == "CFW320"
+    return weg.WegStatus(
+        0,
+        second_ramp=ramp2,
+        config_mode=s.config_mode,
+        alarm=s.alarm_code != 0,
+        running=running,
+        enabled=enabled,
+        forward=forward,
+        jog=enabled and jog and not run,
+        remote=remote,
+        undervoltage=s.undervoltage,
+        fault=s.fault_code != 0,
+        run_command=run if cfw320 else None,
+        fire_mode=s.fire_mode if cfw320 else None,
+    )
+
+
+def _output_parameters(s: _OutputInputs) -> dict[int, int]:
+    """The output parameters' values (number -> value), from ``s`` alone."""
+    f = s.frequency
+    rated = s.rated_hz
+    st = _status(s)
+    current = round(s.rated_current * abs(f) / rated) if rated else 0
+    state = (
+        3 if st.fault else 2 if st.undervoltage else 5 if st.config_mode else 1 if st.running else 0
+    )
+    if s.watchdog_tripped:
+        interface = InterfaceStatus.WATCHDOG_ERROR
+    else:
+        interface = InterfaceStatus.ACTIVE if s.seen_traffic else InterfaceStatus.INACTIVE
+    return {
+        1: round(abs(s.reference) * 10),
+        2: round(abs(f)),
+        3: current,
+        4: 200 if s.undervoltage else 311,
+        5: round(abs(f) * 10),
+        6: state,
+        7: round(220 * abs(f) / rated) if rated else 0,
+        weg.P_PRESENT_ALARM: s.alarm_code,
+        weg.P_PRESENT_FAULT: s.fault_code,
+        weg.P_STATUS: weg.encode_status(st, s.model),
+        weg.P_SPEED: weg.hz_to_13bit(f, rated) & 0xFFFF if rated else 0,
+        weg.P_INTERFACE_STATUS: int(interface),
+    }
 
 
 class WegSimulator(DriveSimulator):
@@ -99,6 +172,9 @@ class WegSimulator(DriveSimulator):
         self.local_reference = 0
         self._seen_traffic = self.model.name != "CFW320"
         self._recovering = False
+        #: the output parameters (P001-P007, P048/P049, P316, P680/P681), shown by
+        #: `_refresh`
+        self._outputs = Outputs(self.store.holding_registers, _output_parameters)
         regs = self.store.holding_registers
         for start, run in _runs(self.params):
             values = [p.default & 0xFFFF for p in run]
@@ -246,67 +322,25 @@ class WegSimulator(DriveSimulator):
             hz = 0.0
         m.reference = hz if forward else -hz
 
-    def _status(self) -> weg.WegStatus:
-        remote, run, enable, jog, ramp2, ref, dirbit = self._commands()
-        f = self.motor.frequency
-        enabled = enable and not self._blocked()
-        running = enabled and (f != 0.0 or run or jog)
-        forward = f > 0 if f != 0.0 else weg.reference_direction(4 if dirbit else 0, ref)
-        cfw320 = self.model.name == "CFW320"
-        return weg.WegStatus(
-            0,
-            second_ramp=ramp2,
-            config_mode=self.config_mode,
-            alarm=self.alarm_code != 0,
-            running=running,
-            enabled=enabled,
-            forward=forward,
-            jog=enabled and jog and not run,
-            remote=remote,
-            undervoltage=self.undervoltage,
-            fault=self.fault_code != 0,
-            run_command=run if cfw320 else None,
-            fire_mode=self.fire_mode if cfw320 else None,
-        )
-
     def _refresh(self) -> None:
-        regs = self.store.holding_registers
-        f = self.motor.frequency
-        rated = self.rated_hz
-        st = self._status()
-        current = round(self._raw(weg.P_RATED_CURRENT) * abs(f) / rated) if rated else 0
-        state = (
-            3
-            if st.fault
-            else 2
-            if st.undervoltage
-            else 5
-            if st.config_mode
-            else 1
-            if st.running
-            else 0
-        )
-        values = {
-            1: round(abs(self.motor.reference) * 10),
-            2: round(abs(f)),
-            3: current,
-            4: 200 if self.undervoltage else 311,
-            5: round(abs(f) * 10),
-            6: state,
-            7: round(220 * abs(f) / rated) if rated else 0,
-            weg.P_PRESENT_ALARM: self.alarm_code,
-            weg.P_PRESENT_FAULT: self.fault_code,
-            weg.P_STATUS: weg.encode_status(st, self.model.name),
-            weg.P_SPEED: weg.hz_to_13bit(f, rated) & 0xFFFF if rated else 0,
-            weg.P_INTERFACE_STATUS: int(self._interface_status()),
-        }
-        for number, value in values.items():
-            regs.set(number, value)
+        self._outputs.show(self._output_inputs())
 
-    def _interface_status(self) -> InterfaceStatus:
-        if self.supervision.tripped:
-            return InterfaceStatus.WATCHDOG_ERROR
-        return InterfaceStatus.ACTIVE if self._seen_traffic else InterfaceStatus.INACTIVE
+    def _output_inputs(self) -> _OutputInputs:
+        return _OutputInputs(
+            self._commands(),
+            self.motor.frequency,
+            self.motor.reference,
+            self.rated_hz,
+            self._raw(weg.P_RATED_CURRENT),
+            self.fault_code,
+            self.alarm_code,
+            self.undervoltage,
+            self.config_mode,
+            self.fire_mode,
+            self.supervision.tripped,
+            self._seen_traffic,
+            self.model.name,
+        )
 
     # -- supervision ----------------------------------------------------------------------
 
@@ -336,7 +370,6 @@ class WegSimulator(DriveSimulator):
                     self.alarm_code = 0
             else:
                 self._recovering = True
-        self._refresh()
 
     # -- the owner's controls ---------------------------------------------------------------
 

@@ -24,8 +24,9 @@ validator, no callback.  All access goes through the store's lock.
 from __future__ import annotations
 
 import bisect
+import itertools
 import threading
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -65,6 +66,9 @@ class Table:
         self._lock = lock
         self._ranges: list[_Range] = []
         self._starts: list[int] = []
+        #: counts the changes to the values (a range added, `set`, `set_many`, `set_each`,
+        #: a request's write, its undoing): while it stays the same, so do the values
+        self.version = 0
 
     # ------------------------------------------------------------------- owner
 
@@ -111,6 +115,7 @@ class Table:
                 raise ValueError(
                     f"{self.name}: range at {address} overlaps {nxt.start}..{nxt.end - 1}"
                 )
+            self.version += 1
             self._ranges.insert(i, new)
             self._starts.insert(i, address)
 
@@ -119,6 +124,12 @@ class Table:
         if i >= 0 and address < self._ranges[i].end:
             return self._ranges[i]
         return None
+
+    def _holding(self, address: int) -> _Range:
+        r = self._find(address)
+        if r is None:
+            raise KeyError(f"{self.name}: no range holds address {address}")
+        return r
 
     def __contains__(self, address: object) -> bool:
         return isinstance(address, int) and self._find(address) is not None
@@ -142,16 +153,41 @@ class Table:
             r = self._find(address)
             if r is None:
                 raise KeyError(f"{self.name}: no range holds address {address}")
+            self.version += 1
             r.values[address - r.start] = self._value(address, value)
 
     def get_many(self, address: int, count: int) -> list[Value]:
+        """``count`` values from ``address`` on (KeyError at the first address outside
+        every range)."""
         with self._lock:
-            return [self.get(address + i) for i in range(count)]
+            out: list[Value] = []
+            r: _Range | None = None
+            for a in range(address, address + count):
+                if r is None or not r.start <= a < r.end:
+                    r = self._holding(a)
+                out.append(r.values[a - r.start])
+            return out
 
     def set_many(self, address: int, values: Iterable[object]) -> None:
+        """`set` for each of ``values``, from ``address`` on, under one lock."""
+        self.set_each(zip(itertools.count(address), values))
+
+    def set_each(self, values: Mapping[int, object] | Iterable[tuple[int, object]]) -> None:
+        """`set` for each ``address: value`` (a mapping or pairs), in order, under one
+        lock: the owner's bulk write (a simulator's refresh).  As a loop of `set`: the
+        values before a bad address (KeyError) or value (ValueError) stay stored."""
+        items = values.items() if isinstance(values, Mapping) else values
         with self._lock:
-            for i, v in enumerate(values):
-                self.set(address + i, v)
+            self.version += 1
+            r: _Range | None = None
+            check = self.bits
+            for a, v in items:
+                if r is None or not r.start <= a < r.end:
+                    r = self._holding(a)
+                # a plain int in 0..65535 is what `_value` would return for a register
+                if check or type(v) is not int or not 0 <= v <= 0xFFFF:
+                    v = self._value(a, v)
+                r.values[a - r.start] = v
 
     # ---------------------------------------------------------------- requests
 
@@ -210,6 +246,7 @@ class Table:
         """A request's write: all or nothing."""
         with self._lock:
             segments = self.check_write(address, values)
+            self.version += 1
             old: list[tuple[_Range, int, list[Value]]] = []
             k = 0
             for r, i, n in segments:
@@ -223,6 +260,7 @@ class Table:
                         _call(self.name, r.on_write, r.start + i, list(values[k : k + n]))
                     k += n
             except SlaveException:
+                self.version += 1
                 for r, i, vals in old:
                     r.values[i : i + len(vals)] = vals
                 raise
