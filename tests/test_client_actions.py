@@ -121,8 +121,8 @@ def test_an_echo_is_slept_on_then_the_answer(backend: ModuleType) -> None:
 
 def test_a_repeated_request_is_offered_as_one_exchange(backend: ModuleType) -> None:
     """A driver that asks gets an `Exchange` for a request whose answer it has seen:
-    the protocol's own times (t3.5 after the answer, the first read a character
-    before the learned answer's end), its length and the exception's; reported
+    the protocol's own times (t3.5 after the answer, the first read at the learned
+    answer's end on this slow line), its length and the exception's; reported
     through the usual inputs, the transaction ends as the steps would end it."""
     p = started(backend)
     assert type(p.next_action(100.0, exchange=True)) is Wait  # no answer length learned yet
@@ -137,7 +137,7 @@ def test_a_repeated_request_is_offered_as_one_exchange(backend: ModuleType) -> N
     assert plan.data == p.encode(1, read_holding_registers(1, 0, 10).pdu)
     assert plan.send_at == pytest.approx(t + T35)  # t3.5 after the answer's last byte
     turn = p.turnaround(1) or 0.0
-    assert plan.first_wake == pytest.approx(T35 + turn + (len(ans) - 1) * CHAR)
+    assert plan.first_wake == pytest.approx(T35 + turn + len(ans) * CHAR)
     assert (plan.timeout, plan.expect, plan.short_len) == (0.5, len(ans), 5)
     # stale input at the send time: nothing sent, the silence starts again
     p.wait_done(b"\x00\x01", plan.send_at)
@@ -156,6 +156,24 @@ def test_a_repeated_request_is_offered_as_one_exchange(backend: ModuleType) -> N
     done = p.next_action(first + CHAR, exchange=True)
     assert type(done) is Done and done.result() == VALUES
     assert done.end == pytest.approx(first + CHAR, abs=1e-6)
+
+
+def test_an_exchange_reads_a_character_early_on_a_fast_line(backend: ModuleType) -> None:
+    """Above 19200 baud a timed wake-up is typically a character late: the first read
+    is planned a character before the learned answer's end (at it on a slow line)."""
+    fast = LineConfig(baudrate=115200, parity="N")
+    p = started(backend, fast)
+    end = send(p, 100.0)
+    ans = answer(backend)
+    t = end + fast.t35_time + len(ans) * fast.char_time
+    p.wait_done(ans, t)
+    assert p.next_action(t).result() == VALUES
+    p.start(*read_holding_registers(1, 0, 10), now=t)
+    plan = p.next_action(t, exchange=True)
+    assert type(plan) is Exchange
+    turn = p.turnaround(1) or 0.0
+    want = fast.t35_time + turn + (len(ans) - 1) * fast.char_time
+    assert plan.first_wake == pytest.approx(want)
 
 
 def test_no_exchange_where_it_does_not_apply(backend: ModuleType) -> None:

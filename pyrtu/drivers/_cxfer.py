@@ -91,6 +91,7 @@ class AsyncExchanger:
         self.fd, self._cr, self._cw = r, cr, cw
         self._x, self._buf = _new_xfer(cr)
         self._req: Any = None
+        self._closed = self._poked = False
         self._worker = ffi.new("char[]", lib.rtu_xfer_worker_size())
         worker = ffi.cast("rtu_xfer_worker *", self._worker)
         if lib.rtu_xfer_worker_start(worker, self._x, w) != lib.RTU_OK:
@@ -102,12 +103,14 @@ class AsyncExchanger:
         self._stop = weakref.finalize(self, _stop_worker, worker, keep, (r, w, cr, cw))
 
     def submit(self, plan: XferPlan) -> None:
-        if not self._stop.alive:
+        if self._closed:
             raise ValueError("this exchanger is closed")
         if lib.rtu_xfer_worker_rc(self._w) == lib.RTU_EBUSY:
             raise RuntimeError("an exchange is under way")
         self._req = _plan(self._x, plan)
-        drain(self._cr)  # an old cancel
+        if self._poked:  # an old cancel
+            self._poked = False
+            drain(self._cr)
         lib.rtu_xfer_worker_submit(self._w)
 
     def result(self) -> XferResult | None:
@@ -122,10 +125,12 @@ class AsyncExchanger:
 
     def cancel(self) -> None:
         """End the exchange under way (its report still comes: CANCELLED)."""
+        self._poked = True
         poke(self._cw)
 
     def close(self) -> None:
         """End the thread (the exchange under way, if any, cancelled)."""
+        self._closed = True
         self._stop()
 
 

@@ -218,12 +218,26 @@ class AsyncMaster(MasterBase):
             port = self.port
             if port.closed:
                 raise PortError(port.name, "the master is closed")
-            await self._exchange_over()
+            if self._ax_over is not None:
+                await self._exchange_over()
             proto = self._proto
             slave, pdu, decode = call
             proto.start(slave, pdu, decode, _monotonic())
-            if self._fd is not None and not port.has_wire:
-                return await self._run_callbacks(proto)
+            if self._fd is not None:
+                # a repeated request: one exchange, this task's one wake-up (the
+                # protocol's first action, SEND or QUIET, changes nothing: asked again
+                # below when it is not an Exchange)
+                action = proto.next_action(_monotonic(), True)
+                if isinstance(action, Exchange):
+                    try:
+                        report(port, proto, await self._exchange(action))
+                    except BaseException:
+                        proto.abort(_monotonic())
+                        raise
+                    if proto.done:
+                        return proto.result()
+                if not port.has_wire:
+                    return await self._run_callbacks(proto)
             return await self._run_task(proto)
 
     async def _run_task(self, proto: ClientProtocol) -> Any:

@@ -148,9 +148,12 @@ class SerialLink:
 
     def transact(self, call: Call) -> tuple[Any, float]:
         """One transaction (blocking)."""
-        self.check_open()
-        value = run_sync(self.port, self.proto, call, self.exchanger)
-        return value, self.end_of(call)
+        port = self.port
+        if port.closed:
+            raise PortError(port.name, "the master is closed")
+        value = run_sync(port, self.proto, call, self.exchanger)
+        end = self.proto.answer_end  # (end_of, inline: once per transaction)
+        return value, (_monotonic() if call.decode is None or end is None else end)
 
     def close(self) -> None:
         self.port.close()

@@ -84,24 +84,24 @@ def plan_of(port: Port, fd: int, action: Exchange) -> xfer.XferPlan:
 
 
 def report(port: Port, proto: ClientProtocol, r: xfer.XferResult) -> None:
-    """Tell ``proto`` what an exchange saw (as the `Wait`, `Send` and `Wait` steps it
-    stands for would); `PortError` as `Port.read` and `Port.write` raise them."""
-    if r.sent:  # the look at the send time found the line quiet, then it went
-        proto.wait_done(b"", r.start)
-        proto.transmitted(r.end, r.start)
-    if r.status == xfer.ERRNO:
+    """Tell ``proto`` what an exchange saw (``exchanged``; ``wait_done`` for input
+    found at the send time); `PortError` as `Port.read` and `Port.write` raise them
+    (what a failed read read is not reported)."""
+    status = r.status
+    failed = status == xfer.ERRNO or status == xfer.GONE
+    if r.sent:
+        if failed:
+            proto.exchanged(r.start, r.end, b"", 0, r.end, r.end)
+        else:
+            proto.exchanged(r.start, r.end, r.data, r.first_n, r.first_t, r.last_t)
+    elif not failed:
+        data = r.data
+        proto.wait_done(data, r.last_t if data else _monotonic())
+    if status == xfer.ERRNO:
         what = "write" if r.stage == xfer.STAGE_WRITE else "read"
         raise PortError(port.name, f"{what} failed: {OSError(r.err, os.strerror(r.err))}")
-    if r.status == xfer.GONE:
+    if status == xfer.GONE:
         raise PortError(port.name, "the device reports data but returns none (disconnected?)")
-    data = r.data
-    if not r.sent:
-        proto.wait_done(data, r.last_t if data else _monotonic())
-        return
-    if r.first_n:
-        proto.receive_data(data[: r.first_n], r.first_t)
-    if len(data) > r.first_n:
-        proto.receive_data(data[r.first_n :], r.last_t)
 
 
 def run_sync(port: Port, proto: ClientProtocol, call: Call, exchanger: Any = None) -> Any:
@@ -114,19 +114,23 @@ def run_sync(port: Port, proto: ClientProtocol, call: Call, exchanger: Any = Non
         tighten_this_thread()  # silences and sleeps on ready_at wake on time
     fd = port.fd
     run = exchanger.run if exchanger is not None and fd is not None else None
-    wait = waiter(port)
+    wait: Callable[[Wait], bytes] | None = None
     try:
         while True:
             action = proto.next_action(_monotonic(), run is not None)
-            if isinstance(action, Wait):
+            if isinstance(action, Exchange):
+                assert fd is not None and run is not None
+                report(port, proto, run(plan_of(port, fd, action)))
+                if proto.done:  # (the common end: the result without a Done)
+                    return proto.result()
+            elif isinstance(action, Wait):
+                if wait is None:
+                    wait = waiter(port)
                 data = wait(action)
                 proto.wait_done(data, _monotonic())
             elif isinstance(action, Send):
                 start, end = port.write(action.data)
                 proto.transmitted(end, start)
-            elif isinstance(action, Exchange):
-                assert fd is not None and run is not None
-                report(port, proto, run(plan_of(port, fd, action)))
             else:
                 break
     except BaseException:

@@ -53,7 +53,8 @@ from pyrtu.protocol.client_actions import (
     answer_pdu,
     new_counters,
 )
-from pyrtu.protocol.client_timing import LATE_WAKE_CHAR, AnswerTiming
+from pyrtu.protocol.client_exchange import ExchangeSteps
+from pyrtu.protocol.client_timing import LATE_WAKE_CHAR, WAKE_STEP
 
 log = logging.getLogger("pyrtu.drivers.master")
 _debug = log.isEnabledFor
@@ -78,7 +79,7 @@ def _strip_crc(adu: bytes) -> bytes:
 _NO_LIMIT = 1 << 62
 
 
-class ClientProtocol(AnswerTiming):
+class ClientProtocol(ExchangeSteps):
     """A Modbus master's transactions on one line, for a driver to carry out::
 
         proto = ClientProtocol(LineConfig(baudrate=9600), timeout=0.5)
@@ -166,8 +167,11 @@ class ClientProtocol(AnswerTiming):
         self._char = line.char_time
         #: learn answer lengths where ready_at uses them (a timed line)
         self._one_wake = self.gap > 0
-        #: see ready_at: wake-ups late by a character or more settle on the answer's end
-        self._late_wakes = self._one_wake and self._char < LATE_WAKE_CHAR
+        #: see ready_at: how wake-ups late by a character or more settle on the
+        #: answer's end; the characters an Exchange's first read comes early by
+        slow = self._char >= LATE_WAKE_CHAR
+        self._wake_step = WAKE_STEP if slow else self._char / 4
+        self._early_chars = 0 if slow else 1
         #: a repeated request may go as one `Exchange` (a timed, lenient RTU line)
         self._exchange = self._one_wake and line.mode == "rtu" and not line.strict
         self._adus.clear()
@@ -313,7 +317,7 @@ class ClientProtocol(AnswerTiming):
                 self._limit = min(self._end + self.timeout, now + self.settle)
             elif first and not self.echo and self.gap > 0:
                 self._learn_turnaround(len(data), now)
-        elif first and self._late_wakes and not self.echo:
+        elif first and self._one_wake and not self.echo:
             self._woke_late()
 
     def next_action(self, now: float, exchange: bool = False) -> Action:

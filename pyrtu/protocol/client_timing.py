@@ -4,8 +4,9 @@ The timing half of `pyrtu.protocol.ClientProtocol` (a base class: it reads the
 protocol's state): the earliest send time (t3.5 after the line went quiet, the
 broadcast turnaround, the settling time after a failure), the bytes an answer
 still needs, and the sleep that reads them in as few wake-ups as the line
-allows (``ready_at``, which `ClientProtocol.next_action` turns into a `Wait`), and
-those times for a repeated request as one `Exchange` (``_exchange_plan``).
+allows (``ready_at``, which `ClientProtocol.next_action` turns into a `Wait`; for a
+repeated request, `pyrtu.protocol.client_exchange` puts the same times in one
+`Exchange`).
 """
 
 from __future__ import annotations
@@ -13,20 +14,21 @@ from __future__ import annotations
 from typing import Any
 
 from pyrtu.core.framing import FramerCore
-from pyrtu.protocol.client_actions import Exchange, State
+from pyrtu.protocol.client_actions import State
 
-_ANSWER, _QUIET = State.ANSWER, State.QUIET
-#: functions whose answer's length follows from the request ([MB] 6.1-6.6, 6.11,
-#: 6.12, 6.16, 6.17): a learned length holds for the next answer (see `Exchange`)
-_FIXED_ANSWER = frozenset((1, 2, 3, 4, 5, 6, 15, 16, 22, 23))
-#: an RTU exception answer: address, function | 0x80, code, CRC ([MB] 7)
-_EXCEPTION_ADU = 5
+_ANSWER = State.ANSWER
 
 #: where a character is shorter than this (above 19200 baud), a timed wake-up is
 #: typically a character or more late: a whole answer in the wake-up's read lowers
-#: the turnaround (`AnswerTiming._woke_late`); slower, the wake-up a character
-#: early leaves the last byte to a wait for input, as intended
+#: the turnaround by a quarter character (`AnswerTiming._woke_late`); slower, a
+#: `Wait` wakes a character early and leaves the last byte to a wait for input, and
+#: an `Exchange` reads at the answer's predicted end (one wake-up fewer, at most a
+#: wake-up's lateness on the silence that follows), lowering it by `WAKE_STEP`
 LATE_WAKE_CHAR = 0.0005
+#: seconds a whole answer in the first read lowers the turnaround on a line slower
+#: than `LATE_WAKE_CHAR` (about half a timed wake-up's lateness on a loaded VM): the
+#: reads settle at the answer's end instead of staying late after one slow answer
+WAKE_STEP = 25e-6
 
 
 class AnswerTiming:
@@ -37,7 +39,6 @@ class AnswerTiming:
     gap: float
     timeout: float
     echo: bool
-    _exchange: bool
     _give_up: float
     _fc: int
     settle: float
@@ -47,6 +48,7 @@ class AnswerTiming:
     failed_at: float
     _char: float
     _one_wake: bool
+    _wake_step: float
     _slave: int
     _adu: bytes
     _decode: Any
@@ -86,12 +88,13 @@ class AnswerTiming:
             self._turn[self._slave] = old + (turn - old) / 16
 
     def _woke_late(self) -> None:
-        """The whole answer came in the first read (a `ready_at` wake-up): it was in
-        before the read, by an unknown time.  A quarter character earlier next time
-        (see `ready_at`)."""
+        """The whole answer came in the first read (a `ready_at` wake-up, or an
+        `Exchange`'s first read): it was in before the read, by an unknown time.  A
+        little earlier next time (a quarter character; `WAKE_STEP` on a line slower
+        than `LATE_WAKE_CHAR`; see `ready_at`)."""
         old = self._turn.get(self._slave)
         if old is not None:
-            lower = old - self._char / 4
+            lower = old - self._wake_step
             self._turn[self._slave] = lower if lower > 0.0 else 0.0
 
     def turnaround(self, slave: int) -> float | None:
@@ -109,10 +112,9 @@ class AnswerTiming:
         request whose answer was seen before, that answer's length less one
         character (one wake-up for the whole answer).  A wake-up that finds the
         whole answer in was late by an unknown time (the next t3.5 counts from that
-        read): on a line faster than `LATE_WAKE_CHAR` the turnaround is lowered a
-        little each time (`_woke_late`), so that the wake-ups settle around the
-        answer's end; one that comes early reads the bytes still coming and
-        learns the turnaround again from them.
+        read): the turnaround is lowered a little each time (`_woke_late`), so that
+        the wake-ups settle around the answer's end; one that comes early reads the
+        bytes still coming and learns the turnaround again from them.
         (Without that, a wake-up a few characters late at 115200 on the virtual
         bus cost 3 % of the transactions.)  Once bytes came: ``needed() - 1``
         characters from now, the last byte left to a wait for input (read as it
@@ -147,23 +149,3 @@ class AnswerTiming:
         if self._decode is None:
             return len(self._echo_left)
         return len(self._echo_left) + self._core.needed()
-
-    def _exchange_plan(self) -> Exchange | None:
-        """SEND or QUIET: the whole exchange of a repeated request, on the times
-        `send_at` and `ready_at` would give (None where it does not apply: ASCII, an
-        echo, strict framing, a broadcast, an answer of unknown or variable length)."""
-        if not self._exchange or self.echo or self._decode is None:
-            return None
-        size = self._sizes.get(self._adu, 0)
-        if size < _EXCEPTION_ADU or self._fc not in _FIXED_ANSWER:
-            return None
-        send_at = self.send_at() if self.state is _QUIET else 0.0
-        first = self.gap + self._turn.get(self._slave, 0.0) + (size - 1) * self._char
-        return Exchange(
-            self._adu,
-            min(send_at, self._give_up),
-            min(first, self.timeout),
-            self.timeout,
-            size,
-            _EXCEPTION_ADU,
-        )
