@@ -27,6 +27,9 @@
 #define RTU_XFER_GONE 4   /* the descriptor reported input but gave none (unplugged) */
 #define RTU_XFER_CANCELLED 5 /* the cancel descriptor became readable */
 
+/* spin_ns at most (1 ms: a wait on the clock is for the last tens of us) */
+#define RTU_XFER_SPIN_MAX 1000000
+
 #define RTU_XFER_STAGE_WRITE 1
 #define RTU_XFER_STAGE_READ 2
 
@@ -39,6 +42,8 @@ typedef struct {
     const uint8_t *req; /* the request ADU */
     size_t req_len;
     int64_t send_at;    /* not before (the silence before the request) */
+    int64_t spin_ns;    /* the last ns before send_at waited on the clock, not slept
+                           (a sleeping thread wakes tens of us late; 0: none) */
     int64_t first_wake; /* the first read, ns after the end of transmission */
     int64_t timeout_ns; /* the deadline, ns after the end of transmission */
     int64_t char_ns;    /* one character on the line */

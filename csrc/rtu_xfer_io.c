@@ -69,6 +69,16 @@ static int sleep_until(int64_t t)
 #endif
 }
 
+/* Wait on the clock until `t` (absolute): the last tens of microseconds before a
+ * write that must be at its time, which a sleep would overshoot by a wake-up's
+ * latency (rtu_xfer.spin_ns). */
+static void spin_until(int64_t t)
+{
+    int64_t now = now_ns();
+    while (now < t)
+        now = now_ns();
+}
+
 /* poll() the n descriptors until `t` (absolute; a past `t`: a look), to the
  * nanosecond where ppoll() exists.  >0 ready, 0 the time came, <0 error (errno;
  * EINTR: a signal). */
@@ -246,7 +256,7 @@ int rtu_xfer_io_run(rtu_xfer *x)
     int r;
     if (x == NULL || x->fd < 0 || x->req == NULL || x->req_len == 0 || x->buf == NULL ||
         x->cap == 0 || x->expect > x->cap || x->short_len > x->expect || x->char_ns <= 0 ||
-        x->first_wake < 0 || x->timeout_ns < 0)
+        x->first_wake < 0 || x->timeout_ns < 0 || x->spin_ns < 0 || x->spin_ns > RTU_XFER_SPIN_MAX)
         return RTU_EINVAL;
     x->status = RTU_XFER_SHORT;
     x->sent = x->err = x->stage = 0;
@@ -258,8 +268,9 @@ int rtu_xfer_io_run(rtu_xfer *x)
         x->status = RTU_XFER_CANCELLED;
         return RTU_OK;
     }
-    if (pause_until(x, x->send_at))
+    if (pause_until(x, x->send_at - x->spin_ns))
         return RTU_OK; /* a signal or a cancel: nothing sent */
+    spin_until(x->send_at);
     if (x->look) {
         r = wait_fd(x->fd, POLLIN, 0);
         if (r > 0) {

@@ -28,10 +28,11 @@ def plan(
     expect: int = 0,
     short_len: int = 0,
     look: bool = True,
+    spin: float = 0.0,
 ) -> xfer.XferPlan:
     """An exchange's plan from its values one by one."""
     ex = Exchange(request, send_at, first_wake, timeout, expect, short_len)
-    return xfer.XferPlan(fd, drain, char, ex, look)
+    return xfer.XferPlan(fd, drain, char, ex, look, spin)
 
 
 REQUEST = bytes.fromhex("0703000000 0a c4 6f".replace(" ", ""))
@@ -222,6 +223,9 @@ def test_the_backends_agree(both: tuple[ModuleType, ModuleType]) -> None:
         ({"char": 0.0}, "char must be a positive number of seconds, not 0.0"),
         ({"timeout": -1.0}, "first_wake and timeout must be non-negative"),
         ({"fd": -1}, "fd must be an open descriptor, not -1"),
+        ({"spin": -1e-6}, r"spin must be 0..0.001 seconds, not -1e-06"),
+        ({"spin": 0.002}, r"spin must be 0..0.001 seconds, not 0.002"),
+        ({"spin": float("nan")}, r"spin must be 0..0.001 seconds, not nan"),
     ],
 )
 def test_bad_arguments_are_refused_alike(
@@ -281,6 +285,26 @@ def test_a_response_goes_at_its_time(backend: ModuleType, pty: tuple[int, int]) 
     r = exchangers.exchanger(backend).run(plan(line, False, answer, at, CHAR, look=False))
     assert r.status == xfer.ANSWER and r.sent and r.start >= at and r.data == b""
     assert os.read(device, 64) == answer
+
+
+@pytest.mark.wall_clock  # a quarter character at 115200 (the median of 15 writes)
+def test_a_response_with_spin_is_written_at_its_time(
+    backend: ModuleType, pty: tuple[int, int]
+) -> None:
+    """``spin``: the last of the wait before the write is on the clock, not a sleep
+    (which overshoots by a wake-up's latency): never before its time, and at the
+    median within a quarter character at 115200 baud of it."""
+    device, line = pty
+    answer = answer_of(2, backend)
+    ex = exchangers.exchanger(backend)
+    late = []
+    for _ in range(15):
+        at = time.monotonic() + 0.003
+        r = ex.run(plan(line, False, answer, at, CHAR, look=False, spin=xfer.SPIN_MAX))
+        assert r.status == xfer.ANSWER and r.start >= at
+        assert os.read(device, 64) == answer
+        late.append(r.start - at)
+    assert sorted(late)[len(late) // 2] < CHAR / 4
 
 
 @pytest.mark.wall_clock  # bounded by half the exchange's deadline

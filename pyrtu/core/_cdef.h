@@ -258,6 +258,7 @@ int64_t rtu_vbus_io_wake_estimate(rtu_vbus_io *io);
 #define RTU_XFER_ERRNO 3
 #define RTU_XFER_GONE 4
 #define RTU_XFER_CANCELLED 5
+#define RTU_XFER_SPIN_MAX 1000000
 #define RTU_XFER_STAGE_WRITE 1
 #define RTU_XFER_STAGE_READ 2
 typedef struct {
@@ -268,6 +269,7 @@ typedef struct {
     const uint8_t *req;
     size_t req_len;
     int64_t send_at;
+    int64_t spin_ns;
     int64_t first_wake;
     int64_t timeout_ns;
     int64_t char_ns;

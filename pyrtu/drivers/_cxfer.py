@@ -32,6 +32,7 @@ def _plan(x: Any, plan: XferPlan) -> Any:
     req = ffi.from_buffer("uint8_t[]", ex.data)
     x.fd, x.drain, x.look, x.req, x.req_len = plan.fd, plan.drain, plan.look, req, len(req)
     x.send_at = math.ceil(ex.send_at * 1e9)  # never before it
+    x.spin_ns = int(plan.spin * 1e9)
     x.first_wake, x.timeout_ns = int(ex.first_wake * 1e9), int(ex.timeout * 1e9)
     x.char_ns = max(1, int(plan.char * 1e9))
     x.expect, x.short_len = ex.expect, ex.short_len

@@ -155,7 +155,10 @@ class Exchanger:
         fd, ex = plan.fd, plan.exchange
         expect, short_len = ex.expect, ex.short_len
         cancel = self._cancel
-        _pause_until(ex.send_at, cancel)
+        _pause_until(ex.send_at - plan.spin, cancel)
+        left = ex.send_at - _now()
+        while left > 0:  # the last `spin` seconds on the clock (see XferPlan.spin)
+            left = ex.send_at - _now()
         if plan.look and _wait_fd(fd, select.POLLIN, 0.0) and self._take(fd, True):
             state[0] = STALE
             return

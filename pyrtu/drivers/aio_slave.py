@@ -17,11 +17,12 @@ descriptor is watched with ``loop.add_reader``; timers are those of
 `pyrtu.drivers._ptimer` (the loop's own on `pyrtu.drivers.aio.run`'s loop, a timerfd on
 loops whose timers are whole milliseconds: asyncio's epoll loop, uvloop).
 When the first bytes of a frame come, the reader is set aside until the protocol's
-`wake_at` (for a request to this slave: `PREPARE` before the end of its t3.5): the
-rest is read and the request executed in that wake-up (lenient mode), and the
-response goes to the port's exchange thread (the backend's `AsyncExchanger`,
-`pyrtu.drivers.xfer`: a C thread without the GIL), which writes it at its time to the
-microsecond whatever the loop is doing; the loop wakes once more when it is written.
+`wake_at` (for a request to this slave: `_LEAD`, 1 ms, before the end of its t3.5,
+at most half of it): the rest is read and the request executed in that wake-up
+(lenient mode), and the response goes to the port's exchange thread (the backend's
+`AsyncExchanger`, `pyrtu.drivers.xfer`: a C thread without the GIL), which writes it
+at its time to the microsecond whatever the loop is doing (the last `_SPIN` of the
+wait on the clock); the loop wakes once more when it is written.
 Three wake-ups per transaction, four for a request longer than 8 bytes (its length
 is known once 8 bytes are in), and one more per 25 ms of a longer one (see
 `pyrtu.drivers.slave`).  A port without a file descriptor (a pyserial URL) is read by
@@ -56,9 +57,20 @@ if TYPE_CHECKING:  # Unpack is in typing from Python 3.11 (annotations only)
 log = logging.getLogger("pyrtu.drivers.slave")
 
 _POLL = 0.05  # the reader thread of a port without a file descriptor
-#: a response is handed to the port's exchange thread this long before its time (the
-#: thread writes it then); the nap ends `PREPARE` before it (see `_after`)
-_AHEAD = 2 * PREPARE
+#: the nap ends this long before a response's time (the protocol caps it at half the
+#: turnaround, so that the request is in): the rest of the request read, the response
+#: made and handed to the exchange thread before its time.  Twice the sync `Slave`'s
+#: `PREPARE`: one loop serves many ports, and a nap on it wakes later (with 0.5 ms, 18 %
+#: of the responses of four simulated drives on one loop were handed over late, 5 %
+#: with 1 ms; 4 buses at 115200, 2-vCPU VM, 2026-11-27)
+_LEAD = 2 * PREPARE
+#: a response is handed to the port's exchange thread up to this long before its time
+#: (the thread writes it then; see `_after`)
+_AHEAD = 2 * _LEAD
+#: the exchange thread waits out the last of a response's turnaround on the clock
+#: (`pyrtu.drivers.xfer.XferPlan.spin`): asleep, it wakes about 50 µs late (p90 94 µs
+#: on an idle 2-vCPU VM, 2026-11-27), and the response with it
+_SPIN = 100e-6
 
 
 class AsyncSlave(PortSlave["AsyncSlave"], AsyncClosing):
@@ -227,7 +239,7 @@ class AsyncSlave(PortSlave["AsyncSlave"], AsyncClosing):
     def _after(self, now: float) -> None:
         """The protocol saw bytes or time: carry out its actions, up to the next wait.
 
-        On a descriptor the nap ends `PREPARE` before a response's time (the rest of
+        On a descriptor the nap ends `_LEAD` before a response's time (the rest of
         the request read, the response made meanwhile) and the response goes to the
         port's exchange thread, which writes it at its time; elsewhere it is written
         when due."""
@@ -236,7 +248,7 @@ class AsyncSlave(PortSlave["AsyncSlave"], AsyncClosing):
         proto = self.protocol
         nap = self._skip and self._reading
         fd = self.port.fd
-        lead, ahead = (PREPARE, _AHEAD) if fd is not None else (0.0, 0.0)
+        lead, ahead = (_LEAD, _AHEAD) if fd is not None else (0.0, 0.0)
         action = proto.next_action(now, nap=nap, lead=lead, ahead=ahead)
         while isinstance(action, Reply):
             if action.at > now and fd is not None:
@@ -292,6 +304,7 @@ class AsyncSlave(PortSlave["AsyncSlave"], AsyncClosing):
                 port.char_time,
                 Exchange(action.data, action.at, 0.0, 0.0, 0, 0),
                 look=False,
+                spin=_SPIN,
             )
         )
         self._replying = True

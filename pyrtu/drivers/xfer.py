@@ -24,6 +24,8 @@ ANSWER, STALE, SHORT, ERRNO, GONE, CANCELLED = range(6)
 STAGE_WRITE, STAGE_READ = 1, 2
 #: bytes an exchange reads at most (an answer is at most 256; the rest is noise)
 CAPACITY = 4096
+#: `XferPlan.spin` at most (seconds; RTU_XFER_SPIN_MAX)
+SPIN_MAX = 0.001
 
 
 class XferResult(NamedTuple):
@@ -73,6 +75,10 @@ class XferPlan(NamedTuple):
     response), ``short_len`` an exception answer's (0: none)"""
     look: bool = True
     """input pending at the send time is stale and nothing is sent (a master)"""
+    spin: float = 0.0
+    """the last seconds before ``send_at`` waited on the clock instead of slept (at
+    most `SPIN_MAX`): a sleeping thread wakes tens of µs late (about 50 µs on a VM),
+    so that a write that must be at its time (a slave's response) is"""
 
 
 class Exchanger(Protocol):
@@ -116,6 +122,8 @@ def check_plan(plan: XferPlan) -> None:
         raise ValueError(f"char must be a positive number of seconds, not {plan.char}")
     if not ex.first_wake >= 0 or not ex.timeout >= 0:
         raise ValueError("first_wake and timeout must be non-negative numbers of seconds")
+    if not 0 <= plan.spin <= SPIN_MAX:
+        raise ValueError(f"spin must be 0..{SPIN_MAX} seconds, not {plan.spin}")
     if plan.fd < 0:
         raise ValueError(f"fd must be an open descriptor, not {plan.fd}")
 
@@ -127,6 +135,7 @@ __all__ = [
     "ERRNO",
     "GONE",
     "SHORT",
+    "SPIN_MAX",
     "STAGE_READ",
     "STAGE_WRITE",
     "STALE",
