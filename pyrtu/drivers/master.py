@@ -137,10 +137,6 @@ class SerialLink:
             rules.update(new)
             self.proto.set_line(self.proto.line.replace(rules=rules))
 
-    def check_open(self) -> None:
-        if self.port.closed:
-            raise PortError(self.port.name, "the master is closed")
-
     def end_of(self, call: Call) -> float:
         """When the answer to ``call`` ended (now for one not awaited)."""
         end = self.proto.answer_end
@@ -151,9 +147,7 @@ class SerialLink:
         port = self.port
         if port.closed:
             raise PortError(port.name, "the master is closed")
-        value = run_sync(port, self.proto, call, self.exchanger)
-        end = self.proto.answer_end  # (end_of, inline: once per transaction)
-        return value, (_monotonic() if call.decode is None or end is None else end)
+        return run_sync(port, self.proto, call, self.exchanger), self.end_of(call)
 
     def close(self) -> None:
         self.port.close()
