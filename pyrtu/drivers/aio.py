@@ -223,40 +223,39 @@ class AsyncMaster(MasterBase):
             proto = self._proto
             slave, pdu, decode = call
             proto.start(slave, pdu, decode, _monotonic())
-            if self._fd is not None:
-                # a repeated request: one exchange, this task's one wake-up (the
-                # protocol's first action, SEND or QUIET, changes nothing: asked again
-                # below when it is not an Exchange)
-                action = proto.next_action(_monotonic(), True)
-                if isinstance(action, Exchange):
-                    try:
-                        report(port, proto, await self._exchange(action))
-                    except BaseException:
-                        proto.abort(_monotonic())
-                        raise
-                    if proto.done:
-                        return proto.result()
-                if not port.has_wire:
+            if self._fd is not None and not port.has_wire:
+                # a repeated request is one Exchange, awaited by this task (one
+                # wake-up); other steps run in the loop's callbacks (the first action,
+                # SEND or QUIET, changes nothing: asked again there)
+                first = proto.next_action(_monotonic(), True)
+                if not isinstance(first, Exchange):
                     return await self._run_callbacks(proto)
+                return await self._run_task(proto, first)
             return await self._run_task(proto)
 
-    async def _run_task(self, proto: ClientProtocol) -> Any:
-        """The protocol's actions as this task's loop: ports without a descriptor
-        (thread reads) and real lines (the write's drain runs in an executor)."""
+    async def _run_task(self, proto: ClientProtocol, action: Any = None) -> Any:
+        """The protocol's actions as this task's loop (``action``: the first one,
+        already asked for): a repeated request's `Exchange`, ports without a
+        descriptor (thread reads) and real lines (the write's drain runs in an
+        executor)."""
         try:
             exchange = self._fd is not None
             while True:
-                action = proto.next_action(_monotonic(), exchange)
-                if isinstance(action, Wait):
+                if action is None:
+                    action = proto.next_action(_monotonic(), exchange)
+                if isinstance(action, Exchange):
+                    report(self.port, proto, await self._exchange(action))
+                    if proto.done:  # (the common end: the result without a Done)
+                        return proto.result()
+                elif isinstance(action, Wait):
                     data = await self._wait(action)
                     proto.wait_done(data, _monotonic())
                 elif isinstance(action, Send):
                     start, end = await self._transmit(action.data)
                     proto.transmitted(end, start)
-                elif isinstance(action, Exchange):
-                    report(self.port, proto, await self._exchange(action))
                 else:
                     return action.result()
+                action = None
         except BaseException:
             proto.abort(_monotonic())
             raise
