@@ -152,6 +152,8 @@ class ClientProtocol(ExchangeSteps):
         self._nap = False  # ANSWER: sleep on ready_at before waiting for input
         #: per slave: how long past t3.5 its answers start (see _learn_turnaround)
         self._turn: dict[int, float] = {}
+        #: per slave: whole answers in first reads in a row (see _woke_late)
+        self._late_runs: dict[int, int] = {}
 
     def set_line(self, line: LineConfig) -> None:
         """A new line configuration (new length rules); between transactions only."""
