@@ -108,11 +108,8 @@ class AnswerTiming:
         if old is not None:
             run = self._late_runs.get(slave, 0) + 1
             self._late_runs[slave] = run
-            step = (
-                self._wake_step * (1 << min(run - _PLAIN_STEPS, _MAX_DOUBLINGS))
-                if run > 2
-                else self._wake_step
-            )
+            doublings = min(run - _PLAIN_STEPS, _MAX_DOUBLINGS)
+            step = self._wake_step * (1 << doublings) if doublings > 0 else self._wake_step
             lower = old - step
             self._turn[slave] = lower if lower > 0.0 else 0.0
 
