@@ -224,8 +224,8 @@ def test_a_turnaround_from_one_slow_answer_comes_down_in_a_few_transactions(
 def test_an_answer_in_two_reads_ends_the_run_of_faster_steps(backend: ModuleType) -> None:
     """The faster steps are for late reads in a row only: an answer whose first
     read was early (in two reads) starts the count again, so the next whole answer
-    lowers the turnaround by one plain step; and however long the run, a step is at
-    most 2**12 plain ones."""
+    lowers the turnaround by one plain step; and a run of any length neither
+    overflows the step nor takes the turnaround below 0."""
     line = LINES[1]
     p, _, _ = _primed(backend, line)
     ans = _answer(backend)
