@@ -250,10 +250,7 @@ class ClientProtocol(ExchangeSteps):
         began, for the log)."""
         if self.state is not _SEND:
             raise RuntimeError(f"nothing was to be sent ({self.state.value})")
-        self.quiet_until = self.failed_at = 0.0
-        self.tx_end = self._end = end
-        c = self.counters
-        c["requests"] += 1
+        self._went(end)
         # once per transaction (after the write: off the critical path); the hot path
         # logs nothing
         self._dbg = _debug(_DEBUG)
@@ -266,12 +263,10 @@ class ClientProtocol(ExchangeSteps):
                 (end - (end if start is None else start)) * 1e3,
             )
         self._echo_left = self._adu if self.echo else b""
-        self._bad = None
         self._heard = False
-        self._limit = end + self.timeout
         if self._decode is None:
             self._core.reset()
-            c["broadcasts"] += 1
+            self.counters["broadcasts"] += 1
             self.quiet_until = end + self.broadcast_delay
             if not self._echo_left:
                 self._finish(None)
@@ -280,6 +275,16 @@ class ClientProtocol(ExchangeSteps):
             self._core.expect(self._adu)  # a fresh framer, told of the request
         self.state = _ANSWER
         self._nap = True
+
+    def _went(self, end: float) -> None:
+        """SEND: the request's transmission ended at ``end`` (what `transmitted` and
+        an `Exchange`'s short cut both record): the silence and the answer's deadline
+        count from it."""
+        self.quiet_until = self.failed_at = 0.0
+        self.tx_end = self._end = end
+        self._limit = end + self.timeout
+        self._bad = None
+        self.counters["requests"] += 1
 
     # ------------------------------------------------------------- inputs
 

@@ -60,6 +60,8 @@ class ExchangeSteps(AnswerTiming):
 
         def _check_quiet(self, now: float) -> None: ...
 
+        def _went(self, end: float) -> None: ...
+
     def _exchange_plan(self) -> Exchange | None:
         """SEND or QUIET: the whole exchange of a repeated request, on the times
         `send_at` and `ready_at` would give (None where it does not apply: ASCII, an
@@ -120,15 +122,9 @@ class ExchangeSteps(AnswerTiming):
             value = self._decode(data[1:-2])
         except FrameError:  # the steps say what is wrong with it
             return False
-        # transmitted(end, start)
-        self.quiet_until = self.failed_at = 0.0
-        self.tx_end = self._end = end
-        self._limit = end + self.timeout
-        self._bad = None
+        self._went(end)  # transmitted(end, start), no debug log
         self._heard = True
         self._dbg = False
-        c = self.counters
-        c["requests"] += 1
         # receive_data: the bytes' arrival (the framer's end of the frame: the time
         # of the read that brought its last byte, in its microseconds)
         last = last_t if size > first_n else first_t
@@ -138,7 +134,7 @@ class ExchangeSteps(AnswerTiming):
             self._learn_turnaround(first_n, first_t)
         else:  # the whole answer in the first read
             self._woke_late()
-        c["responses"] += 1
+        self.counters["responses"] += 1
         self._result = value
         self.state = _DONE
         return True
