@@ -1,4 +1,7 @@
-"""The drivers: the only I/O of pyrtu, thin interpreters of the protocols' actions.
+"""The drivers of the serial line and the masters: thin interpreters of the protocols' actions.
+
+The other I/O of pyrtu lives with its subsystem: `pyrtu.tcp`, `pyrtu.gateway`, `pyrtu.vbus`,
+`pyrtu.poller`, `pyrtu.bridge` and the commands of `pyrtu.cli`.
 
 `port` (the serial port), `links` (a master's transport: serial, ``tcp://``,
 ``rtu+tcp://``), `master` (`Master`) and `sync_io` (its blocking loop), `aio`
