@@ -2,7 +2,8 @@
 bench_client.py (``--loops --buses 4 --drive cv100``) with the masters' protocol
 events timed.
 
-    python bench/bus_timeline.py [--loop pyrtu|asyncio|uvloop] [--seconds S] [--buses N]
+    python bench/investigations/bus_timeline.py [--loop pyrtu|asyncio|uvloop]
+        [--seconds S] [--buses N]
 
 Every `ClientProtocol.transmitted` and ``wait_done`` of the masters is recorded (the
 methods are wrapped for the run: the masters are bench_client.eight_buses's own), and
@@ -24,9 +25,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # bench/
 
-import bench_client as B
+import bench_client
 
 from pyrtu.protocol.client import ClientProtocol
 
@@ -72,13 +73,13 @@ def _timeline(events: dict[int, list[tuple[str, float, float]]]) -> dict[str, li
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--loop", choices=sorted(B.EVENT_LOOPS), default="pyrtu")
+    ap.add_argument("--loop", choices=sorted(bench_client.EVENT_LOOPS), default="pyrtu")
     ap.add_argument("--seconds", type=float, default=5.0)
     ap.add_argument("--buses", type=int, default=4)
     args = ap.parse_args()
     events: dict[int, list[Any]] = collections.defaultdict(list)
     _record(events)
-    e = B.eight_buses(115200, args.seconds, args.buses, "cv100", event_loop=args.loop)
+    e = bench_client.eight_buses(115200, args.seconds, args.buses, "cv100", event_loop=args.loop)
     print(f"{args.loop}: ratios {' '.join(f'{r:.3f}' for r in e['ratios'])}", end="")
     print(f", master CPU {e['cpu_us_per_tx']:.0f} µs/tx")
     print("| µs per transaction | count | p10 | median | p90 |")

@@ -1,6 +1,6 @@
 """The sync Master against the libmodbus client, back to back on one pty pair.
 
-    python bench/pty_vs_libmodbus.py [N] [--rounds R]
+    python bench/investigations/pty_vs_libmodbus.py [N] [--rounds R]
 
 A socat pty pair, the libmodbus server (tests/peers) on one side; on the other, N FC 03
 reads of 10 registers by `pyrtu.Master` (``t35=0``: no wire), then N by the libmodbus
@@ -29,7 +29,7 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "tests"))
 
 import serial  # noqa: E402

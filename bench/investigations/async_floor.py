@@ -1,6 +1,6 @@
 """The asyncio floor under `AsyncMaster`'s CPU per transaction (issue 18, target (a)).
 
-    python bench/async_floor.py [--rounds N] [--bauds 9600 115200] [--wakes]
+    python bench/investigations/async_floor.py [--rounds N] [--bauds 9600 115200] [--wakes]
 
 On bench_client.py's virtual bus and pyrtu slave, interleaved in each round, each in
 a fresh interpreter: the libmodbus client (C), the sync `Master`, `AsyncMaster` on
@@ -26,11 +26,11 @@ import sys
 from collections.abc import Iterator
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # bench/
 
-import bench_client as B
+import bench_client
 
-ROOT = str(Path(__file__).resolve().parent.parent)
+ROOT = str(Path(__file__).resolve().parents[2])
 
 #: the hand-written floor (see the module docstring); prints tx/s and CPU us per tx
 FLOOR = r"""
@@ -138,17 +138,21 @@ def main() -> None:
         help="add the wake-ups alone (WAKES): one sleep per transaction period, nothing else",
     )
     args = ap.parse_args()
-    programs = {"floor": FLOOR, "Master": B._BASELINE, "AsyncMaster": B._BASELINE_ASYNC}
+    programs = {
+        "floor": FLOOR,
+        "Master": bench_client._BASELINE,
+        "AsyncMaster": bench_client._BASELINE_ASYNC,
+    }
     if args.wakes:
         programs.update(WAKES)
 
     def one_round(i: int, path: str, baud: int, n: int) -> Iterator[tuple[str, float]]:
         for name, program in programs.items():
-            yield name, B.baseline_master(ROOT, path, baud, n, program)["cpu_us"]
+            yield name, bench_client.baseline_master(ROOT, path, baud, n, program)["cpu_us"]
 
     print("| baud | program | µs/tx | / libmodbus |")
     print("|---:|---|---:|---:|")
-    for baud, med in B.cpu_rounds(args.bauds, args.rounds, one_round):
+    for baud, med in bench_client.cpu_rounds(args.bauds, args.rounds, one_round):
         for name in [*programs, "libmodbus"]:
             print(f"| {baud} | {name} | {med[name]:.0f} | {med[name] / med['libmodbus']:.2f}x |")
 

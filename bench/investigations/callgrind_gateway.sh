@@ -1,16 +1,16 @@
 #!/bin/sh
 # Instructions per forwarded transaction of the gateway's own path (issue 12), robust
-# on a loaded machine: bench/profile_gateway.py under callgrind at two lengths, the
+# on a loaded machine: bench/investigations/profile_gateway.py under callgrind at two lengths, the
 # difference of the totals over the difference of the transactions (start-up cancels).
 #
-#     bench/callgrind_gateway.sh [BUS] [SHORT] [LONG]      (BUS: instant (default) or pty)
+#     bench/investigations/callgrind_gateway.sh [BUS] [SHORT] [LONG]      (BUS: instant (default) or pty)
 #
 # Prints one JSON line: {"bus", "short", "long", "ir_short", "ir_long", "ir_per_tx"}.
 set -eu
 BUS=${1:-instant}
 SHORT=${2:-300}
 LONG=${3:-1300}
-PY=${PYTHON:-$(dirname "$0")/../.venv/bin/python}
+PY=${PYTHON:-$(dirname "$0")/../../.venv/bin/python}
 OUT=$(mktemp -d)
 trap 'rm -rf "$OUT"' EXIT
 for n in "$SHORT" "$LONG"; do

@@ -4,7 +4,7 @@ wire to the start of its answer) and the master's (the end of an answer to the n
 request), against t3.5 = 1750 µs at 115200 baud.  What a bus loses to the wire
 limit is their excess over t3.5.
 
-    python bench/wire_gaps.py [--loop pyrtu|asyncio|uvloop] [--buses N] [--seconds S]
+    python bench/investigations/wire_gaps.py [--loop pyrtu|asyncio|uvloop] [--buses N] [--seconds S]
                               [--drive cv100|floor]
 
 Each hub writes a capture (``pyrtu vbus --capture``: its hub then runs the Python
@@ -25,9 +25,9 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # bench/
 
-import bench_client as B
+import bench_client
 
 from pyrtu.core.line import LineConfig
 from pyrtu.vbus import read_capture
@@ -59,13 +59,13 @@ def quantiles(v: list[float]) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--loop", choices=sorted(B.EVENT_LOOPS), default="asyncio")
+    ap.add_argument("--loop", choices=sorted(bench_client.EVENT_LOOPS), default="asyncio")
     ap.add_argument("--buses", type=int, default=4)
     ap.add_argument("--seconds", type=float, default=5.0)
     ap.add_argument("--drive", choices=("cv100", "floor"), default="cv100")
     args = ap.parse_args()
     captures: list[str] = []
-    plain = B.process
+    plain = bench_client.process
 
     @contextlib.contextmanager
     def with_capture(argv: list[str], *rest: Any) -> Iterator[Any]:
@@ -76,8 +76,8 @@ def main() -> None:
         with plain(argv, *rest) as out:
             yield out
 
-    B.process = with_capture  # type: ignore[assignment]
-    e = B.eight_buses(115200, args.seconds, args.buses, args.drive, event_loop=args.loop)
+    bench_client.process = with_capture  # type: ignore[assignment]
+    e = bench_client.eight_buses(115200, args.seconds, args.buses, args.drive, event_loop=args.loop)
     char = LineConfig(baudrate=115200, parity="N").char_time
     print(f"{args.loop}, {args.buses} buses, {args.drive}: ratios "
           + " ".join(f"{r:.3f}" for r in e["ratios"]))  # fmt: skip

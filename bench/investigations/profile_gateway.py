@@ -1,7 +1,7 @@
 """The gateway's own CPU per forwarded transaction, in this process (issue 12).
 
-    python bench/profile_gateway.py [--bus instant|pty] [--transactions N] [--clients C]
-                                    [--profile FILE] [--json]
+    python bench/investigations/profile_gateway.py [--bus instant|pty] [--transactions N]
+        [--clients C] [--profile FILE] [--json]
 
 A `pyrtu.gateway.Gateway` runs in this process's event loop; the clients are the
 libmodbus TCP client's ``bench`` (tests/peers/libmodbus_client.c: N FC 03 reads of
@@ -23,10 +23,10 @@ Instruction counts, robust on a loaded machine: run under callgrind twice and ta
 the difference (start-up cancels)::
 
     valgrind --tool=callgrind --callgrind-out-file=/tmp/cg.%p \\
-        python bench/profile_gateway.py --bus instant --transactions 500
+        python bench/investigations/profile_gateway.py --bus instant --transactions 500
     (again with --transactions 2500; Ir difference / 2000 = instructions per transaction)
 
-``bench/callgrind_gateway.sh`` does exactly that.
+``bench/investigations/callgrind_gateway.sh`` does exactly that.
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ import time
 from collections.abc import AsyncIterator
 from pathlib import Path
 
-BENCH = Path(__file__).resolve().parent
+BENCH = Path(__file__).resolve().parents[1]
 ROOT = BENCH.parent
 sys.path.insert(0, str(ROOT / "tests"))
 sys.path.insert(0, str(ROOT))
