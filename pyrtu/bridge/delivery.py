@@ -7,6 +7,9 @@ acknowledgement, which may come for any message id; `Window.contiguous` is then 
 highest seq up to which every publication has been acknowledged: what the outbox
 may forget.  `reset` forgets the publications in flight (the connection ended):
 they are published again from the outbox, with the same sequence numbers.
+`Window.skipped` records a record passed by unpublished (set aside: it never can
+be): it counts as acknowledged in its place, neither holding `contiguous` back
+nor moving it past a publication still in flight.
 """
 
 from __future__ import annotations
@@ -49,6 +52,12 @@ class Window:
         self._by_mid[mid] = s
         self.published += 1
 
+    def skipped(self, seq: int) -> bool:
+        """A record passed by, in its place in the order, as if acknowledged; True
+        when `contiguous` moved."""
+        self._order.append(_Sent(seq, 0.0, True))
+        return self._advance()
+
     def acked(self, mid: int, now: float) -> bool:
         """An acknowledgement at ``now`` (Unix); True when `contiguous` moved."""
         s = self._by_mid.pop(mid, None)
@@ -58,6 +67,9 @@ class Window:
         self.acknowledged += 1
         if s.read_at:
             self.latencies.append(now - s.read_at)
+        return self._advance()
+
+    def _advance(self) -> bool:
         moved = False
         order = self._order
         while order and order[0].done:
