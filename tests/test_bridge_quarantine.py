@@ -162,3 +162,48 @@ def test_the_quarantine_survives_a_reopen_and_is_on_disk_before_the_ack(tmp_path
     assert [(x["seq"], x["reason"]) for x in lines] == [(2, "a reason"), (9, "another")]
     assert lines[0]["record"].encode() == OLD[1]
     assert lines[1]["record_base64"] == "/wp7fQ=="
+
+
+def test_a_publication_the_broker_refuses_is_set_aside_not_counted_delivered(
+    tmp_path: Path,
+) -> None:
+    """mosquitto answers a PUBLISH its ACL denies with PUBACK 0x87 (not authorized,
+    MQTT 5 3.4.2.1): the record is copied aside and reported, not forgotten as
+    if delivered; the records around it are delivered."""
+    from pyrtu.poller import Point, Update
+
+    broker = Broker(tmp_path)
+    acl = tmp_path / "acl"
+    acl.write_text("topic readwrite pyrtu/#\ntopic deny pyrtu/e1/bus/1/p1\n")
+    broker.conf.write_text(broker.conf.read_text() + f"acl_file {acl}\n")
+    directory = tmp_path / "ob"
+    with broker:
+        cfg = parse_bridge_config(config(broker.url, directory), "b.toml")
+        sub = Client(broker, ["pyrtu/e1/#"])
+        events: list[BridgeEvent] = []
+        points = [Point(f"p{i}", "bus", 1, "holding", i) for i in range(3)]
+
+        async def main() -> dict[str, object]:
+            bridge = Bridge(cfg)
+            bridge.on_event(events.append)
+            await bridge.start(poll=False)
+            try:
+                await until(lambda: bridge.stats()["connected"], "connected")
+                for i, p in enumerate(points):
+                    bridge.feed(Update(p, 10 + i, 1700000000.5))
+                await until(lambda: bridge.stats()["outbox_depth"] == 0, "the outbox acked")
+                return bridge.stats()
+            finally:
+                await bridge.stop()
+
+        stats = aio_run(main())
+        sub.wait(lambda: sub.on("pyrtu/e1/bus/1/p2"), "p2")
+        sub.close()
+    assert [json.loads(p)["value"] for p in sub.on("pyrtu/e1/bus/1/p0")] == [10]
+    assert sub.on("pyrtu/e1/bus/1/p1") == []
+    assert stats["quarantined"] == 1
+    (reported,) = [e.detail for e in events if e.kind == "quarantined"]
+    assert reported["topic"] == "pyrtu/e1/bus/1/p1" and "0x87" in str(reported["reason"])
+    (line,) = [json.loads(x) for x in (directory / "quarantine.jsonl").read_text().splitlines()]
+    assert line["record"].startswith('pyrtu/e1/bus/1/p1\n{"value":11,')
+    assert line["seq"] == reported["seq"]

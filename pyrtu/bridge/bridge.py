@@ -411,14 +411,28 @@ class Bridge(AsyncService):
         if mid < 0:
             self.publish_errors += 1
             return
-        self._window.sent(seq, mid, read_at)
+        self._window.sent(seq, mid, read_at, rec)
 
     def _set_aside(self, seq: int, rec: bytes, problem: str) -> None:
-        """A record that can never be published: quarantined (`Outbox.quarantine`),
-        counted, reported once per topic, and passed by as if delivered."""
+        """A record that can never be published: quarantined, and passed by as if
+        delivered."""
+        self._cursor = seq
+        self._keep_aside(seq, rec, problem)
+        if self._window.skipped(seq) and not self._ack_pending:
+            self._ack_pending = True
+            asyncio.get_running_loop().call_soon(self._commit_acks)
+
+    def _on_refused(self, mid: int, reason: str) -> None:
+        """The broker refused a publication (its acknowledgement follows): a record's
+        is quarantined, not counted as delivered and forgotten."""
+        found = self._window.record(mid)
+        if found is not None:
+            self._keep_aside(*found, f"the broker refused it: {reason}")
+
+    def _keep_aside(self, seq: int, rec: bytes, problem: str) -> None:
+        """Copy a record aside (`Outbox.quarantine`), counted, reported once per topic."""
         ob = self._outbox
         assert ob is not None
-        self._cursor = seq
         topic = rec.partition(b"\n")[0].decode("utf-8", "backslashreplace")
         try:
             ob.quarantine(seq, rec, problem)
@@ -433,9 +447,6 @@ class Bridge(AsyncService):
                           seq, topic, problem, ob.quarantine_path)  # fmt: skip
                 self._emit("quarantined", seq=seq, topic=topic, reason=problem,
                            file=str(ob.quarantine_path))  # fmt: skip
-        if self._window.skipped(seq) and not self._ack_pending:
-            self._ack_pending = True
-            asyncio.get_running_loop().call_soon(self._commit_acks)
 
     def _on_ack(self, mid: int) -> None:
         if self._window.acked(mid, time.time()) and not self._ack_pending:
@@ -486,6 +497,7 @@ class Bridge(AsyncService):
                 on_ack=self._on_ack,
                 on_lost=self._on_lost,
                 credentials=self._credentials,
+                on_refused=self._on_refused,
             )
             try:
                 await link.connect()
