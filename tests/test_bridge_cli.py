@@ -216,14 +216,19 @@ def test_duration_ends_it_with_exit_0_and_a_broker_that_is_down_is_no_error(
             assert p.returncode == 0
 
 
-def test_a_password_file_or_ca_that_cannot_be_read_exits_3(tmp_path: Path) -> None:
+def test_a_password_file_missing_exits_2_and_a_ca_that_cannot_be_used_exits_3(
+    tmp_path: Path,
+) -> None:
     with drive() as bus:
         cfg = write_config(tmp_path, "mqtt://127.0.0.1:1", bus.paths[0],
                            'username = "edge"\npassword_file = "missing.pw"')  # fmt: skip
-        p = start("--config", str(cfg))
-        _out, err = p.communicate(timeout=60)
-        assert p.returncode == 3, err
-        assert "password_file" in err and "missing.pw" in err and "Traceback" not in err
+        for args in (("--check", str(cfg)), ("--config", str(cfg))):  # the same (#27.14)
+            p = start(*args)
+            _out, err = p.communicate(timeout=60)
+            assert p.returncode == 2, err
+            assert f"mqtt: password_file: {tmp_path / 'missing.pw'}: no such file" in err
+            assert "Traceback" not in err
+        (tmp_path / "nope.pem").write_text("not a certificate\n")  # there, but not PEM
         cfg = write_config(tmp_path, "mqtts://127.0.0.1:1", bus.paths[0], 'ca = "nope.pem"')
         p = start("--config", str(cfg))
         _out, err = p.communicate(timeout=60)

@@ -91,7 +91,7 @@ def test_a_good_file_gives_the_poller_its_points_and_the_bridge_its_keys() -> No
         (
             ('topic = "plant/hall1/flag"', 'topic = "plant/+/flag"'),
             "b.toml:36:",
-            'point[1] ("flag"): topic: must be a non-empty string without +',
+            "point[1] (\"flag\"): topic: 'plant/+/flag' holds the wildcard '+'",
         ),
         (
             ('table = "coils"', 'table = "discrete_inputs"'),
@@ -102,6 +102,18 @@ def test_a_good_file_gives_the_poller_its_points_and_the_bridge_its_keys() -> No
             ("address = 683", "adress = 683"),
             "b.toml:23:",
             'point[0] ("weg.ref"): adress: unknown key',
+        ),
+        (  # the bridge's own keys are known too (#27.14)
+            ("address = 683", "adress = 683"),
+            "b.toml:23:",
+            "(known: name, bus, slave, table, address, type, order, count, scale, offset, "
+            "interval, deadband, topic, writable, min, max, max_age)",
+        ),
+        (
+            ("max_age = 30", "max_age = 30\n[defaults]\nwritabel = true"),
+            "b.toml:6:",
+            "defaults: writabel: unknown key (known: bus, slave, table, type, order, count, "
+            "scale, offset, interval, deadband, writable, min, max, max_age)",
         ),
         (
             ('topic = "plant/hall1/flag"', 'topic = "pyrtu/e1/line/1/weg.ref"'),
@@ -166,10 +178,10 @@ def test_check_validates_without_opening_anything(tmp_path: Path) -> None:
 def test_relative_paths_are_the_files_and_the_outbox_defaults_next_to_it(tmp_path: Path) -> None:
     f = tmp_path / "b.toml"
     f.write_text(GOOD.replace('edge = "e1"', 'edge = "e1"\nusername = "u"\npassword_file = "pw"'))
+    (tmp_path / "pw").write_text("s3cret\n")
     cfg = load_bridge_config(f)
     assert cfg.mqtt.password_file == str(tmp_path / "pw")
     assert cfg.mqtt.outbox == str(tmp_path / "outbox-e1")
-    (tmp_path / "pw").write_text("s3cret\n")
     assert cfg.mqtt.secret() == "s3cret"
 
 
@@ -186,3 +198,124 @@ def test_defaults_carry_bridge_keys_but_not_a_topic() -> None:
     ro = rw + '[[point]]\nname = "in"\nbus = "line"\nslave = 3\ntable = "input"\naddress = 0\n'
     with pytest.raises(ConfigError, match=r"writable: the input table is read only \(from \[defa"):
         parse_bridge_config(ro, "b.toml")
+
+
+#: names MQTT does not allow in a topic level (MQTT 5.0 4.7.1 wildcards, 4.7.3 and
+#: 1.5.4: no U+0000, control characters and non-characters SHOULD NOT be used and
+#: mosquitto refuses them; a '/' would be a second level)
+BAD_LEVELS = ["a+b", "x#", "#", "+", "a/b", "/", "a\u0000b", "a\nb", "a\u0001", "a\u001f",
+              "a\u007f", "a\u0080", "a\u009f", "a\ufffe", "a\uffff", "a\ufdd0",
+              "a\U0010ffff"]  # fmt: skip
+#: the first characters past each forbidden range, and names of other scripts
+GOOD_LEVELS = ["a b", "a\u00a0", "a\ufdcf", "a\ufdf0", "a\ufffd", "é", "温度", "a😀", "$a",
+               "a.b-c_d"]  # fmt: skip
+
+
+def _toml_string(text: str) -> str:
+    """A TOML basic string: printable ASCII as is, the rest escaped (TOML 1.0)."""
+    plain = (c if " " <= c <= "~" and c not in '"\\' else f"\\U{ord(c):08X}" for c in text)
+    return '"' + "".join(plain) + '"'
+
+
+def _point(name: str, topic: str | None = None) -> str:
+    own = f"topic = {_toml_string(topic)}\n" if topic is not None else ""
+    return (
+        f'[[point]]\nname = {_toml_string(name)}\nbus = "line"\nslave = 3\n'
+        f'table = "holding"\naddress = 9\n{own}'
+    )
+
+
+@pytest.mark.parametrize("name", BAD_LEVELS)
+def test_a_name_that_is_not_one_topic_level_is_refused_at_its_line(name: str) -> None:
+    # a point's name (#27.1): the line of its name
+    text = GOOD + _point(name)
+    with pytest.raises(ConfigError) as e:
+        parse_bridge_config(text, "b.toml")
+    line = text.splitlines().index(f"name = {_toml_string(name)}") + 1
+    assert str(e.value).startswith(f"b.toml:{line}: point[2] ("), str(e.value)
+    assert "): name: " in str(e.value)
+    # a bus's name
+    text = GOOD.replace('name = "line"', f"name = {_toml_string(name)}").replace(
+        'bus = "line"', f"bus = {_toml_string(name)}"
+    )
+    with pytest.raises(ConfigError) as e:
+        parse_bridge_config(text, "b.toml")
+    assert str(e.value).startswith("b.toml:8: bus[0] ("), str(e.value)
+    assert "): name: " in str(e.value)
+    # a device's name, the first part of its points' names
+    text = GOOD.replace('name = "weg"', f"name = {_toml_string(name)}")
+    with pytest.raises(ConfigError) as e:
+        parse_bridge_config(text, "b.toml")
+    assert str(e.value).startswith("b.toml:16: device[0]: name: "), str(e.value)
+
+
+@pytest.mark.parametrize("name", GOOD_LEVELS)
+def test_a_name_that_is_one_topic_level_is_taken(name: str) -> None:
+    cfg = parse_bridge_config(GOOD + _point(name), "b.toml")
+    assert Topics(cfg).point[name] == f"pyrtu/e1/line/3/{name}"
+
+
+def test_a_point_with_its_own_topic_may_have_any_name_but_the_topic_is_checked() -> None:
+    cfg = parse_bridge_config(GOOD + _point("a+b/c", "plant/a-b"), "b.toml")
+    assert Topics(cfg).point["a+b/c"] == "plant/a-b"
+    for topic in ("plant/x#", "plant//x", "/plant", "plant/", "$SYS/x", "plant/\u0000"):
+        with pytest.raises(ConfigError, match=r"^b.toml:\d+: point\[2\] .*: topic: "):
+            parse_bridge_config(GOOD + _point("p", topic), "b.toml")
+
+
+def test_edge_and_prefix_follow_the_same_rule() -> None:
+    for key, value in (("edge", "e+1"), ("edge", "e/1"), ("edge", "e\u0001"),
+                       ("prefix", "$SYS"), ("prefix", "a//b"), ("prefix", "p#"),
+                       ("discovery_prefix", "$ha")):  # fmt: skip
+        text = GOOD.replace('edge = "e1"', f'edge = "e1"\n{key} = {_toml_string(value)}')
+        if key == "edge":
+            text = GOOD.replace('edge = "e1"', f"edge = {_toml_string(value)}")
+        line = 3 if key == "edge" else 4
+        with pytest.raises(ConfigError, match=rf"^b.toml:{line}: mqtt: {key}: "):
+            parse_bridge_config(text, "b.toml")
+
+
+def test_the_python_api_refuses_the_same_names() -> None:
+    from pyrtu.bridge import make_bridge_config
+
+    cfg = parse_bridge_config(GOOD + _point("a+b", "plant/a-b"), "b.toml")
+    with pytest.raises(ConfigError, match=r"point 'a\+b': name: 'a\+b' holds the wildcard '\+'"):
+        make_bridge_config(cfg.poller, cfg.mqtt)  # without its topic
+
+
+@pytest.mark.parametrize("name", ["a+b", "x#", "a/b"])
+def test_check_and_a_run_exit_2_on_a_point_name_that_is_not_a_topic_level(
+    tmp_path: Path, name: str
+) -> None:
+    f = tmp_path / "b.toml"
+    f.write_text(GOOD + _point(name))
+    line = f.read_text().splitlines().index(f"name = {_toml_string(name)}") + 1
+    for args in (("--check", str(f)), ("--config", str(f), "--duration", "1")):
+        r = _cli(*args)
+        assert r.returncode == 2, r.stderr
+        assert f"b.toml:{line}: point[2] (" in r.stderr and "Traceback" not in r.stderr
+        assert not (tmp_path / "outbox-e1").exists()  # before anything is opened
+
+
+@pytest.mark.parametrize("key", ["password_file", "ca", "cert", "key"])
+def test_a_file_key_naming_no_file_is_an_error_at_its_line(tmp_path: Path, key: str) -> None:
+    extra = {"password_file": 'username = "u"\npassword_file = "missing"',
+             "ca": 'ca = "missing"', "cert": 'cert = "missing"\nkey = "k.pem"',
+             "key": 'cert = "c.pem"\nkey = "missing"'}[key]  # fmt: skip
+    (tmp_path / "k.pem").write_text("x")
+    (tmp_path / "c.pem").write_text("x")
+    (tmp_path / "a-directory").mkdir()
+    text = GOOD.replace("mqtt://", "mqtts://").replace('edge = "e1"', f'edge = "e1"\n{extra}')
+    f = tmp_path / "b.toml"
+    f.write_text(text)
+    line = next(n for n, t in enumerate(text.splitlines(), 1) if t.startswith(f"{key} ="))
+    r = _cli("--check", str(f))
+    assert r.returncode == 2, r.stdout
+    want = f"b.toml:{line}: mqtt: {key}: {tmp_path / 'missing'}: no such file"
+    assert want in r.stderr and "Traceback" not in r.stderr
+    f.write_text(text.replace('"missing"', '"a-directory"'))
+    with pytest.raises(ConfigError, match=rf"^b.toml:{line}: mqtt: {key}: .*: not a regular file"):
+        load_bridge_config(f)
+    (tmp_path / "missing").write_text("there now\n")
+    f.write_text(text)
+    assert _cli("--check", str(f)).returncode == 0

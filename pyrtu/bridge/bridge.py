@@ -48,7 +48,16 @@ from .delivery import Window
 from .mqtt import BrokerRefused, Credentials, MqttLink
 from .outbox import Outbox, OutboxError, OutboxLimits
 from .report import Reporter
-from .topics import OFFLINE, ONLINE, Topics, bus_payload, payload, record, split_record
+from .topics import (
+    OFFLINE,
+    ONLINE,
+    Topics,
+    bus_payload,
+    payload,
+    record,
+    split_record,
+    unpublishable,
+)
 from .writes import Writer
 
 log = logging.getLogger("pyrtu.bridge")
@@ -60,7 +69,8 @@ _BATCH = 512  # records read from the outbox at a time
 @dataclass(frozen=True, slots=True)
 class BridgeEvent:
     """Something the bridge reports: ``kind`` is ``broker_down``, ``broker_up``,
-    ``port``, ``slave``, ``dropped``, ``outbox_error``, ``fatal`` or ``stats``."""
+    ``port``, ``slave``, ``dropped``, ``outbox_error``, ``quarantined``, ``fatal``
+    or ``stats``."""
 
     kind: str
     time: float
@@ -117,6 +127,7 @@ class Bridge(AsyncService):
         self._outbox_down = False
         self.reconnects = 0
         self.publish_errors = 0
+        self._quarantined_topics: set[str] = set()  # reported once each
         self.final_stats: dict[str, Any] = {}
         self._credentials: Credentials | None = None
 
@@ -386,13 +397,56 @@ class Bridge(AsyncService):
         link.write_now()
 
     def _send(self, link: MqttLink, seq: int, rec: bytes, read_at: float, qos: int) -> None:
+        problem = unpublishable(rec)
+        if problem is not None:
+            self._set_aside(seq, rec, problem)
+            return
         topic, body = split_record(rec)
-        mid = link.publish(topic, payload(body, seq, seq < self._historical_below), qos, True)
+        try:
+            mid = link.publish(topic, payload(body, seq, seq < self._historical_below), qos, True)
+        except ValueError as e:  # the client refuses it (its size, its topic): for ever
+            self._set_aside(seq, rec, f"the MQTT client refuses it: {e}")
+            return
         self._cursor = seq
         if mid < 0:
             self.publish_errors += 1
             return
-        self._window.sent(seq, mid, read_at)
+        self._window.sent(seq, mid, read_at, rec)
+
+    def _set_aside(self, seq: int, rec: bytes, problem: str) -> None:
+        """A record that can never be published: quarantined, and passed by as if
+        delivered."""
+        self._cursor = seq
+        self._keep_aside(seq, rec, problem)
+        if self._window.skipped(seq) and not self._ack_pending:
+            self._ack_pending = True
+            asyncio.get_running_loop().call_soon(self._commit_acks)
+
+    def _on_refused(self, mid: int, reason: str) -> None:
+        """The broker refused a publication (its acknowledgement follows): a record's
+        is quarantined, not counted as delivered and forgotten."""
+        found = self._window.record(mid)
+        if found is not None:
+            self._keep_aside(*found, f"the broker refused it: {reason}")
+
+    def _keep_aside(self, seq: int, rec: bytes, problem: str) -> None:
+        """Copy a record aside (`Outbox.quarantine`), counted, reported once per topic."""
+        ob = self._outbox
+        assert ob is not None
+        topic = rec.partition(b"\n")[0].decode("utf-8", "backslashreplace")
+        try:
+            ob.quarantine(seq, rec, problem)
+        except OutboxError as e:  # it cannot be kept either: said, and passed by
+            log.error("bridge: record %d (%r) cannot be published (%s) nor set aside: %s",
+                      seq, topic, problem, e)  # fmt: skip
+            self._emit("outbox_error", message=str(e))
+        else:
+            if topic not in self._quarantined_topics and len(self._quarantined_topics) < 64:
+                self._quarantined_topics.add(topic)
+                log.error("bridge: record %d (%r) cannot be published: %s; set aside in %s",
+                          seq, topic, problem, ob.quarantine_path)  # fmt: skip
+                self._emit("quarantined", seq=seq, topic=topic, reason=problem,
+                           file=str(ob.quarantine_path))  # fmt: skip
 
     def _on_ack(self, mid: int) -> None:
         if self._window.acked(mid, time.time()) and not self._ack_pending:
@@ -443,6 +497,7 @@ class Bridge(AsyncService):
                 on_ack=self._on_ack,
                 on_lost=self._on_lost,
                 credentials=self._credentials,
+                on_refused=self._on_refused,
             )
             try:
                 await link.connect()
@@ -553,6 +608,7 @@ class Bridge(AsyncService):
             "publish_latency_p50_ms": None if p50 is None else round(p50 * 1e3, 3),
             "publish_latency_p99_ms": None if p99 is None else round(p99 * 1e3, 3),
             "drops": (ob.dropped if ob is not None else 0) + self.refused,
+            "quarantined": ob.quarantined if ob is not None else 0,
             "connections": self.reconnects,
             "outages": self._reconnect.outages,
             "commands": self.writer.stats(),

@@ -34,7 +34,9 @@ the key, like the poller's: ``bridge.toml:4: mqtt: qos: must be 0, 1 or 2, not 3
 
 from __future__ import annotations
 
+import json
 import math
+import os
 import re
 import socket
 import sys
@@ -47,7 +49,7 @@ from urllib.parse import urlsplit
 from ..core.timing import check_seconds
 from ..poller import ConfigError, Point, PollerConfig
 from ..poller.config import _Loader, _locate, read_config_text
-from .topics import Topics
+from .topics import Topics, topic_problem
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -56,7 +58,6 @@ else:  # pragma: no cover - Python 3.10
 
 #: the per-point keys the bridge adds to ``[[point]]`` tables
 POINT_KEYS = ("topic", "writable", "min", "max", "max_age")
-_FORBIDDEN = re.compile(r"[+#\x00\n]")
 
 
 def _real(v: object) -> bool:
@@ -70,13 +71,11 @@ def _count(key: str, v: object, lo: int, hi: int) -> int:
 
 
 def _level(key: str, v: object, *, slashes: bool = False) -> str:
-    """A topic level (or, with ``slashes``, levels) without wildcards."""
-    if not isinstance(v, str) or not v or _FORBIDDEN.search(v):
-        raise ValueError(f"{key}: must be a non-empty string without + # NUL or newline, not {v!r}")
-    if not slashes and "/" in v:
-        raise ValueError(f"{key}: must be one topic level (no /), not {v!r}")
-    if slashes and (v.startswith("/") or v.endswith("/") or "//" in v):
-        raise ValueError(f"{key}: must not start or end with / nor hold an empty level: {v!r}")
+    """A topic level (or, with ``slashes``, levels): `topic_problem`."""
+    problem = topic_problem(v, levels=slashes)
+    if problem is not None:
+        raise ValueError(f"{key}: {problem}")
+    assert isinstance(v, str)
     return v
 
 
@@ -288,6 +287,70 @@ def _error(where: str, label: str, msg: str) -> ConfigError:
     return ConfigError(f"{where}: {label}: {msg}")
 
 
+#: the ``[mqtt]`` keys that name a file the bridge reads when it starts
+FILE_KEYS = ("password_file", "ca", "cert", "key")
+
+
+def _check_files(mqtt: MqttConfig) -> None:
+    """ValueError ``"key: ..."`` for a file key naming no readable regular file."""
+    for k in FILE_KEYS:
+        name = getattr(mqtt, k)
+        if not name:
+            continue
+        path = Path(name)
+        if not path.exists():
+            raise ValueError(f"{k}: {name}: no such file")
+        if not path.is_file():
+            raise ValueError(f"{k}: {name}: not a regular file")
+        if not os.access(path, os.R_OK):
+            raise ValueError(f"{k}: {name}: not readable (permission denied)")
+
+
+def _quoted(name: str) -> str:
+    """A name in double quotes, its control characters escaped (as JSON does)."""
+    return json.dumps(name, ensure_ascii=False)
+
+
+def _check_levels(
+    text: str,
+    source: str,
+    poller: PollerConfig,
+    options: Mapping[str, PointOptions],
+    n_profile: int,
+    devices: list[Any],
+) -> None:
+    """Every name that becomes a topic level is one (`topic_problem`): the buses',
+    the points' without a ``topic``, the devices' (their profile points' names
+    begin with it); ConfigError at the line of the name."""
+    for i, b in enumerate(poller.buses):
+        problem = topic_problem(b.name)
+        if problem is not None:
+            line = _locate(text, "bus", i, "name")
+            raise ConfigError(f"{source}:{line}: bus[{i}] ({_quoted(b.name)}): name: {problem}")
+    for n, p in enumerate(poller.points):
+        if options.get(p.name, _NO_OPTIONS).topic is not None:
+            continue  # the name is in no topic
+        problem = topic_problem(p.name)
+        if problem is None:
+            continue
+        if n >= n_profile:
+            i = n - n_profile
+            line = _locate(text, "point", i, "name")
+            raise ConfigError(
+                f"{source}:{line}: point[{i}] ({_quoted(p.name)}): name: {problem} "
+                "(a point's name is one level of its topic; or give the point a topic)"
+            )
+        for j, t in enumerate(devices):
+            if isinstance(t, dict) and (t.get("bus"), t.get("slave")) == (p.bus, p.slave):
+                line = _locate(text, "device", j, "name")
+                own = topic_problem(t["name"]) if "name" in t else None
+                raise ConfigError(
+                    f"{source}:{line}: device[{j}]: name: {own or problem} "
+                    "(the names of its points begin with it: each is one level of a topic)"
+                )
+        raise ConfigError(f"{source}: point {p.name!r}: name: {problem}")  # pragma: no cover
+
+
 def parse_bridge_config(
     text: str, source: str = "<config>", base: Path | None = None
 ) -> BridgeConfig:
@@ -315,6 +378,7 @@ def parse_bridge_config(
             kw[k] = str(base / kw[k])
     try:
         mqtt = MqttConfig(**kw)
+        _check_files(mqtt)
     except ValueError as e:
         key = str(e).partition(": ")[0]
         raise _error(
@@ -341,7 +405,8 @@ def parse_bridge_config(
         for i, t in enumerate(raw_points):
             if isinstance(t, dict):
                 picked.append((i, {k: t.pop(k) for k in POINT_KEYS if k in t}))
-    poller = _Loader(text, source).load(doc)
+    default_keys = tuple(k for k in POINT_KEYS if k != "topic")
+    poller = _Loader(text, source, POINT_KEYS, default_keys).load(doc)
     drives: dict[tuple[str, int], tuple[str, str]] = {}
     for t in doc.get("device", []) if isinstance(doc.get("device"), list) else []:
         if isinstance(t, dict) and "profile" in t:
@@ -374,6 +439,9 @@ def parse_bridge_config(
             options.get(p.name, _NO_OPTIONS).check(p)
         except ValueError as e:  # a default that does not fit a profile point
             raise ConfigError(f"{source}: point {p.name!r}: {e} (from [defaults])") from None
+    raw_devices = doc.get("device")
+    devices: list[Any] = raw_devices if isinstance(raw_devices, list) else []
+    _check_levels(text, source, poller, options, n_profile, devices)
     cfg = BridgeConfig(poller, mqtt, options, source, drives)
     try:  # the topics must be distinct and valid
         Topics(cfg)
@@ -394,6 +462,10 @@ def make_bridge_config(
 ) -> BridgeConfig:
     """A checked configuration from Python objects (ConfigError on a mismatch)."""
     opts = dict(options or {})
+    try:
+        _check_files(mqtt)
+    except ValueError as e:
+        raise ConfigError(f"mqtt: {e}") from None
     names = {p.name: p for p in poller.points}
     for n, o in opts.items():
         if n not in names:
@@ -413,6 +485,7 @@ def make_bridge_config(
 
 
 __all__ = [
+    "FILE_KEYS",
     "MQTT_KEYS",
     "POINT_KEYS",
     "BridgeConfig",

@@ -7,6 +7,11 @@ acknowledgement, which may come for any message id; `Window.contiguous` is then 
 highest seq up to which every publication has been acknowledged: what the outbox
 may forget.  `reset` forgets the publications in flight (the connection ended):
 they are published again from the outbox, with the same sequence numbers.
+A publication keeps its record until acknowledged (`record`: what to set aside
+when the broker refuses it).  `Window.skipped` records a record passed by
+unpublished (set aside: it never can be): it counts as acknowledged in its
+place, neither holding `contiguous` back nor moving it past a publication still
+in flight.
 """
 
 from __future__ import annotations
@@ -22,6 +27,7 @@ class _Sent:
     seq: int
     read_at: float  # Unix time the value was read off the wire (0: unknown)
     done: bool = False
+    record: bytes = b""
 
 
 class Window:
@@ -43,11 +49,23 @@ class Window:
     def full(self) -> bool:
         return len(self._order) >= self.window
 
-    def sent(self, seq: int, mid: int, read_at: float) -> None:
-        s = _Sent(seq, read_at)
+    def sent(self, seq: int, mid: int, read_at: float, record: bytes = b"") -> None:
+        s = _Sent(seq, read_at, False, record)
         self._order.append(s)
         self._by_mid[mid] = s
         self.published += 1
+
+    def record(self, mid: int) -> tuple[int, bytes] | None:
+        """(seq, record) of a publication awaiting its acknowledgement (None: no
+        record's, such as a status)."""
+        s = self._by_mid.get(mid)
+        return None if s is None else (s.seq, s.record)
+
+    def skipped(self, seq: int) -> bool:
+        """A record passed by, in its place in the order, as if acknowledged; True
+        when `contiguous` moved."""
+        self._order.append(_Sent(seq, 0.0, True))
+        return self._advance()
 
     def acked(self, mid: int, now: float) -> bool:
         """An acknowledgement at ``now`` (Unix); True when `contiguous` moved."""
@@ -55,9 +73,13 @@ class Window:
         if s is None:
             return False  # not a point's record (status, result, stats)
         s.done = True
+        s.record = b""
         self.acknowledged += 1
         if s.read_at:
             self.latencies.append(now - s.read_at)
+        return self._advance()
+
+    def _advance(self) -> bool:
         moved = False
         order = self._order
         while order and order[0].done:

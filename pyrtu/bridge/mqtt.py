@@ -172,6 +172,7 @@ class MqttLink:
         on_ack: Callable[[int], None],
         on_lost: Callable[[str], None],
         credentials: Credentials | None = None,
+        on_refused: Callable[[int, str], None] | None = None,
     ) -> None:
         self.cfg = cfg
         self.will_topic = will_topic
@@ -179,6 +180,7 @@ class MqttLink:
         self._on_message = on_message
         self._on_ack = on_ack
         self._on_lost = on_lost
+        self._on_refused = on_refused  # (mid, reason): the broker refused it, then on_ack
         self.client: paho.Client | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._fd: int | None = None
@@ -463,6 +465,8 @@ class MqttLink:
             self._on_lost(str(rc))
 
     def _published(self, client: Any, userdata: Any, mid: int, rc: Any, props: Any) -> None:
+        if self._on_refused is not None and getattr(rc, "is_failure", False):
+            self._on_refused(mid, f"{rc} (reason code 0x{rc.value:02X})")
         self._on_ack(mid)
 
     def _message(self, client: Any, userdata: Any, msg: paho.MQTTMessage) -> None:

@@ -22,6 +22,10 @@ Guarantees:
   `OutboxFull` and keeps everything already accepted.
 * A full disk (ENOSPC) raises `OutboxError` saying so; records already accepted are
   kept (in memory until they can be written) and new ones are refused meanwhile.
+* A record that can never be delivered (its topic no broker accepts) is moved aside
+  by its reader (`quarantine`: copied to ``quarantine.jsonl``, see
+  _outbox_quarantine.py) and then acked like a delivered one: it never blocks the
+  records behind it, and its copy is durable before the ack cursor passes it.
 """
 
 from __future__ import annotations
@@ -50,6 +54,7 @@ from pyrtu.bridge._outbox_parts import (
     lock_directory,
     recover_segment,
 )
+from pyrtu.bridge._outbox_quarantine import Quarantine
 from pyrtu.bridge._outbox_sync import Flushing
 
 __all__ = ["Outbox", "OutboxError", "OutboxFull", "OutboxLimits"]
@@ -103,6 +108,7 @@ class Outbox(Flushing):
         self.corrupt = 0  # bad regions (torn tail, bad checksum) found and skipped
         self.corrupt_bytes = 0
         self._dir_fd, self._lock_fd = lock_directory(self.directory)
+        self._quarantine = Quarantine(self.directory, self._dir_fd)
         self._closed = False
         try:
             self._recover()
@@ -411,10 +417,30 @@ class Outbox(Flushing):
             raise ValueError("ack on a closed Outbox")
         if seq <= self._acked:
             return
+        self._quarantine.sync()  # what was set aside is on disk before the cursor passes it
         self._acked = seq
         self._oldest = None
         while self._segs and self._segs[0] is not self._active and self._segs[0].last <= seq:
             self._forget(self._segs[0])
+
+    def quarantine(self, seq: int, record: bytes, reason: str) -> None:
+        """Set aside a record that can never be delivered (``reason`` says why):
+        copied to the directory's ``quarantine.jsonl``; the caller then acks past it
+        as if delivered.  Counted in `quarantined`; OutboxError on a disk error."""
+        check_int("seq", seq, 1)
+        if self._closed:
+            raise ValueError("quarantine on a closed Outbox")
+        self._quarantine.add(seq, bytes(record), reason)
+
+    @property
+    def quarantined(self) -> int:
+        """Records set aside (`quarantine`) since this Outbox was opened."""
+        return self._quarantine.count
+
+    @property
+    def quarantine_path(self) -> Path:
+        """The file records are set aside in (made by the first `quarantine`)."""
+        return self._quarantine.path
 
     # -- statistics ------------------------------------------------------------
 
@@ -476,6 +502,7 @@ class Outbox(Flushing):
             "segments": len(self._segs),
             "corrupt": self.corrupt,
             "corrupt_bytes": self.corrupt_bytes,
+            "quarantined": self.quarantined,
         }
 
     # -- closing ---------------------------------------------------------------
@@ -489,12 +516,17 @@ class Outbox(Flushing):
         if self._closed:
             return
         try:
+            self._quarantine.sync()  # before the cursor is saved
             self.flush()
             self._save_state(reserved=self._next_seq)  # clean: no gap in the numbers
         finally:
             self._release()
 
     def _release(self) -> None:
+        try:
+            self._quarantine.close()
+        except OutboxError:
+            pass  # close() synced it; after a failure the lines stay as after a crash
         fds = [fd for _seg, fd in self._unsynced]
         fds += [self._fd, self._dir_fd, getattr(self, "_state_fd", -1)]
         if self._read_cache is not None:

@@ -25,13 +25,18 @@ from the backlog after an outage also carries ``"historical": true``.
 
 In the outbox a record is the topic, a newline, and the payload without its
 sequence number and closing brace (`record`); `payload` completes it when it is
-published.
+published.  Every name that becomes a topic level (the edge, the buses, the
+points without a ``topic``, and so the devices whose points' names begin with
+theirs) is one (`topic_problem`: no ``/``, no wildcard, no NUL nor other
+control character); a record that can never be published (`unpublishable`) is
+set aside by the bridge (`pyrtu.bridge.outbox.Outbox.quarantine`).
 """
 
 from __future__ import annotations
 
 import json
 import math
+import re
 from typing import Protocol
 
 from ..poller import Point, PollerConfig
@@ -59,14 +64,58 @@ class _Config(Protocol):
     def option(self, name: str) -> _Options: ...
 
 
+#: what MQTT forbids in a topic name (3.1.1 and 5.0, 4.7 and 1.5.3/1.5.4): the
+#: wildcards, U+0000, UTF-16 surrogates (not UTF-8), and what a receiver may treat as
+#: malformed (mosquitto does): the control characters U+0001-U+001F and U+007F-U+009F
+#: and the non-characters; a newline would also end a record's topic in the outbox
+_NOT_IN_TOPIC = re.compile(
+    "[+#\\x00-\\x1f\\x7f-\\x9f\\ud800-\\udfff\\ufdd0-\\ufdef"
+    + "".join(f"\\U{plane:04x}fffe\\U{plane:04x}ffff" for plane in range(17))
+    + "]"
+)
+#: the most bytes of a topic name (its UTF-8 length is a 16-bit field)
+MAX_TOPIC = 65535
+
+
+def topic_problem(text: object, *, levels: bool = False) -> str | None:
+    """What keeps ``text`` from being one topic level (``levels``: one or more,
+    ``/`` between them) of an MQTT topic name, None when nothing: a non-empty
+    string with no wildcard (``+`` ``#``), no NUL nor other control character,
+    no non-character, at most `MAX_TOPIC` bytes, and, with ``levels``, no empty
+    level nor a leading ``$`` (the broker's own topics); without ``levels``, no
+    ``/``.  The one rule for every name the bridge puts in a topic."""
+    if not isinstance(text, str) or not text:
+        return f"must be a non-empty string, not {text!r}"
+    bad = _NOT_IN_TOPIC.search(text)
+    if bad is not None:
+        c = bad.group()
+        if c in "+#":
+            return f"{text!r} holds the wildcard {c!r}, which no MQTT topic name may hold"
+        return (
+            f"{text!r} holds U+{ord(c):04X}: an MQTT topic name holds no NUL, "
+            "control character or non-character"
+        )
+    if len(text.encode("utf-8", "surrogatepass")) > MAX_TOPIC:
+        return f"is longer than an MQTT topic's {MAX_TOPIC} bytes"
+    if not levels:
+        if "/" in text:
+            return f"{text!r} holds a '/', which would make it more than one topic level"
+        return None
+    if text.startswith("/") or text.endswith("/") or "//" in text:
+        return f"{text!r} has an empty topic level (a / at an end or twice)"
+    if text.startswith("$"):
+        return f"{text!r} starts with $: such topics are the broker's own"
+    return None
+
+
 QUALITIES = ("good", "stale", "bad")
 ONLINE = b"online"
 OFFLINE = b"offline"
 
 
 class Topics:
-    """Every topic of one bridge (ValueError when two would be the same or a bus
-    name is not one topic level)."""
+    """Every topic of one bridge (ValueError when two would be the same or a name
+    that becomes a topic level is not one: `topic_problem`)."""
 
     def __init__(self, cfg: _Config) -> None:
         m = cfg.mqtt
@@ -86,9 +135,14 @@ class Topics:
                 raise ValueError(f"{what}: topic {topic!r} is also {owner[topic]}")
             owner[topic] = what
 
+        for what, text, levels in (("prefix", m.prefix, True), ("edge", m.edge, False)):
+            problem = topic_problem(text, levels=levels)
+            if problem is not None:
+                raise ValueError(f"{what}: {problem}")
         for b in cfg.poller.buses:
-            if "/" in b.name or "+" in b.name or "#" in b.name or "\n" in b.name:
-                raise ValueError(f"bus {b.name!r}: a bus name is one topic level (no / + #)")
+            problem = topic_problem(b.name)
+            if problem is not None:
+                raise ValueError(f"bus {b.name!r}: name: {problem}")
             t = f"{self.base}/{b.name}/status"
             claim(t, f"bus {b.name}'s status")
             self.bus_status[b.name] = t
@@ -99,7 +153,13 @@ class Topics:
                 claim(t, f"slave {p.slave} on {p.bus}'s status")
                 self.slave_status[key] = t
         for p in cfg.poller.points:
-            t = cfg.option(p.name).topic or f"{self.base}/{p.bus}/{p.slave}/{p.name}"
+            own = cfg.option(p.name).topic
+            problem = topic_problem(own, levels=True) if own else topic_problem(p.name)
+            if problem is not None:
+                raise ValueError(f"point {p.name!r}: {'topic' if own else 'name'}: {problem}")
+            t = own or f"{self.base}/{p.bus}/{p.slave}/{p.name}"
+            if len((t + "/set/result").encode()) > MAX_TOPIC:
+                raise ValueError(f"point {p.name!r}: its topics are longer than {MAX_TOPIC} bytes")
             claim(t, f"point {p.name!r}")
             claim(t + "/set", f"point {p.name!r}'s set topic")
             claim(t + "/set/result", f"point {p.name!r}'s result topic")
@@ -142,6 +202,21 @@ def split_record(rec: bytes) -> tuple[str, bytes]:
     return rec[:nl].decode(), rec[nl + 1 :]
 
 
+def unpublishable(rec: bytes) -> str | None:
+    """Why an outbox record can never be published (None: it can): no topic, or
+    one no broker accepts (`topic_problem`), such as a record written by a run
+    whose configuration let a wildcard into a point's name."""
+    nl = rec.find(b"\n")
+    if nl < 0:
+        return "no topic (the record has no newline)"
+    try:
+        topic = rec[:nl].decode("utf-8")
+    except UnicodeDecodeError as e:
+        return f"its topic is not UTF-8 ({e.reason} at byte {e.start})"
+    problem = topic_problem(topic, levels=True)
+    return None if problem is None else f"topic {problem}"
+
+
 def bus_payload(state: str, port: str, error: str, since: float | None, time: float) -> bytes:
     """A bus status: ``state`` ``up`` or ``down``, the port, the outage's error
     (``""`` when none), when the outage began (null when up and none was seen)."""
@@ -158,6 +233,7 @@ def payload(body: bytes, seq: int, historical: bool) -> bytes:
 
 
 __all__ = [
+    "MAX_TOPIC",
     "OFFLINE",
     "ONLINE",
     "QUALITIES",
@@ -166,4 +242,6 @@ __all__ = [
     "payload",
     "record",
     "split_record",
+    "topic_problem",
+    "unpublishable",
 ]

@@ -265,9 +265,22 @@ def _locate(text: str, array: str, index: int, key: str | None) -> int | None:
 
 
 class _Loader:
-    def __init__(self, text: str, source: str) -> None:
+    """``point_keys``/``default_keys``: the keys a caller (the bridge) takes out of
+    ``[[point]]``/``[defaults]`` tables before loading, named with the poller's
+    own when a key is unknown."""
+
+    def __init__(
+        self,
+        text: str,
+        source: str,
+        point_keys: Sequence[str] = (),
+        default_keys: Sequence[str] = (),
+    ) -> None:
         self.text = text
         self.source = source
+        self.point_keys = (*POINT_KEYS, *point_keys)
+        self.default_keys = (*(k for k in POINT_KEYS if k not in ("name", "address")),
+                             *default_keys)  # fmt: skip
 
     def fail(
         self, array: str, index: int | None, label: str, key: str | None, msg: str
@@ -307,8 +320,7 @@ class _Loader:
                     None,
                     "defaults",
                     k,
-                    "unknown key (defaults are "
-                    "point keys: bus, slave, table, type, order, interval, ...)",
+                    f"unknown key (known: {', '.join(self.default_keys)})",
                 )
         buses = [self.bus(i, t) for i, t in enumerate(self.tables(doc, "bus"))]
         if not buses:
@@ -424,7 +436,7 @@ class _Loader:
         label = f"point[{i}]" + (f' ("{name}")' if isinstance(name, str) else "")
         merged = {**defaults, **t}
         required = ("name", "bus", "slave", "table", "address")
-        self.check_keys("point", i, label, t, POINT_KEYS, required, merged)
+        self.check_keys("point", i, label, t, self.point_keys, required, merged)
         try:
             return Point(**merged)
         except PointError as e:
