@@ -30,7 +30,7 @@ BAUD = 115200
 BASE = "pyrtu/e1/line/1"
 
 
-def config(url: str, port: str, outbox: Path, extra: str = "") -> str:
+def config(url: str, port: str, outbox: Path, extra: str = "", points: str = "") -> str:
     return f"""
 [mqtt]
 url = "{url}"
@@ -68,6 +68,11 @@ table = "holding"
 address = {W.P_MOTOR_SPEED}
 writable = true
 interval = 1
+{points}"""
+
+
+#: a scaled view of the reference (tenths), for the sets that round
+TENTHS = f"""
 [[point]]
 name = "weg.ref_tenths"
 bus = "line"
@@ -81,12 +86,15 @@ interval = 1
 
 
 @contextlib.contextmanager
-def rig(tmp: Path, extra: str = "") -> Iterator[tuple[Broker, CFW701Simulator, Bridge, Client]]:
+def rig(
+    tmp: Path, extra: str = "", points: str = ""
+) -> Iterator[tuple[Broker, CFW701Simulator, Bridge, Client]]:
     with Broker(tmp) as broker, vbus.VirtualBus(2, baudrate=BAUD, parity="N") as bus:
         sim = CFW701Simulator()
         sim.serve(bus.paths[1], 1, baudrate=BAUD, parity="N")
         try:
-            cfg = parse_bridge_config(config(broker.url, bus.paths[0], tmp / "ob", extra), "b.toml")
+            text = config(broker.url, bus.paths[0], tmp / "ob", extra, points)
+            cfg = parse_bridge_config(text, "b.toml")
             bridge = Bridge(cfg)
             thread = LoopThread("bridge", bridge.start, bridge.stop)
             thread.start()
@@ -200,7 +208,7 @@ def test_a_value_an_integer_register_cannot_hold_is_refused_not_rounded(
 def test_a_scaled_point_rounds_to_its_resolution_and_says_so(tmp_path: Path) -> None:
     """weg.ref_tenths (scale 0.1): 21.43 is raw 214.3, written as 214 (21.4), and
     the result says what was asked, written and the resolution; 21.4 is exact."""
-    with rig(tmp_path) as (_b, sim, _bridge, cl):
+    with rig(tmp_path, points=TENTHS) as (_b, sim, _bridge, cl):
         cl.publish(f"{BASE}/weg.ref_tenths/set", b'{"value": 21.43, "id": "r1"}')
         (res,) = wait_results(cl, 1, "weg.ref_tenths")
         assert res["ok"] is True and ref(sim) == 214

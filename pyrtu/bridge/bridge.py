@@ -9,7 +9,9 @@ set commands back to the drives.
 The poller hands every value it reads to the `Reporter` (report by exception,
 qualities); what is to be published becomes an outbox record (its sequence number
 is the outbox's) and is published at once when the broker is connected and nothing
-older waits, else later from the outbox, in order, flagged ``historical``.  The
+older waits, else later from the outbox, in order, flagged ``historical`` when
+it waited through an outage (a connection lost, or a previous run's backlog; not
+the values read before the first connection of a run).  The
 outbox forgets a record once the broker acknowledged it and everything before it.
 A connection that ends is reported once and retried with the shared back-off
 (`pyrtu.drivers.reconnect`); the polls go on meanwhile.  On every connection the edge's
@@ -23,6 +25,10 @@ while its ``{bus}/status`` topic says ``down`` and why; when the port is back th
 bus says ``up``, each point comes back ``good`` with its next read and each slave
 ``online`` with its first value (or, if it no longer answers, stays ``offline``
 when the poller says so).
+
+Every background task (the connection, the stats, the writers) is supervised: a
+failure is logged once with its cause, reported (``task_failed``), counted and the
+task started again after the shared back-off.
 """
 
 from __future__ import annotations
