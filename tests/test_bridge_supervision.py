@@ -38,14 +38,14 @@ def failures(events: list[BridgeEvent]) -> list[dict[str, Any]]:
     return [e.detail for e in events if e.kind == "task_failed"]
 
 
-def once(error: BaseException, then: Callable[..., Any]) -> Callable[..., Any]:
-    """``then``, except that the first call raises ``error``."""
+def once(error: BaseException, then: Callable[..., Any], times: int = 1) -> Callable[..., Any]:
+    """``then``, except that the first ``times`` calls raise ``error``."""
     calls = 0
 
     def patched(*args: Any, **kwargs: Any) -> Any:
         nonlocal calls
         calls += 1
-        if calls == 1:
+        if calls <= times:
             raise error
         return then(*args, **kwargs)
 
@@ -90,9 +90,12 @@ def test_the_broker_connection_task_fails_is_reported_and_restarted(
         assert "RuntimeError: injected" in line and "restarting in" in line
 
 
+@pytest.mark.parametrize("times", [1, 3])
 def test_the_stats_task_fails_is_reported_and_restarted(
-    tmp_path: Path, caplog: pytest.LogCaptureFixture
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, times: int
 ) -> None:
+    """Failing ``times`` times in a row: reported once (one line, one event, as
+    every outage on the shared back-off), each failure counted, then back."""
     caplog.set_level(logging.INFO, logger="pyrtu.bridge")
     with Broker(tmp_path) as broker, drives() as (bus, _sims):
         text = toml(broker.url, bus.paths[0], tmp_path / "ob", "stats_interval = 0.05")
@@ -103,7 +106,8 @@ def test_the_stats_task_fails_is_reported_and_restarted(
             async def main() -> None:
                 bridge = Bridge(cfg)
                 bridge.on_event(events.append)
-                bridge.stats = once(ZeroDivisionError("injected"), bridge.stats)  # type: ignore[method-assign]
+                flaky = once(ZeroDivisionError("injected"), bridge.stats, times)
+                bridge.stats = flaky  # type: ignore[method-assign]
                 async with bridge:
                     await until(lambda: bool(failures(events)), "the failure reported")
                     await until(lambda: bool(sub.on("pyrtu/e1/stats")), "the stats again")
@@ -113,7 +117,7 @@ def test_the_stats_task_fails_is_reported_and_restarted(
         (failure,) = failures(events)
         assert failure["task"] == "pyrtu-bridge-stats"
         assert failure["error"] == "ZeroDivisionError: injected"
-        assert doc["task_failures"] == 1
+        assert doc["task_failures"] == times
         (line,) = the_log_lines(caplog, "pyrtu-bridge-stats")
         assert "ZeroDivisionError: injected" in line
 

@@ -264,22 +264,29 @@ class Bridge(AsyncService):
                     now = time.monotonic()
                     if now - began >= retry.backoff.maximum:
                         retry.recovered(now)  # it had run well: a new failure
-                    retry.failed(now, e)
+                    first = retry.failed(now, e)
                     wait = retry.wait(now)
-                    self.task_failed(name, e, wait)
+                    self.task_failed(name, e, wait, first)
                     if cleanup is not None:
                         cleanup()
                     await asyncio.sleep(wait)
 
         return asyncio.create_task(supervised(), name=name)
 
-    def task_failed(self, task: str, error: BaseException, retry_in: float) -> None:
-        """A background task raised ``error``: one log line with the cause, a
-        `task_failed` event, counted; it starts again in ``retry_in`` seconds."""
+    def task_failed(
+        self, task: str, error: BaseException, retry_in: float, first: bool = True
+    ) -> None:
+        """A background task raised ``error``; it starts again in ``retry_in``
+        seconds.  Counted always; the ``first`` failure of a run of failures (as
+        `Reconnect.failed` says) is reported: one log line with the cause and a
+        `task_failed` event (the next ones at debug level, as retries are)."""
         self.task_failures += 1
         cause = f"{type(error).__name__}: {error}" if str(error) else type(error).__name__
-        log.error("bridge: task %s failed: %s (restarting in %.2f s)", task, cause, retry_in)
         log.debug("bridge: task %s failed", task, exc_info=error)
+        if not first:
+            log.debug("bridge: task %s failed again: %s", task, cause)
+            return
+        log.error("bridge: task %s failed: %s (restarting in %.2f s)", task, cause, retry_in)
         self._emit("task_failed", task=task, error=cause, retry_in=round(retry_in, 3))
 
     def _emit(self, kind: str, **detail: Any) -> None:

@@ -39,7 +39,9 @@ class Host(Protocol):
 
     def publish_value(self, point: Point, value: Value, read_at: float) -> None: ...
 
-    def task_failed(self, task: str, error: BaseException, retry_in: float) -> None: ...
+    def task_failed(
+        self, task: str, error: BaseException, retry_in: float, first: bool = True
+    ) -> None: ...
 
 
 log = logging.getLogger("pyrtu.bridge")
@@ -225,9 +227,9 @@ class Writer:
                 except Exception as e:
                     self.failures += 1
                     now = time.monotonic()
-                    self._retry.failed(now, e)
+                    first = self._retry.failed(now, e)
                     wait = self._retry.wait(now)
-                    self.bridge.task_failed(_worker_name(key), e, wait)
+                    self.bridge.task_failed(_worker_name(key), e, wait, first)
                     self._finish(
                         cmd,
                         result(
