@@ -32,7 +32,11 @@ def test_report_by_exception_deadband_and_max_age() -> None:
     assert not r.update(STATUS, 5, 105.0, now=5.0)
     assert r.update(STATUS, 5, 110.0, now=10.0)  # max_age reached: again, unchanged
     assert not r.update(STATUS, 5, 111.0, now=11.0)
-    assert r.update(STATUS, 5, 112.0, now=12.0, force=True)  # a write's read-back
+    # a write's read-back: any change, whatever the deadband, but never twice the same
+    assert not r.update(STATUS, 5, 112.0, now=12.0, exact=True)  # a poll published it
+    assert r.update(STATUS, 6, 112.5, now=12.5, exact=True)
+    assert r.update(SPEED, 30.7, 200.1, now=100.1, exact=True)  # within the deadband
+    assert not r.update(SPEED, 30.7, 200.2, now=100.2, exact=True)
 
 
 def test_an_offline_slave_makes_its_points_stale_then_good_again() -> None:
@@ -41,7 +45,7 @@ def test_an_offline_slave_makes_its_points_stale_then_good_again() -> None:
     r.update(OTHER, 1, 100.0, 0.0)
     stale = r.slave_state("line", 1, False, now=1.0)
     # every point of slave 1, with the last value read and when (None: never read)
-    assert stale == [(SPEED, 30.0, 100.0, "stale"), (STATUS, None, 0.0, "stale")]
+    assert stale == [(SPEED, 30.0, 100.0, "stale"), (STATUS, None, None, "stale")]
     assert r.quality("e.status") == "good"
     assert r.slave_state("line", 1, True, now=2.0) == []
     # the same value as before is published again: its quality changed
@@ -74,6 +78,8 @@ def test_payloads_and_records() -> None:
     doc = json.loads(payload(body, 42, False))
     assert doc == {"value": 30.5, "time": 1700000000.25, "quality": "good", "seq": 42}
     assert json.loads(payload(body, 42, True))["historical"] is True
+    never = json.loads(payload(split_record(record("t", SPEED, None, None, "stale"))[1], 3, False))
+    assert never == {"value": None, "time": None, "quality": "stale", "seq": 3}
     for v in (None, float("nan"), True, 7, 'text "q"', -1.5e-7):
         d = json.loads(payload(split_record(record("t", SPEED, v, 1.0, "stale"))[1], 1, False))
         want = None if v is None or v != v else v
@@ -93,6 +99,8 @@ def test_payloads_and_records() -> None:
         (b'{"value": 1, "id": [1]}', False, "malformed"),
         (b"1", True, "retained"),
         (b"1" * 100, False, "too_large"),
+        (b"", True, None),  # a retained command cleared: no command, no answer
+        (b"", False, None),  # the same, delivered to a subscriber already there
     ],
 )
 def test_parse(text: bytes, retained: bool, want: object) -> None:
@@ -105,9 +113,22 @@ def test_parse(text: bytes, retained: bool, want: object) -> None:
 
 def test_values_are_checked_before_anything_is_sent() -> None:
     opts = PointOptions(writable=True, min=-100, max=100)
-    assert check_value(REF, opts, 50) == 50
-    assert check_value(FLAG, PointOptions(writable=True), 1) is True
-    assert check_value(NAME, PointOptions(writable=True), "ab") == "ab"
+    assert check_value(REF, opts, 50).value == 50
+    assert check_value(FLAG, PointOptions(writable=True), 1).value is True
+    assert check_value(NAME, PointOptions(writable=True), "ab").value == "ab"
+    # an unscaled integer register holds whole numbers: refused, never rounded
+    for v in (1.5, 0.5, -0.5, 2.000001):
+        with pytest.raises(ValueError, match="not a whole number"):
+            check_value(REF, opts, v)
+    assert check_value(REF, opts, 2.0).value == 2 and not check_value(REF, opts, 2.0).rounded
+    # a scaled one rounds to its resolution (0.1), half away from zero, and says so
+    assert (
+        not check_value(SPEED, opts, 21.4).rounded and check_value(SPEED, opts, 21.4).value == 21.4
+    )
+    got = check_value(SPEED, opts, 21.43)
+    assert got.rounded and got.value == 21.4 and got.words == [214]
+    assert check_value(SPEED, opts, 21.45).words == [215]
+    assert check_value(SPEED, opts, 0.05).words == [1]
     with pytest.raises(ValueError, match="above the point's max"):
         check_value(REF, opts, 101)
     with pytest.raises(ValueError, match="must be a number"):

@@ -30,7 +30,7 @@ BAUD = 115200
 BASE = "pyrtu/e1/line/1"
 
 
-def config(url: str, port: str, outbox: Path, extra: str = "") -> str:
+def config(url: str, port: str, outbox: Path, extra: str = "", points: str = "") -> str:
     return f"""
 [mqtt]
 url = "{url}"
@@ -68,16 +68,33 @@ table = "holding"
 address = {W.P_MOTOR_SPEED}
 writable = true
 interval = 1
+{points}"""
+
+
+#: a scaled view of the reference (tenths), for the sets that round
+TENTHS = f"""
+[[point]]
+name = "weg.ref_tenths"
+bus = "line"
+slave = 1
+table = "holding"
+address = {W.P_REFERENCE}
+scale = 0.1
+writable = true
+interval = 1
 """
 
 
 @contextlib.contextmanager
-def rig(tmp: Path, extra: str = "") -> Iterator[tuple[Broker, CFW701Simulator, Bridge, Client]]:
+def rig(
+    tmp: Path, extra: str = "", points: str = ""
+) -> Iterator[tuple[Broker, CFW701Simulator, Bridge, Client]]:
     with Broker(tmp) as broker, vbus.VirtualBus(2, baudrate=BAUD, parity="N") as bus:
         sim = CFW701Simulator()
         sim.serve(bus.paths[1], 1, baudrate=BAUD, parity="N")
         try:
-            cfg = parse_bridge_config(config(broker.url, bus.paths[0], tmp / "ob", extra), "b.toml")
+            text = config(broker.url, bus.paths[0], tmp / "ob", extra, points)
+            cfg = parse_bridge_config(text, "b.toml")
             bridge = Bridge(cfg)
             thread = LoopThread("bridge", bridge.start, bridge.stop)
             thread.start()
@@ -168,6 +185,50 @@ def test_bad_commands_get_a_result_and_nothing_is_sent(
         assert bridge.poller.summary()["slaves"][0]["requests"] >= writes_before
         if retain:  # clear it, as a well-behaved client would
             cl.publish(f"{BASE}/{topic}/set", b"", retain=True)
+
+
+@pytest.mark.parametrize("value", [b"1.5", b"0.5", b"2.5", b'{"value": 1000.25}'])
+def test_a_value_an_integer_register_cannot_hold_is_refused_not_rounded(
+    tmp_path: Path, value: bytes
+) -> None:
+    """weg.ref (uint16, no scale) holds whole numbers: 1.5 is refused (not written
+    as 2, nor 0.5 as 0 by banker's rounding), as `Poller.write` refuses it."""
+    with rig(tmp_path) as (_b, sim, bridge, cl):
+        before = ref(sim)
+        cl.publish(f"{BASE}/weg.ref/set", value)
+        (res,) = wait_results(cl, 1)
+        assert res["ok"] is False and res["error"] == "validation", res
+        assert "whole number" in res["message"]
+        assert ref(sim) == before and bridge.commands.executed == 0
+        # a whole number written as a float is exact: taken
+        cl.publish(f"{BASE}/weg.ref/set", b"2.0")
+        assert wait_results(cl, 2)[1]["ok"] is True and ref(sim) == 2
+
+
+def test_a_scaled_point_rounds_to_its_resolution_and_says_so(tmp_path: Path) -> None:
+    """weg.ref_tenths (scale 0.1): 21.43 is raw 214.3, written as 214 (21.4), and
+    the result says what was asked, written and the resolution; 21.4 is exact."""
+    with rig(tmp_path, points=TENTHS) as (_b, sim, _bridge, cl):
+        cl.publish(f"{BASE}/weg.ref_tenths/set", b'{"value": 21.43, "id": "r1"}')
+        (res,) = wait_results(cl, 1, "weg.ref_tenths")
+        assert res["ok"] is True and ref(sim) == 214
+        assert res["rounded"] == {"requested": 21.43, "written": 21.4, "resolution": 0.1}
+        cl.publish(f"{BASE}/weg.ref_tenths/set", b'{"value": 21.5, "id": "r2"}')
+        res = wait_results(cl, 2, "weg.ref_tenths")[1]
+        assert res["ok"] is True and "rounded" not in res and ref(sim) == 215
+
+
+def test_clearing_a_retained_set_is_ignored(tmp_path: Path) -> None:
+    """``mosquitto_pub -r -n``: an empty retained payload on a set topic is no
+    command and gets no answer (the command after it gets the only result)."""
+    with rig(tmp_path) as (_b, sim, bridge, cl):
+        cl.publish(f"{BASE}/weg.ref/set", b"", retain=True)
+        cl.publish(f"{BASE}/weg.status/set", b"", retain=True)  # not writable: no answer
+        cl.publish(f"{BASE}/weg.ref/set", b'{"value": 321, "id": "after"}')
+        (res,) = wait_results(cl, 1)
+        assert res["ok"] is True and res["id"] == "after" and ref(sim) == 321
+        assert results(cl, "weg.status") == []
+        assert bridge.writer.stats()["ignored"] == 2
 
 
 def test_an_exception_answer_is_the_result(tmp_path: Path) -> None:

@@ -220,3 +220,41 @@ def test_encode_point_undoes_scale_and_offset() -> None:
         encode_point(pt(0), "x")
     with pytest.raises(ValueError, match="bool"):
         encode_point(pt(0, table="coils"), 2)
+
+
+def test_encode_point_refuses_what_an_integer_register_cannot_hold() -> None:
+    """One rule for every writer: an unscaled integer point takes whole numbers
+    only (never rounded, banker's or otherwise); a scaled one rounds to its
+    resolution, half away from zero, and says so; the range ends exactly."""
+    from pyrtu.poller import encode_point
+
+    plain = pt(0)
+    assert encode_point(plain, 65535) == [65535] and encode_point(plain, 7.0) == [7]
+    for bad in (0.5, 1.5, 2.5, 65534.5):
+        with pytest.raises(ValueError, match="not a whole number"):
+            encode_point(plain, bad)
+    with pytest.raises(ValueError, match=r"outside 0\.\.65535"):
+        encode_point(plain, 65536)
+    with pytest.raises(ValueError, match=r"outside 0\.\.65535"):
+        encode_point(plain, -1)
+    kelvin = pt(0, type="int16", offset=273.15)  # whole steps of 1 from 273.15
+    assert encode_point(kelvin, 294.15) == [21]
+    with pytest.raises(ValueError, match=r"minus the offset 273\.15 is not a whole number"):
+        encode_point(kelvin, 294.0)
+    tenths = pt(0, scale=0.1)
+    assert encode_point(tenths, 6553.5) == [65535] == encode_point(tenths, 6553.54)
+    with pytest.raises(ValueError, match=r"outside 0\.\.65535"):
+        encode_point(tenths, 6553.55)  # raw 65535.5 rounds up to 65536
+    assert encode_point(tenths, 0.05) == [1]  # half away from zero
+    assert encode_point(tenths, 0.04) == [0]
+
+
+def test_encode_point_value_says_what_the_registers_hold() -> None:
+    from pyrtu.poller.points import encode_point_value
+
+    assert encode_point_value(pt(0), 7.0).value == 7 and not encode_point_value(pt(0), 7).rounded
+    tenths = pt(0, scale=0.1)
+    got = encode_point_value(tenths, 6553.5)
+    assert got.words == [65535] and not got.rounded and got.value == 6553.5
+    got = encode_point_value(tenths, 21.43)
+    assert got.words == [214] and got.rounded and got.value == 21.4

@@ -9,7 +9,9 @@ set commands back to the drives.
 The poller hands every value it reads to the `Reporter` (report by exception,
 qualities); what is to be published becomes an outbox record (its sequence number
 is the outbox's) and is published at once when the broker is connected and nothing
-older waits, else later from the outbox, in order, flagged ``historical``.  The
+older waits, else later from the outbox, in order, flagged ``historical`` when
+it waited through an outage (a connection lost, or a previous run's backlog; not
+the values read before the first connection of a run).  The
 outbox forgets a record once the broker acknowledged it and everything before it.
 A connection that ends is reported once and retried with the shared back-off
 (`pyrtu.drivers.reconnect`); the polls go on meanwhile.  On every connection the edge's
@@ -23,6 +25,10 @@ while its ``{bus}/status`` topic says ``down`` and why; when the port is back th
 bus says ``up``, each point comes back ``good`` with its next read and each slave
 ``online`` with its first value (or, if it no longer answers, stays ``offline``
 when the poller says so).
+
+Every background task (the connection, the stats, the writers) is supervised: a
+failure is logged once with its cause, reported (``task_failed``), counted and the
+task started again after the shared back-off.
 """
 
 from __future__ import annotations
@@ -32,7 +38,7 @@ import logging
 import ssl
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -69,7 +75,8 @@ _BATCH = 512  # records read from the outbox at a time
 @dataclass(frozen=True, slots=True)
 class BridgeEvent:
     """Something the bridge reports: ``kind`` is ``broker_down``, ``broker_up``,
-    ``port``, ``slave``, ``dropped``, ``outbox_error``, ``quarantined``, ``fatal``
+    ``port``, ``slave``, ``dropped``, ``outbox_error``, ``quarantined``, ``task_failed`` (a
+    background task raised: ``task``, ``error``, ``retry_in`` seconds), ``fatal``
     or ``stats``."""
 
     kind: str
@@ -105,6 +112,8 @@ class Bridge(AsyncService):
         self._live_base = 0  # every record from this seq on is in _live or published
         self._cursor = 0  # the last seq handed to the client on this connection
         self._historical_below = 0  # records below this seq are published as historical
+        self._start_seq = 0  # records below it are a previous run's (historical)
+        self._was_connected = False  # a connection of this run existed (then was lost)
         self._latest: dict[str, tuple[int, bytes]] = {}  # topic -> (seq, body) last appended
         self._slaves: dict[tuple[str, int], bool] = {}
         self._ports: dict[str, PortState] = {}  # the last port event of each bus
@@ -128,6 +137,7 @@ class Bridge(AsyncService):
         self.reconnects = 0
         self.publish_errors = 0
         self._quarantined_topics: set[str] = set()  # reported once each
+        self.task_failures = 0  # background tasks that raised (each restarted)
         self.final_stats: dict[str, Any] = {}
         self._credentials: Credentials | None = None
 
@@ -151,7 +161,8 @@ class Bridge(AsyncService):
         self._outbox = Outbox(m.outbox, limits)
         self._flusher = Flusher(self._outbox, self._flushed)
         self._flusher.start()  # the fsyncs on their own thread
-        self._live_base = self._outbox.next_seq
+        self._live_base = self._start_seq = self._outbox.next_seq
+        self._was_connected = False
         self._acked_seq = self._outbox.acked
         self._stop = asyncio.Event()
         self._lost_ev = asyncio.Event()
@@ -167,8 +178,8 @@ class Bridge(AsyncService):
         self._running = True
         self._t0 = time.monotonic()
         self._tasks = [
-            asyncio.create_task(self._connector(), name="pyrtu-bridge-mqtt"),
-            asyncio.create_task(self._stats_loop(), name="pyrtu-bridge-stats"),
+            self._supervise("pyrtu-bridge-mqtt", self._connector, self._link_gone),
+            self._supervise("pyrtu-bridge-stats", self._stats_loop),
         ]
 
     async def stop(self, drain: float = 5.0) -> None:
@@ -189,11 +200,11 @@ class Bridge(AsyncService):
             flusher.submit()
         for t in self._tasks:
             t.cancel()
-        for t in self._tasks:
-            try:
-                await t
-            except (asyncio.CancelledError, Exception):
-                pass
+        for t, outcome in zip(
+            self._tasks, await asyncio.gather(*self._tasks, return_exceptions=True), strict=True
+        ):
+            if isinstance(outcome, Exception):  # _supervise reports its failures: a bug
+                log.error("bridge: task %s ended with %r", t.get_name(), outcome)
         self._tasks = []
         link = self._link
         if link is not None and link.connected:
@@ -237,6 +248,56 @@ class Bridge(AsyncService):
     def on_event(self, callback: Callable[[BridgeEvent], None]) -> None:
         """Call ``callback(event)`` for every `BridgeEvent` (on the loop)."""
         self._event_cbs.append(callback)
+
+    # ------------------------------------------------------------------ supervision
+
+    def _supervise(
+        self,
+        name: str,
+        body: Callable[[], Awaitable[None]],
+        cleanup: Callable[[], None] | None = None,
+    ) -> asyncio.Task[None]:
+        """Run ``body`` as the task ``name``; when it raises, report it
+        (`task_failed`), run ``cleanup`` and start it again after the shared
+        back-off (waits grow while it keeps failing, from the start again once it
+        ran for ``max_backoff`` seconds)."""
+        m = self.config.mqtt
+        retry = Reconnect(Backoff(m.backoff, m.max_backoff))
+
+        async def supervised() -> None:
+            while self._running:
+                began = time.monotonic()
+                try:
+                    await body()
+                    return
+                except Exception as e:
+                    now = time.monotonic()
+                    if now - began >= retry.backoff.maximum:
+                        retry.recovered(now)  # it had run well: a new failure
+                    first = retry.failed(now, e)
+                    wait = retry.wait(now)
+                    self.task_failed(name, e, wait, first)
+                    if cleanup is not None:
+                        cleanup()
+                    await asyncio.sleep(wait)
+
+        return asyncio.create_task(supervised(), name=name)
+
+    def task_failed(
+        self, task: str, error: BaseException, retry_in: float, first: bool = True
+    ) -> None:
+        """A background task raised ``error``; it starts again in ``retry_in``
+        seconds.  Counted always; the ``first`` failure of a run of failures (as
+        `Reconnect.failed` says) is reported: one log line with the cause and a
+        `task_failed` event (the next ones at debug level, as retries are)."""
+        self.task_failures += 1
+        cause = f"{type(error).__name__}: {error}" if str(error) else type(error).__name__
+        log.debug("bridge: task %s failed", task, exc_info=error)
+        if not first:
+            log.debug("bridge: task %s failed again: %s", task, cause)
+            return
+        log.error("bridge: task %s failed: %s (restarting in %.2f s)", task, cause, retry_in)
+        self._emit("task_failed", task=task, error=cause, retry_in=round(retry_in, 3))
 
     def _emit(self, kind: str, **detail: Any) -> None:
         ev = BridgeEvent(kind, time.time(), detail)
@@ -324,11 +385,14 @@ class Bridge(AsyncService):
         link.publish(t, doc, 1, True)
 
     def publish_value(self, point: Point, value: Value, read_at: float) -> None:
-        """Publish a value read now (a write's read-back), whatever its deadband."""
-        self.reporter.update(point, value, read_at, time.monotonic(), force=True)
-        self._append(point, value, read_at, "good")
+        """Publish a value read now (a write's read-back) whatever its deadband,
+        unless it is the value last published (a poll may have read it first)."""
+        if self.reporter.update(point, value, read_at, time.monotonic(), exact=True):
+            self._append(point, value, read_at, "good")
 
-    def _append(self, point: Point, value: Value | None, read_at: float, quality: str) -> None:
+    def _append(
+        self, point: Point, value: Value | None, read_at: float | None, quality: str
+    ) -> None:
         ob = self._outbox
         if ob is None:
             return
@@ -351,7 +415,7 @@ class Bridge(AsyncService):
         body = rec[len(topic) + 1 :]
         self._latest[topic] = (seq, body)
         live = self._live
-        live.append((seq, rec, read_at))
+        live.append((seq, rec, time.time() if read_at is None else read_at))
         if len(live) > _LIVE:
             live.popleft()
             self._live_base = live[0][0]
@@ -522,16 +586,22 @@ class Bridge(AsyncService):
                 down_s=None if outage is None else round(outage.duration or 0, 3),
             )
             await self._lost_ev.wait()
-            self._link = None
-            self._window.reset()
-            # what was handed to the client and not acknowledged comes from the outbox
-            live = self._live
-            self._live_base = max(self._live_base, live[0][0] if live else self._next_seq())
+            self._link_gone()
             if self._running:
                 now = time.monotonic()
                 if self._reconnect.failed(now, "connection lost"):
                     log.warning("bridge: lost the broker %s (retrying)", m.broker)
                     self._emit("broker_down", broker=m.broker, error="connection lost")
+
+    def _link_gone(self) -> None:
+        """The connection ended (or its task failed): what was handed to the client
+        and not acknowledged comes from the outbox on the next one."""
+        link, self._link = self._link, None
+        if link is not None and link.connected:  # the task failed, the socket did not
+            link.close(graceful=False)
+        self._window.reset()
+        live = self._live
+        self._live_base = max(self._live_base, live[0][0] if live else self._next_seq())
 
     def _on_lost(self, reason: str) -> None:
         if self._lost_ev is not None:
@@ -570,7 +640,11 @@ class Bridge(AsyncService):
         self._acked_seq = max(self._acked_seq, ob.acked)  # past what drop-oldest dropped
         self._cursor = self._acked_seq
         oldest = self._acked_seq + 1
-        self._historical_below = ob.next_seq
+        # historical: what waited through an outage, that is a connection of this
+        # run lost, or the bridge itself not running (a previous run's backlog);
+        # the values read since start-up are live on the first connection
+        self._historical_below = ob.next_seq if self._was_connected else self._start_seq
+        self._was_connected = True
         qos = self.config.mqtt.qos
         for topic, (seq, body) in self._latest.items():
             if seq < oldest:  # delivered before: published again for the retained copy
@@ -611,6 +685,7 @@ class Bridge(AsyncService):
             "quarantined": ob.quarantined if ob is not None else 0,
             "connections": self.reconnects,
             "outages": self._reconnect.outages,
+            "task_failures": self.task_failures,
             "commands": self.writer.stats(),
             "buses": [r.as_dict() for r in self.poller.report()],
         }

@@ -10,9 +10,13 @@ if it has one, else ``command_expiry`` seconds after it arrived; an expired
 command is answered ``expired`` and never written.
 
 Before a byte is sent the value is checked against the point's type, its scale
-(the raw value must fit the register) and its ``min``/``max``; a retained
-command, an oversized payload, a point that is not writable and a topic that names
-no point are refused with a result saying why.
+(the raw value must fit the register: an unscaled integer point takes only whole
+numbers, a scaled one rounds to its resolution and the result says so; the rule of
+`pyrtu.poller.points.encode_point_value`, `Poller.write`'s too) and its
+``min``/``max``; a retained command, an oversized payload, a point that is not
+writable and a topic that names no point are refused with a result saying why.
+An empty payload is no command: it is what clearing a retained message delivers
+(``mosquitto_pub -r -n``), and it is ignored (`parse` returns None).
 """
 
 from __future__ import annotations
@@ -23,7 +27,8 @@ from collections import OrderedDict, deque
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..poller import Point, encode_point
+from ..poller import Point
+from ..poller.points import Encoded, encode_point_value
 from .config import PointOptions
 
 
@@ -32,13 +37,14 @@ class Command:
     """An accepted command, waiting for its slave's turn."""
 
     point: Point
-    value: Any
+    value: Any  # as the register holds it (a scaled point's, rounded to its resolution)
     id: str | None
     expires: float  # on the driver's clock
     received: float
     reply_to: str
     correlation: bytes | None = None
     sent: float | None = None  # the sender's "time" (Unix), when it gave one
+    rounded: dict[str, Any] | None = None  # the result's "rounded": asked, written, step
 
 
 @dataclass(frozen=True, slots=True)
@@ -60,18 +66,23 @@ def result(
     value: Any = None,
     time: float | None = None,
     exception_code: int | None = None,
+    rounded: dict[str, Any] | None = None,
 ) -> bytes:
     """The JSON of a result: ``{"ok": true, "point", "id", "value", "time"}`` (the
-    value read back after the write) or ``{"ok": false, "point", "id", "error",
-    "message"}``; ``error`` is one of ``malformed``, ``too_large``, ``retained``,
-    ``unknown_point``, ``not_writable``, ``validation``, ``expired``, ``busy``,
-    ``exception`` (with ``exception_code``), ``timeout``, ``failed``."""
+    value read back after the write; with ``"rounded": {"requested", "written",
+    "resolution"}`` when a scaled point took the value rounded to its resolution) or
+    ``{"ok": false, "point", "id", "error", "message"}``; ``error`` is one of
+    ``malformed``, ``too_large``, ``retained``, ``unknown_point``, ``not_writable``,
+    ``validation``, ``expired``, ``busy``, ``exception`` (with ``exception_code``),
+    ``timeout``, ``failed``."""
     doc: dict[str, Any] = {"ok": ok, "point": point}
     if id is not None:
         doc["id"] = id
     if ok:
         doc["value"] = value
         doc["time"] = time
+        if rounded is not None:
+            doc["rounded"] = rounded
     else:
         doc["error"] = error
         doc["message"] = message
@@ -80,8 +91,10 @@ def result(
     return json.dumps(doc, allow_nan=False, default=str).encode()
 
 
-def check_value(point: Point, opts: PointOptions, value: object) -> object:
-    """``value`` as the point takes it; ValueError saying why not (nothing sent)."""
+def check_value(point: Point, opts: PointOptions, value: object) -> Encoded:
+    """``value`` as the point's registers take it (`Encoded`: what they will hold,
+    and whether that is ``value`` rounded); ValueError saying why not (nothing
+    sent)."""
     if point.type == "bool":
         if not isinstance(value, bool) and not (
             isinstance(value, int) and not isinstance(value, bool) and value in (0, 1)
@@ -102,14 +115,23 @@ def check_value(point: Point, opts: PointOptions, value: object) -> object:
             raise ValueError(f"value {value!r} is below the point's min {opts.min!r}")
         if opts.max is not None and value > opts.max:
             raise ValueError(f"value {value!r} is above the point's max {opts.max!r}")
-    encode_point(point, value)  # scale, offset and the register's range
-    return value
+    return encode_point_value(point, value)  # scale, offset, the register's range
+
+
+def rounding(point: Point, requested: object, encoded: Encoded) -> dict[str, Any] | None:
+    """The result's ``rounded`` when a scaled point took ``requested`` rounded."""
+    if not encoded.rounded:
+        return None
+    return {"requested": requested, "written": encoded.value, "resolution": abs(point.scale)}
 
 
 def parse(
     payload: bytes, *, max_payload: int, retained: bool
-) -> tuple[Any, str | None, float | None] | Refusal:
-    """(value, id, time) of a command's payload, or the `Refusal`."""
+) -> tuple[Any, str | None, float | None] | Refusal | None:
+    """(value, id, time) of a command's payload, or the `Refusal`; None for an
+    empty payload (a retained command being cleared: no command, no answer)."""
+    if not payload:
+        return None
     if len(payload) > max_payload:
         return Refusal("too_large", f"payload of {len(payload)} bytes; at most {max_payload}")
     try:
@@ -226,4 +248,13 @@ class CommandQueue:
             self.seen[cid] = res
 
 
-__all__ = ["Command", "CommandQueue", "Refusal", "TokenBucket", "check_value", "parse", "result"]
+__all__ = [
+    "Command",
+    "CommandQueue",
+    "Refusal",
+    "TokenBucket",
+    "check_value",
+    "parse",
+    "result",
+    "rounding",
+]

@@ -8,11 +8,13 @@ slave goes offline every one of its points is published again as ``stale`` (the
 last value read and when it was read: never a last good value passed off as live),
 and a point the poller drops (it cannot be read) as ``bad``; the same ``stale``
 for every point of a bus whose port fails (`bus_down`: an outage says nothing of
-the slaves, but the values are no longer live).
+the slaves, but the values are no longer live).  A point never read has no last
+value: its ``stale`` carries value None and time None (never a time of 1970).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
@@ -25,14 +27,14 @@ class _State:
     point: Point
     max_age: float
     value: Value | None = None  # the last value read
-    time: float = 0.0  # when it was read (Unix time)
+    time: float | None = None  # when it was read (Unix time; None: never)
     published: Value | None = None
     published_at: float = -1e300  # the reporter's clock
     quality: str = ""  # of the last publication ("": none yet)
 
 
-#: what to publish: (point, value, time read, quality)
-Report = tuple[Point, Value | None, float, str]
+#: what to publish: (point, value, time read (None: never read), quality)
+Report = tuple[Point, Value | None, float | None, str]
 
 
 class Reporter:
@@ -45,17 +47,17 @@ class Reporter:
             self._by_slave.setdefault((s.point.bus, s.point.slave), []).append(s)
 
     def update(
-        self, point: Point, value: Value, time: float, now: float, force: bool = False
+        self, point: Point, value: Value, time: float, now: float, exact: bool = False
     ) -> bool:
         """A value read at ``time`` (Unix) and seen at ``now`` (any clock): whether
-        to publish it (as ``good``); ``force``: publish it whatever it is."""
+        to publish it (as ``good``); ``exact``: any change, whatever the deadband
+        (a write's read-back), but never the value last published again."""
         s = self._s[point.name]
         s.value = value
         s.time = time
         if (
-            force
-            or s.quality != "good"
-            or point.changed(s.published, value)
+            s.quality != "good"
+            or (_differs(s.published, value) if exact else point.changed(s.published, value))
             or (s.max_age > 0 and now - s.published_at >= s.max_age)
         ):
             s.published = value
@@ -100,10 +102,19 @@ class Reporter:
         """The quality last published for a point ("" before the first)."""
         return self._s[name].quality
 
-    def last(self, name: str) -> tuple[Value | None, float]:
-        """The last value read of a point and when (None, 0.0: never)."""
+    def last(self, name: str) -> tuple[Value | None, float | None]:
+        """The last value read of a point and when (None, None: never)."""
         s = self._s[name]
         return s.value, s.time
+
+
+def _differs(old: Value | None, new: Value) -> bool:
+    """Whether ``new`` is another value than ``old`` (NaN equals NaN)."""
+    if old is None or type(old) is not type(new):
+        return True
+    if isinstance(new, float) and isinstance(old, float) and math.isnan(new):
+        return not math.isnan(old)
+    return new != old
 
 
 __all__ = ["Report", "Reporter"]

@@ -188,12 +188,12 @@ def _json_value(value: object) -> str:
     return json.dumps(value, ensure_ascii=False)
 
 
-def record(topic: str, point: Point, value: object, time: float, quality: str) -> bytes:
-    """The outbox record of a point's value (see the module docstring)."""
+def record(topic: str, point: Point, value: object, time: float | None, quality: str) -> bytes:
+    """The outbox record of a point's value (see the module docstring); ``time``
+    None: never read (JSON null)."""
     del point  # the topic names it; kept in the signature for subclasses
-    return (
-        f'{topic}\n{{"value":{_json_value(value)},"time":{time!r},"quality":"{quality}"'
-    ).encode()
+    when = "null" if time is None else repr(time)
+    return (f'{topic}\n{{"value":{_json_value(value)},"time":{when},"quality":"{quality}"').encode()
 
 
 def split_record(rec: bytes) -> tuple[str, bytes]:

@@ -20,9 +20,10 @@ import paho.mqtt.client as paho
 
 from pyrtu.pdu.errors import ExceptionResponseError, ModbusError, NoResponseError
 
+from ..drivers.reconnect import Backoff, Reconnect
 from ..poller import Point, Poller
 from ..poller.points import Value
-from .commands import Command, CommandQueue, Refusal, check_value, parse, result
+from .commands import Command, CommandQueue, Refusal, check_value, parse, result, rounding
 from .config import BridgeConfig
 from .mqtt import MqttLink, publish_properties
 from .topics import Topics
@@ -38,6 +39,10 @@ class Host(Protocol):
 
     def publish_value(self, point: Point, value: Value, read_at: float) -> None: ...
 
+    def task_failed(
+        self, task: str, error: BaseException, retry_in: float, first: bool = True
+    ) -> None: ...
+
 
 log = logging.getLogger("pyrtu.bridge")
 
@@ -51,7 +56,9 @@ class Writer:
         self.cfg = bridge.config
         self._link: MqttLink | None = None
         self._workers: dict[tuple[str, int], asyncio.Task[None]] = {}
+        self._retry = Reconnect(Backoff(self.cfg.mqtt.backoff, self.cfg.mqtt.max_backoff))
         self.received = 0
+        self.ignored = 0  # empty payloads (retained commands cleared)
         self.refusals: dict[str, int] = {}
         self.failures = 0
         self.write_latency: list[float] = []
@@ -62,19 +69,21 @@ class Writer:
         self._link = link
 
     async def stop(self) -> None:
-        for t in list(self._workers.values()):
+        tasks = list(self._workers.values())
+        for t in tasks:
             t.cancel()
-        for t in list(self._workers.values()):
-            try:
-                await t
-            except (asyncio.CancelledError, Exception):
-                pass
+        for t, outcome in zip(
+            tasks, await asyncio.gather(*tasks, return_exceptions=True), strict=True
+        ):
+            if isinstance(outcome, Exception):  # _work reports its failures: a bug
+                log.error("bridge: task %s ended with %r", t.get_name(), outcome)
         self._workers.clear()
 
     def stats(self) -> dict[str, Any]:
         q = self.queue
         return {
             "received": self.received,
+            "ignored": self.ignored,
             "executed": q.executed,
             "expired": q.expired,
             "duplicates": q.duplicates,
@@ -93,6 +102,9 @@ class Writer:
         props = getattr(msg, "properties", None)
         reply = getattr(props, "ResponseTopic", None) or topic + "/result"
         corr = getattr(props, "CorrelationData", None)
+        if not msg.payload:  # no command: a retained one cleared (mosquitto_pub -r -n)
+            self._ignore(topic)
+            return
         name = self.bridge.topics.set.get(topic)
         if name is None:
             self._refuse(
@@ -115,6 +127,9 @@ class Writer:
         parsed = parse(
             bytes(msg.payload), max_payload=self.cfg.mqtt.max_payload, retained=msg.retain
         )
+        if parsed is None:
+            self._ignore(topic)
+            return
         if isinstance(parsed, Refusal):
             self._refuse(parsed, name, reply, corr)
             return
@@ -127,17 +142,26 @@ class Writer:
                 self._reply(reply, res, corr)
             return
         try:
-            value = check_value(point, opts, value)
+            encoded = check_value(point, opts, value)
         except ValueError as e:
             self._refuse(Refusal("validation", str(e), cid), name, reply, corr)
             return
+        rounded = rounding(point, value, encoded)
         expiry = getattr(props, "MessageExpiryInterval", None)
         life = float(expiry) if expiry is not None else self.cfg.mqtt.command_expiry
         expires = now + life
         if sent is not None:
             expires = min(expires, now + (sent + self.cfg.mqtt.command_expiry - time.time()))
         cmd = Command(
-            point, value, cid, expires, now, reply, None if corr is None else bytes(corr), sent
+            point,
+            encoded.value,
+            cid,
+            expires,
+            now,
+            reply,
+            None if corr is None else bytes(corr),
+            sent,
+            rounded,
         )
         if now >= expires:
             self.queue.expired += 1
@@ -163,8 +187,12 @@ class Writer:
         key = (point.bus, point.slave)
         if key not in self._workers:
             self._workers[key] = asyncio.get_running_loop().create_task(
-                self._work(key), name=f"pyrtu-bridge-writes-{point.bus}-{point.slave}"
+                self._work(key), name=_worker_name(key)
             )
+
+    def _ignore(self, topic: str) -> None:
+        self.ignored += 1
+        log.debug("bridge: empty payload on %s ignored (a retained message cleared)", topic)
 
     def _refuse(self, r: Refusal, point: str | None, reply: str, corr: Any) -> None:
         self.refusals[r.error] = self.refusals.get(r.error, 0) + 1
@@ -188,9 +216,33 @@ class Writer:
     # ------------------------------------------------------------------ execution
 
     async def _work(self, key: tuple[str, int]) -> None:
+        """The slave's commands in turn.  A command whose execution raises what no
+        transaction raises (a fault of the bridge) is answered ``failed``, the fault
+        reported (`Host.task_failed`), and the next command waits the shared
+        back-off: the slave is never left deaf to commands."""
         try:
             while (cmd := self.queue.pop(key)) is not None:
-                await self._execute(key, cmd)
+                try:
+                    await self._execute(key, cmd)
+                except Exception as e:
+                    self.failures += 1
+                    now = time.monotonic()
+                    first = self._retry.failed(now, e)
+                    wait = self._retry.wait(now)
+                    self.bridge.task_failed(_worker_name(key), e, wait, first)
+                    self._finish(
+                        cmd,
+                        result(
+                            cmd.point.name,
+                            False,
+                            id=cmd.id,
+                            error="failed",
+                            message=f"internal error: {type(e).__name__}: {e}",
+                        ),
+                    )
+                    await asyncio.sleep(wait)
+                else:
+                    self._retry.recovered(time.monotonic())
         finally:
             self._workers.pop(key, None)
 
@@ -242,7 +294,18 @@ class Writer:
         self.queue.executed += 1
         now = time.time()
         self.bridge.publish_value(cmd.point, value, now)
-        self._finish(cmd, result(name, True, id=cmd.id, value=value, time=now))
+        if cmd.rounded is not None:
+            log.info(
+                "bridge: set %s: %r rounded to %r (its resolution)",
+                name,
+                cmd.rounded["requested"],
+                cmd.rounded["written"],
+            )
+        self._finish(cmd, result(name, True, id=cmd.id, value=value, time=now, rounded=cmd.rounded))
+
+
+def _worker_name(key: tuple[str, int]) -> str:
+    return f"pyrtu-bridge-writes-{key[0]}-{key[1]}"
 
 
 __all__ = ["Writer"]

@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from decimal import ROUND_HALF_UP, Decimal
 
 from pyrtu.pdu.data import (
     ORDERS,
@@ -208,41 +209,92 @@ def check_unique(points: Sequence[Point]) -> None:
 
 def encode_point(point: Point, value: object) -> list[int] | list[bool]:
     """The registers (or bits) that write ``value`` to ``point`` (the inverse of its
-    scale and offset); ValueError when it does not fit."""
+    scale and offset); ValueError when they cannot hold it (see `encode_point_value`)."""
+    return encode_point_value(point, value).words
+
+
+@dataclass(frozen=True, slots=True)
+class Encoded:
+    """A value as a point's registers hold it: ``words`` to write, ``value`` what
+    they hold in the point's units (the shortest decimal of ``raw * scale +
+    offset``), ``rounded`` when that is not the value asked for (a scaled point,
+    rounded to its resolution ``abs(scale)``)."""
+
+    words: list[int] | list[bool]
+    value: Value
+    rounded: bool = False
+
+
+_INT_RANGE = {"uint16": (0, 0xFFFF), "int16": (-0x8000, 0x7FFF), "uint32": (0, 2**32 - 1),
+              "int32": (-(2**31), 2**31 - 1)}  # fmt: skip
+
+
+def _decimal(x: float) -> Decimal:
+    """The decimal a number was written as (``0.1``, not its binary expansion)."""
+    return Decimal(x) if isinstance(x, int) else Decimal(repr(x))
+
+
+def encode_point_value(point: Point, value: object) -> Encoded:
+    """The registers that write ``value`` to ``point`` and what they hold.
+
+    One rule for every writer (`Poller.write`, the bridge's set commands): an
+    integer register takes ``value`` only when it holds it exactly, so on a point
+    with ``scale`` 1 ``(value - offset)`` must be a whole number (1.5 is refused,
+    never rounded to 2); a scaled point rounds to its resolution (``abs(scale)``,
+    half away from zero, on the decimals as written: 21.45 at 0.1 is raw 215) and
+    says so (`Encoded.rounded`).  A float32 takes the nearest single.  ValueError,
+    naming the point, when the value does not fit."""
     if point.table not in ("holding", "coils"):
         raise ValueError(f"point {point.name!r}: the {point.table} table is read only")
     if point.type == "bool":
         if not isinstance(value, bool | int) or value not in (0, 1):
             raise ValueError(f"point {point.name!r}: value must be a bool, not {value!r}")
-        return [bool(value)]
+        return Encoded([bool(value)], bool(value))
     if point.type == "string":
         if not isinstance(value, str):
             raise ValueError(f"point {point.name!r}: value must be a str, not {value!r}")
-        return encode_string(value, point.count)
+        return Encoded(encode_string(value, point.count), value)
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
         raise ValueError(f"point {point.name!r}: value must be a finite number, not {value!r}")
-    raw = (value - point.offset) / point.scale
     if point.type == "float32":
-        return encode_float32(raw, point.order)
-    n = round(raw)
-    lo, hi = {"uint16": (0, 0xFFFF), "int16": (-0x8000, 0x7FFF), "uint32": (0, 2**32 - 1),
-              "int32": (-(2**31), 2**31 - 1)}[point.type]  # fmt: skip
+        return Encoded(encode_float32((value - point.offset) / point.scale, point.order), value)
+    lo, hi = _INT_RANGE[point.type]
+    approx = (value - point.offset) / point.scale
+    if not lo - 1 <= approx <= hi + 1:
+        raise ValueError(f"point {point.name!r}: {value!r} is raw {approx:.6g}, outside {lo}..{hi}")
+    raw = (_decimal(value) - _decimal(point.offset)) / _decimal(point.scale)
+    n = int(raw.to_integral_value(rounding=ROUND_HALF_UP))
     if not lo <= n <= hi:
         raise ValueError(f"point {point.name!r}: {value!r} is raw {n}, outside {lo}..{hi}")
+    rounded = raw != n
+    if rounded and point.scale == 1:
+        minus = "" if point.offset == 0 else f" minus the offset {point.offset!r}"
+        raise ValueError(
+            f"point {point.name!r}: {value!r}{minus} is not a whole number; "
+            f"the {point.type} register holds whole numbers only"
+        )
+    held: Value = n
+    if point.scale != 1 or point.offset != 0:
+        held = float(n * _decimal(point.scale) + _decimal(point.offset))
+    words: list[int]
     if point.type == "uint16":
-        return [n]
-    if point.type == "int16":
-        return [n & 0xFFFF]
-    return (encode_uint32 if point.type == "uint32" else encode_int32)(n, point.order)
+        words = [n]
+    elif point.type == "int16":
+        words = [n & 0xFFFF]
+    else:
+        words = (encode_uint32 if point.type == "uint32" else encode_int32)(n, point.order)
+    return Encoded(words, held, rounded)
 
 
 __all__ = [
     "BIT_TABLES",
     "TABLES",
     "TYPES",
+    "Encoded",
     "Point",
     "PointError",
     "Value",
     "check_unique",
     "encode_point",
+    "encode_point_value",
 ]

@@ -1,0 +1,323 @@
+"""Mutation testing of pyrtu: which fault in the code would no test notice?
+
+Two kinds of mutants, both run in a copy of the tree (build/mutate/), never in it:
+
+* **generated** (`make mutate`): cosmic-ray (PyPI) makes every mutant of the
+  operators in `OPERATORS` (realistic faults: a boundary moved, a condition negated,
+  an operator or a constant changed, a loop skipped) in each module of
+  `mutate/targets.toml`, and runs that target's test files against each one.  A
+  mutant no test kills "survives"; `mutate/equivalent.toml` lists the survivors that
+  change no behaviour, each with its reason.  The report (killed, survived,
+  equivalent, the score, every survivor with its line) goes to docs/MUTATION.md.
+* **hand-written** (`make mutate-faults`, run by CI): the faults of
+  `mutate/faults.toml`, Python and C (cosmic-ray does not reach C: a C fault is
+  applied to csrc/, the core rebuilt, and the named tests run on it).  Each must be
+  killed by the tests it names; one that survives fails the run.
+
+    python mutate/run.py faults                 # every hand-written fault (CI)
+    python mutate/run.py generated [TARGET ...] # cosmic-ray over the targets (all)
+    python mutate/run.py generated --jobs 2     # targets in parallel, a tree copy each
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+HERE = ROOT / "mutate"
+WORK = ROOT / "build" / "mutate"
+REPORT = ROOT / "docs" / "MUTATION.md"
+
+#: the tree a test run needs (copied; the .venv stays where it is)
+TREE = ("pyrtu", "tests", "csrc", "docs", "bench", "fuzz", "setup.py", "pyproject.toml",
+        "MANIFEST.in", "README.md", "Makefile")
+
+#: cosmic-ray's operators kept: faults a person makes.  Left out: swaps that no one
+#: writes by mistake (``+`` to ``**`` or ``^``, ``<`` to ``is``), and the operators
+#: that rewrite names, decorators and exception types.
+OPERATORS = tuple(
+    f"core/{name}"
+    for name in (
+        # a boundary moved, a comparison negated or turned
+        *(f"ReplaceComparisonOperator_{a}_{b}" for a, b in (
+            ("Lt", "LtE"), ("LtE", "Lt"), ("Gt", "GtE"), ("GtE", "Gt"),
+            ("Lt", "GtE"), ("GtE", "Lt"), ("Gt", "LtE"), ("LtE", "Gt"),
+            ("Lt", "Gt"), ("Gt", "Lt"), ("LtE", "GtE"), ("GtE", "LtE"),
+            ("Eq", "NotEq"), ("NotEq", "Eq"), ("Is", "IsNot"), ("IsNot", "Is"),
+        )),
+        # arithmetic and bit operations swapped for their mirror
+        *(f"ReplaceBinaryOperator_{a}_{b}" for a, b in (
+            ("Add", "Sub"), ("Sub", "Add"), ("Mul", "Div"), ("Div", "Mul"),
+            ("FloorDiv", "Div"), ("Mul", "Add"), ("Mod", "FloorDiv"),
+            ("BitAnd", "BitOr"), ("BitOr", "BitAnd"), ("BitXor", "BitOr"),
+            ("LShift", "RShift"), ("RShift", "LShift"),
+        )),
+        "ReplaceUnaryOperator_USub_UAdd", "ReplaceUnaryOperator_Delete_Not", "AddNot",
+        "ReplaceAndWithOr", "ReplaceOrWithAnd",
+        "ReplaceTrueWithFalse", "ReplaceFalseWithTrue",
+        "ReplaceBreakWithContinue", "ReplaceContinueWithBreak",
+        "ZeroIterationForLoop", "NumberReplacer",
+    )
+)
+
+
+def _copy_tree(dest: Path) -> None:
+    """The tree, with the built extension modules, at `dest` (made anew)."""
+    if dest.exists():
+        shutil.rmtree(dest)
+    dest.mkdir(parents=True)
+    ignore = shutil.ignore_patterns("__pycache__", "*.pyc", ".hypothesis", "build")
+    for name in TREE:
+        src = ROOT / name
+        if src.is_dir():
+            shutil.copytree(src, dest / name, ignore=ignore)
+        elif src.exists():
+            shutil.copy2(src, dest / name)
+    built = list((ROOT / "pyrtu").rglob("*.so"))
+    if not built:
+        sys.exit("mutate: the C core is not built (make setup first)")
+    for so in built:  # copytree took them; say so if one is missing
+        assert (dest / so.relative_to(ROOT)).exists(), so
+
+
+def _env(tree: Path) -> dict[str, str]:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(tree)
+    env["PYRTU_REQUIRE_C"] = "1"
+    env["PYTHONDONTWRITEBYTECODE"] = "1"
+    return env
+
+
+def _pytest(tests: list[str]) -> list[str]:
+    return [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider",
+            "-m", "not wall_clock and not rss", *tests]
+
+
+# --------------------------------------------------------------------------- faults
+
+
+@dataclass
+class Fault:
+    name: str
+    file: str
+    old: str
+    new: str
+    tests: list[str]
+    why: str = ""
+
+
+def _faults() -> list[Fault]:
+    data = tomllib.loads((HERE / "faults.toml").read_text())
+    return [Fault(**f) for f in data["fault"]]
+
+
+def _build_core(tree: Path) -> None:
+    subprocess.run(
+        [sys.executable, "setup.py", "-q", "build_ext", "--inplace", "--force"],
+        cwd=tree, env=_env(tree) | {"PYRTU_REQUIRE_C": "1"}, check=True,
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+    )
+
+
+def run_faults(names: list[str]) -> int:
+    faults = [f for f in _faults() if not names or f.name in names]
+    tree = WORK / "faults"
+    _copy_tree(tree)
+    survived = []
+    for fault in faults:
+        path = tree / fault.file
+        original = path.read_text()
+        if original.count(fault.old) != 1:
+            print(f"FAULT NOT APPLIED  {fault.name}: `old` is found "
+                  f"{original.count(fault.old)} times in {fault.file} (it must be once)")
+            survived.append(fault.name)
+            continue
+        path.write_text(original.replace(fault.old, fault.new))
+        try:
+            if fault.file.startswith("csrc/"):
+                _build_core(tree)
+            t0 = time.monotonic()
+            run = subprocess.run(_pytest(fault.tests), cwd=tree, env=_env(tree),
+                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+            took = time.monotonic() - t0
+            if run.returncode == 1:  # tests ran and failed: killed
+                first = next((line for line in run.stdout.splitlines()
+                              if line.startswith("FAILED")), "")
+                print(f"killed   {fault.name} ({took:.0f} s) {first[:150]}")
+            else:  # 0: survived; other codes: the run itself broke, which proves nothing
+                print(f"SURVIVED {fault.name} (pytest exit {run.returncode})")
+                print("\n".join(run.stdout.splitlines()[-15:]))
+                survived.append(fault.name)
+        finally:
+            path.write_text(original)
+            if fault.file.startswith("csrc/"):
+                _build_core(tree)
+    print(f"{len(faults) - len(survived)} killed, {len(survived)} survived "
+          f"of {len(faults)} hand-written faults")
+    return 1 if survived else 0
+
+
+# --------------------------------------------------------------------------- generated
+
+
+@dataclass
+class Target:
+    name: str
+    modules: list[str]
+    tests: list[str]
+    timeout: float = 120.0
+    results: list[dict[str, object]] = field(default_factory=list)
+
+
+def _targets() -> list[Target]:
+    data = tomllib.loads((HERE / "targets.toml").read_text())
+    return [Target(name=name, **spec) for name, spec in data["target"].items()]
+
+
+def _equivalents() -> list[dict[str, str]]:
+    return list(tomllib.loads((HERE / "equivalent.toml").read_text()).get("equivalent", []))
+
+
+def _run_target(target: Target) -> Path:
+    """cosmic-ray over one target in a tree copy of its own; the session's JSON dump."""
+    from cosmic_ray.work_db import WorkDB, use_db  # the tool, installed by make mutate
+    from cosmic_ray.work_item import WorkerOutcome, WorkResult
+
+    tree = WORK / f"tree-{target.name}"
+    _copy_tree(tree)
+    out = WORK / f"{target.name}.jsonl"
+    for module in target.modules:
+        stem = module.replace("/", "_").removesuffix(".py")
+        config = tree / f"cr-{stem}.toml"
+        session = tree / f"cr-{stem}.sqlite"
+        command = " ".join(_pytest(target.tests))
+        config.write_text(
+            "[cosmic-ray]\n"
+            f'module-path = "{module}"\n'
+            f"timeout = {target.timeout}\n"
+            "excluded-modules = []\n"
+            f"test-command = {json.dumps(command)}\n"
+            '[cosmic-ray.distributor]\nname = "local"\n'
+        )
+        cr = Path(sys.executable).with_name("cosmic-ray")
+        subprocess.run([cr, "init", config.name, session.name], cwd=tree, check=True,
+                       env=_env(tree))
+        with use_db(str(session), WorkDB.Mode.open) as db:
+            skip = [item.job_id for item in db.pending_work_items
+                    if item.mutations[0].operator_name not in OPERATORS]
+            db.set_multiple_results(skip, WorkResult(output="operator not kept",
+                                                     worker_outcome=WorkerOutcome.SKIPPED))
+        subprocess.run([cr, "exec", config.name, session.name], cwd=tree, check=True,
+                       env=_env(tree))
+        dump = subprocess.run([cr, "dump", session.name], cwd=tree, check=True,
+                              env=_env(tree), stdout=subprocess.PIPE, text=True).stdout
+        with out.open("a" if module != target.modules[0] else "w") as f:
+            f.write(dump)
+    return out
+
+
+def _line(tree: Path, module: str, line: int) -> str:
+    try:
+        return (tree / module).read_text().splitlines()[line - 1].strip()
+    except (OSError, IndexError):
+        return ""
+
+
+def _summarise(target: Target) -> dict[str, object]:
+    tree = WORK / f"tree-{target.name}"
+    equivalents = _equivalents()
+    counts = {"killed": 0, "survived": 0, "equivalent": 0, "incompetent": 0}
+    survivors = []
+    for raw in (WORK / f"{target.name}.jsonl").read_text().splitlines():
+        item, result = json.loads(raw)
+        if result is None or result["worker_outcome"] == "skipped":
+            continue
+        mutation = item["mutations"][0]
+        module = mutation["module_path"]
+        line = mutation["start_pos"][0]
+        text = _line(tree, module, line)
+        outcome = result["test_outcome"]
+        if result["worker_outcome"] in ("exception", "abnormal"):
+            outcome = "incompetent"
+        if outcome == "survived":
+            match = next((e for e in equivalents if e["module"] == module
+                          and e["operator"] == mutation["operator_name"]
+                          and e["line"].strip() == text), None)
+            if match is not None:
+                counts["equivalent"] += 1
+                continue
+            survivors.append(f"`{module}:{line}` {mutation['operator_name']}"
+                             f" (#{mutation['occurrence']}): `{text}`")
+        counts[outcome] = counts.get(outcome, 0) + 1
+    judged = counts["killed"] + counts["survived"]
+    score = counts["killed"] / judged if judged else 0.0
+    return {"target": target.name, **counts, "score": score, "survivors": survivors}
+
+
+def run_generated(names: list[str], jobs: int) -> int:
+    import concurrent.futures
+
+    targets = [t for t in _targets() if not names or t.name in names]
+    with concurrent.futures.ThreadPoolExecutor(max_workers=jobs) as pool:
+        list(pool.map(_run_target, targets))
+    summaries = [_summarise(t) for t in targets]
+    _write_report(summaries)
+    for s in summaries:
+        print(f"{s['target']}: {s['killed']} killed, {s['survived']} survived, "
+              f"{s['equivalent']} equivalent, {s['incompetent']} incompetent: "
+              f"score {100 * float(s['score']):.1f} %")  # type: ignore[arg-type]
+    return 0
+
+
+def _write_report(summaries: list[dict[str, object]]) -> None:
+    """docs/MUTATION.md: the figures of the targets run now; other targets' rows kept."""
+    stamp = time.strftime("%Y-%m-%d", time.gmtime())
+    rows = {}
+    sections = {}
+    if REPORT.exists():
+        text = REPORT.read_text()
+        for block in text.split("\n### ")[1:]:
+            name = block.split("\n", 1)[0].strip("` ")
+            sections[name] = "### " + block.rstrip() + "\n"
+        for line in text.splitlines():
+            if line.startswith("| `") and "|" in line[3:]:
+                rows[line.split("`")[1]] = line
+    for s in summaries:
+        name = str(s["target"])
+        rows[name] = (f"| `{name}` | {s['killed']} | {s['survived']} | {s['equivalent']} | "
+                      f"{s['incompetent']} | {100 * float(s['score']):.1f} % | {stamp} |")  # type: ignore[arg-type]
+        survivors = s["survivors"] or ["none"]
+        sections[name] = (f"### `{name}`\n\n" + "\n".join(f"- {x}" for x in survivors)  # type: ignore[union-attr]
+                          + "\n")
+    head = (HERE / "REPORT_HEAD.md").read_text()
+    table = ("| target | killed | survived | equivalent | incompetent | score | run |\n"
+             "|---|---|---|---|---|---|---|\n" + "\n".join(rows[k] for k in sorted(rows)))
+    body = "\n".join(sections[k] for k in sorted(sections))
+    REPORT.write_text(f"{head}\n{table}\n\n## Survivors\n\n{body}")
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="kind", required=True)
+    faults = sub.add_parser("faults", help="the hand-written faults (mutate/faults.toml)")
+    faults.add_argument("names", nargs="*")
+    generated = sub.add_parser("generated", help="cosmic-ray over mutate/targets.toml")
+    generated.add_argument("names", nargs="*")
+    generated.add_argument("--jobs", type=int, default=1)
+    args = parser.parse_args()
+    if args.kind == "faults":
+        return run_faults(args.names)
+    return run_generated(args.names, args.jobs)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
