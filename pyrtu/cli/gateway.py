@@ -25,9 +25,10 @@ after 5 s if it leaves answers unread).  Limits (defaults): --max-connections
 without a request; when the connections are all taken, one that never sent a
 whole request (else the longest idle) gives way to the newcomer.
 
-A bus whose port fails (a USB adapter pulled out, a TCP server gone) is logged
-once; its requests get 0x0A while it is down (counted as "bus unavailable");
-it is reopened on a back-off schedule (0.5 s doubling to 30 s) while the other
+A bus whose port fails (a USB adapter pulled out, a TCP server gone), or is not
+there at start-up (an adapter that appears after boot), is logged once; its
+requests get 0x0A while it is down (counted as "bus unavailable"); it is
+(re)opened on a back-off schedule (0.5 s doubling to 30 s) while the other
 buses carry on, and logged again when it is back.
 
 Runs until SIGINT/SIGTERM or --duration (exit 0), then prints the counters.
@@ -213,9 +214,11 @@ def _routes(specs: list[BusSpec], maps: list[dict[int, int]]) -> list[dict[int, 
     return units
 
 
-async def _open_bus(spec: BusSpec, args: argparse.Namespace) -> G.ReopeningBus:
-    """The bus of ``spec``, opened; the gateway reopens it the same way after a failure."""
-    return await G.ReopeningBus(spec.port, lambda: _connect(spec, args)).open()
+def _bus(spec: BusSpec, args: argparse.Namespace) -> G.ReopeningBus:
+    """The bus of ``spec``, not opened yet: the gateway opens it at its start (a port
+    not there yet is down, reopened on the back-off) and reopens it the same way
+    after a failure."""
+    return G.ReopeningBus(spec.port, lambda: _connect(spec, args))
 
 
 async def _connect(spec: BusSpec, args: argparse.Namespace) -> Any:
@@ -250,8 +253,7 @@ async def _serve(args: argparse.Namespace) -> dict[str, Any]:
     )
     buses: list[Any] = []
     try:
-        for spec in args.port:
-            buses.append(await _open_bus(spec, args))
+        buses += [_bus(spec, args) for spec in args.port]
         gw = G.Gateway(
             list(zip(buses, units, strict=True)), limits, on_bus=lambda ev: _bus_event(args, ev)
         )
