@@ -2,7 +2,8 @@
 
 * a dead slave behind a Modbus TCP gateway: the gateway answers exception 0x0B
   (gateway target device failed to respond, Application Protocol V1.1b section 7)
-  in its name, and that is no answer of the slave: the poller takes it offline;
+  in its name, and that is no answer of the slave: the poller takes it offline,
+  and the bridge publishes its points ``stale`` (a real mosquitto);
 * a device back after an outage longer than the old back-off's growth is found
   within about a second (the back-off stops at 1 s), on a ``tcp://`` bus (its
   connection reopened) and on a serial bus (its probes), while the bus's other
@@ -12,15 +13,22 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import socket
 import time
-from collections.abc import Callable
+from collections.abc import AsyncIterator, Callable
+from pathlib import Path
 
 import pytest
+from mqtt_broker import Broker, Client
+
+from pyrtu.bridge import parse_bridge_config
+from pyrtu.bridge.bridge import Bridge
 
 from pyrtu.cli._simulate_tcp import tcp_only_slave
 from pyrtu.devices import CFW701Simulator, CV100Simulator
 from pyrtu.drivers.aio import AsyncMaster
+from pyrtu.drivers.aio import run as aio_run
 from pyrtu.gateway import Gateway
 from pyrtu.gateway.server import TcpServer
 from pyrtu.poller import Bus, Poller, PortState, SlaveState, Update, make_config, profile_points
@@ -58,6 +66,60 @@ def free_port() -> int:
         s.bind(("127.0.0.1", 0))
         port: int = s.getsockname()[1]
     return port
+
+
+@contextlib.asynccontextmanager
+async def gateway_to(path: str) -> AsyncIterator[str]:
+    """A `Gateway` on 127.0.0.1 onto the virtual bus's drop ``path`` (unit 1, a bus
+    timeout of 0.1 s); yields its ``tcp://`` URL."""
+    async with AsyncMaster(path, BAUD, "N", timeout=0.1) as master:
+        gateway = await Gateway([(master, [1])]).start("127.0.0.1", 0)
+        try:
+            assert gateway.address is not None
+            yield "tcp://{}:{}".format(*gateway.address)
+        finally:
+            await gateway.close()
+
+
+def test_the_bridge_publishes_a_dead_slave_behind_a_gateway_stale(tmp_path: Path) -> None:
+    """The same through the bridge to mosquitto: the drive behind the gateway stops,
+    its points are published ``stale`` and its status ``offline``."""
+    topic = "pyrtu/e1/net/1/weg.speed"
+
+    def quality(sub: Client) -> str | None:
+        got = sub.on(topic)
+        return json.loads(got[-1])["quality"] if got else None
+
+    with Broker(tmp_path) as broker, VirtualBus(2, baudrate=BAUD, parity="N") as bus:
+        sim = CFW701Simulator()
+        sim.serve(bus.paths[1], 1, baudrate=BAUD, parity="N")
+        sub = Client(broker, ["pyrtu/#"])
+        try:
+
+            async def main() -> None:
+                async with gateway_to(bus.paths[0]) as url:
+                    text = (
+                        f'[mqtt]\nurl = "{broker.url}"\nedge = "e1"\n'
+                        f'outbox = "{tmp_path / "ob"}"\n'
+                        f'[[bus]]\nname = "net"\nport = "{url}"\ntimeout = 1.0\n'
+                        "offline_after = 2\n"
+                        '[[device]]\nbus = "net"\nslave = 1\nprofile = "cfw701"\n'
+                        'name = "weg"\ninterval = 0.05\n'
+                    )
+                    async with Bridge(parse_bridge_config(text, "b.toml")):
+                        await until(lambda: quality(sub) == "good", "a good value")
+                        sim.close()
+                        await until(lambda: quality(sub) == "stale", "stale")
+                        await until(
+                            lambda: sub.on("pyrtu/e1/net/1/status")[-1:] == [b"offline"],
+                            "offline",
+                        )
+
+            aio_run(main())
+        finally:
+            sub.close()
+            with contextlib.suppress(Exception):
+                sim.close()
 
 
 def test_a_dead_slave_behind_a_gateway_goes_offline_and_comes_back() -> None:
