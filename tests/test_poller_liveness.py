@@ -24,7 +24,6 @@ from mqtt_broker import Broker, Client
 
 from pyrtu.bridge import parse_bridge_config
 from pyrtu.bridge.bridge import Bridge
-
 from pyrtu.cli._simulate_tcp import tcp_only_slave
 from pyrtu.devices import CFW701Simulator, CV100Simulator
 from pyrtu.drivers.aio import AsyncMaster
@@ -204,9 +203,7 @@ def test_a_tcp_device_back_after_an_outage_is_read_within_a_second() -> None:
 
 
 @pytest.mark.wall_clock
-def test_a_serial_slave_back_after_an_outage_is_found_soon_and_the_other_keeps_its_rate() -> (
-    None
-):
+def test_a_serial_slave_back_after_an_outage_is_found_soon_the_other_at_its_rate() -> None:
     """Two drives on the virtual bus; the CV100 (5) away for 9 s after it went
     offline (the old back-off, doubling to 30 s, would probe next at about 15.8 s),
     then back: online again within the 1 s cap (its timeout's share floor, 19 x

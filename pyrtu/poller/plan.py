@@ -4,7 +4,8 @@
 (t3.5), the request and the response frames (characters x character time) and the
 slave's turnaround.  A Modbus TCP bus (``tcp://``, `Wire.tcp`) has no character
 time and no silence: a transaction costs its round trip, `TCP_ROUND_TRIP` until
-the slave's own is measured (the measured turnaround is then the whole of it).  `plan` groups the points of one slave and table into blocks:
+the slave's own is measured (the measured turnaround is then the whole of it).
+`plan` groups the points of one slave and table into blocks:
 
 * a block never exceeds the device's maximum per request (`Limits`: 125 registers
   and 2000 bits by the spec; less where a device says so, e.g. the Bonfiglioli's

@@ -31,11 +31,11 @@ is still waiting for its answer: the driver arms `offline_due` and calls
 the schedule and one short request probes it, after a back-off that doubles from
 ``backoff`` (0.5 s) to ``max_backoff`` (1 s: a slave that comes back is found
 within about a second), never less than what keeps the probes within ``share`` of
-the bus time while another slave of the bus is online.  Any answer, even an exception, brings it back online
-with its blocks due at once; but not a gateway's exception 0x0A or 0x0B (path
-unavailable, target device failed to respond:
-`ExceptionResponseError.no_device_answered`), which says the slave did not
-answer and counts as a timeout.  Exception 2 on a block splits it in two and
+the bus time while another slave of the bus is online.  Any answer, even an
+exception, brings it back online with its blocks due at once; but not a
+gateway's exception 0x0A or 0x0B (path unavailable, target device failed to
+respond: `ExceptionResponseError.no_device_answered`), which says the slave did
+not answer and counts as a timeout.  Exception 2 on a block splits it in two and
 remembers the cut; on a single point it drops the point (`PointDropped`, once).
 """
 
@@ -69,7 +69,6 @@ from .events import (
 )
 from .plan import FUNCTIONS, Block, Cuts, Limits, Wire, chunks, gaps, plan, split
 from .points import Point
-
 
 #: the first wait before probing an offline slave (and before reopening a failed port)
 BACKOFF = 0.5
