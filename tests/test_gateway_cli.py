@@ -160,11 +160,22 @@ def test_a_port_missing_at_start_is_served_when_it_comes(tmp_path: Path) -> None
     assert proc.returncode == 0, err
     assert "Traceback" not in err
     lines += [json.loads(line) for line in out.splitlines()]
-    events = [(e["bus"], e["up"]) for e in lines if e["type"] == "bus"]
-    assert events == [(str(missing), False), (str(missing), True)], lines
+    events = [(e["bus"], e["up"], e["starting"]) for e in lines if e["type"] == "bus"]
+    assert events == [(str(missing), False, True), (str(missing), True, False)], lines
+    assert "No such file" in lines[0]["error"]
     stopped = lines[-1]
     assert (stopped["bus_failures"], stopped["bus_recoveries"]) == (1, 1)
     assert stopped["bus_down"] == [False, False]
+
+
+def test_a_port_missing_at_start_is_said_once_in_words() -> None:
+    done = pyrtu("--listen", "127.0.0.1:0", "--port", "/dev/does-not-exist", "--duration", "1.5")
+    assert done.returncode == 0, done.stderr
+    said = [line for line in done.stderr.splitlines() if "/dev/does-not-exist" in line]
+    assert said[0].startswith("pyrtu gateway: bus /dev/does-not-exist is not available: ")
+    assert "0x0A" in said[0] and "Traceback" not in done.stderr
+    assert sum("is not available" in line for line in said) == 1  # retried, said once
+    assert "1 bus failures, 0 recovered" in done.stderr
 
 
 @pytest.fixture

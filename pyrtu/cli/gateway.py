@@ -179,7 +179,9 @@ def _configure(p: argparse.ArgumentParser) -> None:
         "-d", "--duration", type=positive_seconds, metavar="SECONDS", help="stop after this time"
     )
     add_json_option(
-        p, "JSON lines: ready, bus (a port failed or is back), stopped (with the counters)"
+        p,
+        "JSON lines: ready, bus (a port failed, or could not be opened at the start, or "
+        "is back), stopped (with the counters)",
     )
     add_serial_options(p, timeout=0.5)
 
@@ -289,12 +291,15 @@ def _bus_event(args: argparse.Namespace, ev: G.BusEvent) -> None:
     """A bus's port failed or is back: one JSON line, or one line on stderr."""
     if args.json:
         emit({"type": "bus", "bus": ev.name, "up": ev.up, "error": ev.error,
-              "attempts": ev.attempts, "seconds": ev.seconds})  # fmt: skip
+              "attempts": ev.attempts, "seconds": ev.seconds,
+              "starting": ev.starting})  # fmt: skip
     elif ev.up:
         print(f"pyrtu gateway: bus {ev.name} is back after {ev.seconds or 0.0:.1f} s "
               f"({ev.attempts} attempts)", file=sys.stderr, flush=True)  # fmt: skip
     else:
-        print(f"pyrtu gateway: bus {ev.name} failed: {ev.error}; its requests get exception "
+        what = "is not available" if ev.starting else "failed"
+        error = ev.error.removeprefix(f"{ev.name}: ")
+        print(f"pyrtu gateway: bus {ev.name} {what}: {error}; its requests get exception "
               "0x0A until it is back (retrying)", file=sys.stderr, flush=True)  # fmt: skip
 
 

@@ -149,7 +149,8 @@ class Bus(Protocol):
 @dataclass(frozen=True)
 class BusEvent:
     """A bus's port failed (``up`` False: the first failure of an outage, reported
-    once) or is back (``up`` True, with the outage's ``attempts`` and ``seconds``)."""
+    once; ``starting``: it could not be opened when the gateway started) or is back
+    (``up`` True, with the outage's ``attempts`` and ``seconds``)."""
 
     bus: int  # its index in the gateway's buses
     name: str
@@ -157,6 +158,7 @@ class BusEvent:
     error: str  # what failed (the first error of the outage)
     attempts: int = 1
     seconds: float | None = None
+    starting: bool = False
 
 
 def _bus_name(bus: object, index: int) -> str:
@@ -519,7 +521,7 @@ class Gateway:
             await bus.open()
         except (PortError, OSError) as exc:
             error = exc if isinstance(exc, PortError) else PortError(state.name, str(exc))
-            self._port_failed(state, error)
+            self._port_failed(state, error, starting=True)
 
     async def _reopen(self, state: _BusState) -> None:
         """One attempt to reopen a failed bus, when the back-off says it is due."""
@@ -554,16 +556,18 @@ class Gateway:
             except Exception:  # the hook's bug: the bus goes on
                 log.exception("the on_bus hook failed")
 
-    def _port_failed(self, state: _BusState, exc: PortError) -> None:
-        """The bus's port failed: report once per outage, answer what waits for it."""
+    def _port_failed(self, state: _BusState, exc: PortError, starting: bool = False) -> None:
+        """The bus's port failed (``starting``: could not be opened at the start):
+        report once per outage, answer what waits for it."""
         if state.reconnect.failed(time.monotonic(), exc):
             self.counters["bus_failures"] += 1
             log.warning(
-                "bus %s failed: %s; its requests get exception 0x0A until it is back (retrying)",
+                "bus %s %s: %s; its requests get exception 0x0A until it is back (retrying)",
                 state.name,
+                "is not available" if starting else "failed",
                 exc,
             )
-            self._event(BusEvent(state.index, state.name, False, str(exc)))
+            self._event(BusEvent(state.index, state.name, False, str(exc), starting=starting))
         now = time.monotonic()
         while (job := state.queue.pop()) is not None:  # they would only fail in turn
             conn = self._connections.get(job.conn)
