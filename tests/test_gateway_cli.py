@@ -4,15 +4,23 @@ with a libmodbus TCP server as its bus (the serial buses: test_gateway_serial.py
 from __future__ import annotations
 
 import json
+import os
 import re
 import signal
 import subprocess
 import sys
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 from peers import pattern
-from peers.tools import PeerBinaries, free_tcp_port, libmodbus_server, peer_env
+from peers.tools import (
+    PeerBinaries,
+    free_tcp_port,
+    libmodbus_server,
+    peer_env,
+    pyrtu_slave_process,
+)
 
 from pyrtu import ExceptionResponseError, pdu
 from pyrtu.tcp import TcpClient
@@ -96,10 +104,78 @@ def test_help_documents_the_limits_and_their_defaults() -> None:
     assert "--unit-map" in text and "255=1,0=1" in text
 
 
-def test_missing_serial_port_is_a_port_error() -> None:
-    done = pyrtu("--listen", "127.0.0.1:0", "--port", "/dev/does-not-exist", "--json")
-    assert done.returncode == 3, done.stderr
-    assert "/dev/does-not-exist" in done.stderr and "Traceback" not in done.stderr
+def test_a_port_missing_at_start_is_served_when_it_comes(tmp_path: Path) -> None:
+    """Started with one bus on the virtual bus and one whose port is not there yet (an
+    adapter that appears after boot): the gateway starts, says once that the port is
+    missing, serves the other bus, answers 0x0A for the missing one (path
+    unavailable, [AP] 7), and serves it once the port appears (a link to a drop of
+    a second virtual bus, made while it runs)."""
+    import time
+
+    vbus = pytest.importorskip("pyrtu.vbus")
+    missing = tmp_path / "ttyUSB1"
+    read = pdu.read_request(pdu.READ_HOLDING_REGISTERS, 3, 2)
+    with (
+        vbus.VirtualBus(2, baudrate=115200, parity="N") as first,
+        vbus.VirtualBus(2, baudrate=115200, parity="N") as second,
+        pyrtu_slave_process(first.paths[1], 1),
+        pyrtu_slave_process(second.paths[1], 2),
+    ):
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "pyrtu", "gateway", "--listen", "127.0.0.1:0",
+             "--port", f"{first.paths[0]}=1", "--port", f"{missing}=2", "--baudrate",
+             "115200", "--parity", "N", "--timeout", "0.5", "--json"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=peer_env(),
+        )  # fmt: skip
+        try:
+            assert proc.stdout is not None
+            lines = [json.loads(proc.stdout.readline())]
+            while lines[-1]["type"] != "ready":
+                lines.append(json.loads(proc.stdout.readline()))
+            with TcpClient(f"tcp://{lines[-1]['listen']}", timeout=5.0) as c:
+                got = c.request(1, read)
+                assert pdu.parse_registers(got or b"", 2) == pattern.holdings(1, 3, 2)
+                with pytest.raises(ExceptionResponseError) as info:
+                    c.request(2, read)
+                assert info.value.code == 0x0A
+                time.sleep(1.0)  # reopening attempts that fail: not reported again
+                os.symlink(second.paths[0], missing)
+                end = time.monotonic() + 60.0
+                while True:
+                    try:
+                        got = c.request(2, read)
+                        break
+                    except ExceptionResponseError as exc:
+                        assert exc.code == 0x0A and time.monotonic() < end
+                        time.sleep(0.05)
+                assert pdu.parse_registers(got or b"", 2) == pattern.holdings(2, 3, 2)
+                got = c.request(1, read)
+                assert pdu.parse_registers(got or b"", 2) == pattern.holdings(1, 3, 2)
+            proc.send_signal(signal.SIGTERM)
+            out, err = proc.communicate(timeout=15)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait(10)
+    assert proc.returncode == 0, err
+    assert "Traceback" not in err
+    lines += [json.loads(line) for line in out.splitlines()]
+    events = [(e["bus"], e["up"], e["starting"]) for e in lines if e["type"] == "bus"]
+    assert events == [(str(missing), False, True), (str(missing), True, False)], lines
+    assert "No such file" in lines[0]["error"]
+    stopped = lines[-1]
+    assert (stopped["bus_failures"], stopped["bus_recoveries"]) == (1, 1)
+    assert stopped["bus_down"] == [False, False]
+
+
+def test_a_port_missing_at_start_is_said_once_in_words() -> None:
+    done = pyrtu("--listen", "127.0.0.1:0", "--port", "/dev/does-not-exist", "--duration", "1.5")
+    assert done.returncode == 0, done.stderr
+    said = [line for line in done.stderr.splitlines() if "/dev/does-not-exist" in line]
+    assert said[0].startswith("pyrtu gateway: bus /dev/does-not-exist is not available: ")
+    assert "0x0A" in said[0] and "Traceback" not in done.stderr
+    assert sum("is not available" in line for line in said) == 1  # retried, said once
+    assert "1 bus failures, 0 recovered" in done.stderr
 
 
 @pytest.fixture

@@ -284,7 +284,10 @@ def test_no_overload_under_capacity() -> None:
 
 def alive_and_dead(dead: bool, until: float = 120.0) -> tuple[FakeBus, BusScheduler]:
     points = [pt(a * 30, slave=s, interval=0.05) for s in (1, 2, 3) for a in range(2)]
-    sched = BusScheduler("b", points, WIRE, share=0.05, offline_after=3, backoff=0.5)
+    # (a cap of 30 s, not the default 1 s, so that the doubling shows above the floor)
+    sched = BusScheduler(
+        "b", points, WIRE, share=0.05, offline_after=3, backoff=0.5, max_backoff=30.0
+    )
     bus = FakeBus(sched)
     if dead:
         bus.dead.add(2)
@@ -780,3 +783,101 @@ def test_the_poller_arms_the_silence_timer_on_the_virtual_bus() -> None:
     assert failed_before == 1 and second == [], "offline only when the second failure ended"
     assert at >= failures[0] - timeout + 2 * timeout - 1e-6
     assert at < failures[1]
+
+
+# -- a gateway's "no device answered" (#27.3), a returning slave found soon (#27.7) --
+
+
+@pytest.mark.parametrize(
+    ("code", "silent"), [(9, False), (10, True), (11, True), (12, False), (4, False)]
+)
+def test_no_device_answered_is_exactly_0x0a_and_0x0b(code: int, silent: bool) -> None:
+    # Application Protocol V1.1b section 7: 0x0A gateway path unavailable, 0x0B gateway
+    # target device failed to respond; their neighbours are answers of the device
+    assert ExceptionResponseError(1, 3, code).no_device_answered is silent
+
+
+class GatewayBus(FakeBus):
+    """A bus behind a Modbus TCP gateway: a dead slave is answered by the gateway with
+    exception ``code`` after the gateway's own timeout."""
+
+    code = 11
+
+    def answer(self, req: Request) -> tuple[Outcome, float]:
+        if req.slave in self.dead:
+            return ExceptionResponseError(req.slave, req.function, self.code), TIMEOUT
+        return super().answer(req)
+
+
+@pytest.mark.parametrize("code", [10, 11])
+def test_a_gateways_no_answer_takes_the_slave_offline_and_back(code: int) -> None:
+    points = [pt(0, interval=0.1), pt(0, slave=2, interval=0.1)]
+    sched = BusScheduler("b", points, WIRE, offline_after=3)
+    bus = GatewayBus(sched)
+    bus.code = code
+    bus.run(1.0)
+    bus.dead.add(2)
+    bus.run(5.0)
+    states = [(e.slave, e.online) for e in bus.events if isinstance(e, SlaveState)]
+    assert states == [(1, True), (2, True), (2, False)]
+    st = sched.slave_stats()[2]
+    # counted as what they are: no answer of the slave, not its exceptions
+    assert st.exceptions == 0 and st.timeouts >= 3
+    assert sched.online(1) is True
+    bus.dead.clear()
+    bus.run(10.0)
+    states = [(e.slave, e.online) for e in bus.events if isinstance(e, SlaveState)]
+    assert states[-1] == (2, True)
+
+
+@pytest.mark.parametrize("alone", [True, False])
+def test_a_slave_back_after_a_long_outage_is_found_within_a_second(alone: bool) -> None:
+    """A minute's outage: the probes' back-off stops at 1 s (docs/POLLER.md), so the
+    returning slave is probed within 1 s (or, while another slave is online, within
+    the 5 % share floor of its 100 ms timeout: 19 x 0.1 s) plus one probe."""
+    points = [pt(0, slave=2, interval=0.1)]
+    if not alone:
+        points.append(pt(0, interval=0.1))
+    sched = BusScheduler("b", points, WIRE)
+    bus = FakeBus(sched)
+    bus.dead.add(2)
+    bus.run(60.0)
+    bus.dead.clear()
+    bus.run(70.0)
+    back = next(
+        e.time for e in bus.events if isinstance(e, SlaveState) and e.online and e.slave == 2
+    )
+    gap = 1.0 if alone else max(1.0, TIMEOUT * (1 / 0.05 - 1))
+    assert back <= 60.0 + gap + TIMEOUT + 1e-6
+    probes = [(s, e) for r, s, e, _ in bus.done if r.slave == 2 and r.kind == "probe"]
+    # and the outage stays cheap: one short request per gap, never more often
+    assert all(r.count == 1 for r, *_ in bus.done if r.kind == "probe")
+    starts = [s for s, _ in probes]
+    assert min(b - a for a, b in itertools.pairwise(starts)) >= 0.5 + TIMEOUT - 1e-6
+    if not alone:  # within the share while another slave is polled
+        spent = sum(e - s for s, e in probes)
+        assert spent <= 0.05 * 60.0
+
+
+def test_a_tcp_bus_is_priced_by_its_round_trip() -> None:
+    """10,000 registers at 1 s on a tcp:// bus: 80 reads of 125 registers (the spec's
+    maximum), each costing the assumed 2 ms round trip (docs/POLLER.md) until it is
+    measured: load 80 x 0.002 = 0.16, not the 12 of a 19200-baud line; once a
+    transaction's round trip is measured (1 ms here), the load is 80 x 0.001."""
+    from pyrtu.poller import Bus
+
+    bus = Bus("b", "tcp://127.0.0.1:502")
+    points = [pt(a) for a in range(10_000)]
+    sched = BusScheduler("b", points, bus.wire())
+    assert len(sched.blocks) == 80
+    assert sched.load() == pytest.approx(80 * 0.002 / 1.0)
+    t = 0.0
+    while (req := sched.next_request(t)) is not None:
+        t += 0.001
+        sched.on_response(req, [0] * req.count, t)
+    assert sched.load() == pytest.approx(80 * 0.001 / 1.0)
+    assert sched.report(1.0).utilisation == pytest.approx(0.08)
+    # a serial bus is still priced by its line (the 19200-baud default: 11 bits a
+    # character, 255 characters a response of 125 registers)
+    serial = BusScheduler("b", points, Bus("b", "/dev/ttyUSB0").wire())
+    assert serial.load() > 80 * 255 * 11 / 19200

@@ -25,9 +25,10 @@ after 5 s if it leaves answers unread).  Limits (defaults): --max-connections
 without a request; when the connections are all taken, one that never sent a
 whole request (else the longest idle) gives way to the newcomer.
 
-A bus whose port fails (a USB adapter pulled out, a TCP server gone) is logged
-once; its requests get 0x0A while it is down (counted as "bus unavailable");
-it is reopened on a back-off schedule (0.5 s doubling to 30 s) while the other
+A bus whose port fails (a USB adapter pulled out, a TCP server gone), or is not
+there at start-up (an adapter that appears after boot), is logged once; its
+requests get 0x0A while it is down (counted as "bus unavailable"); it is
+(re)opened on a back-off schedule (0.5 s doubling to 30 s) while the other
 buses carry on, and logged again when it is back.
 
 Runs until SIGINT/SIGTERM or --duration (exit 0), then prints the counters.
@@ -178,7 +179,9 @@ def _configure(p: argparse.ArgumentParser) -> None:
         "-d", "--duration", type=positive_seconds, metavar="SECONDS", help="stop after this time"
     )
     add_json_option(
-        p, "JSON lines: ready, bus (a port failed or is back), stopped (with the counters)"
+        p,
+        "JSON lines: ready, bus (a port failed, or could not be opened at the start, or "
+        "is back), stopped (with the counters)",
     )
     add_serial_options(p, timeout=0.5)
 
@@ -213,9 +216,11 @@ def _routes(specs: list[BusSpec], maps: list[dict[int, int]]) -> list[dict[int, 
     return units
 
 
-async def _open_bus(spec: BusSpec, args: argparse.Namespace) -> G.ReopeningBus:
-    """The bus of ``spec``, opened; the gateway reopens it the same way after a failure."""
-    return await G.ReopeningBus(spec.port, lambda: _connect(spec, args)).open()
+def _bus(spec: BusSpec, args: argparse.Namespace) -> G.ReopeningBus:
+    """The bus of ``spec``, not opened yet: the gateway opens it at its start (a port
+    not there yet is down, reopened on the back-off) and reopens it the same way
+    after a failure."""
+    return G.ReopeningBus(spec.port, lambda: _connect(spec, args))
 
 
 async def _connect(spec: BusSpec, args: argparse.Namespace) -> Any:
@@ -250,8 +255,7 @@ async def _serve(args: argparse.Namespace) -> dict[str, Any]:
     )
     buses: list[Any] = []
     try:
-        for spec in args.port:
-            buses.append(await _open_bus(spec, args))
+        buses += [_bus(spec, args) for spec in args.port]
         gw = G.Gateway(
             list(zip(buses, units, strict=True)), limits, on_bus=lambda ev: _bus_event(args, ev)
         )
@@ -287,12 +291,15 @@ def _bus_event(args: argparse.Namespace, ev: G.BusEvent) -> None:
     """A bus's port failed or is back: one JSON line, or one line on stderr."""
     if args.json:
         emit({"type": "bus", "bus": ev.name, "up": ev.up, "error": ev.error,
-              "attempts": ev.attempts, "seconds": ev.seconds})  # fmt: skip
+              "attempts": ev.attempts, "seconds": ev.seconds,
+              "starting": ev.starting})  # fmt: skip
     elif ev.up:
         print(f"pyrtu gateway: bus {ev.name} is back after {ev.seconds or 0.0:.1f} s "
               f"({ev.attempts} attempts)", file=sys.stderr, flush=True)  # fmt: skip
     else:
-        print(f"pyrtu gateway: bus {ev.name} failed: {ev.error}; its requests get exception "
+        what = "is not available" if ev.starting else "failed"
+        error = ev.error.removeprefix(f"{ev.name}: ")
+        print(f"pyrtu gateway: bus {ev.name} {what}: {error}; its requests get exception "
               "0x0A until it is back (retrying)", file=sys.stderr, flush=True)  # fmt: skip
 
 

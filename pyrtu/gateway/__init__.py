@@ -19,7 +19,11 @@ from the request, [TCP] 3.1.3):
 * unit id with no bus: exception 0x0A, gateway path unavailable ([AP] 7: "the
   gateway was unable to allocate an internal communication path").
 * a bus whose port failed (`PortError`: a USB adapter pulled out, a TCP peer
-  gone): 0x0A at once to every request for it while it is down.  The failure is
+  gone), or was not there when the gateway started (a `ReopeningBus` that `start`
+  could not open: an adapter plugged in after boot): 0x0A at once to every request
+  for it while it is down ("the gateway was unable to allocate an internal
+  communication path": the path to the device, not the device, is missing; 0x0B
+  is kept for a device that was asked and did not answer).  The failure is
   logged once (a warning), counted (``bus_failures``; ``bus_unavailable`` counts
   the requests so answered) and shown in ``stats()["bus_down"]``; the gateway
   retries on the shared back-off schedule (`pyrtu.drivers.reconnect`): through the
@@ -145,7 +149,8 @@ class Bus(Protocol):
 @dataclass(frozen=True)
 class BusEvent:
     """A bus's port failed (``up`` False: the first failure of an outage, reported
-    once) or is back (``up`` True, with the outage's ``attempts`` and ``seconds``)."""
+    once; ``starting``: it could not be opened when the gateway started) or is back
+    (``up`` True, with the outage's ``attempts`` and ``seconds``)."""
 
     bus: int  # its index in the gateway's buses
     name: str
@@ -153,6 +158,7 @@ class BusEvent:
     error: str  # what failed (the first error of the outage)
     attempts: int = 1
     seconds: float | None = None
+    starting: bool = False
 
 
 def _bus_name(bus: object, index: int) -> str:
@@ -200,8 +206,10 @@ class Gateway:
     (unit id = slave address on the bus), or a mapping unit id -> slave address.
     ``on_bus`` is called with a `BusEvent` when a bus's port fails (once per outage)
     and when it is back.
-    ``await start(host, port)`` listens; ``address`` is then the (host, port)
-    bound; ``await close()`` stops.
+    ``await start(host, port)`` opens the `ReopeningBus` buses not opened yet (one
+    whose port is not there is down: reported once, reopened on the back-off while
+    the others serve) and listens; ``address`` is then the (host, port) bound;
+    ``await close()`` stops.
     """
 
     def __init__(
@@ -272,6 +280,8 @@ class Gateway:
         check_listen(host, port)
         if rtu is not None:
             check_listen(*rtu)
+        for state in self._buses:
+            await self._open_at_start(state)
         loop = asyncio.get_running_loop()
         server = await loop.create_server(lambda: _Connection(self), host, port)
         sock = server.sockets[0].getsockname()
@@ -500,6 +510,19 @@ class Gateway:
             if answer is not None:
                 self._answer(conn, job.transaction, job.unit, answer)
 
+    async def _open_at_start(self, state: _BusState) -> None:
+        """Open a `ReopeningBus` not opened yet.  A port that is not there (or a TCP
+        peer that refuses) is a failed port as at run time: reported once, its
+        requests answered 0x0A, reopened by the worker on the back-off schedule."""
+        bus = state.bus
+        if not isinstance(bus, ReopeningBus) or bus.is_open:
+            return
+        try:
+            await bus.open()
+        except (PortError, OSError) as exc:
+            error = exc if isinstance(exc, PortError) else PortError(state.name, str(exc))
+            self._port_failed(state, error, starting=True)
+
     async def _reopen(self, state: _BusState) -> None:
         """One attempt to reopen a failed bus, when the back-off says it is due."""
         rc = state.reconnect
@@ -533,16 +556,18 @@ class Gateway:
             except Exception:  # the hook's bug: the bus goes on
                 log.exception("the on_bus hook failed")
 
-    def _port_failed(self, state: _BusState, exc: PortError) -> None:
-        """The bus's port failed: report once per outage, answer what waits for it."""
+    def _port_failed(self, state: _BusState, exc: PortError, starting: bool = False) -> None:
+        """The bus's port failed (``starting``: could not be opened at the start):
+        report once per outage, answer what waits for it."""
         if state.reconnect.failed(time.monotonic(), exc):
             self.counters["bus_failures"] += 1
             log.warning(
-                "bus %s failed: %s; its requests get exception 0x0A until it is back (retrying)",
+                "bus %s %s: %s; its requests get exception 0x0A until it is back (retrying)",
                 state.name,
+                "is not available" if starting else "failed",
                 exc,
             )
-            self._event(BusEvent(state.index, state.name, False, str(exc)))
+            self._event(BusEvent(state.index, state.name, False, str(exc), starting=starting))
         now = time.monotonic()
         while (job := state.queue.pop()) is not None:  # they would only fail in turn
             conn = self._connections.get(job.conn)

@@ -26,12 +26,19 @@ class ReopeningBus:
     `pyrtu.drivers.aio.AsyncMaster` or `pyrtu.tcp.AsyncTcpClient`), made again by
     `reopen` when its port failed: the gateway calls `reopen` on its back-off
     schedule (`pyrtu.drivers.reconnect`) until it works.  ``name`` names the port in the
-    gateway's log lines."""
+    gateway's log lines.  One not opened yet is opened by `Gateway.start`: a port
+    that is not there then (a USB adapter that appears after the gateway started)
+    is a port that failed, retried on the same schedule."""
 
     def __init__(self, name: str, opener: Opener) -> None:
         self.name = name
         self._opener = opener
         self._bus: Any = None
+
+    @property
+    def is_open(self) -> bool:
+        """Whether the bus is open (made by ``opener`` and not closed since)."""
+        return self._bus is not None
 
     async def open(self) -> ReopeningBus:
         """Open the first time (`PortError` when the port is not there)."""

@@ -24,7 +24,7 @@ are `Point`'s fields)::
 
 Added keys: on a bus, the poller's ``share`` (of bus time an offline slave's
 probes may take, default 0.05), ``offline_after`` (failures, default 3),
-``backoff``/``max_backoff`` (seconds) and default device limits
+``backoff``/``max_backoff`` (seconds, default 0.5 and 1) and default device limits
 (``max_registers``, ``max_bits``, ``max_adu``, ``max_gap``); ``[[device]]`` tables
 (``bus``, ``slave``, the same limits, and ``profile`` = a drive of
 `pyrtu.devices` with ``name``/``interval`` to add its standard points); a
@@ -49,11 +49,12 @@ from typing import Any, TypeGuard
 
 from pyrtu.core.line import LineConfig, split_field_error
 from pyrtu.drivers._portname import first_duplicate
-from pyrtu.drivers.links import RTU_TCP_SCHEME, scheme_of
+from pyrtu.drivers.links import RTU_TCP_SCHEME, TCP_SCHEME, scheme_of
 
 from .plan import Limits, Wire
 from .points import Point, PointError, check_unique
 from .profiles import device_limits, profile_points
+from .schedule import BACKOFF, MAX_BACKOFF
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -117,8 +118,8 @@ class Bus:
     master: Mapping[str, Any] = field(default_factory=dict)
     share: float = 0.05
     offline_after: int = 3
-    backoff: float = 0.5
-    max_backoff: float = 30.0
+    backoff: float = BACKOFF
+    max_backoff: float = MAX_BACKOFF
     limits: Limits = field(default_factory=Limits)
 
     def __post_init__(self) -> None:
@@ -158,7 +159,10 @@ class Bus:
 
     def wire(self) -> Wire:
         """The bus's wire model from its line (an estimated turnaround of t3.5 until
-        the slaves' are measured)."""
+        the slaves' are measured); a ``tcp://`` bus's is `Wire.tcp` (its round trip,
+        no character time)."""
+        if scheme_of(self.port) == TCP_SCHEME:
+            return Wire.tcp()
         line = self.line
         return Wire(
             line.char_time,

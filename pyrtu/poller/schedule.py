@@ -29,9 +29,13 @@ the end of its first unanswered request is offline then, while the last request
 is still waiting for its answer: the driver arms `offline_due` and calls
 `on_silence`; a late answer brings it back at once.  Offline, its blocks leave
 the schedule and one short request probes it, after a back-off that doubles from
-``backoff`` to ``max_backoff``, never less than what keeps the probes within
-``share`` of the bus time.  Any answer, even an exception, brings it back online
-with its blocks due at once.  Exception 2 on a block splits it in two and
+``backoff`` (0.5 s) to ``max_backoff`` (1 s: a slave that comes back is found
+within about a second), never less than what keeps the probes within ``share`` of
+the bus time while another slave of the bus is online.  Any answer, even an
+exception, brings it back online with its blocks due at once; but not a
+gateway's exception 0x0A or 0x0B (path unavailable, target device failed to
+respond: `ExceptionResponseError.no_device_answered`), which says the slave did
+not answer and counts as a timeout.  Exception 2 on a block splits it in two and
 remembers the cut; on a single point it drops the point (`PointDropped`, once).
 """
 
@@ -66,6 +70,13 @@ from .events import (
 from .plan import FUNCTIONS, Block, Cuts, Limits, Wire, chunks, gaps, plan, split
 from .points import Point
 
+#: the first wait before probing an offline slave (and before reopening a failed port)
+BACKOFF = 0.5
+#: the longest wait: a slave (or a port) that comes back is found within about a
+#: second, where a back-off grown to 30 s hid it for up to 30 s after it was back
+#: (each probe is one short request, and the share floor below keeps them cheap)
+MAX_BACKOFF = 1.0
+
 
 class BusScheduler:
     """Earliest-deadline-first scheduling of one bus's points (module docstring)."""
@@ -80,8 +91,8 @@ class BusScheduler:
         *,
         share: float = 0.05,
         offline_after: int = 3,
-        backoff: float = 0.5,
-        max_backoff: float = 30.0,
+        backoff: float = BACKOFF,
+        max_backoff: float = MAX_BACKOFF,
         stamp_offset: float = 0.0,
         timeout: float | None = None,
         now: float = 0.0,
@@ -387,12 +398,14 @@ class BusScheduler:
     def on_failure(self, req: Request, error: BaseException, now: float) -> list[Event]:
         """A transaction failed: an exception response (`ExceptionResponseError`),
         no answer (`NoResponseError`), a bad answer (`FrameError`), or anything else
-        (counted as no answer; a failed port is `on_port_failure`'s)."""
+        (counted as no answer; a failed port is `on_port_failure`'s).  A gateway's
+        0x0A or 0x0B (`ExceptionResponseError.no_device_answered`) is no answer of
+        the slave: a timeout, towards ``offline_after``."""
         busy = self._end(req, now)
         h = self._health[req.slave]
         st = self._stats.slaves[req.slave]
         events: list[Event] = []
-        if isinstance(error, ExceptionResponseError):
+        if isinstance(error, ExceptionResponseError) and not error.no_device_answered:
             st.exceptions += 1
             st.latencies.append(busy)
             self._turnaround(req, busy, h)
@@ -419,12 +432,11 @@ class BusScheduler:
             # in flight when on_silence took the slave offline: the first probe waits
             # as it would have after this failure (its wire time keeps the share)
             h.silenced = None
-            h.probe_due = max(h.probe_due, now + max(self.backoff, busy * (1 / self.share - 1)))
+            h.probe_due = max(h.probe_due, now + self._probe_gap(req.slave, self.backoff, busy))
         elif h.offline:
             h.probing = False
-            floor = busy * (1 / self.share - 1)
             h.backoff = min(self.max_backoff, max(self.backoff, 2 * h.backoff))
-            h.probe_due = now + max(h.backoff, floor)
+            h.probe_due = now + self._probe_gap(req.slave, h.backoff, busy)
         elif h.failures >= self.offline_after:
             events.append(self._offline(req.slave, h, st, busy, now))
         else:
@@ -438,11 +450,19 @@ class BusScheduler:
         h.silent_from = None
         st.online = False
         h.backoff = self.backoff
-        h.probe_due = now + max(self.backoff, busy * (1 / self.share - 1))
+        h.probe_due = now + self._probe_gap(slave, self.backoff, busy)
         self._confirm = None if self._confirm == slave else self._confirm
         for task in self._tasks:
             task.suspended = task.suspended or task.block.slave == slave
         return SlaveState(self.bus, slave, False, now + self.stamp_offset)
+
+    def _probe_gap(self, slave: int, backoff: float, busy: float) -> float:
+        """The wait before the next probe of offline ``slave`` after a failed
+        transaction that held the bus ``busy`` seconds: its back-off, and never less
+        than what keeps its probes within ``share`` of the bus time while another
+        slave of the bus is online (with no one else to poll, a probe delays no one)."""
+        others = any(not h.offline for s, h in self._health.items() if s != slave)
+        return max(backoff, busy * (1 / self.share - 1)) if others else backoff
 
     def offline_due(self, req: Request) -> float | None:
         """When ``req``'s slave goes offline if ``req`` is still unanswered (then the
@@ -597,4 +617,4 @@ class BusScheduler:
             self._stats.slaves[slave] = SlaveStats(self.bus, slave, online=old.online)
 
 
-__all__ = ["POLL", "PROBE", "READ", "WRITE", "BusScheduler", "Request"]
+__all__ = ["BACKOFF", "MAX_BACKOFF", "POLL", "PROBE", "READ", "WRITE", "BusScheduler", "Request"]
