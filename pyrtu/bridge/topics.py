@@ -35,6 +35,7 @@ import math
 from typing import Protocol
 
 from ..poller import Point, PollerConfig
+from ..poller.values import faithful_value
 
 
 class _Options(Protocol):
@@ -129,10 +130,11 @@ def _json_value(value: object) -> str:
 
 
 def record(topic: str, point: Point, value: object, time: float, quality: str) -> bytes:
-    """The outbox record of a point's value (see the module docstring)."""
-    del point  # the topic names it; kept in the signature for subclasses
+    """The outbox record of a point's value (see the module docstring): the value as
+    its shortest faithful decimal (`pyrtu.poller.values`)."""
+    shown = faithful_value(point, value) if isinstance(value, float) else value
     return (
-        f'{topic}\n{{"value":{_json_value(value)},"time":{time!r},"quality":"{quality}"'
+        f'{topic}\n{{"value":{_json_value(shown)},"time":{time!r},"quality":"{quality}"'
     ).encode()
 
 

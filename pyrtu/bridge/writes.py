@@ -22,6 +22,7 @@ from pyrtu.pdu.errors import ExceptionResponseError, ModbusError, NoResponseErro
 
 from ..poller import Point, Poller
 from ..poller.points import Value
+from ..poller.values import faithful_value
 from .commands import Command, CommandQueue, Refusal, check_value, parse, result
 from .config import BridgeConfig
 from .mqtt import MqttLink, publish_properties
@@ -242,7 +243,8 @@ class Writer:
         self.queue.executed += 1
         now = time.time()
         self.bridge.publish_value(cmd.point, value, now)
-        self._finish(cmd, result(name, True, id=cmd.id, value=value, time=now))
+        shown = faithful_value(cmd.point, value)
+        self._finish(cmd, result(name, True, id=cmd.id, value=shown, time=now))
 
 
 __all__ = ["Writer"]

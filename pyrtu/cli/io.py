@@ -224,6 +224,8 @@ class ReadResult:
         return out
 
     def document(self) -> dict[str, Any]:
+        from pyrtu.poller.values import shortest_float32
+
         doc: dict[str, Any] = {
             "ok": True,
             "slave": self.slave,
@@ -235,7 +237,12 @@ class ReadResult:
         if not is_bits(self.table):
             doc["order"] = self.order
             doc["registers"] = list(self.raw)
-        doc["values"] = list(self.values)
+        # float32 as the shortest decimal that is the register's value (5.1, not
+        # 5.099999904632568): pyrtu.poller.values
+        doc["values"] = [
+            shortest_float32(v) if isinstance(v, float) and self.kind == "float32" else v
+            for v in self.values
+        ]
         doc["addresses"] = self.addresses()
         if self.notes:
             doc["notes"] = {str(k): v for k, v in self.notes.items()}
