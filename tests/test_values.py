@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import math
 import re
+import signal
 import struct
 from decimal import Decimal
 from pathlib import Path
@@ -266,15 +267,31 @@ def test_read_json(slave_url: str) -> None:
     assert re.search(r'"values": \[5\.1\]', r.out), r.out
 
 
-def test_bridge_payloads(tmp_path: Path, slave_url: str) -> None:
+def test_bridge_payloads_and_set_results(tmp_path: Path, slave_url: str) -> None:
+    """The values as published, and a set's result (the value read back): the set
+    writes what the register already holds, so the read-back is the same value."""
+    from cli_helpers import Background
+
     cfg = tmp_path / "bridge.toml"
-    cfg.write_text(f'[mqtt]\nurl = "URL"\nedge = "v"\n' + POINTS.format(url=slave_url))
-    with Broker(tmp_path) as broker, Client(broker, ["pyrtu/v/t/1/#"]) as sub:
-        cfg.write_text(cfg.read_text().replace("URL", broker.url))
-        r = pyrtu("bridge", "--config", cfg, "--duration", "1.5")
-        assert r.code == 0, r.err
-        names = set(WANT) | {"nan"}
-        sub.wait(lambda: names <= {t.rsplit("/", 1)[1] for t, *_ in sub.messages}, "values")
+    text = POINTS.format(url=slave_url).replace(
+        'address = 0\ntype = "float32"\n', 'address = 0\ntype = "float32"\nwritable = true\n'
+    )
+    text = text.replace("scale = 0.1\n", "scale = 0.1\nwritable = true\n")
+    base = "pyrtu/v/t/1"
+    with Broker(tmp_path) as broker, Client(broker, [f"{base}/#"]) as sub:
+        cfg.write_text(f'[mqtt]\nurl = "{broker.url}"\nedge = "v"\n' + text)
+        bridge = Background("bridge", "--config", cfg, "--json")
+        try:
+            names = set(WANT) | {"nan"}
+            sub.wait(lambda: names <= {t.rsplit("/", 1)[1] for t, *_ in sub.messages}, "values")
+            sub.publish(f"{base}/f/set", b"5.1")
+            sub.publish(f"{base}/scaled/set", b"21.4")
+            sub.wait(lambda: sub.on(f"{base}/f/set/result") and sub.on(f"{base}/scaled/set/result"),
+                     "the set results")  # fmt: skip
+            bridge.proc.send_signal(signal.SIGTERM)
+            assert bridge.finish().code == 0
+        finally:
+            bridge.kill()
         got = {}
         for topic, body, *_ in sub.messages:
             name = topic.rsplit("/", 1)[1]
@@ -282,4 +299,12 @@ def test_bridge_payloads(tmp_path: Path, slave_url: str) -> None:
                 m = re.search(rb'"value":([^,}]*)', body)
                 assert m, body
                 got[name] = m.group(1).decode()
+        results = {
+            p: re.search(rb'"value": ?([^,}]*)', sub.on(f"{base}/{p}/set/result")[0])
+            for p in ("f", "scaled")
+        }
     assert got == {**WANT, "nan": "null"}
+    assert {p: m.group(1).decode() if m else None for p, m in results.items()} == {
+        "f": "5.1",
+        "scaled": "21.4",
+    }
