@@ -138,6 +138,14 @@ def test_float32_with_a_scale_and_unscaled_values_as_read() -> None:
     assert faithful_value(point(type="string", count=2), "ab") == "ab"
 
 
+def test_a_value_no_register_of_the_point_holds_is_left_as_it_is() -> None:
+    """Nothing is made up: 0.1 (a double, no float32 is it) and 0.123 (between two
+    steps of 0.1) are returned unchanged, not snapped to a register's value."""
+    assert faithful_value(point(type="float32"), 0.1) == 0.1
+    assert faithful_value(point(scale=0.1), 0.123) == 0.123
+    assert faithful_value(point(scale=0.1), math.inf) == math.inf
+
+
 # ----------------------------------------------------------------------- the outputs
 
 FLOATS = {0: 5.1, 3: f32(0x7F7FFFFF), 5: f32(0x00000001), 7: math.nan, 9: -273.15}

@@ -8,8 +8,9 @@ as 5.099999904632568 (the float32 nearest 5.1, widened to a double), and a uint1
 
 * float32: the shortest decimal (1 to 9 significant digits) that rounds back to the
   same float32 (`shortest_float32`): 5.1, and 3.4028235e38 for the largest float32;
-* an integer type with a scale or offset: the value rounded to the decimals of its
-  resolution, those of ``scale`` and ``offset`` (0.1: one decimal): 21.4;
+* an integer type with a scale or offset: ``raw * scale + offset`` in exact decimal
+  arithmetic, so at the resolution of ``scale`` and ``offset`` (0.1: one decimal):
+  21.4;
 * a float32 with a scale or offset: the shortest float32 decimal, then scaled in
   exact decimal arithmetic;
 * everything else (integers as read, bools, strings) as it is.
@@ -26,7 +27,6 @@ from __future__ import annotations
 import math
 import struct
 from decimal import Decimal
-from functools import lru_cache
 
 from .points import Point, Value
 
@@ -60,28 +60,42 @@ def _exact(x: float) -> Decimal:
     return Decimal(repr(x))
 
 
-@lru_cache(maxsize=1024)
-def _decimals(scale: float, offset: float) -> int:
-    """The decimals of the resolution of ``raw * scale + offset`` for an integer raw."""
-    exponents = (_exact(v).normalize().as_tuple().exponent for v in (scale, offset) if v)
-    return max([0, *(-e for e in exponents if isinstance(e, int))])
+#: how far from an integer a raw value recovered from a scaled one may be (in raw
+#: units, relative to the larger of the raw value and the offset): the rounding
+#: error of ``raw * scale + offset`` and back is some 1e-16 of it
+_ON_GRID = 1e-6
+
+
+def _scaled_integer(point: Point, value: float) -> float:
+    """``raw * scale + offset`` in exact decimal arithmetic, ``raw`` the integer the
+    register held: the value at the resolution of the scale and the offset."""
+    raw_float = (value - point.offset) / point.scale
+    raw = round(raw_float)
+    if abs(raw_float - raw) > _ON_GRID * max(1.0, abs(raw_float), abs(point.offset / point.scale)):
+        return value  # not a value of this point's registers: as it is
+    return float(raw * _exact(point.scale) + _exact(point.offset))
 
 
 def faithful_value(point: Point, value: Value | None) -> Value | None:
     """``value``, decoded from ``point``'s registers, as its shortest faithful
-    decimal (see the module docstring); None stays None."""
+    decimal (see the module docstring); None stays None, and so does a value the
+    point's registers cannot hold (it came from elsewhere: nothing is made up)."""
     if not isinstance(value, float) or not math.isfinite(value):
         return value
     scaled = point.scale != 1 or point.offset != 0
     if point.type == "float32":
-        if not scaled:
-            return shortest_float32(value)
-        raw = shortest_float32((value - point.offset) / point.scale)
-        if not math.isfinite(raw):
+        raw = (value - point.offset) / point.scale if scaled else value
+        try:
+            if _FLOAT32.unpack(_FLOAT32.pack(raw))[0] != raw and not scaled:
+                return value  # not a float32: as it is
+        except OverflowError:
             return value
-        return float(_exact(raw) * _exact(point.scale) + _exact(point.offset))
-    if scaled:
-        return round(value, _decimals(point.scale, point.offset))
+        short = shortest_float32(raw)
+        if not scaled:
+            return short
+        return float(_exact(short) * _exact(point.scale) + _exact(point.offset))
+    if scaled and point.type in ("uint16", "int16", "uint32", "int32"):
+        return _scaled_integer(point, value)
     return value
 
 
