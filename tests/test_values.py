@@ -269,10 +269,15 @@ def test_poll_config_json(tmp_path: Path, slave_url: str) -> None:
     assert got == {**WANT, "nan": '"nan"'}
 
 
-def test_read_json(slave_url: str) -> None:
+def test_read_and_poll_json(slave_url: str) -> None:
     r = pyrtu("read", slave_url, "--slave", "1", "--type", "float32", "0", "--json")
     assert r.code == 0, r.err
     assert re.search(r'"values": \[5\.1\]', r.out), r.out
+    args = ["--slave", "1", "--type", "float32", "0", "--duration", "0.5", "--json"]
+    r = pyrtu("poll", slave_url, *args)
+    assert r.code == 0, r.err
+    reports = r.out.splitlines()
+    assert reports and all(re.search(r'"values": \[5\.1\]', x) for x in reports), r.out
 
 
 def test_bridge_payloads_and_set_results(tmp_path: Path, slave_url: str) -> None:
