@@ -214,7 +214,11 @@ def section(rows: list[dict[str, Any]], cmd: str) -> str:
         "small packet that follows an unacknowledged one waits for the peer's delayed "
         "ACK (40 ms on Linux): pyrtu sets it on every TCP socket it opens or accepts "
         "(`pyrtu.tcp.sockets.set_nodelay`), and docs/BRIDGE.md tells users to set "
-        "`set_tcp_nodelay true` in mosquitto.conf.",
+        "`set_tcp_nodelay true` in mosquitto.conf.  With either one off, the p50 grew by "
+        "30 ms in the run recorded (a delayed ACK on one hop); with both off, by 55 ms.  The "
+        "absolute figures include the scheduling delays of five processes (client, broker, "
+        "bridge, hub, drive) on a loaded machine: issue 27 measured p50 3.2 ms with both "
+        "set on an idle one.",
         "",
     ]
     return "\n".join(lines)
