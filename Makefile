@@ -10,13 +10,13 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 APT_PACKAGES := libmodbus-dev pkg-config socat mosquitto mosquitto-clients
 
-.PHONY: demo test test-asan bench lint setup system-packages fuzz fuzz-ci fuzz-build fuzz-packages \
+.PHONY: demo test test-asan bench lint mutate mutate-faults setup system-packages fuzz fuzz-ci fuzz-build fuzz-packages \
 	fuzz-python fuzz-outbox
 
 # Developer targets compile the C core with -Werror (PYRTU_STRICT_BUILD=1, read by
 # pyrtu/core/_build_core.py), so that it stays -Wall -Wextra clean; `make demo` builds
 # it as a user's `pip install .` does, where a new compiler's warning is no error.
-setup test test-asan bench lint: export PYRTU_STRICT_BUILD := 1
+setup test test-asan bench lint mutate mutate-faults: export PYRTU_STRICT_BUILD := 1
 
 demo: $(STAMP)
 	$(PY) -m pyrtu demo
@@ -62,9 +62,23 @@ test-asan: setup
 bench: setup
 	$(PY) bench/report.py
 
+# Mutation testing (mutate/run.py; docs/MUTATION.md): `make mutate` runs cosmic-ray over
+# the modules of mutate/targets.toml and writes docs/MUTATION.md (hours on 2 cores;
+# MUTATE_TARGETS="plan schedule" for some, MUTATE_JOBS=2 for targets in parallel);
+# `make mutate-faults` applies the hand-written faults of mutate/faults.toml (Python
+# and C) one at a time and fails if any survives (CI runs it).
+MUTATE_TARGETS ?=
+MUTATE_JOBS ?= 1
+mutate: setup
+	@$(PY) -c "import cosmic_ray" 2>/dev/null || $(PY) -m pip install -q 'cosmic-ray>=8.4,<9'
+	$(PY) mutate/run.py generated --jobs $(MUTATE_JOBS) $(MUTATE_TARGETS)
+
+mutate-faults: setup
+	$(PY) mutate/run.py faults
+
 lint: setup
-	$(PY) -m ruff check pyrtu tests bench
-	$(PY) -m ruff format --check pyrtu tests bench
+	$(PY) -m ruff check pyrtu tests bench mutate
+	$(PY) -m ruff format --check pyrtu tests bench mutate
 	$(PY) -m mypy
 
 # libFuzzer harnesses (fuzz/*.c) built with clang and ASan/UBSan.  The seeds in

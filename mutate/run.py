@@ -28,9 +28,10 @@ import shutil
 import subprocess
 import sys
 import time
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
+
+import tomllib
 
 ROOT = Path(__file__).resolve().parent.parent
 HERE = ROOT / "mutate"
@@ -38,8 +39,19 @@ WORK = ROOT / "build" / "mutate"
 REPORT = ROOT / "docs" / "MUTATION.md"
 
 #: the tree a test run needs (copied; the .venv stays where it is)
-TREE = ("pyrtu", "tests", "csrc", "docs", "bench", "fuzz", "setup.py", "pyproject.toml",
-        "MANIFEST.in", "README.md", "Makefile")
+TREE = (
+    "pyrtu",
+    "tests",
+    "csrc",
+    "docs",
+    "bench",
+    "fuzz",
+    "setup.py",
+    "pyproject.toml",
+    "MANIFEST.in",
+    "README.md",
+    "Makefile",
+)
 
 #: cosmic-ray's operators kept: faults a person makes.  Left out: swaps that no one
 #: writes by mistake (``+`` to ``**`` or ``^``, ``<`` to ``is``), and the operators
@@ -48,24 +60,56 @@ OPERATORS = tuple(
     f"core/{name}"
     for name in (
         # a boundary moved, a comparison negated or turned
-        *(f"ReplaceComparisonOperator_{a}_{b}" for a, b in (
-            ("Lt", "LtE"), ("LtE", "Lt"), ("Gt", "GtE"), ("GtE", "Gt"),
-            ("Lt", "GtE"), ("GtE", "Lt"), ("Gt", "LtE"), ("LtE", "Gt"),
-            ("Lt", "Gt"), ("Gt", "Lt"), ("LtE", "GtE"), ("GtE", "LtE"),
-            ("Eq", "NotEq"), ("NotEq", "Eq"), ("Is", "IsNot"), ("IsNot", "Is"),
-        )),
+        *(
+            f"ReplaceComparisonOperator_{a}_{b}"
+            for a, b in (
+                ("Lt", "LtE"),
+                ("LtE", "Lt"),
+                ("Gt", "GtE"),
+                ("GtE", "Gt"),
+                ("Lt", "GtE"),
+                ("GtE", "Lt"),
+                ("Gt", "LtE"),
+                ("LtE", "Gt"),
+                ("Lt", "Gt"),
+                ("Gt", "Lt"),
+                ("LtE", "GtE"),
+                ("GtE", "LtE"),
+                ("Eq", "NotEq"),
+                ("NotEq", "Eq"),
+                ("Is", "IsNot"),
+                ("IsNot", "Is"),
+            )
+        ),
         # arithmetic and bit operations swapped for their mirror
-        *(f"ReplaceBinaryOperator_{a}_{b}" for a, b in (
-            ("Add", "Sub"), ("Sub", "Add"), ("Mul", "Div"), ("Div", "Mul"),
-            ("FloorDiv", "Div"), ("Mul", "Add"), ("Mod", "FloorDiv"),
-            ("BitAnd", "BitOr"), ("BitOr", "BitAnd"), ("BitXor", "BitOr"),
-            ("LShift", "RShift"), ("RShift", "LShift"),
-        )),
-        "ReplaceUnaryOperator_USub_UAdd", "ReplaceUnaryOperator_Delete_Not", "AddNot",
-        "ReplaceAndWithOr", "ReplaceOrWithAnd",
-        "ReplaceTrueWithFalse", "ReplaceFalseWithTrue",
-        "ReplaceBreakWithContinue", "ReplaceContinueWithBreak",
-        "ZeroIterationForLoop", "NumberReplacer",
+        *(
+            f"ReplaceBinaryOperator_{a}_{b}"
+            for a, b in (
+                ("Add", "Sub"),
+                ("Sub", "Add"),
+                ("Mul", "Div"),
+                ("Div", "Mul"),
+                ("FloorDiv", "Div"),
+                ("Mul", "Add"),
+                ("Mod", "FloorDiv"),
+                ("BitAnd", "BitOr"),
+                ("BitOr", "BitAnd"),
+                ("BitXor", "BitOr"),
+                ("LShift", "RShift"),
+                ("RShift", "LShift"),
+            )
+        ),
+        "ReplaceUnaryOperator_USub_UAdd",
+        "ReplaceUnaryOperator_Delete_Not",
+        "AddNot",
+        "ReplaceAndWithOr",
+        "ReplaceOrWithAnd",
+        "ReplaceTrueWithFalse",
+        "ReplaceFalseWithTrue",
+        "ReplaceBreakWithContinue",
+        "ReplaceContinueWithBreak",
+        "ZeroIterationForLoop",
+        "NumberReplacer",
     )
 )
 
@@ -98,8 +142,18 @@ def _env(tree: Path) -> dict[str, str]:
 
 
 def _pytest(tests: list[str]) -> list[str]:
-    return [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider",
-            "-m", "not wall_clock and not rss", *tests]
+    return [
+        sys.executable,
+        "-m",
+        "pytest",
+        "-x",
+        "-q",
+        "-p",
+        "no:cacheprovider",
+        "-m",
+        "not wall_clock and not rss",
+        *tests,
+    ]
 
 
 # --------------------------------------------------------------------------- faults
@@ -123,8 +177,11 @@ def _faults() -> list[Fault]:
 def _build_core(tree: Path) -> None:
     subprocess.run(
         [sys.executable, "setup.py", "-q", "build_ext", "--inplace", "--force"],
-        cwd=tree, env=_env(tree) | {"PYRTU_REQUIRE_C": "1"}, check=True,
-        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+        cwd=tree,
+        env=_env(tree) | {"PYRTU_REQUIRE_C": "1"},
+        check=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
     )
 
 
@@ -132,13 +189,16 @@ def run_faults(names: list[str]) -> int:
     faults = [f for f in _faults() if not names or f.name in names]
     tree = WORK / "faults"
     _copy_tree(tree)
+    built = {so: so.read_bytes() for so in (tree / "pyrtu").rglob("*.so")}
     survived = []
     for fault in faults:
         path = tree / fault.file
         original = path.read_text()
         if original.count(fault.old) != 1:
-            print(f"FAULT NOT APPLIED  {fault.name}: `old` is found "
-                  f"{original.count(fault.old)} times in {fault.file} (it must be once)")
+            print(
+                f"FAULT NOT APPLIED  {fault.name}: `old` is found "
+                f"{original.count(fault.old)} times in {fault.file} (it must be once)"
+            )
             survived.append(fault.name)
             continue
         path.write_text(original.replace(fault.old, fault.new))
@@ -146,12 +206,19 @@ def run_faults(names: list[str]) -> int:
             if fault.file.startswith("csrc/"):
                 _build_core(tree)
             t0 = time.monotonic()
-            run = subprocess.run(_pytest(fault.tests), cwd=tree, env=_env(tree),
-                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+            run = subprocess.run(
+                _pytest(fault.tests),
+                cwd=tree,
+                env=_env(tree),
+                stdout=subprocess.PIPE,
+                stderr=subprocess.STDOUT,
+                text=True,
+            )
             took = time.monotonic() - t0
             if run.returncode == 1:  # tests ran and failed: killed
-                first = next((line for line in run.stdout.splitlines()
-                              if line.startswith("FAILED")), "")
+                first = next(
+                    (line for line in run.stdout.splitlines() if line.startswith("FAILED")), ""
+                )
                 print(f"killed   {fault.name} ({took:.0f} s) {first[:150]}")
             else:  # 0: survived; other codes: the run itself broke, which proves nothing
                 print(f"SURVIVED {fault.name} (pytest exit {run.returncode})")
@@ -159,10 +226,12 @@ def run_faults(names: list[str]) -> int:
                 survived.append(fault.name)
         finally:
             path.write_text(original)
-            if fault.file.startswith("csrc/"):
-                _build_core(tree)
-    print(f"{len(faults) - len(survived)} killed, {len(survived)} survived "
-          f"of {len(faults)} hand-written faults")
+            for so, data in built.items():  # the core as built from the true sources
+                so.write_bytes(data)
+    print(
+        f"{len(faults) - len(survived)} killed, {len(survived)} survived "
+        f"of {len(faults)} hand-written faults"
+    )
     return 1 if survived else 0
 
 
@@ -209,17 +278,29 @@ def _run_target(target: Target) -> Path:
             '[cosmic-ray.distributor]\nname = "local"\n'
         )
         cr = Path(sys.executable).with_name("cosmic-ray")
-        subprocess.run([cr, "init", config.name, session.name], cwd=tree, check=True,
-                       env=_env(tree))
+        subprocess.run(
+            [cr, "init", config.name, session.name], cwd=tree, check=True, env=_env(tree)
+        )
         with use_db(str(session), WorkDB.Mode.open) as db:
-            skip = [item.job_id for item in db.pending_work_items
-                    if item.mutations[0].operator_name not in OPERATORS]
-            db.set_multiple_results(skip, WorkResult(output="operator not kept",
-                                                     worker_outcome=WorkerOutcome.SKIPPED))
-        subprocess.run([cr, "exec", config.name, session.name], cwd=tree, check=True,
-                       env=_env(tree))
-        dump = subprocess.run([cr, "dump", session.name], cwd=tree, check=True,
-                              env=_env(tree), stdout=subprocess.PIPE, text=True).stdout
+            skip = [
+                item.job_id
+                for item in db.pending_work_items
+                if item.mutations[0].operator_name not in OPERATORS
+            ]
+            db.set_multiple_results(
+                skip, WorkResult(output="operator not kept", worker_outcome=WorkerOutcome.SKIPPED)
+            )
+        subprocess.run(
+            [cr, "exec", config.name, session.name], cwd=tree, check=True, env=_env(tree)
+        )
+        dump = subprocess.run(
+            [cr, "dump", session.name],
+            cwd=tree,
+            check=True,
+            env=_env(tree),
+            stdout=subprocess.PIPE,
+            text=True,
+        ).stdout
         with out.open("a" if module != target.modules[0] else "w") as f:
             f.write(dump)
     return out
@@ -232,7 +313,19 @@ def _line(tree: Path, module: str, line: int) -> str:
         return ""
 
 
-def _summarise(target: Target) -> dict[str, object]:
+@dataclass
+class Summary:
+    target: str
+    counts: dict[str, int]
+    survivors: list[str]
+
+    @property
+    def score(self) -> float:
+        judged = self.counts["killed"] + self.counts["survived"]
+        return self.counts["killed"] / judged if judged else 0.0
+
+
+def _summarise(target: Target) -> Summary:
     tree = WORK / f"tree-{target.name}"
     equivalents = _equivalents()
     counts = {"killed": 0, "survived": 0, "equivalent": 0, "incompetent": 0}
@@ -249,18 +342,25 @@ def _summarise(target: Target) -> dict[str, object]:
         if result["worker_outcome"] in ("exception", "abnormal"):
             outcome = "incompetent"
         if outcome == "survived":
-            match = next((e for e in equivalents if e["module"] == module
-                          and e["operator"] == mutation["operator_name"]
-                          and e["line"].strip() == text), None)
+            match = next(
+                (
+                    e
+                    for e in equivalents
+                    if e["module"] == module
+                    and e["operator"] == mutation["operator_name"]
+                    and e["line"].strip() == text
+                ),
+                None,
+            )
             if match is not None:
                 counts["equivalent"] += 1
                 continue
-            survivors.append(f"`{module}:{line}` {mutation['operator_name']}"
-                             f" (#{mutation['occurrence']}): `{text}`")
+            survivors.append(
+                f"`{module}:{line}` {mutation['operator_name']}"
+                f" (#{mutation['occurrence']}): `{text}`"
+            )
         counts[outcome] = counts.get(outcome, 0) + 1
-    judged = counts["killed"] + counts["survived"]
-    score = counts["killed"] / judged if judged else 0.0
-    return {"target": target.name, **counts, "score": score, "survivors": survivors}
+    return Summary(target.name, counts, survivors)
 
 
 def run_generated(names: list[str], jobs: int) -> int:
@@ -272,13 +372,16 @@ def run_generated(names: list[str], jobs: int) -> int:
     summaries = [_summarise(t) for t in targets]
     _write_report(summaries)
     for s in summaries:
-        print(f"{s['target']}: {s['killed']} killed, {s['survived']} survived, "
-              f"{s['equivalent']} equivalent, {s['incompetent']} incompetent: "
-              f"score {100 * float(s['score']):.1f} %")  # type: ignore[arg-type]
+        c = s.counts
+        print(
+            f"{s.target}: {c['killed']} killed, {c['survived']} survived, "
+            f"{c['equivalent']} equivalent, {c['incompetent']} incompetent: "
+            f"score {100 * s.score:.1f} %"
+        )
     return 0
 
 
-def _write_report(summaries: list[dict[str, object]]) -> None:
+def _write_report(summaries: list[Summary]) -> None:
     """docs/MUTATION.md: the figures of the targets run now; other targets' rows kept."""
     stamp = time.strftime("%Y-%m-%d", time.gmtime())
     rows = {}
@@ -292,15 +395,20 @@ def _write_report(summaries: list[dict[str, object]]) -> None:
             if line.startswith("| `") and "|" in line[3:]:
                 rows[line.split("`")[1]] = line
     for s in summaries:
-        name = str(s["target"])
-        rows[name] = (f"| `{name}` | {s['killed']} | {s['survived']} | {s['equivalent']} | "
-                      f"{s['incompetent']} | {100 * float(s['score']):.1f} % | {stamp} |")  # type: ignore[arg-type]
-        survivors = s["survivors"] or ["none"]
-        sections[name] = (f"### `{name}`\n\n" + "\n".join(f"- {x}" for x in survivors)  # type: ignore[union-attr]
-                          + "\n")
+        c = s.counts
+        rows[s.target] = (
+            f"| `{s.target}` | {c['killed']} | {c['survived']} | "
+            f"{c['equivalent']} | {c['incompetent']} | {100 * s.score:.1f} % "
+            f"| {stamp} |"
+        )
+        survivors = s.survivors or ["none"]
+        sections[s.target] = f"### `{s.target}`\n\n" + "\n".join(f"- {x}" for x in survivors) + "\n"
+
     head = (HERE / "REPORT_HEAD.md").read_text()
-    table = ("| target | killed | survived | equivalent | incompetent | score | run |\n"
-             "|---|---|---|---|---|---|---|\n" + "\n".join(rows[k] for k in sorted(rows)))
+    table = (
+        "| target | killed | survived | equivalent | incompetent | score | run |\n"
+        "|---|---|---|---|---|---|---|\n" + "\n".join(rows[k] for k in sorted(rows))
+    )
     body = "\n".join(sections[k] for k in sorted(sections))
     REPORT.write_text(f"{head}\n{table}\n\n## Survivors\n\n{body}")
 

@@ -191,11 +191,10 @@ def test_sigkill_and_restart_continue_the_sequence(tmp_path: Path) -> None:
         assert min(s for s in got if s >= first_after) == first_after
 
 
-def test_duration_ends_it_with_exit_0_and_a_broker_that_is_down_is_no_error(
-    tmp_path: Path,
-) -> None:
+def test_a_broker_never_reached_ends_with_exit_3_and_keeps_the_backlog(tmp_path: Path) -> None:
     """No broker listens: the bridge polls into the outbox, reports the broker down
-    once, and --duration ends it (exit 0); the next run delivers the backlog."""
+    once, and --duration ends it with exit 3 and one line saying the broker was
+    never reached (issue 27.14); the next run delivers the backlog and exits 0."""
     from mqtt_broker import free_port
 
     with drive() as bus:
@@ -203,17 +202,37 @@ def test_duration_ends_it_with_exit_0_and_a_broker_that_is_down_is_no_error(
         cfg = write_config(tmp_path, f"mqtt://127.0.0.1:{port}", bus.paths[0])
         p = start("--config", str(cfg), "--json", "--duration", "1.5")
         out, err = p.communicate(timeout=60)
-        assert p.returncode == 0, err
+        assert p.returncode == 3, err
         lines = [json.loads(x) for x in out.splitlines()]
-        assert [e["event"] for e in lines].count("broker_down") == 1
-        end = lines[-1]
+        assert [e.get("event") for e in lines].count("broker_down") == 1
+        end, error = lines[-2:]
         assert end["event"] == "end" and end["outbox_depth"] > 0 and end["drops"] == 0
+        assert error["ok"] is False and error["exit_code"] == 3
+        assert f"broker 127.0.0.1:{port} never reached during the run" in error["message"]
+        assert "refused" in error["message"].lower()
+        (last,) = [x for x in err.splitlines() if "never reached" in x]
+        assert last == f"pyrtu bridge: port error: {error['message']}" and "Traceback" not in err
         with Broker(tmp_path, port=port) as _broker, Client(_broker, ["pyrtu/cli/line/#"]) as sub:
             p = start("--config", str(cfg), "--duration", "3")
             backlog = end["outbox_depth"]
             sub.wait(lambda: sum(b"historical" in m[1] for m in sub.messages) >= backlog, "backlog")
             p.communicate(timeout=60)
             assert p.returncode == 0
+
+
+def test_mqtts_against_a_plain_broker_says_so_and_exits_3(tmp_path: Path) -> None:
+    """A real mosquitto listening plain MQTT, the bridge told mqtts://: the TLS
+    handshake is broken off; the bridge says so with the hint, retries, and ends
+    with exit 3 (never connected)."""
+    with Broker(tmp_path) as broker, drive() as bus:
+        cfg = write_config(tmp_path, f"mqtts://127.0.0.1:{broker.port}", bus.paths[0])
+        p = start("--config", str(cfg), "--duration", "1.5")
+        _out, err = p.communicate(timeout=60)
+        assert p.returncode == 3, err
+        hint = f"is it a plain MQTT broker? then use mqtt://127.0.0.1:{broker.port}"
+        assert "TLS handshake failed" in err and hint in err, err
+        assert "never reached during the run" in err.splitlines()[-1]
+        assert "Traceback" not in err
 
 
 def test_a_password_file_missing_exits_2_and_a_ca_that_cannot_be_used_exits_3(

@@ -6,7 +6,11 @@ thread, so that an unreachable broker never blocks the loop), sends CONNECT with
 the last will and waits for CONNACK: `BrokerRefused` when the broker refuses the
 client (bad user name or password, not authorized: names the broker and the user,
 never the password), `ssl.SSLCertVerificationError` when its certificate does not
-verify (never downgraded), OSError when it cannot be reached.  Afterwards the
+verify (never downgraded), `TlsHandshakeFailed` when an ``mqtts://`` broker
+breaks off the TLS handshake (a plain MQTT broker does: the hint says so),
+OSError when it cannot be reached.  The socket carries TCP_NODELAY
+(`pyrtu.tcp.sockets`): a set's read-back reaches the broker at once, not after
+the broker's delayed acknowledgement of the previous packet.  Afterwards the
 loop reads the socket, writes when paho has bytes queued, and pings every
 keepalive; ``on_lost`` is called once when the connection ends.
 
@@ -32,6 +36,7 @@ from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 from paho.mqtt.subscribeoptions import SubscribeOptions
 
+from ..tcp.sockets import set_nodelay
 from .config import MqttConfig
 
 _T = TypeVar("_T")
@@ -53,6 +58,21 @@ FATAL = {
 
 class BrokerRefused(ConnectionRefusedError):
     """The broker refused the client's credentials or identity (no retry helps)."""
+
+
+class TlsHandshakeFailed(ConnectionError):
+    """An ``mqtts://`` broker broke off the TLS handshake (reset, end of stream, or
+    an answer that is not TLS): most often a plain MQTT broker; retried as any
+    connection failure, its message carrying the hint."""
+
+
+def _handshake_broken(e: BaseException) -> bool:
+    """Whether ``e``, raised while connecting over TLS, is the peer breaking off the
+    handshake (a refused or unreachable TCP connection is not, nor is a certificate
+    that does not verify)."""
+    if isinstance(e, ssl.SSLCertVerificationError | ssl.CertificateError):
+        return False
+    return isinstance(e, ConnectionResetError | BrokenPipeError | ssl.SSLError)
 
 
 def publish_properties(expiry: int | None = None, correlation: bytes | None = None) -> Properties:
@@ -214,6 +234,7 @@ class MqttLink:
         # on_publish would build a reason code and properties for each of them
         c.on_publish = None if self.cfg.qos == 0 else self._published
         c.on_message = self._message
+        c.on_socket_open = self._socket_opened
         c.connect_async(self.cfg.host, self.cfg.port, self.cfg.keepalive, clean_start=True)
         return c
 
@@ -223,11 +244,19 @@ class MqttLink:
         self._loop = loop
         c = self._make_client()
         self.client = c
-        await self._or_teardown(
-            lambda: loop.run_in_executor(None, c.reconnect),
-            timeout,
-            f"no connection to {self.cfg.broker} within {timeout:g} s",
-        )
+        try:
+            await self._or_teardown(
+                lambda: loop.run_in_executor(None, c.reconnect),
+                timeout,
+                f"no connection to {self.cfg.broker} within {timeout:g} s",
+            )
+        except OSError as e:
+            if self.credentials.tls is None or not _handshake_broken(e):
+                raise
+            raise TlsHandshakeFailed(
+                f"broker {self.cfg.broker}: TLS handshake failed ({e.strerror or e}): is it a "
+                f"plain MQTT broker? then use mqtt://{self.cfg.host}:{self.cfg.port}"
+            ) from None
         sock = c.socket()
         if sock is None:
             self._teardown()
@@ -445,6 +474,9 @@ class MqttLink:
         if was:
             self._on_lost(reason)
 
+    def _socket_opened(self, client: Any, userdata: Any, sock: Any) -> None:
+        set_nodelay(sock)  # before CONNECT: see the module docstring
+
     def _socket_closed(self, client: Any, userdata: Any, sock: Any) -> None:
         self._unwatch()
 
@@ -478,6 +510,7 @@ __all__ = [
     "BrokerRefused",
     "Credentials",
     "MqttLink",
+    "TlsHandshakeFailed",
     "publish_properties",
     "tls_context",
 ]

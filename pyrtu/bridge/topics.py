@@ -40,6 +40,7 @@ import re
 from typing import Protocol
 
 from ..poller import Point, PollerConfig
+from ..poller.values import faithful_value
 
 
 class _Options(Protocol):
@@ -189,11 +190,12 @@ def _json_value(value: object) -> str:
 
 
 def record(topic: str, point: Point, value: object, time: float | None, quality: str) -> bytes:
-    """The outbox record of a point's value (see the module docstring); ``time``
-    None: never read (JSON null)."""
-    del point  # the topic names it; kept in the signature for subclasses
+    """The outbox record of a point's value (see the module docstring): the value as
+    its shortest faithful decimal (`pyrtu.poller.values`); ``time`` None: never read
+    (JSON null)."""
+    shown = faithful_value(point, value) if isinstance(value, float) else value
     when = "null" if time is None else repr(time)
-    return (f'{topic}\n{{"value":{_json_value(value)},"time":{when},"quality":"{quality}"').encode()
+    return (f'{topic}\n{{"value":{_json_value(shown)},"time":{when},"quality":"{quality}"').encode()
 
 
 def split_record(rec: bytes) -> tuple[str, bytes]:

@@ -23,6 +23,7 @@ from pyrtu.pdu.errors import ExceptionResponseError, ModbusError, NoResponseErro
 from ..drivers.reconnect import Backoff, Reconnect
 from ..poller import Point, Poller
 from ..poller.points import Value
+from ..poller.values import faithful_value
 from .commands import Command, CommandQueue, Refusal, check_value, parse, result, rounding
 from .config import BridgeConfig
 from .mqtt import MqttLink, publish_properties
@@ -301,7 +302,8 @@ class Writer:
                 cmd.rounded["requested"],
                 cmd.rounded["written"],
             )
-        self._finish(cmd, result(name, True, id=cmd.id, value=value, time=now, rounded=cmd.rounded))
+        shown = faithful_value(cmd.point, value)
+        self._finish(cmd, result(name, True, id=cmd.id, value=shown, time=now, rounded=cmd.rounded))
 
 
 def _worker_name(key: tuple[str, int]) -> str:

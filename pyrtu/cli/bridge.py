@@ -12,7 +12,10 @@ never loses them.  See docs/BRIDGE.md.
 Exit status: 0 after SIGINT/SIGTERM or --duration (what waits is published
 first, up to --drain seconds); 2 for a configuration error (the file, line and
 key named) before anything is opened; 3 when a port or the outbox cannot be
-opened, or the broker refuses the credentials or its certificate does not verify.
+opened, the broker refuses the credentials or its certificate does not verify,
+or the broker was never reached during the whole run (the updates stay in the
+outbox for the next run; an ``mqtts://`` broker that breaks off the TLS handshake
+is named with a hint: a plain MQTT broker does).
 With ``--json``: one JSON object per event (broker down/up, slave online/offline,
 stats) on stdout.
 """
@@ -124,9 +127,12 @@ async def _serve(cfg: Any, args: argparse.Namespace) -> int:
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     closed = False
+    broker_error = ""  # the last connection failure reported
 
     def on_event(ev: BridgeEvent) -> None:
-        nonlocal closed
+        nonlocal closed, broker_error
+        if ev.kind == "broker_down":
+            broker_error = str(ev.detail.get("error", ""))
         if closed:
             return
         try:
@@ -173,6 +179,13 @@ async def _serve(cfg: Any, args: argparse.Namespace) -> int:
             emit({"event": "end", **bridge.final_stats})
         except BrokenPipeError:
             pass
+    if bridge.reconnects == 0:  # not once connected: nothing was delivered
+        waiting = bridge.final_stats.get("outbox_depth", 0)
+        never = ConnectionRefusedError(
+            f"broker {cfg.mqtt.broker} never reached during the run"
+            f" ({broker_error or 'no answer'}); {waiting} updates wait in the outbox"
+        )
+        return report_error("bridge", never, args.json and not closed)
     return EXIT_OK
 
 

@@ -223,6 +223,15 @@ class ReadResult:
             out.append(f"{text:<24}  {note}" if note else text)
         return out
 
+    def json_values(self) -> list[Value]:
+        """The values as JSON carries them: a float32 as the shortest decimal that is
+        the register's value (5.1, not 5.099999904632568; pyrtu.poller.values)."""
+        if self.kind != "float32":
+            return list(self.values)
+        from pyrtu.poller.values import shortest_float32
+
+        return [shortest_float32(v) if isinstance(v, float) else v for v in self.values]
+
     def document(self) -> dict[str, Any]:
         doc: dict[str, Any] = {
             "ok": True,
@@ -235,7 +244,7 @@ class ReadResult:
         if not is_bits(self.table):
             doc["order"] = self.order
             doc["registers"] = list(self.raw)
-        doc["values"] = list(self.values)
+        doc["values"] = self.json_values()
         doc["addresses"] = self.addresses()
         if self.notes:
             doc["notes"] = {str(k): v for k, v in self.notes.items()}

@@ -230,7 +230,7 @@ def _run(args: argparse.Namespace) -> int:
                 "slave": args.slave,
                 "interval": window.summary(now),
                 "total": total.summary(now),
-                "values": None if last is None else last.values,
+                "values": None if last is None else last.json_values(),
                 "addresses": None if last is None else last.addresses(),
                 "last_error": last_error,
             }

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 from pyrtu.core import _backend
 from pyrtu.core.frames import FrameKind
 from pyrtu.drivers._ptimer import rearm
+from pyrtu.tcp.sockets import set_nodelay
 
 from ._live import Liveness
 
@@ -49,6 +50,7 @@ class _Connection(asyncio.Protocol):
         assert isinstance(transport, asyncio.Transport)
         self.transport = transport
         sock = transport.get_extra_info("socket")
+        set_nodelay(sock)  # asyncio sets it too; said here, not left to its version
         if sock is not None:
             with contextlib.suppress(OSError):  # bound the kernel's share of unread answers
                 sock.setsockopt(

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field, fields
 from typing import Any
 
 from .points import Point, Value
+from .values import faithful_value
 
 
 def _fields(event: Any) -> dict[str, Any]:
@@ -33,10 +34,11 @@ class Update:
         return self.point.name
 
     def as_dict(self) -> dict[str, Any]:
-        """The JSON form of ``pyrtu poll --json``."""
+        """The JSON form of ``pyrtu poll --json`` (the value as its shortest faithful
+        decimal, `pyrtu.poller.values`)."""
         p = self.point
-        return {"point": p.name, "value": self.value, "time": self.time, "slave": p.slave,
-                "bus": p.bus}  # fmt: skip
+        return {"point": p.name, "value": faithful_value(p, self.value), "time": self.time,
+                "slave": p.slave, "bus": p.bus}  # fmt: skip
 
 
 @dataclass(frozen=True, slots=True)

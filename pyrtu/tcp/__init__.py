@@ -20,7 +20,6 @@ as a pyserial object for the serial master.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import select
 import socket
 import time
@@ -35,6 +34,7 @@ from pyrtu.core._types import BytesLike
 from pyrtu.drivers._ptimer import rearm
 from pyrtu.pdu.errors import ModbusError, PortError
 from pyrtu.tcp.protocol import TcpClientProtocol, check_timeout
+from pyrtu.tcp.sockets import set_nodelay
 
 DEFAULT_PORT = 502
 
@@ -74,9 +74,11 @@ def rtu_over_tcp(url: str) -> Any:
     host, port = parse_tcp_url(url, (RTU_TCP_SCHEME,))
     netloc = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
     try:
-        return serial.serial_for_url(f"socket://{netloc}", timeout=0)
+        link = serial.serial_for_url(f"socket://{netloc}", timeout=0)
     except (serial.SerialException, OSError) as exc:
         raise PortError(url, f"cannot connect: {exc}") from exc
+    set_nodelay(getattr(link, "_socket", None))  # pyserial's socket:// does not
+    return link
 
 
 class _ClientState:
@@ -111,7 +113,7 @@ class TcpClient(_ClientState, Closing):
             self._sock = socket.create_connection((self.host, self.port), timeout=ct)
         except OSError as exc:
             raise PortError(self.where, f"cannot connect: {exc.strerror or exc}") from exc
-        self._sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        set_nodelay(self._sock)
         self._sock.setblocking(False)
 
     def request(
@@ -246,10 +248,7 @@ class AsyncTcpClient(_ClientState, AsyncClosing):
             )
         except (OSError, asyncio.TimeoutError) as exc:
             raise PortError(where, f"cannot connect: {exc or 'timed out'}") from exc
-        sock = conn.transport.get_extra_info("socket") if conn.transport else None
-        if sock is not None:
-            with contextlib.suppress(OSError):
-                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        set_nodelay(conn.transport.get_extra_info("socket") if conn.transport else None)
         return cls(conn, host, port, max_in_flight)
 
     async def request(
