@@ -8,7 +8,12 @@ Every error a transaction can end with derives from `ModbusError`:
 * `NoResponseError` (also a `TimeoutError`): nothing valid arrived in time.
 * `FrameError` (also a `ValueError`): bad CRC/LRC, wrong slave, wrong function
   or malformed data; `BusFault` is the echo mismatch of an echoing adapter.
-* `PortError` (also an `OSError`): a port is missing or refuses a format.
+* `PortError` (also an `OSError`): a port is missing or refuses a format;
+  `PortBusyError` when another program holds it.
+
+`no_device_answered` tells the errors that mean no device is at an address: no
+answer at all, or a gateway's exception 0x0A (no path to that unit) or 0x0B (the
+target did not respond).
 
 `SlaveException` is raised by slave-side handlers to answer with an exception
 code; it is not a `ModbusError` (nothing went wrong on the bus).
@@ -104,6 +109,46 @@ class PortError(ModbusError, OSError):
         self.port = port
 
 
+class PortBusyError(PortError):
+    """Another program holds the port (it was opened exclusively).  ``advice`` is
+    what the caller can do about it, in the caller's terms: the Python keyword by
+    default; `with_advice` words it for another caller (a command-line flag, or
+    none where the caller offers no way to share the port)."""
+
+    #: the advice of `pyrtu.open_port`, `pyrtu.Master`, `pyrtu.Slave`
+    PYTHON_ADVICE = "pass exclusive=False to share it"
+
+    def __init__(self, port: str, advice: str | None = PYTHON_ADVICE) -> None:
+        self.advice = advice
+        how = f"; {advice}" if advice else ""
+        super().__init__(
+            port, f"busy: another program holds it (ports are opened exclusively{how})"
+        )
+
+    def with_advice(self, advice: str | None) -> PortBusyError:
+        """The same error with ``advice`` (None: none), its cause kept."""
+        out = PortBusyError(self.port, advice)
+        out.__cause__ = self.__cause__
+        return out
+
+    def __reduce__(self) -> tuple[type[PortBusyError], tuple[str, str | None]]:
+        return (type(self), (self.port, self.advice))
+
+
+def no_device_answered(exc: BaseException) -> bool:
+    """Whether ``exc`` means that no device answered at the address: no response
+    (`NoResponseError`), or a gateway's exception 0x0A (gateway path unavailable: no
+    route to that unit) or 0x0B (gateway target device failed to respond).  Any
+    other exception response is an answer: a device is there (Application Protocol
+    V1.1b, section 7)."""
+    if isinstance(exc, NoResponseError):
+        return True
+    return isinstance(exc, ExceptionResponseError) and exc.code in (
+        GATEWAY_PATH_UNAVAILABLE,
+        GATEWAY_TARGET_FAILED,
+    )
+
+
 class SlaveException(Exception):
     """Raised by a slave handler (or a DataStore) to answer with exception ``code``."""
 
@@ -122,7 +167,9 @@ __all__ = [
     "FrameError",
     "ModbusError",
     "NoResponseError",
+    "PortBusyError",
     "PortError",
     "SlaveException",
     "exception_name",
+    "no_device_answered",
 ]
