@@ -7,7 +7,7 @@ that register or function), and a garbled answer (CRC error: a device at that
 address with a problem, or two devices answering).  Not an answer: no response
 within the timeout, and a gateway's exceptions 0x0A (no path to that unit) and 0x0B
 (the device behind it did not respond): no slave is there
-(`pyrtu.pdu.errors.no_device_answered`).
+(`pyrtu.pdu.errors.ExceptionResponseError.no_device_answered`).
 
 The timeout (``--timeout``) defaults to 0.1 s on a serial line and to 1 s on a
 network port (``tcp://``, ``rtu+tcp://``, ``socket://``, ``rfc2217://``): a gateway
@@ -177,29 +177,23 @@ def _describe(args: argparse.Namespace, scheme: str | None) -> str:
 
 def _probe_entry(master: Master, slave: int, args: argparse.Namespace) -> dict[str, Any] | None:
     """What answered a probe of ``slave``, or None when no device did."""
-    from pyrtu.pdu.errors import (
-        ExceptionResponseError,
-        FrameError,
-        ModbusError,
-        no_device_answered,
-    )
+    from pyrtu.pdu.errors import ExceptionResponseError, FrameError, NoResponseError
 
     entry: dict[str, Any] = {"slave": slave}
     try:
         entry.update(answer="response", detail=probe(master, slave, args.function, args.register))
-    except ModbusError as exc:
-        if no_device_answered(exc):
+    except NoResponseError:
+        return None
+    except ExceptionResponseError as exc:
+        if exc.no_device_answered:  # a gateway's 0x0A/0x0B: no device there
             return None
-        if isinstance(exc, ExceptionResponseError):
-            entry.update(
-                answer="exception",
-                detail=f"exception {exc.code} ({exc.name})",
-                exception_code=exc.code,
-            )
-        elif isinstance(exc, FrameError):
-            entry.update(answer="garbled", detail=str(exc))
-        else:
-            raise
+        entry.update(
+            answer="exception",
+            detail=f"exception {exc.code} ({exc.name})",
+            exception_code=exc.code,
+        )
+    except FrameError as exc:
+        entry.update(answer="garbled", detail=str(exc))
     if args.identify:
         entry["identification"] = identify(master, slave)
     return entry

@@ -4,16 +4,13 @@ Every error a transaction can end with derives from `ModbusError`:
 
 * `ExceptionResponseError`: the slave answered with an exception response
   (Modbus Application Protocol V1.1b, section 7); ``.slave``, ``.function``,
-  ``.code`` and ``.name``.
+  ``.code`` and ``.name``; ``.no_device_answered`` for 0x0A and 0x0B, which a
+  gateway answers when the device behind it did not (a silent device, not an answer).
 * `NoResponseError` (also a `TimeoutError`): nothing valid arrived in time.
 * `FrameError` (also a `ValueError`): bad CRC/LRC, wrong slave, wrong function
   or malformed data; `BusFault` is the echo mismatch of an echoing adapter.
 * `PortError` (also an `OSError`): a port is missing or refuses a format;
   `PortBusyError` when another program holds it.
-
-`no_device_answered` tells the errors that mean no device is at an address: no
-answer at all, or a gateway's exception 0x0A (no path to that unit) or 0x0B (the
-target did not respond).
 
 `SlaveException` is raised by slave-side handlers to answer with an exception
 code; it is not a `ModbusError` (nothing went wrong on the bus).
@@ -50,6 +47,12 @@ MEMORY_PARITY_ERROR = 8
 GATEWAY_PATH_UNAVAILABLE = 10
 GATEWAY_TARGET_FAILED = 11
 
+#: The exception codes a gateway answers for a device that did not: 0x0A, gateway
+#: path unavailable (no path to the device's bus), and 0x0B, gateway target device
+#: failed to respond (Application Protocol V1.1b section 7).  An answer carrying one
+#: of them comes from the gateway, not from the device: the device did not answer.
+NO_DEVICE_ANSWERED = frozenset({GATEWAY_PATH_UNAVAILABLE, GATEWAY_TARGET_FAILED})
+
 
 def exception_name(code: int) -> str:
     """The name of an exception code (``"UNKNOWN EXCEPTION 0x..``" for others)."""
@@ -61,7 +64,8 @@ class ModbusError(Exception):
 
 
 class ExceptionResponseError(ModbusError):
-    """The slave answered with an exception response."""
+    """The slave answered with an exception response (or a gateway in its name:
+    `no_device_answered`)."""
 
     def __init__(self, slave: int, function: int, code: int) -> None:
         self.slave = slave
@@ -76,6 +80,14 @@ class ExceptionResponseError(ModbusError):
 
     def __reduce__(self) -> tuple[type[ExceptionResponseError], tuple[int, int, int]]:
         return (type(self), (self.slave, self.function, self.code))
+
+    @property
+    def no_device_answered(self) -> bool:
+        """True for exceptions 0x0A and 0x0B (`NO_DEVICE_ANSWERED`): a gateway answered
+        because the device did not, so the device is as silent as after a timeout.
+        Whatever decides "the slave answered" (the poller's slave health, a scan)
+        asks this."""
+        return self.code in NO_DEVICE_ANSWERED
 
 
 class NoResponseError(ModbusError, TimeoutError):
@@ -135,20 +147,6 @@ class PortBusyError(PortError):
         return (type(self), (self.port, self.advice))
 
 
-def no_device_answered(exc: BaseException) -> bool:
-    """Whether ``exc`` means that no device answered at the address: no response
-    (`NoResponseError`), or a gateway's exception 0x0A (gateway path unavailable: no
-    route to that unit) or 0x0B (gateway target device failed to respond).  Any
-    other exception response is an answer: a device is there (Application Protocol
-    V1.1b, section 7)."""
-    if isinstance(exc, NoResponseError):
-        return True
-    return isinstance(exc, ExceptionResponseError) and exc.code in (
-        GATEWAY_PATH_UNAVAILABLE,
-        GATEWAY_TARGET_FAILED,
-    )
-
-
 class SlaveException(Exception):
     """Raised by a slave handler (or a DataStore) to answer with exception ``code``."""
 
@@ -162,6 +160,7 @@ class SlaveException(Exception):
 
 __all__ = [
     "EXCEPTION_NAMES",
+    "NO_DEVICE_ANSWERED",
     "BusFault",
     "ExceptionResponseError",
     "FrameError",
@@ -171,5 +170,4 @@ __all__ = [
     "PortError",
     "SlaveException",
     "exception_name",
-    "no_device_answered",
 ]
