@@ -7,16 +7,19 @@ unit id); a connect timeout's message; ``-vv`` frames on ``tcp://`` and
 from __future__ import annotations
 
 import asyncio
+import re
+import signal
 import socket
 import struct
 import threading
+import time
 from collections.abc import Coroutine, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
 
 import pytest
-from cli_helpers import pyrtu
+from cli_helpers import Background, pyrtu
 from peers import pattern
 
 import pyrtu as pyrtu_api
@@ -238,6 +241,29 @@ def test_a_connect_timeout_says_how_long_it_waited(full_listener: tuple[str, int
     assert str(aio.value) == f"{url}: cannot connect: timed out after 0.25 s"
 
 
+def test_a_refused_connect_reads_the_same_from_every_client() -> None:
+    """The blocking client, the asyncio one (asyncio words it "Connect call failed")
+    and RTU over TCP: what the OS said (errno ECONNREFUSED's text)."""
+    import errno
+    import os
+
+    with socket.socket() as s:  # a loopback port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    refused = os.strerror(errno.ECONNREFUSED)
+    url = f"tcp://127.0.0.1:{port}"
+    with pytest.raises(PortError) as sync:
+        TcpClient(url, timeout=1.0)
+    assert str(sync.value) == f"{url}: cannot connect: {refused}"
+    with pytest.raises(PortError) as aio:
+        asyncio.run(AsyncTcpClient.connect(url, timeout=1.0))
+    assert str(aio.value) == f"{url}: cannot connect: {refused}"
+    rtu = f"rtu+tcp://127.0.0.1:{port}"
+    with pytest.raises(PortError) as serial_link:
+        pyrtu_api.Master(rtu)
+    assert str(serial_link.value) == f"{rtu}: cannot connect: {refused}"
+
+
 def test_a_connect_timeout_of_rtu_over_tcp(full_listener: tuple[str, int]) -> None:
     """pyserial's socket:// connects with its own 5 s timeout (POLL_TIMEOUT)."""
     from serial.urlhandler.protocol_socket import POLL_TIMEOUT
@@ -289,6 +315,38 @@ def test_vv_logs_the_rtu_frames_on_rtu_over_tcp(peers: Peers) -> None:
     crc = struct.pack("<H", _crc16(request)).hex(" ")
     assert f"TX slave {REAL} fc 3: {request.hex(' ')} {crc}" in r.err, r.err
     assert f"RX slave {REAL} fc 3: {struct.pack('>BBBH', REAL, 3, 2, VALUE).hex(' ')}" in r.err
+
+
+def test_vv_logs_the_frames_a_tcp_server_receives_and_sends() -> None:
+    """``pyrtu -vv simulate --tcp``: the server side (the gateway's machinery, which
+    TcpServer and the gateway share) logs each request and answer, whole."""
+    sim = Background(
+        "-vv", "simulate", "cfw100", "--tcp", "127.0.0.1:0", "--address", "1", "--duration", "30"
+    )
+    try:
+        port = _wait_for(sim, r"Modbus TCP on 127\.0\.0\.1:(\d+)")
+        r = pyrtu("read", f"tcp://127.0.0.1:{port}", "0", "--json")
+        assert r.code == 0, r.err
+        value = r.json()["values"][0]
+        _wait_for(sim, r"TX unit 1: ")
+    finally:
+        sim.proc.send_signal(signal.SIGTERM)
+        done = sim.finish()
+    request = struct.pack(">HHHBBHH", 1, 0, 6, 1, 3, 0, 1).hex(" ")
+    answer = struct.pack(">HHHBBBH", 1, 0, 5, 1, 3, 2, value).hex(" ")
+    assert f"connection 1: RX unit 1: {request}" in done.err, done.err
+    assert f"connection 1: TX unit 1: {answer}" in done.err, done.err
+
+
+def _wait_for(proc: Background, pattern: str, timeout: float = 20.0) -> str:
+    """The first group of ``pattern`` in what ``proc`` printed on stderr (waits)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        found = re.search(pattern, "".join(proc.err))
+        if found:
+            return found.group(1) if found.re.groups else found.group(0)
+        time.sleep(0.05)
+    raise AssertionError(f"{pattern!r} not in {''.join(proc.err)!r}")
 
 
 def _crc16(data: bytes) -> int:

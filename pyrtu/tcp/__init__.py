@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import os
 import select
 import socket
 import time
@@ -63,15 +64,18 @@ def _where(host: str, port: int) -> str:
 
 def connect_error(where: str, exc: BaseException, timeout: float) -> PortError:
     """The `PortError` of a connection not made (every TCP connect of pyrtu's says it
-    this way): what the OS said, or how long was waited for a timeout (whose text is
+    this way): what the OS said (``Connection refused``, also where asyncio words it
+    "Connect call failed"), or how long was waited for a timeout (whose text is
     empty, or a bare "timed out")."""
     reason = exc
     if isinstance(exc, serial.SerialException) and isinstance(exc.__context__, OSError):
         reason = exc.__context__  # pyserial's socket:// puts the socket's error in its text
     if isinstance(reason, TimeoutError | asyncio.TimeoutError):
         text = f"timed out after {timeout:g} s"
-    elif isinstance(reason, OSError) and reason.strerror:
-        text = reason.strerror
+    elif isinstance(reason, socket.gaierror) and reason.strerror:
+        text = reason.strerror  # (a resolver's code, not an errno)
+    elif isinstance(reason, OSError) and reason.errno:
+        text = os.strerror(reason.errno)
     else:
         text = str(reason) or type(reason).__name__
     return PortError(where, f"cannot connect: {text}")
