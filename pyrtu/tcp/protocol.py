@@ -15,11 +15,12 @@ come back in any order.  No clock, no socket: time is an input::
 Unit 0 is a broadcast (through a gateway): nothing comes back, the result is None
 at once; unless ``answered=True``: a TCP device addressed with unit 0 directly
 answers it (Messaging on TCP/IP Implementation Guide 4.4.1.2).  An answer for no
-request in flight (a late one, after its timeout) is dropped and counted.  At
-DEBUG level (``pyrtu -vv``) the ``pyrtu.drivers.master`` logger gets every frame
-sent and received, whole (MBAP header and PDU), as a serial master logs its ADUs.  A header
+request in flight (a late one, after its timeout) is dropped and counted.  A header
 the framer cannot accept ends the connection: every request in flight fails with
 `FrameError` and ``broken`` is set.
+
+At DEBUG level (``pyrtu -vv``) the ``pyrtu.drivers.master`` logger gets every frame
+sent and received, whole (MBAP header and PDU), as a serial master logs its ADUs.
 """
 
 from __future__ import annotations
