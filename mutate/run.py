@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shlex
 import shutil
 import subprocess
 import sys
@@ -268,7 +269,21 @@ def _run_target(target: Target) -> Path:
         stem = module.replace("/", "_").removesuffix(".py")
         config = tree / f"cr-{stem}.toml"
         session = tree / f"cr-{stem}.sqlite"
-        command = " ".join(_pytest(target.tests))
+        command = shlex.join(_pytest(target.tests))
+        # the baseline: the tests pass on the true code (else every mutant is "killed")
+        base = subprocess.run(
+            _pytest(target.tests),
+            cwd=tree,
+            env=_env(tree),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        if base.returncode != 0 or " passed" not in base.stdout.splitlines()[-1]:
+            raise SystemExit(
+                f"mutate: {target.name}: the tests fail on the true code:\n"
+                + "\n".join(base.stdout.splitlines()[-20:])
+            )
         config.write_text(
             "[cosmic-ray]\n"
             f'module-path = "{module}"\n'

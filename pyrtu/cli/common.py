@@ -253,10 +253,13 @@ def add_serial_options(
     *,
     timeout: float | None = 1.0,
     parity_default: str = "E",
+    timeout_by_port: str | None = None,
 ) -> None:
     """``--baudrate --parity --stopbits --bytesize --timeout --retries --mode --t35
     --timing --echo``: the `pyrtu.Master` keywords (``timeout=None``: no timeout and
-    retries options, for the commands that only listen or serve)."""
+    retries options, for the commands that only listen or serve; ``timeout_by_port``:
+    ``--timeout`` defaults to None, the command picks it by the port, as this text
+    says in the help)."""
     g = p.add_argument_group("serial line (the keywords of pyrtu.Master)")
     g.add_argument(
         "-b",
@@ -297,9 +300,10 @@ def add_serial_options(
             "-o",
             "--timeout",
             type=positive_seconds,
-            default=timeout,
+            default=None if timeout_by_port else timeout,
             metavar="SECONDS",
-            help=f"response timeout (default {timeout:g} s; 500ms works too)",
+            help=f"response timeout (default {timeout_by_port or f'{timeout:g} s'}; "
+            "500ms works too)",
         )
         g.add_argument(
             "--retries",
@@ -469,16 +473,19 @@ def port_error(exc: Exception, port: str, fmt: str) -> PortError:
 
 
 #: the library's advice in its own terms -> the command line's
-_CLI_TERMS = (
-    ("use parity='N'", "use --parity N"),
-    ("pass exclusive=False", "use --no-exclusive"),
-)
+_CLI_TERMS = (("use parity='N'", "use --parity N"),)
+#: what a command with ``--no-exclusive`` (`add_exclusive_option`) advises for a busy port
+BUSY_ADVICE = "use --no-exclusive to share it"
 
 
-def in_cli_terms(exc: BaseException) -> BaseException:
-    """A PortError whose advice names Python keywords, reworded with the CLI flags."""
-    from pyrtu.pdu.errors import PortError
+def in_cli_terms(exc: BaseException, shares: bool = True) -> BaseException:
+    """A PortError whose advice names Python keywords, reworded with the CLI flags.
+    A busy port (`pyrtu.pdu.errors.PortBusyError`): `BUSY_ADVICE` when the command
+    ``shares`` ports on request (has ``--no-exclusive``), else no advice."""
+    from pyrtu.pdu.errors import PortBusyError, PortError
 
+    if isinstance(exc, PortBusyError):
+        return exc.with_advice(BUSY_ADVICE if shares else None)
     if not isinstance(exc, PortError):
         return exc
     text = str(exc)
@@ -534,7 +541,7 @@ def guarded(command: str, run: Run) -> Run:
                 exc, ModbusError | OSError | ValueError | OverflowError | KeyboardInterrupt
             ):
                 raise
-            error = in_cli_terms(error)
+            error = in_cli_terms(error, shares=hasattr(args, "exclusive"))
             return report_error(command, error, bool(getattr(args, "json", False)))
 
     wrapper.__name__ = getattr(run, "__name__", "run")

@@ -48,6 +48,7 @@ from typing import Any
 from pyrtu import gateway as G
 from pyrtu.cli._subcommand import subcommand
 from pyrtu.cli.common import (
+    BUSY_ADVICE,
     EXIT_OK,
     add_json_option,
     add_serial_options,
@@ -57,6 +58,7 @@ from pyrtu.cli.common import (
     serial_kwargs,
     stop_when_stdout_closes,
 )
+from pyrtu.pdu.errors import PortBusyError
 
 #: up to this many connections the gateway runs on `pyrtu.drivers.aio.run`'s select() loop
 #: (microsecond timers: the serial side keeps t3.5 to the microsecond, where the
@@ -232,11 +234,14 @@ async def _connect(spec: BusSpec, args: argparse.Namespace) -> Any:
 
     options: dict[str, Any] = serial_kwargs(args)
     options.update(timeout=args.timeout, retries=args.retries, mode=args.mode,
-                   timing=args.timing, echo=args.echo,
+                   timing=args.timing, echo=args.echo, exclusive=args.exclusive,
                    broadcast_delay=args.broadcast_delay)  # fmt: skip
     if args.t35 is not None:
         options["t35"] = args.t35
-    master = AsyncMaster(spec.port, **options)
+    try:
+        master = AsyncMaster(spec.port, **options)
+    except PortBusyError as exc:  # (also when reopened: said in the bus event)
+        raise exc.with_advice(BUSY_ADVICE) from exc.__cause__
     opened = getattr(master, "open", None)
     if opened is not None:
         await opened()

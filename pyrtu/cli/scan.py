@@ -1,12 +1,29 @@
 """``pyrtu scan``: which slave addresses answer on a bus.
 
-Every address of ``--range`` gets one probe with a short timeout (default 0.1 s):
-FC 03 reading one holding register at ``--register`` (default 0), or the function
-``--function`` names.  Any answer proves a device: a normal response, an exception
-response (the device is there but refuses that register or function), and a
-garbled answer (CRC error: a device at that address with a problem, or two
-devices answering).  ``--identify`` asks every device found for its FC 43
-identification.  Exit status 0 when at least one slave answered, 4 when none did.
+Every address of ``--range`` gets one probe: FC 03 reading one holding register at
+``--register`` (default 0), or the function ``--function`` names.  An answer proves a
+device: a normal response, an exception response (the device is there but refuses
+that register or function), and a garbled answer (CRC error: a device at that
+address with a problem, or two devices answering).  Not an answer: no response
+within the timeout, and a gateway's exceptions 0x0A (no path to that unit) and 0x0B
+(the device behind it did not respond): no slave is there
+(`pyrtu.pdu.errors.ExceptionResponseError.no_device_answered`).
+
+The timeout (``--timeout``) defaults to 0.1 s on a serial line and to 1 s on a
+network port (``tcp://``, ``rtu+tcp://``, ``socket://``, ``rfc2217://``): a gateway
+answers a silent address only after its own bus timeout, and probes sent meanwhile
+wait behind it.  On ``tcp://`` answers that come after the timeout (their
+transaction ids tell) are counted and reported ("raise --timeout"): slaves may
+have been missed.
+
+On ``tcp://`` the scan first probes unit 248, which no slave can have (serial
+addresses are 1..247): a device that answers it ignores the unit id, as a plain
+Modbus TCP device may (Messaging on TCP/IP Implementation Guide 4.4.1.2), and would
+answer every address of the range.  The scan says so ("the device answers every
+unit id") instead of listing each address.
+
+``--identify`` asks every device found for its FC 43 identification.  Exit status 0
+when at least one slave answered, 4 when none did.
 """
 
 from __future__ import annotations
@@ -22,13 +39,24 @@ from pyrtu.cli.common import (
     EXIT_OK,
     add_json_option,
     add_serial_options,
+    describe_format,
     emit,
     open_master,
     register_address,
 )
+from pyrtu.drivers._portname import RTU_TCP_SCHEME, TCP_SCHEME, url_scheme
 
 if TYPE_CHECKING:
     from pyrtu.drivers.master import Master
+
+#: the default --timeout on a serial line, and on a network port (`NETWORK_SCHEMES`)
+SERIAL_TIMEOUT = 0.1
+NETWORK_TIMEOUT = 1.0
+NETWORK_SCHEMES = frozenset((TCP_SCHEME, RTU_TCP_SCHEME, "socket", "rfc2217"))
+#: RTU (or ASCII) frames over a socket: the serial format is the far end's
+_RAW_SOCKET_SCHEMES = frozenset((RTU_TCP_SCHEME, "socket"))
+#: a unit id no slave can have (serial addresses are 1..247; 248..255 are reserved)
+RESERVED_UNIT = 248
 
 PROBES = {
     3: "read holding register",
@@ -124,59 +152,99 @@ def _configure(p: argparse.ArgumentParser) -> None:
         "--identify", action="store_true", help="FC 43 identification of each slave found"
     )
     add_json_option(p)
-    add_serial_options(p, timeout=0.1)
+    add_serial_options(
+        p,
+        timeout=SERIAL_TIMEOUT,
+        timeout_by_port=f"{SERIAL_TIMEOUT:g} s on a serial line, {NETWORK_TIMEOUT:g} s on "
+        "tcp://, rtu+tcp://, socket://, rfc2217://: more than a gateway's bus timeout",
+    )
+
+
+def default_timeout(scheme: str | None) -> float:
+    """``--timeout`` when none is given, for a port of URL ``scheme`` (None: a path)."""
+    return NETWORK_TIMEOUT if scheme in NETWORK_SCHEMES else SERIAL_TIMEOUT
+
+
+def _describe(args: argparse.Namespace, scheme: str | None) -> str:
+    """How the port is reached, for the header: the serial format of a serial line
+    (and rfc2217://, which sets it), not of a socket."""
+    if scheme == TCP_SCHEME:
+        return "Modbus TCP"
+    if scheme in _RAW_SOCKET_SCHEMES:
+        return f"{args.mode.upper()} over TCP"
+    return describe_format(args)
+
+
+def _probe_entry(master: Master, slave: int, args: argparse.Namespace) -> dict[str, Any] | None:
+    """What answered a probe of ``slave``, or None when no device did."""
+    from pyrtu.pdu.errors import ExceptionResponseError, FrameError, NoResponseError
+
+    entry: dict[str, Any] = {"slave": slave}
+    try:
+        entry.update(answer="response", detail=probe(master, slave, args.function, args.register))
+    except NoResponseError:
+        return None
+    except ExceptionResponseError as exc:
+        if exc.no_device_answered:  # a gateway's 0x0A/0x0B: no device there
+            return None
+        entry.update(
+            answer="exception",
+            detail=f"exception {exc.code} ({exc.name})",
+            exception_code=exc.code,
+        )
+    except FrameError as exc:
+        entry.update(answer="garbled", detail=str(exc))
+    if args.identify:
+        entry["identification"] = identify(master, slave)
+    return entry
 
 
 def _run(args: argparse.Namespace) -> int:
-    from pyrtu.pdu.errors import ExceptionResponseError, FrameError, NoResponseError
-
+    scheme = url_scheme(args.port)  # ValueError (usage) for a scheme no one opens
+    if args.timeout is None:
+        args.timeout = default_timeout(scheme)
     found: list[dict[str, Any]] = []
+    every: dict[str, Any] | None = None  # the answer of a device that ignores the unit id
     progress = sys.stderr.isatty()
     t0 = time.monotonic()
     addresses: range = args.addresses
     if not args.json:
         print(
             f"scanning slaves {addresses.start}-{addresses.stop - 1} on {args.port} "
-            f"({args.baudrate} baud {args.bytesize}{args.parity}{args.stopbits:g}, "
-            f"timeout {args.timeout * 1e3:g} ms, probe FC {args.function})",
+            f"({_describe(args, scheme)}, timeout {args.timeout * 1e3:g} ms, "
+            f"probe FC {args.function})",
             flush=True,
         )
     with open_master(args) as master:
-        for slave in addresses:
+        if scheme == TCP_SCHEME:
+            every = _probe_entry(master, RESERVED_UNIT, args)
+        for slave in addresses if every is None else ():
             if progress:
                 sys.stderr.write(f"\r\x1b[Kprobing {slave}...")
                 sys.stderr.flush()
-            entry: dict[str, Any] = {"slave": slave}
-            try:
-                entry.update(
-                    answer="response", detail=probe(master, slave, args.function, args.register)
-                )
-            except NoResponseError:
+            entry = _probe_entry(master, slave, args)
+            if entry is None:
                 continue
-            except ExceptionResponseError as exc:
-                entry.update(
-                    answer="exception",
-                    detail=f"exception {exc.code} ({exc.name})",
-                    exception_code=exc.code,
-                )
-            except FrameError as exc:
-                entry.update(answer="garbled", detail=str(exc))
-            if args.identify:
-                entry["identification"] = identify(master, slave)
             found.append(entry)
             if progress:
                 sys.stderr.write("\r\x1b[K")
             if not args.json:
                 print(_line(entry), flush=True)
+        late = master.counters.get("late", 0)
     if progress:
         sys.stderr.write("\r\x1b[K")
         sys.stderr.flush()
     elapsed = time.monotonic() - t0
+    ok = bool(found) or every is not None
     if args.json:
-        doc: dict[str, Any] = {} if found else {"error": "no_response", "exit_code": 4}
+        doc: dict[str, Any] = {} if ok else {"error": "no_response", "exit_code": 4}
+        if every is not None:
+            doc.update(every_unit=True, device=every)
+        if late:
+            doc["late_answers"] = late
         emit(
             {
-                "ok": bool(found),
+                "ok": ok,
                 **doc,
                 "range": [addresses.start, addresses.stop - 1],
                 "function": args.function,
@@ -185,12 +253,25 @@ def _run(args: argparse.Namespace) -> int:
                 "seconds": round(elapsed, 3),
             }
         )
+    elif every is not None:
+        print(
+            f"the device answers every unit id: unit {RESERVED_UNIT}, which no slave can "
+            f"have, {_line(every).split(': ', 1)[1]}"
+        )
+        print(f"one Modbus TCP device (it ignores the unit id) found in {elapsed:.1f} s")
     else:
         names = ", ".join(str(e["slave"]) for e in found) or "none"
         print(
             f"{len(found)} slave{'s' if len(found) != 1 else ''} found ({names}) in {elapsed:.1f} s"
         )
-    if not found:
+    if late:
+        print(
+            f"pyrtu scan: warning: {late} answer{'s' if late != 1 else ''} came after the "
+            f"timeout of {args.timeout:g} s (a gateway with a longer bus timeout?): slaves "
+            "may have been missed; raise --timeout",
+            file=sys.stderr,
+        )
+    if not ok:
         print("pyrtu scan: no response: no slave answered", file=sys.stderr)
         return EXIT_NO_RESPONSE
     return EXIT_OK

@@ -1,4 +1,14 @@
-"""Whether two port names are the same port, for refusing one port given twice.
+"""Port names: which URL schemes open, and whether two names are the same port.
+
+A port name with ``://`` is a URL: pyrtu's own ``tcp://`` (Modbus TCP) and
+``rtu+tcp://`` (RTU frames over TCP), or one of pyserial's (``socket://``,
+``rfc2217://``, ``loop://``...: the handlers pyserial finds).  `url_scheme` says
+which, and refuses any other before anything is opened, naming the supported
+schemes::
+
+    url_scheme("tcp://plc:502")         # "tcp"
+    url_scheme("udp://plc:502")         # ValueError: udp://plc:502: unsupported scheme
+                                        # udp://; supported: tcp://, rtu+tcp://, ...
 
 A process that opens one serial port twice gets "busy: another program holds it"
 from the exclusive lock at the second open, which blames somebody else for a
@@ -17,10 +27,69 @@ itself.
 
 from __future__ import annotations
 
+import importlib
 import os
+import pkgutil
 from collections.abc import Iterable
 
-__all__ = ["first_duplicate", "port_key", "same_port"]
+__all__ = [
+    "RTU_TCP_SCHEME",
+    "TCP_SCHEME",
+    "first_duplicate",
+    "port_key",
+    "same_port",
+    "supported_schemes",
+    "url_scheme",
+]
+
+#: pyrtu's own URL schemes (`pyrtu.drivers.links`): Modbus TCP, RTU frames over TCP
+TCP_SCHEME = "tcp"
+RTU_TCP_SCHEME = "rtu+tcp"
+PYRTU_SCHEMES = (TCP_SCHEME, RTU_TCP_SCHEME)
+
+
+def url_scheme(port: object, own: tuple[str, ...] = PYRTU_SCHEMES) -> str | None:
+    """The scheme of a URL port name, in lower case (``"tcp"``, ``"socket"``...); None
+    for a path or an object.  ValueError naming the URL and the supported schemes when
+    it is neither one of ``own`` (pyrtu's: `pyrtu.Master` opens them; none for a bare
+    serial port, `pyrtu.drivers.port.open_port`) nor one pyserial opens."""
+    if not isinstance(port, str) or "://" not in port:
+        return None
+    scheme = port.split("://", 1)[0].lower()
+    if scheme in own or _pyserial_opens(scheme):
+        return scheme
+    supported = ", ".join(f"{name}://" for name in supported_schemes(own))
+    raise ValueError(f"{port}: unsupported scheme {scheme}://; supported: {supported}")
+
+
+def _pyserial_opens(scheme: str) -> bool:
+    """Whether `serial.serial_for_url` finds a handler for ``scheme`` (as it looks)."""
+    import serial
+
+    for package in serial.protocol_handler_packages:
+        try:
+            importlib.import_module(f".protocol_{scheme}", package)
+        except (ImportError, ValueError, TypeError):  # (a name no module can have)
+            continue
+        return True
+    return False
+
+
+def supported_schemes(own: tuple[str, ...] = PYRTU_SCHEMES) -> list[str]:
+    """``own``, then the schemes pyserial opens here (its handlers that import)."""
+    import serial
+
+    found: set[str] = set()
+    for package in serial.protocol_handler_packages:
+        try:
+            where = importlib.import_module(package).__path__
+        except (ImportError, AttributeError):
+            continue
+        for module in pkgutil.iter_modules(where):
+            name = module.name.removeprefix("protocol_")
+            if name != module.name and name not in own and _pyserial_opens(name):
+                found.add(name)
+    return [*own, *sorted(found)]
 
 
 def port_key(port: object) -> object:

@@ -19,19 +19,16 @@ from typing import Any, Protocol
 
 from pyrtu.core.rules import LengthRule
 from pyrtu.core.timing import check_seconds
+from pyrtu.drivers._portname import PYRTU_SCHEMES, RTU_TCP_SCHEME, TCP_SCHEME, url_scheme
 from pyrtu.pdu.requests import Call
-
-#: the URL schemes whose link is not a serial line
-TCP_SCHEME = "tcp"
-RTU_TCP_SCHEME = "rtu+tcp"
 
 
 def scheme_of(port: object) -> str | None:
-    """``"tcp"`` or ``"rtu+tcp"`` for those URLs; None for a serial port."""
-    if not isinstance(port, str) or "://" not in port:
-        return None
-    scheme = port.split("://", 1)[0].lower()
-    return scheme if scheme in (TCP_SCHEME, RTU_TCP_SCHEME) else None
+    """``"tcp"`` or ``"rtu+tcp"`` for those URLs; None for a serial port (a path, a
+    pyserial URL or object).  ValueError for a URL no one opens (`url_scheme`:
+    ``udp://...: unsupported scheme udp://; supported: tcp://, ...``)."""
+    scheme = url_scheme(port)
+    return scheme if scheme in PYRTU_SCHEMES else None
 
 
 def check_retries(retries: object) -> int:

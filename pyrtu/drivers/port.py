@@ -52,7 +52,8 @@ except ImportError:
 
 from pyrtu.core.line import BYTE_FORMAT, LINE_DEFAULTS, ByteFormat, LineConfig, check_keywords
 from pyrtu.core.timing import bits_per_char
-from pyrtu.pdu.errors import PortError
+from pyrtu.drivers._portname import url_scheme
+from pyrtu.pdu.errors import PortBusyError, PortError
 
 if TYPE_CHECKING:  # Unpack is in typing from Python 3.11 (annotations only)
     from typing import Unpack
@@ -319,11 +320,7 @@ def _open_error(exc: BaseException, port: str, fmt: str, parity: str, stopbits: 
         code = exc.args[0]
     text = str(exc)
     if code in (errno.EWOULDBLOCK, errno.EAGAIN) and "exclusive" in text:
-        return PortError(
-            port,
-            "busy: another program holds it (ports are opened exclusively;"
-            " pass exclusive=False to share it)",
-        )
+        return PortBusyError(port)
     if code == errno.EINVAL or "Invalid argument" in text:
         hint = " (pseudo-terminals carry no parity: use parity='N')" if parity != "N" else ""
         return PortError(
@@ -341,7 +338,7 @@ def open_port(
 
     ``exclusive`` (POSIX): take an exclusive ``flock`` on the device, so that a
     second program opening it the same way (pyrtu, pyserial with
-    ``exclusive=True``, ...) gets `PortError` ("busy") instead of splitting the
+    ``exclusive=True``, ...) gets `PortBusyError` instead of splitting the
     bytes with the first; ``False`` shares the port.  The lock is advisory: a
     program that takes none is not stopped.  Adopted serial objects keep theirs.
     The byte format (``baudrate``, ``parity``, ``stopbits``, ``bytesize``) defaults
@@ -354,6 +351,7 @@ def open_port(
     bytesize: int = byte_format.get("bytesize", LINE_DEFAULTS["bytesize"])
     if not isinstance(port, str):
         return _adopt(port, baudrate, parity, stopbits, bytesize, rs485)
+    url_scheme(port, own=())  # ValueError for a URL pyserial does not open
     parity = parity.upper()[:1]
     bits_per_char(parity, stopbits, bytesize)  # ValueError for a bad format
     fmt = _describe(baudrate, bytesize, parity, stopbits)

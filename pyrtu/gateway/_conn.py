@@ -1,5 +1,7 @@
 """The gateway's connections: one asyncio protocol per TCP client (Modbus TCP, or
-RTU over TCP), reading requests into the gateway and writing its answers."""
+RTU over TCP), reading requests into the gateway and writing its answers.  At DEBUG
+level (``pyrtu -vv``) every frame received and sent is logged, whole (the MBAP
+header and PDU, or the RTU frame with its CRC), as a serial slave logs its own."""
 
 from __future__ import annotations
 
@@ -74,6 +76,8 @@ class _Connection(asyncio.Protocol):
                 return
             buffered -= len(ev.adu)
             completed = True
+            if log.isEnabledFor(logging.DEBUG):
+                log.debug("connection %d: RX unit %d: %s", self.id, ev.unit, ev.adu.hex(" "))
             # the request's own fields go back in its answer ([TCP] 3.1.3); its
             # protocol id is 0 (the framer refuses any other: a bad header, above)
             request(self, ev.transaction, ev.unit, ev.pdu)
@@ -97,7 +101,10 @@ class _Connection(asyncio.Protocol):
         if self.closed or t is None or t.is_closing():
             self.gateway.counters["answers_dropped"] += 1
             return
-        t.write(self.encode(transaction, unit, pdu))
+        adu = self.encode(transaction, unit, pdu)
+        t.write(adu)
+        if log.isEnabledFor(logging.DEBUG):
+            log.debug("connection %d: TX unit %d: %s", self.id, unit, adu.hex(" "))
         if t.get_write_buffer_size() > self.gateway.limits.max_write_buffer:
             self.gateway.counters["slow_clients"] += 1
             log.info("connection %d does not read its answers: reset", self.id)
@@ -169,6 +176,8 @@ class _RtuConnection(_Connection):
             if ev.kind is not FrameKind.REQUEST:
                 continue
             completed = True
+            if log.isEnabledFor(logging.DEBUG):
+                log.debug("connection %d: RX unit %d: %s", self.id, ev.address, ev.adu.hex(" "))
             self.gateway._request(self, 0, ev.address, ev.pdu)
             if self.closed:
                 break

@@ -9,7 +9,8 @@ Every error a transaction can end with derives from `ModbusError`:
 * `NoResponseError` (also a `TimeoutError`): nothing valid arrived in time.
 * `FrameError` (also a `ValueError`): bad CRC/LRC, wrong slave, wrong function
   or malformed data; `BusFault` is the echo mismatch of an echoing adapter.
-* `PortError` (also an `OSError`): a port is missing or refuses a format.
+* `PortError` (also an `OSError`): a port is missing or refuses a format;
+  `PortBusyError` when another program holds it.
 
 `SlaveException` is raised by slave-side handlers to answer with an exception
 code; it is not a `ModbusError` (nothing went wrong on the bus).
@@ -120,6 +121,32 @@ class PortError(ModbusError, OSError):
         self.port = port
 
 
+class PortBusyError(PortError):
+    """Another program holds the port (it was opened exclusively).  ``advice`` is
+    what the caller can do about it, in the caller's terms: the Python keyword by
+    default; `with_advice` words it for another caller (a command-line flag, or
+    none where the caller offers no way to share the port)."""
+
+    #: the advice of `pyrtu.open_port`, `pyrtu.Master`, `pyrtu.Slave`
+    PYTHON_ADVICE = "pass exclusive=False to share it"
+
+    def __init__(self, port: str, advice: str | None = PYTHON_ADVICE) -> None:
+        self.advice = advice
+        how = f"; {advice}" if advice else ""
+        super().__init__(
+            port, f"busy: another program holds it (ports are opened exclusively{how})"
+        )
+
+    def with_advice(self, advice: str | None) -> PortBusyError:
+        """The same error with ``advice`` (None: none), its cause kept."""
+        out = PortBusyError(self.port, advice)
+        out.__cause__ = self.__cause__
+        return out
+
+    def __reduce__(self) -> tuple[type[PortBusyError], tuple[str, str | None]]:
+        return (type(self), (self.port, self.advice))
+
+
 class SlaveException(Exception):
     """Raised by a slave handler (or a DataStore) to answer with exception ``code``."""
 
@@ -139,6 +166,7 @@ __all__ = [
     "FrameError",
     "ModbusError",
     "NoResponseError",
+    "PortBusyError",
     "PortError",
     "SlaveException",
     "exception_name",

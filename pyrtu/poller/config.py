@@ -132,7 +132,11 @@ class Bus:
             if wrong:
                 raise ValueError(f"{k}: {wrong}")
         line = dict(self.master)
-        if scheme_of(self.port) == RTU_TCP_SCHEME:
+        try:
+            scheme = scheme_of(self.port)
+        except ValueError as exc:  # a URL scheme no one opens
+            raise ValueError(f"port: {str(exc).removeprefix(f'{self.port}: ')}") from None
+        if scheme == RTU_TCP_SCHEME:
             line.setdefault("t35", 0.0)  # as the master: a socket has no wire timing
         object.__setattr__(self, "_line", make_line(line))
         if not (_real(self.share) and 0 < self.share <= 1):

@@ -20,7 +20,7 @@ from typing import Any, Protocol
 from pyrtu.drivers.aio import AsyncMaster
 from pyrtu.drivers.master import Master
 from pyrtu.pdu import requests as R
-from pyrtu.pdu.errors import ModbusError, PortError
+from pyrtu.pdu.errors import ModbusError, PortBusyError, PortError
 from pyrtu.pdu.requests import Request
 
 from .config import Bus
@@ -91,11 +91,15 @@ FACTORIES = {"aio": open_async_master, "thread": open_thread_master}
 
 async def open_master(factory: Callable[[Bus], AsyncMasterLike], bus: Bus) -> AsyncMasterLike:
     """``factory(bus)``; the sync master's open (a blocking TCP connect) runs on a
-    worker thread, so a port that is slow to refuse holds up no other bus."""
-    if factory is open_thread_master:
-        loop = asyncio.get_running_loop()
-        return await loop.run_in_executor(None, open_thread_master, bus)
-    return factory(bus)
+    worker thread, so a port that is slow to refuse holds up no other bus.  A busy
+    port's error gives no advice: the poller has no ``exclusive`` to pass."""
+    try:
+        if factory is open_thread_master:
+            loop = asyncio.get_running_loop()
+            return await loop.run_in_executor(None, open_thread_master, bus)
+        return factory(bus)
+    except PortBusyError as exc:
+        raise exc.with_advice(None) from exc.__cause__
 
 
 def is_port_error(exc: BaseException) -> bool:

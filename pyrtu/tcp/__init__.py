@@ -20,6 +20,7 @@ as a pyserial object for the serial master.
 from __future__ import annotations
 
 import asyncio
+import os
 import select
 import socket
 import time
@@ -27,10 +28,12 @@ from typing import Any
 from urllib.parse import urlsplit
 
 import serial
+from serial.urlhandler.protocol_socket import POLL_TIMEOUT
 
 from pyrtu.core._closing import AsyncClosing, Closing
 from pyrtu.core._forward import Forward, Settable
 from pyrtu.core._types import BytesLike
+from pyrtu.drivers._portname import RTU_TCP_SCHEME
 from pyrtu.drivers._ptimer import rearm
 from pyrtu.pdu.errors import ModbusError, PortError
 from pyrtu.tcp.protocol import TcpClientProtocol, check_timeout
@@ -59,13 +62,33 @@ def _where(host: str, port: int) -> str:
     return f"tcp://[{host}]:{port}" if ":" in host else f"tcp://{host}:{port}"
 
 
+def connect_error(where: str, exc: BaseException, timeout: float) -> PortError:
+    """The `PortError` of a connection not made (every TCP connect of pyrtu's says it
+    this way): what the OS said (``Connection refused``, also where asyncio words it
+    "Connect call failed"), or how long was waited for a timeout (whose text is
+    empty, or a bare "timed out")."""
+    reason = exc
+    if isinstance(exc, serial.SerialException) and isinstance(exc.__context__, OSError):
+        reason = exc.__context__  # pyserial's socket:// puts the socket's error in its text
+    if isinstance(reason, TimeoutError | asyncio.TimeoutError):
+        text = f"timed out after {timeout:g} s"
+    elif isinstance(reason, socket.gaierror) and reason.strerror:
+        text = reason.strerror  # (a resolver's code, not an errno)
+    elif isinstance(reason, OSError) and reason.errno:
+        text = os.strerror(reason.errno)
+    else:
+        text = str(reason) or type(reason).__name__
+    return PortError(where, f"cannot connect: {text}")
+
+
 def _raise(result: bytes | ModbusError | None) -> bytes | None:
     if isinstance(result, ModbusError):
         raise result
     return result
 
 
-RTU_TCP_SCHEME = "rtu+tcp"
+#: how long pyserial's socket:// (under ``rtu+tcp://``) waits for the connection
+_SOCKET_CONNECT_TIMEOUT: float = POLL_TIMEOUT
 
 
 def rtu_over_tcp(url: str) -> Any:
@@ -76,7 +99,7 @@ def rtu_over_tcp(url: str) -> Any:
     try:
         link = serial.serial_for_url(f"socket://{netloc}", timeout=0)
     except (serial.SerialException, OSError) as exc:
-        raise PortError(url, f"cannot connect: {exc}") from exc
+        raise connect_error(url, exc, _SOCKET_CONNECT_TIMEOUT) from exc
     set_nodelay(getattr(link, "_socket", None))  # pyserial's socket:// does not
     return link
 
@@ -112,7 +135,7 @@ class TcpClient(_ClientState, Closing):
         try:
             self._sock = socket.create_connection((self.host, self.port), timeout=ct)
         except OSError as exc:
-            raise PortError(self.where, f"cannot connect: {exc.strerror or exc}") from exc
+            raise connect_error(self.where, exc, ct) from exc
         set_nodelay(self._sock)
         self._sock.setblocking(False)
 
@@ -247,7 +270,7 @@ class AsyncTcpClient(_ClientState, AsyncClosing):
                 loop.create_connection(lambda: _ClientConnection(proto, where), host, port), ct
             )
         except (OSError, asyncio.TimeoutError) as exc:
-            raise PortError(where, f"cannot connect: {exc or 'timed out'}") from exc
+            raise connect_error(where, exc, ct) from exc
         set_nodelay(conn.transport.get_extra_info("socket") if conn.transport else None)
         return cls(conn, host, port, max_in_flight)
 

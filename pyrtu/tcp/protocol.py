@@ -18,10 +18,15 @@ answers it (Messaging on TCP/IP Implementation Guide 4.4.1.2).  An answer for no
 request in flight (a late one, after its timeout) is dropped and counted.  A header
 the framer cannot accept ends the connection: every request in flight fails with
 `FrameError` and ``broken`` is set.
+
+At DEBUG level (``pyrtu -vv``) the ``pyrtu.drivers.master`` logger gets every frame
+sent and received, whole (MBAP header and PDU), as a serial master logs its ADUs.
 """
 
 from __future__ import annotations
 
+import logging
+import struct
 from collections import deque
 from dataclasses import dataclass
 
@@ -40,6 +45,10 @@ from pyrtu.pdu.errors import (
 
 Result = tuple[int, bytes | ModbusError | None]
 
+#: the logger of the masters' frames (as `pyrtu.protocol.client`'s on a serial line)
+log = logging.getLogger("pyrtu.drivers.master")
+_MBAP = struct.Struct(">HHHB")  # transaction id, protocol id (0), length, unit id
+
 
 @dataclass
 class _Pending:
@@ -47,6 +56,7 @@ class _Pending:
     function: int
     deadline: float
     raw: bool = False  # an exception response is the result, as its PDU
+    sent: float = 0.0  # when it was sent (for the log)
 
 
 def check_timeout(timeout: object, name: str = "timeout") -> float:
@@ -127,7 +137,9 @@ class TcpClientProtocol:
             self.counters["broadcasts"] += 1
             self._results.append((tid, None))
         else:
-            self._pending[tid] = _Pending(unit, data[7], now + self.timeout, raw)
+            self._pending[tid] = _Pending(unit, data[7], now + self.timeout, raw, now)
+        if log.isEnabledFor(logging.DEBUG):
+            log.debug("TX unit %d fc %d tid %d: %s", unit, data[7], tid, data.hex(" "))
         return tid, data
 
     def receive_data(self, data: BytesLike, now: float) -> None:
@@ -147,6 +159,13 @@ class TcpClientProtocol:
 
     def _answer(self, tid: int, unit: int, kind: FrameKind, pdu: bytes, now: float) -> None:
         pending = self._pending.pop(tid, None)
+        if log.isEnabledFor(logging.DEBUG):
+            adu = (_MBAP.pack(tid, 0, len(pdu) + 1, unit) + pdu).hex(" ")
+            if pending is None:
+                log.debug("RX late (no request tid %d in flight), dropped: %s", tid, adu)
+            else:
+                ms = (now - pending.sent) * 1e3
+                log.debug("RX unit %d fc %d tid %d: %s (%.3f ms)", unit, pdu[0], tid, adu, ms)
         if pending is None:
             self.counters["late"] += 1
             return
