@@ -8,7 +8,7 @@ PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
-APT_PACKAGES := libmodbus-dev pkg-config socat mosquitto mosquitto-clients
+APT_PACKAGES := libmodbus-dev pkg-config socat mosquitto mosquitto-clients strace
 
 .PHONY: demo test test-asan bench lint setup system-packages fuzz fuzz-ci fuzz-build fuzz-packages \
 	fuzz-python fuzz-outbox
@@ -26,7 +26,8 @@ test: setup
 
 setup: $(STAMP)
 
-# Debian packages the interop tests need (libmodbus peers, socat pty pairs).
+# Debian packages the tests need (libmodbus peers, socat pty pairs, the MQTT broker,
+# strace for the outbox's durability tests: tests/test_bridge_durability.py).
 system-packages:
 	@missing=""; for p in $(APT_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
 	if [ -n "$$missing" ]; then \
