@@ -1,6 +1,7 @@
 # pyrtu: the two set-up commands of the README.
 #   make demo   set up (venv, packages, C core) and run the main job
-#   make test   set up and run the whole test suite (C core and pure-Python twin)
+#   make test   set up and run the whole test suite (C core and pure-Python twin); with
+#               CI=true a test that skips fails (tests/conftest.py ALLOWED_SKIPS excepted)
 # Also: make test-asan (the suite against a C core built with ASan/UBSan), make bench,
 # make fuzz (the libFuzzer harnesses of fuzz/, FUZZ_SECONDS each), make fuzz-ci.
 
@@ -8,7 +9,7 @@ PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
-APT_PACKAGES := libmodbus-dev pkg-config socat mosquitto mosquitto-clients
+APT_PACKAGES := libmodbus-dev pkg-config socat mosquitto mosquitto-clients strace
 
 .PHONY: demo test test-asan bench lint mutate mutate-faults setup system-packages fuzz fuzz-ci fuzz-build fuzz-packages \
 	fuzz-python fuzz-outbox
@@ -21,12 +22,15 @@ setup test test-asan bench lint mutate mutate-faults: export PYRTU_STRICT_BUILD 
 demo: $(STAMP)
 	$(PY) -m pyrtu demo
 
+# -rs: every skip is listed with its reason.  With CI=true (CI, .ci/run) a skip fails
+# the run unless tests/conftest.py's ALLOWED_SKIPS lists it.
 test: setup
-	$(PY) -m pytest -q tests
+	$(PY) -m pytest -q -rs tests
 
 setup: $(STAMP)
 
-# Debian packages the interop tests need (libmodbus peers, socat pty pairs).
+# Debian packages the tests need (libmodbus peers, socat pty pairs, the MQTT broker,
+# strace for the outbox's durability tests: tests/test_bridge_durability.py).
 system-packages:
 	@missing=""; for p in $(APT_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
 	if [ -n "$$missing" ]; then \
@@ -57,7 +61,7 @@ test-asan: setup
 	  PYRTU_REQUIRE_C=1 ../../$(PY) -c "import pyrtu, sys; assert pyrtu.BACKEND == 'c' and '$(ASAN_DIR)' in pyrtu.__file__ and '$(ASAN_DIR)' in pyrtu.core._cext.CRCFAST.__file__, pyrtu.__file__; print('sanitized core:', pyrtu.__file__)" && \
 	  LD_PRELOAD="$$(gcc -print-file-name=libasan.so) $$(gcc -print-file-name=libubsan.so)" \
 	  ASAN_OPTIONS=detect_leaks=0:abort_on_error=1 UBSAN_OPTIONS=halt_on_error=1:print_stacktrace=1 \
-	  PYRTU_REQUIRE_C=1 ../../$(PY) -m pytest -q -p no:cacheprovider -m 'not wall_clock and not rss' tests
+	  PYRTU_REQUIRE_C=1 ../../$(PY) -m pytest -q -rs -p no:cacheprovider -m 'not wall_clock and not rss' tests
 
 bench: setup
 	$(PY) bench/report.py

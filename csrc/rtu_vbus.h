@@ -150,8 +150,7 @@ void rtu_vbus_io_stop(rtu_vbus_io *io);
 int rtu_vbus_io_run(rtu_vbus_io *io);
 int rtu_vbus_io_errno(const rtu_vbus_io *io);
 int64_t rtu_vbus_io_now(void);
-/* wake-ups so far, and the current estimate of a timed wake-up's lateness */
+/* wake-ups so far */
 uint64_t rtu_vbus_io_wakeups(rtu_vbus_io *io);
-int64_t rtu_vbus_io_wake_estimate(rtu_vbus_io *io);
 
 #endif

@@ -130,17 +130,6 @@ uint64_t rtu_vbus_io_wakeups(rtu_vbus_io *io)
     return n;
 }
 
-int64_t rtu_vbus_io_wake_estimate(rtu_vbus_io *io)
-{
-    int64_t e;
-    if (io == NULL || io->s == NULL)
-        return 0;
-    pthread_mutex_lock(&io->mu);
-    e = io->wake_est;
-    pthread_mutex_unlock(&io->mu);
-    return e;
-}
-
 /* Write every drop's deliveries (non-blocking: what the pty cannot take is an overrun). */
 static void flush(rtu_vbus_io *io)
 {
@@ -364,11 +353,6 @@ int rtu_vbus_io_errno(const rtu_vbus_io *io)
 }
 int64_t rtu_vbus_io_now(void) { return 0; }
 uint64_t rtu_vbus_io_wakeups(rtu_vbus_io *io)
-{
-    (void)io;
-    return 0;
-}
-int64_t rtu_vbus_io_wake_estimate(rtu_vbus_io *io)
 {
     (void)io;
     return 0;

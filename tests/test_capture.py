@@ -12,6 +12,7 @@ from pathlib import Path
 from types import ModuleType
 
 import pytest
+from c_core import needs_c
 
 from pyrtu.core import _backend
 from pyrtu.core.frames import ErrorReason
@@ -224,7 +225,7 @@ MEMORY = textwrap.dedent(
 )
 # Tens of megabytes through the pure-Python framer take minutes: the memory tests
 # measure the reader with the C framer (the twin's framer buffers the same bounded way).
-needs_c = pytest.mark.skipif(_backend.C is None, reason="the C core is not built")
+needs_c_core = needs_c(_backend.C is None)
 # Under AddressSanitizer (make test-asan) the peak RSS is the sanitizer's (shadow
 # memory, its allocator's caches and quarantine): there the memory tests stream the
 # same captures through the instrumented core and check the frames, and the bounds
@@ -245,7 +246,7 @@ def peak_rss(path: Path) -> tuple[int, int]:
     return int(out[0]), int(out[1])
 
 
-@needs_c
+@needs_c_core
 def test_memory_is_bounded_whatever_the_capture_size(tmp_path: Path) -> None:
     # Memory, not time: the 24 MB capture must take what the 3 MB one takes
     # (the old reader built a tuple per byte: 482 MB for 5 MB).
@@ -263,7 +264,7 @@ def test_memory_is_bounded_whatever_the_capture_size(tmp_path: Path) -> None:
         assert sizes[24] < sizes[3] + 16 * 1024, sizes  # kB: independent of the size
 
 
-@needs_c
+@needs_c_core
 def test_memory_is_bounded_on_random_bytes(tmp_path: Path) -> None:
     path = tmp_path / "noise.cap"
     with open(path, "wb") as f:

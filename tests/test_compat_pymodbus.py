@@ -11,11 +11,11 @@
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable, Iterator
 from typing import Any
 
 import pytest
+from c_core import missing
 
 pytest.importorskip("pymodbus")
 
@@ -45,9 +45,7 @@ BACKENDS = ["c", "python"]
 def backend_name(request: pytest.FixtureRequest) -> str:
     name: str = request.param
     if name not in pyrtu.available_backends():
-        if os.environ.get("PYRTU_REQUIRE_C") == "1":
-            pytest.fail("PYRTU_REQUIRE_C=1 but the C core is not built")
-        pytest.skip("the C core is not built here")
+        missing()
     return name
 
 

@@ -11,12 +11,11 @@ from __future__ import annotations
 from typing import Any
 
 import pytest
+from c_core import needs_c
 
 import pyrtu
 
-pytestmark = pytest.mark.skipif(
-    "c" not in pyrtu.available_backends(), reason="the C core is not built here"
-)
+pytestmark = needs_c("c" not in pyrtu.available_backends())
 
 
 @pytest.fixture

@@ -21,6 +21,7 @@ from types import ModuleType
 from typing import Any
 
 import pytest
+from c_core import need_c
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -84,10 +85,7 @@ def _gen_module() -> ModuleType:
 
 
 def _c_backend() -> ModuleType:
-    if "c" not in pyrtu.available_backends():
-        if os.environ.get("PYRTU_REQUIRE_C") == "1":
-            pytest.fail("PYRTU_REQUIRE_C=1 but the C core is not built")
-        pytest.skip("the C core is not built here")
+    need_c()
     return pyrtu.backend("c")
 
 

@@ -19,6 +19,7 @@ from types import ModuleType
 from typing import Any
 
 import pytest
+from c_core import missing, need_c
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -40,10 +41,7 @@ def crc_bitwise(data: bytes, crc: int = 0xFFFF) -> int:
 
 
 def _cext() -> ModuleType:
-    if "c" not in pyrtu.available_backends():
-        if os.environ.get("PYRTU_REQUIRE_C") == "1":
-            pytest.fail("PYRTU_REQUIRE_C=1 but the C core is not built")
-        pytest.skip("the C core is not built here")
+    need_c()
     from pyrtu.core import _cext
 
     return _cext
@@ -55,9 +53,7 @@ def _fast() -> ModuleType:
     try:
         from pyrtu.core import _crcfast
     except ImportError as exc:
-        if os.environ.get("PYRTU_REQUIRE_C") == "1":
-            pytest.fail(f"PYRTU_REQUIRE_C=1 but pyrtu.core._crcfast is not built ({exc})")
-        pytest.skip("pyrtu.core._crcfast is not built here")
+        missing(f"pyrtu.core._crcfast is not built here ({exc})")
     return _crcfast
 
 

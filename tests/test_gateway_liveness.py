@@ -269,3 +269,72 @@ def test_header_and_idle_timeouts_close_the_silent_and_spare_the_talkers(
         await bus.close()
 
     run(main())
+
+
+@pytest.mark.wall_clock
+def test_rtu_listener_closes_a_partial_request_at_the_header_timeout(
+    libmodbus_tcp: str,
+    run,  # type: ignore[no-untyped-def]
+) -> None:
+    """The RTU-over-TCP listener times out a request that never completes, as the MBAP
+    listener does: a client that sends 3 bytes of an RTU request and stops, and one
+    that drips a request a byte every 0.4 s (8 bytes: 2.8 s), are closed after the
+    header timeout (1 s; the idle timeout is 600 s, so only the header timeout can
+    close them) and within 5 s more (the sweep runs every 0.25 s); an RTU client that
+    sends whole requests is served throughout and kept."""
+    from pyrtu import add_crc
+
+    rtu_read = add_crc(b"\x01" + READ)  # 8 bytes
+
+    async def main() -> None:
+        bus = await AsyncTcpClient.connect(libmodbus_tcp, timeout=2.0, max_in_flight=1)
+        limits = GatewayLimits(header_timeout=1.0, idle_timeout=600.0)
+        gw = Gateway([(bus, parse_units("1"))], limits)
+        await gw.start("127.0.0.1", 0, rtu=("127.0.0.1", 0))
+        assert gw.rtu_address is not None
+        loop = asyncio.get_running_loop()
+        t0 = loop.time()
+        half_r, half_w = await asyncio.open_connection(*gw.rtu_address)
+        half_w.write(rtu_read[:3])
+        drip_r, drip_w = await asyncio.open_connection(*gw.rtu_address)
+
+        async def dripping() -> None:
+            while True:
+                for b in rtu_read:
+                    drip_w.write(bytes((b,)))
+                    await asyncio.sleep(0.4)
+
+        dripper = asyncio.ensure_future(dripping())
+        talker_r, talker_w = await asyncio.open_connection(*gw.rtu_address)
+
+        async def closed_at(reader: asyncio.StreamReader) -> float:
+            try:
+                await asyncio.wait_for(reader.read(), 15.0)
+            except ConnectionResetError:
+                pass
+            return loop.time() - t0
+
+        waits = [asyncio.ensure_future(closed_at(r)) for r in (half_r, drip_r)]
+        served = 0
+        while not all(w.done() for w in waits):
+            talker_w.write(rtu_read)
+            answer = await asyncio.wait_for(talker_r.readexactly(5 + 8), 5.0)
+            assert answer == add_crc(b"\x01\x03\x08" + pdu_words(pattern.holdings(1, 0, 4)))
+            served += 1
+            await asyncio.sleep(0.2)
+        half_at, drip_at = (w.result() for w in waits)
+        assert limits.header_timeout <= half_at < limits.header_timeout + 5.0
+        assert limits.header_timeout <= drip_at < limits.header_timeout + 5.0
+        assert gw.counters["header_timeouts"] == 2 and gw.counters["idle_timeouts"] == 0
+        assert served >= 4 and gw.stats()["open_connections"] == 1  # the talker
+        dripper.cancel()
+        for w in (half_w, drip_w, talker_w):
+            w.close()
+        await gw.close()
+        await bus.close()
+
+    run(main())
+
+
+def pdu_words(values: list[int]) -> bytes:
+    return b"".join(v.to_bytes(2, "big") for v in values)

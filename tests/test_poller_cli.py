@@ -152,9 +152,25 @@ def test_missing_file_and_missing_port(tmp_path: Path) -> None:
     assert r.code == 2 and "--duration" in r.err
 
 
-def test_single_range_form_still_works() -> None:
-    r = pyrtu("poll", "loop://", "0", "--count", "1", "--timeout", "0.05", "--json")
+def test_single_range_form_still_works(tmp_path: Path) -> None:
+    """The old form reads a drive: P0100 and P0101 of a CFW701 on the virtual bus
+    (acceleration and deceleration times, whose factory defaults the manual gives as
+    5.0 s and 10.0 s: 50 and 100 in 0.1 s), and reports them in its final line."""
+    with Served(tmp_path) as s:
+        assert (s.sim.get(100), s.sim.get(101)) == (50, 100)  # the simulated drive's
+        r = pyrtu(
+            "poll", s.bus.paths[0], "100", "2", "-a", "1", "-n", "3", "-r", "0",
+            "-b", "115200", "-P", "N", "--json", timeout=60,
+        )  # fmt: skip
+    assert r.code == 0, (r.out, r.err)
+    final = r.json_lines()[-1]
+    assert final["final"] is True and final["slave"] == 1
+    assert final["values"] == [50, 100] and final["addresses"] == [100, 101]
+    total = final["total"]
+    assert isinstance(total, dict) and (total["transactions"], total["ok"]) == (3, 3)
+    assert total["errors"] == {}
     # loop:// sends the request back: a frame error (6), reported by the old command
+    r = pyrtu("poll", "loop://", "0", "--count", "1", "--timeout", "0.05", "--json")
     assert r.code == 6 and '"final": true' in r.out
 
 

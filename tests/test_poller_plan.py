@@ -8,7 +8,7 @@ import math
 import pytest
 
 from pyrtu.pdu.data import encode_float32, encode_string, encode_uint32
-from pyrtu.poller import Cuts, Limits, Point, PointError, Wire, merge_pays, plan, split
+from pyrtu.poller import Block, Cuts, Limits, Point, PointError, Wire, merge_pays, plan, split
 from pyrtu.poller.plan import chunks, response_size
 
 #: 19200 baud 8E1: 11 bits a character, t3.5 = 2.005 ms; turnaround t3.5
@@ -258,3 +258,60 @@ def test_encode_point_value_says_what_the_registers_hold() -> None:
     assert got.words == [65535] and not got.rounded and got.value == 6553.5
     got = encode_point_value(tenths, 21.43)
     assert got.words == [214] and got.rounded and got.value == 21.4
+
+
+# -- points sharing registers -----------------------------------------------------------
+
+
+def _placed(blocks: list[Block], names: set[str]) -> None:
+    """Every point named is in exactly one block, and that block reads all its registers."""
+    seen = [p.name for b in blocks for p in b.points]
+    assert sorted(seen) == sorted(names), seen
+    for b in blocks:
+        for p in b.points:
+            assert b.address <= p.address and p.end <= b.end, (b, p)
+
+
+@pytest.mark.parametrize("n", [2, 3])
+def test_points_declared_on_one_address_are_all_read(n: int) -> None:
+    """Two or three views of one register (raw, scaled, signed): one block, one
+    register, every point in it (none dropped for sharing the previous one's address)."""
+    views = [pt(7, "raw"), pt(7, "scaled", scale=0.1), pt(7, "signed", type="int16")][:n]
+    blocks = plan(views, WIRE)
+    assert [(b.address, b.count) for b in blocks] == [(7, 1)]
+    _placed(blocks, {p.name for p in views})
+    # beside other points, and with a device that reads one register per request
+    more = [pt(6), *views, pt(8)]
+    _placed(plan(more, WIRE), {p.name for p in more})
+    one = plan(more, WIRE, Limits(max_registers=1))
+    assert [(b.address, b.count) for b in one] == [(6, 1), (7, 1), (8, 1)]
+    _placed(one, {p.name for p in more})
+
+
+def test_overlapping_32_bit_points_are_all_read() -> None:
+    """uint32 at 10 (10, 11) and float32 at 11 (11, 12), and a uint16 at 11: one block
+    10..12; with two registers per request the float cannot join the first block."""
+    points = [pt(10, "a", type="uint32"), pt(11, "b", type="float32"), pt(11, "c")]
+    blocks = plan(points, WIRE)
+    assert [(b.address, b.count) for b in blocks] == [(10, 3)]
+    _placed(blocks, {"a", "b", "c"})
+    two = plan(points, WIRE, Limits(max_registers=2))
+    _placed(two, {"a", "b", "c"})
+    assert all(b.count <= 2 for b in two)
+    # the block's registers decode each point (struct: big-endian words, ABCD)
+    regs = [0x0001, 0x3FC0, 0x0000]  # 10..12: a = 0x00013FC0, b = 1.5 (0x3FC00000)
+    by_name = {p.name: p for p in points}
+    assert by_name["a"].decode(regs, 10) == 0x00013FC0
+    assert by_name["b"].decode(regs, 10) == 1.5
+    assert by_name["c"].decode(regs, 10) == 0x3FC0
+
+
+def test_a_change_of_exactly_the_deadband_is_not_delivered() -> None:
+    """docs/POLLER.md: a value is delivered when it differs from the last delivered one
+    by *more than* the deadband: exactly the deadband is not enough (values exact in
+    binary, so the difference is exactly the deadband)."""
+    p = pt(0, deadband=0.5, type="float32")
+    assert not p.changed(1.0, 1.5) and not p.changed(1.5, 1.0)
+    assert p.changed(1.0, 1.5 + 2**-20) and p.changed(1.0, 0.5 - 2**-20)
+    q = pt(0, deadband=2)  # integers: 10 -> 12 is exactly the deadband
+    assert not q.changed(10, 12) and not q.changed(12, 10) and q.changed(10, 13)

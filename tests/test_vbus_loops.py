@@ -10,13 +10,14 @@ import time
 from pathlib import Path
 
 import pytest
+from c_core import needs_c
 
 import pyrtu
 from pyrtu.vbus import Faults, VirtualBus
 
 FAST = 230400
 C_LOOP = pyrtu.BACKEND == "c"
-needs_c = pytest.mark.skipif(not C_LOOP, reason="the C loop needs the C core as the backend")
+needs_c_loop = needs_c(not C_LOOP, "the C loop needs the C core as the backend")
 
 
 def open_drop(bus: VirtualBus, drop: int) -> int:
@@ -52,7 +53,7 @@ def test_a_bad_loop_name_is_refused() -> None:
         VirtualBus(2, loop="fast")
 
 
-@needs_c
+@needs_c_loop
 def test_line_faults_move_a_running_bus_to_the_python_loop() -> None:
     with VirtualBus(3, baudrate=FAST, echo=[0]) as bus:
         assert bus.loop == "c"
@@ -72,7 +73,7 @@ def test_line_faults_move_a_running_bus_to_the_python_loop() -> None:
             os.close(b)
 
 
-@needs_c
+@needs_c_loop
 def test_unplug_and_replug_on_the_c_loop() -> None:
     with VirtualBus(2, baudrate=FAST) as bus:
         a, b = open_drop(bus, 0), open_drop(bus, 1)
@@ -108,7 +109,7 @@ print(time.perf_counter_ns(), flush=True)
 """
 
 
-@needs_c
+@needs_c_loop
 @pytest.mark.wall_clock
 def test_the_c_loop_delivers_while_python_holds_the_gil() -> None:
     """The C loop needs no GIL: a frame crosses the bus while this process's main

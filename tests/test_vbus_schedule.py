@@ -7,15 +7,14 @@ exception type of every refused input; the semantics are pinned here on both.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
 from typing import Any
 
 import pytest
+from c_core import need_c
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import pyrtu
 from pyrtu.core._pure.vbus import OUT, QUEUE, Schedule
 from pyrtu.vbus import collision_byte
 
@@ -26,10 +25,7 @@ Sched = Any  # Schedule or CSchedule: the same interface
 
 
 def _c_schedule() -> Callable[[int, int, int], Sched]:
-    if "c" not in pyrtu.available_backends():
-        if os.environ.get("PYRTU_REQUIRE_C") == "1":
-            pytest.fail("PYRTU_REQUIRE_C=1 but the C core is not built")
-        pytest.skip("the C core is not built here")
+    need_c()
     from pyrtu.vbus._cvbus import CSchedule
 
     return CSchedule

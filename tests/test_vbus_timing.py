@@ -36,8 +36,8 @@ bare pty's own jitter (p99 - p50), measured before and again after the frame, is
 within the 200 us floor.  On a
 saturated machine (bare pty p99 of milliseconds: the kernel's pty work is a normal
 priority kworker, behind every busy process) the kernel alone breaks the bound
-for some bytes; when no run is judged and none passes, the test is skipped with
-its figures, as unmeasurable here, rather than failed.
+for some bytes; when no run is judged and none passes, the test fails with its
+figures, as unmeasurable here (it never skips: a skip would let CI pass unchecked).
 """
 
 from __future__ import annotations
@@ -316,8 +316,10 @@ def check(
         "\n".join(map(str, runs))
         + f"\n(hub thread real-time: {runs[-1].realtime}; load average: {os.getloadavg()})"
     )
+    # A machine too loaded to measure on fails too (after ATTEMPTS runs), never skips:
+    # a skip would let CI pass without the check
     if not any(run.measurable for run in runs):
-        pytest.skip(
+        pytest.fail(
             "unmeasurable here: the bare pty's own jitter (p99 - p50) exceeded the 200 us"
             " fidelity floor in every run, and no run met the bounds anyway:\n" + report
         )

@@ -17,7 +17,11 @@ that a write torn by a power cut spoils at most the slot being written)::
 
     magic b"OBc1", generation u64, acked u64, reserved u64, dropped u64, crc u32
 
-The slot with the highest generation and a valid checksum wins.  ``acked``: every
+The slot with the highest generation and a valid checksum wins.
+
+The format's version is the segment magic's last byte and the cursor magic's last
+character (``FORMAT_VERSION``); an outbox of another version is refused
+(`foreign_version`), never read as corrupt nor written over.  ``acked``: every
 record with a sequence number <= acked is delivered (or dropped).  ``reserved``: every
 sequence number handed out so far is < reserved, so numbers are never reused after a
 crash.  ``dropped``: records dropped by the budget since the directory was created.
@@ -31,6 +35,7 @@ import zlib
 from collections.abc import Callable, Iterator
 from typing import NamedTuple
 
+FORMAT_VERSION = 1
 SEG_MAGIC = b"pyrtuOB\x01"
 SEG_HEAD = struct.Struct("<8sQ")
 REC_MAGIC = b"\xb7OBr"
@@ -45,6 +50,31 @@ SEGMENT_NAME = re.compile(r"^(\d{20})\.seg$")
 MAX_SEQ = 2**63 - 1
 
 assert REC_HEAD.size == 28 and SEG_HEAD.size == 16 and REC_PRE.size == 24
+
+
+def cursor_version(data: bytes) -> int:
+    """The newest format version named by a cursor slot with a valid checksum
+    (``FORMAT_VERSION`` when none is valid: an empty or torn cursor)."""
+    found: list[int] = []
+    for off in STATE_SLOTS:
+        end = off + STATE.size
+        if len(data) < end + CRC.size:
+            continue
+        if zlib.crc32(data[off:end]) != CRC.unpack_from(data, end)[0]:
+            continue
+        magic = data[off : off + len(STATE_MAGIC)]
+        if magic[:-1] == STATE_MAGIC[:-1]:
+            found.append(magic[-1] - ord("0"))
+    return max(found, default=FORMAT_VERSION)
+
+
+def segment_version(head: bytes) -> int:
+    """The format version a segment header names (``FORMAT_VERSION`` when it is no
+    outbox segment header at all: that is for the recovery to report)."""
+    prefix = SEG_MAGIC[:-1]
+    if len(head) < SEG_HEAD.size or head[: len(prefix)] != prefix:
+        return FORMAT_VERSION
+    return head[len(prefix)]
 
 
 def segment_name(first: int) -> str:

@@ -125,6 +125,7 @@ class Outbox(Flushing):
             data = os.pread(self._state_fd, fmt.STATE_SIZE, 0)
         except OSError as exc:
             raise self._io_error("reading", state_path.name, exc) from exc
+        self._check_versions(data)
         state = fmt.decode_state(data)
         if state is None:
             if data.strip(b"\0"):
@@ -149,6 +150,26 @@ class Outbox(Flushing):
         self._dir_dirty = True
         self._sync_dir()
         self._save_state(reserved=self._next_seq + RESERVE)  # ahead of the first append
+
+    def _check_versions(self, cursor: bytes) -> None:
+        """Refuse an outbox of another format version (a newer pyrtu's) before anything
+        in it is read as corrupt, deleted or written over."""
+        found = [("cursor", fmt.cursor_version(cursor))]
+        for name in sorted(os.listdir(self.directory)):
+            if fmt.SEGMENT_NAME.match(name):
+                try:
+                    with open(self.directory / name, "rb") as f:
+                        head = f.read(fmt.SEG_HEAD.size)
+                except OSError as exc:
+                    raise self._io_error("reading", name, exc) from exc
+                found.append((name, fmt.segment_version(head)))
+        for name, version in found:
+            if version != fmt.FORMAT_VERSION:
+                raise OutboxError(
+                    f"outbox {self.directory}: {name} is in outbox format version {version}, "
+                    f"and this pyrtu reads version {fmt.FORMAT_VERSION} only (was it written "
+                    "by a newer pyrtu?): upgrade pyrtu, or move the directory away"
+                )
 
     def _recover_segment(self, path: Path, first: int, last: int) -> Segment | None:
         try:

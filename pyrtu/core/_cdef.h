@@ -249,7 +249,6 @@ int rtu_vbus_io_run(rtu_vbus_io *io);
 int rtu_vbus_io_errno(const rtu_vbus_io *io);
 int64_t rtu_vbus_io_now(void);
 uint64_t rtu_vbus_io_wakeups(rtu_vbus_io *io);
-int64_t rtu_vbus_io_wake_estimate(rtu_vbus_io *io);
 
 /* csrc/rtu_xfer.h: one master exchange on a serial descriptor */
 #define RTU_XFER_ANSWER 0

@@ -204,8 +204,5 @@ class CLoop:
     def wakeups(self) -> int:
         return int(self._lib.rtu_vbus_io_wakeups(self.io))
 
-    def wake_estimate_ns(self) -> int:
-        return int(self._lib.rtu_vbus_io_wake_estimate(self.io))
-
     def destroy(self) -> None:
         self._lib.rtu_vbus_io_destroy(self.io)
