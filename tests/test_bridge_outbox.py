@@ -340,6 +340,29 @@ def test_refuse_raises_outbox_full_and_loses_nothing(tmp_path: Path) -> None:
         assert [s for s, _ in everything(ob)] == [*rest, accepted[-1] + 1]
 
 
+def test_a_full_outbox_refuses_until_delivery_frees_a_segment(tmp_path: Path) -> None:
+    """Once full (policy "refuse"), a record that would still fit the bytes left is
+    refused too, until an acknowledgement frees a segment: the outbox does not flap
+    between full and accepting (each flip a report to the user)."""
+    limits = OutboxLimits(max_bytes=8192, segment_bytes=2048, policy="refuse")
+    with Outbox(tmp_path / "ob", limits) as ob:
+        big = b"b" * 100  # 28-byte record header + 100: 128 bytes, 15 to a segment
+        accepted = []
+        with pytest.raises(OutboxFull):
+            for _ in range(100):
+                accepted.append(ob.append(big, 0.0))
+        # four segments of 16 + 15 * 128 = 1936 bytes, then 16 + 3 * 128 in the fifth:
+        # 8144 bytes used, 48 left (a record of 20 bytes would fit exactly)
+        assert len(accepted) == 63 and ob.bytes_used == 8144
+        fits = b"s" * (limits.max_bytes - ob.bytes_used - 28)
+        with pytest.raises(OutboxFull):
+            ob.append(fits, 0.0)
+        ob.flush()
+        ob.ack(accepted[20])  # the first segment's 15 records delivered: it goes
+        assert ob.bytes_used == 8144 - 1936
+        assert ob.append(fits, 0.0) == accepted[-1] + 1
+
+
 # -- a disk that fills, for real -----------------------------------------------
 
 

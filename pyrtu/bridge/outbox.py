@@ -101,6 +101,10 @@ class Outbox(Flushing):
         self._unflushed_since: float | None = None
         self._dirty_since: float | None = None
         self._bytes_used = 0
+        #: policy "refuse", once full: the bytes used then; every record is refused
+        #: until acknowledged records free a segment (no flapping between a small
+        #: record that fits and the next that does not)
+        self._full_at: int | None = None
         self._total = 0
         self._hint: tuple[int, Segment, int] | None = None  # (seq, segment, offset)
         self._oldest: tuple[int, float] | None = None  # (acked, oldest_time) cache
@@ -230,8 +234,11 @@ class Outbox(Flushing):
         active = self._active
         rotate = active is None or active.size + size > limits.segment_bytes
         need = size + fmt.SEG_HEAD.size if rotate else size  # a new segment has a header
-        if self._bytes_used + need > limits.max_bytes:
+        still_full = self._full_at is not None and self._bytes_used >= self._full_at
+        if still_full or self._bytes_used + need > limits.max_bytes:
             if limits.policy == "refuse":
+                if self._full_at is None:
+                    self._full_at = self._bytes_used
                 raise error(
                     f"outbox {self.directory} is full: {self._bytes_used} bytes on disk, "
                     f"max_bytes={limits.max_bytes}; the record of {n} bytes is refused "
@@ -309,6 +316,8 @@ class Outbox(Flushing):
         i = bisect.bisect_left(self._firsts, seg.first)
         del self._segs[i], self._firsts[i]
         self._bytes_used -= seg.size
+        if self._full_at is not None and self._bytes_used < self._full_at:
+            self._full_at = None  # room again: records are taken
         self._total -= seg.count
         self._oldest = None
         if self._hint is not None and self._hint[1] is seg:
