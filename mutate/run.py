@@ -152,7 +152,7 @@ def _pytest(tests: list[str]) -> list[str]:
         "-p",
         "no:cacheprovider",
         "-m",
-        "not wall_clock and not rss",
+        "not rss",
         *tests,
     ]
 

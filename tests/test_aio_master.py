@@ -17,7 +17,7 @@ import pytest
 from ptylink import PtyLink, ScriptedSlave, make_store, serving
 
 from pyrtu import add_crc
-from pyrtu import pdu as P
+from pyrtu import pdu as pdus
 from pyrtu.core.line import LineConfig
 from pyrtu.drivers.aio import AsyncMaster, new_event_loop, run
 from pyrtu.pdu.errors import ExceptionResponseError, FrameError, ModbusError, PortError
@@ -62,7 +62,9 @@ def test_every_method_on_a_pty(backend: ModuleType, mode: str) -> None:
                 await m.mask_write_register(1, 3, 0x00F0, 0x0001)
                 assert await m.read_write_registers(1, 3, 3, 10, [9]) == [(77 & 0xF0) | 1, 5, 6]
                 assert await m.read_discrete_inputs(1, 3, 2) == [False, True]
-                assert await m.request(1, P.read_request(3, 0, 2)) == bytes.fromhex("030403e803e9")
+                assert await m.request(1, pdus.read_request(3, 0, 2)) == bytes.fromhex(
+                    "030403e803e9"
+                )
                 with pytest.raises(ExceptionResponseError) as info:
                     await m.read_holding_registers(1, 250, 1)
                 assert info.value.code == 2

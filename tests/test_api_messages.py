@@ -9,29 +9,29 @@ from types import ModuleType
 import pytest
 from ptylink import PtyLink
 
-from pyrtu import pdu as P
+from pyrtu import pdu as pdus
 from pyrtu.drivers.master import Master
 
 WRONG_TYPES: list[tuple[Callable[[], object], str]] = [
     # the values were iterated or read as numbers: "'int' object is not iterable",
     # and b"ab" wrote the registers 97 and 98
-    (lambda: P.write_registers_request(0, 5), "write_registers: values must be a sequence"),
-    (lambda: P.write_registers_request(0, b"ab"), "values must be a sequence .* not bytes"),
-    (lambda: P.write_registers_request(0, bytearray(b"ab")), "not bytearray"),
-    (lambda: P.write_registers_request(0, memoryview(b"ab")), "not memoryview"),
-    (lambda: P.write_registers_request(0, "12"), "not str"),
-    (lambda: P.write_registers_request(0, [1.0]), r"values\[0\] must be an integer"),
-    (lambda: P.write_registers_request(0, None), "values must be a sequence"),  # type: ignore[arg-type]
-    (lambda: P.write_coils_request(0, b"\x01\x00"), "write_coils: values .* not bytes"),
-    (lambda: P.write_coils_request(0, 1), "write_coils: values must be a sequence"),  # type: ignore[arg-type]
-    (lambda: P.write_coils_request(0, [None]), r"values\[0\] must be a bool"),
-    (lambda: P.read_write_request(0, 1, 0, b"ab"), "read_write_registers: values"),
-    (lambda: P.read_file_request(5), "read_file_record: items must be a sequence"),  # type: ignore[arg-type]
-    (lambda: P.read_file_request([5]), "item 0 must be"),  # type: ignore[list-item]
-    (lambda: P.write_file_request([(1, 0, b"ab")]), "write_file_record: values .* bytes"),
-    (lambda: P.read_request(3, 1.0, 1), "address must be an integer"),  # type: ignore[arg-type]
-    (lambda: P.read_request(3, 0, True), "count must be an integer"),
-    (lambda: P.check_slave("x", "1", broadcast=False), "slave must be an integer"),
+    (lambda: pdus.write_registers_request(0, 5), "write_registers: values must be a sequence"),
+    (lambda: pdus.write_registers_request(0, b"ab"), "values must be a sequence .* not bytes"),
+    (lambda: pdus.write_registers_request(0, bytearray(b"ab")), "not bytearray"),
+    (lambda: pdus.write_registers_request(0, memoryview(b"ab")), "not memoryview"),
+    (lambda: pdus.write_registers_request(0, "12"), "not str"),
+    (lambda: pdus.write_registers_request(0, [1.0]), r"values\[0\] must be an integer"),
+    (lambda: pdus.write_registers_request(0, None), "values must be a sequence"),  # type: ignore[arg-type]
+    (lambda: pdus.write_coils_request(0, b"\x01\x00"), "write_coils: values .* not bytes"),
+    (lambda: pdus.write_coils_request(0, 1), "write_coils: values must be a sequence"),  # type: ignore[arg-type]
+    (lambda: pdus.write_coils_request(0, [None]), r"values\[0\] must be a bool"),
+    (lambda: pdus.read_write_request(0, 1, 0, b"ab"), "read_write_registers: values"),
+    (lambda: pdus.read_file_request(5), "read_file_record: items must be a sequence"),  # type: ignore[arg-type]
+    (lambda: pdus.read_file_request([5]), "item 0 must be"),  # type: ignore[list-item]
+    (lambda: pdus.write_file_request([(1, 0, b"ab")]), "write_file_record: values .* bytes"),
+    (lambda: pdus.read_request(3, 1.0, 1), "address must be an integer"),  # type: ignore[arg-type]
+    (lambda: pdus.read_request(3, 0, True), "count must be an integer"),
+    (lambda: pdus.check_slave("x", "1", broadcast=False), "slave must be an integer"),
 ]
 
 
@@ -44,9 +44,9 @@ def test_wrong_types_raise_type_error(call: Callable[[], object], message: str) 
 
 
 WRONG_VALUES: list[tuple[Callable[[], object], str]] = [
-    (lambda: P.write_coils_request(0, [2]), r"values\[0\] must be a bool"),
-    (lambda: P.write_registers_request(0, [70000]), r"values\[0\] must be 0..65535"),
-    (lambda: P.read_file_request([(1, 2)]), "item 0 must be"),  # type: ignore[list-item]
+    (lambda: pdus.write_coils_request(0, [2]), r"values\[0\] must be a bool"),
+    (lambda: pdus.write_registers_request(0, [70000]), r"values\[0\] must be 0..65535"),
+    (lambda: pdus.read_file_request([(1, 2)]), "item 0 must be"),  # type: ignore[list-item]
 ]
 
 
@@ -58,11 +58,11 @@ def test_wrong_values_raise_value_error(call: Callable[[], object], message: str
 
 
 def test_sequences_of_any_kind_are_accepted() -> None:
-    want = P.write_registers_request(0, [97, 98])
-    assert P.write_registers_request(0, (97, 98)) == want
-    assert P.write_registers_request(0, iter([97, 98])) == want
-    assert P.write_registers_request(0, range(97, 99)) == want
-    assert P.write_coils_request(0, (True, 0, 1)) == P.write_coils_request(0, [1, 0, 1])
+    want = pdus.write_registers_request(0, [97, 98])
+    assert pdus.write_registers_request(0, (97, 98)) == want
+    assert pdus.write_registers_request(0, iter([97, 98])) == want
+    assert pdus.write_registers_request(0, range(97, 99)) == want
+    assert pdus.write_coils_request(0, (True, 0, 1)) == pdus.write_coils_request(0, [1, 0, 1])
 
 
 @pytest.fixture

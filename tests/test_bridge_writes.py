@@ -20,8 +20,7 @@ from paho.mqtt.properties import Properties
 
 from pyrtu.bridge import parse_bridge_config
 from pyrtu.bridge.bridge import Bridge
-from pyrtu.devices import CFW701Simulator
-from pyrtu.devices import weg as W
+from pyrtu.devices import CFW701Simulator, weg
 from pyrtu.drivers._loopthread import LoopThread
 
 vbus = pytest.importorskip("pyrtu.vbus")
@@ -55,7 +54,7 @@ name = "weg.ref"
 bus = "line"
 slave = 1
 table = "holding"
-address = {W.P_REFERENCE}
+address = {weg.P_REFERENCE}
 writable = true
 min = 0
 max = 8192
@@ -65,7 +64,7 @@ name = "weg.speed_rw"
 bus = "line"
 slave = 1
 table = "holding"
-address = {W.P_MOTOR_SPEED}
+address = {weg.P_MOTOR_SPEED}
 writable = true
 interval = 1
 {points}"""
@@ -78,7 +77,7 @@ name = "weg.ref_tenths"
 bus = "line"
 slave = 1
 table = "holding"
-address = {W.P_REFERENCE}
+address = {weg.P_REFERENCE}
 scale = 0.1
 writable = true
 interval = 1
@@ -118,7 +117,7 @@ def wait_results(cl: Client, n: int, point: str = "weg.ref") -> list[dict[str, A
 
 
 def ref(sim: CFW701Simulator) -> int:
-    return int(sim.store.holding_registers.get(W.P_REFERENCE))
+    return int(sim.store.holding_registers.get(weg.P_REFERENCE))
 
 
 def test_a_write_is_read_back_published_and_answered(tmp_path: Path) -> None:

@@ -20,8 +20,7 @@ from typing import Any
 import pytest
 from cli_helpers import Background, pyrtu
 
-from pyrtu.devices import ACUSimulator, CFW701Simulator, CV100Simulator
-from pyrtu.devices import weg as W
+from pyrtu.devices import ACUSimulator, CFW701Simulator, CV100Simulator, weg
 from pyrtu.drivers.master import Master
 from pyrtu.drivers.slave import Slave
 from pyrtu.protocol.datastore import DataStore
@@ -134,7 +133,7 @@ def test_no_command_and_bad_arguments_are_usage_errors(bus: Bus) -> None:
 def test_read_for_people_with_a_profile(bus: Bus) -> None:
     r = pyrtu("read", bus.port, *SERIAL, "--slave", CFW, "680", "2", "--profile", "cfw701")
     assert r.code == 0, r.err
-    status = bus.cfw701.get(W.P_STATUS)
+    status = bus.cfw701.get(weg.P_STATUS)
     assert f"[680] {status} (0x{status:04X})" in r.out
     assert "P680 status: stopped, forward, local" in r.out
     assert "[681] 0 (0x0000)" in r.out
@@ -236,9 +235,9 @@ def test_write_usage_errors(bus: Bus) -> None:
 
 
 def test_write_drives_a_simulated_drive(bus: Bus) -> None:
-    ref = W.hz_to_13bit(12, 60)
+    ref = weg.hz_to_13bit(12, 60)
     assert pyrtu("write", bus.port, *SERIAL, "--slave", CFW, "683", ref).code == 0
-    assert bus.cfw701.get(W.P_REFERENCE) == ref
+    assert bus.cfw701.get(weg.P_REFERENCE) == ref
     # P680 is read-only on the drive: exception 3 (the manual's case)
     r = pyrtu("write", bus.port, *SERIAL, "--slave", CFW, "680", "1", "--json")
     assert r.code == 5 and r.json()["exception_code"] == 3
@@ -404,8 +403,8 @@ def test_sniff_a_live_port_device_aware(bus: Bus) -> None:
     try:
         assert bus.vbus.wait_clients(SNIFFER, timeout=5)
         time.sleep(0.3)
-        bus.master.read_holding_registers(CFW, W.P_STATUS, 2)
-        bus.master.write_register(CFW, W.P_CONTROL, 0)
+        bus.master.read_holding_registers(CFW, weg.P_STATUS, 2)
+        bus.master.write_register(CFW, weg.P_CONTROL, 0)
         r = bg.finish()
     finally:
         bg.kill()
@@ -465,7 +464,7 @@ def test_simulate_serves_a_drive_until_sigterm(bus: Bus) -> None:
     try:
         ready = bg.line(timeout=10)
         assert '"type": "ready"' in ready and '"address": 7' in ready
-        drive = W.CFW701(bus.master, 7)
+        drive = weg.CFW701(bus.master, 7)
         assert drive.identify()["product_code"] == "CFW701"
         drive.start()
         assert drive.status().running
@@ -510,7 +509,7 @@ def test_simulate_one_drive_per_port_in_one_process() -> None:
                 Master(a.paths[0], BAUD, parity="N", timeout=1.0) as ma,
                 Master(b.paths[0], BAUD, parity="N", timeout=1.0) as mb,
             ):
-                on_a, on_b = W.CFW701(ma, 7), W.CFW701(mb, 7)
+                on_a, on_b = weg.CFW701(ma, 7), weg.CFW701(mb, 7)
                 assert on_a.identify()["product_code"] == "CFW701"
                 assert on_b.identify()["product_code"] == "CFW701"
                 on_a.start()

@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 
-from pyrtu import pdu as P
+from pyrtu import pdu as pdus
 from pyrtu.core.ascii import encode_ascii
 from pyrtu.core.line import LineConfig
 from pyrtu.pdu.errors import BusFault, ExceptionResponseError, FrameError, NoResponseError
@@ -308,7 +308,7 @@ def test_misuse_is_refused(backend: ModuleType) -> None:
     p.start(*read_holding_registers(1, 0, 1), now=1.0)
     with pytest.raises(RuntimeError, match="in progress"):
         p.start(*read_holding_registers(1, 0, 1), now=1.0)
-    big = P.write_registers_request(0, [1] * 123)
+    big = pdus.write_registers_request(0, [1] * 123)
     q = proto(backend, line=LineConfig(max_adu=64))
     with pytest.raises(ValueError, match="max_adu"):
         q.start(1, big, None, 1.0)

@@ -7,9 +7,8 @@ import math
 
 import pytest
 
-from pyrtu.devices import bonfiglioli as B
+from pyrtu.devices import bonfiglioli, weg
 from pyrtu.devices import cv100 as C
-from pyrtu.devices import weg as W
 from pyrtu.devices.common import s16, s32, scaled, u16, u32, unscaled
 from pyrtu.devices.motor import ManualClock, Motor, Supervision, Timeline
 from tests.vectors import TELEGRAMS
@@ -19,55 +18,55 @@ from tests.vectors import TELEGRAMS
 
 def test_13bit_scale_examples() -> None:
     # CFW100 P683: 30 Hz of a 60 Hz motor is 4096 (1000h, the FC 06 example); P681 2048 is 15 Hz
-    assert W.hz_to_13bit(30, 60) == 0x1000
-    assert W.hz_from_13bit(0x0800, 60) == 15.0
-    assert W.hz_to_13bit(60, 60) == 8192
+    assert weg.hz_to_13bit(30, 60) == 0x1000
+    assert weg.hz_from_13bit(0x0800, 60) == 15.0
+    assert weg.hz_to_13bit(60, 60) == 8192
     # CFW701 wording: 900 rpm of 1800 rpm synchronous speed is 4096, 2048 reads 450 rpm
-    assert W.rpm_to_13bit(900, 1800) == 4096
-    assert W.rpm_from_13bit(2048, 1800) == 450.0
+    assert weg.rpm_to_13bit(900, 1800) == 4096
+    assert weg.rpm_from_13bit(2048, 1800) == 450.0
 
 
 def test_13bit_scale_saturates_and_signs() -> None:
-    assert W.hz_to_13bit(4 * 60, 60) == 32767
-    assert W.hz_to_13bit(1000, 60) == 32767
-    assert W.hz_to_13bit(-1000, 60) == -32768
-    assert W.hz_to_13bit(-30, 60) == -4096
-    assert W.hz_from_13bit(u16(-4096), 60) == -30.0
-    assert W.hz_from_13bit(0xF000, 60) == -30.0
+    assert weg.hz_to_13bit(4 * 60, 60) == 32767
+    assert weg.hz_to_13bit(1000, 60) == 32767
+    assert weg.hz_to_13bit(-1000, 60) == -32768
+    assert weg.hz_to_13bit(-30, 60) == -4096
+    assert weg.hz_from_13bit(u16(-4096), 60) == -30.0
+    assert weg.hz_from_13bit(0xF000, 60) == -30.0
     with pytest.raises(ValueError):
-        W.hz_to_13bit(10, 0)
+        weg.hz_to_13bit(10, 0)
 
 
 def test_status_word_common_layout() -> None:
-    st = W.decode_status(0b1001_0111_1010_0000, "CFW701")
+    st = weg.decode_status(0b1001_0111_1010_0000, "CFW701")
     assert st.fault and st.remote and st.forward and st.enabled and st.running
     assert st.alarm and st.second_ramp
     assert not (st.jog or st.undervoltage or st.config_mode)
     assert st.run_command is None and st.fire_mode is None
-    assert W.decode_status(0x1700).describe() == "running, forward, remote"
-    assert W.decode_status(0x0000, "CFW100").describe() == "stopped, reverse, local, disabled"
+    assert weg.decode_status(0x1700).describe() == "running, forward, remote"
+    assert weg.decode_status(0x0000, "CFW100").describe() == "stopped, reverse, local, disabled"
 
 
 def test_status_word_cfw320_bits_differ() -> None:
     # bits 1 (run command) and 2 (fire mode) exist only on the CFW320
-    cfw320 = W.decode_status(0x0006, "CFW320")
+    cfw320 = weg.decode_status(0x0006, "CFW320")
     assert cfw320.run_command is True and cfw320.fire_mode is True
-    other = W.decode_status(0x0006, "CFW100")
+    other = weg.decode_status(0x0006, "CFW100")
     assert other.run_command is None and other.active() == []
-    assert W.encode_status(cfw320, "CFW320") == 0x0006
-    assert W.encode_status(cfw320, "CFW701") == 0
+    assert weg.encode_status(cfw320, "CFW320") == 0x0006
+    assert weg.encode_status(cfw320, "CFW701") == 0
 
 
 def test_control_word_builder() -> None:
-    assert W.control_word(run=True) == 0x17  # run, enable, direction as reference, remote
-    assert W.control_word(enable=False, remote=False, forward=False) == 0
-    assert W.control_word(fault_reset=True, jog=True) == 0x9E
-    assert W.WegControl(second_ramp=True, forward=False).encode("CFW100") == 0x20
-    assert W.WegControl(fast_stop=True, forward=False).encode("CFW701") == 0x40
+    assert weg.control_word(run=True) == 0x17  # run, enable, direction as reference, remote
+    assert weg.control_word(enable=False, remote=False, forward=False) == 0
+    assert weg.control_word(fault_reset=True, jog=True) == 0x9E
+    assert weg.WegControl(second_ramp=True, forward=False).encode("CFW100") == 0x20
+    assert weg.WegControl(fast_stop=True, forward=False).encode("CFW701") == 0x40
     with pytest.raises(ValueError, match="fast_stop"):
-        W.WegControl(fast_stop=True).encode("CFW100")
-    assert W.WegControl.decode(0xE0FF, "CFW701").pid_external2_manual
-    assert not W.WegControl.decode(0xE0FF, "CFW100").pid_external2_manual
+        weg.WegControl(fast_stop=True).encode("CFW100")
+    assert weg.WegControl.decode(0xE0FF, "CFW701").pid_external2_manual
+    assert not weg.WegControl.decode(0xE0FF, "CFW100").pid_external2_manual
 
 
 @pytest.mark.parametrize(
@@ -76,21 +75,21 @@ def test_control_word_builder() -> None:
 )
 def test_reference_direction_table(bit2: bool, reference: int, forward: bool) -> None:
     """The four lines of the P683 direction table."""
-    assert W.reference_direction(4 if bit2 else 0, u16(reference)) is forward
+    assert weg.reference_direction(4 if bit2 else 0, u16(reference)) is forward
 
 
 def test_error_actions_write_the_control_word() -> None:
     full = 0x3F
-    assert W.apply_error_action(full, W.ErrorAction.RAMP_STOP) == 0x3E
-    assert W.apply_error_action(full, W.ErrorAction.GENERAL_DISABLE) == 0x3D
-    assert W.apply_error_action(full, W.ErrorAction.GO_TO_LOCAL) == 0x2F
-    assert W.apply_error_action(full, W.ErrorAction.LOCAL_KEEP_COMMANDS) == 0x2F
-    assert W.apply_error_action(full, W.ErrorAction.INACTIVE) == full
-    assert W.apply_error_action(full, W.ErrorAction.CAUSE_FAULT) == full
+    assert weg.apply_error_action(full, weg.ErrorAction.RAMP_STOP) == 0x3E
+    assert weg.apply_error_action(full, weg.ErrorAction.GENERAL_DISABLE) == 0x3D
+    assert weg.apply_error_action(full, weg.ErrorAction.GO_TO_LOCAL) == 0x2F
+    assert weg.apply_error_action(full, weg.ErrorAction.LOCAL_KEEP_COMMANDS) == 0x2F
+    assert weg.apply_error_action(full, weg.ErrorAction.INACTIVE) == full
+    assert weg.apply_error_action(full, weg.ErrorAction.CAUSE_FAULT) == full
 
 
 def test_weg_parameter_tables() -> None:
-    cfw100, cfw320, cfw701 = (W.parameters(m) for m in ("CFW100", "CFW320", "CFW701"))
+    cfw100, cfw320, cfw701 = (weg.parameters(m) for m in ("CFW100", "CFW320", "CFW701"))
     for table in (cfw100, cfw320, cfw701):
         assert table[680].ro and table[681].ro and table[316].ro
         assert not table[682].ro and table[683].accepts(u16(-32768))
@@ -100,15 +99,15 @@ def test_weg_parameter_tables() -> None:
     assert cfw701[695].high == 0x1F and cfw320[695].high == 0xF
     assert cfw100[310].high == 2 and cfw320[310].high == 4 and cfw701[310].high == 3
     assert cfw701[311].default == 0 and cfw100[311].default == 1
-    assert W.CFW320_MODEL.functions == frozenset({1, 2, 3, 5, 6, 15, 16, 22, 23, 43})
-    assert W.CFW100_MODEL.functions == frozenset({3, 4, 6, 16, 43})
+    assert weg.CFW320_MODEL.functions == frozenset({1, 2, 3, 5, 6, 15, 16, 22, 23, 43})
+    assert weg.CFW100_MODEL.functions == frozenset({3, 4, 6, 16, 43})
 
 
 def test_weg_describe_register() -> None:
-    assert W.describe_register("CFW701", 680, 0x1700) == "P680 status: running, forward, remote"
-    assert W.describe_register("CFW701", 316, 2) == "P316 serial interface: watchdog_error"
-    assert W.describe_register("CFW320", 685, 4096) == "P685 reference: 4096/8192 of P403"
-    assert W.describe_register("CFW701", 100, 10) is None
+    assert weg.describe_register("CFW701", 680, 0x1700) == "P680 status: running, forward, remote"
+    assert weg.describe_register("CFW701", 316, 2) == "P316 serial interface: watchdog_error"
+    assert weg.describe_register("CFW320", 685, 4096) == "P685 reference: 4096/8192 of P403"
+    assert weg.describe_register("CFW701", 100, 10) is None
 
 
 # -- CV100 ----------------------------------------------------------------------------
@@ -173,27 +172,27 @@ def test_cv100_scalings() -> None:
 
 
 def test_bonfiglioli_addressing() -> None:
-    assert B.address(372, 2) == 0x2174
-    assert B.address(376, 4) == 0x4178
-    assert B.address(481) == 0x01E1
-    assert B.address(375, 2) == 0x2177
-    assert B.address(484, 0, ram=True) == 0x51E4
-    assert B.address(1599, 4, ram=True) == 0x963F  # the top of the manual's 0x0000-0x963F
-    assert B.split(0x2640) == (2, 1600)
+    assert bonfiglioli.address(372, 2) == 0x2174
+    assert bonfiglioli.address(376, 4) == 0x4178
+    assert bonfiglioli.address(481) == 0x01E1
+    assert bonfiglioli.address(375, 2) == 0x2177
+    assert bonfiglioli.address(484, 0, ram=True) == 0x51E4
+    assert bonfiglioli.address(1599, 4, ram=True) == 0x963F  # the top of the manual's 0x0000-0x963F
+    assert bonfiglioli.split(0x2640) == (2, 1600)
     with pytest.raises(ValueError):
-        B.address(372, 5, ram=True)
+        bonfiglioli.address(372, 5, ram=True)
     with pytest.raises(ValueError):
-        B.address(0x1000)
+        bonfiglioli.address(0x1000)
 
 
 def test_chapter_11_parameter_list() -> None:
     chapter_11 = {228, 229, 249, 250, 260, 270, 282, 283, 411}  # 11.1 actual values
     chapter_11 |= {10, 11, 34, 392, 394, 395, 410, 412, 413, 414, 424, 425, 434}  # 11.2
     chapter_11 |= {484, 524, 549, 632, 637, 638, 1375, 1376}
-    assert chapter_11 <= set(B.PARAMETERS)
-    p = B.PARAMETERS
-    assert p[413].high == 10000 and p[413].type is B.Type.UINT
-    assert p[484].type is B.Type.LONG and (p[484].low, p[484].high) == (-99999, 99999)
+    assert chapter_11 <= set(bonfiglioli.PARAMETERS)
+    p = bonfiglioli.PARAMETERS
+    assert p[413].high == 10000 and p[413].type is bonfiglioli.Type.UINT
+    assert p[484].type is bonfiglioli.Type.LONG and (p[484].low, p[484].high) == (-99999, 99999)
     assert p[524].decimals == 2 and p[524].high == 30000
     assert p[1376].low == 1 and p[1376].high == 247
     assert not p[411].writable and p[410].ram_only
@@ -204,7 +203,7 @@ def test_chapter_11_parameter_list() -> None:
 
 
 def test_drivecom_walk_and_transitions() -> None:
-    S = B.DriveState
+    S = bonfiglioli.DriveState
     walk = [
         (0x06, S.READY, 2),
         (0x07, S.SWITCHED_ON, 3),
@@ -215,27 +214,35 @@ def test_drivecom_walk_and_transitions() -> None:
     ]
     state = S.STARTING_LOCKOUT
     for word, expected, transition in walk:
-        state, t = B.next_state(state, word)
+        state, t = bonfiglioli.next_state(state, word)
         assert (state, t) == (expected, transition)
-    assert B.next_state(S.STARTING_LOCKOUT, 0x0F) == (S.OPERATION_ENABLED, 4)  # the extension
-    assert B.next_state(S.OPERATION_ENABLED, 0x06) == (S.READY, 8)
-    assert B.next_state(S.OPERATION_ENABLED, 0x00) == (S.STARTING_LOCKOUT, 9)
-    assert B.next_state(S.SWITCHED_ON, 0x00) == (S.STARTING_LOCKOUT, 10)
-    assert B.next_state(S.OPERATION_ENABLED, 0x02) == (S.QUICK_STOP, 11)
-    assert B.next_state(S.QUICK_STOP, 0x00) == (S.STARTING_LOCKOUT, 12)
-    assert B.next_state(S.FAULT, 0x0F) == (S.FAULT, None)
-    assert B.next_state(S.READY, 0x06) == (S.READY, None)
+    assert bonfiglioli.next_state(S.STARTING_LOCKOUT, 0x0F) == (
+        S.OPERATION_ENABLED,
+        4,
+    )  # the extension
+    assert bonfiglioli.next_state(S.OPERATION_ENABLED, 0x06) == (S.READY, 8)
+    assert bonfiglioli.next_state(S.OPERATION_ENABLED, 0x00) == (S.STARTING_LOCKOUT, 9)
+    assert bonfiglioli.next_state(S.SWITCHED_ON, 0x00) == (S.STARTING_LOCKOUT, 10)
+    assert bonfiglioli.next_state(S.OPERATION_ENABLED, 0x02) == (S.QUICK_STOP, 11)
+    assert bonfiglioli.next_state(S.QUICK_STOP, 0x00) == (S.STARTING_LOCKOUT, 12)
+    assert bonfiglioli.next_state(S.FAULT, 0x0F) == (S.FAULT, None)
+    assert bonfiglioli.next_state(S.READY, 0x06) == (S.READY, None)
 
 
 def test_status_word_decoding() -> None:
     for value in (0x40, 0x21, 0x23, 0x27, 0x07, 0x08, 0x0F):
-        assert B.state_of(value) == value
-        assert B.state_of(value | 0x10 | 0x0680) == value  # bit 4 and bits 7..15 ignored
-    st = B.VectronStatus.decode(0x0627)
-    assert st.state is B.DriveState.OPERATION_ENABLED and st.remote and st.reference_reached
+        assert bonfiglioli.state_of(value) == value
+        assert bonfiglioli.state_of(value | 0x10 | 0x0680) == value  # bit 4 and bits 7..15 ignored
+    st = bonfiglioli.VectronStatus.decode(0x0627)
+    assert (
+        st.state is bonfiglioli.DriveState.OPERATION_ENABLED and st.remote and st.reference_reached
+    )
     assert st.describe() == "operation enabled, remote, reference reached"
-    assert B.fault_text(B.F2010) == "F2010" and B.fault_text(0x0102) == "F0102"
-    assert B.warnings_of(0x008B) == ["Ixt", "Short-Term Ixt", "Heat Sink Temperature Tk",
+    assert (
+        bonfiglioli.fault_text(bonfiglioli.F2010) == "F2010"
+        and bonfiglioli.fault_text(0x0102) == "F0102"
+    )
+    assert bonfiglioli.warnings_of(0x008B) == ["Ixt", "Short-Term Ixt", "Heat Sink Temperature Tk",
                                      "Motor Temperature"]  # fmt: skip
 
 
@@ -330,10 +337,10 @@ def test_registry_and_describe() -> None:
     assert describe_register("cfw320", 680, 0x1502) == (
         "P680 status: running, forward, remote, disabled"
     )
-    assert describe_register("acu", B.P_STATUS_WORD, 0x0237) == (
+    assert describe_register("acu", bonfiglioli.P_STATUS_WORD, 0x0237) == (
         "411 status: operation enabled, remote (0x0237)"
     )
-    assert describe_register("act", B.address(484), u32(-1234)) == (
+    assert describe_register("act", bonfiglioli.address(484), u32(-1234)) == (
         "484 Reference Frequency RAM (data set 0): -12.34 Hz"
     )
     assert describe_register("cv100", C.MAIN_REFERENCE, 5000) == (

@@ -27,8 +27,8 @@ from pyrtu.devices import (
     ErrorAction,
     InterfaceStatus,
     WegSimulator,
+    bonfiglioli,
 )
-from pyrtu.devices import bonfiglioli as B
 from pyrtu.devices import cv100 as C
 from pyrtu.drivers.master import Master
 from pyrtu.pdu.errors import ExceptionResponseError
@@ -242,8 +242,8 @@ def test_vectron_profile_state_machine(bus: Bus, name: str, cls: type[ACT]) -> N
     sim: ACTSimulator | ACUSimulator = getattr(bus, name)
     drive = cls(bus.master, ADDRESSES[name])
     assert drive.state() is DriveState.STARTING_LOCKOUT
-    drive.write(B.P_ACCELERATION, 200.0)  # Hz/s
-    drive.write(B.P_DECELERATION, 200.0)
+    drive.write(bonfiglioli.P_ACCELERATION, 200.0)  # Hz/s
+    drive.write(bonfiglioli.P_DECELERATION, 200.0)
     drive.set_frequency_hz(30)
     drive.shutdown()
     assert drive.state() is DriveState.READY
@@ -255,7 +255,7 @@ def test_vectron_profile_state_machine(bus: Bus, name: str, cls: type[ACT]) -> N
     assert st.voltage is (name == "acu")
     _wait(0.25)
     assert drive.frequency_hz() == pytest.approx(30.0) and drive.status().reference_reached
-    drive.write(B.P_EMERGENCY_CW, 300.0)  # Hz/s
+    drive.write(bonfiglioli.P_EMERGENCY_CW, 300.0)  # Hz/s
     drive.write(638, 0.1)  # holding time
     drive.quick_stop()
     assert drive.state() is DriveState.QUICK_STOP
@@ -265,7 +265,7 @@ def test_vectron_profile_state_machine(bus: Bus, name: str, cls: type[ACT]) -> N
     drive.disable_voltage()  # coasts at once
     assert drive.state() is DriveState.STARTING_LOCKOUT and drive.frequency_hz() == 0.0
     assert drive.start(30) is DriveState.OPERATION_ENABLED
-    drive.write(B.P_STATE_TRANSITION_5, 0)  # coast
+    drive.write(bonfiglioli.P_STATE_TRANSITION_5, 0)  # coast
     drive.stop()
     assert drive.state() is DriveState.SWITCHED_ON
     sim.fault(0x0500)
@@ -275,7 +275,7 @@ def test_vectron_profile_state_machine(bus: Bus, name: str, cls: type[ACT]) -> N
     _wait(0.25)
     drive.reset_fault()
     assert drive.state() is DriveState.STARTING_LOCKOUT and drive.current_error() == "F0000"
-    drive.write(B.P_STATE_TRANSITION_5, 2)
+    drive.write(bonfiglioli.P_STATE_TRANSITION_5, 2)
 
 
 def test_vectron_profile_parameters_and_diagnostics(bus: Bus) -> None:
@@ -286,16 +286,18 @@ def test_vectron_profile_parameters_and_diagnostics(bus: Bus) -> None:
         "protocol": "Modbus RTU",
         "address": "6",  # Modbus Address 1376: the address the simulator serves
     }
-    assert drive.read(B.P_RATED_SPEED, 2) == 1390
-    assert drive.read(B.P_FIXED_FREQUENCY_2) == 10.0
-    drive.write(B.P_RATED_FREQUENCY, 10.0, 2)
-    assert drive.read(B.P_RATED_FREQUENCY, 2) == 10.0
+    assert drive.read(bonfiglioli.P_RATED_SPEED, 2) == 1390
+    assert drive.read(bonfiglioli.P_FIXED_FREQUENCY_2) == 10.0
+    drive.write(bonfiglioli.P_RATED_FREQUENCY, 10.0, 2)
+    assert drive.read(bonfiglioli.P_RATED_FREQUENCY, 2) == 10.0
     with pytest.raises(ExceptionResponseError) as exc:
-        drive.write(B.P_RATED_FREQUENCY, 9.0, 2)
-    assert exc.value.code == 4 and drive.error_register() is B.VabusError.INADMISSIBLE_VALUE
-    assert drive.error_register() is B.VabusError.NO_ERROR
-    drive.write(B.P_RATED_POWER, 1.5, 4, ram=True)
-    assert drive.read(B.P_RATED_POWER, 4) == 1.5
+        drive.write(bonfiglioli.P_RATED_FREQUENCY, 9.0, 2)
+    assert (
+        exc.value.code == 4 and drive.error_register() is bonfiglioli.VabusError.INADMISSIBLE_VALUE
+    )
+    assert drive.error_register() is bonfiglioli.VabusError.NO_ERROR
+    drive.write(bonfiglioli.P_RATED_POWER, 1.5, 4, ram=True)
+    assert drive.read(bonfiglioli.P_RATED_POWER, 4) == 1.5
     with pytest.raises(ExceptionResponseError):
         drive.read_raw(1600, 2, size=4)
     drive.select_data_set(2)
@@ -328,10 +330,13 @@ def test_vectron_profile_ascii() -> None:
         sim.serve(vbus.paths[1], 1, baudrate=BAUD, parity="N")
         with Master(vbus.paths[0], BAUD, parity="N", mode="ascii", timeout=0.5) as master:
             drive = ACT(master, 1)
-            assert drive.read(B.P_FIXED_FREQUENCY_2) == 10.0
+            assert drive.read(bonfiglioli.P_FIXED_FREQUENCY_2) == 10.0
             assert drive.start(10) is DriveState.OPERATION_ENABLED
             with pytest.raises(ExceptionResponseError) as exc:
-                drive.write(B.P_RATED_SPEED, 1400, 1)  # rated data: not while running
-            assert exc.value.code == 4 and drive.error_register() is B.VabusError.NOT_WHILE_RUNNING
-            assert drive.read_raw(B.P_RATED_SPEED, 1) == 1390
+                drive.write(bonfiglioli.P_RATED_SPEED, 1400, 1)  # rated data: not while running
+            assert (
+                exc.value.code == 4
+                and drive.error_register() is bonfiglioli.VabusError.NOT_WHILE_RUNNING
+            )
+            assert drive.read_raw(bonfiglioli.P_RATED_SPEED, 1) == 1390
         sim.close()

@@ -19,9 +19,9 @@ from pyrtu.devices import (
     CFW701Simulator,
     CV100Simulator,
     ManualClock,
+    weg,
 )
 from pyrtu.devices import cv100 as C
-from pyrtu.devices import weg as W
 from pyrtu.devices._simbase import Outputs
 from pyrtu.protocol.datastore import DataStore
 
@@ -139,8 +139,8 @@ def test_weg_read_after_time_moved_is_fresh(clock: ManualClock) -> None:
     d = Direct(CFW701Simulator(clock=clock))
     try:
         assert d.write(100, 50, 50) == 0  # 5.0 s ramps
-        assert d.write(683, W.hz_to_13bit(30, 60)) == 0
-        assert d.write(682, W.control_word(run=True)) == 0
+        assert d.write(683, weg.hz_to_13bit(30, 60)) == 0
+        assert d.write(682, weg.control_word(run=True)) == 0
         seen = []
         for _ in range(3):
             clock.advance(1.0)
@@ -158,8 +158,8 @@ def test_weg_read_sees_the_time_after_the_telegram(clock: ManualClock) -> None:
     try:
         slow_slave(d, clock)
         assert d.write(100, 50, 50) == 0  # 5.0 s ramps: 13.2 Hz/s
-        assert d.write(683, W.hz_to_13bit(30, 60)) == 0
-        assert d.write(682, W.control_word(run=True)) == 0
+        assert d.write(683, weg.hz_to_13bit(30, 60)) == 0
+        assert d.write(682, weg.control_word(run=True)) == 0
         assert [d.read(5)[0] for _ in range(4)] == [13, 26, 40, 53]  # P005: 0.1 Hz
     finally:
         d.close()
@@ -169,9 +169,9 @@ def test_weg_telegram_shows_the_model_in_the_store(clock: ManualClock) -> None:
     d = Direct(CFW320Simulator(clock=clock))
     try:
         regs = d.sim.store.holding_registers
-        assert int(regs.get(316)) == W.InterfaceStatus.INACTIVE  # no traffic yet
+        assert int(regs.get(316)) == weg.InterfaceStatus.INACTIVE  # no traffic yet
         assert d.pdu(b"\x2b\x0e\x01\x00")[0] == 0x2B  # FC 43 reads no register
-        assert int(regs.get(316)) == W.InterfaceStatus.ACTIVE
+        assert int(regs.get(316)) == weg.InterfaceStatus.ACTIVE
     finally:
         d.close()
 
@@ -183,13 +183,13 @@ def test_weg_written_parameters_and_the_watchdog_show(clock: ManualClock) -> Non
         assert isinstance(sim, CFW701Simulator)
         assert d.write(401, 40) == 0  # rated current 4.0 A (CFG: while stopped)
         assert d.write(314, 300) == 0  # watchdog 30.0 s
-        assert d.write(683, W.hz_to_13bit(30, 60)) == 0
+        assert d.write(683, weg.hz_to_13bit(30, 60)) == 0
         assert d.read(1) == [0]  # P001: speed reference, 0.1 Hz
-        assert d.write(682, W.control_word(run=True)) == 0
+        assert d.write(682, weg.control_word(run=True)) == 0
         assert d.read(1) == [300]
         clock.advance(10)
         assert d.read(3) == [20]  # P003: 4.0 A x 30 Hz / 60 Hz
-        assert d.write(683, W.hz_to_13bit(45, 60)) == 0
+        assert d.write(683, weg.hz_to_13bit(45, 60)) == 0
         assert d.read(1) == [450]
         assert d.read(316) == [1]  # interface active
         clock.advance(30.5)

@@ -21,10 +21,10 @@ from pyrtu.devices import (
     DriveSimulator,
     DriveState,
     ManualClock,
+    bonfiglioli,
+    weg,
 )
-from pyrtu.devices import bonfiglioli as B
 from pyrtu.devices import cv100 as C
-from pyrtu.devices import weg as W
 from pyrtu.devices.common import u16
 
 
@@ -185,43 +185,43 @@ def test_cfw_reaches_30hz_after_the_ramp(cfw701: Direct, clock: ManualClock) -> 
     sim = cfw701.sim
     assert isinstance(sim, CFW701Simulator)
     assert cfw701.write(100, 20, 20) == 0  # 2.0 s from 0 to P134 = 66.0 Hz
-    assert cfw701.write(683, W.hz_to_13bit(30, 60)) == 0
-    assert cfw701.write(682, W.control_word(run=True)) == 0
-    assert W.decode_status(cfw701.read(680)[0]).describe() == "running, forward, remote"
+    assert cfw701.write(683, weg.hz_to_13bit(30, 60)) == 0
+    assert cfw701.write(682, weg.control_word(run=True)) == 0
+    assert weg.decode_status(cfw701.read(680)[0]).describe() == "running, forward, remote"
     ramp = 30 / 66 * 2.0
     assert sim.ramp_time_left() == pytest.approx(ramp)
     clock.advance(ramp / 2)
     assert sim.speed_hz() == pytest.approx(15.0)
     clock.advance(ramp / 2)
-    assert W.hz_from_13bit(cfw701.read(681)[0], 60) == pytest.approx(30.0, abs=0.01)
+    assert weg.hz_from_13bit(cfw701.read(681)[0], 60) == pytest.approx(30.0, abs=0.01)
     assert cfw701.read(2, 2) == [30, 15]  # P002 30 Hz, P003 1.5 A
     assert cfw701.write(403, 50) == 3  # CFG while running
-    assert cfw701.write(682, W.control_word(run=False)) == 0
+    assert cfw701.write(682, weg.control_word(run=False)) == 0
     clock.advance(0.5)  # decelerating: 66 Hz in 2 s
     assert sim.speed_hz() == pytest.approx(30 - 33.0 * 0.5)
     clock.advance(0.5)
     assert sim.speed_hz() == 0.0
-    assert W.decode_status(cfw701.read(680)[0]).describe() == "stopped, forward, remote"
+    assert weg.decode_status(cfw701.read(680)[0]).describe() == "stopped, forward, remote"
 
 
 def test_cfw_direction_jog_disable_and_local(cfw701: Direct, clock: ManualClock) -> None:
     sim = cfw701.sim
     assert isinstance(sim, CFW701Simulator)
     cfw701.write(100, 1, 1)
-    cfw701.write(683, W.hz_to_13bit(-30, 60))
-    cfw701.write(682, W.control_word(run=True))
+    cfw701.write(683, weg.hz_to_13bit(-30, 60))
+    cfw701.write(682, weg.control_word(run=True))
     clock.advance(5)
     assert sim.speed_hz() == pytest.approx(-30.0)
     assert not sim.status().forward
-    cfw701.write(682, W.control_word(run=True, forward=False))  # bit 2 = 0 inverts: forward
+    cfw701.write(682, weg.control_word(run=True, forward=False))  # bit 2 = 0 inverts: forward
     clock.advance(5)
     assert sim.speed_hz() == pytest.approx(30.0) and sim.status().forward
-    cfw701.write(682, W.control_word(jog=True))
+    cfw701.write(682, weg.control_word(jog=True))
     clock.advance(5)
     assert sim.speed_hz() == pytest.approx(-5.0) and sim.status().jog  # P122 = 5.0 Hz, bit 2 = 1
-    cfw701.write(682, W.control_word(run=True, enable=False))
+    cfw701.write(682, weg.control_word(run=True, enable=False))
     assert sim.speed_hz() == 0.0 and not sim.status().enabled  # coasts at once
-    cfw701.write(682, W.control_word(run=True, remote=False))
+    cfw701.write(682, weg.control_word(run=True, remote=False))
     clock.advance(5)
     st = sim.status()
     assert not st.remote and not st.running and sim.speed_hz() == 0.0  # the keypad holds no run
@@ -234,8 +234,8 @@ def test_cfw100_manual_state_and_second_ramp(clock: ManualClock) -> None:
         assert d.read(680) == [0x1700] and d.read(681) == [4096]
         assert d.read(680, fc=4) == [0x1700]  # FC 04 reads the same parameters
         d.write(102, 1, 1)
-        d.write(682, W.control_word(run=True, second_ramp=True))
-        d.write(683, W.hz_to_13bit(60, 60))
+        d.write(682, weg.control_word(run=True, second_ramp=True))
+        d.write(683, weg.hz_to_13bit(60, 60))
         clock.advance(0.1)  # second ramp: 0.1 s for 66 Hz
         assert d.read(2) == [60] and d.read(680)[0] & 0x20  # status bit 5: second ramp
     finally:
@@ -249,12 +249,12 @@ def test_cfw320_reference_at_p683_and_p685(clock: ManualClock) -> None:
     try:
         assert sim.get(316) == 0  # no valid traffic yet
         assert d.read(316) == [1]  # the request itself is valid traffic
-        d.write(685, W.hz_to_13bit(20, 60))
-        assert d.read(683) == [W.hz_to_13bit(20, 60)]
-        d.write(683, W.hz_to_13bit(10, 60))
-        assert d.read(685) == [W.hz_to_13bit(10, 60)]
+        d.write(685, weg.hz_to_13bit(20, 60))
+        assert d.read(683) == [weg.hz_to_13bit(20, 60)]
+        d.write(683, weg.hz_to_13bit(10, 60))
+        assert d.read(685) == [weg.hz_to_13bit(10, 60)]
         d.write(100, 1)
-        d.write(682, W.control_word(run=True))
+        d.write(682, weg.control_word(run=True))
         clock.advance(1)
         assert sim.speed_hz() == pytest.approx(10.0, abs=0.01)
         st = sim.status()
@@ -273,36 +273,36 @@ def test_cfw320_reference_at_p683_and_p685(clock: ManualClock) -> None:
 @pytest.mark.parametrize(
     ("action", "expect"),
     [
-        (W.ErrorAction.RAMP_STOP, {"alarm": True, "running": True, "enabled": True}),
-        (W.ErrorAction.GENERAL_DISABLE, {"alarm": True, "running": False, "enabled": False}),
-        (W.ErrorAction.GO_TO_LOCAL, {"alarm": True, "remote": False, "running": True}),
-        (W.ErrorAction.CAUSE_FAULT, {"fault": True, "alarm": False, "running": False}),
-        (W.ErrorAction.INACTIVE, {"alarm": True, "running": True}),
+        (weg.ErrorAction.RAMP_STOP, {"alarm": True, "running": True, "enabled": True}),
+        (weg.ErrorAction.GENERAL_DISABLE, {"alarm": True, "running": False, "enabled": False}),
+        (weg.ErrorAction.GO_TO_LOCAL, {"alarm": True, "remote": False, "running": True}),
+        (weg.ErrorAction.CAUSE_FAULT, {"fault": True, "alarm": False, "running": False}),
+        (weg.ErrorAction.INACTIVE, {"alarm": True, "running": True}),
     ],
 )
-def test_weg_watchdog(cfw701: Direct, clock: ManualClock, action: W.ErrorAction,
+def test_weg_watchdog(cfw701: Direct, clock: ManualClock, action: weg.ErrorAction,
                       expect: dict[str, bool]) -> None:  # fmt: skip
     sim = cfw701.sim
     assert isinstance(sim, CFW701Simulator)
     cfw701.write(100, 10, 10)  # 1 s ramps
     cfw701.write(313, int(action))
     cfw701.write(314, 5)  # 0.5 s
-    cfw701.write(683, W.hz_to_13bit(30, 60))
-    cfw701.write(682, W.control_word(run=True))
+    cfw701.write(683, weg.hz_to_13bit(30, 60))
+    cfw701.write(682, weg.control_word(run=True))
     clock.advance(0.45)
     assert sim.status().alarm is False and sim.speed_hz() > 0  # fed in time
     clock.advance(0.06)  # 0.51 s after the last telegram, 0.01 s after the timeout
     st = sim.status()
     for name, value in expect.items():
         assert getattr(st, name) is value, (name, st)
-    assert sim.get(316) == int(W.InterfaceStatus.WATCHDOG_ERROR)
-    assert sim.get(48 if action is not W.ErrorAction.CAUSE_FAULT else 49) in (128, 228)
+    assert sim.get(316) == int(weg.InterfaceStatus.WATCHDOG_ERROR)
+    assert sim.get(48 if action is not weg.ErrorAction.CAUSE_FAULT else 49) in (128, 228)
     # the first telegram after the timeout still sees it; then an alarm clears
     assert cfw701.read(316) == [2]
     assert cfw701.read(316) == [1]
-    if action is W.ErrorAction.CAUSE_FAULT:
+    if action is weg.ErrorAction.CAUSE_FAULT:
         assert cfw701.read(49) == [228] and sim.status().fault
-        cfw701.write(682, W.control_word(fault_reset=True))
+        cfw701.write(682, weg.control_word(fault_reset=True))
         assert cfw701.read(49) == [0] and not sim.status().fault
     else:
         assert cfw701.read(48) == [0]
@@ -323,12 +323,12 @@ def test_weg_watchdog_counts_from_first_telegram(clock: ManualClock) -> None:
 def test_weg_fault_and_undervoltage(cfw701: Direct, clock: ManualClock) -> None:
     sim = cfw701.sim
     assert isinstance(sim, CFW701Simulator)
-    cfw701.write(682, W.control_word(run=True))
+    cfw701.write(682, weg.control_word(run=True))
     cfw701.write(683, 4096)
     clock.advance(5)
     sim.inject_fault(70)
     assert sim.status().fault and sim.speed_hz() == 0.0 and cfw701.read(6) == [3]
-    cfw701.write(682, W.control_word(run=True, fault_reset=True))
+    cfw701.write(682, weg.control_word(run=True, fault_reset=True))
     clock.advance(5)
     assert not sim.status().fault and sim.speed_hz() == pytest.approx(30.0)
     sim.set_undervoltage(True)
@@ -471,13 +471,13 @@ def act(clock: ManualClock) -> Iterator[Direct]:
 def _fc101(d: Direct, parameter: int, value: int, data_set: int = 0) -> bytes:
     return d.pdu(
         b"\x65"
-        + B.address(parameter, data_set).to_bytes(2, "big")
+        + bonfiglioli.address(parameter, data_set).to_bytes(2, "big")
         + (value & 0xFFFFFFFF).to_bytes(4, "big")
     )
 
 
 def _fc100(d: Direct, parameter: int, data_set: int = 0) -> int:
-    resp = d.pdu(b"\x64" + B.address(parameter, data_set).to_bytes(2, "big"))
+    resp = d.pdu(b"\x64" + bonfiglioli.address(parameter, data_set).to_bytes(2, "big"))
     return -resp[1] if resp[0] & 0x80 else int.from_bytes(resp[1:5], "big", signed=True)
 
 
@@ -545,7 +545,7 @@ def test_bonfiglioli_watchdog_f2010(act: Direct, clock: ManualClock) -> None:
     assert sim.status().state is DriveState.OPERATION_ENABLED
     clock.advance(0.2)
     assert sim.status().state is DriveState.FAULT
-    assert act.read(260) == [B.F2010]
+    assert act.read(260) == [bonfiglioli.F2010]
     clock.advance(2)
     act.write(410, 0x00)
     act.write(410, 0x80)
@@ -553,21 +553,27 @@ def test_bonfiglioli_watchdog_f2010(act: Direct, clock: ManualClock) -> None:
 
 
 def test_bonfiglioli_exceptions_and_error_register(act: Direct) -> None:
-    assert act.refused(B.address(372, 2), 2) == 2  # No. of Registers must be 1
-    assert act.refused(B.address(1600)) == 4 and act.read(11) == [11]  # unknown; then cleared:
+    assert act.refused(bonfiglioli.address(372, 2), 2) == 2  # No. of Registers must be 1
+    assert act.refused(bonfiglioli.address(1600)) == 4 and act.read(11) == [
+        11
+    ]  # unknown; then cleared:
     assert act.read(11) == [0]
-    assert act.refused(B.address(484)) == 3  # a long parameter through FC 03
+    assert act.refused(bonfiglioli.address(484)) == 3  # a long parameter through FC 03
     assert _fc100(act, 372) == -3
     assert act.write(411, 0) == 4 and act.read(11) == [4]  # read only
-    assert act.write(B.address(376, 2), 0) == 4 and act.read(11) == [1]  # out of range
+    assert act.write(bonfiglioli.address(376, 2), 0) == 4 and act.read(11) == [1]  # out of range
     assert act.refused(0xA000 | 376) == 4 and act.read(11) == [2]  # data set 10
-    assert act.refused(B.address(413, 2)) == 4 and act.read(11) == [2]  # no data sets
-    assert act.write(B.address(376, 4), 15) == 0
-    assert act.refused(B.address(376)) == 4 and act.read(11) == [9]  # data sets differ
-    assert act.read(B.address(376, 4)) == [15] and act.read(B.address(376, 1)) == [11]
-    assert act.write(B.address(376), 20) == 0 and act.read(B.address(376)) == [20]
+    assert act.refused(bonfiglioli.address(413, 2)) == 4 and act.read(11) == [2]  # no data sets
+    assert act.write(bonfiglioli.address(376, 4), 15) == 0
+    assert act.refused(bonfiglioli.address(376)) == 4 and act.read(11) == [9]  # data sets differ
+    assert act.read(bonfiglioli.address(376, 4)) == [15] and act.read(
+        bonfiglioli.address(376, 1)
+    ) == [11]
+    assert act.write(bonfiglioli.address(376), 20) == 0 and act.read(bonfiglioli.address(376)) == [
+        20
+    ]
     act.write(410, 0x0F)  # running: rated data refused
-    assert act.write(B.address(372, 1), 1400) == 4 and act.read(11) == [8]
+    assert act.write(bonfiglioli.address(372, 1), 1400) == 4 and act.read(11) == [8]
     assert act.pdu(b"\x04\x00\x00\x00\x01") == b"\x84\x01"  # FC 04 is not supported
     assert act.pdu(b"\x08\x00\x00\x12\x34") == b"\x88\x01"  # return query data: not supported
     assert act.pdu(b"\x08\x00\x0b\x00\x01") == b"\x88\x03"  # data field not 0
@@ -577,13 +583,15 @@ def test_bonfiglioli_ram_data_sets_and_power_cycle(act: Direct) -> None:
     sim = act.sim
     assert isinstance(sim, ACTSimulator)
     writes = sim.eeprom_writes
-    assert act.write(B.address(376, 2, ram=True), 30) == 0  # data set 2 + 5: RAM only
+    assert act.write(bonfiglioli.address(376, 2, ram=True), 30) == 0  # data set 2 + 5: RAM only
     assert sim.eeprom_writes == writes
-    assert act.read(B.address(376, 2)) == [30]
-    assert act.write(B.address(376, 3), 40) == 0
+    assert act.read(bonfiglioli.address(376, 2)) == [30]
+    assert act.write(bonfiglioli.address(376, 3), 40) == 0
     assert sim.eeprom_writes == writes + 1
     act.write(34, 123)  # Programming 34 = 123: software reset
-    assert act.read(B.address(376, 2)) == [11] and act.read(B.address(376, 3)) == [40]
+    assert act.read(bonfiglioli.address(376, 2)) == [11] and act.read(
+        bonfiglioli.address(376, 3)
+    ) == [40]
 
 
 def test_acu_specifics(clock: ManualClock) -> None:
@@ -593,7 +601,7 @@ def test_acu_specifics(clock: ManualClock) -> None:
         assert (
             status & 0x10
             and status & 0x6F == 0x40
-            and B.state_of(status) is DriveState.STARTING_LOCKOUT
+            and bonfiglioli.state_of(status) is DriveState.STARTING_LOCKOUT
         )
         assert _fc101(d, 484, 1000)[0] == 0x65
         assert _fc100(d, 484) == -4 and d.read(11) == [3]  # write only on the ACU
@@ -604,7 +612,7 @@ def test_acu_specifics(clock: ManualClock) -> None:
 
 def test_bonfiglioli_counters(act: Direct) -> None:
     assert act.pdu(b"\x08\x00\x0a\x00\x00") == b"\x08\x00\x0a\x00\x00"
-    assert act.refused(B.address(1600)) == 4
+    assert act.refused(bonfiglioli.address(1600)) == 4
     assert act.pdu(b"\x08\x00\x0d\x00\x00") == b"\x08\x00\x0d\x00\x01"  # exception responses
     assert act.pdu(b"\x08\x00\x0e\x00\x00") == b"\x08\x00\x0e\x00\x03"  # slave messages
     assert act.pdu(b"\x08\x00\x10\x00\x00") == b"\x08\x00\x10\x00\x00"  # NAK: always 0
@@ -616,8 +624,11 @@ def test_broadcast_writes_execute_without_answer(clock: ManualClock) -> None:
     cv = Direct(CV100Simulator(clock=clock), unit=5)
     try:
         for d, pdu in (
-            (act, b"\x65" + B.address(484).to_bytes(2, "big") + (1234).to_bytes(4, "big")),
-            (act, b"\x06" + B.address(413).to_bytes(2, "big") + (7).to_bytes(2, "big")),
+            (
+                act,
+                b"\x65" + bonfiglioli.address(484).to_bytes(2, "big") + (1234).to_bytes(4, "big"),
+            ),
+            (act, b"\x06" + bonfiglioli.address(413).to_bytes(2, "big") + (7).to_bytes(2, "big")),
             (cv, b"\x41" + C.register("A0.06").to_bytes(2, "big") + (77).to_bytes(2, "big")),
         ):
             d.slave.port.write(pyrtu.add_crc(b"\x00" + pdu))
@@ -627,7 +638,7 @@ def test_broadcast_writes_execute_without_answer(clock: ManualClock) -> None:
         assert cv.read(C.register("A0.06")) == [77]
         # a broadcast read is not executed
         act.slave.port.write(
-            pyrtu.add_crc(b"\x00\x03" + B.address(413).to_bytes(2, "big") + b"\x00\x01")
+            pyrtu.add_crc(b"\x00\x03" + bonfiglioli.address(413).to_bytes(2, "big") + b"\x00\x01")
         )
         act.slave.poll(0.2)
         assert act.slave.port.read(0.05) == b""

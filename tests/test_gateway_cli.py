@@ -23,6 +23,7 @@ from peers.tools import (
 )
 
 from pyrtu import ExceptionResponseError, pdu
+from pyrtu import gateway as gateways
 from pyrtu.tcp import TcpClient
 
 pytest_plugins = ["peers.fixtures"]
@@ -79,25 +80,23 @@ def test_usage_errors(args: list[str], flag: str) -> None:
 
 def test_help_documents_the_limits_and_their_defaults() -> None:
     """The defaults --help gives are the library's (pyrtu.gateway), for every limit."""
-    from pyrtu import gateway as G
-
     done = pyrtu("--help")
     assert done.returncode == 0
     text = " ".join(done.stdout.split())
     for flag, default in (
-        ("--max-connections", G.MAX_CONNECTIONS),
-        ("--max-queue", G.MAX_QUEUED_PER_CONNECTION),
-        ("--max-bus-queue", G.MAX_QUEUED_PER_BUS),
-        ("--max-write-buffer", G.MAX_WRITE_BUFFER),
+        ("--max-connections", gateways.MAX_CONNECTIONS),
+        ("--max-queue", gateways.MAX_QUEUED_PER_CONNECTION),
+        ("--max-bus-queue", gateways.MAX_QUEUED_PER_BUS),
+        ("--max-write-buffer", gateways.MAX_WRITE_BUFFER),
     ):
         # the option's own help (after its metavar), and the summary in the description
         assert re.search(rf"{flag} (N|BYTES) [^-]{{0,80}}\(default {default}\)", text), flag
         assert f"{flag} {default}" in text
-    limits = G.GatewayLimits()
+    limits = gateways.GatewayLimits()
     assert (limits.max_connections, limits.max_write_buffer) == (64, 256 * 1024)
     for flag, seconds in (
-        ("--header-timeout", G.HEADER_TIMEOUT),
-        ("--idle-timeout", G.IDLE_TIMEOUT),
+        ("--header-timeout", gateways.HEADER_TIMEOUT),
+        ("--idle-timeout", gateways.IDLE_TIMEOUT),
     ):
         assert re.search(rf"{flag} SECONDS [^-]{{0,80}}\(0: no limit; default {seconds:g}\)", text)
         assert f"{flag} {seconds:g} s" in text

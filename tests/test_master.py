@@ -13,7 +13,7 @@ from types import ModuleType
 import pytest
 from ptylink import PtyLink, make_store, serving
 
-from pyrtu import pdu as P
+from pyrtu import pdu as pdus
 from pyrtu.drivers.master import Master
 from pyrtu.drivers.slave import Slave
 from pyrtu.pdu.errors import (
@@ -414,4 +414,4 @@ def test_error_hierarchy() -> None:
     assert issubclass(BusFault, FrameError) and issubclass(FrameError, ValueError)
     assert issubclass(NoResponseError, TimeoutError)
     assert issubclass(PortError, OSError)
-    assert P.function_name(3) == "read_holding_registers"
+    assert pdus.function_name(3) == "read_holding_registers"

@@ -16,7 +16,7 @@ from ptylink import PtyLink, make_store, serving
 from pyrtu.core.line import LINE_DEFAULTS, LineConfig, line_from
 from pyrtu.drivers.aio import AsyncMaster
 from pyrtu.drivers.master import Master
-from pyrtu.pdu import requests as R
+from pyrtu.pdu import requests as request_table
 from pyrtu.pdu.errors import PortError
 from pyrtu.poller.masters import ThreadMaster
 
@@ -109,7 +109,7 @@ def test_transact_gives_value_and_answer_time(backend: object) -> None:
         line = LineConfig(parity="N", t35=0)
         with Master(link.path_a, line=line, timeout=0.5, backend=be) as m:
             before = time.monotonic()
-            value, end = m.transact(R.BY_FUNCTION[3], 1, 2, 3)
+            value, end = m.transact(request_table.BY_FUNCTION[3], 1, 2, 3)
             assert value == [1002, 1003, 1004]
             assert end == m.last_answer_time and before <= end <= time.monotonic()
             value, end = m.transact("write_register", 0, 5, 9)  # broadcast: no answer
@@ -118,14 +118,14 @@ def test_transact_gives_value_and_answer_time(backend: object) -> None:
 
             async def threaded() -> tuple[object, float]:
                 tm = ThreadMaster(m)
-                return await tm.transact(R.BY_FUNCTION[4], 1, 0, 2)
+                return await tm.transact(request_table.BY_FUNCTION[4], 1, 0, 2)
 
             value, end = asyncio.run(threaded())
             assert value == [2000, 2001] and end == m.last_answer_time
 
         async def main() -> None:
             async with AsyncMaster(link.path_a, line=line, timeout=0.5, backend=be) as am:
-                value, end = await am.transact(R.BY_FUNCTION[1], 1, 0, 4)
+                value, end = await am.transact(request_table.BY_FUNCTION[1], 1, 0, 4)
                 assert value == [True, False, False, True]
                 assert end == am.last_answer_time
                 # the generated methods: same names, docstrings and answers as Master's

@@ -7,7 +7,7 @@ import os
 import pytest
 from ptylink import PtyLink, make_store, serving
 
-from pyrtu import pdu as P
+from pyrtu import pdu as pdus
 from pyrtu.core.line import LineConfig
 from pyrtu.drivers import sync_io as mio
 from pyrtu.drivers.master import Master
@@ -25,11 +25,13 @@ def test_request_raw_pdu(backend: object) -> None:
         line = LineConfig(parity="N", t35=0)
         with Master(link.path_a, line=line, timeout=0.5, backend=be) as m:
             assert m.line is line and m.t35 == 0
-            assert m.request(1, P.read_request(3, 2, 2)) == bytes.fromhex("030403ea03eb")
-            assert m.request(1, P.write_register_request(5, 9)) == P.write_register_request(5, 9)
-            assert m.request(0, P.write_register_request(6, 7)) == b""  # broadcast
+            assert m.request(1, pdus.read_request(3, 2, 2)) == bytes.fromhex("030403ea03eb")
+            assert m.request(1, pdus.write_register_request(5, 9)) == pdus.write_register_request(
+                5, 9
+            )
+            assert m.request(0, pdus.write_register_request(6, 7)) == b""  # broadcast
             with pytest.raises(ExceptionResponseError) as info:
-                m.request(1, P.read_request(3, 250, 1))
+                m.request(1, pdus.read_request(3, 250, 1))
             assert info.value.code == 2 and info.value.function == 3
             assert m.last_answer_time is not None
             c = m.counters
@@ -132,15 +134,15 @@ def test_cached_reads_still_check_their_arguments(backend: object) -> None:
     """The Calls of reads are cached by (function, slave, address, count): arguments
     equal to a cached key but of another type (True == 1, 1.0 == 1) must still fail
     their checks, and a different slave gets its own ADU (CRC)."""
-    from pyrtu.pdu import requests as R
+    from pyrtu.pdu import requests as request_table
     from pyrtu.protocol.client import ClientProtocol
 
-    good = R.read_holding_registers(1, 0, 10)
-    assert R.read_holding_registers(1, 0, 10) is good  # cached
+    good = request_table.read_holding_registers(1, 0, 10)
+    assert request_table.read_holding_registers(1, 0, 10) is good  # cached
     for args in ((True, 0, 10), (1.0, 0, 10), (1, False, 10), (1, 0, 10.0)):
         with pytest.raises((TypeError, ValueError), match="read_holding_registers"):
-            R.read_holding_registers(*args)
-    assert R.read_input_registers(1, 0, 10).pdu[0] == 4  # the function is in the key
+            request_table.read_holding_registers(*args)
+    assert request_table.read_input_registers(1, 0, 10).pdu[0] == 4  # the function is in the key
     proto = ClientProtocol(LineConfig(parity="N"), backend=backend)  # type: ignore[arg-type]
     adus = []
     for slave in (1, 2, 1):
@@ -152,11 +154,11 @@ def test_cached_reads_still_check_their_arguments(backend: object) -> None:
 
 
 def test_unhashable_read_arguments_name_the_argument() -> None:
-    from pyrtu.pdu import requests as R
+    from pyrtu.pdu import requests as request_table
 
     for args, name in (([1], 0, 10), "slave"), ((1, {}, 10), "address"):
         with pytest.raises(TypeError, match=name):
-            R.read_coils(*args)  # type: ignore[arg-type]
+            request_table.read_coils(*args)  # type: ignore[arg-type]
 
 
 def test_a_repeated_read_goes_as_one_exchange(backend: object) -> None:

@@ -18,7 +18,6 @@ import pytest
 from cli_helpers import ROOT, Background, env, pyrtu
 
 from pyrtu.devices import CFW701Simulator, CV100Simulator
-from pyrtu.devices import weg as W
 
 vbus = pytest.importorskip("pyrtu.vbus")
 
@@ -92,7 +91,7 @@ def test_json_updates_events_and_summary(tmp_path: Path) -> None:
     for u in updates:
         assert set(u) == {"point", "value", "time", "slave", "bus"} and u["bus"] == "line1"
     status = next(u for u in updates if u["point"] == "weg.status")
-    assert status["value"] == CFW701Simulator().store.holding_registers.get(W.P_STATUS)
+    assert status["value"] == CFW701Simulator().store.holding_registers.get(weg.P_STATUS)
     # every event, as a line of its own
     kinds = Counter(str(e["event"]) for e in events)
     assert kinds["slave"] == 3 and kinds["dropped"] == 1 and kinds["overload"] >= 1, kinds

@@ -13,9 +13,8 @@ from collections.abc import Callable, Iterator
 
 import pytest
 
-from pyrtu.devices import CFW701Simulator, CV100Simulator, DriveSimulator
+from pyrtu.devices import CFW701Simulator, CV100Simulator, DriveSimulator, weg
 from pyrtu.devices import cv100 as C
-from pyrtu.devices import weg as W
 from pyrtu.drivers.aio import AsyncMaster
 from pyrtu.poller import (
     Bus,
@@ -69,7 +68,7 @@ def config(bus_path: str, baud: int = BAUD, interval: float = 0.05, **bus_kw: ob
     points = profile_points("cfw701", "weg", "line", 1, interval)
     points += profile_points("cv100", "cv", "line", 5, interval)
     points.append(Point("weg.missing", "line", 1, "holding", 2900, interval=interval))
-    points.append(Point("weg.ref", "line", 1, "holding", W.P_REFERENCE, scale=0.5, interval=1))
+    points.append(Point("weg.ref", "line", 1, "holding", weg.P_REFERENCE, scale=0.5, interval=1))
     kw: dict[str, object] = dict(share=0.05, offline_after=2, backoff=0.1, max_backoff=0.4)
     kw.update(bus_kw)
     bus = Bus("line", bus_path, {"baudrate": baud, "parity": "N", "timeout": 0.2}, **kw)  # type: ignore[arg-type]
@@ -87,12 +86,12 @@ def test_values_write_and_a_dropped_point(master: str) -> None:
                 await until(lambda: any(isinstance(e, PointDropped) for e in events), "the drop")
                 # writes of the WEG speed reference (P683), ahead of the polls
                 await poller.write("weg.ref", 2048.0)  # scale 0.5: raw 4096
-                ref = await poller.read_registers("line", 1, "holding", W.P_REFERENCE, 1)
-                await poller.write_registers("line", 1, "holding", W.P_REFERENCE, [100])
+                ref = await poller.read_registers("line", 1, "holding", weg.P_REFERENCE, 1)
+                await poller.write_registers("line", 1, "holding", weg.P_REFERENCE, [100])
                 assert await poller.read("weg.ref") == 50.0
                 # FC 16: the acceleration and deceleration times P100/P101
-                await poller.write_registers("line", 1, "holding", W.P_ACCEL_TIME, [60, 120])
-                ref += await poller.read_registers("line", 1, "holding", W.P_ACCEL_TIME, 2)
+                await poller.write_registers("line", 1, "holding", weg.P_ACCEL_TIME, [60, 120])
+                ref += await poller.read_registers("line", 1, "holding", weg.P_ACCEL_TIME, 2)
                 on_demand = await poller.read("cv.status")
                 names = {p.name for p in poller.config.points} - {"weg.missing"}
                 await until(
@@ -108,7 +107,7 @@ def test_values_write_and_a_dropped_point(master: str) -> None:
         "cv.status", "cv.speed", "cv.current", "cv.fault", "weg.ref",
     }  # fmt: skip
     sim_weg = CFW701Simulator()
-    assert updates["weg.fault"].value == sim_weg.store.holding_registers.get(W.P_PRESENT_FAULT)
+    assert updates["weg.fault"].value == sim_weg.store.holding_registers.get(weg.P_PRESENT_FAULT)
     assert isinstance(updates["cv.speed"].value, float)
     assert ref == [4096, 60, 120]
     assert on_demand == CV100Simulator().store.holding_registers.get(C.STATUS_WORD_1)
@@ -183,8 +182,8 @@ def test_noise_never_delivers_a_wrong_value() -> None:
     events, summary = asyncio.run(main())
     weg, cv = CFW701Simulator().store.holding_registers, CV100Simulator().store.holding_registers
     expect = {
-        "weg.status": weg.get(W.P_STATUS), "weg.fault": weg.get(W.P_PRESENT_FAULT),
-        "weg.alarm": weg.get(W.P_PRESENT_ALARM), "cv.status": cv.get(C.STATUS_WORD_1),
+        "weg.status": weg.get(weg.P_STATUS), "weg.fault": weg.get(weg.P_PRESENT_FAULT),
+        "weg.alarm": weg.get(weg.P_PRESENT_ALARM), "cv.status": cv.get(C.STATUS_WORD_1),
         "cv.fault": cv.get(C.LATEST_FAULT),
     }  # fmt: skip
     got = [e for e in events if isinstance(e, Update) and e.point.name in expect]

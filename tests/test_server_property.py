@@ -29,7 +29,7 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from pyrtu import pdu as P
+from pyrtu import pdu as pdus
 from pyrtu.core.line import LineConfig
 from pyrtu.core.rules import LengthRule
 from pyrtu.drivers.slave import PREPARE
@@ -65,15 +65,15 @@ def requests(draw: st.DrawFn) -> bytes:
     kind = draw(st.sampled_from(kinds))
     if kind == "read":
         fc = draw(st.sampled_from([3, 4]))
-        return P.read_request(fc, draw(addresses), draw(st.integers(1, 125)))
+        return pdus.read_request(fc, draw(addresses), draw(st.integers(1, 125)))
     if kind == "fc16":
         count = draw(st.integers(1, 123))
-        return P.write_registers_request(draw(addresses), [i * 7 & 0xFFFF for i in range(count)])
+        return pdus.write_registers_request(draw(addresses), [i * 7 & 0xFFFF for i in range(count)])
     if kind == "fc15":
         count = draw(st.integers(1, 1968))
-        return P.write_coils_request(draw(addresses), [i % 3 == 0 for i in range(count)])
+        return pdus.write_coils_request(draw(addresses), [i % 3 == 0 for i in range(count)])
     if kind == "fc06":
-        return P.write_register_request(draw(addresses), draw(st.integers(0, 0xFFFF)))
+        return pdus.write_register_request(draw(addresses), draw(st.integers(0, 0xFFFF)))
     if kind == "short":
         return bytes((draw(st.sampled_from([7, 11, 12, 17])),))
     if kind == "counted":
@@ -302,12 +302,12 @@ def ours(message: bytes) -> Item:
     return Item("ours", bytes((ADDRESS,)) + message, 0)
 
 
-WRITE1 = P.write_registers_request(0, [0])
+WRITE1 = pdus.write_registers_request(0, [0])
 FOUND = {  # cases the property found on the way (each failed some version of the fix)
     "long-write-then-read": (
         9600,
         "N",
-        [ours(P.write_coils_request(0, [True] * 433)), ours(P.read_request(3, 0, 1))],
+        [ours(pdus.write_coils_request(0, [True] * 433)), ours(pdus.read_request(3, 0, 1))],
     ),
     "vendor-after-short": (9600, "N", [ours(b"\x07"), ours(b"\x41\x00\x00\x00\x00")]),
     "noise-claims-a-long-broadcast": (
@@ -343,7 +343,7 @@ FOUND = {  # cases the property found on the way (each failed some version of th
             ours(WRITE1),
         ],
     ),
-    "guess-short-by-3": (115200, "N", [ours(P.read_request(3, 0, 1))] * 2 + [ours(WRITE1)]),
+    "guess-short-by-3": (115200, "N", [ours(pdus.read_request(3, 0, 1))] * 2 + [ours(WRITE1)]),
 }
 
 

@@ -9,7 +9,7 @@ from types import ModuleType
 
 import pytest
 
-from pyrtu import pdu as P
+from pyrtu import pdu as pdus
 from pyrtu.core.ascii import encode_ascii
 from pyrtu.core.line import LineConfig
 from pyrtu.core.rules import LengthRule
@@ -71,7 +71,7 @@ class Harness:
 
 
 def read_request(unit: int = 1, address: int = 0, count: int = 10) -> bytes:
-    return bytes((unit,)) + P.read_request(P.READ_HOLDING_REGISTERS, address, count)
+    return bytes((unit,)) + pdus.read_request(pdus.READ_HOLDING_REGISTERS, address, count)
 
 
 def test_normal_answer_after_t35(backend: ModuleType) -> None:
@@ -81,7 +81,7 @@ def test_normal_answer_after_t35(backend: ModuleType) -> None:
     assert h.proto.data_to_send(end + T35 - 1e-6) is None
     assert h.proto.deadline() == pytest.approx(end + T35)
     out, at = h.run_until_sent()
-    expected = h.adu(b"\x01" + P.registers_response(3, [1000 + i for i in range(10)]))
+    expected = h.adu(b"\x01" + pdus.registers_response(3, [1000 + i for i in range(10)]))
     assert out == expected
     assert at == pytest.approx(end + T35)
     assert h.proto.counters["responses"] == 1 and h.proto.counters["requests"] == 1
@@ -126,7 +126,7 @@ def test_unsupported_function_is_exception_1(backend: ModuleType) -> None:
 
 def test_broadcast_write_is_executed_and_not_answered(backend: ModuleType) -> None:
     h = Harness(backend)
-    h.feed(h.adu(b"\x00" + P.write_register_request(3, 0x1234)))
+    h.feed(h.adu(b"\x00" + pdus.write_register_request(3, 0x1234)))
     out, _ = h.run_until_sent()
     assert out is None
     assert h.store.holding_registers.get(3) == 0x1234
@@ -144,7 +144,7 @@ def test_other_addresses_and_responses_are_ignored(backend: ModuleType) -> None:
     assert h.proto.counters["ignored"] == 1
     # slave 2's answer on the shared bus is sized as a response, never taken for a request
     h.now += T35 * 2
-    h.feed(h.adu(b"\x02" + P.registers_response(3, list(range(10)))))
+    h.feed(h.adu(b"\x02" + pdus.registers_response(3, list(range(10)))))
     h.now += T35 * 2
     h.feed(h.adu(read_request()))
     out, _ = h.run_until_sent()
@@ -195,7 +195,7 @@ def test_request_split_at_every_byte_boundary(backend: ModuleType, cut: int) -> 
     h.proto.receive_data(adu[cut:], h.now)
     end = h.now
     out, at = h.run_until_sent()
-    assert out == h.adu(b"\x01" + P.registers_response(3, [1000 + i for i in range(10)]))
+    assert out == h.adu(b"\x01" + pdus.registers_response(3, [1000 + i for i in range(10)]))
     assert at == pytest.approx(end + T35)
 
 
@@ -236,17 +236,17 @@ def test_ascii(backend: ModuleType, cut: int) -> None:
 
 def test_listen_only_and_restart(backend: ModuleType) -> None:
     h = Harness(backend)
-    h.feed(h.adu(b"\x01" + P.diagnostics_request(P.DIAG_FORCE_LISTEN_ONLY, 0)))
+    h.feed(h.adu(b"\x01" + pdus.diagnostics_request(pdus.DIAG_FORCE_LISTEN_ONLY, 0)))
     assert h.run_until_sent()[0] is None
     assert h.app.listen_only
     h.feed(h.adu(read_request()))
     assert h.run_until_sent()[0] is None  # silent while listening
     assert h.store.holding_registers.get(0) == 1000
-    h.feed(h.adu(b"\x01" + P.write_register_request(0, 7)))
+    h.feed(h.adu(b"\x01" + pdus.write_register_request(0, 7)))
     assert h.run_until_sent()[0] is None
     assert h.store.holding_registers.get(0) == 1000  # not executed either
     # restart communications: the one request served, not answered, leaves listen-only
-    h.feed(h.adu(b"\x01" + P.diagnostics_request(P.DIAG_RESTART_COMMUNICATIONS, 0)))
+    h.feed(h.adu(b"\x01" + pdus.diagnostics_request(pdus.DIAG_RESTART_COMMUNICATIONS, 0)))
     assert h.run_until_sent()[0] is None
     assert not h.app.listen_only
     h.feed(h.adu(read_request()))
@@ -270,7 +270,7 @@ def test_new_request_replaces_a_pending_answer(backend: ModuleType) -> None:
     h.now += T35
     h.feed(h.adu(read_request(address=1, count=1)))
     out, _ = h.run_until_sent()
-    assert out == h.adu(b"\x01" + P.registers_response(3, [1001]))
+    assert out == h.adu(b"\x01" + pdus.registers_response(3, [1001]))
     assert h.run_until_sent()[0] is None
     assert h.app.line.counters["slave_no_response_count"] == 1
 
@@ -332,7 +332,7 @@ def test_wake_at_sleeps_through_the_request_and_its_turnaround(backend: ModuleTy
     pending = h.proto.pending
     assert pending is not None and pending.earliest == pytest.approx(t0 + 6 * CHAR + T35)
     assert h.proto.data_to_send(late) == h.adu(
-        b"\x01" + P.registers_response(3, [1000 + i for i in range(10)])
+        b"\x01" + pdus.registers_response(3, [1000 + i for i in range(10)])
     )
 
 
@@ -395,7 +395,7 @@ def test_wake_at_other_frames(backend: ModuleType) -> None:
     h.proto.receive_data(other[2:], at)
     assert h.proto.wake_at(at) is None  # nothing in progress
     h.now = at + 2 * T35
-    broadcast = h.adu(b"\x00" + P.write_register_request(3, 7))
+    broadcast = h.adu(b"\x00" + pdus.write_register_request(3, 7))
     h.proto.receive_data(broadcast[:2], h.now)
     assert h.proto.wake_at(h.now) == pytest.approx(h.now + 6 * CHAR)
     h.proto.receive_data(broadcast[2:], h.now + 6 * CHAR)
@@ -446,7 +446,7 @@ def _drive(h: Harness, adu: bytes, latency: float) -> tuple[float, float, int]:
     [
         read_request(),
         b"\x01\x07",
-        b"\x01" + P.write_registers_request(0, list(range(10))),
+        b"\x01" + pdus.write_registers_request(0, list(range(10))),
         b"\x01\x2b\x0e\x01\x00",
     ],
     ids=["fc03", "fc07", "fc16", "fc43"],

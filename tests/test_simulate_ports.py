@@ -15,7 +15,7 @@ import pytest
 from cli_helpers import Background, pyrtu
 
 from pyrtu import FrameError, Master, NoResponseError
-from pyrtu.devices import weg as W
+from pyrtu.devices import weg
 from pyrtu.vbus import VirtualBus
 
 BAUD = 38400
@@ -68,20 +68,20 @@ def test_an_unplugged_port_comes_back_and_the_other_drive_carries_on() -> None:
                 Master(a.paths[0], BAUD, parity="N", timeout=0.5) as ma,
                 Master(b.paths[0], BAUD, parity="N", timeout=0.5) as mb,
             ):
-                W.CFW701(mb, 7).start()
-                assert W.CFW701(mb, 7).status().running
+                weg.CFW701(mb, 7).start()
+                assert weg.CFW701(mb, 7).status().running
                 b.unplug(1)
                 lost = next_json(bg, "port_lost")
                 assert lost["port"] == ports[1] and lost["error"]
                 for _ in range(10):  # the other drive answers throughout the outage
-                    assert W.CFW701(ma, 7).identify()["product_code"] == "CFW701"
+                    assert weg.CFW701(ma, 7).identify()["product_code"] == "CFW701"
                 time.sleep(1.5)  # several retries (0.5 s, 1 s, ...) while it is away
                 b.replug(1)
                 back = next_json(bg, "port_back")
                 assert back["port"] == ports[1] and back["attempts"] >= 1
                 assert until(lambda: reads(mb, 7), timeout=10)
-                assert W.CFW701(mb, 7).status().running  # the same drive, its state kept
-                assert not W.CFW701(ma, 7).status().running
+                assert weg.CFW701(mb, 7).status().running  # the same drive, its state kept
+                assert not weg.CFW701(ma, 7).status().running
             bg.proc.send_signal(signal.SIGTERM)
             r = bg.finish()
         finally:

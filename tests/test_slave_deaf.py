@@ -23,7 +23,7 @@ from types import ModuleType
 import pytest
 from peers.tools import minimal_instrument
 
-from pyrtu import pdu as P
+from pyrtu import pdu as pdus
 from pyrtu.core.line import LineConfig
 from pyrtu.drivers.aio import AsyncSlave
 from pyrtu.drivers.master import Master
@@ -45,7 +45,7 @@ def make_store() -> DataStore:
 
 
 def device_failure(unit: int, pdu: bytes) -> None:
-    if pdu[0] == P.WRITE_MULTIPLE_REGISTERS and int.from_bytes(pdu[1:3], "big") == FAILING:
+    if pdu[0] == pdus.WRITE_MULTIPLE_REGISTERS and int.from_bytes(pdu[1:3], "big") == FAILING:
         raise SlaveException(4, "the device failed")
 
 
@@ -106,15 +106,15 @@ def test_the_reported_sequence_on_synthetic_time(backend: ModuleType, baud: int)
     line = LineConfig(baudrate=baud, parity="N")
     h = Line(backend, line)
     count = long_count(line)
-    read = P.read_request(3, 0, 2)
+    read = pdus.read_request(3, 0, 2)
     assert h.transact(read) is not None
     for _ in range(3):
-        failing = P.write_registers_request(FAILING, list(range(1, count + 1)))
+        failing = pdus.write_registers_request(FAILING, list(range(1, count + 1)))
         assert h.transact(failing) == backend.add_crc(bytes((ADDRESS, 0x90, 4)))
         for _ in range(2):
             out = h.transact(read)
             assert out is not None and out[1] == 3, f"{baud}: a read after the long write lost"
-        valid = P.write_registers_request(0, list(range(1, count + 1)))
+        valid = pdus.write_registers_request(0, list(range(1, count + 1)))
         assert h.transact(valid) == backend.add_crc(bytes((ADDRESS,)) + valid[:5])
         out = h.transact(read)
         assert out is not None and out[3:7] == b"\x00\x01\x00\x02"
@@ -156,7 +156,7 @@ def test_the_guess_from_the_address_alone_is_short(backend: ModuleType) -> None:
     time and a long request costs one more wake-up."""
     line = LineConfig(baudrate=19200, parity="N")
     h = Line(backend, line)
-    assert h.transact(P.write_registers_request(0, list(range(47)))) is not None
+    assert h.transact(pdus.write_registers_request(0, list(range(47)))) is not None
     t0 = h.now + 0.2
     h.proto.receive_data(bytes((ADDRESS,)), t0)
     assert h.proto.wake_at(t0) == pytest.approx(t0 + 7 * h.char + line.t35_time)
@@ -268,7 +268,7 @@ def test_a_nap_lasts_at_most_half_the_flush_timeout(backend: ModuleType) -> None
         return at
 
     proto.wake_at = recording  # type: ignore[method-assign]
-    write = P.write_registers_request(0, list(range(123)))
+    write = pdus.write_registers_request(0, list(range(123)))
     end = h.now + 0.2 + (len(write) + 3) * h.char  # its last byte (see Line.transact)
     out = h.transact(write)
     assert out == backend.add_crc(bytes((ADDRESS,)) + write[:5])

@@ -45,7 +45,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from pyrtu import gateway as G
+from pyrtu import gateway as gateways
 from pyrtu.cli._subcommand import subcommand
 from pyrtu.cli.common import (
     BUSY_ADVICE,
@@ -95,7 +95,7 @@ def bus_spec(text: str) -> BusSpec:
     if not port:
         raise argparse.ArgumentTypeError(f"expected SERIAL=UNITS, not {text!r}")
     try:
-        return BusSpec(port, G.parse_units(units))
+        return BusSpec(port, gateways.parse_units(units))
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
@@ -148,25 +148,29 @@ def _configure(p: argparse.ArgumentParser) -> None:
         help="a bus: serial port (or tcp://HOST:PORT) and its unit ids; repeat for more",
     )  # fmt: skip
     g = p.add_argument_group("limits")
-    g.add_argument("--max-connections", type=_limit, default=G.MAX_CONNECTIONS, metavar="N",
-                   help=f"TCP connections at once (default {G.MAX_CONNECTIONS}). Up to "
+    g.add_argument("--max-connections", type=_limit, default=gateways.MAX_CONNECTIONS, metavar="N",
+                   help=f"TCP connections at once (default {gateways.MAX_CONNECTIONS}). Up to "
                         f"{SELECT_LOOP_CONNECTIONS} the gateway runs on a select() loop, "
                         "whose timers keep t3.5 to the microsecond; above, on asyncio's "
                         "default loop, whose timers round up to milliseconds")  # fmt: skip
-    g.add_argument("--max-queue", type=_limit, default=G.MAX_QUEUED_PER_CONNECTION, metavar="N",
+    g.add_argument("--max-queue", type=_limit, default=gateways.MAX_QUEUED_PER_CONNECTION,
+                   metavar="N",
                    help="requests waiting per connection "
-                   f"(default {G.MAX_QUEUED_PER_CONNECTION})")  # fmt: skip
-    g.add_argument("--max-bus-queue", type=_limit, default=G.MAX_QUEUED_PER_BUS, metavar="N",
-                   help=f"requests waiting per bus (default {G.MAX_QUEUED_PER_BUS})")  # fmt: skip
-    g.add_argument("--max-write-buffer", type=_limit, default=G.MAX_WRITE_BUFFER, metavar="BYTES",
+                   f"(default {gateways.MAX_QUEUED_PER_CONNECTION})")  # fmt: skip
+    g.add_argument("--max-bus-queue", type=_limit, default=gateways.MAX_QUEUED_PER_BUS,
+                   metavar="N",
+                   help="requests waiting per bus "
+                   f"(default {gateways.MAX_QUEUED_PER_BUS})")  # fmt: skip
+    g.add_argument("--max-write-buffer", type=_limit, default=gateways.MAX_WRITE_BUFFER,
+                   metavar="BYTES",
                    help=f"unread answers before a client is closed "
-                   f"(default {G.MAX_WRITE_BUFFER})")  # fmt: skip
-    g.add_argument("--header-timeout", type=seconds_or_off, default=G.HEADER_TIMEOUT,
+                   f"(default {gateways.MAX_WRITE_BUFFER})")  # fmt: skip
+    g.add_argument("--header-timeout", type=seconds_or_off, default=gateways.HEADER_TIMEOUT,
                    metavar="SECONDS", help="a request begun must be complete within this "
-                   f"(0: no limit; default {G.HEADER_TIMEOUT:g})")  # fmt: skip
-    g.add_argument("--idle-timeout", type=seconds_or_off, default=G.IDLE_TIMEOUT,
+                   f"(0: no limit; default {gateways.HEADER_TIMEOUT:g})")  # fmt: skip
+    g.add_argument("--idle-timeout", type=seconds_or_off, default=gateways.IDLE_TIMEOUT,
                    metavar="SECONDS", help="close a connection without a request for this "
-                   f"long (0: no limit; default {G.IDLE_TIMEOUT:g})")  # fmt: skip
+                   f"long (0: no limit; default {gateways.IDLE_TIMEOUT:g})")  # fmt: skip
     p.add_argument(
         "--unit-map", action="append", type=unit_map, default=[], metavar="TCP=SLAVE[,...]",
         help="route a TCP unit id no --port carries to a slave address on the bus that "
@@ -214,15 +218,15 @@ def _routes(specs: list[BusSpec], maps: list[dict[int, int]]) -> list[dict[int, 
             if bus is None:
                 raise ValueError(f"--unit-map: slave {slave} ({unit}={slave}) is on no --port")
             bus[unit] = slave
-    G.Routes(units)  # ValueError when a unit id is on two buses
+    gateways.Routes(units)  # ValueError when a unit id is on two buses
     return units
 
 
-def _bus(spec: BusSpec, args: argparse.Namespace) -> G.ReopeningBus:
+def _bus(spec: BusSpec, args: argparse.Namespace) -> gateways.ReopeningBus:
     """The bus of ``spec``, not opened yet: the gateway opens it at its start (a port
     not there yet is down, reopened on the back-off) and reopens it the same way
     after a failure."""
-    return G.ReopeningBus(spec.port, lambda: _connect(spec, args))
+    return gateways.ReopeningBus(spec.port, lambda: _connect(spec, args))
 
 
 async def _connect(spec: BusSpec, args: argparse.Namespace) -> Any:
@@ -250,7 +254,7 @@ async def _connect(spec: BusSpec, args: argparse.Namespace) -> Any:
 
 async def _serve(args: argparse.Namespace) -> dict[str, Any]:
     units = _routes(args.port, args.unit_map)
-    limits = G.GatewayLimits(
+    limits = gateways.GatewayLimits(
         max_connections=args.max_connections,
         max_queued_per_connection=args.max_queue,
         max_queued_per_bus=args.max_bus_queue,
@@ -261,7 +265,7 @@ async def _serve(args: argparse.Namespace) -> dict[str, Any]:
     buses: list[Any] = []
     try:
         buses += [_bus(spec, args) for spec in args.port]
-        gw = G.Gateway(
+        gw = gateways.Gateway(
             list(zip(buses, units, strict=True)), limits, on_bus=lambda ev: _bus_event(args, ev)
         )
         host, port = args.listen
@@ -292,7 +296,7 @@ async def _serve(args: argparse.Namespace) -> dict[str, Any]:
             await bus.close()
 
 
-def _bus_event(args: argparse.Namespace, ev: G.BusEvent) -> None:
+def _bus_event(args: argparse.Namespace, ev: gateways.BusEvent) -> None:
     """A bus's port failed or is back: one JSON line, or one line on stderr."""
     if args.json:
         emit({"type": "bus", "bus": ev.name, "up": ev.up, "error": ev.error,
@@ -308,7 +312,7 @@ def _bus_event(args: argparse.Namespace, ev: G.BusEvent) -> None:
               "0x0A until it is back (retrying)", file=sys.stderr, flush=True)  # fmt: skip
 
 
-def _ready(args: argparse.Namespace, gw: G.Gateway) -> None:
+def _ready(args: argparse.Namespace, gw: gateways.Gateway) -> None:
     assert gw.address is not None
     host, port = gw.address
     buses = [s.port for s in args.port]

@@ -43,7 +43,7 @@ from pyrtu.core.rules import BONFIGLIOLI as RULES
 from pyrtu.drivers.slave import Slave
 from pyrtu.pdu.errors import SlaveException
 
-from . import bonfiglioli as B
+from . import bonfiglioli
 from ._simbase import DriveSimulator, HandlerSpec
 from .bonfiglioli import DriveState, Parameter, Type, VabusError
 from .common import s16, s32
@@ -86,7 +86,8 @@ class VectronSimulator(DriveSimulator):
         self.release = release
         self.fault_lock_time = fault_lock_time
         self.ram: dict[int, list[int]] = {
-            p.number: [p.default] * (4 if p.data_sets else 1) for p in B.PARAMETERS.values()
+            p.number: [p.default] * (4 if p.data_sets else 1)
+            for p in bonfiglioli.PARAMETERS.values()
         }
         self.eeprom = {k: list(v) for k, v in self.ram.items()}
         self.state = DriveState.STARTING_LOCKOUT
@@ -102,7 +103,7 @@ class VectronSimulator(DriveSimulator):
     # -- values -----------------------------------------------------------------------------
 
     def _active_set(self) -> int:
-        sel = self.ram[B.P_DATA_SET_SELECTION][0]
+        sel = self.ram[bonfiglioli.P_DATA_SET_SELECTION][0]
         return sel if sel else 1
 
     def value(self, number: int) -> int:
@@ -119,15 +120,15 @@ class VectronSimulator(DriveSimulator):
     # -- parameter access (the handlers' core) -------------------------------------------------
 
     def _lookup(self, start: int, size: int) -> tuple[Parameter, int, bool]:
-        data_set, number = B.split(start)
-        par = B.PARAMETERS.get(number)
+        data_set, number = bonfiglioli.split(start)
+        par = bonfiglioli.PARAMETERS.get(number)
         if par is None:
             raise ParameterError(4, VabusError.UNKNOWN_PARAMETER)
         if par.type.size != size:
             raise ParameterError(3, VabusError.SIZE_MISMATCH)
-        ram = data_set >= B.RAM_OFFSET
-        ds = data_set - B.RAM_OFFSET if ram else data_set
-        if data_set > B.MAX_DATA_SET or (ds != 0 and not par.data_sets):
+        ram = data_set >= bonfiglioli.RAM_OFFSET
+        ds = data_set - bonfiglioli.RAM_OFFSET if ram else data_set
+        if data_set > bonfiglioli.MAX_DATA_SET or (ds != 0 and not par.data_sets):
             raise ParameterError(4, VabusError.INADMISSIBLE_DATA_SET)
         return par, ds, ram
 
@@ -140,7 +141,7 @@ class VectronSimulator(DriveSimulator):
                 par, ds, _ = self._lookup(start, size)
                 if not par.readable or (self.model == "ACU" and par.number in (484, 524)):
                     raise ParameterError(4, VabusError.NOT_READABLE)
-                if par.number == B.P_ERROR_REGISTER:  # cleared by reading it
+                if par.number == bonfiglioli.P_ERROR_REGISTER:  # cleared by reading it
                     value, self.error_register = int(self.error_register), VabusError.NO_ERROR
                     return value
                 values = self.ram[par.number]
@@ -178,33 +179,33 @@ class VectronSimulator(DriveSimulator):
             self._written(par.number, value, previous)
 
     def _written(self, number: int, value: int, previous: int) -> None:
-        if number == B.P_CONTROL_WORD:
+        if number == bonfiglioli.P_CONTROL_WORD:
             self._control_word(value, previous)
-        elif number == B.P_WATCHDOG:
+        elif number == bonfiglioli.P_WATCHDOG:
             self.supervision.timeout = float(value)
-        elif number == B.P_PROGRAMMING and value == 123:
+        elif number == bonfiglioli.P_PROGRAMMING and value == 123:
             self.power_cycle()
             return
-        elif number == B.P_MODBUS_ADDRESS and self.slave is not None:
+        elif number == bonfiglioli.P_MODBUS_ADDRESS and self.slave is not None:
             self.slave.addresses = frozenset({value})
         self._retarget()
 
     def _served_at(self, address: int) -> None:
         super()._served_at(address)
-        self.ram[B.P_MODBUS_ADDRESS] = [address]
-        self.eeprom[B.P_MODBUS_ADDRESS] = [address]
+        self.ram[bonfiglioli.P_MODBUS_ADDRESS] = [address]
+        self.eeprom[bonfiglioli.P_MODBUS_ADDRESS] = [address]
 
     # -- the state machine -----------------------------------------------------------------------
 
     def _control_word(self, word: int, previous: int) -> None:
         now = self.timeline.now
-        edge = word & B.CW_FAULT_RESET and not previous & B.CW_FAULT_RESET
+        edge = word & bonfiglioli.CW_FAULT_RESET and not previous & bonfiglioli.CW_FAULT_RESET
         if self.state is DriveState.FAULT:
             if edge and now - self.fault_time >= self.fault_lock_time:
                 self.state, self.current_error = DriveState.STARTING_LOCKOUT, 0
                 self.supervision.tripped = False
             return
-        mode = self.value(B.P_LOCAL_REMOTE)
+        mode = self.value(bonfiglioli.P_LOCAL_REMOTE)
         if not self.release or mode not in (1, 2):
             return
         if mode == 2:  # remote contacts: S1IND release, S2IND/S3IND start
@@ -221,11 +222,11 @@ class VectronSimulator(DriveSimulator):
         if self.stopping is DriveState.SWITCHED_ON and word & 0x0F == 0x0F:
             self.stopping = None  # back to the reference while ramping down (392 = 2)
             return
-        target, transition = B.next_state(self.state, word)
+        target, transition = bonfiglioli.next_state(self.state, word)
         if transition is None:
             return
         if transition == 5:
-            how = self.value(B.P_STATE_TRANSITION_5)
+            how = self.value(bonfiglioli.P_STATE_TRANSITION_5)
             if how == 0:
                 self.state = target
                 self.motor.coast()
@@ -243,29 +244,37 @@ class VectronSimulator(DriveSimulator):
             self.motor.coast()
 
     def _line_value(self) -> float:
-        return self.ram[B.P_REFERENCE_FREQUENCY][0] / 100
+        return self.ram[bonfiglioli.P_REFERENCE_FREQUENCY][0] / 100
 
     def _retarget(self) -> None:
         m = self.motor
-        fmax = self.value(B.P_MAX_FREQUENCY) / 100
+        fmax = self.value(bonfiglioli.P_MAX_FREQUENCY) / 100
         if self.state is DriveState.QUICK_STOP:
-            rate = self.value(B.P_EMERGENCY_CW if m.frequency >= 0 else B.P_EMERGENCY_ACW) / 100
+            rate = (
+                self.value(
+                    bonfiglioli.P_EMERGENCY_CW if m.frequency >= 0 else bonfiglioli.P_EMERGENCY_ACW
+                )
+                / 100
+            )
             m.accel = m.decel = rate
             m.reference = 0.0
             return
-        m.accel = self.value(B.P_ACCELERATION) / 100
-        m.decel = self.value(B.P_DECELERATION) / 100
+        m.accel = self.value(bonfiglioli.P_ACCELERATION) / 100
+        m.decel = self.value(bonfiglioli.P_DECELERATION) / 100
         if self.state is not DriveState.OPERATION_ENABLED or self.stopping is not None:
             m.reference = 0.0
             if self.state is not DriveState.OPERATION_ENABLED:
                 m.coast()
             return
-        setpoint = self.value(B.P_RAMP_SETPOINT)
+        setpoint = self.value(bonfiglioli.P_RAMP_SETPOINT)
         line = self._line_value() if setpoint in (2, 3) else 0.0
-        if setpoint == 2 and abs(line) < self.value(B.P_MIN_FREQUENCY) / 100:
-            line = self.value(B.P_MIN_FREQUENCY) / 100 * (-1 if line < 0 else 1)
-        if self.value(B.P_LOCAL_REMOTE) == 2 and self.ram[B.P_CONTROL_WORD][0] & 0x4:
-            line = -abs(line) if not self.ram[B.P_CONTROL_WORD][0] & 0x2 else line
+        if setpoint == 2 and abs(line) < self.value(bonfiglioli.P_MIN_FREQUENCY) / 100:
+            line = self.value(bonfiglioli.P_MIN_FREQUENCY) / 100 * (-1 if line < 0 else 1)
+        if (
+            self.value(bonfiglioli.P_LOCAL_REMOTE) == 2
+            and self.ram[bonfiglioli.P_CONTROL_WORD][0] & 0x4
+        ):
+            line = -abs(line) if not self.ram[bonfiglioli.P_CONTROL_WORD][0] & 0x2 else line
         self.limited = abs(line) > fmax
         m.reference = max(-fmax, min(fmax, line))
 
@@ -275,11 +284,14 @@ class VectronSimulator(DriveSimulator):
             word |= 0x10  # voltage enabled: mains on
         if self.warnings:
             word |= 0x80
-        if self.release and self.value(B.P_LOCAL_REMOTE) in (1, 2):
+        if self.release and self.value(bonfiglioli.P_LOCAL_REMOTE) in (1, 2):
             word |= 0x200
         m = self.motor
         tolerance = (
-            self.value(B.P_MAX_CONTROL_DEVIATION) / 10000 * self.value(B.P_MAX_FREQUENCY) / 100
+            self.value(bonfiglioli.P_MAX_CONTROL_DEVIATION)
+            / 10000
+            * self.value(bonfiglioli.P_MAX_FREQUENCY)
+            / 100
         )
         if (
             self.state is DriveState.OPERATION_ENABLED
@@ -293,7 +305,12 @@ class VectronSimulator(DriveSimulator):
     # -- time ------------------------------------------------------------------------------------
 
     def _threshold(self) -> float:
-        return self.value(B.P_SWITCH_OFF_THRESHOLD) / 1000 * self.value(B.P_MAX_FREQUENCY) / 100
+        return (
+            self.value(bonfiglioli.P_SWITCH_OFF_THRESHOLD)
+            / 1000
+            * self.value(bonfiglioli.P_MAX_FREQUENCY)
+            / 100
+        )
 
     def _stop_target(self) -> DriveState | None:
         if self.state is DriveState.QUICK_STOP:
@@ -308,7 +325,7 @@ class VectronSimulator(DriveSimulator):
                 below = abs(self.motor.frequency) <= thr + 1e-9
                 times.append(self.timeline.now + (0.0 if below else self.motor.time_to(thr)))
             else:
-                times.append(self.stop_reached + self.value(B.P_HOLDING_TIME) / 10)
+                times.append(self.stop_reached + self.value(bonfiglioli.P_HOLDING_TIME) / 10)
         return min(times) if times else None
 
     def _fire(self, at: float) -> None:
@@ -319,14 +336,14 @@ class VectronSimulator(DriveSimulator):
         if self.stop_reached is None:
             if abs(self.motor.frequency) <= self._threshold() + 1e-9:
                 self.stop_reached = at
-        elif at >= self.stop_reached + self.value(B.P_HOLDING_TIME) / 10:
+        elif at >= self.stop_reached + self.value(bonfiglioli.P_HOLDING_TIME) / 10:
             self.state, self.stopping, self.stop_reached = target, None, None
             self.motor.coast()
             self._retarget()
 
     def _trip(self, at: float) -> None:
         super()._trip(at)
-        self.fault(B.F2010, at)
+        self.fault(bonfiglioli.F2010, at)
 
     def fault(self, code: int, at: float | None = None) -> None:
         """A fault (Current Error 260 = ``code``): fault reaction, then state 0x08."""
@@ -342,20 +359,22 @@ class VectronSimulator(DriveSimulator):
         """The actual values (status word, frequencies, errors) into the parameters."""
         ram, m = self.ram, self.motor
         frequency = round(m.frequency * 100)
-        remote_contacts = self.value(B.P_LOCAL_REMOTE) == 2
+        remote_contacts = self.value(bonfiglioli.P_LOCAL_REMOTE) == 2
         values = {
-            B.P_ERROR_REGISTER: int(self.error_register),
-            B.P_STATOR_FREQUENCY: frequency,
+            bonfiglioli.P_ERROR_REGISTER: int(self.error_register),
+            bonfiglioli.P_STATOR_FREQUENCY: frequency,
             228: ram[228][0],  # as stored
             229: ram[229][0],
-            B.P_ACTUAL_FREQUENCY: frequency,
-            B.P_ACTIVE_DATA_SET: self._active_set(),
-            250: ram[B.P_CONTROL_WORD][0] & 0xFF if remote_contacts else 0,  # digital inputs
-            B.P_CURRENT_ERROR: self.current_error,
-            B.P_WARNINGS: self.warnings,
+            bonfiglioli.P_ACTUAL_FREQUENCY: frequency,
+            bonfiglioli.P_ACTIVE_DATA_SET: self._active_set(),
+            250: ram[bonfiglioli.P_CONTROL_WORD][0] & 0xFF
+            if remote_contacts
+            else 0,  # digital inputs
+            bonfiglioli.P_CURRENT_ERROR: self.current_error,
+            bonfiglioli.P_WARNINGS: self.warnings,
             282: round(self._line_value() * 100),
             283: round(m.reference * 100),
-            B.P_STATUS_WORD: self.status_word(),
+            bonfiglioli.P_STATUS_WORD: self.status_word(),
         }
         for number, value in values.items():
             ram[number] = [value]
@@ -365,19 +384,19 @@ class VectronSimulator(DriveSimulator):
         machine in starting lock-out, watchdog waiting for the first telegram."""
         with self.lock:
             self.ram = {k: list(v) for k, v in self.eeprom.items()}
-            self.ram[B.P_CONTROL_WORD] = [0]
-            self.ram[B.P_REFERENCE_FREQUENCY] = [0]
-            self.ram[B.P_REFERENCE_PERCENTAGE] = [0]
+            self.ram[bonfiglioli.P_CONTROL_WORD] = [0]
+            self.ram[bonfiglioli.P_REFERENCE_FREQUENCY] = [0]
+            self.ram[bonfiglioli.P_REFERENCE_PERCENTAGE] = [0]
             self.state, self.stopping, self.current_error = DriveState.STARTING_LOCKOUT, None, 0
             self.motor.frequency = 0.0
             self.supervision.reset()
-            self.supervision.timeout = float(self.value(B.P_WATCHDOG))
+            self.supervision.timeout = float(self.value(bonfiglioli.P_WATCHDOG))
             self._retarget()
 
-    def status(self) -> B.VectronStatus:
+    def status(self) -> bonfiglioli.VectronStatus:
         with self.lock:
             self.update()
-            return B.VectronStatus.decode(self.status_word())
+            return bonfiglioli.VectronStatus.decode(self.status_word())
 
     # -- the slave --------------------------------------------------------------------------------
 
@@ -390,13 +409,13 @@ class VectronSimulator(DriveSimulator):
         }
 
     def handlers(self) -> dict[int, HandlerSpec]:
-        (r100, s100), (r101, s101) = RULES[B.FC_READ_32], RULES[B.FC_WRITE_32]
+        (r100, s100), (r101, s101) = RULES[bonfiglioli.FC_READ_32], RULES[bonfiglioli.FC_WRITE_32]
         return {
             3: (self._fc03, None, None, False),
             6: (self._fc06, None, None, True),  # "All devices must accept the broadcast
             8: (self._fc08, None, None, False),  # for writing function" (6.1)
-            B.FC_READ_32: (self._fc100, r100, s100, False),
-            B.FC_WRITE_32: (self._fc101, r101, s101, True),
+            bonfiglioli.FC_READ_32: (self._fc100, r100, s100, False),
+            bonfiglioli.FC_WRITE_32: (self._fc101, r101, s101, True),
         }
 
     @staticmethod
@@ -425,7 +444,7 @@ class VectronSimulator(DriveSimulator):
     def _fc100(self, slave: Slave, unit: int, pdu: bytes) -> bytes:
         self._length(pdu, 3)
         value = self._call(self.read_parameter, int.from_bytes(pdu[1:3], "big"), 4)
-        return bytes([B.FC_READ_32]) + (int(value) & 0xFFFFFFFF).to_bytes(4, "big")
+        return bytes([bonfiglioli.FC_READ_32]) + (int(value) & 0xFFFFFFFF).to_bytes(4, "big")
 
     def _fc101(self, slave: Slave, unit: int, pdu: bytes) -> bytes:
         return self._write(pdu, 4)
@@ -444,7 +463,7 @@ class VectronSimulator(DriveSimulator):
     def _fc08(self, slave: Slave, unit: int, pdu: bytes) -> bytes | None:
         self._length(pdu, 5)
         sub = int.from_bytes(pdu[1:3], "big")
-        if sub != B.CLEAR_COUNTERS and sub not in B.DIAGNOSTIC_COUNTERS:
+        if sub != bonfiglioli.CLEAR_COUNTERS and sub not in bonfiglioli.DIAGNOSTIC_COUNTERS:
             raise SlaveException(1, f"diagnostics sub-function 0x{sub:02X} is not supported")
         return slave.line.diagnostics(pdu)
 

@@ -40,7 +40,7 @@ from pyrtu.core.rules import CV100 as CV100_RULES
 from pyrtu.drivers.slave import Slave
 from pyrtu.pdu.errors import SlaveException
 
-from .. import pdu as P
+from .. import pdu as pdus
 from . import cv100 as C
 from ._simbase import DriveSimulator, HandlerSpec, Outputs
 from .motor import Clock, monotonic
@@ -489,12 +489,12 @@ class CV100Simulator(DriveSimulator):
         }
 
     def _write_single(self, slave: Slave, unit: int, pdu: bytes) -> bytes:
-        address, value = P.decode_write_single(pdu)
+        address, value = pdus.decode_write_single(pdu)
         self._write(address, [value], pdu[0] == C.FC_WRITE_SAVE)
         return pdu
 
     def _write_multiple(self, slave: Slave, unit: int, pdu: bytes) -> bytes:
-        address, words = P.decode_write_registers(pdu)
+        address, words = pdus.decode_write_registers(pdu)
         self._write(address, list(words), pdu[0] == C.FC_WRITE_MULTIPLE_SAVE)
         return pdu[:5]
 

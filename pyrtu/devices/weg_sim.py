@@ -39,7 +39,7 @@ from typing import Any, NamedTuple
 from pyrtu.drivers.slave import Slave
 from pyrtu.pdu.errors import SlaveException
 
-from .. import pdu as P
+from .. import pdu as pdus
 from . import weg
 from ._simbase import DriveSimulator, HandlerSpec, Outputs
 from .motor import Clock, monotonic
@@ -430,27 +430,27 @@ class WegSimulator(DriveSimulator):
         out: dict[int, HandlerSpec] = {43: (self._fc43, None, None, False)}
         for fc in (3, 4, 23):
             if fc in self.model.functions:
-                out[fc] = (self._read_limited, None, None, fc == P.READ_WRITE_REGISTERS)
+                out[fc] = (self._read_limited, None, None, fc == pdus.READ_WRITE_REGISTERS)
         return out
 
     def _read_limited(self, slave: Slave, unit: int, pdu: bytes) -> bytes:
         """FC 03/04/23 within the 64-byte telegram limit: a response that would be
         longer (more than 29 registers) is refused with exception 3."""
-        if pdu[0] == P.READ_WRITE_REGISTERS:
-            raddr, rcount, waddr, words = P.decode_read_write(pdu)
+        if pdu[0] == pdus.READ_WRITE_REGISTERS:
+            raddr, rcount, waddr, words = pdus.decode_read_write(pdu)
         else:
-            raddr, rcount = P.decode_read(pdu)
+            raddr, rcount = pdus.decode_read(pdu)
         if 5 + 2 * rcount > weg.MAX_TELEGRAM:
             raise SlaveException(3, f"{rcount} registers exceed the 64-byte telegram limit")
         table = (
             self.store.input_registers
-            if pdu[0] == P.READ_INPUT_REGISTERS
+            if pdu[0] == pdus.READ_INPUT_REGISTERS
             else self.store.holding_registers
         )
-        if pdu[0] == P.READ_WRITE_REGISTERS:
+        if pdu[0] == pdus.READ_WRITE_REGISTERS:
             table.check_read(raddr, rcount)
             table.write(waddr, list(words))
-        return P.registers_response(pdu[0], [int(v) for v in table.read(raddr, rcount)])
+        return pdus.registers_response(pdu[0], [int(v) for v in table.read(raddr, rcount)])
 
     def _fc43(self, slave: Slave, unit: int, pdu: bytes) -> bytes:
         """FC 43 / MEI 14 with read codes 01 (basic, in sequence) and 04 (one object)."""

@@ -37,7 +37,7 @@ from concurrent.futures import Future as ThreadFuture
 from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any
 
-from pyrtu import pdu as P
+from pyrtu import pdu as pdus
 from pyrtu.core.line import LineConfig
 from pyrtu.core.rules import LengthRule
 from pyrtu.drivers import _ptimer, exchangers, xfer
@@ -45,7 +45,7 @@ from pyrtu.drivers._slack import tighten_this_thread
 from pyrtu.drivers.links import TCP_SCHEME, Link
 from pyrtu.drivers.master import Master, MasterBase
 from pyrtu.drivers.sync_io import plan_of, read_now, report
-from pyrtu.pdu import requests as R
+from pyrtu.pdu import requests as request_table
 from pyrtu.pdu.errors import PortError
 from pyrtu.pdu.requests import Call, Request, Rules
 from pyrtu.protocol.client import ClientProtocol, Send, Wait
@@ -285,9 +285,9 @@ class AsyncMaster(MasterBase):
         """As `pyrtu.Master.transact`: ``(value, end_time)`` of the request ``req``
         (the transactions of a multi-page request are separate: other callers may
         interleave)."""
-        request = R.REQUESTS[req] if isinstance(req, str) else req
+        request = request_table.REQUESTS[req] if isinstance(req, str) else req
         if request.build is not None:  # one transaction: no plan to step through
-            call = R.call_of(request, slave, args, kwargs, self._link.address)
+            call = request_table.call_of(request, slave, args, kwargs, self._link.address)
             value, end = await self._transact(call)
             return (value if request.post is None else request.post(value)), end
         steps = self._steps(request, slave, args, kwargs)
@@ -369,7 +369,7 @@ class AsyncMaster(MasterBase):
         async def read_exception_status(self, slave: int) -> int: ...
         async def diagnostics(self, slave: int, sub_function: int, data: int = 0) -> int: ...
         async def get_comm_event_counter(self, slave: int) -> tuple[int, int]: ...
-        async def get_comm_event_log(self, slave: int) -> P.CommEventLog: ...
+        async def get_comm_event_log(self, slave: int) -> pdus.CommEventLog: ...
         async def report_server_id(self, slave: int) -> bytes: ...
         async def read_fifo_queue(self, slave: int, address: int) -> list[int]: ...
         async def read_file_record(self, slave: int,
@@ -392,7 +392,9 @@ def _install(cls: type[AsyncMaster]) -> None:
             if build is not None and self._tcp is None:
                 # one transaction on a serial link (the hot path): `transact` without
                 # the answer's end time, which the method does not return
-                value = await self._run(R.call_of(req, slave, args, kwargs, self._link.address))
+                value = await self._run(
+                    request_table.call_of(req, slave, args, kwargs, self._link.address)
+                )
                 return value if post is None else post(value)
             return (await self.transact(req, slave, *args, **kwargs))[0]
 
@@ -400,7 +402,7 @@ def _install(cls: type[AsyncMaster]) -> None:
         run.__qualname__ = f"{cls.__name__}.{req.name}"
         return run
 
-    for req in R.REQUESTS.values():
+    for req in request_table.REQUESTS.values():
         setattr(cls, req.name, method(req))
 
 

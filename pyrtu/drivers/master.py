@@ -40,7 +40,7 @@ import time
 from collections.abc import Iterable, Sequence
 from typing import Any
 
-from pyrtu import pdu as P
+from pyrtu import pdu as pdus
 from pyrtu.core import _backend
 from pyrtu.core._forward import Forward, Settable
 from pyrtu.core.line import LineConfig, adopt_port_format, line_from
@@ -57,7 +57,7 @@ from pyrtu.drivers.links import (
 )
 from pyrtu.drivers.port import Port, open_line_port
 from pyrtu.drivers.sync_io import run_sync
-from pyrtu.pdu import requests as R
+from pyrtu.pdu import requests as request_table
 from pyrtu.pdu.errors import PortError
 from pyrtu.pdu.requests import Call, Request, Rules, Steps
 from pyrtu.protocol.client import ClientProtocol
@@ -123,7 +123,7 @@ class SerialLink:
     def counters(self) -> dict[str, int]:
         return dict(self.proto.counters)
 
-    address = staticmethod(R.serial_address)
+    address = staticmethod(request_table.serial_address)
 
     def count_bad(self) -> None:
         self.proto.counters["frame_errors"] += 1
@@ -265,7 +265,7 @@ class MasterBase:
         return self._link.counters
 
     def _steps(self, req: Request[Any] | str, slave: Any, args: Any, kwargs: Any) -> Steps:
-        request = R.REQUESTS[req] if isinstance(req, str) else req
+        request = request_table.REQUESTS[req] if isinstance(req, str) else req
         link = self._link
         return Steps(request, slave, args, kwargs, link.address, link.count_bad)
 
@@ -298,10 +298,10 @@ class Master(MasterBase):
         """Run the request ``req`` (a `pyrtu.pdu.requests.Request` or a method name) with
         the method's arguments: ``(value, end_time)``, ``end_time`` being when the
         answer's last byte came (monotonic seconds)."""
-        request = R.REQUESTS[req] if isinstance(req, str) else req
+        request = request_table.REQUESTS[req] if isinstance(req, str) else req
         with self._lock:
             if request.build is not None:  # one transaction: no plan to step through
-                call = R.call_of(request, slave, args, kwargs, self._link.address)
+                call = request_table.call_of(request, slave, args, kwargs, self._link.address)
                 value, end = self._conn.transact(call)
                 return (value if request.post is None else request.post(value)), end
             steps = self._steps(request, slave, args, kwargs)
@@ -440,7 +440,7 @@ class Master(MasterBase):
         """FC 11: (status, event count); status 0xFFFF means busy."""
         return self._call("get_comm_event_counter", slave)  # type: ignore[no-any-return]
 
-    def get_comm_event_log(self, slave: int) -> P.CommEventLog:
+    def get_comm_event_log(self, slave: int) -> pdus.CommEventLog:
         """FC 12: status, event count, message count and up to 64 events (newest first)."""
         return self._call("get_comm_event_log", slave)  # type: ignore[no-any-return]
 

@@ -13,7 +13,7 @@ import logging
 from collections.abc import Callable, Iterable, Mapping
 from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
-from pyrtu import pdu as P
+from pyrtu import pdu as pdus
 from pyrtu._version import __version__
 from pyrtu.core import _backend
 from pyrtu.core._forward import Forward, Settable
@@ -122,11 +122,11 @@ class SlaveBase:
         self.exception_status = 0
         self.echo = bool(echo)
         self._backend = _backend.backend(backend)
-        max_pdu = min(P.MAX_PDU, line.max_adu - 3) if line.mode == "rtu" else P.MAX_PDU
+        max_pdu = min(pdus.MAX_PDU, line.max_adu - 3) if line.mode == "rtu" else pdus.MAX_PDU
         self.identification = DeviceIdentification(identification, max_pdu, __version__)
         self.line = LineState()
         self._handlers: dict[int, _Builtin] = self._builtins()
-        self._broadcast_ok = set(P.BROADCAST_FUNCTIONS)
+        self._broadcast_ok = set(pdus.BROADCAST_FUNCTIONS)
         self._hooks: list[Callable[[int, bytes], object]] = []
         if line.mode == "rtu":  # the core's limits, checked before the port is opened
             check_core_limits(line.options("slave"))
@@ -256,13 +256,13 @@ class SlaveBase:
         except SlaveException as exc:
             if unit:
                 log.debug("unit %d function %d: exception %d (%s)", unit, fc, exc.code, exc)
-            return P.exception_response(fc, exc.code)
+            return pdus.exception_response(fc, exc.code)
         except Exception:
             log.exception("unit %d function %d: handler failed", unit, fc)
-            return P.exception_response(fc, 4)
+            return pdus.exception_response(fc, 4)
 
     def _broadcast_units(self, fc: int) -> list[int]:
-        if fc not in P.BROADCAST_FUNCTIONS:
+        if fc not in pdus.BROADCAST_FUNCTIONS:
             return [0]  # a registered handler: called once with unit 0
         seen: set[int] = set()
         units = []
@@ -289,7 +289,7 @@ class SlaveBase:
             12: lambda unit, pdu: self.line.event_log_response(),
             15: self._write_multiple,
             16: self._write_multiple,
-            17: lambda unit, pdu: P.server_id_response(
+            17: lambda unit, pdu: pdus.server_id_response(
                 self.server_id + (b"\xff" if self.run_indicator else b"\x00")
             ),
             20: self._read_file,
@@ -301,71 +301,73 @@ class SlaveBase:
         }
 
     def _read_bits(self, unit: int, pdu: bytes) -> bytes:
-        address, count = P.decode_read(pdu)
+        address, count = pdus.decode_read(pdu)
         store = self.store_for(unit)
-        table = store.coils if pdu[0] == P.READ_COILS else store.discrete_inputs
-        return P.bits_response(pdu[0], [bool(v) for v in table.read(address, count)])
+        table = store.coils if pdu[0] == pdus.READ_COILS else store.discrete_inputs
+        return pdus.bits_response(pdu[0], [bool(v) for v in table.read(address, count)])
 
     def _read_registers(self, unit: int, pdu: bytes) -> bytes:
-        address, count = P.decode_read(pdu)
+        address, count = pdus.decode_read(pdu)
         store = self.store_for(unit)
         table = (
-            store.holding_registers if pdu[0] == P.READ_HOLDING_REGISTERS else store.input_registers
+            store.holding_registers
+            if pdu[0] == pdus.READ_HOLDING_REGISTERS
+            else store.input_registers
         )
-        return P.registers_response(pdu[0], [int(v) for v in table.read(address, count)])
+        return pdus.registers_response(pdu[0], [int(v) for v in table.read(address, count)])
 
     def _write_single(self, unit: int, pdu: bytes) -> bytes:
-        address, value = P.decode_write_single(pdu)
+        address, value = pdus.decode_write_single(pdu)
         store = self.store_for(unit)
-        if pdu[0] == P.WRITE_SINGLE_COIL:
-            store.coils.write(address, [value == P.COIL_ON])
+        if pdu[0] == pdus.WRITE_SINGLE_COIL:
+            store.coils.write(address, [value == pdus.COIL_ON])
         else:
             store.holding_registers.write(address, [value])
         return pdu
 
     def _write_multiple(self, unit: int, pdu: bytes) -> bytes:
         store = self.store_for(unit)
-        if pdu[0] == P.WRITE_MULTIPLE_COILS:
-            address, bits = P.decode_write_coils(pdu)
+        if pdu[0] == pdus.WRITE_MULTIPLE_COILS:
+            address, bits = pdus.decode_write_coils(pdu)
             store.coils.write(address, list(bits))
         else:
-            address, words = P.decode_write_registers(pdu)
+            address, words = pdus.decode_write_registers(pdu)
             store.holding_registers.write(address, list(words))
         return pdu[:5]
 
     def _mask_write(self, unit: int, pdu: bytes) -> bytes:
-        address, and_mask, or_mask = P.decode_mask_write(pdu)
+        address, and_mask, or_mask = pdus.decode_mask_write(pdu)
         table = self.store_for(unit).holding_registers
         current = int(table.read(address, 1)[0])
         table.write(address, [(current & and_mask) | (or_mask & ~and_mask & 0xFFFF)])
         return pdu
 
     def _read_write(self, unit: int, pdu: bytes) -> bytes:
-        raddr, rcount, waddr, words = P.decode_read_write(pdu)
+        raddr, rcount, waddr, words = pdus.decode_read_write(pdu)
         table = self.store_for(unit).holding_registers
         table.check_read(raddr, rcount)
         table.write(waddr, list(words))
-        return P.registers_response(pdu[0], [int(v) for v in table.read(raddr, rcount)])
+        return pdus.registers_response(pdu[0], [int(v) for v in table.read(raddr, rcount)])
 
     def _read_fifo(self, unit: int, pdu: bytes) -> bytes:
-        address = P.decode_fifo(pdu)
+        address = pdus.decode_fifo(pdu)
         table = self.store_for(unit).holding_registers
         count = int(table.read(address, 1)[0])
-        if count > P.MAX_FIFO:
+        if count > pdus.MAX_FIFO:
             raise SlaveException(3, f"read_fifo_queue: {count} entries at {address} (at most 31)")
         values = [int(v) for v in table.read(address + 1, count)] if count else []
-        return P.fifo_response(values)
+        return pdus.fifo_response(values)
 
     def _read_file(self, unit: int, pdu: bytes) -> bytes:
         store = self.store_for(unit)
         records = []
-        for file, record, length in P.decode_read_file(pdu):
+        for file, record, length in pdus.decode_read_file(pdu):
             records.append([int(v) for v in store.file(file).read(record, length)])
-        return P.read_file_response(records)
+        return pdus.read_file_response(records)
 
     def _write_file(self, unit: int, pdu: bytes) -> bytes:
         store = self.store_for(unit)
-        items = P.decode_write_file(pdu)
+        items = pdus.decode_write_file(pdu)
         for file, record, values in items:
             store.file(file).check_write(record, list(values))
         before = [(store.file(f), r, store.file(f).get_many(r, len(v))) for f, r, v in items]
@@ -379,8 +381,8 @@ class SlaveBase:
         return pdu
 
     def _device_id(self, unit: int, pdu: bytes) -> bytes:
-        read_code, object_id = P.decode_device_id(pdu)
-        return P.device_id_response(self.identification.page(read_code, object_id))
+        read_code, object_id = pdus.decode_device_id(pdu)
+        return pdus.device_id_response(self.identification.page(read_code, object_id))
 
 
 class PortSlave(SlaveBase, Generic[S]):

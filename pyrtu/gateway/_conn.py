@@ -11,7 +11,7 @@ import logging
 import socket
 import struct
 import time
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from pyrtu.core import _backend
 from pyrtu.core.frames import FrameKind
@@ -19,11 +19,20 @@ from pyrtu.drivers._ptimer import rearm
 from pyrtu.tcp.sockets import set_nodelay
 
 from ._live import Liveness
-
-if TYPE_CHECKING:
-    from . import Gateway
+from ._plan import GatewayLimits
 
 log = logging.getLogger("pyrtu.gateway")
+
+
+class Owner(Protocol):
+    """What a connection asks of the gateway that accepted it (`Gateway`)."""
+
+    limits: GatewayLimits
+    counters: dict[str, int]
+
+    def _opened(self, conn: _Connection) -> None: ...
+    def _closed(self, conn: _Connection) -> None: ...
+    def _request(self, conn: _Connection, transaction: int, unit: int, pdu: bytes) -> None: ...
 
 
 def _reset(t: asyncio.Transport) -> None:
@@ -38,7 +47,7 @@ def _reset(t: asyncio.Transport) -> None:
 
 
 class _Connection(asyncio.Protocol):
-    def __init__(self, gateway: Gateway) -> None:
+    def __init__(self, gateway: Owner) -> None:
         self.gateway = gateway
         self.id = 0
         self.transport: asyncio.Transport | None = None
@@ -136,7 +145,7 @@ class _RtuConnection(_Connection):
     frame are skipped as on a serial line, not a reason to close.  Answers go back in
     RTU frames; there is no transaction id (such clients send one request at a time)."""
 
-    def __init__(self, gateway: Gateway) -> None:
+    def __init__(self, gateway: Owner) -> None:
         super().__init__(gateway)
         self.rtu = _backend.active.Framer("slave", t15=0, t35=0)
         self.timer: asyncio.TimerHandle | None = None

@@ -35,8 +35,8 @@ from typing import Any, Protocol
 from pyrtu.core._closing import AsyncClosing
 from pyrtu.core.line import LineConfig
 from pyrtu.drivers.slave_base import SlaveBase
-from pyrtu.gateway import Gateway, GatewayLimits
 from pyrtu.gateway._plan import check_listen
+from pyrtu.gateway.gateway import Gateway, GatewayLimits
 from pyrtu.protocol.datastore import DataStore
 
 UNIT_SELF = 0xFF

@@ -22,7 +22,7 @@ from collections.abc import Callable, Generator, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any, Generic, NamedTuple, TypeVar
 
-from pyrtu import pdu as P
+from pyrtu import pdu as pdus
 from pyrtu.core.rules import LengthRule
 from pyrtu.pdu.errors import FrameError
 from pyrtu.pdu.functions import FUNCTION_NAMES
@@ -51,12 +51,12 @@ _READS_MAX = 4096
 
 
 def _read(name: str, fc: int, slave: int, address: int, count: int) -> Call:
-    s = P.check_slave(name, slave, broadcast=False)
-    req = P.read_request(fc, address, count)
-    if fc <= P.READ_DISCRETE_INPUTS:
-        call = Call(s, req, lambda p: P.parse_bits(p, count))
+    s = pdus.check_slave(name, slave, broadcast=False)
+    req = pdus.read_request(fc, address, count)
+    if fc <= pdus.READ_DISCRETE_INPUTS:
+        call = Call(s, req, lambda p: pdus.parse_bits(p, count))
     else:
-        call = Call(s, req, lambda p: P.parse_registers(p, count))
+        call = Call(s, req, lambda p: pdus.parse_registers(p, count))
     if type(slave) is type(address) is type(count) is int:
         if len(_READS) >= _READS_MAX:
             _READS.clear()
@@ -79,10 +79,10 @@ def _reader(fc: int, name: str) -> Callable[[int, int, int], Call]:
     return read
 
 
-read_coils = _reader(P.READ_COILS, "read_coils")
-read_discrete_inputs = _reader(P.READ_DISCRETE_INPUTS, "read_discrete_inputs")
-read_holding_registers = _reader(P.READ_HOLDING_REGISTERS, "read_holding_registers")
-read_input_registers = _reader(P.READ_INPUT_REGISTERS, "read_input_registers")
+read_coils = _reader(pdus.READ_COILS, "read_coils")
+read_discrete_inputs = _reader(pdus.READ_DISCRETE_INPUTS, "read_discrete_inputs")
+read_holding_registers = _reader(pdus.READ_HOLDING_REGISTERS, "read_holding_registers")
+read_input_registers = _reader(pdus.READ_INPUT_REGISTERS, "read_input_registers")
 
 
 def _write(slave: int, req: bytes, decode: Callable[[bytes], Any]) -> Call:
@@ -90,101 +90,101 @@ def _write(slave: int, req: bytes, decode: Callable[[bytes], Any]) -> Call:
 
 
 def write_coil(slave: int, address: int, value: bool) -> Call:
-    s = P.check_slave("write_coil", slave, broadcast=True)
-    req = P.write_coil_request(address, value)
-    return _write(s, req, lambda p: P.parse_echo(p, req))
+    s = pdus.check_slave("write_coil", slave, broadcast=True)
+    req = pdus.write_coil_request(address, value)
+    return _write(s, req, lambda p: pdus.parse_echo(p, req))
 
 
 def write_register(slave: int, address: int, value: int) -> Call:
-    s = P.check_slave("write_register", slave, broadcast=True)
-    req = P.write_register_request(address, value)
-    return _write(s, req, lambda p: P.parse_echo(p, req))
+    s = pdus.check_slave("write_register", slave, broadcast=True)
+    req = pdus.write_register_request(address, value)
+    return _write(s, req, lambda p: pdus.parse_echo(p, req))
 
 
 def write_coils(slave: int, address: int, values: Iterable[bool]) -> Call:
-    s = P.check_slave("write_coils", slave, broadcast=True)
-    req = P.write_coils_request(address, values)
-    return _write(s, req, lambda p: P.parse_echo(p, req, 5))
+    s = pdus.check_slave("write_coils", slave, broadcast=True)
+    req = pdus.write_coils_request(address, values)
+    return _write(s, req, lambda p: pdus.parse_echo(p, req, 5))
 
 
 def write_registers(slave: int, address: int, values: Iterable[int]) -> Call:
-    s = P.check_slave("write_registers", slave, broadcast=True)
-    req = P.write_registers_request(address, values)
-    return _write(s, req, lambda p: P.parse_echo(p, req, 5))
+    s = pdus.check_slave("write_registers", slave, broadcast=True)
+    req = pdus.write_registers_request(address, values)
+    return _write(s, req, lambda p: pdus.parse_echo(p, req, 5))
 
 
 def mask_write_register(slave: int, address: int, and_mask: int, or_mask: int) -> Call:
-    s = P.check_slave("mask_write_register", slave, broadcast=True)
-    req = P.mask_write_request(address, and_mask, or_mask)
-    return _write(s, req, lambda p: P.parse_echo(p, req))
+    s = pdus.check_slave("mask_write_register", slave, broadcast=True)
+    req = pdus.mask_write_request(address, and_mask, or_mask)
+    return _write(s, req, lambda p: pdus.parse_echo(p, req))
 
 
 def read_write_registers(
     slave: int, read_address: int, read_count: int, write_address: int, values: Iterable[int]
 ) -> Call:
-    s = P.check_slave("read_write_registers", slave, broadcast=False)
-    req = P.read_write_request(read_address, read_count, write_address, values)
-    return Call(s, req, lambda p: P.parse_registers(p, read_count))
+    s = pdus.check_slave("read_write_registers", slave, broadcast=False)
+    req = pdus.read_write_request(read_address, read_count, write_address, values)
+    return Call(s, req, lambda p: pdus.parse_registers(p, read_count))
 
 
 def read_exception_status(slave: int) -> Call:
-    s = P.check_slave("read_exception_status", slave, broadcast=False)
-    return Call(s, bytes((P.READ_EXCEPTION_STATUS,)), P.parse_exception_status)
+    s = pdus.check_slave("read_exception_status", slave, broadcast=False)
+    return Call(s, bytes((pdus.READ_EXCEPTION_STATUS,)), pdus.parse_exception_status)
 
 
 def diagnostics(slave: int, sub_function: int, data: int = 0) -> Call:
-    s = P.check_slave("diagnostics", slave, broadcast=False)
-    req = P.diagnostics_request(sub_function, data)
-    if sub_function == P.DIAG_FORCE_LISTEN_ONLY:
+    s = pdus.check_slave("diagnostics", slave, broadcast=False)
+    req = pdus.diagnostics_request(sub_function, data)
+    if sub_function == pdus.DIAG_FORCE_LISTEN_ONLY:
         return Call(s, req, None)  # never answered ([SL] 6.4)
-    return Call(s, req, lambda p: P.parse_diagnostics(p, sub_function))
+    return Call(s, req, lambda p: pdus.parse_diagnostics(p, sub_function))
 
 
 def get_comm_event_counter(slave: int) -> Call:
-    s = P.check_slave("get_comm_event_counter", slave, broadcast=False)
-    return Call(s, bytes((P.GET_COMM_EVENT_COUNTER,)), P.parse_event_counter)
+    s = pdus.check_slave("get_comm_event_counter", slave, broadcast=False)
+    return Call(s, bytes((pdus.GET_COMM_EVENT_COUNTER,)), pdus.parse_event_counter)
 
 
 def get_comm_event_log(slave: int) -> Call:
-    s = P.check_slave("get_comm_event_log", slave, broadcast=False)
-    return Call(s, bytes((P.GET_COMM_EVENT_LOG,)), P.parse_event_log)
+    s = pdus.check_slave("get_comm_event_log", slave, broadcast=False)
+    return Call(s, bytes((pdus.GET_COMM_EVENT_LOG,)), pdus.parse_event_log)
 
 
 def report_server_id(slave: int) -> Call:
-    s = P.check_slave("report_server_id", slave, broadcast=False)
-    return Call(s, bytes((P.REPORT_SERVER_ID,)), P.parse_server_id)
+    s = pdus.check_slave("report_server_id", slave, broadcast=False)
+    return Call(s, bytes((pdus.REPORT_SERVER_ID,)), pdus.parse_server_id)
 
 
 def read_fifo_queue(slave: int, address: int) -> Call:
-    s = P.check_slave("read_fifo_queue", slave, broadcast=False)
-    return Call(s, P.fifo_request(address), P.parse_fifo)
+    s = pdus.check_slave("read_fifo_queue", slave, broadcast=False)
+    return Call(s, pdus.fifo_request(address), pdus.parse_fifo)
 
 
 def read_file_record(slave: int, items: Sequence[tuple[int, int, int]]) -> Call:
-    s = P.check_slave("read_file_record", slave, broadcast=False)
-    req = P.read_file_request(items)
+    s = pdus.check_slave("read_file_record", slave, broadcast=False)
+    req = pdus.read_file_request(items)
     got = list(items)
-    return Call(s, req, lambda p: P.parse_read_file(p, got))
+    return Call(s, req, lambda p: pdus.parse_read_file(p, got))
 
 
 def write_file_record(slave: int, items: Sequence[tuple[int, int, Sequence[int]]]) -> Call:
-    s = P.check_slave("write_file_record", slave, broadcast=True)
-    req = P.write_file_request(items)
-    return _write(s, req, lambda p: P.parse_echo(p, req))
+    s = pdus.check_slave("write_file_record", slave, broadcast=True)
+    req = pdus.write_file_request(items)
+    return _write(s, req, lambda p: pdus.parse_echo(p, req))
 
 
 def device_id_check(slave: int, read_code: int, object_id: int) -> int:
     """read_device_identification's argument checks; returns the slave."""
-    s = P.check_slave("read_device_identification", slave, broadcast=False)
-    P.device_id_request(read_code, object_id)
+    s = pdus.check_slave("read_device_identification", slave, broadcast=False)
+    pdus.device_id_request(read_code, object_id)
     return s
 
 
 def device_id_page(slave: int, read_code: int, object_id: int) -> Call:
     return Call(
         slave,
-        P.device_id_request(read_code, object_id),
-        lambda p: P.parse_device_id(p, read_code),
+        pdus.device_id_request(read_code, object_id),
+        lambda p: pdus.parse_device_id(p, read_code),
     )
 
 
@@ -201,7 +201,7 @@ def device_id_next(
             f"read_device_identification: slave {slave}: Next Object {page.next_object} "
             "was already read",
             slave,
-            P.ENCAPSULATED_INTERFACE,
+            pdus.ENCAPSULATED_INTERFACE,
         )
     return int(page.next_object)
 
@@ -209,7 +209,7 @@ def device_id_next(
 def raw_request(slave: int, pdu: bytes, *, name: str = "request") -> Call:
     """Any request PDU (function code + data) -> the response PDU.  Slave 0 broadcasts
     (no answer awaited; the result is b"")."""
-    s = P.check_slave(name, slave, broadcast=True)
+    s = pdus.check_slave(name, slave, broadcast=True)
     if not isinstance(pdu, bytes | bytearray | memoryview):
         raise TypeError(f"{name}: pdu must be bytes, not {type(pdu).__name__}")
     raw = bytes(pdu)
@@ -217,8 +217,8 @@ def raw_request(slave: int, pdu: bytes, *, name: str = "request") -> Call:
         raise ValueError(f"{name}: pdu is empty (it starts with the function code)")
     if not 1 <= raw[0] <= 127:
         raise ValueError(f"{name}: function must be 1..127, not {raw[0]}")
-    if len(raw) > P.MAX_PDU:
-        raise ValueError(f"{name}: a {len(raw)}-byte PDU exceeds {P.MAX_PDU} bytes")
+    if len(raw) > pdus.MAX_PDU:
+        raise ValueError(f"{name}: a {len(raw)}-byte PDU exceeds {pdus.MAX_PDU} bytes")
     return Call(s, raw, None if s == 0 else bytes)
 
 
@@ -237,14 +237,14 @@ def execute(
     request_rule: LengthRule | None = None,
     response_rule: LengthRule | None = None,
 ) -> Call:
-    s = P.check_slave(f"function {function}", slave, broadcast=True)
+    s = pdus.check_slave(f"function {function}", slave, broadcast=True)
     if isinstance(function, bool) or not isinstance(function, int) or not 1 <= function <= 127:
         raise ValueError(f"execute: function must be 1..127, not {function!r}")
     if not isinstance(data, bytes | bytearray | memoryview):
         raise ValueError(f"execute: data must be bytes, not {type(data).__name__}")
     request = bytes((function,)) + bytes(data)
-    if len(request) > P.MAX_PDU:
-        raise ValueError(f"execute: a {len(request)}-byte PDU exceeds {P.MAX_PDU} bytes")
+    if len(request) > pdus.MAX_PDU:
+        raise ValueError(f"execute: a {len(request)}-byte PDU exceeds {pdus.MAX_PDU} bytes")
     return Call(s, request, None if s == 0 else (lambda p: p[1:]))
 
 
@@ -320,7 +320,7 @@ _POST: dict[str, Callable[[Any], Any]] = {"diagnostics": _or(0)}
 
 def _entry(build: Callable[..., Call]) -> Request[Any]:
     code = _CODES[build.__name__]
-    broadcasting = code in P.BROADCAST_FUNCTIONS
+    broadcasting = code in pdus.BROADCAST_FUNCTIONS
     return Request(build.__name__, code, broadcasting, build, _POST.get(build.__name__))
 
 
@@ -329,7 +329,7 @@ _TABLE: tuple[Request[Any], ...] = (
     Request("exchange", 0, True, exchange, _or(b"")),
     Request("execute", 0, True, plan=_execute_plan),
     *(_entry(build) for build in _BUILDERS),
-    Request("read_device_identification", P.ENCAPSULATED_INTERFACE, False, plan=_device_id_plan),
+    Request("read_device_identification", pdus.ENCAPSULATED_INTERFACE, False, plan=_device_id_plan),
 )
 
 #: method name -> Request (the twenty methods of `Master` and `AsyncMaster`)

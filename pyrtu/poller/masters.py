@@ -19,14 +19,14 @@ from typing import Any, Protocol
 
 from pyrtu.drivers.aio import AsyncMaster
 from pyrtu.drivers.master import Master
-from pyrtu.pdu import requests as R
+from pyrtu.pdu import requests as request_table
 from pyrtu.pdu.errors import ModbusError, PortBusyError, PortError
 from pyrtu.pdu.requests import Request
 
 from .config import Bus
 
 #: the requests the poller sends, by function code (the masters' one table)
-BY_FUNCTION: dict[int, Request[Any]] = R.BY_FUNCTION
+BY_FUNCTION: dict[int, Request[Any]] = request_table.BY_FUNCTION
 
 
 class AsyncMasterLike(Protocol):

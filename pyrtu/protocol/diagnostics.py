@@ -10,19 +10,19 @@ from __future__ import annotations
 
 from collections import deque
 
-from pyrtu import pdu as P
+from pyrtu import pdu as pdus
 from pyrtu.pdu.errors import SlaveException
 
 #: FC 08 sub-function -> counter key
 COUNTER_SUBFUNCTIONS = {
-    P.DIAG_BUS_MESSAGE_COUNT: "bus_message_count",
-    P.DIAG_BUS_COMM_ERROR_COUNT: "bus_communication_error_count",
-    P.DIAG_BUS_EXCEPTION_ERROR_COUNT: "slave_exception_error_count",
-    P.DIAG_SLAVE_MESSAGE_COUNT: "slave_message_count",
-    P.DIAG_SLAVE_NO_RESPONSE_COUNT: "slave_no_response_count",
-    P.DIAG_SLAVE_NAK_COUNT: "slave_nak_count",
-    P.DIAG_SLAVE_BUSY_COUNT: "slave_busy_count",
-    P.DIAG_BUS_CHAR_OVERRUN_COUNT: "bus_character_overrun_count",
+    pdus.DIAG_BUS_MESSAGE_COUNT: "bus_message_count",
+    pdus.DIAG_BUS_COMM_ERROR_COUNT: "bus_communication_error_count",
+    pdus.DIAG_BUS_EXCEPTION_ERROR_COUNT: "slave_exception_error_count",
+    pdus.DIAG_SLAVE_MESSAGE_COUNT: "slave_message_count",
+    pdus.DIAG_SLAVE_NO_RESPONSE_COUNT: "slave_no_response_count",
+    pdus.DIAG_SLAVE_NAK_COUNT: "slave_nak_count",
+    pdus.DIAG_SLAVE_BUSY_COUNT: "slave_busy_count",
+    pdus.DIAG_BUS_CHAR_OVERRUN_COUNT: "bus_character_overrun_count",
 }
 
 # Event log bytes (Application Protocol V1.1b, 6.10).
@@ -35,7 +35,7 @@ EVENT_LISTEN_ONLY = 0x20
 EVENT_ENTER_LISTEN_ONLY = 0x04
 EVENT_RESTART = 0x00
 
-_NOT_COUNTED = frozenset({P.GET_COMM_EVENT_COUNTER, P.GET_COMM_EVENT_LOG})
+_NOT_COUNTED = frozenset({pdus.GET_COMM_EVENT_COUNTER, pdus.GET_COMM_EVENT_LOG})
 _HEX_OR_FRAMING = frozenset(b"0123456789ABCDEFabcdef:\r")
 
 
@@ -133,10 +133,10 @@ class LineState:
 
     def diagnostics(self, request: bytes) -> bytes | None:
         """FC 08: the response PDU, or None when the spec says no response."""
-        sub, data = P.decode_diagnostics(request)
-        if sub == P.DIAG_RETURN_QUERY_DATA:
+        sub, data = pdus.decode_diagnostics(request)
+        if sub == pdus.DIAG_RETURN_QUERY_DATA:
             return request
-        if sub == P.DIAG_RESTART_COMMUNICATIONS:
+        if sub == pdus.DIAG_RESTART_COMMUNICATIONS:
             if data not in (0x0000, 0xFF00):
                 raise SlaveException(
                     3, f"diagnostics 0x01: data 0x{data:04X} is not 0x0000 or 0xFF00"
@@ -144,7 +144,7 @@ class LineState:
             was_listening = self.listen_only
             self.restart(data == 0xFF00)
             return None if was_listening else request
-        if sub == P.DIAG_CHANGE_ASCII_DELIMITER:
+        if sub == pdus.DIAG_CHANGE_ASCII_DELIMITER:
             char, low = data >> 8, data & 0xFF
             if low or char in _HEX_OR_FRAMING:
                 raise SlaveException(3, f"diagnostics 0x03: 0x{data:04X} is not a usable delimiter")
@@ -154,35 +154,35 @@ class LineState:
             if sub in COUNTER_SUBFUNCTIONS or sub in (0x02, 0x04, 0x0A, 0x14):
                 raise SlaveException(3, f"diagnostics 0x{sub:02X}: the data field must be 0x0000")
             raise SlaveException(1, f"diagnostics: sub-function 0x{sub:02X} is not supported")
-        if sub == P.DIAG_RETURN_DIAGNOSTIC_REGISTER:
-            return P.diagnostics_response(sub, self.diagnostic_register)
-        if sub == P.DIAG_FORCE_LISTEN_ONLY:
+        if sub == pdus.DIAG_RETURN_DIAGNOSTIC_REGISTER:
+            return pdus.diagnostics_response(sub, self.diagnostic_register)
+        if sub == pdus.DIAG_FORCE_LISTEN_ONLY:
             self.listen_only = True
             self.events.appendleft(EVENT_ENTER_LISTEN_ONLY)
             return None
-        if sub == P.DIAG_CLEAR_COUNTERS:
+        if sub == pdus.DIAG_CLEAR_COUNTERS:
             self.clear()
             return request
-        if sub == P.DIAG_CLEAR_OVERRUN:
+        if sub == pdus.DIAG_CLEAR_OVERRUN:
             self.counters["bus_character_overrun_count"] = 0
             self._overrun = False
             return request
         key = COUNTER_SUBFUNCTIONS.get(sub)
         if key is None:
             raise SlaveException(1, f"diagnostics: sub-function 0x{sub:02X} is not supported")
-        return P.diagnostics_response(sub, self.counters[key])
+        return pdus.diagnostics_response(sub, self.counters[key])
 
     def event_counter_response(self) -> bytes:
-        return P.event_counter_response(0xFFFF if self.busy else 0, self.event_counter)
+        return pdus.event_counter_response(0xFFFF if self.busy else 0, self.event_counter)
 
     def event_log_response(self) -> bytes:
-        log = P.CommEventLog(
+        log = pdus.CommEventLog(
             0xFFFF if self.busy else 0,
             self.event_counter,
             self.counters["bus_message_count"],
             list(self.events),
         )
-        return P.event_log_response(log)
+        return pdus.event_log_response(log)
 
 
 # ------------------------------------------------------------ FC 43/14 objects
@@ -220,11 +220,11 @@ class DeviceIdentification:
         top = max(self.objects)
         self.conformity = 0x80 | (3 if top >= 0x80 else 2 if top >= 0x03 else 1)
 
-    def page(self, read_code: int, object_id: int) -> P.DeviceIdPage:
+    def page(self, read_code: int, object_id: int) -> pdus.DeviceIdPage:
         if read_code == 4:
             if object_id not in self.objects:
                 raise SlaveException(2, f"read_device_identification: no object {object_id}")
-            return P.DeviceIdPage(
+            return pdus.DeviceIdPage(
                 4, self.conformity, False, 0, [(object_id, self.objects[object_id])]
             )
         end = _STREAM_END[read_code]
@@ -236,7 +236,7 @@ class DeviceIdentification:
         for oid in ids:
             size = 2 + len(self.objects[oid])
             if size > room:
-                return P.DeviceIdPage(read_code, self.conformity, True, oid, chosen)
+                return pdus.DeviceIdPage(read_code, self.conformity, True, oid, chosen)
             chosen.append((oid, self.objects[oid]))
             room -= size
-        return P.DeviceIdPage(read_code, self.conformity, False, 0, chosen)
+        return pdus.DeviceIdPage(read_code, self.conformity, False, 0, chosen)

@@ -44,7 +44,7 @@ from pyrtu.drivers.links import check_in_flight
 from pyrtu.pdu.errors import NoResponseError
 from pyrtu.pdu.requests import Call
 from pyrtu.protocol.client_actions import answer_pdu
-from pyrtu.tcp import AsyncTcpClient, TcpClient, parse_tcp_url
+from pyrtu.tcp.client import AsyncTcpClient, TcpClient, parse_tcp_url
 
 NO_LINE = (
     "{url}: a Modbus TCP master has no serial line (line and port are a serial "

@@ -1,0 +1,609 @@
+"""A Modbus TCP gateway: many TCP clients onto serial buses, one transaction at a time.
+
+Messaging on TCP/IP Implementation Guide V1.0b, 3.1.3 (the MBAP header; the unit
+id addresses a device behind a gateway) and Application Protocol V1.1b, section 7
+(exceptions 0x0A and 0x0B).  The parts:
+
+* `Routes`: unit id -> bus (``--port`` repeated with unit-id ranges).
+* `FairQueue`: the sans-I/O queue of one bus: one sub-queue per connection, served
+  round-robin, so a client that pipelines many requests cannot starve the others;
+  bounded per connection and per bus.
+* `Gateway`: the asyncio driver: a listener, one `MbapFramer` per connection (and
+  optionally a second listener for RTU over TCP, one RTU framer per connection), one
+  worker per bus that runs one transaction at a time through the bus's `request`
+  (`pyrtu.drivers.aio.AsyncMaster`, whose sans-I/O engine keeps t3.5 and nothing more).
+
+What the gateway answers itself (transaction id, protocol id and unit id copied
+from the request, [TCP] 3.1.3):
+
+* unit id with no bus: exception 0x0A, gateway path unavailable ([AP] 7: "the
+  gateway was unable to allocate an internal communication path").
+* a bus whose port failed (`PortError`: a USB adapter pulled out, a TCP peer
+  gone), or was not there when the gateway started (a `ReopeningBus` that `start`
+  could not open: an adapter plugged in after boot): 0x0A at once to every request
+  for it while it is down ("the gateway was unable to allocate an internal
+  communication path": the path to the device, not the device, is missing; 0x0B
+  is kept for a device that was asked and did not answer).  The failure is
+  logged once (a warning), counted (``bus_failures``; ``bus_unavailable`` counts
+  the requests so answered) and shown in ``stats()["bus_down"]``; the gateway
+  retries on the shared back-off schedule (`pyrtu.drivers.reconnect`): through the
+  bus's ``reopen()`` if it has one, else by letting the next request through
+  when a retry is due.  The other buses carry on; when the port is back, one
+  log line says so.
+* no valid answer from the device within the bus's timeout (after its retries):
+  exception 0x0B, gateway target device failed to respond ([AP] 7); also when a
+  bus object raises anything unexpected (logged with its trace; the bus goes on).
+* queue full (this connection already has ``max_queued_per_connection`` requests
+  waiting, or the bus ``max_queued_per_bus``): exception 0x06, server device busy
+  ([AP] 7: "the client should retransmit the message later").  Chosen over 0x0A,
+  whose text also covers overload, because busy tells a client the condition is
+  transient and that retrying later is right; 0x0A stays a routing answer.
+* broadcast (unit 0): sent to every bus that is up, without waiting for an answer
+  (the bus keeps the turnaround delay); nothing is sent back to the client, as on
+  a serial line ([SL] 2.1).  Unless the routes map unit 0 to a slave (``{0: 1}``,
+  ``--unit-map 0=1``): [TCP] 4.4.1.2 lets a client address a TCP device with unit
+  0 (or 0xFF), and such clients expect an answer.
+
+A malformed MBAP header (protocol id not 0, length outside 2..254) closes that
+connection only: its waiting requests are dropped, the answers already written to
+it go out if it takes them within ``close_grace`` (5 s), else it is reset.  A
+client that does not read its answers is reset when its unsent output passes
+``max_write_buffer`` bytes: answers are written without waiting, so it never blocks
+a bus worker, and its requests go on being read (and answered, 0x06 once its queue
+is full) until it is reset.  Its socket's kernel send buffer is set to
+``max_write_buffer`` too (Linux doubles it), so what one client can leave unread on
+the gateway's host is bounded by about three times the limit, not by the kernel's
+autotuned buffer (megabytes on Linux); a reset drops what the kernel still holds
+(SO_LINGER 0).  A client that disconnects leaves the bus in step: a transaction
+already on the wire runs to its end (its answer is dropped), the client's waiting
+requests are removed from the queue.
+
+Clients that do not talk cannot hold the connection table (`pyrtu.gateway._live`):
+a request must be complete within ``header_timeout`` (5 s) of its first byte, a
+connection with no request for ``idle_timeout`` (120 s) and nothing waiting is
+closed, and when the table is full a newcomer takes the slot of a connection that
+never completed a request (else the longest idle one); counted as
+``header_timeouts``, ``idle_timeouts`` and ``evicted``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Protocol
+
+from pyrtu.drivers.reconnect import Reconnect
+from pyrtu.pdu.errors import (
+    GATEWAY_PATH_UNAVAILABLE,
+    GATEWAY_TARGET_FAILED,
+    ILLEGAL_FUNCTION,
+    SLAVE_DEVICE_BUSY,
+    ModbusError,
+    NoResponseError,
+    PortError,
+)
+
+from ._conn import _Connection, _RtuConnection
+from ._live import HEADER, pick_victim
+from ._plan import (
+    CLOSE_GRACE,
+    HEADER_TIMEOUT,
+    IDLE_TIMEOUT,
+    MAX_CONNECTIONS,
+    MAX_QUEUED_PER_BUS,
+    MAX_QUEUED_PER_CONNECTION,
+    MAX_WRITE_BUFFER,
+    FairQueue,
+    GatewayLimits,
+    Job,
+    QueueFull,
+    Routes,
+    check_listen,
+    exception_pdu,
+    parse_units,
+)
+from ._reopen import ReopeningBus, close_bus
+
+log = logging.getLogger("pyrtu.gateway")
+
+__all__ = [
+    "CLOSE_GRACE",
+    "HEADER_TIMEOUT",
+    "IDLE_TIMEOUT",
+    "MAX_CONNECTIONS",
+    "MAX_QUEUED_PER_BUS",
+    "MAX_QUEUED_PER_CONNECTION",
+    "MAX_WRITE_BUFFER",
+    "Bus",
+    "BusEvent",
+    "FairQueue",
+    "Gateway",
+    "GatewayLimits",
+    "Job",
+    "QueueFull",
+    "ReopeningBus",
+    "Routes",
+    "close_bus",
+    "exception_pdu",
+    "parse_units",
+]
+
+
+class Bus(Protocol):
+    """What a bus behind the gateway offers: `pyrtu.drivers.aio.AsyncMaster` (a serial
+    line), `pyrtu.tcp.AsyncTcpClient` (another Modbus TCP server).  ``request``
+    returns the answer PDU, an exception answer too (as its bytes, as
+    `pyrtu.gateway.server.LocalBus` does); a bus whose ``request`` raises
+    `ExceptionResponseError` instead (`AsyncMaster`, `AsyncTcpClient`) offers
+    ``exchange``, of the same shape, which the gateway calls when a bus has it: an
+    exception raised is a target that failed to respond (0x0B).  A bus may also
+    have ``async reopen()``, which the gateway calls to bring it back after a
+    `PortError` (raising `PortError` or `OSError` while the port is still gone)."""
+
+    async def request(self, slave: int, pdu: bytes) -> bytes | None: ...
+
+
+@dataclass(frozen=True)
+class BusEvent:
+    """A bus's port failed (``up`` False: the first failure of an outage, reported
+    once; ``starting``: it could not be opened when the gateway started) or is back
+    (``up`` True, with the outage's ``attempts`` and ``seconds``)."""
+
+    bus: int  # its index in the gateway's buses
+    name: str
+    up: bool
+    error: str  # what failed (the first error of the outage)
+    attempts: int = 1
+    seconds: float | None = None
+    starting: bool = False
+
+
+def _bus_name(bus: object, index: int) -> str:
+    for attr in ("name", "url", "where"):
+        name = getattr(bus, attr, None)
+        if isinstance(name, str) and name:
+            return name
+    port = getattr(bus, "port", None)
+    return str(getattr(port, "name", None) or f"bus {index}")
+
+
+@dataclass
+class _BusState:
+    index: int
+    bus: Bus
+    queue: FairQueue
+    name: str
+    reconnect: Reconnect
+    #: what the idle worker awaits; a request for the bus resolves it (a bare future:
+    #: one wake-up, none of asyncio.Event's bookkeeping)
+    waiter: asyncio.Future[None] | None = None
+    task: asyncio.Task[None] | None = None
+    busy_seconds: float = 0.0
+    transactions: int = 0
+    reopen: object = field(default=None)
+
+    def wake(self) -> None:
+        waiter = self.waiter
+        if waiter is not None:
+            self.waiter = None
+            if not waiter.done():
+                waiter.set_result(None)
+
+    def refuses(self, now: float) -> bool:
+        """True while the port is down and no attempt is due through a request (a
+        bus with ``reopen`` is retried by its worker; requests wait for it up)."""
+        rc = self.reconnect
+        return rc.down and (self.reopen is not None or not rc.due(now))
+
+
+class Gateway:
+    """The asyncio gateway (see the module docstring).
+
+    ``buses``: (bus, units) pairs; ``units`` are the unit ids routed to that bus
+    (unit id = slave address on the bus), or a mapping unit id -> slave address.
+    ``on_bus`` is called with a `BusEvent` when a bus's port fails (once per outage)
+    and when it is back.
+    ``await start(host, port)`` opens the `ReopeningBus` buses not opened yet (one
+    whose port is not there is down: reported once, reopened on the back-off while
+    the others serve) and listens; ``address`` is then the (host, port) bound;
+    ``await close()`` stops.
+    """
+
+    def __init__(
+        self,
+        buses: Sequence[tuple[Bus, Iterable[int] | Mapping[int, int]]],
+        limits: GatewayLimits | None = None,
+        on_bus: Callable[[BusEvent], None] | None = None,
+    ) -> None:
+        if not buses:
+            raise ValueError("a gateway needs at least one bus")
+        self.limits = limits or GatewayLimits()
+        self.routes = Routes([units for _, units in buses])
+        lim = self.limits
+        self._buses = [
+            _BusState(
+                index,
+                bus,
+                FairQueue(lim.max_queued_per_connection, lim.max_queued_per_bus),
+                _bus_name(bus, index),
+                Reconnect(lim.backoff),
+                reopen=getattr(bus, "reopen", None),
+            )
+            for index, (bus, _) in enumerate(buses)
+        ]
+        self._sweeper: asyncio.Task[None] | None = None
+        self.on_bus = on_bus
+        self._connections: dict[int, _Connection] = {}
+        self._next_id = 0
+        self._server: asyncio.Server | None = None
+        self._rtu_server: asyncio.Server | None = None
+        self.address: tuple[str, int] | None = None
+        self.rtu_address: tuple[str, int] | None = None
+        self.counters = dict.fromkeys(
+            (
+                "connections",
+                "refused",
+                "requests",
+                "answers",
+                "broadcasts",
+                "exceptions",
+                "no_route",
+                "timeouts",
+                "busy",
+                "bad_headers",
+                "slow_clients",
+                "answers_dropped",
+                "jobs_dropped",
+                "rtu_discarded_bytes",
+                "header_timeouts",
+                "idle_timeouts",
+                "evicted",
+                "bus_failures",
+                "bus_recoveries",
+                "bus_unavailable",
+            ),
+            0,
+        )
+
+    # ---------------------------------------------------------------- running
+
+    async def start(
+        self, host: str = "127.0.0.1", port: int = 502, rtu: tuple[str, int] | None = None
+    ) -> Gateway:
+        """Listen for Modbus TCP on host:port and, with ``rtu=(host, port)``, for RTU
+        over TCP there (``rtu_address``).  RuntimeError if already started."""
+        if self._server is not None:
+            raise RuntimeError(f"the gateway already listens on {self.address}")
+        check_listen(host, port)
+        if rtu is not None:
+            check_listen(*rtu)
+        for state in self._buses:
+            await self._open_at_start(state)
+        loop = asyncio.get_running_loop()
+        server = await loop.create_server(lambda: _Connection(self), host, port)
+        sock = server.sockets[0].getsockname()
+        self._server, self.address = server, (str(sock[0]), int(sock[1]))
+        if rtu is not None:
+            try:
+                self._rtu_server = await loop.create_server(lambda: _RtuConnection(self), *rtu)
+            except BaseException:  # no listener left behind half-started
+                server.close()
+                await server.wait_closed()
+                self._server = None
+                raise
+            sock = self._rtu_server.sockets[0].getsockname()
+            self.rtu_address = (str(sock[0]), int(sock[1]))
+        for state in self._buses:
+            state.task = asyncio.ensure_future(self._worker(state))
+        lim = self.limits
+        timeouts = [t for t in (lim.header_timeout, lim.idle_timeout) if t > 0]
+        if timeouts:  # checked a few times per the shorter timeout
+            interval = min(1.0, max(0.01, min(timeouts) / 4))
+            self._sweeper = asyncio.ensure_future(self._sweep_every(interval))
+        return self
+
+    async def close(self) -> None:
+        for server in (self._server, self._rtu_server):
+            if server is not None:
+                server.close()
+        for conn in list(self._connections.values()):
+            conn.close()
+        tasks = [s.task for s in self._buses if s.task is not None]
+        if self._sweeper is not None:
+            tasks.append(self._sweeper)
+        for task in tasks:
+            task.cancel()
+        for task in tasks:
+            try:
+                await task
+            except asyncio.CancelledError:
+                pass
+        for server in (self._server, self._rtu_server):
+            if server is not None:
+                await server.wait_closed()
+        self._server = self._rtu_server = self._sweeper = None
+        for state in self._buses:
+            state.task = None
+
+    async def __aenter__(self) -> Gateway:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.close()
+
+    def stats(self) -> dict[str, object]:
+        """Counters, open connections, queue lengths and bus occupancy."""
+        return {
+            **self.counters,
+            "open_connections": len(self._connections),
+            "queued": [len(s.queue) for s in self._buses],
+            "bus_transactions": [s.transactions for s in self._buses],
+            "bus_busy_seconds": [round(s.busy_seconds, 6) for s in self._buses],
+            "bus_down": [s.reconnect.down for s in self._buses],
+            "bus_outages": [s.reconnect.outages for s in self._buses],
+            "unsent_bytes": sum(
+                c.transport.get_write_buffer_size()
+                for c in self._connections.values()
+                if c.transport is not None
+            ),
+        }
+
+    # ---------------------------------------------------------- connections
+
+    def _opened(self, conn: _Connection) -> None:
+        if len(self._connections) >= self.limits.max_connections and not self._evict():
+            self.counters["refused"] += 1
+            log.info("connection refused: %d open", len(self._connections))
+            conn.closed = True
+            assert conn.transport is not None
+            conn.transport.abort()  # nothing was written to it: a plain close
+            return
+        self._next_id += 1
+        conn.id = self._next_id
+        self._connections[conn.id] = conn
+        self.counters["connections"] += 1
+
+    def _evict(self) -> bool:
+        """Make room for a newcomer in the full table (`pick_victim`); False if every
+        connection has work in progress."""
+        victim_id = pick_victim(
+            (
+                c.id,
+                c.live,
+                c.transport is not None and c.transport.get_write_buffer_size() > 0,
+            )
+            for c in self._connections.values()
+        )
+        if victim_id is None:
+            return False
+        victim = self._connections[victim_id]
+        self.counters["evicted"] += 1
+        idle = time.monotonic() - victim.live.idle_since()
+        what = "no request yet" if victim.live.last_active is None else "idle"
+        log.info("connection %d (%s, %.1f s) gives way to a new one", victim.id, what, idle)
+        victim.close()
+        return True
+
+    async def _sweep_every(self, interval: float) -> None:
+        while True:
+            await asyncio.sleep(interval)
+            self._sweep(time.monotonic())
+
+    def _sweep(self, now: float) -> None:
+        """Close the connections whose header or idle timeout has passed."""
+        lim = self.limits
+        for conn in list(self._connections.values()):
+            why = conn.live.expired(now, lim.header_timeout, lim.idle_timeout)
+            if why is None:
+                continue
+            if why == HEADER:
+                self.counters["header_timeouts"] += 1
+                log.info(
+                    "connection %d: a request unfinished after %s s: closed",
+                    conn.id,
+                    lim.header_timeout,
+                )
+            else:
+                self.counters["idle_timeouts"] += 1
+                log.info("connection %d: idle for %s s: closed", conn.id, lim.idle_timeout)
+            conn.close()
+
+    def _closed(self, conn: _Connection) -> None:
+        if self._connections.pop(conn.id, None) is None:
+            return
+        for state in self._buses:
+            self.counters["jobs_dropped"] += state.queue.drop(conn.id)
+
+    def _request(self, conn: _Connection, transaction: int, unit: int, pdu: bytes) -> None:
+        counters = self.counters
+        counters["requests"] += 1
+        if not 1 <= pdu[0] <= 127:  # [AP] 4.1: function codes 1..127; the rest is no request
+            self._answer(conn, transaction, unit, exception_pdu(pdu[0], ILLEGAL_FUNCTION))
+            return
+        route = self.routes.route(unit)
+        if route is None:
+            if unit == 0:
+                counters["broadcasts"] += 1
+                now = time.monotonic()
+                for state in self._buses:
+                    if not state.refuses(now):
+                        self._submit(state, Job(conn.id, transaction, 0, 0, pdu), conn)
+                return
+            counters["no_route"] += 1
+            self._answer(conn, transaction, unit, exception_pdu(pdu[0], GATEWAY_PATH_UNAVAILABLE))
+            return
+        state = self._buses[route[0]]
+        if state.reconnect.down and state.refuses(time.monotonic()):
+            counters["bus_unavailable"] += 1
+            self._answer(conn, transaction, unit, exception_pdu(pdu[0], GATEWAY_PATH_UNAVAILABLE))
+            return
+        self._submit(state, Job(conn.id, transaction, unit, route[1], pdu), conn)
+
+    def _submit(self, state: _BusState, job: Job, conn: _Connection) -> None:
+        try:
+            state.queue.submit(job)
+        except QueueFull as exc:
+            self.counters["busy"] += 1
+            log.debug("connection %d: %s: busy", conn.id, exc)
+            if job.unit != 0:
+                self._answer(
+                    conn, job.transaction, job.unit, exception_pdu(job.pdu[0], SLAVE_DEVICE_BUSY)
+                )
+            return
+        conn.live.outstanding += 1
+        state.wake()
+
+    def _answer(self, conn: _Connection, transaction: int, unit: int, pdu: bytes) -> None:
+        if pdu[0] & 0x80:
+            self.counters["exceptions"] += 1
+        else:
+            self.counters["answers"] += 1
+        conn.send(transaction, unit, pdu)
+
+    # ---------------------------------------------------------------- buses
+
+    async def _worker(self, state: _BusState) -> None:
+        """One transaction at a time on the bus; never raises but CancelledError (the
+        gateway is closing)."""
+        loop = asyncio.get_running_loop()
+        queue = state.queue
+        connections = self._connections
+        counters = self.counters
+        monotonic = time.monotonic
+        # the answer PDU, an exception answer as its bytes (see Bus)
+        send = getattr(state.bus, "exchange", None) or state.bus.request
+        while True:
+            if state.reopen is not None and state.reconnect.down:
+                await self._reopen(state)
+                continue
+            job = queue.pop()
+            if job is None:
+                state.waiter = waiter = loop.create_future()
+                await waiter
+                continue
+            if job.conn not in connections:
+                continue
+            started = monotonic()
+            try:
+                answer = await send(job.slave, job.pdu)
+            except Exception as exc:  # (CancelledError is no Exception: it ends the worker)
+                answer = self._failed(state, job, exc)
+            else:
+                if state.reconnect.down:  # a request let through while down worked
+                    self._recovered(state)
+                if job.slave == 0:
+                    answer = None  # a broadcast: nothing to answer
+                elif not answer:  # the bus got no answer (a local application's silence)
+                    answer = self._target_failed(job)
+            now = monotonic()
+            state.transactions += 1
+            state.busy_seconds += now - started
+            conn = connections.get(job.conn)
+            if conn is None:
+                if answer is not None:
+                    counters["answers_dropped"] += 1
+                continue
+            conn.live.answered(now)
+            if answer is not None:
+                self._answer(conn, job.transaction, job.unit, answer)
+
+    async def _open_at_start(self, state: _BusState) -> None:
+        """Open a `ReopeningBus` not opened yet.  A port that is not there (or a TCP
+        peer that refuses) is a failed port as at run time: reported once, its
+        requests answered 0x0A, reopened by the worker on the back-off schedule."""
+        bus = state.bus
+        if not isinstance(bus, ReopeningBus) or bus.is_open:
+            return
+        try:
+            await bus.open()
+        except (PortError, OSError) as exc:
+            error = exc if isinstance(exc, PortError) else PortError(state.name, str(exc))
+            self._port_failed(state, error, starting=True)
+
+    async def _reopen(self, state: _BusState) -> None:
+        """One attempt to reopen a failed bus, when the back-off says it is due."""
+        rc = state.reconnect
+        await asyncio.sleep(rc.wait(time.monotonic()))
+        reopen = state.reopen
+        assert callable(reopen)
+        try:
+            await reopen()
+        except (PortError, OSError) as exc:
+            rc.failed(time.monotonic(), exc)
+            log.debug("bus %s: still unavailable: %s", state.name, exc)
+        else:
+            self._recovered(state)
+
+    def _recovered(self, state: _BusState) -> None:
+        outage = state.reconnect.recovered(time.monotonic())
+        self.counters["bus_recoveries"] += 1
+        if outage is not None:
+            seconds = outage.duration or 0.0
+            log.warning(
+                "bus %s is back after %.1f s (%d attempts)", state.name, seconds, outage.attempts
+            )
+            self._event(
+                BusEvent(state.index, state.name, True, outage.error, outage.attempts, seconds)
+            )
+
+    def _event(self, event: BusEvent) -> None:
+        if self.on_bus is not None:
+            try:
+                self.on_bus(event)
+            except Exception:  # the hook's bug: the bus goes on
+                log.exception("the on_bus hook failed")
+
+    def _port_failed(self, state: _BusState, exc: PortError, starting: bool = False) -> None:
+        """The bus's port failed (``starting``: could not be opened at the start):
+        report once per outage, answer what waits for it."""
+        if state.reconnect.failed(time.monotonic(), exc):
+            self.counters["bus_failures"] += 1
+            log.warning(
+                "bus %s %s: %s; its requests get exception 0x0A until it is back (retrying)",
+                state.name,
+                "is not available" if starting else "failed",
+                exc,
+            )
+            self._event(BusEvent(state.index, state.name, False, str(exc), starting=starting))
+        now = time.monotonic()
+        while (job := state.queue.pop()) is not None:  # they would only fail in turn
+            conn = self._connections.get(job.conn)
+            if conn is None:
+                continue
+            conn.live.answered(now)
+            if job.slave != 0:
+                self.counters["bus_unavailable"] += 1
+                self._answer(
+                    conn,
+                    job.transaction,
+                    job.unit,
+                    exception_pdu(job.pdu[0], GATEWAY_PATH_UNAVAILABLE),
+                )
+
+    def _failed(self, state: _BusState, job: Job, exc: Exception) -> bytes | None:
+        """The gateway's answer when the bus's request raised ``exc`` (None for a
+        broadcast): 0x0B when the device did not answer (within the timeout, after the
+        retries, or not validly), 0x0A when the bus is unavailable.  (The device's
+        exception answers are no exceptions: the bus's ``exchange`` returns them.)"""
+        function = job.pdu[0]
+        if isinstance(exc, PortError):
+            self._port_failed(state, exc)
+            if job.slave == 0:
+                return None
+            self.counters["bus_unavailable"] += 1
+            return exception_pdu(function, GATEWAY_PATH_UNAVAILABLE)
+        if isinstance(exc, (ModbusError, ValueError, RuntimeError)):
+            # no answer, a garbled answer after the retries, or a request the bus refuses
+            if not isinstance(exc, NoResponseError):
+                log.info("unit %d: %s", job.unit, exc)
+        else:  # a bus's bug: the bus goes on, the client gets an answer, the log the trace
+            log.error("unit %d: the bus failed", job.unit, exc_info=exc)
+        return None if job.slave == 0 else self._target_failed(job)
+
+    def _target_failed(self, job: Job) -> bytes:
+        """Exception 0x0B, gateway target device failed to respond ([AP] 7)."""
+        self.counters["timeouts"] += 1
+        return exception_pdu(job.pdu[0], GATEWAY_TARGET_FAILED)

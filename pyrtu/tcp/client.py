@@ -1,0 +1,318 @@
+"""Modbus TCP clients: a blocking one and an asyncio one over `TcpClientProtocol`.
+
+``tcp://host:port`` (Messaging on TCP/IP Implementation Guide V1.0b; port 502 by
+default).  Both send a PDU to a unit and return the response PDU, raising the
+typed errors of `pyrtu.pdu.errors`::
+
+    with TcpClient("tcp://127.0.0.1:5020", timeout=1.0) as c:
+        pdu = c.request(1, pyrtu.pdu.read_request(3, 0, 10))
+
+    async with await AsyncTcpClient.connect("tcp://127.0.0.1:5020") as c:
+        answers = await asyncio.gather(*(c.request(1, p) for p in pdus))  # pipelined
+
+The asyncio client keeps up to ``max_in_flight`` requests on the wire at once (the
+server answers them by transaction id, in any order); the blocking one sends one
+at a time.  ``rtu+tcp://host:port`` (RTU frames over a TCP socket, as serial device
+servers carry them) is a serial line without wire timing: `rtu_over_tcp` opens it
+as a pyserial object for the serial master.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import select
+import socket
+import time
+from typing import Any
+from urllib.parse import urlsplit
+
+import serial
+from serial.urlhandler.protocol_socket import POLL_TIMEOUT
+
+from pyrtu.core._closing import AsyncClosing, Closing
+from pyrtu.core._forward import Forward, Settable
+from pyrtu.core._types import BytesLike
+from pyrtu.drivers._portname import RTU_TCP_SCHEME
+from pyrtu.drivers._ptimer import rearm
+from pyrtu.pdu.errors import ModbusError, PortError
+from pyrtu.tcp.protocol import TcpClientProtocol, check_timeout
+from pyrtu.tcp.sockets import set_nodelay
+
+DEFAULT_PORT = 502
+
+
+def parse_tcp_url(url: str, schemes: tuple[str, ...] = ("tcp",)) -> tuple[str, int]:
+    """(host, port) of ``tcp://host[:port]`` (IPv6 as ``[::1]``); ValueError naming the URL."""
+    if not isinstance(url, str):
+        raise TypeError(f"url must be a string, not {type(url).__name__}")
+    parts = urlsplit(url)
+    if parts.scheme not in schemes:
+        raise ValueError(f"{url!r}: the scheme must be {' or '.join(s + '://' for s in schemes)}")
+    try:
+        port = parts.port
+    except ValueError:
+        raise ValueError(f"{url!r}: the port must be 0..65535") from None
+    if not parts.hostname or parts.path not in ("", "/") or parts.query or parts.fragment:
+        raise ValueError(f"{url!r}: expected {parts.scheme}://HOST[:PORT]")
+    return parts.hostname, DEFAULT_PORT if port is None else port
+
+
+def _where(host: str, port: int) -> str:
+    return f"tcp://[{host}]:{port}" if ":" in host else f"tcp://{host}:{port}"
+
+
+def connect_error(where: str, exc: BaseException, timeout: float) -> PortError:
+    """The `PortError` of a connection not made (every TCP connect of pyrtu's says it
+    this way): what the OS said (``Connection refused``, also where asyncio words it
+    "Connect call failed"), or how long was waited for a timeout (whose text is
+    empty, or a bare "timed out")."""
+    reason = exc
+    if isinstance(exc, serial.SerialException) and isinstance(exc.__context__, OSError):
+        reason = exc.__context__  # pyserial's socket:// puts the socket's error in its text
+    if isinstance(reason, TimeoutError | asyncio.TimeoutError):
+        text = f"timed out after {timeout:g} s"
+    elif isinstance(reason, socket.gaierror) and reason.strerror:
+        text = reason.strerror  # (a resolver's code, not an errno)
+    elif isinstance(reason, OSError) and reason.errno:
+        text = os.strerror(reason.errno)
+    else:
+        text = str(reason) or type(reason).__name__
+    return PortError(where, f"cannot connect: {text}")
+
+
+def _raise(result: bytes | ModbusError | None) -> bytes | None:
+    if isinstance(result, ModbusError):
+        raise result
+    return result
+
+
+#: how long pyserial's socket:// (under ``rtu+tcp://``) waits for the connection
+_SOCKET_CONNECT_TIMEOUT: float = POLL_TIMEOUT
+
+
+def rtu_over_tcp(url: str) -> Any:
+    """A pyserial object over TCP for ``rtu+tcp://host[:port]``: RTU frames (CRC kept)
+    to a serial device server; no wire timing, so use it with ``t35=0``."""
+    host, port = parse_tcp_url(url, (RTU_TCP_SCHEME,))
+    netloc = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
+    try:
+        link = serial.serial_for_url(f"socket://{netloc}", timeout=0)
+    except (serial.SerialException, OSError) as exc:
+        raise connect_error(url, exc, _SOCKET_CONNECT_TIMEOUT) from exc
+    set_nodelay(getattr(link, "_socket", None))  # pyserial's socket:// does not
+    return link
+
+
+class _ClientState:
+    """What a TCP client reads from (and sets on) its protocol."""
+
+    _proto: TcpClientProtocol
+    timeout = Settable[float]("_proto", check_timeout)
+    last_answer_time = Forward[float | None](
+        "_proto",
+        "answer_end",
+        "When the latest answer was read (monotonic seconds), or None before the first.",
+    )
+
+    @property
+    def counters(self) -> dict[str, int]:
+        return dict(self._proto.counters)
+
+
+class TcpClient(_ClientState, Closing):
+    """A blocking Modbus TCP client: one request at a time on one connection."""
+
+    def __init__(
+        self, url: str, *, timeout: float = 1.0, connect_timeout: float | None = None
+    ) -> None:
+        self.host, self.port = parse_tcp_url(url)
+        self.where = _where(self.host, self.port)
+        self._proto = TcpClientProtocol(timeout=timeout, max_in_flight=1, where=self.where)
+        ct = check_timeout(
+            timeout if connect_timeout is None else connect_timeout, "connect_timeout"
+        )
+        try:
+            self._sock = socket.create_connection((self.host, self.port), timeout=ct)
+        except OSError as exc:
+            raise connect_error(self.where, exc, ct) from exc
+        set_nodelay(self._sock)
+        self._sock.setblocking(False)
+
+    def request(
+        self, unit: int, pdu: BytesLike, *, answered: bool | None = None, raw: bool = False
+    ) -> bytes | None:
+        """The response PDU of ``pdu`` sent to ``unit`` (None for unit 0, a broadcast,
+        unless ``answered=True``: unit 0 to a TCP device itself, 4.4.1.2).  An
+        exception response raises `ExceptionResponseError`, or with ``raw=True`` is
+        returned as its PDU (function code | 0x80, exception code)."""
+        proto = self._proto
+        now = time.monotonic()
+        tid, data = proto.send_request(unit, pdu, now, answered=answered, raw=raw)
+        try:
+            self._send(data)
+        except OSError as exc:
+            proto.connection_lost(f"send failed: {exc}")
+        while True:
+            done = proto.next_result()
+            if done is not None:
+                if done[0] == tid:
+                    return _raise(done[1])
+                continue
+            deadline = proto.deadline()
+            wait = 0.0 if deadline is None else max(0.0, deadline - time.monotonic())
+            readable, _, _ = select.select([self._sock], [], [], wait)
+            now = time.monotonic()
+            if readable:
+                try:
+                    chunk = self._sock.recv(65536)
+                except OSError as exc:
+                    proto.connection_lost(f"receive failed: {exc}")
+                    continue
+                if not chunk:
+                    proto.connection_lost("the server closed the connection")
+                    continue
+                proto.receive_data(chunk, now)
+            else:
+                proto.handle_timer(now)
+
+    def _send(self, data: bytes) -> None:
+        view = memoryview(data)
+        while view:
+            try:
+                sent = self._sock.send(view)
+            except BlockingIOError:
+                select.select([], [self._sock], [], self._proto.timeout)
+                continue
+            view = view[sent:]
+
+    def close(self) -> None:
+        self._sock.close()
+
+    def __repr__(self) -> str:
+        return f"TcpClient({self.where!r})"
+
+
+class _ClientConnection(asyncio.Protocol):
+    def __init__(self, proto: TcpClientProtocol, where: str) -> None:
+        self.proto = proto
+        self.where = where
+        self.transport: asyncio.Transport | None = None
+        self.waiters: dict[int, asyncio.Future[bytes | None]] = {}
+        self.timer: asyncio.TimerHandle | None = None
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        assert isinstance(transport, asyncio.Transport)
+        self.transport = transport
+
+    def data_received(self, data: bytes) -> None:
+        self.proto.receive_data(data, time.monotonic())
+        self.dispatch()
+
+    def eof_received(self) -> bool | None:
+        self.proto.connection_lost("the server closed the connection")
+        self.dispatch()
+        return None
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self.proto.connection_lost(str(exc) if exc else "connection closed")
+        self.dispatch()
+
+    def on_timer(self) -> None:
+        self.timer = None
+        self.proto.handle_timer(time.monotonic())
+        self.dispatch()
+
+    def dispatch(self) -> None:
+        while (done := self.proto.next_result()) is not None:
+            tid, result = done
+            fut = self.waiters.pop(tid, None)
+            if fut is None or fut.done():
+                continue
+            if isinstance(result, ModbusError):
+                fut.set_exception(result)
+            else:
+                fut.set_result(result)
+        self.arm()
+
+    def arm(self) -> None:
+        self.timer = rearm(self.timer, self.proto.deadline(), self.on_timer)
+
+
+class AsyncTcpClient(_ClientState, AsyncClosing):
+    """An asyncio Modbus TCP client: up to ``max_in_flight`` requests on the wire at once."""
+
+    def __init__(self, conn: _ClientConnection, host: str, port: int, max_in_flight: int) -> None:
+        self._conn = conn
+        self._proto = conn.proto
+        self.host, self.port = host, port
+        self.where = conn.where
+        self._window = asyncio.Semaphore(max_in_flight)
+
+    @classmethod
+    async def connect(
+        cls,
+        url: str,
+        *,
+        timeout: float = 1.0,
+        connect_timeout: float | None = None,
+        max_in_flight: int = 16,
+    ) -> AsyncTcpClient:
+        host, port = parse_tcp_url(url)
+        where = _where(host, port)
+        proto = TcpClientProtocol(timeout=timeout, max_in_flight=max_in_flight, where=where)
+        ct = check_timeout(
+            timeout if connect_timeout is None else connect_timeout, "connect_timeout"
+        )
+        loop = asyncio.get_running_loop()
+        try:
+            _, conn = await asyncio.wait_for(
+                loop.create_connection(lambda: _ClientConnection(proto, where), host, port), ct
+            )
+        except (OSError, asyncio.TimeoutError) as exc:
+            raise connect_error(where, exc, ct) from exc
+        set_nodelay(conn.transport.get_extra_info("socket") if conn.transport else None)
+        return cls(conn, host, port, max_in_flight)
+
+    async def request(
+        self, unit: int, pdu: BytesLike, *, answered: bool | None = None, raw: bool = False
+    ) -> bytes | None:
+        """The response PDU of ``pdu`` sent to ``unit`` (None for unit 0, a broadcast,
+        unless ``answered=True``: unit 0 to a TCP device itself, 4.4.1.2).  An
+        exception response raises `ExceptionResponseError`, or with ``raw=True`` is
+        returned as its PDU (function code | 0x80, exception code).  Cancelling the
+        await forgets the request (a late answer is dropped)."""
+        conn = self._conn
+        async with self._window:
+            now = time.monotonic()
+            tid, data = conn.proto.send_request(unit, pdu, now, answered=answered, raw=raw)
+            fut: asyncio.Future[bytes | None] = asyncio.get_running_loop().create_future()
+            conn.waiters[tid] = fut
+            if conn.transport is None or conn.transport.is_closing():
+                conn.proto.connection_lost("the connection is closed")
+            else:
+                conn.transport.write(data)
+            conn.dispatch()
+            try:
+                return await fut
+            except asyncio.CancelledError:
+                conn.waiters.pop(tid, None)
+                conn.proto.cancel(tid)
+                raise
+
+    async def close(self) -> None:
+        transport = self._conn.transport
+        if transport is not None:
+            transport.close()
+        await asyncio.sleep(0)
+
+    async def exchange(self, unit: int, pdu: BytesLike) -> bytes | None:
+        """`request` with ``raw=True``: an exception response as its PDU (the gateway's
+        bus interface, as `pyrtu.drivers.aio.AsyncMaster.exchange`)."""
+        return await self.request(unit, pdu, raw=True)
+
+    def __repr__(self) -> str:
+        return f"AsyncTcpClient({self.where!r})"
+
+
+__all__ = ["DEFAULT_PORT", "AsyncTcpClient", "TcpClient", "parse_tcp_url", "rtu_over_tcp"]
