@@ -31,7 +31,7 @@ import os
 import re
 import sys
 from collections.abc import Callable, Mapping
-from typing import IO, TYPE_CHECKING, Any, NamedTuple
+from typing import IO, TYPE_CHECKING, Any, NamedTuple, NoReturn
 
 from pyrtu.cli._signals import SignalStop, stop_on_signals, stop_when_stdout_closes
 from pyrtu.core import timing
@@ -82,6 +82,26 @@ class CommandSpec(NamedTuple):
     configure: Configure
     run: Run
     description: str | None = None
+
+
+class JsonErrorParser(argparse.ArgumentParser):
+    """argparse with ``--json`` honoured for usage errors too: the error object goes
+    to stdout (the usual message and exit code 2 stay)."""
+
+    json_errors = False
+
+    def error(self, message: str) -> NoReturn:
+        if JsonErrorParser.json_errors:
+            command = self.prog.removeprefix("pyrtu").strip() or "pyrtu"
+            emit(
+                {
+                    "ok": False,
+                    "error": "usage",
+                    "exit_code": EXIT_USAGE,
+                    "message": f"{command}: {message}",
+                }
+            )
+        super().error(message)
 
 
 def exit_code_table() -> str:
@@ -576,6 +596,7 @@ __all__ = [
     "EXIT_PORT",
     "EXIT_USAGE",
     "CommandSpec",
+    "JsonErrorParser",
     "SignalStop",
     "add_json_option",
     "add_serial_options",

@@ -26,6 +26,7 @@ from pyrtu.cli.common import (
     open_master,
     register_address,
 )
+from pyrtu.cli.live_view import fit_line, terminal_size
 
 if TYPE_CHECKING:
     from pyrtu.drivers.master import Master
@@ -132,6 +133,7 @@ def _run(args: argparse.Namespace) -> int:
 
     found: list[dict[str, Any]] = []
     progress = sys.stderr.isatty()
+    room = terminal_size(sys.stderr)  # the progress line fits it (no wrap: \r redraws it)
     t0 = time.monotonic()
     addresses: range = args.addresses
     if not args.json:
@@ -144,7 +146,8 @@ def _run(args: argparse.Namespace) -> int:
     with open_master(args) as master:
         for slave in addresses:
             if progress:
-                sys.stderr.write(f"\r\x1b[Kprobing {slave}...")
+                text = fit_line(f"probing {slave}...", room().columns - 1)
+                sys.stderr.write(f"\r\x1b[K{text}")
                 sys.stderr.flush()
             entry: dict[str, Any] = {"slave": slave}
             try:
