@@ -41,6 +41,7 @@ import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+from pyrtu._startup import started
 from pyrtu.cli import poll_config
 from pyrtu.cli.common import (
     EXIT_INTERRUPTED,
@@ -132,7 +133,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit status."""
     argv = list(argv) if argv is not None else sys.argv[1:]
     if poll_config.wants(argv):  # ``pyrtu poll --config FILE``: the poller
-        return poll_config.main(argv, _logging)
+        return poll_config.main(argv, _logging)  # (it ends the start-up itself)
     parser = build_parser()
     JsonErrorParser.json_errors = "--json" in argv
     args = parser.parse_args(argv)
@@ -141,6 +142,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if run is None:
         parser.print_help(sys.stderr)
         return EXIT_USAGE
+    started()  # Ctrl-C: quiet status 130 until here (pyrtu._startup), the command's from now
     try:
         code = run(args)
     except KeyboardInterrupt:

@@ -14,7 +14,8 @@ Exit codes (`EXIT_CODES`; ``pyrtu --help`` lists them):
  5   exception        the slave answered with a Modbus exception response
  6   frame            an answer came but cannot be the answer: bad CRC/LRC, another
                       slave or function, malformed data, echo mismatch
-130  interrupted      Ctrl-C during a one-shot command (read, write, info, scan)
+130  interrupted      Ctrl-C during a one-shot command (read, write, info, scan), or
+                      while any command starts (`pyrtu._startup`: quietly)
 ===  ===============  ==============================================================
 
 ``poll``, ``sniff``, ``simulate``, ``vbus`` and ``demo`` run until their end
@@ -67,7 +68,7 @@ EXIT_CODES: Mapping[int, tuple[str, str]] = {
     EXIT_NO_RESPONSE: ("no_response", "no response within the timeout (scan: no slave)"),
     EXIT_EXCEPTION: ("exception", "the slave answered with an exception response"),
     EXIT_FRAME: ("frame", "a bad answer: CRC/LRC, wrong slave/function, malformed"),
-    EXIT_INTERRUPTED: ("interrupted", "interrupted (Ctrl-C) during a one-shot command"),
+    EXIT_INTERRUPTED: ("interrupted", "interrupted (Ctrl-C): a one-shot command, any start-up"),
 }
 
 Configure = Callable[[argparse.ArgumentParser], None]

@@ -35,6 +35,7 @@ import time
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
+from pyrtu._startup import started
 from pyrtu.cli.common import (
     EXIT_EXCEPTION,
     EXIT_NO_RESPONSE,
@@ -130,6 +131,7 @@ def main(argv: Sequence[str], setup_logging: Callable[[int], None] | None = None
             emit({**error_document(e, EXIT_USAGE), "message": f"config error: {e}"})
         return EXIT_USAGE
     out = Output()
+    started()  # Ctrl-C: quiet status 130 until here (pyrtu._startup), a normal end from now
     try:
         code = int(aio_run(_run(poller, ns, out)))
     except (Exception, KeyboardInterrupt) as exc:
