@@ -178,12 +178,14 @@ def point_rows(lines: list[str]) -> dict[str, int]:
 
 
 def event_lines(text: str) -> list[str]:
-    """The event lines the command wrote (``pyrtu poll: ...``, not the exit status)."""
-    return [
+    """The event lines the command wrote (``pyrtu poll: ...``, not the exit status)
+    and its log lines (``-v``: ``123.4 ms pyrtu.poller: ...``)."""
+    events = [
         line
         for line in re.findall(r"pyrtu poll: [^\r\n\x1b]*", text)
         if not line.startswith("pyrtu poll: exit status")
     ]
+    return events + re.findall(r" *\d+\.\d ms pyrtu[\w.]*: [^\r\n\x1b]*", text)
 
 
 @pytest.mark.parametrize(("width", "height"), [(100, 30), (40, 10)])
@@ -191,8 +193,8 @@ def test_poll_config_events_are_printed_above_the_table(
     tmp_path: Path, width: int, height: int
 ) -> None:
     """A slave goes offline and the port is unplugged and plugged back while the
-    table is redrawn every 50 ms: every event line stays readable, every point's
-    row is on the terminal once."""
+    table is redrawn every 50 ms: every event line and log line (-v) stays
+    readable, every point's row is on the terminal once."""
     with vbus.VirtualBus(3, baudrate=115200, parity="N") as bus:
         weg, cv = CFW701Simulator(), CV100Simulator()
         weg.serve(bus.paths[1], 1, baudrate=115200, parity="N")
@@ -201,7 +203,9 @@ def test_poll_config_events_are_printed_above_the_table(
         config.write_text(POINTS.format(port=bus.paths[0]))
         term = Terminal(width, height)
         try:
-            term.start("poll", "--config", config, "--duration", "5", "--refresh", "0.05")
+            term.start(
+                "-v", "poll", "--config", config, "--duration", "5", "--refresh", "0.05"
+            )  # -v: pyrtu's log lines on the terminal too
             assert term.pump(30, lambda: b"points, " in term.raw), "no table came"
             cv.close()  # slave 5 offline
             assert term.pump(15, lambda: b"slave 5 offline" in term.raw)
@@ -219,8 +223,9 @@ def test_poll_config_events_are_printed_above_the_table(
     # while the table was shown, no row of it reached the last column (the event
     # lines above it are printed whole: they may wrap, they are not redrawn)
     wrapped = term.wrapped(b"points, ", b"updates delivered")
-    assert [row for row in wrapped if not any(row in e for e in events)] == []
+    assert [row for row in wrapped if not any(row.strip() in e for e in events)] == []
     assert any("slave 5 offline" in e for e in events), events
+    assert any(" ms pyrtu" in e for e in events), events  # log lines came too
     assert any("down" in e for e in events) and any("back after" in e for e in events), events
     for event in events:  # every event line is still there (cut by no redraw)
         assert event[: width - 1] in text, (event, seen)

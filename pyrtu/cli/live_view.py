@@ -24,6 +24,7 @@ from __future__ import annotations
 import os
 import re
 import shutil
+import threading
 import unicodedata
 from collections.abc import Callable, Sequence
 from typing import IO, Any, Protocol
@@ -126,6 +127,8 @@ class LiveView:
         self.written = 0  # lines written by the last `draw` (the changed ones)
         self.lines: list[str] = []  # the frame last asked for, before it was fitted
         self._drawn_on: os.terminal_size | None = None
+        # one writer at a time: a log line from another thread waits for the redraw
+        self._lock = threading.RLock()
 
     def room(self) -> tuple[int, int]:
         """The lines and columns a frame may take on the terminal as it is now."""
@@ -144,6 +147,10 @@ class LiveView:
     def draw(self, lines: Sequence[str] | None = None) -> None:
         """Show ``lines`` (default: the last ones again) in place of the last frame;
         the cursor ends below it."""
+        with self._lock:
+            self._draw(lines)
+
+    def _draw(self, lines: Sequence[str] | None) -> None:
         if lines is not None:
             self.lines = list(lines)
         size = self.size()
@@ -182,15 +189,40 @@ class LiveView:
         """Print ``text`` (a line or more) above the frame, then draw the frame whole
         again below it.  ``stream``: where the text goes (another stream written to
         the same terminal, such as stderr; default the view's own)."""
-        self.erase()
-        target = stream if stream is not None else self.out
-        target.write(text if text.endswith("\n") else text + "\n")
-        target.flush()
-        if self.lines:
-            self.draw()
+        with self._lock:
+            self.erase()
+            target = stream if stream is not None else self.out
+            target.write(text if text.endswith("\n") else text + "\n")
+            target.flush()
+            if self.lines:
+                self._draw(None)
+
+    def above(self, stream: Writer) -> Writer:
+        """A stream whose lines are printed above the frame on their way to ``stream``
+        (for a logging handler writing to the same terminal)."""
+        return _Above(self, stream)
 
     def close(self) -> None:
         """The frame stays on the screen as last drawn; the view writes no more
         (what is printed next starts below it)."""
-        self.shown = []
-        self.lines = []
+        with self._lock:
+            self.shown = []
+            self.lines = []
+
+
+class _Above:
+    """`LiveView.above`: whole lines go through the view, a partial one waits."""
+
+    def __init__(self, view: LiveView, stream: Writer) -> None:
+        self.view = view
+        self.stream = stream
+        self._partial = ""
+
+    def write(self, text: str, /) -> int:
+        lines, _, self._partial = (self._partial + text).rpartition("\n")
+        if lines:
+            self.view.print_above(lines + "\n", self.stream)
+        return len(text)
+
+    def flush(self) -> None:
+        """Whole lines are written at once: nothing is held but a partial line."""

@@ -27,6 +27,7 @@ import argparse
 import asyncio
 import io
 import json
+import logging
 import os
 import signal
 import stat
@@ -285,6 +286,12 @@ async def _run(poller: Poller, ns: argparse.Namespace, out: Output) -> int:
     poller.on_event(on_event)
     if table is not None:
         loop.add_signal_handler(signal.SIGWINCH, redraw)  # resized: fit it at once
+    # -v: the log lines for the terminal go through the table too
+    view = table.view if table is not None and through_table else None
+    logs = _log_handlers_on(sys.stderr) if view is not None else []
+    for handler in logs:
+        assert view is not None
+        handler.setStream(view.above(sys.stderr))
     try:
         await poller.start()
         end = None if ns.duration is None else loop.time() + ns.duration
@@ -301,6 +308,8 @@ async def _run(poller: Poller, ns: argparse.Namespace, out: Output) -> int:
             await poller.stop()
         finally:
             out.unwatch(loop)
+            for handler in logs:
+                handler.setStream(sys.stderr)
             for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGWINCH):
                 loop.remove_signal_handler(sig)
     if out.closed:
@@ -313,6 +322,15 @@ async def _run(poller: Poller, ns: argparse.Namespace, out: Output) -> int:
     if code:
         print(f"pyrtu poll: exit status {code}: {why}", file=sys.stderr, flush=True)
     return code
+
+
+def _log_handlers_on(stream: Any) -> list[logging.StreamHandler[Any]]:
+    """The handlers of pyrtu's log (``-v``) that write to ``stream``."""
+    return [
+        handler
+        for handler in logging.getLogger("pyrtu").handlers
+        if isinstance(handler, logging.StreamHandler) and handler.stream is stream
+    ]
 
 
 def _print_summary(out: Output, summary: dict[str, Any], live: bool) -> None:
