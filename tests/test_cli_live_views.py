@@ -233,3 +233,31 @@ def test_poll_config_events_are_printed_above_the_table(
     assert all(n == 1 for n in rows.values()), seen  # no frozen copies
     if height >= 30:
         assert set(rows) == set(NAMES), seen  # none missing on a terminal they fit
+
+
+# -- pyrtu poll PORT ADDRESS (one range, a report line redrawn in place) ------------------
+
+
+@pytest.mark.parametrize(("width", "height"), SIZES)
+def test_poll_report_line_fits_the_terminal(width: int, height: int) -> None:
+    with vbus.VirtualBus(2, baudrate=115200, parity="N") as bus:
+        weg = CFW701Simulator()
+        weg.serve(bus.paths[1], 1, baudrate=115200, parity="N")
+        term = Terminal(width, height)
+        try:
+            term.start(
+                "poll", bus.paths[0], "680", "4", "--parity", "N", "--baudrate", "115200",
+                "--duration", "2.5", "--interval", "0.2",
+            )  # fmt: skip
+            code = term.finish()
+        finally:
+            term.close()
+            weg.close()
+    assert code == 0, "\n".join(term.everything())
+    start = term.raw.find(b"tx/s")  # the first report (its figures' unit)
+    assert start >= 0, term.raw.decode(errors="replace")
+    final = term.raw.find(b" transactions in ", start)  # the final line (plain)
+    assert [t for at, t in term.touched_last_column if start <= at < final] == []
+    # the report was redrawn in place: one report line left above the final one
+    reports = [line for line in term.everything() if "tx/s" in line]
+    assert 1 <= len(reports) <= 2, term.everything()
