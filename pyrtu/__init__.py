@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+from pyrtu import _startup  # noqa: F401  (first: Ctrl-C while the pyrtu command starts)
 from pyrtu.core import _backend
 from pyrtu.core.ascii import decode_ascii, encode_ascii
 from pyrtu.core.crcshapes import Crc16, crc16_bytes, crc16_swapped

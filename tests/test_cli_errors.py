@@ -327,3 +327,47 @@ def test_the_drop_cap_is_the_buses() -> None:
     assert CLI_MAX == MAX_DROPS == 248
     with pytest.raises(ValueError, match=r"1\.\.248 drops"):
         VirtualBus(249)
+
+
+def test_vbus_capture_is_not_written_over_unless_asked(tmp_path: Path) -> None:
+    """An earlier capture is refused (exit 2, naming --capture) and left as it was;
+    --overwrite replaces it; an empty file (mktemp's) holds nothing to lose (#27.14)."""
+    cap = tmp_path / "bus.cap"
+    first = pyrtu("vbus", "--drops", "2", "--capture", cap, "--duration", "0.2")
+    assert first.code == 0, first.err
+    before = cap.read_bytes()
+    assert before  # the header at least
+
+    again = pyrtu("vbus", "--drops", "2", "--capture", cap, "--duration", "0.2")
+    assert again.code == 2, again.err
+    assert f"--capture {cap}: the file exists ({len(before)} bytes)" in again.err
+    assert "--overwrite" in again.err and "Traceback" not in again.err
+    assert again.out == ""  # refused before any drop was made
+    assert cap.read_bytes() == before
+
+    replaced = pyrtu(
+        "vbus",
+        "--drops",
+        "2",
+        "--capture",
+        cap,
+        "--duration",
+        "0.2",
+        "--overwrite",
+        "--baud",
+        "9600",
+    )
+    assert replaced.code == 0, replaced.err
+    assert cap.read_bytes() != before  # a new capture: a header of another line
+
+    one = tmp_path / "one.cap"  # the boundary: one byte is something to lose
+    one.write_bytes(b"x")
+    refused = pyrtu("vbus", "--drops", "2", "--capture", one, "--duration", "0.2")
+    assert refused.code == 2 and "(1 bytes)" in refused.err, refused.err
+    assert one.read_bytes() == b"x"
+
+    empty = tmp_path / "empty.cap"
+    empty.touch()
+    fresh = pyrtu("vbus", "--drops", "2", "--capture", empty, "--duration", "0.2")
+    assert fresh.code == 0, fresh.err
+    assert empty.stat().st_size > 0

@@ -104,3 +104,33 @@ def test_gateway(tcp_drive: int) -> None:
     assert r.returncode == 0, r.stderr
     assert '"ready"' in r.stdout
     assert "Traceback" not in r.stderr
+
+
+def test_demo() -> None:
+    """The demo ends quietly like every other command (it reported its own output's
+    closed pipe as a failure, status 1: #27.14)."""
+    r = through_head("demo --duration 2")
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.startswith("pyrtu ") and "demo" in r.stdout
+    assert "Broken pipe" not in r.stderr and "Traceback" not in r.stderr
+
+
+def test_demo_with_its_output_already_closed() -> None:
+    import os
+
+    r, w = os.pipe()
+    os.close(r)
+    try:
+        out = subprocess.run(
+            [sys.executable, "-m", "pyrtu", "demo", "--duration", "2"],
+            cwd=ROOT,
+            env=env(),
+            stdout=w,
+            stderr=subprocess.PIPE,
+            text=True,
+            timeout=60,
+        )
+    finally:
+        os.close(w)
+    assert out.returncode == 0, out.stderr
+    assert "Broken pipe" not in out.stderr and "Traceback" not in out.stderr

@@ -137,7 +137,17 @@ def test_config_errors_exit_2_before_any_port_opens(
     r = pyrtu("poll", "--config", cfg, "--json")
     assert r.code == 2, (r.out, r.err)
     assert r.err.startswith("pyrtu poll: config error: ") and message in r.err
-    assert "Traceback" not in r.err and "nonexistent" not in r.err and r.out == ""
+    assert "Traceback" not in r.err and "nonexistent" not in r.err
+    # --json: the error as the README shows errors, one object on stdout (#27.14)
+    doc = r.json()
+    assert {k: doc[k] for k in ("ok", "error", "exit_code")} == {
+        "ok": False,
+        "error": "usage",
+        "exit_code": 2,
+    }
+    assert doc["message"] == r.err.strip().removeprefix("pyrtu poll: ")
+    without = pyrtu("poll", "--config", cfg)  # for people only: stdout stays empty
+    assert without.code == 2 and without.out == "" and without.err == r.err
 
 
 def test_missing_file_and_missing_port(tmp_path: Path) -> None:

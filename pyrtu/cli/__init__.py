@@ -40,10 +40,17 @@ import logging
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import NoReturn
 
+from pyrtu._startup import started
 from pyrtu.cli import poll_config
-from pyrtu.cli.common import EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, exit_code_table, silence_stdout
+from pyrtu.cli.common import (
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    EXIT_USAGE,
+    JsonErrorParser,
+    exit_code_table,
+    silence_stdout,
+)
 
 __all__ = ["COMMANDS", "Command", "build_parser", "command", "main", "register"]
 
@@ -87,30 +94,8 @@ def command(
     return deco
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse with ``--json`` honoured for usage errors too: the error object goes
-    to stdout (the usual message and exit code 2 stay)."""
-
-    json_errors = False
-
-    def error(self, message: str) -> NoReturn:
-        if _Parser.json_errors:
-            from pyrtu.cli.common import emit
-
-            command = self.prog.removeprefix("pyrtu").strip() or "pyrtu"
-            emit(
-                {
-                    "ok": False,
-                    "error": "usage",
-                    "exit_code": EXIT_USAGE,
-                    "message": f"{command}: {message}",
-                }
-            )
-        super().error(message)
-
-
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(
+    parser = JsonErrorParser(
         prog="pyrtu",
         description="Modbus RTU toolkit (pyrtu): read, write, poll, scan, identify, sniff, "
         "simulate drives, run a virtual RS-485 bus, and a demo without hardware.\n\n"
@@ -148,15 +133,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit status."""
     argv = list(argv) if argv is not None else sys.argv[1:]
     if poll_config.wants(argv):  # ``pyrtu poll --config FILE``: the poller
-        return poll_config.main(argv, _logging)
+        return poll_config.main(argv, _logging)  # (it ends the start-up itself)
     parser = build_parser()
-    _Parser.json_errors = "--json" in argv
+    JsonErrorParser.json_errors = "--json" in argv
     args = parser.parse_args(argv)
     _logging(args.verbose)
     run: Run | None = getattr(args, "_run", None)
     if run is None:
         parser.print_help(sys.stderr)
         return EXIT_USAGE
+    started()  # Ctrl-C: quiet status 130 until here (pyrtu._startup), the command's from now
     try:
         code = run(args)
     except KeyboardInterrupt:

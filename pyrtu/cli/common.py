@@ -14,7 +14,8 @@ Exit codes (`EXIT_CODES`; ``pyrtu --help`` lists them):
  5   exception        the slave answered with a Modbus exception response
  6   frame            an answer came but cannot be the answer: bad CRC/LRC, another
                       slave or function, malformed data, echo mismatch
-130  interrupted      Ctrl-C during a one-shot command (read, write, info, scan)
+130  interrupted      Ctrl-C during a one-shot command (read, write, info, scan), or
+                      while any command starts (`pyrtu._startup`: quietly)
 ===  ===============  ==============================================================
 
 ``poll``, ``sniff``, ``simulate``, ``vbus`` and ``demo`` run until their end
@@ -31,7 +32,7 @@ import os
 import re
 import sys
 from collections.abc import Callable, Mapping
-from typing import IO, TYPE_CHECKING, Any, NamedTuple
+from typing import IO, TYPE_CHECKING, Any, NamedTuple, NoReturn
 
 from pyrtu.cli._signals import SignalStop, stop_on_signals, stop_when_stdout_closes
 from pyrtu.core import timing
@@ -67,7 +68,7 @@ EXIT_CODES: Mapping[int, tuple[str, str]] = {
     EXIT_NO_RESPONSE: ("no_response", "no response within the timeout (scan: no slave)"),
     EXIT_EXCEPTION: ("exception", "the slave answered with an exception response"),
     EXIT_FRAME: ("frame", "a bad answer: CRC/LRC, wrong slave/function, malformed"),
-    EXIT_INTERRUPTED: ("interrupted", "interrupted (Ctrl-C) during a one-shot command"),
+    EXIT_INTERRUPTED: ("interrupted", "interrupted (Ctrl-C): a one-shot command, any start-up"),
 }
 
 Configure = Callable[[argparse.ArgumentParser], None]
@@ -82,6 +83,26 @@ class CommandSpec(NamedTuple):
     configure: Configure
     run: Run
     description: str | None = None
+
+
+class JsonErrorParser(argparse.ArgumentParser):
+    """argparse with ``--json`` honoured for usage errors too: the error object goes
+    to stdout (the usual message and exit code 2 stay)."""
+
+    json_errors = False
+
+    def error(self, message: str) -> NoReturn:
+        if JsonErrorParser.json_errors:
+            command = self.prog.removeprefix("pyrtu").strip() or "pyrtu"
+            emit(
+                {
+                    "ok": False,
+                    "error": "usage",
+                    "exit_code": EXIT_USAGE,
+                    "message": f"{command}: {message}",
+                }
+            )
+        super().error(message)
 
 
 def exit_code_table() -> str:
@@ -583,6 +604,7 @@ __all__ = [
     "EXIT_PORT",
     "EXIT_USAGE",
     "CommandSpec",
+    "JsonErrorParser",
     "SignalStop",
     "add_json_option",
     "add_serial_options",

@@ -15,7 +15,8 @@ drop  slave  drive                           identified by
 A `pyrtu.Master` on drop 0 identifies them, starts the CFW701 (control word P682)
 with a 30 Hz reference (P683 on the 13-bit scale), then reads every drive's
 frequency and status word over and over: a live view redrawn in place on a
-terminal, plain lines otherwise (one block per ``--interval``).  It ends by
+terminal (`pyrtu.cli.live_view`: cut to the terminal's size, whatever it is),
+plain lines otherwise (one block per ``--interval``).  It ends by
 itself after ``--duration`` seconds (default 12) and exits 0; 1 if the bus or
 the master could not be set up.  The CFW701's acceleration time P100 is short
 (``--accel``, default 10 s from 0 to its maximum 66 Hz: 30 Hz in 4.5 s), so
@@ -43,6 +44,7 @@ from pyrtu.cli.common import (
     positive_seconds,
     stop_on_signals,
 )
+from pyrtu.cli.live_view import LiveView
 
 TARGET_HZ = 30.0
 BAR_HZ = 40.0  # full scale of the live view's bars
@@ -152,6 +154,8 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         return Demo(args).run()
+    except BrokenPipeError:
+        raise  # the reader went away (| head): pyrtu.cli.main ends quietly, as for all
     except (ModbusError, OSError, RuntimeError) as exc:
         print(f"pyrtu demo: failed: {message_of(exc)}", file=sys.stderr)
         return EXIT_FAILURE
@@ -165,7 +169,7 @@ class Demo:
         term = os.environ.get("TERM", "")
         self.live = sys.stdout.isatty() and not args.plain and term != "dumb"
         self.out = sys.stdout
-        self.drawn = 0
+        self.view = LiveView(self.out)  # fits each frame to the terminal as it is now
         self.t0 = 0.0
         self.started: float | None = None  # when the start command went out
         self.reached: float | None = None  # when the CFW701 reached the target
@@ -281,6 +285,7 @@ class Demo:
                     self._block(now)
             finally:
                 if self.live:
+                    self.view.close()
                     self.out.write("\x1b[?25h")
                     self.out.flush()
 
@@ -329,7 +334,6 @@ class Demo:
             self.say(head + self._row(d, False))
 
     def _draw(self, now: float) -> None:
-        w = self.out
         lines = [
             f"\x1b[1mt = {now - self.t0:4.1f} s of {self.args.duration:g} s\x1b[0m   "
             f"CFW701 reference {TARGET_HZ:g} Hz",
@@ -341,12 +345,7 @@ class Demo:
             f"bus: {len(self.stats.latencies)} reads, {self.stats.errors} errors"
             + ("" if p50 is None else f", latency p50 {p50 * 1e3:.1f} ms")
         )
-        if self.drawn:
-            w.write(f"\x1b[{self.drawn}F")  # back to the first line of the view
-        for line in lines:
-            w.write("\x1b[2K" + line + "\n")
-        w.flush()
-        self.drawn = len(lines)
+        self.view.draw(lines)
 
     def _summary(self) -> None:
         s = self.stats

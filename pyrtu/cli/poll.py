@@ -47,6 +47,7 @@ from pyrtu.cli.common import (
     stop_on_signals,
 )
 from pyrtu.cli.io import ReadResult, add_read_arguments, check_read, is_bits, read_values, show
+from pyrtu.cli.live_view import LiveView
 
 
 def percentile(sorted_values: list[float], q: float) -> float | None:
@@ -207,6 +208,7 @@ def _run(args: argparse.Namespace) -> int:
     check_read(args)  # before the port is opened
     period = 1.0 / args.rate if args.rate > 0 else 0.0
     live = sys.stdout.isatty() and not args.json
+    view = LiveView(sys.stdout)  # the report line, cut to the terminal's width
     clock = time.monotonic
     status = EXIT_OK
     with open_master(args) as master, stop_on_signals() as stop:
@@ -238,15 +240,13 @@ def _run(args: argparse.Namespace) -> int:
                 emit(doc)
                 return
             if final:
-                if live:
-                    sys.stdout.write("\n")
+                view.close()
                 print(final_line(doc), flush=True)
                 return
             doc["values_text"] = "" if last is None else _values_text(last)
             line = report_line(doc)
             if live:
-                sys.stdout.write("\r\x1b[K" + line)
-                sys.stdout.flush()
+                view.draw([line])
             else:
                 print(line, flush=True)
 

@@ -27,6 +27,7 @@ import argparse
 import asyncio
 import io
 import json
+import logging
 import os
 import signal
 import stat
@@ -35,17 +36,22 @@ import time
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
+from pyrtu._startup import started
 from pyrtu.cli.common import (
     EXIT_EXCEPTION,
     EXIT_NO_RESPONSE,
     EXIT_OK,
     EXIT_PORT,
     EXIT_USAGE,
+    JsonErrorParser,
+    emit,
+    error_document,
     jsonable,
     positive_seconds,
     report_error,
     silence_stdout,
 )
+from pyrtu.cli.live_view import same_terminal, terminal_size
 from pyrtu.cli.poll_table import LiveTable, fmt_value, ms
 
 if TYPE_CHECKING:
@@ -81,7 +87,7 @@ def wants(argv: Sequence[str]) -> bool:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = JsonErrorParser(
         prog="pyrtu poll",
         description=__doc__.split("\n\n")[1] if __doc__ else None,
         epilog=EXIT_STATUS,
@@ -116,13 +122,17 @@ def main(argv: Sequence[str], setup_logging: Callable[[int], None] | None = None
         args.pop(0)
     if setup_logging is not None:
         setup_logging(verbose)
+    JsonErrorParser.json_errors = "--json" in args
     ns = build_parser().parse_args(args[1:])
     try:
         poller = Poller(load_config(ns.config), changes_only=not ns.all)
     except ConfigError as e:
         print(f"pyrtu poll: config error: {e}", file=sys.stderr)
+        if ns.json:  # errors come as JSON too (README, "--json")
+            emit({**error_document(e, EXIT_USAGE), "message": f"config error: {e}"})
         return EXIT_USAGE
     out = Output()
+    started()  # Ctrl-C: quiet status 130 until here (pyrtu._startup), a normal end from now
     try:
         code = int(aio_run(_run(poller, ns, out)))
     except (Exception, KeyboardInterrupt) as exc:
@@ -135,8 +145,6 @@ def main(argv: Sequence[str], setup_logging: Callable[[int], None] | None = None
         else:
             code = report_error("poll", exc, False)
             if ns.json and not out.closed:
-                from pyrtu.cli.common import error_document
-
                 out.json(error_document(exc, code))
     if out.closed:
         # the reader went away (| head): Python flushes stdout at exit, so point it
@@ -166,6 +174,9 @@ class Output:
             self._close()
             return False
         return True
+
+    def flush(self) -> None:
+        """Nothing: each `write` is flushed (for `pyrtu.cli.live_view.Writer`)."""
 
     def json(self, doc: dict[str, Any]) -> bool:
         return self.write(json.dumps(jsonable(doc), allow_nan=False) + "\n")
@@ -241,8 +252,19 @@ async def _run(poller: Poller, ns: argparse.Namespace, out: Output) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
     out.watch(loop, stop)
-    table = LiveTable(poller, sys.stdout) if sys.stdout.isatty() and not ns.json else None
+    table = (
+        LiveTable(poller, out, terminal_size(sys.stdout))
+        if sys.stdout.isatty() and not ns.json
+        else None
+    )
+    # the table owns the terminal: an event for a stderr on the same terminal is
+    # printed through it (above the table, drawn again below), never around it
+    through_table = table is not None and same_terminal(sys.stdout, sys.stderr)
     done = False  # after the summary's snapshot nothing more is printed
+
+    def redraw() -> None:
+        if table is not None and not stop.is_set() and not out.closed:
+            table.draw()
 
     def on_event(ev: Event) -> None:
         if done or out.closed:
@@ -256,10 +278,20 @@ async def _run(poller: Poller, ns: argparse.Namespace, out: Output) -> int:
                 out.write(f"{stamp}.{ms:03d}  {ev.name} = {fmt_value(ev.value)}\n")
         elif ns.json:
             out.json(ev.as_dict())
+        elif table is not None and through_table:
+            table.print_above(f"pyrtu poll: {describe(ev)}", sys.stderr)
         else:
             print(f"pyrtu poll: {describe(ev)}", file=sys.stderr, flush=True)
 
     poller.on_event(on_event)
+    if table is not None:
+        loop.add_signal_handler(signal.SIGWINCH, redraw)  # resized: fit it at once
+    # -v: the log lines for the terminal go through the table too
+    view = table.view if table is not None and through_table else None
+    logs = _log_handlers_on(sys.stderr) if view is not None else []
+    for handler in logs:
+        assert view is not None
+        handler.setStream(view.above(sys.stderr))
     try:
         await poller.start()
         end = None if ns.duration is None else loop.time() + ns.duration
@@ -268,11 +300,7 @@ async def _run(poller: Poller, ns: argparse.Namespace, out: Output) -> int:
             if wait <= 0:
                 break
             await _pause(stop, wait)
-            if table is not None and not stop.is_set():
-                text = io.StringIO()
-                table.out = text
-                table.draw()
-                out.write(text.getvalue())
+            redraw()
     finally:
         summary = poller.summary()
         done = True
@@ -280,7 +308,9 @@ async def _run(poller: Poller, ns: argparse.Namespace, out: Output) -> int:
             await poller.stop()
         finally:
             out.unwatch(loop)
-            for sig in (signal.SIGINT, signal.SIGTERM):
+            for handler in logs:
+                handler.setStream(sys.stderr)
+            for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGWINCH):
                 loop.remove_signal_handler(sig)
     if out.closed:
         return EXIT_OK
@@ -292,6 +322,15 @@ async def _run(poller: Poller, ns: argparse.Namespace, out: Output) -> int:
     if code:
         print(f"pyrtu poll: exit status {code}: {why}", file=sys.stderr, flush=True)
     return code
+
+
+def _log_handlers_on(stream: Any) -> list[logging.StreamHandler[Any]]:
+    """The handlers of pyrtu's log (``-v``) that write to ``stream``."""
+    return [
+        handler
+        for handler in logging.getLogger("pyrtu").handlers
+        if isinstance(handler, logging.StreamHandler) and handler.stream is stream
+    ]
 
 
 def _print_summary(out: Output, summary: dict[str, Any], live: bool) -> None:

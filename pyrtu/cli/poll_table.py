@@ -3,17 +3,20 @@
 Each refresh costs what fits on the screen, not what the configuration holds: the
 points shown are the first that fit the terminal's height (in the file's order),
 a line says how many more there are, and only the lines whose text changed since
-the last refresh are rewritten.  A figure not known yet is shown as ``-``.
+the last refresh are rewritten.  A figure not known yet is shown as ``-``.  The
+table is drawn by a `pyrtu.cli.live_view.LiveView`, through which the events of
+the run are printed too (above the table, which is then drawn again below them).
 """
 
 from __future__ import annotations
 
 import itertools
 import os
-import shutil
 import time
 from collections.abc import Callable
-from typing import IO, TYPE_CHECKING
+from typing import TYPE_CHECKING
+
+from pyrtu.cli.live_view import LiveView, Writer, terminal_size
 
 if TYPE_CHECKING:
     from pyrtu.poller import Poller
@@ -35,19 +38,28 @@ def ms(value: float | None) -> str:
 
 
 class LiveTable:
-    """The table, redrawn in place on ``out`` (a terminal of ``size()``)."""
+    """The table, redrawn in place on ``out`` (a terminal of ``size()``, by default
+    the one ``out`` is written to)."""
 
     def __init__(
         self,
         poller: Poller,
-        out: IO[str],
-        size: Callable[[], os.terminal_size] = shutil.get_terminal_size,
+        out: Writer,
+        size: Callable[[], os.terminal_size] | None = None,
     ) -> None:
         self.poller = poller
-        self.out = out
-        self.size = size
-        self.shown: list[str] = []  # the lines on the screen, top to bottom
-        self.written = 0  # lines written by the last `draw` (the changed ones)
+        self.size = size if size is not None else terminal_size(out)
+        self.view = LiveView(out, self.size)
+
+    @property
+    def shown(self) -> list[str]:
+        """The lines on the screen, top to bottom."""
+        return self.view.shown
+
+    @property
+    def written(self) -> int:
+        """The lines written by the last `draw` (the changed ones)."""
+        return self.view.written
 
     def frame(self, now: float | None = None) -> list[str]:
         """The lines to show, at most the terminal's height less one, each at most
@@ -105,23 +117,11 @@ class LiveTable:
 
     def draw(self, now: float | None = None) -> None:
         """Rewrite the lines that changed (the cursor ends below the table)."""
-        lines = self.frame(now)
-        parts: list[str] = []
-        if self.shown:
-            parts.append(f"\x1b[{len(self.shown)}F")  # to the table's first line
-        written = 0
-        for i, line in enumerate(lines):
-            if i < len(self.shown) and self.shown[i] == line:
-                parts.append("\x1b[1E")  # unchanged: next line
-            else:
-                parts.append(f"\x1b[2K{line}\n")
-                written += 1
-        if len(lines) < len(self.shown):
-            parts.append("\x1b[J")  # clear what the longer table left below
-        self.out.write("".join(parts))
-        self.out.flush()
-        self.shown = lines
-        self.written = written
+        self.view.draw(self.frame(now))
+
+    def print_above(self, text: str, stream: Writer | None = None) -> None:
+        """``text`` above the table, which is drawn again below it."""
+        self.view.print_above(text, stream)
 
 
 def _ms(seconds: float | None) -> float | None:

@@ -44,6 +44,7 @@ from pyrtu.cli.common import (
     open_master,
     register_address,
 )
+from pyrtu.cli.live_view import fit_line, terminal_size
 from pyrtu.drivers._portname import RTU_TCP_SCHEME, TCP_SCHEME, url_scheme
 
 if TYPE_CHECKING:
@@ -206,6 +207,7 @@ def _run(args: argparse.Namespace) -> int:
     found: list[dict[str, Any]] = []
     every: dict[str, Any] | None = None  # the answer of a device that ignores the unit id
     progress = sys.stderr.isatty()
+    room = terminal_size(sys.stderr)  # the progress line fits it (no wrap: \r redraws it)
     t0 = time.monotonic()
     addresses: range = args.addresses
     if not args.json:
@@ -220,7 +222,8 @@ def _run(args: argparse.Namespace) -> int:
             every = _probe_entry(master, RESERVED_UNIT, args)
         for slave in addresses if every is None else ():
             if progress:
-                sys.stderr.write(f"\r\x1b[Kprobing {slave}...")
+                text = fit_line(f"probing {slave}...", room().columns - 1)
+                sys.stderr.write(f"\r\x1b[K{text}")
                 sys.stderr.flush()
             entry = _probe_entry(master, slave, args)
             if entry is None:

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from typing import Any
@@ -71,7 +72,15 @@ def _configure_vbus(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--echo", type=_drop, nargs="*", default=[], metavar="DROP", help="drops with local echo"
     )
-    p.add_argument("--capture", metavar="FILE", help="write every wire byte to FILE")
+    p.add_argument(
+        "--capture",
+        metavar="FILE",
+        help="write every wire byte to FILE (a FILE that exists and is not empty is "
+        "refused, exit 2, unless --overwrite)",
+    )
+    p.add_argument(
+        "--overwrite", action="store_true", help="let --capture replace an existing FILE"
+    )
     p.add_argument(
         "--duration", type=positive_seconds, metavar="SECONDS", help="stop after this time"
     )
@@ -110,6 +119,23 @@ def _check_drops(args: argparse.Namespace) -> None:
                 raise ValueError(f"{flag}: no drop {drop} on a {args.drops}-drop bus (--drops)")
 
 
+def _check_capture(args: argparse.Namespace) -> None:
+    """A capture is not written over an earlier one unless asked (an empty file, as
+    ``mktemp`` makes, holds nothing to lose; a device such as /dev/null neither)."""
+    path = args.capture
+    if path is None or args.overwrite:
+        return
+    try:
+        size = os.stat(path).st_size
+    except OSError:
+        return  # not there (or not reachable: opening it says why, exit 3)
+    if os.path.isfile(path) and size > 0:
+        raise ValueError(
+            f"--capture {path}: the file exists ({size} bytes); "
+            "--overwrite replaces it, or name another file"
+        )
+
+
 def _flag_of(exc: OSError, args: argparse.Namespace) -> str:
     name = str(exc.filename or "")
     if args.capture is not None and name == args.capture:
@@ -122,6 +148,7 @@ def _run_vbus(args: argparse.Namespace) -> int:
 
     try:
         _check_drops(args)
+        _check_capture(args)
         return _serve_vbus(args)
     except BusDirectoryBusy as exc:
         print(f"pyrtu vbus: port error: --dir {exc}", file=sys.stderr)
