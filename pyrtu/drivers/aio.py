@@ -23,7 +23,9 @@ without a descriptor (pyserial URLs such as ``loop://``, Windows COM ports) are 
 with pyserial's blocking reads in a worker thread of their own.
 
 Cancelling an ``await`` leaves the bus consistent: the protocol notes that a
-late answer may come, and the next transaction waits it out before sending.
+late answer may come, and the next transaction waits it out before sending;
+``close()`` waits it out too before the port is closed (the next master to open
+the port would transmit over it).
 """
 
 from __future__ import annotations
