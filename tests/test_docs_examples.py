@@ -324,10 +324,10 @@ class Session:
             "PYTHONPATH": os.pathsep.join(
                 [str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])]
             ),
-            "PYTHONUNBUFFERED": "1",
-            "COLUMNS": "200",
         }
-        self.env.pop("PYRTU_DOCS_TEST", None)
+        # as in the reader's shell: output as the programs buffer it (a background
+        # command's lines must reach its file by themselves)
+        self.env.pop("PYTHONUNBUFFERED", None)
         self.background: list[Background] = []
         self.done = 0  # blocks of RUN run so far
         self.failed: dict[str, str] = {}
@@ -504,7 +504,15 @@ class Command:
 
     @property
     def argv(self) -> list[str]:
-        return shlex.split(self.text.split("|")[0])
+        """The first command's words (before a pipe or redirection)."""
+        lexer = shlex.shlex(self.text, posix=True, punctuation_chars=True)
+        lexer.whitespace_split = True
+        out: list[str] = []
+        for word in lexer:
+            if set(word) <= set("|&;<>()"):
+                break
+            out.append(word)
+        return out
 
 
 def commands_of(block: Block) -> list[Command]:
