@@ -68,4 +68,6 @@ def test_close_waits_out_the_cancelled_transactions_answer(
             assert closed[0] >= sent + LATE
             assert closed[0] < sent + TIMEOUT + 0.2  # and did not wait for the deadline
         else:
-            assert closed[0] >= sent + TIMEOUT - 0.01  # the deadline, from the request's end
+            # the deadline, TIMEOUT from the request's end (which was before `sent`, when the
+            # slave had read it: up to a scheduling delay before)
+            assert closed[0] >= sent + TIMEOUT - 0.1
