@@ -9,6 +9,8 @@ the import fail when the C core is missing.  ``pyrtu.BACKEND`` says which runs;
 
 from __future__ import annotations
 
+import importlib
+import importlib.util
 from typing import TYPE_CHECKING, Any
 
 from pyrtu import _startup  # noqa: F401  (first: Ctrl-C while the pyrtu command starts)
@@ -81,12 +83,15 @@ if TYPE_CHECKING:
 
 
 def __getattr__(name: str) -> Any:
-    """``pyrtu.Poller`` on first use: ``import pyrtu`` loads neither the poller nor
-    asyncio."""
+    """``pyrtu.Poller`` and the submodules (``pyrtu.data``, ``pyrtu.aio``, ...) on first
+    use: ``import pyrtu`` loads neither the poller nor asyncio, and the paths the
+    documentation shows work after it alone."""
     if name == "Poller":
         from .poller import Poller
 
         return Poller
+    if not name.startswith("__") and importlib.util.find_spec(f"{__name__}.{name}"):
+        return importlib.import_module(f"{__name__}.{name}")
     raise AttributeError(f"module 'pyrtu' has no attribute {name!r}")
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import struct
 import threading
 from collections.abc import Callable
 
@@ -261,3 +262,80 @@ def test_version_changes_with_every_value_change() -> None:
     store.input_registers.add_range(0, [0])
     store.input_registers.set(0, 5)
     assert not changed()  # another table's
+
+
+def _float32_words(value: float) -> list[int]:
+    """The two registers of a float32, high word first (ABCD), from `struct`."""
+    raw = struct.pack(">f", value)
+    return [int.from_bytes(raw[:2], "big"), int.from_bytes(raw[2:], "big")]
+
+
+# two float32s that differ in both registers: a torn read is neither of them
+_A, _B = 1.0000001192092896, -2.250000476837158
+_WORDS = (_float32_words(_A), _float32_words(_B))
+
+
+def test_set_many_and_set_each_are_never_read_torn() -> None:
+    """The owner's multi-register updates (#27.15: the docs' way to store a float32)
+    are one update each: a request's read (`read`, what a slave serves) and
+    `get_many` running meanwhile see the old value or the new one, never one register
+    of each."""
+    assert all(a != b for a, b in zip(*_WORDS, strict=True))
+    store = DataStore()
+    hr = store.holding_registers
+    hr.add_range(0, _WORDS[0])
+    stop = threading.Event()
+
+    def owner() -> None:
+        i = 0
+        while not stop.is_set():
+            words = _WORDS[i % 2]
+            if i % 4 < 2:
+                hr.set_many(0, words)
+            else:
+                hr.set_each({0: words[0], 1: words[1]})
+            i += 1
+
+    thread = threading.Thread(target=owner)
+    thread.start()
+    try:
+        seen = set()
+        for n in range(20000):
+            pair = hr.read(0, 2) if n % 2 else hr.get_many(0, 2)
+            assert pair in _WORDS, f"torn: {pair}"
+            seen.add(tuple(pair))
+    finally:
+        stop.set()
+        thread.join()
+    assert len(seen) == 2  # the reader did see both values: the updates ran meanwhile
+
+
+def test_a_master_never_reads_a_set_many_float32_torn() -> None:
+    """The same through a real slave on a pseudo-terminal, read by a master as the
+    README shows (`pyrtu.decode_float32`): every value read is one the owner stored."""
+    from pyrtu import Master, Slave, decode_float32
+
+    vbus = pytest.importorskip("pyrtu.vbus")
+    store = DataStore()
+    store.holding_registers.add_range(0, _WORDS[0])
+    stop = threading.Event()
+
+    def owner() -> None:
+        i = 0
+        while not stop.is_set():
+            store.holding_registers.set_many(0, _WORDS[i % 2])
+            i += 1
+
+    with vbus.VirtualBus(2, baudrate=115200, parity="N") as bus:
+        slave = Slave(bus.paths[1], address=1, store=store, baudrate=115200, parity="N")
+        slave.start()
+        thread = threading.Thread(target=owner)
+        thread.start()
+        try:
+            with Master(bus.paths[0], baudrate=115200, parity="N", timeout=0.5) as m:
+                values = {decode_float32(m.read_holding_registers(1, 0, 2)) for _ in range(300)}
+        finally:
+            stop.set()
+            thread.join()
+            slave.close()
+    assert values <= {_A, _B}, values

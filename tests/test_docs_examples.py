@@ -1,77 +1,94 @@
-"""Every code example of README.md and docs/*.md runs as a test, so the docs cannot
-drift from the code.
+"""The examples of README.md and docs/*.md run as a reader runs them, so the docs
+cannot drift from the code (#27.15).
 
-The blocks are taken from the Markdown as they are.  What a block needs that a
-reader brings (a bus with drives, the ports of their adapters) is given by the
-test, never written into the block: an HTML comment right before the fence says
-what (readers of the rendered Markdown do not see it)::
+One reader's session: README.md from top to bottom, then docs/*.md in name order,
+in one scratch directory (the working directory and ``HOME``), with nothing the
+documents do not set up themselves: no bus, drive, port or file is made by the test.
+What a block needs comes from the blocks before it (the README starts its virtual bus,
+its simulated drives and its gateway in ``console`` blocks, in the background with
+``&``, and they keep running until the session ends, as in the reader's terminals).
 
-    <!-- doctest: setup=drives -->
+What runs:
 
-Directives (space-separated, ``key=value`` or a bare word):
+``console`` blocks
+    a terminal transcript: every ``$ COMMAND`` line runs in ``bash`` (``pyrtu`` and
+    ``python`` are the ones under test), in order.  A command ending in ``&`` runs in
+    the background for the rest of the session; the lines shown under it are awaited
+    in its output (its "ready" lines), and it must still run at the end of every later
+    block.  Any other command must end by itself, with the status ``exit N`` shows
+    after it (``; echo "exit $?"``), else 0, and print the lines shown under it, in
+    that order (other lines may come between them; ``...`` stands for any lines, or
+    for any text inside a line).
+    Lines are compared with their numbers, ``/tmp/...`` paths and spacing left out
+    (timings, ids and the reader's directory vary).
+``python`` blocks
+    saved and run as a script (``python example.py``), which must end by itself with
+    status 0.  What the block shows is checked: a line whose comment is ``# prints:
+    TEXT`` must print TEXT (in order; compared as the console lines are), and an
+    expression statement whose comment starts with a Python literal (``# [256]``,
+    ``# True``, ``# 2: the request and its response``: the literal, then the end
+    of the comment or ``: ``) must have that value (floats to 6 digits; a list or
+    tuple ending in ``...`` matches one that starts so).
+``file=NAME`` (a directive, below)
+    a block the reader saves as NAME (``points.toml``): written when it is reached.
 
-``setup=drives``
-    a virtual bus (19200 baud, drops opened 8N1) at the bus directory of the
-    README's session, ``/tmp/bus``, with the session's simulators on it: a WEG
-    CFW701 at address 1 on drop1 (stopped), a Bonfiglioli ACU at 3 on drop2 and a
-    CV100 at 5 on drop3 (stopped); drop0 is the master's, drop4 a spare.  A second
-    bus, ``/tmp/bus2``, has a CFW701 at address 1 on drop1.  The test makes both in
-    a temporary directory and puts its path where the block says ``/tmp/bus``
-    (the one substitution: a reader picks their own directory).
-``setup=gateway``
-    ``setup=drives`` plus ``pyrtu gateway`` in front of ``/tmp/bus``: Modbus TCP
-    and RTU over TCP listeners, put where the block names ``192.168.1.20`` (TCP,
-    port 502) and ``10.0.0.5:4001`` (RTU over TCP), the addresses of the reader's
-    gateway or device server.
-``setup=dir``
-    only the temporary directory for ``/tmp/bus``: the block makes its bus and
-    drives itself (the README's session).
+Anything else is shown, not run: ``sh`` blocks are commands for the reader's own
+machine (installing, hardware, a broker), ``toml``/text blocks without ``file=``.
+
+The one substitution: ``/tmp/`` becomes the scratch directory's ``tmp/`` (a reader
+picks their own directory), and the TCP ports ``5020`` and ``5021`` of
+``127.0.0.1`` become free ones (the reader's are free).
+
+Directives: an HTML comment right before the fence (invisible in the rendered
+Markdown), space-separated words::
+
+    <!-- doctest: skip -->
+
+``skip``
+    a block a reader cannot run as it is: it needs hardware (``/dev/ttyUSB0``) or
+    shows a command's form; say why in the text.
 ``reference``
-    an API summary (signatures, not a program): every ``Name(...)`` it shows must
-    exist and take the keywords it shows (checked with `inspect.signature`).
+    (python) an API summary: every ``Name(...)`` it shows must exist and take the
+    keywords it shows (`inspect.signature`); not run.
 ``sequel``
-    run after the block before it in the same file, in the same interpreter (it
-    goes on with the names that block made).
+    (python) runs in one script with the block before it (it goes on with the names
+    that block made).
 ``file=NAME``
-    (on a block of another language, e.g. ``toml``) the block is a file the
-    examples after it read: written as NAME into their directory first.
+    as above.
 
-Without a directive a ``python`` block runs as written in a fresh interpreter, in
-a temporary directory shared by the blocks of one file (``bus.cap`` written by one
-block is read by the next); it must end by itself (an example that never ends
-fails).  A ``console`` block's ``$ pyrtu ...`` lines are parsed by the real
-argument parser (every flag and value accepted); with ``setup=dir`` they are
-also run, in order (``&``: in the background, stopped at the end), each ending
-with the exit status the block shows (``echo "exit $?"``, else 0) and printing
-the lines it shows, compared with the numbers and spacing left out (``...``
-elides lines).
+Each block is one test, ``FILE:LINE`` of its opening fence; a failure names the
+document's line.  A block runs after every block before it (selecting one block with
+``-k`` runs those first).
 """
 
 from __future__ import annotations
 
 import ast
-import contextlib
 import inspect
+import io
 import os
 import re
 import shlex
 import signal
+import socket
 import subprocess
 import sys
 import time
+import tokenize
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
 
-from pyrtu.vbus import VirtualBus
-
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
-RUN_TIMEOUT = 90.0
-BUS = "/tmp/bus"
+RUN_TIMEOUT = 90.0  # a command or script that has not ended by then never ends
+READY_TIMEOUT = 20.0  # a background command's shown lines
+TCP_PORTS = ("5020", "5021")
+DIRECTIVES = {"skip", "reference", "sequel", "file"}
 
+_ALARM = re.compile(r"warning|error|traceback", re.I)
 _FENCE = re.compile(r"^(`{3,})\s*([\w+-]*)\s*$")
 _DIRECTIVE = re.compile(r"^<!--\s*doctest:(.*?)-->\s*$")
 
@@ -87,6 +104,12 @@ class Block:
     @property
     def id(self) -> str:
         return f"{self.path.relative_to(ROOT)}:{self.line}"
+
+    @property
+    def runs(self) -> bool:
+        if {"skip", "reference"} & set(self.directives):
+            return False
+        return self.lang in ("python", "console") or "file" in self.directives
 
 
 def blocks_of(path: Path) -> list[Block]:
@@ -122,177 +145,418 @@ def blocks_of(path: Path) -> list[Block]:
 ALL = [b for p in DOCS for b in blocks_of(p)]
 PYTHON = [b for b in ALL if b.lang == "python"]
 CONSOLE = [b for b in ALL if b.lang == "console"]
+RUN = [b for b in ALL if b.runs]
 
 
 def test_the_examples_are_found() -> None:
-    """The extractor sees the documents' blocks (a broken fence would hide them)."""
-    names = {b.path.name for b in PYTHON}
+    """The extractor sees the documents' blocks (a broken fence would hide them), and
+    every directive is known."""
+    names = {b.path.name for b in RUN if b.lang == "python"}
     assert {"README.md", "vbus.md"} <= names
-    assert len(PYTHON) >= 10 and len(CONSOLE) >= 3
+    assert len([b for b in RUN if b.lang == "python"]) >= 10
+    assert len([b for b in RUN if b.lang == "console"]) >= 4
     for b in ALL:
-        unknown = set(b.directives) - {"setup", "reference", "sequel", "file"}
+        unknown = set(b.directives) - DIRECTIVES
         assert not unknown, f"{b.id}: unknown doctest directive {sorted(unknown)}"
-        assert b.directives.get("setup", "drives") in ("drives", "gateway", "dir"), b.id
+        if "file" in b.directives:
+            assert b.directives["file"], f"{b.id}: file= names no file"
 
 
-# -- the context: virtual buses with the README session's drives --------------------------------
+# -- what a block shows -----------------------------------------------------------------------
+
+
+def _shape(line: str) -> str:
+    """A line with its numbers, /tmp paths and spacing left out."""
+    line = re.sub(r"/tmp/[\w./+-]+", "PATH", line)
+    line = re.sub(r"0x[0-9A-Fa-f]+|\d+(\.\d+)?", "#", line)
+    return " ".join(line.split())
+
+
+def _missing(shown: list[tuple[int, str]], output: str) -> tuple[int, str] | None:
+    """The first ``(line, text)`` of ``shown`` not found in ``output`` in order."""
+    got = [_shape(x) for x in output.splitlines()]
+    at = 0
+    for number, text in shown:
+        want = _shape(text)
+        if not want or want == "...":
+            continue
+        # "..." inside a line stands for any text there
+        pattern = re.compile(".*".join(re.escape(part) for part in want.split("...")))
+        found = next((i for i in range(at, len(got)) if pattern.fullmatch(got[i])), None)
+        if found is None:
+            return number, text
+        at = found + 1
+    return None
+
+
+def _literal(comment: str) -> str | None:
+    """The Python literal a value comment starts with (then its end or ``: ``)."""
+    ends = [len(comment)] + [m.start() for m in re.finditer(r": ", comment)]
+    for end in sorted(ends, reverse=True):
+        text = comment[:end].strip()
+        if not text:
+            continue
+        try:
+            ast.literal_eval(text)
+        except (ValueError, SyntaxError, TypeError, MemoryError, RecursionError):
+            continue
+        return text
+    return None
+
+
+def _comments(code: str) -> dict[int, str]:
+    """Line (1-based, in ``code``) -> its comment's text."""
+    out: dict[int, str] = {}
+    for tok in tokenize.generate_tokens(io.StringIO(code).readline):
+        if tok.type == tokenize.COMMENT:
+            out[tok.start[0]] = tok.string[1:].strip()
+    return out
+
+
+def instrument(block: Block) -> tuple[str, list[tuple[int, str]], int]:
+    """``block``'s code with its value comments turned into checks (``__doc_check(value,
+    literal, document line)``, line numbers kept), the ``# prints:`` lines it shows
+    (document line, text), and how many values it checks."""
+    code = block.code
+    lines = code.splitlines()
+    comments = _comments(code)
+    prints = [
+        (block.line + n, text[len("prints:") :].strip())
+        for n, text in sorted(comments.items())
+        if text.startswith("prints:")
+    ]
+    checks = 0
+    for node in ast.walk(ast.parse(code, filename=block.id)):
+        if not isinstance(node, ast.Expr) or node.lineno != node.end_lineno:
+            continue
+        value = node.value
+        inner = value.value if isinstance(value, ast.Await) else value
+        if isinstance(inner, ast.Call) and getattr(inner.func, "id", "") == "print":
+            continue
+        comment = comments.get(node.lineno)
+        literal = _literal(comment) if comment else None
+        if literal is None:
+            continue
+        src = lines[node.lineno - 1]
+        expr = src[node.col_offset : node.end_col_offset]
+        rest = src[node.end_col_offset :].strip()
+        if not rest.startswith("#") or src[: node.col_offset].strip():
+            continue  # another statement on the line
+        lines[node.lineno - 1] = (
+            f"{src[: node.col_offset]}__doc_check({expr}, {literal!r}, "
+            f"{str(block.path.relative_to(ROOT))!r}, {block.line + node.lineno})"
+        )
+        checks += 1
+    return "\n".join(lines) + "\n", prints, checks
+
+
+_CHECKER = """
+import ast, builtins, math, runpy, sys
+
+def _like(value, expected):
+    if isinstance(expected, float) or (isinstance(value, float) and isinstance(expected, int)):
+        return isinstance(value, (int, float)) and math.isclose(value, expected, rel_tol=1e-6)
+    if isinstance(expected, (list, tuple)) and expected and expected[-1] is Ellipsis:
+        head = expected[:-1]
+        return (isinstance(value, (list, tuple)) and len(value) >= len(head)
+                and all(_like(v, e) for v, e in zip(value, head)))
+    if isinstance(expected, (list, tuple)):
+        return (isinstance(value, (list, tuple)) and len(value) == len(expected)
+                and all(_like(v, e) for v, e in zip(value, expected)))
+    if isinstance(expected, dict):
+        return (isinstance(value, dict) and value.keys() == expected.keys()
+                and all(_like(value[k], e) for k, e in expected.items()))
+    return type(value) is type(expected) and value == expected or (
+        isinstance(value, int) and isinstance(expected, int) and value == expected)
+
+def __doc_check(value, literal, doc, line):
+    if not _like(value, ast.literal_eval(literal)):
+        raise AssertionError(f"{doc}:{line}: the comment shows {literal}, the value is {value!r}")
+    return value
+
+builtins.__doc_check = __doc_check
+sys.argv = [sys.argv[1]]
+runpy.run_path(sys.argv[0], run_name="__main__")
+"""
+
+
+# -- the reader's session ---------------------------------------------------------------------
+
+
+def _free_port() -> str:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return str(s.getsockname()[1])
 
 
 @dataclass
-class Drives:
-    """The ``setup=drives`` context (see the module docstring)."""
+class Background:
+    block: Block
+    command: str
+    proc: subprocess.Popen[bytes]
+    log: Path
+    seen: int = 0  # characters of the log looked at
 
-    root: Path
-    buses: list[VirtualBus]
-    procs: list[subprocess.Popen[str]]
-    subst: dict[str, str]
+
+class Session:
+    """The scratch directory, the substitutions and the background commands."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = root
+        self.cwd = root / "work"
+        self.cwd.mkdir()
+        (root / "tmp").mkdir()
+        self.logs = root / "logs"
+        self.logs.mkdir()
+        bin_dir = root / "bin"
+        bin_dir.mkdir()
+        for name, argv in (("pyrtu", f"{sys.executable} -m pyrtu"), ("python", sys.executable)):
+            shim = bin_dir / name
+            shim.write_text(f'#!/bin/sh\nexec {argv} "$@"\n')
+            shim.chmod(0o755)
+        self.subst = {"/tmp/": f"{root}/tmp/"}
+        for port in TCP_PORTS:
+            self.subst[f"127.0.0.1:{port}"] = f"127.0.0.1:{_free_port()}"
+        self.env = {
+            **os.environ,
+            "HOME": str(root),
+            "PATH": f"{bin_dir}{os.pathsep}{os.environ.get('PATH', '')}",
+            "PYTHONPATH": os.pathsep.join(
+                [str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])]
+            ),
+        }
+        # as in the reader's shell: output as the programs buffer it (a background
+        # command's lines must reach its file by themselves)
+        self.env.pop("PYTHONUNBUFFERED", None)
+        self.background: list[Background] = []
+        self.done = 0  # blocks of RUN run so far
+        self.failed: dict[str, str] = {}
 
     def apply(self, text: str) -> str:
         for old, new in self.subst.items():
             text = text.replace(old, new)
         return text
 
+    def unapply(self, text: str) -> str:
+        for old, new in self.subst.items():
+            text = text.replace(new, old)
+        return text
 
-def _pyrtu_bg(*args: object, ready: str) -> tuple[subprocess.Popen[str], str]:
-    """``python -m pyrtu ARGS`` in the background, once its stderr says ``ready``
-    (the process and that line)."""
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "pyrtu", *map(str, args)],
-        cwd=ROOT,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    assert proc.stderr is not None
-    line = proc.stderr.readline()
-    assert ready in line, line + (proc.stderr.read() if proc.poll() is not None else "")
-    return proc, line
+    # -- running blocks
 
+    def run_through(self, block: Block) -> None:
+        """Run the blocks before ``block`` not run yet, then ``block``."""
+        target = RUN.index(block)
+        while self.done <= target:
+            b = RUN[self.done]
+            self.done += 1
+            try:
+                self.run(b)
+            except BaseException as exc:
+                self.failed[b.id] = str(exc)
+                if b is block:
+                    raise
+        if block.id in self.failed:  # run earlier, for a block after it
+            pytest.fail(self.failed[block.id])
 
-def _stop(procs: list[subprocess.Popen[str]]) -> None:
-    for p in procs:
-        if p.poll() is None:
-            p.send_signal(signal.SIGTERM)
-    for p in procs:
+    def run(self, block: Block) -> None:
+        if "file" in block.directives:
+            (self.cwd / block.directives["file"]).write_text(self.apply(block.code))
+        elif block.lang == "console":
+            self._console(block)
+        elif block.lang == "python":
+            self._python(block)
+        self._background_alive(block)
+
+    def _background_alive(self, block: Block) -> None:
+        """The background commands still run, and said nothing alarming meanwhile (a
+        reader sees what they print in the terminal: a simulator's warning that another
+        device answers at its address is a collision on the bus)."""
+        for bg in self.background:
+            text = bg.log.read_text(errors="replace")
+            new, bg.seen = text[bg.seen :], len(text)
+            alarming = [x for x in new.splitlines() if _ALARM.search(x)]
+            if alarming:
+                pytest.fail(
+                    f"{block.id}: while it ran, `{bg.command}` (started in the background "
+                    f"at {bg.block.id}) printed:\n" + "\n".join(alarming)
+                )
+            if bg.proc.poll() is not None:
+                self.background.remove(bg)
+                pytest.fail(
+                    f"{bg.block.id}: `{bg.command}` (in the background) ended with "
+                    f"status {bg.proc.returncode} by the end of {block.id}:\n"
+                    + bg.log.read_text(errors="replace")[-3000:]
+                )
+
+    def _console(self, block: Block) -> None:
+        for c in commands_of(block):
+            line = self.apply(c.text)
+            where = f"{block.path.relative_to(ROOT)}:{c.line}: `{c.text}`"
+            if c.background:
+                self._start(block, c, line, where)
+                continue
+            try:
+                r = subprocess.run(["bash", "-c", line], cwd=self.cwd, env=self.env,
+                                   capture_output=True, timeout=RUN_TIMEOUT)  # fmt: skip
+            except subprocess.TimeoutExpired:
+                pytest.fail(f"{where}: did not end within {RUN_TIMEOUT:.0f} s")
+            out = self.unapply((r.stdout + r.stderr).decode(errors="replace"))
+            assert r.returncode == c.exit_code, (
+                f"{where}: exit {r.returncode}, the document shows {c.exit_code}\n{out[-3000:]}"
+            )
+            miss = _missing(c.shown, out)
+            assert miss is None, (
+                f"{block.path.relative_to(ROOT)}:{miss[0]}: not printed: {miss[1]!r}\n{out[-3000:]}"
+            )
+
+    def _start(self, block: Block, c: Command, line: str, where: str) -> None:
+        log = self.logs / f"bg-{len(self.background)}.log"
+        with log.open("wb") as sink:
+            proc = subprocess.Popen(["bash", "-c", f"exec {line}"], cwd=self.cwd, env=self.env,
+                                    stdout=sink, stderr=subprocess.STDOUT,
+                                    start_new_session=True)  # fmt: skip
+        bg = Background(block, c.text, proc, log)
+        self.background.append(bg)
+        deadline = time.monotonic() + READY_TIMEOUT
+        while True:
+            text = log.read_text(errors="replace")
+            out = self.unapply(text)
+            miss = _missing(c.shown, out)
+            if miss is None and (c.shown or out or time.monotonic() > deadline - READY_TIMEOUT + 1):
+                bg.seen = len(text)  # its ready lines
+                return
+            if proc.poll() is not None:
+                pytest.fail(f"{where}: ended with status {proc.returncode}\n{out[-3000:]}")
+            if time.monotonic() > deadline:
+                assert miss is not None
+                pytest.fail(
+                    f"{block.path.relative_to(ROOT)}:{miss[0]}: not printed within "
+                    f"{READY_TIMEOUT:.0f} s: {miss[1]!r}\n{out[-3000:]}"
+                )
+            time.sleep(0.05)
+
+    def _python(self, block: Block) -> None:
+        parts = [block]
+        i = PYTHON.index(block)
+        while "sequel" in PYTHON[i].directives:
+            i -= 1
+            assert i >= 0 and PYTHON[i].path == block.path, f"{block.id}: sequel of nothing"
+            parts.insert(0, PYTHON[i])
+        codes, prints = [], []
+        for part in parts:
+            code, shown, _ = instrument(part)
+            codes.append(code)
+            prints += shown
+        script = self.cwd / "example.py"
+        script.write_text(self.apply("\n".join(codes)))
+        checker = self.logs / "check_example.py"
+        checker.write_text(_CHECKER)
         try:
-            p.communicate(timeout=10)
+            r = subprocess.run([sys.executable, str(checker), str(script)], cwd=self.cwd,
+                               env=self.env, capture_output=True, timeout=RUN_TIMEOUT)  # fmt: skip
         except subprocess.TimeoutExpired:
-            p.kill()
-            p.communicate()
+            pytest.fail(f"{block.id}: the example did not end within {RUN_TIMEOUT:.0f} s")
+        out = self.unapply(r.stdout.decode(errors="replace"))
+        err = self.unapply(r.stderr.decode(errors="replace"))
+        assert r.returncode == 0, f"{block.id}: the example failed:\n{err[-3000:]}"
+        miss = _missing([(n, t) for n, t in prints], out)
+        assert miss is None, (
+            f"{block.path.relative_to(ROOT)}:{miss[0]}: not printed: {miss[1]!r}\n{out[-3000:]}"
+        )
+
+    def close(self) -> None:
+        for bg in self.background:
+            if bg.proc.poll() is None:
+                os.killpg(bg.proc.pid, signal.SIGINT)
+        for bg in self.background:
+            try:
+                bg.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                os.killpg(bg.proc.pid, signal.SIGKILL)
+                bg.proc.wait()
 
 
-@contextlib.contextmanager
-def drives(tmp: Path, setup: str = "drives") -> Iterator[Drives]:
-    root = tmp / "doc"
-    root.mkdir()
-    if setup == "dir":
-        yield Drives(root, [], [], {BUS: str(root / "bus")})
-        return
-    gateway = setup == "gateway"
-    buses = [
-        VirtualBus(5, baudrate=19200, parity="N", directory=str(root / "bus")),
-        VirtualBus(2, baudrate=19200, parity="N", directory=str(root / "bus2")),
-    ]
-    procs: list[subprocess.Popen[str]] = []
+@pytest.fixture(scope="module")
+def session(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Session]:
+    s = Session(tmp_path_factory.mktemp("reader"))
     try:
-        for bus in buses:
-            bus.start()
-        b1, b2 = (str(root / "bus"), str(root / "bus2"))
-        for args in (
-            ("cfw701", f"{b1}/drop1", "-a", 1, "--state", "stopped"),
-            ("acu", f"{b1}/drop2", "-a", 3),
-            ("cv100", f"{b1}/drop3", "-a", 5, "--state", "stopped"),
-            ("cfw701", f"{b2}/drop1", "-a", 1),
-        ):
-            device, port, *rest = args
-            sim, _ = _pyrtu_bg("simulate", device, "--port", port, "-P", "N", *rest,
-                               ready="address")  # fmt: skip
-            procs.append(sim)
-        subst = {BUS: b1}
-        if gateway:
-            gw, line = _pyrtu_bg(
-                "gateway", "--listen", "127.0.0.1:0", "--listen-rtu", "127.0.0.1:0",
-                "--port", f"{b1}/drop0", "--parity", "N", "--timeout", "0.5",
-                ready="listening",
-            )  # fmt: skip
-            procs.append(gw)
-            subst.update(_gateway_addresses(line))
-        yield Drives(root, buses, procs, subst)
+        yield s
     finally:
-        _stop(procs)
-        for bus in buses:
-            bus.close()
+        s.close()
 
 
-def _gateway_addresses(ready: str) -> dict[str, str]:
-    """Where the block's gateway addresses go: the ports the gateway bound (from its
-    "listening on HOST:PORT (RTU over TCP on HOST:PORT)" line)."""
-    m = re.search(r"listening on (\S+?:\d+) \(RTU over TCP on (\S+?:\d+)\)", ready)
-    assert m, ready
-    tcp, rtu = m.groups()
-    return {"192.168.1.20:502": tcp, "192.168.1.20": tcp, "10.0.0.5:4001": rtu}
+@pytest.mark.parametrize("block", RUN, ids=lambda b: b.id)
+def test_a_reader_runs_the_example(block: Block, session: Session) -> None:
+    session.run_through(block)
 
 
-# -- python blocks --------------------------------------------------------------------------------
+# -- console commands -------------------------------------------------------------------------
 
 
-def _run_python(code: str, cwd: Path, what: str) -> None:
-    proc = subprocess.run(
-        [sys.executable, "-c", code],
-        cwd=cwd,
-        capture_output=True,
-        text=True,
-        timeout=RUN_TIMEOUT,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
-    )
-    assert proc.returncode == 0, f"{what} failed:\n{proc.stderr[-3000:]}"
+@dataclass
+class Command:
+    line: int  # in the document
+    text: str  # the command, without ``; echo "exit $?"`` and ``&``
+    background: bool
+    exit_code: int
+    shown: list[tuple[int, str]]  # the output lines the block shows after it
+
+    @property
+    def argv(self) -> list[str]:
+        """The first command's words (before a pipe or redirection)."""
+        lexer = shlex.shlex(self.text, posix=True, punctuation_chars=True)
+        lexer.whitespace_split = True
+        out: list[str] = []
+        for word in lexer:
+            if set(word) <= set("|&;<>()"):
+                break
+            out.append(word)
+        return out
 
 
-def _file_dir(tmp_path_factory: pytest.TempPathFactory, block: Block) -> Path:
-    """The temporary directory the blocks of ``block``'s file share."""
-    base = tmp_path_factory.getbasetemp() / "docs-cwd" / block.path.name
-    base.mkdir(parents=True, exist_ok=True)
-    return base
+def commands_of(block: Block) -> list[Command]:
+    out: list[Command] = []
+    for n, raw in enumerate(block.code.splitlines()):
+        if raw.startswith("$ "):
+            text = raw[2:].strip()
+            m = re.search(r';\s*echo "exit \$\?"$', text)
+            if m:
+                text = text[: m.start()].strip()
+            background = text.endswith("&")
+            text = text.rstrip("&").strip()
+            out.append(Command(block.line + 1 + n, text, background, 0, []))
+        elif out:
+            m = re.fullmatch(r"exit (\d+)", raw.strip())
+            if m:
+                out[-1].exit_code = int(m.group(1))
+            else:
+                out[-1].shown.append((block.line + 1 + n, raw))
+    return out
 
 
-def _program(block: Block) -> str:
-    """The block, after the blocks it is a sequel of."""
-    i = PYTHON.index(block)
-    parts = [block.code]
-    while "sequel" in PYTHON[i].directives:
-        i -= 1
-        assert i >= 0 and PYTHON[i].path == block.path, f"{block.id}: sequel of nothing"
-        parts.insert(0, PYTHON[i].code)
-    return "\n".join(parts)
+@pytest.mark.parametrize("block", CONSOLE, ids=lambda b: b.id)
+def test_console_commands_parse(block: Block) -> None:
+    """Every ``$ pyrtu ...`` line is a command line the parser accepts (also in the
+    blocks that are not run)."""
+    from pyrtu.cli import build_parser, poll_config
+
+    commands = [c for c in commands_of(block) if c.argv and c.argv[0] == "pyrtu"]
+    assert commands, f"{block.id}: no pyrtu command"
+    for c in commands:
+        argv = c.argv[1:]
+        if poll_config.wants(argv):
+            poll_config.build_parser().parse_args(argv[argv.index("poll") + 1 :])
+            continue
+        try:
+            build_parser().parse_args(argv)
+        except SystemExit as exc:
+            pytest.fail(
+                f"{block.path.relative_to(ROOT)}:{c.line}: `{c.text}` is refused (exit {exc.code})"
+            )
 
 
-def _write_files(block: Block, cwd: Path, ctx: Drives | None) -> None:
-    """The ``file=NAME`` blocks before ``block`` in its file, written into ``cwd``."""
-    for b in ALL:
-        if b.path == block.path and b.line < block.line and "file" in b.directives:
-            text = ctx.apply(b.code) if ctx is not None else b.code
-            (cwd / b.directives["file"]).write_text(text)
-
-
-@pytest.mark.parametrize("block", [b for b in PYTHON if "reference" not in b.directives],
-                         ids=lambda b: b.id)  # fmt: skip
-def test_python_example_runs(
-    block: Block, tmp_path: Path, tmp_path_factory: pytest.TempPathFactory
-) -> None:
-    code = _program(block)
-    ast.parse(code, filename=block.id)  # a syntax error is reported as such
-    cwd = _file_dir(tmp_path_factory, block)
-    setup = block.directives.get("setup")
-    if setup is None:
-        _write_files(block, cwd, None)
-        _run_python(code, cwd, block.id)
-        return
-    with drives(tmp_path, setup) as ctx:
-        _write_files(block, cwd, ctx)
-        _run_python(ctx.apply(code), cwd, block.id)
-
-
-# -- reference blocks: the signatures they show exist ---------------------------------------------
+# -- reference blocks: the signatures they show exist -----------------------------------------
 
 _CALL = re.compile(r"^\s*(?:[a-z_][\w.]*\s*=\s*)?((?:[A-Za-z_]\w*\.)*[A-Z]\w*)\(", re.M)
 _KEYWORD = re.compile(r"[(,\s\[]([a-z_]\w*)=")
@@ -332,7 +596,6 @@ def _calls(code: str) -> Iterator[tuple[str, str]]:
                          ids=lambda b: b.id)  # fmt: skip
 def test_reference_signatures_exist(block: Block) -> None:
     checked = 0
-    assert "setup" not in block.directives, f"{block.id}: a reference block is not run"
     for name, args in _calls(block.code):
         obj = _resolve(name)
         assert obj is not None, f"{block.id}: {name} does not exist"
@@ -344,97 +607,42 @@ def test_reference_signatures_exist(block: Block) -> None:
     assert checked, f"{block.id}: a reference block with no signature to check"
 
 
-# -- console blocks -------------------------------------------------------------------------------
+# -- the dotted paths the documents name ------------------------------------------------------
+
+_PATH = re.compile(r"\bpyrtu(?:\.[A-Za-z_]\w*)+")
+_IMPORT = re.compile(r"\bimport (pyrtu(?:\.\w+)+)")
 
 
-@dataclass
-class Command:
-    argv: list[str]
-    background: bool
-    exit_code: int
-    shown: list[str]  # the output lines the block shows after it
+def test_documented_paths_work_after_import_pyrtu() -> None:
+    """Every ``pyrtu.X.name`` the documents name resolves after ``import pyrtu`` alone
+    (``pyrtu.data.encode_float32``), or after the ``import pyrtu.X.Y`` they show for it
+    (``import pyrtu.compat.pymodbus``).  Checked in a fresh interpreter: nothing else
+    imported first."""
+    text = "\n".join(p.read_text(encoding="utf-8") for p in DOCS)
+    paths = sorted(set(_PATH.findall(text)))
+    imported = sorted(set(_IMPORT.findall(text)))
 
+    def needs(path: str) -> list[str]:
+        return [m for m in imported if path == m or path.startswith(m + ".")]
 
-def commands_of(block: Block) -> list[Command]:
-    out: list[Command] = []
-    for raw in block.code.splitlines():
-        if raw.startswith("$ "):
-            text = raw[2:].strip()
-            code = 0
-            m = re.search(r';\s*echo "exit \$\?"$', text)
-            if m:
-                text = text[: m.start()]
-            background = text.endswith("&")
-            text = text.rstrip("&").strip()
-            if "|" in text:
-                text = text.split("|")[0].strip()
-            out.append(Command(shlex.split(text), background, code, []))
-        elif out:
-            m = re.fullmatch(r"exit (\d+)", raw.strip())
-            if m:
-                out[-1].exit_code = int(m.group(1))
-            else:
-                out[-1].shown.append(raw)
-    return [c for c in out if c.argv and c.argv[0] == "pyrtu"]
-
-
-@pytest.mark.parametrize("block", CONSOLE, ids=lambda b: b.id)
-def test_console_commands_parse(block: Block) -> None:
-    """Every ``$ pyrtu ...`` line is a command line the parser accepts."""
-    from pyrtu.cli import build_parser, poll_config
-
-    commands = commands_of(block)
-    assert commands, f"{block.id}: no pyrtu command"
-    for c in commands:
-        argv = c.argv[1:]
-        if poll_config.wants(argv):
-            poll_config.build_parser().parse_args(argv[argv.index("poll") + 1 :])
-            continue
-        try:
-            build_parser().parse_args(argv)
-        except SystemExit as exc:
-            pytest.fail(f"{block.id}: `{' '.join(c.argv)}` is refused (exit {exc.code})")
-
-
-def _shape(line: str) -> str:
-    """A line with its numbers and spacing left out (timings and ids vary)."""
-    line = re.sub(r"/tmp/[\w./-]+", "PATH", line)
-    line = re.sub(r"0x[0-9A-Fa-f]+|\d+(\.\d+)?", "#", line)
-    return " ".join(line.split())
-
-
-@pytest.mark.parametrize("block", [b for b in CONSOLE if "setup" in b.directives],
-                         ids=lambda b: b.id)  # fmt: skip
-def test_console_session_runs(block: Block, tmp_path: Path) -> None:
-    with drives(tmp_path, block.directives["setup"]) as ctx:
-        background: list[subprocess.Popen[str]] = []
-        try:
-            for c in commands_of(block):
-                argv = [sys.executable, "-m", "pyrtu", *(ctx.apply(a) for a in c.argv[1:])]
-                if c.background:
-                    background.append(_start_background(argv))
-                    continue
-                r = subprocess.run(argv, cwd=ctx.root, capture_output=True, text=True,
-                                   timeout=RUN_TIMEOUT)  # fmt: skip
-                what = f"{block.id}: `{' '.join(c.argv)}`"
-                assert r.returncode == c.exit_code, f"{what}: exit {r.returncode}\n{r.stderr}"
-                got = [_shape(x) for x in (r.stdout + r.stderr).splitlines()]
-                at = 0
-                for shown in c.shown:
-                    if shown.strip() in ("...", ""):
-                        continue
-                    want = _shape(ctx.apply(shown))
-                    assert want in got[at:], f"{what}: not printed: {shown!r}\ngot: {got}"
-                    at = got.index(want, at) + 1
-        finally:
-            _stop(background)
-
-
-def _start_background(argv: list[str]) -> subprocess.Popen[str]:
-    proc = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)  # fmt: skip
-    deadline = time.monotonic() + 10
-    assert proc.stderr is not None
-    proc.stderr.readline()  # the ready line of vbus or simulate
-    assert proc.poll() is None or time.monotonic() < deadline
-    return proc
+    groups: dict[tuple[str, ...], list[str]] = {}
+    for path in paths:
+        groups.setdefault(tuple(needs(path)), []).append(path)
+    for imports, group in groups.items():
+        probe = (
+            "import importlib, pyrtu\n"
+            f"for m in {list(imports)!r}:\n"
+            "    importlib.import_module(m)\n"
+            f"for path in {group!r}:\n"
+            "    obj = pyrtu\n"
+            "    try:\n"
+            "        for part in path.split('.')[1:]:\n"
+            "            obj = getattr(obj, part)\n"
+            "    except AttributeError as exc:\n"
+            "        print(f'{path}: {exc}')\n"
+        )
+        r = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                           timeout=120, cwd=ROOT)  # fmt: skip
+        assert r.returncode == 0, r.stderr
+        assert r.stdout.strip() == "", r.stdout
+    assert "pyrtu.data.encode_float32" in paths

@@ -23,7 +23,9 @@ without a descriptor (pyserial URLs such as ``loop://``, Windows COM ports) are 
 with pyserial's blocking reads in a worker thread of their own.
 
 Cancelling an ``await`` leaves the bus consistent: the protocol notes that a
-late answer may come, and the next transaction waits it out before sending.
+late answer may come, and the next transaction waits it out before sending;
+``close()`` waits it out too before the port is closed (the next master to open
+the port would transmit over it).
 """
 
 from __future__ import annotations
@@ -174,6 +176,14 @@ class AsyncMaster(MasterBase):
             over.set_result(None)
         if then is not None:  # None: the transaction was cancelled meanwhile
             then(r)
+        else:
+            self._exchange_abandoned(r)
+
+    def _exchange_abandoned(self, r: xfer.XferResult) -> None:
+        """The report of an exchange whose transaction was cancelled: if its request
+        went out, the protocol waits out the answer it may still get."""
+        if r.sent:
+            self._proto.abandoned_exchange(r.end, r.last_t if r.data else 0.0, _monotonic())
 
     async def _exchange(self, action: Exchange) -> xfer.XferResult:
         """An `Exchange` as this task's await."""
@@ -209,9 +219,10 @@ class AsyncMaster(MasterBase):
         # left by a loop that has ended (asyncio.run returned meanwhile): its reader
         # will not run; the thread's report comes all the same
         ax.cancel()
-        while ax.result() is None:
+        while (r := ax.result()) is None:
             await asyncio.sleep(0.001)
         self._ax_call = self._ax_over = None
+        self._exchange_abandoned(r)
 
     async def _run(self, call: Call) -> Any:
         async with self._lock:
@@ -322,7 +333,27 @@ class AsyncMaster(MasterBase):
             return
         async with self._lock:
             await self._exchange_over()
+            await self._late_answer_over()
             self._close_now()
+
+    async def _late_answer_over(self) -> None:
+        """A cancelled transaction's answer may still be on the wire: wait it out
+        (reading and discarding it) before the port goes to whoever opens it next,
+        whose request would otherwise collide with it."""
+        proto, fd = self._proto, self._fd
+        while True:
+            now = _monotonic()
+            until = proto.late_answer_over_at()
+            if until <= now:
+                return
+            await asyncio.sleep(min(until - now, proto.settle))
+            if fd is not None:
+                try:
+                    data = read_now(self.port, fd)
+                except PortError:
+                    return  # the port is gone: no answer comes through it
+                if data:
+                    proto.receive_data(data, _monotonic())
 
     def _close_now(self) -> None:
         if self._ax is not None:

@@ -131,6 +131,7 @@ class ClientProtocol(ExchangeSteps):
         self.last_rx = 0.0  # arrival of the last byte we read
         self.quiet_until = 0.0  # broadcast turnaround
         self.failed_at = 0.0  # when an attempt failed (a late answer may follow)
+        self._abandoned_until = 0.0  # the deadline of the answer `abort` gave up on
         #: when the last byte of the latest answer arrived (None before one)
         self.answer_end: float | None = None
         # the transaction
@@ -407,7 +408,30 @@ class ClientProtocol(ExchangeSteps):
             return
         if self.state is _ANSWER:
             self.failed_at = now
+            self._abandoned_until = self._limit
         self.state = _IDLE
+
+    def abandoned_exchange(self, end: float, last_rx: float, now: float) -> None:
+        """A cancelled `Exchange` (the transaction was given up on while the driver
+        carried it out) had sent the request, its transmission ending at ``end``, and
+        read until ``last_rx`` (0.0: nothing): as `abort` during the answer, a late
+        answer may follow until the request's deadline."""
+        self.tx_end = end
+        if last_rx > self.last_rx:
+            self.last_rx = last_rx
+        self.failed_at = now
+        self._abandoned_until = end + self.timeout
+
+    def late_answer_over_at(self) -> float:
+        """When the answer of a transaction given up on (`abort`) is over, as a driver
+        that hands the line on (closes the port) must wait: the line quiet for
+        ``settle`` after the last byte heard since, or the abandoned answer's deadline
+        without a byte.  0.0: no answer is owed."""
+        if not self.failed_at:
+            return 0.0
+        if self.last_rx > self.failed_at:
+            return self.last_rx + self.settle
+        return max(self._abandoned_until, self.failed_at + self.settle)
 
     def result(self) -> Any:
         """DONE: the decoded answer (None for a broadcast), or raise the error."""
