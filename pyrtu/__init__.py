@@ -79,17 +79,25 @@ backend = _backend.backend
 available_backends = _backend.available_backends
 
 if TYPE_CHECKING:
+    from .drivers.aio import AsyncMaster
+    from .drivers.aio_slave import AsyncSlave
     from .poller import Poller
+
+#: names loaded on first use (their modules import asyncio), and their homes
+_LAZY = {
+    "Poller": "pyrtu.poller",
+    "AsyncMaster": "pyrtu.drivers.aio",
+    "AsyncSlave": "pyrtu.drivers.aio_slave",
+}
 
 
 def __getattr__(name: str) -> Any:
-    """``pyrtu.Poller`` and the submodules (``pyrtu.data``, ``pyrtu.aio``, ...) on first
-    use: ``import pyrtu`` loads neither the poller nor asyncio, and the paths the
-    documentation shows work after it alone."""
-    if name == "Poller":
-        from .poller import Poller
-
-        return Poller
+    """``pyrtu.Poller``, ``pyrtu.AsyncMaster``, ``pyrtu.AsyncSlave`` and the submodules
+    (``pyrtu.data``, ``pyrtu.aio``, ...) on first use: ``import pyrtu`` loads neither the
+    poller nor asyncio, and the paths the documentation shows work after it alone."""
+    home = _LAZY.get(name)
+    if home is not None:
+        return getattr(importlib.import_module(home), name)
     if not name.startswith("__") and importlib.util.find_spec(f"{__name__}.{name}"):
         return importlib.import_module(f"{__name__}.{name}")
     raise AttributeError(f"module 'pyrtu' has no attribute {name!r}")
@@ -100,6 +108,8 @@ __all__ = [
     "BONFIGLIOLI",
     "CV100",
     "EXCEPTION_NAMES",
+    "AsyncMaster",
+    "AsyncSlave",
     "BusFault",
     "CommEventLog",
     "Crc16",

@@ -27,7 +27,8 @@ RTU_TCP = "rtu+tcp://127.0.0.1:1"
 
 def test_import_pyrtu_loads_neither_poller_nor_asyncio() -> None:
     """``import pyrtu`` registers nothing by side effect: the poller, the asyncio
-    master and asyncio itself load only when used; ``pyrtu.Poller`` still works."""
+    master and asyncio itself load only when used; ``pyrtu.Poller``,
+    ``pyrtu.AsyncMaster`` and ``pyrtu.AsyncSlave`` still work (one public path each)."""
     probe = (
         "import pyrtu, sys\n"
         "loaded = [m for m in ('pyrtu.poller', 'pyrtu.drivers.aio', 'pyrtu.tcp', 'pyrtu.tcp.link',"
@@ -38,6 +39,10 @@ def test_import_pyrtu_loads_neither_poller_nor_asyncio() -> None:
         "from pyrtu.poller import Poller\n"
         "assert pyrtu.Poller is Poller and 'Poller' in pyrtu.__all__\n"
         "assert not hasattr(pyrtu, 'NoSuchName')\n"
+        "from pyrtu.drivers.aio import AsyncMaster\n"
+        "from pyrtu.drivers.aio_slave import AsyncSlave\n"
+        "assert pyrtu.AsyncMaster is AsyncMaster and pyrtu.AsyncSlave is AsyncSlave\n"
+        "assert {'AsyncMaster', 'AsyncSlave'} <= set(pyrtu.__all__)\n"
         "print('ok')\n"
     )
     out = subprocess.run(
