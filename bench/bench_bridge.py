@@ -224,11 +224,11 @@ def throughput(tmp: Path, n: int, rounds: int) -> dict[str, Any]:
 def buses(n: int) -> Iterator[list[str]]:
     """``n`` ``pyrtu vbus`` processes and one ``pyrtu simulate cv100`` serving a
     drive (address 5) on each: the masters' drop paths."""
-    import bench_client as BC
+    import bench_client
 
     with contextlib.ExitStack() as stack:
-        pairs = [stack.enter_context(BC.vbus(BAUD)) for _ in range(n)]
-        stack.enter_context(BC.drives([p[1] for p, _ in pairs], BAUD, "cv100"))
+        pairs = [stack.enter_context(bench_client.vbus(BAUD)) for _ in range(n)]
+        stack.enter_context(bench_client.drives([p[1] for p, _ in pairs], BAUD, "cv100"))
         yield [p[0] for p, _ in pairs]
 
 
@@ -490,16 +490,16 @@ def unplugged(tmp: Path, seconds: float) -> dict[str, Any]:
     """Eight drives on one bus (bench_poller's farm), every point published on each
     read; the eighth drive's process ended: the time until its points are stale, and
     the others' publish rate before and after."""
-    import bench_poller as BP
+    import bench_poller
 
-    with BP.farm(BAUD) as (path, sims), Broker(tmp) as broker:
+    with bench_poller.farm(BAUD) as (path, sims), Broker(tmp) as broker:
         text = [
             f'[mqtt]\nurl = "{broker.url}"\nedge = "bench"\noutbox = "{tmp / "ob-unplug"}"\n'
             "qos = 0\nmax_age = 0.0001\n",
             f'[[bus]]\nname = "bus"\nport = "{path}"\nbaudrate = {BAUD}\nparity = "N"\n'
-            f"timeout = {BP.TIMEOUT}\noffline_after = 2\n",
+            f"timeout = {bench_poller.TIMEOUT}\noffline_after = 2\n",
         ]
-        for slave, drive in enumerate(BP.DRIVES, start=1):
+        for slave, drive in enumerate(bench_poller.DRIVES, start=1):
             text.append(
                 f'[[device]]\nbus = "bus"\nslave = {slave}\nprofile = "{drive}"\n'
                 f'name = "d{slave}"\ninterval = {UNPLUG_INTERVAL}\n'
@@ -581,13 +581,13 @@ def unplugged(tmp: Path, seconds: float) -> dict[str, Any]:
                 "declared_after_its_end_s": declared[0] - first_end[0],
                 # how late the master reported the first timeout (the timer's
                 # start is that report minus the timeout: never before the end)
-                "first_timeout_late_s": first_end[1] - first_end[0] - BP.TIMEOUT,
+                "first_timeout_late_s": first_end[1] - first_end[0] - bench_poller.TIMEOUT,
                 # the two failed transactions: how long each took, the gap between
                 # them, and from the second's end to the bridge's offline event
                 "failed_transaction_s": statistics.mean(e - i for i, e in fails),
                 "gap_between_failures_s": fails[1][0] - fails[0][1],
                 "offline_event_after_second_failure_s": stale_at[0] - fails[1][1],
-                "bound_s": 2 * BP.TIMEOUT,
+                "bound_s": 2 * bench_poller.TIMEOUT,
                 "others_per_s_before": rate_before,
                 "others_per_s_after": rate_after,
                 "others_ratio": rate_after / rate_before,

@@ -37,8 +37,7 @@ from pathlib import Path
 from typing import Any
 
 from pyrtu import Master
-from pyrtu.devices import cv100 as C
-from pyrtu.devices import simulator
+from pyrtu.devices import cv100, simulator
 from pyrtu.drivers.aio import run as aio_run
 from pyrtu.pdu.errors import FrameError, NoResponseError
 from pyrtu.poller import (
@@ -73,9 +72,9 @@ WEG_REGS = [*range(1, 8), 48, 49, *range(100, 104), *range(220, 229), *range(401
 #  CV100: control word 1, main setting and the next two control parameters read
 #  back (0x3200-0x3203), and every status parameter of the manual's table that the
 #  drive supports (0x3300-0x3320 less the five marked "not support").
-CV_REGS = [*range(C.MAIN_SETTING - 1, C.MAIN_SETTING + 3)] + [
-    a for a, name in C.STATUS_PARAMETERS.items()
-    if a != C.STATUS_WORD_3 and "not supported" not in name
+CV_REGS = [*range(cv100.MAIN_SETTING - 1, cv100.MAIN_SETTING + 3)] + [
+    a for a, name in cv100.STATUS_PARAMETERS.items()
+    if a != cv100.STATUS_WORD_3 and "not supported" not in name
 ]  # fmt: skip
 #  Vectron: every 16-bit actual value of the manual's list (status word 411,
 #  current error 260, warnings 270, digital inputs 250, active data set 249); its

@@ -237,7 +237,7 @@ def write_section(text: str) -> None:
 
 
 def main() -> None:
-    import bench_client as BC
+    import bench_client
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0] if __doc__ else None)
     ap.add_argument("--sets", type=int, default=200, help="sets per variant (default 200)")
@@ -245,8 +245,8 @@ def main() -> None:
     ns = ap.parse_args()
     variants = [(True, True), (False, False), (True, False), (False, True)]
     rows = []
-    with tempfile.TemporaryDirectory() as tmp, BC.vbus(BAUD) as (paths, _pid):
-        with BC.drives([paths[1]], BAUD, "cv100"):
+    with tempfile.TemporaryDirectory() as tmp, bench_client.vbus(BAUD) as (paths, _pid):
+        with bench_client.drives([paths[1]], BAUD, "cv100"):
             for i, (bridge_on, broker_on) in enumerate(variants):
                 d = Path(tmp) / f"v{i}"
                 d.mkdir()

@@ -7,8 +7,7 @@ import math
 
 import pytest
 
-from pyrtu.devices import bonfiglioli, weg
-from pyrtu.devices import cv100 as C
+from pyrtu.devices import bonfiglioli, cv100, weg
 from pyrtu.devices.common import s16, s32, scaled, u16, u32, unscaled
 from pyrtu.devices.motor import ManualClock, Motor, Supervision, Timeline
 from tests.vectors import TELEGRAMS
@@ -114,57 +113,58 @@ def test_weg_describe_register() -> None:
 
 
 def test_cv100_addressing() -> None:
-    assert C.register("A3.02") == 0x0302
-    assert C.register("a0.06") == 0x0006
-    assert C.register("B0.00") == 0x0A00 and C.register("B4.02") == 0x0E02
-    assert C.register("C1.05") == 0x1505 and C.register("D2.00") == 0x2000
-    assert C.register("U0.09") == 0x5A09
-    assert C.register("A6.28") == 0x061C
-    assert C.register(0x3200) == 0x3200
-    assert C.function_code(0x0302) == "A3.02" and C.function_code(0x3301) == "0x3301"
+    assert cv100.register("A3.02") == 0x0302
+    assert cv100.register("a0.06") == 0x0006
+    assert cv100.register("B0.00") == 0x0A00 and cv100.register("B4.02") == 0x0E02
+    assert cv100.register("C1.05") == 0x1505 and cv100.register("D2.00") == 0x2000
+    assert cv100.register("U0.09") == 0x5A09
+    assert cv100.register("A6.28") == 0x061C
+    assert cv100.register(0x3200) == 0x3200
+    assert cv100.function_code(0x0302) == "A3.02" and cv100.function_code(0x3301) == "0x3301"
     for bad in ("A9.00", "C2.00", "X1.00", "A3-", "A3.123"):
         with pytest.raises(ValueError):
-            C.register(bad)
+            cv100.register(bad)
 
 
 @pytest.mark.parametrize(
     ("word", "value"),
     [
-        (C.ControlWord1(C.Command.RUN), 0x00C7),  # start forward
-        (C.ControlWord1(C.Command.STOP), 0x00C6),  # stop mode 0
-        (C.ControlWord1(jog_forward=True), 0x00D0),  # jog forward
-        (C.ControlWord1(), 0x00C0),  # stop jogging
-        (C.ControlWord1(acc_dec_enable=False, fault_reset=True), 0x0280),  # reset fault
+        (cv100.ControlWord1(cv100.Command.RUN), 0x00C7),  # start forward
+        (cv100.ControlWord1(cv100.Command.STOP), 0x00C6),  # stop mode 0
+        (cv100.ControlWord1(jog_forward=True), 0x00D0),  # jog forward
+        (cv100.ControlWord1(), 0x00C0),  # stop jogging
+        (cv100.ControlWord1(acc_dec_enable=False, fault_reset=True), 0x0280),  # reset fault
     ],
 )
-def test_cv100_control_word_1_examples(word: C.ControlWord1, value: int) -> None:
+def test_cv100_control_word_1_examples(word: cv100.ControlWord1, value: int) -> None:
     assert word.encode() == value
-    assert C.ControlWord1.decode(value) == word
+    assert cv100.ControlWord1.decode(value) == word
     # and the value is what the manual's telegram carries
     assert any(t.adu[2:6] == bytes([0x32, 0x00, value >> 8, value & 0xFF]) for t in TELEGRAMS)
 
 
 def test_cv100_control_word_2_and_status_words() -> None:
-    assert C.ControlWord2(run=True).encode() == 0b1010
-    assert C.ControlWord2.decode(0b1101) == C.ControlWord2(True, False, True, True)
-    w1 = C.StatusWord1.decode(0x0F0B)
+    assert cv100.ControlWord2(run=True).encode() == 0b1010
+    assert cv100.ControlWord2.decode(0b1101) == cv100.ControlWord2(True, False, True, True)
+    w1 = cv100.StatusWord1.decode(0x0F0B)
     assert w1.running and w1.reverse and w1.serial_control and not w1.alarm
     assert w1.code == 0x0F and w1.fault
-    alarm = C.StatusWord1.decode(0x0381)
+    alarm = cv100.StatusWord1.decode(0x0381)
     assert alarm.alarm and not alarm.fault and alarm.code == 3
-    assert C.StatusWord1.decode(0x0F0B).encode() == 0x0F0B
-    assert C.flags(0b1000001, C.STATUS_2_BITS) == {"jog", "undervoltage"}
-    assert C.flags(1 << 12 | 1 << 3, C.STATUS_3_BITS) == {"failure", "accelerating"}
-    assert C.flags_word(["failure", "accelerating"], C.STATUS_3_BITS) == 1 << 12 | 1 << 3
+    assert cv100.StatusWord1.decode(0x0F0B).encode() == 0x0F0B
+    assert cv100.flags(0b1000001, cv100.STATUS_2_BITS) == {"jog", "undervoltage"}
+    assert cv100.flags(1 << 12 | 1 << 3, cv100.STATUS_3_BITS) == {"failure", "accelerating"}
+    assert cv100.flags_word(["failure", "accelerating"], cv100.STATUS_3_BITS) == 1 << 12 | 1 << 3
 
 
 def test_cv100_scalings() -> None:
-    assert C.raw_hz(50) == 0x1388 and C.hz(0x1388) == 50.0
-    assert C.raw_seconds(30) == 0x012C and C.seconds(0x0064) == 10.0
-    assert C.amperes(0x012C) == 30.0
-    assert C.describe_register(C.OUTPUT_CURRENT, 300) == "output current: 30.0 A"
+    assert cv100.raw_hz(50) == 0x1388 and cv100.hz(0x1388) == 50.0
+    assert cv100.raw_seconds(30) == 0x012C and cv100.seconds(0x0064) == 10.0
+    assert cv100.amperes(0x012C) == 30.0
+    assert cv100.describe_register(cv100.OUTPUT_CURRENT, 300) == "output current: 30.0 A"
     assert (
-        C.describe_register(C.STATUS_WORD_1, 0x0F00) == "status word 1: stopped, forward, fault 15"
+        cv100.describe_register(cv100.STATUS_WORD_1, 0x0F00)
+        == "status word 1: stopped, forward, fault 15"
     )
 
 
@@ -343,7 +343,7 @@ def test_registry_and_describe() -> None:
     assert describe_register("act", bonfiglioli.address(484), u32(-1234)) == (
         "484 Reference Frequency RAM (data set 0): -12.34 Hz"
     )
-    assert describe_register("cv100", C.MAIN_REFERENCE, 5000) == (
+    assert describe_register("cv100", cv100.MAIN_REFERENCE, 5000) == (
         "Current main reference value: 50.00 Hz"
     )
     with pytest.raises(ValueError):

@@ -28,8 +28,8 @@ from pyrtu.devices import (
     InterfaceStatus,
     WegSimulator,
     bonfiglioli,
+    cv100,
 )
-from pyrtu.devices import cv100 as C
 from pyrtu.drivers.master import Master
 from pyrtu.pdu.errors import ExceptionResponseError
 from pyrtu.vbus import VirtualBus
@@ -185,7 +185,7 @@ def test_cv100_profile(bus: Bus) -> None:
     assert drive.accel_time() == 0.2 and drive.read("A0.07") == 2
     drive.set_frequency_hz(20)
     drive.run_forward()
-    assert drive.read(C.CONTROL_WORD_1) == 0x01C7  # bit 8: main reference
+    assert drive.read(cv100.CONTROL_WORD_1) == 0x01C7  # bit 8: main reference
     _wait(0.2)
     assert drive.frequency_hz() == 20.0 and drive.reference_hz() == 20.0
     st = drive.status()
@@ -207,14 +207,14 @@ def test_cv100_profile(bus: Bus) -> None:
     assert drive.status().word1.fault and drive.faults()[2] == 15
     drive.reset_fault()
     assert not drive.status().word1.fault
-    drive.control_word_2(C.ControlWord2(operation_disable=True))
-    drive.control_word_2(C.ControlWord2())
+    drive.control_word_2(cv100.ControlWord2(operation_disable=True))
+    drive.control_word_2(cv100.ControlWord2())
     drive.write("A0.05", 7, save=True)
     drive.write_many("A0.03", [1, 2], save=True)
     drive.write("A0.08", 9)
     sim.power_cycle()
     assert drive.read_many("A0.03", 6) == [1, 2, 7, 60, 60, 0]  # FC 06 writes are lost
-    assert drive.manage(C.Manage.FACTORY_VALUE, C.register("A0.07")) == 60
+    assert drive.manage(cv100.Manage.FACTORY_VALUE, cv100.register("A0.07")) == 60
     drive.enter_password(0)
 
 

@@ -19,9 +19,9 @@ from pyrtu.devices import (
     CFW701Simulator,
     CV100Simulator,
     ManualClock,
+    cv100,
     weg,
 )
-from pyrtu.devices import cv100 as C
 from pyrtu.devices._simbase import Outputs
 from pyrtu.protocol.datastore import DataStore
 
@@ -47,8 +47,8 @@ def cv(clock: ManualClock) -> Iterator[Direct]:
 def _cv100_ramping(d: Direct) -> CV100Simulator:
     sim = d.sim
     assert isinstance(sim, CV100Simulator)
-    assert d.write(C.register("A0.06"), 10, 10) == 0  # 1.0 s from 0 to 50.00 Hz
-    assert d.write(C.CONTROL_WORD_1, 0x00C7) == 0  # start forward
+    assert d.write(cv100.register("A0.06"), 10, 10) == 0  # 1.0 s from 0 to 50.00 Hz
+    assert d.write(cv100.CONTROL_WORD_1, 0x00C7) == 0  # start forward
     return sim
 
 
@@ -60,20 +60,20 @@ def test_cv100_read_after_time_moved_is_fresh(cv: Direct, clock: ManualClock) ->
     seen = []
     for _ in range(4):
         clock.advance(0.1)
-        seen.append(cv.read(C.STATUS_WORD_1, 10))
+        seen.append(cv.read(cv100.STATUS_WORD_1, 10))
     assert [s[5] for s in seen] == [500, 1000, 1500, 2000]  # operating frequency
     assert [s[6] for s in seen] == [30, 60, 90, 120]  # output current, 0.1 A
     assert len({s[0] for s in seen}) == 1  # status word 1: running, accelerating
     clock.advance(1)
-    at_reference = cv.read(C.STATUS_WORD_1, 10)
+    at_reference = cv.read(cv100.STATUS_WORD_1, 10)
     assert at_reference[5] == 5000 and at_reference[0] != seen[0][0]  # bit 2: at reference
 
 
 def test_cv100_two_reads_at_one_instant_agree(cv: Direct, clock: ManualClock) -> None:
     _cv100_ramping(cv)
     clock.advance(0.37)
-    first = cv.read(C.STATUS_WORD_1, 35)
-    assert first == cv.read(C.STATUS_WORD_1, 35)
+    first = cv.read(cv100.STATUS_WORD_1, 35)
+    assert first == cv.read(cv100.STATUS_WORD_1, 35)
     assert first[5] == 1850
 
 
@@ -81,7 +81,7 @@ def test_cv100_read_sees_the_time_after_the_telegram(cv: Direct, clock: ManualCl
     """The answer is the model when the read executes, not when the request came."""
     slow_slave(cv, clock)
     _cv100_ramping(cv)  # the ramp starts when the control word is executed
-    assert [cv.read(C.OPERATING_FREQUENCY)[0] for _ in range(4)] == [500, 1000, 1500, 2000]
+    assert [cv.read(cv100.OPERATING_FREQUENCY)[0] for _ in range(4)] == [500, 1000, 1500, 2000]
 
 
 def test_cv100_telegram_shows_the_model_in_the_store(cv: Direct, clock: ManualClock) -> None:
@@ -90,46 +90,46 @@ def test_cv100_telegram_shows_the_model_in_the_store(cv: Direct, clock: ManualCl
     sim = _cv100_ramping(cv)
     clock.advance(0.5)
     assert cv.pdu(b"\x08\x00\x00\x12\x34") == b"\x08\x00\x00\x12\x34"
-    assert int(sim.store.holding_registers.get(C.OPERATING_FREQUENCY)) == 2500
+    assert int(sim.store.holding_registers.get(cv100.OPERATING_FREQUENCY)) == 2500
 
 
 def test_cv100_written_parameters_read_back_in_the_status(cv: Direct, clock: ManualClock) -> None:
-    assert cv.read(C.ACCEL_TIME_1, 2) == [60, 60]
-    assert cv.write(C.register("A0.06"), 123) == 0
-    assert cv.read(C.ACCEL_TIME_1, 2) == [123, 60]
-    assert cv.write(C.DECEL_TIME_SETTING, 45) == 0  # the control parameter writes A0.07
-    assert cv.read(C.ACCEL_TIME_1, 2) == [123, 45]
-    assert cv.write(C.MAIN_SETTING, 2000) == 0
-    assert cv.read(C.MAIN_REFERENCE) == [5000]  # the keypad's setting: bit 8 not set
-    assert cv.write(C.CONTROL_WORD_1, 0x00C6 | C.CW1_MAIN_REFERENCE) == 0
-    assert cv.read(C.MAIN_REFERENCE) == [2000]
-    assert cv.read(C.MAIN_REFERENCE_SELECTOR) == [2]
+    assert cv.read(cv100.ACCEL_TIME_1, 2) == [60, 60]
+    assert cv.write(cv100.register("A0.06"), 123) == 0
+    assert cv.read(cv100.ACCEL_TIME_1, 2) == [123, 60]
+    assert cv.write(cv100.DECEL_TIME_SETTING, 45) == 0  # the control parameter writes A0.07
+    assert cv.read(cv100.ACCEL_TIME_1, 2) == [123, 45]
+    assert cv.write(cv100.MAIN_SETTING, 2000) == 0
+    assert cv.read(cv100.MAIN_REFERENCE) == [5000]  # the keypad's setting: bit 8 not set
+    assert cv.write(cv100.CONTROL_WORD_1, 0x00C6 | cv100.CW1_MAIN_REFERENCE) == 0
+    assert cv.read(cv100.MAIN_REFERENCE) == [2000]
+    assert cv.read(cv100.MAIN_REFERENCE_SELECTOR) == [2]
 
 
 def test_cv100_owner_changes_show_at_the_next_look(cv: Direct, clock: ManualClock) -> None:
     sim = cv.sim
     assert isinstance(sim, CV100Simulator)
     regs = sim.store.holding_registers
-    before = cv.read(C.STATUS_WORD_1, 35)
-    regs.set(C.OPERATING_FREQUENCY, 4321)  # the owner overwrites an output register
-    regs.set_each({C.STATUS_WORD_1: 0xFFFF, C.LATEST_FAULT: 99})
-    assert cv.read(C.STATUS_WORD_1, 35) == before  # the model's values again
+    before = cv.read(cv100.STATUS_WORD_1, 35)
+    regs.set(cv100.OPERATING_FREQUENCY, 4321)  # the owner overwrites an output register
+    regs.set_each({cv100.STATUS_WORD_1: 0xFFFF, cv100.LATEST_FAULT: 99})
+    assert cv.read(cv100.STATUS_WORD_1, 35) == before  # the model's values again
     sim.inject_fault(33)
-    assert int(regs.get(C.LATEST_FAULT)) == 33 and int(regs.get(C.FIRST_FAULT)) == 33
-    assert cv.read(C.STATUS_WORD_1)[0] >> 8 == 33
+    assert int(regs.get(cv100.LATEST_FAULT)) == 33 and int(regs.get(cv100.FIRST_FAULT)) == 33
+    assert cv.read(cv100.STATUS_WORD_1)[0] >> 8 == 33
     sim.inject_fault(7)
-    assert cv.read(C.FIRST_FAULT, 3) == [33, 7, 7]
+    assert cv.read(cv100.FIRST_FAULT, 3) == [33, 7, 7]
 
 
 def test_cv100_power_cycle_and_undervoltage_show(cv: Direct, clock: ManualClock) -> None:
     sim = _cv100_ramping(cv)
     clock.advance(2)
-    assert cv.read(C.OPERATING_FREQUENCY) == [5000]
+    assert cv.read(cv100.OPERATING_FREQUENCY) == [5000]
     sim.power_cycle()
-    assert cv.read(C.OPERATING_FREQUENCY) == [0] and cv.read(C.ACCEL_TIME_1) == [60]
+    assert cv.read(cv100.OPERATING_FREQUENCY) == [0] and cv.read(cv100.ACCEL_TIME_1) == [60]
     with sim.lock:
         sim.undervoltage = True
-    assert cv.read(C.BUS_VOLTAGE) == [400]  # an attribute the owner set, seen by a read
+    assert cv.read(cv100.BUS_VOLTAGE) == [400]  # an attribute the owner set, seen by a read
 
 
 # -- WEG -----------------------------------------------------------------------------------

@@ -22,9 +22,9 @@ from pyrtu.devices import (
     DriveState,
     ManualClock,
     bonfiglioli,
+    cv100,
     weg,
 )
-from pyrtu.devices import cv100 as C
 from pyrtu.devices.common import u16
 
 
@@ -349,85 +349,87 @@ def cv(clock: ManualClock) -> Iterator[Direct]:
 def test_cv100_run_stop_jog_reset(cv: Direct, clock: ManualClock) -> None:
     sim = cv.sim
     assert isinstance(sim, CV100Simulator)
-    cv.write(C.register("A0.06"), 10, 10)  # 1.0 s from 0 to 50.00 Hz
-    assert cv.write(C.CONTROL_WORD_1, 0x00C7) == 0  # start forward
+    cv.write(cv100.register("A0.06"), 10, 10)  # 1.0 s from 0 to 50.00 Hz
+    assert cv.write(cv100.CONTROL_WORD_1, 0x00C7) == 0  # start forward
     clock.advance(0.5)
-    assert cv.read(C.OPERATING_FREQUENCY) == [2500]
+    assert cv.read(cv100.OPERATING_FREQUENCY) == [2500]
     st = sim.status()
     assert st.word1.running and not st.word1.reverse and "accelerating" in st.word3
     clock.advance(0.5)
-    assert cv.read(C.OPERATING_FREQUENCY) == [5000] and sim.status().word1.at_reference
-    assert cv.read(C.OUTPUT_CURRENT) == [300]
-    cv.write(C.CONTROL_WORD_1, 0x00C6)  # stop mode 0
+    assert cv.read(cv100.OPERATING_FREQUENCY) == [5000] and sim.status().word1.at_reference
+    assert cv.read(cv100.OUTPUT_CURRENT) == [300]
+    cv.write(cv100.CONTROL_WORD_1, 0x00C6)  # stop mode 0
     clock.advance(0.5)
-    assert cv.read(C.OPERATING_FREQUENCY) == [2500] and "decelerating" in sim.status().word3
+    assert cv.read(cv100.OPERATING_FREQUENCY) == [2500] and "decelerating" in sim.status().word3
     clock.advance(1)
     assert not sim.status().word1.running
-    cv.write(C.CONTROL_WORD_1, 0x00D0)  # jog forward at 5.00 Hz
+    cv.write(cv100.CONTROL_WORD_1, 0x00D0)  # jog forward at 5.00 Hz
     clock.advance(1)
-    assert cv.read(C.OPERATING_FREQUENCY) == [500] and "jog" in sim.status().word2
-    cv.write(C.CONTROL_WORD_1, 0x00C0)  # stop jogging
+    assert cv.read(cv100.OPERATING_FREQUENCY) == [500] and "jog" in sim.status().word2
+    cv.write(cv100.CONTROL_WORD_1, 0x00C0)  # stop jogging
     clock.advance(1)
-    assert cv.read(C.OPERATING_FREQUENCY) == [0]
-    cv.write(C.CONTROL_WORD_1, 0x00CC)  # 100B: external fault
+    assert cv.read(cv100.OPERATING_FREQUENCY) == [0]
+    cv.write(cv100.CONTROL_WORD_1, 0x00CC)  # 100B: external fault
     st = sim.status()
     assert st.word1.fault and st.word1.code == 15 and "failure" in st.word3
-    cv.write(C.CONTROL_WORD_1, 0x00C7)  # ignored in a fault
+    cv.write(cv100.CONTROL_WORD_1, 0x00C7)  # ignored in a fault
     clock.advance(1)
-    assert cv.read(C.OPERATING_FREQUENCY) == [0] and cv.read(C.LATEST_FAULT) == [15]
-    cv.write(C.CONTROL_WORD_1, 0x0280)  # reset fault
+    assert cv.read(cv100.OPERATING_FREQUENCY) == [0] and cv.read(cv100.LATEST_FAULT) == [15]
+    cv.write(cv100.CONTROL_WORD_1, 0x0280)  # reset fault
     assert not sim.status().word1.fault
-    assert cv.read(C.CONTROL_WORD_1) == [0x0280]  # control parameters read back
+    assert cv.read(cv100.CONTROL_WORD_1) == [0x0280]  # control parameters read back
 
 
 def test_cv100_reverse_main_reference_and_control_word_2(cv: Direct, clock: ManualClock) -> None:
     sim = cv.sim
     assert isinstance(sim, CV100Simulator)
-    cv.write(C.register("A0.06"), 1, 1)
-    cv.write(C.MAIN_SETTING, 2000)
-    cv.write(C.CONTROL_WORD_1, 0x00CF | C.CW1_MAIN_REFERENCE)  # run reverse on the main setting
+    cv.write(cv100.register("A0.06"), 1, 1)
+    cv.write(cv100.MAIN_SETTING, 2000)
+    cv.write(
+        cv100.CONTROL_WORD_1, 0x00CF | cv100.CW1_MAIN_REFERENCE
+    )  # run reverse on the main setting
     clock.advance(1)
     assert sim.frequency_hz() == pytest.approx(-20.0)
-    assert cv.read(C.MAIN_REFERENCE) == [2000] and sim.status().word1.reverse
+    assert cv.read(cv100.MAIN_REFERENCE) == [2000] and sim.status().word1.reverse
     assert sim.status().word1.serial_setting
-    assert cv.write(C.MAIN_SETTING, 6000) == 3  # above the maximum frequency
-    cv.write(C.CONTROL_WORD_2, 0b1001)  # control word 2 enabled: operation disable
+    assert cv.write(cv100.MAIN_SETTING, 6000) == 3  # above the maximum frequency
+    cv.write(cv100.CONTROL_WORD_2, 0b1001)  # control word 2 enabled: operation disable
     assert sim.frequency_hz() == 0.0 and not sim.status().word1.running
 
 
 def test_cv100_exceptions_and_partial_writes(cv: Direct) -> None:
     assert cv.refused(0x0900) == 2  # no group 0x09
-    assert cv.read(C.register("A0.63")) == [0] and cv.refused(0x0040) == 2
-    assert cv.write(C.STATUS_WORD_1, 1) == 3  # status parameters are read only
-    assert cv.write(C.register("B4.04"), 1) == 4  # reserved: cannot be changed
-    assert cv.write(C.register("A0.06"), 0) == 3
+    assert cv.read(cv100.register("A0.63")) == [0] and cv.refused(0x0040) == 2
+    assert cv.write(cv100.STATUS_WORD_1, 1) == 3  # status parameters are read only
+    assert cv.write(cv100.register("B4.04"), 1) == 4  # reserved: cannot be changed
+    assert cv.write(cv100.register("A0.06"), 0) == 3
     # function codes: one bad value and nothing is written
-    assert cv.write(C.register("A0.05"), 7, 100, 0) == 3
-    assert cv.read(C.register("A0.05"), 3) == [0, 60, 60]
+    assert cv.write(cv100.register("A0.05"), 7, 100, 0) == 3
+    assert cv.read(cv100.register("A0.05"), 3) == [0, 60, 60]
     # control parameters: the ones before the bad one are written
-    assert cv.write(C.MAIN_SETTING, 1234, 9999) == 3
-    assert cv.read(C.MAIN_SETTING, 2) == [1234, 0]
+    assert cv.write(cv100.MAIN_SETTING, 1234, 9999) == 3
+    assert cv.read(cv100.MAIN_SETTING, 2) == [1234, 0]
     assert cv.refused(0x3204) == 2  # "do not support"
-    assert cv.refused(C.STATUS_WORD_3) != 2 and cv.refused(0x3323) == 2
+    assert cv.refused(cv100.STATUS_WORD_3) != 2 and cv.refused(0x3323) == 2
 
 
 def test_cv100_saved_writes_and_power_cycle(cv: Direct) -> None:
     sim = cv.sim
     assert isinstance(sim, CV100Simulator)
-    a006, a007 = C.register("A0.06"), C.register("A0.07")
+    a006, a007 = cv100.register("A0.06"), cv100.register("A0.07")
     assert cv.write(a006, 100) == 0  # FC 06: lost at power-off
     assert cv.pdu(b"\x41" + a007.to_bytes(2, "big") + (123).to_bytes(2, "big"))[0] == 0x41
     body = (11).to_bytes(2, "big") + (22).to_bytes(2, "big")
-    resp = cv.pdu(b"\x43" + C.register("A2.00").to_bytes(2, "big") + b"\x00\x02\x04" + body)
+    resp = cv.pdu(b"\x43" + cv100.register("A2.00").to_bytes(2, "big") + b"\x00\x02\x04" + body)
     assert resp == b"\x43\x02\x00\x00\x02"
-    cv.write(C.register("A2.03"), 9)  # always saved, even by FC 06
+    cv.write(cv100.register("A2.03"), 9)  # always saved, even by FC 06
     sim.power_cycle()
     assert cv.read(a006, 2) == [60, 123]
-    assert cv.read(C.register("A2.00"), 4) == [11, 22, 0, 9]
+    assert cv.read(cv100.register("A2.00"), 4) == [11, 22, 0, 9]
 
 
 def test_cv100_manage(cv: Direct) -> None:
-    a006 = C.register("A0.06").to_bytes(2, "big")
+    a006 = cv100.register("A0.06").to_bytes(2, "big")
     assert cv.pdu(b"\x42\x00\x00" + a006) == b"\x42\x00\x00" + (36000).to_bytes(2, "big")
     assert cv.pdu(b"\x42\x00\x01" + a006) == b"\x42\x00\x01\x00\x01"
     assert cv.pdu(b"\x42\x00\x02" + a006) == b"\x42\x00\x02\x00\x3c"
@@ -440,20 +442,20 @@ def test_cv100_manage(cv: Direct) -> None:
 def test_cv100_passwords(clock: ManualClock) -> None:
     d = Direct(CV100Simulator(clock=clock, user_password=1234, factory_password=42), unit=5)
     try:
-        a006 = C.register("A0.06")
+        a006 = cv100.register("A0.06")
         assert d.refused(a006) == 4 and d.write(a006, 10) == 4
-        assert d.refused(C.STATUS_WORD_1) != 4  # status parameters are not protected
-        assert d.write(C.register("A0.00"), 1111) == 4
-        assert d.write(C.register("A0.00"), 1234) == 0
-        assert d.read(a006) == [60] and d.read(C.register("A0.00")) == [0]
+        assert d.refused(cv100.STATUS_WORD_1) != 4  # status parameters are not protected
+        assert d.write(cv100.register("A0.00"), 1111) == 4
+        assert d.write(cv100.register("A0.00"), 1234) == 0
+        assert d.read(a006) == [60] and d.read(cv100.register("A0.00")) == [0]
         clock.advance(299)
         assert d.read(a006) == [60]  # each telegram keeps the right for 5 minutes
         clock.advance(301)
         assert d.refused(a006) == 4
-        u001 = C.register("U0.01")
-        d.write(C.register("A0.00"), 1234)
+        u001 = cv100.register("U0.01")
+        d.write(cv100.register("A0.00"), 1234)
         assert d.refused(u001) == 4
-        assert d.write(C.register("U0.00"), 42) == 0 and d.read(u001) == [0]
+        assert d.write(cv100.register("U0.00"), 42) == 0 and d.read(u001) == [0]
     finally:
         d.close()
 
@@ -629,13 +631,13 @@ def test_broadcast_writes_execute_without_answer(clock: ManualClock) -> None:
                 b"\x65" + bonfiglioli.address(484).to_bytes(2, "big") + (1234).to_bytes(4, "big"),
             ),
             (act, b"\x06" + bonfiglioli.address(413).to_bytes(2, "big") + (7).to_bytes(2, "big")),
-            (cv, b"\x41" + C.register("A0.06").to_bytes(2, "big") + (77).to_bytes(2, "big")),
+            (cv, b"\x41" + cv100.register("A0.06").to_bytes(2, "big") + (77).to_bytes(2, "big")),
         ):
             d.slave.port.write(pyrtu.add_crc(b"\x00" + pdu))
             d.slave.poll(0.2)
             assert d.slave.port.read(0.05) == b""
         assert _fc100(act, 484) == 1234 and act.read(413) == [7]
-        assert cv.read(C.register("A0.06")) == [77]
+        assert cv.read(cv100.register("A0.06")) == [77]
         # a broadcast read is not executed
         act.slave.port.write(
             pyrtu.add_crc(b"\x00\x03" + bonfiglioli.address(413).to_bytes(2, "big") + b"\x00\x01")

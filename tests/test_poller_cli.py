@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 from cli_helpers import ROOT, Background, env, pyrtu
 
-from pyrtu.devices import CFW701Simulator, CV100Simulator
+from pyrtu.devices import CFW701Simulator, CV100Simulator, weg
 
 vbus = pytest.importorskip("pyrtu.vbus")
 
@@ -63,9 +63,9 @@ def split(docs: list[dict[str, object]]) -> tuple[list[dict[str, object]], ...]:
 
 def test_json_updates_events_and_summary(tmp_path: Path) -> None:
     with vbus.VirtualBus(3, baudrate=115200, parity="N") as bus:
-        weg, cv = CFW701Simulator(), CV100Simulator()
-        weg.serve(bus.paths[1], 1, baudrate=115200, parity="N")
-        cv.serve(bus.paths[2], 5, baudrate=115200, parity="N")
+        sim_weg, sim_cv = CFW701Simulator(), CV100Simulator()
+        sim_weg.serve(bus.paths[1], 1, baudrate=115200, parity="N")
+        sim_cv.serve(bus.paths[2], 5, baudrate=115200, parity="N")
         try:
             cfg = tmp_path / "points.toml"
             # cv.status every millisecond: more than the wire carries (an overload);
@@ -78,8 +78,8 @@ def test_json_updates_events_and_summary(tmp_path: Path) -> None:
             cfg.write_text(text)
             r = pyrtu("poll", "--config", cfg, "--duration", "3", "--json")
         finally:
-            weg.close()
-            cv.close()
+            sim_weg.close()
+            sim_cv.close()
     # slave 9 never answered: 4, the most telling of the statuses that apply
     assert r.code == 4, r.err
     assert r.err.strip() == "pyrtu poll: exit status 4: bus line1: slave 9 offline at the end"

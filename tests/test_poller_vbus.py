@@ -13,8 +13,7 @@ from collections.abc import Callable, Iterator
 
 import pytest
 
-from pyrtu.devices import CFW701Simulator, CV100Simulator, DriveSimulator, weg
-from pyrtu.devices import cv100 as C
+from pyrtu.devices import CFW701Simulator, CV100Simulator, DriveSimulator, cv100, weg
 from pyrtu.drivers.aio import AsyncMaster
 from pyrtu.poller import (
     Bus,
@@ -110,7 +109,7 @@ def test_values_write_and_a_dropped_point(master: str) -> None:
     assert updates["weg.fault"].value == sim_weg.store.holding_registers.get(weg.P_PRESENT_FAULT)
     assert isinstance(updates["cv.speed"].value, float)
     assert ref == [4096, 60, 120]
-    assert on_demand == CV100Simulator().store.holding_registers.get(C.STATUS_WORD_1)
+    assert on_demand == CV100Simulator().store.holding_registers.get(cv100.STATUS_WORD_1)
     dropped = [e.point.name for e in events if isinstance(e, PointDropped)]
     assert dropped == ["weg.missing"]
     assert [(e.slave, e.online) for e in events if isinstance(e, SlaveState)] == [
@@ -180,12 +179,15 @@ def test_noise_never_delivers_a_wrong_value() -> None:
                 return events, poller.summary()
 
     events, summary = asyncio.run(main())
-    weg, cv = CFW701Simulator().store.holding_registers, CV100Simulator().store.holding_registers
+    weg_regs = CFW701Simulator().store.holding_registers
+    cv_regs = CV100Simulator().store.holding_registers
     expect = {
-        "weg.status": weg.get(weg.P_STATUS), "weg.fault": weg.get(weg.P_PRESENT_FAULT),
-        "weg.alarm": weg.get(weg.P_PRESENT_ALARM), "cv.status": cv.get(C.STATUS_WORD_1),
-        "cv.fault": cv.get(C.LATEST_FAULT),
-    }  # fmt: skip
+        "weg.status": weg_regs.get(weg.P_STATUS),
+        "weg.fault": weg_regs.get(weg.P_PRESENT_FAULT),
+        "weg.alarm": weg_regs.get(weg.P_PRESENT_ALARM),
+        "cv.status": cv_regs.get(cv100.STATUS_WORD_1),
+        "cv.fault": cv_regs.get(cv100.LATEST_FAULT),
+    }
     got = [e for e in events if isinstance(e, Update) and e.point.name in expect]
     assert len(got) > 50
     assert all(e.value == expect[e.point.name] for e in got)
@@ -229,7 +231,7 @@ def test_sync_facade() -> None:
             assert isinstance(first, Update)
             assert p.read(
                 "cv.fault", timeout=PATIENCE
-            ) == CV100Simulator().store.holding_registers.get(C.LATEST_FAULT)
+            ) == CV100Simulator().store.holding_registers.get(cv100.LATEST_FAULT)
             give_up = time.monotonic() + PATIENCE
             while len(p.values()) < 10 and time.monotonic() < give_up:
                 time.sleep(0.02)
@@ -313,8 +315,8 @@ def test_ascii_mode() -> None:
     events, summary, t35 = asyncio.run(main())
     cv = CV100Simulator().store.holding_registers
     values = {e.point.name: e.value for e in events if isinstance(e, Update)}
-    assert values["cv.status"] == cv.get(C.STATUS_WORD_1)
-    assert values["cv.fault"] == cv.get(C.LATEST_FAULT)
+    assert values["cv.status"] == cv.get(cv100.STATUS_WORD_1)
+    assert values["cv.fault"] == cv.get(cv100.LATEST_FAULT)
     assert t35 == 0.0  # ASCII frames are delimited, not timed
     (slave,) = summary["slaves"]  # type: ignore[misc]
     assert slave["state"] == "online" and slave["frame_errors"] == 0

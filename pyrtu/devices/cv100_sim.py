@@ -41,7 +41,7 @@ from pyrtu.drivers.slave import Slave
 from pyrtu.pdu.errors import SlaveException
 
 from .. import pdu as pdus
-from . import cv100 as C
+from . import cv100
 from ._simbase import DriveSimulator, HandlerSpec, Outputs
 from .motor import Clock, monotonic
 
@@ -50,10 +50,10 @@ ACCESS_SECONDS = 300.0
 FAULT_EXTERNAL = 15
 
 # the function codes the simulator reads or writes itself
-A0_00 = C.register("A0.00")  # user password
-A0_06 = C.register("A0.06")  # acceleration time 1
-A0_07 = C.register("A0.07")  # deceleration time 1
-U0_00 = C.register("U0.00")  # factory password
+A0_00 = cv100.register("A0.00")  # user password
+A0_06 = cv100.register("A0.06")  # acceleration time 1
+A0_07 = cv100.register("A0.07")  # deceleration time 1
+U0_00 = cv100.register("U0.00")  # factory password
 
 
 @dataclass(frozen=True)
@@ -70,23 +70,23 @@ KNOWN: dict[int, Code] = {
     A0_00: Code("User password"),
     A0_06: Code("Acceleration time 1", 60, 1, 36000),
     A0_07: Code("Deceleration time 1", 60, 1, 36000),
-    C.register("A1.01"): Code("A1.01 (read in the manual's RTU example)", 5000),
-    C.register("A2.01"): Code("A2.01 (written in the manual's ASCII example)"),
-    C.register("A2.03"): Code("Main reference frequency control", always_saved=True),
+    cv100.register("A1.01"): Code("A1.01 (read in the manual's RTU example)", 5000),
+    cv100.register("A2.01"): Code("A2.01 (written in the manual's ASCII example)"),
+    cv100.register("A2.03"): Code("Main reference frequency control", always_saved=True),
     **{
-        C.register(f"A6.0{i}"): Code(f"Selection of input terminal X{i + 1}", always_saved=True)
+        cv100.register(f"A6.0{i}"): Code(f"Selection of input terminal X{i + 1}", always_saved=True)
         for i in range(5)
     },
-    C.register("B0.00"): Code("Motor rated power", always_saved=True),
-    C.register("B0.11"): Code("Motor parameters auto-tuning", reserved=True),
-    C.register("B4.02"): Code("Parameters protection setting", always_saved=True),
-    C.register("B4.04"): Code("Parameters copy", reserved=True),
+    cv100.register("B0.00"): Code("Motor rated power", always_saved=True),
+    cv100.register("B0.11"): Code("Motor parameters auto-tuning", reserved=True),
+    cv100.register("B4.02"): Code("Parameters protection setting", always_saved=True),
+    cv100.register("B4.04"): Code("Parameters copy", reserved=True),
     U0_00: Code("Factory password"),
-    C.register("U0.01"): Code("Machine model setting", always_saved=True),
-    C.register("U0.09"): Code("VFD series selection", always_saved=True),
+    cv100.register("U0.01"): Code("Machine model setting", always_saved=True),
+    cv100.register("U0.09"): Code("VFD series selection", always_saved=True),
 }
 _CONTROL_RANGES = ((0x3200, 4), (0x3205, 1), (0x3207, 1), (0x3209, 3), (0x3212, 1))
-_STATUS_FIRST, _STATUS_LAST = C.STATUS_WORD_1, C.STATUS_WORD_3
+_STATUS_FIRST, _STATUS_LAST = cv100.STATUS_WORD_1, cv100.STATUS_WORD_3
 
 
 class _StatusInputs(NamedTuple):
@@ -113,8 +113,8 @@ class _StatusInputs(NamedTuple):
 
 
 # status words 2 and 3: name -> bit (`cv100.flags_word` of one name)
-_BIT_2 = {name: 1 << bit for bit, name in C.STATUS_2_BITS.items()}
-_BIT_3 = {name: 1 << bit for bit, name in C.STATUS_3_BITS.items()}
+_BIT_2 = {name: 1 << bit for bit, name in cv100.STATUS_2_BITS.items()}
+_BIT_3 = {name: 1 << bit for bit, name in cv100.STATUS_3_BITS.items()}
 
 
 def _status_parameters(s: _StatusInputs) -> dict[int, int]:
@@ -127,7 +127,7 @@ def _status_parameters(s: _StatusInputs) -> dict[int, int]:
         reverse = s.reverse if s.run else s.jog == "reverse"
     at_ref = running and s.frequency == s.reference and s.jog is None
     code = s.fault_code or s.alarm_code
-    w1 = C.StatusWord1(
+    w1 = cv100.StatusWord1(
         0,
         running,
         reverse,
@@ -156,29 +156,29 @@ def _status_parameters(s: _StatusInputs) -> dict[int, int]:
     current = s.rated_current * f / s.max_hz if s.max_hz else 0.0
     voltage = 380.0 * f / s.max_hz if s.max_hz else 0.0
     values = {
-        C.STATUS_WORD_1: w1.encode(),
-        C.MAIN_REFERENCE: round(s.reference_hz * 100),
-        C.SLAVE_MODEL: 100,
-        C.VFD_MODEL: 1,
-        C.SOFTWARE_VERSION: 100,
-        C.OPERATING_FREQUENCY: round(f * 100),
-        C.OUTPUT_CURRENT: round(current * 10),
-        C.OUTPUT_VOLTAGE: round(voltage),
-        C.OUTPUT_POWER: round(1.732 * voltage * current * 0.85 / 100),
-        C.ROTARY_SPEED: round(f * 30),
-        C.BUS_VOLTAGE: 400 if s.undervoltage else 540,
-        C.OUTPUT_TORQUE: round(100 * f / s.max_hz) if s.max_hz else 0,
-        C.FIRST_FAULT: s.first_fault,
-        C.SECOND_FAULT: s.second_fault,
-        C.LATEST_FAULT: s.latest_fault,
-        C.FREQUENCY_SETTING: round(abs(s.reference) * 100),
+        cv100.STATUS_WORD_1: w1.encode(),
+        cv100.MAIN_REFERENCE: round(s.reference_hz * 100),
+        cv100.SLAVE_MODEL: 100,
+        cv100.VFD_MODEL: 1,
+        cv100.SOFTWARE_VERSION: 100,
+        cv100.OPERATING_FREQUENCY: round(f * 100),
+        cv100.OUTPUT_CURRENT: round(current * 10),
+        cv100.OUTPUT_VOLTAGE: round(voltage),
+        cv100.OUTPUT_POWER: round(1.732 * voltage * current * 0.85 / 100),
+        cv100.ROTARY_SPEED: round(f * 30),
+        cv100.BUS_VOLTAGE: 400 if s.undervoltage else 540,
+        cv100.OUTPUT_TORQUE: round(100 * f / s.max_hz) if s.max_hz else 0,
+        cv100.FIRST_FAULT: s.first_fault,
+        cv100.SECOND_FAULT: s.second_fault,
+        cv100.LATEST_FAULT: s.latest_fault,
+        cv100.FREQUENCY_SETTING: round(abs(s.reference) * 100),
         0x3316: round(abs(s.reference) * 30),
-        C.ACCEL_TIME_1: s.accel_time,
-        C.DECEL_TIME_1: s.decel_time,
-        C.COMMAND_SOURCE: s.command_source,
-        C.STATUS_WORD_2: w2,
-        C.MAIN_REFERENCE_SELECTOR: 2 if s.main_reference else 0,
-        C.STATUS_WORD_3: w3,
+        cv100.ACCEL_TIME_1: s.accel_time,
+        cv100.DECEL_TIME_1: s.decel_time,
+        cv100.COMMAND_SOURCE: s.command_source,
+        cv100.STATUS_WORD_2: w2,
+        cv100.MAIN_REFERENCE_SELECTOR: 2 if s.main_reference else 0,
+        cv100.STATUS_WORD_3: w3,
     }
     return {a: v & 0xFFFF for a, v in values.items()}
 
@@ -222,7 +222,7 @@ class CV100Simulator(DriveSimulator):
         self.main_reference = False
         self.operation_disabled = False
         self.aux_reference = False
-        self.display = C.OPERATING_FREQUENCY
+        self.display = cv100.OPERATING_FREQUENCY
         self._user_until = -1.0
         self._factory_until = -1.0
         self._saving = False
@@ -230,7 +230,7 @@ class CV100Simulator(DriveSimulator):
         self._status = Outputs(self.store.holding_registers, _status_parameters)
         regs = self.store.holding_registers
         self.eeprom: dict[int, int] = {}
-        for high in C.GROUPS.values():
+        for high in cv100.GROUPS.values():
             base = high << 8
             values = [KNOWN[a].default if a in KNOWN else 0 for a in range(base, base + GROUP_SIZE)]
             regs.add_range(
@@ -263,7 +263,7 @@ class CV100Simulator(DriveSimulator):
 
     def _check_access(self, address: int, writing: bool) -> None:
         now = self.timeline.now
-        if address >> 8 == C.GROUPS["U0"] and address != U0_00:
+        if address >> 8 == cv100.GROUPS["U0"] and address != U0_00:
             if now > self._factory_until:
                 raise SlaveException(4, "group U0 needs the factory password in U0.00")
         elif address != A0_00 and self.user_password and now > self._user_until:
@@ -313,9 +313,9 @@ class CV100Simulator(DriveSimulator):
 
     def _validate_control(self, address: int, value: int | bool) -> bool:
         value = int(value)
-        if address in (C.MAIN_SETTING, C.OPERATION_FREQUENCY_SETTING):
-            return value <= round(self.max_hz * C.FREQUENCY_SCALE)
-        if address in (C.ACCEL_TIME_SETTING, C.DECEL_TIME_SETTING):
+        if address in (cv100.MAIN_SETTING, cv100.OPERATION_FREQUENCY_SETTING):
+            return value <= round(self.max_hz * cv100.FREQUENCY_SCALE)
+        if address in (cv100.ACCEL_TIME_SETTING, cv100.DECEL_TIME_SETTING):
             return 1 <= value <= 36000
         return True
 
@@ -326,24 +326,24 @@ class CV100Simulator(DriveSimulator):
         self._retarget()
 
     def _control(self, address: int, value: int) -> None:
-        if address == C.CONTROL_WORD_1:
+        if address == cv100.CONTROL_WORD_1:
             self._control_word_1(value)
-        elif address == C.CONTROL_WORD_2:
-            cw = C.ControlWord2.decode(value)
+        elif address == cv100.CONTROL_WORD_2:
+            cw = cv100.ControlWord2.decode(value)
             if cw.enable and not self.fault_code:
                 self.operation_disabled = cw.operation_disable
                 self.aux_reference = cw.aux_reference
                 if cw.run:
                     self.run, self.reverse, self.jog = True, False, None
-        elif address in (C.ACCEL_TIME_SETTING, C.DECEL_TIME_SETTING):
-            code = A0_06 if address == C.ACCEL_TIME_SETTING else A0_07
+        elif address in (cv100.ACCEL_TIME_SETTING, cv100.DECEL_TIME_SETTING):
+            code = A0_06 if address == cv100.ACCEL_TIME_SETTING else A0_07
             self.store.holding_registers.set(code, value)
             self.eeprom[code] = value
 
     def _control_word_1(self, value: int) -> None:
-        if self.command_source != 2 or not value & C.CW1_ENABLE:
+        if self.command_source != 2 or not value & cv100.CW1_ENABLE:
             return
-        cw = C.ControlWord1.decode(value)
+        cw = cv100.ControlWord1.decode(value)
         if cw.fault_reset and self.fault_code:
             self.fault_code = 0
         if self.fault_code:
@@ -356,14 +356,14 @@ class CV100Simulator(DriveSimulator):
                 self.jog = "forward" if cw.jog_forward else "reverse"
             return
         self.jog = None
-        if cw.command is C.Command.RUN:
+        if cw.command is cv100.Command.RUN:
             self.run, self.reverse = True, cw.reverse
-        elif cw.command is C.Command.STOP:
+        elif cw.command is cv100.Command.STOP:
             self.run = False
-        elif cw.command in (C.Command.COAST_STOP, C.Command.EXTERNAL_FAULT_STOP):
+        elif cw.command in (cv100.Command.COAST_STOP, cv100.Command.EXTERNAL_FAULT_STOP):
             self.run = False
             self.motor.coast()
-            if cw.command is C.Command.EXTERNAL_FAULT_STOP:
+            if cw.command is cv100.Command.EXTERNAL_FAULT_STOP:
                 self._fault(FAULT_EXTERNAL)
 
     def _fault(self, code: int) -> None:
@@ -376,7 +376,7 @@ class CV100Simulator(DriveSimulator):
 
     def reference_hz(self) -> float:
         if self.main_reference:
-            return self._raw(C.MAIN_SETTING) / C.FREQUENCY_SCALE
+            return self._raw(cv100.MAIN_SETTING) / cv100.FREQUENCY_SCALE
         return self.preset_hz
 
     def _retarget(self) -> None:
@@ -441,7 +441,7 @@ class CV100Simulator(DriveSimulator):
                 regs.set(a, v)
             for start, n in _CONTROL_RANGES:
                 for a in range(start, start + n):
-                    if a not in C.CONTROL_SAVED:
+                    if a not in cv100.CONTROL_SAVED:
                         regs.set(a, 0)
             self.run, self.jog, self.main_reference = False, None, False
             self.operation_disabled = False
@@ -456,14 +456,14 @@ class CV100Simulator(DriveSimulator):
             self._fault(code)
             self._refresh()
 
-    def status(self) -> C.CV100Status:
+    def status(self) -> cv100.CV100Status:
         with self.lock:
             self.update()
             regs = self.store.holding_registers
-            return C.CV100Status(
-                C.StatusWord1.decode(int(regs.get(C.STATUS_WORD_1))),
-                C.flags(int(regs.get(C.STATUS_WORD_2)), C.STATUS_2_BITS),
-                C.flags(int(regs.get(C.STATUS_WORD_3)), C.STATUS_3_BITS),
+            return cv100.CV100Status(
+                cv100.StatusWord1.decode(int(regs.get(cv100.STATUS_WORD_1))),
+                cv100.flags(int(regs.get(cv100.STATUS_WORD_2)), cv100.STATUS_2_BITS),
+                cv100.flags(int(regs.get(cv100.STATUS_WORD_3)), cv100.STATUS_3_BITS),
             )
 
     # -- the slave ------------------------------------------------------------------------
@@ -490,19 +490,19 @@ class CV100Simulator(DriveSimulator):
 
     def _write_single(self, slave: Slave, unit: int, pdu: bytes) -> bytes:
         address, value = pdus.decode_write_single(pdu)
-        self._write(address, [value], pdu[0] == C.FC_WRITE_SAVE)
+        self._write(address, [value], pdu[0] == cv100.FC_WRITE_SAVE)
         return pdu
 
     def _write_multiple(self, slave: Slave, unit: int, pdu: bytes) -> bytes:
         address, words = pdus.decode_write_registers(pdu)
-        self._write(address, list(words), pdu[0] == C.FC_WRITE_MULTIPLE_SAVE)
+        self._write(address, list(words), pdu[0] == cv100.FC_WRITE_MULTIPLE_SAVE)
         return pdu[:5]
 
     def _write(self, address: int, values: list[int], save: bool) -> None:
         regs = self.store.holding_registers
         self._saving = save
         try:
-            if address >> 8 == C.CONTROL_GROUP:
+            if address >> 8 == cv100.CONTROL_GROUP:
                 for i, v in enumerate(values):  # the ones before a bad one stay written
                     regs.write(address + i, [v])
             else:
@@ -514,16 +514,16 @@ class CV100Simulator(DriveSimulator):
         if len(pdu) != 5:
             raise SlaveException(3, "0x42 carries a sub-function and a data word")
         sub, data = int.from_bytes(pdu[1:3], "big"), int.from_bytes(pdu[3:5], "big")
-        if sub in (C.Manage.UPPER_LIMIT, C.Manage.LOWER_LIMIT, C.Manage.FACTORY_VALUE):
-            if data >> 8 not in C.GROUPS.values() or data & 0xFF >= GROUP_SIZE:
+        if sub in (cv100.Manage.UPPER_LIMIT, cv100.Manage.LOWER_LIMIT, cv100.Manage.FACTORY_VALUE):
+            if data >> 8 not in cv100.GROUPS.values() or data & 0xFF >= GROUP_SIZE:
                 raise SlaveException(2, f"0x{data:04X} is not a function code")
             self.update()
             self._check_access(data, False)
             code = KNOWN.get(data, Code(""))
             value = {0: code.high, 1: code.low, 2: code.default}[sub]
-        elif sub == C.Manage.DISPLAY_ADDRESS:
+        elif sub == cv100.Manage.DISPLAY_ADDRESS:
             value = self.display
-        elif sub == C.Manage.SWITCH_DISPLAY:
+        elif sub == cv100.Manage.SWITCH_DISPLAY:
             if not _STATUS_FIRST <= data <= _STATUS_LAST:
                 raise SlaveException(2, f"0x{data:04X} is not a status parameter")
             self.display = value = data
