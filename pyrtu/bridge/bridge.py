@@ -46,7 +46,7 @@ from pyrtu.core._closing import AsyncService
 from pyrtu.drivers.reconnect import Backoff, Reconnect
 from pyrtu.drivers.supervise import cause, supervise
 
-from ..poller import Point, PointDropped, Poller, PortState, SlaveState, Update
+from ..poller import Point, PointDropped, Poller, PortState, SlaveState, TaskFailed, Update
 from ..poller.points import Value
 from ._outbox_sync import Flusher
 from .commands import CommandQueue
@@ -298,8 +298,8 @@ class Bridge(AsyncService):
     # ------------------------------------------------------------------ the poller's side
 
     def feed(self, ev: Any) -> None:
-        """Take a poller event (`Update`, `SlaveState`, `PointDropped`); the
-        poller's callback, also for values from elsewhere."""
+        """Take a poller event (`Update`, `SlaveState`, `PointDropped`, `PortState`,
+        `TaskFailed`); the poller's callback, also for values from elsewhere."""
         now = time.monotonic()
         if type(ev) is Update:
             p = ev.point
@@ -320,6 +320,9 @@ class Bridge(AsyncService):
             self._emit("dropped", point=ev.point.name, reason=ev.reason)
         elif isinstance(ev, PortState):
             self._port(ev, now)
+        elif isinstance(ev, TaskFailed):  # logged and counted by the poller (its summary)
+            self._emit("task_failed", task=ev.task, error=ev.error,
+                       retry_in=round(ev.retry_in, 3), bus=ev.bus)  # fmt: skip
 
     def _port(self, ev: PortState, now: float) -> None:
         """A bus's port failed or is back (see the module docstring)."""
