@@ -198,6 +198,7 @@ def test_the_sweeper_that_raises_is_reported_counted_and_restarted(
 #: ``pyrtu gateway`` with a bus queue's first pop raising (the patch, then the CLI)
 WRAPPER = """\
 import sys
+from pyrtu.gateway._plan import FairQueue
 real, calls = FairQueue.pop, [0]
 def pop(self):
     calls[0] += 1
@@ -239,6 +240,7 @@ def test_the_gateway_command_shows_a_failed_task_and_serves_on(as_json: bool) ->
                         client = await AsyncTcpClient.connect(url, timeout=10.0)
                         break
                     except OSError:
+                        assert proc.poll() is None, proc.communicate()
                         assert time.monotonic() < give_up, "the gateway never listened"
                         await asyncio.sleep(0.1)
                 try:
