@@ -146,3 +146,34 @@ def test_a_writer_that_fails_answers_its_command_and_takes_the_next(
         assert len(results(cl)) == 2
         (line,) = the_log_lines(caplog, "pyrtu-bridge-writes-line-1")
         assert "TypeError: injected" in line
+
+
+def test_a_poller_bus_task_that_fails_is_a_bridge_event_and_the_values_come_again(
+    tmp_path: Path,
+) -> None:
+    """The poller's bus task (supervised by the poller: logged and counted there) is
+    reported in the bridge's events too, and the values are published again."""
+    with Broker(tmp_path) as broker, drives() as (bus, _sims):
+        cfg = parse_bridge_config(toml(broker.url, bus.paths[0], tmp_path / "ob"), "b.toml")
+        events: list[BridgeEvent] = []
+        with Client(broker, ["pyrtu/e1/#"]) as sub:
+
+            async def main() -> dict[str, Any]:
+                bridge = Bridge(cfg)
+                bridge.on_event(events.append)
+                sched = bridge.poller.scheduler("line")
+                sched.on_response = once(RuntimeError("injected"), sched.on_response)  # type: ignore[method-assign]
+                async with bridge:
+                    await until(lambda: bool(failures(events)), "the failure reported")
+                    mark = {n: len(sub.on(topic(n))) for n in POINTS}
+                    await until(
+                        lambda: all(len(sub.on(topic(n))) > mark[n] for n in ("weg.status",)),
+                        "the values (the first read failed)",
+                    )
+                    return bridge.poller.summary()
+
+            summary = aio_run(main())
+        (failure,) = failures(events)
+        assert failure["task"] == "pyrtu-poll-line" and failure["bus"] == "line"
+        assert failure["error"] == "RuntimeError: injected"
+        assert summary["buses"][0]["task_failures"] == 1

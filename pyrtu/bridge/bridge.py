@@ -28,7 +28,7 @@ when the poller says so).
 
 Every background task (the connection, the stats, the writers) is supervised: a
 failure is logged once with its cause, reported (``task_failed``), counted and the
-task started again after the shared back-off.
+task started again after the shared back-off (`pyrtu.drivers.supervise`).
 """
 
 from __future__ import annotations
@@ -44,8 +44,9 @@ from typing import Any
 
 from pyrtu.core._closing import AsyncService
 from pyrtu.drivers.reconnect import Backoff, Reconnect
+from pyrtu.drivers.supervise import cause, supervise
 
-from ..poller import Point, PointDropped, Poller, PortState, SlaveState, Update
+from ..poller import Point, PointDropped, Poller, PortState, SlaveState, TaskFailed, Update
 from ..poller.points import Value
 from ._outbox_sync import Flusher
 from .commands import CommandQueue
@@ -257,31 +258,18 @@ class Bridge(AsyncService):
         body: Callable[[], Awaitable[None]],
         cleanup: Callable[[], None] | None = None,
     ) -> asyncio.Task[None]:
-        """Run ``body`` as the task ``name``; when it raises, report it
-        (`task_failed`), run ``cleanup`` and start it again after the shared
-        back-off (waits grow while it keeps failing, from the start again once it
-        ran for ``max_backoff`` seconds)."""
+        """Run ``body`` as the task ``name`` under `pyrtu.drivers.supervise`: when it
+        raises, report it (`task_failed`), run ``cleanup`` and start it again after
+        the shared back-off."""
         m = self.config.mqtt
-        retry = Reconnect(Backoff(m.backoff, m.max_backoff))
-
-        async def supervised() -> None:
-            while self._running:
-                began = time.monotonic()
-                try:
-                    await body()
-                    return
-                except Exception as e:
-                    now = time.monotonic()
-                    if now - began >= retry.backoff.maximum:
-                        retry.recovered(now)  # it had run well: a new failure
-                    first = retry.failed(now, e)
-                    wait = retry.wait(now)
-                    self.task_failed(name, e, wait, first)
-                    if cleanup is not None:
-                        cleanup()
-                    await asyncio.sleep(wait)
-
-        return asyncio.create_task(supervised(), name=name)
+        return supervise(
+            name,
+            body,
+            lambda f: self.task_failed(f.task, f.error, f.retry_in, f.first),
+            backoff=Backoff(m.backoff, m.max_backoff),
+            running=lambda: self._running,
+            cleanup=cleanup,
+        )
 
     def task_failed(
         self, task: str, error: BaseException, retry_in: float, first: bool = True
@@ -291,13 +279,13 @@ class Bridge(AsyncService):
         `Reconnect.failed` says) is reported: one log line with the cause and a
         `task_failed` event (the next ones at debug level, as retries are)."""
         self.task_failures += 1
-        cause = f"{type(error).__name__}: {error}" if str(error) else type(error).__name__
+        text = cause(error)
         log.debug("bridge: task %s failed", task, exc_info=error)
         if not first:
-            log.debug("bridge: task %s failed again: %s", task, cause)
+            log.debug("bridge: task %s failed again: %s", task, text)
             return
-        log.error("bridge: task %s failed: %s (restarting in %.2f s)", task, cause, retry_in)
-        self._emit("task_failed", task=task, error=cause, retry_in=round(retry_in, 3))
+        log.error("bridge: task %s failed: %s (restarting in %.2f s)", task, text, retry_in)
+        self._emit("task_failed", task=task, error=text, retry_in=round(retry_in, 3))
 
     def _emit(self, kind: str, **detail: Any) -> None:
         ev = BridgeEvent(kind, time.time(), detail)
@@ -310,8 +298,8 @@ class Bridge(AsyncService):
     # ------------------------------------------------------------------ the poller's side
 
     def feed(self, ev: Any) -> None:
-        """Take a poller event (`Update`, `SlaveState`, `PointDropped`); the
-        poller's callback, also for values from elsewhere."""
+        """Take a poller event (`Update`, `SlaveState`, `PointDropped`, `PortState`,
+        `TaskFailed`); the poller's callback, also for values from elsewhere."""
         now = time.monotonic()
         if type(ev) is Update:
             p = ev.point
@@ -332,6 +320,9 @@ class Bridge(AsyncService):
             self._emit("dropped", point=ev.point.name, reason=ev.reason)
         elif isinstance(ev, PortState):
             self._port(ev, now)
+        elif isinstance(ev, TaskFailed):  # logged and counted by the poller (its summary)
+            self._emit("task_failed", task=ev.task, error=ev.error,
+                       retry_in=round(ev.retry_in, 3), bus=ev.bus)  # fmt: skip
 
     def _port(self, ev: PortState, now: float) -> None:
         """A bus's port failed or is back (see the module docstring)."""

@@ -68,6 +68,11 @@ class DriveLoop:
         """Stop every slave and close its port; returns when the thread has ended."""
         self._thread.stop()
 
+    @property
+    def failure(self) -> BaseException | None:
+        """What ended the drives' event loop while it served (None: it serves)."""
+        return self._thread.died
+
     def error(self, index: int) -> BaseException | None:
         return self.slaves[index].error  # type: ignore[no-any-return]
 

@@ -3,17 +3,28 @@
 The drive's slave (the one on ``--port``, or one without a port when only ``--tcp``
 is given: the drive's functions, handlers and identification over its DataStore)
 served by `pyrtu.gateway.server.TcpServer` from an event loop in a thread of its own.
+
+Supervised: the server's tasks are the gateway's (restarted on the back-off, each
+failure handed to ``on_task``); the thread itself ending while it should serve (its
+loop stopped, or left by a ``SystemExit`` out of a callback) is `failure`, which the
+command checks between its waits and ends on (exit 1, one line).
 """
 
 from __future__ import annotations
 
 import asyncio
+import logging
+import sys
 import threading
+from collections.abc import Callable
 from typing import Any
 
 from pyrtu.core.line import LINE_DEFAULTS, LineConfig
 from pyrtu.drivers.slave_base import SlaveBase
+from pyrtu.drivers.supervise import TaskFailure, cause
 from pyrtu.gateway.server import TcpServer
+
+log = logging.getLogger("pyrtu.cli")
 
 #: `pyrtu.Slave` keywords that belong to the serial line (not to a TCP-only slave)
 _LINE_KEYS = frozenset(LINE_DEFAULTS)
@@ -37,10 +48,19 @@ def tcp_only_slave(sim: Any, address: int) -> SlaveBase:
 class TcpThread:
     """A `TcpServer` for ``app`` on its own event loop thread."""
 
-    def __init__(self, app: Any, host: str, port: int) -> None:
+    def __init__(
+        self,
+        app: Any,
+        host: str,
+        port: int,
+        on_task: Callable[[TaskFailure], None] | None = None,
+    ) -> None:
         self.loop = asyncio.new_event_loop()
-        self.server = TcpServer(app)
-        self._thread = threading.Thread(target=self.loop.run_forever, daemon=True)
+        self.loop.set_exception_handler(self._unhandled)
+        self.server = TcpServer(app, on_task=on_task)
+        self._stopping = False
+        self._failure: BaseException | None = None
+        self._thread = threading.Thread(target=self._main, name="pyrtu-simulate-tcp", daemon=True)
         self._thread.start()
         try:
             asyncio.run_coroutine_threadsafe(self.server.start(host, port), self.loop).result(30)
@@ -48,13 +68,43 @@ class TcpThread:
             self.stop()
             raise
 
+    def _unhandled(self, loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
+        """What the loop could give to no one (a connection's callback that raised;
+        after the thread died, the tasks it left): one line on stderr while it
+        serves, the log (``-v``) with the trace."""
+        error = context.get("exception")
+        text = str(context.get("message", "unhandled error"))
+        if error is not None:
+            text = f"{text}: {cause(error)}"
+        log.debug("TCP server: %s", text, exc_info=error)
+        if self._failure is None and not self._stopping:
+            print(f"pyrtu simulate: TCP server: {text}", file=sys.stderr, flush=True)
+
+    def _main(self) -> None:
+        try:
+            self.loop.run_forever()
+        except BaseException as exc:  # SystemExit, KeyboardInterrupt out of a callback
+            self._failure = exc
+        else:
+            if not self._stopping:
+                self._failure = RuntimeError("its event loop stopped")
+
+    @property
+    def failure(self) -> BaseException | None:
+        """Why the server's thread ended while it should serve (None: it serves)."""
+        return None if self._thread.is_alive() else self._failure
+
     @property
     def address(self) -> tuple[str, int]:
         assert self.server.address is not None
         return self.server.address
 
     def stop(self) -> None:
+        self._stopping = True
         if self.loop.is_closed():
+            return
+        if not self._thread.is_alive():  # it died: nothing runs the loop any more
+            self.loop.close()
             return
         if self.server.address is not None:
             asyncio.run_coroutine_threadsafe(self.server.close(), self.loop).result(30)

@@ -58,6 +58,7 @@ from pyrtu.cli.common import (
     serial_kwargs,
     stop_when_stdout_closes,
 )
+from pyrtu.drivers.supervise import TaskFailure
 from pyrtu.pdu.errors import PortBusyError
 
 #: up to this many connections the gateway runs on `pyrtu.drivers.aio.run`'s select() loop
@@ -266,7 +267,10 @@ async def _serve(args: argparse.Namespace) -> dict[str, Any]:
     try:
         buses += [_bus(spec, args) for spec in args.port]
         gw = gateways.Gateway(
-            list(zip(buses, units, strict=True)), limits, on_bus=lambda ev: _bus_event(args, ev)
+            list(zip(buses, units, strict=True)),
+            limits,
+            on_bus=lambda ev: _bus_event(args, ev),
+            on_task=lambda failure: _task_failed(args, failure),
         )
         host, port = args.listen
         try:
@@ -312,6 +316,17 @@ def _bus_event(args: argparse.Namespace, ev: gateways.BusEvent) -> None:
               "0x0A until it is back (retrying)", file=sys.stderr, flush=True)  # fmt: skip
 
 
+def _task_failed(args: argparse.Namespace, failure: TaskFailure) -> None:
+    """A background task of the gateway raised (it is restarted): one JSON line, or
+    one line on stderr."""
+    if args.json:
+        emit({"type": "task_failed", "task": failure.task, "error": failure.cause,
+              "retry_in": round(failure.retry_in, 3)})  # fmt: skip
+    else:
+        print(f"pyrtu gateway: task {failure.task} failed: {failure.cause} "
+              f"(restarting in {failure.retry_in:.2f} s)", file=sys.stderr, flush=True)  # fmt: skip
+
+
 def _ready(args: argparse.Namespace, gw: gateways.Gateway) -> None:
     assert gw.address is not None
     host, port = gw.address
@@ -346,7 +361,8 @@ def _run(args: argparse.Namespace) -> int:
             f"{stats['busy']} busy, {stats['no_route']} no route, "
             f"{stats['bus_unavailable']} bus unavailable); {stats['bus_failures']} bus "
             f"failures, {stats['bus_recoveries']} recovered; {stats['evicted']} evicted, "
-            f"{stats['header_timeouts']} header and {stats['idle_timeouts']} idle timeouts",
+            f"{stats['header_timeouts']} header and {stats['idle_timeouts']} idle timeouts"
+            + (f"; {stats['task_failures']} task failures" if stats["task_failures"] else ""),
             file=sys.stderr,
         )
     return EXIT_OK

@@ -344,6 +344,7 @@ def _print_summary(out: Output, summary: dict[str, Any], live: bool) -> None:
             f"bus {b['bus']} ({b['port']}): port {b['port_state']}, {b['outages']} outages, "
             f"{b['transactions']} transactions in {b['seconds']} s, "
             f"utilisation {b['utilisation']:.1%}, load {b['load']:.2f}"
+            + (f", {b['task_failures']} task failures" if b.get("task_failures") else "")
         )
     for s in summary["slaves"]:
         lines.append(
@@ -359,10 +360,13 @@ def _print_summary(out: Output, summary: dict[str, Any], live: bool) -> None:
 def describe(ev: Event) -> str:
     """An event (not an update) for people."""
     from pyrtu.poller import Overload, PointDropped, PortState, SlaveState
-    from pyrtu.poller.driver import describe_port
+    from pyrtu.poller.driver import describe_port, describe_task_failed
+    from pyrtu.poller.events import TaskFailed
 
     if isinstance(ev, PortState):
         return describe_port(ev)
+    if isinstance(ev, TaskFailed):
+        return describe_task_failed(ev)
     if isinstance(ev, SlaveState):
         return f"bus {ev.bus}: slave {ev.slave} {'online' if ev.online else 'offline'}"
     if isinstance(ev, PointDropped):

@@ -25,6 +25,14 @@ other drives carry on meanwhile.  The exit status after SIGINT/SIGTERM or
 ``--duration`` is 0 when every port is served at the end, 3 when a port was still
 down (each named on stderr).
 
+Every background part is supervised.  With ``--tcp``, the TCP server's tasks are
+restarted on the back-off when they raise (one line on stderr, "task_failed" in
+``--json``; the requests wait meanwhile).  The thread of the TCP server or of the
+drives' event loop ending while it should serve (nothing is left to answer) ends
+the command at once: one line naming it and its cause ("internal error" in
+``--json``) and exit status 1 (an internal error: the failure is the program's,
+not a port's, so not 3).
+
 Two simulators (or devices) answering one address on one bus garble each
 other's answers: a simulator that hears bytes on the line while it answers, or
 an answer at its own address that it did not send, warns once on stderr
@@ -38,6 +46,7 @@ import inspect
 import sys
 import threading
 import time
+from collections.abc import Sequence
 from typing import Any
 
 from pyrtu.cli._simulate_clash import watch_slave
@@ -45,6 +54,7 @@ from pyrtu.cli._simulate_many import DriveLoop, DriveThread, PortKeeper, PortRep
 from pyrtu.cli._simulate_tcp import TcpThread, tcp_only_slave
 from pyrtu.cli._subcommand import subcommand
 from pyrtu.cli.common import (
+    EXIT_FAILURE,
     EXIT_OK,
     EXIT_PORT,
     add_json_option,
@@ -58,6 +68,7 @@ from pyrtu.cli.common import (
 from pyrtu.cli.gateway import listen_address
 from pyrtu.cli.io import DEVICES
 from pyrtu.drivers._portname import first_duplicate
+from pyrtu.drivers.supervise import TaskFailure, cause
 
 VENDORS = {
     "cfw100": "WEG CFW100",
@@ -173,7 +184,8 @@ def _run(args: argparse.Namespace) -> int:
                 drive = DriveThread(lambda: _watched(args, sim.serve(ports[0], address, **options)))
             if args.tcp is not None:
                 app = drive.slave if drive is not None else tcp_only_slave(sim, address)
-                tcp = TcpThread(app, *args.tcp)
+                host, port = args.tcp
+                tcp = TcpThread(app, host, port, on_task=lambda f: _task_failed(args, f))
                 args.tcp = tcp.address  # the port bound (0: any free port)
         except BaseException:
             sim.close()
@@ -183,14 +195,15 @@ def _run(args: argparse.Namespace) -> int:
         try:
             functions = drive.slave.functions if drive is not None else app.functions
             _ready(args, device, address, sorted(functions))
-            _serve(args, stop, started, keeper, [sim])
+            watched = [] if tcp is None else [("the TCP server", tcp)]
+            died = _serve(args, stop, started, keeper, [sim], watched=watched)
         finally:
             counters = drive.counters if drive is not None else _tcp_counters(tcp)
             if tcp is not None:
                 tcp.stop()
             sim.close()
     _stopped(args, time.monotonic() - started, counters)
-    return _still_down(args, keeper)
+    return _died(args, died) if died else _still_down(args, keeper)
 
 
 def _run_many(
@@ -207,11 +220,12 @@ def _run_many(
         keeper = PortKeeper(drives, ports)
         try:
             _ready(args, device, address, sorted(drives.slaves[0].functions))
-            _serve(args, stop, started, keeper, sims, ports)
+            watched = [("the drives' event loop", drives)]
+            died = _serve(args, stop, started, keeper, sims, ports, watched)
         finally:
             drives.stop()
     _stopped(args, time.monotonic() - started, drives.counters)
-    return _still_down(args, keeper)
+    return _died(args, died) if died else _still_down(args, keeper)
 
 
 def _serve(
@@ -221,13 +235,18 @@ def _serve(
     keeper: PortKeeper | None,
     sims: list[Any],
     ports: list[str] | None = None,
-) -> None:
+    watched: Sequence[tuple[str, Any]] = (),
+) -> str | None:
     """Until a signal or ``--duration``: keep the ports served (``keeper``: a failed
     port is reported once and reopened when it is back), print the ``--watch`` lines
-    (one per drive; with ``ports``, each names its port)."""
+    (one per drive; with ``ports``, each names its port).  Ends early, saying why,
+    when a thread of ``watched`` (what it is, an object with ``failure``) died."""
     deadline = None if args.duration is None else started + args.duration
     next_watch = started + 1.0
     while not stop.is_set():
+        for what, thread in watched:
+            if thread.failure is not None:
+                return f"{what} stopped: {cause(thread.failure)}"
         now = time.monotonic()
         if deadline is not None and now >= deadline:
             break
@@ -245,6 +264,26 @@ def _serve(
         if deadline is not None:
             wake = min(wake, deadline)
         stop.wait(max(0.0, wake - now))
+    return None
+
+
+def _task_failed(args: argparse.Namespace, failure: TaskFailure) -> None:
+    """A task of the TCP server raised (restarted on the back-off): one line on
+    stderr, a JSON event."""
+    text = f"task {failure.task} failed: {failure.cause} (restarting in {failure.retry_in:.2f} s)"
+    print(f"pyrtu simulate: {text}", file=sys.stderr, flush=True)
+    if args.json:
+        emit({"type": "task_failed", "task": failure.task, "error": failure.cause,
+              "retry_in": round(failure.retry_in, 3)})  # fmt: skip
+
+
+def _died(args: argparse.Namespace, why: str) -> int:
+    """A thread that serves died: one line, exit status 1 (an internal error)."""
+    message = f"{why}; nothing answers any more"
+    print(f"pyrtu simulate: internal error: {message}", file=sys.stderr, flush=True)
+    if args.json:
+        emit({"ok": False, "error": "failure", "exit_code": EXIT_FAILURE, "message": message})
+    return EXIT_FAILURE
 
 
 def _watched(args: argparse.Namespace, slave: Any) -> Any:

@@ -10,6 +10,7 @@ by `LoopThread.start`), then the loop serves until `LoopThread.stop`, then ``end
 from __future__ import annotations
 
 import asyncio
+import logging
 import threading
 from collections.abc import Awaitable, Callable, Coroutine
 from typing import Any
@@ -18,6 +19,8 @@ from pyrtu.drivers._slack import tighten_this_thread
 from pyrtu.drivers.aio import new_event_loop
 
 __all__ = ["LoopThread"]
+
+log = logging.getLogger("pyrtu.drivers")
 
 
 class LoopThread:
@@ -35,6 +38,9 @@ class LoopThread:
         self._started = threading.Event()
         self._error: BaseException | None = None
         self._stop: asyncio.Event | None = None
+        #: what ended the loop while it served (a SystemExit or KeyboardInterrupt out
+        #: of a callback: nothing else leaves a running loop); None while it serves
+        self.died: BaseException | None = None
 
     def start(self) -> None:
         """Start the thread; returns once ``begin()`` ended, raising what it raised."""
@@ -59,6 +65,13 @@ class LoopThread:
         asyncio.set_event_loop(self.loop)
         try:
             self.loop.run_until_complete(self._body())
+        except BaseException as exc:  # logged and kept: `died` is for the thread's owner
+            self.died = exc
+            log.error("thread %s: its event loop ended", self._thread.name, exc_info=exc)
+            # the tasks it left are the owner's to report (`died`): to the log only
+            self.loop.set_exception_handler(
+                lambda _loop, context: log.debug("after the loop ended: %s", context)
+            )
         finally:
             self._started.set()  # whatever happened, start() does not wait forever
             self.loop.close()

@@ -58,6 +58,16 @@ autotuned buffer (megabytes on Linux); a reset drops what the kernel still holds
 already on the wire runs to its end (its answer is dropped), the client's waiting
 requests are removed from the queue.
 
+Every background task (the bus workers, the sweeper of timed-out connections)
+is supervised (`pyrtu.drivers.supervise`): a task that raises something unexpected
+(a fault of the gateway itself, not of a bus: those are answered as above) is
+logged once with its cause (one error line per run of failures), reported to
+``on_task`` (a `TaskFailure`), counted (``task_failures``) and started again on the
+shared back-off (``limits.backoff``).  The request the worker was serving is
+answered 0x0B (gateway target device failed to respond) unless its answer was
+already being written; requests for the bus meanwhile wait in its queue (0x06 once
+it is full) and are served when the worker is back; the other buses carry on.
+
 Clients that do not talk cannot hold the connection table (`pyrtu.gateway._live`):
 a request must be complete within ``header_timeout`` (5 s) of its first byte, a
 connection with no request for ``idle_timeout`` (120 s) and nothing waiting is
@@ -71,11 +81,13 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Awaitable, Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Protocol
 
 from pyrtu.drivers.reconnect import Reconnect
+from pyrtu.drivers.supervise import TaskFailure, supervise
 from pyrtu.pdu.errors import (
     GATEWAY_PATH_UNAVAILABLE,
     GATEWAY_TARGET_FAILED,
@@ -184,6 +196,8 @@ class _BusState:
     busy_seconds: float = 0.0
     transactions: int = 0
     reopen: object = field(default=None)
+    #: the request the worker is serving, until its answer is being written
+    current: Job | None = None
 
     def wake(self) -> None:
         waiter = self.waiter
@@ -205,7 +219,8 @@ class Gateway:
     ``buses``: (bus, units) pairs; ``units`` are the unit ids routed to that bus
     (unit id = slave address on the bus), or a mapping unit id -> slave address.
     ``on_bus`` is called with a `BusEvent` when a bus's port fails (once per outage)
-    and when it is back.
+    and when it is back; ``on_task`` with a `TaskFailure` when a background task
+    raised (once per run of failures; it is started again on the back-off).
     ``await start(host, port)`` opens the `ReopeningBus` buses not opened yet (one
     whose port is not there is down: reported once, reopened on the back-off while
     the others serve) and listens; ``address`` is then the (host, port) bound;
@@ -217,6 +232,7 @@ class Gateway:
         buses: Sequence[tuple[Bus, Iterable[int] | Mapping[int, int]]],
         limits: GatewayLimits | None = None,
         on_bus: Callable[[BusEvent], None] | None = None,
+        on_task: Callable[[TaskFailure], None] | None = None,
     ) -> None:
         if not buses:
             raise ValueError("a gateway needs at least one bus")
@@ -236,6 +252,8 @@ class Gateway:
         ]
         self._sweeper: asyncio.Task[None] | None = None
         self.on_bus = on_bus
+        self.on_task = on_task
+        self._running = False
         self._connections: dict[int, _Connection] = {}
         self._next_id = 0
         self._server: asyncio.Server | None = None
@@ -264,6 +282,7 @@ class Gateway:
                 "bus_failures",
                 "bus_recoveries",
                 "bus_unavailable",
+                "task_failures",
             ),
             0,
         )
@@ -296,16 +315,67 @@ class Gateway:
                 raise
             sock = self._rtu_server.sockets[0].getsockname()
             self.rtu_address = (str(sock[0]), int(sock[1]))
+        self._running = True
         for state in self._buses:
-            state.task = asyncio.ensure_future(self._worker(state))
+            state.task = self._supervise(
+                f"pyrtu-gateway-bus-{state.index}", partial(self._worker, state), state
+            )
         lim = self.limits
         timeouts = [t for t in (lim.header_timeout, lim.idle_timeout) if t > 0]
         if timeouts:  # checked a few times per the shorter timeout
             interval = min(1.0, max(0.01, min(timeouts) / 4))
-            self._sweeper = asyncio.ensure_future(self._sweep_every(interval))
+            self._sweeper = self._supervise(
+                "pyrtu-gateway-sweeper", partial(self._sweep_every, interval)
+            )
         return self
 
+    def _supervise(
+        self, name: str, body: Callable[[], Awaitable[None]], state: _BusState | None = None
+    ) -> asyncio.Task[None]:
+        return supervise(
+            name,
+            body,
+            partial(self._task_failed, state),
+            backoff=self.limits.backoff,
+            running=lambda: self._running,
+        )
+
+    def _task_failed(self, state: _BusState | None, failure: TaskFailure) -> None:
+        """A background task raised: count it; the first failure of a run is logged
+        with its cause (the trace at debug level) and handed to ``on_task``; the
+        request a bus worker was serving is answered 0x0B."""
+        self.counters["task_failures"] += 1
+        log.debug("task %s failed", failure.task, exc_info=failure.error)
+        if failure.first:
+            where = "" if state is None else f" (bus {state.name})"
+            log.error(
+                "task %s%s failed: %s (restarting in %.2f s)",
+                failure.task,
+                where,
+                failure.cause,
+                failure.retry_in,
+            )
+            if self.on_task is not None:
+                try:
+                    self.on_task(failure)
+                except Exception:  # the hook's bug: the gateway goes on
+                    log.exception("the on_task hook failed")
+        if state is None:
+            return
+        state.waiter = None
+        job, state.current = state.current, None
+        conn = None if job is None else self._connections.get(job.conn)
+        if job is None or conn is None:
+            return
+        conn.live.answered(time.monotonic())
+        if job.slave != 0:
+            try:
+                self._answer(conn, job.transaction, job.unit, self._target_failed(job))
+            except Exception:
+                log.exception("connection %d: answering after the failure failed", conn.id)
+
     async def close(self) -> None:
+        self._running = False
         for server in (self._server, self._rtu_server):
             if server is not None:
                 server.close()
@@ -466,8 +536,8 @@ class Gateway:
     # ---------------------------------------------------------------- buses
 
     async def _worker(self, state: _BusState) -> None:
-        """One transaction at a time on the bus; never raises but CancelledError (the
-        gateway is closing)."""
+        """One transaction at a time on the bus; a bus's errors are answered, not
+        raised (anything else that raises is the supervisor's: `_task_failed`)."""
         loop = asyncio.get_running_loop()
         queue = state.queue
         connections = self._connections
@@ -486,6 +556,7 @@ class Gateway:
                 continue
             if job.conn not in connections:
                 continue
+            state.current = job
             started = monotonic()
             try:
                 answer = await send(job.slave, job.pdu)
@@ -501,6 +572,7 @@ class Gateway:
             now = monotonic()
             state.transactions += 1
             state.busy_seconds += now - started
+            state.current = None  # from here its answer is being written
             conn = connections.get(job.conn)
             if conn is None:
                 if answer is not None:

@@ -29,12 +29,13 @@ execution step runs under the slave's lock (the serial side runs in its thread).
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from typing import Any, Protocol
 
 from pyrtu.core._closing import AsyncClosing
 from pyrtu.core.line import LineConfig
 from pyrtu.drivers.slave_base import SlaveBase
+from pyrtu.drivers.supervise import TaskFailure
 from pyrtu.gateway._plan import check_listen
 from pyrtu.gateway.gateway import Gateway, GatewayLimits
 from pyrtu.protocol.datastore import DataStore
@@ -97,9 +98,15 @@ class LocalBus:
 
 
 class TcpServer(AsyncClosing):
-    """Serves ``app`` over Modbus TCP (see the module docstring)."""
+    """Serves ``app`` over Modbus TCP (see the module docstring); ``on_task``: as
+    `Gateway`'s (a background task that raised, restarted on the back-off)."""
 
-    def __init__(self, app: Application, limits: GatewayLimits | None = None) -> None:
+    def __init__(
+        self,
+        app: Application,
+        limits: GatewayLimits | None = None,
+        on_task: Callable[[TaskFailure], None] | None = None,
+    ) -> None:
         if not callable(getattr(app, "execute", None)) or not getattr(app, "addresses", None):
             raise TypeError(
                 f"app must have execute(unit, pdu) and addresses, not {type(app).__name__}"
@@ -107,7 +114,7 @@ class TcpServer(AsyncClosing):
         self.app = app
         units = {a: a for a in app.addresses}
         units[UNIT_SELF] = units[UNIT_DIRECT] = min(app.addresses)
-        self._gateway = Gateway([(LocalBus(app), units)], limits)
+        self._gateway = Gateway([(LocalBus(app), units)], limits, on_task=on_task)
 
     @classmethod
     def for_store(

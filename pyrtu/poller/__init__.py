@@ -2,15 +2,15 @@
 
 Layers, sans-I/O up to the driver (time is an input everywhere below `driver`):
 
-============  ===================================================================
+============  =================================================================================
 `points`      `Point`: name, bus, slave, table, address, type, scale, interval
 `config`      `Bus`, `Device`, `PollerConfig`; `load_config` for TOML
 `plan`        coalescing: `plan` points into `Block` reads, `Wire` prices them
 `schedule`    `BusScheduler`: EDF per bus, writes first, slave health, load
-`events`      `Update`, `PortState`, `SlaveState`, `PointDropped`, `Overload`
+`events`      `Update`, `PortState`, `SlaveState`, `PointDropped`, `Overload`, `TaskFailed`
 `driver`      `Poller`: asyncio, one task per bus, ports reopened on back-off
 `thread`      `PollerThread`: the poller on a thread of its own, for sync scripts
-============  ===================================================================
+============  =================================================================================
 
 The rules (coalescing, scheduling, back-off) are in ``docs/POLLER.md``.
 """
@@ -19,7 +19,16 @@ from __future__ import annotations
 
 from .config import Bus, ConfigError, Device, PollerConfig, load_config, make_config, parse_config
 from .driver import Poller, PollerThread, encode_point
-from .events import BusReport, Overload, PointDropped, PortState, SlaveState, SlaveStats, Update
+from .events import (
+    BusReport,
+    Overload,
+    PointDropped,
+    PortState,
+    SlaveState,
+    SlaveStats,
+    TaskFailed,
+    Update,
+)
 from .masters import AsyncMasterLike, ThreadMaster
 from .plan import Block, Cuts, Limits, Wire, merge_pays, plan, split
 from .points import TABLES, TYPES, Point, PointError
@@ -49,6 +58,7 @@ __all__ = [
     "Request",
     "SlaveState",
     "SlaveStats",
+    "TaskFailed",
     "ThreadMaster",
     "Update",
     "Wire",

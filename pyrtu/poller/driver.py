@@ -22,6 +22,12 @@ A port that fails (not opened or connected, a drop unplugged, a TCP peer gone) i
 reported once (`PortState`, one log line), closed and reopened on the back-off of
 `pyrtu.drivers.reconnect` (``backoff`` doubling to ``max_backoff``) while the other
 buses poll on; what failed because the port did is not counted against the slaves.
+
+A bus task that raises anything else (a fault of the poller itself) is supervised
+(`pyrtu.drivers.supervise`): logged once with its cause, reported (`TaskFailed`),
+counted (the bus's ``task_failures`` in `summary`), the transaction it was in
+failed (a write or read waiting on it gets the error; a poll block stays in the
+schedule) and the task started again on the bus's back-off; the other buses poll on.
 """
 
 from __future__ import annotations
@@ -31,14 +37,16 @@ import logging
 import time
 from collections.abc import AsyncIterator, Callable, Iterable, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 from pyrtu.core._closing import AsyncService
 from pyrtu.drivers.reconnect import Backoff, Reconnect
+from pyrtu.drivers.supervise import TaskFailure, supervise
 from pyrtu.pdu.errors import PortError
 
 from .config import Bus, ConfigError, Device, PollerConfig, load_config, make_config
-from .events import BusReport, Event, PortState, SlaveStats, Tracker, Update
+from .events import BusReport, Event, PortState, SlaveStats, TaskFailed, Tracker, Update
 from .masters import BY_FUNCTION, FACTORIES, AsyncMasterLike, is_port_error, open_master
 from .points import Point, Value, encode_point
 from .schedule import BusScheduler, Request
@@ -58,6 +66,11 @@ def describe_port(ev: PortState) -> str:
     return f"bus {ev.bus}: port {ev.port} down: {ev.error} (retrying with back-off)"
 
 
+def describe_task_failed(ev: TaskFailed) -> str:
+    """A `TaskFailed` for people (the log line and the command line's message)."""
+    return f"bus {ev.bus}: task {ev.task} failed: {ev.error} (restarting in {ev.retry_in:.2f} s)"
+
+
 @dataclass
 class _BusRun:
     bus: Bus
@@ -69,6 +82,10 @@ class _BusRun:
     task: asyncio.Task[None] | None = None
     worked: bool = False  # a transaction went through the port since start
     values: int = 0  # values read on this bus since start
+    task_failures: int = 0  # times the bus task raised (each restarted) since start
+    # the transaction the bus task is in, and the write or read waiting on it
+    inflight: Request | None = None
+    inflight_future: asyncio.Future[Any] | None = None
 
     @property
     def port(self) -> str:
@@ -163,7 +180,7 @@ class Poller(AsyncService):
         for run in self._runs.values():
             run.wake = asyncio.Event()
             run.reconnect = Reconnect(run.reconnect.backoff)
-            run.worked, run.values = False, 0
+            run.worked, run.values, run.task_failures = False, 0, 0
         self._running = True
         try:
             for run in self._runs.values():
@@ -175,7 +192,13 @@ class Poller(AsyncService):
         self._t0 = now
         for run in self._runs.values():
             run.sched.reset_stats(now)
-            run.task = asyncio.create_task(self._run_bus(run), name=f"pyrtu-poll-{run.bus.name}")
+            run.task = supervise(
+                f"pyrtu-poll-{run.bus.name}",
+                partial(self._run_bus, run),
+                partial(self._task_failed, run),
+                backoff=run.reconnect.backoff,
+                running=lambda: self._running,
+            )
 
     async def stop(self) -> None:
         """Stop polling and close the masters; pending writes fail with
@@ -256,6 +279,7 @@ class Poller(AsyncService):
                 await self._nap(run, None if dl is None else dl - clock())
                 continue
             fut = run.pending.pop(req.tag, None) if req.tag else None
+            run.inflight, run.inflight_future = req, fut
             due = sched.offline_due(req)
             timer = None if due is None else asyncio.get_running_loop().call_later(
                 max(0.0, due - clock()), self._silent, run, req)  # fmt: skip
@@ -287,8 +311,29 @@ class Poller(AsyncService):
             finally:
                 if timer is not None:
                     timer.cancel()
+            run.inflight = run.inflight_future = None
             if events:
                 self._dispatch(events)
+
+    def _task_failed(self, run: _BusRun, failure: TaskFailure) -> None:
+        """The bus task raised: count it; the first failure of a run is logged (with
+        the traceback at debug level) and reported (`TaskFailed`); the transaction it
+        was in is failed (its poll block stays due)."""
+        run.task_failures += 1
+        req, fut = run.inflight, run.inflight_future
+        run.inflight = run.inflight_future = None
+        if fut is not None and not fut.done():
+            fut.set_exception(failure.error)
+        if req is not None:
+            try:
+                run.sched.on_port_failure(req)
+            except Exception:  # the schedule itself is what fails: the log says so
+                log.exception("bus %s: putting back %r failed", run.bus.name, req)
+        log.debug("bus %s: task %s failed", run.bus.name, failure.task, exc_info=failure.error)
+        if failure.first:
+            now = time.time()
+            self._dispatch([TaskFailed(run.bus.name, failure.task, failure.cause,
+                                       failure.retry_in, now)])  # fmt: skip
 
     def _silent(self, run: _BusRun, req: Request) -> None:
         """``req`` still unanswered at `BusScheduler.offline_due`: its slave is offline."""
@@ -389,6 +434,8 @@ class Poller(AsyncService):
                     self._call(cb, ev)
             elif isinstance(ev, PortState):
                 log.warning("%s", describe_port(ev))
+            elif isinstance(ev, TaskFailed):
+                log.error("%s", describe_task_failed(ev))
             else:
                 log.info("%s", ev)
             for ecb in self._event_cbs:
@@ -418,7 +465,7 @@ class Poller(AsyncService):
 
     def on_event(self, callback: Callable[[Event], None]) -> None:
         """Call ``callback(event)`` for every event: delivered updates, `PortState`,
-        `SlaveState`, `PointDropped`, `Overload`."""
+        `SlaveState`, `PointDropped`, `Overload`, `TaskFailed`."""
         self._event_cbs.append(callback)
 
     async def updates(self) -> AsyncIterator[Update]:
@@ -487,7 +534,7 @@ class Poller(AsyncService):
             outage = run.reconnect.outage
             doc.update(port=run.port, port_state=run.port_state(), outages=run.reconnect.outages,
                        port_error=None if outage is None else outage.error,
-                       values_read=run.values)  # fmt: skip
+                       values_read=run.values, task_failures=run.task_failures)  # fmt: skip
             buses.append(doc)
         return {
             "summary": True,

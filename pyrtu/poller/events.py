@@ -1,9 +1,9 @@
 """What a poller reports: value updates, port and slave state changes, dropped
-points, overload; and the per-point, per-slave and per-bus figures.
+points, overload, a bus task that failed; and the per-point, per-slave and per-bus figures.
 
 Every event but `Update` has ``as_dict()``: its ``pyrtu poll --json`` line, with an
 ``"event"`` key naming its kind (``"port"``, ``"slave"``, ``"dropped"``,
-``"overload"``); an update's line has none (``{"point", "value", "time", "slave",
+``"overload"``, ``"task_failed"``); an update's line has none (``{"point", "value", "time", "slave",
 "bus"}``)."""
 
 from __future__ import annotations
@@ -109,7 +109,26 @@ class Overload:
                 "time": self.time}  # fmt: skip
 
 
-Event = Update | PortState | SlaveState | PointDropped | Overload
+@dataclass(frozen=True, slots=True)
+class TaskFailed:
+    """A bus's task raised something unexpected (a fault of the poller, not of the
+    port or the slaves): ``error`` is its cause (``"Type: message"``); the task
+    starts again in ``retry_in`` seconds (the bus's back-off) while the other buses
+    poll on.  Reported once per run of failures; every failure is counted in the
+    bus's ``task_failures``."""
+
+    bus: str
+    task: str
+    error: str
+    retry_in: float
+    time: float
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"event": "task_failed", "bus": self.bus, "task": self.task, "error": self.error,
+                "retry_in": round(self.retry_in, 3), "time": self.time}  # fmt: skip
+
+
+Event = Update | PortState | SlaveState | PointDropped | Overload | TaskFailed
 
 
 def percentile(sorted_values: list[float], q: float) -> float | None:
@@ -235,6 +254,7 @@ __all__ = [
     "PortState",
     "SlaveState",
     "SlaveStats",
+    "TaskFailed",
     "Tracker",
     "Update",
     "percentile",
