@@ -7,7 +7,6 @@ certificates refused with a clear message."""
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import json
 import time
@@ -17,6 +16,7 @@ from typing import Any
 
 import pytest
 from mqtt_broker import Broker, Client, Gate
+from waiting import wait_for
 
 from pyrtu.bridge import parse_bridge_config
 from pyrtu.bridge.bridge import Bridge, BridgeEvent
@@ -97,11 +97,7 @@ def topic(name: str) -> str:
 
 
 async def until(condition: Callable[[], bool], what: str) -> None:
-    loop = asyncio.get_running_loop()
-    give_up = loop.time() + PATIENCE
-    while not condition():
-        assert loop.time() < give_up, f"gave up waiting for {what}"
-        await asyncio.sleep(0.02)
+    await wait_for(condition, what, PATIENCE)
 
 
 def last(sub: Client, t: str) -> dict[str, Any] | None:

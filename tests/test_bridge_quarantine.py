@@ -6,12 +6,12 @@ counts it, reports it once, and delivers every record behind it to a real broker
 
 from __future__ import annotations
 
-import asyncio
 import json
 from collections.abc import Callable
 from pathlib import Path
 
 from mqtt_broker import Broker, Client
+from waiting import wait_for
 
 from pyrtu.bridge import parse_bridge_config
 from pyrtu.bridge.bridge import Bridge, BridgeEvent
@@ -57,11 +57,7 @@ BAD = {2, 4, 5, 6}
 
 
 async def until(condition: Callable[[], bool], what: str) -> None:
-    loop = asyncio.get_running_loop()
-    give_up = loop.time() + PATIENCE
-    while not condition():
-        assert loop.time() < give_up, f"gave up waiting for {what}"
-        await asyncio.sleep(0.02)
+    await wait_for(condition, what, PATIENCE)
 
 
 def test_an_old_outbox_with_unpublishable_records_delivers_the_rest(tmp_path: Path) -> None:

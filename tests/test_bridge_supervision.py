@@ -7,7 +7,6 @@ reported again, the next command written)."""
 
 from __future__ import annotations
 
-import asyncio
 import json
 import logging
 from collections.abc import Callable
@@ -18,6 +17,7 @@ import pytest
 from mqtt_broker import Broker, Client
 from test_bridge_broker import POINTS, drives, toml, topic
 from test_bridge_writes import BASE, ref, results, rig, wait_results
+from waiting import wait_for
 
 from pyrtu.bridge import parse_bridge_config
 from pyrtu.bridge.bridge import Bridge, BridgeEvent
@@ -27,11 +27,7 @@ PATIENCE = 15.0
 
 
 async def until(condition: Callable[[], bool], what: str) -> None:
-    loop = asyncio.get_running_loop()
-    give_up = loop.time() + PATIENCE
-    while not condition():
-        assert loop.time() < give_up, f"gave up waiting for {what}"
-        await asyncio.sleep(0.02)
+    await wait_for(condition, what, PATIENCE)
 
 
 def failures(events: list[BridgeEvent]) -> list[dict[str, Any]]:

@@ -22,6 +22,7 @@ from typing import Any
 
 import pytest
 from cli_helpers import ROOT, env
+from waiting import wait_for
 
 from pyrtu import pdu
 from pyrtu.devices import CFW701Simulator, CV100Simulator
@@ -43,11 +44,7 @@ CV_ADDRESS = 0x3300
 
 
 async def until(condition: Callable[[], bool], what: str) -> None:
-    loop = asyncio.get_running_loop()
-    give_up = loop.time() + PATIENCE
-    while not condition():
-        assert loop.time() < give_up, f"gave up waiting for {what}"
-        await asyncio.sleep(0.02)
+    await wait_for(condition, what, PATIENCE)
 
 
 def error_lines(caplog: pytest.LogCaptureFixture) -> list[str]:

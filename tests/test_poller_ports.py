@@ -12,6 +12,7 @@ import time
 from collections.abc import Callable
 
 import pytest
+from waiting import wait_for
 
 from pyrtu.cli._simulate_tcp import tcp_only_slave
 from pyrtu.devices import CFW701Simulator, CV100Simulator
@@ -40,12 +41,7 @@ HEALTH: dict[str, object] = dict(offline_after=2, backoff=0.1, max_backoff=0.4)
 
 
 async def until(condition: Callable[[], bool], what: str) -> None:
-    """Wait until ``condition()`` holds (checked every 20 ms); fail after PATIENCE."""
-    loop = asyncio.get_running_loop()
-    give_up = loop.time() + PATIENCE
-    while not condition():
-        assert loop.time() < give_up, f"gave up waiting for {what}"
-        await asyncio.sleep(0.02)
+    await wait_for(condition, what, PATIENCE)
 
 
 def values(events: list[Event], bus: str, start: int = 0) -> int:

@@ -18,6 +18,7 @@ from typing import Any
 
 import pytest
 from cli_helpers import ROOT, env
+from waiting import wait_for
 
 from pyrtu.devices import CFW701Simulator, CV100Simulator
 from pyrtu.devices import weg as weg_map
@@ -34,11 +35,7 @@ HEALTH: dict[str, Any] = dict(offline_after=2, backoff=0.1, max_backoff=0.4)
 
 
 async def until(condition: Callable[[], bool], what: str) -> None:
-    loop = asyncio.get_running_loop()
-    give_up = loop.time() + PATIENCE
-    while not condition():
-        assert loop.time() < give_up, f"gave up waiting for {what}"
-        await asyncio.sleep(0.02)
+    await wait_for(condition, what, PATIENCE)
 
 
 def values(events: list[Event], bus: str, start: int = 0) -> int:

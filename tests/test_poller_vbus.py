@@ -12,6 +12,7 @@ from collections import Counter
 from collections.abc import Callable, Iterator
 
 import pytest
+from waiting import wait_for
 
 from pyrtu.devices import CFW701Simulator, CV100Simulator, DriveSimulator, cv100, weg
 from pyrtu.drivers.aio import AsyncMaster
@@ -39,12 +40,7 @@ PATIENCE = 30.0
 
 
 async def until(condition: Callable[[], bool], what: str) -> None:
-    """Wait until ``condition()`` holds (checked every 20 ms); fail after PATIENCE."""
-    loop = asyncio.get_running_loop()
-    give_up = loop.time() + PATIENCE
-    while not condition():
-        assert loop.time() < give_up, f"gave up waiting for {what}"
-        await asyncio.sleep(0.02)
+    await wait_for(condition, what, PATIENCE)
 
 
 @contextlib.contextmanager

@@ -113,6 +113,8 @@ class Outbox(Flushing):
         self.corrupt_bytes = 0
         self._dir_fd, self._lock_fd = lock_directory(self.directory)
         self._quarantine = Quarantine(self.directory, self._dir_fd)
+        #: the file records are set aside in (made by the first `quarantine`)
+        self.quarantine_path: Path = self._quarantine.path
         self._closed = False
         try:
             self._recover()
@@ -466,11 +468,6 @@ class Outbox(Flushing):
     def quarantined(self) -> int:
         """Records set aside (`quarantine`) since this Outbox was opened."""
         return self._quarantine.count
-
-    @property
-    def quarantine_path(self) -> Path:
-        """The file records are set aside in (made by the first `quarantine`)."""
-        return self._quarantine.path
 
     # -- statistics ------------------------------------------------------------
 

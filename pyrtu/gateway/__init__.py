@@ -7,46 +7,7 @@ queue, sans-I/O), `_live.py` (timeouts, eviction), `_conn.py` (one connection),
 
 from __future__ import annotations
 
-from pyrtu.gateway.gateway import (
-    CLOSE_GRACE,
-    HEADER_TIMEOUT,
-    IDLE_TIMEOUT,
-    MAX_CONNECTIONS,
-    MAX_QUEUED_PER_BUS,
-    MAX_QUEUED_PER_CONNECTION,
-    MAX_WRITE_BUFFER,
-    Bus,
-    BusEvent,
-    FairQueue,
-    Gateway,
-    GatewayLimits,
-    Job,
-    QueueFull,
-    ReopeningBus,
-    Routes,
-    close_bus,
-    exception_pdu,
-    parse_units,
-)
+from pyrtu.gateway import gateway
+from pyrtu.gateway.gateway import *  # noqa: F403  (the names of its __all__)
 
-__all__ = [
-    "CLOSE_GRACE",
-    "HEADER_TIMEOUT",
-    "IDLE_TIMEOUT",
-    "MAX_CONNECTIONS",
-    "MAX_QUEUED_PER_BUS",
-    "MAX_QUEUED_PER_CONNECTION",
-    "MAX_WRITE_BUFFER",
-    "Bus",
-    "BusEvent",
-    "FairQueue",
-    "Gateway",
-    "GatewayLimits",
-    "Job",
-    "QueueFull",
-    "ReopeningBus",
-    "Routes",
-    "close_bus",
-    "exception_pdu",
-    "parse_units",
-]
+__all__ = list(gateway.__all__)

@@ -5,18 +5,7 @@ options (`pyrtu.tcp.sockets`).
 
 from __future__ import annotations
 
-from pyrtu.tcp.client import (
-    DEFAULT_PORT,
-    AsyncTcpClient,
-    TcpClient,
-    parse_tcp_url,
-    rtu_over_tcp,
-)
+from pyrtu.tcp import client
+from pyrtu.tcp.client import *  # noqa: F403  (the names of its __all__)
 
-__all__ = [
-    "DEFAULT_PORT",
-    "AsyncTcpClient",
-    "TcpClient",
-    "parse_tcp_url",
-    "rtu_over_tcp",
-]
+__all__ = list(client.__all__)
