@@ -189,7 +189,7 @@ def section(rows: list[dict[str, Any]], cmd: str) -> str:
         HEADING,
         "",
         f"`{cmd}`, {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC, "
-        f"load average {load:.1f} on {os.cpu_count()} cores (other jobs running).",
+        f"load average {load:.1f} on {os.cpu_count()} cores.",
         "",
         "An MQTT client publishes a set of the CV100's main setting (QoS 1, a new value "
         "each time) and times it until the read-back value arrives on the point's topic "
@@ -214,11 +214,11 @@ def section(rows: list[dict[str, Any]], cmd: str) -> str:
         "small packet that follows an unacknowledged one waits for the peer's delayed "
         "ACK (40 ms on Linux): pyrtu sets it on every TCP socket it opens or accepts "
         "(`pyrtu.tcp.sockets.set_nodelay`), and docs/BRIDGE.md tells users to set "
-        "`set_tcp_nodelay true` in mosquitto.conf.  With either one off, the p50 grew by "
-        "30 ms in the run recorded (a delayed ACK on one hop); with both off, by 55 ms.  The "
-        "absolute figures include the scheduling delays of five processes (client, broker, "
-        "bridge, hub, drive) on a loaded machine: issue 27 measured p50 3.2 ms with both "
-        "set on an idle one.",
+        "`set_tcp_nodelay true` in mosquitto.conf.  Either one off costs one delayed ACK "
+        "on a hop; both off, two.  The figures include the scheduling of five processes "
+        "(client, broker, bridge, hub, drive).  Issue 27 measured a p50 of 3.2 ms with "
+        "both set; where this setup's remaining milliseconds go (the drive's turnaround, "
+        "the outbox's fsync batch, the bridge's loop) is not yet broken down.",
         "",
     ]
     return "\n".join(lines)
