@@ -38,6 +38,7 @@ ROOT = BENCH.parent
 sys.path[:0] = [str(ROOT / "tests"), str(BENCH)]
 
 import paho.mqtt.client as paho  # noqa: E402
+import results_md  # noqa: E402
 from mqtt_broker import Broker  # noqa: E402
 from paho.mqtt.enums import CallbackAPIVersion  # noqa: E402
 
@@ -47,7 +48,6 @@ from pyrtu.bridge.topics import payload, record, split_record  # noqa: E402
 from pyrtu.drivers.aio import run as aio_run  # noqa: E402
 from pyrtu.poller import Point, Poller, SlaveState, Update  # noqa: E402
 
-RESULTS = BENCH / "RESULTS.md"
 HEADING = "## Bridge (issue 19)"
 BAUD = 115200
 #: the unplug run's poll interval per drive
@@ -910,18 +910,6 @@ def section(r: dict[str, Any], cmd: str) -> str:
     return "\n".join(L)
 
 
-def write_section(text: str) -> None:
-    """The section replaced where it is (or added at the end)."""
-    old = RESULTS.read_text()
-    i = old.find(HEADING)
-    if i < 0:
-        RESULTS.write_text(old.rstrip("\n") + "\n\n" + text)
-        return
-    j = old.find("\n## ", i + len(HEADING))
-    rest = old[j + 1 :] if j >= 0 else ""
-    RESULTS.write_text(old[:i] + text.rstrip("\n") + "\n" + ("\n" + rest if rest else ""))
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0] if __doc__ else None)
     ap.add_argument("--updates", type=int, default=100_000)
@@ -958,7 +946,9 @@ def main() -> None:
     )
     ns = ap.parse_args()
     if ns.section:
-        write_section(section(json.loads((BENCH / "bridge_results.json").read_text()), ns.section))
+        results_md.write_section(
+            HEADING, section(json.loads((BENCH / "bridge_results.json").read_text()), ns.section)
+        )
         return
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
@@ -997,7 +987,9 @@ def main() -> None:
             res["machine_earlier"] = old.get("machine_earlier", old.get("machine"))
         if ns.write:
             (BENCH / "bridge_results.json").write_text(json.dumps(res, indent=1) + "\n")
-            write_section(section(res, " ".join(["python bench/bench_bridge.py", *sys.argv[1:]])))
+            results_md.write_section(
+                HEADING, section(res, " ".join(["python bench/bench_bridge.py", *sys.argv[1:]]))
+            )
 
 
 if __name__ == "__main__":

@@ -40,10 +40,10 @@ ROOT = BENCH.parent
 sys.path[:0] = [str(ROOT / "tests"), str(BENCH)]
 
 import paho.mqtt.client as paho  # noqa: E402
+import results_md  # noqa: E402
 from mqtt_broker import Broker  # noqa: E402
 from paho.mqtt.enums import CallbackAPIVersion  # noqa: E402
 
-RESULTS = BENCH / "RESULTS.md"
 HEADING = "## Set round trip and TCP_NODELAY (issue 27.6)"
 BAUD = 115200
 TOPIC = "pyrtu/rt/b0/5/ref"
@@ -224,18 +224,6 @@ def section(rows: list[dict[str, Any]], cmd: str) -> str:
     return "\n".join(lines)
 
 
-def write_section(text: str) -> None:
-    """The section replaced where it is (or added at the end)."""
-    old = RESULTS.read_text()
-    i = old.find(HEADING)
-    if i < 0:
-        RESULTS.write_text(old.rstrip("\n") + "\n\n" + text)
-        return
-    j = old.find("\n## ", i + len(HEADING))
-    rest = old[j + 1 :] if j >= 0 else ""
-    RESULTS.write_text(old[:i] + text.rstrip("\n") + "\n" + ("\n" + rest if rest else ""))
-
-
 def main() -> None:
     import bench_client
 
@@ -257,7 +245,7 @@ def main() -> None:
     text = section(rows, cmd.strip())
     print(text)
     if ns.write:
-        write_section(text)
+        results_md.write_section(HEADING, text)
 
 
 if __name__ == "__main__":
