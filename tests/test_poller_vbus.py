@@ -275,19 +275,35 @@ def test_two_buses_at_once() -> None:
                         return n["fast"] == 5 and n["slow"] == 4 and all(done)
 
                     await until(seen, "both buses")
-                    return events, poller.summary()
+                    blocks = {
+                        b.name: [(k.table, k.count, k.interval) for k in poller.scheduler(b.name).blocks]
+                        for b in buses
+                    }
+                    return events, poller.summary(), blocks
             finally:
                 s1.close()
                 s2.close()
 
-    events, summary = asyncio.run(main())
+    events, summary, blocks = asyncio.run(main())
     by_bus = Counter(e.point.bus for e in events if isinstance(e, Update))
     assert by_bus["fast"] == 5 and by_bus["slow"] == 4  # every point, change-only
     buses = summary["buses"]
     assert isinstance(buses, list) and [b["bus"] for b in buses] == ["fast", "slow"]
     assert all(b["transactions"] > 5 for b in buses)
-    # the 19200-baud line is busier for the same rates
-    assert buses[1]["load"] > buses[0]["load"]
+    # Each bus's load is at least the wire time its blocks need at their rates and at
+    # most that plus a full timeout per transaction: the measured turnaround, which a
+    # loaded machine stretches, lies between.  The wire time from the Serial Line
+    # spec: 10 bits a character at least (start, 8 data, stop), t3.5 3.5 characters
+    # up to 19200 baud and 1.75 ms above (2.5.1.1); a request of 8 bytes, an answer
+    # of 5 + 2 x count (Application Protocol 6.3, 6.4).
+    for b, baud, timeout in zip(buses, (BAUD, 19200), (0.05, 0.1), strict=True):
+        char = 10 / baud
+        t35 = 3.5 * char if baud <= 19200 else 0.00175
+        wire = [(t35 + (8 + 5 + 2 * count) * char, interval) for _t, count, interval in blocks[b["bus"]]]
+        assert blocks[b["bus"]] and all(t == "holding" for t, _c, _i in blocks[b["bus"]])
+        low = sum(w / i for w, i in wire)
+        high = sum((w + timeout) / i for w, i in wire)
+        assert low <= b["load"] <= high, (b["bus"], low, b["load"], high)
 
 
 def test_ascii_mode() -> None:
