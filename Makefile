@@ -30,7 +30,7 @@ test: setup
 setup: $(STAMP)
 
 # Debian packages the tests need (libmodbus peers, socat pty pairs, the MQTT broker,
-# strace for the outbox's durability tests: tests/test_bridge_durability.py).
+# strace for the outbox's durability tests: tests/bridge/test_bridge_durability.py).
 system-packages:
 	@missing=""; for p in $(APT_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
 	if [ -n "$$missing" ]; then \

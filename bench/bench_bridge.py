@@ -825,7 +825,7 @@ def section(r: dict[str, Any], cmd: str) -> str:
             f"apart, on a bus polled flat out; arrival at the bridge to the answer: p50 "
             f"{_f(wr['arrival_to_answer_p50_ms'], 2)} ms); one FC 06 transaction "
             f"{_f(wr['transaction_ms'], 2)} ms; expired commands executed: 0 "
-            f"(tests/test_bridge_writes.py) | "
+            f"(tests/bridge/test_bridge_writes.py) | "
             f"{'yes' if wr['p50_ms'] <= 5 + wr['transaction_ms'] else 'no'} |"
         )
     L += [

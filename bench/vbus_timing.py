@@ -2,7 +2,7 @@
 
     .venv/bin/python bench/vbus_timing.py [runs]      # default 20 runs per baud rate
 
-Each run is one measurement of tests/test_vbus_timing.py (the same code): the bare
+Each run is one measurement of tests/vbus/test_vbus_timing.py (the same code): the bare
 pty latency of this machine (one-byte writes 1 ms apart, the same reader process),
 then a 256-byte 8E1 frame written to drop0 in one call and read on drop1.  Prints,
 per baud rate, the median over the runs of each figure, and how many runs met every

@@ -6,7 +6,7 @@
  * and tables are printed in Appendix B ("CRC calculation using tables") of the
  * WEG CFW100 and CFW701 Modbus RTU manuals.  The printed tables are damaged in
  * our copies, so the tables below are generated from the reflected polynomial
- * 0xA001 by csrc/gen_crc_tables.py (tests/test_crc.py regenerates all 512
+ * 0xA001 by csrc/gen_crc_tables.py (tests/core/test_crc.py regenerates all 512
  * entries and checks every legible printed entry against them).
  *
  * Paths (all compute the standard CRC value, incrementally):

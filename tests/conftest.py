@@ -25,8 +25,11 @@ BACKENDS = ("c", "python")
 #: there.  Keep this short; anything CI can install belongs in the Makefile
 #: (APT_PACKAGES) or in pyproject.toml's test extras instead.
 ALLOWED_SKIPS: dict[tuple[str, str], str] = {
-    ("tests/test_ptimer.py", "timerfd is Linux's"): "a Linux-only timer (CI runs on Linux)",
-    ("tests/test_slave_driver.py", "no prctl timer slack"): "prctl is Linux's (CI runs on Linux)",
+    ("tests/drivers/test_ptimer.py", "timerfd is Linux's"): "a Linux-only timer (CI runs on Linux)",
+    (
+        "tests/drivers/test_slave_driver.py",
+        "no prctl timer slack",
+    ): "prctl is Linux's (CI runs on Linux)",
 }
 
 

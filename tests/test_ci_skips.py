@@ -34,7 +34,7 @@ def test_never():
     pass
 """,
     # an allowed skip: this file and these words are in ALLOWED_SKIPS
-    "test_ptimer.py": """
+    "drivers/test_ptimer.py": """
 import pytest
 
 def test_linux_only():
@@ -47,13 +47,14 @@ def run(
     pytester: pytest.Pytester,
     monkeypatch: pytest.MonkeyPatch,
     ci: str | None,
-    files: tuple[str, ...] = ("test_some.py", "test_ptimer.py"),
+    files: tuple[str, ...] = ("test_some.py", "drivers/test_ptimer.py"),
 ) -> pytest.RunResult:
     tests = pytester.path / "tests"
     tests.mkdir()
     for name in ("conftest.py", "c_core.py"):
         shutil.copy(HERE / name, tests / name)
     for name in files:
+        (tests / name).parent.mkdir(exist_ok=True)
         (tests / name).write_text(TESTS[name])
     if ci is None:
         monkeypatch.delenv("CI", raising=False)

@@ -523,7 +523,7 @@ def test_simulate_one_drive_per_port_in_one_process() -> None:
         bg = Background(*args, "-a", 7, "--json")
         try:
             assert '"type": "ready"' in bg.line(timeout=10)
-            b.unplug(1)  # reported once and retried (tests/test_simulate_ports.py) ...
+            b.unplug(1)  # reported once and retried (tests/cli/test_simulate_ports.py) ...
             assert '"type": "port_lost"' in bg.line(timeout=10)
             bg.proc.send_signal(signal.SIGTERM)
             r = bg.finish()

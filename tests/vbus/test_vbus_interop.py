@@ -16,7 +16,7 @@ import pytest
 from pyrtu import add_crc
 from pyrtu.vbus import VirtualBus, load_capture
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def env() -> dict[str, str]:

@@ -141,7 +141,7 @@ def test_usb_batched_frame_across_a_gap(backend: ModuleType) -> None:
 
 #: an FC 03 answer of 4 registers (13 bytes) whose first 12 bytes also end in a CRC
 #: that checks: CRC16(03 03 08 03ff 0400 0401 04) = 0x0302.  Seen on the virtual bus
-#: under load (tests/test_aio_master.py, slave 3 at register 23): the 13th byte came
+#: under load (tests/drivers/test_aio_master.py, slave 3 at register 23): the 13th byte came
 #: after a t3.5 gap and the master took the 12 bytes as an answer, "response PDU has 9
 #: bytes, expected 10".
 PREFIX_CHECKS = bytes.fromhex("03 03 08 03ff 0400 0401 0402 0300")

@@ -128,7 +128,7 @@ def trace(tmp_path_factory: pytest.TempPathFactory) -> Trace:
     tmp = tmp_path_factory.mktemp("durability")
     directory = (tmp / "ob").resolve()
     log = tmp / "trace"
-    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[2]))
     r = subprocess.run(
         [strace, "-f", "-y", "-s", "64", "-e", "signal=none",
          "-e", "trace=openat,write,pwrite64,fdatasync,fsync,unlink,unlinkat",

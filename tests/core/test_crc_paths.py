@@ -1,4 +1,4 @@
-"""Every C CRC path at every length 0..1100 and 8 alignments (tests/csrc/crc_paths.c).
+"""Every C CRC path at every length 0..1100 and 8 alignments (tests/core/csrc/crc_paths.c).
 
 The SIMD folding functions hand short messages to the slicing code (below 48 / 64
 bytes); built a second time with the thresholds lowered to the least the folding
@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 LOWERED = [
     "-DRTU_CLMUL_MIN=16",
     "-DRTU_VCLMUL_MIN=2",
@@ -37,13 +37,13 @@ def _build(tmp_path: Path, defines: list[str]) -> Path:
     cc = _compiler()
     exe = tmp_path / "crc_paths"
     base = [cc, "-std=c99", "-O1", "-Wall", "-Wextra", "-Werror", f"-I{ROOT / 'csrc'}"]
-    sources = [str(ROOT / "tests/csrc/crc_paths.c"), str(ROOT / "csrc/rtu_crc.c")]
+    sources = [str(ROOT / "tests/core/csrc/crc_paths.c"), str(ROOT / "csrc/rtu_crc.c")]
     for extra in (SANITIZE, []):
         cmd = [*base, *extra, *defines, *sources, "-o", str(exe)]
         if subprocess.run(cmd, capture_output=True, text=True).returncode == 0:
             return exe
     res = subprocess.run(cmd, capture_output=True, text=True)
-    pytest.fail(f"cannot compile tests/csrc/crc_paths.c:\n{res.stderr}")
+    pytest.fail(f"cannot compile tests/core/csrc/crc_paths.c:\n{res.stderr}")
 
 
 def _cpu_has_pclmul() -> bool:

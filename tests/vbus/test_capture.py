@@ -27,7 +27,7 @@ from pyrtu.vbus.capture import (
     stream_frames,
 )
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "bench"))
 
 import capsynth  # noqa: E402

@@ -1,4 +1,4 @@
-"""The outbox's on-disk format, pinned by golden files (tests/data/outbox/README.md).
+"""The outbox's on-disk format, pinned by golden files (tests/bridge/data/outbox/README.md).
 
 An outbox directory written once by the format-1 writer is read back to the records
 written literally here (an upgrade can read an older outbox); the current writer

@@ -41,7 +41,7 @@ def segments(d: Path) -> list[Path]:
 
 
 def run_child(code: str, *args: str) -> subprocess.CompletedProcess[bytes]:
-    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[2]))
     return subprocess.run(
         [sys.executable, "-c", textwrap.dedent(code), *args], capture_output=True, env=env
     )

@@ -35,7 +35,7 @@ from pyrtu.vbus import VirtualBus  # noqa: E402
 
 BAUD = 115200
 DEV = 7
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 rng = random.Random(20)
 SAMPLES = [b"", b"\x01", b"\x02\x07", *(rng.randbytes(n) for n in (8, 25, 64, 255, 256, 300))]
 

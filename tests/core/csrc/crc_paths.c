@@ -2,7 +2,7 @@
  * every length 0..1100 and 8 alignments, each message in a heap block of its
  * exact size so that AddressSanitizer sees any read past either end.
  *
- * Built by tests/test_crc_paths.py twice: with the production thresholds and
+ * Built by tests/core/test_crc_paths.py twice: with the production thresholds and
  * with -DRTU_CLMUL_MIN=16 -DRTU_VCLMUL_MIN=2 -DRTU_DISPATCH_CLMUL=1
  * -DRTU_DISPATCH_VCLMUL=2, so that the folding code runs at every length it
  * accepts, not only from 48 / 64 bytes on.

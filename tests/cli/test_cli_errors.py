@@ -22,7 +22,7 @@ from pyrtu.protocol.datastore import DataStore
 from pyrtu.vbus import BusDirectoryBusy, VirtualBus
 from pyrtu.vbus.capture import RECORD
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "bench"))
 
 import capsynth  # noqa: E402

@@ -163,7 +163,7 @@ def test_sigkill_with_the_flusher_thread_loses_no_durable_record(
     """A child appends flat out and flushes on the thread; SIGKILL at some point:
     every record its loop was told durable is there, intact, in order."""
     d = tmp_path / "ob"
-    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[2]))
     proc = subprocess.Popen([sys.executable, "-c", CHILD, str(d)], stdout=subprocess.PIPE, env=env)
     assert proc.stdout is not None
     assert proc.stdout.readline().startswith(b"R ")

@@ -276,7 +276,9 @@ def test_two_buses_at_once() -> None:
 
                     await until(seen, "both buses")
                     blocks = {
-                        b.name: [(k.table, k.count, k.interval) for k in poller.scheduler(b.name).blocks]
+                        b.name: [
+                            (k.table, k.count, k.interval) for k in poller.scheduler(b.name).blocks
+                        ]
                         for b in buses
                     }
                     return events, poller.summary(), blocks
@@ -299,7 +301,9 @@ def test_two_buses_at_once() -> None:
     for b, baud, timeout in zip(buses, (BAUD, 19200), (0.05, 0.1), strict=True):
         char = 10 / baud
         t35 = 3.5 * char if baud <= 19200 else 0.00175
-        wire = [(t35 + (8 + 5 + 2 * count) * char, interval) for _t, count, interval in blocks[b["bus"]]]
+        wire = [
+            (t35 + (8 + 5 + 2 * count) * char, interval) for _t, count, interval in blocks[b["bus"]]
+        ]
         assert blocks[b["bus"]] and all(t == "holding" for t, _c, _i in blocks[b["bus"]])
         low = sum(w / i for w, i in wire)
         high = sum((w + timeout) / i for w, i in wire)

@@ -27,7 +27,7 @@ import pyrtu
 from pyrtu.core import crcshapes as _crcshapes
 from pyrtu.core._pure import crc as twin
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 POLY = 0xA001
 
 

@@ -151,7 +151,7 @@ def test_fsync_is_batched_one_per_flush_not_per_record(tmp_path: Path) -> None:
         """
     )
     trace = tmp_path / "trace"
-    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[2]))
     r = subprocess.run(
         [strace, "-f", "-e", "trace=fdatasync,fsync,write", "-e", "signal=none",
          "-o", str(trace), sys.executable, "-c", code, str(tmp_path / "ob")],
@@ -200,7 +200,7 @@ CHILD = textwrap.dedent(
 
 
 def _run_child_and_kill(d: Path, seed: int, rng: random.Random, budget: int) -> list[list[int]]:
-    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[2]))
     proc = subprocess.Popen(
         [sys.executable, "-c", CHILD, str(d), str(seed), str(budget)],
         stdout=subprocess.PIPE,
@@ -447,7 +447,7 @@ def test_second_outbox_on_the_same_directory_is_refused(tmp_path: Path) -> None:
         ob.close()
         """
     )
-    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[2]))
     proc = subprocess.Popen(
         [sys.executable, "-c", holder, str(d)],
         stdin=subprocess.PIPE,
