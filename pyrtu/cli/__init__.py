@@ -12,12 +12,14 @@ arguments to its parser, and a function that runs it and returns the exit status
         ...
         return 0
 
-The built-in commands live here, one module per concern; each declares its
-`common.CommandSpec` tuples in ``COMMANDS`` and this module registers them:
+The registry and `main` live in `app`; the built-in commands one module per
+concern, each declaring its `common.CommandSpec` tuples in ``COMMANDS``, which
+`app` registers:
 
 =================  ==================================================================
 module             commands
 =================  ==================================================================
+`app`              the registry, `build_parser`, `main`
 `common`           shared: serial options, exit codes, errors, ``--json``, signals
 `io`               ``read``, ``write``
 `poll`             ``poll`` (`poll_config`: ``poll --config``, `poll_table`: its table)
@@ -33,156 +35,6 @@ module             commands
 The exit codes are those of `pyrtu.cli.common` (``pyrtu --help`` lists them).
 """
 
-from __future__ import annotations
-
-import argparse
-import logging
-import sys
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
-
-from pyrtu._startup import started
-from pyrtu.cli import poll_config
-from pyrtu.cli.common import (
-    EXIT_INTERRUPTED,
-    EXIT_OK,
-    EXIT_USAGE,
-    JsonErrorParser,
-    exit_code_table,
-    silence_stdout,
-)
+from pyrtu.cli.app import COMMANDS, Command, build_parser, command, main, register
 
 __all__ = ["COMMANDS", "Command", "build_parser", "command", "main", "register"]
-
-Configure = Callable[[argparse.ArgumentParser], None]
-Run = Callable[[argparse.Namespace], int]
-
-
-@dataclass(frozen=True)
-class Command:
-    """A ``pyrtu`` subcommand."""
-
-    name: str
-    help: str
-    configure: Configure
-    run: Run
-    description: str | None = None
-
-
-#: The registered subcommands, in the order they are listed by ``--help``.
-COMMANDS: dict[str, Command] = {}
-
-
-def register(
-    name: str, help: str, configure: Configure, run: Run, description: str | None = None
-) -> Command:
-    """Add (or replace) a subcommand."""
-    cmd = Command(name, help, configure, run, description)
-    COMMANDS[name] = cmd
-    return cmd
-
-
-def command(
-    name: str, help: str, configure: Configure, description: str | None = None
-) -> Callable[[Run], Run]:
-    """Decorator form of `register` for the run function."""
-
-    def deco(run: Run) -> Run:
-        register(name, help, configure, run, description)
-        return run
-
-    return deco
-
-
-def build_parser() -> argparse.ArgumentParser:
-    parser = JsonErrorParser(
-        prog="pyrtu",
-        description="Modbus RTU toolkit (pyrtu): read, write, poll, scan, identify, sniff, "
-        "simulate drives, run a virtual RS-485 bus, and a demo without hardware.\n\n"
-        "Many points on many buses: pyrtu poll --config points.toml (the poller; "
-        "--duration S, --json).\nEach command's options: pyrtu COMMAND --help.",
-        epilog=exit_code_table(),
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    try:
-        from pyrtu._version import __version__ as version
-    except ImportError:  # pragma: no cover - package half-installed
-        version = "unknown"
-    parser.add_argument("--version", action="version", version=f"pyrtu {version}")
-    parser.add_argument(
-        "-v",
-        "--verbose",
-        action="count",
-        default=0,
-        help="log what pyrtu does on stderr (-vv: every frame sent and received)",
-    )
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for cmd in COMMANDS.values():
-        p = sub.add_parser(
-            cmd.name,
-            help=cmd.help,
-            description=cmd.description or cmd.help,
-            formatter_class=argparse.RawDescriptionHelpFormatter,
-        )
-        cmd.configure(p)
-        p.set_defaults(_run=cmd.run)
-    return parser
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Run the command line; returns the exit status."""
-    argv = list(argv) if argv is not None else sys.argv[1:]
-    if poll_config.wants(argv):  # ``pyrtu poll --config FILE``: the poller
-        return poll_config.main(argv, _logging)  # (it ends the start-up itself)
-    parser = build_parser()
-    JsonErrorParser.json_errors = "--json" in argv
-    args = parser.parse_args(argv)
-    _logging(args.verbose)
-    run: Run | None = getattr(args, "_run", None)
-    if run is None:
-        parser.print_help(sys.stderr)
-        return EXIT_USAGE
-    started()  # Ctrl-C: quiet status 130 until here (pyrtu._startup), the command's from now
-    try:
-        code = run(args)
-    except KeyboardInterrupt:
-        return EXIT_INTERRUPTED
-    except BrokenPipeError:  # output piped into head, less, ...
-        silence_stdout()
-        return EXIT_OK
-    try:  # a command that stopped quietly on a closed pipe may leave output buffered
-        sys.stdout.flush()
-    except BrokenPipeError:
-        silence_stdout()
-    return code
-
-
-def _logging(verbose: int) -> None:
-    """The commands report their errors themselves: the library's log is shown
-    only when asked (-v: info, -vv: debug, with the frames)."""
-    level = {0: logging.CRITICAL, 1: logging.INFO}.get(verbose, logging.DEBUG)
-    handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(logging.Formatter("%(relativeCreated)9.1f ms %(name)s: %(message)s"))
-    logger = logging.getLogger("pyrtu")
-    logger.handlers[:] = [handler]
-    logger.setLevel(level)
-    logger.propagate = False
-
-
-def _register_builtins() -> None:
-    from pyrtu.cli import demo, info, io, poll, scan, simulate, sniff, vbus
-
-    for module in (io, poll, scan, info, sniff, simulate, vbus, demo):
-        for spec in module.COMMANDS:
-            register(*spec)
-    from pyrtu.cli import gateway
-
-    for spec in gateway.COMMANDS:
-        register(*spec)
-    from pyrtu.cli import bridge
-
-    for spec in bridge.COMMANDS:
-        register(*spec)
-
-
-_register_builtins()
