@@ -11,7 +11,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 APT_PACKAGES := libmodbus-dev pkg-config socat mosquitto mosquitto-clients strace
 
-.PHONY: demo test test-asan bench lint mutate mutate-faults setup system-packages fuzz fuzz-ci fuzz-build fuzz-packages \
+.PHONY: demo test test-asan bench docs lint mutate mutate-faults setup system-packages fuzz fuzz-ci fuzz-build fuzz-packages \
 	fuzz-python fuzz-outbox
 
 # Developer targets compile the C core with -Werror (PYRTU_STRICT_BUILD=1, read by
@@ -80,9 +80,13 @@ mutate: setup
 mutate-faults: setup
 	$(PY) mutate/run.py faults
 
+# The documentation site (mkdocs.yml) into build/site; --strict: a warning fails it.
+docs: setup
+	NO_MKDOCS_2_WARNING=1 $(PY) -m mkdocs build --strict
+
 lint: setup
-	$(PY) -m ruff check pyrtu tests bench mutate
-	$(PY) -m ruff format --check pyrtu tests bench mutate
+	$(PY) -m ruff check pyrtu tests bench mutate docs/hooks.py
+	$(PY) -m ruff format --check pyrtu tests bench mutate docs/hooks.py
 	$(PY) -m mypy
 
 # libFuzzer harnesses (fuzz/*.c) built with clang and ASan/UBSan.  The seeds in

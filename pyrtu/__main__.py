@@ -2,4 +2,5 @@
 
 from pyrtu.cli import main
 
-raise SystemExit(main())
+if __name__ == "__main__":  # imported (by a documentation tool, say): nothing runs
+    raise SystemExit(main())

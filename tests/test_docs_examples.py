@@ -1,7 +1,8 @@
 """The examples of README.md and docs/*.md run as a reader runs them, so the docs
 cannot drift from the code (#27.15).
 
-One reader's session: README.md from top to bottom, then docs/*.md in name order,
+One reader's session: README.md from top to bottom, then the pages of the
+documentation site in the order of its navigation (mkdocs.yml),
 in one scratch directory (the working directory and ``HOME``), with nothing the
 documents do not set up themselves: no bus, drive, port or file is made by the test.
 What a block needs comes from the blocks before it (the README starts its virtual bus,
@@ -82,7 +83,21 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+
+
+def _reading_order() -> list[Path]:
+    """The README (the site's landing page), then the pages of mkdocs.yml's navigation
+    in its order: the order a reader of the site follows.  (The benchmarks page and the
+    API reference carry no examples of their own.)"""
+    nav = (ROOT / "mkdocs.yml").read_text().split("\nnav:", 1)[1]
+    pages = re.findall(r"^\s*- (?:[^:\n]+: )?(\S+\.md)\s*$", nav, re.M)
+    skip = {"index.md", "benchmarks.md"}
+    return [ROOT / "README.md"] + [
+        ROOT / "docs" / p for p in pages if p not in skip and not p.startswith("reference/")
+    ]
+
+
+DOCS = _reading_order()
 RUN_TIMEOUT = 90.0  # a command or script that has not ended by then never ends
 READY_TIMEOUT = 20.0  # a background command's shown lines
 TCP_PORTS = ("5020", "5021")

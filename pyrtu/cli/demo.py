@@ -369,7 +369,7 @@ class Demo:
             now = "--" if cfw.hz is None else f"{cfw.hz:.2f}"
             self.say(f"the CFW701 is at {now} Hz: ramping to {TARGET_HZ:g} Hz when the run ended")
         print(
-            f"next: {pyrtu_command()} --help; the same bus by hand: README.md, "
+            f"next: {pyrtu_command()} --help; the same bus by hand: docs/cli.md, "
             '"A session without hardware"',
             file=sys.stderr,
         )

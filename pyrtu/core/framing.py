@@ -329,6 +329,18 @@ class StreamParser(Protocol):
     ) -> FrameList: ...
 
 
+F = TypeVar("F", bound=Callable[..., object])
+
+
+def public(function: F) -> F:
+    """Name a backend's function by its public path (``pyrtu.NAME``): the function a
+    factory below makes is what ``pyrtu`` exports, and introspection (``help()``, the
+    documentation's API reference) should say so, not ``make_...<locals>``."""
+    function.__module__ = "pyrtu"
+    function.__qualname__ = function.__name__
+    return function
+
+
 def make_parse_stream(parse: StreamParser) -> Callable[..., FrameList]:
     """The public parse_stream of a backend, around its ``parse(options, data, ...)``."""
 
@@ -359,7 +371,7 @@ def make_parse_stream(parse: StreamParser) -> Callable[..., FrameList]:
         offsets, us = stream_times(len(raw), times, chunks)
         return parse(options, raw, offsets, us)
 
-    return parse_stream
+    return public(parse_stream)
 
 
 def make_char_timing(compute: Callable[[CoreOptions], Timing]) -> Callable[..., Timing]:
@@ -387,4 +399,4 @@ def make_char_timing(compute: Callable[[CoreOptions], Timing]) -> Callable[..., 
         )
         return compute(options)
 
-    return char_timing
+    return public(char_timing)

@@ -19,7 +19,7 @@ from typing import Protocol
 from pyrtu.core._types import BytesLike
 from pyrtu.core.feed import feed_all
 from pyrtu.core.frames import FrameKind, LazyFrames, Reason
-from pyrtu.core.framing import EventQueue, as_bytes
+from pyrtu.core.framing import EventQueue, as_bytes, public
 from pyrtu.core.options import ROLES
 
 HEADER_LEN = 7
@@ -278,7 +278,7 @@ def make_parse_tcp_stream(
         code = check_role(role)
         return parse(code, as_bytes(data))
 
-    return parse_tcp_stream
+    return public(parse_tcp_stream)
 
 
 def make_encode_mbap(
@@ -290,4 +290,4 @@ def make_encode_mbap(
         """MBAP header (protocol id 0, length = 1 + len(pdu)) and ``pdu``."""
         return encode(transaction, unit, check_header_args(transaction, unit, pdu))
 
-    return encode_mbap
+    return public(encode_mbap)

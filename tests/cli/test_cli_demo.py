@@ -58,8 +58,9 @@ def test_demo_plain_lines_reach_30_hz() -> None:
     assert re.search(r"bus: \d+ transactions \(\d+/s\), 0 errors", out)
     # the newcomer's next step: a pyrtu command that runs from here (after make demo
     # the virtual environment is not activated: .venv/bin/pyrtu, not a bare pyrtu)
-    hint = re.search(r"^next: (.+) --help; the same bus by hand: README.md", r.err, re.M)
+    hint = re.search(r'^next: (.+) --help; the same bus by hand: (\S+), "(.+)"$', r.err, re.M)
     assert hint, r.err
+    assert hint.group(3) in (ROOT / hint.group(2)).read_text()  # the page says it
     version = subprocess.run(
         [*hint.group(1).split(), "--version"], cwd=ROOT, env=env(), capture_output=True, text=True
     )
