@@ -139,9 +139,9 @@ def _logging(verbose: int) -> None:
 
 
 def _register_builtins() -> None:
-    from pyrtu.cli import demo, info, io, poll, scan, simulate, sniff, vbus
+    from pyrtu.cli import bench, demo, info, io, poll, scan, simulate, sniff, vbus
 
-    for module in (io, poll, scan, info, sniff, simulate, vbus, demo):
+    for module in (io, poll, scan, info, sniff, simulate, vbus, demo, bench):
         for spec in module.COMMANDS:
             register(*spec)
     from pyrtu.cli import gateway
