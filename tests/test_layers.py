@@ -31,6 +31,7 @@ ALLOWED: dict[str, set[str]] = {
     "gateway": TRANSPORTS | {"gateway"},
     "poller": TRANSPORTS | {"devices", "poller"},
     "bridge": TRANSPORTS | {"devices", "poller", "bridge"},
+    "metrics": TRANSPORTS | {"gateway", "poller", "bridge", "metrics"},
 }
 #: the root modules (the package's face) and their homes
 FACES = {
