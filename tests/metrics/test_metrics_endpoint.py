@@ -298,3 +298,48 @@ def test_bridge_exposition_health_and_no_password(tmp_path: Path) -> None:
             sim.close()
     assert PASSWORD not in "".join(bridge.err) + "".join(bridge.out)
     assert code == 0
+
+
+# ---------------------------------------------------------------------- supervision
+
+
+class Quiet:
+    """A source with nothing wrong and nothing to say."""
+
+    def collect(self) -> list[Any]:
+        return []
+
+    def health(self) -> list[str]:
+        return []
+
+
+def test_the_http_server_that_fails_is_reported_and_started_again() -> None:
+    from pyrtu.drivers.supervise import TaskFailure
+    from pyrtu.metrics.server import MetricsServer
+
+    reports: list[TaskFailure] = []
+    port = free_port()
+    server = MetricsServer("127.0.0.1", port, "test", report=reports.append)
+    real = server._httpd.serve_forever
+    calls = 0
+
+    def fails_once(poll_interval: float = 0.5) -> None:
+        nonlocal calls
+        calls += 1
+        if calls == 1:
+            raise RuntimeError("the first serve_forever breaks")
+        real(poll_interval)
+
+    server._httpd.serve_forever = fails_once  # type: ignore[method-assign]
+    try:
+        server.serve(Quiet())
+        until(lambda: serving(f"127.0.0.1:{port}"), "served again after the failure")
+        assert health(f"127.0.0.1:{port}") == (200, "ok\n")
+        (failure,) = reports
+        assert failure.task == "pyrtu-metrics-http" and failure.first
+        assert failure.cause == "RuntimeError: the first serve_forever breaks"
+        assert calls == 2
+    finally:
+        server.close()
+    with socket.create_server(("127.0.0.1", port)):  # the port is released
+        pass
