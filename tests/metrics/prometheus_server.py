@@ -1,6 +1,6 @@
 """A real Prometheus for the metrics tests (Debian's ``prometheus``): started on a
 free loopback port with a generated configuration that scrapes the given targets
-every 250 ms, queried through its HTTP API (``/api/v1/query``), stopped by pid.
+every 500 ms, queried through its HTTP API (``/api/v1/query``), stopped by pid.
 
     with Prometheus(tmp_path, ["127.0.0.1:9101"]) as prom:
         prom.wait("pyrtu_poll_transactions_total", lambda v: v >= 10, "transactions")
@@ -28,7 +28,7 @@ import pytest
 
 PROMETHEUS = shutil.which("prometheus") or "/usr/bin/prometheus"
 #: the scrape interval (Prometheus accepts milliseconds)
-INTERVAL = "250ms"
+INTERVAL = "500ms"
 #: a safety net for conditions awaited, not a measurement
 PATIENCE = 30.0
 

@@ -47,19 +47,21 @@ def test_the_poller_scraped_counts_what_the_simulator_answered(tmp_path: Path) -
             until(lambda: serving(address), "the endpoint")
             with Prometheus(tmp_path, [address]) as prom:
                 line = '{bus="line1",slave="1"}'
-                prom.wait(f"pyrtu_poll_responses_total{line}", lambda v: v >= 20, "20 answers")
-                scraped = prom.value(f"pyrtu_poll_responses_total{line}")
+                scraped = prom.wait(f"pyrtu_poll_responses_total{line}", lambda v: v >= 20, "20")
                 answered = slave.counters["responses"]  # the simulator's own account
-                assert scraped is not None and 20 <= scraped <= answered
+                assert scraped <= answered
                 # every answer was a transaction on the bus and one latency observed
-                transactions = prom.value('pyrtu_poll_transactions_total{bus="line1"}')
-                assert transactions is not None and transactions >= 20
-                observed = prom.value(f"pyrtu_poll_latency_seconds_count{line}")
-                assert observed is not None and 20 <= observed <= slave.counters["responses"]
-                assert prom.value("pyrtu_poll_errors_total{kind='timeout',bus='line1'}") == 0
-                assert prom.value('pyrtu_poll_points_stale{bus="line1"}') == 0
-                assert prom.value("pyrtu_healthy") == 1
-                assert prom.value('up{job="pyrtu"}') == 1
+                prom.wait('pyrtu_poll_transactions_total{bus="line1"}', lambda v: v >= 20, "20")
+                observed = prom.wait(
+                    f"pyrtu_poll_latency_seconds_count{line}", lambda v: v >= 20, "20 latencies"
+                )
+                assert observed <= slave.counters["responses"]
+                prom.wait(
+                    "pyrtu_poll_errors_total{kind='timeout',bus='line1'}", lambda v: v == 0, "it"
+                )
+                prom.wait('pyrtu_poll_points_stale{bus="line1"}', lambda v: v == 0, "it")
+                prom.wait("pyrtu_healthy", lambda v: v == 1, "it")
+                prom.wait('up{job="pyrtu"}', lambda v: v == 1, "it")
 
                 sim.close()  # the drive goes silent: timeouts, offline, every point stale
                 prom.wait(
@@ -73,8 +75,8 @@ def test_the_poller_scraped_counts_what_the_simulator_answered(tmp_path: Path) -
                 )
                 prom.wait(f"pyrtu_poll_slave_online{line}", lambda v: v == 0, "offline")
                 # a silent slave is no fault of the command: its port and tasks are up
-                assert prom.value('pyrtu_poll_port_up{bus="line1"}') == 1
-                assert prom.value("pyrtu_healthy") == 1
+                prom.wait('pyrtu_poll_port_up{bus="line1"}', lambda v: v == 1, "it")
+                prom.wait("pyrtu_healthy", lambda v: v == 1, "it")
         finally:
             code = stop(poll)
             sim.close()
@@ -102,13 +104,13 @@ def test_the_gateway_scraped_counts_the_client_requests(tmp_path: Path) -> None:
                 finally:
                     master.close()
                 on_bus = f'{{bus="{bus.paths[0]}"}}'
-                assert prom.value(f"pyrtu_gateway_bus_transactions_total{on_bus}") == 30
-                assert prom.value("pyrtu_gateway_answers_total") == 30
+                prom.wait(f"pyrtu_gateway_bus_transactions_total{on_bus}", lambda v: v == 30, "it")
+                prom.wait("pyrtu_gateway_answers_total", lambda v: v == 30, "it")
                 latency = f'pyrtu_gateway_latency_seconds_count{{bus="{bus.paths[0]}",slave="1"}}'
-                assert prom.value(latency) == 30
-                assert prom.value('pyrtu_gateway_errors_total{kind="timeout"}') == 0
+                prom.wait(latency, lambda v: v == 30, "it")
+                prom.wait('pyrtu_gateway_errors_total{kind="timeout"}', lambda v: v == 0, "it")
                 prom.wait("pyrtu_gateway_clients_connected", lambda v: v == 0, "no client")
-                assert prom.value("pyrtu_healthy") == 1
+                prom.wait("pyrtu_healthy", lambda v: v == 1, "it")
         finally:
             code = stop(gateway)
             sim.close()
@@ -130,12 +132,12 @@ def test_simulate_tcp_scraped_counts_requests_and_clients(tmp_path: Path) -> Non
                 second.read_holding_registers(1, 680, 1)
                 prom.wait("pyrtu_simulate_tcp_requests_total", lambda v: v == 26, "26 requests")
                 prom.wait("pyrtu_simulate_tcp_clients_connected", lambda v: v == 2, "two clients")
-                assert prom.value("pyrtu_simulate_tcp_connections_total") == 2
+                prom.wait("pyrtu_simulate_tcp_connections_total", lambda v: v == 2, "it")
             finally:
                 first.close()
                 second.close()
             prom.wait("pyrtu_simulate_tcp_clients_connected", lambda v: v == 0, "no client")
-            assert prom.value("pyrtu_healthy") == 1
+            prom.wait("pyrtu_healthy", lambda v: v == 1, "it")
     finally:
         code = stop(simulate)
     assert code == 0
@@ -190,7 +192,7 @@ def test_the_bridge_scraped_outbox_and_broker(tmp_path: Path) -> None:
                 prom.wait("pyrtu_bridge_broker_connected", lambda v: v == 1, "connected")
                 prom.wait("pyrtu_bridge_acknowledged_total", lambda v: v >= 5, "acknowledged")
                 prom.wait('pyrtu_poll_responses_total{slave="1"}', lambda v: v >= 5, "polled")
-                assert prom.value("pyrtu_healthy") == 1
+                prom.wait("pyrtu_healthy", lambda v: v == 1, "it")
                 broker.kill()  # the updates (max_age 0.2 s) pile up in the outbox
                 prom.wait("pyrtu_bridge_broker_connected", lambda v: v == 0, "disconnected")
                 prom.wait("pyrtu_bridge_outbox_depth", lambda v: v >= 10, "a backlog")
