@@ -9,7 +9,7 @@ PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
-APT_PACKAGES := libmodbus-dev pkg-config socat mosquitto mosquitto-clients strace
+APT_PACKAGES := libmodbus-dev pkg-config socat mosquitto mosquitto-clients strace prometheus
 
 .PHONY: demo test test-asan bench docs lint mutate mutate-faults setup system-packages fuzz fuzz-ci fuzz-build fuzz-packages \
 	fuzz-python fuzz-outbox
@@ -30,7 +30,8 @@ test: setup
 setup: $(STAMP)
 
 # Debian packages the tests need (libmodbus peers, socat pty pairs, the MQTT broker,
-# strace for the outbox's durability tests: tests/bridge/test_bridge_durability.py).
+# strace for the outbox's durability tests: tests/bridge/test_bridge_durability.py,
+# prometheus scraping --metrics: tests/metrics/).
 system-packages:
 	@missing=""; for p in $(APT_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
 	if [ -n "$$missing" ]; then \

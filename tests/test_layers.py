@@ -32,6 +32,7 @@ ALLOWED: dict[str, set[str]] = {
     "poller": TRANSPORTS | {"devices", "poller"},
     "bridge": TRANSPORTS | {"devices", "poller", "bridge"},
     "bench": TRANSPORTS | {"vbus", "bench"},
+    "metrics": TRANSPORTS | {"gateway", "poller", "bridge", "metrics"},
 }
 #: the root modules (the package's face) and their homes
 FACES = {

@@ -124,6 +124,7 @@ class Bridge(AsyncService):
         self._resume: set[tuple[str, int]] = set()
         self._event_cbs: list[Callable[[BridgeEvent], None]] = []
         self._tasks: list[asyncio.Task[None]] = []
+        self._polling = False  # start(poll=True): the poller runs
         self._flusher: Flusher | None = None
         self._ack_pending = False
         self._lost_ev: asyncio.Event | None = None  # made in start (loop-bound)
@@ -168,6 +169,7 @@ class Bridge(AsyncService):
         self._stop = asyncio.Event()
         self._lost_ev = asyncio.Event()
         self.poller.on_event(self.feed)
+        self._polling = poll
         try:
             if poll:
                 await self.poller.start()
@@ -680,6 +682,25 @@ class Bridge(AsyncService):
             "commands": self.writer.stats(),
             "buses": [r.as_dict() for r in self.poller.report()],
         }
+
+    def health(self) -> list[str]:
+        """What keeps the bridge from doing its work, one line each (empty: it
+        polls, its tasks run, the outbox is open and the broker connected): the
+        poller's problems (`Poller.health`), a fatal error, the broker not
+        connected (no secret in the lines: the broker's URL has none)."""
+        if not self._running:
+            return ["the bridge is not running"]
+        problems = list(self.poller.health()) if self._polling else []
+        if self.fatal is not None:
+            problems.append(f"fatal: {self.fatal}")
+        if self._outbox is None:
+            problems.append("the outbox is closed")
+        for task in self._tasks:
+            if task.done():
+                problems.append(f"task {task.get_name()} is not running")
+        if not self._connected():
+            problems.append(f"broker {self.config.mqtt.broker} not connected")
+        return problems
 
     async def _stats_loop(self) -> None:
         import json

@@ -17,7 +17,8 @@ or the broker was never reached during the whole run (the updates stay in the
 outbox for the next run; an ``mqtts://`` broker that breaks off the TLS handshake
 is named with a hint: a plain MQTT broker does).
 With ``--json``: one JSON object per event (broker down/up, slave online/offline,
-stats) on stdout.
+stats) on stdout.  With ``--metrics HOST:PORT``: Prometheus metrics on /metrics and
+a health check on /healthz (docs/METRICS.md).
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ from pyrtu.cli.common import (
     report_error,
     seconds,
 )
+from pyrtu.metrics.address import add_metrics_option, open_metrics
 
 
 def _configure(p: argparse.ArgumentParser) -> None:
@@ -68,6 +70,7 @@ def _configure(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--json", action="store_true", help="one JSON object per event (and the stats) on stdout"
     )
+    add_metrics_option(p)
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -116,7 +119,12 @@ def _run(args: argparse.Namespace) -> int:
         return EXIT_USAGE
     from pyrtu.drivers.aio import run as aio_run
 
-    return int(aio_run(_serve(cfg, args)))
+    args.metrics_server = open_metrics(args.metrics, "bridge")  # before anything opens
+    try:
+        return int(aio_run(_serve(cfg, args)))
+    finally:
+        if args.metrics_server is not None:
+            args.metrics_server.close()
 
 
 async def _serve(cfg: Any, args: argparse.Namespace) -> int:
@@ -161,6 +169,10 @@ async def _serve(cfg: Any, args: argparse.Namespace) -> int:
                 raise
             print(f"pyrtu bridge: error: {e}", file=sys.stderr)
             return EXIT_PORT
+        if args.metrics_server is not None:
+            from pyrtu.metrics.bridge import BridgeSource
+
+            args.metrics_server.serve(BridgeSource(bridge, loop))
         fatal = bridge.halted
         waits = [asyncio.ensure_future(stop.wait()), asyncio.ensure_future(fatal.wait())]
         try:

@@ -32,6 +32,8 @@ requests get 0x0A while it is down (counted as "bus unavailable"); it is
 buses carry on, and logged again when it is back.
 
 Runs until SIGINT/SIGTERM or --duration (exit 0), then prints the counters.
+With --metrics HOST:PORT: Prometheus metrics on /metrics and a health check on
+/healthz (docs/METRICS.md).
 """
 
 from __future__ import annotations
@@ -59,6 +61,7 @@ from pyrtu.cli.common import (
     stop_when_stdout_closes,
 )
 from pyrtu.drivers.supervise import TaskFailure
+from pyrtu.metrics.address import add_metrics_option, open_metrics
 from pyrtu.pdu.errors import PortBusyError
 
 #: up to this many connections the gateway runs on `pyrtu.drivers.aio.run`'s select() loop
@@ -191,6 +194,7 @@ def _configure(p: argparse.ArgumentParser) -> None:
         "is back), stopped (with the counters)",
     )
     add_serial_options(p, timeout=0.5)
+    add_metrics_option(p)
 
 
 def _same_port(port: str) -> str:
@@ -284,6 +288,10 @@ async def _serve(args: argparse.Namespace) -> dict[str, Any]:
             loop.add_signal_handler(sig, stop.set)
         unwatch = stop_when_stdout_closes(loop, stop)  # | head -1
         started = time.monotonic()
+        if args.metrics_server is not None:
+            from pyrtu.metrics.gateway import GatewaySource
+
+            args.metrics_server.serve(GatewaySource(gw, loop))
         _ready(args, gw)
         try:
             await asyncio.wait_for(stop.wait(), args.duration)
@@ -345,12 +353,17 @@ def _ready(args: argparse.Namespace, gw: gateways.Gateway) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    if args.max_connections <= SELECT_LOOP_CONNECTIONS:
-        from pyrtu.drivers.aio import run as aio_run
+    args.metrics_server = open_metrics(args.metrics, "gateway")  # before anything opens
+    try:
+        if args.max_connections <= SELECT_LOOP_CONNECTIONS:
+            from pyrtu.drivers.aio import run as aio_run
 
-        stats = aio_run(_serve(args))
-    else:
-        stats = asyncio.run(_serve(args))
+            stats = aio_run(_serve(args))
+        else:
+            stats = asyncio.run(_serve(args))
+    finally:
+        if args.metrics_server is not None:
+            args.metrics_server.close()
     if args.json:
         emit({"type": "stopped", **stats})
     else:

@@ -10,6 +10,8 @@ one per event (``"event"``: ``"port"`` up/down, ``"slave"`` online/offline,
 object (``updates``: the update lines printed; ``values_read``: every value read;
 per bus the port's state and utilisation, per slave the counts and state).
 Otherwise one line per update, the events on stderr and the summary at the end.
+With ``--metrics HOST:PORT``: Prometheus metrics on /metrics and a health check on
+/healthz (docs/METRICS.md).
 
 A port that fails (cannot be opened or connected, unplugged, a TCP peer gone) is
 reported once and opened again with back-off while the other buses poll on.
@@ -53,6 +55,7 @@ from pyrtu.cli.common import (
 )
 from pyrtu.cli.live_view import same_terminal, terminal_size
 from pyrtu.cli.poll_table import LiveTable, fmt_value, ms
+from pyrtu.metrics.address import MetricsError, add_metrics_option, open_metrics
 
 if TYPE_CHECKING:
     from pyrtu.poller import Poller
@@ -104,6 +107,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="deliver every value read, not only changes")  # fmt: skip
     p.add_argument("--refresh", type=positive_seconds, default=0.5, metavar="SECONDS",
                    help="live table refresh period on a terminal (default 0.5 s)")  # fmt: skip
+    add_metrics_option(p)
     return p
 
 
@@ -131,6 +135,13 @@ def main(argv: Sequence[str], setup_logging: Callable[[int], None] | None = None
         if ns.json:  # errors come as JSON too (README, "--json")
             emit({**error_document(e, EXIT_USAGE), "message": f"config error: {e}"})
         return EXIT_USAGE
+    try:  # bound before any port opens: a port in use is a usage error
+        ns.metrics_server = open_metrics(ns.metrics, "poll")
+    except MetricsError as e:
+        print(f"pyrtu poll: error: {e}", file=sys.stderr)
+        if ns.json:
+            emit(error_document(e, EXIT_USAGE))
+        return EXIT_USAGE
     out = Output()
     started()  # Ctrl-C: quiet status 130 until here (pyrtu._startup), a normal end from now
     try:
@@ -146,6 +157,9 @@ def main(argv: Sequence[str], setup_logging: Callable[[int], None] | None = None
             code = report_error("poll", exc, False)
             if ns.json and not out.closed:
                 out.json(error_document(exc, code))
+    finally:
+        if ns.metrics_server is not None:
+            ns.metrics_server.close()
     if out.closed:
         # the reader went away (| head): Python flushes stdout at exit, so point it
         # at /dev/null for that not to fail too
@@ -294,6 +308,10 @@ async def _run(poller: Poller, ns: argparse.Namespace, out: Output) -> int:
         handler.setStream(view.above(sys.stderr))
     try:
         await poller.start()
+        if ns.metrics_server is not None:
+            from pyrtu.metrics.poller import PollerSource
+
+            ns.metrics_server.serve(PollerSource(poller, loop))
         end = None if ns.duration is None else loop.time() + ns.duration
         while not stop.is_set():
             wait = ns.refresh if end is None else min(ns.refresh, end - loop.time())

@@ -33,6 +33,10 @@ the command at once: one line naming it and its cause ("internal error" in
 ``--json``) and exit status 1 (an internal error: the failure is the program's,
 not a port's, so not 3).
 
+With ``--metrics HOST:PORT``: Prometheus metrics on /metrics (the drives'
+counters, each port's state, with ``--tcp`` the connected clients) and a health
+check on /healthz (docs/METRICS.md).
+
 Two simulators (or devices) answering one address on one bus garble each
 other's answers: a simulator that hears bytes on the line while it answers, or
 an answer at its own address that it did not send, warns once on stderr
@@ -69,6 +73,7 @@ from pyrtu.cli.gateway import listen_address
 from pyrtu.cli.io import DEVICES
 from pyrtu.drivers._portname import first_duplicate
 from pyrtu.drivers.supervise import TaskFailure, cause
+from pyrtu.metrics.address import add_metrics_option, open_metrics
 
 VENDORS = {
     "cfw100": "WEG CFW100",
@@ -148,6 +153,29 @@ def _configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--watch", action="store_true", help="print frequency and status every second")
     add_json_option(p, "JSON lines: ready, status (--watch), stopped")
     add_serial_options(p, timeout=None)
+    add_metrics_option(p)
+
+
+def _run_metered(args: argparse.Namespace) -> int:
+    """`_run`, with ``--metrics`` bound before any port opens and closed after."""
+    args.metrics_server = open_metrics(args.metrics, "simulate")
+    try:
+        return _run(args)
+    finally:
+        if args.metrics_server is not None:
+            args.metrics_server.close()
+
+
+def _serve_metrics(
+    args: argparse.Namespace, counters: Any, keeper: Any, tcp: Any, watched: Any
+) -> None:
+    """Answer ``--metrics`` from now on (docs/METRICS.md)."""
+    if args.metrics_server is not None:
+        from pyrtu.metrics.simulate import SimulateSource
+
+        down = keeper.down if keeper is not None else list
+        source = SimulateSource(counters, args.ports, down, tcp, watched)
+        args.metrics_server.serve(source)
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -196,6 +224,8 @@ def _run(args: argparse.Namespace) -> int:
             functions = drive.slave.functions if drive is not None else app.functions
             _ready(args, device, address, sorted(functions))
             watched = [] if tcp is None else [("the TCP server", tcp)]
+            serial = (lambda: drive.counters) if drive is not None else None
+            _serve_metrics(args, serial, keeper, tcp, watched)
             died = _serve(args, stop, started, keeper, [sim], watched=watched)
         finally:
             counters = drive.counters if drive is not None else _tcp_counters(tcp)
@@ -221,6 +251,7 @@ def _run_many(
         try:
             _ready(args, device, address, sorted(drives.slaves[0].functions))
             watched = [("the drives' event loop", drives)]
+            _serve_metrics(args, lambda: drives.counters, keeper, None, watched)
             died = _serve(args, stop, started, keeper, sims, ports, watched)
         finally:
             drives.stop()
@@ -401,7 +432,7 @@ COMMANDS = (
         "simulate",
         "run a simulated drive (cfw100, cfw320, cfw701, cv100, act, acu) on a port",
         _configure,
-        _run,
+        _run_metered,
         __doc__,
     ),
 )

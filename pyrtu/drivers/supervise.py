@@ -7,8 +7,8 @@ right, and the body starts again after the shared back-off of
 `pyrtu.drivers.reconnect`.  A run of failures is one outage: ``report`` is told
 which failure is the ``first`` (report it: a log line, an event) and which are
 the next (count them, debug level); a body that ran ``maximum`` seconds before it
-failed again begins a new run.  Used by the bridge, the poller's bus tasks and the
-gateway's bus workers and sweeper.
+failed again begins a new run.  Used by the bridge, the poller's bus tasks, the
+gateway's bus workers and sweeper, and the ``--metrics`` HTTP server.
 """
 
 from __future__ import annotations

@@ -253,6 +253,10 @@ class Gateway:
         self._sweeper: asyncio.Task[None] | None = None
         self.on_bus = on_bus
         self.on_task = on_task
+        #: called with (bus name, slave, seconds) for every answered transaction of a
+        #: bus worker (a response or an exception response; not broadcasts): the
+        #: latency histograms of ``--metrics``
+        self.on_latency: Callable[[str, int, float], None] | None = None
         self._running = False
         self._connections: dict[int, _Connection] = {}
         self._next_id = 0
@@ -421,6 +425,31 @@ class Gateway:
             ),
         }
 
+    def bus_names(self) -> list[str]:
+        """The buses' names, in the order of `stats`' per-bus lists."""
+        return [s.name for s in self._buses]
+
+    def health(self) -> list[str]:
+        """What keeps the gateway from serving, one line each (empty: its listeners
+        listen, its tasks run and every bus is up)."""
+        if not self._running:
+            return ["the gateway is not running"]
+        problems = []
+        for flag, server in (("listener", self._server), ("RTU listener", self._rtu_server)):
+            if server is not None and not server.is_serving():
+                problems.append(f"the {flag} is closed")
+        tasks = [(f"bus {s.name}", s.task) for s in self._buses]
+        if self._sweeper is not None:
+            tasks.append(("the sweeper", self._sweeper))
+        for what, task in tasks:
+            if task is None or task.done():
+                problems.append(f"{what}: its task is not running")
+        for state in self._buses:
+            outage = state.reconnect.outage
+            if state.reconnect.down and outage is not None:
+                problems.append(f"bus {state.name} down: {outage.error}")
+        return problems
+
     # ---------------------------------------------------------- connections
 
     def _opened(self, conn: _Connection) -> None:
@@ -558,11 +587,13 @@ class Gateway:
                 continue
             state.current = job
             started = monotonic()
+            answered = False
             try:
                 answer = await send(job.slave, job.pdu)
             except Exception as exc:  # (CancelledError is no Exception: it ends the worker)
                 answer = self._failed(state, job, exc)
             else:
+                answered = bool(answer) and job.slave != 0
                 if state.reconnect.down:  # a request let through while down worked
                     self._recovered(state)
                 if job.slave == 0:
@@ -572,6 +603,8 @@ class Gateway:
             now = monotonic()
             state.transactions += 1
             state.busy_seconds += now - started
+            if answered and self.on_latency is not None:
+                self.on_latency(state.name, job.slave, now - started)
             state.current = None  # from here its answer is being written
             conn = connections.get(job.conn)
             if conn is None:

@@ -140,6 +140,14 @@ class TcpServer(AsyncClosing):
     def counters(self) -> dict[str, int]:
         return dict(self._gateway.counters)
 
+    def stats(self) -> dict[str, object]:
+        """The gateway's `Gateway.stats`: counters, open connections (on the loop)."""
+        return self._gateway.stats()
+
+    def health(self) -> list[str]:
+        """What keeps the server from serving (empty: it listens, its tasks run)."""
+        return self._gateway.health()
+
     async def start(self, host: str = "127.0.0.1", port: int = 502) -> TcpServer:
         """Listen on host:port (0: any free port, see ``address``).  RuntimeError if
         it already listens (close it first); TypeError/ValueError naming ``host`` or

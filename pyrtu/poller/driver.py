@@ -528,14 +528,6 @@ class Poller(AsyncService):
         ``changes_only=False``); ``values_read``: every value read."""
         now = time.monotonic()
         dropped = {n for r in self._runs.values() for n in r.sched.dropped}
-        buses = []
-        for run in self._runs.values():
-            doc = run.sched.report(now).as_dict()
-            outage = run.reconnect.outage
-            doc.update(port=run.port, port_state=run.port_state(), outages=run.reconnect.outages,
-                       port_error=None if outage is None else outage.error,
-                       values_read=run.values, task_failures=run.task_failures)  # fmt: skip
-            buses.append(doc)
         return {
             "summary": True,
             "seconds": round(now - self._t0, 3),
@@ -546,11 +538,46 @@ class Poller(AsyncService):
             "points_unread": sum(
                 1 for n in self._points if self._tracker.last(n) is None and n not in dropped
             ),
-            "buses": buses,
+            "buses": self.bus_summary(now),
             "slaves": [s.as_dict() for s in self.slave_stats()],
             "dropped_points": sorted(dropped),
             "lost_events": self._lost_events,
         }
+
+    def bus_summary(self, now: float | None = None) -> list[dict[str, Any]]:
+        """Each bus's part of `summary`: its `BusReport` with the port (its state,
+        outages, last error), the values read and the task failures."""
+        now = time.monotonic() if now is None else now
+        buses = []
+        for run in self._runs.values():
+            doc = run.sched.report(now).as_dict()
+            outage = run.reconnect.outage
+            doc.update(port=run.port, port_state=run.port_state(), outages=run.reconnect.outages,
+                       port_error=None if outage is None else outage.error,
+                       values_read=run.values, task_failures=run.task_failures)  # fmt: skip
+            buses.append(doc)
+        return buses
+
+    def health(self) -> list[str]:
+        """What keeps the poller from polling, one line each (empty: it polls): not
+        started or stopped, a bus task that no longer runs, a port down."""
+        if not self._running:
+            return ["the poller is not running"]
+        problems = []
+        for run in self._runs.values():
+            if run.task is None or run.task.done():
+                problems.append(f"bus {run.bus.name}: its task is not running")
+            outage = run.reconnect.outage
+            if run.reconnect.down and outage is not None:
+                problems.append(f"bus {run.bus.name}: port {run.port} down: {outage.error}")
+        return problems
+
+    def on_latency(self, callback: Callable[[str, int, float], None] | None) -> None:
+        """Call ``callback(bus, slave, seconds)`` for every answered transaction
+        (a response or an exception response; one callback: None removes it), as it
+        completes, in the loop's thread: what latency histograms observe."""
+        for run in self._runs.values():
+            run.sched.observe = None if callback is None else partial(callback, run.bus.name)
 
     def last(self, name: str) -> Update | None:
         """The last update of point ``name`` (None: not read yet)."""

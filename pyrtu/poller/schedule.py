@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import heapq
 import itertools
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 
 from pyrtu.pdu.errors import ExceptionResponseError, FrameError, NoResponseError
 
@@ -109,6 +109,9 @@ class BusScheduler:
             raise ValueError(f"timeout must be > 0 seconds (or None), not {timeout!r}")
         #: a transaction's response timeout (all its attempts): the silence timer
         self.timeout = timeout
+        #: called with (slave, seconds) for every answered transaction (a response or
+        #: an exception response): the latency histograms of ``--metrics``
+        self.observe: Callable[[int, float], None] | None = None
         self.bus = bus
         self.wire = wire
         self.share = float(share)
@@ -359,6 +362,8 @@ class BusScheduler:
         st = self._stats.slaves[req.slave]
         st.responses += 1
         st.latencies.append(busy)
+        if self.observe is not None:
+            self.observe(req.slave, busy)
         self._turnaround(req, busy, h)
         events: list[Event] = self._back(req, h, st, now)
         if req.kind == POLL and req.block is not None and data is not None:
@@ -408,6 +413,8 @@ class BusScheduler:
         if isinstance(error, ExceptionResponseError) and not error.no_device_answered:
             st.exceptions += 1
             st.latencies.append(busy)
+            if self.observe is not None:
+                self.observe(req.slave, busy)
             self._turnaround(req, busy, h)
             events += self._back(req, h, st, now)
             if req.kind == POLL and error.code == 2 and req.block is not None:

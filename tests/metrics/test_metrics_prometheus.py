@@ -1,0 +1,211 @@
+"""``--metrics`` scraped by a real Prometheus (Debian's ``prometheus``, started on a
+free loopback port, stopped by pid): each command's endpoint is a target, and the
+values Prometheus stored (its HTTP API, ``/api/v1/query``) are checked against
+what the test itself did: the reads a simulator answered (its own counters), the
+requests a client sent, a simulator stopped, a broker killed."""
+
+from __future__ import annotations
+
+import json
+import signal
+from pathlib import Path
+from typing import Any
+
+from cli_helpers import Background
+from metrics_helpers import BAUD, serving, until, write_poll_config
+from mqtt_broker import Broker
+from prometheus_server import Prometheus, free_port
+
+from pyrtu import Master
+from pyrtu.devices import CFW701Simulator
+from pyrtu.poller import profile_points
+from pyrtu.vbus import VirtualBus
+
+SERIAL = ("--baudrate", str(BAUD), "--parity", "N")
+
+
+def next_json(bg: Background, kind: str) -> dict[str, Any]:
+    while True:
+        doc: dict[str, Any] = json.loads(bg.line(timeout=20))
+        if doc.get("type") == kind:
+            return doc
+
+
+def stop(bg: Background) -> int:
+    bg.proc.send_signal(signal.SIGINT)
+    return bg.finish().code
+
+
+def test_the_poller_scraped_counts_what_the_simulator_answered(tmp_path: Path) -> None:
+    address = f"127.0.0.1:{free_port()}"
+    with VirtualBus(2, baudrate=BAUD, parity="N") as bus:
+        sim = CFW701Simulator()
+        slave = sim.serve(bus.paths[1], 1, baudrate=BAUD, parity="N")
+        config = write_poll_config(tmp_path, bus.paths[0])
+        poll = Background("poll", "--config", config, "--json", "--metrics", address)
+        try:
+            until(lambda: serving(address), "the endpoint")
+            with Prometheus(tmp_path, [address]) as prom:
+                line = '{bus="line1",slave="1"}'
+                scraped = prom.wait(f"pyrtu_poll_responses_total{line}", lambda v: v >= 20, "20")
+                answered = slave.counters["responses"]  # the simulator's own account
+                assert scraped <= answered
+                # every answer was a transaction on the bus and one latency observed
+                prom.wait('pyrtu_poll_transactions_total{bus="line1"}', lambda v: v >= 20, "20")
+                observed = prom.wait(
+                    f"pyrtu_poll_latency_seconds_count{line}", lambda v: v >= 20, "20 latencies"
+                )
+                assert observed <= slave.counters["responses"]
+                prom.wait(
+                    "pyrtu_poll_errors_total{kind='timeout',bus='line1'}", lambda v: v == 0, "it"
+                )
+                prom.wait('pyrtu_poll_points_stale{bus="line1"}', lambda v: v == 0, "it")
+                prom.wait("pyrtu_healthy", lambda v: v == 1, "it")
+                prom.wait('up{job="pyrtu"}', lambda v: v == 1, "it")
+
+                sim.close()  # the drive goes silent: timeouts, offline, every point stale
+                prom.wait(
+                    "pyrtu_poll_errors_total{kind='timeout',bus='line1'}",
+                    lambda v: v >= 2,
+                    "timeouts",
+                )
+                points = len(profile_points("cfw701", "weg", "line1", 1, 0.05))
+                prom.wait(
+                    'pyrtu_poll_points_stale{bus="line1"}', lambda v: v == points, "stale points"
+                )
+                prom.wait(f"pyrtu_poll_slave_online{line}", lambda v: v == 0, "offline")
+                # a silent slave is no fault of the command: its port and tasks are up
+                prom.wait('pyrtu_poll_port_up{bus="line1"}', lambda v: v == 1, "it")
+                prom.wait("pyrtu_healthy", lambda v: v == 1, "it")
+        finally:
+            code = stop(poll)
+            sim.close()
+    assert code == 4  # slave 1 offline at the end
+
+
+def test_the_gateway_scraped_counts_the_client_requests(tmp_path: Path) -> None:
+    address = f"127.0.0.1:{free_port()}"
+    with VirtualBus(2, baudrate=BAUD, parity="N") as bus:
+        sim = CFW701Simulator()
+        sim.serve(bus.paths[1], 1, baudrate=BAUD, parity="N")
+        gateway = Background(
+            "gateway", "--listen", "127.0.0.1:0", "--port", bus.paths[0], *SERIAL,
+            "--json", "--metrics", address,
+        )  # fmt: skip
+        try:
+            listen = next_json(gateway, "ready")["listen"]
+            with Prometheus(tmp_path, [address]) as prom:
+                master = Master(f"tcp://{listen}", timeout=2.0)
+                try:
+                    for _ in range(30):
+                        master.read_holding_registers(1, 680, 1)
+                    prom.wait("pyrtu_gateway_requests_total", lambda v: v == 30, "30 requests")
+                    prom.wait("pyrtu_gateway_clients_connected", lambda v: v == 1, "one client")
+                finally:
+                    master.close()
+                on_bus = f'{{bus="{bus.paths[0]}"}}'
+                prom.wait(f"pyrtu_gateway_bus_transactions_total{on_bus}", lambda v: v == 30, "it")
+                prom.wait("pyrtu_gateway_answers_total", lambda v: v == 30, "it")
+                latency = f'pyrtu_gateway_latency_seconds_count{{bus="{bus.paths[0]}",slave="1"}}'
+                prom.wait(latency, lambda v: v == 30, "it")
+                prom.wait('pyrtu_gateway_errors_total{kind="timeout"}', lambda v: v == 0, "it")
+                prom.wait("pyrtu_gateway_clients_connected", lambda v: v == 0, "no client")
+                prom.wait("pyrtu_healthy", lambda v: v == 1, "it")
+        finally:
+            code = stop(gateway)
+            sim.close()
+    assert code == 0
+
+
+def test_simulate_tcp_scraped_counts_requests_and_clients(tmp_path: Path) -> None:
+    address = f"127.0.0.1:{free_port()}"
+    simulate = Background(
+        "simulate", "cfw701", "--tcp", "127.0.0.1:0", "--json", "--metrics", address
+    )
+    try:
+        tcp = next_json(simulate, "ready")["tcp"]
+        with Prometheus(tmp_path, [address]) as prom:
+            first, second = Master(f"tcp://{tcp}", timeout=2.0), Master(f"tcp://{tcp}", timeout=2.0)
+            try:
+                for _ in range(25):
+                    first.read_holding_registers(1, 680, 1)
+                second.read_holding_registers(1, 680, 1)
+                prom.wait("pyrtu_simulate_tcp_requests_total", lambda v: v == 26, "26 requests")
+                prom.wait("pyrtu_simulate_tcp_clients_connected", lambda v: v == 2, "two clients")
+                prom.wait("pyrtu_simulate_tcp_connections_total", lambda v: v == 2, "it")
+            finally:
+                first.close()
+                second.close()
+            prom.wait("pyrtu_simulate_tcp_clients_connected", lambda v: v == 0, "no client")
+            prom.wait("pyrtu_healthy", lambda v: v == 1, "it")
+    finally:
+        code = stop(simulate)
+    assert code == 0
+
+
+BRIDGE = """
+[defaults]
+max_age = 0.2
+[mqtt]
+url = "{url}"
+edge = "e1"
+outbox = "{outbox}"
+backoff = 0.1
+max_backoff = 0.5
+username = "edge"
+password = "{password}"
+[[bus]]
+name = "line"
+port = "{port}"
+baudrate = {baud}
+parity = "N"
+timeout = 0.1
+offline_after = 2
+[[device]]
+bus = "line"
+slave = 1
+profile = "cfw701"
+name = "weg"
+interval = 0.05
+"""
+#: the MQTT password: in no label, no value, no health line
+PASSWORD = "s3cret-Zq81"
+
+
+def test_the_bridge_scraped_outbox_and_broker(tmp_path: Path) -> None:
+    address = f"127.0.0.1:{free_port()}"
+    with (
+        Broker(tmp_path, users={"edge": PASSWORD}) as broker,
+        VirtualBus(2, baudrate=BAUD, parity="N") as bus,
+    ):
+        sim = CFW701Simulator()
+        sim.serve(bus.paths[1], 1, baudrate=BAUD, parity="N")
+        config = tmp_path / "bridge.toml"
+        config.write_text(
+            BRIDGE.format(url=broker.url, outbox=tmp_path / "ob", password=PASSWORD,
+                          port=bus.paths[0], baud=BAUD)
+        )  # fmt: skip
+        bridge = Background("bridge", "--config", config, "--metrics", address, "--drain", "0")
+        try:
+            until(lambda: serving(address), "the endpoint")
+            with Prometheus(tmp_path, [address]) as prom:
+                prom.wait("pyrtu_bridge_broker_connected", lambda v: v == 1, "connected")
+                prom.wait("pyrtu_bridge_acknowledged_total", lambda v: v >= 5, "acknowledged")
+                prom.wait('pyrtu_poll_responses_total{slave="1"}', lambda v: v >= 5, "polled")
+                prom.wait("pyrtu_healthy", lambda v: v == 1, "it")
+                broker.kill()  # the updates (max_age 0.2 s) pile up in the outbox
+                prom.wait("pyrtu_bridge_broker_connected", lambda v: v == 0, "disconnected")
+                prom.wait("pyrtu_bridge_outbox_depth", lambda v: v >= 10, "a backlog")
+                prom.wait("pyrtu_bridge_outbox_oldest_age_seconds", lambda v: v >= 0.5, "its age")
+                prom.wait("pyrtu_healthy", lambda v: v == 0, "unhealthy")
+                stored = prom.query('{job="pyrtu"}')
+                assert stored and all(
+                    PASSWORD not in key and PASSWORD not in value
+                    for labels, _ in stored
+                    for key, value in labels.items()
+                )
+        finally:
+            code = stop(bridge)
+            sim.close()
+    assert code == 0
+    assert PASSWORD not in "".join(bridge.err)
