@@ -9,9 +9,12 @@ PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
-APT_PACKAGES := libmodbus-dev pkg-config socat mosquitto mosquitto-clients strace
+APT_PACKAGES := libmodbus-dev pkg-config socat mosquitto mosquitto-clients strace clang-format
+# The C sources make format-c formats and make lint checks (.clang-format).
+C_SOURCES := $(wildcard csrc/*.c csrc/*.h csrc/python/*.c fuzz/*.c fuzz/*.h tests/core/csrc/*.c)
+CLANG_FORMAT ?= $(shell command -v clang-format || command -v clang-format-14 || echo clang-format)
 
-.PHONY: demo test test-asan bench lint mutate mutate-faults setup system-packages fuzz fuzz-ci fuzz-build fuzz-packages \
+.PHONY: demo test test-asan bench bench-report lint format-c mutate mutate-faults setup system-packages fuzz fuzz-ci fuzz-build fuzz-packages \
 	fuzz-python fuzz-outbox
 
 # Developer targets compile the C core with -Werror (PYRTU_STRICT_BUILD=1, read by
@@ -30,7 +33,8 @@ test: setup
 setup: $(STAMP)
 
 # Debian packages the tests need (libmodbus peers, socat pty pairs, the MQTT broker,
-# strace for the outbox's durability tests: tests/bridge/test_bridge_durability.py).
+# strace for the outbox's durability tests: tests/bridge/test_bridge_durability.py;
+# clang-format for make lint's check of the C sources).
 system-packages:
 	@missing=""; for p in $(APT_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
 	if [ -n "$$missing" ]; then \
@@ -84,6 +88,10 @@ lint: setup
 	$(PY) -m ruff check pyrtu tests bench mutate
 	$(PY) -m ruff format --check pyrtu tests bench mutate
 	$(PY) -m mypy
+	$(CLANG_FORMAT) --dry-run --Werror $(C_SOURCES)
+
+format-c:
+	$(CLANG_FORMAT) -i $(C_SOURCES)
 
 # libFuzzer harnesses (fuzz/*.c) built with clang and ASan/UBSan.  The seeds in
 # fuzz/corpus/<name>/ (fuzz/make_corpus.py) are read first; new inputs go to
