@@ -16,6 +16,7 @@ as the link does, whoever opens and closes them.
 from __future__ import annotations
 
 import contextlib
+import itertools
 import os
 import select
 import threading
@@ -100,6 +101,18 @@ class PtyLink:
     def writes(self, side: str) -> list[tuple[float, bytes]]:
         with self._lock:
             return [(t, d) for s, t, d in self.log if s == side]
+
+    def gaps(self, first: str, then: str) -> list[float]:
+        """Once the link is quiet (`settle`): the times from each write of side
+        ``first`` to a write of side ``then`` that follows it directly."""
+        self.settle()
+        with self._lock:
+            log = sorted(self.log, key=lambda item: item[1])
+        return [
+            t2 - t1
+            for (s1, t1, _), (s2, t2, _) in itertools.pairwise(log)
+            if (s1, s2) == (first, then)
+        ]
 
     def clear(self) -> None:
         with self._lock:

@@ -15,25 +15,15 @@ from collections import Counter
 from pathlib import Path
 
 import pytest
-from cli_helpers import ROOT, Background, env, pyrtu
+from cli_helpers import POLL_BUS, ROOT, Background, env, poll_weg, pyrtu
 
 from pyrtu.devices import CFW701Simulator, CV100Simulator, weg
 
 vbus = pytest.importorskip("pyrtu.vbus")
 
-CONFIG = """\
-[defaults]
-bus = "line1"
-interval = 0.05
-
-[[bus]]
-name = "line1"
-port = "{port}"
-baudrate = 115200
-parity = "N"
-timeout = 0.05
-offline_after = 2
-
+CONFIG = (
+    POLL_BUS
+    + """
 [[device]]
 bus = "line1"
 slave = 1
@@ -52,6 +42,7 @@ slave = 9
 table = "holding"
 address = 0
 """
+)
 
 
 def split(docs: list[dict[str, object]]) -> tuple[list[dict[str, object]], ...]:
@@ -183,23 +174,7 @@ def test_single_range_form_still_works(tmp_path: Path) -> None:
     assert r.code == 6 and '"final": true' in r.out
 
 
-GOOD = """\
-[[bus]]
-name = "line1"
-port = "{port}"
-baudrate = 115200
-parity = "N"
-timeout = 0.1
-backoff = 0.1
-max_backoff = 0.4
-
-[[device]]
-bus = "line1"
-slave = 1
-profile = "cfw701"
-name = "weg"
-interval = 0.05
-"""
+GOOD = poll_weg(timeout=0.1)
 
 
 class Served:
