@@ -27,6 +27,7 @@ from typing import Any
 
 import serial
 
+from pyrtu import add_crc
 from pyrtu.drivers.slave import Slave
 from pyrtu.protocol.datastore import DataStore
 
@@ -146,6 +147,11 @@ class PtyLink:
 
 
 # -- helpers for the master and slave tests ---------------------------------------
+
+
+def rtu(hexbytes: str) -> bytes:
+    """An RTU ADU from the hex of its address and PDU (spaces allowed), CRC appended."""
+    return add_crc(bytes.fromhex(hexbytes))
 
 
 def make_store() -> DataStore:
