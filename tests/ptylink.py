@@ -149,6 +149,19 @@ class PtyLink:
 # -- helpers for the master and slave tests ---------------------------------------
 
 
+def count_reads(protocol: Any, reads: list[int]) -> None:
+    """From now on the length of every non-empty chunk ``protocol`` (a slave's sans-I/O
+    protocol) is fed is appended to ``reads``: how many reads a request took."""
+    feed = protocol.receive_data
+
+    def counting(data: bytes, now: float) -> None:
+        if data:
+            reads.append(len(data))
+        feed(data, now)
+
+    protocol.receive_data = counting
+
+
 def rtu(hexbytes: str) -> bytes:
     """An RTU ADU from the hex of its address and PDU (spaces allowed), CRC appended."""
     return add_crc(bytes.fromhex(hexbytes))

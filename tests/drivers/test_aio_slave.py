@@ -16,7 +16,7 @@ from typing import Any
 
 import pytest
 import serial
-from ptylink import PtyLink, make_store
+from ptylink import PtyLink, count_reads, make_store
 
 from pyrtu import add_crc
 from pyrtu.drivers.aio import run as aio_run
@@ -400,14 +400,7 @@ def test_two_reads_per_transaction_on_the_virtual_bus() -> None:
 
     async def main(bus: VirtualBus) -> None:
         async with AsyncSlave(bus.paths[1], 1, make_store(), baudrate=9600, parity="N") as slave:
-            feed = slave.protocol.receive_data
-
-            def counting(data: bytes, now: float) -> None:
-                if data:
-                    reads.append(len(data))
-                feed(data, now)
-
-            slave.protocol.receive_data = counting  # type: ignore[method-assign]
+            count_reads(slave.protocol, reads)
             slave.start()
 
             def client() -> list[int]:
