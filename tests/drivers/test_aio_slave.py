@@ -16,7 +16,7 @@ from typing import Any
 
 import pytest
 import serial
-from ptylink import PtyLink, count_reads, make_store
+from ptylink import PtyLink, count_reads, make_store, reads_per_request
 
 from pyrtu import add_crc
 from pyrtu.drivers.aio import run as aio_run
@@ -403,16 +403,7 @@ def test_two_reads_per_transaction_on_the_virtual_bus() -> None:
             count_reads(slave.protocol, reads)
             slave.start()
 
-            def client() -> list[int]:
-                per: list[int] = []
-                with Master(bus.paths[0], 9600, parity="N", timeout=1.0) as m:
-                    for _ in range(16):
-                        before = len(reads)
-                        assert m.read_holding_registers(1, 0, 10) == [1000 + i for i in range(10)]
-                        per.append(len(reads) - before)
-                return per[1:]  # the first one has no guess of the length yet
-
-            per = await asyncio.to_thread(client)
+            per = await asyncio.to_thread(reads_per_request, bus.paths[0], reads)
             assert sorted(per)[len(per) // 2] <= 2, per
             assert sum(reads) >= 16 * 8
 
