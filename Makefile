@@ -20,7 +20,7 @@ CLANG_FORMAT ?= $(shell command -v clang-format || command -v clang-format-14 ||
 # Developer targets compile the C core with -Werror (PYRTU_STRICT_BUILD=1, read by
 # pyrtu/core/_build_core.py), so that it stays -Wall -Wextra clean; `make demo` builds
 # it as a user's `pip install .` does, where a new compiler's warning is no error.
-setup test test-asan bench lint mutate mutate-faults: export PYRTU_STRICT_BUILD := 1
+setup test test-asan bench bench-report lint mutate mutate-faults: export PYRTU_STRICT_BUILD := 1
 
 demo: $(STAMP)
 	$(PY) -m pyrtu demo
@@ -67,8 +67,15 @@ test-asan: setup
 	  ASAN_OPTIONS=detect_leaks=0:abort_on_error=1 UBSAN_OPTIONS=halt_on_error=1:print_stacktrace=1 \
 	  PYRTU_REQUIRE_C=1 ../../$(PY) -m pytest -q -rs -p no:cacheprovider -m 'not wall_clock and not rss' tests
 
+# Every benchmark of bench/README.md once, then bench/RESULTS.md written from that run
+# (BENCH_ARGS=--quick: fewer rounds; BENCH_ARGS="--only crc,core": some of them);
+# make bench-report writes RESULTS.md again from bench/results/ without measuring.
+BENCH_ARGS ?=
 bench: setup
-	$(PY) bench/report.py
+	$(PY) bench/report.py $(BENCH_ARGS)
+
+bench-report: setup
+	$(PY) bench/report.py --render
 
 # Mutation testing (mutate/run.py; docs/MUTATION.md): `make mutate` runs cosmic-ray over
 # the modules of mutate/targets.toml and writes docs/MUTATION.md (hours on 2 cores;
