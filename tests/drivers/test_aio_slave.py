@@ -10,7 +10,7 @@ import asyncio
 import os
 import random
 import socket
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Coroutine, Iterator
 from types import ModuleType
 from typing import Any
 
@@ -116,6 +116,17 @@ def test_three_async_slaves_share_a_virtual_bus(mode: str, runner: str) -> None:
         RUNNERS[runner](main(bus))
 
 
+def run_on_buses(buses: list[VirtualBus], main: Callable[[], Coroutine[Any, Any, None]]) -> None:
+    """``main()`` run by asyncio while ``buses`` run; the buses closed after it."""
+    try:
+        for b in buses:
+            b.start()
+        asyncio.run(main())
+    finally:
+        for b in buses:
+            b.close()
+
+
 def test_many_ports_in_one_loop() -> None:
     """Four virtual buses, an AsyncSlave on each, four masters polling at once."""
     buses = [VirtualBus(2, baudrate=BAUD, parity="N") for _ in range(4)]
@@ -138,13 +149,7 @@ def test_many_ports_in_one_loop() -> None:
         for s in slaves:
             await s.close()
 
-    try:
-        for b in buses:
-            b.start()
-        asyncio.run(main())
-    finally:
-        for b in buses:
-            b.close()
+    run_on_buses(buses, main)
 
 
 def test_stop_and_cancel(link: PtyLink) -> None:
@@ -380,13 +385,7 @@ def test_simulated_drives_in_one_loop() -> None:
             sim.close()
             assert sim.slave is None
 
-    try:
-        for b in buses:
-            b.start()
-        asyncio.run(main())
-    finally:
-        for b in buses:
-            b.close()
+    run_on_buses(buses, main)
 
 
 @pytest.mark.wall_clock

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -16,6 +15,7 @@ from pathlib import Path
 
 import pytest
 from cli_helpers import POLL_BUS, ROOT, Background, env, poll_weg, pyrtu
+from peers.tools import free_tcp_port
 
 from pyrtu.devices import CFW701Simulator, CV100Simulator, weg
 
@@ -197,13 +197,6 @@ class Served:
         self.bus.close()
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-    return port
-
-
 @pytest.mark.wall_clock
 @pytest.mark.parametrize("duration", [1, 2, 3])
 def test_a_refusing_tcp_bus_ends_on_time_with_status_3(tmp_path: Path, duration: int) -> None:
@@ -211,7 +204,7 @@ def test_a_refusing_tcp_bus_ends_on_time_with_status_3(tmp_path: Path, duration:
     connections hung: the run must end within its duration and one timeout."""
     cfg = tmp_path / "tcp.toml"
     cfg.write_text(
-        f'[[bus]]\nname = "t"\nport = "tcp://127.0.0.1:{free_port()}"\n\n'
+        f'[[bus]]\nname = "t"\nport = "tcp://127.0.0.1:{free_tcp_port()}"\n\n'
         '[[point]]\nname = "x"\nbus = "t"\nslave = 1\ntable = "holding"\naddress = 0\n'
     )
     start = time.monotonic()
