@@ -9,15 +9,18 @@ PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
-APT_PACKAGES := libmodbus-dev pkg-config socat mosquitto mosquitto-clients strace prometheus
+APT_PACKAGES := libmodbus-dev pkg-config socat mosquitto mosquitto-clients strace prometheus clang-format
+# The C sources make format-c formats and make lint checks (.clang-format).
+C_SOURCES := $(wildcard csrc/*.c csrc/*.h csrc/python/*.c fuzz/*.c fuzz/*.h tests/core/csrc/*.c)
+CLANG_FORMAT ?= $(shell command -v clang-format || command -v clang-format-14 || echo clang-format)
 
-.PHONY: demo test test-asan bench docs lint mutate mutate-faults setup system-packages fuzz fuzz-ci fuzz-build fuzz-packages \
+.PHONY: demo test test-asan bench bench-report docs lint format-c mutate mutate-faults setup system-packages fuzz fuzz-ci fuzz-build fuzz-packages \
 	fuzz-python fuzz-outbox
 
 # Developer targets compile the C core with -Werror (PYRTU_STRICT_BUILD=1, read by
 # pyrtu/core/_build_core.py), so that it stays -Wall -Wextra clean; `make demo` builds
 # it as a user's `pip install .` does, where a new compiler's warning is no error.
-setup test test-asan bench lint mutate mutate-faults: export PYRTU_STRICT_BUILD := 1
+setup test test-asan bench bench-report lint mutate mutate-faults: export PYRTU_STRICT_BUILD := 1
 
 demo: $(STAMP)
 	$(PY) -m pyrtu demo
@@ -31,7 +34,8 @@ setup: $(STAMP)
 
 # Debian packages the tests need (libmodbus peers, socat pty pairs, the MQTT broker,
 # strace for the outbox's durability tests: tests/bridge/test_bridge_durability.py,
-# prometheus scraping --metrics: tests/metrics/).
+# prometheus scraping --metrics: tests/metrics/; clang-format for make lint's check of
+# the C sources).
 system-packages:
 	@missing=""; for p in $(APT_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
 	if [ -n "$$missing" ]; then \
@@ -64,8 +68,15 @@ test-asan: setup
 	  ASAN_OPTIONS=detect_leaks=0:abort_on_error=1 UBSAN_OPTIONS=halt_on_error=1:print_stacktrace=1 \
 	  PYRTU_REQUIRE_C=1 ../../$(PY) -m pytest -q -rs -p no:cacheprovider -m 'not wall_clock and not rss' tests
 
+# Every benchmark of bench/README.md once, then bench/RESULTS.md written from that run
+# (BENCH_ARGS=--quick: fewer rounds; BENCH_ARGS="--only crc,core": some of them);
+# make bench-report writes RESULTS.md again from bench/results/ without measuring.
+BENCH_ARGS ?=
 bench: setup
-	$(PY) bench/report.py
+	$(PY) bench/report.py $(BENCH_ARGS)
+
+bench-report: setup
+	$(PY) bench/report.py --render
 
 # Mutation testing (mutate/run.py; docs/MUTATION.md): `make mutate` runs cosmic-ray over
 # the modules of mutate/targets.toml and writes docs/MUTATION.md (hours on 2 cores;
@@ -89,6 +100,10 @@ lint: setup
 	$(PY) -m ruff check pyrtu tests bench mutate docs/hooks.py
 	$(PY) -m ruff format --check pyrtu tests bench mutate docs/hooks.py
 	$(PY) -m mypy
+	$(CLANG_FORMAT) --dry-run --Werror $(C_SOURCES)
+
+format-c:
+	$(CLANG_FORMAT) -i $(C_SOURCES)
 
 # libFuzzer harnesses (fuzz/*.c) built with clang and ASan/UBSan.  The seeds in
 # fuzz/corpus/<name>/ (fuzz/make_corpus.py) are read first; new inputs go to

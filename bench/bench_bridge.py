@@ -9,8 +9,8 @@ a write from an MQTT client to the wire.
 Every part starts its own mosquitto (tests/mqtt_broker.py: a generated config on a
 free loopback port, stopped by pid); the buses are ``pyrtu vbus`` processes with
 simulated CV100 drives (one ``pyrtu simulate`` process serving every bus), as in
-bench/bench_client.py.  Writes the section "## Bridge (issue 19)" at the end of
-bench/RESULTS.md.
+bench/bench_client.py.  bench/report.py runs it (``--json``) for bench/RESULTS.md;
+the summary goes to stdout.
 """
 
 from __future__ import annotations
@@ -38,7 +38,6 @@ ROOT = BENCH.parent
 sys.path[:0] = [str(ROOT / "tests"), str(BENCH)]
 
 import paho.mqtt.client as paho  # noqa: E402
-import results_md  # noqa: E402
 from mqtt_broker import Broker  # noqa: E402
 from paho.mqtt.enums import CallbackAPIVersion  # noqa: E402
 
@@ -904,7 +903,6 @@ def section(r: dict[str, Any], cmd: str) -> str:
         "polled flat out: a write waits for the transaction in progress, then goes "
         "ahead of the polls).",
         "",
-        "Raw figures: bench/bridge_results.json.",
         "",
     ]
     return "\n".join(L)
@@ -928,28 +926,8 @@ def main() -> None:
         default=1,
         help="run the latency and unplugged scenarios this many times: the median of each figure",
     )
-    ap.add_argument(
-        "--merge",
-        action="store_true",
-        help="with --write: keep the scenarios not in --only from bench/bridge_results.json",
-    )
-    ap.add_argument(
-        "--write",
-        action="store_true",
-        help="write the section of bench/RESULTS.md and bench/bridge_results.json",
-    )
-    ap.add_argument(
-        "--section",
-        metavar="COMMAND",
-        help="only write the section of bench/RESULTS.md again from bench/bridge_results.json "
-        "(COMMAND: the command line that made them)",
-    )
+    ap.add_argument("--json", type=Path, help="also write the figures of this run here")
     ns = ap.parse_args()
-    if ns.section:
-        results_md.write_section(
-            HEADING, section(json.loads((BENCH / "bridge_results.json").read_text()), ns.section)
-        )
-        return
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         res: dict[str, Any] = {}
@@ -976,20 +954,9 @@ def main() -> None:
         }
         res["runs"] = ns.runs
         print(json.dumps(res, indent=1))
-        raw = BENCH / "bridge_results.json"
-        if ns.write and ns.merge and raw.exists():
-            old = json.loads(raw.read_text())
-            kept = [k for k in old if k not in res and k not in ("machine_earlier", "kept")]
-            res = {**{k: old[k] for k in kept}, **res}
-            res["kept"] = [k for k in kept if k not in ("runs", "outage_s")] + (
-                ["outage_s"] if "outage_s" in kept else []
-            )
-            res["machine_earlier"] = old.get("machine_earlier", old.get("machine"))
-        if ns.write:
-            (BENCH / "bridge_results.json").write_text(json.dumps(res, indent=1) + "\n")
-            results_md.write_section(
-                HEADING, section(res, " ".join(["python bench/bench_bridge.py", *sys.argv[1:]]))
-            )
+        if ns.json:
+            ns.json.write_text(json.dumps(res, indent=1) + "\n")
+        print(section(res, " ".join(["python bench/bench_bridge.py", *sys.argv[1:]])))
 
 
 if __name__ == "__main__":

@@ -13,6 +13,7 @@ maximum resident set size) when present, else ``resource.getrusage`` of the chil
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import resource
 import subprocess
@@ -59,6 +60,7 @@ def main() -> None:
     )
     ap.add_argument("--dir", default=None)
     ap.add_argument("--cli-max", type=int, default=200, help="largest size sniffed by the CLI")
+    ap.add_argument("--json", type=Path, help="also write the rows here")
     args = ap.parse_args()
     tmp = Path(args.dir or tempfile.mkdtemp(prefix="pyrtu-bench-cap-"))
     py = sys.executable
@@ -116,6 +118,12 @@ def main() -> None:
     print(f"{'case':<46} {'note':<22} {'peak RSS':>9} {'time':>8} exit")
     for name, note, (rss, secs, code) in rows:
         print(f"{name:<46} {note:<22} {rss:7.1f} MB {secs:7.1f} s {code}")
+    if args.json:
+        out = [
+            {"case": name, "note": note, "peak_rss_mb": rss, "seconds": secs, "exit": code}
+            for name, note, (rss, secs, code) in rows
+        ]
+        args.json.write_text(json.dumps({"rows": out}, indent=1) + "\n")
     os.rmdir(tmp) if not any(tmp.iterdir()) else None
 
 

@@ -1,6 +1,6 @@
 """Issue 10: the master on the sans-I/O client protocol, on the virtual bus.
 
-    python bench/bench_client.py [--json FILE] [--write] [--quick]
+    python bench/bench_client.py [--json FILE] [--quick]
 
 Every bus is a separate ``pyrtu vbus`` process (its hub keeps the byte timing away
 from the GIL of the process under test) and every server a separate process, so
@@ -19,7 +19,7 @@ the CPU figures are the master's own:
    `AsyncMaster` process (8 masters in one event loop): every bus's ratio to the
    wire limit and the process's total CPU.
 
-``--write`` replaces the section "## Sans-I/O client (issue 10)" of bench/RESULTS.md.
+bench/report.py runs it (``--json``) for bench/RESULTS.md; the summary goes to stdout.
 """
 
 from __future__ import annotations
@@ -60,7 +60,6 @@ from pyrtu.pdu.errors import FrameError, NoResponseError  # noqa: E402
 SLAVE = 7
 COUNT = 10
 EXPECTED = pattern.holdings(SLAVE, 0, COUNT)
-RESULTS = BENCH / "RESULTS.md"
 HEADING = "## Sans-I/O client (issue 10)"
 BEGIN, END = "<!-- client:begin (bench/bench_client.py) -->", "<!-- client:end -->"
 
@@ -502,7 +501,7 @@ def _uvloop_run(main: Any) -> Any:
 EVENT_LOOPS: dict[str, Any] = {"pyrtu": aio_run, "asyncio": asyncio.run, "uvloop": _uvloop_run}
 
 
-def compare_loops(rounds: int, seconds: float, buses: int, drive: str) -> None:
+def compare_loops(rounds: int, seconds: float, buses: int, drive: str, out: Path | None) -> None:
     """``buses`` buses at 115200 under each event loop, interleaved ``rounds`` times:
     per loop the minimum and median of the buses' ratios to the wire limit."""
     rows: dict[str, list[float]] = {k: [] for k in EVENT_LOOPS}
@@ -520,6 +519,9 @@ def compare_loops(rounds: int, seconds: float, buses: int, drive: str) -> None:
             f"| {name} | {buses} | {min(rs):.3f} / {statistics.median(rs):.3f} |"
             f" {statistics.median(cpu[name]):.0f} |"
         )
+    if out is not None:
+        saved = {"rounds": rounds, "seconds": seconds, "buses": buses, "drive": drive}
+        out.write_text(json.dumps({**saved, "ratios": rows, "cpu_us_per_tx": cpu}, indent=1))
 
 
 def eight_line(e: dict[str, Any]) -> str:
@@ -539,7 +541,7 @@ def section(data: dict[str, Any]) -> str:
         "",
         BEGIN,
         "",
-        f"`python bench/bench_client.py --write`, one run, {data['when']}. {data['machine']}.",
+        f"`python bench/bench_client.py`, one run, {data['when']}. {data['machine']}.",
         "",
         "FC 03, 10 holding registers, every answer checked.  Each bus is a `pyrtu vbus`",
         "process (byte-timed delivery) and each server a process of its own: CPU is the",
@@ -676,17 +678,6 @@ def section(data: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def write_section(text: str) -> None:
-    old = RESULTS.read_text(encoding="utf-8")
-    if BEGIN in old:
-        start = old.index(HEADING) if HEADING in old else old.index(BEGIN)
-        stop = old.index(END) + len(END)
-        new = old[:start] + text.rstrip("\n") + old[stop:]
-    else:
-        new = old.rstrip("\n") + "\n\n" + text
-    RESULTS.write_text(new, encoding="utf-8")
-
-
 def compare_hubs(rounds: int, seconds: float, buses: int, out: Path | None) -> None:
     """The 8-bus run with the hubs on the Python loop and on the C loop, interleaved."""
     print(f"load average before: {os.getloadavg()}")
@@ -711,7 +702,6 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--json", type=Path)
     ap.add_argument("--from-json", type=Path)
-    ap.add_argument("--write", action="store_true")
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--only", choices=("single", "eight"))
@@ -732,7 +722,7 @@ def main() -> None:
     )
     args = ap.parse_args()
     if args.loops:
-        compare_loops(args.rounds, 3.0 if args.quick else 10.0, args.buses, args.drive)
+        compare_loops(args.rounds, 3.0 if args.quick else 10.0, args.buses, args.drive, args.json)
         return
     if args.hubs:
         compare_hubs(args.rounds, 3.0 if args.quick else 10.0, args.buses, args.json)
@@ -773,8 +763,6 @@ def main() -> None:
         args.json.write_text(json.dumps(data, indent=1))
     text = section(data)
     print(text)
-    if args.write:
-        write_section(text)
 
 
 if __name__ == "__main__":

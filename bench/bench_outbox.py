@@ -21,6 +21,7 @@ A measurement, not a test: nothing is asserted.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import shutil
 import statistics
@@ -77,6 +78,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--records", type=int, default=200_000)
     ap.add_argument("--runs", type=int, default=7)
     ap.add_argument("--dir", type=Path, default=Path(tempfile.gettempdir()))
+    ap.add_argument("--json", type=Path, help="also write the rates here")
     args = ap.parse_args(argv)
     rates: dict[str, list[float]] = {k: [] for k in ("append+flush", "append only", "drain")}
     rates["fsync per record"] = []
@@ -105,6 +107,9 @@ def main(argv: list[str] | None = None) -> int:
     for name, rs in rates.items():
         med, lo, hi = (f"{v:,.0f}" for v in (statistics.median(rs), min(rs), max(rs)))
         print(f"{name:<18} {med:>17} {lo:>12} {hi:>12}")
+    if args.json:
+        out = {"records": n, "runs": args.runs, "dir": str(base.parent), "rates": rates}
+        args.json.write_text(json.dumps(out, indent=1) + "\n")
     return 0
 
 

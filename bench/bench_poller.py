@@ -14,7 +14,7 @@ naive loops read one point per request, in a loop, with pyrtu's `Master` and wit
 pymodbus's `AsyncModbusSerialClient`.  `wire_bound` prices the same cycle from
 frame lengths: what any poller could gain on this point set and on the ideal one.
 
-Writes the section "## The poller (issue 11)" of bench/RESULTS.md.
+bench/report.py runs it (``--json``) for bench/RESULTS.md; the summary goes to stdout.
 """
 
 from __future__ import annotations
@@ -55,7 +55,6 @@ from pyrtu.poller import (
 from pyrtu.poller.profiles import device_limits
 
 BENCH = Path(__file__).resolve().parent
-RESULTS = BENCH / "RESULTS.md"
 HEADING = "## The poller (issue 11)"
 BEGIN, END = "<!-- poller:begin (bench/bench_poller.py) -->", "<!-- poller:end -->"
 DRIVES = ("cfw701", "cfw100", "cfw320", "cv100", "acu", "act", "cfw701", "cv100")
@@ -580,17 +579,6 @@ def section(
     return "\n".join(lines)
 
 
-def write_section(text: str) -> None:
-    old = RESULTS.read_text() if RESULTS.exists() else ""
-    if BEGIN in old:
-        start = old.rindex("\n" + HEADING, 0, old.index(BEGIN)) + 1
-        stop = old.index(END) + len(END) + 1
-        new = old[:start] + text + old[stop:]
-    else:
-        new = old.rstrip("\n") + "\n\n" + text
-    RESULTS.write_text(new)
-
-
 def command_line(argv: list[str]) -> str:
     """The command that measures again: ``argv`` without the options that only say
     where figures go or come from (``--json``, ``--from-json``, ``--note``)."""
@@ -610,10 +598,14 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0] if __doc__ else None)
     ap.add_argument("--seconds", type=float, default=5.0)
     ap.add_argument("--bauds", default="19200,115200")
-    ap.add_argument("--no-write", action="store_true")
+    ap.add_argument(
+        "--no-write",
+        action="store_true",
+        help="accepted and ignored: RESULTS.md is written by bench/report.py only",
+    )
     ap.add_argument("--json", type=Path, default=None, help="also save the figures here")
     ap.add_argument("--from-json", type=Path, default=None,
-                    help="write the section from figures of --json, measuring nothing")  # fmt: skip
+                    help="summarise figures of --json, measuring nothing")  # fmt: skip
     ap.add_argument("--note", default="", help="a sentence on the run (e.g. the machine's load)")
     args = ap.parse_args()
     if args.from_json is not None:
@@ -634,8 +626,6 @@ def main() -> None:
         saved = {"command": command, "note": note, "runs": runs, "scheduler_cpu": pure,
                  "overhead": over}  # fmt: skip
         args.json.write_text(json.dumps(saved, indent=1, default=str))
-    if not args.no_write:
-        write_section(text)
 
 
 if __name__ == "__main__":

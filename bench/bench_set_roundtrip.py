@@ -3,7 +3,7 @@ and waits for the point's new value, read back from the drive, to arrive on the
 point's topic; with and without TCP_NODELAY on the bridge's MQTT socket and on
 mosquitto's (``set_tcp_nodelay true``).
 
-    python bench/bench_set_roundtrip.py [--sets 200] [--write]
+    python bench/bench_set_roundtrip.py [--sets 200] [--json FILE]
 
 Each variant starts its own mosquitto on a free loopback port (tests/mqtt_broker.py,
 its configuration with or without ``set_tcp_nodelay``), a ``pyrtu vbus`` and a
@@ -13,8 +13,8 @@ bridge replaces `MqttLink._socket_opened`, which sets the option, by a no-op).  
 client (paho-mqtt in this process, TCP_NODELAY on its own socket so that only the
 bridge and the broker vary) publishes ``N`` sets of the CV100's main setting
 (0x3201, QoS 1, a new value each, 20 ms after the previous value came) and times
-each from the publish to the value's arrival.  ``--write``: the section "## Set
-round trip and TCP_NODELAY (issue 27.6)" of bench/RESULTS.md.
+each from the publish to the value's arrival.  bench/report.py runs it
+(``--json``) for bench/RESULTS.md.
 """
 
 from __future__ import annotations
@@ -40,7 +40,6 @@ ROOT = BENCH.parent
 sys.path[:0] = [str(ROOT / "tests"), str(BENCH)]
 
 import paho.mqtt.client as paho  # noqa: E402
-import results_md  # noqa: E402
 from mqtt_broker import Broker  # noqa: E402
 from paho.mqtt.enums import CallbackAPIVersion  # noqa: E402
 
@@ -229,7 +228,7 @@ def main() -> None:
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0] if __doc__ else None)
     ap.add_argument("--sets", type=int, default=200, help="sets per variant (default 200)")
-    ap.add_argument("--write", action="store_true", help="write the section of bench/RESULTS.md")
+    ap.add_argument("--json", type=Path, help="also write the rows here")
     ns = ap.parse_args()
     variants = [(True, True), (False, False), (True, False), (False, True)]
     rows = []
@@ -241,11 +240,11 @@ def main() -> None:
                 r = variant(d, paths[0], ns.sets, bridge_on, broker_on)
                 rows.append(r)
                 print(json.dumps(r), flush=True)
+    if ns.json:
+        ns.json.write_text(json.dumps({"sets": ns.sets, "rows": rows}, indent=1) + "\n")
     cmd = "python bench/bench_set_roundtrip.py " + " ".join(sys.argv[1:])
     text = section(rows, cmd.strip())
     print(text)
-    if ns.write:
-        results_md.write_section(HEADING, text)
 
 
 if __name__ == "__main__":

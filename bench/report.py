@@ -1,146 +1,224 @@
-"""Run the core benchmarks once and write their medians and ratios to bench/RESULTS.md.
+"""Run every benchmark of bench/README.md once and write bench/RESULTS.md from that run.
 
-    python bench/report.py            # (make bench)
+    python bench/report.py              # (make bench) every benchmark, then RESULTS.md
+    python bench/report.py --quick      # fewer rounds and shorter runs (said in the header)
+    python bench/report.py --only crc,core   # these; every other section: "not run"
+    python bench/report.py --render     # RESULTS.md again from bench/results/, measuring nothing
 
-Every figure in the generated section comes from the one pytest-benchmark run this
-script starts, so ratios compare numbers measured side by side on the same (shared,
-noisy) machine.  Other sections of RESULTS.md (outside the markers) are kept.
+Each benchmark runs as its own command (shown in its section), writes its figures as
+JSON, and the generator keeps that JSON in ``bench/results/<name>.json`` with the
+command, its date, its duration and the load average around it; ``bench/results/
+machine.json`` holds the machine.  RESULTS.md is rewritten entirely from those files
+(bench/report_render.py): nothing in it is carried over from an earlier run, and a
+target whose benchmark did not run (or failed) in this run says so instead of
+quoting an older figure.  History is left to git.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
+import os
 import platform
+import shlex
+import signal
 import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-HERE = Path(__file__).resolve().parent
-RESULTS = HERE / "RESULTS.md"
-BEGIN, END = "<!-- core:begin (bench/report.py) -->", "<!-- core:end -->"
+BENCH = Path(__file__).resolve().parent
+ROOT = BENCH.parent
+RESULTS = BENCH / "RESULTS.md"
+RAW = BENCH / "results"
+TIMEOUT_S = 3600.0  # one benchmark; a hung one is killed and reported as failed
 
 
-def _cpu() -> str:
+@dataclass(frozen=True)
+class Benchmark:
+    """One benchmark script and how the generator runs it."""
+
+    name: str  # bench/results/<name>.json, and the capability's key
+    argv: tuple[str, ...]  # after ``python``, from the repository root
+    quick: tuple[str, ...] = ()  # added (or replacing argv's options) with --quick
+    json_flag: str = "--json"  # how the script is told where its JSON goes
+    joined: bool = False  # ``--flag=PATH`` rather than ``--flag PATH``
+
+    def command(self, quick: bool, json_name: str) -> list[str]:
+        args = list(self.argv)
+        extra = list(self.quick) if quick else []
+        while extra:  # an option argv already has gets the quick value in its place
+            opt = extra.pop(0)
+            value = (
+                extra.pop(0)
+                if extra and opt.startswith("--") and not extra[0].startswith("--")
+                else None
+            )
+            if value is not None and opt in args:
+                args[args.index(opt) + 1] = value
+            else:
+                args += [opt] if value is None else [opt, value]
+        out = [f"{self.json_flag}={json_name}"] if self.joined else [self.json_flag, json_name]
+        return args + out
+
+
+PYTEST = ("-m", "pytest", "-q", "-p", "no:cacheprovider")
+BENCH_SETTINGS = ("--benchmark-min-time=0.05", "--benchmark-max-time=1.0")
+
+#: In the order of RESULTS.md.  bench/README.md lists the same scripts as benchmarks
+#: (tests/test_bench_report.py checks that every one of them is here).
+BENCHMARKS: tuple[Benchmark, ...] = (
+    Benchmark(
+        "crc",
+        (*PYTEST, "bench/bench_crc.py", *BENCH_SETTINGS),
+        json_flag="--benchmark-json",
+        joined=True,
+    ),
+    Benchmark(
+        "core",
+        (*PYTEST, "bench/bench_core.py", *BENCH_SETTINGS),
+        json_flag="--benchmark-json",
+        joined=True,
+    ),
+    Benchmark("serial", ("bench/run_serial.py", "--no-write")),
+    Benchmark("client", ("bench/bench_client.py",), quick=("--quick",)),
+    Benchmark(
+        "loops",
+        ("bench/bench_client.py", "--loops", "--buses", "4", "--drive", "cv100", "--rounds", "3"),
+        quick=("--quick", "--rounds", "1"),
+    ),
+    Benchmark("slave", ("bench/run_slave.py",)),
+    Benchmark("wake", ("bench/wake_floor.py",)),
+    Benchmark("gateway", ("bench/run_gateway.py", "--no-write"), quick=("--seconds", "2")),
+    Benchmark("poller", ("bench/bench_poller.py", "--no-write"), quick=("--seconds", "3")),
+    Benchmark("bridge", ("bench/bench_bridge.py",), quick=("--outage", "10", "--rounds", "3")),
+    Benchmark("outbox", ("bench/bench_outbox.py",), quick=("--runs", "3")),
+    Benchmark("setrt", ("bench/bench_set_roundtrip.py",), quick=("--sets", "100")),
+    Benchmark("compat", ("bench/bench_compat.py",)),
+    Benchmark("capture", ("bench/bench_capture.py",), quick=("--sizes", "10,50")),
+    Benchmark("vbus", ("bench/vbus_timing.py",), quick=("10",)),
+    Benchmark("soak", ("bench/soak.py",), quick=("--short",)),
+)
+BY_NAME = {b.name: b for b in BENCHMARKS}
+
+
+def _first_line(argv: list[str]) -> str:
+    try:
+        done = subprocess.run(argv, capture_output=True, text=True, check=False, timeout=30)
+    except (OSError, subprocess.TimeoutExpired):
+        return "not found"
+    text = (done.stdout or done.stderr).strip()
+    return text.splitlines()[0] if text else "not found"
+
+
+def machine(quick: bool, only: list[str] | None) -> dict[str, Any]:
+    """What the header says about the machine and the run, read from the machine."""
+    cpu = platform.processor() or "unknown CPU"
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
             if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
+                cpu = line.split(":", 1)[1].strip()
+                break
     except OSError:
         pass
-    return platform.processor() or "unknown CPU"
+    sys.path.insert(0, str(ROOT))
+    import pyrtu
+
+    rev = _first_line(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"])
+    dirty = _first_line(["git", "-C", str(ROOT), "status", "--porcelain", "--", "pyrtu", "csrc"])
+    return {
+        "cpu": cpu,
+        "cores": os.cpu_count(),
+        "kernel": f"{platform.system()} {platform.release()}",
+        "python": platform.python_version(),
+        "gcc": _first_line(["gcc", "--version"]),
+        "libmodbus": _first_line(["pkg-config", "--modversion", "libmodbus"]),
+        "backend": pyrtu.BACKEND,
+        "commit": rev
+        + (" (with uncommitted changes to pyrtu/ or csrc/)" if dirty != "not found" else ""),
+        "started": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+        "load_before": list(os.getloadavg()),
+        "quick": quick,
+        "only": only,
+    }
 
 
-def run_benchmarks(out: Path) -> list[dict[str, Any]]:
-    cmd = [
-        sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
-        str(HERE / "bench_crc.py"), str(HERE / "bench_core.py"),
-        f"--benchmark-json={out}", "--benchmark-min-time=0.05", "--benchmark-max-time=1.0",
-    ]  # fmt: skip
-    subprocess.run(cmd, check=True)
-    return list(json.loads(out.read_text())["benchmarks"])
+def run_one(bench: Benchmark, quick: bool) -> dict[str, Any]:
+    """Run one benchmark; its figures and how they were made (never raises)."""
+    shown = ["python", *bench.command(quick, f"{bench.name}.json")]
+    record: dict[str, Any] = {
+        "name": bench.name,
+        "command": shlex.join(shown),
+        "started": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+        "load_before": list(os.getloadavg()),
+        "quick": quick,
+    }
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH")) if p)
+    t0 = time.monotonic()
+    with tempfile.TemporaryDirectory(prefix=f"pyrtu-report-{bench.name}-") as tmp:
+        out = Path(tmp) / f"{bench.name}.json"
+        argv = [sys.executable, *bench.command(quick, str(out))]
+        print(f"report.py: {record['command']}", flush=True)
+        proc = subprocess.Popen(
+            argv, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+            text=True, start_new_session=True,
+        )  # fmt: skip
+        try:
+            log, _ = proc.communicate(timeout=TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            log, _ = proc.communicate()
+            record["error"] = f"killed after {TIMEOUT_S:.0f} s"
+        record["returncode"] = proc.returncode
+        record["duration_s"] = round(time.monotonic() - t0, 1)
+        record["load_after"] = list(os.getloadavg())
+        try:
+            record["data"] = json.loads(out.read_text())
+        except (OSError, ValueError) as exc:
+            record["data"] = None
+            record.setdefault("error", f"no figures ({exc.__class__.__name__})")
+    if record["data"] is None or (proc.returncode != 0 and bench.name != "soak"):
+        # soak.py exits 1 when a fault was not recovered: that is a figure, not a failure
+        record.setdefault("error", f"exit status {proc.returncode}")
+        record["log_tail"] = (log or "").strip().splitlines()[-15:]
+    print(f"report.py: {bench.name}: {record['duration_s']} s, exit {proc.returncode}", flush=True)
+    return record
 
 
-def _fmt_time(s: float) -> str:
-    for unit, scale in (("s", 1.0), ("ms", 1e-3), ("us", 1e-6)):
-        if s >= scale:
-            return f"{s / scale:.3g} {unit}"
-    return f"{s / 1e-9:.3g} ns"
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="fewer rounds, shorter runs")
+    ap.add_argument("--only", help=f"comma-separated, of: {', '.join(BY_NAME)}")
+    ap.add_argument(
+        "--render", action="store_true", help="only write RESULTS.md from bench/results/"
+    )
+    args = ap.parse_args(argv)
+    only = args.only.split(",") if args.only else None
+    for name in only or []:
+        if name not in BY_NAME:
+            ap.error(f"--only: no benchmark {name!r} (known: {', '.join(BY_NAME)})")
+    if not args.render:
+        RAW.mkdir(exist_ok=True)
+        for old in RAW.glob("*.json"):
+            old.unlink()  # nothing of an earlier run stays beside this one
+        info = machine(args.quick, only)
+        (RAW / "machine.json").write_text(json.dumps(info, indent=1) + "\n")
+        for bench in BENCHMARKS:
+            if only is None or bench.name in only:
+                record = run_one(bench, args.quick)
+                (RAW / f"{bench.name}.json").write_text(json.dumps(record, indent=1) + "\n")
+        info["finished"] = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+        info["load_after"] = list(os.getloadavg())
+        (RAW / "machine.json").write_text(json.dumps(info, indent=1) + "\n")
+    sys.path.insert(0, str(BENCH))
+    from report_render import render_dir
 
-
-def _fmt_rate(bytes_per_s: float) -> str:
-    if bytes_per_s >= 1e9:
-        return f"{bytes_per_s / 1e9:.3g} GB/s"
-    return f"{bytes_per_s / 1e6:.3g} MB/s"
-
-
-def render(benches: list[dict[str, Any]]) -> str:
-    by_group: dict[str, list[dict[str, Any]]] = {}
-    for b in benches:
-        by_group.setdefault(b["group"] or "", []).append(b)
-
-    def median(group: str, name_part: str) -> float:
-        for b in by_group.get(group, []):
-            if b["name"] == name_part or b["name"] == f"{name_part}[{group.split(' ', 1)[1]}]":
-                return float(b["stats"]["median"])
-        raise KeyError(f"{group}: {name_part}")
-
-    lines = [
-        BEGIN,
-        "## Core (issue 2)",
-        "",
-        f"Measured {time.strftime('%Y-%m-%d')} on {_cpu()}, Python {platform.python_version()},"
-        " in one run of `python bench/report.py` (pytest-benchmark medians; the machine is"
-        " shared, so compare ratios within this run).",
-        "",
-    ]
-    for group in sorted(by_group):
-        rows = sorted(by_group[group], key=lambda b: b["stats"]["median"])
-        fastest = rows[0]["stats"]["median"]
-        lines += [
-            f"### {group}",
-            "",
-            "| benchmark | median | throughput | x fastest |",
-            "|---|---|---|---|",
-        ]
-        for b in rows:
-            med = float(b["stats"]["median"])
-            size = b.get("extra_info", {}).get("bytes")
-            rate = _fmt_rate(size / med) if size and "noop" not in b["name"] else ""
-            lines.append(f"| `{b['name']}` | {_fmt_time(med)} | {rate} | {med / fastest:.2f} |")
-        lines.append("")
-
-    # The issue's targets, from the same run.
-    targets = []
-    try:
-        crc8 = median("crc16 8 B", "test_c_crc16")
-        noop = median("crc16 8 B", "test_c_noop")
-        noop_args = median("crc16 8 B", "test_c_noop_same_arguments")
-        targets.append(
-            f"| `crc16` at 8 B within 1.3x of an empty cffi call | {_fmt_time(crc8)} vs "
-            f"{_fmt_time(noop_args)} for an empty call with the same arguments: "
-            f"**{crc8 / noop_args:.2f}x**; vs an empty call with no arguments "
-            f"({_fmt_time(noop)}): {crc8 / noop:.2f}x |"
-        )
-        mib = 1 << 20
-        big = median("crc16 1 MiB", "test_c_crc16")
-        clmul = median("crc16 1 MiB", "test_c_path[1 MiB-clmul]")
-        vclmul = median("crc16 1 MiB", "test_c_path[1 MiB-vclmul]")
-        twin = median("crc16 1 MiB", "test_python_twin")
-        targets.append(
-            f"| `crc16` at 1 MiB >= 10 GB/s with PCLMULQDQ | `crc16` {_fmt_rate(mib / big)}; "
-            f"clmul path {_fmt_rate(mib / clmul)}; vclmul path {_fmt_rate(mib / vclmul)}; "
-            f"pure-Python twin {_fmt_rate(mib / twin)} ({twin / big:.0f}x slower) |"
-        )
-    except KeyError as exc:
-        targets.append(f"| crc16 | missing benchmark {exc} |")
-    try:
-        group = "parse_stream 10 MB"
-        c = median(group, "test_parse_stream[c]")
-        py = median(group, "test_parse_stream[python]")
-        targets.append(
-            f"| `parse_stream` >= 150 MB/s and >= 50x the twin | C {_fmt_rate(10e6 / c)}, "
-            f"twin {_fmt_rate(10e6 / py)}: **{py / c:.0f}x** |"
-        )
-    except KeyError as exc:
-        targets.append(f"| parse_stream | missing benchmark {exc} |")
-    lines += ["### Targets (issue 2)", "", "| target | measured |", "|---|---|", *targets, "", END]
-    return "\n".join(lines)
-
-
-def main() -> int:
-    with tempfile.TemporaryDirectory() as tmp:
-        benches = run_benchmarks(Path(tmp) / "bench.json")
-    section = render(benches)
-    old = RESULTS.read_text() if RESULTS.exists() else "# Benchmark results\n\n"
-    if BEGIN in old and END in old:
-        new = old[: old.index(BEGIN)] + section + old[old.index(END) + len(END) :]
-    else:
-        new = old.rstrip() + "\n\n" + section + "\n"
-    RESULTS.write_text(new)
-    print(section)
+    RESULTS.write_text(render_dir(RAW))
+    print(f"report.py: wrote {RESULTS}")
     return 0
 
 

@@ -1,6 +1,6 @@
-"""Benchmark `pyrtu gateway` and write its section of bench/RESULTS.md (issue 12).
+"""Benchmark `pyrtu gateway` (issue 12); bench/report.py runs it for bench/RESULTS.md.
 
-    python bench/run_gateway.py [--seconds S] [--no-write] [--json FILE]
+    python bench/run_gateway.py [--seconds S] [--json FILE]
 
 Transactions per second through the gateway (a process of its own: ``pyrtu gateway``)
 to a pyrtu slave (tests/peers/pyrtu_slave.py, the register pattern) and to a
@@ -14,8 +14,7 @@ forwarded transaction: the gateway process's user+system time (/proc, 10 ms tick
 over the transactions it forwarded.  pymodbus 3.16 offers no TCP-to-serial forwarder
 (its remote datastore was removed in 3.x), so there is no pymodbus row.
 
-The section sits between ``<!-- gateway:begin ... -->`` and ``<!-- gateway:end -->``
-and is replaced in place, or appended; the rest of RESULTS.md is left as it is.
+The summary goes to stdout, the rows to ``--json``.
 """
 
 from __future__ import annotations
@@ -49,7 +48,6 @@ from pyrtu.drivers.aio import AsyncMaster  # noqa: E402
 from pyrtu.drivers.aio import run as aio_run  # noqa: E402
 from pyrtu.tcp import AsyncTcpClient  # noqa: E402
 
-RESULTS = BENCH / "RESULTS.md"
 HEADING = "## Gateway: Modbus TCP to RTU (issue 12)"
 BEGIN, END = "<!-- gateway:begin (bench/run_gateway.py) -->", "<!-- gateway:end -->"
 BAUD = 115200
@@ -392,21 +390,14 @@ def reading(rows: list[Row], load: float) -> list[str]:
     ]
 
 
-def write(text: str) -> None:
-    old = RESULTS.read_text() if RESULTS.exists() else ""
-    if BEGIN in old and END in old:
-        head, rest = old.split(BEGIN, 1)
-        _, tail = rest.split(END, 1)
-        new = head + text.rstrip("\n") + tail
-    else:
-        new = old.rstrip("\n") + "\n\n" + text
-    RESULTS.write_text(new)
-
-
 def main() -> int:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--seconds", type=float, default=3.0, help="per measurement")
-    parser.add_argument("--no-write", action="store_true")
+    parser.add_argument(
+        "--no-write",
+        action="store_true",
+        help="accepted and ignored: RESULTS.md is written by bench/report.py only",
+    )
     parser.add_argument("--json", type=Path, help="also write the rows as JSON")
     args = parser.parse_args()
     rows = measure(args.seconds)
@@ -415,8 +406,6 @@ def main() -> int:
         args.json.write_text(json.dumps({"rows": [asdict(r) for r in rows], "tcp": tcp}))
     text = section(rows, args.seconds, tcp)
     print(text)
-    if not args.no_write:
-        write(text)
     return 0
 
 

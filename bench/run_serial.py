@@ -1,12 +1,9 @@
-"""Run bench/bench_serial.py once and write its section of bench/RESULTS.md.
+"""Run bench/bench_serial.py once: pytest-benchmark's JSON (``--json``) and a summary
+on stdout.  bench/report.py runs it for bench/RESULTS.md.
 
-    python bench/run_serial.py [--json FILE] [--no-write] [pytest args...]
+    python bench/run_serial.py [--json FILE] [pytest args...]
 
-The section is the one headed "## Master/slave over serial (issue 4)", between
-the markers ``<!-- serial:begin ... -->`` and ``<!-- serial:end -->`` (as
-bench/report.py does for the core): it is replaced in place, or appended; the rest
-of RESULTS.md is left as it is.
-``--from-json FILE`` rewrites the section from an earlier run without measuring.
+``--from-json FILE`` prints the summary of an earlier run without measuring.
 """
 
 from __future__ import annotations
@@ -24,9 +21,7 @@ from typing import Any
 
 BENCH = Path(__file__).resolve().parent
 ROOT = BENCH.parent
-RESULTS = BENCH / "RESULTS.md"
 HEADING = "## Master/slave over serial (issue 4)"
-BEGIN, END = "<!-- serial:begin (bench/run_serial.py) -->", "<!-- serial:end -->"
 TARGET_LIBMODBUS = 0.8
 TARGET_PYMODBUS = 10.0
 
@@ -82,7 +77,10 @@ def fmt_us(x: float | None) -> str:
     return "n/a" if x is None else f"{x:,.1f}"
 
 
-def section(data: dict[str, Any]) -> str:
+def split_rows(
+    data: dict[str, Any],
+) -> tuple[dict[tuple[str, str], dict[str, Any]], list[dict[str, Any]]]:
+    """The pty figures by (client, server) and the virtual bus's, from the JSON."""
     rows: dict[tuple[str, str], dict[str, Any]] = {}
     vbus: list[dict[str, Any]] = []
     for bench in data["benchmarks"]:
@@ -92,6 +90,11 @@ def section(data: dict[str, Any]) -> str:
                 rows[(client, info["server"])] = numbers
         elif "baudrate" in info:
             vbus.append(info)
+    return rows, vbus
+
+
+def section(data: dict[str, Any]) -> str:
+    rows, vbus = split_rows(data)
     cycles = next(iter(rows.values()))["rounds"] if rows else 0
     machine = data.get("machine_info", {})
     import pyrtu
@@ -206,21 +209,15 @@ def section(data: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def write_section(text: str, path: Path = RESULTS) -> None:
-    old = path.read_text(encoding="utf-8") if path.exists() else "# Benchmark results\n"
-    block = f"{BEGIN}\n{text.rstrip()}\n\n{END}"
-    if BEGIN in old and END in old:
-        new = old[: old.index(BEGIN)] + block + old[old.index(END) + len(END) :]
-    else:
-        new = old.rstrip("\n") + "\n\n" + block + "\n"
-    path.write_text(new, encoding="utf-8")
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--json", type=Path, help="keep pytest-benchmark's JSON here")
-    parser.add_argument("--from-json", type=Path, help="write the section from this JSON only")
-    parser.add_argument("--no-write", action="store_true", help="print, leave RESULTS.md alone")
+    parser.add_argument("--from-json", type=Path, help="summarise this JSON only")
+    parser.add_argument(
+        "--no-write",
+        action="store_true",
+        help="accepted and ignored: RESULTS.md is written by bench/report.py only",
+    )
     args, extra = parser.parse_known_args(argv)
     sys.path.insert(0, str(ROOT))
     if args.from_json:
@@ -231,9 +228,6 @@ def main(argv: list[str] | None = None) -> int:
     data = json.loads(json_path.read_text(encoding="utf-8"))
     text = section(data)
     print(text)
-    if not args.no_write:
-        write_section(text)
-        print(f"\nwritten to {RESULTS}")
     return 0
 
 

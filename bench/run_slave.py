@@ -9,9 +9,9 @@ this process, on drop 0 of a `VirtualBus` (whose hub thread also runs here).  A
 round is ``N`` transactions; the figures are medians over the rounds, CPU per
 transaction = the slave process's CPU over the round / the requests it served.
 
-    python bench/run_slave.py            # prints the table
-    python bench/run_slave.py --write    # and writes the slave section of RESULTS.md
-    python bench/run_slave.py --write --baseline REV --callgrind   # the full section
+    python bench/run_slave.py            # prints the table and its reading
+    python bench/run_slave.py --json F   # and its rows as JSON (bench/report.py)
+    python bench/run_slave.py --baseline REV --callgrind
 
 ``--baseline REV`` also measures the sync Slave of commit REV (with this tree's C
 core); ``--callgrind`` counts the slave's instructions per transaction under
@@ -25,6 +25,7 @@ import argparse
 import asyncio
 import contextlib
 import datetime
+import json
 import os
 import platform
 import shutil
@@ -322,7 +323,7 @@ def section(
         + "; the wire efficiency target (≥ 0.98, master and slave together) is "
         + ("met." if eff else "not met.")
     )
-    command = "python bench/run_slave.py --write" + (f" --baseline {baseline}" if baseline else "")
+    command = "python bench/run_slave.py" + (f" --baseline {baseline}" if baseline else "")
     if counts:
         command += " --callgrind"
         ir = (
@@ -383,22 +384,10 @@ a register table, CRC) in C, or a quiet machine to show what it costs.
 {END}"""
 
 
-def write_results(text: str) -> None:
-    path = ROOT / "bench" / "RESULTS.md"
-    old = path.read_text(encoding="utf-8")
-    if BEGIN in old:
-        head, rest = old.split(BEGIN, 1)
-        tail = rest.split(END, 1)[1]
-        new = head + text + tail
-    else:
-        new = old.rstrip("\n") + "\n\n" + text + "\n"
-    path.write_text(new, encoding="utf-8")
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--serve", nargs=3, metavar=("KIND", "PATH", "BAUD"))
-    parser.add_argument("--write", action="store_true", help="update bench/RESULTS.md")
+    parser.add_argument("--json", type=Path, help="also write the rows here")
     parser.add_argument("--kinds", default=",".join(KINDS))
     parser.add_argument(
         "--baseline", metavar="REV", help="also measure the sync Slave of commit REV"
@@ -428,10 +417,11 @@ def main() -> None:
             for kind in kinds:
                 counts[kind] = instructions(kind, tree)
             print(cg_table(counts))
+    if args.json:
+        args.json.write_text(json.dumps({"rows": results, "instructions": counts}, indent=1) + "\n")
     floor = wake_floor.measure()
     print(floor)
-    if args.write:
-        write_results(section(results, active.BACKEND, args.baseline, floor, counts))
+    print(section(results, active.BACKEND, args.baseline, floor, counts))
 
 
 if __name__ == "__main__":

@@ -11,12 +11,15 @@ bound of the test.  Nothing is asserted: the test does that.
 
 from __future__ import annotations
 
+import argparse
+import json
 import os
 import statistics
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests" / "vbus"))
 
 from test_vbus_timing import Run, measure
 
@@ -35,7 +38,11 @@ SIGNED = {"span_err_us", "raw_offset_us", "own_offset_us"}
 
 
 def main() -> None:
-    runs = int(sys.argv[1]) if len(sys.argv) > 1 else 20
+    ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
+    ap.add_argument("runs", nargs="?", type=int, default=20, help="runs per baud rate")
+    ap.add_argument("--json", type=Path, help="also write the figures here")
+    args = ap.parse_args()
+    runs = args.runs
     print(f"load average before: {os.getloadavg()}")
     print("| figure (median over runs, us) | 9600 8E1 | 115200 8E1 |")
     print("|---|---|---|")
@@ -49,6 +56,22 @@ def main() -> None:
     ok = [sum(r.ok() for r in results[b]) for b in results]
     print(f"| runs meeting every bound | {ok[0]} / {runs} | {ok[1]} / {runs} |")
     print(f"load average after: {os.getloadavg()}")
+    if args.json:
+        out = {
+            "runs": runs,
+            "figures": [label for _, label in FIGURES],
+            "bauds": {
+                str(b): {
+                    "medians_us": {
+                        label: statistics.median(r.figures()[key] for r in results[b])
+                        for key, label in FIGURES
+                    },
+                    "runs_meeting_every_bound": sum(r.ok() for r in results[b]),
+                }
+                for b in results
+            },
+        }
+        args.json.write_text(json.dumps(out, indent=1) + "\n")
 
 
 if __name__ == "__main__":

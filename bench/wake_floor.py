@@ -14,6 +14,8 @@ Python interpreter's share shows as the difference.
 
 from __future__ import annotations
 
+import argparse
+import json
 import os
 import select
 import shutil
@@ -138,7 +140,15 @@ def measure() -> str:
 
 
 def main() -> None:
-    print(measure())
+    ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
+    ap.add_argument("--json", type=Path, help="also write the figures here")
+    args = ap.parse_args()
+    py, c = python_floor(), c_floor()
+    print(table(py, c))
+    if args.json:
+        out = {"sleeps_ms": list(py), "python_us": list(py.values())}
+        out["c_us"] = [c.get(ms) for ms in py] if c is not None else None
+        args.json.write_text(json.dumps(out, indent=1) + "\n")
 
 
 if __name__ == "__main__":

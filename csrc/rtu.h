@@ -110,10 +110,10 @@ size_t rtu_answer_min(const rtu_rules *r, uint8_t address, uint8_t function);
 #define RTU_MAX_ADU_LIMIT 1024
 
 typedef struct {
-    uint64_t offset;  /* stream position of the first byte */
-    uint32_t length;  /* bytes */
-    uint8_t kind;     /* RTU_KIND_* */
-    uint8_t error;    /* RTU_ERR_* (RTU_ERR_NONE for frames) */
+    uint64_t offset; /* stream position of the first byte */
+    uint32_t length; /* bytes */
+    uint8_t kind;    /* RTU_KIND_* */
+    uint8_t error;   /* RTU_ERR_* (RTU_ERR_NONE for frames) */
     uint16_t reserved;
     int64_t start_us; /* start of the first character on the wire, or RTU_NO_TIME */
     int64_t end_us;   /* end of the last character, or RTU_NO_TIME */
@@ -148,8 +148,8 @@ typedef struct {
 } rtu_context;
 
 typedef struct {
-    uint64_t frames[4];            /* by kind: request, response, exception, unknown */
-    uint64_t discarded[RTU_NERR];  /* bytes by error reason */
+    uint64_t frames[4];           /* by kind: request, response, exception, unknown */
+    uint64_t discarded[RTU_NERR]; /* bytes by error reason */
     uint64_t discard_events;
 } rtu_counters;
 
@@ -164,15 +164,15 @@ typedef struct {
     int64_t times[RTU_FRAMER_CAP]; /* arrival (end of character) of each byte */
     rtu_mark marks[RTU_FRAMER_CAP];
     size_t nmarks;
-    size_t head;       /* first unresolved byte */
-    size_t n;          /* bytes in buf */
-    uint64_t base;     /* stream position of buf[0] */
-    int64_t last_us;   /* arrival of the last byte, RTU_NO_TIME before any */
-    int silent;        /* a silence of t3.5 follows the last byte */
-    int final;         /* nothing more joins the buffered bytes */
-    uint32_t run;      /* pending discard run, in bytes (ending at head) */
+    size_t head;     /* first unresolved byte */
+    size_t n;        /* bytes in buf */
+    uint64_t base;   /* stream position of buf[0] */
+    int64_t last_us; /* arrival of the last byte, RTU_NO_TIME before any */
+    int silent;      /* a silence of t3.5 follows the last byte */
+    int final;       /* nothing more joins the buffered bytes */
+    uint32_t run;    /* pending discard run, in bytes (ending at head) */
     uint8_t run_error;
-    rtu_event event;   /* the event returned by the last rtu_framer_poll */
+    rtu_event event; /* the event returned by the last rtu_framer_poll */
 } rtu_framer;
 
 int rtu_framer_init(rtu_framer *f, const rtu_config *cfg);
@@ -215,8 +215,8 @@ typedef struct {
     const rtu_config *cfg;
     rtu_context ctx;
     rtu_counters counters;
-    uint64_t pos;       /* next unresolved byte */
-    size_t mark_index;  /* first mark with pos > this->pos */
+    uint64_t pos;      /* next unresolved byte */
+    size_t mark_index; /* first mark with pos > this->pos */
     uint32_t run;
     uint8_t run_error;
     uint64_t run_start;
@@ -262,16 +262,16 @@ int rtu_parse(rtu_parser *p, const uint8_t *data, size_t len, const rtu_mark *ma
 #define RTU_MBAP_NERR 4
 
 typedef struct {
-    uint64_t offset;  /* stream position of the first byte */
-    uint64_t length;  /* bytes of the ADU, or of the discarded run */
-    uint8_t kind;     /* RTU_KIND_* (RTU_KIND_DISCARD with an error) */
-    uint8_t error;    /* RTU_MBAP_ERR_* */
+    uint64_t offset; /* stream position of the first byte */
+    uint64_t length; /* bytes of the ADU, or of the discarded run */
+    uint8_t kind;    /* RTU_KIND_* (RTU_KIND_DISCARD with an error) */
+    uint8_t error;   /* RTU_MBAP_ERR_* */
     uint16_t reserved;
 } rtu_mbap_event;
 
 typedef struct {
-    uint64_t frames[4];                 /* by kind: request, response, exception, unknown */
-    uint64_t discarded[RTU_MBAP_NERR];  /* bytes by error reason */
+    uint64_t frames[4];                /* by kind: request, response, exception, unknown */
+    uint64_t discarded[RTU_MBAP_NERR]; /* bytes by error reason */
     uint64_t discard_events;
 } rtu_mbap_counters;
 
@@ -287,10 +287,10 @@ int rtu_mbap_encode(uint16_t transaction, uint8_t unit, const uint8_t *pdu, size
 
 typedef struct {
     int role;
-    int error;    /* sticky RTU_MBAP_ERR_* after a bad header: the rest is discarded */
-    int eof;      /* the stream ended (rtu_mbap_framer_close) */
-    size_t head;  /* first unresolved byte */
-    size_t n;     /* bytes in buf */
+    int error;     /* sticky RTU_MBAP_ERR_* after a bad header: the rest is discarded */
+    int eof;       /* the stream ended (rtu_mbap_framer_close) */
+    size_t head;   /* first unresolved byte */
+    size_t n;      /* bytes in buf */
     uint64_t base; /* stream position of buf[0] */
     rtu_mbap_counters counters;
     rtu_mbap_event event; /* the event returned by the last rtu_mbap_framer_poll */

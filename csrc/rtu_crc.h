@@ -42,14 +42,14 @@ extern "C" {
 #endif
 
 /* CRC implementation paths (rtu_crc16_path). */
-#define RTU_CRC_BYTEWISE 0   /* Appendix B byte loop with the two 256-byte tables */
-#define RTU_CRC_SLICE8   1   /* slicing-by-8, 8 x 256 uint16 tables */
-#define RTU_CRC_CLMUL    2   /* PCLMULQDQ folding (x86, pclmul + sse4.1) */
-#define RTU_CRC_VCLMUL   3   /* VPCLMULQDQ folding, 512-bit (x86, avx512f/bw/vl + vpclmulqdq) */
-#define RTU_CRC_NPATHS   4
+#define RTU_CRC_BYTEWISE 0 /* Appendix B byte loop with the two 256-byte tables */
+#define RTU_CRC_SLICE8 1   /* slicing-by-8, 8 x 256 uint16 tables */
+#define RTU_CRC_CLMUL 2    /* PCLMULQDQ folding (x86, pclmul + sse4.1) */
+#define RTU_CRC_VCLMUL 3   /* VPCLMULQDQ folding, 512-bit (x86, avx512f/bw/vl + vpclmulqdq) */
+#define RTU_CRC_NPATHS 4
 
-#define RTU_CRC_INIT  0xFFFFu
-#define RTU_CRC_CHECK 0x4B37u  /* crc16("123456789") */
+#define RTU_CRC_INIT 0xFFFFu
+#define RTU_CRC_CHECK 0x4B37u /* crc16("123456789") */
 
 /* The Appendix B tables, generated from 0xA001 (read-only).  The Appendix B
  * loop keeps the register byte-swapped: (uchCRCHi, uchCRCLo) = (crc & 0xFF,
@@ -76,8 +76,7 @@ int rtu_crc16_path_available(int path);
 /* Run one path: RTU_OK and *out = CRC; RTU_EUNSUPPORTED if this CPU lacks the
  * path; RTU_EINVAL for an unknown path, out == NULL, or data == NULL with
  * len > 0. */
-int rtu_crc16_path(int path, const uint8_t *data, size_t len, uint16_t crc,
-                   uint16_t *out);
+int rtu_crc16_path(int path, const uint8_t *data, size_t len, uint16_t crc, uint16_t *out);
 
 #ifdef __cplusplus
 }

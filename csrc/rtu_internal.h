@@ -43,10 +43,7 @@ int rtu_config_valid(const rtu_config *cfg);
  * each step in the same order (pyrtu/core/_pure/head.py, sat_*). */
 #define RTU_TIME_MIN (-INT64_MAX)
 
-static inline int64_t rtu_time_clamp(int64_t a)
-{
-    return a < RTU_TIME_MIN ? RTU_TIME_MIN : a;
-}
+static inline int64_t rtu_time_clamp(int64_t a) { return a < RTU_TIME_MIN ? RTU_TIME_MIN : a; }
 
 /* a + b for a, b in [-INT64_MAX, INT64_MAX], clamped to that range. */
 static inline int64_t rtu_sat_add(int64_t a, int64_t b)
@@ -60,10 +57,7 @@ static inline int64_t rtu_sat_add(int64_t a, int64_t b)
     return a + b;
 }
 
-static inline int64_t rtu_sat_sub(int64_t a, int64_t b)
-{
-    return rtu_sat_add(a, -b);
-}
+static inline int64_t rtu_sat_sub(int64_t a, int64_t b) { return rtu_sat_add(a, -b); }
 
 /* k * c for c >= 0, clamped to INT64_MAX. */
 static inline int64_t rtu_sat_mul(uint64_t k, int64_t c)

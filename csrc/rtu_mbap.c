@@ -18,10 +18,7 @@
 
 #include <string.h>
 
-static unsigned rtu_be16(const uint8_t *p)
-{
-    return ((unsigned)p[0] << 8) | p[1];
-}
+static unsigned rtu_be16(const uint8_t *p) { return ((unsigned)p[0] << 8) | p[1]; }
 
 int rtu_mbap_inspect(const uint8_t *data, size_t n, size_t *length, int *error)
 {
@@ -126,10 +123,7 @@ size_t rtu_mbap_framer_feed(rtu_mbap_framer *f, const uint8_t *data, size_t len)
     return take;
 }
 
-void rtu_mbap_framer_close(rtu_mbap_framer *f)
-{
-    f->eof = 1;
-}
+void rtu_mbap_framer_close(rtu_mbap_framer *f) { f->eof = 1; }
 
 static int rtu_mbap_framer_discard(rtu_mbap_framer *f, int error)
 {

@@ -9,10 +9,7 @@
 
 /* round(num / den) for positive values, in integers so that the C core and the
  * pure-Python twin agree to the microsecond. */
-static int64_t rtu_div_round(int64_t num, int64_t den)
-{
-    return (2 * num + den) / (2 * den);
-}
+static int64_t rtu_div_round(int64_t num, int64_t den) { return (2 * num + den) / (2 * den); }
 
 int rtu_timing_init(rtu_timing *t, uint32_t baudrate, unsigned bits_per_char, int rule)
 {

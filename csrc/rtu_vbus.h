@@ -64,14 +64,14 @@ typedef struct {
     int64_t last_start; /* the last character this drop put on the wire */
     uint8_t last_byte;
     uint8_t has_last;
-    uint8_t alive; /* plugged in: receives */
-    uint8_t cut;   /* transmits nothing more (unplugged or being unplugged) */
-    uint8_t echo;  /* receives its own characters */
-    uint8_t due;   /* its unplug time has come (set by rtu_vbus_service) */
-    int64_t unplug_left;   /* bytes still to transmit before it goes away; -1: none */
-    int64_t event_at;      /* when it goes away; RTU_VBUS_NO_TIME: not scheduled */
-    int64_t batch_ns;      /* batch fault: hold received bytes this long (0: off) */
-    uint32_t batch_bytes;  /* ... or until this many are held */
+    uint8_t alive;        /* plugged in: receives */
+    uint8_t cut;          /* transmits nothing more (unplugged or being unplugged) */
+    uint8_t echo;         /* receives its own characters */
+    uint8_t due;          /* its unplug time has come (set by rtu_vbus_service) */
+    int64_t unplug_left;  /* bytes still to transmit before it goes away; -1: none */
+    int64_t event_at;     /* when it goes away; RTU_VBUS_NO_TIME: not scheduled */
+    int64_t batch_ns;     /* batch fault: hold received bytes this long (0: off) */
+    uint32_t batch_bytes; /* ... or until this many are held */
     uint32_t hold_len;
     int64_t hold_deadline; /* RTU_VBUS_NO_TIME: nothing held */
     int64_t hold_end;
@@ -128,9 +128,9 @@ int rtu_vbus_written(rtu_vbus *s, uint32_t drop, size_t n, int heard);
 int rtu_vbus_busy(const rtu_vbus *s);
 
 /* ---- the I/O thread (csrc/rtu_vbus_io.c) ---- */
-#define RTU_VBUS_IO_STOPPED 1 /* rtu_vbus_io_stop was called */
-#define RTU_VBUS_IO_WATCH 2   /* the watch fd (inotify) is readable */
-#define RTU_VBUS_IO_UNPLUG 3  /* a drop's unplug is due: rtu_vbus_take_due */
+#define RTU_VBUS_IO_STOPPED 1  /* rtu_vbus_io_stop was called */
+#define RTU_VBUS_IO_WATCH 2    /* the watch fd (inotify) is readable */
+#define RTU_VBUS_IO_UNPLUG 3   /* a drop's unplug is due: rtu_vbus_take_due */
 #define RTU_VBUS_IO_ERRNO (-4) /* a system call failed: rtu_vbus_io_errno */
 
 typedef struct rtu_vbus_io rtu_vbus_io;

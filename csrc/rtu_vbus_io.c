@@ -31,10 +31,10 @@
 #include <time.h>
 #include <unistd.h>
 
-#define IDLE_TICK_NS 2000000      /* wake this often when recently active (see below) */
-#define WARM_NS 2000000000        /* ... for this long after the last activity */
-#define EST_MAX_NS 100000         /* a wake-up lateness estimate is at most this */
-#define EST_STEP_NS 1000          /* the estimate moves by this much per timed wake-up */
+#define IDLE_TICK_NS 2000000 /* wake this often when recently active (see below) */
+#define WARM_NS 2000000000   /* ... for this long after the last activity */
+#define EST_MAX_NS 100000    /* a wake-up lateness estimate is at most this */
+#define EST_STEP_NS 1000     /* the estimate moves by this much per timed wake-up */
 #define READ_SIZE 4096
 
 struct rtu_vbus_io {
@@ -248,7 +248,7 @@ int rtu_vbus_io_run(rtu_vbus_io *io)
         ready = wait_fds(pfd, n, target);
         late = ready == 0 && timed ? rtu_vbus_io_now() - target : -1;
         if (late >= 0)
-            spin_until(dl); /* woke early by the estimate's error: the few us left */
+            spin_until(dl);          /* woke early by the estimate's error: the few us left */
         pthread_mutex_lock(&io->mu); /* the fields below are read by other threads */
         io->wakeups++;
         if (late >= 0) { /* track the median lateness of a timed wake-up */

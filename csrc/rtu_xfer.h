@@ -20,11 +20,11 @@
 #include <stdint.h>
 
 /* rtu_xfer_io_run's results (x->status) */
-#define RTU_XFER_ANSWER 0 /* `expect` bytes came (or an exception answer's `short_len`) */
-#define RTU_XFER_STALE 1  /* input was pending at the send time: nothing sent, it is in buf */
-#define RTU_XFER_SHORT 2  /* the deadline came (or a signal) with fewer bytes */
-#define RTU_XFER_ERRNO 3  /* a system call failed: x->err, x->stage */
-#define RTU_XFER_GONE 4   /* the descriptor reported input but gave none (unplugged) */
+#define RTU_XFER_ANSWER 0    /* `expect` bytes came (or an exception answer's `short_len`) */
+#define RTU_XFER_STALE 1     /* input was pending at the send time: nothing sent, it is in buf */
+#define RTU_XFER_SHORT 2     /* the deadline came (or a signal) with fewer bytes */
+#define RTU_XFER_ERRNO 3     /* a system call failed: x->err, x->stage */
+#define RTU_XFER_GONE 4      /* the descriptor reported input but gave none (unplugged) */
 #define RTU_XFER_CANCELLED 5 /* the cancel descriptor became readable */
 
 /* spin_ns at most (1 ms: a wait on the clock is for the last tens of us) */
@@ -53,17 +53,17 @@ typedef struct {
     size_t cap;
     /* what happened */
     int status;
-    int sent;           /* the request was written */
-    int err;            /* errno of RTU_XFER_ERRNO */
-    int stage;          /* RTU_XFER_STAGE_* of RTU_XFER_ERRNO */
-    int64_t start;      /* the write began */
-    int64_t end;        /* the transmission ended (after tcdrain; not before its
+    int sent;        /* the request was written */
+    int err;         /* errno of RTU_XFER_ERRNO */
+    int stage;       /* RTU_XFER_STAGE_* of RTU_XFER_ERRNO */
+    int64_t start;   /* the write began */
+    int64_t end;     /* the transmission ended (after tcdrain; not before its
                            characters' time on a real line) */
-    size_t first_n;     /* bytes of the first read of the answer */
-    int64_t first_t;    /* ... when it returned */
-    size_t n;           /* bytes in buf */
-    int64_t last_t;     /* when the last read returned */
-    uint32_t reads;     /* reads that returned bytes */
+    size_t first_n;  /* bytes of the first read of the answer */
+    int64_t first_t; /* ... when it returned */
+    size_t n;        /* bytes in buf */
+    int64_t last_t;  /* when the last read returned */
+    uint32_t reads;  /* reads that returned bytes */
 } rtu_xfer;
 
 /* Run one exchange (RTU_OK; x->status says how it ended), RTU_EINVAL for a bad

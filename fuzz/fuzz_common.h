@@ -14,12 +14,12 @@
 #include <stdlib.h>
 #include <string.h>
 
-#define FUZZ_FAIL(...)                                                                           \
-    do {                                                                                         \
-        fprintf(stderr, "invariant violated at %s:%d: ", __FILE__, __LINE__);                    \
-        fprintf(stderr, __VA_ARGS__);                                                            \
-        fputc('\n', stderr);                                                                     \
-        abort();                                                                                 \
+#define FUZZ_FAIL(...)                                                        \
+    do {                                                                      \
+        fprintf(stderr, "invariant violated at %s:%d: ", __FILE__, __LINE__); \
+        fprintf(stderr, __VA_ARGS__);                                         \
+        fputc('\n', stderr);                                                  \
+        abort();                                                              \
     } while (0)
 
 typedef struct {
@@ -66,8 +66,8 @@ static inline int64_t fuzz_time(fuzz_in *in, int64_t now)
     case 4: /* backwards */
         return (int64_t)((uint64_t)now - (uint64_t)fuzz_u16(in) * 10u);
     case 5: {
-        static const int64_t extreme[8] = {INT64_MAX,     INT64_MIN,      INT64_MIN + 1, -1, 0,
-                                           INT64_MAX - 1, INT64_MAX / 2, INT64_MIN / 2};
+        static const int64_t extreme[8] = {INT64_MAX, INT64_MIN,     INT64_MIN + 1, -1,
+                                           0,         INT64_MAX - 1, INT64_MAX / 2, INT64_MIN / 2};
         return extreme[fuzz_u8(in) % 8];
     }
     default: /* anything */

@@ -20,8 +20,8 @@
 static uint8_t stream[STREAM_MAX]; /* every byte the framer took, by offset */
 
 typedef struct {
-    uint64_t next;          /* offset the next event must start at */
-    int after_reset;        /* a reset happened since the last event */
+    uint64_t next;   /* offset the next event must start at */
+    int after_reset; /* a reset happened since the last event */
     uint64_t frames[4];
     uint64_t discard_bytes; /* in discard events */
     uint64_t dropped;       /* by rtu_framer_reset, never in an event */
@@ -154,8 +154,8 @@ int LLVMFuzzerTestOneInput(const uint8_t *input, size_t size)
         }
         case 6: /* reset: the unresolved bytes and the pending run go, uncounted in events */
             if (op & 8) {
-                t.dropped += f.n - f.head;  /* counted as truncated by the reset */
-                t.discard_bytes += f.run;   /* counted when discarded, never emitted */
+                t.dropped += f.n - f.head; /* counted as truncated by the reset */
+                t.discard_bytes += f.run;  /* counted when discarded, never emitted */
                 t.after_reset = 1;
                 rtu_framer_reset(&f);
                 t.next = f.base;
@@ -183,8 +183,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *input, size_t size)
     }
     if (f.n == f.head && discarded != t.discard_bytes + t.dropped) {
         FUZZ_FAIL("discarded bytes %llu, events and resets give %llu",
-                  (unsigned long long)discarded,
-                  (unsigned long long)(t.discard_bytes + t.dropped));
+                  (unsigned long long)discarded, (unsigned long long)(t.discard_bytes + t.dropped));
     }
     if (f.n == f.head && f.base + f.n != fed) {
         FUZZ_FAIL("stream position %llu after %llu bytes fed", (unsigned long long)(f.base + f.n),

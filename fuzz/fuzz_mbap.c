@@ -20,10 +20,10 @@
 #include <stdlib.h>
 #include <string.h>
 
-#define FAIL(msg)                                                                                \
-    do {                                                                                         \
-        fprintf(stderr, "fuzz_mbap: invariant violated at line %d: %s\n", __LINE__, msg);        \
-        abort();                                                                                 \
+#define FAIL(msg)                                                                         \
+    do {                                                                                  \
+        fprintf(stderr, "fuzz_mbap: invariant violated at line %d: %s\n", __LINE__, msg); \
+        abort();                                                                          \
     } while (0)
 
 #define MAX_EVENTS 8192
@@ -55,8 +55,7 @@ static void check_frame(const uint8_t *adu, uint64_t length, int kind, int role)
     uint8_t out[RTU_MBAP_MAX_ADU];
     size_t n = 0;
     const uint16_t tid = (uint16_t)(adu[0] << 8 | adu[1]);
-    if (rtu_mbap_encode(tid, adu[6], adu + 7, (size_t)length - 7, out, sizeof out, &n) !=
-            RTU_OK ||
+    if (rtu_mbap_encode(tid, adu[6], adu + 7, (size_t)length - 7, out, sizeof out, &n) != RTU_OK ||
         n != length || memcmp(out, adu, n) != 0) {
         FAIL("re-encoding a frame does not give its bytes back");
     }

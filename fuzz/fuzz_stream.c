@@ -135,8 +135,8 @@ int LLVMFuzzerTestOneInput(const uint8_t *input, size_t size)
     }
     rtu_event *ev = malloc((len + 1) * sizeof *ev);
     size_t nev = 0;
-    const int st = rtu_parse(&p, len ? data : NULL, len, marks, nmarks, offsets, times, nchunks,
-                             ev, len + 1, &nev);
+    const int st = rtu_parse(&p, len ? data : NULL, len, marks, nmarks, offsets, times, nchunks, ev,
+                             len + 1, &nev);
     if (st != RTU_OK) {
         FUZZ_FAIL("rtu_parse returned %d with room for every event", st);
     }
@@ -149,8 +149,8 @@ int LLVMFuzzerTestOneInput(const uint8_t *input, size_t size)
     size_t got = 0;
     for (size_t calls = 0;; calls++) {
         size_t n = 0;
-        const int s2 = rtu_parse(&q, len ? data : NULL, len, marks, nmarks, offsets, times,
-                                 nchunks, ev2 + got, small_cap, &n);
+        const int s2 = rtu_parse(&q, len ? data : NULL, len, marks, nmarks, offsets, times, nchunks,
+                                 ev2 + got, small_cap, &n);
         got += n;
         if (got > nev) {
             FUZZ_FAIL("more events in pieces (%zu) than in one call (%zu)", got, nev);
@@ -159,8 +159,8 @@ int LLVMFuzzerTestOneInput(const uint8_t *input, size_t size)
             break;
         }
         if (s2 != RTU_ENOSPC || n == 0 || calls > len + 2) {
-            FUZZ_FAIL("rtu_parse with capacity %zu: status %d, %zu events, call %zu", small_cap,
-                      s2, n, calls);
+            FUZZ_FAIL("rtu_parse with capacity %zu: status %d, %zu events, call %zu", small_cap, s2,
+                      n, calls);
         }
     }
     if (got != nev || memcmp(ev, ev2, nev * sizeof *ev) != 0 ||

@@ -17,6 +17,45 @@ ROOT = Path(__file__).resolve().parents[1]
 TIMEOUT = 30.0
 
 
+def poll_weg(timeout: float) -> str:
+    """A ``pyrtu poll --config`` file: the bus "line1" on ``{port}`` (to be formatted)
+    at 115200 8N1, this timeout, a short back-off; a CFW701 "weg" at 1 every 50 ms."""
+    return f"""\
+[[bus]]
+name = "line1"
+port = "{{port}}"
+baudrate = 115200
+parity = "N"
+timeout = {timeout}
+backoff = 0.1
+max_backoff = 0.4
+
+[[device]]
+bus = "line1"
+slave = 1
+profile = "cfw701"
+name = "weg"
+interval = 0.05
+"""
+
+
+#: The start of a ``pyrtu poll --config`` file: the bus "line1" on ``{port}`` (to be
+#: formatted) at 115200 8N1 with short timeouts, the default for every point after it.
+POLL_BUS = """\
+[defaults]
+bus = "line1"
+interval = 0.05
+
+[[bus]]
+name = "line1"
+port = "{port}"
+baudrate = 115200
+parity = "N"
+timeout = 0.05
+offline_after = 2
+"""
+
+
 @dataclass
 class Result:
     code: int

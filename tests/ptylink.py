@@ -16,6 +16,7 @@ as the link does, whoever opens and closes them.
 from __future__ import annotations
 
 import contextlib
+import itertools
 import os
 import select
 import threading
@@ -26,6 +27,8 @@ from typing import Any
 
 import serial
 
+from pyrtu import add_crc
+from pyrtu.drivers.master import Master
 from pyrtu.drivers.slave import Slave
 from pyrtu.protocol.datastore import DataStore
 
@@ -101,6 +104,18 @@ class PtyLink:
         with self._lock:
             return [(t, d) for s, t, d in self.log if s == side]
 
+    def gaps(self, first: str, then: str) -> list[float]:
+        """Once the link is quiet (`settle`): the times from each write of side
+        ``first`` to a write of side ``then`` that follows it directly."""
+        self.settle()
+        with self._lock:
+            log = sorted(self.log, key=lambda item: item[1])
+        return [
+            t2 - t1
+            for (s1, t1, _), (s2, t2, _) in itertools.pairwise(log)
+            if (s1, s2) == (first, then)
+        ]
+
     def clear(self) -> None:
         with self._lock:
             self.log.clear()
@@ -133,6 +148,38 @@ class PtyLink:
 
 
 # -- helpers for the master and slave tests ---------------------------------------
+
+
+def count_reads(protocol: Any, reads: list[int]) -> None:
+    """From now on the length of every non-empty chunk ``protocol`` (a slave's sans-I/O
+    protocol) is fed is appended to ``reads``: how many reads a request took."""
+    feed = protocol.receive_data
+
+    def counting(data: bytes, now: float) -> None:
+        if data:
+            reads.append(len(data))
+        feed(data, now)
+
+    protocol.receive_data = counting
+
+
+def reads_per_request(port: str, reads: list[int]) -> list[int]:
+    """16 reads of slave 1's registers 0-9 (`make_store`'s values, checked) by a sync
+    `Master` on ``port`` at 9600 8N1: in how many reads each reached the slave (its
+    protocol counted by `count_reads` into ``reads``), the first left out (the slave
+    has no guess of a request's length yet)."""
+    per: list[int] = []
+    with Master(port, 9600, parity="N", timeout=1.0) as m:
+        for _ in range(16):
+            before = len(reads)
+            assert m.read_holding_registers(1, 0, 10) == [1000 + i for i in range(10)]
+            per.append(len(reads) - before)
+    return per[1:]
+
+
+def rtu(hexbytes: str) -> bytes:
+    """An RTU ADU from the hex of its address and PDU (spaces allowed), CRC appended."""
+    return add_crc(bytes.fromhex(hexbytes))
 
 
 def make_store() -> DataStore:

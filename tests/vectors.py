@@ -591,3 +591,16 @@ TELEGRAMS: tuple[Telegram, ...] = (
 
 RTU: tuple[Telegram, ...] = tuple(t for t in TELEGRAMS if t.mode == "rtu")
 ASCII: tuple[Telegram, ...] = tuple(t for t in TELEGRAMS if t.mode == "ascii")
+
+#: CRC-16/MODBUS's reflected polynomial (Modbus over Serial Line V1.02, 6.2.2).
+POLY = 0xA001
+
+
+def crc_bitwise(data: bytes, crc: int = 0xFFFF) -> int:
+    """The bit-serial definition of 6.2.2: the reference the CRC tests check pyrtu's
+    paths against (nothing from pyrtu)."""
+    for b in data:
+        crc ^= b
+        for _ in range(8):
+            crc = (crc >> 1) ^ POLY if crc & 1 else crc >> 1
+    return crc

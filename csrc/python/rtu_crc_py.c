@@ -49,21 +49,19 @@ static const char *rtu_py_type_name(PyObject *obj)
 /* Bind positional and keyword arguments to `nmax` parameters named `kw`
  * (the first `nmin` required), as a Python function with these parameters
  * would, with its messages.  out[i] is a borrowed reference or NULL. */
-static int rtu_py_args(const char *fname, const char *const *kw, Py_ssize_t nmin,
-                       Py_ssize_t nmax, PyObject *const *args, Py_ssize_t nargs,
-                       PyObject *kwnames, PyObject **out)
+static int rtu_py_args(const char *fname, const char *const *kw, Py_ssize_t nmin, Py_ssize_t nmax,
+                       PyObject *const *args, Py_ssize_t nargs, PyObject *kwnames, PyObject **out)
 {
     Py_ssize_t i, j, nkw;
 
     if (nargs > nmax) {
         if (nmin == nmax)
-            PyErr_Format(PyExc_TypeError,
-                         "%s() takes %zd positional argument%s but %zd %s given", fname,
-                         nmax, nmax == 1 ? "" : "s", nargs, nargs == 1 ? "was" : "were");
+            PyErr_Format(PyExc_TypeError, "%s() takes %zd positional argument%s but %zd %s given",
+                         fname, nmax, nmax == 1 ? "" : "s", nargs, nargs == 1 ? "was" : "were");
         else
             PyErr_Format(PyExc_TypeError,
-                         "%s() takes from %zd to %zd positional arguments but %zd %s given",
-                         fname, nmin, nmax, nargs, nargs == 1 ? "was" : "were");
+                         "%s() takes from %zd to %zd positional arguments but %zd %s given", fname,
+                         nmin, nmax, nargs, nargs == 1 ? "was" : "were");
         return -1;
     }
     for (i = 0; i < nmax; i++)
@@ -75,21 +73,21 @@ static int rtu_py_args(const char *fname, const char *const *kw, Py_ssize_t nmin
             if (PyUnicode_CompareWithASCIIString(key, kw[i]) == 0)
                 break;
         if (i == nmax) {
-            PyErr_Format(PyExc_TypeError, "%s() got an unexpected keyword argument '%U'",
-                         fname, key);
+            PyErr_Format(PyExc_TypeError, "%s() got an unexpected keyword argument '%U'", fname,
+                         key);
             return -1;
         }
         if (out[i] != NULL) {
-            PyErr_Format(PyExc_TypeError, "%s() got multiple values for argument '%s'",
-                         fname, kw[i]);
+            PyErr_Format(PyExc_TypeError, "%s() got multiple values for argument '%s'", fname,
+                         kw[i]);
             return -1;
         }
         out[i] = args[nargs + j];
     }
     for (i = 0; i < nmin; i++)
         if (out[i] == NULL) {
-            PyErr_Format(PyExc_TypeError,
-                         "%s() missing 1 required positional argument: '%s'", fname, kw[i]);
+            PyErr_Format(PyExc_TypeError, "%s() missing 1 required positional argument: '%s'",
+                         fname, kw[i]);
             return -1;
         }
     return 0;
@@ -101,8 +99,8 @@ typedef struct {
     const uint8_t *p;
     Py_ssize_t n;
     Py_buffer view;
-    int held;     /* view to release */
-    void *copy;   /* PyMem block to free */
+    int held;   /* view to release */
+    void *copy; /* PyMem block to free */
 } rtu_py_data;
 
 static int rtu_py_data_get(PyObject *obj, const char *name, rtu_py_data *d)
@@ -193,10 +191,8 @@ static uint16_t rtu_py_crc(const rtu_py_data *d, Py_ssize_t n, uint16_t crc)
 
     if (n < RTU_PY_NOGIL_MIN)
         return rtu_crc16(d->p, (size_t)n, crc);
-    Py_BEGIN_ALLOW_THREADS
-    out = rtu_crc16(d->p, (size_t)n, crc);
-    Py_END_ALLOW_THREADS
-    return out;
+    Py_BEGIN_ALLOW_THREADS out = rtu_crc16(d->p, (size_t)n, crc);
+    Py_END_ALLOW_THREADS return out;
 }
 
 /* ------------------------------------------------------------------------ */
@@ -236,9 +232,8 @@ static PyObject *rtu_py_crc16(PyObject *self, PyObject *const *args, Py_ssize_t 
     return PyLong_FromLong((long)crc);
 }
 
-PyDoc_STRVAR(rtu_py_crc16_bytes_doc,
-             "crc16_bytes(data)\n--\n\n"
-             "The CRC of ``data`` as its two wire bytes, low byte first.");
+PyDoc_STRVAR(rtu_py_crc16_bytes_doc, "crc16_bytes(data)\n--\n\n"
+                                     "The CRC of ``data`` as its two wire bytes, low byte first.");
 
 static PyObject *rtu_py_crc16_bytes(PyObject *self, PyObject *const *args, Py_ssize_t nargs,
                                     PyObject *kwnames)
@@ -267,8 +262,8 @@ PyDoc_STRVAR(rtu_py_crc16_swapped_doc,
              "The CRC of ``data`` byte-swapped: ``crc16_swapped(d).to_bytes(2, \"big\")`` is\n"
              "``crc16_bytes(d)``.");
 
-static PyObject *rtu_py_crc16_swapped(PyObject *self, PyObject *const *args,
-                                      Py_ssize_t nargs, PyObject *kwnames)
+static PyObject *rtu_py_crc16_swapped(PyObject *self, PyObject *const *args, Py_ssize_t nargs,
+                                      PyObject *kwnames)
 {
     PyObject *a[1];
     rtu_py_data d;
@@ -313,9 +308,8 @@ static PyObject *rtu_py_check_crc(PyObject *self, PyObject *const *args, Py_ssiz
     return PyBool_FromLong(ok);
 }
 
-PyDoc_STRVAR(rtu_py_add_crc_doc,
-             "add_crc(data)\n--\n\n"
-             "``data`` with its CRC appended, low byte first (CFW100 4.2.4).");
+PyDoc_STRVAR(rtu_py_add_crc_doc, "add_crc(data)\n--\n\n"
+                                 "``data`` with its CRC appended, low byte first (CFW100 4.2.4).");
 
 static PyObject *rtu_py_add_crc(PyObject *self, PyObject *const *args, Py_ssize_t nargs,
                                 PyObject *kwnames)
@@ -356,8 +350,10 @@ static PyObject *rtu_py_add_crc(PyObject *self, PyObject *const *args, Py_ssize_
 /* module                                                                    */
 /* ------------------------------------------------------------------------ */
 
-#define RTU_PY_FN(name, fn, doc) \
-    {name, (PyCFunction)(void (*)(void))(fn), METH_FASTCALL | METH_KEYWORDS, doc}
+#define RTU_PY_FN(name, fn, doc)                                                    \
+    {                                                                               \
+        name, (PyCFunction)(void (*)(void))(fn), METH_FASTCALL | METH_KEYWORDS, doc \
+    }
 
 static PyMethodDef rtu_py_methods[] = {
     RTU_PY_FN("crc16", rtu_py_crc16, rtu_py_crc16_doc),
@@ -387,7 +383,4 @@ static struct PyModuleDef rtu_py_module = {
 
 PyMODINIT_FUNC PyInit__crcfast(void);
 
-PyMODINIT_FUNC PyInit__crcfast(void)
-{
-    return PyModuleDef_Init(&rtu_py_module);
-}
+PyMODINIT_FUNC PyInit__crcfast(void) { return PyModuleDef_Init(&rtu_py_module); }

@@ -46,7 +46,26 @@ def drives() -> Iterator[tuple[Any, list[DriveSimulator]]]:
                     sim.close()
 
 
+def weg_on_line(port: str, interval: float, bus: str = "") -> str:
+    """The bridge configurations' bus "line" on ``port`` (``bus``: more lines of its
+    table) with the CFW701 "weg" at 1 polled every ``interval``."""
+    return f"""[[bus]]
+name = "line"
+port = "{port}"
+baudrate = {BAUD}
+parity = "N"
+timeout = 0.1
+{bus}[[device]]
+bus = "line"
+slave = 1
+profile = "cfw701"
+name = "weg"
+interval = {interval}
+"""
+
+
 def toml(url: str, port: str, outbox: Path, mqtt: str = "", interval: float = 0.05) -> str:
+    backoff = "offline_after = 2\nbackoff = 0.1\nmax_backoff = 0.4\n"
     return f"""
 [mqtt]
 url = "{url}"
@@ -55,22 +74,7 @@ outbox = "{outbox}"
 backoff = 0.1
 max_backoff = 0.5
 {mqtt}
-[[bus]]
-name = "line"
-port = "{port}"
-baudrate = {BAUD}
-parity = "N"
-timeout = 0.1
-offline_after = 2
-backoff = 0.1
-max_backoff = 0.4
-[[device]]
-bus = "line"
-slave = 1
-profile = "cfw701"
-name = "weg"
-interval = {interval}
-[[device]]
+{weg_on_line(port, interval, backoff)}[[device]]
 bus = "line"
 slave = 5
 profile = "cv100"
@@ -239,6 +243,19 @@ def test_a_broker_killed_and_restarted_loses_nothing(tmp_path: Path) -> None:
             assert late.on("pyrtu/e1/line/5/status") == [b"online"]
 
 
+async def run_until_acknowledged(text: str) -> Bridge:
+    """A bridge of configuration ``text`` run until its 9 points are acknowledged by the
+    broker or it gives up (``fatal``); stopped."""
+    bridge = Bridge(parse_bridge_config(text, "b.toml"))
+    await bridge.start()
+    await until(
+        lambda: bridge.fatal is not None or bridge.stats()["acknowledged"] >= 9,
+        "every point acknowledged, or the end",
+    )
+    await bridge.stop()
+    return bridge
+
+
 def test_refused_credentials_name_the_broker_and_the_user(tmp_path: Path) -> None:
     with Broker(tmp_path, users={"edge": "right-pw"}) as broker, drives() as (bus, _sims):
         ok = toml(
@@ -248,20 +265,10 @@ def test_refused_credentials_name_the_broker_and_the_user(tmp_path: Path) -> Non
             broker.url, bus.paths[0], tmp_path / "ob2", 'username = "edge"\npassword = "wrong-pw"'
         )
 
-        async def run(text: str) -> Bridge:
-            bridge = Bridge(parse_bridge_config(text, "b.toml"))
-            await bridge.start()
-            await until(
-                lambda: bridge.fatal is not None or bridge.stats()["acknowledged"] >= 9,
-                "every point acknowledged, or the end",
-            )
-            await bridge.stop()
-            return bridge
-
-        good = aio_run(run(ok))
+        good = aio_run(run_until_acknowledged(ok))
         assert good.fatal is None
         assert "right-pw" not in json.dumps(good.final_stats) + repr(good.config)
-        refused = aio_run(run(bad))
+        refused = aio_run(run_until_acknowledged(bad))
         assert isinstance(refused.fatal, BrokerRefused)
         msg = str(refused.fatal)
         assert broker.url.split("//")[1] in msg and "'edge'" in msg
@@ -275,21 +282,11 @@ def test_tls_verifies_the_broker_and_refuses_what_does_not(tmp_path: Path) -> No
         untrusted = toml(broker.url, bus.paths[0], tmp_path / "ob2")  # the system's CAs
         sub = Client(broker, ["pyrtu/#"])
 
-        async def run(text: str) -> Bridge:
-            bridge = Bridge(parse_bridge_config(text, "b.toml"))
-            await bridge.start()
-            await until(
-                lambda: bridge.fatal is not None or bridge.stats()["acknowledged"] >= 9,
-                "every point acknowledged, or the end",
-            )
-            await bridge.stop()
-            return bridge
-
-        good = aio_run(run(trusted))
+        good = aio_run(run_until_acknowledged(trusted))
         assert good.fatal is None
         sub.wait(lambda: bool(sub.on(topic("weg.status"))), "a value over TLS")
         sub.close()
-        refused = aio_run(run(untrusted))
+        refused = aio_run(run_until_acknowledged(untrusted))
         assert refused.fatal is not None
         assert "certificate does not verify" in str(refused.fatal)
         assert refused.stats()["published"] == 0  # never downgraded to plain text

@@ -20,6 +20,7 @@ from typing import Any
 
 import pytest
 from mqtt_broker import Broker, Client
+from test_bridge_broker import weg_on_line
 
 from pyrtu.devices import CFW701Simulator
 
@@ -47,19 +48,7 @@ url = "{url}"
 edge = "cli"
 stats_interval = 0.2
 {mqtt}
-[[bus]]
-name = "line"
-port = "{port}"
-baudrate = {BAUD}
-parity = "N"
-timeout = 0.1
-[[device]]
-bus = "line"
-slave = 1
-profile = "cfw701"
-name = "weg"
-interval = 0.02
-""")
+{weg_on_line(port, 0.02)}""")
     return f
 
 

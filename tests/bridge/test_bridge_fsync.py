@@ -182,20 +182,28 @@ def test_sigkill_with_the_flusher_thread_loses_no_durable_record(
         assert ob.next_seq > durable[-1]
 
 
-def test_the_bridge_never_fsyncs_on_the_event_loop(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """A running bridge (a real broker, 2000 updates fed, acknowledged, the cursor
-    saved): every fsync of the outbox on the flusher's thread; stop joins it."""
+def twenty_points(tmp_path: Path, mqtt: str) -> tuple[list[Point], str]:
+    """Twenty holding registers of slave 1 on a bus that is not there, and the bridge
+    configuration that publishes them (``mqtt``: more lines of its [mqtt] table; the
+    broker's URL is "URL", to be replaced)."""
     points = [Point(f"p{i}", "bus", 1, "holding", i) for i in range(20)]
     text = (
-        f'[mqtt]\nurl = "URL"\nedge = "e"\noutbox = "{tmp_path / "ob"}"\nqos = 1\n'
-        'fsync_interval = 0.01\n[[bus]]\nname = "bus"\nport = "/dev/null"\nbaudrate = 115200\n'
+        f'[mqtt]\nurl = "URL"\nedge = "e"\noutbox = "{tmp_path / "ob"}"\n{mqtt}\n'
+        '[[bus]]\nname = "bus"\nport = "/dev/null"\nbaudrate = 115200\n'
     ) + "".join(
         f'[[point]]\nname = "{p.name}"\nbus = "bus"\nslave = 1\ntable = "holding"\n'
         f"address = {p.address}\n"
         for p in points
     )
+    return points, text
+
+
+def test_the_bridge_never_fsyncs_on_the_event_loop(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A running bridge (a real broker, 2000 updates fed, acknowledged, the cursor
+    saved): every fsync of the outbox on the flusher's thread; stop joins it."""
+    points, text = twenty_points(tmp_path, "qos = 1\nfsync_interval = 0.01")
     with Broker(tmp_path) as broker:
         cfg = parse_bridge_config(text.replace("URL", broker.url), "b.toml")
 
@@ -247,15 +255,7 @@ def test_qos0_publications_are_acknowledged_once_written_without_paho_callbacks(
 
     loop_thread = [0]
 
-    points = [Point(f"p{i}", "bus", 1, "holding", i) for i in range(20)]
-    text = (
-        f'[mqtt]\nurl = "URL"\nedge = "e"\noutbox = "{tmp_path / "ob"}"\nqos = 0\n'
-        '[[bus]]\nname = "bus"\nport = "/dev/null"\nbaudrate = 115200\n'
-    ) + "".join(
-        f'[[point]]\nname = "{p.name}"\nbus = "bus"\nslave = 1\ntable = "holding"\n'
-        f"address = {p.address}\n"
-        for p in points
-    )
+    points, text = twenty_points(tmp_path, "qos = 0")
     with Broker(tmp_path) as broker:
         cfg = parse_bridge_config(text.replace("URL", broker.url), "b.toml")
         sub = Client(broker, ["pyrtu/e/bus/1/#"])

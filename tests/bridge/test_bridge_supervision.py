@@ -7,9 +7,10 @@ reported again, the next command written)."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +20,7 @@ from test_bridge_broker import POINTS, drives, toml, topic
 from test_bridge_writes import BASE, ref, results, rig, wait_results
 from waiting import wait_for
 
-from pyrtu.bridge import parse_bridge_config
+from pyrtu.bridge import BridgeConfig, parse_bridge_config
 from pyrtu.bridge.bridge import Bridge, BridgeEvent
 from pyrtu.drivers.aio import run as aio_run
 
@@ -28,6 +29,26 @@ PATIENCE = 15.0
 
 async def until(condition: Callable[[], bool], what: str) -> None:
     await wait_for(condition, what, PATIENCE)
+
+
+@contextlib.contextmanager
+def supervised(
+    tmp_path: Path, topics: str = "pyrtu/e1/#", mqtt: str = ""
+) -> Iterator[tuple[BridgeConfig, list[BridgeEvent], Client]]:
+    """What each test runs its `Bridge` in: a mosquitto, the drives on a virtual bus,
+    the bridge's configuration (``mqtt``: more lines of its [mqtt] table), the list
+    the bridge's events go to (see `watched`) and a subscriber to ``topics``."""
+    with Broker(tmp_path) as broker, drives() as (bus, _sims):
+        cfg = parse_bridge_config(toml(broker.url, bus.paths[0], tmp_path / "ob", mqtt), "b.toml")
+        with Client(broker, [topics]) as sub:
+            yield cfg, [], sub
+
+
+def watched(cfg: BridgeConfig, events: list[BridgeEvent]) -> Bridge:
+    """A bridge whose events are appended to ``events``."""
+    bridge = Bridge(cfg)
+    bridge.on_event(events.append)
+    return bridge
 
 
 def failures(events: list[BridgeEvent]) -> list[dict[str, Any]]:
@@ -60,24 +81,20 @@ def test_the_broker_connection_task_fails_is_reported_and_restarted(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
     caplog.set_level(logging.INFO, logger="pyrtu.bridge")
-    with Broker(tmp_path) as broker, drives() as (bus, _sims):
-        cfg = parse_bridge_config(toml(broker.url, bus.paths[0], tmp_path / "ob"), "b.toml")
-        events: list[BridgeEvent] = []
-        with Client(broker, ["pyrtu/e1/#"]) as sub:
+    with supervised(tmp_path) as (cfg, events, sub):
 
-            async def main() -> dict[str, Any]:
-                bridge = Bridge(cfg)
-                bridge.on_event(events.append)
-                # the connection task raises once it is connected, a fault of its own
-                bridge._on_connected = once(RuntimeError("injected"), bridge._on_connected)  # type: ignore[method-assign]
-                async with bridge:
-                    await until(lambda: bool(failures(events)), "the failure reported")
-                    # restarted: connected again, the values published
-                    await until(lambda: all(sub.on(topic(n)) for n in POINTS), "the values")
-                    await until(lambda: sub.on("pyrtu/e1/status")[-1:] == [b"online"], "online")
-                    return bridge.stats()
+        async def main() -> dict[str, Any]:
+            bridge = watched(cfg, events)
+            # the connection task raises once it is connected, a fault of its own
+            bridge._on_connected = once(RuntimeError("injected"), bridge._on_connected)  # type: ignore[method-assign]
+            async with bridge:
+                await until(lambda: bool(failures(events)), "the failure reported")
+                # restarted: connected again, the values published
+                await until(lambda: all(sub.on(topic(n)) for n in POINTS), "the values")
+                await until(lambda: sub.on("pyrtu/e1/status")[-1:] == [b"online"], "online")
+                return bridge.stats()
 
-            stats = aio_run(main())
+        stats = aio_run(main())
         (failure,) = failures(events)
         assert failure["task"] == "pyrtu-bridge-mqtt"
         assert failure["error"] == "RuntimeError: injected" and failure["retry_in"] >= 0
@@ -93,23 +110,18 @@ def test_the_stats_task_fails_is_reported_and_restarted(
     """Failing ``times`` times in a row: reported once (one line, one event, as
     every outage on the shared back-off), each failure counted, then back."""
     caplog.set_level(logging.INFO, logger="pyrtu.bridge")
-    with Broker(tmp_path) as broker, drives() as (bus, _sims):
-        text = toml(broker.url, bus.paths[0], tmp_path / "ob", "stats_interval = 0.05")
-        cfg = parse_bridge_config(text, "b.toml")
-        events: list[BridgeEvent] = []
-        with Client(broker, ["pyrtu/e1/stats"]) as sub:
+    with supervised(tmp_path, "pyrtu/e1/stats", "stats_interval = 0.05") as (cfg, events, sub):
 
-            async def main() -> None:
-                bridge = Bridge(cfg)
-                bridge.on_event(events.append)
-                flaky = once(ZeroDivisionError("injected"), bridge.stats, times)
-                bridge.stats = flaky  # type: ignore[method-assign]
-                async with bridge:
-                    await until(lambda: bool(failures(events)), "the failure reported")
-                    await until(lambda: bool(sub.on("pyrtu/e1/stats")), "the stats again")
+        async def main() -> None:
+            bridge = watched(cfg, events)
+            flaky = once(ZeroDivisionError("injected"), bridge.stats, times)
+            bridge.stats = flaky  # type: ignore[method-assign]
+            async with bridge:
+                await until(lambda: bool(failures(events)), "the failure reported")
+                await until(lambda: bool(sub.on("pyrtu/e1/stats")), "the stats again")
 
-            aio_run(main())
-            doc = json.loads(sub.on("pyrtu/e1/stats")[-1])
+        aio_run(main())
+        doc = json.loads(sub.on("pyrtu/e1/stats")[-1])
         (failure,) = failures(events)
         assert failure["task"] == "pyrtu-bridge-stats"
         assert failure["error"] == "ZeroDivisionError: injected"
@@ -149,26 +161,22 @@ def test_a_poller_bus_task_that_fails_is_a_bridge_event_and_the_values_come_agai
 ) -> None:
     """The poller's bus task (supervised by the poller: logged and counted there) is
     reported in the bridge's events too, and the values are published again."""
-    with Broker(tmp_path) as broker, drives() as (bus, _sims):
-        cfg = parse_bridge_config(toml(broker.url, bus.paths[0], tmp_path / "ob"), "b.toml")
-        events: list[BridgeEvent] = []
-        with Client(broker, ["pyrtu/e1/#"]) as sub:
+    with supervised(tmp_path) as (cfg, events, sub):
 
-            async def main() -> dict[str, Any]:
-                bridge = Bridge(cfg)
-                bridge.on_event(events.append)
-                sched = bridge.poller.scheduler("line")
-                sched.on_response = once(RuntimeError("injected"), sched.on_response)  # type: ignore[method-assign]
-                async with bridge:
-                    await until(lambda: bool(failures(events)), "the failure reported")
-                    mark = {n: len(sub.on(topic(n))) for n in POINTS}
-                    await until(
-                        lambda: all(len(sub.on(topic(n))) > mark[n] for n in ("weg.status",)),
-                        "the values (the first read failed)",
-                    )
-                    return bridge.poller.summary()
+        async def main() -> dict[str, Any]:
+            bridge = watched(cfg, events)
+            sched = bridge.poller.scheduler("line")
+            sched.on_response = once(RuntimeError("injected"), sched.on_response)  # type: ignore[method-assign]
+            async with bridge:
+                await until(lambda: bool(failures(events)), "the failure reported")
+                mark = {n: len(sub.on(topic(n))) for n in POINTS}
+                await until(
+                    lambda: all(len(sub.on(topic(n))) > mark[n] for n in ("weg.status",)),
+                    "the values (the first read failed)",
+                )
+                return bridge.poller.summary()
 
-            summary = aio_run(main())
+        summary = aio_run(main())
         (failure,) = failures(events)
         assert failure["task"] == "pyrtu-poll-line" and failure["bus"] == "line"
         assert failure["error"] == "RuntimeError: injected"

@@ -17,6 +17,7 @@ import pytest
 from mqtt_broker import Broker, Client
 from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
+from test_bridge_broker import weg_on_line
 
 from pyrtu.bridge import parse_bridge_config
 from pyrtu.bridge.bridge import Bridge
@@ -37,19 +38,7 @@ edge = "e1"
 outbox = "{outbox}"
 command_expiry = 5
 {extra}
-[[bus]]
-name = "line"
-port = "{port}"
-baudrate = {BAUD}
-parity = "N"
-timeout = 0.1
-[[device]]
-bus = "line"
-slave = 1
-profile = "cfw701"
-name = "weg"
-interval = 0.05
-[[point]]
+{weg_on_line(port, 0.05)}[[point]]
 name = "weg.ref"
 bus = "line"
 slave = 1

@@ -16,6 +16,7 @@ import re
 from pathlib import Path
 
 import pytest
+from cli_helpers import POLL_BUS
 from term_screen import Terminal
 
 from pyrtu.cli.live_view import LiveView, columns, fit_line
@@ -29,12 +30,13 @@ SIZES = [(80, 24), (40, 10), (200, 50)]
 DEMO_ROW = re.compile(r"^\s+(\d) (WEG CFW701|WEG CFW100|Bonfiglioli ACU|CV100)\s+[\d.-]")
 
 
-def count(lines: list[str], pattern: re.Pattern[str]) -> dict[str, int]:
+def count(lines: list[str], pattern: re.Pattern[str], group: int = 2) -> dict[str, int]:
+    """How many of ``lines`` match ``pattern``, by what its ``group`` matched."""
     found: dict[str, int] = {}
     for line in lines:
         m = pattern.match(line)
         if m is not None:
-            found[m.group(2)] = found.get(m.group(2), 0) + 1
+            found[m.group(group)] = found.get(m.group(group), 0) + 1
     return found
 
 
@@ -123,19 +125,9 @@ def test_demo_follows_a_resized_terminal() -> None:
 
 # -- pyrtu poll --config ------------------------------------------------------------------
 
-POINTS = """\
-[defaults]
-bus = "line1"
-interval = 0.05
-
-[[bus]]
-name = "line1"
-port = "{port}"
-baudrate = 115200
-parity = "N"
-timeout = 0.05
-offline_after = 2
-
+POINTS = (
+    POLL_BUS
+    + """
 [[point]]
 name = "weg.status"
 slave = 1
@@ -166,18 +158,14 @@ slave = 5
 table = "holding"
 address = 0x3301
 """
+)
 
 NAMES = ("weg.status", "weg.speed", "weg.reference", "cv.status", "cv.frequency")
 POINT_ROW = re.compile(r"^((weg|cv)\.\w+) ")
 
 
 def point_rows(lines: list[str]) -> dict[str, int]:
-    found: dict[str, int] = {}
-    for line in lines:
-        m = POINT_ROW.match(line)
-        if m is not None:
-            found[m.group(1)] = found.get(m.group(1), 0) + 1
-    return found
+    return count(lines, POINT_ROW, 1)
 
 
 def event_lines(text: str) -> list[str]:

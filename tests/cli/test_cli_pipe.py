@@ -31,6 +31,27 @@ def through_head(command: str, timeout: float = 60.0) -> subprocess.CompletedPro
     )
 
 
+def with_output_closed(*args: str) -> subprocess.CompletedProcess[str]:
+    """``python -m pyrtu ARGS`` whose stdout is a pipe closed before it starts (the race
+    ``| head -1`` loses on a loaded machine, made certain)."""
+    import os
+
+    r, w = os.pipe()
+    os.close(r)
+    try:
+        return subprocess.run(
+            [sys.executable, "-m", "pyrtu", *args],
+            cwd=ROOT,
+            env=env(),
+            stdout=w,
+            stderr=subprocess.PIPE,
+            text=True,
+            timeout=60,
+        )
+    finally:
+        os.close(w)
+
+
 @pytest.fixture
 def tcp_drive() -> Iterator[int]:
     """A simulated CFW701 on Modbus TCP (the gateway's bus)."""
@@ -64,22 +85,7 @@ def tcp_drive() -> Iterator[int]:
 def test_vbus_with_its_output_already_closed(tmp_path: Path) -> None:
     """The reader is gone before the drops' paths are printed (the race ``| head -1``
     loses on a loaded machine, made certain): status 0, no error about --dir."""
-    import os
-
-    r, w = os.pipe()
-    os.close(r)
-    try:
-        out = subprocess.run(
-            [sys.executable, "-m", "pyrtu", "vbus", "--drops", "2", "--dir", str(tmp_path / "b")],
-            cwd=ROOT,
-            env=env(),
-            stdout=w,
-            stderr=subprocess.PIPE,
-            text=True,
-            timeout=60,
-        )
-    finally:
-        os.close(w)
+    out = with_output_closed("vbus", "--drops", "2", "--dir", str(tmp_path / "b"))
     assert out.returncode == 0, out.stderr
     assert "--dir" not in out.stderr and "Traceback" not in out.stderr
 
@@ -116,21 +122,6 @@ def test_demo() -> None:
 
 
 def test_demo_with_its_output_already_closed() -> None:
-    import os
-
-    r, w = os.pipe()
-    os.close(r)
-    try:
-        out = subprocess.run(
-            [sys.executable, "-m", "pyrtu", "demo", "--duration", "2"],
-            cwd=ROOT,
-            env=env(),
-            stdout=w,
-            stderr=subprocess.PIPE,
-            text=True,
-            timeout=60,
-        )
-    finally:
-        os.close(w)
+    out = with_output_closed("demo", "--duration", "2")
     assert out.returncode == 0, out.stderr
     assert "Broken pipe" not in out.stderr and "Traceback" not in out.stderr

@@ -21,6 +21,7 @@ from typing import Any, TypeVar
 import pytest
 from cli_helpers import Background, pyrtu
 from peers import pattern
+from vectors import crc_bitwise
 
 import pyrtu as pyrtu_api
 from pyrtu.core.line import LineConfig
@@ -312,7 +313,7 @@ def test_vv_logs_the_rtu_frames_on_rtu_over_tcp(peers: Peers) -> None:
     r = pyrtu("-vv", "read", peers.rtu_url, "--slave", REAL, "0", "1")
     assert r.code == 0, r.err
     request = struct.pack(">BBHH", REAL, 3, 0, 1)
-    crc = struct.pack("<H", _crc16(request)).hex(" ")
+    crc = struct.pack("<H", crc_bitwise(request)).hex(" ")
     assert f"TX slave {REAL} fc 3: {request.hex(' ')} {crc}" in r.err, r.err
     assert f"RX slave {REAL} fc 3: {struct.pack('>BBBH', REAL, 3, 2, VALUE).hex(' ')}" in r.err
 
@@ -347,16 +348,6 @@ def _wait_for(proc: Background, pattern: str, timeout: float = 20.0) -> str:
             return found.group(1) if found.re.groups else found.group(0)
         time.sleep(0.05)
     raise AssertionError(f"{pattern!r} not in {''.join(proc.err)!r}")
-
-
-def _crc16(data: bytes) -> int:
-    """CRC-16/MODBUS bit by bit (Modbus over Serial Line V1.02, 6.2.2)."""
-    crc = 0xFFFF
-    for byte in data:
-        crc ^= byte
-        for _ in range(8):
-            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
-    return crc
 
 
 # -- URL schemes -------------------------------------------------------------------------------

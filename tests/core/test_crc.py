@@ -24,24 +24,17 @@ import pytest
 from c_core import need_c
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from vectors import crc_bitwise
 
 import pyrtu
 
 HERE = Path(__file__).resolve().parent
-POLY = 0xA001
 CHECK = 0x4B37  # CRC-16/MODBUS of b"123456789"
 
 
 # ---------------------------------------------------------------------------
-# independent references (nothing from pyrtu)
+# independent references (nothing from pyrtu): crc_bitwise (vectors.py) and its table
 # ---------------------------------------------------------------------------
-def crc_bitwise(data: bytes, crc: int = 0xFFFF) -> int:
-    """The bit-serial definition of 6.2.2."""
-    for b in data:
-        crc ^= b
-        for _ in range(8):
-            crc = (crc >> 1) ^ POLY if crc & 1 else crc >> 1
-    return crc
 
 
 TABLE = [crc_bitwise(bytes([i]), 0) for i in range(256)]

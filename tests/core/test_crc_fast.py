@@ -22,22 +22,13 @@ import pytest
 from c_core import missing, need_c
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from vectors import crc_bitwise
 
 import pyrtu
 from pyrtu.core import crcshapes as _crcshapes
 from pyrtu.core._pure import crc as twin
 
 ROOT = Path(__file__).resolve().parents[2]
-POLY = 0xA001
-
-
-def crc_bitwise(data: bytes, crc: int = 0xFFFF) -> int:
-    """The bit-serial definition of 6.2.2 (nothing from pyrtu)."""
-    for b in data:
-        crc ^= b
-        for _ in range(8):
-            crc = (crc >> 1) ^ POLY if crc & 1 else crc >> 1
-    return crc
 
 
 def _cext() -> ModuleType:

@@ -10,13 +10,13 @@ import asyncio
 import os
 import random
 import socket
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Coroutine, Iterator
 from types import ModuleType
 from typing import Any
 
 import pytest
 import serial
-from ptylink import PtyLink, make_store
+from ptylink import PtyLink, count_reads, make_store, reads_per_request
 
 from pyrtu import add_crc
 from pyrtu.drivers.aio import run as aio_run
@@ -116,6 +116,17 @@ def test_three_async_slaves_share_a_virtual_bus(mode: str, runner: str) -> None:
         RUNNERS[runner](main(bus))
 
 
+def run_on_buses(buses: list[VirtualBus], main: Callable[[], Coroutine[Any, Any, None]]) -> None:
+    """``main()`` run by asyncio while ``buses`` run; the buses closed after it."""
+    try:
+        for b in buses:
+            b.start()
+        asyncio.run(main())
+    finally:
+        for b in buses:
+            b.close()
+
+
 def test_many_ports_in_one_loop() -> None:
     """Four virtual buses, an AsyncSlave on each, four masters polling at once."""
     buses = [VirtualBus(2, baudrate=BAUD, parity="N") for _ in range(4)]
@@ -138,13 +149,7 @@ def test_many_ports_in_one_loop() -> None:
         for s in slaves:
             await s.close()
 
-    try:
-        for b in buses:
-            b.start()
-        asyncio.run(main())
-    finally:
-        for b in buses:
-            b.close()
+    run_on_buses(buses, main)
 
 
 def test_stop_and_cancel(link: PtyLink) -> None:
@@ -380,13 +385,7 @@ def test_simulated_drives_in_one_loop() -> None:
             sim.close()
             assert sim.slave is None
 
-    try:
-        for b in buses:
-            b.start()
-        asyncio.run(main())
-    finally:
-        for b in buses:
-            b.close()
+    run_on_buses(buses, main)
 
 
 @pytest.mark.wall_clock
@@ -400,26 +399,10 @@ def test_two_reads_per_transaction_on_the_virtual_bus() -> None:
 
     async def main(bus: VirtualBus) -> None:
         async with AsyncSlave(bus.paths[1], 1, make_store(), baudrate=9600, parity="N") as slave:
-            feed = slave.protocol.receive_data
-
-            def counting(data: bytes, now: float) -> None:
-                if data:
-                    reads.append(len(data))
-                feed(data, now)
-
-            slave.protocol.receive_data = counting  # type: ignore[method-assign]
+            count_reads(slave.protocol, reads)
             slave.start()
 
-            def client() -> list[int]:
-                per: list[int] = []
-                with Master(bus.paths[0], 9600, parity="N", timeout=1.0) as m:
-                    for _ in range(16):
-                        before = len(reads)
-                        assert m.read_holding_registers(1, 0, 10) == [1000 + i for i in range(10)]
-                        per.append(len(reads) - before)
-                return per[1:]  # the first one has no guess of the length yet
-
-            per = await asyncio.to_thread(client)
+            per = await asyncio.to_thread(reads_per_request, bus.paths[0], reads)
             assert sorted(per)[len(per) // 2] <= 2, per
             assert sum(reads) >= 16 * 8
 

@@ -3,7 +3,6 @@ stale input, echoing adapters, inter-frame timing, vendor function codes."""
 
 from __future__ import annotations
 
-import itertools
 import time
 from collections.abc import Iterator
 from types import ModuleType
@@ -252,13 +251,7 @@ def test_inter_frame_silence(link: PtyLink, backend: ModuleType) -> None:
         assert m.t35 == pytest.approx(3.5 * 10 / 9600, abs=1e-6)
         for _ in range(6):
             m.read_holding_registers(1, 0, 1)
-        link.settle()
-        log = sorted(link.log, key=lambda item: item[1])
-        gaps = [
-            t2 - t1
-            for (s1, t1, _), (s2, t2, _) in itertools.pairwise(log)
-            if (s1, s2) == ("b", "a")
-        ]
+        gaps = link.gaps("b", "a")
         assert len(gaps) == 5
         # A causal lower bound, not a wall_clock one: the master hears the answer only
         # after the link thread stamped it, and the request is stamped after the
@@ -273,13 +266,7 @@ def test_slave_answers_after_t35_and_response_delay(link: PtyLink) -> None:
     ):
         for _ in range(4):
             m.read_holding_registers(1, 0, 1)
-        link.settle()
-        log = sorted(link.log, key=lambda item: item[1])
-        gaps = [
-            t2 - t1
-            for (s1, t1, _), (s2, t2, _) in itertools.pairwise(log)
-            if (s1, s2) == ("a", "b")
-        ]
+        gaps = link.gaps("a", "b")
         assert len(gaps) == 4
         # causal too (see above): the slave hears the request after the link stamped it
         assert min(gaps) >= slave.t35 + 0.02 - 0.0001, gaps  # 0.1 ms: a tenth of a character

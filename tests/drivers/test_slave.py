@@ -9,9 +9,9 @@ from collections.abc import Iterator
 from types import ModuleType
 
 import pytest
-from ptylink import PtyLink, RawPort, make_store, serving
+from ptylink import PtyLink, RawPort, make_store, rtu, serving
 
-from pyrtu import add_crc, encode_ascii
+from pyrtu import encode_ascii
 from pyrtu.drivers.master import Master
 from pyrtu.drivers.slave import Slave
 from pyrtu.pdu.errors import ExceptionResponseError, NoResponseError, SlaveException
@@ -22,10 +22,6 @@ from pyrtu.protocol.datastore import DataStore
 def link() -> Iterator[PtyLink]:
     with PtyLink() as pty:
         yield pty
-
-
-def rtu(hexbytes: str) -> bytes:
-    return add_crc(bytes.fromhex(hexbytes))
 
 
 def test_silent_for_other_addresses_bad_crc_and_broadcasts(

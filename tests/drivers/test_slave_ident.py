@@ -9,9 +9,8 @@ from collections.abc import Iterator
 from types import ModuleType
 
 import pytest
-from ptylink import PtyLink, RawPort, ScriptedSlave, make_store, serving
+from ptylink import PtyLink, RawPort, ScriptedSlave, make_store, rtu, serving
 
-from pyrtu import add_crc
 from pyrtu.drivers.master import Master
 from pyrtu.drivers.slave import Slave
 from pyrtu.pdu.errors import ExceptionResponseError, FrameError
@@ -33,10 +32,6 @@ OBJECTS = {
 def link() -> Iterator[PtyLink]:
     with PtyLink() as pty:
         yield pty
-
-
-def rtu(hexbytes: str) -> bytes:
-    return add_crc(bytes.fromhex(hexbytes))
 
 
 def test_cfw100_example(link: PtyLink) -> None:

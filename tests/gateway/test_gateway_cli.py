@@ -9,7 +9,7 @@ import re
 import signal
 import subprocess
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -34,6 +34,41 @@ def pyrtu(*args: str) -> subprocess.CompletedProcess[str]:
         [sys.executable, "-m", "pyrtu", "gateway", *args],
         capture_output=True, text=True, timeout=60, env=peer_env(), check=False,
     )  # fmt: skip
+
+
+def start_gateway(*args: str) -> subprocess.Popen[str]:
+    """``pyrtu gateway --listen 127.0.0.1:0 ARGS`` running, its stdout and stderr piped."""
+    return subprocess.Popen(
+        [sys.executable, "-m", "pyrtu", "gateway", "--listen", "127.0.0.1:0", *args],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=peer_env(),
+    )  # fmt: skip
+
+
+def stop_gateway(proc: subprocess.Popen[str], timeout: float = 15.0) -> tuple[str, str]:
+    """SIGTERM, as a service manager ends it; what it wrote (stdout, stderr)."""
+    proc.send_signal(signal.SIGTERM)
+    return proc.communicate(timeout=timeout)
+
+
+def kill_gateway(proc: subprocess.Popen[str]) -> None:
+    """The gateway gone, whatever a test did (its ``finally``)."""
+    if proc.poll() is None:
+        proc.kill()
+    proc.wait(10)
+
+
+def served_again(c: TcpClient, unit: int, request: bytes, on_refused: Callable[[], None]) -> bytes:
+    """``request`` to ``unit`` repeated while the gateway answers 0x0A (its bus is not
+    back yet; ``on_refused`` after each, within 60 s): the first answer."""
+    import time
+
+    end = time.monotonic() + 60.0
+    while True:
+        try:
+            return c.request(unit, request) or b""
+        except ExceptionResponseError as exc:
+            assert exc.code == 0x0A and time.monotonic() < end
+            on_refused()
 
 
 @pytest.mark.parametrize(
@@ -120,11 +155,9 @@ def test_a_port_missing_at_start_is_served_when_it_comes(tmp_path: Path) -> None
         pyrtu_slave_process(first.paths[1], 1),
         pyrtu_slave_process(second.paths[1], 2),
     ):
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "pyrtu", "gateway", "--listen", "127.0.0.1:0",
-             "--port", f"{first.paths[0]}=1", "--port", f"{missing}=2", "--baudrate",
-             "115200", "--parity", "N", "--timeout", "0.5", "--json"],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=peer_env(),
+        proc = start_gateway(
+            "--port", f"{first.paths[0]}=1", "--port", f"{missing}=2", "--baudrate", "115200",
+            "--parity", "N", "--timeout", "0.5", "--json",
         )  # fmt: skip
         try:
             assert proc.stdout is not None
@@ -139,23 +172,13 @@ def test_a_port_missing_at_start_is_served_when_it_comes(tmp_path: Path) -> None
                 assert info.value.code == 0x0A
                 time.sleep(1.0)  # reopening attempts that fail: not reported again
                 os.symlink(second.paths[0], missing)
-                end = time.monotonic() + 60.0
-                while True:
-                    try:
-                        got = c.request(2, read)
-                        break
-                    except ExceptionResponseError as exc:
-                        assert exc.code == 0x0A and time.monotonic() < end
-                        time.sleep(0.05)
-                assert pdu.parse_registers(got or b"", 2) == pattern.holdings(2, 3, 2)
+                got = served_again(c, 2, read, lambda: time.sleep(0.05))
+                assert pdu.parse_registers(got, 2) == pattern.holdings(2, 3, 2)
                 got = c.request(1, read)
                 assert pdu.parse_registers(got or b"", 2) == pattern.holdings(1, 3, 2)
-            proc.send_signal(signal.SIGTERM)
-            out, err = proc.communicate(timeout=15)
+            out, err = stop_gateway(proc)
         finally:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait(10)
+            kill_gateway(proc)
     assert proc.returncode == 0, err
     assert "Traceback" not in err
     lines += [json.loads(line) for line in out.splitlines()]
@@ -181,20 +204,14 @@ def test_a_port_missing_at_start_is_said_once_in_words() -> None:
 def gateway_process(peer_binaries: PeerBinaries) -> Iterator[tuple[subprocess.Popen[str], str]]:
     port = free_tcp_port()
     with libmodbus_server(peer_binaries, f"tcp:127.0.0.1:{port}", 1):
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "pyrtu", "gateway", "--listen", "127.0.0.1:0",
-             "--port", f"tcp://127.0.0.1:{port}=1-9", "--json", "--timeout", "0.5"],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=peer_env(),
-        )  # fmt: skip
+        proc = start_gateway("--port", f"tcp://127.0.0.1:{port}=1-9", "--json", "--timeout", "0.5")
         assert proc.stdout is not None
         ready = json.loads(proc.stdout.readline())
         assert ready["type"] == "ready"
         try:
             yield proc, f"tcp://{ready['listen']}"
         finally:
-            if proc.poll() is None:
-                proc.kill()
-            proc.wait(10)
+            kill_gateway(proc)
 
 
 def test_gateway_runs_and_reports(gateway_process: tuple[subprocess.Popen[str], str]) -> None:
@@ -205,8 +222,7 @@ def test_gateway_runs_and_reports(gateway_process: tuple[subprocess.Popen[str], 
         with pytest.raises(ExceptionResponseError) as info:
             c.request(10, pdu.read_request(pdu.READ_INPUT_REGISTERS, 5, 3))
         assert info.value.code == 0x0A
-    proc.send_signal(signal.SIGTERM)
-    out, err = proc.communicate(timeout=10)
+    out, err = stop_gateway(proc, timeout=10)
     assert proc.returncode == 0, err
     stopped = json.loads(out.splitlines()[-1])
     assert stopped["type"] == "stopped"
@@ -226,11 +242,8 @@ def test_unit_map_sends_0xff_and_0_to_a_slave_and_the_summary_counts(
 
     port = free_tcp_port()
     with libmodbus_server(peer_binaries, f"tcp:127.0.0.1:{port}", 1):
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "pyrtu", "gateway", "--listen", "127.0.0.1:0",
-             "--port", f"tcp://127.0.0.1:{port}=1-9", "--unit-map", "255=1,0=1",
-             "--timeout", "0.5"],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=peer_env(),
+        proc = start_gateway(
+            "--port", f"tcp://127.0.0.1:{port}=1-9", "--unit-map", "255=1,0=1", "--timeout", "0.5"
         )  # fmt: skip
         try:
             assert proc.stderr is not None
@@ -254,12 +267,9 @@ def test_unit_map_sends_0xff_and_0_to_a_slave_and_the_summary_counts(
                         assert frame.exception_code == 0x0A
                     else:
                         assert pdu.parse_registers(frame.pdu, 2) == pattern.holdings(1, 7, 2)
-            proc.send_signal(signal.SIGTERM)
-            _, err = proc.communicate(timeout=10)
+            _, err = stop_gateway(proc, timeout=10)
         finally:
-            if proc.poll() is None:
-                proc.kill()
-            proc.wait(10)
+            kill_gateway(proc)
     assert proc.returncode == 0, err
     assert "4 requests, 3 answers, 1 exceptions" in err
     assert "1 no route, 0 bus unavailable" in err and "0 bus failures" in err
@@ -278,11 +288,9 @@ def test_a_bus_that_goes_away_is_reported_once_and_reopened(
     port = free_tcp_port()
     read = pdu.read_request(pdu.READ_HOLDING_REGISTERS, 3, 2)
     first = libmodbus_server(peer_binaries, f"tcp:127.0.0.1:{port}", 1).start()
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "pyrtu", "gateway", "--listen", "127.0.0.1:0",
-         "--port", f"tcp://127.0.0.1:{port}=1-9", "--timeout", "0.5",
-         *(["--json"] if json_lines else [])],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=peer_env(),
+    proc = start_gateway(
+        "--port", f"tcp://127.0.0.1:{port}=1-9", "--timeout", "0.5",
+        *(["--json"] if json_lines else []),
     )  # fmt: skip
     second = None
     try:
@@ -304,22 +312,17 @@ def test_a_bus_that_goes_away_is_reported_once_and_reopened(
                 assert info.value.code == 0x0A
                 refused += 1
             second = libmodbus_server(peer_binaries, f"tcp:127.0.0.1:{port}", 1).start()
-            end = time.monotonic() + 60.0
-            while True:
-                try:
-                    got = c.request(1, read)
-                    break
-                except ExceptionResponseError as exc:
-                    assert exc.code == 0x0A and time.monotonic() < end
-                    refused += 1
-                    time.sleep(0.1)
-            assert pdu.parse_registers(got or b"", 2) == pattern.holdings(1, 3, 2)
-        proc.send_signal(signal.SIGTERM)
-        out, err = proc.communicate(timeout=15)
+
+            def refused_again() -> None:
+                nonlocal refused
+                refused += 1
+                time.sleep(0.1)
+
+            got = served_again(c, 1, read, refused_again)
+            assert pdu.parse_registers(got, 2) == pattern.holdings(1, 3, 2)
+        out, err = stop_gateway(proc)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(10)
+        kill_gateway(proc)
         first.stop()
         if second is not None:
             second.stop()
@@ -370,8 +373,7 @@ def test_64_silent_connections_do_not_lock_the_command_out(
     finally:
         for s in silent:
             s.close()
-    proc.send_signal(signal.SIGTERM)
-    out, err = proc.communicate(timeout=10)
+    out, err = stop_gateway(proc, timeout=10)
     assert proc.returncode == 0, err
     stopped = json.loads(out.splitlines()[-1])
     assert stopped["evicted"] >= 1 and stopped["refused"] == 0

@@ -10,6 +10,8 @@ sys.path under pytest's default import mode); the helpers are in `peers.tools`.
 * `pty_pair`: two pseudo-terminals joined by socat (fails without socat).
 * `libmodbus_tcp`: a libmodbus TCP server (slave 1) on a free port, as a tcp:// URL.
 * `silent_tcp`: a TCP server that accepts and reads but never answers (a dead device).
+* `tcp_server`: a pymodbus and a libmodbus TCP server (slave 1, the register
+  pattern), as a tcp:// URL and the requests it takes in flight.
 """
 
 from __future__ import annotations
@@ -26,8 +28,13 @@ from .tools import (
     build_peers,
     free_tcp_port,
     libmodbus_server,
+    pymodbus_server,
     socat_pair,
 )
+
+#: Requests a server takes in flight: pymodbus 3.16's TCP server answers only the
+#: first of several ADUs that arrive in one read (found here; see tests/peers/README.md).
+TCP_WINDOW = {"pymodbus": 1, "libmodbus": 8}
 
 
 @pytest.fixture(scope="session")
@@ -77,3 +84,17 @@ def silent_tcp() -> Iterator[str]:
     listener.close()
     for s in held:
         s.close()
+
+
+@pytest.fixture(params=["pymodbus", "libmodbus"])
+def tcp_server(
+    request: pytest.FixtureRequest, peer_binaries: PeerBinaries
+) -> Iterator[tuple[str, int]]:
+    """Each TCP server peer: (its tcp:// URL, the requests it takes in flight)."""
+    port = free_tcp_port()
+    if request.param == "pymodbus":
+        peer = pymodbus_server(f"127.0.0.1:{port}", 1, mode="tcp")
+    else:
+        peer = libmodbus_server(peer_binaries, f"tcp:127.0.0.1:{port}", 1)
+    with peer:
+        yield f"tcp://127.0.0.1:{port}", TCP_WINDOW[request.param]

@@ -340,6 +340,27 @@ def socat_pair() -> Iterator[tuple[str, str]]:
         shutil.rmtree(directory, ignore_errors=True)
 
 
+@contextlib.contextmanager
+def socat_pty_over_tcp(link: Path) -> Iterator[int]:
+    """A device server as an RTU-over-TCP gateway is one: socat opens a pseudo-terminal
+    at ``link`` (``raw,echo=0``), then listens on a free loopback port (yielded) and
+    joins its first connection to the pty."""
+    port = free_tcp_port()
+    proc = subprocess.Popen(
+        ["socat", f"PTY,link={link},raw,echo=0", f"TCP-LISTEN:{port},bind=127.0.0.1,reuseaddr"],
+        stderr=subprocess.DEVNULL,
+    )
+    for _ in range(200):
+        if link.exists():
+            break
+        time.sleep(0.01)
+    try:
+        yield port
+    finally:
+        proc.terminate()
+        proc.wait(5)
+
+
 # -- Python clients ----------------------------------------------------------------
 
 

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -15,25 +14,16 @@ from collections import Counter
 from pathlib import Path
 
 import pytest
-from cli_helpers import ROOT, Background, env, pyrtu
+from cli_helpers import POLL_BUS, ROOT, Background, env, poll_weg, pyrtu
+from peers.tools import free_tcp_port
 
 from pyrtu.devices import CFW701Simulator, CV100Simulator, weg
 
 vbus = pytest.importorskip("pyrtu.vbus")
 
-CONFIG = """\
-[defaults]
-bus = "line1"
-interval = 0.05
-
-[[bus]]
-name = "line1"
-port = "{port}"
-baudrate = 115200
-parity = "N"
-timeout = 0.05
-offline_after = 2
-
+CONFIG = (
+    POLL_BUS
+    + """
 [[device]]
 bus = "line1"
 slave = 1
@@ -52,6 +42,7 @@ slave = 9
 table = "holding"
 address = 0
 """
+)
 
 
 def split(docs: list[dict[str, object]]) -> tuple[list[dict[str, object]], ...]:
@@ -183,23 +174,7 @@ def test_single_range_form_still_works(tmp_path: Path) -> None:
     assert r.code == 6 and '"final": true' in r.out
 
 
-GOOD = """\
-[[bus]]
-name = "line1"
-port = "{port}"
-baudrate = 115200
-parity = "N"
-timeout = 0.1
-backoff = 0.1
-max_backoff = 0.4
-
-[[device]]
-bus = "line1"
-slave = 1
-profile = "cfw701"
-name = "weg"
-interval = 0.05
-"""
+GOOD = poll_weg(timeout=0.1)
 
 
 class Served:
@@ -222,13 +197,6 @@ class Served:
         self.bus.close()
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-    return port
-
-
 @pytest.mark.wall_clock
 @pytest.mark.parametrize("duration", [1, 2, 3])
 def test_a_refusing_tcp_bus_ends_on_time_with_status_3(tmp_path: Path, duration: int) -> None:
@@ -236,7 +204,7 @@ def test_a_refusing_tcp_bus_ends_on_time_with_status_3(tmp_path: Path, duration:
     connections hung: the run must end within its duration and one timeout."""
     cfg = tmp_path / "tcp.toml"
     cfg.write_text(
-        f'[[bus]]\nname = "t"\nport = "tcp://127.0.0.1:{free_port()}"\n\n'
+        f'[[bus]]\nname = "t"\nport = "tcp://127.0.0.1:{free_tcp_port()}"\n\n'
         '[[point]]\nname = "x"\nbus = "t"\nslave = 1\ntable = "holding"\naddress = 0\n'
     )
     start = time.monotonic()

@@ -7,11 +7,11 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import socket
 import time
 from collections.abc import Callable
 
 import pytest
+from peers.tools import free_tcp_port
 from waiting import wait_for
 
 from pyrtu.cli._simulate_tcp import tcp_only_slave
@@ -50,14 +50,6 @@ def values(events: list[Event], bus: str, start: int = 0) -> int:
 
 def ports(events: list[Event], bus: str) -> list[PortState]:
     return [e for e in events if isinstance(e, PortState) and e.bus == bus]
-
-
-def free_port() -> int:
-    """A TCP port nothing listens on (bound, then closed: connections are refused)."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-    return port
 
 
 @pytest.mark.wall_clock
@@ -138,7 +130,7 @@ def test_an_unplugged_port_is_reported_once_and_reopened(
 @pytest.mark.wall_clock
 def test_a_tcp_server_refusing_then_there_then_gone_then_back() -> None:
     """A ``tcp://`` bus whose server is not up at start, comes, goes and comes back."""
-    port = free_port()
+    port = free_tcp_port()
     url = f"tcp://127.0.0.1:{port}"
 
     async def serve() -> TcpServer:
@@ -186,7 +178,7 @@ def test_a_tcp_server_refusing_then_there_then_gone_then_back() -> None:
 def test_stop_returns_with_a_refusing_port(master: str) -> None:
     """`stop` and `PollerThread.stop` return within about a timeout, however the
     refused connections and the stop fall (durations on the interval's beat)."""
-    url = f"tcp://127.0.0.1:{free_port()}"
+    url = f"tcp://127.0.0.1:{free_tcp_port()}"
     point = Point("x", "t", 1, "holding", 0, interval=1.0)
 
     async def run(duration: float) -> float:

@@ -542,6 +542,18 @@ def _fail(sched: BusScheduler, req: Request, at: float) -> list[Event]:
     return sched.on_failure(req, NoResponseError("no answer", req.slave, 3), at)
 
 
+def _next_for(sched: BusScheduler, slave: int, t: float) -> tuple[Request, float]:
+    """The requests from ``t`` on, every other slave's answered 3 ms later, until one
+    for ``slave``: that request and its time."""
+    r = sched.next_request(t)
+    while r is None or r.slave != slave:
+        if r is not None:
+            sched.on_response(r, [0], t + 0.003)
+        t += 0.003
+        r = sched.next_request(t)
+    return r, t
+
+
 def test_silent_slave_offline_offline_after_timeouts_after_its_first_unanswered_request() -> None:
     """Asked twice back to back and silent for offline_after x timeout from the end
     of its first unanswered request: offline then, while the second request still
@@ -635,12 +647,7 @@ def test_a_slave_that_answers_within_its_timeout_is_never_offline() -> None:
         assert not any(isinstance(e, SlaveState) and not e.online for e in events)
     assert sched.online(1) is True and sched.online(2) is True
     # one unanswered, the confirmation answers: nothing armed afterwards
-    r = sched.next_request(t)
-    while r is None or r.slave != 1:
-        if r is not None:
-            sched.on_response(r, [0], t + 0.003)
-        t += 0.003
-        r = sched.next_request(t)
+    r, t = _next_for(sched, 1, t)
     _fail(sched, r, t + SEND + TIMEOUT)
     t += SEND + TIMEOUT
     conf = sched.next_request(t)
@@ -650,12 +657,7 @@ def test_a_slave_that_answers_within_its_timeout_is_never_offline() -> None:
     assert sched.on_silence(conf, t + 1.0) == []  # answered: the timer is disarmed
     assert sched.online(1) is True
     # a new silence counts from its own first unanswered request
-    r = sched.next_request(t)
-    while r is None or r.slave != 1:
-        if r is not None:
-            sched.on_response(r, [0], t + 0.003)
-        t += 0.003
-        r = sched.next_request(t)
+    r, t = _next_for(sched, 1, t)
     _fail(sched, r, t + SEND + TIMEOUT)
     conf = sched.next_request(t + SEND + TIMEOUT)
     assert conf is not None

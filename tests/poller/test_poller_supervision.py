@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from cli_helpers import ROOT, env
+from cli_helpers import ROOT, env, poll_weg
 from waiting import wait_for
 
 from pyrtu.devices import CFW701Simulator, CV100Simulator
@@ -168,23 +168,7 @@ from pyrtu.cli import main
 sys.exit(main(sys.argv[1:]))
 """
 
-CONFIG = """\
-[[bus]]
-name = "line1"
-port = "{port}"
-baudrate = 115200
-parity = "N"
-timeout = 0.5
-backoff = 0.1
-max_backoff = 0.4
-
-[[device]]
-bus = "line1"
-slave = 1
-profile = "cfw701"
-name = "weg"
-interval = 0.05
-"""
+CONFIG = poll_weg(timeout=0.5)
 
 
 @pytest.mark.parametrize("json", [True, False])

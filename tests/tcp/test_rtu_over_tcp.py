@@ -4,14 +4,18 @@ on 127.0.0.1 to a pseudo-terminal, with a real slave (pyrtu, libmodbus) on the p
 
 from __future__ import annotations
 
-import subprocess
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 from peers import pattern
-from peers.tools import PeerBinaries, free_tcp_port, libmodbus_server, pyrtu_slave_process
+from peers.tools import (
+    PeerBinaries,
+    free_tcp_port,
+    libmodbus_server,
+    pyrtu_slave_process,
+    socat_pty_over_tcp,
+)
 
 from pyrtu import ExceptionResponseError, Master, PortError
 from pyrtu.tcp import rtu_over_tcp
@@ -22,21 +26,9 @@ pytest_plugins = ["peers.fixtures"]
 @pytest.fixture
 def device_server(tmp_path: Path) -> Iterator[tuple[str, str]]:
     """(pty path, rtu+tcp URL): socat opens the pty, then listens on TCP."""
-    port = free_tcp_port()
     link = tmp_path / "serial"
-    proc = subprocess.Popen(
-        ["socat", f"PTY,link={link},raw,echo=0", f"TCP-LISTEN:{port},bind=127.0.0.1,reuseaddr"],
-        stderr=subprocess.DEVNULL,
-    )
-    for _ in range(200):
-        if link.exists():
-            break
-        time.sleep(0.01)
-    try:
+    with socat_pty_over_tcp(link) as port:
         yield str(link), f"rtu+tcp://127.0.0.1:{port}"
-    finally:
-        proc.terminate()
-        proc.wait(5)
 
 
 @pytest.mark.parametrize("peer", ["pyrtu", "libmodbus"])

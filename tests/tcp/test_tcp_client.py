@@ -10,7 +10,7 @@ from collections.abc import Iterator
 
 import pytest
 from peers import pattern
-from peers.tools import PeerBinaries, free_tcp_port, libmodbus_server, pymodbus_server
+from peers.tools import free_tcp_port
 
 from pyrtu import (
     ExceptionResponseError,
@@ -155,24 +155,6 @@ def test_urls() -> None:
 
 
 # -- the drivers against real servers ------------------------------------------------
-
-
-#: Requests a server takes in flight: pymodbus 3.16's TCP server answers only the
-#: first of several ADUs that arrive in one read (found here; see tests/peers/README.md).
-WINDOW = {"pymodbus": 1, "libmodbus": 8}
-
-
-@pytest.fixture(params=["pymodbus", "libmodbus"])
-def tcp_server(
-    request: pytest.FixtureRequest, peer_binaries: PeerBinaries
-) -> Iterator[tuple[str, int]]:
-    port = free_tcp_port()
-    if request.param == "pymodbus":
-        peer = pymodbus_server(f"127.0.0.1:{port}", 1, mode="tcp")
-    else:
-        peer = libmodbus_server(peer_binaries, f"tcp:127.0.0.1:{port}", 1)
-    with peer:
-        yield f"tcp://127.0.0.1:{port}", WINDOW[request.param]
 
 
 def test_sync_client_against_real_servers(tcp_server: tuple[str, int]) -> None:

@@ -5,7 +5,6 @@ TCP servers, and socat joining TCP to a pty with a pyrtu slave (RTU over TCP).""
 from __future__ import annotations
 
 import asyncio
-import subprocess
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -13,11 +12,9 @@ from pathlib import Path
 import pytest
 from peers import pattern
 from peers.tools import (
-    PeerBinaries,
     free_tcp_port,
-    libmodbus_server,
-    pymodbus_server,
     pyrtu_slave_process,
+    socat_pty_over_tcp,
 )
 
 from pyrtu import ExceptionResponseError, Master, NoResponseError, PortError
@@ -25,21 +22,6 @@ from pyrtu.core.line import LineConfig
 from pyrtu.drivers.aio import AsyncMaster
 
 pytest_plugins = ["peers.fixtures"]
-
-WINDOW = {"pymodbus": 1, "libmodbus": 8}  # see test_tcp_client.py
-
-
-@pytest.fixture(params=["pymodbus", "libmodbus"])
-def tcp_server(
-    request: pytest.FixtureRequest, peer_binaries: PeerBinaries
-) -> Iterator[tuple[str, int]]:
-    port = free_tcp_port()
-    if request.param == "pymodbus":
-        peer = pymodbus_server(f"127.0.0.1:{port}", 1, mode="tcp")
-    else:
-        peer = libmodbus_server(peer_binaries, f"tcp:127.0.0.1:{port}", 1)
-    with peer:
-        yield f"tcp://127.0.0.1:{port}", WINDOW[request.param]
 
 
 def test_master_over_modbus_tcp(tcp_server: tuple[str, int]) -> None:
@@ -119,22 +101,9 @@ def test_retries_and_timeout_on_a_silent_server() -> None:
 @pytest.fixture
 def rtu_device_server(tmp_path: Path) -> Iterator[str]:
     """A pyrtu slave (address 4) behind socat: rtu+tcp:// URL."""
-    port = free_tcp_port()
     link = tmp_path / "serial"
-    proc = subprocess.Popen(
-        ["socat", f"PTY,link={link},raw,echo=0", f"TCP-LISTEN:{port},bind=127.0.0.1,reuseaddr"],
-        stderr=subprocess.DEVNULL,
-    )
-    for _ in range(200):
-        if link.exists():
-            break
-        time.sleep(0.01)
-    try:
-        with pyrtu_slave_process(str(link), 4, t35=0):
-            yield f"rtu+tcp://127.0.0.1:{port}"
-    finally:
-        proc.terminate()
-        proc.wait(5)
+    with socat_pty_over_tcp(link) as port, pyrtu_slave_process(str(link), 4, t35=0):
+        yield f"rtu+tcp://127.0.0.1:{port}"
 
 
 def test_masters_over_rtu_tcp(rtu_device_server: str) -> None:

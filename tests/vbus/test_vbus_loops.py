@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import select
 import subprocess
 import sys
 import time
@@ -11,6 +10,7 @@ from pathlib import Path
 
 import pytest
 from c_core import needs_c
+from test_vbus import open_drop, read_n
 
 import pyrtu
 from pyrtu.vbus import Faults, VirtualBus
@@ -18,21 +18,6 @@ from pyrtu.vbus import Faults, VirtualBus
 FAST = 230400
 C_LOOP = pyrtu.BACKEND == "c"
 needs_c_loop = needs_c(not C_LOOP, "the C loop needs the C core as the backend")
-
-
-def open_drop(bus: VirtualBus, drop: int) -> int:
-    fd = os.open(bus.paths[drop], os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
-    assert bus.wait_clients(drop, 1)
-    return fd
-
-
-def read_n(fd: int, n: int, timeout: float = 3.0) -> bytes:
-    out = bytearray()
-    deadline = time.monotonic() + timeout
-    while len(out) < n and time.monotonic() < deadline:
-        if select.select([fd], [], [], max(0.0, deadline - time.monotonic()))[0]:
-            out += os.read(fd, 4096)
-    return bytes(out)
 
 
 def test_the_loop_follows_the_backend_and_the_configuration(tmp_path: Path) -> None:
