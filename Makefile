@@ -3,7 +3,8 @@
 #   make test   set up and run the whole test suite (C core and pure-Python twin); with
 #               CI=true a test that skips fails (tests/conftest.py ALLOWED_SKIPS excepted)
 # Also: make test-asan (the suite against a C core built with ASan/UBSan), make bench,
-# make fuzz (the libFuzzer harnesses of fuzz/, FUZZ_SECONDS each), make fuzz-ci.
+# make fuzz (the libFuzzer harnesses of fuzz/, FUZZ_SECONDS each), make fuzz-ci,
+# make compat-matrix (the pymodbus drop-in's tests against every tested pymodbus).
 
 PYTHON ?= python3
 VENV   := .venv
@@ -11,7 +12,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 APT_PACKAGES := libmodbus-dev pkg-config socat mosquitto mosquitto-clients strace
 
-.PHONY: demo test test-asan bench lint mutate mutate-faults setup system-packages fuzz fuzz-ci fuzz-build fuzz-packages \
+.PHONY: demo test test-asan compat-matrix bench lint mutate mutate-faults setup system-packages fuzz fuzz-ci fuzz-build fuzz-packages \
 	fuzz-python fuzz-outbox
 
 # Developer targets compile the C core with -Werror (PYRTU_STRICT_BUILD=1, read by
@@ -62,6 +63,13 @@ test-asan: setup
 	  LD_PRELOAD="$$(gcc -print-file-name=libasan.so) $$(gcc -print-file-name=libubsan.so)" \
 	  ASAN_OPTIONS=detect_leaks=0:abort_on_error=1 UBSAN_OPTIONS=halt_on_error=1:print_stacktrace=1 \
 	  PYRTU_REQUIRE_C=1 ../../$(PY) -m pytest -q -rs -p no:cacheprovider -m 'not wall_clock and not rss' tests
+
+# The pymodbus compat tests against each release of pyrtu.compat.PYMODBUS_RELEASES
+# (3.9 .. 3.16), one virtual environment each under build/compat-matrix/ (kept between
+# runs), pyrtu and its C core from this tree: tests/compat/matrix.py, docs/COMPAT.md.
+COMPAT_JOBS ?= 2
+compat-matrix: setup
+	$(PY) tests/compat/matrix.py --jobs $(COMPAT_JOBS)
 
 bench: setup
 	$(PY) bench/report.py
