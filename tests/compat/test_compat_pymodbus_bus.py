@@ -346,14 +346,15 @@ def stock_asyncio_is_unreliable(request: pytest.FixtureRequest) -> None:
 @pytest.mark.wall_clock
 def test_shared_bus_stock_pymodbus_loses_its_answers(request: pytest.FixtureRequest) -> None:
     """The failure install() fixes, measured on the same bus (a short run: each lost
-    answer costs a timeout): stock pymodbus takes device 2's traffic for its own, and
-    (3.16) loses device 1's answers behind it."""
+    answer costs a timeout): stock pymodbus takes device 2's traffic for its own, or
+    loses answers."""
     stock_asyncio_is_unreliable(request)
     run = shared_bus_run(20, installed=False, timeout=0.5)
-    assert run.answered[2] == 10  # the pyrtu slave is not the problem
+    assert run.wrong == 0
     # its server's framer hands device 2's requests and answers up as requests for it
-    # (dropped before the datastore here: `pymodbus_server`), or loses its own
-    assert run.server["foreign"] > 0 or run.answered[1] < 10, run
+    # (dropped before the datastore here: `pymodbus_server`), or answers are lost
+    # (3.16: device 1's, behind device 2's traffic)
+    assert run.server["foreign"] > 0 or run.total < 20, run
 
 
 @pytest.mark.wall_clock
