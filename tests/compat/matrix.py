@@ -93,7 +93,7 @@ def run(release: str) -> Outcome:
     start = time.monotonic()
     with log.open("w") as out:
         done = subprocess.run(
-            [str(python), "-m", "pytest", "-q", "-rs", "-p", "no:cacheprovider", *TEST_FILES],
+            [str(python), "-m", "pytest", "-q", "-rfEs", "-p", "no:cacheprovider", *TEST_FILES],
             cwd=ROOT,
             env=env,
             stdout=out,
