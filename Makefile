@@ -3,7 +3,8 @@
 #   make test   set up and run the whole test suite (C core and pure-Python twin); with
 #               CI=true a test that skips fails (tests/conftest.py ALLOWED_SKIPS excepted)
 # Also: make test-asan (the suite against a C core built with ASan/UBSan), make bench,
-# make fuzz (the libFuzzer harnesses of fuzz/, FUZZ_SECONDS each), make fuzz-ci.
+# make fuzz (the libFuzzer harnesses of fuzz/, FUZZ_SECONDS each), make fuzz-ci,
+# make compat-matrix (the pymodbus drop-in's tests against every tested pymodbus).
 
 PYTHON ?= python3
 VENV   := .venv
@@ -14,7 +15,7 @@ APT_PACKAGES := libmodbus-dev pkg-config socat mosquitto mosquitto-clients strac
 C_SOURCES := $(wildcard csrc/*.c csrc/*.h csrc/python/*.c fuzz/*.c fuzz/*.h tests/core/csrc/*.c)
 CLANG_FORMAT ?= $(shell command -v clang-format || command -v clang-format-14 || echo clang-format)
 
-.PHONY: demo test test-asan bench bench-report docs lint format-c mutate mutate-faults setup system-packages fuzz fuzz-ci fuzz-build fuzz-packages \
+.PHONY: demo test test-asan compat-matrix bench bench-report docs lint format-c mutate mutate-faults setup system-packages fuzz fuzz-ci fuzz-build fuzz-packages \
 	fuzz-python fuzz-outbox
 
 # Developer targets compile the C core with -Werror (PYRTU_STRICT_BUILD=1, read by
@@ -72,6 +73,14 @@ test-asan: setup
 # (BENCH_ARGS=--quick: fewer rounds; BENCH_ARGS="--only crc,core": some of them);
 # make bench-report writes RESULTS.md again from bench/results/ without measuring.
 BENCH_ARGS ?=
+
+# The pymodbus compat tests against each release of pyrtu.compat.PYMODBUS_RELEASES
+# (3.9 .. 3.16), one virtual environment each under build/compat-matrix/ (kept between
+# runs), pyrtu and its C core from this tree: tests/compat/matrix.py, docs/COMPAT.md.
+COMPAT_JOBS ?= 2
+compat-matrix: setup
+	$(PY) tests/compat/matrix.py --jobs $(COMPAT_JOBS)
+
 bench: setup
 	$(PY) bench/report.py $(BENCH_ARGS)
 

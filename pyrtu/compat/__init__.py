@@ -15,6 +15,6 @@ manager), and refuses a library version it is not tested with
 
 from __future__ import annotations
 
-from ._guard import TESTED, UnsupportedVersionError
+from ._guard import PYMODBUS_RELEASES, TESTED, UnsupportedVersionError
 
-__all__ = ["TESTED", "UnsupportedVersionError"]
+__all__ = ["PYMODBUS_RELEASES", "TESTED", "UnsupportedVersionError"]

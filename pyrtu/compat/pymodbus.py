@@ -15,8 +15,9 @@ second frame in the same read stays in pymodbus's buffer instead of being droppe
 clients and servers look their framer up when they are created) and replaces
 ``FramerRTU.compute_CRC``/``check_CRC`` by the C CRC; ``use(client_or_server)`` puts
 it in one client or server only.  ASCII, socket and TLS framers are untouched.
-Tested with the pymodbus versions in ``pyrtu.compat.TESTED``; others are refused.
-See docs/COMPAT.md.
+Tested with the pymodbus releases in ``pyrtu.compat.PYMODBUS_RELEASES`` (3.9 to 3.16);
+versions outside ``pyrtu.compat.TESTED`` are refused.  What differs between those
+releases and matters here is in one table, `API`.  See docs/COMPAT.md.
 """
 
 from __future__ import annotations
@@ -31,18 +32,44 @@ from pyrtu.core.crcshapes import crc16_swapped
 from pyrtu.core.frames import FrameKind
 from pyrtu.core.rules import RuleTable, check_rules
 
-from ._guard import require
+from ._guard import parse_version, require
 
 #: the pymodbus version found (checked against pyrtu.compat.TESTED before importing it)
 VERSION = require("pymodbus")
+
+#: What changed in pymodbus's API between the tested releases (3.9 .. 3.16) that the
+#: drop-in meets: feature -> (first version with it, first version without it).
+API: dict[str, tuple[tuple[int, ...], tuple[int, ...]]] = {
+    # the transaction manager calls ``framer.handleFrame(data, exp_devid, exp_tid)``
+    # (3.10, pymodbus #2600's release); 3.9 calls ``processIncomingFrame(data)``
+    "handle_frame": ((3, 10), (4,)),
+    # ``ModbusIOException(text, function_code, *, transaction_id=, dev_id=)``; before
+    # 3.15 it takes no ids
+    "io_exception_ids": ((3, 15), (4,)),
+    # a ModbusSerialServer with ``allow_multiple_devices=True`` calls
+    # ``framer.setMultidrop(device_ids)`` on each connection's framer (3.12 to 3.15)
+    "set_multidrop": ((3, 12), (3, 16)),
+    # the asyncio serial transport empties its receive buffer when two reads are 3
+    # characters apart (``ModbusProtocol.inter_frame_time``, 3.12 only): the start of
+    # a frame that arrives in chunks (any USB adapter, a loaded machine) is lost
+    # before a framer sees it; with pyrtu's framer, which frames by length, it is kept
+    "gap_clears_buffer": ((3, 12), (3, 13)),
+}
+_RELEASE = parse_version(VERSION)
+#: feature -> whether the installed pymodbus has it (from `API`)
+HAS: dict[str, bool] = {name: low <= _RELEASE < high for name, (low, high) in API.items()}
 
 from pymodbus.client.base import ModbusBaseClient, ModbusBaseSyncClient  # noqa: E402
 from pymodbus.exceptions import ModbusIOException  # noqa: E402
 from pymodbus.framer import FRAMER_NAME_TO_CLASS, FramerRTU, FramerType  # noqa: E402
 from pymodbus.pdu import DecodePDU, ModbusPDU  # noqa: E402
+from pymodbus.pdu.register_message import ReadHoldingRegistersRequest  # noqa: E402
 from pymodbus.server.base import ModbusBaseServer  # noqa: E402
+from pymodbus.transport import ModbusProtocol  # noqa: E402
 
 __all__ = [
+    "API",
+    "HAS",
     "VERSION",
     "PyrtuFramerRTU",
     "framer_class",
@@ -70,6 +97,19 @@ def _core(role: str, rules: RuleTable | None, backend: str | None) -> Any:
     return _backend.backend(backend).Framer(role, rules=rules)._core
 
 
+def _decodes_requests(decoder: DecodePDU) -> bool:
+    """Whether ``decoder`` is a server's (``DecodePDU(True)``): it maps function code 3
+    to the request class (every tested release; ``pdu_inx`` exists from 3.11 only)."""
+    return decoder.lookupPduClass(b"\x00\x03") is ReadHoldingRegistersRequest
+
+
+def _undecodable(address: int) -> ModbusIOException:
+    """The error pymodbus's own framer raises for a frame its decoder refuses."""
+    if HAS["io_exception_ids"]:
+        return ModbusIOException("Unable to decode request", transaction_id=0, dev_id=address)
+    return ModbusIOException("Unable to decode request")
+
+
 class PyrtuFramerRTU(FramerRTU):
     """pymodbus's RTU framer, framing with pyrtu's core (C when it is built).
 
@@ -91,7 +131,9 @@ class PyrtuFramerRTU(FramerRTU):
 
     def __init__(self, decoder: DecodePDU) -> None:
         super().__init__(decoder)
-        self.is_server = decoder.pdu_inx == 0
+        self.is_server = _decodes_requests(decoder)
+        #: the addresses this framer's server answers (None: all)
+        self.answers: frozenset[int] | None = self.device_ids
         self._core = _core("slave" if self.is_server else "master", self.rules, self.backend)
         self._request = b""  # client: the last request framed (the answer's context)
         self._function = 0
@@ -172,6 +214,19 @@ class PyrtuFramerRTU(FramerRTU):
                     return used, pdu
         return used, None
 
+    def processIncomingFrame(self, data: bytes) -> tuple[int, ModbusPDU | None]:
+        """pymodbus 3.9's entry point (`API` "handle_frame"): `handleFrame` for the
+        device the last request went to (a server: any of its ``device_ids``)."""
+        expected = self._request[0] if self._request and not self.is_server else 0
+        return self.handleFrame(data, expected, 0)
+
+    def setMultidrop(self, device_ids: list[int]) -> None:
+        """pymodbus 3.12 to 3.15 (`API` "set_multidrop"): a server created with
+        ``allow_multiple_devices=True`` gives its devices; they are the addresses
+        answered unless ``device_ids`` was set by `framer_class`/`install`."""
+        if self.device_ids is None and device_ids:
+            self.answers = frozenset(device_ids)
+
     # ------------------------------------------------------------ internals
 
     def _event(self, ev: tuple[Any, ...], exp_devid: int) -> ModbusPDU | None:
@@ -183,7 +238,7 @@ class PyrtuFramerRTU(FramerRTU):
             return None
         address = adu[0]
         if self.is_server:
-            ids = self.device_ids
+            ids = self.answers
             wanted = (kind == _REQUEST or kind == _UNKNOWN) and (
                 ids is None or address == 0 or address in ids
             )
@@ -203,7 +258,7 @@ class PyrtuFramerRTU(FramerRTU):
             return None
         pdu = self.decoder.decode(adu[1:-2])
         if pdu is None:
-            raise ModbusIOException("Unable to decode request", transaction_id=0, dev_id=address)
+            raise _undecodable(address)
         c["frames"] += 1
         pdu.dev_id = address
         pdu.transaction_id = 0
@@ -243,6 +298,33 @@ def framer_class(
     return type(name, (PyrtuFramerRTU,), attrs)
 
 
+class _InterFrameTime:
+    """``ModbusProtocol.inter_frame_time`` on pymodbus 3.12 (`API` "gap_clears_buffer"):
+    0 (no clearing on a gap) where pyrtu's framer frames, the transport's own value
+    everywhere else."""
+
+    def __get__(self, protocol: object, owner: type | None = None) -> float:
+        if protocol is None:
+            return 0.0
+        state = vars(protocol)
+        if isinstance(state.get("framer"), PyrtuFramerRTU):
+            return 0.0
+        value: float = state.get("_stock_inter_frame_time", 0.0)
+        return value
+
+    def __set__(self, protocol: object, value: float) -> None:
+        vars(protocol)["_stock_inter_frame_time"] = value
+
+
+def _keep_chunked_frames() -> None:
+    """On pymodbus 3.12, let transports framed by pyrtu keep bytes across read gaps
+    (once; transports framed by pymodbus's framers keep their behaviour)."""
+    if HAS["gap_clears_buffer"] and not isinstance(
+        ModbusProtocol.__dict__.get("inter_frame_time"), _InterFrameTime
+    ):
+        ModbusProtocol.inter_frame_time = _InterFrameTime()  # type: ignore[attr-defined]
+
+
 _saved: dict[str, Any] = {}
 
 
@@ -267,6 +349,7 @@ def install(
     ``FramerRTU.compute_CRC``/``check_CRC`` compute in C.  Returns the framer class.
     Installing again replaces the settings."""
     cls = framer_class(device_ids, rules, backend)
+    _keep_chunked_frames()
     if not _saved:
         _saved["framer"] = FRAMER_NAME_TO_CLASS[FramerType.RTU]
         _saved["compute_CRC"] = FramerRTU.__dict__["compute_CRC"]
@@ -318,6 +401,7 @@ def use(
     """Put pyrtu's framer in one RTU client (sync or asyncio; returns the framer) or
     one server (before it serves; returns the class its connections will use)."""
     cls = framer_class(device_ids, rules, backend)
+    _keep_chunked_frames()
     if isinstance(target, ModbusBaseServer):
         if not (isinstance(target.framer, type) and issubclass(target.framer, FramerRTU)):
             raise ValueError(f"use: the server frames with {target.framer!r}, not RTU")

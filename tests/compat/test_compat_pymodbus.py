@@ -7,6 +7,10 @@
 * every function code pymodbus implements, through a pymodbus client against a pyrtu
   Slave and through a pymodbus server against a pyrtu Master, installed vs stock on a
   clean point-to-point virtual line: the same results.
+
+Runs against every pymodbus release of pyrtu.compat.PYMODBUS_RELEASES (3.9 .. 3.16:
+`make compat-matrix`, tests/compat/matrix.py); what stock pymodbus loses differs
+between them (`stock_loses`).
 """
 
 from __future__ import annotations
@@ -20,13 +24,13 @@ from c_core import missing
 pytest.importorskip("pymodbus")
 
 from peers import pattern
-from peers.pymodbus_server import make_device
+from peers.pymodbus_server import DEVICE_KW, make_device
 from pymodbus.client import ModbusSerialClient
 from pymodbus.framer import FRAMER_NAME_TO_CLASS, FramerRTU, FramerType
 from pymodbus.pdu import DecodePDU
 from pymodbus.pdu.file_message import FileRecord
 from pymodbus.pdu.register_message import ReadHoldingRegistersRequest
-from test_compat_pymodbus_bus import pymodbus_server
+from test_compat_pymodbus_bus import PYMODBUS, pymodbus_server, stock_loses
 
 import pyrtu
 import pyrtu.compat.pymodbus as compat
@@ -39,6 +43,14 @@ from pyrtu.protocol.datastore import DataStore
 from pyrtu.vbus import VirtualBus
 
 BACKENDS = ["c", "python"]
+
+
+def handle(framer: FramerRTU, data: bytes, dev: int) -> tuple[int, Any]:
+    """``framer.handleFrame`` (pymodbus >= 3.10) or ``processIncomingFrame`` (3.9),
+    what the installed pymodbus's transaction manager calls."""
+    if hasattr(framer, "handleFrame"):
+        return framer.handleFrame(data, dev, 0)  # type: ignore[no-any-return]
+    return framer.processIncomingFrame(data)  # type: ignore[attr-defined,no-any-return]
 
 
 @pytest.fixture(params=BACKENDS)
@@ -76,8 +88,9 @@ def test_second_frame_in_one_read_is_kept(backend_name: str) -> None:
     """Stock reports the whole buffer used after the first frame: the second is lost."""
     two = answer(1, [1, 2]) + answer(1, [3, 4])
     stock = client_framer(FramerRTU)
-    used, pdu = stock.handleFrame(two, 1, 0)
-    assert used == len(two)  # stock: the second answer is thrown away with the first
+    used, pdu = handle(stock, two, 1)
+    # stock (3.11 on): the second answer is thrown away with the first
+    assert (used == len(two)) == stock_loses("second frame")
     f = client_framer(compat.framer_class(backend=backend_name))
     used, pdu = f.handleFrame(two, 1, 0)
     assert used == len(answer(1, [1, 2])) and pdu is not None and pdu.registers == [1, 2]
@@ -93,7 +106,10 @@ def test_second_frame_in_one_read_is_kept(backend_name: str) -> None:
 def test_answer_after_junk_in_the_same_read(backend_name: str, before: bytes) -> None:
     good = answer(1, [7, 8])
     stock = client_framer(FramerRTU)
-    assert stock.handleFrame(before + good, 1, 0)[1] is None  # stock loses the answer
+    pdu = handle(stock, before + good, 1)[1]
+    stock_right = pdu is not None and not pdu.isError() and pdu.registers == [7, 8]
+    case = {b"\x00": "0x00", b"\xff\x00": "garbage", answer(9, [5, 6]): "other-device"}
+    assert stock_right != stock_loses(case.get(before, "echo"))  # what stock loses
     f = client_framer(compat.framer_class(backend=backend_name))
     used, pdu = f.handleFrame(before + good, 1, 0)
     assert used == len(before + good) and pdu is not None and pdu.registers == [7, 8]
@@ -127,8 +143,11 @@ def test_exception_answer(backend_name: str) -> None:
 
 
 def test_fc24_answer_is_sized_right(backend_name: str) -> None:
-    """pymodbus 3.16 sizes an FC 24 answer 2 bytes short (its #2860): stock never
-    completes it; pyrtu's length rule does."""
+    """pymodbus 3.16 (and up to 3.12) sizes an FC 24 answer 2 bytes short (its #2860):
+    stock never completes it; pyrtu's length rule frames it whole.  Up to 3.11
+    pymodbus's ReadFifoQueueResponse.decode also drops the last 4 values (``range(count
+    - 4)``): the framer hands it the whole PDU, the values are what pymodbus's decoder
+    makes of it."""
     from pymodbus.pdu.file_message import ReadFifoQueueRequest
 
     fifo = [1, 2, 3]
@@ -138,10 +157,13 @@ def test_fc24_answer_is_sized_right(backend_name: str) -> None:
     for cls in (FramerRTU, compat.framer_class(backend=backend_name)):
         f = cls(DecodePDU(False))
         f.buildFrame(ReadFifoQueueRequest(address=0, dev_id=1))
-        results[cls is FramerRTU] = f.handleFrame(adu, 1, 0)[1]
-    assert results[True] is None or list(results[True].values) != fifo
+        results[cls is FramerRTU] = handle(f, adu, 1)[1]
+    stock_right = results[True] is not None and list(results[True].values) == fifo
+    assert stock_right != stock_loses("fc24")
     pdu = results[False]
-    assert pdu is not None and list(pdu.values) == fifo
+    whole = DecodePDU(False).decode(adu[1:-2])  # what pymodbus makes of the whole PDU
+    assert pdu is not None and whole is not None and list(pdu.values) == list(whole.values)
+    assert (list(pdu.values) == fifo) == (PYMODBUS >= (3, 12))
 
 
 def test_server_skips_other_devices_and_answers(backend_name: str) -> None:
@@ -212,6 +234,60 @@ def test_decode_has_pymodbus_shape(backend_name: str) -> None:
     assert FramerRTU(DecodePDU(False)).decode(good) == f.decode(good)
 
 
+# ================================================================ per-release entry points
+
+
+def test_process_incoming_frame_is_pymodbus_3_9_entry(backend_name: str) -> None:
+    """pymodbus 3.9's transaction manager calls ``processIncomingFrame(data)`` (no
+    expected device): the answer of the device the last request went to is taken,
+    another device's frame before it skipped."""
+    f = client_framer(compat.framer_class(backend=backend_name))
+    data = answer(9, [5, 6]) + answer(1, [7, 8])
+    used, pdu = f.processIncomingFrame(data)
+    assert used == len(data) and pdu is not None and pdu.dev_id == 1 and pdu.registers == [7, 8]
+    assert f.processIncomingFrame(answer(1, [7, 8])[:-1]) == (0, None)
+    server = compat.framer_class(backend=backend_name)(DecodePDU(True))
+    req = add_crc(b"\x05\x03\x00\x00\x00\x02")
+    used, pdu = server.processIncomingFrame(req)
+    assert used == len(req) and pdu is not None and pdu.dev_id == 5
+
+
+def test_set_multidrop_gives_the_server_its_devices(backend_name: str) -> None:
+    """pymodbus 3.12 to 3.15 call ``setMultidrop(ids)`` on a multidrop server's framer:
+    installed without ``device_ids``, pyrtu's framer then answers those ids only (and
+    broadcasts); ``device_ids`` given to pyrtu win."""
+    other = add_crc(b"\x02\x03\x00\x00\x00\x02")
+    ours = add_crc(b"\x01\x03\x00\x05\x00\x01")
+    bcast = add_crc(b"\x00\x06\x00\x01\x00\x07")
+    f = compat.framer_class(backend=backend_name)(DecodePDU(True))
+    f.setMultidrop([1, 3])
+    data = other + answer(2, [1, 2]) + ours
+    used, pdu = f.handleFrame(data, 0, 0)
+    assert used == len(data) and pdu is not None and pdu.dev_id == 1
+    assert f.counters["skipped"] == 2
+    assert f.handleFrame(bcast, 0, 0)[1] is not None
+    own = compat.framer_class(device_ids={2}, backend=backend_name)(DecodePDU(True))
+    own.setMultidrop([1])
+    pdu = own.handleFrame(other, 0, 0)[1]
+    assert pdu is not None and pdu.dev_id == 2
+    # an empty list (a server without devices) leaves every address answered
+    every = compat.framer_class(backend=backend_name)(DecodePDU(True))
+    every.setMultidrop([])
+    assert every.handleFrame(other, 0, 0)[1] is not None
+
+
+def test_undecodable_frame_raises_modbus_io_exception(backend_name: str) -> None:
+    """A frame pyrtu's core takes (here by a vendor rule) that pymodbus's decoder
+    refuses: ModbusIOException, as stock raises, with the arguments the installed
+    release's exception takes (ids from 3.15 only)."""
+    from pymodbus.exceptions import ModbusIOException
+
+    rules: RuleTable = {0x41: (LengthRule.fixed(6), LengthRule.fixed(6))}
+    f = compat.framer_class(rules=rules, backend=backend_name)(DecodePDU(True))
+    with pytest.raises(ModbusIOException, match="Unable to decode request"):
+        f.handleFrame(add_crc(b"\x01\x41\x12\x34"), 0, 0)
+
+
 # ================================================================ install, CRC, use
 
 
@@ -277,33 +353,36 @@ def slave_store() -> DataStore:
 def pymodbus_client_calls(c: ModbusSerialClient, s: int) -> list[str]:
     """Every function code pymodbus's client implements, as printable results."""
     calls: list[Callable[[], Any]] = [
-        lambda: c.read_coils(3, count=19, device_id=s),
-        lambda: c.read_discrete_inputs(0, count=2000, device_id=s),
-        lambda: c.read_holding_registers(875, count=125, device_id=s),
-        lambda: c.read_input_registers(5, count=10, device_id=s),
-        lambda: c.write_coil(10, True, device_id=s),
-        lambda: c.write_register(20, 0xCAFE, device_id=s),
-        lambda: c.write_coils(30, [True] * 9, device_id=s),
-        lambda: c.write_registers(40, [9, 8, 7], device_id=s),
-        lambda: c.mask_write_register(address=20, and_mask=0x00FF, or_mask=0x1200, device_id=s),
-        lambda: c.readwrite_registers(
-            read_address=40, read_count=2, write_address=41, values=[5], device_id=s
+        lambda: c.read_coils(3, count=19, **{DEVICE_KW: s}),
+        lambda: c.read_discrete_inputs(0, count=2000, **{DEVICE_KW: s}),
+        lambda: c.read_holding_registers(875, count=125, **{DEVICE_KW: s}),
+        lambda: c.read_input_registers(5, count=10, **{DEVICE_KW: s}),
+        lambda: c.write_coil(10, True, **{DEVICE_KW: s}),
+        lambda: c.write_register(20, 0xCAFE, **{DEVICE_KW: s}),
+        lambda: c.write_coils(30, [True] * 9, **{DEVICE_KW: s}),
+        lambda: c.write_registers(40, [9, 8, 7], **{DEVICE_KW: s}),
+        lambda: c.mask_write_register(
+            address=20, and_mask=0x00FF, or_mask=0x1200, **{DEVICE_KW: s}
         ),
-        lambda: c.read_exception_status(device_id=s),
-        lambda: c.diag_query_data(b"\x12\x34", device_id=s),
-        lambda: c.diag_read_bus_message_count(device_id=s),
-        lambda: c.diag_get_comm_event_counter(device_id=s),
-        lambda: c.diag_get_comm_event_log(device_id=s),
-        lambda: c.report_device_id(device_id=s),
+        lambda: c.readwrite_registers(
+            read_address=40, read_count=2, write_address=41, values=[5], **{DEVICE_KW: s}
+        ),
+        lambda: c.read_exception_status(**{DEVICE_KW: s}),
+        lambda: c.diag_query_data(b"\x12\x34", **{DEVICE_KW: s}),
+        lambda: c.diag_read_bus_message_count(**{DEVICE_KW: s}),
+        lambda: c.diag_get_comm_event_counter(**{DEVICE_KW: s}),
+        lambda: c.diag_get_comm_event_log(**{DEVICE_KW: s}),
+        # report_slave_id up to pymodbus 3.9
+        lambda: (getattr(c, "report_device_id", None) or c.report_slave_id)(**{DEVICE_KW: s}),
         lambda: c.read_file_record(
-            [FileRecord(file_number=1, record_number=2, record_length=6)], device_id=s
+            [FileRecord(file_number=1, record_number=2, record_length=6)], **{DEVICE_KW: s}
         ),
         lambda: c.write_file_record(
-            [FileRecord(file_number=1, record_number=5, record_data=b"\x00\x2a")], device_id=s
+            [FileRecord(file_number=1, record_number=5, record_data=b"\x00\x2a")], **{DEVICE_KW: s}
         ),
-        lambda: c.read_device_information(read_code=1, object_id=0, device_id=s),
-        lambda: c.read_holding_registers(999, count=2, device_id=s),  # exception 2
-        lambda: c.write_register(5000, 1, device_id=s),  # exception 2
+        lambda: c.read_device_information(read_code=1, object_id=0, **{DEVICE_KW: s}),
+        lambda: c.read_holding_registers(999, count=2, **{DEVICE_KW: s}),  # exception 2
+        lambda: c.write_register(5000, 1, **{DEVICE_KW: s}),  # exception 2
     ]
     out = []
     for call in calls:
@@ -414,3 +493,26 @@ def test_use_one_server() -> None:
 
     asyncio.run(build())
     assert FRAMER_NAME_TO_CLASS[FramerType.RTU] is FramerRTU
+
+
+def test_gap_clearing_is_off_where_pyrtu_frames() -> None:
+    """pymodbus 3.12's asyncio transport empties its buffer on a 3-character gap
+    between reads (`API` "gap_clears_buffer"); on that release, install() makes the
+    transports framed by pyrtu keep their bytes and leaves the others as they are."""
+    from pymodbus.transport import ModbusProtocol
+
+    compat.install()
+    guard = ModbusProtocol.__dict__.get("inter_frame_time")
+    assert isinstance(guard, compat._InterFrameTime) == compat.HAS["gap_clears_buffer"]
+    probe = compat._InterFrameTime()
+
+    class Transport:  # what the descriptor reads of a ModbusProtocol: its framer
+        framer: object = None
+
+    pyrtu_framed, stock_framed = Transport(), Transport()
+    pyrtu_framed.framer = compat.PyrtuFramerRTU(DecodePDU(False))
+    stock_framed.framer = FramerRTU(DecodePDU(False))
+    for t in (pyrtu_framed, stock_framed):
+        probe.__set__(t, 1562.5)
+    assert probe.__get__(pyrtu_framed) == 0.0
+    assert probe.__get__(stock_framed) == 1562.5

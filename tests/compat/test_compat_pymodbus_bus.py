@@ -29,12 +29,13 @@ from c_core import missing
 pytest.importorskip("pymodbus")
 
 from peers import pattern
+from peers.pymodbus_server import DEVICE_KW, server_options, tables_device
 from pymodbus import FramerType
+from pymodbus import __version__ as pymodbus_version
 from pymodbus.client import AsyncModbusSerialClient, ModbusSerialClient
 from pymodbus.exceptions import ModbusException
 from pymodbus.pdu import ModbusPDU
 from pymodbus.server import ModbusSerialServer
-from pymodbus.simulator import DataType, SimData, SimDevice
 
 import pyrtu.compat.pymodbus as compat
 from pyrtu import add_crc
@@ -50,15 +51,43 @@ COUNT = 10  # registers per read: a 25-byte answer, 13 ms on the line at 19200 b
 PATIENT = 1.0
 logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
 
+PYMODBUS = tuple(int(part) for part in pymodbus_version.split(".")[:2])
 
-def sim_device(dev: int) -> SimDevice:
-    regs = pattern.holdings(dev, 0, 100)
-    return SimDevice(id=dev, simdata=[SimData(0, values=regs, datatype=DataType.REGISTERS)])
+#: What the stock FramerRTU of each tested release loses of what pyrtu's framer takes
+#: (case -> (first release losing it, first release not losing it)), read from each
+#: release's pymodbus/framer/rtu.py and seen on each by tests/compat/matrix.py: up to
+#: 3.15 ``decode`` slides past bytes that start no frame, 3.16 drops the whole buffer
+#: at the first bad CRC; from 3.11 it reports the whole buffer used after a frame (3.9
+#: and 3.10: the frame's end); FC 24 is sized right in 3.13 to 3.15 only (pymodbus #2860).
+STOCK_LOSES: dict[str, tuple[tuple[int, ...], tuple[int, ...]]] = {
+    "0x00": ((3, 16), (4,)),  # also "leading 0x00" on the bus
+    "garbage": ((3, 16), (4,)),
+    "echo": ((3, 9), (4,)),
+    "other-device": ((3, 9), (4,)),
+    "second frame": ((3, 11), (4,)),
+    # 3.12's asyncio serial transport empties its buffer when two reads of one frame
+    # are 3 characters apart (pyrtu.compat.pymodbus.API "gap_clears_buffer"): stock
+    # asyncio clients lose answers on a clean line, how many depends on timing
+    "chunked frames": ((3, 12), (3, 13)),
+}
+
+
+def stock_loses(case: str) -> bool:
+    """Whether the installed pymodbus's stock framer loses ``case``."""
+    if case == "fc24":
+        return not (3, 13) <= PYMODBUS < (3, 16)
+    low, high = STOCK_LOSES[case]
+    return low <= PYMODBUS < high
+
+
+def sim_device(dev: int) -> Any:
+    """Device ``dev``'s holding registers 0..99 as a pymodbus datastore."""
+    return tables_device(dev, holdings=pattern.holdings(dev, 0, 100))
 
 
 @contextlib.contextmanager
 def pymodbus_server(
-    port: str, dev: int, device: SimDevice | None = None, baudrate: int = BAUD
+    port: str, dev: int, device: Any = None, baudrate: int = BAUD
 ) -> Iterator[dict[str, int]]:
     """A pymodbus ModbusSerialServer serving ``dev`` on ``port``, in a thread with its
     own event loop; its framer is whatever the registry holds when it is created
@@ -85,7 +114,7 @@ def pymodbus_server(
             parity="N",
             bytesize=8,
             stopbits=1,
-            ignore_missing_devices=True,
+            **server_options(),
             trace_pdu=only_ours,  # type: ignore[arg-type]
             trace_connect=lambda up: ready.set() if up else None,
         )
@@ -173,7 +202,7 @@ def shared_bus_run(
                     address = (i * 7) % 50
                     try:
                         rr = await client.read_holding_registers(
-                            address, count=COUNT, device_id=dev
+                            address, count=COUNT, **{DEVICE_KW: dev}
                         )
                     except ModbusException as exc:
                         run.failed[dev] += 1
@@ -258,7 +287,9 @@ def damaged_answer_run(
             try:
                 for i in range(n):
                     try:
-                        rr = client.read_holding_registers(i, count=COUNT, device_id=PYMODBUS_DEV)
+                        rr = client.read_holding_registers(
+                            i, count=COUNT, **{DEVICE_KW: PYMODBUS_DEV}
+                        )
                     except ModbusException:
                         time.sleep(0.02)
                         continue
@@ -276,7 +307,7 @@ def damaged_answer_run(
             try:
                 for i in range(n):
                     try:
-                        rr = await client.read_holding_registers(i, count=COUNT, device_id=1)
+                        rr = await client.read_holding_registers(i, count=COUNT, **{DEVICE_KW: 1})
                     except ModbusException:
                         await asyncio.sleep(0.02)
                         continue
@@ -304,13 +335,26 @@ def test_shared_bus_installed_answers_every_request(backend: str) -> None:
     assert run.server["foreign"] == 0 and run.server["requests"] == 50
 
 
+def stock_asyncio_is_unreliable(request: pytest.FixtureRequest) -> None:
+    """On pymodbus 3.12 a stock asyncio client loses answers by timing alone
+    (`STOCK_LOSES` "chunked frames"): what it gets is not asserted (xfail)."""
+    if stock_loses("chunked frames"):
+        reason = "pymodbus 3.12's asyncio transport drops chunked frames by timing"
+        request.applymarker(pytest.mark.xfail(reason=reason, strict=False))
+
+
 @pytest.mark.wall_clock
-def test_shared_bus_stock_pymodbus_loses_its_answers() -> None:
+def test_shared_bus_stock_pymodbus_loses_its_answers(request: pytest.FixtureRequest) -> None:
     """The failure install() fixes, measured on the same bus (a short run: each lost
-    answer costs a timeout)."""
+    answer costs a timeout): stock pymodbus takes device 2's traffic for its own, or
+    loses answers."""
+    stock_asyncio_is_unreliable(request)
     run = shared_bus_run(20, installed=False, timeout=0.5)
-    assert run.answered[2] == 10  # the pyrtu slave is not the problem
-    assert run.answered[1] < 10, run  # stock pymodbus takes device 2's traffic for its own
+    assert run.wrong == 0
+    # its server's framer hands device 2's requests and answers up as requests for it
+    # (dropped before the datastore here: `pymodbus_server`), or answers are lost
+    # (3.16: device 1's, behind device 2's traffic)
+    assert run.server["foreign"] > 0 or run.total < 20, run
 
 
 @pytest.mark.wall_clock
@@ -339,7 +383,13 @@ def test_client_damaged_answers(damage: str, sync: bool) -> None:
 @pytest.mark.wall_clock
 @pytest.mark.parametrize("sync", [True, False], ids=["sync", "asyncio"])
 @pytest.mark.parametrize("damage", ["leading 0x00", "stale echo"])
-def test_client_damaged_answers_stock_loses(damage: str, sync: bool) -> None:
+def test_client_damaged_answers_stock_loses(
+    damage: str, sync: bool, request: pytest.FixtureRequest
+) -> None:
     """The same damaged answers without install(): stock pymodbus loses every one
-    (what the test above fixes), so that test fails on stock."""
-    assert damaged_answer_run(damage, 2, installed=False, sync=sync) == 0
+    (what the test above fixes), so that test fails on stock; before 3.16 stock
+    slides past a leading 0x00 (`STOCK_LOSES`)."""
+    if not sync:
+        stock_asyncio_is_unreliable(request)
+    got = damaged_answer_run(damage, 2, installed=False, sync=sync)
+    assert got == (0 if stock_loses("0x00" if damage == "leading 0x00" else "echo") else 2)

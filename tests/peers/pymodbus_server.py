@@ -21,8 +21,11 @@ Prints ``READY <port> <slave>`` once the port is open and exits on SIGTERM or
 SIGINT, printing ``STATS requests=R responses=A ignored=I`` (the frames its
 framer decoded: for it, answered, for other slaves; "stray" counts answers sent
 without a request for it, e.g. pymodbus's exception 1 to undecodable garbage).
-Uses the SimDevice/SimData model of pymodbus >= 3.10 (four separate tables, one
-bit per coil address).
+Uses the SimDevice/SimData model of pymodbus >= 3.12 (four separate tables, one
+bit per coil address); on 3.9 to 3.11, which lack it (no ``DataType``), the same
+tables as a ``ModbusServerContext`` of one device context (`make_device`).
+`DEVICE_KW` and `server_options` are the other names that differ between the pymodbus
+releases pyrtu.compat is tested with (tests/compat/).
 """
 
 from __future__ import annotations
@@ -30,48 +33,100 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import inspect
 import signal
 import sys
 from pathlib import Path
+from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import pattern
+import pymodbus.simulator
 from pymodbus import FramerType
 from pymodbus import __version__ as pymodbus_version
+from pymodbus.client.mixin import ModbusClientMixin
 from pymodbus.pdu import ModbusPDU
-from pymodbus.pdu.device import ModbusDeviceIdentification
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
-from pymodbus.simulator import DataType, SimData, SimDevice
+
+try:  # pymodbus >= 3.10
+    from pymodbus.pdu.device import ModbusDeviceIdentification
+except ImportError:  # 3.9
+    from pymodbus.device import ModbusDeviceIdentification  # type: ignore[no-redef]
 
 #: FC 43/14 basic objects (VendorName, ProductCode, MajorMinorRevision)
 IDENTITY = {0: "pymodbus-peer", 1: "PYRTU-INTEROP", 2: pymodbus_version}
 
+#: the keyword of pymodbus's client calls naming the device: ``slave=`` up to 3.9,
+#: ``device_id=`` from 3.10 (pymodbus #2600)
+DEVICE_KW = (
+    "device_id"
+    if "device_id" in inspect.signature(ModbusClientMixin.read_coils).parameters
+    else "slave"
+)
+#: SimDevice/SimData/DataType as the server's datastore (pymodbus >= 3.12)
+SIM_DEVICES = hasattr(pymodbus.simulator, "DataType")
 
-def make_device(slave: int) -> SimDevice:
+
+def server_options() -> dict[str, Any]:
+    """``ignore_missing_devices=True`` (``ignore_missing_slaves`` up to 3.9)."""
+    params = inspect.signature(ModbusSerialServer.__init__).parameters
+    name = (
+        "ignore_missing_slaves" if "ignore_missing_slaves" in params else "ignore_missing_devices"
+    )
+    return {name: True}
+
+
+def tables_device(
+    slave: int,
+    coils: list[bool] | None = None,
+    discretes: list[bool] | None = None,
+    holdings: list[int] | None = None,
+    inputs: list[int] | None = None,
+) -> Any:
+    """A pymodbus datastore serving the given tables (each from address 0) for device
+    ``slave``, in the model the installed pymodbus has: a SimDevice (>= 3.12) or a
+    ModbusServerContext (3.9 to 3.11)."""
+    if SIM_DEVICES:
+        from pymodbus.simulator import DataType, SimData, SimDevice
+
+        def table(values: list[Any] | None, kind: Any) -> list[Any]:
+            return [SimData(0, values=values, datatype=kind)] if values else []
+
+        if coils is None and discretes is None and inputs is None:
+            return SimDevice(id=slave, simdata=table(holdings, DataType.REGISTERS))
+        return SimDevice(
+            id=slave,
+            simdata=(
+                table(coils, DataType.BITS),
+                table(discretes, DataType.BITS),
+                table(holdings, DataType.REGISTERS),
+                table(inputs, DataType.REGISTERS),
+            ),
+        )
+    from pymodbus import datastore
+
+    # the device context adds 1 to every address: a block from 1 serves address 0
+    def block(values: list[Any] | None) -> Any:
+        return datastore.ModbusSequentialDataBlock(1, list(values or [0]))
+
+    context_class = getattr(datastore, "ModbusDeviceContext", None) or datastore.ModbusSlaveContext
+    device = context_class(
+        di=block(discretes), co=block(coils), hr=block(holdings), ir=block(inputs)
+    )
+    params = inspect.signature(datastore.ModbusServerContext.__init__).parameters
+    devices = "devices" if "devices" in params else "slaves"
+    return datastore.ModbusServerContext(**{devices: {slave: device}}, single=False)
+
+
+def make_device(slave: int) -> Any:
     """The four tables of `slave`, filled with the pattern."""
-    return SimDevice(
-        id=slave,
-        simdata=(
-            [SimData(0, values=pattern.coils(slave, 0, pattern.N_BITS), datatype=DataType.BITS)],
-            [
-                SimData(
-                    0, values=pattern.discretes(slave, 0, pattern.N_BITS), datatype=DataType.BITS
-                )
-            ],
-            [
-                SimData(
-                    0,
-                    values=pattern.holdings(slave, 0, pattern.N_REGS),
-                    datatype=DataType.REGISTERS,
-                )
-            ],
-            [
-                SimData(
-                    0, values=pattern.inputs(slave, 0, pattern.N_REGS), datatype=DataType.REGISTERS
-                )
-            ],
-        ),
+    return tables_device(
+        slave,
+        coils=pattern.coils(slave, 0, pattern.N_BITS),
+        discretes=pattern.discretes(slave, 0, pattern.N_BITS),
+        holdings=pattern.holdings(slave, 0, pattern.N_REGS),
+        inputs=pattern.inputs(slave, 0, pattern.N_REGS),
     )
 
 
@@ -108,8 +163,8 @@ async def serve(port: str, slave: int, baudrate: int, ascii_mode: bool = False) 
         bytesize=8,
         stopbits=1,
         identity=ModbusDeviceIdentification(info=dict(IDENTITY)),  # type: ignore[no-untyped-call]
-        ignore_missing_devices=True,
         broadcast_enable=True,
+        **server_options(),
         trace_connect=on_connect,
         trace_pdu=only_ours,  # type: ignore[arg-type]  # None drops the request
     )
@@ -144,7 +199,7 @@ async def serve_tcp(address: str, slave: int) -> None:
     print("STATS " + " ".join(f"{k}={v}" for k, v in stats.items()), flush=True)
 
 
-def make_device_as(slave: int, unit: int) -> SimDevice:
+def make_device_as(slave: int, unit: int) -> Any:
     """The tables of `slave` under another unit id."""
     device = make_device(slave)
     device.id = unit
