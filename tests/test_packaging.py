@@ -15,12 +15,11 @@ import tarfile
 import zipfile
 from dataclasses import dataclass
 from email.message import Message
-from importlib import metadata
 from pathlib import Path
 
 import pytest
 from packaging.requirements import Requirement
-from packaging.utils import canonicalize_name
+from venvs import venv_with
 
 try:
     import tomllib
@@ -57,59 +56,6 @@ def _requirements() -> list[str]:
     return [*meta["build-system"]["requires"], *meta["project"]["dependencies"]]
 
 
-def _closure(names: list[str]) -> list[metadata.Distribution]:
-    """The installed distributions of `names` and of what they require, transitively."""
-    found: dict[str, metadata.Distribution] = {}
-    todo = [Requirement(n) for n in names]
-    while todo:
-        req = todo.pop()
-        key = canonicalize_name(req.name)
-        if key in found or (req.marker is not None and not req.marker.evaluate({"extra": ""})):
-            continue
-        dist = metadata.distribution(req.name)  # PackageNotFoundError: `make setup` missed it
-        assert dist.version in req.specifier, f"{req}: {dist.version} installed"
-        found[key] = dist
-        todo += [Requirement(r) for r in dist.requires or ()]
-    return list(found.values())
-
-
-def _install_copy(dist: metadata.Distribution, site: Path) -> None:
-    """Install `dist` into `site` from its files in this environment (as pip laid them out).
-
-    A wheel install is the wheel's files unpacked into site-packages plus its
-    .dist-info; copying them is that install again, with no index and no network.
-    Console scripts (outside site-packages) are left out.
-    """
-    for rel in dist.files or ():
-        if ".." in rel.parts or rel.suffix == ".pyc":
-            continue
-        dest = site / rel
-        dest.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copy2(str(dist.locate_file(rel)), dest)
-
-
-def _venv_with_requirements(base: Path, names: list[str]) -> Path:
-    """A fresh venv holding pip and `names` with what they require, copied from this
-    test environment (`make setup` put them there); its python.  Nothing else: not the
-    system interpreter's packages, nor the setuptools a Python 3.11 venv would bring
-    (too old for pyproject.toml's build requirement)."""
-    venv = base / "venv"
-    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True)
-    py = venv / "bin" / "python"
-    site = Path(
-        subprocess.run(
-            [str(py), "-c", "import sysconfig; print(sysconfig.get_path('purelib'))"],
-            check=True,
-            capture_output=True,
-            text=True,
-        ).stdout.strip()
-    )
-    assert site.is_relative_to(venv), site
-    for dist in _closure([*names, "pip"]):
-        _install_copy(dist, site)
-    return py
-
-
 def _copy_tree(dest: Path) -> Path:
     """This checkout without its build products (what a clean clone holds)."""
     ignore = shutil.ignore_patterns(".venv", "build", "dist", "*.so", ".git", "__pycache__")
@@ -129,7 +75,7 @@ def no_compiler_venv(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """
     base = tmp_path_factory.mktemp("nocc")
     src = _copy_tree(base / "src")
-    py = _venv_with_requirements(base, _requirements())
+    py = venv_with(base, _requirements())
     result = _run(
         [str(py), "-m", "pip", "install", "--no-build-isolation", "--no-index", "-v", "."],
         src,
@@ -369,7 +315,7 @@ def test_repaired_wheel_has_the_manylinux_tag_its_symbols_allow(
 def test_wheel_installs_and_runs_c_without_a_compiler(built: Built, tmp_path: Path) -> None:
     """The repaired wheel in a fresh venv whose PATH has no compiler, no index: the C
     backend and the CRC builtins load from the venv, and `pyrtu demo` runs on them."""
-    py = _venv_with_requirements(tmp_path, _dependencies())
+    py = venv_with(tmp_path, _dependencies())
     bin_dir = py.parent
     assert not [c for c in COMPILERS if shutil.which(c, path=str(bin_dir))]
     env = {"PATH": str(bin_dir), "PIP_CONFIG_FILE": os.devnull}
