@@ -88,7 +88,7 @@ cross-windows: | system-packages
 wheel: setup
 	rm -rf dist build/wheel && mkdir -p build/wheel
 	PYRTU_REQUIRE_C=1 $(PY) -m build --outdir build/wheel .
-	$(PY) -m auditwheel repair --wheel-dir dist build/wheel/*.whl
+	PATH="$(CURDIR)/$(VENV)/bin:$$PATH" $(PY) -m auditwheel repair --strip --wheel-dir dist build/wheel/*.whl
 	cp build/wheel/*.tar.gz dist/
 	$(PY) -m abi3audit --strict --report dist/*.whl
 	ls -l dist

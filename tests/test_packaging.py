@@ -375,6 +375,18 @@ def test_wheel_metadata(built: Built) -> None:
     }
 
 
+def test_classifiers_are_pypi_s() -> None:
+    """Every classifier is one PyPI accepts (its list: the trove-classifiers package), none
+    deprecated, and none names a licence (PEP 639: License-Expression says it; setuptools
+    refuses both)."""
+    import trove_classifiers
+
+    classifiers = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["classifiers"]
+    assert [c for c in classifiers if c not in trove_classifiers.classifiers] == []
+    assert [c for c in classifiers if c in trove_classifiers.deprecated_classifiers] == []
+    assert [c for c in classifiers if c.startswith("License ::")] == []
+
+
 def test_wheel_carries_licence_types_and_package_data(built: Built) -> None:
     names = set(zipfile.ZipFile(built.repaired).namelist())
     info = f"pyrtu-{_version()}.dist-info"
