@@ -11,12 +11,14 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 APT_PACKAGES := libmodbus-dev pkg-config socat mosquitto mosquitto-clients strace prometheus clang-format
+# the Windows cross compiler of `make cross-windows`
+APT_PACKAGES += mingw-w64
 # The C sources make format-c formats and make lint checks (.clang-format).
 C_SOURCES := $(wildcard csrc/*.c csrc/*.h csrc/python/*.c fuzz/*.c fuzz/*.h tests/core/csrc/*.c)
 CLANG_FORMAT ?= $(shell command -v clang-format || command -v clang-format-14 || echo clang-format)
 
 .PHONY: demo test test-asan compat-matrix bench bench-report docs lint format-c mutate mutate-faults setup system-packages fuzz fuzz-ci fuzz-build fuzz-packages \
-	fuzz-python fuzz-outbox
+	fuzz-python fuzz-outbox cross-windows wheel
 
 # Developer targets compile the C core with -Werror (PYRTU_STRICT_BUILD=1, read by
 # pyrtu/core/_build_core.py), so that it stays -Wall -Wextra clean; `make demo` builds
@@ -59,7 +61,7 @@ $(STAMP): pyproject.toml setup.py pyrtu/core/_build_core.py pyrtu/core/_cdef.h $
 ASAN_DIR := build/asan
 test-asan: setup
 	rm -rf $(ASAN_DIR) && mkdir -p $(ASAN_DIR)
-	cp -r pyrtu tests csrc bench docs fuzz setup.py pyproject.toml MANIFEST.in README.md $(ASAN_DIR)/ && rm -f $(ASAN_DIR)/pyrtu/*.so
+	cp -r pyrtu tests csrc bench docs fuzz setup.py pyproject.toml MANIFEST.in README.md LICENSE CHANGELOG.md $(ASAN_DIR)/ && rm -f $(ASAN_DIR)/pyrtu/*.so
 	PYRTU_SANITIZE=1 PYRTU_REQUIRE_C=1 $(PY) setup.py -q build_ext --build-lib $(ASAN_DIR) --build-temp build/asan-tmp --force
 	cd $(ASAN_DIR) && \
 	  LD_PRELOAD="$$(gcc -print-file-name=libasan.so) $$(gcc -print-file-name=libubsan.so)" \
@@ -86,6 +88,31 @@ bench: setup
 
 bench-report: setup
 	$(PY) bench/report.py --render
+
+# The C core's portable sources (all of csrc/ but the POSIX I/O files csrc/rtu_*_io.c,
+# which pyrtu/core/_build_core.py leaves out on Windows) compiled by a Windows
+# toolchain, Debian's mingw-w64, -Werror, then linked into a DLL (every symbol they
+# use must resolve without the POSIX files).  CI runs it (.ci/run).
+MINGW_CC ?= x86_64-w64-mingw32-gcc
+CROSS_DIR := build/cross-windows
+CROSS_SOURCES := $(filter-out %_io.c,$(wildcard csrc/*.c))
+cross-windows: | system-packages
+	rm -rf $(CROSS_DIR) && mkdir -p $(CROSS_DIR)
+	for f in $(CROSS_SOURCES); do \
+	  $(MINGW_CC) -std=c99 -O2 -Wall -Wextra -Werror -Icsrc -c $$f -o $(CROSS_DIR)/$$(basename $$f .c).o || exit 1; \
+	done
+	$(MINGW_CC) -shared -o $(CROSS_DIR)/rtu_core.dll $(CROSS_DIR)/*.o -Wl,--no-undefined
+	@echo "cross-windows: $(words $(CROSS_SOURCES)) files compiled and linked: $(CROSS_DIR)/rtu_core.dll"
+
+# An sdist and a wheel (python -m build), the wheel repaired by auditwheel to the
+# manylinux tag its symbols allow, into dist/ (docs/INSTALL.md).
+wheel: setup
+	rm -rf dist build/wheel && mkdir -p build/wheel
+	PYRTU_REQUIRE_C=1 $(PY) -m build --outdir build/wheel .
+	PATH="$(CURDIR)/$(VENV)/bin:$$PATH" $(PY) -m auditwheel repair --strip --wheel-dir dist build/wheel/*.whl
+	cp build/wheel/*.tar.gz dist/
+	$(PY) -m abi3audit --strict --report dist/*.whl
+	ls -l dist
 
 # Mutation testing (mutate/run.py; docs/MUTATION.md): `make mutate` runs cosmic-ray over
 # the modules of mutate/targets.toml and writes docs/MUTATION.md (hours on 2 cores;

@@ -101,6 +101,7 @@ BENCHMARKS: tuple[Benchmark, ...] = (
     Benchmark("capture", ("bench/bench_capture.py",), quick=("--sizes", "10,50")),
     Benchmark("vbus", ("bench/vbus_timing.py",), quick=("10",)),
     Benchmark("soak", ("bench/soak.py",), quick=("--short",)),
+    Benchmark("install", ("bench/bench_install.py",), quick=("--runs", "1")),
 )
 BY_NAME = {b.name: b for b in BENCHMARKS}
 

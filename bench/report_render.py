@@ -1056,6 +1056,30 @@ def soak_targets(data: Data) -> list[tuple[str, str]]:
     return [(cells, verdict(ok))]
 
 
+def install_body(data: Data) -> Lines:
+    out = [
+        "The sdist and the wheel (`python -m build`, then `auditwheel repair --strip`), and "
+        "offline installs into fresh virtual environments (bench/bench_install.py): the "
+        "repaired wheel with no compiler on PATH, the sdist compiling the C core.",
+        "",
+    ]
+    kib = lambda n: f"{n / 1024:.0f} KiB"  # noqa: E731
+    med = lambda xs: f"{statistics.median(xs):.2f} s ({len(xs)} runs)"  # noqa: E731
+    rows = [
+        [f"sdist `{data['sdist']['name']}`", kib(data["sdist"]["bytes"])],
+        [f"wheel as built, `{data['wheel_built']['name']}`", kib(data["wheel_built"]["bytes"])],
+        [
+            f"wheel repaired, `{data['wheel_repaired']['name']}`",
+            kib(data["wheel_repaired"]["bytes"]),
+        ],
+        ["pyrtu in site-packages, from the wheel", kib(data["installed_bytes"])],
+        ["`python -m build`", f"{data['build_s']:.1f} s"],
+        ["`pip install` of the wheel, no compiler on PATH", med(data["wheel_install_s"])],
+        ["`pip install` of the sdist (compiles the C core)", med(data["sdist_install_s"])],
+    ]
+    return out + table(["what", "figure"], rows)
+
+
 # ---------------------------------------------------------------- the report
 
 
@@ -1194,6 +1218,7 @@ SECTIONS: tuple[Section, ...] = (
         soak_targets,
         ("soak: every fault recovered, no wrong value",),
     ),
+    Section("install", "Install: wheel size and install time", install_body),
 )
 
 

@@ -957,8 +957,19 @@ uint16_t rtu_crc16_vclmul(const uint8_t *data, size_t len, uint16_t crc)
 #define RTU_CPU_VCLMUL 0x4
 
 /* Detected once; the store is idempotent and atomic, so concurrent first
- * calls are harmless (and the constructor below normally runs first). */
+ * calls are harmless (and the constructor below normally runs first).  GCC
+ * and clang: the __atomic builtins; another compiler (MSVC, which has neither
+ * them nor constructors): a volatile int, whose aligned loads and stores are
+ * single instructions on the CPUs it targets, and detection on the first call. */
+#if defined(__GNUC__)
 static int rtu_crc_cpu_flags;
+#define RTU_CPU_LOAD() __atomic_load_n(&rtu_crc_cpu_flags, __ATOMIC_RELAXED)
+#define RTU_CPU_STORE(f) __atomic_store_n(&rtu_crc_cpu_flags, (f), __ATOMIC_RELAXED)
+#else
+static volatile int rtu_crc_cpu_flags;
+#define RTU_CPU_LOAD() (rtu_crc_cpu_flags)
+#define RTU_CPU_STORE(f) (rtu_crc_cpu_flags = (f))
+#endif
 
 static int rtu_crc_detect(void)
 {
@@ -973,17 +984,19 @@ static int rtu_crc_detect(void)
             f |= RTU_CPU_VCLMUL;
     }
 #endif
-    __atomic_store_n(&rtu_crc_cpu_flags, f, __ATOMIC_RELAXED);
+    RTU_CPU_STORE(f);
     return f;
 }
 
 static inline int rtu_crc_cpu(void)
 {
-    int f = __atomic_load_n(&rtu_crc_cpu_flags, __ATOMIC_RELAXED);
+    int f = RTU_CPU_LOAD();
     return f ? f : rtu_crc_detect();
 }
 
+#if defined(__GNUC__)
 __attribute__((constructor)) static void rtu_crc_init(void) { (void)rtu_crc_cpu(); }
+#endif
 
 /* Length thresholds of the dispatcher (bytes): slicing below RTU_DISPATCH_CLMUL,
  * VPCLMULQDQ from RTU_DISPATCH_VCLMUL, PCLMULQDQ in between (and above, without

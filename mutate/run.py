@@ -51,6 +51,7 @@ TREE = (
     "pyproject.toml",
     "MANIFEST.in",
     "README.md",
+    "LICENSE",
     "Makefile",
 )
 

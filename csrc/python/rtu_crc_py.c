@@ -21,9 +21,27 @@
  * fuzz harnesses (the Makefile compiles the .c files of csrc/ itself) and
  * the cffi build (pyrtu/core/_build_core.py, the same files) do not take it.
  * setup.py builds it with csrc/rtu_crc.c as the module pyrtu.core._crcfast.
+ *
+ * The stable ABI: setup.py defines Py_LIMITED_API 0x030A0000 (CPython 3.10)
+ * where the interpreter allows it, and the wheel is one cp310-abi3 for every
+ * CPython from 3.10; the file uses nothing outside that API.  The buffer
+ * protocol (PyObject_GetBuffer, Py_buffer) joined the limited API only in
+ * 3.11, so under the 3.10 one a bytes object is read in place, a bytearray in
+ * place below RTU_PY_NOGIL_MIN (the GIL held: nothing can resize it), and any
+ * other buffer (memoryview, array, a bytearray from RTU_PY_NOGIL_MIN) through
+ * one copy of its bytes in logical order (bytes(memoryview(obj))).  Built
+ * against the full API (a free-threaded or a debug interpreter, where there is
+ * no abi3) or a limited API from 3.11, the buffer protocol reads every buffer
+ * in place.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+
+#if !defined(Py_LIMITED_API) || Py_LIMITED_API + 0 >= 0x030B0000
+#define RTU_PY_BUFFER_API 1
+#else
+#define RTU_PY_BUFFER_API 0
+#endif
 
 #include <stdint.h>
 #include <string.h>
@@ -38,12 +56,20 @@
 /* arguments                                                                 */
 /* ------------------------------------------------------------------------ */
 
-/* type(obj).__name__ as the twin's messages print it. */
-static const char *rtu_py_type_name(PyObject *obj)
+/* Raise `exc` with "<prefix>, not <type(obj).__name__>", as the twin's messages
+ * print it (the type's __name__: its tp_name is not in the limited API). */
+static void rtu_py_type_error(PyObject *exc, const char *prefix, PyObject *obj)
 {
-    const char *name = Py_TYPE(obj)->tp_name;
-    const char *dot = strrchr(name, '.');
-    return dot ? dot + 1 : name;
+    PyObject *name = PyObject_GetAttrString((PyObject *)Py_TYPE(obj), "__name__");
+
+    if (name == NULL || !PyUnicode_Check(name)) {
+        Py_XDECREF(name);
+        PyErr_Clear();
+        PyErr_Format(exc, "%s, not an object of unknown type", prefix);
+        return;
+    }
+    PyErr_Format(exc, "%s, not %.200U", prefix, name);
+    Py_DECREF(name);
 }
 
 /* Bind positional and keyword arguments to `nmax` parameters named `kw`
@@ -66,9 +92,11 @@ static int rtu_py_args(const char *fname, const char *const *kw, Py_ssize_t nmin
     }
     for (i = 0; i < nmax; i++)
         out[i] = i < nargs ? args[i] : NULL;
-    nkw = kwnames ? PyTuple_GET_SIZE(kwnames) : 0;
+    nkw = kwnames ? PyTuple_Size(kwnames) : 0;
     for (j = 0; j < nkw; j++) {
-        PyObject *key = PyTuple_GET_ITEM(kwnames, j);
+        PyObject *key = PyTuple_GetItem(kwnames, j);
+        if (key == NULL)
+            return -1;
         for (i = 0; i < nmax; i++)
             if (PyUnicode_CompareWithASCIIString(key, kw[i]) == 0)
                 break;
@@ -93,25 +121,52 @@ static int rtu_py_args(const char *fname, const char *const *kw, Py_ssize_t nmin
     return 0;
 }
 
-/* The bytes of a buffer argument: straight from a bytes object, else from
- * a buffer request, else (strided) from a C-order copy. */
+/* The bytes of a buffer argument, in logical order (as memoryview.tobytes()
+ * gives them): straight from a bytes object; else (the full or the 3.11
+ * limited API) from a buffer request, a strided one through a C-order copy;
+ * else (the 3.10 limited API: no buffer protocol) a bytearray in place or a
+ * copy made by bytes(memoryview(obj)).  `stable`: nothing can change or free
+ * the bytes while the GIL is released (a bytes object, a held buffer, a copy). */
 typedef struct {
     const uint8_t *p;
     Py_ssize_t n;
+    int stable;
+#if RTU_PY_BUFFER_API
     Py_buffer view;
     int held;   /* view to release */
     void *copy; /* PyMem block to free */
+#else
+    PyObject *owner; /* the copy (a bytes object) to release */
+#endif
 } rtu_py_data;
 
+static void rtu_py_not_bytes_like(PyObject *obj, const char *name)
+{
+    char prefix[64];
+
+    PyOS_snprintf(prefix, sizeof prefix, "%s must be a bytes-like object", name);
+    rtu_py_type_error(PyExc_TypeError, prefix, obj);
+}
+
+static int rtu_py_bytes(PyObject *obj, rtu_py_data *d)
+{
+    char *p;
+
+    if (PyBytes_AsStringAndSize(obj, &p, &d->n) < 0)
+        return -1;
+    d->p = (const uint8_t *)p;
+    d->stable = 1;
+    return 0;
+}
+
+#if RTU_PY_BUFFER_API
 static int rtu_py_data_get(PyObject *obj, const char *name, rtu_py_data *d)
 {
     d->held = 0;
     d->copy = NULL;
-    if (PyBytes_CheckExact(obj)) {
-        d->p = (const uint8_t *)PyBytes_AS_STRING(obj);
-        d->n = PyBytes_GET_SIZE(obj);
-        return 0;
-    }
+    if (PyBytes_Check(obj)) /* a subclass too: its bytes cannot change */
+        return rtu_py_bytes(obj, d);
+    d->stable = 1; /* a held buffer cannot be resized or freed */
     if (PyObject_GetBuffer(obj, &d->view, PyBUF_SIMPLE) == 0) {
         d->held = 1;
         d->p = (const uint8_t *)d->view.buf;
@@ -144,8 +199,7 @@ static int rtu_py_data_get(PyObject *obj, const char *name, rtu_py_data *d)
     }
     if (PyErr_ExceptionMatches(PyExc_TypeError)) {
         PyErr_Clear();
-        PyErr_Format(PyExc_TypeError, "%s must be a bytes-like object, not %.200s", name,
-                     rtu_py_type_name(obj));
+        rtu_py_not_bytes_like(obj, name);
     }
     return -1;
 }
@@ -161,6 +215,42 @@ static void rtu_py_data_release(rtu_py_data *d)
         d->held = 0;
     }
 }
+#else
+static int rtu_py_data_get(PyObject *obj, const char *name, rtu_py_data *d)
+{
+    PyObject *view;
+
+    d->owner = NULL;
+    if (PyBytes_Check(obj)) /* a subclass too: its bytes cannot change */
+        return rtu_py_bytes(obj, d);
+    if (PyByteArray_CheckExact(obj) && PyByteArray_Size(obj) < RTU_PY_NOGIL_MIN) {
+        /* read with the GIL held (rtu_py_crc), so no thread can resize it meanwhile */
+        d->p = (const uint8_t *)PyByteArray_AsString(obj);
+        d->n = PyByteArray_Size(obj);
+        d->stable = 0;
+        return 0;
+    }
+    view = PyMemoryView_FromObject(obj); /* TypeError: not a buffer */
+    if (view == NULL) {
+        if (PyErr_ExceptionMatches(PyExc_TypeError)) {
+            PyErr_Clear();
+            rtu_py_not_bytes_like(obj, name);
+        }
+        return -1;
+    }
+    d->owner = PyBytes_FromObject(view); /* its bytes in logical order */
+    Py_DECREF(view);
+    if (d->owner == NULL)
+        return -1;
+    if (rtu_py_bytes(d->owner, d) < 0) {
+        Py_CLEAR(d->owner);
+        return -1;
+    }
+    return 0;
+}
+
+static void rtu_py_data_release(rtu_py_data *d) { Py_CLEAR(d->owner); }
+#endif
 
 /* The register's initial value: an int (not a bool) 0..0xFFFF (6.2.2 presets
  * it to 0xFFFF; another value continues an earlier CRC). */
@@ -170,8 +260,7 @@ static int rtu_py_seed(PyObject *obj, uint16_t *out)
     long v;
 
     if (!PyLong_Check(obj) || PyBool_Check(obj)) {
-        PyErr_Format(PyExc_TypeError, "crc must be an integer 0..0xFFFF, not %.200s",
-                     rtu_py_type_name(obj));
+        rtu_py_type_error(PyExc_TypeError, "crc must be an integer 0..0xFFFF", obj);
         return -1;
     }
     v = PyLong_AsLongAndOverflow(obj, &overflow);
@@ -189,7 +278,7 @@ static uint16_t rtu_py_crc(const rtu_py_data *d, Py_ssize_t n, uint16_t crc)
 {
     uint16_t out;
 
-    if (n < RTU_PY_NOGIL_MIN)
+    if (n < RTU_PY_NOGIL_MIN || !d->stable)
         return rtu_crc16(d->p, (size_t)n, crc);
     Py_BEGIN_ALLOW_THREADS out = rtu_crc16(d->p, (size_t)n, crc);
     Py_END_ALLOW_THREADS return out;
@@ -336,7 +425,12 @@ static PyObject *rtu_py_add_crc(PyObject *self, PyObject *const *args, Py_ssize_
         rtu_py_data_release(&d);
         return NULL;
     }
-    q = PyBytes_AS_STRING(out);
+    q = PyBytes_AsString(out);
+    if (q == NULL) {
+        Py_DECREF(out);
+        rtu_py_data_release(&d);
+        return NULL;
+    }
     if (d.n > 0)
         memcpy(q, d.p, (size_t)d.n);
     crc = rtu_py_crc(&d, d.n, RTU_CRC_INIT);

@@ -63,6 +63,15 @@ def command(
     return deco
 
 
+def version_line() -> str:
+    """``pyrtu --version``: the version (pyrtu/_version.py, the one source) and the backend
+    that runs, e.g. "pyrtu 0.1.0 (backend c)"."""
+    from pyrtu._version import __version__
+    from pyrtu.core import _backend
+
+    return f"pyrtu {__version__} ({_backend.describe()})"
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = JsonErrorParser(
         prog="pyrtu",
@@ -73,11 +82,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=exit_code_table(),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    try:
-        from pyrtu._version import __version__ as version
-    except ImportError:  # pragma: no cover - package half-installed
-        version = "unknown"
-    parser.add_argument("--version", action="version", version=f"pyrtu {version}")
+    parser.add_argument("--version", action="version", version=version_line())
     parser.add_argument(
         "-v",
         "--verbose",

@@ -2,9 +2,21 @@
 
 Developers: `python setup.py build_ext --inplace` (or `pip install -e .`).
 
-Compiles every csrc/*.c into the extension module ``pyrtu.core._rtu_core``.  The
+Compiles the csrc/*.c files into the extension module ``pyrtu.core._rtu_core``.  The
 declarations cffi needs live in pyrtu/core/_cdef.h.  PYRTU_SANITIZE=1 builds with
 AddressSanitizer and UBSan (for the CI sanitizer run).
+
+The POSIX I/O files, csrc/rtu_*_io.c (the master's exchange thread, rtu_xfer_io.c, and
+the virtual bus's I/O loop, rtu_vbus_io.c: ppoll, pthreads, termios), are compiled only
+where the platform is POSIX (`POSIX_IO`); elsewhere (Windows) they and their
+declarations (the "POSIX I/O" sections of _cdef.h) are left out, and the C backend's
+``POSIX_IO`` (pyrtu/core/_cext.py) is False: the twin's exchange and the Python hub
+loop run instead, while CRC, framers and parsers stay in C.  Everything else in csrc/ is
+portable C99 (`make cross-windows` compiles it with mingw-w64 and -Werror).
+PYRTU_POSIX_IO=0 builds the Windows set on a POSIX machine (tests/core/test_portable_core.py).
+
+The module uses the stable ABI (cffi's default: ``.abi3`` on CPython); setup.py builds
+the CRC builtins (pyrtu.core._crcfast) on the same one and tags the wheel cp310-abi3.
 
 PYRTU_STRICT_BUILD=1 turns warnings into errors (``-Werror``): CI and the
 Makefile's developer targets set it, so that the code stays ``-Wall -Wextra``
@@ -14,6 +26,8 @@ must not cost them the C core (setup.py would fall back to the slow twin).
 
 import os
 import pathlib
+import re
+import sys
 
 from cffi import FFI
 
@@ -21,14 +35,45 @@ HERE = pathlib.Path(__file__).resolve().parent
 ROOT = HERE.parent.parent
 CSRC = ROOT / "csrc"
 
-ffibuilder = FFI()
-ffibuilder.cdef((HERE / "_cdef.h").read_text())
+#: the POSIX I/O files of csrc/ (a name ending in _io.c) are compiled here
+POSIX_IO = os.environ.get("PYRTU_POSIX_IO", "0" if sys.platform == "win32" else "1") == "1"
+#: the "POSIX I/O" sections of _cdef.h (the declarations of csrc/rtu_*_io.c)
+_POSIX_CDEF = re.compile(r"/\* ---- POSIX I/O .*?/\* ---- end of POSIX I/O ---- \*/", re.S)
 
-_flags = ["-std=c99", "-O2", "-Wall", "-Wextra"]
-if os.environ.get("PYRTU_STRICT_BUILD") == "1":
-    _flags.append("-Werror")
+
+def is_posix_io(path: pathlib.Path) -> bool:
+    """A POSIX-only file of csrc/ (the naming rule; tests/core/test_portable_core.py
+    checks that the POSIX headers appear only in these)."""
+    return path.name.endswith("_io.c")
+
+
+def core_sources() -> list[pathlib.Path]:
+    """The csrc/*.c files compiled into the core on this platform."""
+    return [p for p in sorted(CSRC.glob("*.c")) if POSIX_IO or not is_posix_io(p)]
+
+
+def core_cdef() -> str:
+    """_cdef.h, without its POSIX I/O sections where those files are not compiled."""
+    text = (HERE / "_cdef.h").read_text()
+    return text if POSIX_IO else _POSIX_CDEF.sub("", text)
+
+
+ffibuilder = FFI()
+ffibuilder.cdef(core_cdef())
+
+#: MSVC (CPython's compiler on Windows) takes its own flags; every other compiler
+#: here is GCC-like (gcc, clang, mingw-w64)
+MSVC = sys.platform == "win32" and "MSC v." in sys.version
+if MSVC:
+    _flags = ["/O2", "/W3"]
+    if os.environ.get("PYRTU_STRICT_BUILD") == "1":
+        _flags.append("/WX")
+else:
+    _flags = ["-std=c99", "-O2", "-Wall", "-Wextra"]
+    if os.environ.get("PYRTU_STRICT_BUILD") == "1":
+        _flags.append("-Werror")
 _link: list[str] = []
-if os.environ.get("PYRTU_SANITIZE") == "1":
+if os.environ.get("PYRTU_SANITIZE") == "1" and not MSVC:
     _san = [
         "-fsanitize=address,undefined",
         "-fno-sanitize-recover=undefined",
@@ -56,7 +101,7 @@ static uint16_t rtu_crc16_bytes(const char *data, size_t len, uint16_t crc)
 ffibuilder.set_source(
     "pyrtu.core._rtu_core",
     _BINDING,
-    sources=[os.path.relpath(p, ROOT) for p in sorted(CSRC.glob("*.c"))],
+    sources=[os.path.relpath(p, ROOT) for p in core_sources()],
     include_dirs=[os.path.relpath(CSRC, ROOT)],
     extra_compile_args=_flags,
     extra_link_args=_link,

@@ -236,6 +236,7 @@ int rtu_vbus_take_due(rtu_vbus *s);
 int rtu_vbus_written(rtu_vbus *s, uint32_t drop, size_t n, int heard);
 int rtu_vbus_busy(const rtu_vbus *s);
 
+/* ---- POSIX I/O (csrc/rtu_*_io.c): left out where there is none (_build_core.py) ---- */
 typedef struct rtu_vbus_io rtu_vbus_io;
 size_t rtu_vbus_io_size(void);
 int rtu_vbus_io_init(rtu_vbus_io *io, rtu_vbus *s, int wake_fd, int watch_fd, int64_t anchor_ns);
@@ -249,7 +250,9 @@ int rtu_vbus_io_run(rtu_vbus_io *io);
 int rtu_vbus_io_errno(const rtu_vbus_io *io);
 int64_t rtu_vbus_io_now(void);
 uint64_t rtu_vbus_io_wakeups(rtu_vbus_io *io);
+/* ---- end of POSIX I/O ---- */
 
+/* ---- POSIX I/O (csrc/rtu_*_io.c): left out where there is none (_build_core.py) ---- */
 /* csrc/rtu_xfer.h: one master exchange on a serial descriptor */
 #define RTU_XFER_ANSWER 0
 #define RTU_XFER_STALE 1
@@ -296,3 +299,4 @@ int rtu_xfer_worker_start(rtu_xfer_worker *w, rtu_xfer *x, int notify_fd);
 int rtu_xfer_worker_submit(rtu_xfer_worker *w);
 int rtu_xfer_worker_rc(rtu_xfer_worker *w);
 void rtu_xfer_worker_stop(rtu_xfer_worker *w);
+/* ---- end of POSIX I/O ---- */

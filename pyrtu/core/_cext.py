@@ -30,12 +30,16 @@ from pyrtu.core.options import CoreOptions, flush_us_for
 from pyrtu.core.timing import Timing
 
 BACKEND = "c"
+#: the POSIX I/O of the core (csrc/rtu_*_io.c: the exchange thread, the bus's I/O loop) is
+#: built; False on Windows (pyrtu/core/_build_core.py), where the twin's take over
+POSIX_IO: bool = hasattr(lib, "rtu_xfer_io_run") and hasattr(lib, "rtu_vbus_io_run")
 NO_TIME = -(2**63)
 INT64_MAX = 2**63 - 1
 
 __all__ = [
     "BACKEND",
     "CRCFAST",
+    "POSIX_IO",
     "Framer",
     "add_crc",
     "char_timing",

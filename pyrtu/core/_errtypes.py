@@ -8,4 +8,10 @@ class ArgumentTypeError(TypeError, ValueError):
     code written when every bad argument raised ValueError still catches it."""
 
 
-__all__ = ["ArgumentTypeError"]
+class PureBackendWarning(RuntimeWarning):
+    """``import pyrtu`` found no C core (an install without a C compiler): the pure-Python
+    twin runs, with the same results, slower.  ``PYRTU_PURE=1`` chooses the twin on
+    purpose and is not warned about; ``PYRTU_REQUIRE_C=1`` makes the import fail."""
+
+
+__all__ = ["ArgumentTypeError", "PureBackendWarning"]

@@ -11,7 +11,8 @@ from pyrtu.drivers.xfer import AsyncExchanger, Exchanger
 
 
 def _impl(backend: ModuleType) -> ModuleType:
-    if getattr(backend, "BACKEND", "python") == "c":
+    # the C exchange needs the core's POSIX I/O (not built on Windows: POSIX_IO)
+    if getattr(backend, "BACKEND", "python") == "c" and getattr(backend, "POSIX_IO", False):
         from pyrtu.drivers import _cxfer
 
         return _cxfer

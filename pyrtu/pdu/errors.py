@@ -19,6 +19,7 @@ code; it is not a `ModbusError` (nothing went wrong on the bus).
 from __future__ import annotations
 
 from pyrtu.core._errtypes import ArgumentTypeError as ArgumentTypeError
+from pyrtu.core._errtypes import PureBackendWarning as PureBackendWarning
 from pyrtu.pdu.functions import FUNCTION_NAMES
 
 #: Exception codes (Application Protocol V1.1b section 7; 7 from the serial-line
@@ -168,6 +169,7 @@ __all__ = [
     "NoResponseError",
     "PortBusyError",
     "PortError",
+    "PureBackendWarning",
     "SlaveException",
     "exception_name",
 ]

@@ -15,8 +15,8 @@ from pyrtu.core._pure.vbus import COUNTERS, _time
 __all__ = ["CLoop", "CSchedule", "available"]
 
 _C = _backend.C
-#: the C loop can run here: the C core is built and is the active backend
-available = _C is not None and _backend.active is _C
+#: the C loop can run here: the C core is built with its POSIX I/O and is the active backend
+available = _C is not None and _backend.active is _C and bool(_C.POSIX_IO)
 _NO_TIME = -(2**63)
 
 
