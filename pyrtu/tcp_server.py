@@ -1,21 +1,21 @@
 """`pyrtu.tcp_server`: the Modbus TCP server, at the path the documentation shows.
 
-The code lives in `pyrtu.gateway.server`; this module re-exports its public names.
+The code lives in `pyrtu.tcp.server`; this module re-exports its public names.
 """
 
-from pyrtu.gateway.server import (
+from pyrtu.tcp.server import (
     UNIT_DIRECT as UNIT_DIRECT,
 )
-from pyrtu.gateway.server import (
+from pyrtu.tcp.server import (
     UNIT_SELF as UNIT_SELF,
 )
-from pyrtu.gateway.server import (
+from pyrtu.tcp.server import (
     Application as Application,
 )
-from pyrtu.gateway.server import (
+from pyrtu.tcp.server import (
     LocalBus as LocalBus,
 )
-from pyrtu.gateway.server import (
+from pyrtu.tcp.server import (
     TcpServer as TcpServer,
 )
 

@@ -2,7 +2,8 @@
 
 `gateway.py` (`Gateway`, `ReopeningBus`, `GatewayLimits`), `_plan.py` (routes and the fair
 queue, sans-I/O), `_live.py` (timeouts, eviction), `_conn.py` (one connection),
-`_reopen.py` (a bus reopened on back-off), `server.py` (`TcpServer`).
+`_reopen.py` (a bus reopened on back-off); `TcpServer` lives in `pyrtu.tcp.server`
+(`server.py` here is its deprecated old path).
 """
 
 from __future__ import annotations

@@ -148,7 +148,7 @@ class Bus(Protocol):
     """What a bus behind the gateway offers: `pyrtu.drivers.aio.AsyncMaster` (a serial
     line), `pyrtu.tcp.AsyncTcpClient` (another Modbus TCP server).  ``request``
     returns the answer PDU, an exception answer too (as its bytes, as
-    `pyrtu.gateway.server.LocalBus` does); a bus whose ``request`` raises
+    `pyrtu.tcp.server.LocalBus` does); a bus whose ``request`` raises
     `ExceptionResponseError` instead (`AsyncMaster`, `AsyncTcpClient`) offers
     ``exchange``, of the same shape, which the gateway calls when a bus has it: an
     exception raised is a target that failed to respond (0x0B).  A bus may also

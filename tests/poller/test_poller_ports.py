@@ -16,7 +16,7 @@ from waiting import wait_for
 
 from pyrtu.cli._simulate_tcp import tcp_only_slave
 from pyrtu.devices import CFW701Simulator, CV100Simulator
-from pyrtu.gateway.server import TcpServer
+from pyrtu.tcp.server import TcpServer
 from pyrtu.pdu.errors import PortError
 from pyrtu.poller import (
     Bus,
