@@ -205,8 +205,8 @@ def test_poller_over_modbus_tcp() -> None:
     """A `pyrtu.Poller` bus on tcp:// (the AsyncMaster the poller opens is the TCP one,
     whose last_answer_time stamps the values), against pyrtu's TCP server."""
     import pyrtu
-    from pyrtu.tcp.server import TcpServer
     from pyrtu.poller import Bus, Point
+    from pyrtu.tcp.server import TcpServer
 
     async def main() -> None:
         store = pyrtu.DataStore()

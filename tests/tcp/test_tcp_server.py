@@ -16,8 +16,8 @@ from peers.tools import PeerBinaries, libmodbus_script
 from pyrtu import ExceptionResponseError, Master, Slave, pdu
 from pyrtu.drivers.aio import AsyncMaster
 from pyrtu.drivers.aio_slave import AsyncSlave
-from pyrtu.tcp.server import TcpServer
 from pyrtu.tcp import AsyncTcpClient, TcpClient
+from pyrtu.tcp.server import TcpServer
 
 pytest_plugins = ["peers.fixtures"]
 
