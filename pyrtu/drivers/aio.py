@@ -274,16 +274,16 @@ class AsyncMaster(MasterBase):
     async def _run_callbacks(self, proto: ClientProtocol) -> Any:
         """The transaction driven by the loop's callbacks (descriptor ports without a
         wire: pseudo-terminals, virtual bus drops): each wake-up (the timer or the
-        descriptor of a `Wait`) runs `_Drive.step` in the callback itself, and the
+        descriptor of a `Wait`) runs `_CallbackStepper.step` in the callback itself, and the
         awaiting task wakes once, when the transaction is over.  (The loop's
         ``time()`` is `time.monotonic`.)"""
         fut: asyncio.Future[Any] = asyncio.get_running_loop().create_future()
-        drive = _Drive(self, proto, fut)
-        drive.step()
+        stepper = _CallbackStepper(self, proto, fut)
+        stepper.step()
         try:
             return await fut
         except BaseException:
-            drive.stop()
+            stepper.stop()
             self._cancel_exchange()
             proto.abort(_monotonic())
             raise
@@ -440,7 +440,7 @@ def _install(cls: type[AsyncMaster]) -> None:
 _install(AsyncMaster)
 
 
-class _Drive:
+class _CallbackStepper:
     """One transaction of an `AsyncMaster` driven from the loop's callbacks: the
     protocol's actions, where each `Wait` is a timer (and a reader when it
     listens) that calls `step` again."""

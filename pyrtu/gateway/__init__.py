@@ -8,7 +8,10 @@ queue, sans-I/O), `_live.py` (timeouts, eviction), `_conn.py` (one connection),
 
 from __future__ import annotations
 
+from pyrtu.core._deprecated import renamed
 from pyrtu.gateway import gateway
 from pyrtu.gateway.gateway import *  # noqa: F403  (the names of its __all__)
 
 __all__ = list(gateway.__all__)
+#: old names, deprecated (each use warns, naming the new one)
+__getattr__ = renamed(__name__, {"Bus": ("pyrtu.gateway.gateway", "GatewayBus")})

@@ -12,9 +12,11 @@ it out; docs/PROTOCOL.md shows a custom driver for each side.
 
 from __future__ import annotations
 
+from pyrtu.core._deprecated import renamed
+
 # the client (master) side: one transaction at a time, handed out as actions
 from pyrtu.protocol.client import ClientProtocol
-from pyrtu.protocol.client_actions import Action, Done, Exchange, Send, State, Wait
+from pyrtu.protocol.client_actions import Action, ClientState, Done, Exchange, Send, Wait
 
 # the server (slave) side: requests in, answers out at their time
 from pyrtu.protocol.server import Application, Idle, Listen, Reply, ServerAction, ServerProtocol
@@ -23,6 +25,7 @@ __all__ = [
     "Action",
     "Application",
     "ClientProtocol",
+    "ClientState",
     "Done",
     "Exchange",
     "Idle",
@@ -31,6 +34,8 @@ __all__ = [
     "Send",
     "ServerAction",
     "ServerProtocol",
-    "State",
     "Wait",
 ]
+
+#: old names, deprecated (each use warns, naming the new one)
+__getattr__ = renamed(__name__, {"State": ("pyrtu.protocol.client_actions", "ClientState")})

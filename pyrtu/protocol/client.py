@@ -36,6 +36,7 @@ from types import ModuleType
 from typing import Any
 
 from pyrtu.core import _backend
+from pyrtu.core._deprecated import renamed
 from pyrtu.core.ascii import ascii_message, encode_ascii, make_framer
 from pyrtu.core.feed import feed_all
 from pyrtu.core.frames import ERROR_BY_CODE
@@ -45,10 +46,10 @@ from pyrtu.pdu.errors import BusFault, ExceptionResponseError, FrameError, NoRes
 from pyrtu.pdu.functions import function_name
 from pyrtu.protocol.client_actions import (
     Action,
+    ClientState,
     Decoder,
     Done,
     Send,
-    State,
     Wait,
     answer_pdu,
     new_counters,
@@ -57,10 +58,19 @@ from pyrtu.protocol.client_exchange import ExchangeSteps
 from pyrtu.protocol.client_timing import LATE_WAKE_CHAR, WAKE_STEP
 
 log = logging.getLogger("pyrtu.drivers.master")
+
+#: old names, deprecated (each use warns, naming the new one)
+__getattr__ = renamed(__name__, {"State": ("pyrtu.protocol.client_actions", "ClientState")})
 _debug = log.isEnabledFor
 
 # module constants: an enum member lookup costs a class attribute access (3.11)
-_IDLE, _QUIET, _SEND, _ANSWER, _DONE = State.IDLE, State.QUIET, State.SEND, State.ANSWER, State.DONE
+_IDLE, _QUIET, _SEND, _ANSWER, _DONE = (
+    ClientState.IDLE,
+    ClientState.QUIET,
+    ClientState.SEND,
+    ClientState.ANSWER,
+    ClientState.DONE,
+)
 _DEBUG = logging.DEBUG
 _ADUS_MAX = 1024
 #: the core's error codes (RTU_ERR_*) as the discard reasons of the counters
@@ -615,9 +625,9 @@ class ClientProtocol(ExchangeSteps):
 __all__ = [
     "Action",
     "ClientProtocol",
+    "ClientState",
     "Done",
     "Send",
-    "State",
     "Wait",
     "new_counters",
 ]

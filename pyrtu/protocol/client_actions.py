@@ -52,7 +52,9 @@ DISCARD_REASONS = (
 Decoder = Callable[[bytes], Any]
 
 
-class State(enum.Enum):
+class ClientState(enum.Enum):
+    """Where a `ClientProtocol` stands in its transaction (`ClientProtocol.state`)."""
+
     IDLE = "idle"
     QUIET = "quiet"
     SEND = "send"
@@ -121,11 +123,11 @@ def new_counters() -> dict[str, int]:
 __all__ = [
     "DISCARD_REASONS",
     "Action",
+    "ClientState",
     "Decoder",
     "Done",
     "Exchange",
     "Send",
-    "State",
     "Wait",
     "answer_pdu",
     "new_counters",

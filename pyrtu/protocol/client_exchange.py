@@ -24,10 +24,10 @@ import logging
 from typing import TYPE_CHECKING, Any
 
 from pyrtu.pdu.errors import FrameError
-from pyrtu.protocol.client_actions import Exchange, State
+from pyrtu.protocol.client_actions import ClientState, Exchange
 from pyrtu.protocol.client_timing import AnswerTiming
 
-_QUIET, _SEND, _DONE = State.QUIET, State.SEND, State.DONE
+_QUIET, _SEND, _DONE = ClientState.QUIET, ClientState.SEND, ClientState.DONE
 _debug = logging.getLogger("pyrtu.drivers.master").isEnabledFor
 _DEBUG = logging.DEBUG
 #: functions whose answer's length follows from the request ([MB] 6.1-6.6, 6.11,

@@ -14,9 +14,9 @@ from __future__ import annotations
 from typing import Any
 
 from pyrtu.core.framing import FramerCore
-from pyrtu.protocol.client_actions import State
+from pyrtu.protocol.client_actions import ClientState
 
-_ANSWER = State.ANSWER
+_ANSWER = ClientState.ANSWER
 
 #: where a character is shorter than this (above 19200 baud), a timed wake-up is
 #: typically a character or more late: a whole answer in the wake-up's read lowers
@@ -42,7 +42,7 @@ class AnswerTiming:
     """The timing decisions of a `ClientProtocol` (see the module docstring)."""
 
     # the protocol's state these read (set by ClientProtocol)
-    state: State
+    state: ClientState
     gap: float
     timeout: float
     echo: bool

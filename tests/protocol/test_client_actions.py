@@ -12,7 +12,7 @@ import pytest
 from pyrtu.core.line import LineConfig
 from pyrtu.pdu.errors import ExceptionResponseError, NoResponseError
 from pyrtu.pdu.requests import read_holding_registers, write_register
-from pyrtu.protocol.client import ClientProtocol, Done, Send, State, Wait
+from pyrtu.protocol.client import ClientProtocol, ClientState, Done, Send, Wait
 from pyrtu.protocol.client_actions import Exchange
 
 LINE = LineConfig(baudrate=9600, parity="N")
@@ -61,7 +61,7 @@ def test_a_transaction_as_actions(backend: ModuleType) -> None:
     p.wait_done(ans[-1:], t + CHAR)
     done = p.next_action(t + CHAR)
     assert done == Done(VALUES, None, pytest.approx(t + CHAR))
-    assert done.result() == VALUES and p.state is State.IDLE
+    assert done.result() == VALUES and p.state is ClientState.IDLE
     with pytest.raises(RuntimeError, match="no transaction"):
         p.next_action(t + CHAR)
 
@@ -116,7 +116,7 @@ def test_an_echo_is_slept_on_then_the_answer(backend: ModuleType) -> None:
     wake = p.next_action(end)
     assert type(wake) is Wait and not wake.listen and wake.until > end
     p.wait_done(bytes(backend.add_crc(bytes.fromhex("01030000000a"))), wake.until)
-    assert p.counters["echo_mismatches"] == 0 and p.state is State.ANSWER
+    assert p.counters["echo_mismatches"] == 0 and p.state is ClientState.ANSWER
 
 
 def test_a_repeated_request_is_offered_as_one_exchange(backend: ModuleType) -> None:
