@@ -250,7 +250,7 @@ int rtu_vbus_io_errno(const rtu_vbus_io *io);
 int64_t rtu_vbus_io_now(void);
 uint64_t rtu_vbus_io_wakeups(rtu_vbus_io *io);
 
-/* csrc/rtu_xfer.h: one master exchange on a serial descriptor */
+/* csrc/rtu_xfer.h: one master xfer on a serial descriptor */
 #define RTU_XFER_ANSWER 0
 #define RTU_XFER_STALE 1
 #define RTU_XFER_SHORT 2

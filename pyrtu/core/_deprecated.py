@@ -1,7 +1,7 @@
 """Deprecated names and paths (a leaf module): a module's ``__getattr__`` that finds an
 old name at its new home and warns, naming the new one.
 
-    __getattr__ = renamed(__name__, {"Exchange": ("pyrtu.protocol.client_actions", "Xfer")})
+    __getattr__ = renamed(__name__, {"Xfer": ("pyrtu.protocol.client_actions", "Xfer")})
 
 Each use of an old name emits `DeprecationWarning` (``stacklevel`` at the user's line)
 saying ``old is deprecated: use new``; the value is the new name's object itself.

@@ -490,7 +490,7 @@ def test_a_whole_answer_in_one_read_lowers_the_turnaround_a_little_on_a_slow_lin
     backend: ModuleType,
 ) -> None:
     """Up to 19200 baud a `Wait` comes a character before the answer's end and the
-    last byte is waited for as input, while an `Exchange` reads at the predicted end:
+    last byte is waited for as input, while an `Xfer` reads at the predicted end:
     a whole answer read at once lowers the learned turnaround by `WAKE_STEP` (25 µs),
     not a quarter character, so that one slow answer does not keep every later read
     late."""
