@@ -300,7 +300,7 @@ def test_max_in_flight_is_for_tcp_only(tmp_path: Path) -> None:
 
 @pytest.mark.wall_clock
 @pytest.mark.parametrize("runner", sorted(RUNNERS))
-def test_a_cancelled_exchange_frees_the_port_at_once(runner: str, backend: ModuleType) -> None:
+def test_a_cancelled_xfer_frees_the_port_at_once(runner: str, backend: ModuleType) -> None:
     """A repeated read (an `Xfer` on the port's xfer thread) cancelled while it
     waits for an answer that will not come: the thread's xfer ends at once, the
     next read waits for nothing but the protocol's settling, and close is prompt
@@ -331,7 +331,7 @@ def test_a_cancelled_exchange_frees_the_port_at_once(runner: str, backend: Modul
 
 
 @pytest.mark.wall_clock  # the read after it: within 0.5 s (the old xfer's deadline 1 s)
-def test_an_exchange_left_by_an_ended_loop_is_waited_out_in_the_next(backend: ModuleType) -> None:
+def test_an_xfer_left_by_an_ended_loop_is_waited_out_in_the_next(backend: ModuleType) -> None:
     """A loop that ended while a cancelled transaction's xfer was still under way
     on the thread (its report had not reached that loop): the same AsyncMaster used
     from a new loop cancels the xfer and waits for its end on the thread, then

@@ -161,7 +161,7 @@ def test_unhashable_read_arguments_name_the_argument() -> None:
             request_table.read_coils(*args)  # type: ignore[arg-type]
 
 
-def test_a_repeated_read_goes_as_one_exchange(backend: object) -> None:
+def test_a_repeated_read_goes_as_one_xfer(backend: object) -> None:
     """On a descriptor, the second and later reads of a request are one call of the
     backend's XferRunner each (C or the twin): same answers, one xfer per read."""
     vbus = pytest.importorskip("pyrtu.vbus")
@@ -190,7 +190,7 @@ def test_a_repeated_read_goes_as_one_exchange(backend: object) -> None:
         assert m.counters["responses"] == 10 and m.counters["timeouts"] == 0
 
 
-def test_a_drop_pulled_out_under_an_exchange_is_a_port_error(backend: object) -> None:
+def test_a_drop_pulled_out_under_an_xfer_is_a_port_error(backend: object) -> None:
     """The master's drop vanishes while a repeated request is under way in the
     XferRunner: `PortError` naming the port (or no answer), never a hang; the master
     opened again on the replugged drop reads again."""
@@ -219,7 +219,7 @@ def test_a_drop_pulled_out_under_an_exchange_is_a_port_error(backend: object) ->
 
 
 @pytest.mark.wall_clock
-def test_a_signal_ends_a_blocking_exchange_at_once(backend: object) -> None:
+def test_a_signal_ends_a_blocking_xfer_at_once(backend: object) -> None:
     """A signal's handler runs during a repeated read that waits in the XferRunner (C:
     with the GIL released) as it does in a Python sleep: the handler's exception ends
     the read at once, not at the 5 s deadline (bound: a tenth of it)."""

@@ -141,7 +141,7 @@ def test_the_send_time_is_kept(backend: ModuleType, pty: tuple[int, int]) -> Non
 
 
 @pytest.mark.wall_clock  # bounded by half the xfer's deadline
-def test_an_exception_answer_ends_the_exchange(backend: ModuleType, pty: tuple[int, int]) -> None:
+def test_an_exception_answer_ends_the_xfer(backend: ModuleType, pty: tuple[int, int]) -> None:
     device, line = pty
     exc = backend.add_crc(bytes((7, 0x83, 2)))
     got: list[bytes] = []
@@ -310,7 +310,7 @@ def test_a_response_with_spin_is_written_at_its_time(
 
 
 @pytest.mark.wall_clock  # bounded by half the xfer's deadline
-def test_cancel_ends_an_exchange(backend: ModuleType, pty: tuple[int, int]) -> None:
+def test_cancel_ends_an_xfer(backend: ModuleType, pty: tuple[int, int]) -> None:
     """`AsyncXferRunner.cancel`: before the send time nothing is written; while an
     answer is awaited the wait ends at once; either way the report comes."""
     import select

@@ -119,7 +119,7 @@ def test_an_echo_is_slept_on_then_the_answer(backend: ModuleType) -> None:
     assert p.counters["echo_mismatches"] == 0 and p.state is ClientState.ANSWER
 
 
-def test_a_repeated_request_is_offered_as_one_exchange(backend: ModuleType) -> None:
+def test_a_repeated_request_is_offered_as_one_xfer(backend: ModuleType) -> None:
     """A driver that asks gets an `Xfer` for a request whose answer it has seen:
     the protocol's own times (t3.5 after the answer, the first read at the learned
     answer's end on this slow line), its length and the exception's; reported
@@ -158,7 +158,7 @@ def test_a_repeated_request_is_offered_as_one_exchange(backend: ModuleType) -> N
     assert done.end == pytest.approx(first + CHAR, abs=1e-6)
 
 
-def test_an_exchange_reads_a_character_early_on_a_fast_line(backend: ModuleType) -> None:
+def test_an_xfer_reads_a_character_early_on_a_fast_line(backend: ModuleType) -> None:
     """Above 19200 baud a timed wake-up is typically a character late: the first read
     is planned a character before the learned answer's end (at it on a slow line)."""
     fast = LineConfig(baudrate=115200, parity="N")
@@ -176,7 +176,7 @@ def test_an_exchange_reads_a_character_early_on_a_fast_line(backend: ModuleType)
     assert plan.first_wake == pytest.approx(want)
 
 
-def test_no_exchange_where_it_does_not_apply(backend: ModuleType) -> None:
+def test_no_xfer_where_it_does_not_apply(backend: ModuleType) -> None:
     """ASCII, an echo, strict framing, a line without timing, a broadcast: the steps."""
     for line, kw in (
         (LINE.replace(mode="ascii"), {}),
