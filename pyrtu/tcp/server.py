@@ -160,3 +160,6 @@ class TcpServer(AsyncClosing):
 
     def __repr__(self) -> str:
         return f"TcpServer({self.app!r}, address={self.address})"
+
+
+__all__ = ["UNIT_DIRECT", "UNIT_SELF", "Application", "LocalBus", "TcpServer"]
