@@ -6,7 +6,7 @@ action at a time (`Send`, `Wait`, `Xfer`, `Done`); `run_sync` interprets them,
 with one way of waiting per kind of port: a descriptor (`_wait_fd`: sleeps,
 ``select()`` and ``poll()``) or pyserial's generic timed read (`_wait_generic`: URL
 ports, Windows).  On a descriptor it asks for `Xfer`: a repeated request's
-whole xfer in one call of the backend's `XferRunner` (C: csrc/rtu_xfer_io.c,
+whole transaction in one call of the backend's `XferRunner` (C: csrc/rtu_xfer_io.c,
 the GIL released), so that Python runs once per transaction instead of once per
 wake-up.
 """

@@ -4,7 +4,7 @@ the report it takes back.
 The xfer half of `pyrtu.protocol.ClientProtocol` (a base class, as
 `pyrtu.protocol.client_timing.AnswerTiming` is: it reads and sets the protocol's
 state).  ``_xfer_plan`` gives a driver that asked (``next_action(now,
-xfer=True)``) the whole xfer of a repeated request on the times `send_at`
+xfer=True)``) the whole transaction of a repeated request on the times `send_at`
 and `ready_at` would give; ``xfer_done`` takes its report.
 
 ``xfer_done`` is what the steps the xfer stands for would report (the look at
@@ -64,7 +64,7 @@ class XferSteps(AnswerTiming):
         def _went(self, end: float) -> None: ...
 
     def _xfer_plan(self) -> Xfer | None:
-        """SEND or QUIET: the whole xfer of a repeated request, on the times
+        """SEND or QUIET: the whole transaction of a repeated request, on the times
         `send_at` and `ready_at` would give (None where it does not apply: ASCII, an
         echo, strict framing, a broadcast, an answer of unknown or variable length)."""
         if not self._can_xfer or self.echo or self._decode is None:
