@@ -32,12 +32,8 @@ KNOWN: dict[str, set[str]] = {
     # the serial server protocol's application, and the TCP server's (a subset: no
     # watchdog_expired)
     "Application": {"protocol/server.py", "tcp/server.py"},
-    # a CLI command, an MQTT set command, a drive's command word (two profiles)
-    "Command": {"cli/app.py", "bridge/commands.py", "devices/bonfiglioli.py", "devices/cv100.py"},
-    # the poll command's window, the outbox's delivery window
-    "Window": {"cli/poll.py", "bridge/delivery.py"},
-    # the live view's writer, the bridge's set-command writer
-    "Writer": {"cli/live_view.py", "bridge/writes.py"},
+    # a CLI command, a drive's command word (two profiles)
+    "Command": {"cli/app.py", "devices/bonfiglioli.py", "devices/cv100.py"},
 }
 
 
