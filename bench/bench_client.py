@@ -11,7 +11,7 @@ the CPU figures are the master's own:
    115200 baud 8N1: the sync `Master` and `AsyncMaster` (on `pyrtu.drivers.aio.run`'s
    microsecond-timer loop): transactions/s, ratio to the wire limit
    1 / (33 characters + 2 x t3.5), master CPU per transaction (the process's CPU
-   time, as the libmodbus client counts its own: an exchange thread's included);
+   time, as the libmodbus client counts its own: an xfer thread's included);
 2. pymodbus's ``AsyncModbusSerialClient`` on the same bus against the same slave,
    at 115200: transactions/s and CPU per transaction, and the ratios;
 3. 8 buses at 115200, a simulated drive on each (one ``pyrtu simulate cfw100 --port

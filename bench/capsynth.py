@@ -32,7 +32,7 @@ def _adu(pdu: bytes) -> bytes:
     return pdu + _crc(pdu)
 
 
-def exchanges(registers: int = 60) -> list[tuple[int, bytes]]:
+def transactions(registers: int = 60) -> list[tuple[int, bytes]]:
     """One polling cycle: (drop, adu) for two slaves answering FC 03."""
     out = []
     for slave in (1, 2):
@@ -47,7 +47,7 @@ def write_valid(f: IO[bytes], size: int, registers: int = 60) -> int:
     """Records of polling traffic (3.5+ characters of silence between frames) until
     the file holds ``size`` bytes; returns the number of frames."""
     f.write(header().line())
-    cycle = exchanges(registers)
+    cycle = transactions(registers)
     t_ns = 0
     gap_ns = 5 * CHAR_NS  # turnaround, more than t3.5
     written = f.tell()

@@ -1,5 +1,5 @@
 /*
- * pyrtu C core: one master exchange on a serial descriptor, without Python in
+ * pyrtu C core: one master xfer on a serial descriptor, without Python in
  * between (csrc/rtu_xfer_io.c).
  *
  * The client protocol (pyrtu/protocol/client.py) decides every time and length:
@@ -38,7 +38,7 @@ typedef struct {
     int fd;
     int drain;          /* tcdrain() after the write: a real line, not a pty */
     int look;           /* look for stale input before the write (a master) */
-    int cancel_fd;      /* readable: end the exchange (-1: none) */
+    int cancel_fd;      /* readable: end the xfer (-1: none) */
     const uint8_t *req; /* the request ADU */
     size_t req_len;
     int64_t send_at;    /* not before (the silence before the request) */
@@ -66,23 +66,23 @@ typedef struct {
     uint32_t reads;  /* reads that returned bytes */
 } rtu_xfer;
 
-/* Run one exchange (RTU_OK; x->status says how it ended), RTU_EINVAL for a bad
+/* Run one xfer (RTU_OK; x->status says how it ended), RTU_EINVAL for a bad
  * argument, RTU_EUNSUPPORTED where there is no POSIX I/O. */
 int rtu_xfer_io_run(rtu_xfer *x);
 
-/* A thread of its own that runs exchanges for an event loop (AsyncMaster): the
+/* A thread of its own that runs xfers for an event loop (AsyncMaster): the
  * caller fills the rtu_xfer it was started with, submits, and watches notify_fd,
- * to which the thread writes one byte when the exchange is over (then x's results
+ * to which the thread writes one byte when the xfer is over (then x's results
  * and rtu_xfer_worker_rc are valid).  The worker is caller-allocated
  * (rtu_xfer_worker_size bytes) and must not be freed before rtu_xfer_worker_stop
  * returned.  The thread blocks every signal (they are the main thread's). */
-#define RTU_EBUSY (-4) /* an exchange is under way */
+#define RTU_EBUSY (-4) /* an xfer is under way */
 typedef struct rtu_xfer_worker rtu_xfer_worker;
 size_t rtu_xfer_worker_size(void);
 int rtu_xfer_worker_start(rtu_xfer_worker *w, rtu_xfer *x, int notify_fd);
 int rtu_xfer_worker_submit(rtu_xfer_worker *w);
 int rtu_xfer_worker_rc(rtu_xfer_worker *w);
-/* ends the thread after the exchange under way (if any) and joins it */
+/* ends the thread after the xfer under way (if any) and joins it */
 void rtu_xfer_worker_stop(rtu_xfer_worker *w);
 
 #endif

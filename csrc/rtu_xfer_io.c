@@ -1,5 +1,5 @@
 /*
- * One master exchange on a serial descriptor (declared in rtu_xfer.h): the thin
+ * One master xfer on a serial descriptor (declared in rtu_xfer.h): the thin
  * I/O step behind a master's transaction, run by pyrtu/drivers/sync_io.py through
  * cffi (the GIL is released for the call), or for an event loop by a worker
  * thread of its own (rtu_xfer_worker, below: pyrtu/drivers/aio.py).
@@ -204,7 +204,7 @@ static int cancelled(const rtu_xfer *x)
 }
 
 /* Sleep until `t` (absolute) watching only the cancel descriptor: 0 the time came,
- * 1 cancelled or a signal (the exchange ends there). */
+ * 1 cancelled or a signal (the xfer ends there). */
 static int pause_until(rtu_xfer *x, int64_t t)
 {
     if (x->cancel_fd < 0)
@@ -222,7 +222,7 @@ static int pause_until(rtu_xfer *x, int64_t t)
 }
 
 /* Wait for input on the line until `t` (absolute), and for the cancel descriptor:
- * >0 input, 0 the time came, <0 the exchange ends (an error, a signal, a cancel). */
+ * >0 input, 0 the time came, <0 the xfer ends (an error, a signal, a cancel). */
 static int wait_input(rtu_xfer *x, int64_t t)
 {
     struct pollfd p[2];
@@ -344,7 +344,7 @@ struct rtu_xfer_worker {
     int busy;    /* submitted, not yet over */
     int stop;
     int started;
-    int rc; /* rtu_xfer_io_run's return of the last exchange */
+    int rc; /* rtu_xfer_io_run's return of the last xfer */
 };
 
 size_t rtu_xfer_worker_size(void) { return sizeof(struct rtu_xfer_worker); }

@@ -13,7 +13,7 @@ random bytes do.  Invariants:
   byte for byte what `encode_record` writes for its (seq, time, payload), and the
   sequence numbers of valid items increase; a recipe's intact records are exactly
   the valid items.
-* `decode_state` of any bytes returns None or a State.
+* `decode_state` of any bytes returns None or a CursorState.
 * `Outbox` opened on a directory (in /dev/shm) holding the bytes as a segment and a
   cursor file raises nothing but OutboxError (bad header), returns exactly the valid
   items above the ack cursor, and an append after them is read back.
@@ -91,7 +91,7 @@ def test_one_input(data: bytes) -> None:
     if intact is not None:
         assert valid == intact, (valid, intact)
     decoded = fmt.decode_state(state)
-    assert decoded is None or isinstance(decoded, fmt.State)
+    assert decoded is None or isinstance(decoded, fmt.CursorState)
 
     d = WORK / "ob"
     shutil.rmtree(d, ignore_errors=True)

@@ -20,8 +20,7 @@ import atheris
 
 with atheris.instrument_imports():
     import pyrtu
-    from pyrtu import pdu as P
-    from pyrtu.pdu import base as B
+    from pyrtu.pdu import base, client
     from pyrtu.pdu.errors import FrameError, SlaveException
 
 C = pyrtu.backend("c")
@@ -29,17 +28,17 @@ PY = pyrtu.backend("python")
 
 #: each decoder with the function codes the slave hands it (it dispatches on pdu[0])
 DECODERS: list[tuple[Callable[[bytes], object], tuple[int, ...]]] = [
-    (B.decode_read, (1, 2, 3, 4)),
-    (B.decode_write_single, (5, 6)),
-    (B.decode_write_coils, (15,)),
-    (B.decode_write_registers, (16,)),
-    (B.decode_mask_write, (22,)),
-    (B.decode_read_write, (23,)),
-    (B.decode_diagnostics, (8,)),
-    (B.decode_fifo, (24,)),
-    (B.decode_read_file, (20,)),
-    (B.decode_write_file, (21,)),
-    (B.decode_device_id, (43,)),
+    (base.decode_read, (1, 2, 3, 4)),
+    (base.decode_write_single, (5, 6)),
+    (base.decode_write_coils, (15,)),
+    (base.decode_write_registers, (16,)),
+    (base.decode_mask_write, (22,)),
+    (base.decode_read_write, (23,)),
+    (base.decode_diagnostics, (8,)),
+    (base.decode_fifo, (24,)),
+    (base.decode_read_file, (20,)),
+    (base.decode_write_file, (21,)),
+    (base.decode_device_id, (43,)),
 ]
 
 
@@ -49,18 +48,18 @@ def _parsers(fdp: Any) -> list[Callable[[bytes], object]]:
     # what the master sent: a request PDU of at least function + address + value
     request = fdp.ConsumeBytes(8).ljust(5, b"\x00")
     return [
-        lambda pdu: P.parse_bits(pdu, count),
-        lambda pdu: P.parse_registers(pdu, min(count, 125)),
-        lambda pdu: P.parse_echo(pdu, request),
-        lambda pdu: P.parse_echo(pdu, request, 5),
-        P.parse_exception_status,
-        lambda pdu: P.parse_diagnostics(pdu, count & 0xFFFF),
-        P.parse_event_counter,
-        P.parse_event_log,
-        P.parse_server_id,
-        P.parse_fifo,
-        lambda pdu: P.parse_read_file(pdu, items),
-        lambda pdu: P.parse_device_id(pdu, 1 + count % 4),
+        lambda pdu: client.parse_bits(pdu, count),
+        lambda pdu: client.parse_registers(pdu, min(count, 125)),
+        lambda pdu: client.parse_echo(pdu, request),
+        lambda pdu: client.parse_echo(pdu, request, 5),
+        client.parse_exception_status,
+        lambda pdu: client.parse_diagnostics(pdu, count & 0xFFFF),
+        client.parse_event_counter,
+        client.parse_event_log,
+        client.parse_server_id,
+        client.parse_fifo,
+        lambda pdu: client.parse_read_file(pdu, items),
+        lambda pdu: client.parse_device_id(pdu, 1 + count % 4),
     ]
 
 

@@ -104,7 +104,7 @@ def mbap_seeds() -> list[bytes]:
 
 
 def vbus_seeds() -> list[bytes]:
-    """The manuals' telegrams as request/answer exchanges on a 2-drop wire at 115200
+    """The manuals' telegrams as request/answer transactions on a 2-drop wire at 115200
     baud (see fuzz_vbus.c): transmit on drop 0 then 1, a service after each."""
     seeds = []
     for adus in _sources().values():

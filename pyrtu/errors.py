@@ -1,7 +1,30 @@
-"""`pyrtu.errors`: pyrtu's exceptions, at the path the documentation shows.
+"""Deprecated path: `pyrtu.errors` (pyrtu's exceptions).  Each name used here warns
+(`DeprecationWarning`) naming its one public path: ``import pyrtu``'s own name
+(`_ROOT`), else `pyrtu.pdu.errors`."""
 
-The code lives in `pyrtu.pdu.errors`; this module re-exports its public names (its ``__all__``).
-"""
+from __future__ import annotations
 
-from pyrtu.pdu.errors import *  # noqa: F403
-from pyrtu.pdu.errors import __all__ as __all__
+from pyrtu.core._deprecated import renamed
+
+#: the names `import pyrtu` has
+_ROOT = (
+    "EXCEPTION_NAMES",
+    "BusFault",
+    "ExceptionResponseError",
+    "FrameError",
+    "ModbusError",
+    "NoResponseError",
+    "PortError",
+    "SlaveException",
+)
+#: the names only pyrtu.pdu.errors has
+_HOME = ("NO_DEVICE_ANSWERED", "PortBusyError", "PureBackendWarning", "exception_name")
+
+__getattr__ = renamed(
+    __name__,
+    {
+        **{name: ("pyrtu", name) for name in _ROOT},
+        **{name: ("pyrtu.pdu.errors", name) for name in _HOME},
+    },
+)
+__all__ = [*_ROOT, *_HOME]

@@ -1,40 +1,21 @@
-"""`pyrtu.rules`: length rules, at the path the documentation shows.
+"""Deprecated path: `pyrtu.rules` (length rules).  Each name used here warns
+(`DeprecationWarning`) naming its one public path: ``import pyrtu``'s own name
+(`_ROOT`), else `pyrtu.core.rules`."""
 
-The code lives in `pyrtu.core.rules`; this module re-exports its public names.
-"""
+from __future__ import annotations
 
-from pyrtu.core.rules import (
-    BONFIGLIOLI as BONFIGLIOLI,
-)
-from pyrtu.core.rules import (
-    CV100 as CV100,
-)
-from pyrtu.core.rules import (
-    RULE_COUNT as RULE_COUNT,
-)
-from pyrtu.core.rules import (
-    RULE_FIXED as RULE_FIXED,
-)
-from pyrtu.core.rules import (
-    RULE_NONE as RULE_NONE,
-)
-from pyrtu.core.rules import (
-    LengthRule as LengthRule,
-)
-from pyrtu.core.rules import (
-    RuleTable as RuleTable,
-)
-from pyrtu.core.rules import (
-    check_rules as check_rules,
-)
+from pyrtu.core._deprecated import renamed
 
-__all__ = [
-    "BONFIGLIOLI",
-    "CV100",
-    "RULE_COUNT",
-    "RULE_FIXED",
-    "RULE_NONE",
-    "LengthRule",
-    "RuleTable",
-    "check_rules",
-]
+#: the names `import pyrtu` has
+_ROOT = ("BONFIGLIOLI", "CV100", "LengthRule")
+#: the names only pyrtu.core.rules has
+_HOME = ("RULE_COUNT", "RULE_FIXED", "RULE_NONE", "RuleTable", "check_rules")
+
+__getattr__ = renamed(
+    __name__,
+    {
+        **{name: ("pyrtu", name) for name in _ROOT},
+        **{name: ("pyrtu.core.rules", name) for name in _HOME},
+    },
+)
+__all__ = [*_ROOT, *_HOME]

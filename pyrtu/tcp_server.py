@@ -1,28 +1,7 @@
 """`pyrtu.tcp_server`: the Modbus TCP server, at the path the documentation shows.
 
-The code lives in `pyrtu.gateway.server`; this module re-exports its public names.
+The code lives in `pyrtu.tcp.server`; this module re-exports its public names (its ``__all__``).
 """
 
-from pyrtu.gateway.server import (
-    UNIT_DIRECT as UNIT_DIRECT,
-)
-from pyrtu.gateway.server import (
-    UNIT_SELF as UNIT_SELF,
-)
-from pyrtu.gateway.server import (
-    Application as Application,
-)
-from pyrtu.gateway.server import (
-    LocalBus as LocalBus,
-)
-from pyrtu.gateway.server import (
-    TcpServer as TcpServer,
-)
-
-__all__ = [
-    "UNIT_DIRECT",
-    "UNIT_SELF",
-    "Application",
-    "LocalBus",
-    "TcpServer",
-]
+from pyrtu.tcp.server import *  # noqa: F403
+from pyrtu.tcp.server import __all__ as __all__

@@ -1,67 +1,15 @@
-"""`pyrtu.timing`: character and silence times, at the path the documentation shows.
+"""Deprecated path: `pyrtu.timing` (character and silence times).  Each name used here warns
+(`DeprecationWarning`) naming its one public path: ``import pyrtu``'s own name
+(`_ROOT`), else `pyrtu.core.timing`."""
 
-The code lives in `pyrtu.core.timing`; this module re-exports its public names.
-"""
+from __future__ import annotations
 
-from pyrtu.core.timing import (
-    BYTESIZES as BYTESIZES,
-)
-from pyrtu.core.timing import (
-    MAX_BAUDRATE as MAX_BAUDRATE,
-)
-from pyrtu.core.timing import (
-    MIN_BAUDRATE as MIN_BAUDRATE,
-)
-from pyrtu.core.timing import (
-    MODES as MODES,
-)
-from pyrtu.core.timing import (
-    PARITIES as PARITIES,
-)
-from pyrtu.core.timing import (
-    STOPBITS as STOPBITS,
-)
-from pyrtu.core.timing import (
-    TIMING_RULES as TIMING_RULES,
-)
-from pyrtu.core.timing import (
-    Timing as Timing,
-)
-from pyrtu.core.timing import (
-    apply_overrides as apply_overrides,
-)
-from pyrtu.core.timing import (
-    bits_per_char as bits_per_char,
-)
-from pyrtu.core.timing import (
-    check_baudrate as check_baudrate,
-)
-from pyrtu.core.timing import (
-    check_bytesize as check_bytesize,
-)
-from pyrtu.core.timing import (
-    check_mode as check_mode,
-)
-from pyrtu.core.timing import (
-    check_parity as check_parity,
-)
-from pyrtu.core.timing import (
-    check_stopbits as check_stopbits,
-)
-from pyrtu.core.timing import (
-    check_timing as check_timing,
-)
-from pyrtu.core.timing import (
-    compute_timing as compute_timing,
-)
-from pyrtu.core.timing import (
-    positive_seconds as positive_seconds,
-)
-from pyrtu.core.timing import (
-    seconds_to_us as seconds_to_us,
-)
+from pyrtu.core._deprecated import renamed
 
-__all__ = [
+#: the names `import pyrtu` has
+_ROOT = ("Timing",)
+#: the names only pyrtu.core.timing has
+_HOME = (
     "BYTESIZES",
     "MAX_BAUDRATE",
     "MIN_BAUDRATE",
@@ -69,7 +17,6 @@ __all__ = [
     "PARITIES",
     "STOPBITS",
     "TIMING_RULES",
-    "Timing",
     "apply_overrides",
     "bits_per_char",
     "check_baudrate",
@@ -81,4 +28,13 @@ __all__ = [
     "compute_timing",
     "positive_seconds",
     "seconds_to_us",
-]
+)
+
+__getattr__ = renamed(
+    __name__,
+    {
+        **{name: ("pyrtu", name) for name in _ROOT},
+        **{name: ("pyrtu.core.timing", name) for name in _HOME},
+    },
+)
+__all__ = [*_ROOT, *_HOME]

@@ -11,7 +11,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from test_layers import ALLOWED
+from test_layers import ABOVE, ALLOWED
 
 ROOT = Path(__file__).resolve().parent.parent
 DESIGN = ROOT / "docs" / "DESIGN.md"
@@ -104,13 +104,14 @@ def test_the_layer_rule_is_the_one_test_layers_enforces() -> None:
     section = _text().split("### The layer rule", 1)[1].split("\n#", 1)[0]
     stated: dict[str, set[str]] = {}
     for line in section.splitlines():
-        m = re.match(r"\|\s*`(\w+)/`\s*\|(.*)\|\s*$", line)
+        m = re.match(r"\|\s*`(\w+/|\w+/\w+\.py)`\s*\|(.*)\|\s*$", line)
         if m:
-            stated[m.group(1)] = set(re.findall(r"`(\w+)/`", m.group(2)))
+            stated[m.group(1).rstrip("/")] = set(re.findall(r"`(\w+)/`", m.group(2)))
+    enforced = {**ALLOWED, **ABOVE}
     differ = {
-        k: (sorted(stated.get(k, ())), sorted(ALLOWED.get(k, ())))
-        for k in set(stated) | set(ALLOWED)
-        if stated.get(k) != ALLOWED.get(k)
+        k: (sorted(stated.get(k, ())), sorted(enforced.get(k, ())))
+        for k in set(stated) | set(enforced)
+        if stated.get(k) != enforced.get(k)
     }
     assert not differ, f"DESIGN.md's layer table against test_layers.ALLOWED: {differ}"
 

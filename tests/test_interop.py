@@ -143,7 +143,7 @@ def test_master_exceptions_and_no_response(server: tuple[str, int], bus: Virtual
         t0 = time.monotonic()
         with pytest.raises(ExceptionResponseError) as info:
             m.read_holding_registers(s, 999, 2)  # crosses the end of the table
-        # at once, not at the timeout: half of it (250 ms) is ~50x a pymodbus exchange
+        # at once, not at the timeout: half of it (250 ms) is ~50x a pymodbus transaction
         # over the bus and above a loaded 2-core VM's stalls (tens of ms)
         assert time.monotonic() - t0 < TIMEOUT / 2, "an exception response returns at once"
         e = info.value

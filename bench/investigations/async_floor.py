@@ -15,7 +15,7 @@ the rounds, and each master's ratio to libmodbus.
 ``--wakes`` adds the wake-ups alone (`WAKES`): programs that do nothing but wait out
 one transaction period per transaction, with a thread's sleep, the event loop's
 timer, or a sleep on a thread of its own that then wakes the loop (the shape of
-`AsyncMaster`'s exchange thread): what one wake-up per transaction costs this
+`AsyncMaster`'s xfer thread): what one wake-up per transaction costs this
 machine, before any I/O.
 """
 
@@ -106,7 +106,7 @@ async def main():
 """
 #: the wake-ups: a thread's sleep; the event loop's timer (asyncio.sleep) on
 #: pyrtu.drivers.aio.run; a sleep on a thread of its own whose end wakes the loop
-#: (call_soon_threadsafe), as AsyncMaster's exchange thread does
+#: (call_soon_threadsafe), as AsyncMaster's xfer thread does
 WAKES = {
     "sleep": _WAKE.replace("{SETUP}", "pass")
     .replace("{WAIT}", "time.sleep(period)")

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from pyrtu.bench.line import LineReport, check_serial
-from pyrtu.bench.timer import Timing, percentile, time_call
+from pyrtu.bench.timer import CallTiming, percentile, time_call
 from pyrtu.core._backend import backend
 from pyrtu.drivers.master import Master
 
@@ -66,7 +66,7 @@ class SuiteResult:
     vbus_line: LineReport | None = None
 
 
-def _row(group: str, contender: str, t: Timing, unit: str, **extra: float) -> Row:
+def _row(group: str, contender: str, t: CallTiming, unit: str, **extra: float) -> Row:
     return Row(group, contender, t.median, t.low, t.high, unit, dict(extra))
 
 
@@ -175,7 +175,7 @@ def stream(result: SuiteResult, budget: float) -> None:
                 f"parse_stream ({name}) found {frames} frames, not {2 * STREAM_TRANSACTIONS}"
             )
         t = time_call(functools.partial(parse, data), budget, min_batches=3)
-        per = Timing(t.median / frames, t.low / frames, t.high / frames, t.batches, t.per_batch)
+        per = CallTiming(t.median / frames, t.low / frames, t.high / frames, t.batches, t.per_batch)
         result.rows.append(_row(group, _label(name), per, "frame"))
 
 
@@ -227,7 +227,7 @@ def _master_rounds(
         latencies.append(time.perf_counter() - t0)
         cpu.append(time.thread_time() - c0)
     result.latencies[contender] = latencies
-    t = Timing(percentile(latencies, 0.5), min(latencies), max(latencies), len(latencies), 1)
+    t = CallTiming(percentile(latencies, 0.5), min(latencies), max(latencies), len(latencies), 1)
     result.rows.append(
         _row(
             group,

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 
 @dataclass(frozen=True)
-class Timing:
+class CallTiming:
     """``median`` and ``low``/``high`` (the fastest and slowest batch) in seconds per
     call, over ``batches`` batches of ``per_batch`` calls."""
 
@@ -23,7 +23,7 @@ class Timing:
     per_batch: int
 
 
-def time_call(fn: Callable[[], object], budget: float, *, min_batches: int = 5) -> Timing:
+def time_call(fn: Callable[[], object], budget: float, *, min_batches: int = 5) -> CallTiming:
     """Time ``fn()``: batches sized to last about ``budget / 20`` seconds each, until
     ``budget`` seconds have passed and at least ``min_batches`` batches ran."""
     if budget <= 0:
@@ -45,7 +45,7 @@ def time_call(fn: Callable[[], object], budget: float, *, min_batches: int = 5) 
         for _ in range(n):
             fn()
         per_call.append((clock() - t0) / n)
-    return Timing(statistics.median(per_call), min(per_call), max(per_call), len(per_call), n)
+    return CallTiming(statistics.median(per_call), min(per_call), max(per_call), len(per_call), n)
 
 
 def percentile(values: list[float], q: float) -> float:
@@ -59,4 +59,4 @@ def percentile(values: list[float], q: float) -> float:
     return ordered[rank - 1]
 
 
-__all__ = ["Timing", "percentile", "time_call"]
+__all__ = ["CallTiming", "percentile", "time_call"]

@@ -5,10 +5,10 @@
 `topics`      topic names, the payload of a value, outbox records
 `report`      `Reporter`: report by exception, qualities (good, stale, bad)
 `commands`    set commands: parsing, checks, expiry, idempotence, rate limits
-`delivery`    `Window`: publications awaiting the broker's acknowledgement
+`delivery`    `DeliveryWindow`: publications awaiting the broker's acknowledgement
 `outbox`      `Outbox`: the durable, bounded on-disk log between poller and broker
 `mqtt`        `MqttLink`: one MQTT 5 connection (paho-mqtt) on the asyncio loop
-`writes`      `Writer`: commands to the drives, read-back, results
+`writes`      `SetWriter`: commands to the drives, read-back, results
 `bridge`      `Bridge`: all of it on the poller
 `discovery`   Home Assistant MQTT discovery
 ============  =====================================================================

@@ -98,22 +98,25 @@ def encode_record(seq: int, now: float, payload: bytes) -> bytes:
     return pre + CRC.pack(zlib.crc32(payload, zlib.crc32(pre))) + payload
 
 
-class State(NamedTuple):
+class CursorState(NamedTuple):
+    """What a slot of the cursor file holds (``gen``, ``acked``, ``reserved``,
+    ``dropped``: see the module docstring)."""
+
     gen: int
     acked: int
     reserved: int
     dropped: int
 
 
-def encode_state(state: State) -> tuple[int, bytes]:
+def encode_state(state: CursorState) -> tuple[int, bytes]:
     """(file offset, bytes) of the slot this generation is written to."""
     body = STATE.pack(STATE_MAGIC, *state)
     return STATE_SLOTS[state.gen % 2], body + CRC.pack(zlib.crc32(body))
 
 
-def decode_state(data: bytes) -> State | None:
+def decode_state(data: bytes) -> CursorState | None:
     """The newest valid slot of a cursor file's contents, None if neither is valid."""
-    best: State | None = None
+    best: CursorState | None = None
     for off in STATE_SLOTS:
         end = off + STATE.size
         if len(data) < end + CRC.size:
@@ -124,7 +127,7 @@ def decode_state(data: bytes) -> State | None:
         magic, *fields = STATE.unpack_from(data, off)
         if magic != STATE_MAGIC:
             continue
-        state = State(*fields)
+        state = CursorState(*fields)
         if max(state) > MAX_SEQ:  # no number this format writes is that large
             continue
         if best is None or state.gen > best.gen:

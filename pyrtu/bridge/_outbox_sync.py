@@ -299,7 +299,7 @@ class Flushing:
             res = self._saved[1] if reserved is None else reserved
             if ahead:
                 res = max(res, self._saved[1])
-            state = fmt.State(self._gen + 1, self._acked, res, self._dropped)
+            state = fmt.CursorState(self._gen + 1, self._acked, res, self._dropped)
             off, data = fmt.encode_state(state)
             try:
                 os.pwrite(self._state_fd, data, off)

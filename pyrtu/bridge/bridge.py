@@ -51,7 +51,7 @@ from ..poller.points import Value
 from ._outbox_sync import Flusher
 from .commands import CommandQueue
 from .config import BridgeConfig, load_bridge_config
-from .delivery import Window
+from .delivery import DeliveryWindow
 from .mqtt import BrokerRefused, Credentials, MqttLink
 from .outbox import Outbox, OutboxError, OutboxLimits
 from .report import Reporter
@@ -65,7 +65,7 @@ from .topics import (
     split_record,
     unpublishable,
 )
-from .writes import Writer
+from .writes import SetWriter
 
 log = logging.getLogger("pyrtu.bridge")
 
@@ -103,11 +103,11 @@ class Bridge(AsyncService):
             config.poller.points, {p.name: config.max_age(p.name) for p in config.poller.points}
         )
         self.commands = CommandQueue(m.command_queue, m.write_rate)
-        self.writer = Writer(self)
+        self.writer = SetWriter(self)
         self._topic = {p.name: self.topics.point[p.name] for p in config.poller.points}
         self._outbox: Outbox | None = None
         self._link: MqttLink | None = None
-        self._window = Window(m.inflight)
+        self._window = DeliveryWindow(m.inflight)
         self._reconnect = Reconnect(Backoff(m.backoff, m.max_backoff))
         self._live: deque[tuple[int, bytes, float]] = deque()
         self._live_base = 0  # every record from this seq on is in _live or published

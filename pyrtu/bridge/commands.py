@@ -33,7 +33,7 @@ from .config import PointOptions
 
 
 @dataclass(slots=True)
-class Command:
+class SetCommand:
     """An accepted command, waiting for its slave's turn."""
 
     point: Point
@@ -199,7 +199,7 @@ class CommandQueue:
     size: int
     rate: float
     remember: int = 4096
-    queues: dict[tuple[str, int], deque[Command]] = field(default_factory=dict)
+    queues: dict[tuple[str, int], deque[SetCommand]] = field(default_factory=dict)
     buckets: dict[tuple[str, int], TokenBucket] = field(default_factory=dict)
     seen: OrderedDict[str, bytes | None] = field(default_factory=OrderedDict)
     waiting: int = 0
@@ -216,7 +216,7 @@ class CommandQueue:
         self.duplicates += 1
         return True, self.seen[cid]
 
-    def push(self, cmd: Command) -> bool:
+    def push(self, cmd: SetCommand) -> bool:
         """Queue a command; False when the queue is full (the caller refuses it)."""
         if self.waiting >= self.size:
             self.refused += 1
@@ -230,7 +230,7 @@ class CommandQueue:
                 self.seen.popitem(last=False)
         return True
 
-    def pop(self, key: tuple[str, int]) -> Command | None:
+    def pop(self, key: tuple[str, int]) -> SetCommand | None:
         q = self.queues.get(key)
         if not q:
             return None
@@ -249,9 +249,9 @@ class CommandQueue:
 
 
 __all__ = [
-    "Command",
     "CommandQueue",
     "Refusal",
+    "SetCommand",
     "TokenBucket",
     "check_value",
     "parse",

@@ -1,14 +1,14 @@
 """What has been handed to the broker and what it has acknowledged (sans-I/O).
 
 Records are published in sequence order, at most ``window`` of them awaiting the
-broker's acknowledgement.  `Window.sent` records a publication (its seq, the
-client's message id, the time the value was read); `Window.acked` one
-acknowledgement, which may come for any message id; `Window.contiguous` is then the
+broker's acknowledgement.  `DeliveryWindow.sent` records a publication (its seq, the
+client's message id, the time the value was read); `DeliveryWindow.acked` one
+acknowledgement, which may come for any message id; `DeliveryWindow.contiguous` is then the
 highest seq up to which every publication has been acknowledged: what the outbox
 may forget.  `reset` forgets the publications in flight (the connection ended):
 they are published again from the outbox, with the same sequence numbers.
 A publication keeps its record until acknowledged (`record`: what to set aside
-when the broker refuses it).  `Window.skipped` records a record passed by
+when the broker refuses it).  `DeliveryWindow.skipped` records a record passed by
 unpublished (set aside: it never can be): it counts as acknowledged in its
 place, neither holding `contiguous` back nor moving it past a publication still
 in flight.
@@ -30,7 +30,7 @@ class _Sent:
     record: bytes = b""
 
 
-class Window:
+class DeliveryWindow:
     """Publications awaiting acknowledgement (see the module docstring)."""
 
     def __init__(self, window: int) -> None:
@@ -96,4 +96,4 @@ class Window:
         return percentile(sorted(self.latencies), q)
 
 
-__all__ = ["Window"]
+__all__ = ["DeliveryWindow"]

@@ -225,7 +225,9 @@ class MqttLink:
         if self.credentials.tls is not None:
             c.tls_set_context(self.credentials.tls)
         c.will_set(self.will_topic, b"offline", qos=1, retain=True)
-        c.max_inflight_messages_set(0)  # our Window bounds it (paho scans its queue per ack)
+        c.max_inflight_messages_set(
+            0
+        )  # our DeliveryWindow bounds it (paho scans its queue per ack)
         c.max_queued_messages_set(0)
         c.suppress_exceptions = False
         c.on_connect = self._connected

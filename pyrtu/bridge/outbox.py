@@ -137,7 +137,7 @@ class Outbox(Flushing):
             if data.strip(b"\0"):
                 self.corrupt += 1  # unreadable cursor: everything on disk is pending again
                 self.corrupt_bytes += len(data)
-            state = fmt.State(0, 0, 0, 0)
+            state = fmt.CursorState(0, 0, 0, 0)
         self._gen, self._acked, self._reserved, self._dropped = state
         self._saved = (self._acked, self._reserved, self._dropped)
         last = 0

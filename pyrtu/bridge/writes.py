@@ -1,6 +1,6 @@
 """The bridge's writes: set commands from the broker to the drives and their results.
 
-`Writer.on_message` takes a message of a set topic, refuses it with a result when
+`SetWriter.on_message` takes a message of a set topic, refuses it with a result when
 it must (see `pyrtu.bridge.commands`) or queues it for its slave; one task per
 slave with commands waiting writes them in turn, each when the slave's rate limit
 lets it and only while it has not expired, through the poller's write queue
@@ -24,14 +24,14 @@ from ..drivers.reconnect import Backoff, Reconnect
 from ..poller import Point, Poller
 from ..poller.points import Value
 from ..poller.values import faithful_value
-from .commands import Command, CommandQueue, Refusal, check_value, parse, result, rounding
+from .commands import CommandQueue, Refusal, SetCommand, check_value, parse, result, rounding
 from .config import BridgeConfig
 from .mqtt import MqttLink, publish_properties
 from .topics import Topics
 
 
 class Host(Protocol):
-    """What a `Writer` uses of its `pyrtu.bridge.Bridge`."""
+    """What a `SetWriter` uses of its `pyrtu.bridge.Bridge`."""
 
     config: BridgeConfig
     topics: Topics
@@ -48,7 +48,7 @@ class Host(Protocol):
 log = logging.getLogger("pyrtu.bridge")
 
 
-class Writer:
+class SetWriter:
     """Set commands of one bridge (see the module docstring)."""
 
     def __init__(self, bridge: Host) -> None:
@@ -153,7 +153,7 @@ class Writer:
         expires = now + life
         if sent is not None:
             expires = min(expires, now + (sent + self.cfg.mqtt.command_expiry - time.time()))
-        cmd = Command(
+        cmd = SetCommand(
             point,
             encoded.value,
             cid,
@@ -210,7 +210,7 @@ class Writer:
         except ValueError as e:  # a response topic with wildcards
             log.info("bridge: cannot answer on %r: %s", topic, e)
 
-    def _finish(self, cmd: Command, body: bytes) -> None:
+    def _finish(self, cmd: SetCommand, body: bytes) -> None:
         self.queue.done(cmd.id, body)
         self._reply(cmd.reply_to, body, cmd.correlation)
 
@@ -247,7 +247,7 @@ class Writer:
         finally:
             self._workers.pop(key, None)
 
-    async def _execute(self, key: tuple[str, int], cmd: Command) -> None:
+    async def _execute(self, key: tuple[str, int], cmd: SetCommand) -> None:
         name = cmd.point.name
         bucket = self.queue.bucket(key, time.monotonic())
         late = False
@@ -310,4 +310,4 @@ def _worker_name(key: tuple[str, int]) -> str:
     return f"pyrtu-bridge-writes-{key[0]}-{key[1]}"
 
 
-__all__ = ["Writer"]
+__all__ = ["SetWriter"]

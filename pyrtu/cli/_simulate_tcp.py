@@ -2,7 +2,7 @@
 
 The drive's slave (the one on ``--port``, or one without a port when only ``--tcp``
 is given: the drive's functions, handlers and identification over its DataStore)
-served by `pyrtu.gateway.server.TcpServer` from an event loop in a thread of its own.
+served by `pyrtu.tcp.server.TcpServer` from an event loop in a thread of its own.
 
 Supervised: the server's tasks are the gateway's (restarted on the back-off, each
 failure handed to ``on_task``); the thread itself ending while it should serve (its
@@ -22,7 +22,7 @@ from typing import Any
 from pyrtu.core.line import LINE_DEFAULTS, LineConfig
 from pyrtu.drivers.slave_base import SlaveBase
 from pyrtu.drivers.supervise import TaskFailure, cause
-from pyrtu.gateway.server import TcpServer
+from pyrtu.tcp.server import TcpServer
 
 log = logging.getLogger("pyrtu.cli")
 

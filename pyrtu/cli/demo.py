@@ -144,7 +144,7 @@ def pyrtu_command() -> str:
 
 def response_timeout(char_time: float) -> float:
     """The master's timeout: 0.3 s of slack plus the wire time of the longest
-    exchange (a request and a 256-byte answer, [SL] 2.5.1), so that slow lines
+    transaction (a request and a 256-byte answer, [SL] 2.5.1), so that slow lines
     (1200 baud and below) work as well as fast ones."""
     return 0.3 + (8 + 256 + 8) * char_time
 

@@ -287,7 +287,9 @@ def framer_class(
             raise ValueError("device_ids must name at least one device (None: all)")
     if rules is not None:
         if not isinstance(rules, Mapping):
-            raise TypeError(f"rules must be a mapping (pyrtu.rules), not {type(rules).__name__}")
+            raise TypeError(
+                f"rules must be a mapping (pyrtu.core.rules), not {type(rules).__name__}"
+            )
         check_rules(rules)  # TypeError/ValueError naming the bad entry
     if backend is not None:
         _backend.backend(backend)  # ValueError/ImportError for a backend that cannot run

@@ -253,7 +253,7 @@ uint64_t rtu_vbus_io_wakeups(rtu_vbus_io *io);
 /* ---- end of POSIX I/O ---- */
 
 /* ---- POSIX I/O (csrc/rtu_*_io.c): left out where there is none (_build_core.py) ---- */
-/* csrc/rtu_xfer.h: one master exchange on a serial descriptor */
+/* csrc/rtu_xfer.h: one master xfer on a serial descriptor */
 #define RTU_XFER_ANSWER 0
 #define RTU_XFER_STALE 1
 #define RTU_XFER_SHORT 2

@@ -2,7 +2,7 @@
 (or ``async with``) returns the object itself and calls its ``close`` on the way out,
 whatever ended the block.  `Closing` for the sync drivers (`pyrtu.Slave`,
 `pyrtu.tcp.TcpClient`), `AsyncClosing` for the asyncio ones (`pyrtu.drivers.aio.AsyncSlave`,
-`pyrtu.tcp.AsyncTcpClient`, `pyrtu.gateway.server.TcpServer`).  `AsyncService` for the
+`pyrtu.tcp.AsyncTcpClient`, `pyrtu.tcp.server.TcpServer`).  `AsyncService` for the
 asyncio services that ``start`` and ``stop`` (`pyrtu.poller.Poller`, `pyrtu.bridge.Bridge`):
 ``async with`` starts them and stops them on the way out."""
 

@@ -315,3 +315,16 @@ class AsciiFramer(EventQueue[Frame]):
             "discarded_bytes": sum(discarded),
             "lrc_errors": discarded[CODE_BY_ERROR[ErrorReason.CRC]],
         }
+
+
+__all__ = [
+    "ASCII_MAX_FRAME",
+    "INTER_CHAR_LIMIT",
+    "AsciiCore",
+    "AsciiFramer",
+    "ascii_message",
+    "decode_ascii",
+    "delimiter_table",
+    "encode_ascii",
+    "make_framer",
+]

@@ -1,7 +1,7 @@
-"""The exchange step in C (csrc/rtu_xfer_io.c; `pyrtu.drivers.xfer` has the contract,
-pyrtu/drivers/_pyxfer.py the twin): `Exchanger` runs one exchange per call (the GIL
-released), `AsyncExchanger` on a C thread of its own for an event loop.  Imported by
-`pyrtu.drivers.exchangers` only for the C backend (the extension is built then)."""
+"""The xfer step in C (csrc/rtu_xfer_io.c; `pyrtu.drivers.xfer` has the contract,
+pyrtu/drivers/_pyxfer.py the twin): `XferRunner` runs one xfer per call (the GIL
+released), `AsyncXferRunner` on a C thread of its own for an event loop.  Imported by
+`pyrtu.drivers.xfer_runners` only for the C backend (the extension is built then)."""
 
 from __future__ import annotations
 
@@ -25,10 +25,10 @@ def _new_xfer(cancel_fd: int) -> tuple[Any, Any]:
 
 
 def _plan(x: Any, plan: XferPlan) -> Any:
-    """Fill ``x`` for one exchange; the request's C view (keep it alive until the
-    exchange is over)."""
+    """Fill ``x`` for one xfer; the request's C view (keep it alive until the
+    xfer is over)."""
     check_plan(plan)
-    ex = plan.exchange
+    ex = plan.xfer
     req = ffi.from_buffer("uint8_t[]", ex.data)
     x.fd, x.drain, x.look, x.req, x.req_len = plan.fd, plan.drain, plan.look, req, len(req)
     x.send_at = math.ceil(ex.send_at * 1e9)  # never before it
@@ -56,8 +56,8 @@ def _report(x: Any, buf: Any) -> XferResult:
     )
 
 
-class Exchanger:
-    """One master exchange per call, in C (csrc/rtu_xfer_io.c; `pyrtu.drivers.xfer`)."""
+class XferRunner:
+    """One master xfer per call, in C (csrc/rtu_xfer_io.c; `pyrtu.drivers.xfer`)."""
 
     def __init__(self) -> None:
         self._x, self._buf = _new_xfer(-1)
@@ -71,7 +71,7 @@ class Exchanger:
 
 
 def _stop_worker(worker: Any, keep: tuple[Any, ...], fds: tuple[int, ...]) -> None:
-    """Cancel the worker's exchange under way, end its thread, then free its pipes;
+    """Cancel the worker's xfer under way, end its thread, then free its pipes;
     ``keep`` (the rtu_xfer and its buffer) lives until the thread is gone."""
     poke(fds[3])
     lib.rtu_xfer_worker_stop(worker)
@@ -79,9 +79,9 @@ def _stop_worker(worker: Any, keep: tuple[Any, ...], fds: tuple[int, ...]) -> No
         os.close(fd)
 
 
-class AsyncExchanger:
-    """Exchanges on a C thread of their own, for an event loop
-    (`pyrtu.drivers.xfer.AsyncExchanger`): `submit`, then watch `fd`; `result` once it
+class AsyncXferRunner:
+    """Xfers on a C thread of their own, for an event loop
+    (`pyrtu.drivers.xfer.AsyncXferRunner`): `submit`, then watch `fd`; `result` once it
     is readable; `cancel`."""
 
     def __init__(self) -> None:
@@ -98,16 +98,16 @@ class AsyncExchanger:
         if lib.rtu_xfer_worker_start(worker, self._x, w) != lib.RTU_OK:
             for fd in (r, w, cr, cw):
                 os.close(fd)
-            raise OSError("pyrtu: the exchange thread could not be started")
+            raise OSError("pyrtu: the xfer thread could not be started")
         self._w = worker
         keep = (self._x, self._buf, self._worker)
         self._stop = weakref.finalize(self, _stop_worker, worker, keep, (r, w, cr, cw))
 
     def submit(self, plan: XferPlan) -> None:
         if self._closed:
-            raise ValueError("this exchanger is closed")
+            raise ValueError("this xfer runner is closed")
         if lib.rtu_xfer_worker_rc(self._w) == lib.RTU_EBUSY:
-            raise RuntimeError("an exchange is under way")
+            raise RuntimeError("an xfer is under way")
         self._req = _plan(self._x, plan)
         if self._poked:  # an old cancel
             self._poked = False
@@ -115,7 +115,7 @@ class AsyncExchanger:
         lib.rtu_xfer_worker_submit(self._w)
 
     def result(self) -> XferResult | None:
-        """The report of the last exchange (None: one is under way)."""
+        """The report of the last xfer (None: one is under way)."""
         drain(self.fd)
         rc = lib.rtu_xfer_worker_rc(self._w)
         if rc == lib.RTU_EBUSY:
@@ -125,14 +125,14 @@ class AsyncExchanger:
         return _report(self._x, self._buf)
 
     def cancel(self) -> None:
-        """End the exchange under way (its report still comes: CANCELLED)."""
+        """End the xfer under way (its report still comes: CANCELLED)."""
         self._poked = True
         poke(self._cw)
 
     def close(self) -> None:
-        """End the thread (the exchange under way, if any, cancelled)."""
+        """End the thread (the xfer under way, if any, cancelled)."""
         self._closed = True
         self._stop()
 
 
-__all__ = ["AsyncExchanger", "Exchanger"]
+__all__ = ["AsyncXferRunner", "XferRunner"]

@@ -1,4 +1,4 @@
-"""Wake-up pipes of the exchange threads (a leaf module): one byte in, all out."""
+"""Wake-up pipes of the xfer threads (a leaf module): one byte in, all out."""
 
 from __future__ import annotations
 

@@ -1,9 +1,9 @@
-"""The twin of csrc/rtu_xfer_io.c: one master exchange on a serial descriptor, in
+"""The twin of csrc/rtu_xfer_io.c: one master xfer on a serial descriptor, in
 Python (`pyrtu.drivers.xfer` has the contract; pyrtu/drivers/_cxfer.py the C one).
 Step for step as the C file: sleep to the send time, look for stale input, write
 (tcdrain on a real line), sleep to the first read, then sleep through all but the
 last character and wait for it; a readable cancel descriptor ends it
-(`AsyncExchanger.cancel`)."""
+(`AsyncXferRunner.cancel`)."""
 
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ _AGAIN = (errno.EAGAIN, errno.EWOULDBLOCK, errno.EINTR)
 
 
 class _Failed(Exception):
-    """A step ended the exchange (status, err, stage)."""
+    """A step ended the xfer (status, err, stage)."""
 
     def __init__(self, status: int, err: int = 0, stage: int = 0) -> None:
         super().__init__(status)
@@ -72,8 +72,8 @@ def _pause_until(t: float, cancel: int) -> None:
             raise _Failed(CANCELLED)
 
 
-class Exchanger:
-    """One master exchange per call (`pyrtu.drivers.xfer.Exchanger`)."""
+class XferRunner:
+    """One master xfer per call (`pyrtu.drivers.xfer.XferRunner`)."""
 
     def __init__(self, cancel_fd: int = -1) -> None:
         self._buf = bytearray()
@@ -152,7 +152,7 @@ class Exchanger:
         return end
 
     def _steps(self, plan: XferPlan, state: list[float | int | bool]) -> None:
-        fd, ex = plan.fd, plan.exchange
+        fd, ex = plan.fd, plan.xfer
         expect, short_len = ex.expect, ex.short_len
         cancel = self._cancel
         _pause_until(ex.send_at - plan.spin, cancel)
@@ -185,10 +185,10 @@ class Exchanger:
         state[0] = ANSWER
 
 
-class AsyncExchanger:
-    """The twin of rtu_xfer_worker: exchanges on a thread of their own, for an event
+class AsyncXferRunner:
+    """The twin of rtu_xfer_worker: xfers on a thread of their own, for an event
     loop; `submit`, then watch `fd`; `result` once it is readable; `cancel` ends the
-    exchange under way."""
+    xfer under way."""
 
     def __init__(self) -> None:
         r, w = os.pipe()
@@ -196,13 +196,13 @@ class AsyncExchanger:
         for fd in (r, w, cr, cw):
             os.set_blocking(fd, False)
         self.fd, self._w, self._cr, self._cw = r, w, cr, cw
-        self._ex = Exchanger(cr)
+        self._ex = XferRunner(cr)
         self._cv = threading.Condition()
         self._job: XferPlan | None = None
         self._busy = False
         self._closed = False
         self._report: XferResult | None = None
-        self._thread = threading.Thread(target=self._main, name="pyrtu-exchange", daemon=True)
+        self._thread = threading.Thread(target=self._main, name="pyrtu-xfer", daemon=True)
         self._thread.start()
 
     def _main(self) -> None:
@@ -222,29 +222,29 @@ class AsyncExchanger:
         check_plan(plan)
         with self._cv:
             if self._closed:
-                raise ValueError("this exchanger is closed")
+                raise ValueError("this xfer runner is closed")
             if self._busy:
-                raise RuntimeError("an exchange is under way")
+                raise RuntimeError("an xfer is under way")
             drain(self._cr)  # an old cancel
             self._busy = True
             self._job = plan
             self._cv.notify()
 
     def result(self) -> XferResult | None:
-        """The report of the last exchange (None: one is under way)."""
+        """The report of the last xfer (None: one is under way)."""
         drain(self.fd)
         with self._cv:
             if self._busy:
                 return None
-            return self._report  # (the last exchange's, until the next one)
+            return self._report  # (the last xfer's, until the next one)
 
     def cancel(self) -> None:
-        """End the exchange under way (before its write if that is not due yet); its
+        """End the xfer under way (before its write if that is not due yet); its
         report still comes (status CANCELLED)."""
         poke(self._cw)
 
     def close(self) -> None:
-        """End the thread (the exchange under way is cancelled first)."""
+        """End the thread (the xfer under way is cancelled first)."""
         with self._cv:
             if self._closed:
                 return

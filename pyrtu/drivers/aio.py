@@ -16,8 +16,8 @@ parallel.  Waiting is a timer or ``loop.add_reader`` on the port's file
 descriptor, run from the loop's callbacks (the awaiting task wakes once per
 transaction); while an answer comes in, the driver sleeps the character times
 of the bytes it still needs instead of waking per byte.  A repeated request on a
-descriptor goes as one `Exchange` on the port's exchange thread (the backend's
-`AsyncExchanger`: a C thread without the GIL, which keeps t3.5 and the reads'
+descriptor goes as one `Xfer` on the port's xfer thread (the backend's
+`AsyncXferRunner`: a C thread without the GIL, which keeps t3.5 and the reads'
 times with ``clock_nanosleep``), and the loop wakes once, when it is over.  Ports
 without a descriptor (pyserial URLs such as ``loop://``, Windows COM ports) are read
 with pyserial's blocking reads in a worker thread of their own.
@@ -42,7 +42,7 @@ from typing import TYPE_CHECKING, Any
 from pyrtu import pdu as pdus
 from pyrtu.core.line import LineConfig
 from pyrtu.core.rules import LengthRule
-from pyrtu.drivers import _ptimer, exchangers, xfer
+from pyrtu.drivers import _ptimer, xfer, xfer_runners
 from pyrtu.drivers._slack import tighten_this_thread
 from pyrtu.drivers.links import TCP_SCHEME, Link
 from pyrtu.drivers.master import Master, MasterBase
@@ -51,7 +51,7 @@ from pyrtu.pdu import requests as request_table
 from pyrtu.pdu.errors import PortError
 from pyrtu.pdu.requests import Call, Request, Rules
 from pyrtu.protocol.client import ClientProtocol, Send, Wait
-from pyrtu.protocol.client_actions import Done, Exchange
+from pyrtu.protocol.client_actions import Done, Xfer
 
 _monotonic = time.monotonic
 
@@ -80,10 +80,10 @@ class AsyncMaster(MasterBase):
         self._serial_link = link
         self._proto = link.proto
         self._fd = link.port.fd
-        # a repeated request's Exchange on a thread of the backend's (see _submit)
-        self._ax: xfer.AsyncExchanger | None = None
+        # a repeated request's Xfer on a thread of the backend's (see _submit)
+        self._ax: xfer.AsyncXferRunner | None = None
         self._ax_call: Callable[[xfer.XferResult], None] | None = None
-        self._ax_over: asyncio.Future[None] | None = None  # the exchange under way
+        self._ax_over: asyncio.Future[None] | None = None  # the xfer under way
         self._ax_loop: asyncio.AbstractEventLoop | None = None  # the loop watching it
         if self._fd is None:
             self._reader = ThreadPoolExecutor(1, thread_name_prefix=f"pyrtu-read-{link.port.name}")
@@ -145,26 +145,26 @@ class AsyncMaster(MasterBase):
         loop = asyncio.get_running_loop()
         return await loop.run_in_executor(None, port.write, adu)
 
-    # ------------------------------------------------------- the exchange thread
+    # ------------------------------------------------------- the xfer thread
 
-    def _submit(self, action: Exchange, then: Callable[[xfer.XferResult], None]) -> None:
-        """Start an `Exchange` on the port's exchange thread (the backend's
-        `AsyncExchanger`: C, without the GIL); ``then(report)`` runs in the loop when
+    def _submit(self, action: Xfer, then: Callable[[xfer.XferResult], None]) -> None:
+        """Start an `Xfer` on the port's xfer thread (the backend's
+        `AsyncXferRunner`: C, without the GIL); ``then(report)`` runs in the loop when
         it is over (the thread's pipe wakes the loop: one wake-up per transaction)."""
         loop = asyncio.get_running_loop()
         ax = self._ax
         if ax is None:
-            ax = self._ax = exchangers.async_exchanger(self._proto._backend)
+            ax = self._ax = xfer_runners.async_xfer_runner(self._proto._backend)
         assert self._fd is not None
         ax.submit(plan_of(self.port, self._fd, action))
         self._ax_call, self._ax_over = then, loop.create_future()
         if self._ax_loop is not loop:  # watched once per loop, until close
             if self._ax_loop is not None and not self._ax_loop.is_closed():
                 self._ax_loop.remove_reader(ax.fd)
-            loop.add_reader(ax.fd, self._exchanged)
+            loop.add_reader(ax.fd, self._xfer_done)
             self._ax_loop = loop
 
-    def _exchanged(self) -> None:
+    def _xfer_done(self) -> None:
         ax = self._ax
         assert ax is not None
         r = ax.result()
@@ -177,16 +177,16 @@ class AsyncMaster(MasterBase):
         if then is not None:  # None: the transaction was cancelled meanwhile
             then(r)
         else:
-            self._exchange_abandoned(r)
+            self._xfer_abandoned(r)
 
-    def _exchange_abandoned(self, r: xfer.XferResult) -> None:
-        """The report of an exchange whose transaction was cancelled: if its request
+    def _xfer_abandoned(self, r: xfer.XferResult) -> None:
+        """The report of an xfer whose transaction was cancelled: if its request
         went out, the protocol waits out the answer it may still get."""
         if r.sent:
-            self._proto.abandoned_exchange(r.end, r.last_t if r.data else 0.0, _monotonic())
+            self._proto.abandoned_xfer(r.end, r.last_t if r.data else 0.0, _monotonic())
 
-    async def _exchange(self, action: Exchange) -> xfer.XferResult:
-        """An `Exchange` as this task's await."""
+    async def _run_xfer(self, action: Xfer) -> xfer.XferResult:
+        """An `Xfer` as this task's await."""
         fut: asyncio.Future[xfer.XferResult] = asyncio.get_running_loop().create_future()
 
         def then(r: xfer.XferResult) -> None:
@@ -197,18 +197,18 @@ class AsyncMaster(MasterBase):
         try:
             return await fut
         except BaseException:
-            self._cancel_exchange()
+            self._cancel_xfer()
             raise
 
-    def _cancel_exchange(self) -> None:
-        """The transaction was cancelled: end its exchange under way (at once, with
+    def _cancel_xfer(self) -> None:
+        """The transaction was cancelled: end its xfer under way (at once, with
         whatever it read; its report comes unheard)."""
         self._ax_call = None
         if self._ax_over is not None and self._ax is not None:
             self._ax.cancel()
 
-    async def _exchange_over(self) -> None:
-        """Wait for the end of an exchange a cancelled transaction left under way (it
+    async def _xfer_over(self) -> None:
+        """Wait for the end of an xfer a cancelled transaction left under way (it
         was cancelled, and ends at once): the port is the thread's until then."""
         over, ax = self._ax_over, self._ax
         if over is None or ax is None:
@@ -222,7 +222,7 @@ class AsyncMaster(MasterBase):
         while (r := ax.result()) is None:
             await asyncio.sleep(0.001)
         self._ax_call = self._ax_over = None
-        self._exchange_abandoned(r)
+        self._xfer_abandoned(r)
 
     async def _run(self, call: Call) -> Any:
         async with self._lock:
@@ -230,32 +230,32 @@ class AsyncMaster(MasterBase):
             if port.closed:
                 raise PortError(port.name, "the master is closed")
             if self._ax_over is not None:
-                await self._exchange_over()
+                await self._xfer_over()
             proto = self._proto
             slave, pdu, decode = call
             proto.start(slave, pdu, decode, _monotonic())
             if self._fd is not None and not port.has_wire:
-                # a repeated request is one Exchange, awaited by this task (one
+                # a repeated request is one Xfer, awaited by this task (one
                 # wake-up); other steps run in the loop's callbacks (the first action,
                 # SEND or QUIET, changes nothing: asked again there)
                 first = proto.next_action(_monotonic(), True)
-                if not isinstance(first, Exchange):
+                if not isinstance(first, Xfer):
                     return await self._run_callbacks(proto)
                 return await self._run_task(proto, first)
             return await self._run_task(proto)
 
     async def _run_task(self, proto: ClientProtocol, action: Any = None) -> Any:
         """The protocol's actions as this task's loop (``action``: the first one,
-        already asked for): a repeated request's `Exchange`, ports without a
+        already asked for): a repeated request's `Xfer`, ports without a
         descriptor (thread reads) and real lines (the write's drain runs in an
         executor)."""
         try:
-            exchange = self._fd is not None
+            xfer = self._fd is not None
             while True:
                 if action is None:
-                    action = proto.next_action(_monotonic(), exchange)
-                if isinstance(action, Exchange):
-                    report(self.port, proto, await self._exchange(action))
+                    action = proto.next_action(_monotonic(), xfer)
+                if isinstance(action, Xfer):
+                    report(self.port, proto, await self._run_xfer(action))
                     if proto.done:  # (the common end: the result without a Done)
                         return proto.result()
                 elif isinstance(action, Wait):
@@ -274,17 +274,17 @@ class AsyncMaster(MasterBase):
     async def _run_callbacks(self, proto: ClientProtocol) -> Any:
         """The transaction driven by the loop's callbacks (descriptor ports without a
         wire: pseudo-terminals, virtual bus drops): each wake-up (the timer or the
-        descriptor of a `Wait`) runs `_Drive.step` in the callback itself, and the
+        descriptor of a `Wait`) runs `_CallbackStepper.step` in the callback itself, and the
         awaiting task wakes once, when the transaction is over.  (The loop's
         ``time()`` is `time.monotonic`.)"""
         fut: asyncio.Future[Any] = asyncio.get_running_loop().create_future()
-        drive = _Drive(self, proto, fut)
-        drive.step()
+        stepper = _CallbackStepper(self, proto, fut)
+        stepper.step()
         try:
             return await fut
         except BaseException:
-            drive.stop()
-            self._cancel_exchange()
+            stepper.stop()
+            self._cancel_xfer()
             proto.abort(_monotonic())
             raise
 
@@ -332,7 +332,7 @@ class AsyncMaster(MasterBase):
             await self._tcp.close()
             return
         async with self._lock:
-            await self._exchange_over()
+            await self._xfer_over()
             await self._late_answer_over()
             self._close_now()
 
@@ -359,7 +359,7 @@ class AsyncMaster(MasterBase):
         if self._ax is not None:
             if self._ax_loop is not None and not self._ax_loop.is_closed():
                 self._ax_loop.remove_reader(self._ax.fd)
-            self._ax.close()  # (idle: close waited for the exchange under way)
+            self._ax.close()  # (idle: close waited for the xfer under way)
             self._ax = self._ax_loop = None
         self.port.close()
         if self._reader is not None:
@@ -440,7 +440,7 @@ def _install(cls: type[AsyncMaster]) -> None:
 _install(AsyncMaster)
 
 
-class _Drive:
+class _CallbackStepper:
     """One transaction of an `AsyncMaster` driven from the loop's callbacks: the
     protocol's actions, where each `Wait` is a timer (and a reader when it
     listens) that calls `step` again."""
@@ -481,7 +481,7 @@ class _Drive:
         data = read_now(port, self._fd) if needed else port.read(0)
         self._proto.wait_done(data, _monotonic())
 
-    def _exchanged(self, r: xfer.XferResult) -> None:
+    def _xfer_done(self, r: xfer.XferResult) -> None:
         if self._fut.done():
             return  # cancelled meanwhile: the task aborted the protocol
         try:
@@ -518,8 +518,8 @@ class _Drive:
                 elif isinstance(action, Send):
                     start, end = self._port.write(action.data)
                     proto.transmitted(end, start)
-                elif isinstance(action, Exchange):
-                    self._master._submit(action, self._exchanged)
+                elif isinstance(action, Xfer):
+                    self._master._submit(action, self._xfer_done)
                     return
                 else:
                     assert isinstance(action, Done)

@@ -11,7 +11,7 @@ slaves (ports) share one event loop and one thread::
 
 The driver interprets the protocol's next action (`ServerProtocol.next_action`):
 `Reply` is written when due (on a descriptor: handed out ahead, written at its time
-by the port's exchange thread), `Listen` is a timer at its ``until`` (with
+by the port's xfer thread), `Listen` is a timer at its ``until`` (with
 ``needed``: the reader set aside until then), `Idle` no timer.  A port with a file
 descriptor is watched with ``loop.add_reader``; timers are those of
 `pyrtu.drivers._ptimer` (the loop's own on `pyrtu.drivers.aio.run`'s loop, a timerfd on
@@ -19,8 +19,8 @@ loops whose timers are whole milliseconds: asyncio's epoll loop, uvloop).
 When the first bytes of a frame come, the reader is set aside until the protocol's
 `wake_at` (for a request to this slave: `_LEAD`, 1 ms, before the end of its t3.5,
 at most half of it): the rest is read and the request executed in that wake-up
-(lenient mode), and the response goes to the port's exchange thread (the backend's
-`AsyncExchanger`, `pyrtu.drivers.xfer`: a C thread without the GIL), which writes it
+(lenient mode), and the response goes to the port's xfer thread (the backend's
+`AsyncXferRunner`, `pyrtu.drivers.xfer`: a C thread without the GIL), which writes it
 at its time to the microsecond whatever the loop is doing (the last `_SPIN` of the
 wait on the clock); the loop wakes once more when it is written.
 Three wake-ups per transaction, four for a request longer than 8 bytes (its length
@@ -43,12 +43,12 @@ import threading
 from typing import TYPE_CHECKING, Any
 
 from pyrtu.core._closing import AsyncClosing
-from pyrtu.drivers import _ptimer, exchangers, xfer
+from pyrtu.drivers import _ptimer, xfer, xfer_runners
 from pyrtu.drivers.port import read_fd
 from pyrtu.drivers.slave import PREPARE
 from pyrtu.drivers.slave_base import PortSlave
 from pyrtu.pdu.errors import PortError
-from pyrtu.protocol.client_actions import Exchange
+from pyrtu.protocol.client_actions import Xfer
 from pyrtu.protocol.server import Listen, Reply
 
 if TYPE_CHECKING:  # Unpack is in typing from Python 3.11 (annotations only)
@@ -59,15 +59,15 @@ log = logging.getLogger("pyrtu.drivers.slave")
 _POLL = 0.05  # the reader thread of a port without a file descriptor
 #: the nap ends this long before a response's time (the protocol caps it at half the
 #: turnaround, so that the request is in): the rest of the request read, the response
-#: made and handed to the exchange thread before its time.  Twice the sync `Slave`'s
+#: made and handed to the xfer thread before its time.  Twice the sync `Slave`'s
 #: `PREPARE`: one loop serves many ports, and a nap on it wakes later (with 0.5 ms, 18 %
 #: of the responses of four simulated drives on one loop were handed over late, 5 %
 #: with 1 ms; 4 buses at 115200, 2-vCPU VM, 2026-11-27)
 _LEAD = 2 * PREPARE
-#: a response is handed to the port's exchange thread up to this long before its time
+#: a response is handed to the port's xfer thread up to this long before its time
 #: (the thread writes it then; see `_after`)
 _AHEAD = 2 * _LEAD
-#: the exchange thread waits out the last of a response's turnaround on the clock
+#: the xfer thread waits out the last of a response's turnaround on the clock
 #: (`pyrtu.drivers.xfer.XferPlan.spin`): asleep, it wakes about 50 µs late (p90 94 µs
 #: on an idle 2-vCPU VM, 2026-11-27), and the response with it
 _SPIN = 100e-6
@@ -89,11 +89,11 @@ class AsyncSlave(PortSlave["AsyncSlave"], AsyncClosing):
         self._out: memoryview | None = None  # the unwritten rest of a response
         self._thread: threading.Thread | None = None
         self._thread_stop = threading.Event()
-        #: the port's exchange thread (the backend's AsyncExchanger): a response
+        #: the port's xfer thread (the backend's AsyncXferRunner): a response
         #: written at its time, to the microsecond, whatever the loop is doing
-        self._ax: xfer.AsyncExchanger | None = None
+        self._ax: xfer.AsyncXferRunner | None = None
         self._ax_loop: asyncio.AbstractEventLoop | None = None
-        self._replying = False  # a response is with the exchange thread
+        self._replying = False  # a response is with the xfer thread
 
     def _guard(self) -> Any:
         return contextlib.nullcontext()  # one thread: the loop's
@@ -155,7 +155,7 @@ class AsyncSlave(PortSlave["AsyncSlave"], AsyncClosing):
 
     def _teardown(self) -> None:
         self.protocol.drop_response()
-        self._close_exchanger()
+        self._close_xfer_runner()
         if self._timer is not None:
             self._timer.cancel()
         self._timer = self._timer_at = None
@@ -174,7 +174,7 @@ class AsyncSlave(PortSlave["AsyncSlave"], AsyncClosing):
         """The port failed: end `serve` with the error, close the port (no fd left)."""
         log.error("slave on %s stopped: %s", self.port.name, exc)
         self.error = exc
-        self._close_exchanger()
+        self._close_xfer_runner()
         self._remove_reader()
         if self._out is not None and self._loop is not None and self.port.fd is not None:
             self._loop.remove_writer(self.port.fd)
@@ -241,7 +241,7 @@ class AsyncSlave(PortSlave["AsyncSlave"], AsyncClosing):
 
         On a descriptor the nap ends `_LEAD` before a response's time (the rest of
         the request read, the response made meanwhile) and the response goes to the
-        port's exchange thread, which writes it at its time; elsewhere it is written
+        port's xfer thread, which writes it at its time; elsewhere it is written
         when due."""
         if self._out is not None or self._replying or self._done is None or self._done.done():
             return  # a response is being written: its end comes back here
@@ -290,19 +290,19 @@ class AsyncSlave(PortSlave["AsyncSlave"], AsyncClosing):
         self._after(self._loop.time())
 
     def _reply_at(self, fd: int, action: Reply) -> None:
-        """Hand a response to the port's exchange thread, to be written at its time."""
+        """Hand a response to the port's xfer thread, to be written at its time."""
         loop = self._loop
         assert loop is not None
         ax = self._ax
         if ax is None:
-            ax = self._ax = exchangers.async_exchanger(self.protocol.backend)
+            ax = self._ax = xfer_runners.async_xfer_runner(self.protocol.backend)
         port = self.port
         ax.submit(
             xfer.XferPlan(
                 fd,
                 port.has_wire,
                 port.char_time,
-                Exchange(action.data, action.at, 0.0, 0.0, 0, 0),
+                Xfer(action.data, action.at, 0.0, 0.0, 0, 0),
                 look=False,
                 spin=_SPIN,
             )
@@ -326,8 +326,8 @@ class AsyncSlave(PortSlave["AsyncSlave"], AsyncClosing):
             self.protocol.transmitted(r.end)
         self._after(loop.time())
 
-    def _close_exchanger(self) -> None:
-        """The exchange thread ends (a response it holds is cancelled: never sent
+    def _close_xfer_runner(self) -> None:
+        """The xfer thread ends (a response it holds is cancelled: never sent
         late), before the port can close under it."""
         ax, self._ax = self._ax, None
         self._replying = False

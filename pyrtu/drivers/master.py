@@ -45,7 +45,7 @@ from pyrtu.core import _backend
 from pyrtu.core._forward import Forward, Settable
 from pyrtu.core.line import LineConfig, adopt_port_format, line_from
 from pyrtu.core.rules import LengthRule, RuleTable, check_rules
-from pyrtu.drivers import exchangers
+from pyrtu.drivers import xfer_runners
 from pyrtu.drivers.links import (
     RTU_TCP_SCHEME,
     TCP_SCHEME,
@@ -104,8 +104,8 @@ class SerialLink:
             broadcast_delay=broadcast_delay,
             backend=be,
         )
-        #: a repeated request's exchange in one call (see pyrtu.drivers.sync_io)
-        self.exchanger = exchangers.exchanger(be) if self.port.fd is not None else None
+        #: a repeated request's xfer: its transaction in one call (see pyrtu.drivers.sync_io)
+        self.xfer_runner = xfer_runners.xfer_runner(be) if self.port.fd is not None else None
 
     line = _of_proto("line")
     t35 = _of_proto("gap")
@@ -147,7 +147,7 @@ class SerialLink:
         port = self.port
         if port.closed:
             raise PortError(port.name, "the master is closed")
-        return run_sync(port, self.proto, call, self.exchanger), self.end_of(call)
+        return run_sync(port, self.proto, call, self.xfer_runner), self.end_of(call)
 
     def close(self) -> None:
         self.port.close()

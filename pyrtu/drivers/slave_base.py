@@ -225,7 +225,7 @@ class SlaveBase:
     def execute(self, unit: int, request: bytes) -> bytes | None:
         """The response PDU of ``request`` (unit 0: a broadcast), None for no answer.
         Safe from any thread: it runs under the driver's guard (the sync `Slave`'s
-        lock), so a slave served on TCP too (`pyrtu.gateway.server`) executes one request
+        lock), so a slave served on TCP too (`pyrtu.tcp.server`) executes one request
         at a time."""
         with self._guard():
             return self._execute(unit, request)

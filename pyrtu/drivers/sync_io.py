@@ -2,11 +2,11 @@
 
 All policy (silences, echo, retries, late answers, settling, when to sleep and
 when to wait for input) is in `pyrtu.protocol.ClientProtocol`, which hands out one
-action at a time (`Send`, `Wait`, `Exchange`, `Done`); `run_sync` interprets them,
+action at a time (`Send`, `Wait`, `Xfer`, `Done`); `run_sync` interprets them,
 with one way of waiting per kind of port: a descriptor (`_wait_fd`: sleeps,
 ``select()`` and ``poll()``) or pyserial's generic timed read (`_wait_generic`: URL
-ports, Windows).  On a descriptor it asks for `Exchange`: a repeated request's
-whole exchange in one call of the backend's `Exchanger` (C: csrc/rtu_xfer_io.c,
+ports, Windows).  On a descriptor it asks for `Xfer`: a repeated request's
+whole transaction in one call of the backend's `XferRunner` (C: csrc/rtu_xfer_io.c,
 the GIL released), so that Python runs once per transaction instead of once per
 wake-up.
 """
@@ -25,7 +25,7 @@ from pyrtu.drivers.port import Port, read_fd
 from pyrtu.pdu.errors import PortError
 from pyrtu.pdu.requests import Call
 from pyrtu.protocol.client import ClientProtocol, Send, Wait
-from pyrtu.protocol.client_actions import Exchange
+from pyrtu.protocol.client_actions import Xfer
 
 _monotonic = time.monotonic
 _sleep = time.sleep
@@ -78,22 +78,22 @@ def waiter(port: Port) -> Callable[[Wait], bytes]:
     return lambda action: _wait_fd(port, fd, action)
 
 
-def plan_of(port: Port, fd: int, action: Exchange) -> xfer.XferPlan:
-    """An `Exchange` on ``port`` as the exchangers take it."""
+def plan_of(port: Port, fd: int, action: Xfer) -> xfer.XferPlan:
+    """An `Xfer` on ``port`` as the xfer runners take it."""
     return xfer.XferPlan(fd, port.has_wire, port.char_time, action)
 
 
 def report(port: Port, proto: ClientProtocol, r: xfer.XferResult) -> None:
-    """Tell ``proto`` what an exchange saw (``exchanged``; ``wait_done`` for input
+    """Tell ``proto`` what an xfer saw (``xfer_done``; ``wait_done`` for input
     found at the send time); `PortError` as `Port.read` and `Port.write` raise them
     (what a failed read read is not reported)."""
     status = r.status
     failed = status == xfer.ERRNO or status == xfer.GONE
     if r.sent:
         if failed:
-            proto.exchanged(r.start, r.end, b"", 0, r.end, r.end)
+            proto.xfer_done(r.start, r.end, b"", 0, r.end, r.end)
         else:
-            proto.exchanged(r.start, r.end, r.data, r.first_n, r.first_t, r.last_t)
+            proto.xfer_done(r.start, r.end, r.data, r.first_n, r.first_t, r.last_t)
     elif not failed:
         data = r.data
         proto.wait_done(data, r.last_t if data else _monotonic())
@@ -104,21 +104,21 @@ def report(port: Port, proto: ClientProtocol, r: xfer.XferResult) -> None:
         raise PortError(port.name, "the device reports data but returns none (disconnected?)")
 
 
-def run_sync(port: Port, proto: ClientProtocol, call: Call, exchanger: Any = None) -> Any:
+def run_sync(port: Port, proto: ClientProtocol, call: Call, xfer_runner: Any = None) -> Any:
     """Run ``call`` through ``proto`` on ``port``; the result or the typed error.
-    ``exchanger``: the backend's `pyrtu.drivers.xfer.Exchanger` for this port (None: the
+    ``xfer_runner``: the backend's `pyrtu.drivers.xfer.XferRunner` for this port (None: the
     steps one by one)."""
     slave, pdu, decode = call
     proto.start(slave, pdu, decode, _monotonic())
     if proto.gap > 0:
         tighten_this_thread()  # silences and sleeps on ready_at wake on time
     fd = port.fd
-    run = exchanger.run if exchanger is not None and fd is not None else None
+    run = xfer_runner.run if xfer_runner is not None and fd is not None else None
     wait: Callable[[Wait], bytes] | None = None
     try:
         while True:
             action = proto.next_action(_monotonic(), run is not None)
-            if isinstance(action, Exchange):
+            if isinstance(action, Xfer):
                 assert fd is not None and run is not None
                 report(port, proto, run(plan_of(port, fd, action)))
                 if proto.done:  # (the common end: the result without a Done)

@@ -1,9 +1,9 @@
-"""One master exchange on a serial descriptor: what the drivers hand an `Exchanger` and
+"""One master xfer on a serial descriptor: what the drivers hand an `XferRunner` and
 what it reports (C: csrc/rtu_xfer_io.c through pyrtu/drivers/_cxfer.py; the twin:
-pyrtu/drivers/_pyxfer.py; `pyrtu.drivers.exchangers` picks the one of a backend).
+pyrtu/drivers/_pyxfer.py; `pyrtu.drivers.xfer_runners` picks the one of a backend).
 
 The client protocol decides every time and length (`pyrtu.protocol.client_actions.
-Exchange`); an exchanger carries them out in one call: sleep to the send time, look
+Xfer`); an xfer runner carries them out in one call: sleep to the send time, look
 for stale input (then nothing is sent), write the request, sleep to the first read,
 read the rest as it comes (all but the last character slept through), until the
 answer's length (an exception answer's shorter one) or the deadline.  With nothing
@@ -16,26 +16,26 @@ from __future__ import annotations
 
 from typing import NamedTuple, Protocol
 
-from pyrtu.protocol.client_actions import Exchange
+from pyrtu.protocol.client_actions import Xfer
 
-#: how an exchange ended (`XferResult.status`)
+#: how an xfer ended (`XferResult.status`)
 ANSWER, STALE, SHORT, ERRNO, GONE, CANCELLED = range(6)
-#: where an ERRNO exchange failed (`XferResult.stage`)
+#: where an ERRNO xfer failed (`XferResult.stage`)
 STAGE_WRITE, STAGE_READ = 1, 2
-#: bytes an exchange reads at most (an answer is at most 256; the rest is noise)
+#: bytes an xfer reads at most (an answer is at most 256; the rest is noise)
 CAPACITY = 4096
 #: `XferPlan.spin` at most (seconds; RTU_XFER_SPIN_MAX)
 SPIN_MAX = 0.001
 
 
 class XferResult(NamedTuple):
-    """What an exchange saw."""
+    """What an xfer saw."""
 
     status: int
     """ANSWER (the expected bytes came; with none expected, the request went), STALE
     (input was pending at the send time: nothing sent, `data` holds it), SHORT (the
     deadline, or a signal, with fewer bytes), ERRNO (`err` at `stage`), GONE (the
-    descriptor reported input but gave none), CANCELLED (`AsyncExchanger.cancel`)"""
+    descriptor reported input but gave none), CANCELLED (`AsyncXferRunner.cancel`)"""
     sent: bool
     """the request was written"""
     start: float
@@ -59,7 +59,7 @@ class XferResult(NamedTuple):
 
 
 class XferPlan(NamedTuple):
-    """One exchange: the protocol's `Exchange` (the request, its times, the answer's
+    """One xfer: the protocol's `Xfer` (the request, its times, the answer's
     length) on a port."""
 
     fd: int
@@ -68,7 +68,7 @@ class XferPlan(NamedTuple):
     """tcdrain after the write (a real line, not a pty)"""
     char: float
     """one character's time on the line (seconds)"""
-    exchange: Exchange
+    xfer: Xfer
     """what the protocol decided: ``data`` written at ``send_at``, the first read
     ``first_wake`` and the deadline ``timeout`` seconds after the end of
     transmission, ``expect`` the answer's length (0: none awaited, a slave's
@@ -81,22 +81,22 @@ class XferPlan(NamedTuple):
     so that a write that must be at its time (a slave's response) is"""
 
 
-class Exchanger(Protocol):
-    """An exchange step (`pyrtu.drivers.exchangers.exchanger`: one per port): ``run(plan)``
+class XferRunner(Protocol):
+    """An xfer step (`pyrtu.drivers.xfer_runners.xfer_runner`: one per port): ``run(plan)``
     carries out one `XferPlan` (ValueError for values out of range)."""
 
     def run(self, plan: XferPlan) -> XferResult: ...
 
 
-class AsyncExchanger(Protocol):
-    """Exchanges on a thread of their own, for an event loop (one per port:
-    `pyrtu.drivers.exchangers.async_exchanger`; C: csrc/rtu_xfer_io.c's worker,
+class AsyncXferRunner(Protocol):
+    """Xfers on a thread of their own, for an event loop (one per port:
+    `pyrtu.drivers.xfer_runners.async_xfer_runner`; C: csrc/rtu_xfer_io.c's worker,
     without the GIL).
-    ``submit(plan)`` returns at once (RuntimeError while an exchange is under way);
+    ``submit(plan)`` returns at once (RuntimeError while an xfer is under way);
     the loop watches ``fd`` (readable once it is over) and calls `result` (the last
-    exchange's report; None while one is under way); `cancel` ends the exchange under
+    xfer's report; None while one is under way); `cancel` ends the xfer under
     way (before its write if that is not due yet: the report still comes, status
-    CANCELLED); `close` ends the thread, the exchange under way cancelled."""
+    CANCELLED); `close` ends the thread, the xfer under way cancelled."""
 
     fd: int
 
@@ -111,7 +111,7 @@ class AsyncExchanger(Protocol):
 
 def check_plan(plan: XferPlan) -> None:
     """The values both backends refuse, with the same messages."""
-    ex = plan.exchange
+    ex = plan.xfer
     if not ex.data:
         raise ValueError("request must not be empty")
     if not 0 <= ex.expect <= CAPACITY:
@@ -139,9 +139,9 @@ __all__ = [
     "STAGE_READ",
     "STAGE_WRITE",
     "STALE",
-    "AsyncExchanger",
-    "Exchanger",
+    "AsyncXferRunner",
     "XferPlan",
     "XferResult",
+    "XferRunner",
     "check_plan",
 ]

@@ -86,6 +86,7 @@ from dataclasses import dataclass, field
 from functools import partial
 from typing import Protocol
 
+from pyrtu.core._deprecated import renamed
 from pyrtu.drivers.reconnect import Reconnect
 from pyrtu.drivers.supervise import TaskFailure, supervise
 from pyrtu.pdu.errors import (
@@ -121,6 +122,9 @@ from ._reopen import ReopeningBus, close_bus
 
 log = logging.getLogger("pyrtu.gateway")
 
+#: old names, deprecated (each use warns, naming the new one)
+__getattr__ = renamed(__name__, {"Bus": ("pyrtu.gateway.gateway", "GatewayBus")})
+
 __all__ = [
     "CLOSE_GRACE",
     "HEADER_TIMEOUT",
@@ -129,10 +133,10 @@ __all__ = [
     "MAX_QUEUED_PER_BUS",
     "MAX_QUEUED_PER_CONNECTION",
     "MAX_WRITE_BUFFER",
-    "Bus",
     "BusEvent",
     "FairQueue",
     "Gateway",
+    "GatewayBus",
     "GatewayLimits",
     "Job",
     "QueueFull",
@@ -144,11 +148,11 @@ __all__ = [
 ]
 
 
-class Bus(Protocol):
+class GatewayBus(Protocol):
     """What a bus behind the gateway offers: `pyrtu.drivers.aio.AsyncMaster` (a serial
     line), `pyrtu.tcp.AsyncTcpClient` (another Modbus TCP server).  ``request``
     returns the answer PDU, an exception answer too (as its bytes, as
-    `pyrtu.gateway.server.LocalBus` does); a bus whose ``request`` raises
+    `pyrtu.tcp.server.LocalBus` does); a bus whose ``request`` raises
     `ExceptionResponseError` instead (`AsyncMaster`, `AsyncTcpClient`) offers
     ``exchange``, of the same shape, which the gateway calls when a bus has it: an
     exception raised is a target that failed to respond (0x0B).  A bus may also
@@ -185,7 +189,7 @@ def _bus_name(bus: object, index: int) -> str:
 @dataclass
 class _BusState:
     index: int
-    bus: Bus
+    bus: GatewayBus
     queue: FairQueue
     name: str
     reconnect: Reconnect
@@ -229,7 +233,7 @@ class Gateway:
 
     def __init__(
         self,
-        buses: Sequence[tuple[Bus, Iterable[int] | Mapping[int, int]]],
+        buses: Sequence[tuple[GatewayBus, Iterable[int] | Mapping[int, int]]],
         limits: GatewayLimits | None = None,
         on_bus: Callable[[BusEvent], None] | None = None,
         on_task: Callable[[TaskFailure], None] | None = None,
@@ -572,7 +576,7 @@ class Gateway:
         connections = self._connections
         counters = self.counters
         monotonic = time.monotonic
-        # the answer PDU, an exception answer as its bytes (see Bus)
+        # the answer PDU, an exception answer as its bytes (see GatewayBus)
         send = getattr(state.bus, "exchange", None) or state.bus.request
         while True:
             if state.reopen is not None and state.reconnect.down:

@@ -18,7 +18,7 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metri
 
 from pyrtu.drivers.reconnect import Outage
 from pyrtu.drivers.supervise import cause
-from pyrtu.gateway.server import TcpServer
+from pyrtu.tcp.server import TcpServer
 
 from .gateway import counter_families
 from .server import on_loop

@@ -17,6 +17,8 @@ The rules (coalescing, scheduling, back-off) are in ``docs/POLLER.md``.
 
 from __future__ import annotations
 
+from pyrtu.core._deprecated import renamed
+
 from .config import Bus, ConfigError, Device, PollerConfig, load_config, make_config, parse_config
 from .driver import Poller, PollerThread, encode_point
 from .events import (
@@ -33,7 +35,7 @@ from .masters import AsyncMasterLike, ThreadMaster
 from .plan import Block, Cuts, Limits, Wire, merge_pays, plan, split
 from .points import TABLES, TYPES, Point, PointError
 from .profiles import profile_points
-from .schedule import BusScheduler, Request
+from .schedule import BusScheduler, ScheduledRequest
 
 __all__ = [
     "TABLES",
@@ -55,7 +57,7 @@ __all__ = [
     "PollerConfig",
     "PollerThread",
     "PortState",
-    "Request",
+    "ScheduledRequest",
     "SlaveState",
     "SlaveStats",
     "TaskFailed",
@@ -71,3 +73,6 @@ __all__ = [
     "profile_points",
     "split",
 ]
+
+#: old names, deprecated (each use warns, naming the new one)
+__getattr__ = renamed(__name__, {"Request": ("pyrtu.poller.schedule", "ScheduledRequest")})

@@ -14,7 +14,7 @@ _WRITE_FUNCTIONS = {("coils", True): 5, ("coils", False): 15, ("holding", True):
 
 
 @dataclass(eq=False)
-class Request:
+class ScheduledRequest:
     """One transaction to perform.  ``kind``: poll, probe, write, read.  Reads:
     ``count`` registers or bits of ``table`` at ``address``; writes: ``values``
     (function 5/6 for one value, 15/16 for several)."""
@@ -66,4 +66,4 @@ class _Stats:
     slaves: dict[int, SlaveStats] = field(default_factory=dict)
 
 
-__all__ = ["POLL", "PROBE", "READ", "WRITE", "Request"]
+__all__ = ["POLL", "PROBE", "READ", "WRITE", "ScheduledRequest"]

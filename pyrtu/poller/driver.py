@@ -49,7 +49,7 @@ from .config import Bus, ConfigError, Device, PollerConfig, load_config, make_co
 from .events import BusReport, Event, PortState, SlaveStats, TaskFailed, Tracker, Update
 from .masters import BY_FUNCTION, FACTORIES, AsyncMasterLike, is_port_error, open_master
 from .points import Point, Value, encode_point
-from .schedule import BusScheduler, Request
+from .schedule import BusScheduler, ScheduledRequest
 from .thread import PollerThread
 
 log = logging.getLogger("pyrtu.poller")
@@ -84,7 +84,7 @@ class _BusRun:
     values: int = 0  # values read on this bus since start
     task_failures: int = 0  # times the bus task raised (each restarted) since start
     # the transaction the bus task is in, and the write or read waiting on it
-    inflight: Request | None = None
+    inflight: ScheduledRequest | None = None
     inflight_future: asyncio.Future[Any] | None = None
 
     @property
@@ -335,7 +335,7 @@ class Poller(AsyncService):
             self._dispatch([TaskFailed(run.bus.name, failure.task, failure.cause,
                                        failure.retry_in, now)])  # fmt: skip
 
-    def _silent(self, run: _BusRun, req: Request) -> None:
+    def _silent(self, run: _BusRun, req: ScheduledRequest) -> None:
         """``req`` still unanswered at `BusScheduler.offline_due`: its slave is offline."""
         self._dispatch(run.sched.on_silence(req, time.monotonic()))
 
@@ -413,7 +413,7 @@ class Poller(AsyncService):
             self._dispatch([ev])
 
     @staticmethod
-    def _args(req: Request) -> tuple[Any, ...]:
+    def _args(req: ScheduledRequest) -> tuple[Any, ...]:
         if req.kind == "write":
             if len(req.values) == 1 and req.function in (5, 6):
                 return (req.slave, req.address, req.values[0])
@@ -608,7 +608,7 @@ class Poller(AsyncService):
         if not self._running:
             raise RuntimeError("the poller is not running (start it first)")
 
-    def _submit(self, run: _BusRun, reqs: Sequence[Request]) -> list[asyncio.Future[Any]]:
+    def _submit(self, run: _BusRun, reqs: Sequence[ScheduledRequest]) -> list[asyncio.Future[Any]]:
         loop = asyncio.get_running_loop()
         futs = []
         for r in reqs:

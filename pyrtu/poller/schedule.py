@@ -53,7 +53,7 @@ from ._schedule_parts import (
     PROBE,
     READ,
     WRITE,
-    Request,
+    ScheduledRequest,
     _Health,
     _Stats,
     _Task,
@@ -138,7 +138,7 @@ class BusScheduler:
         self._heap: list[tuple[float, int, _Task]] = []
         self._seq = itertools.count()
         self._tags = itertools.count(1)
-        self._urgent: list[Request] = []
+        self._urgent: list[ScheduledRequest] = []
         self._confirm: int | None = None  # the slave whose failure is to be confirmed
         self._health: dict[int, _Health] = {}
         self._stats = _Stats()
@@ -202,7 +202,7 @@ class BusScheduler:
 
     def submit_write(
         self, slave: int, table: str, address: int, values: Sequence[int | bool]
-    ) -> Request:
+    ) -> ScheduledRequest:
         """Queue a write (ahead of every poll): one value -> FC 05/06, several ->
         FC 15/16.  Returns the request; its outcome comes back through
         `on_response`/`on_failure` like any other."""
@@ -212,26 +212,30 @@ class BusScheduler:
         if not vals:
             raise ValueError("values: nothing to write")
         fn = _WRITE_FUNCTIONS[(table, len(vals) == 1)]
-        req = Request(WRITE, slave, table, address, len(vals), fn, vals, tag=next(self._tags))
+        req = ScheduledRequest(
+            WRITE, slave, table, address, len(vals), fn, vals, tag=next(self._tags)
+        )
         size = len(vals) * 2 if table == "holding" else (len(vals) + 7) // 8
         req.cost = self.wire.frames(7 + size + (len(vals) > 1) * 2, 8)
         self._urgent.append(req)
         return req
 
-    def submit_read(self, slave: int, table: str, address: int, count: int) -> list[Request]:
+    def submit_read(
+        self, slave: int, table: str, address: int, count: int
+    ) -> list[ScheduledRequest]:
         """Queue an on-demand read (ahead of every poll), split within the slave's
         maximum per request; returns the requests in address order."""
         if table not in FUNCTIONS:
             raise ValueError(f"table: must be one of {', '.join(FUNCTIONS)}, not {table!r}")
         out = []
         for a, n in chunks(table, address, count, self.limits(slave)):
-            req = Request(READ, slave, table, a, n, FUNCTIONS[table], tag=next(self._tags))
+            req = ScheduledRequest(READ, slave, table, a, n, FUNCTIONS[table], tag=next(self._tags))
             req.cost = self.wire.read(table, n)
             out.append(req)
         self._urgent.extend(out)
         return out
 
-    def next_request(self, now: float) -> Request | None:
+    def next_request(self, now: float) -> ScheduledRequest | None:
         """What to send now, or None when nothing is due before `deadline`."""
         if self._stats.started is None:
             self._stats.started = now
@@ -272,7 +276,7 @@ class BusScheduler:
             best.seq = -1  # out of the heap (in flight) until requeued
         return best
 
-    def _issue(self, task: _Task, now: float) -> Request:
+    def _issue(self, task: _Task, now: float) -> ScheduledRequest:
         due, interval = task.due, task.block.interval
         task.late = max(0.0, now - due)
         if due > now:  # a confirmation ahead of its time: the beat starts again from now
@@ -282,10 +286,10 @@ class BusScheduler:
             task.due = now if nxt + interval < now else nxt
         task.seq = -1
         b = task.block
-        return Request(POLL, b.slave, b.table, b.address, b.count, b.function, (), b,
+        return ScheduledRequest(POLL, b.slave, b.table, b.address, b.count, b.function, (), b,
                        issued=now, cost=task.cost, task=task)  # fmt: skip
 
-    def _due_probe(self, now: float) -> Request | None:
+    def _due_probe(self, now: float) -> ScheduledRequest | None:
         best: tuple[float, int] | None = None
         for slave, h in self._health.items():
             if h.offline and not h.probing and h.probe_due <= now:
@@ -297,7 +301,7 @@ class BusScheduler:
         h = self._health[slave]
         h.probing = True
         table, address = h.probe
-        return Request(PROBE, slave, table, address, 1, FUNCTIONS[table], issued=now,
+        return ScheduledRequest(PROBE, slave, table, address, 1, FUNCTIONS[table], issued=now,
                        cost=self.wire.read(table, 1))  # fmt: skip
 
     def deadline(self) -> float | None:
@@ -320,7 +324,7 @@ class BusScheduler:
 
     # ------------------------------------------------------------------ outcomes
 
-    def _end(self, req: Request, now: float) -> float:
+    def _end(self, req: ScheduledRequest, now: float) -> float:
         """Count a finished transaction; returns its latency (issue to end)."""
         latency = max(0.0, now - req.issued)
         # only what falls inside the statistics' window counts (a transaction in
@@ -345,13 +349,13 @@ class BusScheduler:
         st.busy += busy
         return latency
 
-    def _requeue(self, req: Request) -> None:
+    def _requeue(self, req: ScheduledRequest) -> None:
         task = req.task
         if task is not None and task.alive and not task.suspended:
             self._push(task)
 
     def on_response(
-        self, req: Request, data: Sequence[int] | Sequence[bool] | None, now: float
+        self, req: ScheduledRequest, data: Sequence[int] | Sequence[bool] | None, now: float
     ) -> list[Event]:
         """A transaction answered (``data``: the registers or bits read; None for a
         write).  Returns the events: an `Update` for every point of a poll block,
@@ -376,14 +380,14 @@ class BusScheduler:
         self._check_load(now, events)
         return events
 
-    def _turnaround(self, req: Request, busy: float, h: _Health) -> None:
+    def _turnaround(self, req: ScheduledRequest, busy: float, h: _Health) -> None:
         if req.kind == WRITE:
             return
         frames = self.wire.read(req.table, req.count, 0.0)
         ta = max(0.0, busy - frames)
         h.turnaround = ta if h.turnaround is None else 0.9 * h.turnaround + 0.1 * ta
 
-    def _back(self, req: Request, h: _Health, st: SlaveStats, now: float) -> list[Event]:
+    def _back(self, req: ScheduledRequest, h: _Health, st: SlaveStats, now: float) -> list[Event]:
         h.failures = 0
         h.probing = False
         h.backoff = 0.0
@@ -400,7 +404,7 @@ class BusScheduler:
                 self._push(task)
         return [SlaveState(self.bus, req.slave, True, now + self.stamp_offset)]
 
-    def on_failure(self, req: Request, error: BaseException, now: float) -> list[Event]:
+    def on_failure(self, req: ScheduledRequest, error: BaseException, now: float) -> list[Event]:
         """A transaction failed: an exception response (`ExceptionResponseError`),
         no answer (`NoResponseError`), a bad answer (`FrameError`), or anything else
         (counted as no answer; a failed port is `on_port_failure`'s).  A gateway's
@@ -471,7 +475,7 @@ class BusScheduler:
         others = any(not h.offline for s, h in self._health.items() if s != slave)
         return max(backoff, busy * (1 / self.share - 1)) if others else backoff
 
-    def offline_due(self, req: Request) -> float | None:
+    def offline_due(self, req: ScheduledRequest) -> float | None:
         """When ``req``'s slave goes offline if ``req`` is still unanswered (then the
         driver calls `on_silence`): ``offline_after`` x ``timeout`` after the end of
         the first of ``offline_after`` requests in a row (no other transaction
@@ -482,7 +486,7 @@ class BusScheduler:
             return None
         return h.silent_from + self.offline_after * self.timeout
 
-    def on_silence(self, req: Request, now: float) -> list[Event]:
+    def on_silence(self, req: ScheduledRequest, now: float) -> list[Event]:
         """``req`` is unanswered at its `offline_due`: its slave goes offline now; its
         outcome is still to come (an answer brings the slave back at once)."""
         h, due = self._health.get(req.slave), self.offline_due(req)
@@ -491,7 +495,7 @@ class BusScheduler:
         h.silenced = req
         return [self._offline(req.slave, h, self._stats.slaves[req.slave], 0.0, now)]
 
-    def on_port_failure(self, req: Request) -> None:
+    def on_port_failure(self, req: ScheduledRequest) -> None:
         """The port failed during ``req`` (a drop unplugged, a TCP connection lost):
         the slave is not to blame, so nothing counts against it (no timeout, no
         failure towards ``offline_after``).  A poll block keeps its place in the
@@ -506,7 +510,7 @@ class BusScheduler:
         elif req.kind == POLL:
             self._requeue(req)
 
-    def take_urgent(self) -> list[Request]:
+    def take_urgent(self) -> list[ScheduledRequest]:
         """Take the queued writes and on-demand reads out (to fail them while the
         port is down)."""
         out, self._urgent = self._urgent, []
@@ -624,4 +628,13 @@ class BusScheduler:
             self._stats.slaves[slave] = SlaveStats(self.bus, slave, online=old.online)
 
 
-__all__ = ["BACKOFF", "MAX_BACKOFF", "POLL", "PROBE", "READ", "WRITE", "BusScheduler", "Request"]
+__all__ = [
+    "BACKOFF",
+    "MAX_BACKOFF",
+    "POLL",
+    "PROBE",
+    "READ",
+    "WRITE",
+    "BusScheduler",
+    "ScheduledRequest",
+]

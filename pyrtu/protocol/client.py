@@ -36,6 +36,7 @@ from types import ModuleType
 from typing import Any
 
 from pyrtu.core import _backend
+from pyrtu.core._deprecated import renamed, warn_renamed
 from pyrtu.core.ascii import ascii_message, encode_ascii, make_framer
 from pyrtu.core.feed import feed_all
 from pyrtu.core.frames import ERROR_BY_CODE
@@ -45,22 +46,31 @@ from pyrtu.pdu.errors import BusFault, ExceptionResponseError, FrameError, NoRes
 from pyrtu.pdu.functions import function_name
 from pyrtu.protocol.client_actions import (
     Action,
+    ClientState,
     Decoder,
     Done,
     Send,
-    State,
     Wait,
     answer_pdu,
     new_counters,
 )
-from pyrtu.protocol.client_exchange import ExchangeSteps
 from pyrtu.protocol.client_timing import LATE_WAKE_CHAR, WAKE_STEP
+from pyrtu.protocol.client_xfer import XferSteps
 
 log = logging.getLogger("pyrtu.drivers.master")
+
+#: old names, deprecated (each use warns, naming the new one)
+__getattr__ = renamed(__name__, {"State": ("pyrtu.protocol.client_actions", "ClientState")})
 _debug = log.isEnabledFor
 
 # module constants: an enum member lookup costs a class attribute access (3.11)
-_IDLE, _QUIET, _SEND, _ANSWER, _DONE = State.IDLE, State.QUIET, State.SEND, State.ANSWER, State.DONE
+_IDLE, _QUIET, _SEND, _ANSWER, _DONE = (
+    ClientState.IDLE,
+    ClientState.QUIET,
+    ClientState.SEND,
+    ClientState.ANSWER,
+    ClientState.DONE,
+)
 _DEBUG = logging.DEBUG
 _ADUS_MAX = 1024
 #: the core's error codes (RTU_ERR_*) as the discard reasons of the counters
@@ -79,7 +89,7 @@ def _strip_crc(adu: bytes) -> bytes:
 _NO_LIMIT = 1 << 62
 
 
-class ClientProtocol(ExchangeSteps):
+class ClientProtocol(XferSteps):
     """A Modbus master's transactions on one line, for a driver to carry out::
 
         proto = ClientProtocol(LineConfig(baudrate=9600), timeout=0.5)
@@ -171,12 +181,12 @@ class ClientProtocol(ExchangeSteps):
         #: learn answer lengths where ready_at uses them (a timed line)
         self._one_wake = self.gap > 0
         #: see ready_at: how wake-ups late by a character or more settle on the
-        #: answer's end; the characters an Exchange's first read comes early by
+        #: answer's end; the characters an Xfer's first read comes early by
         slow = self._char >= LATE_WAKE_CHAR
         self._wake_step = WAKE_STEP if slow else self._char / 4
         self._early_chars = 0 if slow else 1
-        #: a repeated request may go as one `Exchange` (a timed, lenient RTU line)
-        self._exchange = self._one_wake and line.mode == "rtu" and not line.strict
+        #: a repeated request may go as one `Xfer` (a timed, lenient RTU line)
+        self._can_xfer = self._one_wake and line.mode == "rtu" and not line.strict
         self._adus.clear()
         self._sizes.clear()
         # what differs between RTU and ASCII, chosen once per line: the framer's core
@@ -279,7 +289,7 @@ class ClientProtocol(ExchangeSteps):
 
     def _went(self, end: float) -> None:
         """SEND: the request's transmission ended at ``end`` (what `transmitted` and
-        an `Exchange`'s short cut both record): the silence and the answer's deadline
+        an `Xfer`'s short cut both record): the silence and the answer's deadline
         count from it."""
         self.quiet_until = self.failed_at = 0.0
         self.tx_end = self._end = end
@@ -328,17 +338,22 @@ class ClientProtocol(ExchangeSteps):
         elif first and self._one_wake and not self.echo:
             self._woke_late()
 
-    def next_action(self, now: float, exchange: bool = False) -> Action:
+    def next_action(
+        self, now: float, xfer: bool = False, *, exchange: bool | None = None
+    ) -> Action:
         """What the driver does next (see the module docstring): `Send` the request,
         `Wait` (a sleep on ``ready_at`` while an answer comes in, a wait for input
         until the attempt's deadline, a sleep to the send time, or a look for stale
         input just before the request goes), or `Done` (then the protocol is idle
-        again).  Call it after each of the protocol's inputs.  ``exchange``: the
-        driver can carry out an `Exchange` (`pyrtu.drivers.xfer`), handed out instead
+        again).  Call it after each of the protocol's inputs.  ``xfer``: the
+        driver can carry out an `Xfer` (`pyrtu.drivers.xfer`), handed out instead
         of those steps where the request is one whose answer length is known."""
         state = self.state
-        if exchange and (state is _SEND or state is _QUIET):
-            plan = self._exchange_plan()
+        if exchange is not None:  # the old keyword, deprecated
+            warn_renamed("next_action(exchange=...)", "next_action(xfer=...)")
+            xfer = exchange
+        if xfer and (state is _SEND or state is _QUIET):
+            plan = self._xfer_plan()
             if plan is not None:
                 return plan
         if state is _ANSWER:
@@ -411,8 +426,8 @@ class ClientProtocol(ExchangeSteps):
             self._abandoned_until = self._limit
         self.state = _IDLE
 
-    def abandoned_exchange(self, end: float, last_rx: float, now: float) -> None:
-        """A cancelled `Exchange` (the transaction was given up on while the driver
+    def abandoned_xfer(self, end: float, last_rx: float, now: float) -> None:
+        """A cancelled `Xfer` (the transaction was given up on while the driver
         carried it out) had sent the request, its transmission ending at ``end``, and
         read until ``last_rx`` (0.0: nothing): as `abort` during the answer, a late
         answer may follow until the request's deadline."""
@@ -421,6 +436,11 @@ class ClientProtocol(ExchangeSteps):
             self.last_rx = last_rx
         self.failed_at = now
         self._abandoned_until = end + self.timeout
+
+    def abandoned_exchange(self, end: float, last_rx: float, now: float) -> None:
+        """Deprecated: `abandoned_xfer`."""
+        warn_renamed("ClientProtocol.abandoned_exchange", "ClientProtocol.abandoned_xfer")
+        self.abandoned_xfer(end, last_rx, now)
 
     def late_answer_over_at(self) -> float:
         """When the answer of a transaction given up on (`abort`) is over, as a driver
@@ -615,9 +635,9 @@ class ClientProtocol(ExchangeSteps):
 __all__ = [
     "Action",
     "ClientProtocol",
+    "ClientState",
     "Done",
     "Send",
-    "State",
     "Wait",
     "new_counters",
 ]

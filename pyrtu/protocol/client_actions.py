@@ -15,10 +15,10 @@ type per stream, `Action`); a driver carries it out and reports back:
     ``needed``: the bytes the protocol still awaits (a lower bound); 0: none
     (a wait for the send time, a look for stale input), so that a driver may as
     well wake on input (it is stale) and need not expect any after the wait.
-`Exchange` ``(data, send_at, first_wake, timeout, expect, short_len)``
-    only for a driver that asks (``next_action(now, exchange=True)``), in place of
+`Xfer` ``(data, send_at, first_wake, timeout, expect, short_len)``
+    only for a driver that asks (``next_action(now, xfer=True)``), in place of
     the look, `Send` and `Wait` steps of a repeated request on a timed RTU line
-    (its answer's length learned, no echo): `pyrtu.drivers.xfer.Exchanger` carries the
+    (its answer's length learned, no echo): `pyrtu.drivers.xfer.XferRunner` carries the
     steps out in one call, with the protocol's times.  The driver reports what it
     saw with the same inputs: input found at the send time (nothing sent) with
     ``wait_done(data, now)``; else ``transmitted(end, start)``, then the first
@@ -37,6 +37,7 @@ import enum
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
+from pyrtu.core._deprecated import renamed
 from pyrtu.pdu.requests import answer_pdu as answer_pdu
 
 DISCARD_REASONS = (
@@ -52,7 +53,9 @@ DISCARD_REASONS = (
 Decoder = Callable[[bytes], Any]
 
 
-class State(enum.Enum):
+class ClientState(enum.Enum):
+    """Where a `ClientProtocol` stands in its transaction (`ClientProtocol.state`)."""
+
     IDLE = "idle"
     QUIET = "quiet"
     SEND = "send"
@@ -77,7 +80,7 @@ class Wait(NamedTuple):
     needed: int
 
 
-class Exchange(NamedTuple):
+class Xfer(NamedTuple):
     """Look for stale input at ``send_at`` (then send nothing), send ``data``, read
     first at ``first_wake`` seconds after the end of transmission and on until
     ``expect`` bytes (``short_len`` for an exception answer) or ``timeout`` seconds
@@ -107,7 +110,11 @@ class Done(NamedTuple):
 
 
 #: what `ClientProtocol.next_action` hands the driver
-Action = Send | Wait | Exchange | Done
+Action = Send | Wait | Xfer | Done
+
+
+#: old names, deprecated (each use warns, naming the new one)
+__getattr__ = renamed(__name__, {"Exchange": ("pyrtu.protocol.client_actions", "Xfer")})
 
 
 def new_counters() -> dict[str, int]:
@@ -121,12 +128,12 @@ def new_counters() -> dict[str, int]:
 __all__ = [
     "DISCARD_REASONS",
     "Action",
+    "ClientState",
     "Decoder",
     "Done",
-    "Exchange",
     "Send",
-    "State",
     "Wait",
+    "Xfer",
     "answer_pdu",
     "new_counters",
 ]

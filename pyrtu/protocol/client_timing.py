@@ -5,8 +5,8 @@ protocol's state): the earliest send time (t3.5 after the line went quiet, the
 broadcast turnaround, the settling time after a failure), the bytes an answer
 still needs, and the sleep that reads them in as few wake-ups as the line
 allows (``ready_at``, which `ClientProtocol.next_action` turns into a `Wait`; for a
-repeated request, `pyrtu.protocol.client_exchange` puts the same times in one
-`Exchange`).
+repeated request, `pyrtu.protocol.client_xfer` puts the same times in one
+`Xfer`).
 """
 
 from __future__ import annotations
@@ -14,15 +14,15 @@ from __future__ import annotations
 from typing import Any
 
 from pyrtu.core.framing import FramerCore
-from pyrtu.protocol.client_actions import State
+from pyrtu.protocol.client_actions import ClientState
 
-_ANSWER = State.ANSWER
+_ANSWER = ClientState.ANSWER
 
 #: where a character is shorter than this (above 19200 baud), a timed wake-up is
 #: typically a character or more late: a whole answer in the wake-up's read lowers
 #: the turnaround by a quarter character (`AnswerTiming._woke_late`); slower, a
 #: `Wait` wakes a character early and leaves the last byte to a wait for input, and
-#: an `Exchange` reads at the answer's predicted end (one wake-up fewer, at most a
+#: an `Xfer` reads at the answer's predicted end (one wake-up fewer, at most a
 #: wake-up's lateness on the silence that follows), lowering it by `WAKE_STEP`
 LATE_WAKE_CHAR = 0.0005
 #: seconds a whole answer in the first read lowers the turnaround on a line slower
@@ -42,7 +42,7 @@ class AnswerTiming:
     """The timing decisions of a `ClientProtocol` (see the module docstring)."""
 
     # the protocol's state these read (set by ClientProtocol)
-    state: State
+    state: ClientState
     gap: float
     timeout: float
     echo: bool
@@ -99,7 +99,7 @@ class AnswerTiming:
 
     def _woke_late(self) -> None:
         """The whole answer came in the first read (a `ready_at` wake-up, or an
-        `Exchange`'s first read): it was in before the read, by an unknown time.  A
+        `Xfer`'s first read): it was in before the read, by an unknown time.  A
         little earlier next time (a quarter character; `WAKE_STEP` on a line slower
         than `LATE_WAKE_CHAR`; see `ready_at`), twice as much for each further one
         in a row after the first `_PLAIN_STEPS` (up to 2**`_MAX_DOUBLINGS` times)."""

@@ -471,7 +471,7 @@ class ServerProtocol:
         through the rest of a frame (``nap``: the driver can, e.g. a port with a file
         descriptor in lenient mode; ``lead``: see `wake_at`); else `Listen` until the
         next deadline (`deadline`), or `Idle` when only bytes will do.  ``ahead``: a
-        driver that can write at a given time (`pyrtu.drivers.xfer`'s exchangers) gets
+        driver that can write at a given time (`pyrtu.drivers.xfer`'s xfer runners) gets
         the response that long before its time, as a `Reply` whose ``at`` is still
         to come, and a `Listen` that ends then."""
         fresh, self._fresh = self._fresh, False

@@ -227,9 +227,9 @@ def test_recovery_of_fuzzed_files(chunks: list[Any], state: bytes) -> None:
 @settings(max_examples=500, deadline=None)
 @given(data=st.binary(max_size=fmt.STATE_SIZE + 10), flips=st.lists(st.integers(0, 600)))
 def test_cursor_slots_survive_any_damage_to_the_other(data: bytes, flips: list[int]) -> None:
-    assert fmt.decode_state(data) is None or isinstance(fmt.decode_state(data), fmt.State)
-    a = fmt.State(7, 100, 200, 3)
-    b = fmt.State(8, 150, 200, 4)
+    assert fmt.decode_state(data) is None or isinstance(fmt.decode_state(data), fmt.CursorState)
+    a = fmt.CursorState(7, 100, 200, 3)
+    b = fmt.CursorState(8, 150, 200, 4)
     buf = bytearray(fmt.STATE_SIZE)
     for st_ in (a, b):
         off, raw = fmt.encode_state(st_)
@@ -246,8 +246,8 @@ def test_cursor_slots_survive_any_damage_to_the_other(data: bytes, flips: list[i
 
 def test_a_cursor_slot_with_huge_numbers_is_not_trusted(tmp_path: Path) -> None:
     d, _seg = _one_segment(tmp_path)
-    good = fmt.State(gen=4, acked=10, reserved=101, dropped=0)
-    forged = fmt.State(gen=5, acked=10, reserved=2**64 - 1, dropped=0)  # checksum right
+    good = fmt.CursorState(gen=4, acked=10, reserved=101, dropped=0)
+    forged = fmt.CursorState(gen=5, acked=10, reserved=2**64 - 1, dropped=0)  # checksum right
     buf = bytearray(fmt.STATE_SIZE)
     for state in (good, forged):
         off, raw = fmt.encode_state(state)

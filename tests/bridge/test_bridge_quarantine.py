@@ -15,7 +15,7 @@ from waiting import wait_for
 
 from pyrtu.bridge import parse_bridge_config
 from pyrtu.bridge.bridge import Bridge, BridgeEvent
-from pyrtu.bridge.delivery import Window
+from pyrtu.bridge.delivery import DeliveryWindow
 from pyrtu.bridge.outbox import Outbox
 from pyrtu.bridge.topics import unpublishable
 from pyrtu.drivers.aio import run as aio_run
@@ -131,7 +131,7 @@ def test_unpublishable_records() -> None:
 
 
 def test_a_skipped_record_counts_as_acknowledged_in_its_place() -> None:
-    win = Window(8)
+    win = DeliveryWindow(8)
     assert win.skipped(1) and win.contiguous == 1  # nothing before it: passed at once
     win.sent(2, 100, 0.0)
     assert not win.skipped(3) and win.contiguous == 1  # 2 is still in flight

@@ -9,7 +9,7 @@ import pytest
 
 from pyrtu.bridge.commands import CommandQueue, Refusal, TokenBucket, check_value, parse, result
 from pyrtu.bridge.config import PointOptions
-from pyrtu.bridge.delivery import Window
+from pyrtu.bridge.delivery import DeliveryWindow
 from pyrtu.bridge.report import Reporter
 from pyrtu.bridge.topics import payload, record, split_record
 from pyrtu.poller import Point
@@ -147,9 +147,9 @@ def test_token_bucket_and_queue_bounds() -> None:
     assert b.wait(0.0) == pytest.approx(0.5)
     assert b.wait(0.5) == 0
     q = CommandQueue(size=2, rate=1.0)
-    from pyrtu.bridge.commands import Command
+    from pyrtu.bridge.commands import SetCommand
 
-    cmds = [Command(REF, i, f"id{i}", 10.0, 0.0, "r") for i in range(3)]
+    cmds = [SetCommand(REF, i, f"id{i}", 10.0, 0.0, "r") for i in range(3)]
     assert q.push(cmds[0]) and q.push(cmds[1]) and not q.push(cmds[2])
     assert q.refused == 1 and q.waiting == 2
     assert q.known("id0") == (True, None)
@@ -165,7 +165,7 @@ def test_token_bucket_and_queue_bounds() -> None:
 
 
 def test_window_acknowledges_contiguously() -> None:
-    w = Window(3)
+    w = DeliveryWindow(3)
     w.sent(10, mid=1, read_at=100.0)
     w.sent(11, mid=2, read_at=100.0)
     w.sent(12, mid=3, read_at=0.0)

@@ -337,7 +337,7 @@ def test_poll_for_people_until_the_duration(bus: Bus) -> None:
     )
     assert r.code == 0, r.err
     # It stops at the duration (1.6 s); the process start (~1 s on a loaded 2-core
-    # VM) and the last exchange fit many times in 9 durations (14.4 s).
+    # VM) and the last transaction fit many times in 9 durations (14.4 s).
     assert time.monotonic() - t0 < 9 * 1.6
     lines = r.out.splitlines()
     assert len(lines) >= 3

@@ -30,10 +30,10 @@ from pyrtu.drivers.port import open_port
 from pyrtu.drivers.slave import Slave
 from pyrtu.drivers.slave_base import SlaveBase
 from pyrtu.gateway import Gateway
-from pyrtu.gateway.server import TcpServer
 from pyrtu.pdu.errors import ExceptionResponseError, PortBusyError, PortError
 from pyrtu.protocol.datastore import DataStore
 from pyrtu.tcp import AsyncTcpClient, TcpClient
+from pyrtu.tcp.server import TcpServer
 from pyrtu.vbus import VirtualBus
 
 pytest_plugins = ["peers.fixtures"]

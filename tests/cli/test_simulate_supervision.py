@@ -42,7 +42,7 @@ FairQueue.pop = pop
 """,
     # the TCP server's thread dies: a SystemExit out of its loop (the first request)
     "tcp-thread": """\
-from pyrtu.gateway.server import LocalBus
+from pyrtu.tcp.server import LocalBus
 async def request(self, slave, pdu):
     raise SystemExit("injected")
 LocalBus.request = request

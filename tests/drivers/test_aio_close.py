@@ -31,7 +31,7 @@ def test_close_waits_out_the_cancelled_transactions_answer(
     backend: ModuleType, path: str, answers: bool
 ) -> None:
     """``first``: the transaction is driven step by step; ``repeated``: the same
-    request again goes as one Exchange on the exchange thread.  The cancelled request's
+    request again goes as one Xfer on the xfer thread.  The cancelled request's
     answer comes LATE after it (``answers``) or never: close() returns after the
     answer's last byte (and the settling after it), or after the request's deadline
     when no byte comes; never while an answer may still be on its way."""

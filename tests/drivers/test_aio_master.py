@@ -300,9 +300,9 @@ def test_max_in_flight_is_for_tcp_only(tmp_path: Path) -> None:
 
 @pytest.mark.wall_clock
 @pytest.mark.parametrize("runner", sorted(RUNNERS))
-def test_a_cancelled_exchange_frees_the_port_at_once(runner: str, backend: ModuleType) -> None:
-    """A repeated read (an `Exchange` on the port's exchange thread) cancelled while it
-    waits for an answer that will not come: the thread's exchange ends at once, the
+def test_a_cancelled_xfer_frees_the_port_at_once(runner: str, backend: ModuleType) -> None:
+    """A repeated read (an `Xfer` on the port's xfer thread) cancelled while it
+    waits for an answer that will not come: the thread's xfer ends at once, the
     next read waits for nothing but the protocol's settling, and close is prompt
     (bounds: a fraction of the 2 s response timeout)."""
     timeout = 2.0
@@ -313,9 +313,9 @@ def test_a_cancelled_exchange_frees_the_port_at_once(runner: str, backend: Modul
                             backend=backend.BACKEND)  # fmt: skip
             try:
                 with serving(bus.paths[1], store=make_store(), baudrate=115200):
-                    for _ in range(3):  # the answer's length learned: exchanges from now
+                    for _ in range(3):  # the answer's length learned: xfers from now
                         assert await m.read_holding_registers(1, 0, 2) == [1000, 1001]
-                assert m._ax is not None  # the exchange thread ran them
+                assert m._ax is not None  # the xfer thread ran them
                 start = time.monotonic()
                 with pytest.raises(asyncio.TimeoutError):  # nobody answers now
                     await asyncio.wait_for(m.read_holding_registers(1, 0, 2), 0.05)
@@ -330,11 +330,11 @@ def test_a_cancelled_exchange_frees_the_port_at_once(runner: str, backend: Modul
         RUNNERS[runner](main())
 
 
-@pytest.mark.wall_clock  # the read after it: within 0.5 s (the old exchange's deadline 1 s)
-def test_an_exchange_left_by_an_ended_loop_is_waited_out_in_the_next(backend: ModuleType) -> None:
-    """A loop that ended while a cancelled transaction's exchange was still under way
+@pytest.mark.wall_clock  # the read after it: within 0.5 s (the old xfer's deadline 1 s)
+def test_an_xfer_left_by_an_ended_loop_is_waited_out_in_the_next(backend: ModuleType) -> None:
+    """A loop that ended while a cancelled transaction's xfer was still under way
     on the thread (its report had not reached that loop): the same AsyncMaster used
-    from a new loop cancels the exchange and waits for its end on the thread, then
+    from a new loop cancels the xfer and waits for its end on the thread, then
     reads, instead of awaiting the ended loop's future."""
     with vbus.VirtualBus(2, baudrate=115200, parity="N") as bus:
         m = AsyncMaster(bus.paths[0], 115200, parity="N", timeout=1.0, backend=backend.BACKEND)

@@ -15,7 +15,7 @@ from pyrtu.core.line import LineConfig
 from pyrtu.drivers.aio import AsyncMaster
 from pyrtu.gateway import Gateway
 from pyrtu.pdu.requests import REQUESTS, exchange, read_holding_registers
-from pyrtu.protocol.client import ClientProtocol, State
+from pyrtu.protocol.client import ClientProtocol, ClientState
 from pyrtu.tcp import AsyncTcpClient
 
 pytest_plugins = ["peers.fixtures"]
@@ -31,7 +31,7 @@ def transact(p: ClientProtocol, call: tuple[int, bytes, object], answer: bytes) 
     p.wait_done(b"", t)
     p.transmitted(t + 0.01, t)
     p.receive_data(answer, t + 0.05)
-    assert p.state is State.DONE
+    assert p.state is ClientState.DONE
     return p.result()
 
 

@@ -145,7 +145,7 @@ def test_exception_codes_return_at_once(link: PtyLink, backend: ModuleType, mode
                     call()
                 # An answer ends the wait at once; a master that waited for the
                 # timeout takes 4x this bound.  A quarter of the timeout (0.5 s) is
-                # ~100x a pty exchange, above the stalls of a loaded 2-core VM (tens of ms).
+                # ~100x a pty transaction, above the stalls of a loaded 2-core VM (tens of ms).
                 assert time.monotonic() - start < m.timeout / 4
                 err = info.value
                 assert (err.slave, err.function, err.code) == (1, function, code)

@@ -92,8 +92,8 @@ def test_corrupted_answer_is_a_frame_error(link: PtyLink, backend: ModuleType, m
         start = time.monotonic()
         with pytest.raises(FrameError) as info:
             m.read_holding_registers(1, 0, 4)
-        # A bad CRC fails the exchange at once, not after the timeout: half the timeout
-        # (0.5 s) is ~100x a pty exchange, above a loaded 2-core VM's stalls (tens of ms).
+        # A bad CRC fails the transaction at once, not after the timeout: half the timeout
+        # (0.5 s) is ~100x a pty transaction, above a loaded 2-core VM's stalls (tens of ms).
         assert time.monotonic() - start < m.timeout / 2
         assert not isinstance(info.value, NoResponseError)
         assert "slave 1" in str(info.value) and "read_holding_registers" in str(info.value)
@@ -139,7 +139,7 @@ def test_wrong_slave_and_wrong_function(link: PtyLink) -> None:
             with pytest.raises(FrameError, match=expected):
                 m.read_holding_registers(1, 0, 1)
             # a short settling time, not the timeout: half of it (0.5 s) is ~100x a
-            # pty exchange, above a loaded 2-core VM's stalls (tens of ms)
+            # pty transaction, above a loaded 2-core VM's stalls (tens of ms)
             assert time.monotonic() - start < m.timeout / 2
         assert m.counters["discarded_unexpected"] == 7 + 7 + 11
 
@@ -308,7 +308,7 @@ def test_vendor_function_codes(link: PtyLink, backend: ModuleType, mode: str) ->
             ) == bytes.fromhex("000003E8")
             # Framed by the length rule as soon as the last byte came, not by waiting
             # for the rest of an unknown length up to the timeout: a fifth of it
-            # (0.2 s) is ~40x a pty exchange, above a loaded 2-core VM's stalls.
+            # (0.2 s) is ~40x a pty transaction, above a loaded 2-core VM's stalls.
             assert time.monotonic() - start < m.timeout / 5
             m.add_rule(101, *BONFIGLIOLI[101])
             assert m.execute(1, 101, bytes.fromhex("2177 000003E8")) == bytes.fromhex(

@@ -111,9 +111,9 @@ def test_no_wake_per_byte_on_a_timed_line(monkeypatch: pytest.MonkeyPatch) -> No
 
         m.port.read = counting_read  # type: ignore[method-assign]
         monkeypatch.setattr(mio, "read_fd", counting_ready)
-        # a repeated request's exchange reads in the backend's Exchanger (one call)
-        exchanger = m._conn.exchanger  # type: ignore[attr-defined]
-        real_run = exchanger.run
+        # a repeated request's xfer reads in the backend's XferRunner (one call)
+        runner = m._conn.xfer_runner  # type: ignore[attr-defined]
+        real_run = runner.run
 
         def counting_run(*args: object) -> object:
             r = real_run(*args)
@@ -121,7 +121,7 @@ def test_no_wake_per_byte_on_a_timed_line(monkeypatch: pytest.MonkeyPatch) -> No
                 reads.extend([len(r.data)] + [0] * (r.reads - 1))
             return r
 
-        monkeypatch.setattr(exchanger, "run", counting_run)
+        monkeypatch.setattr(runner, "run", counting_run)
         for _ in range(10):
             assert m.read_holding_registers(1, 0, 10) == [1000 + i for i in range(10)]
         assert sum(reads) == 10 * 25
@@ -161,9 +161,9 @@ def test_unhashable_read_arguments_name_the_argument() -> None:
             request_table.read_coils(*args)  # type: ignore[arg-type]
 
 
-def test_a_repeated_read_goes_as_one_exchange(backend: object) -> None:
+def test_a_repeated_read_goes_as_one_xfer(backend: object) -> None:
     """On a descriptor, the second and later reads of a request are one call of the
-    backend's Exchanger each (C or the twin): same answers, one exchange per read."""
+    backend's XferRunner each (C or the twin): same answers, one xfer per read."""
     vbus = pytest.importorskip("pyrtu.vbus")
     name = backend.BACKEND  # type: ignore[attr-defined]
     with (
@@ -171,28 +171,28 @@ def test_a_repeated_read_goes_as_one_exchange(backend: object) -> None:
         serving(bus.paths[1], store=make_store(), baudrate=115200),
         Master(bus.paths[0], 115200, parity="N", timeout=1.0, backend=name) as m,
     ):
-        exchanger = m._conn.exchanger  # type: ignore[attr-defined]
-        assert type(exchanger).__module__.startswith(
+        runner = m._conn.xfer_runner  # type: ignore[attr-defined]
+        assert type(runner).__module__.startswith(
             "pyrtu.drivers._cxfer" if name == "c" else "pyrtu.drivers._pyxfer"
         )
         calls = []
-        real_run = exchanger.run
+        real_run = runner.run
 
         def counting_run(*args: object) -> object:
             r = real_run(*args)
             calls.append(r)
             return r
 
-        exchanger.run = counting_run
+        runner.run = counting_run
         for _ in range(10):
             assert m.read_holding_registers(1, 0, 10) == [1000 + i for i in range(10)]
         assert len(calls) >= 9 and all(r.sent for r in calls)
         assert m.counters["responses"] == 10 and m.counters["timeouts"] == 0
 
 
-def test_a_drop_pulled_out_under_an_exchange_is_a_port_error(backend: object) -> None:
+def test_a_drop_pulled_out_under_an_xfer_is_a_port_error(backend: object) -> None:
     """The master's drop vanishes while a repeated request is under way in the
-    Exchanger: `PortError` naming the port (or no answer), never a hang; the master
+    XferRunner: `PortError` naming the port (or no answer), never a hang; the master
     opened again on the replugged drop reads again."""
     vbus = pytest.importorskip("pyrtu.vbus")
     name = backend.BACKEND  # type: ignore[attr-defined]
@@ -219,8 +219,8 @@ def test_a_drop_pulled_out_under_an_exchange_is_a_port_error(backend: object) ->
 
 
 @pytest.mark.wall_clock
-def test_a_signal_ends_a_blocking_exchange_at_once(backend: object) -> None:
-    """A signal's handler runs during a repeated read that waits in the Exchanger (C:
+def test_a_signal_ends_a_blocking_xfer_at_once(backend: object) -> None:
+    """A signal's handler runs during a repeated read that waits in the XferRunner (C:
     with the GIL released) as it does in a Python sleep: the handler's exception ends
     the read at once, not at the 5 s deadline (bound: a tenth of it)."""
     import signal
@@ -240,7 +240,7 @@ def test_a_signal_ends_a_blocking_exchange_at_once(backend: object) -> None:
         m = Master(bus.paths[0], 115200, parity="N", timeout=5.0, backend=name)
         try:
             with serving(bus.paths[1], store=make_store(), baudrate=115200):
-                for _ in range(3):  # the answer's length learned: exchanges from now
+                for _ in range(3):  # the answer's length learned: xfers from now
                     assert m.read_holding_registers(1, 0, 1) == [1000]
             old = signal.signal(signal.SIGUSR1, handler)
             timer = threading.Timer(0.2, os.kill, (os.getpid(), signal.SIGUSR1))

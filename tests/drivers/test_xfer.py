@@ -1,4 +1,4 @@
-"""The exchange step (pyrtu.drivers.xfer: csrc/rtu_xfer_io.c and its twin
+"""The xfer step (pyrtu.drivers.xfer: csrc/rtu_xfer_io.c and its twin
 pyrtu/drivers/_pyxfer.py) on a real pseudo-terminal, on both backends: what it sends,
 reads and reports, and that C and the twin agree, errors included."""
 
@@ -13,8 +13,8 @@ from types import ModuleType
 
 import pytest
 
-from pyrtu.drivers import exchangers, xfer
-from pyrtu.protocol.client_actions import Exchange
+from pyrtu.drivers import xfer, xfer_runners
+from pyrtu.protocol.client_actions import Xfer
 
 
 def plan(
@@ -30,8 +30,8 @@ def plan(
     look: bool = True,
     spin: float = 0.0,
 ) -> xfer.XferPlan:
-    """An exchange's plan from its values one by one."""
-    ex = Exchange(request, send_at, first_wake, timeout, expect, short_len)
+    """An xfer's plan from its values one by one."""
+    ex = Xfer(request, send_at, first_wake, timeout, expect, short_len)
     return xfer.XferPlan(fd, drain, char, ex, look, spin)
 
 
@@ -41,7 +41,7 @@ CHAR = 10 / 115200
 
 @pytest.fixture
 def pty() -> Iterator[tuple[int, int]]:
-    """(device, line): ``line`` is the tty end the exchanger uses (raw, non-blocking),
+    """(device, line): ``line`` is the tty end the xfer runner uses (raw, non-blocking),
     ``device`` the other end, which plays the slave."""
     device, line = os.openpty()
     tty.setraw(line)
@@ -82,7 +82,7 @@ def run(
     send_at: float = 0.0,
     first_wake: float = 0.002,
 ) -> xfer.XferResult:
-    ex = exchangers.exchanger(backend)
+    ex = xfer_runners.xfer_runner(backend)
     return ex.run(plan(line, False, REQUEST, send_at, CHAR, first_wake, timeout, expect, 5))  # type: ignore[no-any-return]
 
 
@@ -109,7 +109,7 @@ def test_a_real_line_is_drained_and_timed(backend: ModuleType, pty: tuple[int, i
     t = play(device, [(0.002, answer)], got)
     slow = 10 / 1200  # 1200 baud: 8 characters take 66.7 ms
     slow_plan = plan(line, True, REQUEST, 0.0, slow, 0.0, 0.5, len(answer), 5)
-    r = exchangers.exchanger(backend).run(slow_plan)
+    r = xfer_runners.xfer_runner(backend).run(slow_plan)
     t.join(2)
     assert r.status == xfer.ANSWER and r.data == answer and got == [REQUEST]
     assert r.end >= r.start + len(REQUEST) * slow - 1e-6
@@ -140,8 +140,8 @@ def test_the_send_time_is_kept(backend: ModuleType, pty: tuple[int, int]) -> Non
     assert r.status == xfer.ANSWER and r.start >= at
 
 
-@pytest.mark.wall_clock  # bounded by half the exchange's deadline
-def test_an_exception_answer_ends_the_exchange(backend: ModuleType, pty: tuple[int, int]) -> None:
+@pytest.mark.wall_clock  # bounded by half the xfer's deadline
+def test_an_exception_answer_ends_the_xfer(backend: ModuleType, pty: tuple[int, int]) -> None:
     device, line = pty
     exc = backend.add_crc(bytes((7, 0x83, 2)))
     got: list[bytes] = []
@@ -152,7 +152,7 @@ def test_an_exception_answer_ends_the_exchange(backend: ModuleType, pty: tuple[i
     assert r.last_t - r.end < 2.5  # not the 5 s deadline
 
 
-@pytest.mark.wall_clock  # bounded by half the exchange's deadline
+@pytest.mark.wall_clock  # bounded by half the xfer's deadline
 def test_no_answer_ends_at_the_deadline(backend: ModuleType, pty: tuple[int, int]) -> None:
     device, line = pty
     got: list[bytes] = []
@@ -244,17 +244,19 @@ def test_bad_arguments_are_refused_alike(
     }
     args.update(change)
     with pytest.raises(ValueError, match=message):
-        exchangers.exchanger(backend).run(plan(**args))  # type: ignore[arg-type]
+        xfer_runners.xfer_runner(backend).run(plan(**args))  # type: ignore[arg-type]
 
 
-def test_the_async_exchanger_runs_on_its_thread(backend: ModuleType, pty: tuple[int, int]) -> None:
-    """`AsyncExchanger`: submit returns at once, the pipe wakes the caller when the
-    exchange is over, the report is `Exchanger`'s; one exchange at a time."""
+def test_the_async_xfer_runner_runs_on_its_thread(
+    backend: ModuleType, pty: tuple[int, int]
+) -> None:
+    """`AsyncXferRunner`: submit returns at once, the pipe wakes the caller when the
+    xfer is over, the report is `XferRunner`'s; one xfer at a time."""
     import select
 
     device, line = pty
     answer = answer_of(10, backend)
-    ax = exchangers.async_exchanger(backend)
+    ax = xfer_runners.async_xfer_runner(backend)
     try:
         for _ in range(2):
             got: list[bytes] = []
@@ -267,7 +269,7 @@ def test_the_async_exchanger_runs_on_its_thread(backend: ModuleType, pty: tuple[
             t.join(2)
             assert r is not None and r.status == xfer.ANSWER and r.data == answer
             assert got == [REQUEST]
-            assert ax.result() == r  # the last exchange's report, until the next
+            assert ax.result() == r  # the last xfer's report, until the next
     finally:
         ax.close()
     with pytest.raises(ValueError, match="closed"):
@@ -282,7 +284,7 @@ def test_a_response_goes_at_its_time(backend: ModuleType, pty: tuple[int, int]) 
     os.write(device, b"\x09")  # input waiting on the line: sent all the same
     answer = answer_of(2, backend)
     at = time.monotonic() + 0.01
-    r = exchangers.exchanger(backend).run(plan(line, False, answer, at, CHAR, look=False))
+    r = xfer_runners.xfer_runner(backend).run(plan(line, False, answer, at, CHAR, look=False))
     assert r.status == xfer.ANSWER and r.sent and r.start >= at and r.data == b""
     assert os.read(device, 64) == answer
 
@@ -296,7 +298,7 @@ def test_a_response_with_spin_is_written_at_its_time(
     median within a quarter character at 115200 baud of it."""
     device, line = pty
     answer = answer_of(2, backend)
-    ex = exchangers.exchanger(backend)
+    ex = xfer_runners.xfer_runner(backend)
     late = []
     for _ in range(15):
         at = time.monotonic() + 0.003
@@ -307,15 +309,15 @@ def test_a_response_with_spin_is_written_at_its_time(
     assert sorted(late)[len(late) // 2] < CHAR / 4
 
 
-@pytest.mark.wall_clock  # bounded by half the exchange's deadline
-def test_cancel_ends_an_exchange(backend: ModuleType, pty: tuple[int, int]) -> None:
-    """`AsyncExchanger.cancel`: before the send time nothing is written; while an
+@pytest.mark.wall_clock  # bounded by half the xfer's deadline
+def test_cancel_ends_an_xfer(backend: ModuleType, pty: tuple[int, int]) -> None:
+    """`AsyncXferRunner.cancel`: before the send time nothing is written; while an
     answer is awaited the wait ends at once; either way the report comes."""
     import select
 
     device, line = pty
     os.set_blocking(device, False)
-    ax = exchangers.async_exchanger(backend)
+    ax = xfer_runners.async_xfer_runner(backend)
     try:
         ax.submit(plan(line, False, REQUEST, time.monotonic() + 5.0, CHAR, 0.0, 0.5, 25, 5))
         time.sleep(0.02)

@@ -29,9 +29,9 @@ from pyrtu.devices import CFW701Simulator, CV100Simulator
 from pyrtu.drivers.aio import AsyncMaster
 from pyrtu.drivers.aio import run as aio_run
 from pyrtu.gateway import Gateway
-from pyrtu.gateway.server import TcpServer
 from pyrtu.poller import Bus, Poller, PortState, SlaveState, Update, make_config, profile_points
 from pyrtu.poller.events import Event
+from pyrtu.tcp.server import TcpServer
 
 vbus = pytest.importorskip("pyrtu.vbus")
 VirtualBus = vbus.VirtualBus

@@ -16,7 +16,6 @@ from waiting import wait_for
 
 from pyrtu.cli._simulate_tcp import tcp_only_slave
 from pyrtu.devices import CFW701Simulator, CV100Simulator
-from pyrtu.gateway.server import TcpServer
 from pyrtu.pdu.errors import PortError
 from pyrtu.poller import (
     Bus,
@@ -29,6 +28,7 @@ from pyrtu.poller import (
     profile_points,
 )
 from pyrtu.poller.events import Event
+from pyrtu.tcp.server import TcpServer
 
 vbus = pytest.importorskip("pyrtu.vbus")
 VirtualBus = vbus.VirtualBus

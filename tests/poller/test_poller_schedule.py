@@ -18,7 +18,7 @@ from pyrtu.poller import (
     Overload,
     Point,
     PointDropped,
-    Request,
+    ScheduledRequest,
     SlaveState,
     Update,
     Wire,
@@ -48,11 +48,11 @@ class FakeBus:
         self.now = 0.0
         self.regs = registers or {}
         self.dead: set[int] = set()
-        self.done: list[tuple[Request, float, float, str]] = []
+        self.done: list[tuple[ScheduledRequest, float, float, str]] = []
         self.events: list[Event] = []
         self.quiet_since = -1.0
 
-    def answer(self, req: Request) -> tuple[Outcome, float]:
+    def answer(self, req: ScheduledRequest) -> tuple[Outcome, float]:
         if req.slave in self.dead:
             return NoResponseError("no answer", req.slave, req.function), TIMEOUT
         cost = WIRE.read(req.table, req.count)
@@ -150,7 +150,7 @@ def test_a_write_submitted_mid_run_goes_next() -> None:
     points = [pt(a * 20, interval=0.001) for a in range(10)]  # overloaded: always a poll due
     sched = BusScheduler("b", points, WIRE)
     bus = FakeBus(sched)
-    submitted: list[Request] = []
+    submitted: list[ScheduledRequest] = []
 
     def hook(now: float) -> None:
         if now > 0.5 and not submitted:
@@ -538,11 +538,11 @@ def _silent_bus(offline_after: int = 2, **kw: object) -> BusScheduler:
                         timeout=TIMEOUT, **kw)  # fmt: skip
 
 
-def _fail(sched: BusScheduler, req: Request, at: float) -> list[Event]:
+def _fail(sched: BusScheduler, req: ScheduledRequest, at: float) -> list[Event]:
     return sched.on_failure(req, NoResponseError("no answer", req.slave, 3), at)
 
 
-def _next_for(sched: BusScheduler, slave: int, t: float) -> tuple[Request, float]:
+def _next_for(sched: BusScheduler, slave: int, t: float) -> tuple[ScheduledRequest, float]:
     """The requests from ``t`` on, every other slave's answered 3 ms later, until one
     for ``slave``: that request and its time."""
     r = sched.next_request(t)
@@ -755,7 +755,7 @@ def test_the_poller_arms_the_silence_timer_on_the_virtual_bus() -> None:
             second: list[SlaveState] = []  # events of the second failure
             real = sched.on_failure
 
-            def failed(req: Request, error: BaseException, now: float) -> list[Event]:
+            def failed(req: ScheduledRequest, error: BaseException, now: float) -> list[Event]:
                 if req.slave == 7:
                     failures.append(now)
                 events = real(req, error, now)
@@ -805,7 +805,7 @@ class GatewayBus(FakeBus):
 
     code = 11
 
-    def answer(self, req: Request) -> tuple[Outcome, float]:
+    def answer(self, req: ScheduledRequest) -> tuple[Outcome, float]:
         if req.slave in self.dead:
             return ExceptionResponseError(req.slave, req.function, self.code), TIMEOUT
         return super().answer(req)

@@ -12,8 +12,8 @@ import pytest
 from pyrtu.core.line import LineConfig
 from pyrtu.pdu.errors import ExceptionResponseError, NoResponseError
 from pyrtu.pdu.requests import read_holding_registers, write_register
-from pyrtu.protocol.client import ClientProtocol, Done, Send, State, Wait
-from pyrtu.protocol.client_actions import Exchange
+from pyrtu.protocol.client import ClientProtocol, ClientState, Done, Send, Wait
+from pyrtu.protocol.client_actions import Xfer
 
 LINE = LineConfig(baudrate=9600, parity="N")
 CHAR, T35 = LINE.char_time, LINE.t35_time
@@ -61,7 +61,7 @@ def test_a_transaction_as_actions(backend: ModuleType) -> None:
     p.wait_done(ans[-1:], t + CHAR)
     done = p.next_action(t + CHAR)
     assert done == Done(VALUES, None, pytest.approx(t + CHAR))
-    assert done.result() == VALUES and p.state is State.IDLE
+    assert done.result() == VALUES and p.state is ClientState.IDLE
     with pytest.raises(RuntimeError, match="no transaction"):
         p.next_action(t + CHAR)
 
@@ -116,24 +116,24 @@ def test_an_echo_is_slept_on_then_the_answer(backend: ModuleType) -> None:
     wake = p.next_action(end)
     assert type(wake) is Wait and not wake.listen and wake.until > end
     p.wait_done(bytes(backend.add_crc(bytes.fromhex("01030000000a"))), wake.until)
-    assert p.counters["echo_mismatches"] == 0 and p.state is State.ANSWER
+    assert p.counters["echo_mismatches"] == 0 and p.state is ClientState.ANSWER
 
 
-def test_a_repeated_request_is_offered_as_one_exchange(backend: ModuleType) -> None:
-    """A driver that asks gets an `Exchange` for a request whose answer it has seen:
+def test_a_repeated_request_is_offered_as_one_xfer(backend: ModuleType) -> None:
+    """A driver that asks gets an `Xfer` for a request whose answer it has seen:
     the protocol's own times (t3.5 after the answer, the first read at the learned
     answer's end on this slow line), its length and the exception's; reported
     through the usual inputs, the transaction ends as the steps would end it."""
     p = started(backend)
-    assert type(p.next_action(100.0, exchange=True)) is Wait  # no answer length learned yet
+    assert type(p.next_action(100.0, xfer=True)) is Wait  # no answer length learned yet
     end = send(p, 100.0)
     ans = answer(backend)
     t = end + T35 + len(ans) * CHAR
     p.wait_done(ans, t)
     assert p.next_action(t).result() == VALUES
     p.start(*read_holding_registers(1, 0, 10), now=t)
-    plan = p.next_action(t, exchange=True)
-    assert type(plan) is Exchange
+    plan = p.next_action(t, xfer=True)
+    assert type(plan) is Xfer
     assert plan.data == p.encode(1, read_holding_registers(1, 0, 10).pdu)
     assert plan.send_at == pytest.approx(t + T35)  # t3.5 after the answer's last byte
     turn = p.turnaround(1) or 0.0
@@ -141,8 +141,8 @@ def test_a_repeated_request_is_offered_as_one_exchange(backend: ModuleType) -> N
     assert (plan.timeout, plan.expect, plan.short_len) == (0.5, len(ans), 5)
     # stale input at the send time: nothing sent, the silence starts again
     p.wait_done(b"\x00\x01", plan.send_at)
-    again = p.next_action(plan.send_at, exchange=True)
-    assert type(again) is Exchange
+    again = p.next_action(plan.send_at, xfer=True)
+    assert type(again) is Xfer
     assert again.send_at == pytest.approx(plan.send_at + T35)
     assert p.counters["discarded_stale"] == 2
     # sent at that time, the answer in two reads
@@ -153,12 +153,12 @@ def test_a_repeated_request_is_offered_as_one_exchange(backend: ModuleType) -> N
     first = stop + again.first_wake
     p.receive_data(ans[:-1], first)
     p.receive_data(ans[-1:], first + CHAR)
-    done = p.next_action(first + CHAR, exchange=True)
+    done = p.next_action(first + CHAR, xfer=True)
     assert type(done) is Done and done.result() == VALUES
     assert done.end == pytest.approx(first + CHAR, abs=1e-6)
 
 
-def test_an_exchange_reads_a_character_early_on_a_fast_line(backend: ModuleType) -> None:
+def test_an_xfer_reads_a_character_early_on_a_fast_line(backend: ModuleType) -> None:
     """Above 19200 baud a timed wake-up is typically a character late: the first read
     is planned a character before the learned answer's end (at it on a slow line)."""
     fast = LineConfig(baudrate=115200, parity="N")
@@ -169,14 +169,14 @@ def test_an_exchange_reads_a_character_early_on_a_fast_line(backend: ModuleType)
     p.wait_done(ans, t)
     assert p.next_action(t).result() == VALUES
     p.start(*read_holding_registers(1, 0, 10), now=t)
-    plan = p.next_action(t, exchange=True)
-    assert type(plan) is Exchange
+    plan = p.next_action(t, xfer=True)
+    assert type(plan) is Xfer
     turn = p.turnaround(1) or 0.0
     want = fast.t35_time + turn + (len(ans) - 1) * fast.char_time
     assert plan.first_wake == pytest.approx(want)
 
 
-def test_no_exchange_where_it_does_not_apply(backend: ModuleType) -> None:
+def test_no_xfer_where_it_does_not_apply(backend: ModuleType) -> None:
     """ASCII, an echo, strict framing, a line without timing, a broadcast: the steps."""
     for line, kw in (
         (LINE.replace(mode="ascii"), {}),
@@ -187,8 +187,8 @@ def test_no_exchange_where_it_does_not_apply(backend: ModuleType) -> None:
         p = ClientProtocol(line, timeout=0.5, backend=backend, **kw)  # type: ignore[arg-type]
         p._sizes[p.encode(1, read_holding_registers(1, 0, 10).pdu)] = 25
         p.start(*read_holding_registers(1, 0, 10), now=100.0)
-        assert type(p.next_action(100.0, exchange=True)) is not Exchange, line
+        assert type(p.next_action(100.0, xfer=True)) is not Xfer, line
     p = ClientProtocol(LINE, timeout=0.5, backend=backend)
     call = write_register(0, 1, 7)
     p.start(*call, now=100.0)  # a broadcast: no answer awaited
-    assert type(p.next_action(100.0, exchange=True)) is not Exchange
+    assert type(p.next_action(100.0, xfer=True)) is not Xfer

@@ -9,7 +9,7 @@ from types import ModuleType
 from pyrtu.core.ascii import AsciiCore, encode_ascii
 from pyrtu.core.line import LineConfig
 from pyrtu.pdu.requests import read_holding_registers
-from pyrtu.protocol.client import ClientProtocol, State
+from pyrtu.protocol.client import ClientProtocol, ClientState
 
 ASCII = LineConfig(mode="ascii", parity="N")
 
@@ -41,8 +41,8 @@ def test_ascii_retry_does_not_see_the_partial_answer_of_the_failed_attempt(
     answer = encode_ascii(bytes.fromhex("01030400070008"))
     p.receive_data(answer[:9], 1.1)  # the slave stops mid-frame
     p.handle_timer(1.52)  # the attempt's limit, before the 1 s inter-character limit
-    assert p.state is not State.DONE  # retried
-    while p.state is not State.SEND:
+    assert p.state is not ClientState.DONE  # retried
+    while p.state is not ClientState.SEND:
         p.handle_timer(p.deadline() or 1.6)
     p.wait_done(b"", 1.6)
     p.transmitted(1.61, 1.6)

@@ -17,7 +17,7 @@ from pyrtu.core.ascii import encode_ascii
 from pyrtu.core.line import LineConfig
 from pyrtu.pdu.errors import BusFault, ExceptionResponseError, FrameError, NoResponseError
 from pyrtu.pdu.requests import read_holding_registers, write_register
-from pyrtu.protocol.client import ClientProtocol, State
+from pyrtu.protocol.client import ClientProtocol, ClientState
 from pyrtu.protocol.client_timing import WAKE_STEP
 
 LINE = LineConfig(baudrate=9600, parity="N")  # char 1042 us, t3.5 3646 us
@@ -37,12 +37,12 @@ def regs(backend: ModuleType, slave: int, values: list[int]) -> bytes:
 
 def send(p: ClientProtocol, now: float) -> tuple[bytes, float]:
     """Run QUIET -> SEND at ``now`` (or at the protocol's send time); transmit."""
-    if p.state is State.QUIET:
+    if p.state is ClientState.QUIET:
         at = p.deadline()
         assert at is not None
         now = max(now, at)
         p.handle_timer(now)
-    assert p.state is State.SEND
+    assert p.state is ClientState.SEND
     adu = p.data_to_send()
     end = now + len(adu) * CHAR
     p.transmitted(end, now)
@@ -63,23 +63,23 @@ def test_normal_transaction_and_needed_at_every_byte(backend: ModuleType) -> Non
     p = proto(backend)
     call = read_holding_registers(1, 0, 10)
     p.start(*call, now=100.0)
-    assert p.state is State.SEND and p.needed() == 0
+    assert p.state is ClientState.SEND and p.needed() == 0
     adu, end = send(p, 100.0)
     assert adu == backend.add_crc(bytes.fromhex("01030000000a"))
-    assert p.state is State.ANSWER and p.deadline() == pytest.approx(end + 0.5)
+    assert p.state is ClientState.ANSWER and p.deadline() == pytest.approx(end + 0.5)
     assert p.needed() == 5  # the answer is at least an exception response's 5 bytes
     answer = regs(backend, 1, list(range(10)))
     seen, t = feed_bytes(p, answer, end + T35)
     # 1 byte: the awaited slave, 4 more; 2: function 3, the byte count decides;
     # 3 bytes: the count is in: 25 - 3, then down one by one.
     assert seen == [4, 3, *range(22, 0, -1), 0]
-    assert p.state is State.DONE and p.result() == list(range(10))
+    assert p.state is ClientState.DONE and p.result() == list(range(10))
     assert p.answer_end == pytest.approx(t)
     c = p.counters
     assert c["requests"] == c["responses"] == 1 and c["discarded_bytes"] == 0
     # the next request keeps t3.5 after the answer's last byte
     p.start(*call, now=t)
-    assert p.state is State.QUIET and p.deadline() == pytest.approx(t + T35)
+    assert p.state is ClientState.QUIET and p.deadline() == pytest.approx(t + T35)
 
 
 def test_answer_split_at_every_byte_boundary(backend: ModuleType) -> None:
@@ -89,7 +89,7 @@ def test_answer_split_at_every_byte_boundary(backend: ModuleType) -> None:
         p.start(*read_holding_registers(1, 0, 3), now=10.0)
         _adu, end = send(p, 10.0)
         p.receive_data(answer[:k], end + 0.01)
-        assert p.state is State.ANSWER
+        assert p.state is ClientState.ANSWER
         assert 1 <= p.needed() <= len(answer) - k
         p.receive_data(answer[k:], end + 0.02)
         assert p.result() == [7, 8, 9]
@@ -113,7 +113,7 @@ def test_timeout(backend: ModuleType) -> None:
     p.start(*read_holding_registers(1, 0, 2), now=1.0)
     _adu, end = send(p, 1.0)
     p.handle_timer(end + 0.1)
-    assert p.state is State.ANSWER
+    assert p.state is ClientState.ANSWER
     assert p.deadline() == pytest.approx(end + 0.2)
     p.handle_timer(end + 0.2)
     with pytest.raises(NoResponseError, match=r"no response within 0\.2 s"):
@@ -129,7 +129,7 @@ def test_retry_after_timeout(backend: ModuleType) -> None:
     p.start(*read_holding_registers(1, 0, 1), now=1.0)
     first, end = send(p, 1.0)
     p.handle_timer(end + 0.2)
-    assert p.state is State.QUIET and p.counters["retries"] == 1
+    assert p.state is ClientState.QUIET and p.counters["retries"] == 1
     second, end2 = send(p, end + 0.2)
     assert second == first and end2 >= end + 0.2 + p.settle
     p.receive_data(regs(backend, 1, [42]), end2 + 0.01)
@@ -161,12 +161,12 @@ def test_late_answer_is_stale_or_unexpected(backend: ModuleType) -> None:
     late = regs(backend, 1, [1, 2])
     p.start(*read_holding_registers(1, 0, 3), now=end + 0.11)
     p.receive_data(late, end + 0.115)
-    assert p.state is State.QUIET and p.counters["discarded_stale"] == len(late)
+    assert p.state is ClientState.QUIET and p.counters["discarded_stale"] == len(late)
     assert p.deadline() == pytest.approx(end + 0.115 + p.settle)  # restarts the silence
     _adu, end2 = send(p, end + 0.115)
     # another late answer after the request: a valid frame that is not the answer
     p.receive_data(late, end2 + 0.01)
-    assert p.state is State.ANSWER and p.counters["discarded_unexpected"] == len(late)
+    assert p.state is ClientState.ANSWER and p.counters["discarded_unexpected"] == len(late)
     assert p.deadline() == pytest.approx(end2 + 0.01 + p.settle)  # settling, not timeout
     p.receive_data(regs(backend, 1, [4, 5, 6]), end2 + 0.02)
     assert p.result() == [4, 5, 6]
@@ -198,7 +198,7 @@ def test_garbage_before_the_answer(backend: ModuleType) -> None:
     garbage = b"\x00\xff"
     p.receive_data(garbage + regs(backend, 1, [3, 4]), end + 0.01)
     # no length fits the head: the silence after the burst delimits it
-    assert p.state is State.ANSWER and p.needed() == 0
+    assert p.state is ClientState.ANSWER and p.needed() == 0
     assert p.deadline() == pytest.approx(end + 0.01 + T35)
     p.handle_timer(end + 0.01 + T35)
     assert p.result() == [3, 4]
@@ -212,7 +212,7 @@ def test_corrupted_answer(backend: ModuleType) -> None:
     bad = bytearray(regs(backend, 1, [3, 4]))
     bad[4] ^= 1
     p.receive_data(bytes(bad), end + 0.01)
-    while p.state is State.ANSWER:
+    while p.state is ClientState.ANSWER:
         at = p.deadline()
         assert at is not None
         p.handle_timer(at)
@@ -255,7 +255,7 @@ def test_broadcast(backend: ModuleType) -> None:
     p.start(*write_register(0, 5, 6), now=1.0)
     adu, end = send(p, 1.0)
     assert adu == backend.add_crc(bytes.fromhex("000600050006"))
-    assert p.state is State.DONE and p.result() is None
+    assert p.state is ClientState.DONE and p.result() is None
     assert p.counters["broadcasts"] == 1 and p.counters["responses"] == 0
     p.start(*read_holding_registers(1, 0, 1), now=end)
     assert p.deadline() == pytest.approx(end + 0.1)  # the turnaround delay
@@ -265,7 +265,7 @@ def test_broadcast_with_echo(backend: ModuleType) -> None:
     p = proto(backend, echo=True)
     p.start(*write_register(0, 5, 6), now=1.0)
     adu, end = send(p, 1.0)
-    assert p.state is State.ANSWER and p.needed() == len(adu)
+    assert p.state is ClientState.ANSWER and p.needed() == len(adu)
     p.receive_data(adu, end)
     assert p.result() is None
 
@@ -279,7 +279,7 @@ def test_ascii(backend: ModuleType) -> None:
     assert adu == encode_ascii(bytes.fromhex("010300000002"))
     answer = encode_ascii(bytes.fromhex("01030400070008"))
     p.receive_data(b"junk" + answer[:5], end + 0.01)
-    assert p.state is State.ANSWER
+    assert p.state is ClientState.ANSWER
     p.receive_data(answer[5:], end + 0.02)
     assert p.result() == [7, 8]
     p.start(*read_holding_registers(1, 0, 2), now=end + 0.02)
@@ -294,7 +294,7 @@ def test_abort_makes_the_next_transaction_wait(backend: ModuleType) -> None:
     p.start(*read_holding_registers(1, 0, 1), now=1.0)
     _adu, end = send(p, 1.0)
     p.abort(end + 0.05)
-    assert p.state is State.IDLE
+    assert p.state is ClientState.IDLE
     p.start(*read_holding_registers(1, 0, 1), now=end + 0.05)
     assert p.deadline() == pytest.approx(end + 0.05 + p.settle)
 
@@ -312,7 +312,7 @@ def test_misuse_is_refused(backend: ModuleType) -> None:
     q = proto(backend, line=LineConfig(max_adu=64))
     with pytest.raises(ValueError, match="max_adu"):
         q.start(1, big, None, 1.0)
-    assert q.state is State.IDLE and q.counters["requests"] == 0
+    assert q.state is ClientState.IDLE and q.counters["requests"] == 0
 
 
 def test_ready_at_learns_the_slaves_turnaround(backend: ModuleType) -> None:
@@ -386,7 +386,7 @@ def test_a_repeated_request_is_read_in_one_wake_up(backend: ModuleType) -> None:
         assert p.needed() == 5  # before any byte: the shortest answer (an exception)
         arrive = end + t35
         p.receive_data(reply, arrive + len(reply) * char)
-        assert p.state is State.DONE
+        assert p.state is ClientState.DONE
         return end, first_sleep
 
     end, first = transact(call, answer, 10.0)
@@ -490,7 +490,7 @@ def test_a_whole_answer_in_one_read_lowers_the_turnaround_a_little_on_a_slow_lin
     backend: ModuleType,
 ) -> None:
     """Up to 19200 baud a `Wait` comes a character before the answer's end and the
-    last byte is waited for as input, while an `Exchange` reads at the predicted end:
+    last byte is waited for as input, while an `Xfer` reads at the predicted end:
     a whole answer read at once lowers the learned turnaround by `WAKE_STEP` (25 µs),
     not a quarter character, so that one slow answer does not keep every later read
     late."""

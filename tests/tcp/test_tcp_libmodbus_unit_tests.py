@@ -38,7 +38,7 @@ from peers.tools import free_tcp_port
 from pyrtu import DataStore, MbapFramer
 from pyrtu.core.line import LineConfig
 from pyrtu.drivers.slave_base import SlaveBase
-from pyrtu.gateway.server import TcpServer
+from pyrtu.tcp.server import TcpServer
 
 EXAMPLES = Path("/usr/share/doc/libmodbus-dev/examples")
 

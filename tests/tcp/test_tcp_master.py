@@ -174,8 +174,8 @@ def test_poller_over_modbus_tcp() -> None:
     """A `pyrtu.Poller` bus on tcp:// (the AsyncMaster the poller opens is the TCP one,
     whose last_answer_time stamps the values), against pyrtu's TCP server."""
     import pyrtu
-    from pyrtu.gateway.server import TcpServer
     from pyrtu.poller import Bus, Point
+    from pyrtu.tcp.server import TcpServer
 
     async def main() -> None:
         store = pyrtu.DataStore()
@@ -213,7 +213,7 @@ def pyrtu_tcp_server() -> Iterator[str]:
     """pyrtu's TcpServer for slave 4 (the pattern), in a thread's event loop."""
     import threading
 
-    from pyrtu.gateway.server import TcpServer
+    from pyrtu.tcp.server import TcpServer
 
     loop = asyncio.new_event_loop()
     thread = threading.Thread(target=loop.run_forever, daemon=True)

@@ -16,8 +16,8 @@ from typing import Any
 from mqtt_broker import Broker
 
 from pyrtu.gateway import Gateway
-from pyrtu.gateway.server import LocalBus, TcpServer
 from pyrtu.tcp import AsyncTcpClient, TcpClient, rtu_over_tcp
+from pyrtu.tcp.server import LocalBus, TcpServer
 
 READ_1 = bytes([3, 0, 0, 0, 1])  # read one holding register from address 0
 

@@ -1,4 +1,4 @@
-"""`pyrtu.gateway.server.TcpServer`: a slave's DataStore and handlers over Modbus TCP, to
+"""`pyrtu.tcp.server.TcpServer`: a slave's DataStore and handlers over Modbus TCP, to
 pymodbus's and libmodbus's TCP clients and pyrtu's; a Slave and an AsyncSlave that
 serve their serial port and TCP at once (one DataStore).  127.0.0.1 only."""
 
@@ -16,8 +16,8 @@ from peers.tools import PeerBinaries, libmodbus_script
 from pyrtu import ExceptionResponseError, Master, Slave, pdu
 from pyrtu.drivers.aio import AsyncMaster
 from pyrtu.drivers.aio_slave import AsyncSlave
-from pyrtu.gateway.server import TcpServer
 from pyrtu.tcp import AsyncTcpClient, TcpClient
+from pyrtu.tcp.server import TcpServer
 
 pytest_plugins = ["peers.fixtures"]
 

@@ -11,9 +11,9 @@ import threading
 
 from ptylink import make_store
 
-import pyrtu.gateway.server
+import pyrtu.tcp.server
 from pyrtu import Slave, encode_mbap, parse_tcp_stream
-from pyrtu.gateway.server import LocalBus, TcpServer
+from pyrtu.tcp.server import LocalBus, TcpServer
 
 
 class Silent:
@@ -33,7 +33,7 @@ def test_local_bus_answers_bytes_and_silence_without_exceptions() -> None:
 
 
 def test_the_server_reads_no_private_attribute_of_its_application() -> None:
-    assert "_guard" not in inspect.getsource(pyrtu.gateway.server)
+    assert "_guard" not in inspect.getsource(pyrtu.tcp.server)
 
 
 def test_a_sync_slave_executes_under_its_lock() -> None:

@@ -112,7 +112,7 @@ def test_capture_frames_streams_what_parse_stream_finds(
 def test_a_garbled_frame_is_one_discard_run(tmp_path: Path, backend: ModuleType) -> None:
     # The live framer resolves a garbled frame in steps (1 byte "crc", then 7
     # "truncated"); streamed captures report the run whole, as parse_stream does.
-    (_, req), (_, resp) = capsynth.exchanges(2)[:2]
+    (_, req), (_, resp) = capsynth.transactions(2)[:2]
     bad = bytes([req[0], req[1], req[2] ^ 0x80]) + req[3:]
     t = 0
     records = []

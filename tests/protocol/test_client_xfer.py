@@ -1,7 +1,7 @@
-"""`ClientProtocol.exchanged` (an `Exchange`'s report) against the steps it stands
+"""`ClientProtocol.xfer_done` (an `Xfer`'s report) against the steps it stands
 for, on both backends: for every way an answer can come in (split anywhere, whole
 in the first read, damaged, another slave's, an exception, too short or too long,
-data the decoder refuses), a protocol told with ``exchanged`` ends exactly where
+data the decoder refuses), a protocol told with ``xfer_done`` ends exactly where
 one told with ``wait_done``/``transmitted``/``receive_data`` ends: the same value
 or error, counters, times, learned turnaround and next plan.  The answers that are
 the request's whole answer take the short cut past the framer (checked here by
@@ -18,7 +18,7 @@ from pyrtu.core.line import LineConfig
 from pyrtu.pdu.errors import FrameError
 from pyrtu.pdu.requests import read_holding_registers
 from pyrtu.protocol.client import ClientProtocol, Done
-from pyrtu.protocol.client_actions import Exchange
+from pyrtu.protocol.client_actions import Xfer
 
 VALUES = list(range(10))
 LINES = [LineConfig(baudrate=9600, parity="N"), LineConfig(baudrate=115200, parity="N")]
@@ -35,9 +35,9 @@ def _refuse(pdu: bytes) -> Any:
 
 def _primed(
     backend: ModuleType, line: LineConfig, decode: Any = None
-) -> tuple[ClientProtocol, Exchange, float]:
+) -> tuple[ClientProtocol, Xfer, float]:
     """A protocol that has seen one answer (by the steps) and started the same
-    request again (with ``decode`` in place of its decoder): its `Exchange` and the
+    request again (with ``decode`` in place of its decoder): its `Xfer` and the
     time it was asked at."""
     p = ClientProtocol(line, timeout=0.5, backend=backend)
     call = read_holding_registers(1, 0, 10)
@@ -50,8 +50,8 @@ def _primed(
     p.receive_data(ans[6:], t)
     assert p.next_action(t).result() == VALUES
     p.start(call.slave, call.pdu, decode or call.decode, now=t + 0.0001)
-    plan = p.next_action(t + 0.0001, exchange=True)
-    assert type(plan) is Exchange
+    plan = p.next_action(t + 0.0001, xfer=True)
+    assert type(plan) is Xfer
     return p, plan, t
 
 
@@ -65,7 +65,7 @@ def _state(p: ClientProtocol, done: Any) -> tuple[Any, ...]:
     nxt = None
     if p.state.value == "idle":
         p.start(*read_holding_registers(1, 0, 10), now=done.end or p.last_rx)
-        nxt = p.next_action(done.end or p.last_rx, exchange=True)
+        nxt = p.next_action(done.end or p.last_rx, xfer=True)
         p.abort(p.last_rx)
     return (
         value,
@@ -100,11 +100,11 @@ def _both(
     late: float = 0.0,
     decode: Any = None,
 ) -> tuple[tuple[Any, ...], tuple[Any, ...], int]:
-    """The same exchange reported both ways: (by exchanged, by the steps, the
+    """The same xfer reported both ways: (by xfer_done, by the steps, the
     framer's feeds in the first)."""
     out = []
     feeds = 0
-    for way in ("exchanged", "steps"):
+    for way in ("xfer_done", "steps"):
         p, plan, _ = _primed(backend, line, decode)
         core = p._core
         fed = [0]
@@ -119,8 +119,8 @@ def _both(
         end = start + len(plan.data) * line.char_time
         first_t = end + plan.first_wake + late
         last_t = first_t + (len(data) - first_n) * line.char_time
-        if way == "exchanged":
-            p.exchanged(start, end, data, first_n, first_t, last_t)
+        if way == "xfer_done":
+            p.xfer_done(start, end, data, first_n, first_t, last_t)
         else:
             p.wait_done(b"", start)
             p.transmitted(end, start)
@@ -130,7 +130,7 @@ def _both(
                 p.receive_data(data[first_n:], last_t)
         done = _finish(p, last_t)
         out.append(_state(p, done))
-        if way == "exchanged":
+        if way == "xfer_done":
             feeds = fed[0]
     return out[0], out[1], feeds
 
@@ -170,7 +170,7 @@ def test_anything_else_takes_the_steps(backend: ModuleType, line: LineConfig) ->
 def _run(
     backend: ModuleType, line: LineConfig, high: float, real: float, count: int
 ) -> list[float]:
-    """``count`` repeated exchanges with a slave that answers ``real`` seconds past
+    """``count`` repeated xfers with a slave that answers ``real`` seconds past
     t3.5, the protocol having learned ``high`` (as if from one slow answer): each
     first read at the plan's time gets what has come by then; the turnaround the
     protocol has learned after each."""
@@ -185,14 +185,14 @@ def _run(
         first_t = end + plan.first_wake
         missing = 0 if first_t >= arrive else 1 + int((arrive - first_t) / line.char_time)
         n = max(len(ans) - missing, 0)
-        p.exchanged(start, end, ans, n, max(first_t, end), max(arrive, first_t))
+        p.xfer_done(start, end, ans, n, max(first_t, end), max(arrive, first_t))
         assert _finish(p, max(arrive, first_t)).result() == VALUES
         turn = p.turnaround(1)
         assert turn is not None
         turns.append(turn)
         p.start(*read_holding_registers(1, 0, 10), now=p.last_rx)
-        plan = p.next_action(p.last_rx, exchange=True)
-        assert type(plan) is Exchange
+        plan = p.next_action(p.last_rx, xfer=True)
+        assert type(plan) is Xfer
     return turns
 
 
@@ -232,7 +232,7 @@ def test_an_answer_in_two_reads_ends_the_run_of_faster_steps(backend: ModuleType
     step = line.char_time / 4
 
     def one(first_n: int) -> float:
-        """One exchange of the request started, its first read ``first_n`` bytes
+        """One xfer of the request started, its first read ``first_n`` bytes
         in; then the next one started; by how much the turnaround came down."""
         before = p.turnaround(1)
         assert before is not None
@@ -240,10 +240,10 @@ def test_an_answer_in_two_reads_ends_the_run_of_faster_steps(backend: ModuleType
         end = start + 8 * line.char_time
         first_t = end + line.t35_time + before + len(ans) * line.char_time
         last_t = first_t + (len(ans) - first_n) * line.char_time
-        p.exchanged(start, end, ans, first_n, first_t, last_t)
+        p.xfer_done(start, end, ans, first_n, first_t, last_t)
         assert _finish(p, last_t).result() == VALUES
         p.start(*read_holding_registers(1, 0, 10), now=last_t)
-        assert type(p.next_action(last_t, exchange=True)) is Exchange
+        assert type(p.next_action(last_t, xfer=True)) is Xfer
         after = p.turnaround(1)
         assert after is not None
         return before - after

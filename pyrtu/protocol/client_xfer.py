@@ -1,13 +1,13 @@
-"""A repeated request as one `Exchange`: the plan the client protocol hands out, and
+"""A repeated request as one `Xfer`: the plan the client protocol hands out, and
 the report it takes back.
 
-The exchange half of `pyrtu.protocol.ClientProtocol` (a base class, as
+The xfer half of `pyrtu.protocol.ClientProtocol` (a base class, as
 `pyrtu.protocol.client_timing.AnswerTiming` is: it reads and sets the protocol's
-state).  ``_exchange_plan`` gives a driver that asked (``next_action(now,
-exchange=True)``) the whole exchange of a repeated request on the times `send_at`
-and `ready_at` would give; ``exchanged`` takes its report.
+state).  ``_xfer_plan`` gives a driver that asked (``next_action(now,
+xfer=True)``) the whole transaction of a repeated request on the times `send_at`
+and `ready_at` would give; ``xfer_done`` takes its report.
 
-``exchanged`` is what the steps the exchange stands for would report (the look at
+``xfer_done`` is what the steps the xfer stands for would report (the look at
 the send time that found the line quiet, ``transmitted``, the first read's bytes
 and the rest with ``receive_data``), with one short cut that decides nothing new:
 bytes of exactly the learned answer length whose CRC checks and whose address and
@@ -23,25 +23,26 @@ from __future__ import annotations
 import logging
 from typing import TYPE_CHECKING, Any
 
+from pyrtu.core._deprecated import warn_renamed
 from pyrtu.pdu.errors import FrameError
-from pyrtu.protocol.client_actions import Exchange, State
+from pyrtu.protocol.client_actions import ClientState, Xfer
 from pyrtu.protocol.client_timing import AnswerTiming
 
-_QUIET, _SEND, _DONE = State.QUIET, State.SEND, State.DONE
+_QUIET, _SEND, _DONE = ClientState.QUIET, ClientState.SEND, ClientState.DONE
 _debug = logging.getLogger("pyrtu.drivers.master").isEnabledFor
 _DEBUG = logging.DEBUG
 #: functions whose answer's length follows from the request ([MB] 6.1-6.6, 6.11,
-#: 6.12, 6.16, 6.17): a learned length holds for the next answer (see `Exchange`)
+#: 6.12, 6.16, 6.17): a learned length holds for the next answer (see `Xfer`)
 _FIXED_ANSWER = frozenset((1, 2, 3, 4, 5, 6, 15, 16, 22, 23))
 #: an RTU exception answer: address, function | 0x80, code, CRC ([MB] 7)
 _EXCEPTION_ADU = 5
 
 
-class ExchangeSteps(AnswerTiming):
-    """The `Exchange` of a `ClientProtocol` (see the module docstring)."""
+class XferSteps(AnswerTiming):
+    """The `Xfer` of a `ClientProtocol` (see the module docstring)."""
 
     # the protocol's state these read and set (besides AnswerTiming's)
-    _exchange: bool
+    _can_xfer: bool
     _backend: Any
     counters: dict[str, int]
     answer_end: float | None
@@ -62,11 +63,11 @@ class ExchangeSteps(AnswerTiming):
 
         def _went(self, end: float) -> None: ...
 
-    def _exchange_plan(self) -> Exchange | None:
-        """SEND or QUIET: the whole exchange of a repeated request, on the times
+    def _xfer_plan(self) -> Xfer | None:
+        """SEND or QUIET: the whole transaction of a repeated request, on the times
         `send_at` and `ready_at` would give (None where it does not apply: ASCII, an
         echo, strict framing, a broadcast, an answer of unknown or variable length)."""
-        if not self._exchange or self.echo or self._decode is None:
+        if not self._can_xfer or self.echo or self._decode is None:
             return None
         size = self._sizes.get(self._adu, 0)
         if size < _EXCEPTION_ADU or self._fc not in _FIXED_ANSWER:
@@ -76,7 +77,7 @@ class ExchangeSteps(AnswerTiming):
         # line: see LATE_WAKE_CHAR)
         chars = size - self._early_chars
         first = self.gap + self._turn.get(self._slave, 0.0) + chars * self._char
-        return Exchange(
+        return Xfer(
             self._adu,
             min(send_at, self._give_up),
             min(first, self.timeout),
@@ -85,10 +86,10 @@ class ExchangeSteps(AnswerTiming):
             _EXCEPTION_ADU,
         )
 
-    def exchanged(
+    def xfer_done(
         self, start: float, end: float, data: bytes, first_n: int, first_t: float, last_t: float
     ) -> None:
-        """An `Exchange` sent its request from ``start`` to ``end`` and read ``data``:
+        """An `Xfer` sent its request from ``start`` to ``end`` and read ``data``:
         ``data[:first_n]`` in its first read (returned at ``first_t``), the rest by
         ``last_t``.  (Input found at the send time, so that nothing was sent, is
         reported with ``wait_done(data, now)`` instead.)"""
@@ -102,6 +103,13 @@ class ExchangeSteps(AnswerTiming):
             self.receive_data(data[:first_n], first_t)
         if len(data) > first_n:
             self.receive_data(data[first_n:], last_t)
+
+    def exchanged(
+        self, start: float, end: float, data: bytes, first_n: int, first_t: float, last_t: float
+    ) -> None:
+        """Deprecated: `xfer_done`."""
+        warn_renamed("ClientProtocol.exchanged", "ClientProtocol.xfer_done")
+        self.xfer_done(start, end, data, first_n, first_t, last_t)
 
     def _answered(
         self, start: float, end: float, data: bytes, first_n: int, first_t: float, last_t: float

@@ -1,0 +1,36 @@
+"""The xfer runners of a backend: C (pyrtu/drivers/_cxfer.py over csrc/rtu_xfer_io.c)
+for the C core, the twin (pyrtu/drivers/_pyxfer.py) for the pure-Python one; the
+contract is `pyrtu.drivers.xfer`.  Each master or slave asks once, for its own
+backend (``backend=`` of the constructors)."""
+
+from __future__ import annotations
+
+from types import ModuleType
+
+from pyrtu.drivers.xfer import AsyncXferRunner, XferRunner
+
+
+def _impl(backend: ModuleType) -> ModuleType:
+    # the C xfer needs the core's POSIX I/O (not built on Windows: POSIX_IO)
+    if getattr(backend, "BACKEND", "python") == "c" and getattr(backend, "POSIX_IO", False):
+        from pyrtu.drivers import _cxfer
+
+        return _cxfer
+    from pyrtu.drivers import _pyxfer
+
+    return _pyxfer
+
+
+def xfer_runner(backend: ModuleType) -> XferRunner:
+    """A new `XferRunner` of ``backend``'s kind (a `pyrtu.core._backend` module)."""
+    ex: XferRunner = _impl(backend).XferRunner()
+    return ex
+
+
+def async_xfer_runner(backend: ModuleType) -> AsyncXferRunner:
+    """A new `AsyncXferRunner` of ``backend``'s kind: its thread starts now."""
+    ax: AsyncXferRunner = _impl(backend).AsyncXferRunner()
+    return ax
+
+
+__all__ = ["async_xfer_runner", "xfer_runner"]

@@ -1,0 +1,173 @@
+"""A Modbus TCP server for a slave application: `pyrtu.Slave`, `pyrtu.drivers.aio.AsyncSlave`,
+the device simulators; the same DataStore and handlers as on the serial line.
+
+Messaging on TCP/IP Implementation Guide V1.0b, 3.1.3: the server answers with the
+request's transaction id, protocol id and unit id.  The unit ids served are the
+slave's addresses, plus 0xFF and 0 for its lowest address: a client addresses a
+TCP device directly with 0xFF, and "the value 0 is also accepted to communicate
+directly to a MODBUS/TCP device" (4.4.1.2; libmodbus's unit-test-client expects an
+answer to unit 0).  So on TCP, unit 0 is not a broadcast: it is executed by the
+lowest address and answered.  Any other unit id gets exception 0x0A (gateway path
+unavailable).
+
+It is the gateway's machinery (`pyrtu.gateway`) with the application in place of
+a serial bus: many connections, each read by an `MbapFramer` (a bad header closes
+that connection only), requests executed one at a time through the fair queue,
+the same limits::
+
+    store = pyrtu.DataStore()
+    store.holding_registers.add_range(0, [0] * 100)
+    server = TcpServer.for_store(1, store)       # a slave on TCP only
+    server = TcpServer(slave)                    # or a Slave/AsyncSlave that also serves serial
+    async with await server.start("127.0.0.1", 5020):
+        await asyncio.Event().wait()
+
+A `pyrtu.Slave` served on both its serial port and TCP sees one DataStore; its
+execution step runs under the slave's lock (the serial side runs in its thread).
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Callable, Iterable, Mapping
+from typing import Any, Protocol
+
+from pyrtu.core._closing import AsyncClosing
+from pyrtu.core.line import LineConfig
+from pyrtu.drivers.slave_base import SlaveBase
+from pyrtu.drivers.supervise import TaskFailure
+from pyrtu.gateway._plan import check_listen
+from pyrtu.gateway.gateway import Gateway, GatewayLimits
+from pyrtu.protocol.datastore import DataStore
+
+UNIT_SELF = 0xFF
+#: unit 0 on TCP: the device itself too ([TCP] 4.4.1.2)
+UNIT_DIRECT = 0
+
+
+def _check_address(address: object) -> None:
+    if isinstance(address, (str, bytes)) or not isinstance(address, (int, Iterable)):
+        raise TypeError(f"address must be a slave address or an iterable of them, not {address!r}")
+    items = [address] if isinstance(address, int) else list(address)
+    for a in items:
+        if isinstance(a, bool) or not isinstance(a, int):
+            raise TypeError(f"address: a slave address is an integer 1..247, not {a!r}")
+        if not 1 <= a <= 247:
+            raise ValueError(f"address: a slave address is 1..247, not {a}")
+    if not items:
+        raise ValueError("address: a slave needs at least one address")
+
+
+def _check_store(store: object) -> None:
+    if store is None or isinstance(store, DataStore):
+        return
+    if isinstance(store, Mapping):
+        for address, each in store.items():
+            if isinstance(address, bool) or not isinstance(address, int):
+                raise TypeError(f"store: the keys are slave addresses, not {address!r}")
+            if not isinstance(each, DataStore):
+                raise TypeError(f"store[{address}] must be a DataStore, not {type(each).__name__}")
+        return
+    raise TypeError(
+        f"store must be a DataStore or a mapping address -> DataStore, not {type(store).__name__}"
+    )
+
+
+class Application(Protocol):
+    """What the server asks of the slave behind it (`pyrtu.Slave` and the others)."""
+
+    addresses: frozenset[int]
+
+    def execute(self, unit: int, request: bytes) -> bytes | None:
+        """The response PDU of ``request`` for ``unit`` (0: broadcast), or None."""
+        ...
+
+
+class LocalBus:
+    """An application in place of a serial bus: `execute` is the transaction (the
+    application guards it: `SlaveBase.execute` takes the sync Slave's lock)."""
+
+    def __init__(self, app: Application) -> None:
+        self.app = app
+
+    async def request(self, slave: int, pdu: bytes) -> bytes | None:
+        """The answer PDU (an exception answer too, as bytes); None: no answer (a
+        broadcast, listen-only mode, a handler that stays silent)."""
+        response = self.app.execute(slave, pdu)
+        return None if slave == 0 else response
+
+
+class TcpServer(AsyncClosing):
+    """Serves ``app`` over Modbus TCP (see the module docstring); ``on_task``: as
+    `Gateway`'s (a background task that raised, restarted on the back-off)."""
+
+    def __init__(
+        self,
+        app: Application,
+        limits: GatewayLimits | None = None,
+        on_task: Callable[[TaskFailure], None] | None = None,
+    ) -> None:
+        if not callable(getattr(app, "execute", None)) or not getattr(app, "addresses", None):
+            raise TypeError(
+                f"app must have execute(unit, pdu) and addresses, not {type(app).__name__}"
+            )
+        self.app = app
+        units = {a: a for a in app.addresses}
+        units[UNIT_SELF] = units[UNIT_DIRECT] = min(app.addresses)
+        self._gateway = Gateway([(LocalBus(app), units)], limits, on_task=on_task)
+
+    @classmethod
+    def for_store(
+        cls,
+        address: int | Iterable[int] = 1,
+        store: DataStore | Mapping[int, DataStore] | None = None,
+        limits: GatewayLimits | None = None,
+        **options: Any,
+    ) -> TcpServer:
+        """A slave on TCP only: the standard functions over ``store`` (``options``: the
+        `pyrtu.Slave` keywords functions, identification, server_id, ...).
+        TypeError/ValueError naming ``address`` or ``store`` when they are wrong."""
+        _check_address(address)
+        _check_store(store)
+        return cls(SlaveBase(address, store, line=LineConfig(), **options), limits)
+
+    @property
+    def address(self) -> tuple[str, int] | None:
+        """The (host, port) bound, once started."""
+        return self._gateway.address
+
+    @property
+    def counters(self) -> dict[str, int]:
+        return dict(self._gateway.counters)
+
+    def stats(self) -> dict[str, object]:
+        """The gateway's `Gateway.stats`: counters, open connections (on the loop)."""
+        return self._gateway.stats()
+
+    def health(self) -> list[str]:
+        """What keeps the server from serving (empty: it listens, its tasks run)."""
+        return self._gateway.health()
+
+    async def start(self, host: str = "127.0.0.1", port: int = 502) -> TcpServer:
+        """Listen on host:port (0: any free port, see ``address``).  RuntimeError if
+        it already listens (close it first); TypeError/ValueError naming ``host`` or
+        ``port`` before anything is bound."""
+        await self._gateway.start(*check_listen(host, port))
+        return self
+
+    async def serve_forever(self, host: str = "127.0.0.1", port: int = 502) -> None:
+        check_listen(host, port)
+        await self.start(host, port)
+        try:
+            await asyncio.Event().wait()
+        finally:
+            await self.close()
+
+    async def close(self) -> None:
+        await self._gateway.close()
+
+    def __repr__(self) -> str:
+        return f"TcpServer({self.app!r}, address={self.address})"
+
+
+__all__ = ["UNIT_DIRECT", "UNIT_SELF", "Application", "LocalBus", "TcpServer"]
