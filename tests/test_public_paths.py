@@ -93,7 +93,7 @@ DEPRECATED_FACES: dict[str, dict[str, str]] = {
         },
         **{
             n: f"pyrtu.pdu.errors.{n}"
-            for n in ("NO_DEVICE_ANSWERED", "PortBusyError", "exception_name")
+            for n in ("NO_DEVICE_ANSWERED", "PortBusyError", "PureBackendWarning", "exception_name")
         },
     },
 }  # fmt: skip
@@ -180,7 +180,7 @@ def test_a_deprecated_face_still_serves_import_star_with_warnings() -> None:
         "print(PortBusyError.__module__, len(old))\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.split() == ["pyrtu.pdu.errors", "11"]
+    assert out.stdout.split() == ["pyrtu.pdu.errors", "12"]
 
 
 @pytest.mark.parametrize(
