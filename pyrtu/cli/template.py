@@ -90,6 +90,36 @@ def identify_device(
     return None, why, objects
 
 
+def register_notes(
+    ref: str, address: int, registers: list[int], table: str | None = None
+) -> dict[int, str]:
+    """Registers read from ``address`` on in the terms of template ``ref``: its
+    ``describe`` hook's (a drive's manual), else the name and value of each of its
+    points the registers hold whole (``table``: holding or input; None: either)."""
+    from pyrtu.devices.registry import find_template
+
+    template = find_template(ref)
+    describe = template.hook("describe")
+    notes: dict[int, str] = {}
+    if describe is not None:
+        for i, value in enumerate(registers):
+            note = describe(address + i, value)
+            if note:
+                notes[address + i] = note
+        return notes
+    points, hints = points_of(template)
+    for p in points:
+        if p.bits or (table is not None and p.table != table):
+            continue
+        if p.address < address or p.end > address + len(registers):
+            continue
+        value = p.decode(registers, address)
+        unit = hints.get(p.name, {}).get("unit") or getattr(p, "unit", None)
+        text = f"{p.name} = {value}" + (f" {unit}" if unit else "")
+        notes[p.address] = f"{notes[p.address]}; {text}" if p.address in notes else text
+    return notes
+
+
 def _summary(template: Template) -> dict[str, Any]:
     doc: dict[str, Any] = {
         "name": template.name,
