@@ -58,21 +58,25 @@ def points_of(template: Template) -> tuple[list[Point], dict[str, dict[str, Any]
 
 
 def identify_device(
-    master: Master, slave: int, templates: list[Template]
+    master: Master,
+    slave: int,
+    templates: list[Template],
+    objects: dict[int, str] | None = None,
 ) -> tuple[Template | None, str, dict[int, str]]:
     """Which of ``templates`` the device at ``slave`` is: (template, how, FC 43
-    objects).  First its FC 43 basic identification against each template's
-    ``identify``; then each template's ``probe`` register.  ``how``: "identity",
-    "probe", or why nothing matched."""
+    objects).  First its FC 43 basic identification (``objects`` when already read)
+    against each template's ``identify``; then each template's ``probe`` register.
+    ``how``: "identity", "probe", or why nothing matched."""
     from pyrtu.pdu.errors import ModbusError
 
-    objects: dict[int, str] = {}
     why = "no template matches"
-    try:
-        raw = master.read_device_identification(slave)
-        objects = {k: v.decode("ascii", "replace") for k, v in raw.items()}
-    except ModbusError as exc:
-        why = f"no FC 43 identification ({exc}); no probe matches"
+    if objects is None:
+        try:
+            raw = master.read_device_identification(slave)
+            objects = {k: v.decode("ascii", "replace") for k, v in raw.items()}
+        except ModbusError as exc:
+            objects = {}
+            why = f"no template matches (no FC 43 identification: {exc})"
     for t in templates:
         if objects and t.matches_identity(objects):
             return t, "identity", objects
@@ -80,7 +84,9 @@ def identify_device(
         probe = t.probe
         if probe is None:
             continue
-        read = master.read_holding_registers if probe.table == "holding" else master.read_input_registers
+        read = (
+            master.read_holding_registers if probe.table == "holding" else master.read_input_registers
+        )
         try:
             value = read(slave, probe.address, 1)[0]
         except ModbusError:

@@ -295,6 +295,8 @@ class _Checker:
             if t["rules"] not in RULES:
                 raise self.fail("device", "rules", f"must be one of {', '.join(RULES)}, not {t['rules']!r}")
             out["rules"] = t["rules"]
+        if "identify" in out and 43 not in out.get("functions", (43,)):
+            raise self.fail("device", "identify", "needs function 43 in functions (FC 43 answers it)")
         hooks = {}
         for k in HOOK_KEYS:
             if k in t:
