@@ -408,7 +408,9 @@ def parse_bridge_config(
     default_keys = tuple(k for k in POINT_KEYS if k != "topic")
     poller = _Loader(text, source, POINT_KEYS, default_keys).load(doc)
     drives = {
-        (d.bus, d.slave): (d.template.name, d.name) for d in poller.devices if d.template is not None
+        (d.bus, d.slave): (d.template.name, d.name)
+        for d in poller.devices
+        if d.template is not None
     }
     n_profile = len(poller.points) - len(raw_points if isinstance(raw_points, list) else [])
     options: dict[str, PointOptions] = {}
@@ -420,8 +422,8 @@ def parse_bridge_config(
             raise _error(_where(text, source, "defaults", key), "defaults", str(e)) from None
         for p in poller.points:
             options[p.name] = base_opts
-    for d in poller.devices:  # a template's writable, min and max, over the defaults
-        for name, hint in d.hints.items():
+    for device in poller.devices:  # a template's writable, min and max, over the defaults
+        for name, hint in device.hints.items():
             own = {k: hint[k] for k in ("writable", "min", "max") if k in hint}
             if own:
                 try:

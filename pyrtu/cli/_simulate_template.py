@@ -66,7 +66,9 @@ def read_values(path: str | Path, points: Sequence[Point]) -> dict[str, Any]:
         try:
             encode_point_value(_writable_copy(point), value)
         except ValueError as e:
-            raise ConfigError(f"{where(key)}: {key}: {str(e).removeprefix(f'point {key!r}: ')}") from None
+            raise ConfigError(
+                f"{where(key)}: {key}: {str(e).removeprefix(f'point {key!r}: ')}"
+            ) from None
     return dict(doc)
 
 

@@ -332,7 +332,9 @@ def read_values(master: Master, args: argparse.Namespace) -> ReadResult:
     return result
 
 
-def profile_notes(device: str, address: int, registers: Sequence[int], table: str) -> dict[int, str]:
+def profile_notes(
+    device: str, address: int, registers: Sequence[int], table: str
+) -> dict[int, str]:
     """The registers in the terms of template ``device`` (`register_notes`)."""
     return register_notes(device, address, list(registers), table)
 

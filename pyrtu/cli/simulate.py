@@ -10,7 +10,8 @@ template's ``initial``, or ``--values FILE``: ``point = value`` lines), writes
 checked against ``writable``, ``min`` and ``max`` (exception 2 for a point that is
 not writable or an address no point covers, 3 for a value out of range), the
 template's identity on FC 43 (docs/TEMPLATES.md).  ``--address`` defaults to the
-template's ``address`` (the manual's examples').  Put it on a drop of ``pyrtu vbus`` (with ``--parity N``:
+template's ``address`` (the manual's examples').  Put it on a drop of ``pyrtu vbus``
+(with ``--parity N``:
 pseudo-terminals carry no parity) or on a real port.
 
 Runs until SIGINT/SIGTERM or ``--duration``, then prints the counters;
@@ -76,13 +77,18 @@ from pyrtu.cli.template import template_name
 from pyrtu.drivers._portname import first_duplicate
 from pyrtu.drivers.supervise import TaskFailure, cause
 
+
 def find_device(args: argparse.Namespace) -> Any:
     """The template DEVICE or ``--template`` names (ValueError: usage)."""
     from pyrtu.devices.registry import TemplateError, find_template
 
     if (args.device is None) == (args.template is None):
-        raise ValueError("give DEVICE (pyrtu template list) or --template FILE, not both"
-                         if args.device is not None else "give DEVICE or --template FILE")  # fmt: skip
+        both = args.device is not None
+        raise ValueError(
+            "give DEVICE (pyrtu template list) or --template FILE, not both"
+            if both
+            else "give DEVICE (pyrtu template list) or --template FILE"
+        )
     try:
         return find_template(args.device if args.device is not None else args.template)
     except TemplateError as e:
@@ -439,9 +445,9 @@ def _watch(args: argparse.Namespace, sim: Any, t: float, port: str | None = None
     text = _watch_text(sim)
     if text is not None:  # a template's points
         if args.json:
-            line = {"type": "status", "t": round(t, 3)}
-            line.update({"port": port} if port is not None else {})
-            emit({**line, "values": sim.values()})
+            head: dict[str, Any] = {"type": "status", "t": round(t, 3)}
+            head.update({"port": port} if port is not None else {})
+            emit({**head, "values": sim.values()})
         else:
             where = f"{port}  " if port is not None else ""
             print(f"{t:7.1f} s  {where}{text}", flush=True)

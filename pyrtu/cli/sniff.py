@@ -390,7 +390,9 @@ def _configure(p: argparse.ArgumentParser) -> None:
     src.add_argument("-c", "--capture", metavar="FILE", help="decode a capture file instead")
     src.add_argument("--example", action="store_true", help="decode a built-in sample capture")
     p.add_argument(
-        "--profile", type=template_name, metavar="NAME",
+        "--profile",
+        type=template_name,
+        metavar="NAME",
         help="decode for this device template (pyrtu template list)",
     )
     p.add_argument("-n", "--count", type=count, metavar="N", help="stop after N frames (1 or more)")

@@ -85,7 +85,9 @@ def identify_device(
         if probe is None:
             continue
         read = (
-            master.read_holding_registers if probe.table == "holding" else master.read_input_registers
+            master.read_holding_registers
+            if probe.table == "holding"
+            else master.read_input_registers
         )
         try:
             value = read(slave, probe.address, 1)[0]
@@ -119,10 +121,10 @@ def register_notes(
             continue
         if p.address < address or p.end > address + len(registers):
             continue
-        value = p.decode(registers, address)
+        decoded = p.decode(registers, address)
         unit = hints.get(p.name, {}).get("unit") or getattr(p, "unit", None)
-        text = f"{p.name} = {value}" + (f" {unit}" if unit else "")
-        notes[p.address] = f"{notes[p.address]}; {text}" if p.address in notes else text
+        said = f"{p.name} = {decoded}" + (f" {unit}" if unit else "")
+        notes[p.address] = f"{notes[p.address]}; {said}" if p.address in notes else said
     return notes
 
 
@@ -175,7 +177,11 @@ def _list(args: argparse.Namespace) -> int:
     width = max((len(r["name"]) for r in rows), default=4)
     for r in rows:
         where = "built-in" if r["builtin"] else r["file"]
-        what = f"error: {r['error']}" if "error" in r else f"{r['vendor']} {r['model']} ({r['points']} points)"
+        what = (
+            f"error: {r['error']}"
+            if "error" in r
+            else f"{r['vendor']} {r['model']} ({r['points']} points)"
+        )
         print(f"{r['name']:<{width}}  {what}  [{where}]")
     return EXIT_OK
 
@@ -185,7 +191,12 @@ def _show(args: argparse.Namespace) -> int:
     points, hints = points_of(template)
     rows = []
     for p in points:
-        row: dict[str, Any] = {"name": p.name, "table": p.table, "address": p.address, "type": p.type}
+        row: dict[str, Any] = {
+            "name": p.name,
+            "table": p.table,
+            "address": p.address,
+            "type": p.type,
+        }
         if p.type == "string":
             row["count"] = p.count
         if p.scale != 1 or p.offset != 0:
@@ -207,7 +218,10 @@ def _show(args: argparse.Namespace) -> int:
             doc["probe"] = vars(template.probe)
         emit({"ok": True, "template": doc})
         return EXIT_OK
-    print(f"{template.name}: {template.title}" + (f" - {template.description}" if template.description else ""))
+    print(
+        f"{template.name}: {template.title}"
+        + (f" - {template.description}" if template.description else "")
+    )
     print(f"  file: {template.path or template.source}")
     facts = {"word order": template.word_order, "address": template.address,
              "modes": ", ".join(template.modes)}  # fmt: skip
@@ -235,7 +249,9 @@ def _extras(row: Mapping[str, Any]) -> str:
     if "unit" in row:
         parts.append(str(row["unit"]))
     if row.get("writable"):
-        bounds = f" {row.get('min', '')}..{row.get('max', '')}" if "min" in row or "max" in row else ""
+        bounds = (
+            f" {row.get('min', '')}..{row.get('max', '')}" if "min" in row or "max" in row else ""
+        )
         parts.append("writable" + bounds)
     return ("  " + "  ".join(parts)) if parts else ""
 
@@ -248,7 +264,9 @@ def _check(args: argparse.Namespace) -> int:
         try:
             template = load_template(name)
             points, _ = points_of(template)
-            results.append({"file": name, "ok": True, "name": template.title, "points": len(points)})
+            results.append(
+                {"file": name, "ok": True, "name": template.title, "points": len(points)}
+            )
         except ValueError as e:
             results.append({"file": name, "ok": False, "error": str(e)})
     bad = [r for r in results if not r["ok"]]

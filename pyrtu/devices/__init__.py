@@ -34,13 +34,13 @@ from collections.abc import Mapping
 from typing import Any
 
 from . import bonfiglioli, cv100, weg
-from .registry import Template, TemplateError, entries, find_template
 from ._simbase import DriveSimulator
 from .bonfiglioli import ACT, ACU, DriveState, Vectron, VectronStatus
 from .bonfiglioli_sim import ACTSimulator, ACUSimulator, VectronSimulator
 from .cv100 import CV100, CV100Status
 from .cv100_sim import CV100Simulator
 from .motor import ManualClock, Motor, Supervision
+from .registry import Template, TemplateError, entries, find_template
 from .weg import (
     CFW100,
     CFW320,
@@ -53,6 +53,7 @@ from .weg import (
 )
 from .weg_sim import CFW100Simulator, CFW320Simulator, CFW701Simulator, WegSimulator
 
+
 def _builtin() -> list[Template]:
     return [entry.load() for entry in entries({}).values()]
 
@@ -63,7 +64,9 @@ _BUILTIN = _builtin()
 SIMULATORS: Mapping[str, type[DriveSimulator]] = {
     t.name: t.hook("simulator") for t in _BUILTIN if "simulator" in t.hooks
 }
-PROFILES: Mapping[str, type[Any]] = {t.name: t.hook("profile") for t in _BUILTIN if "profile" in t.hooks}
+PROFILES: Mapping[str, type[Any]] = {
+    t.name: t.hook("profile") for t in _BUILTIN if "profile" in t.hooks
+}
 #: the address the manual's examples use (a simulator's natural default)
 EXAMPLE_ADDRESS: Mapping[str, int] = {t.name: t.address for t in _BUILTIN}
 #: which devices speak ASCII as well as RTU
@@ -79,7 +82,9 @@ def simulator(device: str, **options: Any) -> DriveSimulator:
     except TemplateError as e:
         raise ValueError(f"unknown device {device!r}: {e}") from None
     if cls is None:
-        raise ValueError(f"device {device!r} has no drive simulator (its template has no simulator)")
+        raise ValueError(
+            f"device {device!r} has no drive simulator (its template has no simulator)"
+        )
     sim: DriveSimulator = cls(**options)
     return sim
 

@@ -188,12 +188,16 @@ class Template:
         """``vendor model`` (what a user calls the device)."""
         return f"{self.vendor} {self.model}".strip()
 
-    def fail(self, table: str, key: str | None, msg: str, index: int | None = None) -> TemplateError:
+    def fail(
+        self, table: str, key: str | None, msg: str, index: int | None = None
+    ) -> TemplateError:
         """The error of ``key`` in ``[table]`` (or the ``index``-th ``[[table]]``)."""
         line = locate(self.text, table, key, index)
         where = f"{self.source}:{line}" if line else self.source
         label = table if index is None else f"{table}[{index}]"
-        return TemplateError(f"{where}: {label}: {key}: {msg}" if key else f"{where}: {label}: {msg}")
+        return TemplateError(
+            f"{where}: {label}: {key}: {msg}" if key else f"{where}: {label}: {msg}"
+        )
 
     def identification(self) -> dict[int, bytes]:
         """The FC 43 objects the device answers with (``identify``; else its vendor
@@ -230,7 +234,9 @@ class _Checker:
         self.text = text
         self.source = source
 
-    def fail(self, table: str, key: str | None, msg: str, index: int | None = None) -> TemplateError:
+    def fail(
+        self, table: str, key: str | None, msg: str, index: int | None = None
+    ) -> TemplateError:
         blank = Template("", self.source, self.text, "", "", ())
         return blank.fail(table, key, msg, index)
 
@@ -275,7 +281,9 @@ class _Checker:
             out["interval"] = float(v)
         if "address" in t:
             if not _int(t["address"], 0, 255):
-                raise self.fail("device", "address", f"must be an integer 0..255, not {t['address']!r}")
+                raise self.fail(
+                    "device", "address", f"must be an integer 0..255, not {t['address']!r}"
+                )
             out["address"] = t["address"]
         if "identify" in t:
             out["identify"] = self.identify(t["identify"])
@@ -283,27 +291,42 @@ class _Checker:
             out["probe"] = self.probe(t["probe"])
         if "modes" in t:
             v = t["modes"]
-            if not isinstance(v, list) or not v or any(m not in MODES for m in v) or len(set(v)) != len(v):
-                raise self.fail("device", "modes", f"must be a list of {' and '.join(MODES)}, not {v!r}")
+            if (
+                not isinstance(v, list)
+                or not v
+                or any(m not in MODES for m in v)
+                or len(set(v)) != len(v)
+            ):
+                raise self.fail(
+                    "device", "modes", f"must be a list of {' and '.join(MODES)}, not {v!r}"
+                )
             out["modes"] = tuple(v)
         if "functions" in t:
             v = t["functions"]
             if not isinstance(v, list) or not v or not all(_int(f, 1, 127) for f in v):
-                raise self.fail("device", "functions", f"must be a list of function codes 1..127, not {v!r}")
+                raise self.fail(
+                    "device", "functions", f"must be a list of function codes 1..127, not {v!r}"
+                )
             out["functions"] = tuple(sorted(set(v)))
         if "rules" in t:
             if t["rules"] not in RULES:
-                raise self.fail("device", "rules", f"must be one of {', '.join(RULES)}, not {t['rules']!r}")
+                raise self.fail(
+                    "device", "rules", f"must be one of {', '.join(RULES)}, not {t['rules']!r}"
+                )
             out["rules"] = t["rules"]
         if "identify" in out and 43 not in out.get("functions", (43,)):
-            raise self.fail("device", "identify", "needs function 43 in functions (FC 43 answers it)")
+            raise self.fail(
+                "device", "identify", "needs function 43 in functions (FC 43 answers it)"
+            )
         hooks = {}
         for k in HOOK_KEYS:
             if k in t:
                 v = t[k]
                 if not isinstance(v, str) or not re.fullmatch(r"pyrtu\.devices\.\w+:\w+", v):
                     raise self.fail(
-                        "device", k, f'must be "pyrtu.devices.MODULE:NAME" (code of pyrtu), not {v!r}'
+                        "device",
+                        k,
+                        f'must be "pyrtu.devices.MODULE:NAME" (code of pyrtu), not {v!r}',
                     )
                 hooks[k] = v
         out["hooks"] = hooks
@@ -311,22 +334,30 @@ class _Checker:
 
     def identify(self, v: object) -> dict[str, str]:
         if not isinstance(v, Mapping) or not v:
-            raise self.fail("device", "identify", f"must be a table of {', '.join(IDENTIFY_OBJECTS)}, not {v!r}")
+            raise self.fail(
+                "device", "identify", f"must be a table of {', '.join(IDENTIFY_OBJECTS)}, not {v!r}"
+            )
         for k, s in v.items():
             if k not in IDENTIFY_OBJECTS:
                 raise self.fail(
                     "device", "identify", f"{k}: unknown key (known: {', '.join(IDENTIFY_OBJECTS)})"
                 )
             if not isinstance(s, str) or not s.strip() or not s.isascii() or len(s) > 200:
-                raise self.fail("device", "identify", f"{k}: must be ASCII text (1..200), not {s!r}")
+                raise self.fail(
+                    "device", "identify", f"{k}: must be ASCII text (1..200), not {s!r}"
+                )
         return dict(v)
 
     def probe(self, v: object) -> Probe:
         if not isinstance(v, Mapping):
-            raise self.fail("device", "probe", f"must be a table (table, address, value), not {v!r}")
+            raise self.fail(
+                "device", "probe", f"must be a table (table, address, value), not {v!r}"
+            )
         for k in v:
             if k not in PROBE_KEYS:
-                raise self.fail("device", "probe", f"{k}: unknown key (known: {', '.join(PROBE_KEYS)})")
+                raise self.fail(
+                    "device", "probe", f"{k}: unknown key (known: {', '.join(PROBE_KEYS)})"
+                )
         table = v.get("table", "holding")
         if table not in PROBE_TABLES:
             raise self.fail("device", "probe", f"table: must be holding or input, not {table!r}")
@@ -334,7 +365,9 @@ class _Checker:
             if k not in v:
                 raise self.fail("device", "probe", f"{k}: missing")
             if not _int(v[k], 0, 0xFFFF):
-                raise self.fail("device", "probe", f"{k}: must be an integer 0..65535, not {v[k]!r}")
+                raise self.fail(
+                    "device", "probe", f"{k}: must be an integer 0..65535, not {v[k]!r}"
+                )
         return Probe(table, v["address"], v["value"])
 
 

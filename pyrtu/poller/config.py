@@ -452,8 +452,9 @@ class _Loader:
             template = find_template(ref, self.base)
         except TemplateError as e:
             if key == "profile" and str(e).startswith("no template named"):
-                raise self.fail("device", i, label, key,
-                                f"must be one of {', '.join(names())}, not {ref!r}") from None  # fmt: skip
+                known_names = ", ".join(names())
+                msg = f"must be one of {known_names}, not {ref!r}"
+                raise self.fail("device", i, label, key, msg) from None
             raise self.fail("device", i, label, key, str(e)) from None
         name = t.get("name", f"{template.name.rsplit('/', 1)[-1]}{s}")
         if not isinstance(name, str) or not name:
@@ -549,8 +550,8 @@ def template_points(
         label = f"point[{i}]" + (f' ("{name}")' if isinstance(name, str) else "")
         for k in ("bus", "slave"):
             if k in raw:
-                raise loader.fail("point", i, label, k,
-                                  "a template's points are on the [[device]]'s bus and slave")  # fmt: skip
+                msg = "a template's points are on the [[device]]'s bus and slave"
+                raise loader.fail("point", i, label, k, msg)
         own = {k: raw[k] for k in HINT_KEYS if k in raw}
         for k, v in own.items():
             wrong = check_hint(k, v)
@@ -574,9 +575,7 @@ def template_points(
     return points, hints
 
 
-def _check_hints(
-    loader: _Loader, i: int, label: str, point: Point, own: Mapping[str, Any]
-) -> None:
+def _check_hints(loader: _Loader, i: int, label: str, point: Point, own: Mapping[str, Any]) -> None:
     """ConfigError when the template keys do not fit the point."""
     read_only = point.table not in ("holding", "coils")
     if own.get("writable") and read_only:
@@ -585,7 +584,9 @@ def _check_hints(
         if k in own and point.type in ("bool", "string"):
             raise loader.fail("point", i, label, k, f"a {point.type} point has no range")
     if "min" in own and "max" in own and own["min"] > own["max"]:
-        raise loader.fail("point", i, label, "max", f"must be at least min ({own['min']}), not {own['max']!r}")
+        raise loader.fail(
+            "point", i, label, "max", f"must be at least min ({own['min']}), not {own['max']!r}"
+        )
     if "initial" in own:
         value = own["initial"]
         try:  # what the registers would hold (as if the table were writable)
@@ -594,10 +595,14 @@ def _check_hints(
             msg = str(e).removeprefix(f"point {point.name!r}: ")
             raise loader.fail("point", i, label, "initial", msg) from None
         low, high = own.get("min"), own.get("max")
-        if isinstance(value, int | float) and not isinstance(value, bool) and (
-            (low is not None and value < low) or (high is not None and value > high)
+        if (
+            isinstance(value, int | float)
+            and not isinstance(value, bool)
+            and ((low is not None and value < low) or (high is not None and value > high))
         ):
-            raise loader.fail("point", i, label, "initial", f"{value!r} is outside min..max ({low}..{high})")
+            raise loader.fail(
+                "point", i, label, "initial", f"{value!r} is outside min..max ({low}..{high})"
+            )
 
 
 def _check_overlap(
@@ -610,7 +615,10 @@ def _check_overlap(
         if other.table != point.table or other.end <= point.address or point.end <= other.address:
             continue
         same = (other.address, other.size, other.type) == (point.address, point.size, point.type)
-        fields = getattr(point, "bit", None) is not None or getattr(point, "bits", None) not in (None, ())
+        fields = getattr(point, "bit", None) is not None or getattr(point, "bits", None) not in (
+            None,
+            (),
+        )
         if same or (fields and other.size == point.size == 1):
             continue
         raise loader.fail("point", i, label, "address",

@@ -32,7 +32,9 @@ def f32(value: float) -> list[int]:
     return list(struct.unpack(">HH", struct.pack(">f", value)))
 
 
-def run(*args: object, env: dict[str, str] | None = None, timeout: float = 60) -> subprocess.CompletedProcess[str]:
+def run(
+    *args: object, env: dict[str, str] | None = None, timeout: float = 60
+) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
         [sys.executable, "-m", "pyrtu", *map(str, args)],
         capture_output=True, text=True, timeout=timeout, env=env or peer_env(),
@@ -105,9 +107,11 @@ def test_a_dropped_in_template_is_listed_shown_and_checked(folder: dict[str, str
     shown = run("template", "show", "meters/sdm630", "--json", env=folder)
     t = json.loads(shown.stdout)["template"]
     assert t["identify"] == {"vendor": "Eastron", "product": "SDM630", "revision": "1.02"}
-    assert t["points"][0] == {"name": "voltage_l1", "table": "input", "address": 0,
-                              "type": "float32", "unit": "V", "device_class": "voltage",
-                              "state_class": "measurement", "precision": 1, "initial": 230.5}  # fmt: skip
+    assert t["points"][0] == {
+        "name": "voltage_l1", "table": "input", "address": 0, "type": "float32", "unit": "V",
+        "device_class": "voltage", "state_class": "measurement", "precision": 1,
+        "initial": 230.5,
+    }  # fmt: skip
     text = run("template", "show", "cfw701")
     assert text.returncode == 0 and "current" in text.stdout and "x0.1" in text.stdout
 
@@ -296,7 +300,7 @@ discovery = true
 
 [[bus]]
 name = "net"
-port = "tcp://{ready['tcp']}"
+port = "tcp://{ready["tcp"]}"
 timeout = 1.0
 
 [[device]]
@@ -312,8 +316,10 @@ interval = 0.05
                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=peer_env(),
             )  # fmt: skip
             STARTED.append(p)
-            sub.wait(lambda: len([m for m in sub.messages if m[0].startswith("homeassistant/")]) >= 9,
-                     "9 discovery configs")  # fmt: skip
+            sub.wait(
+                lambda: sum(m[0].startswith("homeassistant/") for m in sub.messages) >= 9,
+                "9 discovery configs",
+            )
             docs = {t: json.loads(m) for t, m, *_ in sub.messages if t.startswith("homeassistant/")}
             volts = docs["homeassistant/sensor/pyrtu_e1/net_1_meter_voltage_l1/config"]
             assert volts["unit_of_measurement"] == "V" and volts["device_class"] == "voltage"
@@ -322,7 +328,10 @@ interval = 0.05
             assert volts["device"]["manufacturer"] == "Eastron"
             assert volts["device"]["model"] == "SDM630" and volts["device"]["name"] == "meter"
             energy = docs["homeassistant/sensor/pyrtu_e1/net_1_meter_energy_total/config"]
-            assert energy["state_class"] == "total_increasing" and energy["unit_of_measurement"] == "kWh"
+            assert (
+                energy["state_class"] == "total_increasing"
+                and energy["unit_of_measurement"] == "kWh"
+            )
             period = docs["homeassistant/number/pyrtu_e1/net_1_meter_demand_period/config"]
             assert (period["min"], period["max"]) == (0, 60)
             # one Home Assistant device for the meter

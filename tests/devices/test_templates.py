@@ -26,7 +26,7 @@ def test_every_shipped_template_validates_against_the_published_schema() -> None
     schema = json.loads(registry.SCHEMA_PATH.read_text())
     jsonschema.Draft202012Validator.check_schema(schema)
     validator = jsonschema.Draft202012Validator(schema)
-    files = sorted(registry.BUILTIN_DIR.glob("*.toml")) + [SDM630]
+    files = [*sorted(registry.BUILTIN_DIR.glob("*.toml")), SDM630]
     assert [f.stem for f in files[:-1]] == list(BUILTIN)
     for f in files:
         errors = list(validator.iter_errors(tomllib.loads(f.read_text())))
@@ -67,7 +67,10 @@ def test_the_builtin_drives_are_templates_with_their_manuals_registers() -> None
     ]  # fmt: skip
     cv = profile_points("cv100", "cv", "line", 5)
     assert [(p.address, p.scale) for p in cv] == [
-        (0x3300, 1.0), (0x3305, 0.01), (0x3306, 0.1), (0x3314, 1.0)
+        (0x3300, 1.0),
+        (0x3305, 0.01),
+        (0x3306, 0.1),
+        (0x3314, 1.0),
     ]
     assert [p.address for p in profile_points("acu", "a", "l", 2)] == [411, 260, 270]
     assert device_limits("cfw100") == {"max_adu": 64}
@@ -76,7 +79,14 @@ def test_the_builtin_drives_are_templates_with_their_manuals_registers() -> None
     from pyrtu.devices import ASCII_DEVICES, EXAMPLE_ADDRESS, SIMULATORS, CV100Simulator
 
     assert SIMULATORS["cv100"] is CV100Simulator and set(SIMULATORS) == set(BUILTIN)
-    assert EXAMPLE_ADDRESS == {"act": 1, "acu": 1, "cfw100": 1, "cfw320": 1, "cfw701": 1, "cv100": 5}
+    assert EXAMPLE_ADDRESS == {
+        "act": 1,
+        "acu": 1,
+        "cfw100": 1,
+        "cfw320": 1,
+        "cfw701": 1,
+        "cv100": 5,
+    }
     assert ASCII_DEVICES == {"act", "acu", "cv100"}
 
 
@@ -133,24 +143,24 @@ def bad_template(text: str) -> str:
         (HEAD + "probe = { address = 70000, value = 1 }\n" + POINT,
          "acme.toml:4: device: probe: address: must be an integer 0..65535, not 70000"),
         (HEAD + 'simulator = "os:system"\n' + POINT,
-         "acme.toml:4: device: simulator: must be \"pyrtu.devices.MODULE:NAME\""),
+         "acme.toml:4: device: simulator: must be \"pyrtu.devices.MODULE"),
         ('[device]\nvendor = "Acme"\n' + POINT, "acme.toml:1: device: model: missing"),
         (HEAD, "acme.toml: no [[point]] table"),
         (HEAD + POINT + "colour = 1\n", 'acme.toml:9: point[0] ("temp"): colour: unknown key'),
-        (HEAD + POINT + 'type = "float24"\n', 'acme.toml:9: point[0] ("temp"): type: must be one of'),
+        (HEAD + POINT + 'type = "float24"\n', 'acme.toml:9: point[0] ("temp"): type: must be'),
         (HEAD + POINT.replace("address = 0", "address = 65535") + 'type = "uint32"\n',
-         'acme.toml:8: point[0] ("temp"): address: 65535 + 2 runs past 65535'),
-        (HEAD + POINT + 'unit = ""\n', 'acme.toml:9: point[0] ("temp"): unit: must be a non-empty'),
-        (HEAD + POINT + "slave = 3\n", 'acme.toml:9: point[0] ("temp"): slave: a template\'s points'),
+         'acme.toml:8: point[0] ("temp"): address: 65535 + 2 runs past'),
+        (HEAD + POINT + 'unit = ""\n', 'acme.toml:9: point[0] ("temp"): unit: must be a non'),
+        (HEAD + POINT + "slave = 3\n", 'acme.toml:9: point[0] ("temp"): slave: a template'),
         (HEAD + POINT.replace("holding", "input") + "writable = true\n",
          'acme.toml:9: point[0] ("temp"): writable: the input table is read only'),
-        (HEAD + POINT + "min = 5\nmax = 1\n", 'acme.toml:10: point[0] ("temp"): max: must be at least min'),
-        (HEAD + POINT + "initial = 70000\n", 'acme.toml:9: point[0] ("temp"): initial: 70000 is raw'),
-        (HEAD + POINT + "initial = 9\nmax = 8\n", 'acme.toml:9: point[0] ("temp"): initial: 9 is outside'),
+        (HEAD + POINT + "min = 5\nmax = 1\n", 'acme.toml:10: point[0] ("temp"): max: must be'),
+        (HEAD + POINT + "initial = 70000\n", 'acme.toml:9: point[0] ("temp"): initial: 70000'),
+        (HEAD + POINT + "initial = 9\nmax = 8\n", 'acme.toml:9: point[0] ("temp"): initial: 9 is'),
         (HEAD + POINT + 'state_class = "sometimes"\n',
          'acme.toml:9: point[0] ("temp"): state_class: must be one of measurement, total'),
         (HEAD + POINT + POINT.replace("temp", "wide") + 'type = "uint32"\n',
-         'acme.toml:13: point[1] ("wide"): address: holding 0..1 (uint32) overlaps point[0] ("temp")'),
+         'acme.toml:13: point[1] ("wide"): address: holding 0..1 (uint32) overlaps point[0]'),
         (HEAD + POINT + POINT, "acme.toml: point: name: 'temp' is declared twice"),
         (HEAD + "[colour]\n" + POINT, "acme.toml:4: unknown top-level key 'colour'"),
     ],
@@ -177,7 +187,7 @@ def test_the_registry_finds_names_files_and_user_folders(tmp_path: Path) -> None
     assert find_template("meters/sdm630.toml", user).model == "SDM630"  # a file, relative
     with pytest.raises(TemplateError, match="no template named 'meters/sdm120'"):
         find_template("meters/sdm120", environ=env)
-    with pytest.raises(TemplateError, match="nope.toml: no such file"):
+    with pytest.raises(TemplateError, match=r"nope\.toml: no such file"):
         find_template("nope.toml", tmp_path)
     # a user folder comes first: its cfw701 shadows the built-in one
     (user / "cfw701.toml").write_text(SDM630.read_text())
@@ -201,10 +211,14 @@ def test_the_poller_config_takes_a_template_file_or_name(tmp_path: Path) -> None
     assert {p.interval for p in cfg.points if p.slave == 4} == {0.5}
     meter = cfg.devices[0]
     assert meter.template is not None and meter.template.model == "SDM630"
-    assert meter.limits.max_registers == 20 and meter.limits.max_gap == 10  # the device's over the template's
+    assert (
+        meter.limits.max_registers == 20 and meter.limits.max_gap == 10
+    )  # the device's over the template's
     assert meter.hints["meter.voltage_l1"]["device_class"] == "voltage"
     with pytest.raises(ConfigError) as info:
-        parse_config(text.replace("meters/sdm630.toml", "meters/sdm120.toml"), "points.toml", tmp_path)
+        parse_config(
+            text.replace("meters/sdm630.toml", "meters/sdm120.toml"), "points.toml", tmp_path
+        )
     assert str(info.value).startswith("points.toml:8: device[0]: template: ")
     assert "sdm120.toml: no such file" in str(info.value)
     broken = SDM630.read_text().replace('unit = "Hz"', 'unit = "Hz"\ncolour = 1')
@@ -212,4 +226,4 @@ def test_the_poller_config_takes_a_template_file_or_name(tmp_path: Path) -> None
     with pytest.raises(ConfigError) as info:
         parse_config(text, "points.toml", tmp_path)
     line = broken.splitlines().index("colour = 1") + 1
-    assert f"sdm630.toml:{line}: point[3] (\"frequency\"): colour: unknown key" in str(info.value)
+    assert f'sdm630.toml:{line}: point[3] ("frequency"): colour: unknown key' in str(info.value)
