@@ -126,6 +126,23 @@ def identify(master: Master, slave: int) -> dict[str, str] | str:
     }
 
 
+def _identifiable() -> list[Any]:
+    """The templates of the registry with an ``identify`` or a ``probe``; a file
+    that is not a template is named in a warning and left out."""
+    from pyrtu.devices.registry import TemplateError, entries
+
+    out = []
+    for entry in entries().values():
+        try:
+            template = entry.load()
+        except TemplateError as e:
+            print(f"pyrtu scan: warning: {e} (left out of --identify)", file=sys.stderr)
+            continue
+        if template.identify or template.probe is not None:
+            out.append(template)
+    return out
+
+
 def _configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("port", metavar="PORT", help="serial device or pyserial URL")
     p.add_argument(
@@ -218,10 +235,8 @@ def _probe_entry(master: Master, slave: int, args: argparse.Namespace) -> dict[s
 def _run(args: argparse.Namespace) -> int:
     scheme = url_scheme(args.port)  # ValueError (usage) for a scheme no one opens
     args.templates = []
-    if args.identify:  # every template of the registry, checked before the port opens
-        from pyrtu.devices.registry import templates
-
-        args.templates = [t for t in templates() if t.identify or t.probe is not None]
+    if args.identify:  # the registry's templates that say how to recognise them
+        args.templates = _identifiable()
     if args.timeout is None:
         args.timeout = default_timeout(scheme)
     found: list[dict[str, Any]] = []

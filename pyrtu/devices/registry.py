@@ -371,6 +371,19 @@ class _Checker:
         return Probe(table, v["address"], v["value"])
 
 
+def _top_level_line(text: str, key: str) -> int | None:
+    """The line of a top-level ``key``: its table's header (``[key]``, ``[[key]]``)
+    or, before the first header, ``key = ...``."""
+    header = re.compile(r"^\s*\[\[?\s*" + re.escape(key) + r"\s*[\].]")
+    plain = re.compile(r"^\s*" + re.escape(key) + r"\s*=")
+    in_tables = False
+    for n, line in enumerate(text.splitlines()):
+        if header.match(line) or (not in_tables and plain.match(line)):
+            return n + 1
+        in_tables = in_tables or line.lstrip().startswith("[")
+    return None
+
+
 def parse_template(
     text: str, source: str = "<template>", name: str = "", path: Path | None = None,
     builtin: bool = False,
@@ -383,7 +396,7 @@ def parse_template(
     check = _Checker(text, source)
     for k in doc:
         if k not in ("device", "point"):
-            line = locate(text, k, None)
+            line = _top_level_line(text, k)
             where = f"{source}:{line}" if line else source
             raise TemplateError(f"{where}: unknown top-level key {k!r} (known: device, point)")
     dev = doc.get("device")

@@ -222,7 +222,7 @@ def test_scan_identify_names_the_template_by_identity_and_by_probe(
 ) -> None:
     by_identity = simulate("meters/sdm630", "--tcp", "127.0.0.1:0", env=folder)
     # the same meter without FC 43: only its probe register (0xFC02 = 0x0070) names it
-    quiet = tmp_path / "templates" / "quiet.toml"
+    quiet = tmp_path / "quiet.toml"
     quiet.write_text(
         SDM630.read_text()
         .replace('identify = { vendor = "Eastron", product = "SDM630", revision = "1.02" }\n', "")
@@ -238,6 +238,12 @@ def test_scan_identify_names_the_template_by_identity_and_by_probe(
         assert (found["template"], found["matched_by"]) == (template, how)
         text = run("scan", f"tcp://{ready['tcp']}", "--range", "1", "--identify", env=folder)
         assert f"template {template} (by {how})" in text.stdout
+    # a file in the folder that is not a template: named in a warning, left out
+    notes = tmp_path / "templates" / "notes.toml"
+    notes.write_text('[[bus]]\nname = "x"\n')
+    got = run("scan", f"tcp://{by_identity['tcp']}", "--range", "1", "--identify", env=folder)
+    assert got.returncode == 0 and "template meters/sdm630 (by identity)" in got.stdout
+    assert f"warning: {notes}:1: unknown top-level key 'bus'" in got.stderr
     plain = run("scan", f"tcp://{by_probe['tcp']}", "--range", "1", "--identify", "--json")
     (found,) = json.loads(plain.stdout)["found"]  # without the user's folder: no match
     assert found["template"] is None

@@ -163,6 +163,8 @@ def bad_template(text: str) -> str:
          'acme.toml:13: point[1] ("wide"): address: holding 0..1 (uint32) overlaps point[0]'),
         (HEAD + POINT + POINT, "acme.toml: point: name: 'temp' is declared twice"),
         (HEAD + "[colour]\n" + POINT, "acme.toml:4: unknown top-level key 'colour'"),
+        ("colour = 1\n" + HEAD + POINT, "acme.toml:1: unknown top-level key 'colour'"),
+        (HEAD + POINT + "[[bus]]\nname = 1\n", "acme.toml:9: unknown top-level key 'bus'"),
     ],
 )  # fmt: skip
 def test_errors_name_the_file_the_line_and_the_key(text: str, expected: str) -> None:
