@@ -298,6 +298,10 @@ def check_read(args: argparse.Namespace) -> None:
     """The read's arguments, checked before the port is opened (ValueError: usage)."""
     if args.slave == 0:
         raise ValueError("a read needs a slave address 1..247 (0 is broadcast: nobody answers)")
+    if getattr(args, "profile", None):
+        from pyrtu.cli.template import load
+
+        load(args.profile)  # the template's errors before a byte is sent
     count = 1 if args.count is None else args.count
     if count < 1:
         raise ValueError(f"COUNT must be at least 1, not {count}")

@@ -15,6 +15,7 @@ file as the poller, the bridge and the simulator do and says what is wrong:
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
@@ -29,10 +30,13 @@ if TYPE_CHECKING:
 
 
 def template_name(text: str) -> str:
-    """argparse type of ``--profile NAME``: a template of the registry (or a
-    ``.toml`` file), checked when the command line is read."""
-    from pyrtu.devices.registry import TemplateError, find_template
+    """argparse type of ``--profile NAME``: a template of the registry, checked when
+    the command line is read, or a ``.toml`` file (read when the command runs,
+    before a byte is sent: relative to the working directory then)."""
+    from pyrtu.devices.registry import TemplateError, find_template, is_file_reference
 
+    if is_file_reference(text):
+        return text
     try:
         find_template(text)
     except TemplateError as e:
@@ -40,14 +44,19 @@ def template_name(text: str) -> str:
     return text
 
 
-def load(ref: str) -> Template:
-    """The template ``ref`` names (a registry name or a ``.toml`` file), its points
-    checked (ValueError naming file, line and key)."""
+@functools.lru_cache(maxsize=16)
+def _loaded(ref: str) -> tuple[Template, list[Point], dict[str, dict[str, Any]]]:
     from pyrtu.devices.registry import find_template
+    from pyrtu.poller.config import template_points
 
     template = find_template(ref)
-    points_of(template)
-    return template
+    return (template, *template_points(template))
+
+
+def load(ref: str) -> Template:
+    """The template ``ref`` names (a registry name or a ``.toml`` file), its points
+    checked (ValueError naming file, line and key); read once per command."""
+    return _loaded(ref)[0]
 
 
 def points_of(template: Template) -> tuple[list[Point], dict[str, dict[str, Any]]]:
@@ -104,9 +113,7 @@ def register_notes(
     """Registers read from ``address`` on in the terms of template ``ref``: its
     ``describe`` hook's (a drive's manual), else the name and value of each of its
     points the registers hold whole (``table``: holding or input; None: either)."""
-    from pyrtu.devices.registry import find_template
-
-    template = find_template(ref)
+    template, points, hints = _loaded(ref)
     describe = template.hook("describe")
     notes: dict[int, str] = {}
     if describe is not None:
@@ -115,7 +122,6 @@ def register_notes(
             if note:
                 notes[address + i] = note
         return notes
-    points, hints = points_of(template)
     for p in points:
         if p.bits or (table is not None and p.table != table):
             continue
@@ -180,7 +186,7 @@ def _list(args: argparse.Namespace) -> int:
         what = (
             f"error: {r['error']}"
             if "error" in r
-            else f"{r['vendor']} {r['model']} ({r['points']} points)"
+            else f"{r['vendor']} {r['model']} ({r['points']} points)".lstrip()
         )
         print(f"{r['name']:<{width}}  {what}  [{where}]")
     return EXIT_OK
