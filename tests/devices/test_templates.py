@@ -9,6 +9,11 @@ from pathlib import Path
 
 import pytest
 
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10: the test extra installs tomli there
+    import tomli as tomllib
+
 from pyrtu.devices import registry
 from pyrtu.devices.registry import TemplateError, find_template, load_template, parse_template
 from pyrtu.poller.config import ConfigError, parse_config, template_points
@@ -21,7 +26,6 @@ BUILTIN = ("act", "acu", "cfw100", "cfw320", "cfw701", "cv100")
 
 def test_every_shipped_template_validates_against_the_published_schema() -> None:
     import jsonschema  # the test extra (pyproject.toml)
-    import tomllib
 
     schema = json.loads(registry.SCHEMA_PATH.read_text())
     jsonschema.Draft202012Validator.check_schema(schema)
@@ -229,3 +233,21 @@ def test_the_poller_config_takes_a_template_file_or_name(tmp_path: Path) -> None
         parse_config(text, "points.toml", tmp_path)
     line = broken.splitlines().index("colour = 1") + 1
     assert f'sdm630.toml:{line}: point[3] ("frequency"): colour: unknown key' in str(info.value)
+
+
+def test_the_templates_and_the_schema_are_package_data() -> None:
+    """Every built-in template and the schema are in the wheel (pyproject's
+    package-data) and in the sdist (MANIFEST.in)."""
+    import fnmatch
+
+    root = Path(registry.__file__).resolve().parents[2]
+    globs = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"][
+        "package-data"
+    ]["pyrtu"]
+    manifest = (root / "MANIFEST.in").read_text()
+    files = [*registry.BUILTIN_DIR.glob("*.toml"), registry.SCHEMA_PATH]
+    assert len(files) == 7
+    for f in files:
+        inside = f.relative_to(root / "pyrtu").as_posix()
+        assert any(fnmatch.fnmatch(inside, g) for g in globs), inside
+        assert f.name in manifest or f"{f.parent.relative_to(root).as_posix()} *.toml" in manifest
