@@ -107,10 +107,10 @@ class Decoder:
         f = function & 0x7F
         return FUNCTION_NAMES.get(f) or self.vendor_names.get(f) or f"function 0x{f:02X}"
 
-    def _notes(self, address: int, values: Iterable[int]) -> list[str]:
+    def _notes(self, address: int, values: Iterable[int], table: str = "holding") -> list[str]:
         if not self.profile:
             return []
-        return list(register_notes(self.profile, address, list(values)).values())
+        return list(register_notes(self.profile, address, list(values), table).values())
 
     def decode(self, seen: Seen) -> Decoded:
         if seen.error is not None:
@@ -191,7 +191,9 @@ class Decoder:
             if len(req) == 4:
                 a = _u16(req, 0)
                 shown = " ".join(f"[{a + i}] {v}" for i, v in enumerate(values))
-                return Decoded(shown, {"address": a, "values": values}, self._notes(a, values))
+                table = "holding" if f == 3 else "input"
+                notes = self._notes(a, values, table)
+                return Decoded(shown, {"address": a, "values": values}, notes)
             return Decoded(" ".join(str(v) for v in values), {"values": values})
         if f in (1, 2) and d and len(d) == 1 + d[0]:
             n = _u16(req, 2) if len(req) == 4 else 8 * d[0]

@@ -74,7 +74,9 @@ def identify_device(
 ) -> tuple[Template | None, str, dict[int, str]]:
     """Which of ``templates`` the device at ``slave`` is: (template, how, FC 43
     objects).  First its FC 43 basic identification (``objects`` when already read)
-    against each template's ``identify``; then each template's ``probe`` register.
+    against each template's ``identify``; then the ``probe`` register of each
+    template the device's FC 43 answer cannot judge (it has no ``identify``, or
+    the device none).
     ``how``: "identity", "probe", or why nothing matched."""
     from pyrtu.pdu.errors import ModbusError
 
@@ -91,8 +93,8 @@ def identify_device(
             return t, "identity", objects
     for t in templates:
         probe = t.probe
-        if probe is None:
-            continue
+        if probe is None or (t.identify and objects):
+            continue  # a device that names itself is judged by its name
         read = (
             master.read_holding_registers
             if probe.table == "holding"

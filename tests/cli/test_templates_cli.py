@@ -363,3 +363,36 @@ interval = 0.05
             _, err = p.communicate(timeout=30)
             assert p.returncode == 0, err
     stop(ready)
+
+
+# -- info and sniff in a template's terms -------------------------------------------------
+
+
+def test_info_profile_says_whether_the_device_is_the_template(folder: dict[str, str]) -> None:
+    ready = simulate("meters/sdm630", "--tcp", "127.0.0.1:0", env=folder)
+    got = run("info", f"tcp://{ready['tcp']}", "--slave", "1", "--profile", "meters/sdm630",
+              "--json", env=folder)  # fmt: skip
+    assert got.returncode == 0, got.stderr
+    ident = json.loads(got.stdout)["identification"]
+    assert ident["VendorName"] == "Eastron" and ident["template"] == "meters/sdm630"
+    assert (ident["matches"], ident["matched_by"]) == ("yes", "identity")
+    sdm120 = Path(folder["PYRTU_TEMPLATE_PATH"]) / "sdm120.toml"
+    sdm120.write_text(SDM630.read_text().replace('product = "SDM630"', 'product = "SDM120"'))
+    other = run("info", f"tcp://{ready['tcp']}", "--slave", "1", "--profile", "sdm120",
+                "--json", env=folder)  # fmt: skip
+    ident = json.loads(other.stdout)["identification"]
+    assert other.returncode == 0 and (ident["matches"], ident["ProductCode"]) == ("no", "SDM630")
+    stop(ready)
+
+
+def test_sniff_names_a_templates_registers() -> None:
+    from pyrtu.cli.sniff import Decoder, Seen
+
+    decoder = Decoder(str(SDM630))
+    request = bytes([1, 4, 0, 0, 0, 4])
+    data = b"".join(struct.pack(">f", v) for v in (230.5, 231.25))
+    response = bytes([1, 4, 8]) + data
+    decoder.decode(Seen("request", request, request, None))
+    got = decoder.decode(Seen("response", response, response, None))
+    assert got.notes == ["voltage_l1 = 230.5 V", "voltage_l2 = 231.25 V"]
+    assert Decoder("cfw701").decode(Seen("request", bytes([1, 3, 2, 0xA8, 0, 1]), b"", None))
