@@ -192,8 +192,8 @@ class Decoder:
                 a = _u16(req, 0)
                 shown = " ".join(f"[{a + i}] {v}" for i, v in enumerate(values))
                 table = "holding" if f == 3 else "input"
-                notes = self._notes(a, values, table)
-                return Decoded(shown, {"address": a, "values": values}, notes)
+                named = self._notes(a, values, table)
+                return Decoded(shown, {"address": a, "values": values}, named)
             return Decoded(" ".join(str(v) for v in values), {"values": values})
         if f in (1, 2) and d and len(d) == 1 + d[0]:
             n = _u16(req, 2) if len(req) == 4 else 8 * d[0]

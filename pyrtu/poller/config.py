@@ -562,6 +562,10 @@ def template_points(
         if "order" not in table and table.get("type") in _WORD_TYPES:
             own_defaults["order"] = template.word_order
         point = loader.point(i, table, own_defaults)
+        for k in POINT_HINT_KEYS:  # the hints a point carries itself, in one place
+            carried = getattr(point, k, None)
+            if k not in own and carried not in (None, ""):
+                own[k] = carried
         _check_hints(loader, i, label, point, own)
         _check_overlap(loader, i, label, point, points)
         if prefix:
