@@ -17,6 +17,7 @@ or an empty string), and answers as a real device of that model would:
 from __future__ import annotations
 
 import math
+import re
 import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -40,7 +41,6 @@ else:  # pragma: no cover - Python 3.10
 def read_values(path: str | Path, points: Sequence[Point]) -> dict[str, Any]:
     """A ``--values`` file: TOML ``point_name = value`` lines (ConfigError naming
     the file, line and point when a name or value does not fit)."""
-    from pyrtu.devices.registry import locate
     from pyrtu.poller.config import read_config_text
 
     p = Path(path)
@@ -52,12 +52,11 @@ def read_values(path: str | Path, points: Sequence[Point]) -> dict[str, Any]:
     by_name = {pt.name: pt for pt in points}
 
     def where(key: str) -> str:
+        want = re.compile(r"""^\s*["']?""" + re.escape(key) + r"""["']?\s*=""")
         for n, line in enumerate(text.splitlines()):
-            stripped = line.lstrip().removeprefix('"').removeprefix("'")
-            if stripped.startswith(key) and "=" in line:
+            if want.match(line):
                 return f"{p}:{n + 1}"
-        line_no = locate(text, key, None)
-        return f"{p}:{line_no}" if line_no else str(p)
+        return str(p)
 
     for key, value in doc.items():
         point = by_name.get(key)
