@@ -252,7 +252,7 @@ class BridgeConfig:
     mqtt: MqttConfig
     options: Mapping[str, PointOptions] = field(default_factory=dict)
     source: str = "<config>"
-    #: (bus, slave) -> (profile, name) of the ``[[device]]`` tables with a profile
+    #: (bus, slave) -> (template, name) of the ``[[device]]`` tables with a template
     drives: Mapping[tuple[str, int], tuple[str, str]] = field(default_factory=dict)
 
     def option(self, name: str) -> PointOptions:
@@ -407,11 +407,11 @@ def parse_bridge_config(
                 picked.append((i, {k: t.pop(k) for k in POINT_KEYS if k in t}))
     default_keys = tuple(k for k in POINT_KEYS if k != "topic")
     poller = _Loader(text, source, POINT_KEYS, default_keys).load(doc)
-    drives: dict[tuple[str, int], tuple[str, str]] = {}
-    for t in doc.get("device", []) if isinstance(doc.get("device"), list) else []:
-        if isinstance(t, dict) and "profile" in t:
-            prof = str(t["profile"]).lower()
-            drives[(t["bus"], t["slave"])] = (prof, str(t.get("name", f"{prof}{t['slave']}")))
+    drives = {
+        (d.bus, d.slave): (d.template.name, d.name)
+        for d in poller.devices
+        if d.template is not None
+    }
     n_profile = len(poller.points) - len(raw_points if isinstance(raw_points, list) else [])
     options: dict[str, PointOptions] = {}
     if dflt:
@@ -422,6 +422,14 @@ def parse_bridge_config(
             raise _error(_where(text, source, "defaults", key), "defaults", str(e)) from None
         for p in poller.points:
             options[p.name] = base_opts
+    for device in poller.devices:  # a template's writable, min and max, over the defaults
+        for name, hint in device.hints.items():
+            own = {k: hint[k] for k in ("writable", "min", "max") if k in hint}
+            if own:
+                try:
+                    options[name] = PointOptions(**{**dflt, **own})
+                except ValueError as e:
+                    raise ConfigError(f"{source}: point {name!r}: {e}") from None
     for i, own in picked:
         point = poller.points[n_profile + i]
         label = f'point[{i}] ("{point.name}")'

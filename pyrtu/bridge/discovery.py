@@ -1,9 +1,13 @@
 """Home Assistant MQTT discovery (``discovery = true``): one retained config per
 point under ``{discovery_prefix}/{component}/pyrtu_{edge}/{object}/config``.
 
-Points are grouped into one Home Assistant device per drive (bus and slave): its
-model and name come from the ``[[device]]`` table's ``profile`` and ``name``
-(``cfw701`` -> "WEG CFW701"), else "Modbus slave N on BUS".  Read-only points are
+Points are grouped into one Home Assistant device per device (bus and slave): its
+manufacturer, model and name come from the ``[[device]]`` table's template (its
+``vendor`` and ``model``) and ``name`` (``cfw701`` -> "WEG", "CFW701"), else
+"Modbus slave N on BUS"; a template point's ``unit``, ``device_class``,
+``state_class``, ``icon`` and ``precision`` become the entity's
+``unit_of_measurement``, ``device_class``, ``state_class``, ``icon`` and
+``suggested_display_precision``.  Read-only points are
 ``sensor`` (``binary_sensor`` for bits), writable ones ``number`` (with ``min``,
 ``max`` and the step of the point's scale), ``switch`` for bits and ``text`` for
 strings, their command topic the point's set topic.  Availability is the edge's
@@ -23,14 +27,13 @@ if TYPE_CHECKING:
     from .config import BridgeConfig
     from .topics import Topics
 
-#: the maker of each profile of pyrtu.devices (the manuals' own names)
-MAKERS = {
-    "cfw100": "WEG",
-    "cfw320": "WEG",
-    "cfw701": "WEG",
-    "act": "Bonfiglioli",
-    "acu": "Bonfiglioli",
-    "cv100": None,
+#: a template point's hints -> Home Assistant's keys
+HINTS = {
+    "unit": "unit_of_measurement",
+    "device_class": "device_class",
+    "state_class": "state_class",
+    "icon": "icon",
+    "precision": "suggested_display_precision",
 }
 
 
@@ -51,12 +54,16 @@ def configs(cfg: BridgeConfig, topics: Topics) -> list[tuple[str, bytes]]:
     m = cfg.mqtt
     node = _id(f"pyrtu_{m.edge}")
     out: list[tuple[str, bytes]] = []
+    devices = {(d.bus, d.slave): d for d in cfg.poller.devices if d.template is not None}
     for p in cfg.poller.points:
         opts = cfg.option(p.name)
         kind = component(p, opts.writable)
-        profile, dev_name = cfg.drives.get((p.bus, p.slave), (None, None))
-        maker = MAKERS.get(profile or "")
-        model = (profile or "").upper() or "Modbus slave"
+        known = devices.get((p.bus, p.slave))
+        template = known.template if known is not None else None
+        dev_name = known.name if known is not None else None
+        maker = template.vendor if template is not None else None
+        model = template.model if template is not None else "Modbus slave"
+        hints = known.hints.get(p.name, {}) if known is not None else {}
         device: dict[str, Any] = {
             "identifiers": [_id(f"pyrtu_{m.edge}_{p.bus}_{p.slave}")],
             "name": dev_name or f"{model} {p.slave} on {p.bus}",
@@ -83,6 +90,10 @@ def configs(cfg: BridgeConfig, topics: Topics) -> list[tuple[str, bytes]]:
             "payload_not_available": "offline",
             "device": device,
         }
+        for key, ha_key in HINTS.items():
+            hint = hints.get(key, getattr(p, key, None))
+            if hint is not None and not (kind != "sensor" and key == "state_class"):
+                doc[ha_key] = hint
         if p.type == "bool":
             doc["value_template"] = "{{ 'ON' if value_json.value else 'OFF' }}"
         else:
@@ -116,4 +127,4 @@ def _raw_bound(p: Point, low: bool) -> float:
     return min(a, b) if low else max(a, b)
 
 
-__all__ = ["MAKERS", "component", "configs"]
+__all__ = ["HINTS", "component", "configs"]

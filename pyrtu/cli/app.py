@@ -157,6 +157,10 @@ def _register_builtins() -> None:
 
     for spec in bridge.COMMANDS:
         register(*spec)
+    from pyrtu.cli import template
+
+    for spec in template.COMMANDS:
+        register(*spec)
 
 
 _register_builtins()

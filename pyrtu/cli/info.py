@@ -3,8 +3,10 @@
 ``--level basic`` (read code 1: vendor, product code, revision; the default),
 ``regular`` (2), ``extended`` (3), or ``--object ID`` (read code 4: one object).
 Drives that have no FC 43 (the CV100, the Bonfiglioli Vectron) answer exception 1;
-``--profile`` identifies them the way their manual allows instead (parameters,
-status registers).
+``--profile NAME`` (a device template: ``pyrtu template list``) identifies them the
+way their manual allows instead (parameters, status registers); a template without
+such code says whether the device is that template's model (its FC 43 ``identify``,
+else its ``probe`` register).
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from pyrtu.cli.common import (
     object_id,
     open_master,
 )
-from pyrtu.cli.io import DEVICES
+from pyrtu.cli.template import identify_device, template_name
 
 #: the object names of the Modbus Application Protocol, table of 6.21
 OBJECT_NAMES = {
@@ -42,12 +44,23 @@ def _text(value: bytes) -> str:
 
 
 def profile_identify(master: Any, device: str, slave: int) -> dict[str, str]:
-    """Identification through a device profile (its ``identify()``)."""
-    from pyrtu.devices import PROFILES
+    """Identification through a device template: its profile's ``identify()`` (the
+    drives of the manuals), else whether the device matches the template."""
+    from pyrtu.devices.registry import find_template
 
-    drive = PROFILES[device](master, slave)
-    found: dict[str, Any] = drive.identify()
-    return {str(k): str(v) for k, v in found.items()}
+    template = find_template(device)
+    profile = template.hook("profile")
+    if profile is not None:
+        found: dict[str, Any] = profile(master, slave).identify()
+        return {str(k): str(v) for k, v in found.items()}
+    match, how, objects = identify_device(master, slave, [template])
+    out = {OBJECT_NAMES.get(k, f"object_{k}"): v for k, v in objects.items()}
+    out["template"] = template.name
+    out["matches"] = "yes" if match is not None else "no"
+    out["matched_by"] = how if match is not None else ""
+    if match is None:
+        out["why"] = how
+    return {k: v for k, v in out.items() if v != ""}
 
 
 def _configure(p: argparse.ArgumentParser) -> None:
@@ -62,15 +75,16 @@ def _configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--object", type=object_id, metavar="ID", help="read one object (read code 4)")
     p.add_argument(
         "--profile",
-        choices=DEVICES,
-        type=str.lower,
-        help="identify through a drive profile instead of FC 43",
+        type=template_name,
+        metavar="NAME",
+        help="identify through a device template instead of FC 43 (pyrtu template list)",
     )
     add_json_option(p)
     add_serial_options(p)
 
 
 def _run(args: argparse.Namespace) -> int:
+    from pyrtu.devices.registry import names
     from pyrtu.pdu.errors import ExceptionResponseError
 
     if args.slave == 0:
@@ -99,8 +113,8 @@ def _run(args: argparse.Namespace) -> int:
         except ExceptionResponseError as exc:
             if exc.code == 1:
                 exc.args = (
-                    f"{exc}; this device has no FC 43 identification: try --profile "
-                    f"({', '.join(DEVICES)})",
+                    f"{exc}; this device has no FC 43 identification: try --profile NAME "
+                    f"({', '.join(names())})",
                 )
             raise
     rows: list[dict[str, Any]] = [

@@ -30,6 +30,7 @@ from pyrtu.cli.common import (
     register_address,
     show_address,
 )
+from pyrtu.cli.template import register_notes, template_name
 from pyrtu.pdu import FUNCTION_NAMES
 
 if TYPE_CHECKING:
@@ -59,7 +60,6 @@ _TABLE_ALIASES = {
 }
 TYPES = ("uint16", "int16", "uint32", "int32", "float32", "string")
 ORDERS = ("ABCD", "CDAB", "BADC", "DCBA")
-DEVICES = ("cfw100", "cfw320", "cfw701", "cv100", "act", "acu")
 
 Value = int | float | str | bool
 
@@ -271,9 +271,10 @@ def add_read_arguments(p: argparse.ArgumentParser) -> None:
     _add_item_options(p, "slave address (default 1)", "holding (default), input, coils or discrete")
     p.add_argument(
         "--profile",
-        choices=DEVICES,
-        type=str.lower,
-        help="name registers in a drive's terms (e.g. P680 of a CFW701)",
+        type=template_name,
+        metavar="NAME",
+        help="name registers in a device template's terms (a template name or a .toml file;"
+        " e.g. P680 of a cfw701): pyrtu template list",
     )
 
 
@@ -297,6 +298,10 @@ def check_read(args: argparse.Namespace) -> None:
     """The read's arguments, checked before the port is opened (ValueError: usage)."""
     if args.slave == 0:
         raise ValueError("a read needs a slave address 1..247 (0 is broadcast: nobody answers)")
+    if getattr(args, "profile", None):
+        from pyrtu.cli.template import load
+
+        load(args.profile)  # the template's errors before a byte is sent
     count = 1 if args.count is None else args.count
     if count < 1:
         raise ValueError(f"COUNT must be at least 1, not {count}")
@@ -327,19 +332,15 @@ def read_values(master: Master, args: argparse.Namespace) -> ReadResult:
         decode(args.kind, regs, args.order),
     )
     if args.profile:
-        result.notes = profile_notes(args.profile, args.address, regs)
+        result.notes = profile_notes(args.profile, args.address, regs, args.table)
     return result
 
 
-def profile_notes(device: str, address: int, registers: Sequence[int]) -> dict[int, str]:
-    from pyrtu.devices import describe_register
-
-    notes = {}
-    for i, value in enumerate(registers):
-        note = describe_register(device, address + i, value)
-        if note:
-            notes[address + i] = note
-    return notes
+def profile_notes(
+    device: str, address: int, registers: Sequence[int], table: str
+) -> dict[int, str]:
+    """The registers in the terms of template ``device`` (`register_notes`)."""
+    return register_notes(device, address, list(registers), table)
 
 
 def _configure_read(p: argparse.ArgumentParser) -> None:

@@ -22,7 +22,9 @@ Modbus TCP device may (Messaging on TCP/IP Implementation Guide 4.4.1.2), and wo
 answer every address of the range.  The scan says so ("the device answers every
 unit id") instead of listing each address.
 
-``--identify`` asks every device found for its FC 43 identification.  Exit status 0
+``--identify`` asks every device found for its FC 43 identification and names the
+device template it matches (``pyrtu template list``): a template whose ``identify``
+the FC 43 objects are, else one whose ``probe`` register reads its value.  Exit status 0
 when at least one slave answered, 4 when none did.
 """
 
@@ -124,6 +126,23 @@ def identify(master: Master, slave: int) -> dict[str, str] | str:
     }
 
 
+def _identifiable() -> list[Any]:
+    """The templates of the registry with an ``identify`` or a ``probe``; a file
+    that is not a template is named in a warning and left out."""
+    from pyrtu.devices.registry import TemplateError, entries
+
+    out = []
+    for entry in entries().values():
+        try:
+            template = entry.load()
+        except TemplateError as e:
+            print(f"pyrtu scan: warning: {e} (left out of --identify)", file=sys.stderr)
+            continue
+        if template.identify or template.probe is not None:
+            out.append(template)
+    return out
+
+
 def _configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("port", metavar="PORT", help="serial device or pyserial URL")
     p.add_argument(
@@ -150,7 +169,9 @@ def _configure(p: argparse.ArgumentParser) -> None:
         help="register or bit to read",
     )
     p.add_argument(
-        "--identify", action="store_true", help="FC 43 identification of each slave found"
+        "--identify",
+        action="store_true",
+        help="FC 43 identification of each slave found, and the device template it matches",
     )
     add_json_option(p)
     add_serial_options(
@@ -196,12 +217,26 @@ def _probe_entry(master: Master, slave: int, args: argparse.Namespace) -> dict[s
     except FrameError as exc:
         entry.update(answer="garbled", detail=str(exc))
     if args.identify:
-        entry["identification"] = identify(master, slave)
+        ident = identify(master, slave)
+        entry["identification"] = ident
+        from pyrtu.cli.info import OBJECT_NAMES
+        from pyrtu.cli.template import identify_device
+
+        ids = {v: k for k, v in OBJECT_NAMES.items()}
+        objects = (
+            {ids[k]: v for k, v in ident.items() if k in ids} if isinstance(ident, dict) else {}
+        )
+        match, how, _ = identify_device(master, slave, args.templates, objects)
+        entry["template"] = match.name if match is not None else None
+        entry["matched_by"] = how if match is not None else None
     return entry
 
 
 def _run(args: argparse.Namespace) -> int:
     scheme = url_scheme(args.port)  # ValueError (usage) for a scheme no one opens
+    args.templates = []
+    if args.identify:  # the registry's templates that say how to recognise them
+        args.templates = _identifiable()
     if args.timeout is None:
         args.timeout = default_timeout(scheme)
     found: list[dict[str, Any]] = []
@@ -288,6 +323,10 @@ def _line(entry: dict[str, Any]) -> str:
         line += "  [" + " ".join(ident.values()) + "]"
     elif isinstance(ident, str):
         line += f"  [FC 43: {ident}]"
+    if entry.get("template"):
+        line += f"  template {entry['template']} (by {entry['matched_by']})"
+    elif "template" in entry:
+        line += "  no template matches"
     return line
 
 

@@ -1,10 +1,17 @@
-"""``pyrtu simulate DEVICE --port PATH``: a simulated drive on a serial port.
+"""``pyrtu simulate DEVICE --port PATH``: a simulated device on a serial port.
 
-DEVICE is one of cfw100, cfw320, cfw701 (WEG), cv100 (CV100/FV100), act, acu
-(Bonfiglioli Vectron): the simulators of `pyrtu.devices`, which answer as their
+DEVICE is a device template of the registry (``pyrtu template list``).  The drives
+of the manuals, cfw100, cfw320, cfw701 (WEG), cv100 (CV100/FV100), act, acu
+(Bonfiglioli Vectron), have simulators of `pyrtu.devices`, which answer as their
 manuals say (function codes, exceptions, identification, response delay, motor
-ramps, status words, serial watchdog).  ``--address`` defaults to the address of
-the manual's examples.  Put it on a drop of ``pyrtu vbus`` (with ``--parity N``:
+ramps, status words, serial watchdog).  Any other template, or ``--template FILE``
+(a ``.toml`` file), is served from its points: their initial values (the
+template's ``initial``, or ``--values FILE``: ``point = value`` lines), writes
+checked against ``writable``, ``min`` and ``max`` (exception 2 for a point that is
+not writable or an address no point covers, 3 for a value out of range), the
+template's identity on FC 43 (docs/TEMPLATES.md).  ``--address`` defaults to the
+template's ``address`` (the manual's examples').  Put it on a drop of ``pyrtu vbus``
+(with ``--parity N``:
 pseudo-terminals carry no parity) or on a real port.
 
 Runs until SIGINT/SIGTERM or ``--duration``, then prints the counters;
@@ -70,36 +77,64 @@ from pyrtu.cli.common import (
     stop_on_signals,
 )
 from pyrtu.cli.gateway import listen_address
-from pyrtu.cli.io import DEVICES
+from pyrtu.cli.template import template_name
 from pyrtu.drivers._portname import first_duplicate
 from pyrtu.drivers.supervise import TaskFailure, cause
 from pyrtu.metrics.address import add_metrics_option, open_metrics
 
-VENDORS = {
-    "cfw100": "WEG CFW100",
-    "cfw320": "WEG CFW320",
-    "cfw701": "WEG CFW701",
-    "cv100": "CV100/FV100",
-    "act": "Bonfiglioli Vectron ACT",
-    "acu": "Bonfiglioli Vectron ACU",
-}
+
+def find_device(args: argparse.Namespace) -> Any:
+    """The template DEVICE or ``--template`` names (ValueError: usage)."""
+    from pyrtu.devices.registry import TemplateError, find_template
+
+    if (args.device is None) == (args.template is None):
+        both = args.device is not None
+        raise ValueError(
+            "give DEVICE (pyrtu template list) or --template FILE, not both"
+            if both
+            else "give DEVICE (pyrtu template list) or --template FILE"
+        )
+    try:
+        return find_template(args.device if args.device is not None else args.template)
+    except TemplateError as e:
+        what = "DEVICE" if args.device is not None else "--template"
+        raise ValueError(f"{what}: {e}") from None
 
 
-def make_simulator(device: str, state: str | None = None, mode: str = "rtu") -> Any:
-    """The simulator of ``device``; ``state`` where the simulator has states."""
-    from pyrtu.devices import SIMULATORS, simulator
+def make_simulator(
+    device: Any, state: str | None = None, mode: str = "rtu", values: Any = None
+) -> Any:
+    """The simulator of template ``device`` (a `Template`, or a registry name): its
+    drive simulator where it has one (``state`` where that has states), else a
+    `TemplateSimulator` with ``values``."""
+    from pyrtu.devices.registry import find_template
 
+    template = find_template(device) if isinstance(device, str) else device
+    cls = template.hook("simulator")
+    if cls is None:
+        if state is not None:
+            raise ValueError(f"--state: the {template.name} template has no states")
+        from pyrtu.cli._simulate_template import TemplateSimulator
+
+        return TemplateSimulator(template, values, mode=mode)
+    if values is not None:
+        raise ValueError(f"--values: the {template.name} simulator computes its values")
     options: dict[str, Any] = {}
-    params = inspect.signature(SIMULATORS[device]).parameters
+    params = inspect.signature(cls).parameters
     if state is not None:
         if "state" not in params:
             raise ValueError(
-                f"the {device} simulator has no --state (it starts as its manual says)"
+                f"the {template.name} simulator has no --state (it starts as its manual says)"
             )
         options["state"] = state
     if mode != "rtu":
         options["mode"] = mode
-    return simulator(device, **options)
+    return cls(**options)
+
+
+def _watch_text(sim: Any) -> str | None:
+    describe = getattr(sim, "describe", None)
+    return str(describe()) if callable(describe) else None
 
 
 def frequency_of(sim: Any) -> float:
@@ -118,9 +153,20 @@ def _configure(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "device",
         metavar="DEVICE",
-        type=str.lower,
-        choices=DEVICES,
-        help="cfw100, cfw320, cfw701, cv100, act or acu",
+        nargs="?",
+        type=template_name,
+        help="a device template: cfw100, cfw320, cfw701, cv100, act, acu or any of "
+        "pyrtu template list",
+    )
+    p.add_argument(
+        "--template",
+        metavar="FILE",
+        help="serve this device template (a .toml file) instead of DEVICE",
+    )
+    p.add_argument(
+        "--values",
+        metavar="FILE",
+        help="initial values of the template's points (TOML: point = value)",
     )
     p.add_argument(
         "-p",
@@ -140,7 +186,7 @@ def _configure(p: argparse.ArgumentParser) -> None:
         "--address",
         type=int,
         metavar="N",
-        help="slave address (default: the manual's example address)",
+        help="slave address (default: the template's, the manual's example address)",
     )
     p.add_argument(
         "--state",
@@ -179,10 +225,9 @@ def _serve_metrics(
 
 
 def _run(args: argparse.Namespace) -> int:
-    from pyrtu.devices import EXAMPLE_ADDRESS
-
-    device: str = args.device
-    address = args.address if args.address is not None else EXAMPLE_ADDRESS[device]
+    template = find_device(args)
+    device: str = template.name
+    address = args.address if args.address is not None else template.address
     if not 1 <= address <= 247:
         raise ValueError(f"--address: a slave address is 1..247, not {address}")
     ports: list[str] = args.port or []
@@ -201,9 +246,19 @@ def _run(args: argparse.Namespace) -> int:
     options.update(mode=args.mode, timing=args.timing, exclusive=args.exclusive)
     if args.t35 is not None:
         options["t35"] = args.t35
+    values = None
+    if args.values is not None:
+        if template.hook("simulator") is not None:
+            raise ValueError(f"--values: the {device} simulator computes its values")
+        from pyrtu.cli._simulate_template import read_values
+        from pyrtu.poller.config import template_points
+
+        values = read_values(args.values, template_points(template)[0])
+    args.values_of = values
+    args.title = template.description or template.title
     if len(ports) > 1:
-        return _run_many(args, device, address, ports, options)
-    sim = make_simulator(device, args.state, args.mode)
+        return _run_many(args, template, address, ports, options)
+    sim = make_simulator(template, args.state, args.mode, values)
     with stop_on_signals() as stop:  # before the "ready" line: a signal after it stops cleanly
         tcp = None
         drive = None
@@ -237,10 +292,11 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _run_many(
-    args: argparse.Namespace, device: str, address: int, ports: list[str], options: dict[str, Any]
+    args: argparse.Namespace, template: Any, address: int, ports: list[str], options: dict[str, Any]
 ) -> int:
     """One drive per port, served by `DriveLoop` (one event loop, one thread)."""
-    sims = [make_simulator(device, args.state, args.mode) for _ in ports]
+    device: str = template.name
+    sims = [make_simulator(template, args.state, args.mode, args.values_of) for _ in ports]
     with stop_on_signals() as stop:
         drives = DriveLoop(
             lambda i: sims[i].make_async_slave(ports[i], address, **options), len(ports)
@@ -409,7 +465,7 @@ def _ready(args: argparse.Namespace, device: str, address: int, functions: list[
         where = [f" on {args.port}, {fmt}"] if fmt else [""]
         where += [f"Modbus TCP on {tcp}"] if tcp else []
         print(
-            f"pyrtu simulate: {VENDORS[device]} at address {address}{', '.join(where)} "
+            f"pyrtu simulate: {args.title} at address {address}{', '.join(where)} "
             f"(functions {', '.join(map(str, functions))}); Ctrl-C to stop",
             file=sys.stderr,
             flush=True,
@@ -417,6 +473,16 @@ def _ready(args: argparse.Namespace, device: str, address: int, functions: list[
 
 
 def _watch(args: argparse.Namespace, sim: Any, t: float, port: str | None = None) -> None:
+    text = _watch_text(sim)
+    if text is not None:  # a template's points
+        if args.json:
+            head: dict[str, Any] = {"type": "status", "t": round(t, 3)}
+            head.update({"port": port} if port is not None else {})
+            emit({**head, "values": sim.values()})
+        else:
+            where = f"{port}  " if port is not None else ""
+            print(f"{t:7.1f} s  {where}{text}", flush=True)
+        return
     hz, text = frequency_of(sim), status_of(sim)
     if args.json:
         line: dict[str, Any] = {"type": "status", "t": round(t, 3)}
@@ -430,7 +496,7 @@ def _watch(args: argparse.Namespace, sim: Any, t: float, port: str | None = None
 COMMANDS = (
     subcommand(
         "simulate",
-        "run a simulated drive (cfw100, cfw320, cfw701, cv100, act, acu) on a port",
+        "run a simulated device (a template: cfw701, ..., or --template FILE) on a port",
         _configure,
         _run_metered,
         __doc__,

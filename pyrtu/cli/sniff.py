@@ -8,7 +8,8 @@ noise, and a frame a USB adapter delivered in two pieces).
 
 The monitor framer tells requests from responses by their lengths and its
 pending request; every frame is shown with its function and fields, and with
-``--profile`` (cfw100, cfw320, cfw701, cv100, act, acu) in the drive's terms:
+``--profile NAME`` (a device template: cfw100, cfw320, cfw701, cv100, act, acu or
+any of ``pyrtu template list``, or a ``.toml`` file) in the device's terms:
 ``P680 status: running, forward, remote``.  The profile also gives the framer
 the vendor's function codes (Bonfiglioli FC 100/101, CV100 0x41-0x43).
 
@@ -40,13 +41,21 @@ from pyrtu.cli.common import (
     serial_kwargs,
     stop_on_signals,
 )
-from pyrtu.cli.io import DEVICES
+from pyrtu.cli.template import register_notes, template_name
 
 VENDOR_NAMES = {
     "bonfiglioli": {100: "read_parameter_32", 101: "write_parameter_32"},
     "cv100": {0x41: "write_register_save", 0x42: "manage", 0x43: "write_registers_save"},
 }
-_VENDOR_OF = {"act": "bonfiglioli", "acu": "bonfiglioli", "cv100": "cv100"}
+
+
+def _vendor_of(profile: str | None) -> str | None:
+    """The vendor function set (`VENDOR_NAMES`) of template ``profile`` (its ``rules``)."""
+    if not profile:
+        return None
+    from pyrtu.devices.registry import find_template
+
+    return find_template(profile).rules
 
 
 @dataclass
@@ -88,7 +97,7 @@ class Decoder:
 
     def __init__(self, profile: str | None = None, vendor: str | None = None) -> None:
         self.profile = profile
-        vendor = vendor or _VENDOR_OF.get(profile or "")
+        vendor = vendor or _vendor_of(profile)
         self.vendor_names = VENDOR_NAMES.get(vendor or "", {})
         self.pending: dict[int, bytes] = {}  # slave -> the request PDU it has to answer
 
@@ -98,17 +107,10 @@ class Decoder:
         f = function & 0x7F
         return FUNCTION_NAMES.get(f) or self.vendor_names.get(f) or f"function 0x{f:02X}"
 
-    def _notes(self, address: int, values: Iterable[int], size: int = 1) -> list[str]:
+    def _notes(self, address: int, values: Iterable[int], table: str = "holding") -> list[str]:
         if not self.profile:
             return []
-        from pyrtu.devices import describe_register
-
-        notes = []
-        for i, value in enumerate(values):
-            note = describe_register(self.profile, address + i * size, value)
-            if note:
-                notes.append(note)
-        return notes
+        return list(register_notes(self.profile, address, list(values), table).values())
 
     def decode(self, seen: Seen) -> Decoded:
         if seen.error is not None:
@@ -189,7 +191,9 @@ class Decoder:
             if len(req) == 4:
                 a = _u16(req, 0)
                 shown = " ".join(f"[{a + i}] {v}" for i, v in enumerate(values))
-                return Decoded(shown, {"address": a, "values": values}, self._notes(a, values))
+                table = "holding" if f == 3 else "input"
+                named = self._notes(a, values, table)
+                return Decoded(shown, {"address": a, "values": values}, named)
             return Decoded(" ".join(str(v) for v in values), {"values": values})
         if f in (1, 2) and d and len(d) == 1 + d[0]:
             n = _u16(req, 2) if len(req) == 4 else 8 * d[0]
@@ -237,7 +241,7 @@ class Decoder:
 def _rules(profile: str | None) -> dict[int, Any]:
     from pyrtu.core.rules import BONFIGLIOLI, CV100
 
-    vendor = _VENDOR_OF.get(profile or "")
+    vendor = _vendor_of(profile)
     return dict(BONFIGLIOLI if vendor == "bonfiglioli" else CV100 if vendor == "cv100" else {})
 
 
@@ -387,7 +391,12 @@ def _configure(p: argparse.ArgumentParser) -> None:
     src = p.add_mutually_exclusive_group()
     src.add_argument("-c", "--capture", metavar="FILE", help="decode a capture file instead")
     src.add_argument("--example", action="store_true", help="decode a built-in sample capture")
-    p.add_argument("--profile", choices=DEVICES, type=str.lower, help="decode for this drive")
+    p.add_argument(
+        "--profile",
+        type=template_name,
+        metavar="NAME",
+        help="decode for this device template (pyrtu template list)",
+    )
     p.add_argument("-n", "--count", type=count, metavar="N", help="stop after N frames (1 or more)")
     p.add_argument(
         "-d", "--duration", type=positive_seconds, metavar="SECONDS", help="stop after this time"

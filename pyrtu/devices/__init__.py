@@ -21,9 +21,11 @@ A simulator is a drive model behind a `pyrtu.DataStore`, served by a `pyrtu.Slav
     sim = CFW701Simulator()
     sim.serve("/dev/pts/5", address=1, parity="N")   # background thread
 
-`SIMULATORS`/`PROFILES` map the command line's device names (cfw100, cfw320,
-cfw701, cv100, act, acu) to the classes; `describe_register` names a register value
-in the manual's terms (for monitors).
+Each drive is a template of the registry (`registry`, templates/*.toml): its points,
+limits and identity as data, and hooks to the code data cannot say (its profile
+class, its simulator, `describe_register`).  `SIMULATORS`/`PROFILES` map the
+built-in templates' names (cfw100, cfw320, cfw701, cv100, act, acu) to the classes;
+`describe_register` names a register value in the manual's terms (for monitors).
 """
 
 from __future__ import annotations
@@ -38,6 +40,7 @@ from .bonfiglioli_sim import ACTSimulator, ACUSimulator, VectronSimulator
 from .cv100 import CV100, CV100Status
 from .cv100_sim import CV100Simulator
 from .motor import ManualClock, Motor, Supervision
+from .registry import Template, TemplateError, entries, find_template
 from .weg import (
     CFW100,
     CFW320,
@@ -50,56 +53,54 @@ from .weg import (
 )
 from .weg_sim import CFW100Simulator, CFW320Simulator, CFW701Simulator, WegSimulator
 
+
+def _builtin() -> list[Template]:
+    return [entry.load() for entry in entries({}).values()]
+
+
+_BUILTIN = _builtin()
+#: the built-in templates' simulators, profiles, example addresses and ASCII
+#: capability (`pyrtu.devices.registry` is the one list: templates/*.toml)
 SIMULATORS: Mapping[str, type[DriveSimulator]] = {
-    "cfw100": CFW100Simulator,
-    "cfw320": CFW320Simulator,
-    "cfw701": CFW701Simulator,
-    "cv100": CV100Simulator,
-    "act": ACTSimulator,
-    "acu": ACUSimulator,
+    t.name: t.hook("simulator") for t in _BUILTIN if "simulator" in t.hooks
 }
 PROFILES: Mapping[str, type[Any]] = {
-    "cfw100": CFW100,
-    "cfw320": CFW320,
-    "cfw701": CFW701,
-    "cv100": CV100,
-    "act": ACT,
-    "acu": ACU,
+    t.name: t.hook("profile") for t in _BUILTIN if "profile" in t.hooks
 }
 #: the address the manual's examples use (a simulator's natural default)
-EXAMPLE_ADDRESS: Mapping[str, int] = {
-    "cfw100": 1,
-    "cfw320": 1,
-    "cfw701": 1,
-    "cv100": 5,
-    "act": 1,
-    "acu": 1,
-}
+EXAMPLE_ADDRESS: Mapping[str, int] = {t.name: t.address for t in _BUILTIN}
 #: which devices speak ASCII as well as RTU
-ASCII_DEVICES = frozenset({"cv100", "act", "acu"})
+ASCII_DEVICES = frozenset(t.name for t in _BUILTIN if "ascii" in t.modes)
 
 
 def simulator(device: str, **options: Any) -> DriveSimulator:
-    """A simulator by command-line name (``"cfw701"``, ``"act"``...); ``options`` go to
-    its constructor (``clock=``, ``state=``, ``mode=`` for the ASCII-capable ones)."""
+    """A drive simulator by template name (``"cfw701"``, ``"act"``...: a template of
+    the registry with a ``simulator``); ``options`` go to its constructor
+    (``clock=``, ``state=``, ``mode=`` for the ASCII-capable ones)."""
     try:
-        cls = SIMULATORS[device.lower()]
-    except KeyError:
-        raise ValueError(f"unknown device {device!r}; devices: {', '.join(SIMULATORS)}") from None
-    return cls(**options)
+        cls = find_template(device).hook("simulator")
+    except TemplateError as e:
+        raise ValueError(f"unknown device {device!r}: {e}") from None
+    if cls is None:
+        raise ValueError(
+            f"device {device!r} has no drive simulator (its template has no simulator)"
+        )
+    sim: DriveSimulator = cls(**options)
+    return sim
 
 
 def describe_register(device: str, address: int, value: int) -> str | None:
     """A register value in the manual's terms (``"P680 status: running, forward,
-    remote"``), or None when the register has no special meaning."""
-    d = device.lower()
-    if d in ("cfw100", "cfw320", "cfw701"):
-        return weg.describe_register(d.upper(), address, value)
-    if d == "cv100":
-        return cv100.describe_register(address, value)
-    if d in ("act", "acu"):
-        return bonfiglioli.describe_register(address, value)
-    raise ValueError(f"unknown device {device!r}; devices: {', '.join(SIMULATORS)}")
+    remote"``), or None when the register has no special meaning (or the
+    template no ``describe``)."""
+    try:
+        describe = find_template(device).hook("describe")
+    except TemplateError as e:
+        raise ValueError(f"unknown device {device!r}: {e}") from None
+    if describe is None:
+        return None
+    note: str | None = describe(address, value)
+    return note
 
 
 __all__ = [

@@ -637,24 +637,3 @@ class ACU(Vectron):
 
     model = "ACU"
     actual_frequency = P_ACTUAL_FREQUENCY
-
-
-# -- standard points for pyrtu.Poller ---------------------------------------------------
-
-#: per-request limits of the Vectron drives for a poller: FC 03 reads ONE parameter
-POLL_LIMITS: Mapping[str, int] = {"max_registers": 1}
-
-
-def poll_points(prefix: str, interval: float = 1.0) -> list[dict[str, object]]:
-    """The standard points of an ACT/ACU as `pyrtu.poller.Point` keywords (without
-    bus and slave): Status Word 411, Current Error 260 (the fault), Warnings 270.
-    Speed and current are 32-bit ("long") parameters, readable only with the vendor
-    function 100, so FC 03 polling cannot carry them."""
-    return [
-        {"name": f"{prefix}.status", "table": "holding", "address": P_STATUS_WORD,
-         "interval": interval},
-        {"name": f"{prefix}.fault", "table": "holding", "address": P_CURRENT_ERROR,
-         "interval": interval},
-        {"name": f"{prefix}.warnings", "table": "holding", "address": P_WARNINGS,
-         "interval": interval},
-    ]  # fmt: skip

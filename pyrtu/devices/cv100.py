@@ -562,25 +562,3 @@ class CV100:
         """Slave model, VFD model and software version (0x3302-0x3304)."""
         a, b, c = self.read_many(SLAVE_MODEL, 3)
         return {"slave_model": a, "vfd_model": b, "software_version": c}
-
-
-# -- standard points for pyrtu.Poller ---------------------------------------------------
-
-#: per-request limits of the CV100 for a poller (none beyond the spec's)
-POLL_LIMITS: Mapping[str, int] = {}
-
-
-def poll_points(prefix: str, interval: float = 1.0) -> list[dict[str, object]]:
-    """The standard points of a CV100/FV100 as `pyrtu.poller.Point` keywords (without
-    bus and slave): status word 1 (0x3300), speed = operating frequency (0x3305,
-    0.01 Hz), output current (0x3306, 0.1 A), latest fault (0x3314)."""
-    return [
-        {"name": f"{prefix}.status", "table": "holding", "address": STATUS_WORD_1,
-         "interval": interval},
-        {"name": f"{prefix}.speed", "table": "holding", "address": OPERATING_FREQUENCY,
-         "scale": 1 / FREQUENCY_SCALE, "interval": interval},
-        {"name": f"{prefix}.current", "table": "holding", "address": OUTPUT_CURRENT,
-         "scale": 1 / CURRENT_SCALE, "interval": interval},
-        {"name": f"{prefix}.fault", "table": "holding", "address": LATEST_FAULT,
-         "interval": interval},
-    ]  # fmt: skip

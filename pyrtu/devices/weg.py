@@ -462,6 +462,21 @@ def describe_register(model: str, address: int, value: int) -> str | None:
     return None
 
 
+def describe_cfw100(address: int, value: int) -> str | None:
+    """`describe_register` of a CFW100 (the hook of templates/cfw100.toml)."""
+    return describe_register("CFW100", address, value)
+
+
+def describe_cfw320(address: int, value: int) -> str | None:
+    """`describe_register` of a CFW320 (the hook of templates/cfw320.toml)."""
+    return describe_register("CFW320", address, value)
+
+
+def describe_cfw701(address: int, value: int) -> str | None:
+    """`describe_register` of a CFW701 (the hook of templates/cfw701.toml)."""
+    return describe_register("CFW701", address, value)
+
+
 # -- profiles -------------------------------------------------------------------
 
 
@@ -656,26 +671,3 @@ class CFW701(WegDrive):
     def speed_rpm(self, synchronous_rpm: float) -> float:
         """P681 in rpm, as the CFW701 manual states it (8192 = synchronous speed)."""
         return rpm_from_13bit(self.read(P_SPEED), synchronous_rpm)
-
-
-# -- standard points for pyrtu.Poller ---------------------------------------------------
-
-#: per-request limits of the WEG drives for a poller: telegrams of at most 64 bytes
-POLL_LIMITS: Mapping[str, int] = {"max_adu": MAX_TELEGRAM}
-
-
-def poll_points(prefix: str, interval: float = 1.0) -> list[dict[str, object]]:
-    """The standard points of a CFW100/CFW320/CFW701 as `pyrtu.poller.Point`
-    keywords (without bus and slave): status P680, speed P002, current P003 (0.1 A),
-    fault P049 and alarm P048, named ``prefix.status``... and read every ``interval``."""
-    return [
-        {"name": f"{prefix}.status", "table": "holding", "address": P_STATUS, "interval": interval},
-        {"name": f"{prefix}.speed", "table": "holding", "address": P_MOTOR_SPEED,
-         "interval": interval},
-        {"name": f"{prefix}.current", "table": "holding", "address": P_MOTOR_CURRENT,
-         "scale": 0.1, "interval": interval},
-        {"name": f"{prefix}.fault", "table": "holding", "address": P_PRESENT_FAULT,
-         "interval": interval},
-        {"name": f"{prefix}.alarm", "table": "holding", "address": P_PRESENT_ALARM,
-         "interval": interval},
-    ]  # fmt: skip

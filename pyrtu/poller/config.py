@@ -26,8 +26,10 @@ Added keys: on a bus, the poller's ``share`` (of bus time an offline slave's
 probes may take, default 0.05), ``offline_after`` (failures, default 3),
 ``backoff``/``max_backoff`` (seconds, default 0.5 and 1) and default device limits
 (``max_registers``, ``max_bits``, ``max_adu``, ``max_gap``); ``[[device]]`` tables
-(``bus``, ``slave``, the same limits, and ``profile`` = a drive of
-`pyrtu.devices` with ``name``/``interval`` to add its standard points); a
+(``bus``, ``slave``, the same limits, and ``template`` = a device template
+(a ``.toml`` file, relative to the configuration's folder, or a name of the
+registry, `pyrtu.devices.registry`; ``profile`` is the same for a registry name)
+with ``name``/``interval`` to add its points, named ``name.point``); a
 ``[defaults]`` table whose keys are defaults of every point (``bus``, ``table``,
 ``interval``...).
 
@@ -43,17 +45,25 @@ import math
 import re
 import sys
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, TypeGuard
 
 from pyrtu.core.line import LineConfig, split_field_error
+from pyrtu.devices.registry import (
+    POINT_HINT_KEYS,
+    Template,
+    TemplateError,
+    check_hint,
+    find_template,
+    is_file_reference,
+    names,
+)
 from pyrtu.drivers._portname import first_duplicate
 from pyrtu.drivers.links import RTU_TCP_SCHEME, TCP_SCHEME, scheme_of
 
 from .plan import Limits, Wire
-from .points import Point, PointError, check_unique
-from .profiles import device_limits, profile_points
+from .points import Point, PointError, check_unique, encode_point_value
 from .schedule import BACKOFF, MAX_BACKOFF
 
 if sys.version_info >= (3, 11):
@@ -178,11 +188,16 @@ class Bus:
 
 @dataclass(frozen=True)
 class Device:
-    """Limits of one slave on a bus (None: the bus's)."""
+    """Limits of one slave on a bus (None: the bus's); with a ``template``, its
+    ``name`` (the prefix of its points' names) and its points' template keys the
+    points do not carry (``hints``: point name -> unit, writable, min, max...)."""
 
     bus: str
     slave: int
     limits: Limits = field(default_factory=Limits)
+    name: str = ""
+    template: Template | None = None
+    hints: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -283,9 +298,12 @@ class _Loader:
         source: str,
         point_keys: Sequence[str] = (),
         default_keys: Sequence[str] = (),
+        base: Path | None = None,
     ) -> None:
         self.text = text
         self.source = source
+        #: the folder a ``template = "x.toml"`` is relative to (None: the working one)
+        self.base = base
         self.point_keys = (*POINT_KEYS, *point_keys)
         self.default_keys = (*(k for k in POINT_KEYS if k not in ("name", "address")),
                              *default_keys)  # fmt: skip
@@ -411,7 +429,7 @@ class _Loader:
         self, i: int, t: Mapping[str, Any], buses: Sequence[Bus]
     ) -> tuple[Device, list[Point]]:
         label = f"device[{i}]"
-        known = ("bus", "slave", "profile", "name", "interval", *LIMIT_KEYS)
+        known = ("bus", "slave", "template", "profile", "name", "interval", *LIMIT_KEYS)
         self.check_keys("device", i, label, t, known, ("bus", "slave"), t)
         if t["bus"] not in [b.name for b in buses]:
             raise self.fail("device", i, label, "bus", f"no bus named {t['bus']!r}")
@@ -419,25 +437,35 @@ class _Loader:
         if isinstance(s, bool) or not isinstance(s, int) or not 1 <= s <= 247:
             raise self.fail("device", i, label, "slave", f"must be an integer 1..247, not {s!r}")
         limits = self.limits("device", i, label, t)
-        points: list[Point] = []
-        if "profile" in t:
-            try:
-                points = profile_points(
-                    t["profile"], t.get("name", f"{t['profile']}{s}"), t["bus"], s,
-                    t.get("interval", 1.0),
-                )  # fmt: skip
-                defaults = device_limits(t["profile"])
-                merged = {**defaults, **{k: t[k] for k in LIMIT_KEYS if k in t}}
-                limits = Limits(**merged)
-            except ValueError as e:
-                key, _, msg = str(e).partition(": ")
-                if key in known:
-                    raise self.fail("device", i, label, key, msg) from None
-                raise self.fail("device", i, label, "profile", str(e)) from None
-        elif "name" in t or "interval" in t:
-            raise self.fail("device", i, label, "name" if "name" in t else "interval",
-                            "applies only with profile")  # fmt: skip
-        return Device(t["bus"], s, limits), points
+        if "template" in t and "profile" in t:
+            raise self.fail("device", i, label, "profile", "give template or profile, not both")
+        key = "template" if "template" in t else "profile"
+        if key not in t:
+            if "name" in t or "interval" in t:
+                raise self.fail("device", i, label, "name" if "name" in t else "interval",
+                                "applies only with template")  # fmt: skip
+            return Device(t["bus"], s, limits), []
+        ref = t[key]
+        try:
+            if key == "profile" and (not isinstance(ref, str) or is_file_reference(ref)):
+                raise TemplateError(f"must be one of {', '.join(names())}, not {ref!r}")
+            template = find_template(ref, self.base)
+        except TemplateError as e:
+            if key == "profile" and str(e).startswith("no template named"):
+                known_names = ", ".join(names())
+                msg = f"must be one of {known_names}, not {ref!r}"
+                raise self.fail("device", i, label, key, msg) from None
+            raise self.fail("device", i, label, key, str(e)) from None
+        name = t.get("name", f"{template.name.rsplit('/', 1)[-1]}{s}")
+        if not isinstance(name, str) or not name:
+            raise self.fail("device", i, label, "name", f"must be a non-empty string, not {name!r}")
+        interval = t.get("interval")
+        if interval is not None and (not _real(interval) or interval <= 0):
+            raise self.fail("device", i, label, "interval",
+                            f"must be a positive number of seconds, not {interval!r}")  # fmt: skip
+        points, hints = template_points(template, name, t["bus"], s, interval)
+        merged = {**template.limits, **{k: t[k] for k in LIMIT_KEYS if k in t}}
+        return Device(t["bus"], s, Limits(**merged), name, template, hints), points
 
     def point(self, i: int, t: Mapping[str, Any], defaults: Mapping[str, Any]) -> Point:
         name = t.get("name")
@@ -460,13 +488,14 @@ class _Loader:
             ) from None
 
 
-def parse_config(text: str, source: str = "<config>") -> PollerConfig:
-    """A configuration from TOML text (``source`` names it in errors)."""
+def parse_config(text: str, source: str = "<config>", base: Path | None = None) -> PollerConfig:
+    """A configuration from TOML text (``source`` names it in errors; ``base``: the
+    folder a template file is relative to, default the working one)."""
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{source}: {e}") from None
-    return _Loader(text, source).load(doc)
+    return _Loader(text, source, base=base).load(doc)
 
 
 def read_config_text(path: str | Path) -> str:
@@ -487,7 +516,119 @@ def load_config(path: str | Path) -> PollerConfig:
     """A configuration from a TOML file; `ConfigError` names the file on any problem
     (missing, unreadable, not UTF-8, bad TOML, bad values)."""
     p = Path(path)
-    return parse_config(read_config_text(p), p.name if p.name else str(p))
+    return parse_config(read_config_text(p), p.name if p.name else str(p), p.resolve().parent)
+
+
+#: a template point's keys the poller's `Point` does not take (kept as hints)
+HINT_KEYS = tuple(k for k in POINT_HINT_KEYS if k not in POINT_KEYS)
+#: the types whose registers take the template's ``word_order``
+_WORD_TYPES = frozenset({"int32", "uint32", "float32", "int64", "uint64", "float64"})
+
+
+def template_points(
+    template: Template,
+    prefix: str = "",
+    bus: str = "template",
+    slave: int = 1,
+    interval: float | None = None,
+) -> tuple[list[Point], dict[str, dict[str, Any]]]:
+    """The points of ``template`` on ``bus`` at ``slave``, named ``prefix.name``
+    (``prefix`` empty: the template's names), read every ``interval`` seconds where
+    a point gives none (None: the template's ``interval``, else 1 s), and each
+    point's keys that `Point` does not take (unit, writable, min, max, initial, Home
+    Assistant hints).  Each ``[[point]]`` goes through the poller's own point parser;
+    `ConfigError` names the template's file, line, point and key."""
+    loader = _Loader(template.text, template.source, point_keys=HINT_KEYS)
+    defaults: dict[str, Any] = {"bus": bus, "slave": slave}
+    every = interval if interval is not None else template.interval
+    if every is not None:
+        defaults["interval"] = every
+    points: list[Point] = []
+    hints: dict[str, dict[str, Any]] = {}
+    for i, raw in enumerate(template.points):
+        name = raw.get("name")
+        label = f"point[{i}]" + (f' ("{name}")' if isinstance(name, str) else "")
+        for k in ("bus", "slave"):
+            if k in raw:
+                msg = "a template's points are on the [[device]]'s bus and slave"
+                raise loader.fail("point", i, label, k, msg)
+        own = {k: raw[k] for k in HINT_KEYS if k in raw}
+        for k, v in own.items():
+            wrong = check_hint(k, v)
+            if wrong:
+                raise loader.fail("point", i, label, k, wrong)
+        table = {k: v for k, v in raw.items() if k not in HINT_KEYS}
+        own_defaults = dict(defaults)
+        if "order" not in table and table.get("type") in _WORD_TYPES:
+            own_defaults["order"] = template.word_order
+        point = loader.point(i, table, own_defaults)
+        for k in POINT_HINT_KEYS:  # the hints a point carries itself, in one place
+            carried = getattr(point, k, None)
+            if k not in own and carried not in (None, ""):
+                own[k] = carried
+        _check_hints(loader, i, label, point, own)
+        _check_overlap(loader, i, label, point, points)
+        if prefix:
+            point = replace(point, name=f"{prefix}.{point.name}")
+        points.append(point)
+        hints[point.name] = own
+    try:
+        check_unique(points)
+    except PointError as e:
+        raise ConfigError(f"{template.source}: point: {e}") from None
+    return points, hints
+
+
+def _check_hints(loader: _Loader, i: int, label: str, point: Point, own: Mapping[str, Any]) -> None:
+    """ConfigError when the template keys do not fit the point."""
+    read_only = point.table not in ("holding", "coils")
+    if own.get("writable") and read_only:
+        raise loader.fail("point", i, label, "writable", f"the {point.table} table is read only")
+    for k in ("min", "max"):
+        if k in own and point.type in ("bool", "string"):
+            raise loader.fail("point", i, label, k, f"a {point.type} point has no range")
+    if "min" in own and "max" in own and own["min"] > own["max"]:
+        raise loader.fail(
+            "point", i, label, "max", f"must be at least min ({own['min']}), not {own['max']!r}"
+        )
+    if "initial" in own:
+        value = own["initial"]
+        try:  # what the registers would hold (as if the table were writable)
+            encode_point_value(replace(point, table="coils" if point.bits else "holding"), value)
+        except ValueError as e:
+            msg = str(e).removeprefix(f"point {point.name!r}: ")
+            raise loader.fail("point", i, label, "initial", msg) from None
+        low, high = own.get("min"), own.get("max")
+        if (
+            isinstance(value, int | float)
+            and not isinstance(value, bool)
+            and ((low is not None and value < low) or (high is not None and value > high))
+        ):
+            raise loader.fail(
+                "point", i, label, "initial", f"{value!r} is outside min..max ({low}..{high})"
+            )
+
+
+def _check_overlap(
+    loader: _Loader, i: int, label: str, point: Point, earlier: Sequence[Point]
+) -> None:
+    """ConfigError when ``point`` shares addresses with an earlier point of another
+    type or width (the same registers read as the same type, an alias, are fine; so
+    are bit fields of one register)."""
+    for j, other in enumerate(earlier):
+        if other.table != point.table or other.end <= point.address or point.end <= other.address:
+            continue
+        same = (other.address, other.size, other.type) == (point.address, point.size, point.type)
+        fields = getattr(point, "bit", None) is not None or getattr(point, "bits", None) not in (
+            None,
+            (),
+        )
+        if same or (fields and other.size == point.size == 1):
+            continue
+        raise loader.fail("point", i, label, "address",
+                          f"{point.table} {point.address}..{point.end - 1} ({point.type}) overlaps "
+                          f'point[{j}] ("{other.name}") at {other.address}..{other.end - 1} '
+                          f"({other.type})")  # fmt: skip
 
 
 def make_config(
@@ -509,4 +650,5 @@ __all__ = [
     "load_config",
     "make_config",
     "parse_config",
+    "template_points",
 ]

@@ -161,7 +161,7 @@ def test_more_bad_files() -> None:
     assert "bus 'line1' is declared twice" in bad(MINIMAL.split("\n\n")[0] + "\n\n" + MINIMAL)
     assert bad("colour = 1\n" + MINIMAL).startswith("points.toml: unknown top-level key 'colour'")
     msg = bad(MINIMAL + '[[device]]\nbus = "line1"\nslave = 2\nprofile = "abb"\n')
-    assert msg.startswith("points.toml:18: device[0]: profile: must be one of cfw100")
+    assert msg.startswith("points.toml:18: device[0]: profile: must be one of act, acu, cfw100")
     msg = bad(MINIMAL + '[[device]]\nbus = "line1"\nslave = 1\nmax_registers = 0\n')
     assert msg == "points.toml:18: device[0]: max_registers: must be an integer 1..125, not 0"
     msg = bad(MINIMAL.replace('type = "uint16"', 'type = "uint32"')
