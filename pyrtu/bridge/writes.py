@@ -38,7 +38,7 @@ class Host(Protocol):
     poller: Poller
     commands: CommandQueue
 
-    def publish_value(self, point: Point, value: Value, read_at: float) -> None: ...
+    def publish_value(self, point: Point, value: Value | None, read_at: float) -> None: ...
 
     def task_failed(
         self, task: str, error: BaseException, retry_in: float, first: bool = True

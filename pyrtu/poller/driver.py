@@ -492,7 +492,7 @@ class Poller(AsyncService):
         finally:
             self._subscribers.remove(entry)
 
-    def values(self) -> dict[str, Value]:
+    def values(self) -> dict[str, Value | None]:
         """The last value read of every point read so far."""
         return {k: u.value for k, u in self._tracker.latest().items()}
 
@@ -610,7 +610,7 @@ class Poller(AsyncService):
         (fut,) = self._submit(run, [run.sched.submit_write(slave, table, address, values)])
         await fut
 
-    async def read(self, name: str) -> Value:
+    async def read(self, name: str) -> Value | None:
         """Read point ``name`` now, ahead of every poll on its bus."""
         p = self.point(name)
         self._check_running()
