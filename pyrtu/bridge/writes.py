@@ -113,8 +113,7 @@ class Writer:
             )
             return
         point = self.bridge.poller.point(name)
-        opts = self.cfg.option(name)
-        if not opts.writable:
+        if not point.writable:
             self._refuse(
                 Refusal(
                     "not_writable",
@@ -143,7 +142,7 @@ class Writer:
                 self._reply(reply, res, corr)
             return
         try:
-            encoded = check_value(point, opts, value)
+            encoded = check_value(point, value)
         except ValueError as e:
             self._refuse(Refusal("validation", str(e), cid), name, reply, corr)
             return

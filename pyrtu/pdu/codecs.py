@@ -299,7 +299,7 @@ def text_bytes(name: str, value: object, capacity: int) -> bytes:
         raise ValueError(f"{value!r}: {e.object[e.start]!r} is no Latin-1 character") from None
     if len(raw) > capacity:
         raise ValueError(
-            f"{value!r} is {len(raw)} characters; the registers hold at most {capacity}"
+            f"{value!r} is {len(raw)} characters; its registers hold at most {capacity} characters"
         )
     return raw
 
