@@ -21,7 +21,7 @@ from decimal import ROUND_HALF_UP, Decimal
 from typing import Any
 
 from pyrtu.pdu import codecs
-from pyrtu.pdu.codecs import CODECS, ORDERS_8, ORDERS_16
+from pyrtu.pdu.codecs import CODECS, ORDERS_8, ORDERS_16, ORDERS_32
 
 #: the four tables of the Modbus data model, as points name them
 TABLES = ("coils", "discrete_inputs", "holding", "input")
@@ -200,13 +200,16 @@ class Point:
         word = "uint16" if kind == "bool" and not bit_table else kind
         try:
             order = codecs.normalize_order(word, self.order)
-        except ValueError as e:
-            accepted = ", ".join(CODECS[word].orders)
-            if CODECS[word].orders is ORDERS_16:
-                accepted += " (or a 32/64-bit order: ABCD, CDAB, BADC, DCBA, ...)"
-            raise PointError(
-                "order", f"{str(e).partition(' must be ')[2] or e}; accepted: {accepted}"
-            ) from None
+        except ValueError:
+            orders = CODECS[word].orders
+            accepted = ", ".join(orders)
+            if orders is ORDERS_16:
+                accepted += " (or a 32- or 64-bit order: ABCD, CDAB, BADC, DCBA, ...)"
+            elif orders is ORDERS_32:
+                accepted += " (or the 64-bit names ABCDEFGH, GHEFCDAB, BADCFEHG, HGFEDCBA)"
+            elif orders is not ORDERS_8:
+                accepted += " (or the 32-bit names ABCD, CDAB, BADC, DCBA)"
+            raise PointError("order", f"a {word} takes {accepted}, not {self.order!r}") from None
         object.__setattr__(self, "order", order)
         if codec.registers == 0:
             _int("count", self.count, 1, 125)
