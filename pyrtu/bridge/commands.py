@@ -66,10 +66,13 @@ def result(
     time: float | None = None,
     exception_code: int | None = None,
     rounded: dict[str, Any] | None = None,
+    method: str | None = None,
 ) -> bytes:
     """The JSON of a result: ``{"ok": true, "point", "id", "value", "time"}`` (the
     value read back after the write; with ``"rounded": {"requested", "written",
-    "resolution"}`` when a scaled point took the value rounded to its resolution) or
+    "resolution"}`` when a scaled point took the value rounded to its resolution, and
+    ``"method"``, ``mask_write`` (FC 22) or ``read_modify_write``, for a bit or field
+    of a register) or
     ``{"ok": false, "point", "id", "error", "message"}``; ``error`` is one of
     ``malformed``, ``too_large``, ``retained``, ``unknown_point``, ``not_writable``,
     ``validation``, ``expired``, ``busy``, ``exception`` (with ``exception_code``),
@@ -82,6 +85,8 @@ def result(
         doc["time"] = time
         if rounded is not None:
             doc["rounded"] = rounded
+        if method is not None:
+            doc["method"] = method
     else:
         doc["error"] = error
         doc["message"] = message

@@ -266,7 +266,7 @@ class Writer:
             return
         poller = self.bridge.poller
         try:
-            await poller.write(name, cmd.value)
+            how = await poller.write(name, cmd.value)
             self.last_write_at = time.time()
             self.write_latency.append(time.monotonic() - cmd.received)
             del self.write_latency[:-1024]
@@ -302,7 +302,13 @@ class Writer:
                 cmd.rounded["written"],
             )
         shown = faithful_value(cmd.point, value)
-        self._finish(cmd, result(name, True, id=cmd.id, value=shown, time=now, rounded=cmd.rounded))
+        method = None if how == "write" else how  # a bit or field: FC 22 or read-modify-write
+        self._finish(
+            cmd,
+            result(
+                name, True, id=cmd.id, value=shown, time=now, rounded=cmd.rounded, method=method
+            ),
+        )
 
 
 def _worker_name(key: tuple[str, int]) -> str:
