@@ -135,17 +135,21 @@ def _int_codec(name: str, registers: int, signed: bool) -> Codec:
         if registers == 2 and not swap:
             if reverse:
                 if signed:
-                    return lambda b, i: ((int(b[i + 1]) << 16 | int(b[i])) ^ top) - top
-                return lambda b, i: int(b[i + 1]) << 16 | int(b[i])
+                    return lambda b, i: ((b[i + 1] << 16 | b[i]) ^ top) - top
+                return lambda b, i: b[i + 1] << 16 | b[i]
             if signed:
-                return lambda b, i: ((int(b[i]) << 16 | int(b[i + 1])) ^ top) - top
-            return lambda b, i: int(b[i]) << 16 | int(b[i + 1])
+                return lambda b, i: ((b[i] << 16 | b[i + 1]) ^ top) - top
+            return lambda b, i: b[i] << 16 | b[i + 1]
         pack = struct.Struct(f"{'<' if swap else '>'}{registers}H").pack
         letter = ("bhiq" if signed else "BHIQ")[registers.bit_length()]
         unpack = struct.Struct(">" + letter).unpack
+        if registers == 2:  # bytes swapped in each word
+            if reverse:
+                return lambda b, i: unpack(pack(b[i + 1], b[i]))[0]
+            return lambda b, i: unpack(pack(b[i], b[i + 1]))[0]
         if reverse:
-            return lambda b, i: unpack(pack(*b[i : i + registers][::-1]))[0]
-        return lambda b, i: unpack(pack(*b[i : i + registers]))[0]
+            return lambda b, i: unpack(pack(b[i + 3], b[i + 2], b[i + 1], b[i]))[0]
+        return lambda b, i: unpack(pack(b[i], b[i + 1], b[i + 2], b[i + 3]))[0]
 
     def make_encode(order: str, count: int) -> Encode:
         reverse, swap = _RULES[order]
@@ -233,31 +237,35 @@ def _float_codec(name: str, registers: int) -> Codec:
 # --------------------------------------------------------------------- BCD
 
 
+_BCD: list[int | None] = []
+
+
+def _bcd_word(v: int) -> int | None:
+    """A register's four BCD digits (None: a digit above 9), from a table built once."""
+    if not _BCD:
+        _BCD.extend(int(t) if (t := f"{w:04x}").isdigit() else None for w in range(0x10000))
+    return _BCD[v]
+
+
 def _bcd_codec(name: str, registers: int) -> Codec:
     digits = 4 * registers
     hi = 10**digits - 1
 
-    def from_bcd(v: int) -> int | None:
-        out, scale = 0, 1
-        for _ in range(digits):
-            d = v & 0xF
-            if d > 9:
-                return None
-            out += d * scale
-            scale *= 10
-            v >>= 4
-        return out
-
     def make_decode(order: str, count: int) -> Decode:
         reverse, swap = _RULES[order]
+        _bcd_word(0)  # the table, now rather than in the first poll
+        table = _BCD
+        if swap:  # the table of the byte-swapped registers
+            table = [_BCD[_swap16(w)] for w in range(0x10000)]
         if registers == 1:
-            if swap:
-                return lambda b, i: from_bcd(_swap16(int(b[i])))
-            return lambda b, i: from_bcd(int(b[i]))
-        fix = _swap16 if swap else int
-        if reverse:
-            return lambda b, i: from_bcd(fix(int(b[i + 1])) << 16 | fix(int(b[i])))
-        return lambda b, i: from_bcd(fix(int(b[i])) << 16 | fix(int(b[i + 1])))
+            return lambda b, i: table[b[i]]
+        first, second = (1, 0) if reverse else (0, 1)
+
+        def decode32(b: Sequence[int], i: int) -> int | None:
+            high, low = table[b[i + first]], table[b[i + second]]
+            return None if high is None or low is None else high * 10000 + low
+
+        return decode32
 
     def make_encode(order: str, count: int) -> Encode:
         reverse, swap = _RULES[order]
@@ -314,8 +322,10 @@ def _string_codec(name: str, per_register: int) -> Codec:
                 return trim(raw)
 
             return decode2
-        shift = 8 if swap else 0
-        return lambda b, i: trim(bytes((int(r) >> shift) & 0xFF for r in b[i : i + count]))
+        words = struct.Struct(f">{count}H").pack
+        first = 0 if swap else 1  # the byte of each register that holds the character
+
+        return lambda b, i: trim(words(*b[i : i + count])[first::2])
 
     def make_encode(order: str, count: int) -> Encode:
         swap = order == "BA"

@@ -167,6 +167,7 @@ class Point:
         init=False, repr=False, compare=False, default=lambda b, i: None
     )
     _plain: int = field(init=False, repr=False, compare=False, default=0)
+    _size: int = field(init=False, repr=False, compare=False, default=1)
     _labels: Mapping[int, str] = field(init=False, repr=False, compare=False, default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -281,6 +282,7 @@ class Point:
             if v is not None:
                 object.__setattr__(self, k, self._marker(k, v, codec.kind, field_lo, field_hi))
         object.__setattr__(self, "_read", self._reader(word))
+        object.__setattr__(self, "_size", self.size)
         plain = (self.scale == 1 and self.offset == 0 and self.bits is None and not labels
                  and self.error_value is None and self.unsupported_value is None)  # fmt: skip
         code = {"uint16": 1, "int16": 2, "bool": 3}.get(kind, 0) if plain else 0
@@ -309,6 +311,25 @@ class Point:
         if self.table in BIT_TABLES:
             return lambda b, i: bool(b[i])
         read: Callable[[Sequence[Any], int], Any] = codecs.decoder(word, self.order, self.count)
+        direct = word == "uint16" and self.order == "AB"  # the register as it is: inline
+        markers = [m for m in (self.error_value, self.unsupported_value) if m is not None]
+        if direct and self.bit is not None:
+            n = self.bit
+            return lambda b, i: bool(b[i] >> n & 1)
+        if direct and self.bits is not None and self.type == "uint16" and not markers:
+            first, width = self.bits
+            mask = (1 << width) - 1
+            if not self._labels:
+                return lambda b, i: b[i] >> first & mask
+            labels0 = self._labels
+            return lambda b, i: labels0.get(v := b[i] >> first & mask, v)
+        if direct and self.bits is None and self.type == "uint16" and self.scale == 1:
+            if self.offset == 0 and not markers and self._labels:
+                labels1 = self._labels
+                return lambda b, i: labels1.get(v := b[i], v)
+            if self.offset == 0 and markers and not self._labels:
+                marks0 = frozenset(markers)
+                return lambda b, i: None if (v := b[i]) in marks0 else v
         if self.bit is not None:
             n, inner = self.bit, read
             read = lambda b, i: bool((inner(b, i) >> n) & 1)  # noqa: E731
@@ -320,7 +341,6 @@ class Point:
                 read = lambda b, i: ((((inner(b, i) & 0xFFFF) >> first) & mask) ^ sign) - sign  # noqa: E731
             else:
                 read = lambda b, i: (inner(b, i) >> first) & mask  # noqa: E731
-        markers = [m for m in (self.error_value, self.unsupported_value) if m is not None]
         if markers:
             inner2 = read
             if any(isinstance(m, float) and math.isnan(m) for m in markers):
@@ -380,13 +400,13 @@ class Point:
         plain = self._plain
         if plain and 0 <= i < len(block):
             # the common cases inline, without a call (measured in bench_decode)
-            v = int(block[i])
             if plain == 1:
-                return v
-            if plain == 2:
-                return v - 0x10000 if v & 0x8000 else v
-            return bool(v)
-        if i < 0 or i + self.size > len(block):
+                return int(block[i])
+            if plain == 3:
+                return bool(block[i])
+            v = int(block[i])
+            return v - 0x10000 if v & 0x8000 else v
+        if i < 0 or i + self._size > len(block):
             raise ValueError(
                 f"point {self.name!r} ({self.address}..{self.end - 1}) is outside the "
                 f"block {start}..{start + len(block) - 1}"
