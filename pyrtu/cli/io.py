@@ -249,9 +249,9 @@ class ReadResult:
             if isinstance(v, float) and not math.isfinite(v):
                 out.append(str(v))
             elif isinstance(v, float) and self.kind in ("float32", "float16"):
-                from pyrtu.poller.values import shortest_float32
+                from pyrtu.poller.values import shortest_float16, shortest_float32
 
-                out.append(shortest_float32(v))
+                out.append((shortest_float16 if self.kind == "float16" else shortest_float32)(v))
             else:
                 out.append(v)
         return out

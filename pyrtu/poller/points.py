@@ -9,7 +9,9 @@ how often it is read (interval, in seconds) and reported (deadband)::
 
 Every field is checked when the point is made; a bad one raises `PointError`
 (a ValueError) whose ``field`` names it and whose message says what is wrong.
-Decoding reuses the helpers of `pyrtu.pdu.data`.
+Decoding and encoding use the register types of `pyrtu.pdu.codecs` (one table for
+the poller, the CLI, `pyrtu.data` and the bridge); each point composes its decoder
+once (its type, bit or field, "no value" markers, labels, scale).
 """
 
 from __future__ import annotations
@@ -134,7 +136,7 @@ class Point:
     value, before scale; a signed type takes it as the register's pattern too,
     0x8000 for an int16; NaN for a float): decoded as None (quality ``bad``).
     ``writable``, ``min``, ``max``: what the bridge lets a set command write (the
-    bounds apply to every write); ``unit``, ``precision`` (decimals published),
+    bounds apply to every write); ``unit``, ``precision`` (decimals to show),
     ``device_class``, ``state_class``, ``icon``: for Home Assistant's discovery.
     """
 
@@ -313,7 +315,7 @@ class Point:
         read: Callable[[Sequence[Any], int], Any] = codecs.decoder(word, self.order, self.count)
         direct = word == "uint16" and self.order == "AB"  # the register as it is: inline
         markers = [m for m in (self.error_value, self.unsupported_value) if m is not None]
-        if direct and self.bit is not None:
+        if direct and self.bit is not None and not self._labels:
             n = self.bit
             return lambda b, i: bool(b[i] >> n & 1)
         if direct and self.bits is not None and self.type == "uint16" and not markers:

@@ -280,3 +280,19 @@ def test_writes_refused_before_a_byte_is_sent() -> None:
     assert encode_point_value(swapped, True).mask == (0xFEFF, 0x0100)  # bit 0 in the 2nd byte
     with pytest.raises(ValueError, match="read only"):
         encode_point_value(Point("i", bus="l", slave=1, table="input", address=0, bit=1), True)
+
+
+def test_published_values_are_the_shortest_faithful_decimals() -> None:
+    from pyrtu.poller.values import faithful_value
+
+    kw: dict[str, object] = dict(bus="l", slave=1, table="holding", address=0)
+    half = Point("h", type="float16", **kw)  # type: ignore[arg-type]
+    tenth = struct.unpack(">e", struct.pack(">e", 0.1))[0]  # 0.0999755859375
+    assert half.decode([struct.unpack(">H", struct.pack(">e", 0.1))[0]], 0) == tenth
+    assert faithful_value(half, tenth) == 0.1
+    energy = Point("e", type="int64", scale=0.1, **kw)  # type: ignore[arg-type]
+    assert faithful_value(energy, energy.decode([0, 0, 0, 3], 0)) == 0.3  # not 0.30000000000000004
+    byte = Point("b", type="uint8", order="low", scale=0.5, offset=0.1, **kw)  # type: ignore[arg-type]
+    assert faithful_value(byte, byte.decode([0x0003], 0)) == 1.6
+    door = Point("d", bit=2, enum=["closed", "open"], **kw)  # type: ignore[arg-type]
+    assert door.decode([0b100], 0) == "open" and door.decode([0b011], 0) == "closed"
