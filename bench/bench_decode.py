@@ -2,7 +2,7 @@
 type, as the scheduler calls it for each point of a block read, before and after the
 register types of issue 29, in one run.
 
-    python bench/bench_decode.py [--base REF] [--points 100] [--write]
+    python bench/bench_decode.py [--base REF] [--points 100] [--json FILE] [--write]
 
 "Before" is `pyrtu/poller/points.py` and `pyrtu/pdu/data.py` as they were at
 ``--base`` (default: the parent of the commit that added `pyrtu/pdu/codecs.py`),
@@ -10,7 +10,8 @@ loaded from git into this process under other names; "after" is the working tree
 Each row decodes ``--points`` points of one type laid out one after the other in a
 block (as a poll of a device's block delivers them) and reports the best of
 ``--rounds`` rounds (every case once per round, interleaved), in nanoseconds per
-point.  Targets: the existing types not slower than
+point (``--json``: the figures as JSON, ``{"ns_per_point": {"before uint16": ...,
+"after uint16": ...}}``).  Targets: the existing types not slower than
 before; every new type within 1.5x of uint16's cost (before, today's; the ratio
 to uint16 after is shown too).  ``--write``: the
 section "## Point decoding cost (issue 29)" of bench/RESULTS.md.
@@ -20,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import json
 import math
 import platform
 import subprocess
@@ -33,8 +35,6 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
-
-import results_md  # noqa: E402
 
 from pyrtu.poller.points import Point  # noqa: E402
 
@@ -134,6 +134,7 @@ def main() -> int:
     ap.add_argument("--points", type=int, default=100)
     ap.add_argument("--rounds", type=int, default=30, help="rounds of every case, interleaved")
     ap.add_argument("--write", action="store_true", help="write the section of RESULTS.md")
+    ap.add_argument("--json", type=Path, help="also write the figures here (ns per point)")
     args = ap.parse_args()
     base = args.base or default_base()
     old_point = old_point_class(base)
@@ -183,7 +184,12 @@ def main() -> int:
         "",
     ])  # fmt: skip
     print(text)
+    if args.json:
+        doc = {"base": rev, "points": args.points, "rounds": args.rounds, "ns_per_point": ns}
+        args.json.write_text(json.dumps(doc, indent=1) + "\n")
     if args.write:
+        import results_md  # the section writer of bench/ (only when asked)
+
         results_md.write_section(HEADING, text)
     return 0
 
