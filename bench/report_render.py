@@ -1056,6 +1056,42 @@ def soak_targets(data: Data) -> list[tuple[str, str]]:
     return [(cells, verdict(ok))]
 
 
+def decode_body(data: Data) -> Lines:
+    out = [
+        f"The poller's decoding cost per point (bench/bench_decode.py): {data['points']} points "
+        f"of one type in a block, best of {data['rounds']} interleaved rounds; before: the "
+        f"`Point` of `{data['base']}` (loaded from git), after: this tree, in one process.",
+        "",
+    ]
+    rows = [
+        [
+            r["type"],
+            "-" if r["before"] is None else f"{r['before']:.0f}",
+            f"{r['after']:.0f}",
+            r["versus"],
+            verdict(r["ok"]),
+        ]
+        for r in data["rows"]
+    ]
+    return out + table(["type", "before, ns/point", "after, ns/point", "ratio", "target"], rows)
+
+
+def decode_targets(data: Data) -> list[tuple[str, str]]:
+    old = [r for r in data["rows"] if r["existed"]]
+    new = [r for r in data["rows"] if not r["existed"]]
+    slowest_old = max(old, key=lambda r: r["after"] / r["before"])
+    return [
+        (
+            f"slowest {slowest_old['type']}: {slowest_old['versus']}",
+            verdict(all(r["ok"] for r in old)),
+        ),
+        (
+            f"{sum(r['ok'] for r in new)} of {len(new)} within 1.5x",
+            verdict(all(r["ok"] for r in new)),
+        ),
+    ]
+
+
 def install_body(data: Data) -> Lines:
     out = [
         "The sdist and the wheel (`python -m build`, then `auditwheel repair --strip`), and "
@@ -1191,6 +1227,16 @@ SECTIONS: tuple[Section, ...] = (
         outbox_body,
         outbox_targets,
         ("outbox appends with fsync batches >= 20,000 records/s",),
+    ),
+    Section(
+        "decode",
+        "Point decoding",
+        decode_body,
+        decode_targets,
+        (
+            "point decoding: the existing types not slower than before (5 % noise)",
+            "point decoding: every new type within 1.5x of uint16's (before)",
+        ),
     ),
     Section("setrt", "Set round trip and TCP_NODELAY", setrt_body),
     Section("compat", "Drop-in adapters (compat)", compat_body),

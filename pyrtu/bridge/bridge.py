@@ -308,7 +308,7 @@ class Bridge(AsyncService):
             if self._bus_unseen or self._resume:
                 self._first_value(p.bus, p.slave)
             if self.reporter.update(p, ev.value, ev.time, now):
-                self._append(p, ev.value, ev.time, "good")
+                self._append(p, ev.value, ev.time, ev.quality)
         elif isinstance(ev, SlaveState):
             self._slaves[(ev.bus, ev.slave)] = ev.online
             self._resume.discard((ev.bus, ev.slave))
@@ -377,11 +377,11 @@ class Bridge(AsyncService):
             doc = bus_payload("up" if ev.up else "down", ev.port, ev.error, ev.since, ev.time)
         link.publish(t, doc, 1, True)
 
-    def publish_value(self, point: Point, value: Value, read_at: float) -> None:
+    def publish_value(self, point: Point, value: Value | None, read_at: float) -> None:
         """Publish a value read now (a write's read-back) whatever its deadband,
         unless it is the value last published (a poll may have read it first)."""
         if self.reporter.update(point, value, read_at, time.monotonic(), exact=True):
-            self._append(point, value, read_at, "good")
+            self._append(point, value, read_at, "bad" if value is None else "good")
 
     def _append(
         self, point: Point, value: Value | None, read_at: float | None, quality: str

@@ -29,7 +29,6 @@ from typing import Any
 
 from ..poller import Point
 from ..poller.points import Encoded, encode_point_value
-from .config import PointOptions
 
 
 @dataclass(slots=True)
@@ -67,10 +66,13 @@ def result(
     time: float | None = None,
     exception_code: int | None = None,
     rounded: dict[str, Any] | None = None,
+    method: str | None = None,
 ) -> bytes:
     """The JSON of a result: ``{"ok": true, "point", "id", "value", "time"}`` (the
     value read back after the write; with ``"rounded": {"requested", "written",
-    "resolution"}`` when a scaled point took the value rounded to its resolution) or
+    "resolution"}`` when a scaled point took the value rounded to its resolution, and
+    ``"method"``, ``mask_write`` (FC 22) or ``read_modify_write``, for a bit or field
+    of a register) or
     ``{"ok": false, "point", "id", "error", "message"}``; ``error`` is one of
     ``malformed``, ``too_large``, ``retained``, ``unknown_point``, ``not_writable``,
     ``validation``, ``expired``, ``busy``, ``exception`` (with ``exception_code``),
@@ -83,6 +85,8 @@ def result(
         doc["time"] = time
         if rounded is not None:
             doc["rounded"] = rounded
+        if method is not None:
+            doc["method"] = method
     else:
         doc["error"] = error
         doc["message"] = message
@@ -91,31 +95,38 @@ def result(
     return json.dumps(doc, allow_nan=False, default=str).encode()
 
 
-def check_value(point: Point, opts: PointOptions, value: object) -> Encoded:
+def check_value(point: Point, value: object) -> Encoded:
     """``value`` as the point's registers take it (`Encoded`: what they will hold,
-    and whether that is ``value`` rounded); ValueError saying why not (nothing
-    sent)."""
-    if point.type == "bool":
+    and whether that is ``value`` rounded; a bit's or field's FC 22 mask); ValueError
+    saying why not (nothing sent): a JSON type the point does not take, a label
+    not among its enum's, a number outside its ``min``..``max`` or its registers,
+    a text longer than its registers."""
+    if point.labels:
+        if isinstance(value, bool) or not isinstance(value, str | int):
+            raise ValueError(
+                f"value must be one of {', '.join(json.dumps(x) for x in point.labels)},"
+                f" not {json.dumps(value)}"
+            )
+    elif point.type == "bool":
         if not isinstance(value, bool) and not (
             isinstance(value, int) and not isinstance(value, bool) and value in (0, 1)
         ):
             raise ValueError(f"value must be true or false (or 0/1), not {value!r}")
         value = bool(value)
-    elif point.type == "string":
+    elif point.type in ("string", "string1"):
         if not isinstance(value, str):
             raise ValueError(f"value must be a string, not {json.dumps(value)}")
-        if len(value.encode("latin-1", "replace")) > 2 * point.count:
-            raise ValueError(f"value must be at most {2 * point.count} characters")
     else:
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise ValueError(f"value must be a number, not {json.dumps(value)}")
         if not math.isfinite(value):
             raise ValueError("value must be a finite number")
-        if opts.min is not None and value < opts.min:
-            raise ValueError(f"value {value!r} is below the point's min {opts.min!r}")
-        if opts.max is not None and value > opts.max:
-            raise ValueError(f"value {value!r} is above the point's max {opts.max!r}")
-    return encode_point_value(point, value)  # scale, offset, the register's range
+        if point.min is not None and value < point.min:
+            raise ValueError(f"value {value!r} is below the point's min {point.min!r}")
+        if point.max is not None and value > point.max:
+            raise ValueError(f"value {value!r} is above the point's max {point.max!r}")
+    encoded = encode_point_value(point, value)  # scale, offset, the register's range
+    return encoded
 
 
 def rounding(point: Point, requested: object, encoded: Encoded) -> dict[str, Any] | None:

@@ -24,9 +24,11 @@ per-point keys.
     max_age = 60                       # republish an unchanged value after 60 s
 
 Per-point keys (also in ``[defaults]``, but ``topic``): ``topic`` (the point's topic
-instead of ``{prefix}/{edge}/{bus}/{slave}/{point}``), ``writable``, ``min``,
-``max``, ``max_age``; ``deadband`` is the poller's own.  The ``[mqtt]`` keys are
-the fields of `MqttConfig`.
+instead of ``{prefix}/{edge}/{bus}/{slave}/{point}``) and ``max_age``; ``writable``,
+``min``, ``max`` (what a set command may write), ``deadband`` and the Home Assistant
+hints are the poller's point keys (`pyrtu.poller.Point`); ``[defaults]``'
+``writable``, ``min`` and ``max`` apply to the points of ``[[device]]`` profiles too.
+The ``[mqtt]`` keys are the fields of `MqttConfig`.
 
 Errors are `pyrtu.poller.ConfigError` (a ValueError) naming the file, the line and
 the key, like the poller's: ``bridge.toml:4: mqtt: qos: must be 0, 1 or 2, not 3``.
@@ -41,13 +43,13 @@ import re
 import socket
 import sys
 from collections.abc import Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
 from ..core.timing import check_seconds
-from ..poller import ConfigError, Point, PollerConfig
+from ..poller import ConfigError, PollerConfig
 from ..poller.config import _Loader, _locate, read_config_text
 from .topics import Topics, topic_problem
 
@@ -57,7 +59,9 @@ else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
 #: the per-point keys the bridge adds to ``[[point]]`` tables
-POINT_KEYS = ("topic", "writable", "min", "max", "max_age")
+POINT_KEYS = ("topic", "max_age")
+#: the poller's point keys that ``[defaults]`` gives the profiles' points too
+PROFILE_DEFAULTS = ("writable", "min", "max")
 
 
 def _real(v: object) -> bool:
@@ -211,37 +215,18 @@ MQTT_KEYS = tuple(f.name for f in fields(MqttConfig))
 
 @dataclass(frozen=True)
 class PointOptions:
-    """A point's bridge keys: its topic override, writability, bounds of a set
-    value and the age after which an unchanged value is published again."""
+    """A point's bridge keys: its topic override and the age after which an
+    unchanged value is published again (writability and bounds are the point's:
+    `pyrtu.poller.Point`)."""
 
     topic: str | None = None
-    writable: bool = False
-    min: float | None = None
-    max: float | None = None
     max_age: float | None = None
 
     def __post_init__(self) -> None:
         if self.topic is not None:
             _level("topic", self.topic, slashes=True)
-        if not isinstance(self.writable, bool):
-            raise ValueError(f"writable: must be true or false, not {self.writable!r}")
-        for k in ("min", "max"):
-            v = getattr(self, k)
-            if v is not None and not _real(v):
-                raise ValueError(f"{k}: must be a finite number, not {v!r}")
-        if self.min is not None and self.max is not None and self.min > self.max:
-            raise ValueError(f"max: must be at least min ({self.min}), not {self.max!r}")
         if self.max_age is not None:
             check_seconds("max_age:", self.max_age)
-
-    def check(self, point: Point) -> None:
-        """ValueError when the keys do not fit the point."""
-        if self.writable and point.table not in ("holding", "coils"):
-            raise ValueError(f"writable: the {point.table} table is read only")
-        if (self.min is not None or self.max is not None) and point.type in ("bool", "string"):
-            raise ValueError(
-                f"{'min' if self.min is not None else 'max'}: a {point.type} point has no range"
-            )
 
 
 @dataclass(frozen=True)
@@ -351,6 +336,26 @@ def _check_levels(
         raise ConfigError(f"{source}: point {p.name!r}: name: {problem}")  # pragma: no cover
 
 
+def _profile_defaults(
+    poller: PollerConfig, n_profile: int, defaults: object, text: str, source: str
+) -> PollerConfig:
+    """The profiles' points with ``[defaults]``' `PROFILE_DEFAULTS` (the ``[[point]]``
+    tables have them from the poller's loader)."""
+    if not isinstance(defaults, Mapping):
+        return poller
+    given = {k: defaults[k] for k in PROFILE_DEFAULTS if k in defaults}
+    if not given or n_profile == 0:
+        return poller
+    points = list(poller.points)
+    for n in range(n_profile):
+        try:
+            points[n] = replace(points[n], **given)
+        except ValueError as e:  # a default that does not fit a profile point
+            line = _where(text, source, "defaults", next(iter(given)))
+            raise ConfigError(f"{line}: point {points[n].name!r}: {e} (from [defaults])") from None
+    return replace(poller, points=tuple(points))
+
+
 def parse_bridge_config(
     text: str, source: str = "<config>", base: Path | None = None
 ) -> BridgeConfig:
@@ -435,18 +440,13 @@ def parse_bridge_config(
         label = f'point[{i}] ("{point.name}")'
         try:
             opts = PointOptions(**{**dflt, **own})
-            opts.check(point)
         except ValueError as e:
             key = str(e).partition(": ")[0]
             line = _locate(text, "point", i, key if key in own else None)
             note = " (from [defaults])" if key not in own and key in dflt else ""
             raise ConfigError(f"{source}:{line}: {label}: {e}{note}") from None
         options[point.name] = opts
-    for p in poller.points:
-        try:
-            options.get(p.name, _NO_OPTIONS).check(p)
-        except ValueError as e:  # a default that does not fit a profile point
-            raise ConfigError(f"{source}: point {p.name!r}: {e} (from [defaults])") from None
+    poller = _profile_defaults(poller, n_profile, defaults, text, source)
     raw_devices = doc.get("device")
     devices: list[Any] = raw_devices if isinstance(raw_devices, list) else []
     _check_levels(text, source, poller, options, n_profile, devices)
@@ -475,13 +475,9 @@ def make_bridge_config(
     except ValueError as e:
         raise ConfigError(f"mqtt: {e}") from None
     names = {p.name: p for p in poller.points}
-    for n, o in opts.items():
+    for n in opts:
         if n not in names:
             raise ConfigError(f"options: no point named {n!r}")
-        try:
-            o.check(names[n])
-        except ValueError as e:
-            raise ConfigError(f"options[{n!r}]: {e}") from None
     if not mqtt.outbox:
         object.__setattr__(mqtt, "outbox", str(Path.cwd() / f"outbox-{mqtt.edge}"))
     cfg = BridgeConfig(poller, mqtt, opts, "<python>")

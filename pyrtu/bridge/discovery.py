@@ -9,8 +9,12 @@ manufacturer, model and name come from the ``[[device]]`` table's template (its
 ``unit_of_measurement``, ``device_class``, ``state_class``, ``icon`` and
 ``suggested_display_precision``.  Read-only points are
 ``sensor`` (``binary_sensor`` for bits), writable ones ``number`` (with ``min``,
-``max`` and the step of the point's scale), ``switch`` for bits and ``text`` for
-strings, their command topic the point's set topic.  Availability is the edge's
+``max`` and the step of the point's scale), ``switch`` for bits, ``text`` for
+strings and ``select`` for enumerations (a read-only one is a ``sensor`` of device
+class ``enum`` with its labels as options), their command topic the point's set
+topic.  A point's ``unit``, ``precision``, ``device_class``, ``state_class`` and
+``icon`` become ``unit_of_measurement``, ``suggested_display_precision`` (sensors;
+a number's step), ``device_class``, ``state_class`` and ``icon``.  Availability is the edge's
 status and the slave's, both ``online``: a drive that stops answering, or an edge
 that is gone, shows unavailable.  Pure: `configs` returns (topic, payload) pairs.
 """
@@ -21,6 +25,7 @@ import json
 import re
 from typing import TYPE_CHECKING, Any
 
+from ..pdu.codecs import CODECS, FLOAT_MAX
 from ..poller import Point
 
 if TYPE_CHECKING:
@@ -42,9 +47,11 @@ def _id(text: str) -> str:
 
 
 def component(point: Point, writable: bool) -> str:
+    if point.labels:
+        return "select" if writable else "sensor"
     if point.type == "bool":
         return "switch" if writable else "binary_sensor"
-    if point.type == "string":
+    if point.type in ("string", "string1"):
         return "text" if writable else "sensor"
     return "number" if writable else "sensor"
 
@@ -56,8 +63,7 @@ def configs(cfg: BridgeConfig, topics: Topics) -> list[tuple[str, bytes]]:
     out: list[tuple[str, bytes]] = []
     devices = {(d.bus, d.slave): d for d in cfg.poller.devices if d.template is not None}
     for p in cfg.poller.points:
-        opts = cfg.option(p.name)
-        kind = component(p, opts.writable)
+        kind = component(p, p.writable)
         known = devices.get((p.bus, p.slave))
         template = known.template if known is not None else None
         dev_name = known.name if known is not None else None
@@ -94,35 +100,67 @@ def configs(cfg: BridgeConfig, topics: Topics) -> list[tuple[str, bytes]]:
             hint = hints.get(key, getattr(p, key, None))
             if hint is not None and not (kind != "sensor" and key == "state_class"):
                 doc[ha_key] = hint
-        if p.type == "bool":
+        if p.type == "bool" and not p.labels:
             doc["value_template"] = "{{ 'ON' if value_json.value else 'OFF' }}"
         else:
             doc["value_template"] = "{{ value_json.value }}"
-        if opts.writable:
+        _hints(p, kind, doc)
+        if p.writable:
             doc["command_topic"] = topics.point[p.name] + "/set"
             if kind == "switch":
                 doc.update(payload_on="true", payload_off="false", state_on="ON", state_off="OFF")
+            elif kind == "select":
+                doc["options"] = list(p.labels)
+                doc["command_template"] = "{{ value | tojson }}"
             elif kind == "text":
                 doc["command_template"] = "{{ value | tojson }}"
-                doc["max"] = 2 * p.count
+                doc["max"] = (1 if p.type == "string1" else 2) * p.count
             else:
                 doc["command_template"] = "{{ value }}"
-                doc["min"] = opts.min if opts.min is not None else _raw_bound(p, low=True)
-                doc["max"] = opts.max if opts.max is not None else _raw_bound(p, low=False)
-                doc["step"] = abs(p.scale) if p.type != "float32" else 0.001
+                doc["min"] = p.min if p.min is not None else _raw_bound(p, low=True)
+                doc["max"] = p.max if p.max is not None else _raw_bound(p, low=False)
+                if CODECS[p.type].kind == "float":
+                    step = 10.0**-p.precision if p.precision is not None else 0.001
+                else:
+                    step = abs(p.scale)
+                doc["step"] = step
                 doc["mode"] = "box"
         topic = f"{m.discovery_prefix}/{kind}/{node}/{_id(f'{p.bus}_{p.slave}_{p.name}')}/config"
         out.append((topic, json.dumps(doc, separators=(",", ":")).encode()))
     return out
 
 
+def _hints(p: Point, kind: str, doc: dict[str, Any]) -> None:
+    """The point's Home Assistant hints (its unit, precision, classes, icon)."""
+    if p.unit:
+        doc["unit_of_measurement"] = p.unit
+    if p.device_class:
+        doc["device_class"] = p.device_class
+    elif kind == "sensor" and p.labels:
+        doc["device_class"] = "enum"
+    if kind == "sensor" and p.labels:
+        doc["options"] = list(p.labels)
+    if p.state_class and kind == "sensor":
+        doc["state_class"] = p.state_class
+    if p.icon:
+        doc["icon"] = p.icon
+    if p.precision is not None and kind == "sensor":
+        doc["suggested_display_precision"] = p.precision
+
+
 def _raw_bound(p: Point, low: bool) -> float:
-    lo, hi = {
-        "uint16": (0, 0xFFFF),
-        "int16": (-0x8000, 0x7FFF),
-        "uint32": (0, 2**32 - 1),
-        "int32": (-(2**31), 2**31 - 1),
-    }.get(p.type, (-3.4e38, 3.4e38))
+    codec = CODECS[p.type]
+    if codec.kind == "float":
+        lo, hi = -FLOAT_MAX[p.type], FLOAT_MAX[p.type]
+    elif p.bits is not None:
+        width = p.bits[1]
+        lo, hi = (
+            (-(1 << (width - 1)), (1 << (width - 1)) - 1)
+            if p.type == "int16"
+            else (0, (1 << width) - 1)
+        )
+    else:
+        lo, hi = codec.low, codec.high
     a, b = lo * p.scale + p.offset, hi * p.scale + p.offset
     return min(a, b) if low else max(a, b)
 

@@ -2,7 +2,8 @@
 
 The poller hands over every value it reads; `Reporter` says which of them to
 publish: the first of a point, one that differs from the last published beyond
-the point's ``deadband``, one whose quality changes (``stale`` back to ``good``),
+the point's ``deadband``, one whose quality changes (``stale`` back to ``good``;
+``bad`` when the device answers the point's "no value" marker, its ``error_value``),
 and an unchanged one whose last publication is ``max_age`` old (0: never).  When a
 slave goes offline every one of its points is published again as ``stale`` (the
 last value read and when it was read: never a last good value passed off as live),
@@ -47,22 +48,27 @@ class Reporter:
             self._by_slave.setdefault((s.point.bus, s.point.slave), []).append(s)
 
     def update(
-        self, point: Point, value: Value, time: float, now: float, exact: bool = False
+        self, point: Point, value: Value | None, time: float, now: float, exact: bool = False
     ) -> bool:
         """A value read at ``time`` (Unix) and seen at ``now`` (any clock): whether
-        to publish it (as ``good``); ``exact``: any change, whatever the deadband
-        (a write's read-back), but never the value last published again."""
+        to publish it (as ``good``; value None, the device's "no value" marker, as
+        ``bad`` when the quality changes); ``exact``: any change, whatever the
+        deadband (a write's read-back), but never the value last published again."""
         s = self._s[point.name]
         s.value = value
         s.time = time
+        quality = "bad" if value is None else "good"
         if (
-            s.quality != "good"
-            or (_differs(s.published, value) if exact else point.changed(s.published, value))
+            s.quality != quality
+            or (
+                value is not None
+                and (_differs(s.published, value) if exact else point.changed(s.published, value))
+            )
             or (s.max_age > 0 and now - s.published_at >= s.max_age)
         ):
             s.published = value
             s.published_at = now
-            s.quality = "good"
+            s.quality = quality
             return True
         return False
 

@@ -38,7 +38,7 @@ class Host(Protocol):
     poller: Poller
     commands: CommandQueue
 
-    def publish_value(self, point: Point, value: Value, read_at: float) -> None: ...
+    def publish_value(self, point: Point, value: Value | None, read_at: float) -> None: ...
 
     def task_failed(
         self, task: str, error: BaseException, retry_in: float, first: bool = True
@@ -113,8 +113,7 @@ class SetWriter:
             )
             return
         point = self.bridge.poller.point(name)
-        opts = self.cfg.option(name)
-        if not opts.writable:
+        if not point.writable:
             self._refuse(
                 Refusal(
                     "not_writable",
@@ -143,7 +142,7 @@ class SetWriter:
                 self._reply(reply, res, corr)
             return
         try:
-            encoded = check_value(point, opts, value)
+            encoded = check_value(point, value)
         except ValueError as e:
             self._refuse(Refusal("validation", str(e), cid), name, reply, corr)
             return
@@ -267,7 +266,7 @@ class SetWriter:
             return
         poller = self.bridge.poller
         try:
-            await poller.write(name, cmd.value)
+            how = await poller.write(name, cmd.value)
             self.last_write_at = time.time()
             self.write_latency.append(time.monotonic() - cmd.received)
             del self.write_latency[:-1024]
@@ -303,7 +302,13 @@ class SetWriter:
                 cmd.rounded["written"],
             )
         shown = faithful_value(cmd.point, value)
-        self._finish(cmd, result(name, True, id=cmd.id, value=shown, time=now, rounded=cmd.rounded))
+        method = None if how == "write" else how  # a bit or field: FC 22 or read-modify-write
+        self._finish(
+            cmd,
+            result(
+                name, True, id=cmd.id, value=shown, time=now, rounded=cmd.rounded, method=method
+            ),
+        )
 
 
 def _worker_name(key: tuple[str, int]) -> str:

@@ -191,15 +191,16 @@ class TemplateSimulator(DriveSimulator):
 
         return written
 
-    def value(self, name: str) -> Value:
-        """The present value of point ``name`` (as the template decodes it)."""
+    def value(self, name: str) -> Value | None:
+        """The present value of point ``name`` (as the template decodes it; None: the
+        point's "no value" marker)."""
         for p in self.points:
             if p.name == name:
                 table = self.store.table(STORE_TABLES[p.table])
                 return p.decode(table.get_many(p.address, p.size), p.address)
         raise KeyError(name)
 
-    def values(self) -> dict[str, Value]:
+    def values(self) -> dict[str, Value | None]:
         """Every point's present value."""
         with self.lock:
             return {p.name: self.value(p.name) for p in self.points}

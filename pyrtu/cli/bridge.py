@@ -98,7 +98,7 @@ def _run(args: argparse.Namespace) -> int:
             "edge": m.edge,
             "points": len(cfg.poller.points),
             "buses": len(cfg.poller.buses),
-            "writable": sum(1 for o in cfg.options.values() if o.writable),
+            "writable": sum(1 for p in cfg.poller.points if p.writable),
         }
         if args.json:
             emit(doc)

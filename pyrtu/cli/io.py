@@ -4,16 +4,22 @@ Addresses are protocol (PDU) addresses, from 0: the WEG parameter P0680 is 680, 
 CV100 code A3.02 is 0x0302 (hexadecimal is accepted).  mbpoll's and modpoll's
 references count from 1 (register 40001 is address 0).
 
-Types of registers: ``uint16`` (the default), ``int16``, ``uint32``, ``int32``,
-``float32`` (two registers each, word and byte order from ``--order``: ABCD
-big-endian, CDAB word swap, BADC byte swap, DCBA little-endian) and ``string`` (two
-characters per register, the first in the high byte; ``--order BADC`` swaps).
-Coils and discrete inputs are bits.
+Types of registers (the poller's, `pyrtu.pdu.codecs`): ``uint16`` (the default),
+``int16``, ``int8``/``uint8`` (a byte of each register: ``--order high``, the
+default, or ``low``), ``uint32``, ``int32``, ``float32``, ``bcd32`` (two registers
+each), ``uint64``, ``int64``, ``float64`` (four), ``float16``, ``bcd16`` (one),
+``string`` (two characters per register, the first in the high byte) and
+``string1`` (one character per register, in its low byte).  ``--order``: ABCD
+big-endian, CDAB word swap, BADC byte swap, DCBA little-endian (the 64-bit names
+ABCDEFGH, GHEFCDAB, BADCFEHG, HGFEDCBA too; a 32-bit name means its 64-bit
+equivalent on a 64-bit type); BADC and DCBA (or BA) swap the bytes of one-register
+types and strings.  Coils and discrete inputs are bits.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -31,7 +37,7 @@ from pyrtu.cli.common import (
     show_address,
 )
 from pyrtu.cli.template import register_notes, template_name
-from pyrtu.pdu import FUNCTION_NAMES
+from pyrtu.pdu import FUNCTION_NAMES, codecs
 
 if TYPE_CHECKING:
     from pyrtu.drivers.master import Master
@@ -58,10 +64,10 @@ _TABLE_ALIASES = {
     "di": "discrete",
     "1x": "discrete",
 }
-TYPES = ("uint16", "int16", "uint32", "int32", "float32", "string")
-ORDERS = ("ABCD", "CDAB", "BADC", "DCBA")
+TYPES = tuple(t for t in codecs.TYPES if t != "bool")
+ORDERS = codecs.ORDERS
 
-Value = int | float | str | bool
+Value = int | float | str | bool | None
 
 
 def _add_item_options(p: argparse.ArgumentParser, slave_help: str, table_help: str) -> None:
@@ -76,7 +82,8 @@ def _add_item_options(p: argparse.ArgumentParser, slave_help: str, table_help: s
         type=order,
         default="ABCD",
         metavar="ORDER",
-        help="32-bit word/byte order: ABCD (default), CDAB, BADC, DCBA",
+        help="word/byte order: ABCD (default), CDAB, BADC, DCBA (64-bit: ABCDEFGH, GHEFCDAB,"
+        " BADCFEHG, HGFEDCBA); 8-bit types: high (default), low",
     )
 
 
@@ -90,10 +97,18 @@ def table(text: str) -> str:
 
 
 def order(text: str) -> str:
-    value = text.upper()
+    value = text.lower() if text.lower() in codecs.ORDERS_8 else text.upper()
     if value not in ORDERS:
         raise argparse.ArgumentTypeError(f"order is one of {', '.join(ORDERS)}, not {text!r}")
     return value
+
+
+def type_order(kind: str, text: str) -> str:
+    """The order ``kind`` uses for ``--order`` (ValueError naming the flag)."""
+    try:
+        return codecs.normalize_order(kind, text)
+    except ValueError as e:
+        raise ValueError(f"--order: {e}") from None
 
 
 def is_bits(table_name: str) -> bool:
@@ -101,61 +116,56 @@ def is_bits(table_name: str) -> bool:
 
 
 def width(kind: str) -> int:
-    """Registers per value."""
-    return 2 if kind in ("uint32", "int32", "float32") else 1
+    """Registers per value (a string: per character pair or character)."""
+    return codecs.CODECS[kind].registers or 1
+
+
+def is_text(kind: str) -> bool:
+    return codecs.CODECS[kind].kind == "str"
 
 
 # -- decoding -------------------------------------------------------------------------------
 
 
 def decode(kind: str, registers: Sequence[int], word_order: str) -> list[Value]:
-    """Registers as values of ``kind`` (a string is one value)."""
-    from pyrtu.pdu import data
-
-    if kind == "uint16":
-        return list(registers)
-    if kind == "int16":
-        return [r - 0x10000 if r & 0x8000 else r for r in registers]
-    if kind == "string":
-        return [data.decode_string(registers, swap=word_order in ("BADC", "DCBA"), strip=b"\x00")]
-    return list(data.decode_values(kind, registers, word_order))
+    """Registers as values of ``kind`` (a string is one value; None: no number, a BCD
+    digit above 9)."""
+    regs = list(registers)
+    if is_text(kind):
+        return [codecs.decoder(kind, type_order(kind, word_order), len(regs))(regs, 0)]
+    read = codecs.decoder(kind, type_order(kind, word_order))
+    step = width(kind)
+    return [read(regs, i) for i in range(0, len(regs) - step + 1, step)]
 
 
 def encode(kind: str, texts: Sequence[str], word_order: str) -> tuple[list[int], list[Value]]:
     """Command-line values as registers (and the values they stand for)."""
-    from pyrtu.pdu import data
-
-    if kind == "string":
+    layout = type_order(kind, word_order)
+    if is_text(kind):
         text = " ".join(texts)
-        return data.encode_string(text, swap=word_order in ("BADC", "DCBA")), [text]
-    values: list[Value] = []
-    for text in texts:
-        values.append(_number(kind, text))
-    if kind in ("uint16", "int16"):
-        return [int(v) & 0xFFFF for v in values], values
-    numbers = [float(v) if kind == "float32" else int(v) for v in values]
-    return data.encode_values(kind, numbers, word_order), values
-
-
-_LIMITS = {
-    "uint16": (0, 0xFFFF),
-    "int16": (-0x8000, 0x7FFF),
-    "uint32": (0, 0xFFFF_FFFF),
-    "int32": (-0x8000_0000, 0x7FFF_FFFF),
-}
+        per = 2 if kind == "string" else 1
+        count = -(-len(text.encode("latin-1", "replace")) // per)  # 0 for "": nothing
+        return codecs.encoder(kind, layout, count)(text), [text]
+    values: list[Value] = [_number(kind, t) for t in texts]
+    write = codecs.encoder(kind, layout)
+    out: list[int] = []
+    for v in values:
+        out += write(v)
+    return out, values
 
 
 def _number(kind: str, text: str) -> int | float:
-    if kind == "float32":
+    codec = codecs.CODECS[kind]
+    if codec.kind == "float":
         try:
             return float(text)
         except ValueError:
-            raise ValueError(f"float32 value expected, not {text!r}") from None
+            raise ValueError(f"{kind} value expected, not {text!r}") from None
     try:
         value = int(text, 0)
     except ValueError:
         raise ValueError(f"{kind} value expected (decimal or 0x hex), not {text!r}") from None
-    lo, hi = _LIMITS[kind]
+    lo, hi = codec.low, codec.high
     if not lo <= value <= hi:
         hint = ""
         if kind.startswith("u") and value < 0:
@@ -179,16 +189,22 @@ def parse_bit(text: str) -> bool:
 
 def show(value: Value, kind: str) -> str:
     """A value for people."""
+    if value is None:
+        return "(no number: a BCD digit above 9)"
     if isinstance(value, bool):
         return "1" if value else "0"
     if isinstance(value, float):
         return f"{value:.7g}"
     if isinstance(value, str):
         return repr(value)
+    if kind in ("uint8", "int8"):
+        return f"{value} (0x{value & 0xFF:02X})"
     if kind in ("uint16", "int16"):
         return f"{value} (0x{value & 0xFFFF:04X})"
     if kind in ("uint32", "int32"):
         return f"{value} (0x{value & 0xFFFF_FFFF:08X})"
+    if kind in ("uint64", "int64"):
+        return f"{value} (0x{value & 0xFFFF_FFFF_FFFF_FFFF:016X})"
     return str(value)
 
 
@@ -209,7 +225,7 @@ class ReadResult:
     notes: dict[int, str] = field(default_factory=dict)
 
     def addresses(self) -> list[int]:
-        if self.kind == "string" and not is_bits(self.table):
+        if not is_bits(self.table) and is_text(self.kind):
             return [self.address]
         step = 1 if is_bits(self.table) else width(self.kind)
         return [int(self.address) + i * step for i in range(len(self.values))]
@@ -224,13 +240,21 @@ class ReadResult:
         return out
 
     def json_values(self) -> list[Value]:
-        """The values as JSON carries them: a float32 as the shortest decimal that is
-        the register's value (5.1, not 5.099999904632568; pyrtu.poller.values)."""
-        if self.kind != "float32":
-            return list(self.values)
-        from pyrtu.poller.values import shortest_float32
+        """The values as JSON carries them: a float32 (float16) as the shortest
+        decimal that is the register's value (5.1, not 5.099999904632568;
+        pyrtu.poller.values); NaN and the infinities as the strings "nan", "inf",
+        "-inf" (JSON has no such numbers)."""
+        out: list[Value] = []
+        for v in self.values:
+            if isinstance(v, float) and not math.isfinite(v):
+                out.append(str(v))
+            elif isinstance(v, float) and self.kind in ("float32", "float16"):
+                from pyrtu.poller.values import shortest_float16, shortest_float32
 
-        return [shortest_float32(v) if isinstance(v, float) else v for v in self.values]
+                out.append((shortest_float16 if self.kind == "float16" else shortest_float32)(v))
+            else:
+                out.append(v)
+        return out
 
     def document(self) -> dict[str, Any]:
         doc: dict[str, Any] = {
@@ -305,7 +329,9 @@ def check_read(args: argparse.Namespace) -> None:
     count = 1 if args.count is None else args.count
     if count < 1:
         raise ValueError(f"COUNT must be at least 1, not {count}")
-    n = count if is_bits(args.table) or args.kind == "string" else count * width(args.kind)
+    if not is_bits(args.table):
+        type_order(args.kind, args.order)
+    n = count if is_bits(args.table) or is_text(args.kind) else count * width(args.kind)
     what = f"COUNT {count}" + ("" if is_bits(args.table) else f" of {args.kind}")
     check_span(args.table, args.address, n, READ_LIMIT, what)
 
@@ -319,7 +345,7 @@ def read_values(master: Master, args: argparse.Namespace) -> ReadResult:
         reader = master.read_coils if tbl == "coils" else master.read_discrete_inputs
         bits = reader(args.slave, args.address, count)
         return ReadResult(args.slave, tbl, args.address, "bit", args.order, bits, list(bits))
-    n = count if args.kind == "string" else count * width(args.kind)
+    n = count if is_text(args.kind) else count * width(args.kind)
     reader16 = master.read_holding_registers if tbl == "holding" else master.read_input_registers
     regs = reader16(args.slave, args.address, n)
     result = ReadResult(

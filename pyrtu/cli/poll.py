@@ -152,8 +152,9 @@ def final_line(doc: dict[str, Any]) -> str:
 
 def _values_text(result: ReadResult) -> str:
     kind = "bit" if is_bits(result.table) else result.kind
+    text_kind = kind in ("string", "string1")
     parts = [
-        f"[{a}] {show(v, kind).split(' ')[0] if kind != 'string' else show(v, kind)}"
+        f"[{a}] {show(v, kind) if text_kind else show(v, kind).split(' ')[0]}"
         for a, v in zip(result.addresses(), result.values, strict=True)
     ]
     text = " ".join(parts[:8])

@@ -26,7 +26,10 @@ _SHARE = 4
 
 
 def fmt_value(value: object) -> str:
-    """A value for people (floats to 6 significant digits)."""
+    """A value for people (floats to 6 significant digits; None, the device's "no
+    value" marker: ``bad``)."""
+    if value is None:
+        return "bad"
     if isinstance(value, float):
         return f"{value:.6g}"
     return str(value)

@@ -23,73 +23,70 @@ order    registers            seen as
 
 from __future__ import annotations
 
-import struct
-from collections.abc import Callable, Iterable, Sequence
-from typing import Any
+from collections.abc import Iterable, Sequence
 
-ORDERS = ("ABCD", "CDAB", "BADC", "DCBA")
-KINDS = ("int32", "uint32", "float32")
+from .codecs import (
+    CODECS,
+    FLOAT_MAX,
+    ORDERS_32,
+    TYPES,
+    apply_masks,
+    decode,
+    decoder,
+    encode,
+    encoder,
+    field_masks,
+    normalize_order,
+)
 
-# Register i of the encoded value is made of bytes (hi, lo) of "ABCD" (indices).
-_LAYOUT = {
-    "ABCD": ((0, 1), (2, 3)),
-    "CDAB": ((2, 3), (0, 1)),
-    "BADC": ((1, 0), (3, 2)),
-    "DCBA": ((3, 2), (1, 0)),
-}
-
-
-def _order(order: str) -> tuple[tuple[int, int], tuple[int, int]]:
-    try:
-        return _LAYOUT[order.upper()]
-    except (KeyError, AttributeError):
-        raise ValueError(f"order must be one of {', '.join(ORDERS)}, not {order!r}") from None
-
-
-def _to_registers(abcd: bytes, order: str) -> list[int]:
-    return [abcd[hi] << 8 | abcd[lo] for hi, lo in _order(order)]
+ORDERS = ORDERS_32
+#: the types `encode_values` and `decode_values` take: every fixed-size number type
+#: of the registry (`pyrtu.pdu.codecs`)
+KINDS = tuple(n for n, c in CODECS.items() if c.kind in ("int", "float"))
 
 
-def _from_registers(registers: Sequence[int], order: str) -> bytes:
-    layout = _order(order)
-    if len(registers) != 2:
-        raise ValueError(f"a 32-bit value takes 2 registers, got {len(registers)}")
-    out = bytearray(4)
-    for reg, (hi, lo) in zip(registers, layout, strict=True):
+def _check_registers(registers: Sequence[int], want: int, what: str) -> list[int]:
+    if len(registers) != want:
+        raise ValueError(f"{what} takes {want} registers, got {len(registers)}")
+    for reg in registers:
         if isinstance(reg, bool) or not isinstance(reg, int) or not 0 <= reg <= 0xFFFF:
             raise ValueError(f"a register is 0..65535, not {reg!r}")
-        out[hi], out[lo] = reg >> 8, reg & 0xFF
-    return bytes(out)
+    return list(registers)
 
 
-def _check_int(value: object, lo: int, hi: int, what: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
-        raise ValueError(f"{what} must be an integer {lo}..{hi}, not {value!r}")
-    return value
+def _order32(order: str) -> str:
+    o = order.upper() if isinstance(order, str) else order
+    if o not in ORDERS_32:
+        raise ValueError(f"order must be one of {', '.join(ORDERS_32)}, not {order!r}")
+    return str(o)
 
 
 def encode_int32(value: int, order: str = "ABCD") -> list[int]:
     """A signed 32-bit integer as two registers."""
-    v = _check_int(value, -(2**31), 2**31 - 1, "an int32")
-    return _to_registers(v.to_bytes(4, "big", signed=True), order)
+    if isinstance(value, float):
+        raise ValueError(f"an int32 must be an integer, not {value!r}")
+    return encoder("int32", _order32(order))(value)
 
 
 def decode_int32(registers: Sequence[int], order: str = "ABCD") -> int:
-    return int.from_bytes(_from_registers(registers, order), "big", signed=True)
+    regs = _check_registers(registers, 2, "a 32-bit value")
+    return int(decoder("int32", _order32(order))(regs, 0))  # type: ignore[arg-type]
 
 
 def encode_uint32(value: int, order: str = "ABCD") -> list[int]:
     """An unsigned 32-bit integer as two registers."""
-    v = _check_int(value, 0, 2**32 - 1, "a uint32")
-    return _to_registers(v.to_bytes(4, "big"), order)
+    if isinstance(value, float):
+        raise ValueError(f"a uint32 must be an integer, not {value!r}")
+    return encoder("uint32", _order32(order))(value)
 
 
 def decode_uint32(registers: Sequence[int], order: str = "ABCD") -> int:
-    return int.from_bytes(_from_registers(registers, order), "big")
+    regs = _check_registers(registers, 2, "a 32-bit value")
+    return int(decoder("uint32", _order32(order))(regs, 0))  # type: ignore[arg-type]
 
 
 #: the largest finite float32 (FLT_MAX)
-FLOAT32_MAX = 3.4028234663852886e38
+FLOAT32_MAX = FLOAT_MAX["float32"]
 
 
 def encode_float32(value: float, order: str = "ABCD") -> list[int]:
@@ -102,46 +99,41 @@ def encode_float32(value: float, order: str = "ABCD") -> list[int]:
     half a unit in the last place) raises ValueError: a number never silently
     becomes infinite.
     """
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ValueError(f"a float32 must be a number, not {value!r}")
-    try:
-        packed = struct.pack(">f", value)
-    except (OverflowError, struct.error):  # struct.error: an int too big for a float
-        raise ValueError(
-            f"{value!r} is out of the float32 range (finite values up to"
-            f" ±{FLOAT32_MAX:.8g}; nan and ±inf are written as such)"
-        ) from None
-    return _to_registers(packed, order)
+    return encoder("float32", _order32(order))(value)
 
 
 def decode_float32(registers: Sequence[int], order: str = "ABCD") -> float:
-    value: float = struct.unpack(">f", _from_registers(registers, order))[0]
-    return value
+    regs = _check_registers(registers, 2, "a 32-bit value")
+    return float(decoder("float32", _order32(order))(regs, 0))  # type: ignore[arg-type]
 
 
-_ENCODERS = {"int32": encode_int32, "uint32": encode_uint32, "float32": encode_float32}
-_DECODERS = {"int32": decode_int32, "uint32": decode_uint32, "float32": decode_float32}
+def _kind(kind: str) -> str:
+    if kind not in KINDS:
+        raise ValueError(f"kind must be one of {', '.join(KINDS)}, not {kind!r}")
+    return kind
 
 
 def encode_values(kind: str, values: Iterable[float], order: str = "ABCD") -> list[int]:
-    """Several 32-bit values (``kind``: int32, uint32, float32) as consecutive registers."""
-    if kind not in _ENCODERS:
-        raise ValueError(f"kind must be one of {', '.join(KINDS)}, not {kind!r}")
-    encode: Callable[[Any, str], list[int]] = _ENCODERS[kind]
+    """Several numbers of type ``kind`` (any fixed-size number type: `KINDS`) as
+    consecutive registers, in ``order`` (a 32-bit name serves 64-bit types too)."""
+    encode_one = encoder(_kind(kind), normalize_order(kind, order))
     out: list[int] = []
     for v in values:
-        out += encode(v, order)
+        out += encode_one(v)
     return out
 
 
 def decode_values(kind: str, registers: Sequence[int], order: str = "ABCD") -> list[float]:
-    """Registers (an even number) as 32-bit values of ``kind``."""
-    if kind not in _DECODERS:
-        raise ValueError(f"kind must be one of {', '.join(KINDS)}, not {kind!r}")
-    if len(registers) % 2:
-        raise ValueError(f"32-bit values take an even number of registers, got {len(registers)}")
-    decode = _DECODERS[kind]
-    return [decode(registers[i : i + 2], order) for i in range(0, len(registers), 2)]
+    """Registers (a whole number of values) as numbers of type ``kind``."""
+    width = CODECS[_kind(kind)].registers
+    if len(registers) % width:
+        raise ValueError(
+            f"{kind} values take a multiple of {width} registers (an even number for"
+            f" 32-bit ones), got {len(registers)}"
+        )
+    regs = _check_registers(registers, len(registers), "the values")
+    decode_one = decoder(kind, normalize_order(kind, order))
+    return [decode_one(regs, i) for i in range(0, len(regs), width)]  # type: ignore[misc]
 
 
 def encode_string(
@@ -192,16 +184,22 @@ def decode_string(
 
 __all__ = [
     "FLOAT32_MAX",
+    "FLOAT_MAX",
     "KINDS",
     "ORDERS",
+    "TYPES",
+    "apply_masks",
+    "decode",
     "decode_float32",
     "decode_int32",
     "decode_string",
     "decode_uint32",
     "decode_values",
+    "encode",
     "encode_float32",
     "encode_int32",
     "encode_string",
     "encode_uint32",
     "encode_values",
+    "field_masks",
 ]

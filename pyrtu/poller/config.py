@@ -63,7 +63,7 @@ from pyrtu.drivers._portname import first_duplicate
 from pyrtu.drivers.links import RTU_TCP_SCHEME, TCP_SCHEME, scheme_of
 
 from .plan import Limits, Wire
-from .points import Point, PointError, check_unique, encode_point_value
+from .points import Point, PointError, check_unique, encode_point_value, overlap_problem
 from .schedule import BACKOFF, MAX_BACKOFF
 
 if sys.version_info >= (3, 11):
@@ -81,7 +81,7 @@ MASTER_KEYS = ("baudrate", "parity", "stopbits", "bytesize", "timeout", "retries
                "timing", "mode", "echo", "broadcast_delay", "max_adu", "strict")  # fmt: skip
 POLLER_KEYS = ("share", "offline_after", "backoff", "max_backoff")
 LIMIT_KEYS = ("max_registers", "max_bits", "max_adu", "max_gap")
-POINT_KEYS = tuple(f.name for f in fields(Point))
+POINT_KEYS = tuple(f.name for f in fields(Point) if f.init)
 
 
 def _real(v: object) -> TypeGuard[float]:
@@ -186,6 +186,19 @@ class Bus:
         )
 
 
+def unit_problem(bus: Bus, slave: object) -> str | None:
+    """What is wrong with ``slave`` on ``bus`` (None: nothing): a ``tcp://`` bus
+    takes unit ids 0..255 (0: the TCP device itself, 255 and 248..254: what is
+    behind it, as `pyrtu.Master` on TCP does), a serial bus (and ``rtu+tcp://``)
+    1..247 (0 is the broadcast: no answer to poll)."""
+    tcp = isinstance(bus.port, str) and scheme_of(bus.port) == TCP_SCHEME
+    lo, hi = (0, 255) if tcp else (1, 247)
+    if isinstance(slave, bool) or not isinstance(slave, int) or not lo <= slave <= hi:
+        why = " on a Modbus TCP bus" if tcp else f" on serial bus {bus.name!r} (0..255 on tcp://)"
+        return f"must be an integer {lo}..{hi}{why}, not {slave!r}"
+    return None
+
+
 @dataclass(frozen=True)
 class Device:
     """Limits of one slave on a bus (None: the bus's); with a ``template``, its
@@ -252,6 +265,9 @@ class PollerConfig:
                     f'{self.source}: point[{i}] ("{p.name}"): bus: no bus named {p.bus!r}'
                     f" (buses: {', '.join(names) or 'none'})"
                 )
+            wrong = unit_problem(self.bus(p.bus), p.slave)
+            if wrong:
+                raise ConfigError(f'{self.source}: point[{i}] ("{p.name}"): slave: {wrong}')
             lim = self.limits(p.bus).get(p.slave, self.bus(p.bus).limits)
             most = lim.per_request(p.table)
             if p.size > most:
@@ -259,6 +275,14 @@ class PollerConfig:
                     f'{self.source}: point[{i}] ("{p.name}"): takes {p.size} registers, '
                     f"more than slave {p.slave} reads per request ({most})"
                 )
+        placed: dict[tuple[str, int, str], list[tuple[int, Point]]] = {}
+        for i, p in enumerate(self.points):
+            mine = placed.setdefault((p.bus, p.slave, p.table), [])
+            for _, q in mine:
+                problem = overlap_problem(q, p)
+                if problem:
+                    raise ConfigError(f'{self.source}: point[{i}] ("{p.name}"): address: {problem}')
+            mine.append((i, p))
 
 
 # ---------------------------------------------------------------------- TOML
@@ -367,7 +391,7 @@ class _Loader:
             devices.append(dev)
             points += extra
         for i, t in enumerate(self.tables(doc, "point")):
-            points.append(self.point(i, t, defaults))
+            points.append(self.point(i, t, defaults, buses))
         cfg = PollerConfig(tuple(buses), tuple(points), tuple(devices), self.source)
         self.check(cfg, len(points) - len(self.tables(doc, "point")))
         return cfg
@@ -379,7 +403,8 @@ class _Loader:
             m = re.match(re.escape(self.source) + r": point\[(\d+)\] (.*)", str(e))
             if m and int(m.group(1)) >= n_profile:
                 idx = int(m.group(1)) - n_profile
-                line = _locate(self.text, "point", idx, "bus" if ": bus:" in str(e) else None)
+                key = next((k for k in ("bus", "slave", "address") if f": {k}:" in str(e)), None)
+                line = _locate(self.text, "point", idx, key)
                 raise ConfigError(f"{self.source}:{line}: point[{idx}] {m.group(2)}") from None
             raise
 
@@ -434,8 +459,10 @@ class _Loader:
         if t["bus"] not in [b.name for b in buses]:
             raise self.fail("device", i, label, "bus", f"no bus named {t['bus']!r}")
         s = t["slave"]
-        if isinstance(s, bool) or not isinstance(s, int) or not 1 <= s <= 247:
-            raise self.fail("device", i, label, "slave", f"must be an integer 1..247, not {s!r}")
+        bus = next(b for b in buses if b.name == t["bus"])
+        wrong = unit_problem(bus, s)
+        if wrong:
+            raise self.fail("device", i, label, "slave", wrong)
         limits = self.limits("device", i, label, t)
         if "template" in t and "profile" in t:
             raise self.fail("device", i, label, "profile", "give template or profile, not both")
@@ -467,12 +494,19 @@ class _Loader:
         merged = {**template.limits, **{k: t[k] for k in LIMIT_KEYS if k in t}}
         return Device(t["bus"], s, Limits(**merged), name, template, hints), points
 
-    def point(self, i: int, t: Mapping[str, Any], defaults: Mapping[str, Any]) -> Point:
+    def point(
+        self, i: int, t: Mapping[str, Any], defaults: Mapping[str, Any], buses: Sequence[Bus] = ()
+    ) -> Point:
         name = t.get("name")
         label = f"point[{i}]" + (f' ("{name}")' if isinstance(name, str) else "")
         merged = {**defaults, **t}
         required = ("name", "bus", "slave", "table", "address")
         self.check_keys("point", i, label, t, self.point_keys, required, merged)
+        bus = next((b for b in buses if b.name == merged["bus"]), None)
+        wrong = None if bus is None else unit_problem(bus, merged["slave"])
+        if wrong:
+            where = "point" if "slave" in t else "defaults"
+            raise self.fail(where, i if "slave" in t else None, label, "slave", wrong)
         try:
             return Point(**merged)
         except PointError as e:

@@ -43,12 +43,13 @@ from typing import Any
 from pyrtu.core._closing import AsyncService
 from pyrtu.drivers.reconnect import Backoff, Reconnect
 from pyrtu.drivers.supervise import TaskFailure, supervise
-from pyrtu.pdu.errors import PortError
+from pyrtu.pdu.codecs import apply_masks
+from pyrtu.pdu.errors import ExceptionResponseError, PortError
 
 from .config import Bus, ConfigError, Device, PollerConfig, load_config, make_config
 from .events import BusReport, Event, PortState, SlaveStats, TaskFailed, Tracker, Update
 from .masters import BY_FUNCTION, FACTORIES, AsyncMasterLike, is_port_error, open_master
-from .points import Point, Value, encode_point
+from .points import Point, Value, encode_point, encode_point_value
 from .schedule import BusScheduler, ScheduledRequest
 from .thread import PollerThread
 
@@ -147,6 +148,9 @@ class Poller(AsyncService):
         self._updates = 0
         self._values_read = 0
         self._lost_events = 0
+        # (bus, slave) that answered FC 22 with exception 1, and their read-modify-writes
+        self._no_mask_write: set[tuple[str, int]] = set()
+        self._rmw_locks: dict[tuple[str, int], asyncio.Lock] = {}
         self._make_schedulers()
 
     def _make_schedulers(self) -> None:
@@ -415,6 +419,8 @@ class Poller(AsyncService):
     @staticmethod
     def _args(req: ScheduledRequest) -> tuple[Any, ...]:
         if req.kind == "write":
+            if req.function == 22:  # mask write: the and and or masks
+                return (req.slave, req.address, *req.values)
             if len(req.values) == 1 and req.function in (5, 6):
                 return (req.slave, req.address, req.values[0])
             return (req.slave, req.address, list(req.values))
@@ -492,7 +498,7 @@ class Poller(AsyncService):
         finally:
             self._subscribers.remove(entry)
 
-    def values(self) -> dict[str, Value]:
+    def values(self) -> dict[str, Value | None]:
         """The last value read of every point read so far."""
         return {k: u.value for k, u in self._tracker.latest().items()}
 
@@ -618,15 +624,50 @@ class Poller(AsyncService):
         run.wake.set()
         return futs
 
-    async def write(self, name: str, value: object) -> None:
-        """Write ``value`` to point ``name`` (scale and offset undone), ahead of every
-        poll on its bus; raises what the transaction raised."""
+    async def write(self, name: str, value: object) -> str:
+        """Write ``value`` to point ``name`` (scale and offset undone, an enum's label
+        encoded), ahead of every poll on its bus; raises what the transaction raised
+        (ValueError, nothing sent, when the point cannot take the value).  Returns
+        how: ``"write"`` (FC 05/06/15/16); a ``bit`` or ``bits`` point, the rest of
+        its register kept: ``"mask_write"`` (FC 22), or ``"read_modify_write"`` (FC 03
+        then FC 06) on a slave that answered FC 22 with exception 1 (illegal
+        function), remembered for the rest of the run."""
         p = self.point(name)
-        words = encode_point(p, value)
+        encoded = encode_point_value(p, value)
         self._check_running()
         run = self._runs[p.bus]
-        (fut,) = self._submit(run, [run.sched.submit_write(p.slave, p.table, p.address, words)])
-        await fut
+        if encoded.mask is None:
+            req = run.sched.submit_write(p.slave, p.table, p.address, encoded.words)
+            (fut,) = self._submit(run, [req])
+            await fut
+            return "write"
+        and_mask, or_mask = encoded.mask
+        slave = (p.bus, p.slave)
+        if slave not in self._no_mask_write:
+            req = run.sched.submit_mask_write(p.slave, p.address, and_mask, or_mask)
+            (fut,) = self._submit(run, [req])
+            try:
+                await fut
+                return "mask_write"
+            except ExceptionResponseError as e:
+                if e.code != 1:
+                    raise
+                self._no_mask_write.add(slave)
+                log.info(
+                    "bus %s slave %d: FC 22 refused (illegal function): bits and fields are"
+                    " written by read-modify-write",
+                    p.bus,
+                    p.slave,
+                )
+        lock = self._rmw_locks.setdefault(slave, asyncio.Lock())
+        async with lock:  # no other read-modify-write of this slave in between
+            futs = self._submit(run, run.sched.submit_read(p.slave, "holding", p.address, 1))
+            (current,) = await futs[0]
+            new = apply_masks(int(current), and_mask, or_mask)
+            req = run.sched.submit_write(p.slave, "holding", p.address, [new])
+            (fut,) = self._submit(run, [req])
+            await fut
+        return "read_modify_write"
 
     async def write_registers(
         self, bus: str, slave: int, table: str, address: int, values: Sequence[int | bool]
@@ -637,7 +678,7 @@ class Poller(AsyncService):
         (fut,) = self._submit(run, [run.sched.submit_write(slave, table, address, values)])
         await fut
 
-    async def read(self, name: str) -> Value:
+    async def read(self, name: str) -> Value | None:
         """Read point ``name`` now, ahead of every poll on its bus."""
         p = self.point(name)
         self._check_running()

@@ -4,7 +4,7 @@ points, overload, a bus task that failed; and the per-point, per-slave and per-b
 Every event but `Update` has ``as_dict()``: its ``pyrtu poll --json`` line, with an
 ``"event"`` key naming its kind (``"port"``, ``"slave"``, ``"dropped"``,
 ``"overload"``, ``"task_failed"``); an update's line has none (``{"point", "value", "time", "slave",
-"bus"}``)."""
+"bus"}``, and ``"quality": "bad"`` with value null when the device said "no value")."""
 
 from __future__ import annotations
 
@@ -23,11 +23,18 @@ def _fields(event: Any) -> dict[str, Any]:
 
 @dataclass(frozen=True, slots=True)
 class Update:
-    """A point's value, stamped with the time the answer's last byte arrived."""
+    """A point's value, stamped with the time the answer's last byte arrived; value
+    None: the device answered its "no value" marker (the point's ``error_value`` or
+    ``unsupported_value``, a BCD digit above 9): quality ``bad``."""
 
     point: Point
-    value: Value
+    value: Value | None
     time: float
+
+    @property
+    def quality(self) -> str:
+        """``good``, or ``bad`` when the device said "no value"."""
+        return "bad" if self.value is None else "good"
 
     @property
     def name(self) -> str:
@@ -37,8 +44,11 @@ class Update:
         """The JSON form of ``pyrtu poll --json`` (the value as its shortest faithful
         decimal, `pyrtu.poller.values`)."""
         p = self.point
-        return {"point": p.name, "value": faithful_value(p, self.value), "time": self.time,
-                "slave": p.slave, "bus": p.bus}  # fmt: skip
+        doc = {"point": p.name, "value": faithful_value(p, self.value), "time": self.time,
+               "slave": p.slave, "bus": p.bus}  # fmt: skip
+        if self.value is None:
+            doc["quality"] = "bad"
+        return doc
 
 
 @dataclass(frozen=True, slots=True)
@@ -213,7 +223,7 @@ class Tracker:
     deadband)."""
 
     def __init__(self) -> None:
-        self._delivered: dict[str, Value] = {}
+        self._delivered: dict[str, Value | None] = {}
         self._seen: dict[str, float] = {}
         self._latest: dict[str, Update] = {}
 
@@ -222,8 +232,7 @@ class Tracker:
         name = update.point.name
         self._seen[name] = seen
         self._latest[name] = update
-        old = self._delivered.get(name)
-        if update.point.changed(old, update.value):
+        if name not in self._delivered or update.point.changed(self._delivered[name], update.value):
             self._delivered[name] = update.value
             return True
         return False

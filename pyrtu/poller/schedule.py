@@ -220,6 +220,17 @@ class BusScheduler:
         self._urgent.append(req)
         return req
 
+    def submit_mask_write(
+        self, slave: int, address: int, and_mask: int, or_mask: int
+    ) -> ScheduledRequest:
+        """Queue FC 22 (Mask Write Register, Application Protocol 6.16) of a holding
+        register ahead of every poll; its outcome comes back like a write's."""
+        vals = (and_mask, or_mask)
+        req = ScheduledRequest(WRITE, slave, "holding", address, 1, 22, vals, tag=next(self._tags))
+        req.cost = self.wire.frames(10, 10)  # slave, 22, address, masks, CRC; echoed
+        self._urgent.append(req)
+        return req
+
     def submit_read(
         self, slave: int, table: str, address: int, count: int
     ) -> list[ScheduledRequest]:

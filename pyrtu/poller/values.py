@@ -8,11 +8,13 @@ as 5.099999904632568 (the float32 nearest 5.1, widened to a double), and a uint1
 
 * float32: the shortest decimal (1 to 9 significant digits) that rounds back to the
   same float32 (`shortest_float32`): 5.1, and 3.4028235e38 for the largest float32;
+  a float16 likewise (`shortest_float16`, 1 to 5 digits); a float64 as Python writes
+  it (its shortest already);
 * an integer type with a scale or offset: ``raw * scale + offset`` in exact decimal
   arithmetic, so at the resolution of ``scale`` and ``offset`` (0.1: one decimal):
   21.4;
-* a float32 with a scale or offset: the shortest float32 decimal, then scaled in
-  exact decimal arithmetic;
+* a float with a scale or offset: its shortest decimal, then scaled in exact
+  decimal arithmetic;
 * everything else (integers as read, bools, strings) as it is.
 
 NaN and the infinities (a float32 register can hold them) are returned as they
@@ -28,31 +30,51 @@ import math
 import struct
 from decimal import Decimal
 
+from pyrtu.pdu.codecs import CODECS
+
 from .points import Point, Value
 
 _FLOAT32 = struct.Struct(">f")
+_FLOAT16 = struct.Struct(">e")
 #: significant digits that always tell two float32 apart (FLT_DECIMAL_DIG)
 FLOAT32_DIGITS = 9
+#: the same for float16 (binary16's decimal digits)
+FLOAT16_DIGITS = 5
+
+
+def _shortest(x: float, form: struct.Struct, most: int) -> float:
+    if not math.isfinite(x):
+        return x
+    try:
+        bits = form.pack(x)
+    except OverflowError:
+        return x  # not a value of this width
+    for digits in range(1, most + 1):
+        candidate = float(f"{x:.{digits}g}")
+        try:
+            if form.pack(candidate) == bits:
+                return candidate
+        except OverflowError:  # rounded up past the largest value
+            continue
+    return x  # unreachable: ``most`` digits tell every value apart
 
 
 def shortest_float32(x: float) -> float:
     """The decimal with the fewest significant digits that rounds to the same float32
     as ``x`` (a float32 widened to a double), as the double nearest it.  NaN, the
     infinities and a double beyond float32's range come back unchanged."""
-    if not math.isfinite(x):
-        return x
-    try:
-        bits = _FLOAT32.pack(x)
-    except OverflowError:
-        return x  # not a float32's value
-    for digits in range(1, FLOAT32_DIGITS + 1):
-        candidate = float(f"{x:.{digits}g}")
-        try:
-            if _FLOAT32.pack(candidate) == bits:
-                return candidate
-        except OverflowError:  # rounded up past the largest float32
-            continue
-    return x  # unreachable: 9 digits tell every float32 apart
+    return _shortest(x, _FLOAT32, FLOAT32_DIGITS)
+
+
+def shortest_float16(x: float) -> float:
+    """`shortest_float32` for a float16 (0.1 for the half nearest 0.1)."""
+    return _shortest(x, _FLOAT16, FLOAT16_DIGITS)
+
+
+#: the narrow float types and their shortest decimals
+_NARROW = {"float32": (_FLOAT32, shortest_float32), "float16": (_FLOAT16, shortest_float16)}
+#: the integer types, whose scaled values are exact decimals
+_INTEGERS = frozenset(n for n, c in CODECS.items() if c.kind == "int")
 
 
 def _exact(x: float) -> Decimal:
@@ -83,20 +105,30 @@ def faithful_value(point: Point, value: Value | None) -> Value | None:
     if not isinstance(value, float) or not math.isfinite(value):
         return value
     scaled = point.scale != 1 or point.offset != 0
-    if point.type == "float32":
+    if point.type in _NARROW:
+        form, shortest = _NARROW[point.type]
         raw = (value - point.offset) / point.scale if scaled else value
         try:
-            if _FLOAT32.unpack(_FLOAT32.pack(raw))[0] != raw and not scaled:
-                return value  # not a float32: as it is
+            if form.unpack(form.pack(raw))[0] != raw and not scaled:
+                return value  # not a value of this width: as it is
         except OverflowError:
             return value
-        short = shortest_float32(raw)
+        short = shortest(raw)
         if not scaled:
             return short
         return float(_exact(short) * _exact(point.scale) + _exact(point.offset))
-    if scaled and point.type in ("uint16", "int16", "uint32", "int32"):
+    if scaled and point.type == "float64":  # its repr is its shortest decimal already
+        raw = (value - point.offset) / point.scale
+        return float(_exact(raw) * _exact(point.scale) + _exact(point.offset))
+    if scaled and point.type in _INTEGERS:
         return _scaled_integer(point, value)
     return value
 
 
-__all__ = ["FLOAT32_DIGITS", "faithful_value", "shortest_float32"]
+__all__ = [
+    "FLOAT16_DIGITS",
+    "FLOAT32_DIGITS",
+    "faithful_value",
+    "shortest_float16",
+    "shortest_float32",
+]

@@ -60,9 +60,11 @@ def test_a_good_file_gives_the_poller_its_points_and_the_bridge_its_keys() -> No
     names = [p.name for p in cfg.poller.points]
     assert "weg.status" in names and "weg.ref" in names and "flag" in names
     assert cfg.mqtt.edge == "e1" and cfg.mqtt.qos == 1 and cfg.mqtt.port == 1883
-    assert cfg.option("weg.ref") == PointOptions(writable=True, min=0, max=8192, max_age=5)
+    assert cfg.option("weg.ref") == PointOptions(max_age=5)
+    ref = next(p for p in cfg.poller.points if p.name == "weg.ref")
+    assert (ref.writable, ref.min, ref.max) == (True, 0, 8192)
     assert cfg.max_age("weg.ref") == 5 and cfg.max_age("weg.status") == 30
-    assert not cfg.option("weg.status").writable
+    assert not next(p for p in cfg.poller.points if p.name == "weg.status").writable
     t = Topics(cfg)
     assert t.point["weg.ref"] == "pyrtu/e1/line/1/weg.ref"
     assert t.point["flag"] == "plant/hall1/flag"
@@ -107,13 +109,16 @@ def test_a_good_file_gives_the_poller_its_points_and_the_bridge_its_keys() -> No
             ("address = 683", "adress = 683"),
             "b.toml:23:",
             "(known: name, bus, slave, table, address, type, order, count, scale, offset, "
-            "interval, deadband, topic, writable, min, max, max_age)",
+            "interval, deadband, unit, precision, enum, bit, bits, error_value, "
+            "unsupported_value, writable, min, max, device_class, state_class, icon, topic, "
+            "max_age)",
         ),
         (
             ("max_age = 30", "max_age = 30\n[defaults]\nwritabel = true"),
             "b.toml:6:",
             "defaults: writabel: unknown key (known: bus, slave, table, type, order, count, "
-            "scale, offset, interval, deadband, writable, min, max, max_age)",
+            "scale, offset, interval, deadband, unit, precision, enum, bit, bits, error_value, "
+            "unsupported_value, writable, min, max, device_class, state_class, icon, max_age)",
         ),
         (
             ('topic = "plant/hall1/flag"', 'topic = "pyrtu/e1/line/1/weg.ref"'),
@@ -194,7 +199,8 @@ def test_defaults_carry_bridge_keys_but_not_a_topic() -> None:
     with pytest.raises(ConfigError, match=r"^b.toml:8: defaults: topic: a topic is one point's"):
         parse_bridge_config(bad, "b.toml")
     rw = GOOD.replace("[[bus]]", "[defaults]\nwritable = true\n\n[[bus]]", 1)
-    assert parse_bridge_config(rw, "b.toml").option("weg.status").writable
+    rw_cfg = parse_bridge_config(rw, "b.toml")
+    assert next(p for p in rw_cfg.poller.points if p.name == "weg.status").writable
     ro = rw + '[[point]]\nname = "in"\nbus = "line"\nslave = 3\ntable = "input"\naddress = 0\n'
     with pytest.raises(ConfigError, match=r"writable: the input table is read only \(from \[defa"):
         parse_bridge_config(ro, "b.toml")

@@ -48,3 +48,78 @@ def test_components() -> None:
     assert [component(bit, False), component(bit, True)] == ["binary_sensor", "switch"]
     assert [component(word, False), component(word, True)] == ["sensor", "number"]
     assert [component(text, False), component(text, True)] == ["sensor", "text"]
+    mode = Point("m", "l", 1, "holding", 0, enum=["off", "heat"])
+    assert [component(mode, False), component(mode, True)] == ["sensor", "select"]
+    alarm = Point("a", "l", 1, "input", 0, bit=3)
+    assert component(alarm, False) == "binary_sensor"
+
+
+def test_home_assistant_hints_from_the_points() -> None:
+    from pyrtu.bridge import parse_bridge_config
+    from pyrtu.bridge.discovery import configs
+    from pyrtu.bridge.topics import Topics
+
+    text = """
+[mqtt]
+url = "mqtt://localhost"
+edge = "e"
+discovery = true
+outbox = "/nonexistent/ob"
+[[bus]]
+name = "l"
+port = "/dev/ttyX"
+[[point]]
+name = "power"
+bus = "l"
+slave = 1
+table = "input"
+address = 0
+type = "float32"
+unit = "W"
+precision = 1
+device_class = "power"
+state_class = "measurement"
+icon = "mdi:flash"
+[[point]]
+name = "mode"
+bus = "l"
+slave = 1
+table = "holding"
+address = 2
+enum = { 0 = "off", 1 = "heat", 2 = "cool" }
+writable = true
+[[point]]
+name = "state"
+bus = "l"
+slave = 1
+table = "input"
+address = 3
+enum = ["idle", "run"]
+[[point]]
+name = "level"
+bus = "l"
+slave = 1
+table = "holding"
+address = 4
+type = "float64"
+precision = 2
+writable = true
+"""
+    cfg = parse_bridge_config(text, "b.toml")
+    docs = {json.loads(p)["name"]: (t, json.loads(p)) for t, p in configs(cfg, Topics(cfg))}
+    topic, power = docs["power"]
+    assert "/sensor/" in topic
+    hints = ("unit_of_measurement", "device_class", "state_class", "icon")
+    assert {k: power[k] for k in hints} == {
+        "unit_of_measurement": "W", "device_class": "power", "state_class": "measurement",
+        "icon": "mdi:flash",
+    }  # fmt: skip
+    assert power["suggested_display_precision"] == 1
+    topic, mode = docs["mode"]
+    assert "/select/" in topic and mode["options"] == ["off", "heat", "cool"]
+    assert mode["command_template"] == "{{ value | tojson }}"
+    topic, state = docs["state"]
+    assert "/sensor/" in topic and state["device_class"] == "enum"
+    assert state["options"] == ["idle", "run"]
+    _, level = docs["level"]
+    assert level["step"] == 0.01 and level["max"] == 1.7976931348623157e308

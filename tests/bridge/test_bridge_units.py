@@ -4,11 +4,11 @@ command parsing and checks, the rate limit, the acknowledgement window, payloads
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import pytest
 
 from pyrtu.bridge.commands import CommandQueue, Refusal, TokenBucket, check_value, parse, result
-from pyrtu.bridge.config import PointOptions
 from pyrtu.bridge.delivery import DeliveryWindow
 from pyrtu.bridge.report import Reporter
 from pyrtu.bridge.topics import payload, record, split_record
@@ -112,33 +112,32 @@ def test_parse(text: bytes, retained: bool, want: object) -> None:
 
 
 def test_values_are_checked_before_anything_is_sent() -> None:
-    opts = PointOptions(writable=True, min=-100, max=100)
-    assert check_value(REF, opts, 50).value == 50
-    assert check_value(FLAG, PointOptions(writable=True), 1).value is True
-    assert check_value(NAME, PointOptions(writable=True), "ab").value == "ab"
+    ref = replace(REF, writable=True, min=-100, max=100)
+    speed = replace(SPEED, writable=True, min=-100, max=100)
+    assert check_value(ref, 50).value == 50
+    assert check_value(FLAG, 1).value is True
+    assert check_value(NAME, "ab").value == "ab"
     # an unscaled integer register holds whole numbers: refused, never rounded
     for v in (1.5, 0.5, -0.5, 2.000001):
         with pytest.raises(ValueError, match="not a whole number"):
-            check_value(REF, opts, v)
-    assert check_value(REF, opts, 2.0).value == 2 and not check_value(REF, opts, 2.0).rounded
+            check_value(ref, v)
+    assert check_value(ref, 2.0).value == 2 and not check_value(ref, 2.0).rounded
     # a scaled one rounds to its resolution (0.1), half away from zero, and says so
-    assert (
-        not check_value(SPEED, opts, 21.4).rounded and check_value(SPEED, opts, 21.4).value == 21.4
-    )
-    got = check_value(SPEED, opts, 21.43)
+    assert not check_value(speed, 21.4).rounded and check_value(speed, 21.4).value == 21.4
+    got = check_value(speed, 21.43)
     assert got.rounded and got.value == 21.4 and got.words == [214]
-    assert check_value(SPEED, opts, 21.45).words == [215]
-    assert check_value(SPEED, opts, 0.05).words == [1]
+    assert check_value(speed, 21.45).words == [215]
+    assert check_value(speed, 0.05).words == [1]
     with pytest.raises(ValueError, match="above the point's max"):
-        check_value(REF, opts, 101)
+        check_value(ref, 101)
     with pytest.raises(ValueError, match="must be a number"):
-        check_value(REF, opts, "5")
+        check_value(ref, "5")
     with pytest.raises(ValueError, match="true or false"):
-        check_value(FLAG, PointOptions(writable=True), 2)
+        check_value(FLAG, 2)
     with pytest.raises(ValueError, match="at most 4 characters"):
-        check_value(NAME, PointOptions(writable=True), "abcde")
+        check_value(NAME, "abcde")
     with pytest.raises(ValueError, match="outside"):  # the register's range, scale undone
-        check_value(SPEED, PointOptions(writable=True), 7000.0)
+        check_value(SPEED, 7000.0)
 
 
 def test_token_bucket_and_queue_bounds() -> None:

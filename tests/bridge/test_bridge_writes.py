@@ -254,3 +254,57 @@ def test_commands_expire_in_the_queue_and_a_flood_is_bounded(tmp_path: Path) -> 
         time.sleep(0.5)
         assert bridge.stats()["buses"][0]["transactions"] > 0
         del values_before
+
+
+#: an enumeration and a bit of the speed reference (P683)
+TYPED = f"""
+[[point]]
+name = "weg.preset"
+bus = "line"
+slave = 1
+table = "holding"
+address = {weg.P_REFERENCE}
+enum = {{ 0 = "stop", 1000 = "slow", 4096 = "half" }}
+writable = true
+interval = 0.05
+[[point]]
+name = "weg.ref_bit0"
+bus = "line"
+slave = 1
+table = "holding"
+address = {weg.P_REFERENCE}
+bit = 0
+writable = true
+interval = 0.05
+"""
+
+
+def test_an_enum_set_by_label_and_a_bit_written_by_read_modify_write(tmp_path: Path) -> None:
+    """The CFW701 has no FC 22 (its manual's functions; the simulator answers
+    exception 1): the bit is written by read-modify-write and the result says so."""
+    with rig(tmp_path, points=TYPED) as (_b, sim, bridge, cl):
+        cl.publish(f"{BASE}/weg.preset/set", b'"half"')
+        (res,) = wait_results(cl, 1, "weg.preset")
+        assert res["ok"] is True and res["value"] == "half" and "method" not in res, res
+        assert ref(sim) == 4096
+        cl.wait(
+            lambda: any(json.loads(p)["value"] == "half" for p in cl.on(f"{BASE}/weg.preset")),
+            "the label published",
+        )
+        before = bridge.commands.executed
+        cl.publish(f"{BASE}/weg.preset/set", b'"turbo"')
+        (_, refused) = wait_results(cl, 2, "weg.preset")
+        assert refused["ok"] is False and refused["error"] == "validation", refused
+        assert "'stop', 'slow', 'half'" in refused["message"]
+        assert ref(sim) == 4096 and bridge.commands.executed == before
+        # bit 0 of the same register, the others kept
+        cl.publish(f"{BASE}/weg.ref_bit0/set", b"true")
+        (bit,) = wait_results(cl, 1, "weg.ref_bit0")
+        assert bit["ok"] is True and bit["value"] is True, bit
+        assert bit["method"] == "read_modify_write"
+        assert ref(sim) == 4097
+        # 4097 has no label: the number itself is published
+        cl.wait(
+            lambda: json.loads(cl.on(f"{BASE}/weg.preset")[-1])["value"] == 4097,
+            "an unlabelled value as the number",
+        )

@@ -153,8 +153,18 @@ def test_read_for_people_with_a_profile(bus: Bus) -> None:
         ("uint32", "DCBA", ["305419896"], [0x7856, 0x3412]),
         ("float32", "CDAB", ["1.5", "-2.25"], [0, 0x3FC0, 0, 0xC010]),
         ("float32", "BADC", ["3.14"], list(struct.unpack("<HH", struct.pack(">f", 3.14)))),
+        # the types of issue 29, registers from struct (or by hand)
+        ("int64", "CDAB", ["-2"], list(struct.unpack(">4H", struct.pack(">q", -2)))[::-1]),
+        ("uint64", "ABCDEFGH", ["18446744073709551615"], [0xFFFF] * 4),
+        ("float64", "DCBA", ["0.1"], list(struct.unpack("<4H", struct.pack(">d", 0.1)))[::-1]),
+        ("float16", "ABCD", ["-2.5", "0.1"], [*struct.unpack(">H", struct.pack(">e", -2.5)),
+                                             *struct.unpack(">H", struct.pack(">e", 0.1))]),
+        ("bcd16", "ABCD", ["1234"], [0x1234]),
+        ("bcd32", "CDAB", ["12345678"], [0x5678, 0x1234]),
+        ("int8", "low", ["-2", "5"], [0x00FE, 0x0005]),
+        ("uint8", "high", ["255"], [0xFF00]),
     ],
-)
+)  # fmt: skip
 def test_write_then_read_typed_values(
     bus: Bus, kind: str, order: str, values: list[str], registers: list[int]
 ) -> None:
@@ -170,9 +180,9 @@ def test_write_then_read_typed_values(
     got = r.json()
     assert got["registers"] == registers and got["type"] == kind and got["order"] == order
     for text, value in zip(values, got["values"], strict=True):
-        want = float(text) if kind == "float32" else int(text, 0)
-        if kind == "int16" or kind.startswith("int") or kind.startswith("uint"):
-            assert value == want
+        want = float(text) if kind.startswith("float") else int(text, 0)
+        if not kind.startswith("float") or kind == "float16":
+            assert value == want  # a float16 as its shortest decimal: 0.1
         else:
             assert math.isclose(value, want, rel_tol=1e-6)
     assert got["addresses"] == [
@@ -188,6 +198,11 @@ def test_strings(bus: Bus) -> None:
     assert r.code == 0 and "[40] 'CFW701 drive'" in r.out
     swapped = pyrtu("read", *common, "--order", "BADC", "40", "3", "--json").json()
     assert swapped["values"] == ["FC7W10"]  # "CF" "W7" "01", bytes swapped
+    one = [bus.port, *SERIAL, "--slave", GENERIC, "--type", "string1"]
+    assert pyrtu("write", *one, "60", "ok").code == 0
+    assert bus.store.holding_registers.get_many(60, 2) == [ord("o"), ord("k")]
+    r = pyrtu("read", *one, "60", "3", "--json")  # 3 registers: the NUL after "ok" ends it
+    assert r.code == 0 and r.json()["values"] == ["ok"], r.err
 
 
 def test_coils_and_bits(bus: Bus) -> None:

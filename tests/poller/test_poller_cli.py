@@ -115,7 +115,7 @@ def test_json_updates_events_and_summary(tmp_path: Path) -> None:
         ),
         ("[[bus]]\nname = 1\n", "points.toml:1: bus[0]: port: missing"),
         (CONFIG.replace("0x3300", "-1"), 'points.toml:23: point[0] ("cv.status"): address:'),
-        (CONFIG.replace("slave = 9", "slave = 300"), "slave: must be 1..247, not 300"),
+        (CONFIG.replace("slave = 9", "slave = 300"), "slave: must be an integer 1..247 on serial"),
         ("[[bus]\n", "points.toml: "),
     ],
 )
