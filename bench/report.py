@@ -198,12 +198,27 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--render", action="store_true", help="only write RESULTS.md from bench/results/"
     )
+    ap.add_argument(
+        "--add",
+        help="run these benchmarks (comma-separated) and add them to the kept run: each "
+        "section names its own command and date, the header lists what was added later",
+    )
     args = ap.parse_args(argv)
     only = args.only.split(",") if args.only else None
-    for name in only or []:
-        if name not in BY_NAME:
-            ap.error(f"--only: no benchmark {name!r} (known: {', '.join(BY_NAME)})")
-    if not args.render:
+    added = args.add.split(",") if args.add else []
+    for flag, names in (("--only", only or []), ("--add", added)):
+        for name in names:
+            if name not in BY_NAME:
+                ap.error(f"{flag}: no benchmark {name!r} (known: {', '.join(BY_NAME)})")
+    if added:
+        info = json.loads((RAW / "machine.json").read_text())
+        for name in added:
+            record = run_one(BY_NAME[name], args.quick)
+            (RAW / f"{name}.json").write_text(json.dumps(record, indent=1) + "\n")
+            later = [a for a in info.get("added", []) if a["name"] != name]
+            info["added"] = [*later, {"name": name, "started": record["started"]}]
+        (RAW / "machine.json").write_text(json.dumps(info, indent=1) + "\n")
+    elif not args.render:
         RAW.mkdir(exist_ok=True)
         for old in RAW.glob("*.json"):
             old.unlink()  # nothing of an earlier run stays beside this one

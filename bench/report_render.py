@@ -1285,6 +1285,12 @@ def header(m: dict[str, Any]) -> Lines:
         else "Full run (the scripts' default rounds)."
     )
     only = f"  Only these benchmarks were run: {', '.join(m['only'])}." if m.get("only") else ""
+    if m.get("added"):
+        later = ", ".join(f"{a['name']} ({a['started']})" for a in m["added"])
+        only += (
+            f"  Added to this run later (`python bench/report.py --add NAME`; each section "
+            f"names its own command and date): {later}."
+        )
     return [
         "# Benchmark results",
         "",
