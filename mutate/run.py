@@ -300,7 +300,25 @@ def _survivors_again(tree: Path, target: Target) -> None:
             )
     for session in sorted(tree.glob("cr-*.sqlite")):  # all checked: now re-open them
         with sqlite3.connect(session) as db:
+            # the mutants a budget left unjudged stay so (not a new sample): parked
+            # until the survivors are judged (`_unpark`)
+            db.execute(
+                "INSERT INTO work_results (job_id, worker_outcome, output) SELECT job_id,"
+                " 'SKIPPED', ? FROM work_items WHERE job_id NOT IN"
+                " (SELECT job_id FROM work_results)",
+                (_PARKED,),
+            )
             db.execute("DELETE FROM work_results WHERE test_outcome = 'SURVIVED'")
+
+
+_PARKED = "not run: parked while the survivors are judged again"
+
+
+def _unpark(session: Path) -> None:
+    import sqlite3
+
+    with sqlite3.connect(session) as db:
+        db.execute("DELETE FROM work_results WHERE output = ?", (_PARKED,))
 
 
 def _exec(cr: Path, tree: Path, config: Path, session: Path, module: str, budget: float) -> None:
@@ -387,6 +405,8 @@ def _run_target(target: Target, survivors: bool = False, budget: float = 0.0) ->
                     WorkResult(output="operator not kept", worker_outcome=WorkerOutcome.SKIPPED),
                 )
         _exec(cr, tree, config, session, module, budget)
+        if survivors:
+            _unpark(session)
         dump = subprocess.run(
             [cr, "dump", session.name],
             cwd=tree,
