@@ -282,6 +282,8 @@ def test_only_a_gap_inside_the_suspected_block_withdraws_its_cut() -> None:
     # the new cut inside the block, at its last address, or beyond it
     assert after(origin, block(pt(25), pt(30)), 30) == [20]
     assert after(origin, block(pt(26), pt(35)), 35) == []
+    # a cut at its end (31: the first address it did not read) is not inside it
+    assert after(origin, block(pt(29), pt(30), pt(31), pt(32)), 31) == []
     # the gap ends at the new cut: the points at and after it do not move its start
     at5, at6 = block(pt(5), pt(20), pt(30)), block(pt(6), pt(20), pt(30))
     assert after(at5, block(pt(4), pt(10), pt(12)), 10) == [20]  # gap 5..9

@@ -276,3 +276,37 @@ def test_a_slave_offline_and_back_is_reported_once_each_way() -> None:
     (back,) = [e for e in sched.on_response(probe, [0], 1.0) if isinstance(e, SlaveState)]
     assert (back.online, back.time) == (True, 1.0)
     assert sched.deadline() == 1.0  # its blocks due at once
+
+
+def test_the_measured_turnaround_prices_the_blocks() -> None:
+    """The slave's turnaround is measured from each answer (the time from the
+    request issued to the answer, less the frames) and smoothed, 0.9 of the old and
+    0.1 of the new; a block costs its frames plus that turnaround."""
+    sched = BusScheduler("b", [pt(0)], WIRE)
+    frames = 0.004 + 8 * 0.001 + 7 * 0.001  # t3.5, request, response of one register
+    req = take(sched, 0.0)
+    sched.on_response(req, [0], 0.025)  # busy 25 ms: a turnaround of 6 ms
+    assert sched.load() == pytest.approx(frames + 0.006)
+    req = take(sched, 1.0)
+    sched.on_response(req, [0], 1.035)  # 35 ms: 16 ms this time
+    turnaround = 0.9 * 0.006 + 0.1 * (0.035 - frames)
+    assert sched.load() == pytest.approx(frames + turnaround)
+
+
+@pytest.mark.parametrize("alone", [True, False])
+def test_a_probe_waits_its_share_of_the_bus_while_others_are_polled(alone: bool) -> None:
+    """docs/POLLER.md: the back-off, and never less than what keeps the probes within
+    ``share`` of the bus time while another slave is online: a failure that held the
+    bus 0.5 s with a share of 1/4 waits 0.5 x (4 - 1) = 1.5 s."""
+    points = [pt(0, slave=2)] + ([] if alone else [pt(0, slave=1, interval=10.0)])
+    sched = BusScheduler("b", points, WIRE, offline_after=1, share=0.25, backoff=0.5)
+    now = 0.0
+    if not alone:
+        req = take(sched, now)
+        assert req.slave == 1
+        now = 0.125
+        sched.on_response(req, [0], now)
+    req = take(sched, now)
+    assert req.slave == 2
+    sched.on_failure(req, silent(req), now + 0.5)
+    assert sched.deadline() == now + 0.5 + (0.5 if alone else 1.5)
