@@ -201,6 +201,8 @@ def test_the_probe_asks_the_smallest_point_of_the_slave() -> None:
         deadline = sched.deadline()
         now = max(now, deadline if deadline is not None else now)
     assert (req.table, req.address, req.count, req.function) == ("coils", 5, 1, 1)
+    # t3.5, the 8-byte request, the answer: slave, function, count, 1 byte, CRC
+    assert req.cost == pytest.approx(0.004 + 8 * 0.001 + 6 * 0.001)
 
 
 # -- costs and figures ---------------------------------------------------------------------
@@ -310,3 +312,13 @@ def test_a_probe_waits_its_share_of_the_bus_while_others_are_polled(alone: bool)
     assert req.slave == 2
     sched.on_failure(req, silent(req), now + 0.5)
     assert sched.deadline() == now + 0.5 + (0.5 if alone else 1.5)
+
+
+@pytest.mark.parametrize(("interval", "overloaded"), [(4.75, False), (2.375, True), (1.0, True)])
+def test_the_bus_is_overloaded_only_above_a_load_of_one(interval: float, overloaded: bool) -> None:
+    # 0.25 s a character, t3.5 of 1 s: a read of one register is 1 + 8 x 0.25 + 7 x 0.25
+    # = 4.75 s of wire: every 4.75 s a load of exactly 1 (the wire just carries it)
+    sched = BusScheduler("b", [pt(0, interval=interval)], Wire(0.25, 1.0))
+    report = sched.report(0.0)
+    assert report.load == 4.75 / interval
+    assert report.overloaded is overloaded
