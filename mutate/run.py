@@ -18,6 +18,7 @@ Two kinds of mutants, both run in a copy of the tree (build/mutate/), never in i
     python mutate/run.py generated [TARGET ...] # cosmic-ray over the targets (all)
     python mutate/run.py generated --jobs 2     # targets in parallel, a tree copy each
     python mutate/run.py generated --survivors plan  # re-judge only the last survivors
+    python mutate/run.py report plan            # docs/MUTATION.md from the last run
 
 `--budget MINUTES` bounds each module's run: cosmic-ray takes the mutants in random
 order, so the ones judged when the time is up are a random sample; the report says
@@ -486,6 +487,16 @@ def run_generated(names: list[str], jobs: int, survivors: bool = False, budget: 
     targets = [t for t in _targets() if not names or t.name in names]
     with concurrent.futures.ThreadPoolExecutor(max_workers=jobs) as pool:
         list(pool.map(lambda t: _run_target(t, survivors, budget), targets))
+    return report([t.name for t in targets])
+
+
+def report(names: list[str]) -> int:
+    """docs/MUTATION.md from the targets' last runs (build/mutate/), with
+    mutate/equivalent.toml as it is now."""
+    targets = [t for t in _targets() if not names or t.name in names]
+    missing = [t.name for t in targets if not (WORK / f"{t.name}.jsonl").exists()]
+    if missing:
+        raise SystemExit(f"mutate: no run to report for {', '.join(missing)}")
     summaries = [_summarise(t) for t in targets]
     _write_report(summaries)
     for s in summaries:
@@ -550,9 +561,13 @@ def main() -> int:
         metavar="MINUTES",
         help="stop each module's run after MINUTES: a random sample of its mutants is judged",
     )
+    again = sub.add_parser("report", help="docs/MUTATION.md from the targets' last runs")
+    again.add_argument("names", nargs="*")
     args = parser.parse_args()
     if args.kind == "faults":
         return run_faults(args.names)
+    if args.kind == "report":
+        return report(args.names)
     return run_generated(args.names, args.jobs, args.survivors, args.budget)
 
 
