@@ -322,3 +322,44 @@ def test_the_bus_is_overloaded_only_above_a_load_of_one(interval: float, overloa
     report = sched.report(0.0)
     assert report.load == 4.75 / interval
     assert report.overloaded is overloaded
+
+
+def test_an_offline_slaves_blocks_leave_the_load() -> None:
+    """docs/POLLER.md: offline, its blocks leave the schedule: the load is what the
+    online slaves' blocks need (4.75 s of wire every 9.5 s each: 0.5)."""
+    points = [pt(0, slave=1, interval=9.5), pt(0, slave=2, interval=9.5)]
+    sched = BusScheduler("b", points, Wire(0.25, 1.0), offline_after=1)
+    assert sched.load() == 1.0
+    while (req := take(sched, 0.0)).slave != 2:
+        pass
+    sched.on_failure(req, silent(req), 0.0)
+    assert sched.online(2) is False
+    assert sched.load() == 0.5
+
+
+def test_a_clock_behind_the_request_counts_no_negative_latency() -> None:
+    sched = BusScheduler("b", [pt(0)], WIRE)
+    req = take(sched, 1.0)
+    sched.on_response(req, [0], 0.5)  # an answer stamped before the request: a clock step
+    assert list(sched.slave_stats()[1].latencies) == [0.0]
+
+
+def test_a_slave_silenced_offline_is_probed_after_the_back_off() -> None:
+    """Taken offline by its silence timer (`on_silence`) while its request is still
+    in flight, that request has held the bus for no counted time yet: the first
+    probe waits the back-off (0.5 s), not a share floor of its wire time."""
+    points = [pt(0, slave=1, interval=10.0), pt(0, slave=2, interval=10.0)]
+    sched = BusScheduler("b", points, WIRE, offline_after=2, timeout=0.125)
+    req = take(sched, 0.0)
+    assert req.slave == 1
+    sched.on_response(req, [0], 0.0625)
+    first = take(sched, 0.0625)
+    assert first.slave == 2
+    sched.on_failure(first, silent(first), 0.1875)  # silent from 0.0625
+    second = take(sched, 0.1875)  # the confirmation
+    assert second.slave == 2
+    due = sched.offline_due(second)
+    assert due == 0.0625 + 2 * 0.125
+    (off,) = sched.on_silence(second, due)
+    assert isinstance(off, SlaveState) and not off.online
+    assert sched.deadline() == due + 0.5
