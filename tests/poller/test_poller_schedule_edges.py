@@ -363,3 +363,41 @@ def test_a_slave_silenced_offline_is_probed_after_the_back_off() -> None:
     (off,) = sched.on_silence(second, due)
     assert isinstance(off, SlaveState) and not off.online
     assert sched.deadline() == due + 0.5
+
+
+def test_polls_and_probes_carry_no_tag_and_submissions_count_from_one() -> None:
+    """A tag says who waits for the outcome: 0 for the scheduler's own polls and
+    probes (the driver resolves no caller for them), 1, 2, ... for the writes and
+    on-demand reads submitted, so each outcome reaches its own caller."""
+    sched = BusScheduler("b", [pt(0)], WIRE, offline_after=1)
+    write = sched.submit_write(1, "holding", 3, [1])
+    reads = sched.submit_read(1, "holding", 0, 130)
+    assert [write.tag, *(r.tag for r in reads)] == [1, 2, 3]
+    for _ in range(3):
+        take(sched, 0.0)
+    poll = take(sched, 0.0)
+    assert (poll.kind, poll.tag) == ("poll", 0)
+    sched.on_failure(poll, silent(poll), 0.125)
+    probe = take(sched, 10.0)
+    assert (probe.kind, probe.tag) == ("probe", 0)
+
+
+def test_two_identical_writes_are_two_requests() -> None:
+    sched = BusScheduler("b", [pt(0)], WIRE)
+    first = sched.submit_write(1, "holding", 3, [1])
+    second = sched.submit_write(1, "holding", 3, [1])
+    second.tag = first.tag  # even alike in every field
+    assert first != second and len({first, second}) == 2
+
+
+def test_a_block_not_yet_read_is_not_lagging() -> None:
+    """Lagging: started more than one interval late last time; a block never
+    issued has not started late."""
+    sched = BusScheduler("b", [pt(0, interval=0.5)], WIRE)
+    assert sched.lagging() == () and sched.report(0.0).lagging == ()
+    req = take(sched, 0.25)  # due 0, half an interval late
+    sched.on_response(req, [0], 0.3125)
+    assert sched.lagging() == ()
+    req = take(sched, 1.25)  # due 0.5: 0.75 late, more than the interval
+    sched.on_response(req, [0], 1.3125)
+    assert sched.lagging() == ("s1.0",)
