@@ -17,6 +17,17 @@ Two kinds of mutants, both run in a copy of the tree (build/mutate/), never in i
     python mutate/run.py faults                 # every hand-written fault (CI)
     python mutate/run.py generated [TARGET ...] # cosmic-ray over the targets (all)
     python mutate/run.py generated --jobs 2     # targets in parallel, a tree copy each
+    python mutate/run.py generated --survivors plan  # re-judge only the last survivors
+    python mutate/run.py report plan            # docs/MUTATION.md from the last run
+
+`--budget MINUTES` bounds each module's run: cosmic-ray takes the mutants in random
+order, so the ones judged when the time is up are a random sample; the report says
+how many were not run (and `--survivors` later judges the survivors of the sample).
+
+`--survivors` reuses a target's last session: the killed mutants stay killed, and
+only the survivors run again against the current tests/ (copied anew).  That is
+sound only when the mutated modules are unchanged and the target's test files only
+grew since the session; the run checks both and refuses otherwise.
 """
 
 from __future__ import annotations
@@ -258,13 +269,100 @@ def _equivalents() -> list[dict[str, str]]:
     return list(tomllib.loads((HERE / "equivalent.toml").read_text()).get("equivalent", []))
 
 
-def _run_target(target: Target) -> Path:
-    """cosmic-ray over one target in a tree copy of its own; the session's JSON dump."""
+def _survivors_again(tree: Path, target: Target) -> None:
+    """The tree copied anew, the last session's survivors pending again.
+
+    Refused (SystemExit) unless every mutated module is the one the session mutated
+    and the session's test files are all among the target's test files now: then a
+    mutant the session killed is still killed, and only the survivors need a run.
+    """
+    import sqlite3
+
+    sessions = {f.name: f.read_bytes() for f in tree.glob("cr-*")}
+    mutated = {m: (tree / m).read_bytes() for m in target.modules if (tree / m).exists()}
+    _copy_tree(tree)
+    for name, data in sessions.items():
+        (tree / name).write_bytes(data)
+    for module in target.modules:
+        stem = module.replace("/", "_").removesuffix(".py")
+        config = tree / f"cr-{stem}.toml"
+        session = tree / f"cr-{stem}.sqlite"
+        if not session.exists():
+            raise SystemExit(f"mutate: {target.name}: no session for {module} to re-judge")
+        if mutated.get(module) != (ROOT / module).read_bytes():
+            raise SystemExit(
+                f"mutate: {target.name}: {module} changed since the session; run it in full"
+            )
+        command = tomllib.loads(config.read_text())["cosmic-ray"]["test-command"]
+        before = {arg for arg in shlex.split(command) if arg.startswith("tests/")}
+        if not before <= set(target.tests):
+            raise SystemExit(
+                f"mutate: {target.name}: the session's tests {sorted(before - set(target.tests))}"
+                " are no longer the target's; run it in full"
+            )
+    for session in sorted(tree.glob("cr-*.sqlite")):  # all checked: now re-open them
+        with sqlite3.connect(session) as db:
+            # the mutants a budget left unjudged stay so (not a new sample): parked
+            # until the survivors are judged (`_unpark`)
+            db.execute(
+                "INSERT INTO work_results (job_id, worker_outcome, output) SELECT job_id,"
+                " 'SKIPPED', ? FROM work_items WHERE job_id NOT IN"
+                " (SELECT job_id FROM work_results)",
+                (_PARKED,),
+            )
+            db.execute("DELETE FROM work_results WHERE test_outcome = 'SURVIVED'")
+
+
+_PARKED = "not run: parked while the survivors are judged again"
+
+
+def _unpark(session: Path) -> None:
+    import sqlite3
+
+    with sqlite3.connect(session) as db:
+        db.execute("DELETE FROM work_results WHERE output = ?", (_PARKED,))
+
+
+def _exec(cr: Path, tree: Path, config: Path, session: Path, module: str, budget: float) -> None:
+    """`cosmic-ray exec`, stopped after `budget` minutes (0: none) with the mutated
+    module put back as it was (cosmic-ray mutates it on disk); the mutants not yet
+    run stay pending in the session."""
+    import signal
+
+    original = (tree / module).read_bytes()
+    proc = subprocess.Popen(
+        [cr, "exec", config.name, session.name], cwd=tree, env=_env(tree), start_new_session=True
+    )
+    try:
+        code = proc.wait(timeout=budget * 60 or None)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGTERM)
+        try:
+            proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+        (tree / module).write_bytes(original)
+        print(f"mutate: {module}: stopped after {budget:g} min; the rest is not run")
+        return
+    if code != 0:
+        raise SystemExit(f"mutate: cosmic-ray exec failed on {module} (exit {code})")
+
+
+def _run_target(target: Target, survivors: bool = False, budget: float = 0.0) -> Path:
+    """cosmic-ray over one target in a tree copy of its own; the session's JSON dump.
+
+    With `survivors`, the last session's survivors only (see `_survivors_again`);
+    with `budget`, at most that many minutes a module (see `_exec`).
+    """
     from cosmic_ray.work_db import WorkDB, use_db  # the tool, installed by make mutate
     from cosmic_ray.work_item import WorkerOutcome, WorkResult
 
     tree = WORK / f"tree-{target.name}"
-    _copy_tree(tree)
+    if survivors:
+        _survivors_again(tree, target)
+    else:
+        _copy_tree(tree)
     out = WORK / f"{target.name}.jsonl"
     for module in target.modules:
         stem = module.replace("/", "_").removesuffix(".py")
@@ -294,21 +392,23 @@ def _run_target(target: Target) -> Path:
             '[cosmic-ray.distributor]\nname = "local"\n'
         )
         cr = Path(sys.executable).with_name("cosmic-ray")
-        subprocess.run(
-            [cr, "init", config.name, session.name], cwd=tree, check=True, env=_env(tree)
-        )
-        with use_db(str(session), WorkDB.Mode.open) as db:
-            skip = [
-                item.job_id
-                for item in db.pending_work_items
-                if item.mutations[0].operator_name not in OPERATORS
-            ]
-            db.set_multiple_results(
-                skip, WorkResult(output="operator not kept", worker_outcome=WorkerOutcome.SKIPPED)
+        if not survivors:
+            subprocess.run(
+                [cr, "init", config.name, session.name], cwd=tree, check=True, env=_env(tree)
             )
-        subprocess.run(
-            [cr, "exec", config.name, session.name], cwd=tree, check=True, env=_env(tree)
-        )
+            with use_db(str(session), WorkDB.Mode.open) as db:
+                skip = [
+                    item.job_id
+                    for item in db.pending_work_items
+                    if item.mutations[0].operator_name not in OPERATORS
+                ]
+                db.set_multiple_results(
+                    skip,
+                    WorkResult(output="operator not kept", worker_outcome=WorkerOutcome.SKIPPED),
+                )
+        _exec(cr, tree, config, session, module, budget)
+        if survivors:
+            _unpark(session)
         dump = subprocess.run(
             [cr, "dump", session.name],
             cwd=tree,
@@ -344,11 +444,14 @@ class Summary:
 def _summarise(target: Target) -> Summary:
     tree = WORK / f"tree-{target.name}"
     equivalents = _equivalents()
-    counts = {"killed": 0, "survived": 0, "equivalent": 0, "incompetent": 0}
+    counts = {"killed": 0, "survived": 0, "equivalent": 0, "incompetent": 0, "not run": 0}
     survivors = []
     for raw in (WORK / f"{target.name}.jsonl").read_text().splitlines():
         item, result = json.loads(raw)
-        if result is None or result["worker_outcome"] == "skipped":
+        if result is None:  # pending: the run was stopped by its budget
+            counts["not run"] += 1
+            continue
+        if result["worker_outcome"] == "skipped":
             continue
         mutation = item["mutations"][0]
         module = mutation["module_path"]
@@ -379,20 +482,30 @@ def _summarise(target: Target) -> Summary:
     return Summary(target.name, counts, survivors)
 
 
-def run_generated(names: list[str], jobs: int) -> int:
+def run_generated(names: list[str], jobs: int, survivors: bool = False, budget: float = 0.0) -> int:
     import concurrent.futures
 
     targets = [t for t in _targets() if not names or t.name in names]
     with concurrent.futures.ThreadPoolExecutor(max_workers=jobs) as pool:
-        list(pool.map(_run_target, targets))
+        list(pool.map(lambda t: _run_target(t, survivors, budget), targets))
+    return report([t.name for t in targets])
+
+
+def report(names: list[str]) -> int:
+    """docs/MUTATION.md from the targets' last runs (build/mutate/), with
+    mutate/equivalent.toml as it is now."""
+    targets = [t for t in _targets() if not names or t.name in names]
+    missing = [t.name for t in targets if not (WORK / f"{t.name}.jsonl").exists()]
+    if missing:
+        raise SystemExit(f"mutate: no run to report for {', '.join(missing)}")
     summaries = [_summarise(t) for t in targets]
     _write_report(summaries)
     for s in summaries:
         c = s.counts
         print(
             f"{s.target}: {c['killed']} killed, {c['survived']} survived, "
-            f"{c['equivalent']} equivalent, {c['incompetent']} incompetent: "
-            f"score {100 * s.score:.1f} %"
+            f"{c['equivalent']} equivalent, {c['incompetent']} incompetent, "
+            f"{c['not run']} not run: score {100 * s.score:.1f} %"
         )
     return 0
 
@@ -414,7 +527,7 @@ def _write_report(summaries: list[Summary]) -> None:
         c = s.counts
         rows[s.target] = (
             f"| `{s.target}` | {c['killed']} | {c['survived']} | "
-            f"{c['equivalent']} | {c['incompetent']} | {100 * s.score:.1f} % "
+            f"{c['equivalent']} | {c['incompetent']} | {c['not run']} | {100 * s.score:.1f} % "
             f"| {stamp} |"
         )
         survivors = s.survivors or ["none"]
@@ -422,8 +535,8 @@ def _write_report(summaries: list[Summary]) -> None:
 
     head = (HERE / "REPORT_HEAD.md").read_text()
     table = (
-        "| target | killed | survived | equivalent | incompetent | score | run |\n"
-        "|---|---|---|---|---|---|---|\n" + "\n".join(rows[k] for k in sorted(rows))
+        "| target | killed | survived | equivalent | incompetent | not run | score | run |\n"
+        "|---|---|---|---|---|---|---|---|\n" + "\n".join(rows[k] for k in sorted(rows))
     )
     body = "\n".join(sections[k] for k in sorted(sections))
     REPORT.write_text(f"{head}\n{table}\n\n## Survivors\n\n{body}")
@@ -437,10 +550,26 @@ def main() -> int:
     generated = sub.add_parser("generated", help="cosmic-ray over mutate/targets.toml")
     generated.add_argument("names", nargs="*")
     generated.add_argument("--jobs", type=int, default=1)
+    generated.add_argument(
+        "--survivors",
+        action="store_true",
+        help="re-judge only the last session's survivors (modules unchanged, tests only grown)",
+    )
+    generated.add_argument(
+        "--budget",
+        type=float,
+        default=0.0,
+        metavar="MINUTES",
+        help="stop each module's run after MINUTES: a random sample of its mutants is judged",
+    )
+    again = sub.add_parser("report", help="docs/MUTATION.md from the targets' last runs")
+    again.add_argument("names", nargs="*")
     args = parser.parse_args()
     if args.kind == "faults":
         return run_faults(args.names)
-    return run_generated(args.names, args.jobs)
+    if args.kind == "report":
+        return report(args.names)
+    return run_generated(args.names, args.jobs, args.survivors, args.budget)
 
 
 if __name__ == "__main__":

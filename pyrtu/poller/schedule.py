@@ -215,8 +215,10 @@ class BusScheduler:
         req = ScheduledRequest(
             WRITE, slave, table, address, len(vals), fn, vals, tag=next(self._tags)
         )
+        # request ADU: FC 05/06 slave, function, address, value, CRC (8 bytes); FC 15/16
+        # also a quantity and a byte count (9 bytes) and the packed values
         size = len(vals) * 2 if table == "holding" else (len(vals) + 7) // 8
-        req.cost = self.wire.frames(7 + size + (len(vals) > 1) * 2, 8)
+        req.cost = self.wire.frames(8 if len(vals) == 1 else 9 + size, 8)
         self._urgent.append(req)
         return req
 
