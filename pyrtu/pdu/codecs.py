@@ -117,6 +117,23 @@ def _check_int(name: str, value: object, lo: int, hi: int) -> int:
     return value
 
 
+def _packed_decode(value: struct.Struct, registers: int, reverse: bool, swap: bool) -> Decode:
+    """A decoder through ``struct``: the ``registers`` words from ``b[i]`` (in reverse
+    when ``reverse``, each word's bytes swapped when ``swap``) packed into the bytes of
+    ``value``, and unpacked."""
+    unpack = value.unpack
+    pack = struct.Struct(f"{'<' if swap else '>'}{registers}H").pack
+    if registers == 1:
+        return lambda b, i: unpack(pack(b[i]))[0]
+    if registers == 2:
+        if reverse:
+            return lambda b, i: unpack(pack(b[i + 1], b[i]))[0]
+        return lambda b, i: unpack(pack(b[i], b[i + 1]))[0]
+    if reverse:
+        return lambda b, i: unpack(pack(b[i + 3], b[i + 2], b[i + 1], b[i]))[0]
+    return lambda b, i: unpack(pack(b[i], b[i + 1], b[i + 2], b[i + 3]))[0]
+
+
 def _int_codec(name: str, registers: int, signed: bool) -> Codec:
     bits = 16 * registers
     lo, hi = (-(1 << (bits - 1)), (1 << (bits - 1)) - 1) if signed else (0, (1 << bits) - 1)
@@ -140,16 +157,8 @@ def _int_codec(name: str, registers: int, signed: bool) -> Codec:
             if signed:
                 return lambda b, i: ((b[i] << 16 | b[i + 1]) ^ top) - top
             return lambda b, i: b[i] << 16 | b[i + 1]
-        pack = struct.Struct(f"{'<' if swap else '>'}{registers}H").pack
         letter = ("bhiq" if signed else "BHIQ")[registers.bit_length()]
-        unpack = struct.Struct(">" + letter).unpack
-        if registers == 2:  # bytes swapped in each word
-            if reverse:
-                return lambda b, i: unpack(pack(b[i + 1], b[i]))[0]
-            return lambda b, i: unpack(pack(b[i], b[i + 1]))[0]
-        if reverse:
-            return lambda b, i: unpack(pack(b[i + 3], b[i + 2], b[i + 1], b[i]))[0]
-        return lambda b, i: unpack(pack(b[i], b[i + 1], b[i + 2], b[i + 3]))[0]
+        return _packed_decode(struct.Struct(">" + letter), registers, reverse, swap)
 
     def make_encode(order: str, count: int) -> Encode:
         reverse, swap = _RULES[order]
@@ -199,17 +208,7 @@ def _float_codec(name: str, registers: int) -> Codec:
 
     def make_decode(order: str, count: int) -> Decode:
         reverse, swap = _RULES[order]
-        unpack = value_struct.unpack
-        pack = struct.Struct(f"{'<' if swap else '>'}{registers}H").pack
-        if registers == 1:
-            return lambda b, i: unpack(pack(b[i]))[0]
-        if registers == 2:
-            if reverse:
-                return lambda b, i: unpack(pack(b[i + 1], b[i]))[0]
-            return lambda b, i: unpack(pack(b[i], b[i + 1]))[0]
-        if reverse:
-            return lambda b, i: unpack(pack(b[i + 3], b[i + 2], b[i + 1], b[i]))[0]
-        return lambda b, i: unpack(pack(b[i], b[i + 1], b[i + 2], b[i + 3]))[0]
+        return _packed_decode(value_struct, registers, reverse, swap)
 
     def make_encode(order: str, count: int) -> Encode:
         reverse, swap = _RULES[order]
