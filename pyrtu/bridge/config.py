@@ -427,14 +427,6 @@ def parse_bridge_config(
             raise _error(_where(text, source, "defaults", key), "defaults", str(e)) from None
         for p in poller.points:
             options[p.name] = base_opts
-    for device in poller.devices:  # a template's writable, min and max, over the defaults
-        for name, hint in device.hints.items():
-            own = {k: hint[k] for k in ("writable", "min", "max") if k in hint}
-            if own:
-                try:
-                    options[name] = PointOptions(**{**dflt, **own})
-                except ValueError as e:
-                    raise ConfigError(f"{source}: point {name!r}: {e}") from None
     for i, own in picked:
         point = poller.points[n_profile + i]
         label = f'point[{i}] ("{point.name}")'

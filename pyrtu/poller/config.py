@@ -63,7 +63,7 @@ from pyrtu.drivers._portname import first_duplicate
 from pyrtu.drivers.links import RTU_TCP_SCHEME, TCP_SCHEME, scheme_of
 
 from .plan import Limits, Wire
-from .points import Point, PointError, check_unique, encode_point_value, overlap_problem
+from .points import HA_KEYS, Point, PointError, check_unique, encode_point_value, overlap_problem
 from .schedule import BACKOFF, MAX_BACKOFF
 
 if sys.version_info >= (3, 11):
@@ -502,6 +502,9 @@ class _Loader:
         merged = {**defaults, **t}
         required = ("name", "bus", "slave", "table", "address")
         self.check_keys("point", i, label, t, self.point_keys, required, merged)
+        for k in ("unit", *HA_KEYS):  # given, a text says something
+            if isinstance(t.get(k), str) and not t[k].strip():
+                raise self.fail("point", i, label, k, f"must be a non-empty string, not {t[k]!r}")
         bus = next((b for b in buses if b.name == merged["bus"]), None)
         wrong = None if bus is None else unit_problem(bus, merged["slave"])
         if wrong:

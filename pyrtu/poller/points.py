@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from decimal import ROUND_HALF_UP, Decimal
 from typing import Any
 
+from pyrtu.devices.registry import STATE_CLASSES
 from pyrtu.pdu import codecs
 from pyrtu.pdu.codecs import CODECS, ORDERS_8, ORDERS_16, ORDERS_32
 
@@ -33,6 +34,7 @@ BIT_TABLES = frozenset({"coils", "discrete_inputs"})
 TYPES = codecs.TYPES
 #: the Home Assistant hints a point carries for the bridge's discovery
 HA_KEYS = ("device_class", "state_class", "icon")
+
 #: the 16-bit integer views of one register: its bytes, bits and fields may overlap them
 _REGISTER_VIEWS = frozenset({"uint16", "int16", "uint8", "int8", "bool"})
 
@@ -251,6 +253,11 @@ class Point:
         _text("unit", self.unit)
         for k in HA_KEYS:
             _text(k, getattr(self, k))
+        if self.state_class and self.state_class not in STATE_CLASSES:
+            raise PointError(
+                "state_class",
+                f"must be one of {', '.join(STATE_CLASSES)}, not {self.state_class!r}",
+            )
         if self.precision is not None:
             _int("precision", self.precision, 0, 15)
         if not isinstance(self.writable, bool):

@@ -153,7 +153,7 @@ def bad_template(text: str) -> str:
         (HEAD + POINT + "colour = 1\n", 'acme.toml:9: point[0] ("temp"): colour: unknown key'),
         (HEAD + POINT + 'type = "float24"\n', 'acme.toml:9: point[0] ("temp"): type: must be'),
         (HEAD + POINT.replace("address = 0", "address = 65535") + 'type = "uint32"\n',
-         'acme.toml:8: point[0] ("temp"): address: 65535 + 2 runs past'),
+         'acme.toml:8: point[0] ("temp"): address: 65535 + 2 registers runs past'),
         (HEAD + POINT + 'unit = ""\n', 'acme.toml:9: point[0] ("temp"): unit: must be a non'),
         (HEAD + POINT + "slave = 3\n", 'acme.toml:9: point[0] ("temp"): slave: a template'),
         (HEAD + POINT.replace("holding", "input") + "writable = true\n",
