@@ -32,6 +32,7 @@ if TYPE_CHECKING:
     from .config import BridgeConfig
     from .topics import Topics
 
+
 def _id(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9_-]", "_", text)
 
