@@ -427,7 +427,7 @@ def parse_bridge_config(
             if isinstance(t, dict):
                 picked.append((i, {k: t.pop(k) for k in POINT_KEYS if k in t}))
     default_keys = tuple(k for k in POINT_KEYS if k != "topic")
-    poller = _Loader(text, source, POINT_KEYS, default_keys).load(doc)
+    poller = _Loader(text, source, POINT_KEYS, default_keys, base=base).load(doc)
     drives = {
         (d.bus, d.slave): (d.template.name, d.name)
         for d in poller.devices
