@@ -37,8 +37,9 @@ Anything else is shown, not run: ``sh`` blocks are commands for the reader's own
 machine (installing, hardware, a broker), ``toml``/text blocks without ``file=``.
 
 The one substitution: ``/tmp/`` becomes the scratch directory's ``tmp/`` (a reader
-picks their own directory), and the TCP ports ``5020`` and ``5021`` of
-``127.0.0.1`` become free ones (the reader's are free).
+picks their own directory), and the TCP ports ``5020``, ``5021`` and ``5022`` of
+``127.0.0.1`` (``127.0.0.1:PORT``, and ``listener PORT 127.0.0.1`` in a
+mosquitto.conf) become free ones (the reader's are free).
 
 Directives: an HTML comment right before the fence (invisible in the rendered
 Markdown), space-separated words::
@@ -100,7 +101,7 @@ def _reading_order() -> list[Path]:
 DOCS = _reading_order()
 RUN_TIMEOUT = 90.0  # a command or script that has not ended by then never ends
 READY_TIMEOUT = 20.0  # a background command's shown lines
-TCP_PORTS = ("5020", "5021")
+TCP_PORTS = ("5020", "5021", "5022")
 DIRECTIVES = {"skip", "reference", "sequel", "file"}
 
 _ALARM = re.compile(r"warning|error|traceback", re.I)
@@ -331,7 +332,9 @@ class Session:
             shim.chmod(0o755)
         self.subst = {"/tmp/": f"{root}/tmp/"}
         for port in TCP_PORTS:
-            self.subst[f"127.0.0.1:{port}"] = f"127.0.0.1:{_free_port()}"
+            free = _free_port()
+            self.subst[f"127.0.0.1:{port}"] = f"127.0.0.1:{free}"
+            self.subst[f"listener {port} 127.0.0.1"] = f"listener {free} 127.0.0.1"
         self.env = {
             **os.environ,
             "HOME": str(root),
@@ -556,8 +559,8 @@ def test_console_commands_parse(block: Block) -> None:
     blocks that are not run)."""
     from pyrtu.cli import build_parser, poll_config
 
+    assert commands_of(block), f"{block.id}: no command"
     commands = [c for c in commands_of(block) if c.argv and c.argv[0] == "pyrtu"]
-    assert commands, f"{block.id}: no pyrtu command"
     for c in commands:
         argv = c.argv[1:]
         if poll_config.wants(argv):

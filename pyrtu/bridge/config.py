@@ -336,11 +336,23 @@ def _check_levels(
         raise ConfigError(f"{source}: point {p.name!r}: name: {problem}")  # pragma: no cover
 
 
+def _template_keys(poller: PollerConfig, name: str) -> frozenset[str]:
+    """The keys the template of a ``[[device]]`` gives its point ``name`` itself (they
+    win over ``[defaults]``); none for a profile's or a ``[[point]]``'s point."""
+    for device in poller.devices:
+        if device.template is None:
+            continue
+        for raw in device.template.points:
+            if f"{device.name}.{raw.get('name')}" == name:
+                return frozenset(raw)
+    return frozenset()
+
+
 def _profile_defaults(
     poller: PollerConfig, n_profile: int, defaults: object, text: str, source: str
 ) -> PollerConfig:
     """The profiles' points with ``[defaults]``' `PROFILE_DEFAULTS` (the ``[[point]]``
-    tables have them from the poller's loader)."""
+    tables have them from the poller's loader; a template's own keys win)."""
     if not isinstance(defaults, Mapping):
         return poller
     given = {k: defaults[k] for k in PROFILE_DEFAULTS if k in defaults}
@@ -348,8 +360,12 @@ def _profile_defaults(
         return poller
     points = list(poller.points)
     for n in range(n_profile):
+        own = _template_keys(poller, points[n].name)
+        wanted = {k: v for k, v in given.items() if k not in own}
+        if not wanted:
+            continue
         try:
-            points[n] = replace(points[n], **given)
+            points[n] = replace(points[n], **wanted)
         except ValueError as e:  # a default that does not fit a profile point
             line = _where(text, source, "defaults", next(iter(given)))
             raise ConfigError(f"{line}: point {points[n].name!r}: {e} (from [defaults])") from None
@@ -411,7 +427,7 @@ def parse_bridge_config(
             if isinstance(t, dict):
                 picked.append((i, {k: t.pop(k) for k in POINT_KEYS if k in t}))
     default_keys = tuple(k for k in POINT_KEYS if k != "topic")
-    poller = _Loader(text, source, POINT_KEYS, default_keys).load(doc)
+    poller = _Loader(text, source, POINT_KEYS, default_keys, base=base).load(doc)
     drives = {
         (d.bus, d.slave): (d.template.name, d.name)
         for d in poller.devices

@@ -32,15 +32,6 @@ if TYPE_CHECKING:
     from .config import BridgeConfig
     from .topics import Topics
 
-#: a template point's hints -> Home Assistant's keys
-HINTS = {
-    "unit": "unit_of_measurement",
-    "device_class": "device_class",
-    "state_class": "state_class",
-    "icon": "icon",
-    "precision": "suggested_display_precision",
-}
-
 
 def _id(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9_-]", "_", text)
@@ -69,7 +60,6 @@ def configs(cfg: BridgeConfig, topics: Topics) -> list[tuple[str, bytes]]:
         dev_name = known.name if known is not None else None
         maker = template.vendor if template is not None else None
         model = template.model if template is not None else "Modbus slave"
-        hints = known.hints.get(p.name, {}) if known is not None else {}
         device: dict[str, Any] = {
             "identifiers": [_id(f"pyrtu_{m.edge}_{p.bus}_{p.slave}")],
             "name": dev_name or f"{model} {p.slave} on {p.bus}",
@@ -96,10 +86,6 @@ def configs(cfg: BridgeConfig, topics: Topics) -> list[tuple[str, bytes]]:
             "payload_not_available": "offline",
             "device": device,
         }
-        for key, ha_key in HINTS.items():
-            hint = hints.get(key, getattr(p, key, None))
-            if hint is not None and not (kind != "sensor" and key == "state_class"):
-                doc[ha_key] = hint
         if p.type == "bool" and not p.labels:
             doc["value_template"] = "{{ 'ON' if value_json.value else 'OFF' }}"
         else:
@@ -165,4 +151,4 @@ def _raw_bound(p: Point, low: bool) -> float:
     return min(a, b) if low else max(a, b)
 
 
-__all__ = ["HINTS", "component", "configs"]
+__all__ = ["component", "configs"]

@@ -74,7 +74,7 @@ def read_values(path: str | Path, points: Sequence[Point]) -> dict[str, Any]:
 def _writable_copy(point: Point) -> Point:
     from dataclasses import replace
 
-    return replace(point, table="coils" if point.bits else "holding")
+    return replace(point, table="coils" if point.bit_table else "holding")
 
 
 def _default(point: Point) -> Value:

@@ -125,7 +125,7 @@ def register_notes(
                 notes[address + i] = note
         return notes
     for p in points:
-        if p.bits or (table is not None and p.table != table):
+        if p.bit_table or (table is not None and p.table != table):
             continue
         if p.address < address or p.end > address + len(registers):
             continue

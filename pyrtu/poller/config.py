@@ -631,7 +631,8 @@ def _check_hints(loader: _Loader, i: int, label: str, point: Point, own: Mapping
     if "initial" in own:
         value = own["initial"]
         try:  # what the registers would hold (as if the table were writable)
-            encode_point_value(replace(point, table="coils" if point.bits else "holding"), value)
+            as_written = replace(point, table="coils" if point.bit_table else "holding")
+            encode_point_value(as_written, value)
         except ValueError as e:
             msg = str(e).removeprefix(f"point {point.name!r}: ")
             raise loader.fail("point", i, label, "initial", msg) from None

@@ -325,3 +325,28 @@ def test_a_file_key_naming_no_file_is_an_error_at_its_line(tmp_path: Path, key: 
     (tmp_path / "missing").write_text("there now\n")
     f.write_text(text)
     assert _cli("--check", str(f)).returncode == 0
+
+
+def test_a_template_devices_own_writable_min_max_win_over_defaults(tmp_path: Path) -> None:
+    """A ``[[device]]`` from a template loads (its points carry writable, min and max);
+    ``[defaults]`` gives them only to the points whose template says nothing."""
+    (tmp_path / "tc.toml").write_text(
+        '[device]\nvendor = "Acme"\nmodel = "TC-10"\n\n'
+        '[[point]]\nname = "setpoint"\ntable = "holding"\naddress = 16\n'
+        "writable = true\nmin = 0\nmax = 400\n\n"
+        '[[point]]\nname = "mode"\ntable = "holding"\naddress = 17\n\n'
+        '[[point]]\nname = "locked"\ntable = "holding"\naddress = 18\nwritable = false\n'
+    )
+    text = (
+        '[mqtt]\nurl = "mqtt://127.0.0.1:1883"\nedge = "e1"\n\n'
+        "[defaults]\nwritable = true\nmax = 100\n\n"
+        '[[bus]]\nname = "line"\nport = "/dev/null-not-opened"\n\n'
+        '[[device]]\nbus = "line"\nslave = 1\ntemplate = "tc.toml"\nname = "oven"\n'
+    )
+    (tmp_path / "b.toml").write_text(text)
+    cfg = load_bridge_config(tmp_path / "b.toml")
+    points = {p.name: p for p in cfg.poller.points}
+    assert (points["oven.setpoint"].writable, points["oven.setpoint"].max) == (True, 400)
+    assert (points["oven.mode"].writable, points["oven.mode"].max) == (True, 100)
+    assert points["oven.locked"].writable is False
+    assert cfg.drives == {("line", 1): ("tc", "oven")}

@@ -340,6 +340,10 @@ interval = 0.05
             )
             period = docs["homeassistant/number/pyrtu_e1/net_1_meter_demand_period/config"]
             assert (period["min"], period["max"]) == (0, 60)
+            # no empty hint: Home Assistant refuses a config with `"device_class": ""`
+            # or `"icon": ""` (a key without a value is left out)
+            for doc in docs.values():
+                assert not [k for k, v in doc.items() if v == ""], doc
             # one Home Assistant device for the meter
             assert len({json.dumps(d["device"]["identifiers"]) for d in docs.values()}) == 1
             topic = "pyrtu/e1/net/1/meter.voltage_l1"
