@@ -601,7 +601,7 @@ def template_points(
         point = loader.point(i, table, own_defaults)
         for k in POINT_HINT_KEYS:  # the hints a point carries itself, in one place
             carried = getattr(point, k, None)
-            if k not in own and carried not in (None, ""):
+            if k not in own and not (carried is None or carried is False or carried == ""):
                 own[k] = carried
         _check_hints(loader, i, label, point, own)
         _check_overlap(loader, i, label, point, points)

@@ -22,8 +22,10 @@ from pyrtu.pdu.errors import (
 
 def test_every_command_is_registered_in_order() -> None:
     names = ["read", "write", "poll", "scan", "info", "sniff", "simulate", "vbus", "demo"]
+    names.append("bench")  # the users' benchmark suite (pyrtu.cli.bench)
     names.append("gateway")  # registered after the built-ins (pyrtu.cli.gateway)
     names.append("bridge")  # then the MQTT bridge (pyrtu.cli.bridge)
+    names.append("template")  # the device templates (pyrtu.cli.template)
     assert list(COMMANDS) == names
 
 

@@ -207,7 +207,10 @@ def test_simulate_template_errors_are_usage_errors(tmp_path: Path) -> None:
     assert got.returncode == 2 and f"{values}:2: colour: no such point" in got.stderr
     values.write_text("display_mode = 70000\n")
     got = run("simulate", "--template", SDM630, "--values", values, "--tcp", "127.0.0.1:0")
-    assert got.returncode == 2 and f"{values}:1: display_mode: 70000 is raw" in got.stderr
+    assert (
+        got.returncode == 2
+        and f"{values}:1: display_mode: 70000 is outside its min..max (1..3)" in got.stderr
+    )
     both = run("simulate", "cfw701", "--template", SDM630, "--tcp", "127.0.0.1:0")
     assert both.returncode == 2 and "not both" in both.stderr
     drive = run("simulate", "cfw701", "--values", values, "--tcp", "127.0.0.1:0")
