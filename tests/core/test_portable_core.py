@@ -71,14 +71,14 @@ def windows_set(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 PROBE = r"""
 import pyrtu, pyrtu.core._cext as cext
-from pyrtu.drivers import _pyxfer, exchangers
+from pyrtu.drivers import _pyxfer, xfer_runners
 from pyrtu.vbus import _cvbus
 
 assert pyrtu.__file__.startswith(__import__("sys").argv[1]), pyrtu.__file__
 assert pyrtu.BACKEND == "c" and cext.POSIX_IO is False
 for name in ("rtu_xfer_io_run", "rtu_xfer_worker_start", "rtu_vbus_io_run", "rtu_vbus_io_init"):
     assert not hasattr(cext.lib, name), name
-assert exchangers._impl(cext) is _pyxfer
+assert xfer_runners._impl(cext) is _pyxfer
 assert _cvbus.available is False
 assert cext.CRCFAST is not None and pyrtu.crc16(b"123456789") == 0x4B37
 (frame,) = pyrtu.parse_stream(b"\x01\x03\x00\x00\x00\x0a\xc5\xcd", role="slave")
