@@ -39,7 +39,17 @@ def is_the_command() -> bool:
 
 
 def _interrupted(signum: int, frame: FrameType | None) -> None:
-    raise SystemExit(EXIT_INTERRUPTED)  # quiet: the interpreter prints nothing for it
+    """End the process at once, status 130.  Not by raising: Python runs a signal
+    handler between any two bytecodes, also inside a weakref callback or a
+    ``__del__`` (the import system's module locks have one), where an exception is
+    printed and then ignored, and the command would go on.  Nothing is open yet (the
+    command has not started); what was written is flushed first."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError, AttributeError):
+            pass
+    os._exit(EXIT_INTERRUPTED)
 
 
 def started() -> None:

@@ -162,3 +162,28 @@ def test_ctrl_c_while_a_command_connects_and_waits(silent_server: int, after: fl
     assert code == 130, err  # not 4: the timeout did not end it
     assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
     assert len(err.strip().splitlines()) <= 1, err
+
+
+def test_ctrl_c_inside_a_callback_whose_exceptions_python_ignores_still_ends() -> None:
+    """The start-up's SIGINT handler can run inside a weakref callback (the import
+    system's module locks have one) or a ``__del__``, where Python prints an exception
+    and goes on: the command must end there all the same, status 130, quietly (CI saw
+    ``pyrtu vbus`` run on after "Exception ignored in: ... _get_module_lock ... cb")."""
+    code = (
+        "import os, signal, sys, time, weakref\n"
+        "sys.argv = ['pyrtu']  # this process is the command (pyrtu._startup.is_the_command)\n"
+        "import pyrtu._startup\n"
+        "class Lock: pass\n"
+        "def callback(_ref):\n"
+        "    os.kill(os.getpid(), signal.SIGINT)\n"
+        "    time.sleep(0.5)  # the handler runs here, inside the callback\n"
+        "lock = Lock()\n"
+        "ref = weakref.ref(lock, callback)\n"
+        "del lock\n"
+        "print('went on')\n"
+    )
+    r = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=env(), timeout=30
+    )
+    assert r.returncode == 130, (r.stdout, r.stderr)
+    assert "went on" not in r.stdout and "Traceback" not in r.stderr, r.stderr
