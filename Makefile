@@ -61,7 +61,7 @@ $(STAMP): pyproject.toml setup.py pyrtu/core/_build_core.py pyrtu/core/_cdef.h $
 ASAN_DIR := build/asan
 test-asan: setup
 	rm -rf $(ASAN_DIR) && mkdir -p $(ASAN_DIR)
-	cp -r pyrtu tests csrc bench docs fuzz setup.py pyproject.toml MANIFEST.in README.md LICENSE CHANGELOG.md $(ASAN_DIR)/ && rm -f $(ASAN_DIR)/pyrtu/*.so
+	cp -r pyrtu tests csrc bench docs fuzz mutate .ci setup.py pyproject.toml MANIFEST.in README.md LICENSE CHANGELOG.md mkdocs.yml Makefile .clang-format $(ASAN_DIR)/ && rm -f $(ASAN_DIR)/pyrtu/*.so
 	PYRTU_SANITIZE=1 PYRTU_REQUIRE_C=1 $(PY) setup.py -q build_ext --build-lib $(ASAN_DIR) --build-temp build/asan-tmp --force
 	cd $(ASAN_DIR) && \
 	  LD_PRELOAD="$$(gcc -print-file-name=libasan.so) $$(gcc -print-file-name=libubsan.so)" \
