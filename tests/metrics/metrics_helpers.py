@@ -4,17 +4,38 @@ configuration on a virtual bus, waiting for a condition."""
 
 from __future__ import annotations
 
+import json
+import signal
 import time
 import urllib.error
 import urllib.request
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
+from cli_helpers import Background
 from prometheus_client.parser import text_string_to_metric_families
 
 #: a safety net for conditions awaited, never a measurement
 PATIENCE = 30.0
 BAUD = 115200
+#: the serial options of the commands under test (the virtual bus needs N)
+SERIAL = ("--baudrate", str(BAUD), "--parity", "N")
+
+
+def next_json(bg: Background, kind: str) -> dict[str, Any]:
+    """The next JSON line of ``bg``'s output whose ``type`` is ``kind``."""
+    while True:
+        doc: dict[str, Any] = json.loads(bg.line(timeout=20))
+        if doc.get("type") == kind:
+            return doc
+
+
+def stop(bg: Background) -> int:
+    """Ctrl-C to ``bg``; its exit status."""
+    bg.proc.send_signal(signal.SIGINT)
+    return bg.finish().code
+
 
 POLL_CONFIG = """\
 [[bus]]

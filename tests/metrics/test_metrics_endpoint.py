@@ -7,8 +7,6 @@ one line naming ``--metrics``)."""
 from __future__ import annotations
 
 import contextlib
-import json
-import signal
 import socket
 import subprocess
 import sys
@@ -19,11 +17,14 @@ import pytest
 from cli_helpers import ROOT, Background, env, pyrtu
 from metrics_helpers import (
     BAUD,
+    SERIAL,
     get,
     health,
+    next_json,
     sample,
     samples,
     serving,
+    stop,
     until,
     write_poll_config,
 )
@@ -35,20 +36,6 @@ from pyrtu.devices import CFW701Simulator
 from pyrtu.metrics.address import MetricsError, parse_address
 from pyrtu.metrics.histogram import BUCKETS, Latencies, family
 from pyrtu.vbus import VirtualBus
-
-SERIAL = ("--baudrate", str(BAUD), "--parity", "N")
-
-
-def next_json(bg: Background, kind: str) -> dict[str, Any]:
-    while True:
-        doc: dict[str, Any] = json.loads(bg.line(timeout=20))
-        if doc.get("type") == kind:
-            return doc
-
-
-def stop(bg: Background) -> int:
-    bg.proc.send_signal(signal.SIGINT)
-    return bg.finish().code
 
 
 def healthy(address: str) -> bool:

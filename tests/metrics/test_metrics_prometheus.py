@@ -6,13 +6,10 @@ requests a client sent, a simulator stopped, a broker killed."""
 
 from __future__ import annotations
 
-import json
-import signal
 from pathlib import Path
-from typing import Any
 
 from cli_helpers import Background
-from metrics_helpers import BAUD, serving, until, write_poll_config
+from metrics_helpers import BAUD, SERIAL, next_json, serving, stop, until, write_poll_config
 from mqtt_broker import Broker
 from prometheus_server import Prometheus, free_port
 
@@ -20,20 +17,6 @@ from pyrtu import Master
 from pyrtu.devices import CFW701Simulator
 from pyrtu.poller import profile_points
 from pyrtu.vbus import VirtualBus
-
-SERIAL = ("--baudrate", str(BAUD), "--parity", "N")
-
-
-def next_json(bg: Background, kind: str) -> dict[str, Any]:
-    while True:
-        doc: dict[str, Any] = json.loads(bg.line(timeout=20))
-        if doc.get("type") == kind:
-            return doc
-
-
-def stop(bg: Background) -> int:
-    bg.proc.send_signal(signal.SIGINT)
-    return bg.finish().code
 
 
 def test_the_poller_scraped_counts_what_the_simulator_answered(tmp_path: Path) -> None:
