@@ -14,3 +14,13 @@ async def wait_for(condition: Callable[[], bool], what: str, patience: float) ->
     while not condition():
         assert loop.time() < give_up, f"gave up waiting for {what}"
         await asyncio.sleep(0.02)
+
+
+#: A master's timeout where a test expects an answer: it only bounds how long a failure
+#: takes, so it is generous (a loaded CI machine can stall a process for a few hundred
+#: milliseconds).  A test about a timeout sets its own, with bounds in protocol times.
+ANSWER_TIMEOUT = 2.0
+
+#: The same where the test also expects silences (each costs this long): still several
+#: hundred milliseconds above the longest stall seen on a loaded CI machine.
+SILENCE_TIMEOUT = 1.0

@@ -15,6 +15,7 @@ from typing import Any
 
 import pytest
 from ptylink import PtyLink, ScriptedSlave, make_store, serving
+from waiting import ANSWER_TIMEOUT
 
 from pyrtu import add_crc
 from pyrtu import pdu as pdus
@@ -104,7 +105,7 @@ def test_virtual_bus_three_slaves(mode: str, runner: str) -> None:
 
         async def main() -> None:
             line = LineConfig(baudrate=baud, parity="N", mode=mode)
-            async with AsyncMaster(bus.paths[0], line=line, timeout=0.3) as m:
+            async with AsyncMaster(bus.paths[0], line=line, timeout=ANSWER_TIMEOUT) as m:
                 for i in range(30):
                     a = 1 + i % 3
                     assert await m.read_holding_registers(a, i, 4) == [

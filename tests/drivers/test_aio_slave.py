@@ -17,6 +17,7 @@ from typing import Any
 import pytest
 import serial
 from ptylink import PtyLink, count_reads, make_store, reads_per_request
+from waiting import ANSWER_TIMEOUT, SILENCE_TIMEOUT
 
 from pyrtu import add_crc
 from pyrtu.drivers.aio import run as aio_run
@@ -90,7 +91,7 @@ def test_three_async_slaves_share_a_virtual_bus(mode: str, runner: str) -> None:
 
         def client() -> dict[int, int]:
             done = {1: 0, 2: 0, 3: 0}
-            with Master(bus.paths[0], BAUD, parity="N", mode=mode, timeout=0.3) as m:
+            with Master(bus.paths[0], BAUD, parity="N", mode=mode, timeout=ANSWER_TIMEOUT) as m:
                 for _ in range(60):
                     a = rng.choice((1, 2, 3))
                     start = rng.randrange(0, 190)
@@ -257,7 +258,7 @@ def test_a_vanishing_port_ends_only_its_slave_and_leaks_no_fd(runner: str) -> No
         t_gone, t_stays = gone.start(), stays.start()
 
         def client() -> None:
-            with Master(bus.paths[0], BAUD, parity="N", timeout=0.3) as m:
+            with Master(bus.paths[0], BAUD, parity="N", timeout=SILENCE_TIMEOUT) as m:
                 assert m.read_holding_registers(1, 0, 1) == [1000]
                 bus.unplug(1)
                 with pytest.raises(NoResponseError):

@@ -9,6 +9,7 @@ from types import ModuleType
 
 import pytest
 from ptylink import PtyLink, ScriptedSlave, make_store, serving
+from waiting import ANSWER_TIMEOUT, SILENCE_TIMEOUT
 
 from pyrtu import BONFIGLIOLI, CV100, add_crc, encode_ascii
 from pyrtu.drivers.master import Master
@@ -46,7 +47,7 @@ def test_retries_after_no_response(link: PtyLink, backend: ModuleType) -> None:
     link.filters["a"] = drop_first
     with (
         serving(link.path_b, store=make_store(), t35=0, backend=be),
-        Master(link.path_a, parity="N", t35=0, timeout=0.15, retries=2, backend=be) as m,
+        Master(link.path_a, parity="N", t35=0, timeout=SILENCE_TIMEOUT, retries=2, backend=be) as m,
     ):
         assert m.read_holding_registers(1, 0, 2) == [1000, 1001]
         assert m.counters["retries"] == 1 and m.counters["timeouts"] == 1
@@ -61,7 +62,7 @@ def test_retries_after_no_response(link: PtyLink, backend: ModuleType) -> None:
 def test_exception_responses_are_not_retried(link: PtyLink) -> None:
     with (
         serving(link.path_b, store=make_store(), t35=0),
-        Master(link.path_a, parity="N", t35=0, timeout=0.3, retries=3) as m,
+        Master(link.path_a, parity="N", t35=0, timeout=ANSWER_TIMEOUT, retries=3) as m,
     ):
         with pytest.raises(ExceptionResponseError):
             m.read_holding_registers(1, 500, 1)
@@ -184,7 +185,7 @@ def test_late_answer_flushed_before_the_next_request(link: PtyLink) -> None:
 def test_stale_input_flushed(link: PtyLink) -> None:
     with (
         serving(link.path_b, store=make_store(), t35=0),
-        Master(link.path_a, parity="N", t35=0, timeout=0.5) as m,
+        Master(link.path_a, parity="N", t35=0, timeout=ANSWER_TIMEOUT) as m,
     ):
         link.inject("a", b"\x01\x03\x02\x00")  # half a frame left over from before
         time.sleep(0.05)
@@ -197,7 +198,9 @@ def test_echoing_adapter_master(backend: ModuleType) -> None:
     with PtyLink(echo={"a"}) as link:
         with (
             serving(link.path_b, store=make_store(), t35=0, backend=be) as slave,
-            Master(link.path_a, parity="N", t35=0, timeout=0.3, echo=True, backend=be) as m,
+            Master(
+                link.path_a, parity="N", t35=0, timeout=SILENCE_TIMEOUT, echo=True, backend=be
+            ) as m,
         ):
             assert m.read_holding_registers(1, 0, 3) == [1000, 1001, 1002]
             m.write_register(1, 0, 5)
@@ -227,7 +230,7 @@ def test_echoing_adapter_slave(backend: ModuleType) -> None:
     with PtyLink(echo={"b"}) as link:
         with (
             serving(link.path_b, store=make_store(), t35=0, echo=True, backend=be) as slave,
-            Master(link.path_a, parity="N", t35=0, timeout=0.3, backend=be) as m,
+            Master(link.path_a, parity="N", t35=0, timeout=ANSWER_TIMEOUT, backend=be) as m,
         ):
             for i in range(5):
                 m.write_register(1, 10, i)

@@ -113,7 +113,7 @@ def test_noise_and_batching_give_typed_errors_never_wrong_values() -> None:
     )
     rng = random.Random(5)
     outcomes = {"ok": 0, "no_response": 0, "frame": 0}
-    with shared_bus(faults=faults, timeout=0.08) as (m, _slaves, bus):
+    with shared_bus(faults=faults, timeout=0.25) as (m, _slaves, bus):
         for _ in range(240):
             a = rng.choice((1, 2, 3))
             start = rng.randrange(0, 100)
@@ -136,7 +136,7 @@ def test_noise_and_batching_give_typed_errors_never_wrong_values() -> None:
 
 def test_retries_ride_through_noise() -> None:
     faults = Faults(seed=3, bit_flip_rate=0.0005, batch_s=0.003)
-    with shared_bus(faults=faults, timeout=0.08, retries=3) as (m, _slaves, _bus):
+    with shared_bus(faults=faults, timeout=0.25, retries=3) as (m, _slaves, _bus):
         for i in range(60):
             try:
                 assert m.read_holding_registers(1 + i % 3, i, 4) == [1000 + i + k for k in range(4)]

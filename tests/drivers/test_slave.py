@@ -10,6 +10,7 @@ from types import ModuleType
 
 import pytest
 from ptylink import PtyLink, RawPort, make_store, rtu, serving
+from waiting import ANSWER_TIMEOUT, SILENCE_TIMEOUT
 
 from pyrtu import encode_ascii
 from pyrtu.drivers.master import Master
@@ -95,7 +96,7 @@ def test_diagnostic_counters(link: PtyLink, backend: ModuleType) -> None:
     be = backend.BACKEND
     with (
         serving(link.path_b, address=1, store=make_store(), t35=0, backend=be, max_adu=64) as s,
-        Master(link.path_a, parity="N", t35=0, timeout=0.2, backend=be) as m,
+        Master(link.path_a, parity="N", t35=0, timeout=ANSWER_TIMEOUT, backend=be) as m,
         RawPort(link.path_a) as raw,
     ):
         assert m.diagnostics(1, 0x0A) == 0
@@ -134,7 +135,7 @@ def test_listen_only_and_restart(link: PtyLink, backend: ModuleType) -> None:
     be = backend.BACKEND
     with (
         serving(link.path_b, address=1, store=make_store(), t35=0, backend=be) as s,
-        Master(link.path_a, parity="N", t35=0, timeout=0.15, backend=be) as m,
+        Master(link.path_a, parity="N", t35=0, timeout=SILENCE_TIMEOUT, backend=be) as m,
     ):
         assert m.diagnostics(1, 0x04) == 0  # force listen only: no answer awaited
         time.sleep(0.05)
@@ -159,7 +160,7 @@ def test_listen_only_and_restart(link: PtyLink, backend: ModuleType) -> None:
 def test_event_counter_and_log(link: PtyLink) -> None:
     with (
         serving(link.path_b, address=1, store=make_store(), t35=0) as s,
-        Master(link.path_a, parity="N", t35=0, timeout=0.3) as m,
+        Master(link.path_a, parity="N", t35=0, timeout=ANSWER_TIMEOUT) as m,
     ):
         assert m.get_comm_event_counter(1) == (0, 0)
         m.read_holding_registers(1, 0, 1)
@@ -185,7 +186,7 @@ def test_several_addresses_and_stores(link: PtyLink) -> None:
     stores[2].holding_registers.add_range(0, [22])
     with (
         serving(link.path_b, address={1, 2}, store=stores, t35=0),
-        Master(link.path_a, parity="N", t35=0, timeout=0.15) as m,
+        Master(link.path_a, parity="N", t35=0, timeout=SILENCE_TIMEOUT) as m,
     ):
         assert m.read_holding_registers(1, 0, 1) == [11]
         assert m.read_holding_registers(2, 0, 1) == [22]
@@ -219,7 +220,7 @@ def test_supported_functions_hooks_and_custom_handlers(link: PtyLink) -> None:
 
     with (
         serving(link.path_b, store=make_store(), t35=0, functions={3, 6}) as s,
-        Master(link.path_a, parity="N", t35=0, timeout=0.15) as m,
+        Master(link.path_a, parity="N", t35=0, timeout=SILENCE_TIMEOUT) as m,
     ):
         s.on_request(hook)
         s.register_function(0x46, echo_upper)
@@ -266,10 +267,16 @@ def test_serve_forever_in_the_caller(link: PtyLink) -> None:
     import threading
 
     slave = Slave(link.path_b, store=make_store(), parity="N", t35=0)
-    threading.Timer(0.3, slave.stop).start()
-    with Master(link.path_a, parity="N", t35=0, timeout=0.2) as m:
-        threading.Timer(0.05, lambda: results.append(m.read_holding_registers(1, 0, 1))).start()
-        results: list[list[int]] = []
+    results: list[list[int]] = []
+    with Master(link.path_a, parity="N", t35=0, timeout=ANSWER_TIMEOUT) as m:
+
+        def client() -> None:
+            try:
+                results.append(m.read_holding_registers(1, 0, 1))
+            finally:
+                slave.stop()
+
+        threading.Timer(0.05, client).start()
         slave.serve_forever()  # returns when stop() is called
         assert results == [[1000]]
     slave.close()

@@ -22,6 +22,7 @@ from types import ModuleType
 
 import pytest
 from peers.tools import minimal_instrument
+from waiting import ANSWER_TIMEOUT
 
 from pyrtu import pdu as pdus
 from pyrtu.core.line import LineConfig
@@ -237,7 +238,7 @@ def test_minimalmodbus_reads_after_the_long_write(backend: ModuleType) -> None:
         VirtualBus(2, baudrate=19200, parity="N") as bus,
         serving("sync", bus.paths[1], 19200, backend.BACKEND) as slave,
     ):
-        inst = minimal_instrument(bus.paths[0], ADDRESS, baudrate=19200, timeout=0.25)
+        inst = minimal_instrument(bus.paths[0], ADDRESS, baudrate=19200, timeout=ANSWER_TIMEOUT)
         try:
             assert inst.read_registers(0, 2) == [1000, 1001]
             for i in range(2):

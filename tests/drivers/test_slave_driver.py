@@ -10,6 +10,7 @@ from collections.abc import Iterator
 
 import pytest
 from ptylink import PtyLink, RawPort, count_reads, make_store, reads_per_request
+from waiting import ANSWER_TIMEOUT
 
 from pyrtu import add_crc
 from pyrtu.core.line import LineConfig
@@ -47,7 +48,7 @@ def test_idle_slave_does_not_poll(link: PtyLink) -> None:
     time.sleep(0.3)
     slave.stop()
     assert steps <= 2
-    with Master(link.path_a, parity="N", t35=0, timeout=0.3) as m:
+    with Master(link.path_a, parity="N", t35=0, timeout=ANSWER_TIMEOUT) as m:
         slave.start()
         assert m.read_holding_registers(1, 0, 1) == [1000]
     slave.close()

@@ -10,6 +10,7 @@ from types import ModuleType
 
 import pytest
 from ptylink import PtyLink, RawPort, ScriptedSlave, make_store, rtu, serving
+from waiting import ANSWER_TIMEOUT
 
 from pyrtu.drivers.master import Master
 from pyrtu.drivers.slave import Slave
@@ -53,7 +54,7 @@ def test_streaming_with_more_follows(link: PtyLink, backend: ModuleType) -> None
         serving(
             link.path_b, store=make_store(), identification=OBJECTS, max_adu=64, backend=be, t35=0
         ),
-        Master(link.path_a, parity="N", t35=0, timeout=0.3, backend=be) as m,
+        Master(link.path_a, parity="N", t35=0, timeout=ANSWER_TIMEOUT, backend=be) as m,
     ):
         assert m.read_device_identification(1, 1) == {k: OBJECTS[k] for k in (0, 1, 2)}
         regular = m.read_device_identification(1, 2)
@@ -102,7 +103,7 @@ def test_master_stops_a_next_object_loop(link: PtyLink) -> None:
 
     with (
         ScriptedSlave(link.path_b, lambda request, n: [(0.0, looping)]),
-        Master(link.path_a, parity="N", t35=0, timeout=0.3) as m,
+        Master(link.path_a, parity="N", t35=0, timeout=ANSWER_TIMEOUT) as m,
     ):
         with pytest.raises(FrameError, match="already read"):
             m.read_device_identification(1)
@@ -135,7 +136,7 @@ def test_watchdog(link: PtyLink, backend: ModuleType) -> None:
             on_watchdog=on_watchdog,
             backend=be,
         ) as s,
-        Master(link.path_a, parity="N", t35=0, timeout=0.2, backend=be) as m,
+        Master(link.path_a, parity="N", t35=0, timeout=ANSWER_TIMEOUT, backend=be) as m,
         RawPort(link.path_a) as raw,
     ):
         time.sleep(0.35)

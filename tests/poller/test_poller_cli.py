@@ -174,7 +174,7 @@ def test_single_range_form_still_works(tmp_path: Path) -> None:
     assert r.code == 6 and '"final": true' in r.out
 
 
-GOOD = poll_weg(timeout=0.1)
+GOOD = poll_weg(timeout=1.0)
 
 
 class Served:
