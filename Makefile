@@ -13,6 +13,8 @@ STAMP  := $(VENV)/.installed
 APT_PACKAGES := libmodbus-dev pkg-config socat mosquitto mosquitto-clients strace prometheus clang-format
 # the Windows cross compiler of `make cross-windows`
 APT_PACKAGES += mingw-w64
+# GNU time: bench/bench_capture.py's peak RSS of a child (its own, not its forking parent's)
+APT_PACKAGES += time
 # The C sources make format-c formats and make lint checks (.clang-format).
 C_SOURCES := $(wildcard csrc/*.c csrc/*.h csrc/python/*.c fuzz/*.c fuzz/*.h tests/core/csrc/*.c)
 CLANG_FORMAT ?= $(shell command -v clang-format || command -v clang-format-14 || echo clang-format)

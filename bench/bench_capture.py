@@ -4,8 +4,8 @@ streaming API (`pyrtu.vbus.capture_frames`), on valid captures of 10 MB and
 the first record), and on 20 MB of well-formed records carrying random bytes
 (line noise: every byte goes through the framer's discard path).
 
-Each case runs in its own process, measured with ``/usr/bin/time -v`` (the
-maximum resident set size) when present, else ``resource.getrusage`` of the child::
+Each case runs in its own process, its peak measured by GNU time (``/usr/bin/time -f
+%M``, the maximum resident set size of the command itself; Debian's ``time``)::
 
     .venv/bin/python bench/bench_capture.py [--sizes 10,200] [--dir /tmp]
 """
@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
 import subprocess
 import sys
 import tempfile
@@ -38,16 +37,20 @@ TIME = "/usr/bin/time"
 
 def run(cmd: list[str]) -> tuple[float, float, int]:
     """(peak RSS in MB, seconds, exit code) of a child process."""
+    # GNU time execs the command from its own small process: the peak it reports is the
+    # command's.  getrusage(RUSAGE_CHILDREN) here would carry this (large) process's RSS,
+    # which Linux keeps in ru_maxrss across the fork and exec.
+    if not os.path.exists(TIME):
+        raise SystemExit(f"{TIME} (GNU time) is needed: apt-get install time (make setup)")
     with tempfile.NamedTemporaryFile("r", suffix=".rss") as out:
-        timed = [TIME, "-f", "%M", "-o", out.name, *cmd] if os.path.exists(TIME) else cmd
-        before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
         t = time.perf_counter()
-        proc = subprocess.run(timed, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        proc = subprocess.run(
+            [TIME, "-f", "%M", "-o", out.name, *cmd],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
         elapsed = time.perf_counter() - t
-        if timed is not cmd:
-            kb = int(out.read().strip().splitlines()[-1])
-        else:  # the largest child so far: the cases run from small to large
-            kb = max(before, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)
+        kb = int(out.read().strip().splitlines()[-1])
     return kb / 1024, elapsed, proc.returncode
 
 
