@@ -22,12 +22,12 @@
 
 /* What rtu_tcp_scan found at the head of the bytes. */
 typedef struct {
-    size_t used;      /* bytes resolved: complete ADUs (the answer and late ones) */
-    size_t ans_off;   /* the answer's ADU: buf[ans_off .. ans_off + ans_len) */
-    size_t ans_len;   /* 0: no answer among the complete ADUs */
-    uint32_t late;    /* complete ADUs of another transaction (dropped, counted) */
+    size_t used;         /* bytes resolved: complete ADUs (the answer and late ones) */
+    size_t ans_off;      /* the answer's ADU: buf[ans_off .. ans_off + ans_len) */
+    size_t ans_len;      /* 0: no answer among the complete ADUs */
+    uint32_t late;       /* complete ADUs of another transaction (dropped, counted) */
     uint32_t late_after; /* ... of which after the answer (in the same bytes) */
-    int error;        /* RTU_MBAP_ERR_* of an invalid header at `used` (0: none) */
+    int error;           /* RTU_MBAP_ERR_* of an invalid header at `used` (0: none) */
 } rtu_tcp_scan_result;
 
 /* Scan buf[pos .. n) for the answer to transaction `tid`, adding to *s (s->used
@@ -42,7 +42,8 @@ typedef struct {
 int rtu_tcp_scan(const uint8_t *buf, size_t n, unsigned tid, rtu_tcp_scan_result *s);
 
 /* rtu_tcp_xfer_run's results (x->status) */
-#define RTU_TCP_ANSWER 0      /* the answer came: a response (or the request of a
+#define RTU_TCP_ANSWER \
+    0                         /* the answer came: a response (or the request of a
                                  broadcast went out, nothing awaited) */
 #define RTU_TCP_EXCEPTION 1   /* the answer is an exception response (fc | 0x80) */
 #define RTU_TCP_MISMATCH 2    /* the answer names another unit or function */
@@ -53,7 +54,8 @@ int rtu_tcp_scan(const uint8_t *buf, size_t n, unsigned tid, rtu_tcp_scan_result
 #define RTU_TCP_INTERRUPTED 7 /* a signal: call again with send = 0 */
 
 /* rtu_tcp_xfer_call's status | this: late answers were dropped (x->scan.late)
- * or an invalid header follows the answer (x->scan.error): more to look at */
+ * or an invalid header follows the answer (x->scan.error): more to look at
+ * (the status is the low 4 bits, the answer's PDU length from bit 8) */
 #define RTU_TCP_NOTE 16
 
 #define RTU_TCP_STAGE_SEND 1
@@ -66,29 +68,30 @@ int rtu_tcp_scan(const uint8_t *buf, size_t n, unsigned tid, rtu_tcp_scan_result
 
 typedef struct {
     /* what the caller decided */
-    int fd;              /* the connected socket (non-blocking) */
-    int send;            /* 1: a new transaction (build and send the request);
+    int fd;             /* the connected socket (non-blocking) */
+    int send;           /* 1: a new transaction (build and send the request);
                             0: go on waiting after RTU_TCP_INTERRUPTED */
-    int awaited;         /* 0: a broadcast, nothing read after the send */
-    unsigned tid;        /* the transaction id ([TCP] 3.1.3, chosen by the client) */
-    unsigned unit;       /* the unit id, 0..255 ([TCP] 4.4.1.2) */
-    const uint8_t *pdu;  /* the request PDU, 1..253 bytes */
+    int awaited;        /* 0: a broadcast, nothing read after the send */
+    unsigned tid;       /* the transaction id ([TCP] 3.1.3, chosen by the client) */
+    unsigned unit;      /* the unit id, 0..255 ([TCP] 4.4.1.2) */
+    const uint8_t *pdu; /* the request PDU, 1..253 bytes */
     size_t pdu_len;
-    int64_t timeout_ns;  /* the deadline, after the send began */
-    uint8_t *buf;        /* the receive buffer, kept between calls with n and scan:
+    int64_t timeout_ns;           /* the deadline, after the send began */
+    uint8_t *buf;                 /* the receive buffer, kept between calls with n and scan:
                             its unresolved bytes buf[scan.used .. n) (a partial ADU
                             read before a timeout) go first at the next send */
-    size_t cap;          /* at least RTU_TCP_MIN_CAP */
+    size_t cap;                   /* at least RTU_TCP_MIN_CAP */
     uint8_t req[RTU_TCP_REQ_CAP]; /* the request ADU built here */
     /* what happened */
     int status;
-    int err;         /* errno of RTU_TCP_ERRNO */
-    int stage;       /* RTU_TCP_STAGE_* of RTU_TCP_ERRNO */
-    int64_t start;   /* the send began (CLOCK_MONOTONIC ns) */
+    int err;          /* errno of RTU_TCP_ERRNO */
+    int stage;        /* RTU_TCP_STAGE_* of RTU_TCP_ERRNO */
+    int64_t start;    /* the send began (CLOCK_MONOTONIC ns) */
     int64_t deadline; /* start + timeout_ns */
-    int64_t end;     /* the read that completed the answer returned */
-    size_t n;        /* bytes in buf (from 0): late ADUs, the answer, the rest */
+    int64_t end;      /* the read that completed the answer returned */
+    size_t n;         /* bytes in buf (from 0): late ADUs, the answer, the rest */
     rtu_tcp_scan_result scan;
+    uint8_t answer[RTU_TCP_REQ_CAP - 7]; /* rtu_tcp_xfer_call: the answer's PDU */
 } rtu_tcp_xfer;
 
 /* Run one transaction (RTU_OK: x->status says how it ended); RTU_EINVAL for a
@@ -97,10 +100,14 @@ typedef struct {
 int rtu_tcp_xfer_run(rtu_tcp_xfer *x);
 
 /* One new transaction in one call (the binding's form: a PDU passed as the
- * bytes object's own buffer): fills x's inputs, send = 1, and runs it.  The
- * status (RTU_TCP_*, | RTU_TCP_NOTE when there is more to look at), or a
- * negative RTU_E* as rtu_tcp_xfer_run returns. */
-int rtu_tcp_xfer_call(rtu_tcp_xfer *x, unsigned tid, unsigned unit, const char *pdu,
-                      size_t pdu_len, int awaited, int64_t timeout_ns);
+ * bytes object's own buffer): fills x's inputs, send = 1, and runs it.  Returns
+ * the status (RTU_TCP_*), | RTU_TCP_NOTE when there is more to look at, | the
+ * answer's PDU length << 8 when there is an answer (its PDU copied to
+ * x->answer); or a negative RTU_E* as rtu_tcp_xfer_run returns. */
+int rtu_tcp_xfer_call(rtu_tcp_xfer *x, unsigned tid, unsigned unit, const char *pdu, size_t pdu_len,
+                      int awaited, int64_t timeout_ns);
+/* rtu_tcp_xfer_call's return word for x as it is (after rtu_tcp_xfer_run with
+ * send = 0: the answer's PDU copied to x->answer). */
+int rtu_tcp_xfer_word(rtu_tcp_xfer *x);
 
 #endif

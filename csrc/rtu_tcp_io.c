@@ -198,8 +198,21 @@ int rtu_tcp_xfer_run(rtu_tcp_xfer *x)
     }
 }
 
-int rtu_tcp_xfer_call(rtu_tcp_xfer *x, unsigned tid, unsigned unit, const char *pdu,
-                      size_t pdu_len, int awaited, int64_t timeout_ns)
+int rtu_tcp_xfer_word(rtu_tcp_xfer *x)
+{
+    int word = x->status;
+    if (x->scan.late != 0 || x->scan.error != RTU_MBAP_ERR_NONE)
+        word |= RTU_TCP_NOTE;
+    if (x->scan.ans_len != 0) {
+        const size_t pdu_len = x->scan.ans_len - RTU_MBAP_HEADER_LEN;
+        memcpy(x->answer, x->buf + x->scan.ans_off + RTU_MBAP_HEADER_LEN, pdu_len);
+        word |= (int)(pdu_len << 8);
+    }
+    return word;
+}
+
+int rtu_tcp_xfer_call(rtu_tcp_xfer *x, unsigned tid, unsigned unit, const char *pdu, size_t pdu_len,
+                      int awaited, int64_t timeout_ns)
 {
     int rc;
     if (x == NULL)
@@ -215,12 +228,16 @@ int rtu_tcp_xfer_call(rtu_tcp_xfer *x, unsigned tid, unsigned unit, const char *
     x->pdu = NULL; /* the caller's bytes: not kept */
     if (rc != RTU_OK)
         return rc;
-    if (x->scan.late != 0 || x->scan.error != RTU_MBAP_ERR_NONE)
-        return x->status | RTU_TCP_NOTE;
-    return x->status;
+    return rtu_tcp_xfer_word(x);
 }
 
 #else /* no POSIX I/O */
+
+int rtu_tcp_xfer_word(rtu_tcp_xfer *x)
+{
+    (void)x;
+    return RTU_EUNSUPPORTED;
+}
 
 int rtu_tcp_xfer_run(rtu_tcp_xfer *x)
 {
@@ -228,8 +245,8 @@ int rtu_tcp_xfer_run(rtu_tcp_xfer *x)
     return RTU_EUNSUPPORTED;
 }
 
-int rtu_tcp_xfer_call(rtu_tcp_xfer *x, unsigned tid, unsigned unit, const char *pdu,
-                      size_t pdu_len, int awaited, int64_t timeout_ns)
+int rtu_tcp_xfer_call(rtu_tcp_xfer *x, unsigned tid, unsigned unit, const char *pdu, size_t pdu_len,
+                      int awaited, int64_t timeout_ns)
 {
     (void)x;
     (void)tid;

@@ -55,7 +55,8 @@ static void check_scan(const uint8_t *data, size_t n, unsigned tid, const rtu_tc
         size_t length = 0;
         int error = 0;
         int r = rtu_mbap_inspect(data + s->used, n - s->used, &length, &error);
-        if ((r == RTU_MBAP_INVALID) != (s->error != 0) || (r == RTU_MBAP_INVALID && error != s->error))
+        if ((r == RTU_MBAP_INVALID) != (s->error != 0) ||
+            (r == RTU_MBAP_INVALID && error != s->error))
             FUZZ_FAIL("the error at %zu differs from rtu_mbap_inspect", s->used);
         if (r == RTU_MBAP_COMPLETE)
             FUZZ_FAIL("the scan stopped before a whole ADU at %zu", s->used);
@@ -133,7 +134,8 @@ static void transact(const uint8_t *data, size_t n, unsigned tid, unsigned unit,
     case RTU_TCP_MISMATCH: {
         const uint8_t *a = x.buf + x.scan.ans_off;
         int mismatch = a[6] != unit || (a[7] & 0x7F) != fc;
-        if (s.ans_len == 0 || x.scan.ans_len != s.ans_len || memcmp(a, data + s.ans_off, s.ans_len) != 0)
+        if (s.ans_len == 0 || x.scan.ans_len != s.ans_len ||
+            memcmp(a, data + s.ans_off, s.ans_len) != 0)
             FUZZ_FAIL("an answer the scan of the stream does not find");
         if ((x.status == RTU_TCP_MISMATCH) != mismatch ||
             (!mismatch && (x.status == RTU_TCP_EXCEPTION) != ((a[7] & 0x80) != 0)))

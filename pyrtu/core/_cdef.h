@@ -347,8 +347,10 @@ typedef struct {
     int64_t end;
     size_t n;
     rtu_tcp_scan_result scan;
+    uint8_t answer[253];
 } rtu_tcp_xfer;
 int rtu_tcp_xfer_run(rtu_tcp_xfer *x);
 int rtu_tcp_xfer_call(rtu_tcp_xfer *x, unsigned tid, unsigned unit, const char *pdu,
                       size_t pdu_len, int awaited, int64_t timeout_ns);
+int rtu_tcp_xfer_word(rtu_tcp_xfer *x);
 /* ---- end of POSIX I/O ---- */

@@ -157,25 +157,20 @@ class TcpXferRunner:
         x.fd, x.buf, x.cap = sock.fileno(), ffi.cast("uint8_t *", self._keep), TCP_CAPACITY
         self._x = x
         self._call = lib.rtu_tcp_xfer_call
+        self.answer = ffi.buffer(x.answer)
 
     def call(self, tid: int, unit: int, pdu: bytes, awaited: bool, timeout: float) -> int:
-        rc: int = self._call(self._x, tid, unit, pdu, len(pdu), awaited, int(timeout * 1e9))
-        if rc < 0:
+        word: int = self._call(self._x, tid, unit, pdu, len(pdu), awaited, int(timeout * 1e9))
+        if word < 0:
             raise ValueError(f"bad TCP xfer arguments: tid {tid}, unit {unit}, pdu {pdu!r}")
-        return rc
+        return word
 
     def resume(self) -> int:
         x = self._x
         x.send = 0
         if lib.rtu_tcp_xfer_run(x) != lib.RTU_OK:
             raise ValueError("bad TCP xfer state")
-        scan = x.scan
-        note = scan.late != 0 or scan.error != 0
-        return int(x.status) | (lib.RTU_TCP_NOTE if note else 0)
-
-    def answer_pdu(self) -> bytes:
-        scan = self._x.scan
-        return ffi.unpack(self._keep + (scan.ans_off + 7), scan.ans_len - 7)  # type: ignore[no-any-return]
+        return lib.rtu_tcp_xfer_word(x)  # type: ignore[no-any-return]
 
     def end(self) -> float:
         return self._x.end * 1e-9  # type: ignore[no-any-return]

@@ -322,6 +322,7 @@ class TcpXferRunner:
         self._err = self._stage = 0
         self._start = self._end = 0.0
         self._unit = self._fc = self._tid = 0
+        self.answer = b""
 
     def call(self, tid: int, unit: int, pdu: bytes, awaited: bool, timeout: float) -> int:
         if not 0 <= tid <= 0xFFFF or not 0 <= unit <= 0xFF or not 1 <= len(pdu) <= 253:
@@ -331,6 +332,7 @@ class TcpXferRunner:
         self._err = self._stage = 0
         self._end = 0.0
         self._tid, self._unit, self._fc = tid, unit, pdu[0]
+        self.answer = b""
         self._start = _now()
         self._deadline = self._start + timeout
         status = self._transmit(_MBAP.pack(tid, 0, len(pdu) + 1) + bytes((unit,)) + pdu)
@@ -342,9 +344,15 @@ class TcpXferRunner:
         return self._noted(self._receive())
 
     def _noted(self, status: int) -> int:
-        self._status = status
+        """The word of `pyrtu.drivers.xfer.TCP_NOTE` (rtu_tcp_xfer_word)."""
+        self._status = word = status
         scan = self._scan
-        return status | TCP_NOTE if scan.late or scan.error else status
+        if scan.late or scan.error:
+            word |= TCP_NOTE
+        if scan.ans_len:
+            self.answer = bytes(self._buf[scan.ans_off + 7 : scan.ans_off + scan.ans_len])
+            word |= (scan.ans_len - 7) << 8
+        return word
 
     def _failed(self, stage: int, exc: OSError) -> int:
         self._err, self._stage = exc.errno or 0, stage
@@ -405,10 +413,6 @@ class TcpXferRunner:
             done = self._judged()
             if done is not None:
                 return done
-
-    def answer_pdu(self) -> bytes:
-        scan = self._scan
-        return bytes(self._buf[scan.ans_off + 7 : scan.ans_off + scan.ans_len])
 
     def end(self) -> float:
         return self._end

@@ -14,7 +14,7 @@ seconds (``time.monotonic``'s clock).
 
 from __future__ import annotations
 
-from typing import NamedTuple, Protocol
+from typing import Any, NamedTuple, Protocol
 
 from pyrtu.protocol.client_actions import Xfer
 
@@ -112,9 +112,11 @@ class AsyncXferRunner(Protocol):
 #: how a Modbus TCP xfer ended (`TcpXferRunner.call`; csrc/rtu_tcp.h RTU_TCP_*)
 (TCP_ANSWER, TCP_EXCEPTION, TCP_MISMATCH, TCP_TIMEOUT, TCP_CLOSED, TCP_ERRNO,
  TCP_BAD_HEADER, TCP_INTERRUPTED) = range(8)  # fmt: skip
-#: `TcpXferRunner.call`'s status | this: late answers were dropped, or an invalid
-#: header follows the answer (`TcpXferReport` has them)
+#: `TcpXferRunner.call`'s word: the status is ``word & TCP_STATUS``; | this: late
+#: answers were dropped, or an invalid header follows the answer (`TcpXferReport` has
+#: them); ``word >> 8``: the answer's PDU length (``runner.answer[:word >> 8]``)
 TCP_NOTE = 16
+TCP_STATUS = 15
 #: where a TCP_ERRNO xfer failed (`TcpXferReport.stage`)
 STAGE_SEND, STAGE_RECEIVE = 1, 2
 #: the receive buffer of a TCP xfer (late answers are kept for the log until it is
@@ -165,17 +167,17 @@ class TcpXferRunner(Protocol):
     twin: pyrtu/drivers/_pyxfer.py): build the MBAP request, send it, wait until
     ``timeout`` seconds after the send began for the answer of transaction ``tid``,
     read it whole by its length field (late answers of other transactions
-    dropped), and judge its unit and function.  The receive buffer is kept from
+    dropped), and judge its unit and function; ``call`` and ``resume`` return the
+    word described at `TCP_NOTE`.  The receive buffer is kept from
     call to call: a partial answer read before a timeout is completed (and
     dropped as late) in the next call."""
 
-    def call(
-        self, tid: int, unit: int, pdu: bytes, awaited: bool, timeout: float
-    ) -> int: ...
+    answer: Any
+    """the answer's PDU after a call that found one: ``answer[:word >> 8]`` (bytes)"""
+
+    def call(self, tid: int, unit: int, pdu: bytes, awaited: bool, timeout: float) -> int: ...
 
     def resume(self) -> int: ...
-
-    def answer_pdu(self) -> bytes: ...
 
     def end(self) -> float: ...
 
@@ -202,8 +204,18 @@ def check_plan(plan: XferPlan) -> None:
 
 
 __all__ = [
+    "ANSWER",
+    "CANCELLED",
+    "CAPACITY",
+    "ERRNO",
+    "GONE",
+    "SHORT",
+    "SPIN_MAX",
+    "STAGE_READ",
     "STAGE_RECEIVE",
     "STAGE_SEND",
+    "STAGE_WRITE",
+    "STALE",
     "TCP_ANSWER",
     "TCP_BAD_HEADER",
     "TCP_CAPACITY",
@@ -213,21 +225,12 @@ __all__ = [
     "TCP_INTERRUPTED",
     "TCP_MISMATCH",
     "TCP_NOTE",
+    "TCP_STATUS",
     "TCP_TIMEOUT",
+    "AsyncXferRunner",
     "TcpScan",
     "TcpXferReport",
     "TcpXferRunner",
-    "ANSWER",
-    "CANCELLED",
-    "CAPACITY",
-    "ERRNO",
-    "GONE",
-    "SHORT",
-    "SPIN_MAX",
-    "STAGE_READ",
-    "STAGE_WRITE",
-    "STALE",
-    "AsyncXferRunner",
     "XferPlan",
     "XferResult",
     "XferRunner",

@@ -30,10 +30,10 @@ from urllib.parse import urlsplit
 import serial
 from serial.urlhandler.protocol_socket import POLL_TIMEOUT
 
+from pyrtu.core import _backend
 from pyrtu.core._closing import AsyncClosing, Closing
 from pyrtu.core._forward import Forward, Settable
 from pyrtu.core._types import BytesLike
-from pyrtu.core import _backend
 from pyrtu.drivers import xfer, xfer_runners
 from pyrtu.drivers._portname import RTU_TCP_SCHEME
 from pyrtu.drivers._ptimer import rearm
@@ -142,6 +142,7 @@ class TcpClient(_ClientState, Closing):
             raise connect_error(self.where, exc, ct) from exc
         set_nodelay(self._sock)
         self._sock.setblocking(False)
+        self._closed = False
         self._runner = xfer_runners.tcp_xfer_runner(be, self._sock)
 
     def request(
@@ -151,20 +152,33 @@ class TcpClient(_ClientState, Closing):
         unless ``answered=True``: unit 0 to a TCP device itself, 4.4.1.2).  An
         exception response raises `ExceptionResponseError`, or with ``raw=True`` is
         returned as its PDU (function code | 0x80, exception code)."""
+        return self.transact(unit, pdu, answered, raw)[0]
+
+    def transact(
+        self, unit: int, pdu: BytesLike, answered: bool | None, raw: bool
+    ) -> tuple[bytes | None, float]:
+        """`request`'s answer and when it came (monotonic seconds; now for a
+        broadcast): `pyrtu.tcp.link.TcpLink`'s transaction."""
         proto, runner = self._proto, self._runner
         tid, body, awaited = proto.begin(unit, pdu, answered)
-        if self._sock.fileno() < 0:  # closed (its number may be another file's by now)
+        if self._closed:  # (its descriptor's number may be another file's by now)
             proto.connection_lost(f"send failed: {OSError(errno.EBADF, os.strerror(errno.EBADF))}")
             assert proto.broken is not None
             raise proto.broken
-        status = runner.call(tid, unit, body, awaited, proto.timeout)
-        while status & ~xfer.TCP_NOTE == xfer.TCP_INTERRUPTED:  # a signal's handler ran
-            status = runner.resume()
-        if status == xfer.TCP_ANSWER and awaited:
-            return proto.answered(tid, unit, runner)
-        return proto.settle(tid, unit, body[0], raw, awaited, runner)
+        word = runner.call(tid, unit, body, awaited, proto.timeout)
+        while word & xfer.TCP_STATUS == xfer.TCP_INTERRUPTED:  # a signal's handler ran
+            word = runner.resume()
+        if word & 0xFF == xfer.TCP_ANSWER:  # a response, nothing late; or a broadcast
+            if awaited:
+                answer = runner.answer[: word >> 8]
+                return answer, proto.answered(tid, unit, answer, runner)
+            return None, time.monotonic()
+        answer = proto.settle(tid, unit, body[0], raw, runner)
+        end = proto.answer_end
+        return answer, time.monotonic() if answer is None or end is None else end
 
     def close(self) -> None:
+        self._closed = True
         self._sock.close()
 
     def __repr__(self) -> str:

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 from pyrtu.core import _backend
 from pyrtu.core._types import BytesLike
 from pyrtu.core.frames import FrameKind
-from pyrtu.core.mbap import MBAP_ERROR_BY_CODE, check_header_args
+from pyrtu.core.mbap import MAX_PDU, MBAP_ERROR_BY_CODE, check_header_args
 from pyrtu.core.timing import positive_seconds
 from pyrtu.drivers import xfer
 from pyrtu.drivers.xfer import TcpXferRunner
@@ -258,7 +258,15 @@ class TcpClientProtocol:
         transaction id, the PDU as bytes and whether an answer is awaited; counted
         and logged as `send_request` does, with the same errors before anything is
         sent.  Its I/O is one `TcpXferRunner.call`; then `answered` or `settle`."""
-        body = check_header_args(0, unit, pdu)
+        if (
+            type(pdu) is bytes
+            and 0 < len(pdu) <= MAX_PDU
+            and type(unit) is int
+            and 0 <= unit <= 255
+        ):
+            body = pdu  # (what the masters' request table builds: checked already)
+        else:
+            body = check_header_args(0, unit, pdu)
         if self.broken is not None:
             raise PortError(self.where, f"the connection is unusable: {self.broken}")
         tid = self._tid = (self._tid + 1) & 0xFFFF
@@ -272,15 +280,14 @@ class TcpClientProtocol:
             log.debug("TX unit %d fc %d tid %d: %s", unit, body[0], tid, data.hex(" "))
         return tid, body, awaited
 
-    def answered(self, tid: int, unit: int, runner: TcpXferRunner) -> bytes:
-        """The response the runner's call ended with (status TCP_ANSWER, nothing
-        late, awaited): counted, logged, its PDU."""
-        pdu = runner.answer_pdu()
+    def answered(self, tid: int, unit: int, pdu: bytes, runner: TcpXferRunner) -> float:
+        """The response ``pdu`` the runner's call ended with (TCP_ANSWER, nothing
+        late, awaited): counted, logged; when it came."""
         self.answer_end = end = runner.end()
         self.counters["responses"] += 1
         if log.isEnabledFor(logging.DEBUG):
             self._log_answer(tid, unit, pdu, (end - runner.report().start) * 1e3)
-        return pdu
+        return end
 
     @staticmethod
     def _log_answer(tid: int, unit: int, pdu: bytes, ms: float) -> None:
@@ -288,7 +295,7 @@ class TcpClientProtocol:
         log.debug("RX unit %d fc %d tid %d: %s (%.3f ms)", unit, pdu[0], tid, adu, ms)
 
     def settle(
-        self, tid: int, unit: int, fc: int, raw: bool, awaited: bool, runner: TcpXferRunner
+        self, tid: int, unit: int, fc: int, raw: bool, runner: TcpXferRunner
     ) -> bytes | None:
         """The result of the runner's call however it ended (`answered` is the
         common case's shortcut): the response PDU, None (a broadcast), an exception

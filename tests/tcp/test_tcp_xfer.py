@@ -18,7 +18,6 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from types import ModuleType
-from typing import Union
 
 import pytest
 from c_core import needs_c
@@ -35,7 +34,7 @@ from pyrtu.tcp.client import TcpClient
 
 #: one step of a scripted answer: bytes sent as a segment of their own, a pause
 #: (seconds), or None: close the connection
-Step = Union[bytes, float, None]
+Step = bytes | float | None
 Script = Callable[[bytes], list[Step]]
 
 READ = bytes.fromhex("03 00 00 00 02")  # FC 03, address 0, 2 registers
@@ -155,9 +154,7 @@ def test_an_answer_split_into_single_bytes_is_read_whole(backend: ModuleType, se
 
 def test_a_stale_answer_then_the_right_one(backend: ModuleType, serve) -> None:  # type: ignore[no-untyped-def]
     stale = bytes.fromhex("03 04 de ad be ef")
-    server = serve(
-        answering(lambda t: adu(t - 1, 1, stale), lambda t: adu(t, 1, ANSWER_PDU))
-    )
+    server = serve(answering(lambda t: adu(t - 1, 1, stale), lambda t: adu(t, 1, ANSWER_PDU)))
     with client(server, backend) as c:
         assert c.request(1, READ) == ANSWER_PDU
         assert c.counters["late"] == 1 and c.counters["responses"] == 1
@@ -167,9 +164,11 @@ def test_two_answers_in_one_segment(backend: ModuleType, serve) -> None:  # type
     """A stale answer and the right one in one segment, then the right one and a
     duplicate after it: every whole ADU read is resolved in the same call."""
     server = serve(
-        lambda r: [adu(tid_of(r) - 1, 1, b"\x03\x02\x00\x00") + adu(tid_of(r), 1, ANSWER_PDU)]
-        if tid_of(r) == 1
-        else [adu(tid_of(r), 1, ANSWER_PDU) * 2]
+        lambda r: (
+            [adu(tid_of(r) - 1, 1, b"\x03\x02\x00\x00") + adu(tid_of(r), 1, ANSWER_PDU)]
+            if tid_of(r) == 1
+            else [adu(tid_of(r), 1, ANSWER_PDU) * 2]
+        )
     )
     with client(server, backend) as c:
         assert c.request(1, READ) == ANSWER_PDU
@@ -240,7 +239,9 @@ def test_a_malformed_header_after_the_answer(backend: ModuleType, serve) -> None
     server = serve(answering(lambda t: adu(t, 1, ANSWER_PDU) + adu(t, 1, b"\x03", length=1)))
     with client(server, backend) as c:
         assert c.request(1, READ) == ANSWER_PDU
-        with pytest.raises(PortError, match=r"unusable: bad MBAP header from the server \(length\)"):
+        with pytest.raises(
+            PortError, match=r"unusable: bad MBAP header from the server \(length\)"
+        ):
             c.request(1, READ)
 
 
@@ -337,15 +338,20 @@ def test_master_retries_and_logs_the_same(  # type: ignore[no-untyped-def]
         return [] if tid == 1 else [adu(tid - 1, 1, ANSWER_PDU), adu(tid, 1, ANSWER_PDU)]
 
     server = serve(script)
-    m = Master(server.url, timeout=0.3, retries=1)
-    name = getattr(backend, "BACKEND", "python")
-    m._conn._client.close()  # type: ignore[union-attr]
-    m._conn._client = TcpClient(server.url, timeout=0.3, backend=name)  # type: ignore[union-attr]
+    m = Master(server.url, timeout=0.3, retries=1, backend=getattr(backend, "BACKEND", "python"))
+    runner = m._conn._client._runner  # type: ignore[union-attr]
+    assert type(runner).__module__ == (  # the master's backend= picks the runner
+        "pyrtu.drivers._cxfer"
+        if getattr(backend, "BACKEND", "") == "c"
+        else "pyrtu.drivers._pyxfer"
+    )
     with m, caplog.at_level(logging.DEBUG, logger="pyrtu.drivers.master"):
         assert m.read_holding_registers(1, 0, 2) == [42, 43]
         assert m.counters["timeouts"] == 1 and m.counters["late"] == 1
     lines = [r.getMessage() for r in caplog.records if r.name == "pyrtu.drivers.master"]
-    hexed = [adu(t, 1, p).hex(" ") for t, p in ((1, READ), (2, READ), (1, ANSWER_PDU), (2, ANSWER_PDU))]
+    hexed = [
+        adu(t, 1, p).hex(" ") for t, p in ((1, READ), (2, READ), (1, ANSWER_PDU), (2, ANSWER_PDU))
+    ]
     assert lines[0] == f"TX unit 1 fc 3 tid 1: {hexed[0]}"
     assert lines[1] == f"TX unit 1 fc 3 tid 2: {hexed[1]}"
     assert lines[2] == f"RX late (no request tid 1 in flight), dropped: {hexed[2]}"
