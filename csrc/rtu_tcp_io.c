@@ -100,14 +100,18 @@ static int transmit(rtu_tcp_xfer *x)
             done += (size_t)w;
             continue;
         }
-        if (w < 0 && errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR)
-            return failed(x, RTU_TCP_STAGE_SEND, errno), 1;
+        if (w < 0 && errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR) {
+            failed(x, RTU_TCP_STAGE_SEND, errno);
+            return 1;
+        }
         if (now_ns() >= x->deadline) {
             x->status = RTU_TCP_TIMEOUT; /* no room for the request in time */
             return 1;
         }
-        if (wait_until(x->fd, POLLOUT, x->deadline) < 0 && errno != EINTR)
-            return failed(x, RTU_TCP_STAGE_SEND, errno), 1;
+        if (wait_until(x->fd, POLLOUT, x->deadline) < 0 && errno != EINTR) {
+            failed(x, RTU_TCP_STAGE_SEND, errno);
+            return 1;
+        }
     }
     return 0;
 }

@@ -323,6 +323,8 @@ class TcpXferRunner:
         self._start = self._end = 0.0
         self._unit = self._fc = self._tid = 0
         self.answer = b""
+        self._poller = select.poll()
+        self._poller.register(sock, select.POLLIN)
 
     def call(self, tid: int, unit: int, pdu: bytes, awaited: bool, timeout: float) -> int:
         if not 0 <= tid <= 0xFFFF or not 0 <= unit <= 0xFF or not 1 <= len(pdu) <= 253:
@@ -390,9 +392,7 @@ class TcpXferRunner:
         done = self._judged()
         if done is not None:
             return done
-        sock, buf = self._sock, self._buf
-        poller = select.poll()
-        poller.register(sock, select.POLLIN)
+        sock, buf, poller = self._sock, self._buf, self._poller
         while True:
             left = self._deadline - _now()
             if not poller.poll(left * 1000.0 if left > 0 else 0):

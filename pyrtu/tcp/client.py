@@ -12,9 +12,12 @@ typed errors of `pyrtu.pdu.errors`::
 
 The asyncio client keeps up to ``max_in_flight`` requests on the wire at once (the
 server answers them by transaction id, in any order); the blocking one sends one
-at a time.  ``rtu+tcp://host:port`` (RTU frames over a TCP socket, as serial device
-servers carry them) is a serial line without wire timing: `rtu_over_tcp` opens it
-as a pyserial object for the serial master.
+at a time, each transaction (send, wait, read the answer whole, drop late ones) one
+call of a `pyrtu.drivers.xfer.TcpXferRunner`: C (csrc/rtu_tcp_io.c, the GIL
+released) or, with ``backend="python"``, its twin.  ``rtu+tcp://host:port`` (RTU
+frames over a TCP socket, as serial device servers carry them) is a serial line
+without wire timing: `rtu_over_tcp` opens it as a pyserial object for the serial
+master.
 """
 
 from __future__ import annotations
