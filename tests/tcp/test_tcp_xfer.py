@@ -177,6 +177,18 @@ def test_two_answers_in_one_segment(backend: ModuleType, serve) -> None:  # type
         assert c.counters["late"] == 2 and c.counters["responses"] == 2
 
 
+def test_more_late_answers_than_the_buffer_holds(backend: ModuleType, serve) -> None:  # type: ignore[no-untyped-def]
+    """700 stale answers (9,100 bytes, more than TCP_CAPACITY) before the right one,
+    in one write: the buffer drops the resolved ones as it fills, every one counted."""
+    stale = adu(0xFFFF, 1, ANSWER_PDU)
+    server = serve(answering(lambda t: stale * 700 + adu(t, 1, ANSWER_PDU)))
+    with client(server, backend) as c:
+        assert c.request(1, READ) == ANSWER_PDU
+        assert c.counters["late"] == 700 and c.counters["responses"] == 1
+        assert c.request(1, READ) == ANSWER_PDU
+        assert c.counters["late"] == 1400
+
+
 def test_a_partial_answer_at_the_timeout_is_late_in_the_next_call(  # type: ignore[no-untyped-def]
     backend: ModuleType, serve
 ) -> None:
