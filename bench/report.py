@@ -90,6 +90,12 @@ BENCHMARKS: tuple[Benchmark, ...] = (
         ("bench/bench_client.py", "--loops", "--buses", "4", "--drive", "cv100", "--rounds", "3"),
         quick=("--quick", "--rounds", "1"),
     ),
+    Benchmark(
+        "tcpmaster",
+        (*PYTEST, "bench/bench_tcp_master.py", *BENCH_SETTINGS),
+        json_flag="--benchmark-json",
+        joined=True,
+    ),
     Benchmark("slave", ("bench/run_slave.py",)),
     Benchmark("wake", ("bench/wake_floor.py",)),
     Benchmark("gateway", ("bench/run_gateway.py", "--no-write"), quick=("--seconds", "2")),

@@ -491,6 +491,84 @@ def loops_targets(data: Data) -> list[tuple[str, str]]:
 SLAVE_LABELS = {"sync": "Slave", "async": "AsyncSlave", "baseline": "Slave (baseline)"}
 
 
+#: bench/bench_tcp_master.py's rows: pytest-benchmark name -> the client it measures
+TCP_MASTER_ROWS = {
+    "test_libmodbus": "libmodbus C client",
+    "test_pyrtu[pyrtu c]": 'pyrtu `Master("tcp://")`, C core',
+    "test_pyrtu[pyrtu twin]": 'pyrtu `Master("tcp://")`, the twin',
+    "test_pymodbus": "pymodbus `ModbusTcpClient` (sync)",
+}
+
+
+def _tcp_master(data: Data) -> dict[str, dict[str, Any]]:
+    """The rows of bench_tcp_master.py by name: median CPU µs per transaction and tps."""
+    out: dict[str, dict[str, Any]] = {}
+    for b in data["benchmarks"]:
+        info = b.get("extra_info", {})
+        if b["name"] in TCP_MASTER_ROWS and info.get("cpu_us_per_tx"):
+            out[b["name"]] = {
+                "cpu": statistics.median(info["cpu_us_per_tx"]),
+                "cpu_all": info["cpu_us_per_tx"],
+                "tps": statistics.median(info["tps"]),
+                "n": info["transactions"],
+            }
+    return out
+
+
+def tcpmaster_body(data: Data) -> Lines:
+    rows = _tcp_master(data)
+    n = next(iter(rows.values()))["n"] if rows else 0
+    base = rows.get("test_libmodbus", {}).get("cpu")
+    peer = rows.get("test_pymodbus", {}).get("cpu")
+    out = [
+        "bench/bench_tcp_master.py: the sync Modbus TCP clients against libmodbus's TCP "
+        f"server on 127.0.0.1, one after the other in one run; {n} reads of 10 holding "
+        "registers (FC 03) per round, 5 rounds each; CPU per transaction is each client's "
+        "own (the libmodbus client's CLOCK_PROCESS_CPUTIME_ID, this process's "
+        "`time.process_time` for the Python clients), the median over the rounds.",
+        "",
+    ]
+    out += table(
+        [
+            "client",
+            "CPU µs per transaction",
+            "rounds",
+            "transactions/s",
+            "x libmodbus",
+            "x pymodbus",
+        ],
+        (
+            [
+                label,
+                f"{rows[name]['cpu']:.1f}",
+                " / ".join(f"{x:.1f}" for x in rows[name]["cpu_all"]),
+                f"{rows[name]['tps']:,.0f}",
+                f"{rows[name]['cpu'] / base:.2f}" if base else "",
+                f"{rows[name]['cpu'] / peer:.2f}" if peer else "",
+            ]
+            for name, label in TCP_MASTER_ROWS.items()
+            if name in rows
+        ),
+    )
+    return out
+
+
+def tcpmaster_targets(data: Data) -> list[tuple[str, str]]:
+    rows = _tcp_master(data)
+    ours = rows.get("test_pyrtu[pyrtu c]", {}).get("cpu")
+    out = []
+    for other, bound in (("test_libmodbus", 1.5), ("test_pymodbus", 0.5)):
+        theirs = rows.get(other, {}).get("cpu")
+        if ours is None or theirs is None:
+            out.append((NOT_MEASURED, "-"))
+            continue
+        ratio = ours / theirs
+        out.append(
+            (f"{ours:.1f} µs against {theirs:.1f} µs: {ratio:.2f}x", verdict(ratio <= bound))
+        )
+    return out
+
+
 def slave_body(data: Data) -> Lines:
     out = [
         "The slaves on the virtual bus (bench/run_slave.py): the slave in a process of its "
@@ -1177,6 +1255,17 @@ SECTIONS: tuple[Section, ...] = (
         loops_body,
         loops_targets,
         ("4 buses at 115200 >= 0.95 of the wire limit under every event loop",),
+    ),
+    Section(
+        "tcpmaster",
+        "Sync master over Modbus TCP",
+        tcpmaster_body,
+        tcpmaster_targets,
+        (
+            "sync `Master` over tcp:// CPU per transaction <= 1.5x the libmodbus client (issue 30)",
+            "sync `Master` over tcp:// CPU per transaction <= 0.5x pymodbus's sync client "
+            "(issue 30)",
+        ),
     ),
     Section(
         "slave",

@@ -103,6 +103,24 @@ def mbap_seeds() -> list[bytes]:
     return seeds
 
 
+def tcp_seeds() -> list[bytes]:
+    """The manuals' answers as a Modbus TCP server sends them (MBAP header, Messaging
+    on TCP/IP V1.0b 3.1.3): bytes 0..3 the awaited transaction id, the unit, the
+    function and the read sizes (see fuzz_tcp.c), then the stream: the answers with
+    transaction ids 0, 1, ... (the earlier ones late)."""
+    seeds = []
+    for adus in _sources().values():
+        stream = bytearray()
+        for tid, adu in enumerate(adus):
+            pdu = adu[1:-2]
+            stream += tid.to_bytes(2, "big") + b"\x00\x00" + (len(pdu) + 1).to_bytes(2, "big")
+            stream += adu[:1] + pdu
+        last = adus[-1]
+        seeds.append(bytes([len(adus) - 1, last[0], last[1] & 0x7F, 5]) + bytes(stream))
+        seeds.append(bytes([0, adus[0][0], adus[0][1] & 0x7F, 0]) + bytes(stream))
+    return seeds
+
+
 def vbus_seeds() -> list[bytes]:
     """The manuals' telegrams as request/answer transactions on a 2-drop wire at 115200
     baud (see fuzz_vbus.c): transmit on drop 0 then 1, a service after each."""
@@ -125,6 +143,7 @@ HARNESSES = {
     "crc": crc_seeds,
     "mbap": mbap_seeds,
     "vbus": vbus_seeds,
+    "tcp": tcp_seeds,
 }
 
 

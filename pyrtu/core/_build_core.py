@@ -92,6 +92,7 @@ _BINDING = """
 #include "rtu.h"
 #include "rtu_vbus.h"
 #include "rtu_xfer.h"
+#include "rtu_tcp.h"
 static uint16_t rtu_crc16_bytes(const char *data, size_t len, uint16_t crc)
 {
     return rtu_crc16((const uint8_t *)data, len, crc);

@@ -252,6 +252,17 @@ int64_t rtu_vbus_io_now(void);
 uint64_t rtu_vbus_io_wakeups(rtu_vbus_io *io);
 /* ---- end of POSIX I/O ---- */
 
+/* csrc/rtu_tcp.h: the answers at the head of a Modbus TCP client's receive buffer */
+typedef struct {
+    size_t used;
+    size_t ans_off;
+    size_t ans_len;
+    uint32_t late;
+    uint32_t late_after;
+    int error;
+} rtu_tcp_scan_result;
+int rtu_tcp_scan(const uint8_t *buf, size_t n, unsigned tid, rtu_tcp_scan_result *s);
+
 /* ---- POSIX I/O (csrc/rtu_*_io.c): left out where there is none (_build_core.py) ---- */
 /* csrc/rtu_xfer.h: one master xfer on a serial descriptor */
 #define RTU_XFER_ANSWER 0
@@ -299,4 +310,47 @@ int rtu_xfer_worker_start(rtu_xfer_worker *w, rtu_xfer *x, int notify_fd);
 int rtu_xfer_worker_submit(rtu_xfer_worker *w);
 int rtu_xfer_worker_rc(rtu_xfer_worker *w);
 void rtu_xfer_worker_stop(rtu_xfer_worker *w);
+/* ---- end of POSIX I/O ---- */
+
+/* ---- POSIX I/O (csrc/rtu_*_io.c): left out where there is none (_build_core.py) ---- */
+/* csrc/rtu_tcp.h: one Modbus TCP client transaction (csrc/rtu_tcp_io.c) */
+#define RTU_TCP_ANSWER 0
+#define RTU_TCP_EXCEPTION 1
+#define RTU_TCP_MISMATCH 2
+#define RTU_TCP_TIMEOUT 3
+#define RTU_TCP_CLOSED 4
+#define RTU_TCP_ERRNO 5
+#define RTU_TCP_BAD_HEADER 6
+#define RTU_TCP_INTERRUPTED 7
+#define RTU_TCP_NOTE 16
+#define RTU_TCP_STAGE_SEND 1
+#define RTU_TCP_STAGE_RECEIVE 2
+#define RTU_TCP_REQ_CAP 260
+#define RTU_TCP_MIN_CAP 520
+typedef struct {
+    int fd;
+    int send;
+    int awaited;
+    unsigned tid;
+    unsigned unit;
+    const uint8_t *pdu;
+    size_t pdu_len;
+    int64_t timeout_ns;
+    uint8_t *buf;
+    size_t cap;
+    uint8_t req[260];
+    int status;
+    int err;
+    int stage;
+    int64_t start;
+    int64_t deadline;
+    int64_t end;
+    size_t n;
+    rtu_tcp_scan_result scan;
+    uint8_t answer[253];
+} rtu_tcp_xfer;
+int rtu_tcp_xfer_run(rtu_tcp_xfer *x);
+int rtu_tcp_xfer_call(rtu_tcp_xfer *x, unsigned tid, unsigned unit, const char *pdu,
+                      size_t pdu_len, int awaited, int64_t timeout_ns);
+int rtu_tcp_xfer_word(rtu_tcp_xfer *x);
 /* ---- end of POSIX I/O ---- */

@@ -1,18 +1,29 @@
 """The xfer step in C (csrc/rtu_xfer_io.c; `pyrtu.drivers.xfer` has the contract,
 pyrtu/drivers/_pyxfer.py the twin): `XferRunner` runs one xfer per call (the GIL
-released), `AsyncXferRunner` on a C thread of its own for an event loop.  Imported by
-`pyrtu.drivers.xfer_runners` only for the C backend (the extension is built then)."""
+released), `AsyncXferRunner` on a C thread of its own for an event loop;
+`TcpXferRunner` a Modbus TCP client's transaction in one call (csrc/rtu_tcp_io.c).
+Imported by `pyrtu.drivers.xfer_runners` only for the C backend (the extension is
+built then)."""
 
 from __future__ import annotations
 
 import math
 import os
+import socket
 import weakref
 from typing import Any
 
 from pyrtu.core._rtu_core import ffi, lib
 from pyrtu.drivers._pipes import drain, poke
-from pyrtu.drivers.xfer import CAPACITY, XferPlan, XferResult, check_plan
+from pyrtu.drivers.xfer import (
+    CAPACITY,
+    TCP_CAPACITY,
+    TcpScan,
+    TcpXferReport,
+    XferPlan,
+    XferResult,
+    check_plan,
+)
 
 
 def _new_xfer(cancel_fd: int) -> tuple[Any, Any]:
@@ -135,4 +146,41 @@ class AsyncXferRunner:
         self._stop()
 
 
-__all__ = ["AsyncXferRunner", "XferRunner"]
+class TcpXferRunner:
+    """A Modbus TCP client's transactions on a connected socket, in C
+    (csrc/rtu_tcp_io.c; `pyrtu.drivers.xfer.TcpXferRunner`) on the non-blocking
+    socket ``sock`` (the caller's: it closes it)."""
+
+    def __init__(self, sock: socket.socket) -> None:
+        x = ffi.new("rtu_tcp_xfer *")
+        self._keep = ffi.new("char[]", TCP_CAPACITY)  # (char: ffi.unpack gives bytes)
+        x.fd, x.buf, x.cap = sock.fileno(), ffi.cast("uint8_t *", self._keep), TCP_CAPACITY
+        self._x = x
+        self._call = lib.rtu_tcp_xfer_call
+        self.answer = ffi.buffer(x.answer)
+
+    def call(self, tid: int, unit: int, pdu: bytes, awaited: bool, timeout: float) -> int:
+        word: int = self._call(self._x, tid, unit, pdu, len(pdu), awaited, int(timeout * 1e9))
+        if word < 0:
+            raise ValueError(f"bad TCP xfer arguments: tid {tid}, unit {unit}, pdu {pdu!r}")
+        return word
+
+    def resume(self) -> int:
+        x = self._x
+        x.send = 0
+        if lib.rtu_tcp_xfer_run(x) != lib.RTU_OK:
+            raise ValueError("bad TCP xfer state")
+        return lib.rtu_tcp_xfer_word(x)  # type: ignore[no-any-return]
+
+    def end(self) -> float:
+        return self._x.end * 1e-9  # type: ignore[no-any-return]
+
+    def report(self) -> TcpXferReport:
+        x = self._x
+        s = x.scan
+        scan = TcpScan(s.used, s.ans_off, s.ans_len, s.late, s.late_after, s.error)
+        data = ffi.unpack(self._keep, x.n) if x.n else b""
+        return TcpXferReport(x.status, x.start * 1e-9, x.end * 1e-9, data, scan, x.err, x.stage)
+
+
+__all__ = ["AsyncXferRunner", "TcpXferRunner", "XferRunner"]

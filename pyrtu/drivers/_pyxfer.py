@@ -3,13 +3,16 @@ Python (`pyrtu.drivers.xfer` has the contract; pyrtu/drivers/_cxfer.py the C one
 Step for step as the C file: sleep to the send time, look for stale input, write
 (tcdrain on a real line), sleep to the first read, then sleep through all but the
 last character and wait for it; a readable cancel descriptor ends it
-(`AsyncXferRunner.cancel`)."""
+(`AsyncXferRunner.cancel`).  `TcpXferRunner` is the twin of csrc/rtu_tcp_io.c (and
+`tcp_scan` of csrc/rtu_tcp.c): a Modbus TCP client's transaction, step for step."""
 
 from __future__ import annotations
 
 import errno
 import os
 import select
+import socket
+import struct
 import threading
 import time
 
@@ -22,14 +25,28 @@ from pyrtu.drivers.xfer import (
     GONE,
     SHORT,
     STAGE_READ,
+    STAGE_RECEIVE,
+    STAGE_SEND,
     STAGE_WRITE,
     STALE,
+    TCP_ANSWER,
+    TCP_BAD_HEADER,
+    TCP_CAPACITY,
+    TCP_CLOSED,
+    TCP_ERRNO,
+    TCP_EXCEPTION,
+    TCP_MISMATCH,
+    TCP_NOTE,
+    TCP_TIMEOUT,
+    TcpScan,
+    TcpXferReport,
     XferPlan,
     XferResult,
     check_plan,
 )
 
 _now = time.monotonic
+__all__ = ["AsyncXferRunner", "TcpXferRunner", "XferRunner", "tcp_scan"]
 _AGAIN = (errno.EAGAIN, errno.EWOULDBLOCK, errno.EINTR)
 
 
@@ -254,3 +271,152 @@ class AsyncXferRunner:
         self._thread.join()
         for fd in (self.fd, self._w, self._cr, self._cw):
             os.close(fd)
+
+
+# ----------------------------------------------------------- Modbus TCP (rtu_tcp*.c)
+
+_MBAP = struct.Struct(">HHH")  # transaction id, protocol id, length
+_MBAP_MAX_ADU = 260
+#: RTU_MBAP_ERR_* (pyrtu.core.mbap.MBAP_ERROR_BY_CODE)
+_ERR_PROTOCOL, _ERR_LENGTH = 1, 2
+
+
+def tcp_scan(buf: bytes | bytearray, n: int, tid: int, scan: TcpScan) -> TcpScan:
+    """The twin of rtu_tcp_scan (csrc/rtu_tcp.c): ``buf[scan.used:n]`` scanned on
+    for the answer to ``tid``; late ADUs counted; stops at a partial ADU or an
+    invalid header (Messaging on TCP/IP Implementation Guide V1.0b, 3.1.3)."""
+    used, ans_off, ans_len, late, late_after, error = scan
+    tid &= 0xFFFF
+    while not error and used < n:
+        left = n - used
+        if left >= 4 and buf[used + 2] | buf[used + 3]:
+            error = _ERR_PROTOCOL  # protocol id 0 = MODBUS
+            break
+        if left < 6:
+            break
+        length = buf[used + 4] << 8 | buf[used + 5]
+        if not 2 <= length <= 254:
+            error = _ERR_LENGTH  # unit id + a PDU of 1..253 bytes
+            break
+        if left < 6 + length:
+            break
+        if not ans_len and (buf[used] << 8 | buf[used + 1]) == tid:
+            ans_off, ans_len = used, 6 + length
+        else:
+            late += 1  # it pairs with no request waiting
+            if ans_len:
+                late_after += 1
+        used += 6 + length
+    return TcpScan(used, ans_off, ans_len, late, late_after, error)
+
+
+class TcpXferRunner:
+    """The twin of csrc/rtu_tcp_io.c (`pyrtu.drivers.xfer.TcpXferRunner`): on the
+    non-blocking socket ``sock`` (the caller's)."""
+
+    def __init__(self, sock: socket.socket) -> None:
+        self._sock = sock
+        self._buf = bytearray()
+        self._scan = TcpScan()
+        self._status = TCP_ANSWER
+        self._err = self._stage = 0
+        self._start = self._end = 0.0
+        self._unit = self._fc = self._tid = 0
+        self.answer = b""
+        self._poller = select.poll()
+        self._poller.register(sock, select.POLLIN)
+
+    def call(self, tid: int, unit: int, pdu: bytes, awaited: bool, timeout: float) -> int:
+        if not 0 <= tid <= 0xFFFF or not 0 <= unit <= 0xFF or not 1 <= len(pdu) <= 253:
+            raise ValueError(f"bad TCP xfer arguments: tid {tid}, unit {unit}, pdu {pdu!r}")
+        del self._buf[: self._scan.used]  # a partial ADU of an earlier answer stays
+        self._scan = TcpScan()
+        self._err = self._stage = 0
+        self._end = 0.0
+        self._tid, self._unit, self._fc = tid, unit, pdu[0]
+        self.answer = b""
+        self._start = _now()
+        self._deadline = self._start + timeout
+        status = self._transmit(_MBAP.pack(tid, 0, len(pdu) + 1) + bytes((unit,)) + pdu)
+        if status is None:
+            status = self._receive() if awaited else TCP_ANSWER
+        return self._noted(status)
+
+    def resume(self) -> int:
+        return self._noted(self._receive())
+
+    def _noted(self, status: int) -> int:
+        """The word of `pyrtu.drivers.xfer.TCP_NOTE` (rtu_tcp_xfer_word)."""
+        self._status = word = status
+        scan = self._scan
+        if scan.late or scan.error:
+            word |= TCP_NOTE
+        if scan.ans_len:
+            self.answer = bytes(self._buf[scan.ans_off + 7 : scan.ans_off + scan.ans_len])
+            word |= (scan.ans_len - 7) << 8
+        return word
+
+    def _failed(self, stage: int, exc: OSError) -> int:
+        self._err, self._stage = exc.errno or 0, stage
+        return TCP_ERRNO
+
+    def _transmit(self, adu: bytes) -> int | None:
+        """The request on the socket; None sent, else the status."""
+        view = memoryview(adu)
+        while view:
+            try:
+                view = view[self._sock.send(view) :]
+                continue
+            except BlockingIOError:
+                pass
+            except OSError as exc:
+                return self._failed(STAGE_SEND, exc)
+            left = self._deadline - _now()
+            if left <= 0:
+                return TCP_TIMEOUT  # no room for the request in time
+            select.select((), (self._sock,), (), left)
+        return None
+
+    def _judged(self) -> int | None:
+        """The scan of what the buffer holds: the status once it is over, else None."""
+        buf = self._buf
+        scan = self._scan = tcp_scan(buf, len(buf), self._tid, self._scan)
+        if scan.ans_len:
+            off = scan.ans_off
+            if buf[off + 6] != self._unit or buf[off + 7] & 0x7F != self._fc:
+                return TCP_MISMATCH
+            return TCP_EXCEPTION if buf[off + 7] & 0x80 else TCP_ANSWER
+        return TCP_BAD_HEADER if scan.error else None
+
+    def _receive(self) -> int:
+        done = self._judged()
+        if done is not None:
+            return done
+        sock, buf, poller = self._sock, self._buf, self._poller
+        while True:
+            left = self._deadline - _now()
+            if not poller.poll(left * 1000.0 if left > 0 else 0):
+                return TCP_TIMEOUT
+            if TCP_CAPACITY - len(buf) < _MBAP_MAX_ADU:
+                del buf[: self._scan.used]  # full of late answers: the unresolved bytes only
+                self._scan = self._scan._replace(used=0)
+            try:
+                got = sock.recv(TCP_CAPACITY - len(buf))
+            except BlockingIOError:
+                continue
+            except OSError as exc:
+                return self._failed(STAGE_RECEIVE, exc)
+            if not got:
+                return TCP_CLOSED  # poll said input, recv says the end
+            buf += got
+            self._end = _now()
+            done = self._judged()
+            if done is not None:
+                return done
+
+    def end(self) -> float:
+        return self._end
+
+    def report(self) -> TcpXferReport:
+        return TcpXferReport(self._status, self._start, self._end, bytes(self._buf),
+                             self._scan, self._err, self._stage)  # fmt: skip

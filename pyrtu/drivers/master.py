@@ -285,7 +285,9 @@ class Master(MasterBase):
         if scheme == TCP_SCHEME:
             from pyrtu.tcp.link import TcpLink  # (loads the TCP module only when used)
 
-            self._conn: TcpLink | SerialLink = TcpLink(port, options["timeout"], options["retries"])
+            self._conn: TcpLink | SerialLink = TcpLink(
+                port, options["timeout"], options["retries"], options["backend"]
+            )
         else:
             self._conn = self._serial(port, scheme, line, options)
         return self._conn

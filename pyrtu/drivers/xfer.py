@@ -14,7 +14,7 @@ seconds (``time.monotonic``'s clock).
 
 from __future__ import annotations
 
-from typing import NamedTuple, Protocol
+from typing import Any, NamedTuple, Protocol
 
 from pyrtu.protocol.client_actions import Xfer
 
@@ -109,6 +109,81 @@ class AsyncXferRunner(Protocol):
     def close(self) -> None: ...
 
 
+#: how a Modbus TCP xfer ended (`TcpXferRunner.call`; csrc/rtu_tcp.h RTU_TCP_*)
+(TCP_ANSWER, TCP_EXCEPTION, TCP_MISMATCH, TCP_TIMEOUT, TCP_CLOSED, TCP_ERRNO,
+ TCP_BAD_HEADER, TCP_INTERRUPTED) = range(8)  # fmt: skip
+#: `TcpXferRunner.call`'s word: the status is ``word & TCP_STATUS``; | this: late
+#: answers were dropped, or an invalid header follows the answer (`TcpXferReport` has
+#: them); ``word >> 8``: the answer's PDU length (``runner.answer[:word >> 8]``)
+TCP_NOTE = 16
+TCP_STATUS = 15
+#: where a TCP_ERRNO xfer failed (`TcpXferReport.stage`)
+STAGE_SEND, STAGE_RECEIVE = 1, 2
+#: the receive buffer of a TCP xfer (late answers are kept for the log until it is
+#: full; at least RTU_TCP_MIN_CAP)
+TCP_CAPACITY = 8192
+
+
+class TcpScan(NamedTuple):
+    """What the scan of a TCP client's receive buffer found (csrc/rtu_tcp.h
+    rtu_tcp_scan_result): ``data[:used]`` are whole ADUs: the answer at
+    ``data[ans_off:ans_off + ans_len]`` (``ans_len`` 0: none) and ``late`` others
+    (``late_after`` of them after the answer); ``error`` is the `MBAP_ERROR_BY_CODE`
+    index of an invalid header at ``used`` (0: none)."""
+
+    used: int = 0
+    ans_off: int = 0
+    ans_len: int = 0
+    late: int = 0
+    late_after: int = 0
+    error: int = 0
+
+
+class TcpXferReport(NamedTuple):
+    """Everything a TCP xfer saw (`TcpXferRunner.report`)."""
+
+    status: int
+    """TCP_ANSWER (a response; a broadcast: the request went), TCP_EXCEPTION (an
+    exception response), TCP_MISMATCH (the answer names another unit or function),
+    TCP_TIMEOUT, TCP_CLOSED (the server closed the connection), TCP_ERRNO (``err``
+    at ``stage``), TCP_BAD_HEADER (an invalid MBAP header: ``scan.error``),
+    TCP_INTERRUPTED (a signal, C only: `TcpXferRunner.resume`)"""
+    start: float
+    """when the send began"""
+    end: float
+    """when the read that completed the answer returned"""
+    data: bytes
+    """what the receive buffer holds: late ADUs, the answer, the rest"""
+    scan: TcpScan
+    err: int
+    """the errno of TCP_ERRNO"""
+    stage: int
+    """STAGE_SEND or STAGE_RECEIVE of TCP_ERRNO"""
+
+
+class TcpXferRunner(Protocol):
+    """A Modbus TCP client's transactions on one connected socket, one per call
+    (C: csrc/rtu_tcp_io.c through pyrtu/drivers/_cxfer.py, the GIL released; the
+    twin: pyrtu/drivers/_pyxfer.py): build the MBAP request, send it, wait until
+    ``timeout`` seconds after the send began for the answer of transaction ``tid``,
+    read it whole by its length field (late answers of other transactions
+    dropped), and judge its unit and function; ``call`` and ``resume`` return the
+    word described at `TCP_NOTE`.  The receive buffer is kept from
+    call to call: a partial answer read before a timeout is completed (and
+    dropped as late) in the next call."""
+
+    answer: Any
+    """the answer's PDU after a call that found one: ``answer[:word >> 8]`` (bytes)"""
+
+    def call(self, tid: int, unit: int, pdu: bytes, awaited: bool, timeout: float) -> int: ...
+
+    def resume(self) -> int: ...
+
+    def end(self) -> float: ...
+
+    def report(self) -> TcpXferReport: ...
+
+
 def check_plan(plan: XferPlan) -> None:
     """The values both backends refuse, with the same messages."""
     ex = plan.xfer
@@ -137,9 +212,25 @@ __all__ = [
     "SHORT",
     "SPIN_MAX",
     "STAGE_READ",
+    "STAGE_RECEIVE",
+    "STAGE_SEND",
     "STAGE_WRITE",
     "STALE",
+    "TCP_ANSWER",
+    "TCP_BAD_HEADER",
+    "TCP_CAPACITY",
+    "TCP_CLOSED",
+    "TCP_ERRNO",
+    "TCP_EXCEPTION",
+    "TCP_INTERRUPTED",
+    "TCP_MISMATCH",
+    "TCP_NOTE",
+    "TCP_STATUS",
+    "TCP_TIMEOUT",
     "AsyncXferRunner",
+    "TcpScan",
+    "TcpXferReport",
+    "TcpXferRunner",
     "XferPlan",
     "XferResult",
     "XferRunner",

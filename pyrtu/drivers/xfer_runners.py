@@ -5,9 +5,10 @@ backend (``backend=`` of the constructors)."""
 
 from __future__ import annotations
 
+import socket
 from types import ModuleType
 
-from pyrtu.drivers.xfer import AsyncXferRunner, XferRunner
+from pyrtu.drivers.xfer import AsyncXferRunner, TcpXferRunner, XferRunner
 
 
 def _impl(backend: ModuleType) -> ModuleType:
@@ -33,4 +34,11 @@ def async_xfer_runner(backend: ModuleType) -> AsyncXferRunner:
     return ax
 
 
-__all__ = ["async_xfer_runner", "xfer_runner"]
+def tcp_xfer_runner(backend: ModuleType, sock: socket.socket) -> TcpXferRunner:
+    """A new `TcpXferRunner` of ``backend``'s kind on the connected, non-blocking
+    ``sock`` (C: csrc/rtu_tcp_io.c on its descriptor)."""
+    runner: TcpXferRunner = _impl(backend).TcpXferRunner(sock)
+    return runner
+
+
+__all__ = ["async_xfer_runner", "tcp_xfer_runner", "xfer_runner"]

@@ -12,16 +12,19 @@ typed errors of `pyrtu.pdu.errors`::
 
 The asyncio client keeps up to ``max_in_flight`` requests on the wire at once (the
 server answers them by transaction id, in any order); the blocking one sends one
-at a time.  ``rtu+tcp://host:port`` (RTU frames over a TCP socket, as serial device
-servers carry them) is a serial line without wire timing: `rtu_over_tcp` opens it
-as a pyserial object for the serial master.
+at a time, each transaction (send, wait, read the answer whole, drop late ones) one
+call of a `pyrtu.drivers.xfer.TcpXferRunner`: C (csrc/rtu_tcp_io.c, the GIL
+released) or, with ``backend="python"``, its twin.  ``rtu+tcp://host:port`` (RTU
+frames over a TCP socket, as serial device servers carry them) is a serial line
+without wire timing: `rtu_over_tcp` opens it as a pyserial object for the serial
+master.
 """
 
 from __future__ import annotations
 
 import asyncio
+import errno
 import os
-import select
 import socket
 import time
 from typing import Any
@@ -30,9 +33,11 @@ from urllib.parse import urlsplit
 import serial
 from serial.urlhandler.protocol_socket import POLL_TIMEOUT
 
+from pyrtu.core import _backend
 from pyrtu.core._closing import AsyncClosing, Closing
 from pyrtu.core._forward import Forward, Settable
 from pyrtu.core._types import BytesLike
+from pyrtu.drivers import xfer, xfer_runners
 from pyrtu.drivers._portname import RTU_TCP_SCHEME
 from pyrtu.drivers._ptimer import rearm
 from pyrtu.pdu.errors import ModbusError, PortError
@@ -81,12 +86,6 @@ def connect_error(where: str, exc: BaseException, timeout: float) -> PortError:
     return PortError(where, f"cannot connect: {text}")
 
 
-def _raise(result: bytes | ModbusError | None) -> bytes | None:
-    if isinstance(result, ModbusError):
-        raise result
-    return result
-
-
 #: how long pyserial's socket:// (under ``rtu+tcp://``) waits for the connection
 _SOCKET_CONNECT_TIMEOUT: float = POLL_TIMEOUT
 
@@ -121,13 +120,21 @@ class _ClientState:
 
 
 class TcpClient(_ClientState, Closing):
-    """A blocking Modbus TCP client: one request at a time on one connection."""
+    """A blocking Modbus TCP client: one request at a time on one connection.  Each
+    transaction's I/O is one call of the backend's `pyrtu.drivers.xfer.TcpXferRunner`
+    (C: csrc/rtu_tcp_io.c, the GIL released; ``backend="python"``: the twin)."""
 
     def __init__(
-        self, url: str, *, timeout: float = 1.0, connect_timeout: float | None = None
+        self,
+        url: str,
+        *,
+        timeout: float = 1.0,
+        connect_timeout: float | None = None,
+        backend: str | None = None,
     ) -> None:
         self.host, self.port = parse_tcp_url(url)
         self.where = _where(self.host, self.port)
+        be = _backend.backend(backend)
         self._proto = TcpClientProtocol(timeout=timeout, max_in_flight=1, where=self.where)
         ct = check_timeout(
             timeout if connect_timeout is None else connect_timeout, "connect_timeout"
@@ -138,6 +145,8 @@ class TcpClient(_ClientState, Closing):
             raise connect_error(self.where, exc, ct) from exc
         set_nodelay(self._sock)
         self._sock.setblocking(False)
+        self._closed = False
+        self._runner = xfer_runners.tcp_xfer_runner(be, self._sock)
 
     def request(
         self, unit: int, pdu: BytesLike, *, answered: bool | None = None, raw: bool = False
@@ -146,47 +155,33 @@ class TcpClient(_ClientState, Closing):
         unless ``answered=True``: unit 0 to a TCP device itself, 4.4.1.2).  An
         exception response raises `ExceptionResponseError`, or with ``raw=True`` is
         returned as its PDU (function code | 0x80, exception code)."""
-        proto = self._proto
-        now = time.monotonic()
-        tid, data = proto.send_request(unit, pdu, now, answered=answered, raw=raw)
-        try:
-            self._send(data)
-        except OSError as exc:
-            proto.connection_lost(f"send failed: {exc}")
-        while True:
-            done = proto.next_result()
-            if done is not None:
-                if done[0] == tid:
-                    return _raise(done[1])
-                continue
-            deadline = proto.deadline()
-            wait = 0.0 if deadline is None else max(0.0, deadline - time.monotonic())
-            readable, _, _ = select.select([self._sock], [], [], wait)
-            now = time.monotonic()
-            if readable:
-                try:
-                    chunk = self._sock.recv(65536)
-                except OSError as exc:
-                    proto.connection_lost(f"receive failed: {exc}")
-                    continue
-                if not chunk:
-                    proto.connection_lost("the server closed the connection")
-                    continue
-                proto.receive_data(chunk, now)
-            else:
-                proto.handle_timer(now)
+        return self.transact(unit, pdu, answered, raw)[0]
 
-    def _send(self, data: bytes) -> None:
-        view = memoryview(data)
-        while view:
-            try:
-                sent = self._sock.send(view)
-            except BlockingIOError:
-                select.select([], [self._sock], [], self._proto.timeout)
-                continue
-            view = view[sent:]
+    def transact(
+        self, unit: int, pdu: BytesLike, answered: bool | None, raw: bool
+    ) -> tuple[bytes | None, float]:
+        """`request`'s answer and when it came (monotonic seconds; now for a
+        broadcast): `pyrtu.tcp.link.TcpLink`'s transaction."""
+        proto, runner = self._proto, self._runner
+        tid, body, awaited = proto.begin(unit, pdu, answered)
+        if self._closed:  # (its descriptor's number may be another file's by now)
+            proto.connection_lost(f"send failed: {OSError(errno.EBADF, os.strerror(errno.EBADF))}")
+            assert proto.broken is not None
+            raise proto.broken
+        word = runner.call(tid, unit, body, awaited, proto.timeout)
+        while word & xfer.TCP_STATUS == xfer.TCP_INTERRUPTED:  # a signal's handler ran
+            word = runner.resume()
+        if word & 0xFF == xfer.TCP_ANSWER:  # a response, nothing late; or a broadcast
+            if awaited:
+                answer = runner.answer[: word >> 8]
+                return answer, proto.answered(tid, unit, answer, runner)
+            return None, time.monotonic()
+        answer = proto.settle(tid, unit, body[0], raw, runner)
+        end = proto.answer_end
+        return answer, time.monotonic() if answer is None or end is None else end
 
     def close(self) -> None:
+        self._closed = True
         self._sock.close()
 
     def __repr__(self) -> str:

@@ -106,12 +106,14 @@ def _result(call: Call, answer: bytes | None, end: float | None) -> tuple[Any, f
 
 
 class TcpLink(_TcpBase):
-    """`pyrtu.Master`'s link on a Modbus TCP connection (blocking, one at a time)."""
+    """`pyrtu.Master`'s link on a Modbus TCP connection (blocking, one at a time;
+    each transaction one call of the ``backend``'s `pyrtu.drivers.xfer.TcpXferRunner`:
+    C, csrc/rtu_tcp_io.c, the GIL released, or the twin)."""
 
-    def __init__(self, url: str, timeout: float, retries: int) -> None:
+    def __init__(self, url: str, timeout: float, retries: int, backend: str | None = None) -> None:
         self.url = url
         self.retries = retries
-        self._client = TcpClient(url, timeout=timeout)
+        self._client = TcpClient(url, timeout=timeout, backend=backend)
 
     @property
     def timeout(self) -> float:
@@ -133,15 +135,25 @@ class TcpLink(_TcpBase):
         return self._client.last_answer_time
 
     def transact(self, call: Call) -> tuple[Any, float]:
-        answered, raw = call.decode is not None, call.decode is answer_pdu
-        for attempt in range(self.retries + 1):
+        slave, pdu, decode = call
+        args = (slave, pdu, decode is not None, decode is answer_pdu)
+        try:
+            answer, end = self._client.transact(*args)
+        except NoResponseError:
+            if not self.retries:
+                raise
+            answer, end = self._retry(args)
+        return (None if decode is None or answer is None else decode(answer)), end
+
+    def _retry(self, args: tuple[Any, bytes, bool, bool]) -> tuple[bytes | None, float]:
+        """The retries after a first `NoResponseError` (the last one's is raised)."""
+        for attempt in range(self.retries):
             try:
-                answer = self._client.request(call.slave, call.pdu, answered=answered, raw=raw)
-                break
+                return self._client.transact(*args)
             except NoResponseError:
-                if attempt == self.retries:
+                if attempt == self.retries - 1:
                     raise
-        return _result(call, answer, self._client.last_answer_time)
+        raise AssertionError("unreachable")  # (retries > 0: the loop returns or raises)
 
     def close(self) -> None:
         self._client.close()

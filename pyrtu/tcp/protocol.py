@@ -21,11 +21,17 @@ the framer cannot accept ends the connection: every request in flight fails with
 
 At DEBUG level (``pyrtu -vv``) the ``pyrtu.drivers.master`` logger gets every frame
 sent and received, whole (MBAP header and PDU), as a serial master logs its ADUs.
+
+The blocking client (`pyrtu.tcp.client.TcpClient`, one request at a time) runs each
+transaction's I/O in one call of a `pyrtu.drivers.xfer.TcpXferRunner` (C:
+csrc/rtu_tcp_io.c, the GIL released) between `begin` and `answered` / `settle`
+here: the same counters, log lines, errors and ``broken`` as the event path above.
 """
 
 from __future__ import annotations
 
 import logging
+import os
 import struct
 from collections import deque
 from dataclasses import dataclass
@@ -33,8 +39,10 @@ from dataclasses import dataclass
 from pyrtu.core import _backend
 from pyrtu.core._types import BytesLike
 from pyrtu.core.frames import FrameKind
-from pyrtu.core.mbap import check_header_args
+from pyrtu.core.mbap import MAX_PDU, MBAP_ERROR_BY_CODE, check_header_args
 from pyrtu.core.timing import positive_seconds
+from pyrtu.drivers import xfer
+from pyrtu.drivers.xfer import TcpXferRunner
 from pyrtu.pdu.errors import (
     ExceptionResponseError,
     FrameError,
@@ -61,6 +69,32 @@ class _Pending:
 
 def check_timeout(timeout: object, name: str = "timeout") -> float:
     return positive_seconds(timeout, name)
+
+
+def _mismatch(unit: int, fc: int, got_unit: int, got_fc: int) -> FrameError:
+    return FrameError(
+        f"answer to unit {unit} function {fc} came back as unit {got_unit} function {got_fc}",
+        unit,
+        fc,
+    )
+
+
+def _short_exception(size: int, unit: int, fc: int) -> FrameError:
+    return FrameError(f"exception response of {size} bytes", unit, fc)
+
+
+def _no_answer(unit: int, fc: int, timeout: float) -> NoResponseError:
+    return NoResponseError(
+        f"no answer from unit {unit} (function {fc}) within {timeout} s", unit, fc
+    )
+
+
+def _bad_header(error: object) -> FrameError:
+    return FrameError(f"bad MBAP header from the server ({error})")
+
+
+def _log_late(tid: int, adu: BytesLike) -> None:
+    log.debug("RX late (no request tid %d in flight), dropped: %s", tid, bytes(adu).hex(" "))
 
 
 class TcpClientProtocol:
@@ -151,7 +185,7 @@ class TcpClientProtocol:
             if ev.error is not None:
                 if ev.error.value == "truncated":
                     continue  # the close below fails what is in flight
-                self._fail_all(FrameError(f"bad MBAP header from the server ({ev.error})"))
+                self._fail_all(_bad_header(ev.error))
                 return
             self._answer(ev.transaction, ev.unit, ev.kind, ev.pdu, now)
         if not data:
@@ -160,12 +194,10 @@ class TcpClientProtocol:
     def _answer(self, tid: int, unit: int, kind: FrameKind, pdu: bytes, now: float) -> None:
         pending = self._pending.pop(tid, None)
         if log.isEnabledFor(logging.DEBUG):
-            adu = (_MBAP.pack(tid, 0, len(pdu) + 1, unit) + pdu).hex(" ")
             if pending is None:
-                log.debug("RX late (no request tid %d in flight), dropped: %s", tid, adu)
+                _log_late(tid, _MBAP.pack(tid, 0, len(pdu) + 1, unit) + pdu)
             else:
-                ms = (now - pending.sent) * 1e3
-                log.debug("RX unit %d fc %d tid %d: %s (%.3f ms)", unit, pdu[0], tid, adu, ms)
+                self._log_answer(tid, unit, pdu, (now - pending.sent) * 1e3)
         if pending is None:
             self.counters["late"] += 1
             return
@@ -173,25 +205,13 @@ class TcpClientProtocol:
         fc = pending.function
         if unit != pending.unit or pdu[0] & 0x7F != fc:
             self.counters["frame_errors"] += 1
-            self._results.append(
-                (
-                    tid,
-                    FrameError(
-                        f"answer to unit {pending.unit} function {fc} came back as unit "
-                        f"{unit} function {pdu[0]}",
-                        pending.unit,
-                        fc,
-                    ),
-                )
-            )
+            self._results.append((tid, _mismatch(pending.unit, fc, unit, pdu[0])))
             return
         if kind is FrameKind.EXCEPTION:
             self.counters["exceptions"] += 1
             if len(pdu) != 2:
                 self.counters["frame_errors"] += 1
-                self._results.append(
-                    (tid, FrameError(f"exception response of {len(pdu)} bytes", unit, fc))
-                )
+                self._results.append((tid, _short_exception(len(pdu), unit, fc)))
             elif pending.raw:
                 self._results.append((tid, pdu))
             else:
@@ -222,17 +242,7 @@ class TcpClientProtocol:
         for tid in expired:
             p = self._pending.pop(tid)
             self.counters["timeouts"] += 1
-            self._results.append(
-                (
-                    tid,
-                    NoResponseError(
-                        f"no answer from unit {p.unit} (function {p.function}) "
-                        f"within {self.timeout} s",
-                        p.unit,
-                        p.function,
-                    ),
-                )
-            )
+            self._results.append((tid, _no_answer(p.unit, p.function, self.timeout)))
 
     def cancel(self, tid: int) -> None:
         """Forget a request (its caller gave up): a late answer is dropped."""
@@ -240,3 +250,118 @@ class TcpClientProtocol:
 
     def next_result(self) -> Result | None:
         return self._results.popleft() if self._results else None
+
+    # ------------------------------------------ the blocking client's transactions
+
+    def begin(self, unit: int, pdu: BytesLike, answered: bool | None) -> tuple[int, bytes, bool]:
+        """A blocking client's new transaction (nothing else in flight): its
+        transaction id, the PDU as bytes and whether an answer is awaited; counted
+        and logged as `send_request` does, with the same errors before anything is
+        sent.  Its I/O is one `TcpXferRunner.call`; then `answered` or `settle`."""
+        if (
+            type(pdu) is bytes
+            and 0 < len(pdu) <= MAX_PDU
+            and type(unit) is int
+            and 0 <= unit <= 255
+        ):
+            body = pdu  # (what the masters' request table builds: checked already)
+        else:
+            body = check_header_args(0, unit, pdu)
+        if self.broken is not None:
+            raise PortError(self.where, f"the connection is unusable: {self.broken}")
+        tid = self._tid = (self._tid + 1) & 0xFFFF
+        counters = self.counters
+        counters["requests"] += 1
+        awaited = unit != 0 if answered is None else bool(answered)
+        if not awaited:
+            counters["broadcasts"] += 1
+        if log.isEnabledFor(logging.DEBUG):
+            data = _MBAP.pack(tid, 0, len(body) + 1, unit) + body
+            log.debug("TX unit %d fc %d tid %d: %s", unit, body[0], tid, data.hex(" "))
+        return tid, body, awaited
+
+    def answered(self, tid: int, unit: int, pdu: bytes, runner: TcpXferRunner) -> float:
+        """The response ``pdu`` the runner's call ended with (TCP_ANSWER, nothing
+        late, awaited): counted, logged; when it came."""
+        self.answer_end = end = runner.end()
+        self.counters["responses"] += 1
+        if log.isEnabledFor(logging.DEBUG):
+            self._log_answer(tid, unit, pdu, (end - runner.report().start) * 1e3)
+        return end
+
+    @staticmethod
+    def _log_answer(tid: int, unit: int, pdu: bytes, ms: float) -> None:
+        adu = (_MBAP.pack(tid, 0, len(pdu) + 1, unit) + pdu).hex(" ")
+        log.debug("RX unit %d fc %d tid %d: %s (%.3f ms)", unit, pdu[0], tid, adu, ms)
+
+    def settle(
+        self, tid: int, unit: int, fc: int, raw: bool, runner: TcpXferRunner
+    ) -> bytes | None:
+        """The result of the runner's call however it ended (`answered` is the
+        common case's shortcut): the response PDU, None (a broadcast), an exception
+        response's PDU (``raw``), or the error raised, as the event path gives them."""
+        r = runner.report()
+        scan, data = r.scan, r.data
+        status = r.status
+        self.counters["late"] += scan.late
+        if scan.late and log.isEnabledFor(logging.DEBUG):
+            first = scan.ans_off if scan.ans_len else scan.used
+            for adu in _adus(data, 0, first):
+                _log_late(adu[0] << 8 | adu[1], adu)
+        if status in (xfer.TCP_ANSWER, xfer.TCP_EXCEPTION, xfer.TCP_MISMATCH) and scan.ans_len:
+            try:
+                return self._judge(tid, unit, fc, raw, r)
+            finally:
+                if scan.late_after and log.isEnabledFor(logging.DEBUG):
+                    for adu in _adus(data, scan.ans_off + scan.ans_len, scan.used):
+                        _log_late(adu[0] << 8 | adu[1], adu)
+                if scan.error:  # after the answer: the stream is lost from here
+                    self.broken = _bad_header(MBAP_ERROR_BY_CODE[scan.error])
+        if status == xfer.TCP_ANSWER:
+            return None  # a broadcast went out
+        if status == xfer.TCP_TIMEOUT:
+            self.counters["timeouts"] += 1
+            raise _no_answer(unit, fc, self.timeout)
+        if status == xfer.TCP_BAD_HEADER:
+            self._fail_all(_bad_header(MBAP_ERROR_BY_CODE[scan.error]))
+        elif status == xfer.TCP_CLOSED:
+            self.connection_lost("the server closed the connection")
+        elif status == xfer.TCP_ERRNO:
+            what = "send" if r.stage == xfer.STAGE_SEND else "receive"
+            self.connection_lost(f"{what} failed: {OSError(r.err, os.strerror(r.err))}")
+        else:
+            raise RuntimeError(f"TCP xfer status {status}")  # (INTERRUPTED: resumed first)
+        assert self.broken is not None
+        raise self.broken
+
+    def _judge(self, tid: int, unit: int, fc: int, raw: bool, r: xfer.TcpXferReport) -> bytes:
+        scan = r.scan
+        adu = r.data[scan.ans_off : scan.ans_off + scan.ans_len]
+        got_unit, pdu = adu[6], adu[7:]
+        self.answer_end = r.end
+        if log.isEnabledFor(logging.DEBUG):
+            self._log_answer(tid, got_unit, pdu, (r.end - r.start) * 1e3)
+        counters = self.counters
+        if r.status == xfer.TCP_MISMATCH:
+            counters["frame_errors"] += 1
+            raise _mismatch(unit, fc, got_unit, pdu[0])
+        if r.status == xfer.TCP_EXCEPTION:
+            counters["exceptions"] += 1
+            if len(pdu) != 2:
+                counters["frame_errors"] += 1
+                raise _short_exception(len(pdu), unit, fc)
+            if raw:
+                return pdu
+            raise ExceptionResponseError(unit, fc, pdu[1])
+        counters["responses"] += 1
+        return pdu
+
+
+def _adus(data: bytes, start: int, stop: int) -> list[bytes]:
+    """The whole ADUs of ``data[start:stop]`` (a run of them, as a scan found)."""
+    out = []
+    while start < stop:
+        end = start + 6 + (data[start + 4] << 8 | data[start + 5])
+        out.append(data[start:end])
+        start = end
+    return out

@@ -36,7 +36,7 @@ def test_posix_headers_only_in_the_io_files() -> None:
     is the truth: exactly those files of csrc/ include POSIX headers."""
     posix = {p.name for p in CSRC.glob("*.[ch]") if POSIX_HEADERS.search(p.read_text())}
     named = {p.name for p in CSRC.glob("*.c") if p.name.endswith("_io.c")}
-    assert posix == named == {"rtu_vbus_io.c", "rtu_xfer_io.c"}
+    assert posix == named == {"rtu_vbus_io.c", "rtu_xfer_io.c", "rtu_tcp_io.c"}
 
 
 def _env(**extra: str) -> dict[str, str]:
@@ -76,7 +76,8 @@ from pyrtu.vbus import _cvbus
 
 assert pyrtu.__file__.startswith(__import__("sys").argv[1]), pyrtu.__file__
 assert pyrtu.BACKEND == "c" and cext.POSIX_IO is False
-for name in ("rtu_xfer_io_run", "rtu_xfer_worker_start", "rtu_vbus_io_run", "rtu_vbus_io_init"):
+for name in ("rtu_xfer_io_run", "rtu_xfer_worker_start", "rtu_vbus_io_run", "rtu_vbus_io_init",
+             "rtu_tcp_xfer_run", "rtu_tcp_xfer_call"):
     assert not hasattr(cext.lib, name), name
 assert xfer_runners._impl(cext) is _pyxfer
 assert _cvbus.available is False
