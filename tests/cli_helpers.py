@@ -9,9 +9,12 @@ import queue
 import subprocess
 import sys
 import threading
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 TIMEOUT = 30.0
@@ -91,6 +94,23 @@ def pyrtu(*args: object, timeout: float = TIMEOUT) -> Result:
         timeout=timeout,
     )
     return Result(proc.returncode, proc.stdout, proc.stderr)
+
+
+def kill_after_each_test(started: list[subprocess.Popen[str]]) -> Any:
+    """An autouse fixture for a test module whose tests start processes into
+    ``started``: after every test, each one still running is killed and reaped, so
+    that a test that fails while one runs does not leave it running."""
+
+    @pytest.fixture(autouse=True)
+    def kill_left() -> Iterator[None]:
+        yield
+        while started:
+            p = started.pop()
+            if p.poll() is None:
+                p.kill()
+                p.communicate(timeout=10)
+
+    return kill_left
 
 
 class Background:

@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
 from pyrtu.cli._subcommand import subcommand
 from pyrtu.cli.common import (
@@ -35,6 +36,7 @@ from pyrtu.cli.common import (
     emit,
     positive_seconds,
     register_address,
+    serial_kwargs,
 )
 
 
@@ -50,6 +52,30 @@ def _parts(text: str) -> list[str]:
             f"{text!r}: a comma-separated list of {', '.join(PARTS)} (or none)"
         )
     return names
+
+
+#: the line check's own options (``--NAME``), each the keyword of the same name of both
+#: checks (`pyrtu.bench.line`; ``timeout`` comes from the serial options)
+_LINE_CHECK_OPTIONS: dict[str, dict[str, Any]] = {
+    "table": dict(
+        choices=("holding", "input"),
+        default="holding",
+        help="the registers the line check reads (default holding: FC 03; input: FC 04)",
+    ),
+    "address": dict(type=register_address, default=0, metavar="ADDR", help="(default 0)"),
+    "count": dict(
+        type=bounded_int(1, 125, "a register count (1..125)"),
+        default=1,
+        metavar="N",
+        help="registers per read (default 1)",
+    ),
+    "samples": dict(
+        type=bounded_int(1, 100_000, "a number of transactions"),
+        default=100,
+        metavar="N",
+        help="transactions of the line check (default 100)",
+    ),
+}
 
 
 def _configure(p: argparse.ArgumentParser) -> None:
@@ -76,29 +102,8 @@ def _configure(p: argparse.ArgumentParser) -> None:
         help="check your own line: a serial port or a tcp://HOST:PORT (rtu+tcp://) URL",
     )
     add_slave_option(p, "the slave the line check reads (default 1)")
-    p.add_argument(
-        "--table",
-        choices=("holding", "input"),
-        default="holding",
-        help="the registers the line check reads (default holding: FC 03; input: FC 04)",
-    )
-    p.add_argument(
-        "--address", type=register_address, default=0, metavar="ADDR", help="(default 0)"
-    )
-    p.add_argument(
-        "--count",
-        type=bounded_int(1, 125, "a register count (1..125)"),
-        default=1,
-        metavar="N",
-        help="registers per read (default 1)",
-    )
-    p.add_argument(
-        "--samples",
-        type=bounded_int(1, 100_000, "a number of transactions"),
-        default=100,
-        metavar="N",
-        help="transactions of the line check (default 100)",
-    )
+    for name, keywords in _LINE_CHECK_OPTIONS.items():
+        p.add_argument(f"--{name}", **keywords)
     add_json_option(p)
     p.add_argument("--html", metavar="FILE", help="also write a self-contained HTML report")
     add_serial_options(p)
@@ -136,25 +141,12 @@ def _run(args: argparse.Namespace) -> int:
     report = None
     if args.port is not None:
         progress(f"the line {args.port}")
-        common = dict(
-            table=args.table,
-            address=args.address,
-            count=args.count,
-            samples=args.samples,
-            timeout=args.timeout,
-        )
+        common = {name: getattr(args, name) for name in (*_LINE_CHECK_OPTIONS, "timeout")}
         if "://" in args.port and not args.port.startswith(("loop://", "rfc2217://", "socket://")):
             report = line_check.check_tcp(args.port, args.slave, **common)
         else:
             report = line_check.check_serial(
-                args.port,
-                args.slave,
-                baudrate=args.baudrate,
-                parity=args.parity,
-                stopbits=args.stopbits,
-                bytesize=args.bytesize,
-                exclusive=args.exclusive,
-                **common,
+                args.port, args.slave, **serial_kwargs(args), exclusive=args.exclusive, **common
             )
     if args.json:
         emit(as_json(suite, report))

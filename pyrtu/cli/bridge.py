@@ -34,8 +34,8 @@ from pyrtu.cli.common import (
     EXIT_OK,
     EXIT_PORT,
     EXIT_USAGE,
+    add_duration_option,
     emit,
-    positive_seconds,
     report_error,
     seconds,
 )
@@ -52,14 +52,7 @@ def _configure(p: argparse.ArgumentParser) -> None:
         metavar="FILE",
         help="validate the configuration (FILE or --config) and exit: nothing is opened",
     )
-    p.add_argument(
-        "-d",
-        "--duration",
-        type=positive_seconds,
-        default=None,
-        metavar="SECONDS",
-        help="stop after this time (default: on SIGINT/SIGTERM)",
-    )
+    add_duration_option(p, "stop after this time (default: on SIGINT/SIGTERM)")
     p.add_argument(
         "--drain",
         type=seconds,

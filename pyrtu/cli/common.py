@@ -349,6 +349,14 @@ def add_exclusive_option(g: Any) -> None:
     )
 
 
+def add_duration_option(g: Any, help: str = "stop after this time") -> None:
+    """``-d/--duration SECONDS`` (default None: until a signal), shared by the commands
+    that run until stopped."""
+    g.add_argument(
+        "-d", "--duration", type=positive_seconds, default=None, metavar="SECONDS", help=help
+    )
+
+
 def add_json_option(p: argparse.ArgumentParser, what: str = "one JSON document") -> None:
     p.add_argument("--json", action="store_true", help=f"output for scripts: {what} on stdout")
 

@@ -52,10 +52,10 @@ from pyrtu.cli._subcommand import subcommand
 from pyrtu.cli.common import (
     BUSY_ADVICE,
     EXIT_OK,
+    add_duration_option,
     add_json_option,
     add_serial_options,
     emit,
-    positive_seconds,
     seconds,
     serial_kwargs,
     stop_when_stdout_closes,
@@ -185,9 +185,7 @@ def _configure(p: argparse.ArgumentParser) -> None:
         help="silence after a broadcast before the bus's next request: the devices' "
         f"turnaround (default {BROADCAST_DELAY})",
     )  # fmt: skip
-    p.add_argument(
-        "-d", "--duration", type=positive_seconds, metavar="SECONDS", help="stop after this time"
-    )
+    add_duration_option(p)
     add_json_option(
         p,
         "JSON lines: ready, bus (a port failed, or could not be opened at the start, or "

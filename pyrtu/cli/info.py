@@ -24,7 +24,7 @@ from pyrtu.cli.common import (
     object_id,
     open_master,
 )
-from pyrtu.cli.template import identify_device, template_name
+from pyrtu.cli.template import add_profile_option, identify_device
 
 #: the object names of the Modbus Application Protocol, table of 6.21
 OBJECT_NAMES = {
@@ -73,11 +73,8 @@ def _configure(p: argparse.ArgumentParser) -> None:
         help="identification category (default basic)",
     )
     p.add_argument("--object", type=object_id, metavar="ID", help="read one object (read code 4)")
-    p.add_argument(
-        "--profile",
-        type=template_name,
-        metavar="NAME",
-        help="identify through a device template instead of FC 43 (pyrtu template list)",
+    add_profile_option(
+        p, "identify through a device template instead of FC 43 (pyrtu template list)"
     )
     add_json_option(p)
     add_serial_options(p)

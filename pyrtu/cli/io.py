@@ -36,7 +36,7 @@ from pyrtu.cli.common import (
     register_address,
     show_address,
 )
-from pyrtu.cli.template import register_notes, template_name
+from pyrtu.cli.template import add_profile_option, register_notes
 from pyrtu.pdu import FUNCTION_NAMES, codecs
 
 if TYPE_CHECKING:
@@ -293,11 +293,9 @@ def add_read_arguments(p: argparse.ArgumentParser) -> None:
         help="how many values (default 1; string: how many registers, default 1)",
     )
     _add_item_options(p, "slave address (default 1)", "holding (default), input, coils or discrete")
-    p.add_argument(
-        "--profile",
-        type=template_name,
-        metavar="NAME",
-        help="name registers in a device template's terms (a template name or a .toml file;"
+    add_profile_option(
+        p,
+        "name registers in a device template's terms (a template name or a .toml file;"
         " e.g. P680 of a cfw701): pyrtu template list",
     )
 

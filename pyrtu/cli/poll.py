@@ -34,6 +34,7 @@ from pyrtu.cli.common import (
     EXIT_OK,
     EXIT_PORT,
     CommandSpec,
+    add_duration_option,
     add_json_option,
     add_serial_options,
     count,
@@ -183,14 +184,7 @@ def _configure(p: argparse.ArgumentParser) -> None:
         metavar="N",
         help="stop after N (1 or more)",
     )
-    g.add_argument(
-        "-d",
-        "--duration",
-        type=positive_seconds,
-        default=None,
-        metavar="SECONDS",
-        help="stop after this time",
-    )
+    add_duration_option(g)
     g.add_argument(
         "-i",
         "--interval",

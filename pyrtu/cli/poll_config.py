@@ -46,6 +46,7 @@ from pyrtu.cli.common import (
     EXIT_PORT,
     EXIT_USAGE,
     JsonErrorParser,
+    add_duration_option,
     emit,
     error_document,
     jsonable,
@@ -99,8 +100,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--config", required=True, metavar="FILE", help="the TOML file of buses and points"
     )
-    p.add_argument("-d", "--duration", type=positive_seconds, default=None, metavar="SECONDS",
-                   help="stop after this time (default: on Ctrl-C)")  # fmt: skip
+    add_duration_option(p, "stop after this time (default: on Ctrl-C)")
     p.add_argument("--json", action="store_true",
                    help="one JSON line per update and per event, a summary at the end")  # fmt: skip
     p.add_argument("--all", action="store_true",

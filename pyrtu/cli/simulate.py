@@ -68,11 +68,11 @@ from pyrtu.cli.common import (
     EXIT_FAILURE,
     EXIT_OK,
     EXIT_PORT,
+    add_duration_option,
     add_json_option,
     add_serial_options,
     describe_format,
     emit,
-    positive_seconds,
     serial_kwargs,
     stop_on_signals,
 )
@@ -193,9 +193,7 @@ def _configure(p: argparse.ArgumentParser) -> None:
         choices=["manual", "stopped"],
         help="WEG and CV100: start in the state of the manual's examples (default) or stopped",
     )
-    p.add_argument(
-        "-d", "--duration", type=positive_seconds, metavar="SECONDS", help="stop after this time"
-    )
+    add_duration_option(p)
     p.add_argument("--watch", action="store_true", help="print frequency and status every second")
     add_json_option(p, "JSON lines: ready, status (--watch), stopped")
     add_serial_options(p, timeout=None)

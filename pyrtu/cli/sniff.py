@@ -32,16 +32,16 @@ from pyrtu.cli._subcommand import subcommand
 from pyrtu.cli.common import (
     EXIT_OK,
     SignalStop,
+    add_duration_option,
     add_json_option,
     add_serial_options,
     count,
     emit,
     framing_kwargs,
-    positive_seconds,
     serial_kwargs,
     stop_on_signals,
 )
-from pyrtu.cli.template import register_notes, template_name
+from pyrtu.cli.template import add_profile_option, register_notes
 
 VENDOR_NAMES = {
     "bonfiglioli": {100: "read_parameter_32", 101: "write_parameter_32"},
@@ -391,16 +391,9 @@ def _configure(p: argparse.ArgumentParser) -> None:
     src = p.add_mutually_exclusive_group()
     src.add_argument("-c", "--capture", metavar="FILE", help="decode a capture file instead")
     src.add_argument("--example", action="store_true", help="decode a built-in sample capture")
-    p.add_argument(
-        "--profile",
-        type=template_name,
-        metavar="NAME",
-        help="decode for this device template (pyrtu template list)",
-    )
+    add_profile_option(p, "decode for this device template (pyrtu template list)")
     p.add_argument("-n", "--count", type=count, metavar="N", help="stop after N frames (1 or more)")
-    p.add_argument(
-        "-d", "--duration", type=positive_seconds, metavar="SECONDS", help="stop after this time"
-    )
+    add_duration_option(p)
     add_json_option(p, "one JSON line per frame, then a summary line")
     add_serial_options(p, timeout=None)
 

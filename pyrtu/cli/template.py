@@ -44,6 +44,12 @@ def template_name(text: str) -> str:
     return text
 
 
+def add_profile_option(p: argparse.ArgumentParser, help: str) -> None:
+    """``--profile NAME`` (`template_name`), shared by the commands that can work
+    through a device template (read, poll, info, sniff)."""
+    p.add_argument("--profile", type=template_name, metavar="NAME", help=help)
+
+
 @functools.lru_cache(maxsize=16)
 def _loaded(ref: str) -> tuple[Template, list[Point], dict[str, dict[str, Any]]]:
     from pyrtu.devices.registry import find_template

@@ -7,6 +7,7 @@ import argparse
 import os
 import sys
 import time
+from collections.abc import Callable
 from typing import Any
 
 from pyrtu.cli.common import (
@@ -21,6 +22,7 @@ from pyrtu.cli.common import (
     finite_float,
     positive_seconds,
     seconds,
+    serial_kwargs,
     stop_on_signals,
 )
 
@@ -30,6 +32,21 @@ _drops = bounded_int(1, MAX_DROPS, "a number of drops")
 _drop = bounded_int(0, MAX_DROPS - 1, "a drop index")
 _probability = finite_float(0.0, 1.0, "a probability")
 _bytes = bounded_int(0, None, "a byte count")
+
+
+#: the fault options: flag, the `pyrtu.vbus.Faults` field it sets, type, default,
+#: metavar, help
+_FAULT_OPTIONS: tuple[tuple[str, str, Callable[[str], Any], Any, str | None, str | None], ...] = (
+    ("--seed", "seed", int, 0, None, None),
+    ("--bit-flip-rate", "bit_flip_rate", _probability, 0.0, "P", "per bit"),
+    ("--drop-rate", "drop_rate", _probability, 0.0, "P", "lost bytes"),
+    ("--insert-rate", "insert_rate", _probability, 0.0, "P", "extra bytes"),
+    ("--gap-every", "gap_every", _bytes, 0, "N", "gap before every Nth byte"),
+    ("--gap-rate", "gap_rate", _probability, 0.0, "P", "random gaps"),
+    ("--gap", "gap_s", seconds, 0.0, "SECONDS", "gap length"),
+    ("--batch", "batch_s", seconds, 0.0, "SECONDS", "split delivery period"),
+    ("--batch-bytes", "batch_bytes", bounded_int(1, None, "a byte count"), 62, "N", None),
+)
 
 
 def _drop_count(text: str) -> tuple[int, int]:
@@ -53,8 +70,9 @@ def _configure_vbus(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--baud",
         "--baudrate",
-        dest="baud",
+        dest="baudrate",
         type=baudrate,
+        metavar="BAUD",
         default=19200,
         help=f"(default 19200; at most {MAX_BAUDRATE})",
     )
@@ -86,21 +104,8 @@ def _configure_vbus(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--stats", action="store_true", help="print counters on exit (stderr)")
     f = p.add_argument_group("faults (every drop; seeded)")
-    f.add_argument("--seed", type=int, default=0)
-    f.add_argument("--bit-flip-rate", type=_probability, default=0.0, metavar="P", help="per bit")
-    f.add_argument("--drop-rate", type=_probability, default=0.0, metavar="P", help="lost bytes")
-    f.add_argument("--insert-rate", type=_probability, default=0.0, metavar="P", help="extra bytes")
-    f.add_argument(
-        "--gap-every", type=_bytes, default=0, metavar="N", help="gap before every Nth byte"
-    )
-    f.add_argument("--gap-rate", type=_probability, default=0.0, metavar="P", help="random gaps")
-    f.add_argument("--gap", type=seconds, default=0.0, metavar="SECONDS", help="gap length")
-    f.add_argument(
-        "--batch", type=seconds, default=0.0, metavar="SECONDS", help="split delivery period"
-    )
-    f.add_argument(
-        "--batch-bytes", type=bounded_int(1, None, "a byte count"), default=62, metavar="N"
-    )
+    for flag, field, convert, default, metavar, text in _FAULT_OPTIONS:
+        f.add_argument(flag, dest=field, type=convert, default=default, metavar=metavar, help=text)
     f.add_argument(
         "--unplug",
         type=_drop_count,
@@ -167,24 +172,11 @@ def _run_vbus(args: argparse.Namespace) -> int:
 def _serve_vbus(args: argparse.Namespace) -> int:
     from pyrtu.vbus import Faults, VirtualBus
 
-    faults = Faults(
-        seed=args.seed,
-        bit_flip_rate=args.bit_flip_rate,
-        drop_rate=args.drop_rate,
-        insert_rate=args.insert_rate,
-        gap_every=args.gap_every,
-        gap_rate=args.gap_rate,
-        gap_s=args.gap,
-        batch_s=args.batch,
-        batch_bytes=args.batch_bytes,
-    )
+    faults = Faults(**{field: getattr(args, field) for _, field, *_ in _FAULT_OPTIONS})
     with stop_on_signals() as stop:
         with VirtualBus(
             args.drops,
-            baudrate=args.baud,
-            parity=args.parity,
-            stopbits=args.stopbits,
-            bytesize=args.bytesize,
+            **serial_kwargs(args),
             directory=args.dir,
             echo=args.echo,
             faults=faults,
@@ -196,7 +188,7 @@ def _serve_vbus(args: argparse.Namespace) -> int:
                 print(path)
             sys.stdout.flush()
             print(
-                f"pyrtu vbus: {args.drops} drops, {args.baud} baud"
+                f"pyrtu vbus: {args.drops} drops, {args.baudrate} baud"
                 f" {args.bytesize}{args.parity.upper()}{args.stopbits}"
                 f" ({bus.bits} bits/char, {bus.char_time * 1e6:.1f} us/char);"
                 " clients open the drops as 8N1 or 8N2; Ctrl-C to stop",

@@ -26,6 +26,14 @@ from pyrtu.core.framing import (
     make_char_timing,
     make_parse_stream,
 )
+from pyrtu.core.mbap import (
+    MbapEvent,
+    MbapFrameList,
+    make_encode_mbap,
+    make_mbap_framer,
+    make_parse_tcp_stream,
+    mbap_counters_dict,
+)
 from pyrtu.core.options import CoreOptions, flush_us_for
 from pyrtu.core.timing import Timing
 
@@ -151,6 +159,16 @@ def crc16_path(path: str, data: BytesLike, crc: int = 0xFFFF) -> int:
     return int(out[0])
 
 
+def _initialised(ctype: str, init: Callable[[Any, Any], int], arg: Any, about: object) -> Any:
+    """A new C struct (``ctype``, a pointer type) that ``init(struct, arg)`` sets up for
+    ``about``; ValueError if the C core refuses (the checks before make that a bug)."""
+    struct = ffi.new(ctype)
+    status = init(struct, arg)
+    if status != lib.RTU_OK:
+        raise ValueError(f"cannot initialise {ctype.rstrip(' *')} for {about} (status {status})")
+    return struct
+
+
 def _config(options: CoreOptions) -> Any:
     check_core_limits(options)
     cfg = ffi.new("rtu_config *")
@@ -215,9 +233,7 @@ _framer_needed = lib.rtu_framer_needed
 
 class _Core:
     def __init__(self, options: CoreOptions) -> None:
-        self.f = ffi.new("rtu_framer *")
-        if lib.rtu_framer_init(self.f, _config(options)) != lib.RTU_OK:
-            raise ValueError(f"cannot initialise the framer for {options}")
+        self.f = _initialised("rtu_framer *", lib.rtu_framer_init, _config(options), options)
 
     def feed(self, data: bytes, now_us: int) -> int:
         return int(_framer_feed(self.f, data, len(data), now_us))
@@ -354,9 +370,7 @@ def _parse(
     )
     if status != lib.RTU_OK:
         raise ValueError(f"parse_stream: chunk times rejected (status {status})")
-    parser = ffi.new("rtu_parser *")
-    if lib.rtu_parser_init(parser, cfg) != lib.RTU_OK:
-        raise ValueError(f"parse_stream: the C core refuses the configuration {options}")
+    parser = _initialised("rtu_parser *", lib.rtu_parser_init, cfg, options)
     blocks = _collect_events(
         "rtu_event[]",
         max(64, len(data) // 8),
@@ -390,22 +404,11 @@ char_timing = make_char_timing(_timing)
 
 
 # ---- Modbus TCP: MBAP framing (csrc/rtu_mbap.c) ----------------------------
-from pyrtu.core.mbap import (  # noqa: E402
-    MbapCore,
-    MbapEvent,
-    MbapFrameList,
-    MbapFramerBase,
-    make_encode_mbap,
-    make_parse_tcp_stream,
-    mbap_counters_dict,
-)
 
 
 class _MbapCore:
     def __init__(self, role: int) -> None:
-        self.f = ffi.new("rtu_mbap_framer *")
-        if lib.rtu_mbap_framer_init(self.f, role) != lib.RTU_OK:
-            raise ValueError(f"cannot initialise the MBAP framer for role {role}")
+        self.f = _initialised("rtu_mbap_framer *", lib.rtu_mbap_framer_init, role, f"role {role}")
 
     def feed(self, data: bytes) -> int:
         return int(lib.rtu_mbap_framer_feed(self.f, data, len(data)))
@@ -441,17 +444,6 @@ def _mbap_encode(transaction: int, unit: int, pdu: bytes) -> bytes:
     return bytes(ffi.buffer(out, n[0]))
 
 
-class MbapFramer(MbapFramerBase):
-    __doc__ = MbapFramerBase.__doc__
-    BACKEND = BACKEND
-
-    def _make_core(self, role: int) -> MbapCore:
-        return _MbapCore(role)
-
-    def _encode(self, transaction: int, unit: int, pdu: bytes) -> bytes:
-        return _mbap_encode(transaction, unit, pdu)
-
-
 class CMbapFrameList(_CEntries, MbapFrameList):
     """Entries live in C arrays (blocks of rtu_mbap_event); frames are built on access."""
 
@@ -461,9 +453,7 @@ class CMbapFrameList(_CEntries, MbapFrameList):
 
 
 def _parse_tcp(role: int, data: bytes) -> CMbapFrameList:
-    parser = ffi.new("rtu_mbap_parser *")
-    if lib.rtu_mbap_parser_init(parser, role) != lib.RTU_OK:
-        raise ValueError(f"parse_tcp_stream: cannot initialise the parser for role {role}")
+    parser = _initialised("rtu_mbap_parser *", lib.rtu_mbap_parser_init, role, f"role {role}")
     blocks = _collect_events(
         "rtu_mbap_event[]",
         # An ADU is 8..260 bytes: len // 8 + 1 entries always suffice; start smaller.
@@ -476,6 +466,7 @@ def _parse_tcp(role: int, data: bytes) -> CMbapFrameList:
     return CMbapFrameList(data, blocks, counters)
 
 
+MbapFramer = make_mbap_framer(BACKEND, _MbapCore, _mbap_encode)
 parse_tcp_stream = make_parse_tcp_stream(_parse_tcp)
 encode_mbap = make_encode_mbap(_mbap_encode)
 __all__ += ["MbapFramer", "encode_mbap", "parse_tcp_stream"]

@@ -120,19 +120,10 @@ class LineConfig:
         object.__setattr__(self, "_times", apply_overrides(base, self.t15, self.t35))
 
     def _framer_kwargs(self, parity: str | None = None) -> dict[str, Any]:
-        return dict(
-            baudrate=self.baudrate,
-            parity=self.parity if parity is None else parity,
-            stopbits=self.stopbits,
-            bytesize=self.bytesize,
-            timing=self.timing,
-            t15=self.t15,
-            t35=self.t35,
-            strict=self.strict,
-            max_adu=self.max_adu,
-            rules=self.rules,
-            flush_timeout=self.flush_timeout,
-        )
+        kwargs = {name: getattr(self, name) for name in _FRAMER_KEYWORDS}
+        if parity is not None:
+            kwargs["parity"] = parity
+        return kwargs
 
     # ------------------------------------------------------------ derived values
 
@@ -226,6 +217,10 @@ class FramerKeywords(FormatKeywords, total=False):
     """The line keywords of `pyrtu.Framer`."""
 
     flush_timeout: float | None
+
+
+#: the keywords of `FramerKeywords`, in its order (the fields of a `LineConfig` a framer takes)
+_FRAMER_KEYWORDS: tuple[str, ...] = tuple(FramerKeywords.__annotations__)
 
 
 class LineKeywords(FramerKeywords, total=False):

@@ -231,6 +231,29 @@ class MbapFramerBase(EventQueue[MbapFrame]):
         return mbap_counters_dict(*self._core.counts())
 
 
+def make_mbap_framer(
+    backend: str,
+    make_core: Callable[[int], MbapCore],
+    encode: Callable[[int, int, bytes], bytes],
+) -> type[MbapFramerBase]:
+    """The public MbapFramer class of a backend, around its ``make_core(role)`` and its
+    ``encode(transaction, unit, pdu)``."""
+
+    class MbapFramer(MbapFramerBase):
+        __doc__ = MbapFramerBase.__doc__
+        BACKEND = backend
+
+        def _make_core(self, role: int) -> MbapCore:
+            return make_core(role)
+
+        def _encode(self, transaction: int, unit: int, pdu: bytes) -> bytes:
+            return encode(transaction, unit, pdu)
+
+    MbapFramer.__qualname__ = MbapFramer.__name__
+    MbapFramer.__module__ = make_core.__module__  # the backend's module
+    return MbapFramer
+
+
 class MbapFrameList(LazyFrames[MbapFrame]):
     """A lazy sequence of the ADUs and discard events of a Modbus TCP capture.
 

@@ -414,17 +414,24 @@ def parse_template(
     )  # fmt: skip
 
 
+def read_text_file(path: str | Path, error: type[ValueError]) -> str:
+    """The text of a UTF-8 file; ``error`` names the file when it is missing, unreadable
+    or not UTF-8 (the template loader's and the poller's configuration loader's words)."""
+    p = Path(path)
+    try:
+        return p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise error(f"{p}: no such file") from None
+    except UnicodeDecodeError as e:
+        raise error(f"{p}: not UTF-8 text ({e.reason} at byte {e.start})") from None
+    except OSError as e:
+        raise error(f"{p}: cannot read: {e.strerror or e}") from None
+
+
 def load_template(path: str | Path, name: str = "", builtin: bool = False) -> Template:
     """A template from a file (`TemplateError` names the file on any problem)."""
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise TemplateError(f"{p}: no such file") from None
-    except UnicodeDecodeError as e:
-        raise TemplateError(f"{p}: not UTF-8 text ({e.reason} at byte {e.start})") from None
-    except OSError as e:
-        raise TemplateError(f"{p}: cannot read: {e.strerror or e}") from None
+    text = read_text_file(p, TemplateError)
     return parse_template(text, str(p), name or p.stem, p, builtin)
 
 

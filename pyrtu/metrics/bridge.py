@@ -19,10 +19,9 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metri
 
 from pyrtu.bridge.bridge import Bridge
 
-from .histogram import Latencies
+from .poller import PollerSource
 from .poller import families as poller_families
 from .poller import snapshot as poller_snapshot
-from .poller import stale_after
 from .server import on_loop
 
 #: (metric, help, `Bridge.stats` key) of the bridge's counters
@@ -84,22 +83,20 @@ def families(stats: dict[str, Any]) -> Iterator[Metric]:
     yield waiting
 
 
-class BridgeSource:
-    """``pyrtu bridge``'s `pyrtu.metrics.server.Source`."""
+class BridgeSource(PollerSource):
+    """``pyrtu bridge``'s `pyrtu.metrics.server.Source`: its poller's metrics
+    (`PollerSource`) and the bridge's own."""
 
     def __init__(self, bridge: Bridge, loop: asyncio.AbstractEventLoop) -> None:
+        super().__init__(bridge.poller, loop)
         self.bridge = bridge
-        self.loop = loop
-        self.latencies = Latencies()
-        self.limits = stale_after(bridge.poller.config)
-        bridge.poller.on_latency(self.latencies.observe)
 
     def _snapshot(self) -> tuple[Any, dict[str, Any]]:
-        return poller_snapshot(self.bridge.poller, self.latencies), self.bridge.stats()
+        return poller_snapshot(self.poller, self.latencies), self.bridge.stats()
 
     def collect(self) -> Iterator[Metric]:
         polled, stats = on_loop(self.loop, self._snapshot)
-        yield from poller_families(polled, self.bridge.poller.config, self.limits)
+        yield from poller_families(polled, self.poller.config, self.limits)
         yield from families(stats)
 
     def health(self) -> list[str]:

@@ -61,28 +61,36 @@ def _order32(order: str) -> str:
     return str(o)
 
 
+def _encode_integer32(kind: str, value: int, order: str) -> list[int]:
+    """``value`` as two registers of ``kind`` (int32, uint32): an integer, never a float."""
+    if isinstance(value, float):
+        article = "an" if kind[0] in "aeiou" else "a"
+        raise ValueError(f"{article} {kind} must be an integer, not {value!r}")
+    return encoder(kind, _order32(order))(value)
+
+
+def _decode32(kind: str, registers: Sequence[int], order: str) -> float:
+    """Two registers as a number of ``kind`` (int32, uint32, float32)."""
+    regs = _check_registers(registers, 2, "a 32-bit value")
+    return decoder(kind, _order32(order))(regs, 0)  # type: ignore[return-value]
+
+
 def encode_int32(value: int, order: str = "ABCD") -> list[int]:
     """A signed 32-bit integer as two registers."""
-    if isinstance(value, float):
-        raise ValueError(f"an int32 must be an integer, not {value!r}")
-    return encoder("int32", _order32(order))(value)
+    return _encode_integer32("int32", value, order)
 
 
 def decode_int32(registers: Sequence[int], order: str = "ABCD") -> int:
-    regs = _check_registers(registers, 2, "a 32-bit value")
-    return int(decoder("int32", _order32(order))(regs, 0))  # type: ignore[arg-type]
+    return int(_decode32("int32", registers, order))
 
 
 def encode_uint32(value: int, order: str = "ABCD") -> list[int]:
     """An unsigned 32-bit integer as two registers."""
-    if isinstance(value, float):
-        raise ValueError(f"a uint32 must be an integer, not {value!r}")
-    return encoder("uint32", _order32(order))(value)
+    return _encode_integer32("uint32", value, order)
 
 
 def decode_uint32(registers: Sequence[int], order: str = "ABCD") -> int:
-    regs = _check_registers(registers, 2, "a 32-bit value")
-    return int(decoder("uint32", _order32(order))(regs, 0))  # type: ignore[arg-type]
+    return int(_decode32("uint32", registers, order))
 
 
 #: the largest finite float32 (FLT_MAX)
@@ -103,8 +111,7 @@ def encode_float32(value: float, order: str = "ABCD") -> list[int]:
 
 
 def decode_float32(registers: Sequence[int], order: str = "ABCD") -> float:
-    regs = _check_registers(registers, 2, "a 32-bit value")
-    return float(decoder("float32", _order32(order))(regs, 0))  # type: ignore[arg-type]
+    return float(_decode32("float32", registers, order))
 
 
 def _kind(kind: str) -> str:

@@ -58,6 +58,7 @@ from pyrtu.devices.registry import (
     find_template,
     is_file_reference,
     names,
+    read_text_file,
 )
 from pyrtu.drivers._portname import first_duplicate
 from pyrtu.drivers.links import RTU_TCP_SCHEME, TCP_SCHEME, scheme_of
@@ -538,15 +539,7 @@ def parse_config(text: str, source: str = "<config>", base: Path | None = None) 
 def read_config_text(path: str | Path) -> str:
     """The text of a configuration file; `ConfigError` names the file when it is
     missing, unreadable or not UTF-8 (the poller's and the bridge's loaders)."""
-    p = Path(path)
-    try:
-        return p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ConfigError(f"{p}: no such file") from None
-    except UnicodeDecodeError as e:
-        raise ConfigError(f"{p}: not UTF-8 text ({e.reason} at byte {e.start})") from None
-    except OSError as e:
-        raise ConfigError(f"{p}: cannot read: {e.strerror or e}") from None
+    return read_text_file(path, ConfigError)
 
 
 def load_config(path: str | Path) -> PollerConfig:

@@ -10,15 +10,22 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass, field, fields
-from typing import Any
+from typing import Any, ClassVar
 
 from .points import Point, Value
 from .values import faithful_value
 
 
-def _fields(event: Any) -> dict[str, Any]:
-    """A flat event's fields in their order (the JSON keys after ``"event"``)."""
-    return {f.name: getattr(event, f.name) for f in fields(event)}
+class _FlatEvent:
+    """An event whose JSON form is ``"event"`` (``EVENT``), then its fields as they
+    are, in their order."""
+
+    __slots__ = ()
+    EVENT: ClassVar[str]
+
+    def as_dict(self) -> dict[str, Any]:
+        values = {f.name: getattr(self, f.name) for f in fields(self)}  # type: ignore[arg-type]
+        return {"event": self.EVENT, **values}
 
 
 @dataclass(frozen=True, slots=True)
@@ -52,20 +59,19 @@ class Update:
 
 
 @dataclass(frozen=True, slots=True)
-class SlaveState:
+class SlaveState(_FlatEvent):
     """A slave went online (answered again) or offline (stopped answering)."""
+
+    EVENT = "slave"
 
     bus: str
     slave: int
     online: bool
     time: float
 
-    def as_dict(self) -> dict[str, Any]:
-        return {"event": "slave", **_fields(self)}
-
 
 @dataclass(frozen=True, slots=True)
-class PortState:
+class PortState(_FlatEvent):
     """A bus's port failed or works again.
 
     ``up`` False: the port could not be opened (connected), or failed in use (a
@@ -75,6 +81,8 @@ class PortState:
     attempts failed.  ``since``: when the outage began (``time.time()`` clock, like
     ``time``)."""
 
+    EVENT = "port"
+
     bus: str
     port: str
     up: bool
@@ -82,9 +90,6 @@ class PortState:
     since: float
     attempts: int
     time: float
-
-    def as_dict(self) -> dict[str, Any]:
-        return {"event": "port", **_fields(self)}
 
 
 @dataclass(frozen=True, slots=True)

@@ -13,7 +13,7 @@ from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import fields, replace
 
 from pyrtu.core._pure.vbus import OUT, Schedule
-from pyrtu.core.line import LineConfig, line_from
+from pyrtu.core.line import BYTE_FORMAT, LineConfig, line_from
 from pyrtu.core.timing import (
     bits_per_char,
     check_baudrate,
@@ -259,10 +259,7 @@ class VirtualBus(HubLoops):
             self.t0_ns = _ns()
             if self._capture_path is not None and isinstance(self._sched, Schedule):
                 header = CaptureHeader(
-                    baudrate=self.baudrate,
-                    bytesize=self.bytesize,
-                    parity=self.parity,
-                    stopbits=self.stopbits,
+                    **{k: getattr(self, k) for k in BYTE_FORMAT},
                     bits=self.bits,
                     char_ns=self.char_ns,
                     drops=len(self._drops),

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from cli_helpers import kill_after_each_test
 from mqtt_broker import Broker, Client
 from test_bridge_broker import weg_on_line
 
@@ -53,17 +54,7 @@ stats_interval = 0.2
 
 
 STARTED: list[subprocess.Popen[str]] = []
-
-
-@pytest.fixture(autouse=True)
-def _no_bridge_left() -> Iterator[None]:
-    """A test that fails while a bridge runs does not leave it running."""
-    yield
-    while STARTED:
-        p = STARTED.pop()
-        if p.poll() is None:
-            p.kill()
-            p.communicate(timeout=10)
+_no_bridge_left = kill_after_each_test(STARTED)
 
 
 def start(*args: str) -> subprocess.Popen[str]:

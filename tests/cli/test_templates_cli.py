@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from cli_helpers import kill_after_each_test
 from peers.tools import peer_env
 
 from pyrtu import ExceptionResponseError, Master
@@ -52,16 +53,7 @@ def folder(tmp_path: Path) -> Iterator[dict[str, str]]:
 
 
 STARTED: list[subprocess.Popen[str]] = []
-
-
-@pytest.fixture(autouse=True)
-def _nothing_left() -> Iterator[None]:
-    yield
-    while STARTED:
-        p = STARTED.pop()
-        if p.poll() is None:
-            p.kill()
-            p.communicate(timeout=10)
+_nothing_left = kill_after_each_test(STARTED)
 
 
 def simulate(*args: object, env: dict[str, str] | None = None) -> dict[str, Any]:

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+from array import array
 from collections.abc import Callable, Sequence
 
+from pyrtu.core._pure import mbap as _mbap_core
 from pyrtu.core._pure.crc import add_crc, check_crc, crc16, crc16_path, crc16_paths, lrc
 from pyrtu.core._pure.framer import CoreFramer
 from pyrtu.core._pure.head import Config
@@ -16,6 +18,14 @@ from pyrtu.core.framing import (
     counters_dict,
     make_char_timing,
     make_parse_stream,
+)
+from pyrtu.core.mbap import (
+    MbapEvent,
+    MbapFrameList,
+    make_encode_mbap,
+    make_mbap_framer,
+    make_parse_tcp_stream,
+    mbap_counters_dict,
 )
 from pyrtu.core.options import CoreOptions, flush_us_for
 from pyrtu.core.timing import Timing, compute_timing
@@ -121,18 +131,6 @@ char_timing = make_char_timing(_timing)
 
 
 # ---- Modbus TCP: MBAP framing (the twin of csrc/rtu_mbap.c) -----------------
-from array import array  # noqa: E402
-
-from pyrtu.core._pure import mbap as _mbap_core  # noqa: E402
-from pyrtu.core.mbap import (  # noqa: E402
-    MbapCore,
-    MbapEvent,
-    MbapFrameList,
-    MbapFramerBase,
-    make_encode_mbap,
-    make_parse_tcp_stream,
-    mbap_counters_dict,
-)
 
 
 class _MbapCore:
@@ -158,17 +156,6 @@ class _MbapCore:
         return self.f.frames, self.f.discarded, self.f.discard_events
 
 
-class MbapFramer(MbapFramerBase):
-    __doc__ = MbapFramerBase.__doc__
-    BACKEND = BACKEND
-
-    def _make_core(self, role: int) -> MbapCore:
-        return _MbapCore(role)
-
-    def _encode(self, transaction: int, unit: int, pdu: bytes) -> bytes:
-        return _mbap_core.encode(transaction, unit, pdu)
-
-
 class PyMbapFrameList(MbapFrameList):
     def __init__(
         self,
@@ -191,6 +178,7 @@ def _parse_tcp(role: int, data: bytes) -> PyMbapFrameList:
     return PyMbapFrameList(data, entries, counters)
 
 
+MbapFramer = make_mbap_framer(BACKEND, _MbapCore, _mbap_core.encode)
 parse_tcp_stream = make_parse_tcp_stream(_parse_tcp)
 encode_mbap = make_encode_mbap(_mbap_core.encode)
 __all__ += ["MbapFramer", "encode_mbap", "parse_tcp_stream"]

@@ -12,14 +12,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 from pyrtu.core._pure.crc import crc16
-from pyrtu.core._pure.predict import (
-    DIR_REQUEST,
-    DIR_RESPONSE,
-    PRED_NEED,
-    PRED_UNKNOWN,
-    Rule,
-    predict,
-)
+from pyrtu.core._pure.predict import DIR_REQUEST, DIR_RESPONSE, Rule, predict
+from pyrtu.core.framing import PRED_NEED, PRED_UNKNOWN
 from pyrtu.core.rules import RULE_COUNT, RULE_NONE
 
 KIND_REQUEST, KIND_RESPONSE, KIND_EXCEPTION, KIND_UNKNOWN, KIND_DISCARD = range(5)

@@ -11,10 +11,17 @@ from __future__ import annotations
 
 from array import array
 
-HEADER_LEN = 7
-MIN_LENGTH = 2
-MAX_LENGTH = 254
-MAX_ADU = 260
+from pyrtu.core._pure.head import (
+    KIND_DISCARD,
+    KIND_EXCEPTION,
+    KIND_REQUEST,
+    KIND_RESPONSE,
+    KIND_UNKNOWN,
+    ROLE_MASTER,
+    ROLE_SLAVE,
+)
+from pyrtu.core.mbap import HEADER_LEN, MAX_ADU, MAX_LENGTH, MIN_LENGTH, MbapEvent
+
 FRAMER_CAP = 2 * MAX_ADU
 
 COMPLETE = 0
@@ -26,18 +33,6 @@ ERR_PROTOCOL = 1
 ERR_LENGTH = 2
 ERR_TRUNCATED = 3
 NERR = 4
-
-KIND_REQUEST = 0
-KIND_RESPONSE = 1
-KIND_EXCEPTION = 2
-KIND_UNKNOWN = 3
-KIND_DISCARD = 4
-
-ROLE_MASTER = 0
-ROLE_SLAVE = 1
-
-# (offset, length, kind, error, adu)
-Event = tuple[int, int, int, int, bytes]
 
 
 def inspect(data: bytes | bytearray, start: int, n: int) -> tuple[int, int, int]:
@@ -99,7 +94,7 @@ class CoreMbapFramer:
     def close(self) -> None:
         self.eof = True
 
-    def _discard(self, error: int) -> Event:
+    def _discard(self, error: int) -> MbapEvent:
         count = len(self.buf) - self.head
         ev = (self.base + self.head, count, KIND_DISCARD, error, bytes(self.buf[self.head :]))
         self.discarded[error] += count
@@ -107,7 +102,7 @@ class CoreMbapFramer:
         self.head = len(self.buf)
         return ev
 
-    def poll(self) -> Event | None:
+    def poll(self) -> MbapEvent | None:
         unresolved = len(self.buf) - self.head
         if unresolved == 0 or self.error != ERR_NONE:
             return None

@@ -5,17 +5,13 @@ Steps as in libmodbus: function -> meta -> data.  Lengths are whole ADUs.
 
 from __future__ import annotations
 
+from pyrtu.core.framing import PRED_LENGTH, PRED_NEED, PRED_UNKNOWN
+from pyrtu.core.options import MAX_ADU_LIMIT
 from pyrtu.core.rules import RULE_COUNT, RULE_FIXED, RULE_NONE, RuleTable
 
 RULE_MEI = 3
 DIR_REQUEST = 0
 DIR_RESPONSE = 1
-
-PRED_LENGTH = 0
-PRED_NEED = 1
-PRED_UNKNOWN = 2
-
-MAX_ADU_LIMIT = 1024
 
 # (type, offset, width, scale, add)
 Rule = tuple[int, int, int, int, int]
