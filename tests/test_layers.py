@@ -30,9 +30,10 @@ ALLOWED: dict[str, set[str]] = {
     "compat": PDU | {"compat"},
     "gateway": TRANSPORTS | {"gateway"},
     "poller": TRANSPORTS | {"devices", "poller"},
-    "bridge": TRANSPORTS | {"devices", "poller", "bridge"},
+    "outbox": TRANSPORTS | {"devices", "poller", "outbox"},
+    "bridge": TRANSPORTS | {"devices", "poller", "outbox", "bridge"},
     "bench": TRANSPORTS | {"vbus", "bench"},
-    "metrics": TRANSPORTS | {"gateway", "poller", "bridge", "metrics"},
+    "metrics": TRANSPORTS | {"gateway", "poller", "outbox", "bridge", "metrics"},
 }
 #: modules that stand above their folder's layer (module path -> what it may import):
 #: the TCP server is the gateway's machinery with an application as its one bus, while

@@ -129,7 +129,7 @@ def _run(args: argparse.Namespace) -> int:
 
 async def _serve(cfg: Any, args: argparse.Namespace) -> int:
     from pyrtu.bridge.bridge import Bridge, BridgeEvent
-    from pyrtu.bridge.outbox import OutboxError
+    from pyrtu.outbox.outbox import OutboxError
 
     bridge = Bridge(cfg)
     stop = asyncio.Event()

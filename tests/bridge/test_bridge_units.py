@@ -10,7 +10,7 @@ import pytest
 
 from pyrtu.bridge.commands import CommandQueue, Refusal, TokenBucket, check_value, parse, result
 from pyrtu.bridge.delivery import DeliveryWindow
-from pyrtu.bridge.report import Reporter
+from pyrtu.outbox.report import Reporter
 from pyrtu.bridge.topics import payload, record, split_record
 from pyrtu.poller import Point
 
