@@ -32,8 +32,9 @@ ALLOWED: dict[str, set[str]] = {
     "poller": TRANSPORTS | {"devices", "poller"},
     "outbox": TRANSPORTS | {"devices", "poller", "outbox"},
     "bridge": TRANSPORTS | {"devices", "poller", "outbox", "bridge"},
+    "sparkplug": TRANSPORTS | {"devices", "poller", "outbox", "bridge", "sparkplug"},
     "bench": TRANSPORTS | {"vbus", "bench"},
-    "metrics": TRANSPORTS | {"gateway", "poller", "outbox", "bridge", "metrics"},
+    "metrics": TRANSPORTS | {"gateway", "poller", "outbox", "bridge", "sparkplug", "metrics"},
 }
 #: modules that stand above their folder's layer (module path -> what it may import):
 #: the TCP server is the gateway's machinery with an application as its one bus, while

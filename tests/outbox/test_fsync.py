@@ -26,10 +26,10 @@ from mqtt_broker import Broker
 from outbox_helpers import SMALL, everything, payload
 
 from pyrtu.bridge import parse_bridge_config
-from pyrtu.outbox._sync import Flusher
 from pyrtu.bridge.bridge import Bridge
-from pyrtu.outbox.outbox import Outbox, OutboxError, OutboxLimits
 from pyrtu.drivers.aio import run as aio_run
+from pyrtu.outbox._sync import Flusher
+from pyrtu.outbox.outbox import Outbox, OutboxError, OutboxLimits
 from pyrtu.poller import Point, Update
 
 #: a safety net, not a measurement: conditions are awaited, never timed
