@@ -67,7 +67,7 @@ from .session import BdSeqStore, EdgeSession, HostState, Sample
 
 log = logging.getLogger("pyrtu.sparkplug")
 
-_BATCH = 256  # records read from the outbox at a time
+_BATCH = 64  # records of the backlog published per turn of the loop
 _PER_MESSAGE = 64  # metrics per DDATA of the backlog
 
 
@@ -103,6 +103,7 @@ class EdgeNode(AsyncService):
         self._dborn: set[str] = set()  # devices with a DBIRTH since the NBIRTH
         self._cursor = 0  # every record up to this seq is published or passed by
         self._live_from = 0  # records below this seq are historical
+        self._pump_soon: asyncio.Handle | None = None  # the next batch of the backlog
         self._lost_ev: asyncio.Event | None = None
         self._stop: asyncio.Event | None = None
         self._tasks: list[asyncio.Task[None]] = []
@@ -311,19 +312,30 @@ class EdgeNode(AsyncService):
         if error is not None:
             log.error("sparkplug: outbox flush failed: %s", error)
             return
-        self._pump()
+        if self._pump_soon is None:
+            self._pump()
 
     def _pump(self) -> None:
-        """Publish what waits in the outbox, in order, while the node is born."""
+        """Publish what waits in the outbox, in order, while the node is born: one
+        batch per turn of the loop (a long backlog never holds the loop, and a
+        command that comes meanwhile, a Rebirth, is served between two batches),
+        the next once the socket took the last."""
+        self._pump_soon = None
         link, ob = self._link, self._outbox
-        while self._born and link is not None and link.connected and ob is not None:
-            batch = ob.pending(_BATCH, after=self._cursor)
-            if not batch:
-                break
-            self._publish_records(batch, link)
-            ob.ack(self._cursor)
-            if self._flusher is not None:
-                self._flusher.poke()
+        if not self._born or link is None or not link.connected or ob is None:
+            return
+        if link.pending_writes > _BATCH:  # the kernel's buffer is full: later
+            self._pump_soon = asyncio.get_running_loop().call_later(0.005, self._pump)
+            return
+        batch = ob.pending(_BATCH, after=self._cursor)
+        if not batch:
+            return
+        self._publish_records(batch, link)
+        ob.ack(self._cursor)
+        if self._flusher is not None:
+            self._flusher.poke()
+        if len(batch) == _BATCH:
+            self._pump_soon = asyncio.get_running_loop().call_soon(self._pump)
 
     def _publish_records(self, batch: list[tuple[int, bytes]], link: MqttLink) -> None:
         """DDATA for ``batch`` (seq order), consecutive records of one device in one
@@ -376,6 +388,8 @@ class EdgeNode(AsyncService):
             if dev.id in self._alive:
                 self._publish_dbirth(dev)
         link.write_now()
+        if self._pump_soon is not None:
+            self._pump_soon.cancel()
         self._pump()
 
     def _publish_dbirth(self, dev: DeviceDef) -> None:

@@ -366,37 +366,52 @@ def test_primary_host_offline_store_and_forward_historical_and_rebirth(tmp_path:
             assert {m.name: m for m in death.decoded().metrics}["bdSeq"].raw == bd_birth
             assert death.decoded().seq is None  # tck-id-topics-ndeath-seq
         n_off = len(node_messages(host))
-        values = list(range(1000, 1030))
+        # a backlog longer than one batch of the node's pump (64 records): two
+        # points change at each step
+        dal = aliases(host, "weg")["decel"][0]
+        values = list(range(1000, 1050))
+        seen = r.node.reporter._s  # what the poller read (stored by exception)
+        decels = [v - 900 for v in values]
+        if decels[0] == r.weg.get(DECEL):  # the drive's own value already: no change
+            decels = decels[1:]
         for v in values:
             r.weg.set(ACCEL, v)
+            r.weg.set(DECEL, v - 900)
             deadline = time.monotonic() + 5
-            while r.node.reporter._s["weg.accel"].value != v and time.monotonic() < deadline:
-                time.sleep(0.01)  # the poller read it (stored by exception)
+            while (seen["weg.accel"].value, seen["weg.decel"].value) != (v, v - 900):
+                assert time.monotonic() < deadline, f"the poller never read {v}"
+                time.sleep(0.01)
         host.state(True, t_off - 5)  # older than the offline: ignored
         time.sleep(0.5)
         assert len(host.of("NBIRTH")) == 1
         assert len(node_messages(host)) == n_off  # nothing while the host is offline
+        # online, and at once a Rebirth: it comes while the backlog is being sent
         host.state(True, t_off + 1)
-        host.wait(lambda: len(host.of("NBIRTH")) == 2, "births again")
         ncmd = f"spBv1.0/{GROUP}/NCMD/{EDGE}"
         host.command(ncmd, encode_payload(encode_metric(name="Node Control/Rebirth", value=True)))
 
-        def historical() -> list[int]:
+        def historical(alias: int) -> list[int]:
             """The stored values forwarded after the host came back."""
             out = []
             for msg in node_messages(host)[n_off:]:
                 if msg.kind != "DDATA" or msg.device != "weg":
                     continue
                 for m in msg.decoded().metrics:
-                    if m.alias == al and m.is_historical:
-                        out.append(m.raw)
+                    if m.alias == alias and m.is_historical:
+                        out.append(m.value(DT["Int16"] if alias == dal else DT["UInt16"]))
             return out
 
-        host.wait(lambda: historical()[-1:] == [values[-1]], "the whole backlog")
+        host.wait(lambda: historical(al)[-1:] == [values[-1]], "the whole backlog")
         host.wait(lambda: len(host.of("NBIRTH")) == 3, "the rebirth")
-        assert historical() == values  # in order, none lost, none twice
+        assert historical(al) == values  # in order, none lost, none twice
+        assert historical(dal) == decels
         nb = [{m.name: m for m in b.decoded().metrics}["bdSeq"].raw for b in host.of("NBIRTH")]
         assert nb[1] == (nb[0] + 1) % 256 and nb[2] == nb[1]  # a new connect; a rebirth
+        # no data between an NBIRTH and its DBIRTHs
+        later = node_messages(host)[n_off:]
+        for i, m in enumerate(later):
+            if m.kind == "NBIRTH":
+                assert [x.kind for x in later[i + 1 : i + 3]] == ["DBIRTH", "DBIRTH"]
         r.weg.set(ACCEL, 4242)
         host.wait(lambda: last_value(host, "weg", al, DT["UInt16"]) == 4242, "live again")
         check_seq(node_messages(host)[n_off:])
