@@ -112,7 +112,7 @@ class EdgeNode(AsyncService):
         self.counts: dict[str, int] = {
             "connects": 0, "nbirth": 0, "dbirth": 0, "ddeath": 0, "ddata": 0,
             "metrics_live": 0, "metrics_historical": 0, "unforwarded": 0, "rebirths": 0,
-            "host_offline": 0, "dcmd": 0, "refused": 0, "task_failures": 0,
+            "host_offline": 0, "dcmd": 0, "refused": 0, "task_failures": 0, "foreign_records": 0,
         }  # fmt: skip
         self.dcmd_refused: dict[str, int] = {}
 
@@ -346,9 +346,12 @@ class EdgeNode(AsyncService):
             self._cursor = seq
             try:
                 update = decode_update(rec)
-            except UpdateError as e:
-                log.error("sparkplug: outbox record %d is no point update (%s): passed by", seq, e)
-                self.counts["unforwarded"] += 1
+            except UpdateError as e:  # a JSON mode's record, left in this outbox
+                if not self.counts["foreign_records"]:
+                    log.error("sparkplug: outbox record %d is no point update (%s): passed by "
+                              "(a backlog of the JSON mode?); the others are counted in "
+                              "foreign_records", seq, e)  # fmt: skip
+                self.counts["foreign_records"] += 1
                 continue
             found = self.session.metric.get(update.point)
             if found is None or found[0].id not in self._dborn:

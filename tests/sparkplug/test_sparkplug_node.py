@@ -490,3 +490,21 @@ def test_broker_sigkill_and_restart_a_new_session_with_births(tmp_path: Path) ->
         assert bdseqs()[-1] == r.node.session.bdseq and bdseqs()[-1] > first
         host.wait(lambda: len(host.of("DBIRTH")) >= 4, "the DBIRTHs of the new session")
         check_seq(node_messages(host)[-3:])
+
+
+def test_a_json_mode_backlog_in_the_outbox_is_passed_by_and_counted(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """An outbox the JSON mode left behind (records of a topic and a payload, no
+    point updates): the edge node passes them by at its first births, logs the
+    first once, counts them all, and publishes none of them."""
+    from pyrtu.outbox.outbox import Outbox
+
+    with Outbox(tmp_path / "ob") as box:
+        for i in range(3):
+            box.append(b'pyrtu/e1/line/1/weg.speed\n{"value":%d' % i, 0.0)
+        box.flush()
+    with caplog.at_level("ERROR", logger="pyrtu.sparkplug"), rig(tmp_path) as r:
+        r.host.wait(lambda: r.node.counts["foreign_records"] == 3, "the old records passed by")
+        r.host.wait(lambda: r.node.stats()["outbox_depth"] == 0, "released")
+    assert len([x for x in caplog.records if "no point update" in x.getMessage()]) == 1
