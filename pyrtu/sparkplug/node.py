@@ -41,7 +41,7 @@ import asyncio
 import logging
 import ssl
 import time
-from collections.abc import Awaitable, Callable, Iterator
+from collections.abc import Awaitable, Callable
 from typing import Any
 
 import paho.mqtt.client as paho
@@ -595,9 +595,6 @@ class EdgeNode(AsyncService):
             "dcmd_refused": dict(self.dcmd_refused),
             "commands": self.writer.stats(),
         }
-
-    def devices(self) -> Iterator[DeviceDef]:
-        return iter(self.spb.devices)
 
 
 __all__ = ["EdgeNode"]
