@@ -38,7 +38,7 @@ test: setup
 setup: $(STAMP)
 
 # Debian packages the tests need (libmodbus peers, socat pty pairs, the MQTT broker,
-# strace for the outbox's durability tests: tests/bridge/test_bridge_durability.py,
+# strace for the outbox's durability tests: tests/outbox/test_durability.py,
 # prometheus scraping --metrics: tests/metrics/; clang-format for make lint's check of
 # the C sources).
 system-packages:

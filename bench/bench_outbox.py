@@ -32,7 +32,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from pyrtu.bridge.outbox import Outbox, OutboxLimits
+from pyrtu.outbox.outbox import Outbox, OutboxLimits
 
 RECORD = bytes(range(200))
 

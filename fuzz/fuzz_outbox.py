@@ -31,8 +31,8 @@ from typing import Any
 import atheris
 
 with atheris.instrument_imports():
-    from pyrtu.bridge import _outbox_format as fmt
-    from pyrtu.bridge.outbox import Outbox, OutboxError
+    from pyrtu.outbox import _format as fmt
+    from pyrtu.outbox.outbox import Outbox, OutboxError
 
 SHM = "/dev/shm" if os.path.isdir("/dev/shm") else None
 WORK = Path(tempfile.mkdtemp(prefix="fuzz-outbox-", dir=SHM))

@@ -44,7 +44,7 @@ def test_the_search_finds_the_tree() -> None:
     modules = _private_modules()
     assert len(modules) >= MIN_PRIVATE_MODULES, [str(m.relative_to(ROOT)) for m in modules]
     names = {str(m.relative_to(PACKAGE)) for m in modules}
-    assert {"core/_pure/framer.py", "vbus/_cvbus.py", "bridge/_outbox_format.py"} <= names
+    assert {"core/_pure/framer.py", "vbus/_cvbus.py", "outbox/_format.py"} <= names
 
 
 def _names_used() -> set[str]:

@@ -30,9 +30,11 @@ ALLOWED: dict[str, set[str]] = {
     "compat": PDU | {"compat"},
     "gateway": TRANSPORTS | {"gateway"},
     "poller": TRANSPORTS | {"devices", "poller"},
-    "bridge": TRANSPORTS | {"devices", "poller", "bridge"},
+    "outbox": TRANSPORTS | {"devices", "poller", "outbox"},
+    "bridge": TRANSPORTS | {"devices", "poller", "outbox", "bridge"},
+    "sparkplug": TRANSPORTS | {"devices", "poller", "outbox", "bridge", "sparkplug"},
     "bench": TRANSPORTS | {"vbus", "bench"},
-    "metrics": TRANSPORTS | {"gateway", "poller", "bridge", "metrics"},
+    "metrics": TRANSPORTS | {"gateway", "poller", "outbox", "bridge", "sparkplug", "metrics"},
 }
 #: modules that stand above their folder's layer (module path -> what it may import):
 #: the TCP server is the gateway's machinery with an application as its one bus, while

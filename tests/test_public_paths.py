@@ -35,6 +35,12 @@ DEPRECATED: dict[tuple[str, str], tuple[str, str]] = {
     ("pyrtu.protocol.client", "State"): ("pyrtu.protocol.client_actions", "ClientState"),
     ("pyrtu.protocol", "Exchange"): ("pyrtu.protocol.client_actions", "Xfer"),
     ("pyrtu.protocol.client_actions", "Exchange"): ("pyrtu.protocol.client_actions", "Xfer"),
+    ("pyrtu.bridge.outbox", "Outbox"): ("pyrtu.outbox.outbox", "Outbox"),
+    ("pyrtu.bridge.outbox", "OutboxError"): ("pyrtu.outbox.outbox", "OutboxError"),
+    ("pyrtu.bridge.outbox", "OutboxFull"): ("pyrtu.outbox.outbox", "OutboxFull"),
+    ("pyrtu.bridge.outbox", "OutboxLimits"): ("pyrtu.outbox.outbox", "OutboxLimits"),
+    ("pyrtu.bridge.report", "Reporter"): ("pyrtu.outbox.report", "Reporter"),
+    ("pyrtu.bridge.report", "Report"): ("pyrtu.outbox.report", "Report"),
 }
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -46,15 +46,15 @@ from pyrtu.core._closing import AsyncService
 from pyrtu.drivers.reconnect import Backoff, Reconnect
 from pyrtu.drivers.supervise import cause, supervise
 
+from ..outbox._sync import Flusher
+from ..outbox.outbox import Outbox, OutboxError, OutboxLimits
+from ..outbox.report import Reporter
 from ..poller import Point, PointDropped, Poller, PortState, SlaveState, TaskFailed, Update
 from ..poller.points import Value
-from ._outbox_sync import Flusher
 from .commands import CommandQueue
 from .config import BridgeConfig, load_bridge_config
 from .delivery import DeliveryWindow
 from .mqtt import BrokerRefused, Credentials, MqttLink
-from .outbox import Outbox, OutboxError, OutboxLimits
-from .report import Reporter
 from .topics import (
     OFFLINE,
     ONLINE,

@@ -239,6 +239,9 @@ class BridgeConfig:
     source: str = "<config>"
     #: (bus, slave) -> (template, name) of the ``[[device]]`` tables with a template
     drives: Mapping[tuple[str, int], tuple[str, str]] = field(default_factory=dict)
+    #: the ``[sparkplug]`` table as written (None: none; the JSON mode), read by
+    #: `pyrtu.sparkplug.config`
+    sparkplug: Mapping[str, Any] | None = None
 
     def option(self, name: str) -> PointOptions:
         return self.options.get(name) or _NO_OPTIONS
@@ -382,6 +385,9 @@ def parse_bridge_config(
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{source}: {e}") from None
     mqtt_t = doc.pop("mqtt", None)
+    sparkplug_t = doc.pop("sparkplug", None)
+    if sparkplug_t is not None and not isinstance(sparkplug_t, Mapping):
+        raise ConfigError(f"{source}: sparkplug must be a table ([sparkplug])")
     if not isinstance(mqtt_t, Mapping):
         raise ConfigError(f'{source}: no [mqtt] table (the broker: url = "mqtt://host")')
     for k in mqtt_t:
@@ -458,7 +464,7 @@ def parse_bridge_config(
     raw_devices = doc.get("device")
     devices: list[Any] = raw_devices if isinstance(raw_devices, list) else []
     _check_levels(text, source, poller, options, n_profile, devices)
-    cfg = BridgeConfig(poller, mqtt, options, source, drives)
+    cfg = BridgeConfig(poller, mqtt, options, source, drives, sparkplug_t)
     try:  # the topics must be distinct and valid
         Topics(cfg)
     except ValueError as e:

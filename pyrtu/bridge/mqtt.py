@@ -34,6 +34,7 @@ import paho.mqtt.client as paho
 from paho.mqtt.enums import CallbackAPIVersion
 from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
+from paho.mqtt.reasoncodes import ReasonCode
 from paho.mqtt.subscribeoptions import SubscribeOptions
 
 from ..tcp.sockets import set_nodelay
@@ -193,9 +194,11 @@ class MqttLink:
         on_lost: Callable[[str], None],
         credentials: Credentials | None = None,
         on_refused: Callable[[int, str], None] | None = None,
+        will: tuple[bytes, bool] = (b"offline", True),
     ) -> None:
         self.cfg = cfg
         self.will_topic = will_topic
+        self.will = will  # (payload, retained), QoS 1
         self.credentials = credentials or Credentials.load(cfg)
         self._on_message = on_message
         self._on_ack = on_ack
@@ -224,7 +227,7 @@ class MqttLink:
             c.username_pw_set(self.cfg.username, self.credentials.password)
         if self.credentials.tls is not None:
             c.tls_set_context(self.credentials.tls)
-        c.will_set(self.will_topic, b"offline", qos=1, retain=True)
+        c.will_set(self.will_topic, self.will[0], qos=1, retain=self.will[1])
         c.max_inflight_messages_set(
             0
         )  # our DeliveryWindow bounds it (paho scans its queue per ack)
@@ -317,15 +320,19 @@ class MqttLink:
         while q0 and q0[0][1].is_published():
             self._on_ack(q0.popleft()[0])
 
-    def close(self, *, graceful: bool = True) -> None:
-        """Disconnect (a DISCONNECT first when ``graceful``: the will is not sent)."""
+    def close(self, *, graceful: bool = True, with_will: bool = False) -> None:
+        """Disconnect (a DISCONNECT first when ``graceful``: the will is not sent,
+        unless ``with_will``: reason code 0x04, "Disconnect with Will Message")."""
         c = self.client
         if c is not None and graceful and self.connected and self._fd is not None:
             self.connected = False
             try:
                 if self._out is not None:
                     self._out.direct = True
-                c.disconnect()
+                if with_will:
+                    c.disconnect(reasoncode=ReasonCode(PacketTypes.DISCONNECT, identifier=4))
+                else:
+                    c.disconnect()
                 c.loop_write()
             except OSError:
                 pass

@@ -29,7 +29,7 @@ published.  Every name that becomes a topic level (the edge, the buses, the
 points without a ``topic``, and so the devices whose points' names begin with
 theirs) is one (`topic_problem`: no ``/``, no wildcard, no NUL nor other
 control character); a record that can never be published (`unpublishable`) is
-set aside by the bridge (`pyrtu.bridge.outbox.Outbox.quarantine`).
+set aside by the bridge (`pyrtu.outbox.outbox.Outbox.quarantine`).
 """
 
 from __future__ import annotations

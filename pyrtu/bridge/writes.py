@@ -190,6 +190,52 @@ class SetWriter:
                 self._work(key), name=_worker_name(key)
             )
 
+    def command(self, name: str, value: object, origin: str) -> Refusal | None:
+        """A command that comes by another road than a set topic (a Sparkplug DCMD,
+        ``origin`` naming it in the log): the same checks (the point known and
+        writable, the value's type and range), queue, rate limit, expiry, write and
+        read-back (`Host.publish_value`) as a set topic's; the result is logged, not
+        published (no reply topic).  The `Refusal` when it is refused (counted and
+        logged), else None."""
+        self.received += 1
+        now = time.monotonic()
+        refusal: Refusal | None = None
+        point = None
+        try:
+            point = self.bridge.poller.point(name)
+        except KeyError:
+            refusal = Refusal("unknown_point", f"no point named {name!r}")
+        if point is not None and not point.writable:
+            refusal = Refusal("not_writable", f"point {name!r} is not writable")
+        if point is not None and refusal is None:
+            try:
+                encoded = check_value(point, value)
+            except ValueError as e:
+                refusal = Refusal("validation", str(e))
+            else:
+                cmd = SetCommand(
+                    point,
+                    encoded.value,
+                    None,
+                    now + self.cfg.mqtt.command_expiry,
+                    now,
+                    "",
+                    rounded=rounding(point, value, encoded),
+                )
+                if not self.queue.push(cmd):
+                    refusal = Refusal("busy", f"{self.queue.size} commands are waiting")
+        if refusal is not None:
+            self.refusals[refusal.error] = self.refusals.get(refusal.error, 0) + 1
+            log.warning("bridge: %s refused (%s): %s", origin, refusal.error, refusal.message)
+            return refusal
+        assert point is not None
+        key = (point.bus, point.slave)
+        if key not in self._workers:
+            self._workers[key] = asyncio.get_running_loop().create_task(
+                self._work(key), name=_worker_name(key)
+            )
+        return None
+
     def _ignore(self, topic: str) -> None:
         self.ignored += 1
         log.debug("bridge: empty payload on %s ignored (a retained message cleared)", topic)
@@ -200,6 +246,9 @@ class SetWriter:
         self._reply(reply, result(point, False, id=r.id, error=r.error, message=r.message), corr)
 
     def _reply(self, topic: str, body: bytes, corr: Any) -> None:
+        if not topic:  # a command without a reply topic (`command`): its result logged
+            log.info("bridge: command result: %s", body.decode("utf-8", "replace"))
+            return
         link = self._link
         if link is None or not link.connected:
             return

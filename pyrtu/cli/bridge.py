@@ -8,6 +8,9 @@ sequence number), the edge's and each slave's status, stats every
 Updates go through a durable outbox on disk: a broker that is down delays them,
 never loses them.  See docs/BRIDGE.md.
 
+With a ``[sparkplug]`` table the bridge is a Sparkplug B 3.0 edge node instead
+(docs/sparkplug.md; ``pip install 'pyrtu[sparkplug]'``).
+
 ``pyrtu bridge --check FILE`` validates a configuration without opening anything.
 Exit status: 0 after SIGINT/SIGTERM or --duration (what waits is published
 first, up to --drain seconds); 2 for a configuration error (the file, line and
@@ -82,6 +85,10 @@ def _run(args: argparse.Namespace) -> int:
         if args.json:
             emit({"ok": False, "error": "usage", "exit_code": EXIT_USAGE, "message": str(e)})
         return EXIT_USAGE
+    if cfg.sparkplug is not None:  # the Sparkplug B edge node (docs/sparkplug.md)
+        from pyrtu.cli._bridge_sparkplug import run_sparkplug
+
+        return run_sparkplug(path, cfg, args)
     if args.check is not None:
         m = cfg.mqtt
         doc = {
@@ -122,7 +129,7 @@ def _run(args: argparse.Namespace) -> int:
 
 async def _serve(cfg: Any, args: argparse.Namespace) -> int:
     from pyrtu.bridge.bridge import Bridge, BridgeEvent
-    from pyrtu.bridge.outbox import OutboxError
+    from pyrtu.outbox.outbox import OutboxError
 
     bridge = Bridge(cfg)
     stop = asyncio.Event()

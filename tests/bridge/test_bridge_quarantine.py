@@ -16,9 +16,9 @@ from waiting import wait_for
 from pyrtu.bridge import parse_bridge_config
 from pyrtu.bridge.bridge import Bridge, BridgeEvent
 from pyrtu.bridge.delivery import DeliveryWindow
-from pyrtu.bridge.outbox import Outbox
 from pyrtu.bridge.topics import unpublishable
 from pyrtu.drivers.aio import run as aio_run
+from pyrtu.outbox.outbox import Outbox
 
 #: a safety net, not a measurement: conditions are awaited, never timed
 PATIENCE = 20.0

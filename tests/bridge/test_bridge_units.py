@@ -10,8 +10,8 @@ import pytest
 
 from pyrtu.bridge.commands import CommandQueue, Refusal, TokenBucket, check_value, parse, result
 from pyrtu.bridge.delivery import DeliveryWindow
-from pyrtu.bridge.report import Reporter
 from pyrtu.bridge.topics import payload, record, split_record
+from pyrtu.outbox.report import Reporter
 from pyrtu.poller import Point
 
 SPEED = Point("d.speed", "line", 1, "holding", 2, scale=0.1, deadband=0.5)

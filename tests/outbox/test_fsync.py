@@ -1,4 +1,4 @@
-"""The outbox's fsync batches run off the event loop (pyrtu/bridge/_outbox_sync.py):
+"""The outbox's fsync batches run off the event loop (pyrtu/outbox/_sync.py):
 on a dedicated thread, one batch at a time, the records published from the outbox
 only once durable, a failed batch reported and flushed again, SIGKILL losing at
 most the batch not yet synced, and the thread joined when the bridge stops.
@@ -26,10 +26,10 @@ from mqtt_broker import Broker
 from outbox_helpers import SMALL, everything, payload
 
 from pyrtu.bridge import parse_bridge_config
-from pyrtu.bridge._outbox_sync import Flusher
 from pyrtu.bridge.bridge import Bridge
-from pyrtu.bridge.outbox import Outbox, OutboxError, OutboxLimits
 from pyrtu.drivers.aio import run as aio_run
+from pyrtu.outbox._sync import Flusher
+from pyrtu.outbox.outbox import Outbox, OutboxError, OutboxLimits
 from pyrtu.poller import Point, Update
 
 #: a safety net, not a measurement: conditions are awaited, never timed
@@ -132,8 +132,8 @@ def test_a_failed_batch_is_reported_and_flushed_again(
 CHILD = textwrap.dedent(
     """
     import asyncio, hashlib, os, sys
-    from pyrtu.bridge._outbox_sync import Flusher
-    from pyrtu.bridge.outbox import Outbox, OutboxLimits
+    from pyrtu.outbox._sync import Flusher
+    from pyrtu.outbox.outbox import Outbox, OutboxLimits
 
     def payload(seq):
         return (hashlib.blake2b(str(seq).encode(), digest_size=32).digest() * 2)[: 1 + seq % 64]

@@ -9,7 +9,7 @@ import sys
 import textwrap
 from pathlib import Path
 
-from pyrtu.bridge.outbox import Outbox, OutboxLimits
+from pyrtu.outbox.outbox import Outbox, OutboxLimits
 
 SMALL = OutboxLimits(max_bytes=1 << 20, segment_bytes=4096)
 

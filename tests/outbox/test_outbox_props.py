@@ -1,6 +1,6 @@
 """The outbox's sequence and ack invariants, by hypothesis: random appends, flushes,
 acks, reads with a publish cursor and reopens against a model, under both budget
-policies (pyrtu.bridge.outbox)."""
+policies (pyrtu.outbox.outbox)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from pathlib import Path
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from pyrtu.bridge.outbox import Outbox, OutboxFull, OutboxLimits
+from pyrtu.outbox.outbox import Outbox, OutboxFull, OutboxLimits
 
 OPS = st.lists(
     st.one_of(

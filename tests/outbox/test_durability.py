@@ -37,7 +37,7 @@ import pytest
 CHILD = textwrap.dedent(
     """
     import os, sys
-    from pyrtu.bridge.outbox import Outbox, OutboxLimits
+    from pyrtu.outbox.outbox import Outbox, OutboxLimits
 
     def mark(name):
         os.write(1, b"MARK:" + name.encode() + b"\\n")

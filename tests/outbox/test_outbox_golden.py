@@ -1,4 +1,4 @@
-"""The outbox's on-disk format, pinned by golden files (tests/bridge/data/outbox/README.md).
+"""The outbox's on-disk format, pinned by golden files (tests/outbox/data/README.md).
 
 An outbox directory written once by the format-1 writer is read back to the records
 written literally here (an upgrade can read an older outbox); the current writer
@@ -17,9 +17,9 @@ from pathlib import Path
 import pytest
 from outbox_helpers import everything
 
-from pyrtu.bridge.outbox import Outbox, OutboxError, OutboxLimits
+from pyrtu.outbox.outbox import Outbox, OutboxError, OutboxLimits
 
-GOLDEN = Path(__file__).parent / "data" / "outbox" / "v1"
+GOLDEN = Path(__file__).parent / "data" / "v1"
 FILES = ["00000000000000000006.seg", "00000000000000000011.seg", "cursor"]
 
 #: what the golden directory holds: records 6..12 (1..5 were acknowledged), as written
@@ -70,7 +70,7 @@ def test_an_outbox_of_format_1_is_read_back(tmp_path: Path) -> None:
 
 
 def test_the_golden_files_decode_by_the_documented_layout() -> None:
-    """The layout of _outbox_format's docstring, read with struct alone."""
+    """The layout of _format's docstring, read with struct alone."""
     seg = (GOLDEN / FILES[0]).read_bytes()
     assert seg[:16] == b"pyrtuOB\x01" + struct.pack("<Q", 6)
     off, records = 16, []

@@ -1,4 +1,4 @@
-"""The bridge's durable outbox (pyrtu.bridge.outbox): a bounded, checksummed on-disk log.
+"""The bridge's durable outbox (pyrtu.outbox.outbox): a bounded, checksummed on-disk log.
 
 Crashes are real (a child process SIGKILLed at random points), a full disk is a real
 tiny tmpfs, the lock is held by another process.
@@ -23,7 +23,7 @@ from typing import Any
 import pytest
 from outbox_helpers import SMALL, everything, fill, payload, run_child, segments
 
-from pyrtu.bridge.outbox import Outbox, OutboxError, OutboxFull, OutboxLimits
+from pyrtu.outbox.outbox import Outbox, OutboxError, OutboxFull, OutboxLimits
 
 # -- round trip, restart, acks ------------------------------------------------
 
@@ -96,7 +96,7 @@ def test_flushed_acks_survive_sigkill(tmp_path: Path) -> None:
     r = run_child(
         """
         import os, signal, sys
-        from pyrtu.bridge.outbox import Outbox, OutboxLimits
+        from pyrtu.outbox.outbox import Outbox, OutboxLimits
         ob = Outbox(sys.argv[1], OutboxLimits(max_bytes=1 << 20, segment_bytes=4096))
         ob.ack(60)
         ob.flush()
@@ -139,7 +139,7 @@ def test_fsync_is_batched_one_per_flush_not_per_record(tmp_path: Path) -> None:
     code = textwrap.dedent(
         """
         import os, sys
-        from pyrtu.bridge.outbox import Outbox, OutboxLimits
+        from pyrtu.outbox.outbox import Outbox, OutboxLimits
         ob = Outbox(sys.argv[1], OutboxLimits(fsync_records=1000))
         os.write(1, b"BEGIN\\n")
         for i in range(10_000):
@@ -176,7 +176,7 @@ def test_fsync_is_batched_one_per_flush_not_per_record(tmp_path: Path) -> None:
 CHILD = textwrap.dedent(
     """
     import hashlib, os, random, sys
-    from pyrtu.bridge.outbox import Outbox, OutboxLimits
+    from pyrtu.outbox.outbox import Outbox, OutboxLimits
 
     def payload(seq):
         digest = hashlib.blake2b(str(seq).encode(), digest_size=32).digest()
@@ -303,7 +303,7 @@ def test_drops_are_counted_on_disk_at_once(tmp_path: Path) -> None:
     r = run_child(
         """
         import os, signal, sys
-        from pyrtu.bridge.outbox import Outbox, OutboxLimits
+        from pyrtu.outbox.outbox import Outbox, OutboxLimits
         ob = Outbox(sys.argv[1], OutboxLimits(max_bytes=8192, segment_bytes=2048))
         while ob.dropped == 0:
             ob.append(b"x" * 40, 0.0)
@@ -440,7 +440,7 @@ def test_second_outbox_on_the_same_directory_is_refused(tmp_path: Path) -> None:
     holder = textwrap.dedent(
         """
         import sys
-        from pyrtu.bridge.outbox import Outbox
+        from pyrtu.outbox.outbox import Outbox
         ob = Outbox(sys.argv[1])
         print("locked", flush=True)
         sys.stdin.read()
@@ -481,7 +481,7 @@ def test_memory_stays_bounded_with_two_million_records_unacked(tmp_path: Path) -
     r = run_child(
         """
         import gc, sys
-        from pyrtu.bridge.outbox import Outbox, OutboxLimits
+        from pyrtu.outbox.outbox import Outbox, OutboxLimits
 
         def rss(field):
             for line in open("/proc/self/status"):

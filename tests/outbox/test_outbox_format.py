@@ -1,5 +1,5 @@
 """The outbox's file format under damage: torn tails, flipped bytes, garbage, and
-hypothesis-generated segment and cursor files (pyrtu.bridge._outbox_format)."""
+hypothesis-generated segment and cursor files (pyrtu.outbox._format)."""
 
 from __future__ import annotations
 
@@ -15,8 +15,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from outbox_helpers import everything, fill, payload, segments
 
-from pyrtu.bridge import _outbox_format as fmt
-from pyrtu.bridge.outbox import Outbox, OutboxError, OutboxLimits
+from pyrtu.outbox import _format as fmt
+from pyrtu.outbox.outbox import Outbox, OutboxError, OutboxLimits
 
 # -- torn and corrupt records -----------------------------------------------
 

@@ -1,0 +1,600 @@
+"""`EdgeNode`: `pyrtu bridge` as a Sparkplug B 3.0 edge node, on the poller, the
+shared durable outbox (`pyrtu.outbox`) and one MQTT connection.
+
+::
+
+    async with EdgeNode(load_sparkplug_config("bridge.toml")) as node:
+        await asyncio.sleep(3600)
+
+Every connection: a clean session whose will is the NDEATH (QoS 1, not retained)
+with a new bdSeq (`BdSeqStore`); the node subscribes to its NCMD and DCMD topics
+(and the primary host's STATE), then, at once or, with a primary host, when its
+STATE says online (a timestamp older than the last one accepted is ignored),
+publishes the NBIRTH (seq 0, bdSeq, ``Node Control/Rebirth``) and a DBIRTH for each
+device not known dead (every one at first, a metric never read yet ``is_null``;
+then one whose slave answers and port is up), all QoS 0, never retained.
+
+The poller's values go through the `Reporter` (report by exception) into the
+outbox as point updates.  A value read while the node is born and nothing older
+waits is published at once (DDATA, by alias, QoS 0); everything else waits in the
+outbox and is published in order once the node is born again, flagged
+``is_historical`` (it is older than the values the births carry).  A record is
+released from the outbox once written to the connection.  A slave that stops
+answering, or a port that fails, gets a DDEATH; its first value afterwards a
+DBIRTH.  Records of a device that is dead when their turn comes are passed by
+(``unforwarded``: a DDATA of a dead device would break the session's rules).
+
+NCMD ``Node Control/Rebirth`` = true: NBIRTH and every DBIRTH again (the stored
+backlog follows, still historical).  DCMD: each metric (by name or alias) is
+checked against its datatype, then goes through the bridge's set path
+(`SetWriter.command`: writable, range, queue, rate limit, expiry, write,
+read-back): the value read back is published in the next DDATA.  Refusals are
+logged and counted (``dcmd_refused``, per reason).
+
+When the primary host goes offline the node publishes its NDEATH, disconnects
+(MQTT 5: "Disconnect with Will Message") and connects again, to wait for the host.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import ssl
+import time
+from collections.abc import Awaitable, Callable
+from typing import Any
+
+import paho.mqtt.client as paho
+
+from pyrtu.core._closing import AsyncService
+from pyrtu.drivers.reconnect import Backoff, Reconnect
+from pyrtu.drivers.supervise import cause, supervise
+
+from ..bridge.commands import CommandQueue
+from ..bridge.mqtt import BrokerRefused, Credentials, MqttLink
+from ..bridge.topics import Topics
+from ..bridge.writes import SetWriter
+from ..outbox._sync import Flusher
+from ..outbox.outbox import Outbox, OutboxError, OutboxLimits
+from ..outbox.report import Reporter
+from ..outbox.updates import PointUpdate, UpdateError, decode_update, encode_update
+from ..poller import Point, PointDropped, Poller, PortState, SlaveState, TaskFailed, Update
+from ..poller.points import Value
+from .config import SparkplugConfig
+from .metrics import NODE_REBIRTH, DeviceDef, MetricDef, get_value
+from .payload import payload_class
+from .session import BdSeqStore, EdgeSession, HostState, Sample
+
+log = logging.getLogger("pyrtu.sparkplug")
+
+_BATCH = 64  # records of the backlog published per turn of the loop
+_PER_MESSAGE = 64  # metrics per DDATA of the backlog
+
+
+class EdgeNode(AsyncService):
+    """The Sparkplug edge node of one bridge configuration (see the module doc)."""
+
+    def __init__(self, config: SparkplugConfig, *, master: Any = "aio") -> None:
+        self.spb = config
+        self.config = config.bridge
+        m = self.config.mqtt
+        self.topics = Topics(self.config)
+        self.poller = Poller(self.config.poller, master=master, changes_only=False)
+        points = self.config.poller.points
+        self.reporter = Reporter(points, {p.name: self.config.max_age(p.name) for p in points})
+        self.commands = CommandQueue(m.command_queue, m.write_rate)
+        self.writer = SetWriter(self)
+        self.session = EdgeSession(config)
+        self.host = HostState()
+        self._bdseq = BdSeqStore(config.bdseq_file)
+        self._outbox: Outbox | None = None
+        self._flusher: Flusher | None = None
+        self._link: MqttLink | None = None
+        self._reconnect = Reconnect(Backoff(m.backoff, m.max_backoff))
+        self._credentials: Credentials | None = None
+        self._latest: dict[str, Sample] = {}
+        #: devices not known dead (every one at first: the NBIRTH is followed by every
+        #: DBIRTH, tck-id-payloads-dbirth-order; a slave that does not answer gets its
+        #: DDEATH when the poller says so)
+        self._alive: set[str] = {d.id for d in config.devices}
+        self._offline: set[tuple[str, int]] = set()  # slaves the poller says offline
+        self._port_down: set[str] = set()
+        self._born = False  # NBIRTH published on this connection
+        self._dborn: set[str] = set()  # devices with a DBIRTH since the NBIRTH
+        self._cursor = 0  # every record up to this seq is published or passed by
+        self._live_from = 0  # records below this seq are historical
+        self._pump_soon: asyncio.Handle | None = None  # the next batch of the backlog
+        self._lost_ev: asyncio.Event | None = None
+        self._stop: asyncio.Event | None = None
+        self._tasks: list[asyncio.Task[None]] = []
+        self._running = False
+        self.fatal: BaseException | None = None
+        self.counts: dict[str, int] = {
+            "connects": 0, "nbirth": 0, "dbirth": 0, "ddeath": 0, "ddata": 0,
+            "metrics_live": 0, "metrics_historical": 0, "unforwarded": 0, "rebirths": 0,
+            "host_offline": 0, "dcmd": 0, "refused": 0, "task_failures": 0, "foreign_records": 0,
+        }  # fmt: skip
+        self.dcmd_refused: dict[str, int] = {}
+
+    # ------------------------------------------------------------------ life cycle
+
+    async def start(self, poll: bool = True) -> None:
+        """Open the outbox, start the poller and the connection (in the background)."""
+        if self._running:
+            return
+        m = self.config.mqtt
+        self._credentials = Credentials.load(m)
+        self._bdseq.load()  # a damaged file refused now, not at the first connect
+        limits = OutboxLimits(
+            max_bytes=m.outbox_max_bytes,
+            fsync_interval=m.fsync_interval,
+            segment_bytes=min(8 << 20, m.outbox_max_bytes // 4),
+            policy="refuse" if m.outbox_policy == "refuse" else "drop-oldest",
+        )
+        self._outbox = Outbox(m.outbox, limits)
+        self._flusher = Flusher(self._outbox, self._flushed)
+        self._flusher.start()
+        self._cursor = self._outbox.acked
+        self._live_from = self._outbox.next_seq
+        self._stop = asyncio.Event()
+        self._lost_ev = asyncio.Event()
+        self.poller.on_event(self.feed)
+        try:
+            if poll:
+                await self.poller.start()
+        except BaseException:
+            await self._flusher.stop()
+            self._outbox.close()
+            self._outbox = None
+            raise
+        self._running = True
+        self._tasks = [self._supervise("pyrtu-sparkplug-mqtt", self._connector, self._link_gone)]
+
+    async def stop(self) -> None:
+        """Stop polling; NDEATH, disconnect; flush and close the outbox."""
+        if not self._running:
+            return
+        self._running = False
+        await self.poller.stop()
+        await self.writer.stop()
+        for t in self._tasks:
+            t.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+        self._tasks = []
+        link = self._link
+        if link is not None and link.connected:
+            self._say_death(link)
+            for _ in range(100):
+                if link.pending_writes == 0:
+                    break
+                await asyncio.sleep(0.002)
+            link.close(graceful=True, with_will=True)
+        self._link = None
+        ob, flusher = self._outbox, self._flusher
+        assert ob is not None and flusher is not None
+        await flusher.stop()
+        ob.close()
+        self._outbox = None
+
+    async def run(self, duration: float | None = None) -> None:
+        await self.start()
+        assert self._stop is not None
+        try:
+            if duration is None:
+                await self._stop.wait()
+            else:
+                try:
+                    await asyncio.wait_for(self._stop.wait(), duration)
+                except TimeoutError:
+                    pass
+        finally:
+            await self.stop()
+        if self.fatal is not None:
+            raise self.fatal
+
+    @property
+    def halted(self) -> asyncio.Event:
+        assert self._stop is not None, "start the edge node first"
+        return self._stop
+
+    def _supervise(
+        self, name: str, body: Callable[[], Awaitable[None]], cleanup: Callable[[], None]
+    ) -> asyncio.Task[None]:
+        m = self.config.mqtt
+        return supervise(
+            name,
+            body,
+            lambda f: self.task_failed(f.task, f.error, f.retry_in, f.first),
+            backoff=Backoff(m.backoff, m.max_backoff),
+            running=lambda: self._running,
+            cleanup=cleanup,
+        )
+
+    def task_failed(
+        self, task: str, error: BaseException, retry_in: float, first: bool = True
+    ) -> None:
+        """A background task raised; it starts again in ``retry_in`` s (logged once
+        per run of failures, counted always)."""
+        self.counts["task_failures"] += 1
+        level = logging.ERROR if first else logging.DEBUG
+        log.log(level, "sparkplug: task %s failed: %s (restarting in %.2f s)",
+                task, cause(error), retry_in)  # fmt: skip
+
+    # ------------------------------------------------------------------ the poller's side
+
+    def feed(self, ev: Any) -> None:
+        """A poller event (`Update`, `SlaveState`, `PointDropped`, `PortState`)."""
+        now = time.monotonic()
+        if type(ev) is Update:
+            p = ev.point
+            self._latest[p.name] = Sample(ev.value, ev.time, "bad" if ev.value is None else "good")
+            self._device_answers(p.bus, p.slave)
+            if self.reporter.update(p, ev.value, ev.time, now):
+                self._append(p, ev.value, ev.time, ev.quality)
+        elif isinstance(ev, SlaveState):
+            key = (ev.bus, ev.slave)
+            if ev.online:
+                self._offline.discard(key)
+            else:
+                self._offline.add(key)
+                for p, v, t, q in self.reporter.slave_state(ev.bus, ev.slave, False, now):
+                    self._append(p, v, t, q)
+                self._device_dead(ev.bus, ev.slave)
+        elif isinstance(ev, PointDropped):
+            p, v, t, q = self.reporter.dropped(ev.point, ev.time, now)
+            self._latest[p.name] = Sample(v, t, q)
+            self._append(p, v, t, q)
+        elif isinstance(ev, PortState):
+            if ev.up:
+                self._port_down.discard(ev.bus)
+            else:
+                self._port_down.add(ev.bus)
+                for p, v, t, q in self.reporter.bus_down(ev.bus, now):
+                    self._append(p, v, t, q)
+                for d in self.spb.devices:
+                    if d.bus == ev.bus:
+                        self._device_dead(d.bus, d.slave)
+        elif isinstance(ev, TaskFailed):
+            log.error("sparkplug: poller task %s failed: %s", ev.task, ev.error)
+
+    def _device_answers(self, bus: str, slave: int) -> None:
+        dev = self.session.by_slave.get((bus, slave))
+        if dev is None or dev.id in self._alive or bus in self._port_down:
+            return
+        self._offline.discard((bus, slave))
+        self._alive.add(dev.id)
+        if self._born:
+            self._publish_dbirth(dev)
+
+    def _device_dead(self, bus: str, slave: int) -> None:
+        dev = self.session.by_slave.get((bus, slave))
+        if dev is None or dev.id not in self._alive:
+            return
+        self._alive.discard(dev.id)
+        link = self._link
+        if self._born and dev.id in self._dborn and link is not None and link.connected:
+            self._dborn.discard(dev.id)
+            link.publish(
+                self.session.topic("DDEATH", dev), self.session.ddeath(time.time()), 0, False
+            )
+            link.write_now()
+            self.counts["ddeath"] += 1
+
+    def publish_value(self, point: Point, value: Value | None, read_at: float) -> None:
+        """A write's read-back: published in the next DDATA whatever its deadband."""
+        self._latest[point.name] = Sample(value, read_at, "bad" if value is None else "good")
+        if self.reporter.update(point, value, read_at, time.monotonic(), exact=True):
+            self._append(point, value, read_at, "bad" if value is None else "good")
+
+    def _append(
+        self, point: Point, value: Value | None, read_at: float | None, quality: str
+    ) -> None:
+        ob = self._outbox
+        if ob is None:
+            return
+        rec = encode_update(PointUpdate(point.name, value, read_at, quality))
+        try:
+            seq = ob.append(rec, time.monotonic())
+        except (OutboxError, ValueError) as e:
+            self.counts["refused"] += 1
+            log.error("sparkplug: the outbox refuses an update: %s", e)
+            return
+        if self._flusher is not None:
+            self._flusher.poke()
+        link = self._link
+        if self._born and seq == self._cursor + 1 and link is not None and link.connected:
+            self._publish_records([(seq, rec)], link)  # live: at once, not after the fsync
+            ob.ack(self._cursor)
+
+    # ------------------------------------------------------------------ publishing
+
+    def _flushed(self, error: OutboxError | None) -> None:
+        if error is not None:
+            log.error("sparkplug: outbox flush failed: %s", error)
+            return
+        if self._pump_soon is None:
+            self._pump()
+
+    def _pump(self) -> None:
+        """Publish what waits in the outbox, in order, while the node is born: one
+        batch per turn of the loop (a long backlog never holds the loop, and a
+        command that comes meanwhile, a Rebirth, is served between two batches),
+        the next once the socket took the last."""
+        self._pump_soon = None
+        link, ob = self._link, self._outbox
+        if not self._born or link is None or not link.connected or ob is None:
+            return
+        if link.pending_writes > _BATCH:  # the kernel's buffer is full: later
+            self._pump_soon = asyncio.get_running_loop().call_later(0.005, self._pump)
+            return
+        batch = ob.pending(_BATCH, after=self._cursor)
+        if not batch:
+            return
+        self._publish_records(batch, link)
+        ob.ack(self._cursor)
+        if self._flusher is not None:
+            self._flusher.poke()
+        if len(batch) == _BATCH:
+            self._pump_soon = asyncio.get_running_loop().call_soon(self._pump)
+
+    def _publish_records(self, batch: list[tuple[int, bytes]], link: MqttLink) -> None:
+        """DDATA for ``batch`` (seq order), consecutive records of one device in one
+        message; records of a dead device or no point passed by."""
+        group: list[tuple[MetricDef, Sample]] = []
+        device: DeviceDef | None = None
+        for seq, rec in batch:
+            self._cursor = seq
+            try:
+                update = decode_update(rec)
+            except UpdateError as e:  # a JSON mode's record, left in this outbox
+                if not self.counts["foreign_records"]:
+                    log.error("sparkplug: outbox record %d is no point update (%s): passed by "
+                              "(a backlog of the JSON mode?); the others are counted in "
+                              "foreign_records", seq, e)  # fmt: skip
+                self.counts["foreign_records"] += 1
+                continue
+            found = self.session.metric.get(update.point)
+            if found is None or found[0].id not in self._dborn:
+                self.counts["unforwarded"] += 1
+                continue
+            dev, md = found
+            if device is not None and (dev is not device or len(group) >= _PER_MESSAGE):
+                self._send_ddata(link, device, group)
+                group = []
+            device = dev
+            historical = seq < self._live_from
+            group.append((md, Sample(update.value, update.time, update.quality, historical)))
+        if device is not None and group:
+            self._send_ddata(link, device, group)
+        link.write_now()
+
+    def _send_ddata(
+        self, link: MqttLink, device: DeviceDef, group: list[tuple[MetricDef, Sample]]
+    ) -> None:
+        body = self.session.ddata(group, time.time())
+        link.publish(self.session.topic("DDATA", device), body, 0, False)
+        self.counts["ddata"] += 1
+        for _, s in group:
+            self.counts["metrics_historical" if s.historical else "metrics_live"] += 1
+
+    def _births(self, link: MqttLink) -> None:
+        """NBIRTH and a DBIRTH for every device alive; what waits in the outbox is
+        historical from now on."""
+        ob = self._outbox
+        assert ob is not None
+        self._live_from = ob.next_seq
+        link.publish(self.session.nbirth_topic, self.session.nbirth(time.time()), 0, False)
+        self.counts["nbirth"] += 1
+        self._born = True
+        self._dborn.clear()
+        for dev in self.spb.devices:
+            if dev.id in self._alive:
+                self._publish_dbirth(dev)
+        link.write_now()
+        if self._pump_soon is not None:
+            self._pump_soon.cancel()
+        self._pump()
+
+    def _publish_dbirth(self, dev: DeviceDef) -> None:
+        link = self._link
+        if link is None or not link.connected:
+            return
+        samples = {
+            m.point.name: self._latest[m.point.name]
+            for m in dev.metrics
+            if m.point.name in self._latest
+        }
+        link.publish(
+            self.session.topic("DBIRTH", dev),
+            self.session.dbirth(dev, samples, time.time()),
+            0,
+            False,
+        )
+        link.write_now()
+        self._dborn.add(dev.id)
+        self.counts["dbirth"] += 1
+
+    def _say_death(self, link: MqttLink) -> None:
+        """The NDEATH published by the node itself (an intentional disconnect)."""
+        body = self.session.ndeath(self.session.bdseq, time.time())
+        link.publish(self.session.ndeath_topic, body, 1, False)
+        link.write_now()
+        self._born = False
+        self._dborn.clear()
+
+    # ------------------------------------------------------------------ commands and STATE
+
+    def _on_message(self, msg: paho.MQTTMessage) -> None:
+        # handled after paho's read returns: a birth writes to the socket at once,
+        # and paho's write must not run inside its own message callback
+        asyncio.get_running_loop().call_soon(self._handle, msg.topic, bytes(msg.payload))
+
+    def _handle(self, topic: str, payload: bytes) -> None:
+        if topic == self.session.state_topic:
+            self._on_state(payload)
+        elif topic == self.session.ncmd_topic:
+            self._on_ncmd(payload)
+        elif topic.startswith(self.session.dcmd_filter[:-1]):
+            self._on_dcmd(topic.rsplit("/", 1)[1], payload)
+
+    def _on_state(self, payload: bytes) -> None:
+        online = self.host.update(payload)
+        link = self._link
+        if online is None or link is None or not link.connected:
+            if online is None:
+                log.warning("sparkplug: a STATE of %s ignored (not STATE JSON, or older "
+                            "than the last one)", self.spb.primary_host_id)  # fmt: skip
+            return
+        if online and not self._born:
+            log.info("sparkplug: primary host %s online", self.spb.primary_host_id)
+            self._births(link)
+        elif not online and self._born:
+            log.warning("sparkplug: primary host %s offline: NDEATH, disconnecting",
+                        self.spb.primary_host_id)  # fmt: skip
+            self.counts["host_offline"] += 1
+            self._say_death(link)
+            link.close(graceful=True, with_will=True)
+            self._on_lost("primary host offline")
+
+    def _decode(self, payload: bytes, what: str) -> Any | None:
+        try:
+            return payload_class().FromString(payload)
+        except Exception as e:  # protobuf's DecodeError: not a Sparkplug payload
+            self._refuse("malformed", f"{what}: not a Sparkplug B payload ({e})")
+            return None
+
+    def _on_ncmd(self, payload: bytes) -> None:
+        p = self._decode(payload, "NCMD")
+        if p is None:
+            return
+        for m in p.metrics:
+            if m.name == NODE_REBIRTH:  # it has no alias (rebirth-name-aliases)
+                if m.WhichOneof("value") == "boolean_value" and m.boolean_value:
+                    self._rebirth()
+                else:
+                    self._refuse("validation", "NCMD Node Control/Rebirth takes boolean true")
+            else:
+                self._refuse("unknown_metric", f"NCMD: no node metric {m.name or m.alias!r}")
+
+    def _rebirth(self) -> None:
+        link = self._link
+        if (
+            link is None
+            or not link.connected
+            or (self.spb.primary_host_id and not self.host.online)
+        ):
+            return
+        self.counts["rebirths"] += 1
+        log.info("sparkplug: rebirth requested")
+        self._births(link)
+
+    def _on_dcmd(self, device_id: str, payload: bytes) -> None:
+        dev = self.session.device.get(device_id)
+        if dev is None:
+            self._refuse("unknown_device", f"DCMD for no device of this node: {device_id!r}")
+            return
+        p = self._decode(payload, f"DCMD {device_id}")
+        if p is None:
+            return
+        by_name = {md.name: md for md in dev.metrics}
+        by_alias = {md.alias: md for md in dev.metrics}
+        for m in p.metrics:
+            md = by_name.get(m.name) if m.name else by_alias.get(m.alias)
+            if md is None:
+                self._refuse("unknown_metric", f"DCMD {device_id}: no metric {m.name or m.alias!r}")
+                continue
+            try:
+                value = get_value(m, md.datatype)
+            except ValueError as e:
+                self._refuse("validation", f"DCMD {device_id}/{md.name}: {e}")
+                continue
+            self.counts["dcmd"] += 1
+            refusal = self.writer.command(md.point.name, value, f"DCMD {device_id}/{md.name}")
+            if refusal is not None:
+                self.dcmd_refused[refusal.error] = self.dcmd_refused.get(refusal.error, 0) + 1
+
+    def _refuse(self, reason: str, message: str) -> None:
+        self.dcmd_refused[reason] = self.dcmd_refused.get(reason, 0) + 1
+        log.warning("sparkplug: command refused (%s): %s", reason, message)
+
+    # ------------------------------------------------------------------ the connection
+
+    async def _connector(self) -> None:
+        m = self.config.mqtt
+        assert self._lost_ev is not None
+        while self._running:
+            wait = self._reconnect.wait(time.monotonic())
+            if wait > 0:
+                await asyncio.sleep(wait)
+            bdseq = self._bdseq.take()
+            self.session.bdseq = bdseq
+            link = MqttLink(
+                m,
+                self.session.ndeath_topic,
+                on_message=self._on_message,
+                on_ack=lambda mid: None,
+                on_lost=self._on_lost,
+                credentials=self._credentials,
+                will=(self.session.ndeath(bdseq, time.time()), False),
+            )
+            try:
+                await link.connect()
+            except (BrokerRefused, ssl.SSLError, ssl.CertificateError) as e:
+                log.error("sparkplug: %s", e)
+                self.fatal = e
+                if self._stop is not None:
+                    self._stop.set()
+                return
+            except (OSError, TimeoutError, ConnectionError) as e:
+                if self._reconnect.failed(time.monotonic(), e):
+                    log.warning("sparkplug: broker %s unreachable: %s (retrying)", m.broker, e)
+                continue
+            self._reconnect.recovered(time.monotonic())
+            self.counts["connects"] += 1
+            self._link = link
+            self._lost_ev.clear()
+            self.writer.connected(link)
+            subs = [self.session.ncmd_topic, self.session.dcmd_filter]
+            if self.session.state_topic is not None:
+                subs.append(self.session.state_topic)
+            link.subscribe(subs)
+            if self.session.state_topic is None:
+                self._births(link)
+            elif self.host.online:
+                pass  # the retained STATE (subscribed above) says whether it still is
+            await self._lost_ev.wait()
+            self._link_gone()
+            if self._running and self._reconnect.failed(time.monotonic(), "connection lost"):
+                log.warning("sparkplug: lost the broker %s (retrying)", m.broker)
+
+    def _on_lost(self, reason: str) -> None:
+        if self._lost_ev is not None:
+            self._lost_ev.set()
+
+    def _link_gone(self) -> None:
+        link, self._link = self._link, None
+        if link is not None and link.connected:
+            link.close(graceful=False)
+        self._born = False
+        self._dborn.clear()
+        self.host.online = False
+
+    # ------------------------------------------------------------------ figures
+
+    def stats(self) -> dict[str, Any]:
+        ob = self._outbox
+        return {
+            "group_id": self.spb.group_id,
+            "edge_node_id": self.spb.edge_node_id,
+            "connected": self._link is not None and self._link.connected,
+            "born": self._born,
+            "bdseq": self.session.bdseq,
+            "devices_alive": sorted(self._alive),
+            "outbox_depth": ob.depth if ob is not None else 0,
+            **self.counts,
+            "dcmd_refused": dict(self.dcmd_refused),
+            "commands": self.writer.stats(),
+        }
+
+
+__all__ = ["EdgeNode"]

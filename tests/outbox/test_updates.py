@@ -1,0 +1,70 @@
+"""Point updates as outbox records (pyrtu.outbox.updates): the layout written out
+here from the module's docstring, round trips through a real outbox, refusals."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from pyrtu.bridge.topics import unpublishable
+from pyrtu.outbox.outbox import Outbox
+from pyrtu.outbox.updates import PointUpdate, UpdateError, decode_update, encode_update, is_update
+
+
+def test_the_record_is_the_mark_and_a_json_array() -> None:
+    rec = encode_update(PointUpdate("speed", 12.5, 1700000000.25, "good"))
+    assert rec[:4] == b"\x00pu1"
+    assert json.loads(rec[4:]) == ["speed", 12.5, 1700000000.25, "good"]
+
+
+@pytest.mark.parametrize(
+    "value", [True, False, 0, -(2**63), 2**64 - 1, 1.5, -0.0, "text é", None, math.inf]
+)
+def test_every_value_type_round_trips_through_an_outbox(tmp_path: Path, value: object) -> None:
+    update = PointUpdate("p", value, None if value is None else 1.0, "stale")  # type: ignore[arg-type]
+    with Outbox(tmp_path / "ob") as box:
+        box.append(encode_update(update), 0.0)
+        box.flush()
+    with Outbox(tmp_path / "ob") as box:
+        [(_, rec)] = box.pending(10)
+    got = decode_update(rec)
+    assert got == update and type(got.value) is type(value)
+
+
+def test_nan_round_trips() -> None:
+    got = decode_update(encode_update(PointUpdate("p", math.nan, 2.0, "good")))
+    assert isinstance(got.value, float) and math.isnan(got.value)
+
+
+def test_a_json_bridge_record_is_no_update_and_an_update_no_publishable_topic() -> None:
+    assert not is_update(b'a/b/c\n{"value":1')
+    with pytest.raises(UpdateError, match="no leading mark"):
+        decode_update(b'a/b/c\n{"value":1')
+    # an update record read by the JSON bridge is set aside, never published
+    assert unpublishable(encode_update(PointUpdate("p", 1, 1.0, "good"))) is not None
+
+
+@pytest.mark.parametrize(
+    "body",
+    [
+        b"[",
+        b'["p",1,1.0]',
+        b'[1,1,1.0,"good"]',
+        b'["p",1,1.0,"fine"]',
+        b'["p",[1],1.0,"good"]',
+        b'["p",1,"t","good"]',
+        b'["p",1,true,"good"]',
+        b"\xff",
+    ],
+)
+def test_a_damaged_record_is_refused(body: bytes) -> None:
+    with pytest.raises(UpdateError):
+        decode_update(b"\x00pu1" + body)
+
+
+def test_an_unknown_quality_is_refused_when_encoding() -> None:
+    with pytest.raises(ValueError, match="quality must be one of good, stale, bad"):
+        encode_update(PointUpdate("p", 1, 1.0, "fine"))
