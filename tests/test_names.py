@@ -24,6 +24,7 @@ TWINS: dict[str, set[str]] = {
     # the xfer step: its contract (drivers/xfer.py) and its two implementations
     "XferRunner": {"drivers/xfer.py", "drivers/_cxfer.py", "drivers/_pyxfer.py"},
     "AsyncXferRunner": {"drivers/xfer.py", "drivers/_cxfer.py", "drivers/_pyxfer.py"},
+    "TcpXferRunner": {"drivers/xfer.py", "drivers/_cxfer.py", "drivers/_pyxfer.py"},
 }
 #: duplicates not yet renamed (issue 28, item 5: outside this change's files), each
 #: with the concepts it names

@@ -63,7 +63,7 @@ from ..poller.points import Value
 from .config import SparkplugConfig
 from .metrics import NODE_REBIRTH, DeviceDef, MetricDef, get_value
 from .payload import payload_class
-from .session import BdSeqStore, EdgeSession, HostState, Sample
+from .session import BdSeqStore, EdgeSession, HostState, LatestValue
 
 log = logging.getLogger("pyrtu.sparkplug")
 
@@ -92,7 +92,7 @@ class EdgeNode(AsyncService):
         self._link: MqttLink | None = None
         self._reconnect = Reconnect(Backoff(m.backoff, m.max_backoff))
         self._credentials: Credentials | None = None
-        self._latest: dict[str, Sample] = {}
+        self._latest: dict[str, LatestValue] = {}
         #: devices not known dead (every one at first: the NBIRTH is followed by every
         #: DBIRTH, tck-id-payloads-dbirth-order; a slave that does not answer gets its
         #: DDEATH when the poller says so)
@@ -227,7 +227,9 @@ class EdgeNode(AsyncService):
         now = time.monotonic()
         if type(ev) is Update:
             p = ev.point
-            self._latest[p.name] = Sample(ev.value, ev.time, "bad" if ev.value is None else "good")
+            self._latest[p.name] = LatestValue(
+                ev.value, ev.time, "bad" if ev.value is None else "good"
+            )
             self._device_answers(p.bus, p.slave)
             if self.reporter.update(p, ev.value, ev.time, now):
                 self._append(p, ev.value, ev.time, ev.quality)
@@ -242,7 +244,7 @@ class EdgeNode(AsyncService):
                 self._device_dead(ev.bus, ev.slave)
         elif isinstance(ev, PointDropped):
             p, v, t, q = self.reporter.dropped(ev.point, ev.time, now)
-            self._latest[p.name] = Sample(v, t, q)
+            self._latest[p.name] = LatestValue(v, t, q)
             self._append(p, v, t, q)
         elif isinstance(ev, PortState):
             if ev.up:
@@ -282,7 +284,7 @@ class EdgeNode(AsyncService):
 
     def publish_value(self, point: Point, value: Value | None, read_at: float) -> None:
         """A write's read-back: published in the next DDATA whatever its deadband."""
-        self._latest[point.name] = Sample(value, read_at, "bad" if value is None else "good")
+        self._latest[point.name] = LatestValue(value, read_at, "bad" if value is None else "good")
         if self.reporter.update(point, value, read_at, time.monotonic(), exact=True):
             self._append(point, value, read_at, "bad" if value is None else "good")
 
@@ -340,7 +342,7 @@ class EdgeNode(AsyncService):
     def _publish_records(self, batch: list[tuple[int, bytes]], link: MqttLink) -> None:
         """DDATA for ``batch`` (seq order), consecutive records of one device in one
         message; records of a dead device or no point passed by."""
-        group: list[tuple[MetricDef, Sample]] = []
+        group: list[tuple[MetricDef, LatestValue]] = []
         device: DeviceDef | None = None
         for seq, rec in batch:
             self._cursor = seq
@@ -363,13 +365,13 @@ class EdgeNode(AsyncService):
                 group = []
             device = dev
             historical = seq < self._live_from
-            group.append((md, Sample(update.value, update.time, update.quality, historical)))
+            group.append((md, LatestValue(update.value, update.time, update.quality, historical)))
         if device is not None and group:
             self._send_ddata(link, device, group)
         link.write_now()
 
     def _send_ddata(
-        self, link: MqttLink, device: DeviceDef, group: list[tuple[MetricDef, Sample]]
+        self, link: MqttLink, device: DeviceDef, group: list[tuple[MetricDef, LatestValue]]
     ) -> None:
         body = self.session.ddata(group, time.time())
         link.publish(self.session.topic("DDATA", device), body, 0, False)

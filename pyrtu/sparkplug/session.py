@@ -79,7 +79,7 @@ class BdSeqStore:
 
 
 @dataclass(frozen=True, slots=True)
-class Sample:
+class LatestValue:
     """A metric's value for a message: ``time`` Unix seconds (None: never read)."""
 
     value: Value | None
@@ -150,13 +150,13 @@ class EdgeSession:
                 m.boolean_value = bool(value)
         return bytes(p.SerializeToString())
 
-    def dbirth(self, device: DeviceDef, samples: dict[str, Sample], now: float) -> bytes:
+    def dbirth(self, device: DeviceDef, samples: dict[str, LatestValue], now: float) -> bytes:
         """A DBIRTH: every metric of ``device`` with name, alias, datatype, its
         properties and its current value (``samples``: point name -> value; a
         point never read is null)."""
         p = self._payload(now)
         for md in device.metrics:
-            s = samples.get(md.point.name) or Sample(None, None, "stale")
+            s = samples.get(md.point.name) or LatestValue(None, None, "stale")
             m = p.metrics.add()
             m.name = md.name
             m.alias = md.alias
@@ -170,7 +170,7 @@ class EdgeSession:
     def ddeath(self, now: float) -> bytes:
         return bytes(self._payload(now).SerializeToString())
 
-    def ddata(self, items: Iterable[tuple[MetricDef, Sample]], now: float) -> bytes:
+    def ddata(self, items: Iterable[tuple[MetricDef, LatestValue]], now: float) -> bytes:
         """A DDATA (or NDATA): each metric by alias only, with its timestamp and
         value; ``is_historical`` for a stored one; ``Quality`` unless good."""
         p = self._payload(now)
@@ -185,7 +185,7 @@ class EdgeSession:
         return bytes(p.SerializeToString())
 
     @staticmethod
-    def _fill(m: Any, md: MetricDef, s: Sample, now: float) -> None:
+    def _fill(m: Any, md: MetricDef, s: LatestValue, now: float) -> None:
         m.timestamp = millis(now if s.time is None else s.time)
         value = s.value
         if isinstance(value, float) and not math.isfinite(value) and md.datatype not in (9, 10):
@@ -219,4 +219,4 @@ class HostState:
         return online
 
 
-__all__ = ["NAMESPACE", "BdSeqStore", "EdgeSession", "HostState", "Sample", "millis"]
+__all__ = ["NAMESPACE", "BdSeqStore", "EdgeSession", "HostState", "LatestValue", "millis"]

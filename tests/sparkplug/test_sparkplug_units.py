@@ -282,7 +282,7 @@ def test_two_metrics_whose_names_differ_only_in_case_are_refused(tmp_path: Path)
 
 def test_a_metric_never_read_is_born_null(tmp_path: Path) -> None:
     """tck-id-operational-behavior-data-publish-dbirth-values: is_null, no value."""
-    from pyrtu.sparkplug.session import EdgeSession, Sample
+    from pyrtu.sparkplug.session import EdgeSession, LatestValue
 
     cfg = load_sparkplug_config(_toml(tmp_path))
     s = EdgeSession(cfg)
@@ -290,7 +290,7 @@ def test_a_metric_never_read_is_born_null(tmp_path: Path) -> None:
     never = decode(s.dbirth(dev, {}, 1.0)).metrics[0]
     assert never.is_null and never.value_field is None
     assert never.properties["Quality"] == (DT["Int32"], 500)
-    read = decode(s.dbirth(dev, {"a": Sample(7, 2.0)}, 3.0)).metrics[0]
+    read = decode(s.dbirth(dev, {"a": LatestValue(7, 2.0)}, 3.0)).metrics[0]
     assert not read.is_null and (read.value_field, read.raw) == ("int_value", 7)
     assert read.timestamp == 2000 and "Quality" not in read.properties
 
@@ -300,13 +300,13 @@ def test_a_dbirth_of_10000_metrics_is_built_and_decoded(tmp_path: Path) -> None:
     own decoder (names, aliases, datatypes in order)."""
     from dataclasses import replace
 
-    from pyrtu.sparkplug.session import EdgeSession, Sample
+    from pyrtu.sparkplug.session import EdgeSession, LatestValue
 
     cfg = load_sparkplug_config(_toml(tmp_path))
     points = [Point(f"m{i}", "line", 9, "holding", i % 60000) for i in range(10_000)]
     (dev,) = metrics.devices(points, {}, first_alias=3)
     session = EdgeSession(replace(cfg, devices=(dev,)))
-    body = session.dbirth(dev, {f"m{i}": Sample(i % 65536, 1.0) for i in range(10_000)}, 2.0)
+    body = session.dbirth(dev, {f"m{i}": LatestValue(i % 65536, 1.0) for i in range(10_000)}, 2.0)
     got = decode(body).metrics
     assert len(got) == 10_000
     assert [m.name for m in got] == [f"m{i}" for i in range(10_000)]
