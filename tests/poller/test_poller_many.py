@@ -257,6 +257,41 @@ def test_the_start_is_staggered() -> None:
         assert first[f"b{k}"] >= start + k / rate - 0.005, (k, first[f"b{k}"] - start)
 
 
+@pytest.mark.wall_clock
+def test_a_slow_rtu_over_tcp_host_holds_up_no_other_bus(
+    slow_ports: Callable[[str], SlowPort],
+) -> None:
+    """An ``rtu+tcp://`` host whose connect never completes (pyserial waits 5 s for
+    it, again at every retry): opened on a worker thread, it holds up no other bus."""
+    store = DataStore()
+    store.holding_registers.add_range(0, [5])
+    slow = slow_ports("127.0.0.1")
+
+    async def main() -> list[float]:
+        server = await TcpServer.for_store(1, store).start("127.0.0.1", 0)
+        buses = [
+            Bus("fast", "tcp://{}:{}".format(*server.address), {"timeout": 2.0}),
+            Bus("slow", f"rtu+tcp://127.0.0.1:{slow.port}", {"timeout": 2.0}),
+        ]
+        points = [Point(f"{b.name}.x", b.name, 1, "holding", 0, interval=0.1) for b in buses]
+        times: list[float] = []
+        poller = Poller(make_config(buses, points))
+        poller.on_latency(
+            lambda bus, _, __: times.append(time.monotonic()) if bus == "fast" else None
+        )
+        try:
+            async with poller:
+                await until(lambda: len(times) >= 40, "40 reads of the fast bus")
+        finally:
+            await server.close()
+        return times
+
+    times = asyncio.run(main())
+    gaps = [b - a for a, b in itertools.pairwise(times)]
+    # a connect on the event loop stops every bus for its 5 s (50 intervals)
+    assert max(gaps) < 2.0, max(gaps)
+
+
 # ---------------------------------------------------------------- the short benchmark
 
 REGISTERS = 10
