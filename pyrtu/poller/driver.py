@@ -198,10 +198,12 @@ class Poller(AsyncService):
     # ------------------------------------------------------------------ life cycle
 
     async def start(self) -> None:
-        """Open every bus's master and start polling.  A port that cannot be opened
-        (or connected) is a `PortState` event and is retried with back-off while
-        the other buses poll; any other error of a master (a wrong keyword) is
-        raised, and the ports opened so far are closed again."""
+        """Open every local bus's master and start polling.  A port that cannot be
+        opened is a `PortState` event and is retried with back-off while the other
+        buses poll; any other error of a master (a wrong keyword) is raised, and
+        the ports opened so far are closed again.  A network bus is opened and
+        connected by its own task at its place in the staggered start (what fails
+        there is a port failure, reported and retried)."""
         if self._running:
             return
         now = time.monotonic()
