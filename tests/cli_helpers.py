@@ -6,6 +6,8 @@ from __future__ import annotations
 import json
 import os
 import queue
+import random
+import socket
 import subprocess
 import sys
 import threading
@@ -167,3 +169,23 @@ class Background:
         if self.proc.poll() is None:
             self.proc.kill()
             self.proc.wait(5)
+
+
+def free_port_range(count: int) -> int:
+    """The first of ``count`` consecutive loopback ports free now, below the ephemeral
+    ports (so that no connection of anyone's takes one of them meanwhile)."""
+    low = int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
+    for _ in range(200):
+        first = random.randrange(10000, low - count)
+        held: list[socket.socket] = []
+        try:
+            for port in range(first, first + count):
+                held.append(socket.socket())
+                held[-1].bind(("127.0.0.1", port))
+        except OSError:
+            continue
+        finally:
+            for s in held:
+                s.close()
+        return first
+    raise AssertionError(f"no {count} consecutive free ports")

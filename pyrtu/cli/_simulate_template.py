@@ -114,6 +114,26 @@ class _Group:
         self.end = max(self.end, point.end)
 
 
+#: the points of the templates parsed lately, by id (the template kept: the id stays its)
+_PARSED: dict[int, tuple[Template, list[Point], dict[str, dict[str, Any]], dict[str, Point]]] = {}
+
+
+def _parsed(
+    template: Template,
+) -> tuple[list[Point], dict[str, dict[str, Any]], dict[str, Point]]:
+    """`template_points` of ``template`` and each point's writable copy (what its
+    initial value is encoded with), made once however many simulators it has
+    (``--tcp HOST:FIRST-LAST``: one per port); the hints are only read."""
+    got = _PARSED.get(id(template))
+    if got is None or got[0] is not template:
+        if len(_PARSED) >= 8:
+            _PARSED.clear()
+        points, hints = template_points(template)
+        writable = {point.name: _writable_copy(point) for point in points}
+        got = _PARSED[id(template)] = (template, points, hints, writable)
+    return list(got[1]), got[2], got[3]
+
+
 class TemplateSimulator(DriveSimulator):
     """A device template behind a `DataStore` (see the module docstring); ``values``
     (point name -> value) override the template's ``initial`` values."""
@@ -126,7 +146,7 @@ class TemplateSimulator(DriveSimulator):
         self.template = template
         self.device = template.name
         self.example_addresses = frozenset({template.address})
-        points, hints = template_points(template)
+        points, hints, self._writable = _parsed(template)
         self.points = points
         self.hints = hints
         initial = {p.name: hints[p.name].get("initial", _default(p)) for p in points}
@@ -153,7 +173,7 @@ class TemplateSimulator(DriveSimulator):
             for n, g in enumerate(groups):
                 values: list[int | bool] = [False if bits else 0] * (g.end - g.start)
                 for p in g.points:
-                    words = encode_point_value(_writable_copy(p), initial[p.name]).words
+                    words = encode_point_value(self._writable[p.name], initial[p.name]).words
                     values[p.address - g.start : p.end - g.start] = list(words)
                 store_table.add_range(
                     g.start, values, validator=self._validator(g), on_write=self._on_write(g)

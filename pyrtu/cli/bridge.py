@@ -121,7 +121,8 @@ def _run(args: argparse.Namespace) -> int:
 
     args.metrics_server = open_metrics(args.metrics, "bridge")  # before anything opens
     try:
-        return int(aio_run(_serve(cfg, args)))
+        # (a socket per bus: beyond what select() takes, the epoll loop)
+        return int(aio_run(_serve(cfg, args), descriptors=len(cfg.poller.buses)))
     finally:
         if args.metrics_server is not None:
             args.metrics_server.close()

@@ -145,7 +145,8 @@ def main(argv: Sequence[str], setup_logging: Callable[[int], None] | None = None
     out = Output()
     started()  # Ctrl-C: quiet status 130 until here (pyrtu._startup), a normal end from now
     try:
-        code = int(aio_run(_run(poller, ns, out)))
+        # (a port or socket per bus: beyond what select() takes, the epoll loop)
+        code = int(aio_run(_run(poller, ns, out), descriptors=poller.descriptors))
     except (Exception, KeyboardInterrupt) as exc:
         from pyrtu.pdu.errors import ModbusError
 

@@ -40,6 +40,17 @@ the command at once: one line naming it and its cause ("internal error" in
 ``--json``) and exit status 1 (an internal error: the failure is the program's,
 not a port's, so not 3).
 
+``--tcp HOST:FIRST-LAST`` (``--tcp 127.0.0.1:20000-20999``) serves a device on
+every port of the range, each with its own state (as ``--port`` given many
+times), all from one event loop with one listening socket per port: a thousand
+Modbus TCP devices for the price of one process (docs/many-devices.md).  A range
+takes no ``--port``; one that ends before it starts, holds port 0 or more than
+10,000 ports is a usage error (exit 2, naming ``--tcp``); a port of it that
+cannot be bound is a port error (exit 3, naming the port).  The soft limit of
+open files is raised to a socket per port and per client where the hard limit
+allows (else exit 2).  The counters, ``--watch`` and ``--metrics`` add up the
+ports'.
+
 With ``--metrics HOST:PORT``: Prometheus metrics on /metrics (the drives'
 counters, each port's state, with ``--tcp`` the connected clients) and a health
 check on /healthz (docs/METRICS.md).
@@ -62,7 +73,7 @@ from typing import Any
 
 from pyrtu.cli._simulate_clash import watch_slave
 from pyrtu.cli._simulate_many import DriveLoop, DriveThread, PortKeeper, PortReport
-from pyrtu.cli._simulate_tcp import TcpThread, tcp_only_slave
+from pyrtu.cli._simulate_tcp import TcpThread, open_files_for, tcp_only_slave, tcp_range
 from pyrtu.cli._subcommand import subcommand
 from pyrtu.cli.common import (
     EXIT_FAILURE,
@@ -76,7 +87,6 @@ from pyrtu.cli.common import (
     serial_kwargs,
     stop_on_signals,
 )
-from pyrtu.cli.gateway import listen_address
 from pyrtu.cli.template import template_name
 from pyrtu.drivers._portname import first_duplicate
 from pyrtu.drivers.supervise import TaskFailure, cause
@@ -177,9 +187,10 @@ def _configure(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--tcp",
-        type=listen_address,
+        type=tcp_range,
         metavar="HOST:PORT",
-        help="also (or only, without --port) serve the drive over Modbus TCP",
+        help="also (or only, without --port) serve the drive over Modbus TCP; "
+        "HOST:FIRST-LAST: a device on every port of the range (without --port)",
     )
     p.add_argument(
         "-a",
@@ -236,8 +247,15 @@ def _run(args: argparse.Namespace) -> int:
         a, b = ports[twice[0]], ports[twice[1]]
         same = f"{a} is given twice" if a == b else f"{a} and {b} are one port"
         raise ValueError(f"--port: {same} (one drive per port: give each port once)")
+    tcp_ports = [] if args.tcp is None else list(range(args.tcp[1], args.tcp[2] + 1))
+    if len(tcp_ports) > 1 and ports:
+        raise ValueError(
+            "--tcp: a range of ports serves a device of its own on each port: give no --port"
+        )
     if len(ports) > 1 and args.tcp is not None:
         raise ValueError("--tcp serves one drive: give it with a single --port")
+    if len(tcp_ports) > 1:
+        open_files_for(len(tcp_ports))
     args.ports = ports
     args.port = ", ".join(ports) or None  # what an error message names
     options = serial_kwargs(args)
@@ -256,6 +274,8 @@ def _run(args: argparse.Namespace) -> int:
     args.title = template.description or template.title
     if len(ports) > 1:
         return _run_many(args, template, address, ports, options)
+    if len(tcp_ports) > 1:
+        return _run_tcp_range(args, template, address, tcp_ports)
     sim = make_simulator(template, args.state, args.mode, values)
     with stop_on_signals() as stop:  # before the "ready" line: a signal after it stops cleanly
         tcp = None
@@ -265,9 +285,9 @@ def _run(args: argparse.Namespace) -> int:
                 drive = DriveThread(lambda: _watched(args, sim.serve(ports[0], address, **options)))
             if args.tcp is not None:
                 app = drive.slave if drive is not None else tcp_only_slave(sim, address)
-                host, port = args.tcp
+                host, port, _ = args.tcp
                 tcp = TcpThread(app, host, port, on_task=lambda f: _task_failed(args, f))
-                args.tcp = tcp.address  # the port bound (0: any free port)
+                args.tcp = (*tcp.address, tcp.address[1])  # the port bound (0: any free port)
         except BaseException:
             sim.close()
             raise
@@ -311,6 +331,40 @@ def _run_many(
             drives.stop()
     _stopped(args, time.monotonic() - started, drives.counters)
     return _died(args, died) if died else _still_down(args, keeper)
+
+
+def _run_tcp_range(
+    args: argparse.Namespace, template: Any, address: int, tcp_ports: list[int]
+) -> int:
+    """``--tcp HOST:FIRST-LAST``: a device per port (its own simulator), one
+    `TcpServer` per port, all on one event loop (`TcpThread.many`)."""
+    device: str = template.name
+    host = args.tcp[0]
+    sims: list[Any] = []
+    with stop_on_signals() as stop:
+        try:
+            for _ in tcp_ports:
+                sims.append(make_simulator(template, args.state, args.mode, args.values_of))
+            apps = [tcp_only_slave(sim, address) for sim in sims]
+            tcp = TcpThread.many(apps, host, tcp_ports, on_task=lambda f: _task_failed(args, f))
+        except BaseException:
+            for sim in sims:
+                sim.close()
+            raise
+        started = time.monotonic()
+        try:
+            _ready(args, device, address, sorted(apps[0].functions))
+            watched = [("the TCP server", tcp)]
+            _serve_metrics(args, None, None, tcp, watched)
+            where = [f"{host}:{port}" for port in tcp_ports]
+            died = _serve(args, stop, started, None, sims, where, watched)
+        finally:
+            counters = _tcp_counters(tcp)
+            tcp.stop()
+            for sim in sims:
+                sim.close()
+    _stopped(args, time.monotonic() - started, counters)
+    return _died(args, died) if died else EXIT_OK
 
 
 def _serve(
@@ -442,8 +496,15 @@ def _tcp_counters(tcp: Any) -> dict[str, int]:
     }
 
 
+def _tcp_text(listen: tuple[str, int, int]) -> str:
+    """``--tcp`` for people: HOST:PORT or HOST:FIRST-LAST (``[...]`` around IPv6)."""
+    host, first, last = listen
+    host = f"[{host}]" if ":" in host else host
+    return f"{host}:{first}" if first == last else f"{host}:{first}-{last}"
+
+
 def _ready(args: argparse.Namespace, device: str, address: int, functions: list[int]) -> None:
-    tcp = None if args.tcp is None else f"{args.tcp[0]}:{args.tcp[1]}"
+    tcp = None if args.tcp is None else _tcp_text(args.tcp)
     # the serial format only where there is a serial port (--tcp alone has none)
     fmt = f"{describe_format(args)} {args.mode.upper()}" if args.ports else None
     if args.json:
@@ -455,6 +516,7 @@ def _ready(args: argparse.Namespace, device: str, address: int, functions: list[
                 "port": args.ports[0] if args.ports else None,
                 "ports": args.ports,
                 "tcp": tcp,
+                "tcp_ports": 0 if args.tcp is None else args.tcp[2] - args.tcp[1] + 1,
                 "format": fmt,
                 "functions": functions,
             }

@@ -31,8 +31,9 @@ class LoopThread:
         name: str,
         begin: Callable[[], Awaitable[Any]],
         end: Callable[[], Awaitable[Any]],
+        descriptors: int = 0,
     ) -> None:
-        self.loop = new_event_loop()
+        self.loop = new_event_loop(descriptors)  # (``descriptors``: as there)
         self._begin, self._end = begin, end
         self._thread = threading.Thread(target=self._main, name=name, daemon=True)
         self._started = threading.Event()

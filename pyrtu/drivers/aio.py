@@ -319,6 +319,12 @@ class AsyncMaster(MasterBase):
         answer = await self._run(call)
         return answer, self._serial_link.end_of(call)
 
+    async def connect(self) -> None:
+        """Connect a ``tcp://`` master now rather than at its first request (a
+        `PortError` when it cannot); nothing for a port opened already."""
+        if self._tcp is not None:
+            await self._tcp.connect()
+
     async def add_rule(
         self, function: int, request_rule: LengthRule | None, response_rule: LengthRule | None
     ) -> None:
@@ -529,29 +535,41 @@ class _CallbackStepper:
             self._fail(exc)
 
 
-def new_event_loop() -> asyncio.AbstractEventLoop:
+#: descriptors a ``select()`` loop is given at most (it takes those below 1024 only,
+#: and scans every one at each wait)
+SELECT_LIMIT = 256
+
+
+def new_event_loop(descriptors: int = 0) -> asyncio.AbstractEventLoop:
     """An event loop whose timers have microsecond resolution.
 
     The default loop's epoll selector rounds every wait up to a whole millisecond;
     at 115200 baud t3.5 is 1.75 ms, so a rounded wait costs a large part of the
     line's capacity.  This loop waits in ``select()`` (microseconds; descriptors
-    below 1024, plenty for a process with tens of ports)."""
+    below 1024, plenty for a process with tens of ports).  ``descriptors``: how
+    many ports and connections it will watch; beyond `SELECT_LIMIT` (a thousand
+    ``tcp://`` devices), the default epoll loop, whose waits `pyrtu.drivers._ptimer`
+    makes exact with a timerfd."""
     import selectors
+
+    if descriptors > SELECT_LIMIT:
+        return asyncio.new_event_loop()
 
     loop = asyncio.SelectorEventLoop(selectors.SelectSelector())
     _ptimer.mark_precise(loop)  # its own timers are exact: no timerfd
     return loop
 
 
-def run(main: Any, *, debug: bool | None = None) -> Any:
-    """``asyncio.run(main)`` on `new_event_loop` (microsecond timers), with this
-    thread's timer slack shrunk to 1 µs (Linux; the default 50 µs of slack is a
-    large part of t3.5 at high baud rates)."""
+def run(main: Any, *, debug: bool | None = None, descriptors: int = 0) -> Any:
+    """``asyncio.run(main)`` on `new_event_loop` (microsecond timers; ``descriptors``:
+    as there), with this thread's timer slack shrunk to 1 µs (Linux; the default
+    50 µs of slack is a large part of t3.5 at high baud rates)."""
     tighten_this_thread()
     if sys.version_info >= (3, 11):
-        with asyncio.Runner(debug=debug, loop_factory=new_event_loop) as runner:
+        factory = functools.partial(new_event_loop, descriptors)
+        with asyncio.Runner(debug=debug, loop_factory=factory) as runner:
             return runner.run(main)
-    loop = new_event_loop()  # Python 3.10: what asyncio.Runner does, by hand
+    loop = new_event_loop(descriptors)  # Python 3.10: what asyncio.Runner does, by hand
     try:
         asyncio.set_event_loop(loop)
         if debug is not None:

@@ -18,7 +18,6 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metri
 
 from pyrtu.drivers.reconnect import Outage
 from pyrtu.drivers.supervise import cause
-from pyrtu.tcp.server import TcpServer
 
 from .gateway import counter_families
 from .server import on_loop
@@ -47,11 +46,22 @@ class Watched(Protocol):
     def failure(self) -> BaseException | None: ...
 
 
+class TcpStats(Protocol):
+    """A `TcpServer`, or the servers of a ``--tcp`` range as one
+    (`pyrtu.cli._simulate_tcp.ServerGroup`)."""
+
+    def stats(self) -> dict[str, object]: ...
+
+    def health(self) -> list[str]: ...
+
+
 class TcpSide(Protocol):
     """``--tcp``'s server on its loop (`pyrtu.cli._simulate_tcp.TcpThread`)."""
 
     loop: asyncio.AbstractEventLoop
-    server: TcpServer
+
+    @property
+    def server(self) -> TcpStats: ...
 
 
 class SimulateSource:

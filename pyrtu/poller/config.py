@@ -31,7 +31,8 @@ probes may take, default 0.05), ``offline_after`` (failures, default 3),
 registry, `pyrtu.devices.registry`; ``profile`` is the same for a registry name)
 with ``name``/``interval`` to add its points, named ``name.point``); a
 ``[defaults]`` table whose keys are defaults of every point (``bus``, ``table``,
-``interval``...).
+``interval``...); a ``[connect]`` table: how network buses connect
+(`pyrtu.poller.connect.ConnectLimits`, docs/many-devices.md).
 
 Errors are `ConfigError` (a ValueError) naming the file, the line where it can be
 found, the table and key, and what is wrong::
@@ -63,6 +64,7 @@ from pyrtu.devices.registry import (
 from pyrtu.drivers._portname import first_duplicate
 from pyrtu.drivers.links import RTU_TCP_SCHEME, TCP_SCHEME, scheme_of
 
+from .connect import ConnectLimits, connect_limits
 from .plan import Limits, Wire
 from .points import HA_KEYS, Point, PointError, check_unique, encode_point_value, overlap_problem
 from .schedule import BACKOFF, MAX_BACKOFF
@@ -222,12 +224,17 @@ class PollerConfig:
     points: tuple[Point, ...]
     devices: tuple[Device, ...] = ()
     source: str = "<config>"
+    connect: ConnectLimits = field(default_factory=ConnectLimits)
 
     def bus(self, name: str) -> Bus:
-        for b in self.buses:
-            if b.name == name:
-                return b
-        raise KeyError(name)
+        by_name: dict[str, Bus] | None = self.__dict__.get("_by_name")
+        if by_name is None:  # (made once: a thousand buses are looked up by name)
+            by_name = {b.name: b for b in reversed(self.buses)}  # the first of a name
+            object.__setattr__(self, "_by_name", by_name)
+        try:
+            return by_name[name]
+        except KeyError:
+            raise KeyError(name) from None
 
     def limits(self, bus: str) -> dict[int, Limits]:
         """Per-slave limits on ``bus`` (a device's keys over the bus's)."""
@@ -260,8 +267,9 @@ class PollerConfig:
             check_unique(self.points)
         except PointError as e:
             raise ConfigError(f"{self.source}: point: {e}") from None
+        known, per_bus = set(names), {}
         for i, p in enumerate(self.points):
-            if p.bus not in names:
+            if p.bus not in known:
                 raise ConfigError(
                     f'{self.source}: point[{i}] ("{p.name}"): bus: no bus named {p.bus!r}'
                     f" (buses: {', '.join(names) or 'none'})"
@@ -269,7 +277,9 @@ class PollerConfig:
             wrong = unit_problem(self.bus(p.bus), p.slave)
             if wrong:
                 raise ConfigError(f'{self.source}: point[{i}] ("{p.name}"): slave: {wrong}')
-            lim = self.limits(p.bus).get(p.slave, self.bus(p.bus).limits)
+            if p.bus not in per_bus:
+                per_bus[p.bus] = self.limits(p.bus)
+            lim = per_bus[p.bus].get(p.slave, self.bus(p.bus).limits)
             most = lim.per_request(p.table)
             if p.size > most:
                 raise ConfigError(
@@ -329,6 +339,7 @@ class _Loader:
         self.source = source
         #: the folder a ``template = "x.toml"`` is relative to (None: the working one)
         self.base = base
+        self._buses: dict[str, Bus] = {}
         self.point_keys = (*POINT_KEYS, *point_keys)
         self.default_keys = (*(k for k in POINT_KEYS if k not in ("name", "address")),
                              *default_keys)  # fmt: skip
@@ -355,11 +366,11 @@ class _Loader:
         return got
 
     def load(self, doc: Mapping[str, Any]) -> PollerConfig:
-        unknown = sorted(set(doc) - {"bus", "point", "device", "defaults"})
+        unknown = sorted(set(doc) - {"bus", "point", "device", "defaults", "connect"})
         if unknown:
             raise ConfigError(
                 f"{self.source}: unknown top-level key {unknown[0]!r} "
-                "(known: bus, point, device, defaults)"
+                "(known: bus, point, device, defaults, connect)"
             )
         defaults = doc.get("defaults", {})
         if not isinstance(defaults, Mapping):
@@ -393,9 +404,32 @@ class _Loader:
             points += extra
         for i, t in enumerate(self.tables(doc, "point")):
             points.append(self.point(i, t, defaults, buses))
-        cfg = PollerConfig(tuple(buses), tuple(points), tuple(devices), self.source)
+        connect = self.connect(doc.get("connect", {}))
+        cfg = PollerConfig(tuple(buses), tuple(points), tuple(devices), self.source, connect)
         self.check(cfg, len(points) - len(self.tables(doc, "point")))
         return cfg
+
+    def connect(self, table: object) -> ConnectLimits:
+        """The ``[connect]`` table (ConfigError naming its line and key)."""
+        if not isinstance(table, Mapping):
+            raise ConfigError(f"{self.source}: connect: must be a table ([connect])")
+        try:
+            return connect_limits(table)
+        except (ValueError, TypeError) as e:
+            key, _, msg = str(e).partition(": ")
+            lines = self.text.splitlines()
+            header = re.compile(r"^[ \t]*\[[ \t]*connect[ \t]*\]")
+            want = re.compile(r"^[ \t]*" + re.escape(key) + r"[ \t]*=")
+            start = next((n for n, text in enumerate(lines) if header.match(text)), None)
+            line = start
+            for n in range(len(lines) if start is None else start + 1, len(lines)):
+                if lines[n].lstrip().startswith("["):
+                    break
+                if want.match(lines[n]):
+                    line = n
+                    break
+            where = self.source if line is None else f"{self.source}:{line + 1}"
+            raise ConfigError(f"{where}: connect: {key}: {msg}") from None
 
     def check(self, cfg: PollerConfig, n_profile: int) -> None:
         try:
@@ -506,7 +540,9 @@ class _Loader:
         for k in ("unit", *HA_KEYS):  # given, a text says something
             if isinstance(t.get(k), str) and not t[k].strip():
                 raise self.fail("point", i, label, k, f"must be a non-empty string, not {t[k]!r}")
-        bus = next((b for b in buses if b.name == merged["bus"]), None)
+        if len(self._buses) != len(buses):  # (a thousand buses: by name, not searched)
+            self._buses = {b.name: b for b in reversed(buses)}
+        bus = self._buses.get(merged["bus"]) if isinstance(merged["bus"], str) else None
         wrong = None if bus is None else unit_problem(bus, merged["slave"])
         if wrong:
             where = "point" if "slave" in t else "defaults"

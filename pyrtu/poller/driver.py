@@ -23,6 +23,13 @@ reported once (`PortState`, one log line), closed and reopened on the back-off o
 `pyrtu.drivers.reconnect` (``backoff`` doubling to ``max_backoff``) while the other
 buses poll on; what failed because the port did is not counted against the slaves.
 
+Network buses (``tcp://``, ``rtu+tcp://``...) connect within the bounds of the
+configuration's `ConnectLimits` (``[connect]``: connects in progress at once in
+the poller and per host, the pace of the start, the jitter of the reconnects;
+`pyrtu.poller.connect`, docs/many-devices.md): each is opened by its own task,
+the ``rank``-th one ``rank / start_rate`` seconds after the start (its polls take
+that phase), so a thousand devices neither connect nor poll in one burst.
+
 A bus task that raises anything else (a fault of the poller itself) is supervised
 (`pyrtu.drivers.supervise`): logged once with its cause, reported (`TaskFailed`),
 counted (the bus's ``task_failures`` in `summary`), the transaction it was in
@@ -47,6 +54,7 @@ from pyrtu.pdu.codecs import apply_masks
 from pyrtu.pdu.errors import ExceptionResponseError, PortError
 
 from .config import Bus, ConfigError, Device, PollerConfig, load_config, make_config
+from .connect import ConnectGate, ConnectLimits, network_host
 from .events import BusReport, Event, PortState, SlaveStats, TaskFailed, Tracker, Update
 from .masters import BY_FUNCTION, FACTORIES, AsyncMasterLike, is_port_error, open_master
 from .points import Point, Value, encode_point, encode_point_value
@@ -87,6 +95,10 @@ class _BusRun:
     # the transaction the bus task is in, and the write or read waiting on it
     inflight: ScheduledRequest | None = None
     inflight_future: asyncio.Future[Any] | None = None
+    #: the host a network bus connects to (None: a local port)
+    host: str | None = None
+    #: when a network bus may first connect (monotonic seconds; the start's stagger)
+    start_at: float = 0.0
 
     @property
     def port(self) -> str:
@@ -108,6 +120,8 @@ class Poller(AsyncService):
     default: `pyrtu.drivers.aio.AsyncMaster`), ``"thread"`` (a sync `pyrtu.Master` on a
     worker thread per bus) or a function ``Bus -> master``.
     ``changes_only``: deliver a value only when it changed beyond its deadband.
+    ``connect``: how network buses connect (None: the configuration's
+    ``[connect]``, `ConnectLimits`' defaults without one).
     """
 
     def __init__(
@@ -119,6 +133,7 @@ class Poller(AsyncService):
         devices: Iterable[Device] = (),
         master: MasterFactory | str = "aio",
         changes_only: bool = True,
+        connect: ConnectLimits | None = None,
     ) -> None:
         if isinstance(config, str):
             config = load_config(config)
@@ -130,6 +145,10 @@ class Poller(AsyncService):
             config.check()
         self.config = config
         self.changes_only = changes_only
+        if connect is not None and not isinstance(connect, ConnectLimits):
+            raise TypeError(f"connect must be ConnectLimits, not {type(connect).__name__}")
+        self.connect_limits = connect if connect is not None else config.connect
+        self._gate = ConnectGate(self.connect_limits)
         if isinstance(master, str):
             if master not in FACTORIES:
                 raise ValueError(f"master must be one of {', '.join(FACTORIES)}, not {master!r}")
@@ -155,8 +174,11 @@ class Poller(AsyncService):
 
     def _make_schedulers(self) -> None:
         now = time.monotonic()
+        by_bus: dict[str, list[Point]] = {}
+        for p in self.config.points:
+            by_bus.setdefault(p.bus, []).append(p)
         for bus in self.config.buses:
-            mine = [p for p in self.config.points if p.bus == bus.name]
+            mine = by_bus.get(bus.name, [])
             # the silence timer: a transaction's wait for its answer, every attempt
             wait = float(bus.master.get("timeout", 1.0)) * (1 + int(bus.master.get("retries", 0)))
             try:
@@ -168,27 +190,39 @@ class Poller(AsyncService):
                 )  # fmt: skip
             except ValueError as e:
                 raise ConfigError(f"{self.config.source}: bus {bus.name!r}: {e}") from None
-            backoff = Backoff(initial=bus.backoff, maximum=bus.max_backoff)
-            self._runs[bus.name] = _BusRun(bus, sched, Reconnect(backoff))
+            host = network_host(bus.port)
+            jitter = Backoff.jitter if host is None else self.connect_limits.jitter
+            backoff = Backoff(initial=bus.backoff, maximum=bus.max_backoff, jitter=jitter)
+            self._runs[bus.name] = _BusRun(bus, sched, Reconnect(backoff), host=host)
 
     # ------------------------------------------------------------------ life cycle
 
     async def start(self) -> None:
-        """Open every bus's master and start polling.  A port that cannot be opened
-        (or connected) is a `PortState` event and is retried with back-off while
-        the other buses poll; any other error of a master (a wrong keyword) is
-        raised, and the ports opened so far are closed again."""
+        """Open every local bus's master and start polling.  A port that cannot be
+        opened is a `PortState` event and is retried with back-off while the other
+        buses poll; any other error of a master (a wrong keyword) is raised, and
+        the ports opened so far are closed again.  A network bus is opened and
+        connected by its own task at its place in the staggered start (what fails
+        there is a port failure, reported and retried)."""
         if self._running:
             return
         now = time.monotonic()
+        self._gate = ConnectGate(self.connect_limits)  # (its semaphores: this loop's)
+        rank = 0
         for run in self._runs.values():
             run.wake = asyncio.Event()
             run.reconnect = Reconnect(run.reconnect.backoff)
             run.worked, run.values, run.task_failures = False, 0, 0
+            run.start_at = now
+            if run.host is not None:  # opened by its task, at its rank of the start
+                run.start_at = now + self.connect_limits.start_offset(rank)
+                run.sched.start_at(run.start_at)
+                rank += 1
         self._running = True
         try:
             for run in self._runs.values():
-                await self._open(run)
+                if run.host is None:
+                    await self._open(run)
         except BaseException:
             self._running = False
             await self._close_masters()
@@ -261,6 +295,12 @@ class Poller(AsyncService):
                 await asyncio.sleep(duration)
         finally:
             await self.stop()
+
+    @property
+    def descriptors(self) -> int:
+        """The ports and connections the poller watches (one per bus): what picks
+        its event loop (`pyrtu.drivers.aio.new_event_loop`)."""
+        return len(self._runs)
 
     def running(self) -> PollerThread:
         """The poller on a background thread (a context manager with sync methods)."""
@@ -363,9 +403,17 @@ class Poller(AsyncService):
     async def _open(self, run: _BusRun) -> None:
         """Open the bus's master; a port that fails begins (or continues) an outage.
         Other errors are raised while the poller starts, and count as port failures
-        once it runs (a bus task never dies of them)."""
+        once it runs (a bus task never dies of them).  A network bus's open and
+        connect hold a slot of the `ConnectGate` (its host's and the poller's)."""
         try:
-            run.master = await open_master(self._factory, run.bus)
+            if run.host is None:
+                run.master = await open_master(self._factory, run.bus)
+                return
+            async with self._gate.slot(run.host):
+                run.master = await open_master(self._factory, run.bus)
+                connect = getattr(run.master, "connect", None)
+                if connect is not None:  # (a master that connects at its first request)
+                    await connect()
         except Exception as exc:
             if not (is_port_error(exc) or run.task is not None):
                 raise
@@ -373,10 +421,13 @@ class Poller(AsyncService):
 
     async def _reopen(self, run: _BusRun) -> None:
         """While the port is down: fail the writes and reads asked meanwhile, wait
-        for the back-off, then try to open the port again."""
+        for the back-off, then try to open the port again.  A network bus's first
+        open waits for its place in the start (the writes asked meanwhile wait)."""
         while self._running:
-            self._fail_urgent(run)
-            wait = run.reconnect.wait(time.monotonic())
+            now = time.monotonic()
+            if run.reconnect.down:
+                self._fail_urgent(run)
+            wait = max(run.reconnect.wait(now), run.start_at - now)
             if wait <= 0:
                 break
             await self._nap(run, wait)
@@ -428,12 +479,12 @@ class Poller(AsyncService):
 
     def _dispatch(self, events: list[Event]) -> None:
         now = time.monotonic()
+        offer, changes_only, runs = self._tracker.offer, self.changes_only, self._runs
         for ev in events:
             if isinstance(ev, Update):
                 self._values_read += 1
-                self._runs[ev.point.bus].values += 1
-                changed = self._tracker.offer(ev, now)
-                if self.changes_only and not changed:
+                runs[ev.point.bus].values += 1
+                if not offer(ev, now) and changes_only:
                     continue
                 self._updates += 1
                 for cb in self._update_cbs:

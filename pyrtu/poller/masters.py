@@ -17,6 +17,7 @@ import functools
 from collections.abc import Callable
 from typing import Any, Protocol
 
+from pyrtu.drivers._portname import TCP_SCHEME, url_scheme
 from pyrtu.drivers.aio import AsyncMaster
 from pyrtu.drivers.master import Master
 from pyrtu.pdu import requests as request_table
@@ -24,6 +25,7 @@ from pyrtu.pdu.errors import ModbusError, PortBusyError, PortError
 from pyrtu.pdu.requests import Request
 
 from .config import Bus
+from .connect import NETWORK_SCHEMES
 
 #: the requests the poller sends, by function code (the masters' one table)
 BY_FUNCTION: dict[int, Request[Any]] = request_table.BY_FUNCTION
@@ -89,14 +91,25 @@ def open_async_master(bus: Bus) -> AsyncMasterLike:
 FACTORIES = {"aio": open_async_master, "thread": open_thread_master}
 
 
+def _blocking_open(factory: Callable[[Bus], AsyncMasterLike], bus: Bus) -> bool:
+    """Whether ``factory(bus)`` may wait on the network: the sync master's open (a
+    blocking TCP connect) and the asyncio master's on a network port other than
+    ``tcp://`` (``rtu+tcp://``, ``socket://``: pyserial connects as it opens)."""
+    if factory is open_thread_master:
+        return True
+    scheme = url_scheme(bus.port) if isinstance(bus.port, str) else None
+    return factory is open_async_master and scheme in NETWORK_SCHEMES and scheme != TCP_SCHEME
+
+
 async def open_master(factory: Callable[[Bus], AsyncMasterLike], bus: Bus) -> AsyncMasterLike:
-    """``factory(bus)``; the sync master's open (a blocking TCP connect) runs on a
-    worker thread, so a port that is slow to refuse holds up no other bus.  A busy
-    port's error gives no advice: the poller has no ``exclusive`` to pass."""
+    """``factory(bus)``; an open that may wait on the network (`_blocking_open`)
+    runs on a worker thread, so a port that is slow to refuse holds up no other
+    bus.  A busy port's error gives no advice: the poller has no ``exclusive`` to
+    pass."""
     try:
-        if factory is open_thread_master:
+        if _blocking_open(factory, bus):
             loop = asyncio.get_running_loop()
-            return await loop.run_in_executor(None, open_thread_master, bus)
+            return await loop.run_in_executor(None, factory, bus)
         return factory(bus)
     except PortBusyError as exc:
         raise exc.with_advice(None) from exc.__cause__

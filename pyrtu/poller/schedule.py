@@ -383,14 +383,16 @@ class BusScheduler:
             self.observe(req.slave, busy)
         self._turnaround(req, busy, h)
         events: list[Event] = self._back(req, h, st, now)
+        came_back = bool(events)  # (a SlaveState: the load is checked now)
         if req.kind == POLL and req.block is not None and data is not None:
             b = req.block
             stamp = now + self.stamp_offset
-            for p in b.points:
-                if p.name not in self._dropped:
-                    events.append(Update(p, p.decode(data, b.address), stamp))
+            dropped, address = self._dropped, b.address
+            events += [
+                Update(p, p.decode(data, address), stamp) for p in b.points if p.name not in dropped
+            ]
             self._requeue(req)
-        self._check_load(now, events)
+        self._check_load(now, events, came_back)
         return events
 
     def _turnaround(self, req: ScheduledRequest, busy: float, h: _Health) -> None:
@@ -571,9 +573,14 @@ class BusScheduler:
 
     # ------------------------------------------------------------------ figures
 
-    def _check_load(self, now: float, events: list[Event]) -> None:
+    def _check_load(self, now: float, events: list[Event], state: bool | None = None) -> None:
+        """Every 16 transactions, and when a slave's state changed (``state``; None:
+        a `SlaveState` among ``events``), an `Overload` event when the bus's load
+        crossed 1."""
         self._since_check += 1
-        if self._since_check < 16 and not any(isinstance(e, SlaveState) for e in events):
+        if state is None:
+            state = any(isinstance(e, SlaveState) for e in events)
+        if self._since_check < 16 and not state:
             return
         self._since_check = 0
         load = self.load()
@@ -631,6 +638,14 @@ class BusScheduler:
     @property
     def dropped(self) -> frozenset[str]:
         return frozenset(self._dropped)
+
+    def start_at(self, when: float) -> None:
+        """Make every poll block first due at ``when`` (its beat from then on): a
+        network bus's place in a staggered start."""
+        for task in self._tasks:
+            task.due = when
+        self._heap = [(when, seq, task) for _, seq, task in self._heap]
+        heapq.heapify(self._heap)
 
     def reset_stats(self, now: float) -> None:
         """Start the utilisation and the counts again from ``now``."""

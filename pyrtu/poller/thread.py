@@ -21,6 +21,9 @@ class _Poller(Protocol):
 
     _update_cbs: list[Callable[[Update], None]]
 
+    @property
+    def descriptors(self) -> int: ...
+
     def start(self) -> Coroutine[Any, Any, None]: ...
     def stop(self) -> Coroutine[Any, Any, None]: ...
     def values(self) -> dict[str, Value | None]: ...
@@ -42,7 +45,9 @@ class PollerThread:
 
     def __init__(self, poller: _Poller) -> None:
         self.poller = poller
-        self._thread = LoopThread("pyrtu-poller", poller.start, poller.stop)
+        self._thread = LoopThread(
+            "pyrtu-poller", poller.start, poller.stop, descriptors=poller.descriptors
+        )
         self._loop = self._thread.loop  # microsecond timers (see pyrtu.drivers.aio)
 
     def start(self) -> PollerThread:

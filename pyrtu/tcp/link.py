@@ -204,6 +204,10 @@ class AsyncTcpLink(_TcpBase):
                     )
         return self._client
 
+    async def connect(self) -> None:
+        """Connect now (not at the first request); nothing when connected."""
+        await self._connected()
+
     async def transact(self, call: Call) -> tuple[Any, float]:
         client = await self._connected()
         answered, raw = call.decode is not None, call.decode is answer_pdu
