@@ -22,6 +22,7 @@ from typing import Any
 from pyrtu.core.line import LINE_DEFAULTS, LineConfig
 from pyrtu.drivers.slave_base import SlaveBase
 from pyrtu.drivers.supervise import TaskFailure, cause
+from pyrtu.security.tls import TlsListen
 from pyrtu.tcp.server import TcpServer
 
 log = logging.getLogger("pyrtu.cli")
@@ -54,16 +55,20 @@ class TcpThread:
         host: str,
         port: int,
         on_task: Callable[[TaskFailure], None] | None = None,
+        tls: TlsListen | None = None,
+        **security: Any,
     ) -> None:
         self.loop = asyncio.new_event_loop()
         self.loop.set_exception_handler(self._unhandled)
-        self.server = TcpServer(app, on_task=on_task)
+        # security: TcpServer's policy, audit and on_denied (pyrtu.cli._security)
+        self.server = TcpServer(app, on_task=on_task, **security)
         self._stopping = False
         self._failure: BaseException | None = None
         self._thread = threading.Thread(target=self._main, name="pyrtu-simulate-tcp", daemon=True)
         self._thread.start()
         try:
-            asyncio.run_coroutine_threadsafe(self.server.start(host, port), self.loop).result(30)
+            starting = self.server.start(host, port, tls=tls)
+            asyncio.run_coroutine_threadsafe(starting, self.loop).result(30)
         except BaseException:
             self.stop()
             raise

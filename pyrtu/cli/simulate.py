@@ -40,6 +40,9 @@ the command at once: one line naming it and its cause ("internal error" in
 ``--json``) and exit status 1 (an internal error: the failure is the program's,
 not a port's, so not 3).
 
+With ``--tcp``, ``--policy FILE``, ``--read-only`` and ``--audit FILE|-`` guard the
+TCP listener as they guard ``pyrtu gateway``'s (docs/security.md).
+
 With ``--metrics HOST:PORT``: Prometheus metrics on /metrics (the drives'
 counters, each port's state, with ``--tcp`` the connected clients) and a health
 check on /healthz (docs/METRICS.md).
@@ -60,6 +63,7 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
+from pyrtu.cli._security import add_security_options, open_security
 from pyrtu.cli._simulate_clash import watch_slave
 from pyrtu.cli._simulate_many import DriveLoop, DriveThread, PortKeeper, PortReport
 from pyrtu.cli._simulate_tcp import TcpThread, tcp_only_slave
@@ -200,6 +204,7 @@ def _configure(p: argparse.ArgumentParser) -> None:
     add_json_option(p, "JSON lines: ready, status (--watch), stopped")
     add_serial_options(p, timeout=None)
     add_metrics_option(p)
+    add_security_options(p, listen_address)
 
 
 def _run_metered(args: argparse.Namespace) -> int:
@@ -240,6 +245,11 @@ def _run(args: argparse.Namespace) -> int:
         raise ValueError(f"--port: {same} (one drive per port: give each port once)")
     if len(ports) > 1 and args.tcp is not None:
         raise ValueError("--tcp serves one drive: give it with a single --port")
+    if args.tcp is None and (args.policy or args.read_only or args.audit or args.tls_listen):
+        raise ValueError(
+            "--policy, --read-only, --audit and --tls-listen go with --tcp: give --tcp HOST:PORT"
+        )
+    security = open_security(args, "simulate")  # exit 2 on a bad policy, before a port opens
     args.ports = ports
     args.port = ", ".join(ports) or None  # what an error message names
     options = serial_kwargs(args)
@@ -268,8 +278,11 @@ def _run(args: argparse.Namespace) -> int:
             if args.tcp is not None:
                 app = drive.slave if drive is not None else tcp_only_slave(sim, address)
                 host, port = args.tcp
-                tcp = TcpThread(app, host, port, on_task=lambda f: _task_failed(args, f))
+                tcp = TcpThread(app, host, port, on_task=lambda f: _task_failed(args, f),
+                                tls=security.tls, **security.server_kwargs())  # fmt: skip
                 args.tcp = tcp.address  # the port bound (0: any free port)
+                args.tls_bound = tcp.server.tls_address
+                security.warn_if_open([args.tcp, args.tls_bound])
         except BaseException:
             sim.close()
             raise
@@ -448,6 +461,8 @@ def _ready(args: argparse.Namespace, device: str, address: int, functions: list[
     tcp = None if args.tcp is None else f"{args.tcp[0]}:{args.tcp[1]}"
     # the serial format only where there is a serial port (--tcp alone has none)
     fmt = f"{describe_format(args)} {args.mode.upper()}" if args.ports else None
+    tls = getattr(args, "tls_bound", None)
+    also = {} if tls is None else {"tls": "{}:{}".format(*tls)}  # --tls-listen
     if args.json:
         emit(
             {
@@ -457,6 +472,7 @@ def _ready(args: argparse.Namespace, device: str, address: int, functions: list[
                 "port": args.ports[0] if args.ports else None,
                 "ports": args.ports,
                 "tcp": tcp,
+                **also,
                 "format": fmt,
                 "functions": functions,
             }
@@ -464,6 +480,7 @@ def _ready(args: argparse.Namespace, device: str, address: int, functions: list[
     else:
         where = [f" on {args.port}, {fmt}"] if fmt else [""]
         where += [f"Modbus TCP on {tcp}"] if tcp else []
+        where += [f"Modbus/TCP Security on {also['tls']}"] if also else []
         print(
             f"pyrtu simulate: {args.title} at address {address}{', '.join(where)} "
             f"(functions {', '.join(map(str, functions))}); Ctrl-C to stop",

@@ -44,7 +44,7 @@ from pyrtu.core.line import LineConfig
 from pyrtu.core.rules import LengthRule
 from pyrtu.drivers import _ptimer, xfer, xfer_runners
 from pyrtu.drivers._slack import tighten_this_thread
-from pyrtu.drivers.links import TCP_SCHEME, Link
+from pyrtu.drivers.links import MBAP_SCHEMES, Link
 from pyrtu.drivers.master import Master, MasterBase
 from pyrtu.drivers.sync_io import plan_of, read_now, report
 from pyrtu.pdu import requests as request_table
@@ -68,11 +68,11 @@ class AsyncMaster(MasterBase):
         self._lock = asyncio.Lock()
         self._reader: ThreadPoolExecutor | None = None
         self._inflight: ThreadFuture[bytes] | None = None  # a thread read a cancel left
-        if scheme == TCP_SCHEME:
+        if scheme in MBAP_SCHEMES:
             from pyrtu.tcp.link import AsyncTcpLink  # (loads the TCP module only when used)
 
             self._tcp: AsyncTcpLink | None = AsyncTcpLink(
-                port, options["timeout"], options["retries"], max_in_flight
+                port, options["timeout"], options["retries"], max_in_flight, tls=options["tls"]
             )
             return self._tcp
         self._tcp = None

@@ -3,8 +3,8 @@
 `pyrtu.Master` and `pyrtu.drivers.aio.AsyncMaster` are one class each whatever the port:
 the port string picks the link object they drive (`scheme_of`): a serial line
 (`pyrtu.drivers.master.SerialLink`: a device path, a pyserial object or URL, and
-``rtu+tcp://`` RTU frames over a socket), or Modbus TCP (``tcp://``,
-`pyrtu.tcp.link.TcpLink` / `AsyncTcpLink`, imported only when such a port is
+``rtu+tcp://`` RTU frames over a socket), or Modbus TCP (``tcp://``, or in TLS ``mbaps://``
+with a ``tls`` context: `pyrtu.tcp.link.TcpLink` / `AsyncTcpLink`, imported only when such a port is
 opened, so ``import pyrtu`` loads neither TCP nor asyncio).
 
 A link answers for the master's properties (`Link`), maps the unit ids its
@@ -19,16 +19,40 @@ from typing import Any, Protocol
 
 from pyrtu.core.rules import LengthRule
 from pyrtu.core.timing import check_seconds
-from pyrtu.drivers._portname import PYRTU_SCHEMES, RTU_TCP_SCHEME, TCP_SCHEME, url_scheme
+from pyrtu.drivers._portname import (
+    MBAP_SCHEMES,
+    MBAPS_SCHEME,
+    PYRTU_SCHEMES,
+    RTU_TCP_SCHEME,
+    TCP_SCHEME,
+    url_scheme,
+)
 from pyrtu.pdu.requests import Call
 
 
 def scheme_of(port: object) -> str | None:
-    """``"tcp"`` or ``"rtu+tcp"`` for those URLs; None for a serial port (a path, a
+    """``"tcp"``, ``"mbaps"`` or ``"rtu+tcp"`` for those URLs; None for a serial port (a path, a
     pyserial URL or object).  ValueError for a URL no one opens (`url_scheme`:
     ``udp://...: unsupported scheme udp://; supported: tcp://, ...``)."""
     scheme = url_scheme(port)
     return scheme if scheme in PYRTU_SCHEMES else None
+
+
+def check_tls(scheme: str | None, tls: object) -> Any:
+    """``tls``: the `ssl.SSLContext` of an ``mbaps://`` port (required there, and
+    nowhere else); ValueError/TypeError naming ``tls``."""
+    if scheme == MBAPS_SCHEME:
+        import ssl  # (only where TLS is asked for)
+
+        if not isinstance(tls, ssl.SSLContext):
+            raise (ValueError if tls is None else TypeError)(
+                "tls: an mbaps:// port needs the client's TLS context, "
+                "tls=pyrtu.security.tls.client_context(cert, key, ca)"
+                + ("" if tls is None else f", not {type(tls).__name__}")
+            )
+    elif tls is not None:
+        raise ValueError("tls: only an mbaps:// port takes a TLS context")
+    return tls
 
 
 def check_retries(retries: object) -> int:
@@ -45,7 +69,7 @@ def check_in_flight(value: object, tcp: bool) -> int:
     if value < 1 or (value != 1 and not tcp):
         raise ValueError(
             f"max_in_flight must be 1 on a serial line, not {value} "
-            "(only tcp:// ports keep several requests on the wire)"
+            "(only tcp:// and mbaps:// ports keep several requests on the wire)"
         )
     return value
 
@@ -73,6 +97,8 @@ class Link(Protocol):
 
 
 __all__ = [
+    "MBAPS_SCHEME",
+    "MBAP_SCHEMES",
     "RTU_TCP_SCHEME",
     "TCP_SCHEME",
     "Call",
@@ -80,5 +106,6 @@ __all__ = [
     "check_in_flight",
     "check_retries",
     "check_seconds",
+    "check_tls",
     "scheme_of",
 ]

@@ -2,7 +2,8 @@
 
 The port string picks the master's link (`pyrtu.drivers.links`): a serial line, RTU or
 ASCII (a device path, a pyserial object or URL), ``rtu+tcp://host:port`` (RTU
-frames over a socket, ``t35`` 0 unless given) or ``tcp://host:port`` (Modbus TCP,
+frames over a socket, ``t35`` 0 unless given), ``tcp://host:port`` (Modbus TCP) or
+``mbaps://host[:802]`` (Modbus TCP in TLS, with ``tls=``; both
 `pyrtu.tcp.link`).  The request methods are one table (`pyrtu.pdu.requests`)
 shared with `pyrtu.drivers.aio.AsyncMaster` and the poller; ``transact`` runs one with
 the answer's end time.
@@ -47,12 +48,13 @@ from pyrtu.core.line import LineConfig, adopt_port_format, line_from
 from pyrtu.core.rules import LengthRule, RuleTable, check_rules
 from pyrtu.drivers import xfer_runners
 from pyrtu.drivers.links import (
+    MBAP_SCHEMES,
     RTU_TCP_SCHEME,
-    TCP_SCHEME,
     Link,
     check_in_flight,
     check_retries,
     check_seconds,
+    check_tls,
     scheme_of,
 )
 from pyrtu.drivers.port import Port, open_line_port
@@ -168,7 +170,10 @@ class MasterBase:
     stopbits, bytesize, mode, timing, t15, t35, rules, max_adu, strict), checked on
     every transport; ``exclusive``: lock the port against other processes (passed
     to open_port); ``max_in_flight``: requests on the wire at once (more than 1
-    only for an `AsyncMaster` on ``tcp://``).
+    only for an `AsyncMaster` on ``tcp://`` or ``mbaps://``); ``tls``: the
+    `ssl.SSLContext` of an ``mbaps://`` port (Modbus/TCP Security, port 802 by default:
+    ``pyrtu.security.tls.client_context(cert, key, ca)``; required there, refused
+    elsewhere).
     """
 
     _link: Link
@@ -199,6 +204,7 @@ class MasterBase:
         line: LineConfig | None = None,
         exclusive: bool = True,
         max_in_flight: int = 1,
+        tls: Any = None,
     ) -> None:
         scheme = scheme_of(port)
         cfg = line_from(
@@ -217,7 +223,11 @@ class MasterBase:
             backend=backend,
             exclusive=exclusive,
         )
-        in_flight = check_in_flight(max_in_flight, self._PIPELINES and scheme == TCP_SCHEME)
+        if scheme in MBAP_SCHEMES:
+            options["tls"] = check_tls(scheme, tls)
+        else:
+            check_tls(scheme, tls)
+        in_flight = check_in_flight(max_in_flight, self._PIPELINES and scheme in MBAP_SCHEMES)
         _backend.backend(backend)  # (checked before a port is opened or connected)
         self._link = self._open(port, scheme, cfg, options, in_flight)
 
@@ -282,10 +292,12 @@ class Master(MasterBase):
         max_in_flight: int,
     ) -> Link:  # fmt: skip
         self._lock = threading.RLock()
-        if scheme == TCP_SCHEME:
+        if scheme in MBAP_SCHEMES:
             from pyrtu.tcp.link import TcpLink  # (loads the TCP module only when used)
 
-            self._conn: TcpLink | SerialLink = TcpLink(port, options["timeout"], options["retries"])
+            self._conn: TcpLink | SerialLink = TcpLink(
+                port, options["timeout"], options["retries"], tls=options["tls"]
+            )
         else:
             self._conn = self._serial(port, scheme, line, options)
         return self._conn
