@@ -251,9 +251,9 @@ class _TlsConnection(_Connection):
             pass
         except ssl.SSLZeroReturnError:
             ended = True
-        except ssl.SSLError as exc:
+        except ssl.SSLError as exc:  # a renegotiation asked for, a record too long...
             self._flush()
-            self.gateway._tls_failed(self, exc.reason or str(exc))
+            self.gateway._tls_failed(self, f"TLS: {exc.reason or exc}")
             self.close()
             return
         self._flush()
@@ -272,7 +272,7 @@ class _TlsConnection(_Connection):
         except (ssl.SSLError, ValueError) as exc:
             self._flush()  # the alert, when OpenSSL has one to send
             reason = getattr(exc, "reason", None) or str(exc)
-            self.gateway._tls_failed(self, reason)
+            self.gateway._tls_failed(self, f"TLS handshake: {reason}")
             self.close()
             return False
         self._flush()
@@ -280,7 +280,7 @@ class _TlsConnection(_Connection):
         try:
             self.identity = peer_identity(self.tls, who.address, who.port)
         except (ValueError, TlsSetupError) as exc:  # a certificate cryptography cannot read
-            self.gateway._tls_failed(self, f"unreadable client certificate: {exc}")
+            self.gateway._tls_failed(self, f"TLS handshake: unreadable client certificate: {exc}")
             self.close()
             return False
         self.handshaken = True

@@ -614,10 +614,12 @@ class Gateway:
         self._submit(state, Job(conn.id, transaction, unit, route[1], pdu, conn.identity), conn)
 
     def _tls_failed(self, conn: _Connection, reason: str) -> None:
-        """A TLS handshake failed (the connection closes): counted, logged (and handed
-        to ``on_denied`` as kind ``tls_handshake``) once per client and reason."""
+        """A TLS connection failed (its handshake, or a record after it: a
+        renegotiation asked for, an oversized record; it closes): counted, logged
+        (and handed to ``on_denied`` as kind ``tls_handshake``) once per client and
+        reason (``reason``: "TLS handshake: ..." or "TLS: ...")."""
         self.counters["tls_failures"] += 1
-        self._say_refused(conn, Decision(False, "tls_handshake", f"TLS handshake: {reason}"))
+        self._say_refused(conn, Decision(False, "tls_handshake", reason))
 
     def _deny(self, conn: _Connection, decision: Decision) -> None:
         """A request the policy refuses (answered exception 01 by the caller): counted

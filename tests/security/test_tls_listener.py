@@ -356,3 +356,44 @@ def test_setup_errors_name_the_option(pki: Pki, tmp_path: Path) -> None:
         server_context(pki.server.cert, pki.server.key, pki.server.key)
     with pytest.raises(TlsSetupError, match=r"--tls-cert .*--tls-key"):
         server_context(pki.server.cert, pki.operator.key, pki.ca.path)  # not its key
+
+
+@pytest.mark.skipif(shutil.which("openssl") is None, reason="needs Debian's openssl")
+def test_a_renegotiation_is_refused(served: Served, pki: Pki) -> None:
+    """``R`` in openssl s_client asks for a TLS 1.2 renegotiation: the listener never
+    renegotiates (alert, connection closed), and serves the others meanwhile."""
+    proc = subprocess.Popen(
+        ["openssl", "s_client", "-tls1_2", "-connect", f"127.0.0.1:{served.tls_port}",
+         "-cert", str(pki.operator.cert), "-key", str(pki.operator.key),
+         "-CAfile", str(pki.ca.path)],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )  # fmt: skip
+    try:
+        assert proc.stdin is not None and proc.stdout is not None
+        while "Verify return code" not in (line := proc.stdout.readline()):
+            assert line, "openssl s_client ended before its handshake"
+        proc.stdin.write("R\n")
+        proc.stdin.flush()
+        served.wait(lambda: served.server.counters["tls_failures"] == 1, "the refusal")
+        out, _ = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert "RENEGOTIATING" in out and "no renegotiation" in out
+    ((who, why),) = served.denied
+    assert who.role == "operator" and why.reason.startswith("TLS: ")
+    assert tls_transact(served.tls_port, client_context(pki, pki.operator), [(1, 1, READ)]) == [
+        mbap(1, 1, READ_ANSWER)
+    ]
+
+
+def test_an_oversized_record_is_refused(served: Served, pki: Pki) -> None:
+    """A handshake record longer than TLS allows (2^14 + 2048, RFC 5246 6.2.3): alert
+    record_overflow (22, fatal), the connection closed, the refusal counted."""
+    with socket.create_connection(("127.0.0.1", served.tls_port), timeout=5) as s:
+        s.sendall(struct.pack(">BHH", 22, 0x0303, 2**14 + 2049) + b"\x01" * 64)
+        alert = s.recv(64)
+    assert alert[:1] == b"\x15" and alert[-2:] == bytes((2, 22)), alert.hex()  # fatal, overflow
+    served.wait(lambda: served.server.counters["tls_failures"] == 1, "the refusal counted")
+    assert served.server.counters["requests"] == 0
