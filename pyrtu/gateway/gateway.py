@@ -155,6 +155,24 @@ __all__ = [
 ]
 
 
+#: how often `Gateway.close` cancels a task again whose code swallowed the cancel
+CANCEL_AGAIN = 0.1
+
+
+async def _cancelled(task: asyncio.Task[None]) -> None:
+    """Cancel ``task`` and wait until it ends, cancelling it again every
+    `CANCEL_AGAIN` seconds: a cancel can be lost under it (Python 3.11's
+    ``asyncio.wait_for`` raises its operation's error instead of CancelledError when
+    both come at once, as a bus reopened while the gateway closes: the reopen's
+    ``except OSError`` then takes it, and the worker went on retrying forever; the
+    worker also stops at its next turn once the gateway is not running)."""
+    while not task.done():
+        task.cancel()
+        await asyncio.wait({task}, timeout=CANCEL_AGAIN)
+    if not task.cancelled() and task.exception() is not None:
+        log.debug("task %s ended with %r", task.get_name(), task.exception())
+
+
 class GatewayBus(Protocol):
     """What a bus behind the gateway offers: `pyrtu.drivers.aio.AsyncMaster` (a serial
     line), `pyrtu.tcp.AsyncTcpClient` (another Modbus TCP server).  ``request``
@@ -448,12 +466,7 @@ class Gateway:
         if self._sweeper is not None:
             tasks.append(self._sweeper)
         for task in tasks:
-            task.cancel()
-        for task in tasks:
-            try:
-                await task
-            except asyncio.CancelledError:
-                pass
+            await _cancelled(task)
         for server in (self._server, self._rtu_server, self._tls_server):
             if server is not None:
                 await server.wait_closed()
@@ -698,7 +711,7 @@ class Gateway:
         monotonic = time.monotonic
         # the answer PDU, an exception answer as its bytes (see GatewayBus)
         send = getattr(state.bus, "exchange", None) or state.bus.request
-        while True:
+        while self._running:  # (not only the cancel: one can be lost under it, `_cancelled`)
             if state.reopen is not None and state.reconnect.down:
                 await self._reopen(state)
                 continue

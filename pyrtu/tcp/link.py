@@ -110,6 +110,13 @@ def _result(call: Call, answer: bytes | None, end: float | None) -> tuple[Any, f
 class TcpLink(_TcpBase):
     """`pyrtu.Master`'s link on a Modbus TCP connection (blocking, one at a time)."""
 
+    @classmethod
+    def open(
+        cls, port: str, line: LineConfig, options: dict[str, Any], max_in_flight: int
+    ) -> TcpLink:
+        """The link of `pyrtu.drivers.links.TRANSPORTS` (``tcp://``, ``mbaps://``)."""
+        return cls(port, options["timeout"], options["retries"], tls=options["tls"])
+
     def __init__(
         self, url: str, timeout: float, retries: int, tls: ssl.SSLContext | None = None
     ) -> None:
@@ -154,6 +161,13 @@ class TcpLink(_TcpBase):
 class AsyncTcpLink(_TcpBase):
     """`pyrtu.drivers.aio.AsyncMaster`'s link on a Modbus TCP connection; connects on the
     first request, keeps up to ``max_in_flight`` requests on the wire."""
+
+    @classmethod
+    def open(
+        cls, port: str, line: LineConfig, options: dict[str, Any], max_in_flight: int
+    ) -> AsyncTcpLink:
+        """The link of `pyrtu.drivers.links.TRANSPORTS` (``tcp://``, ``mbaps://``)."""
+        return cls(port, options["timeout"], options["retries"], max_in_flight, options["tls"])
 
     def __init__(
         self,
