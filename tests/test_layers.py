@@ -28,19 +28,21 @@ ALLOWED: dict[str, set[str]] = {
     "vbus": TRANSPORTS | {"vbus"},
     "devices": TRANSPORTS | {"devices"},
     "compat": PDU | {"compat"},
-    "gateway": TRANSPORTS | {"gateway"},
+    "security": PDU | {"security"},
+    "gateway": TRANSPORTS | {"security", "gateway"},
     "poller": TRANSPORTS | {"devices", "poller"},
     "outbox": TRANSPORTS | {"devices", "poller", "outbox"},
     "bridge": TRANSPORTS | {"devices", "poller", "outbox", "bridge"},
     "sparkplug": TRANSPORTS | {"devices", "poller", "outbox", "bridge", "sparkplug"},
     "bench": TRANSPORTS | {"vbus", "bench"},
-    "metrics": TRANSPORTS | {"gateway", "poller", "outbox", "bridge", "sparkplug", "metrics"},
+    "metrics": TRANSPORTS
+    | {"security", "gateway", "poller", "outbox", "bridge", "sparkplug", "metrics"},
 }
 #: modules that stand above their folder's layer (module path -> what it may import):
 #: the TCP server is the gateway's machinery with an application as its one bus, while
 #: the gateway's connections use tcp/sockets.py, so it sits above gateway/ (alone of tcp/)
 ABOVE: dict[str, set[str]] = {
-    "tcp/server.py": TRANSPORTS | {"gateway"},
+    "tcp/server.py": TRANSPORTS | {"security", "gateway"},
 }
 #: the root modules (the package's face) and their homes
 FACES = {

@@ -30,6 +30,7 @@ from typing import Any
 from pyrtu.core.line import LINE_DEFAULTS, LineConfig
 from pyrtu.drivers.slave_base import SlaveBase
 from pyrtu.drivers.supervise import TaskFailure, cause
+from pyrtu.security.tls import TlsListen
 from pyrtu.tcp.server import TcpServer
 
 log = logging.getLogger("pyrtu.cli")
@@ -139,6 +140,12 @@ class ServerGroup:
         return self.servers[0].address if self.servers else None
 
     @property
+    def tls_address(self) -> tuple[str, int] | None:
+        """The first port's TLS listener's (none on a range: `--tls-listen` takes
+        one port)."""
+        return self.servers[0].tls_address if self.servers else None
+
+    @property
     def counters(self) -> dict[str, int]:
         total: dict[str, int] = {}
         for server in self.servers:
@@ -167,9 +174,12 @@ class TcpThread:
         host: str,
         port: int,
         on_task: Callable[[TaskFailure], None] | None = None,
+        tls: TlsListen | None = None,
+        **security: Any,
     ) -> None:
-        self.server: TcpServer | ServerGroup = TcpServer(app, on_task=on_task)
-        self._begin([(self.server, port)], host)
+        # security: TcpServer's policy, audit and on_denied (pyrtu.cli._security)
+        self.server: TcpServer | ServerGroup = TcpServer(app, on_task=on_task, **security)
+        self._begin([(self.server, port)], host, tls)
 
     @classmethod
     def many(
@@ -178,17 +188,18 @@ class TcpThread:
         host: str,
         ports: Sequence[int],
         on_task: Callable[[TaskFailure], None] | None = None,
+        **security: Any,
     ) -> TcpThread:
         """A `TcpServer` for each of ``apps`` on the port of the same rank, all on one
         event loop.  A port that cannot be bound is an OSError naming it (the
         servers started before it closed again)."""
         self = cls.__new__(cls)
-        servers = [TcpServer(app, on_task=on_task) for app in apps]
+        servers = [TcpServer(app, on_task=on_task, **security) for app in apps]
         self.server = ServerGroup(servers)
-        self._begin(list(zip(servers, ports, strict=True)), host)
+        self._begin(list(zip(servers, ports, strict=True)), host, None)
         return self
 
-    def _begin(self, listen: Sequence[tuple[Any, int]], host: str) -> None:
+    def _begin(self, listen: Sequence[tuple[Any, int]], host: str, tls: TlsListen | None) -> None:
         self.loop = asyncio.new_event_loop()
         self.loop.set_exception_handler(self._unhandled)
         self._listen = [server for server, _ in listen]
@@ -197,7 +208,8 @@ class TcpThread:
         self._thread = threading.Thread(target=self._main, name="pyrtu-simulate-tcp", daemon=True)
         self._thread.start()
         try:
-            asyncio.run_coroutine_threadsafe(_start_all(listen, host), self.loop).result(60)
+            starting = _start_all(listen, host, tls)
+            asyncio.run_coroutine_threadsafe(starting, self.loop).result(60)
         except BaseException:
             self.stop()
             raise
@@ -248,12 +260,14 @@ class TcpThread:
         self.loop.close()
 
 
-async def _start_all(listen: Sequence[tuple[TcpServer, int]], host: str) -> None:
-    """Start each server on its port, in order; a port that cannot be bound is an
-    OSError naming it (and why)."""
-    for server, port in listen:
+async def _start_all(
+    listen: Sequence[tuple[TcpServer, int]], host: str, tls: TlsListen | None
+) -> None:
+    """Start each server on its port, in order (the first with the TLS listener of
+    ``tls``, if any); a port that cannot be bound is an OSError naming it (and why)."""
+    for rank, (server, port) in enumerate(listen):
         try:
-            await server.start(host, port)
+            await server.start(host, port, tls=tls if rank == 0 else None)
         except OSError as exc:
             reason = exc.strerror or str(exc)
             raise OSError(exc.errno, f"--tcp: cannot listen on {host}:{port}: {reason}") from exc

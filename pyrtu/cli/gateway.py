@@ -7,7 +7,9 @@ pause), a fair queue per bus (connections served in turn), the unit id as the
 slave address.  ``--port`` may be repeated, each with the unit ids it carries
 (``--port /dev/ttyUSB0=1-10 --port /dev/ttyUSB1=11-20,30``; one ``--port``
 without ``=`` carries 1-247); ``--port tcp://HOST:PORT=UNITS`` forwards to
-another Modbus TCP server.  All serial buses share the serial options.
+another Modbus TCP server, ``--port mbaps://HOST[:802]=UNITS`` to a Modbus/TCP
+Security one (with --port-tls-cert, --port-tls-key, --port-tls-ca).  All serial
+buses share the serial options.
 
 Answers of the gateway itself (Application Protocol 7): exception 0x0A for a
 unit id no bus carries, 0x0B when the device does not answer within --timeout
@@ -34,6 +36,12 @@ buses carry on, and logged again when it is back.
 Runs until SIGINT/SIGTERM or --duration (exit 0), then prints the counters.
 With --metrics HOST:PORT: Prometheus metrics on /metrics and a health check on
 /healthz (docs/METRICS.md).
+
+Access (docs/security.md): --policy FILE says which clients may use which units,
+functions and addresses (any other request: exception 01, counted, one line per
+client and reason); --read-only refuses every write; --audit FILE|- records every
+executed write as a JSON line.  Listening beyond loopback with no policy is said
+once at the start.
 """
 
 from __future__ import annotations
@@ -48,6 +56,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from pyrtu import gateway as gateways
+from pyrtu.cli._security import add_security_options, open_security
 from pyrtu.cli._subcommand import subcommand
 from pyrtu.cli.common import (
     BUSY_ADVICE,
@@ -193,6 +202,13 @@ def _configure(p: argparse.ArgumentParser) -> None:
     )
     add_serial_options(p, timeout=0.5)
     add_metrics_option(p)
+    add_security_options(p, listen_address)
+    g = p.add_argument_group("mbaps:// buses (Modbus/TCP Security to a TLS server)")
+    g.add_argument("--port-tls-cert", metavar="FILE",
+                   help="the gateway's client certificate (PEM) for mbaps:// --port")  # fmt: skip
+    g.add_argument("--port-tls-key", metavar="FILE", help="its private key (PEM)")
+    g.add_argument("--port-tls-ca", metavar="FILE",
+                   help="the CA (PEM) that signs the mbaps:// servers' certificates")  # fmt: skip
 
 
 def _same_port(port: str) -> str:
@@ -232,11 +248,35 @@ def _bus(spec: BusSpec, args: argparse.Namespace) -> gateways.ReopeningBus:
     return gateways.ReopeningBus(spec.port, lambda: _connect(spec, args))
 
 
+def _bus_tls(args: argparse.Namespace) -> Any:
+    """The TLS context of the ``mbaps://`` buses (``--port-tls-*``), or None;
+    ValueError naming the option (exit 2) before anything opens."""
+    files = {"--port-tls-cert": args.port_tls_cert, "--port-tls-key": args.port_tls_key,
+             "--port-tls-ca": args.port_tls_ca}  # fmt: skip
+    mbaps = [s.port for s in args.port if s.port.lower().startswith("mbaps://")]
+    given = [flag for flag, value in files.items() if value is not None]
+    if not mbaps:
+        if given:
+            raise ValueError(f"{given[0]} is for an mbaps:// --port: give one")
+        return None
+    missing = [flag for flag in files if flag not in given]
+    if missing:
+        raise ValueError(f"--port {mbaps[0]} needs {', '.join(missing)}")
+    from pyrtu.security.tls import client_context
+
+    try:
+        return client_context(args.port_tls_cert, args.port_tls_key, args.port_tls_ca)
+    except ValueError as exc:  # its words name --tls-*: these are the --port-tls-* files
+        raise ValueError(str(exc).replace("--tls-", "--port-tls-")) from None
+
+
 async def _connect(spec: BusSpec, args: argparse.Namespace) -> Any:
-    if spec.port.startswith("tcp://"):
+    if spec.port.lower().startswith(("tcp://", "mbaps://")):
         from pyrtu.tcp import AsyncTcpClient
 
-        return await AsyncTcpClient.connect(spec.port, timeout=args.timeout, max_in_flight=1)
+        return await AsyncTcpClient.connect(
+            spec.port, timeout=args.timeout, max_in_flight=1, tls=args.bus_tls
+        )
     from pyrtu.drivers.aio import AsyncMaster
 
     options: dict[str, Any] = serial_kwargs(args)
@@ -265,6 +305,8 @@ async def _serve(args: argparse.Namespace) -> dict[str, Any]:
         header_timeout=args.header_timeout,
         idle_timeout=args.idle_timeout,
     )
+    security = open_security(args, "gateway")  # exit 2 on a bad policy, before a port opens
+    args.bus_tls = _bus_tls(args)
     buses: list[Any] = []
     try:
         buses += [_bus(spec, args) for spec in args.port]
@@ -273,13 +315,17 @@ async def _serve(args: argparse.Namespace) -> dict[str, Any]:
             limits,
             on_bus=lambda ev: _bus_event(args, ev),
             on_task=lambda failure: _task_failed(args, failure),
+            **security.server_kwargs(),
         )
         host, port = args.listen
         try:
-            await gw.start(host, port, rtu=args.listen_rtu)
+            await gw.start(host, port, rtu=args.listen_rtu, tls=security.tls)
         except OSError as exc:
             flag = "--listen" if gw.address is None else "--listen-rtu"
+            if gw.address is not None and args.listen_rtu is None:
+                flag = "--tls-listen"
             raise OSError(exc.errno, f"{flag}: {exc.strerror}") from exc
+        security.warn_if_open([gw.address, gw.rtu_address, gw.tls_address])
         stop = asyncio.Event()
         loop = asyncio.get_running_loop()
         for sig in (signal.SIGINT, signal.SIGTERM):
@@ -304,6 +350,7 @@ async def _serve(args: argparse.Namespace) -> dict[str, Any]:
     finally:
         for bus in buses:
             await bus.close()
+        security.close()
 
 
 def _bus_event(args: argparse.Namespace, ev: gateways.BusEvent) -> None:
@@ -338,10 +385,13 @@ def _ready(args: argparse.Namespace, gw: gateways.Gateway) -> None:
     host, port = gw.address
     buses = [s.port for s in args.port]
     rtu = None if gw.rtu_address is None else "{}:{}".format(*gw.rtu_address)
+    tls = None if gw.tls_address is None else "{}:{}".format(*gw.tls_address)
     if args.json:
-        emit({"type": "ready", "listen": f"{host}:{port}", "listen_rtu": rtu, "buses": buses})
+        emit({"type": "ready", "listen": f"{host}:{port}", "listen_rtu": rtu,
+              "listen_tls": tls, "buses": buses})  # fmt: skip
     else:
         also = f" (RTU over TCP on {rtu})" if rtu else ""
+        also += f" (Modbus/TCP Security on {tls})" if tls else ""
         print(
             f"pyrtu gateway: listening on {host}:{port}{also}, buses {', '.join(buses)}; "
             "Ctrl-C to stop",
@@ -373,6 +423,7 @@ def _run(args: argparse.Namespace) -> int:
             f"{stats['bus_unavailable']} bus unavailable); {stats['bus_failures']} bus "
             f"failures, {stats['bus_recoveries']} recovered; {stats['evicted']} evicted, "
             f"{stats['header_timeouts']} header and {stats['idle_timeouts']} idle timeouts"
+            + (f"; {stats['denied']} refused by the policy" if stats["denied"] else "")
             + (f"; {stats['task_failures']} task failures" if stats["task_failures"] else ""),
             file=sys.stderr,
         )

@@ -51,6 +51,9 @@ open files is raised to a socket per port and per client where the hard limit
 allows (else exit 2).  The counters, ``--watch`` and ``--metrics`` add up the
 ports'.
 
+With ``--tcp``, ``--policy FILE``, ``--read-only`` and ``--audit FILE|-`` guard the
+TCP listener as they guard ``pyrtu gateway``'s (docs/security.md).
+
 With ``--metrics HOST:PORT``: Prometheus metrics on /metrics (the drives'
 counters, each port's state, with ``--tcp`` the connected clients) and a health
 check on /healthz (docs/METRICS.md).
@@ -71,6 +74,7 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
+from pyrtu.cli._security import add_security_options, open_security
 from pyrtu.cli._simulate_clash import watch_slave
 from pyrtu.cli._simulate_many import DriveLoop, DriveThread, PortKeeper, PortReport
 from pyrtu.cli._simulate_tcp import TcpThread, open_files_for, tcp_only_slave, tcp_range
@@ -87,6 +91,7 @@ from pyrtu.cli.common import (
     serial_kwargs,
     stop_on_signals,
 )
+from pyrtu.cli.gateway import listen_address
 from pyrtu.cli.template import template_name
 from pyrtu.drivers._portname import first_duplicate
 from pyrtu.drivers.supervise import TaskFailure, cause
@@ -209,6 +214,7 @@ def _configure(p: argparse.ArgumentParser) -> None:
     add_json_option(p, "JSON lines: ready, status (--watch), stopped")
     add_serial_options(p, timeout=None)
     add_metrics_option(p)
+    add_security_options(p, listen_address)
 
 
 def _run_metered(args: argparse.Namespace) -> int:
@@ -256,6 +262,13 @@ def _run(args: argparse.Namespace) -> int:
         raise ValueError("--tcp serves one drive: give it with a single --port")
     if len(tcp_ports) > 1:
         open_files_for(len(tcp_ports))
+    if args.tcp is None and (args.policy or args.read_only or args.audit or args.tls_listen):
+        raise ValueError(
+            "--policy, --read-only, --audit and --tls-listen go with --tcp: give --tcp HOST:PORT"
+        )
+    if len(tcp_ports) > 1 and args.tls_listen:
+        raise ValueError("--tls-listen serves one device: give --tcp a single HOST:PORT")
+    security = open_security(args, "simulate")  # exit 2 on a bad policy, before a port opens
     args.ports = ports
     args.port = ", ".join(ports) or None  # what an error message names
     options = serial_kwargs(args)
@@ -275,7 +288,7 @@ def _run(args: argparse.Namespace) -> int:
     if len(ports) > 1:
         return _run_many(args, template, address, ports, options)
     if len(tcp_ports) > 1:
-        return _run_tcp_range(args, template, address, tcp_ports)
+        return _run_tcp_range(args, template, address, tcp_ports, security)
     sim = make_simulator(template, args.state, args.mode, values)
     with stop_on_signals() as stop:  # before the "ready" line: a signal after it stops cleanly
         tcp = None
@@ -286,8 +299,11 @@ def _run(args: argparse.Namespace) -> int:
             if args.tcp is not None:
                 app = drive.slave if drive is not None else tcp_only_slave(sim, address)
                 host, port, _ = args.tcp
-                tcp = TcpThread(app, host, port, on_task=lambda f: _task_failed(args, f))
+                tcp = TcpThread(app, host, port, on_task=lambda f: _task_failed(args, f),
+                                tls=security.tls, **security.server_kwargs())  # fmt: skip
                 args.tcp = (*tcp.address, tcp.address[1])  # the port bound (0: any free port)
+                args.tls_bound = tcp.server.tls_address
+                security.warn_if_open([tcp.address, args.tls_bound])
         except BaseException:
             sim.close()
             raise
@@ -334,7 +350,11 @@ def _run_many(
 
 
 def _run_tcp_range(
-    args: argparse.Namespace, template: Any, address: int, tcp_ports: list[int]
+    args: argparse.Namespace,
+    template: Any,
+    address: int,
+    tcp_ports: list[int],
+    security: Any,
 ) -> int:
     """``--tcp HOST:FIRST-LAST``: a device per port (its own simulator), one
     `TcpServer` per port, all on one event loop (`TcpThread.many`)."""
@@ -346,7 +366,9 @@ def _run_tcp_range(
             for _ in tcp_ports:
                 sims.append(make_simulator(template, args.state, args.mode, args.values_of))
             apps = [tcp_only_slave(sim, address) for sim in sims]
-            tcp = TcpThread.many(apps, host, tcp_ports, on_task=lambda f: _task_failed(args, f))
+            tcp = TcpThread.many(apps, host, tcp_ports, on_task=lambda f: _task_failed(args, f),
+                                 **security.server_kwargs())  # fmt: skip
+            security.warn_if_open([tcp.address])
         except BaseException:
             for sim in sims:
                 sim.close()
@@ -507,6 +529,8 @@ def _ready(args: argparse.Namespace, device: str, address: int, functions: list[
     tcp = None if args.tcp is None else _tcp_text(args.tcp)
     # the serial format only where there is a serial port (--tcp alone has none)
     fmt = f"{describe_format(args)} {args.mode.upper()}" if args.ports else None
+    tls = getattr(args, "tls_bound", None)
+    also = {} if tls is None else {"tls": "{}:{}".format(*tls)}  # --tls-listen
     if args.json:
         emit(
             {
@@ -517,6 +541,7 @@ def _ready(args: argparse.Namespace, device: str, address: int, functions: list[
                 "ports": args.ports,
                 "tcp": tcp,
                 "tcp_ports": 0 if args.tcp is None else args.tcp[2] - args.tcp[1] + 1,
+                **also,
                 "format": fmt,
                 "functions": functions,
             }
@@ -524,6 +549,7 @@ def _ready(args: argparse.Namespace, device: str, address: int, functions: list[
     else:
         where = [f" on {args.port}, {fmt}"] if fmt else [""]
         where += [f"Modbus TCP on {tcp}"] if tcp else []
+        where += [f"Modbus/TCP Security on {also['tls']}"] if also else []
         print(
             f"pyrtu simulate: {args.title} at address {address}{', '.join(where)} "
             f"(functions {', '.join(map(str, functions))}); Ctrl-C to stop",

@@ -33,6 +33,8 @@ import pkgutil
 from collections.abc import Iterable
 
 __all__ = [
+    "MBAPS_SCHEME",
+    "MBAP_SCHEMES",
     "RTU_TCP_SCHEME",
     "TCP_SCHEME",
     "first_duplicate",
@@ -42,10 +44,14 @@ __all__ = [
     "url_scheme",
 ]
 
-#: pyrtu's own URL schemes (`pyrtu.drivers.links`): Modbus TCP, RTU frames over TCP
+#: pyrtu's own URL schemes (`pyrtu.drivers.links`): Modbus TCP, RTU frames over TCP,
+#: Modbus/TCP Security (Modbus TCP in TLS)
 TCP_SCHEME = "tcp"
 RTU_TCP_SCHEME = "rtu+tcp"
-PYRTU_SCHEMES = (TCP_SCHEME, RTU_TCP_SCHEME)
+MBAPS_SCHEME = "mbaps"
+PYRTU_SCHEMES = (TCP_SCHEME, RTU_TCP_SCHEME, MBAPS_SCHEME)
+#: the schemes of MBAP links (`pyrtu.tcp.link`): plain, or in TLS
+MBAP_SCHEMES = (TCP_SCHEME, MBAPS_SCHEME)
 
 
 def url_scheme(port: object, own: tuple[str, ...] = PYRTU_SCHEMES) -> str | None:

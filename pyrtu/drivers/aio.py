@@ -40,18 +40,20 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any
 
 from pyrtu import pdu as pdus
-from pyrtu.core.line import LineConfig
 from pyrtu.core.rules import LengthRule
 from pyrtu.drivers import _ptimer, xfer, xfer_runners
 from pyrtu.drivers._slack import tighten_this_thread
-from pyrtu.drivers.links import TCP_SCHEME, Link
-from pyrtu.drivers.master import Master, MasterBase
+from pyrtu.drivers.links import Link
+from pyrtu.drivers.master import Master, MasterBase, SerialLink
 from pyrtu.drivers.sync_io import plan_of, read_now, report
 from pyrtu.pdu import requests as request_table
 from pyrtu.pdu.errors import PortError
 from pyrtu.pdu.requests import Call, Request, Rules
 from pyrtu.protocol.client import ClientProtocol, Send, Wait
 from pyrtu.protocol.client_actions import Done, Xfer
+
+if TYPE_CHECKING:
+    from pyrtu.tcp.link import AsyncTcpLink
 
 _monotonic = time.monotonic
 
@@ -61,22 +63,15 @@ class AsyncMaster(MasterBase):
 
     _PIPELINES = True  # tcp:// ports keep up to max_in_flight requests on the wire
 
-    def _open(
-        self, port: Any, scheme: str | None, line: LineConfig, options: dict[str, Any],
-        max_in_flight: int,
-    ) -> Link:  # fmt: skip
+    def _open(self, link: Any) -> Link:
         self._lock = asyncio.Lock()
         self._reader: ThreadPoolExecutor | None = None
         self._inflight: ThreadFuture[bytes] | None = None  # a thread read a cancel left
-        if scheme == TCP_SCHEME:
-            from pyrtu.tcp.link import AsyncTcpLink  # (loads the TCP module only when used)
-
-            self._tcp: AsyncTcpLink | None = AsyncTcpLink(
-                port, options["timeout"], options["retries"], max_in_flight
-            )
-            return self._tcp
+        if not isinstance(link, SerialLink):  # a link that runs its transactions itself
+            self._tcp: AsyncTcpLink | None = link
+            opened: Link = link
+            return opened
         self._tcp = None
-        link = self._serial(port, scheme, line, options)
         self._serial_link = link
         self._proto = link.proto
         self._fd = link.port.fd

@@ -1,11 +1,18 @@
 """A master's transport ("link"), as libmodbus has its ``modbus_backend_t``.
 
 `pyrtu.Master` and `pyrtu.drivers.aio.AsyncMaster` are one class each whatever the port:
-the port string picks the link object they drive (`scheme_of`): a serial line
-(`pyrtu.drivers.master.SerialLink`: a device path, a pyserial object or URL, and
-``rtu+tcp://`` RTU frames over a socket), or Modbus TCP (``tcp://``,
-`pyrtu.tcp.link.TcpLink` / `AsyncTcpLink`, imported only when such a port is
-opened, so ``import pyrtu`` loads neither TCP nor asyncio).
+the port string picks the link object they drive from one table, `TRANSPORTS` (by
+`scheme_of`; the masters hold no branch on the scheme): a serial line
+(`pyrtu.drivers.master.SerialLink`: a device path, a pyserial object or URL;
+`RtuOverTcpLink`: ``rtu+tcp://`` RTU frames over a socket), or Modbus TCP
+(``tcp://``, or in TLS ``mbaps://`` with a ``tls`` context: `pyrtu.tcp.link.TcpLink`
+/ `AsyncTcpLink`, imported only when such a port is opened, so ``import pyrtu``
+loads neither TCP nor asyncio).
+
+Adding a transport is one module with its link classes (a sync one for `Master`, an
+asyncio one for `AsyncMaster`, each with ``open(port, line, options, max_in_flight)``,
+answering `Link`) and one `Transport` row naming them, with its scheme in
+``PYRTU_SCHEMES``.
 
 A link answers for the master's properties (`Link`), maps the unit ids its
 transport allows (``address``, see `pyrtu.pdu.requests.Steps`) and runs one
@@ -15,20 +22,46 @@ answer's last byte came (monotonic seconds; now for a broadcast).
 
 from __future__ import annotations
 
+import importlib
+from dataclasses import dataclass
 from typing import Any, Protocol
 
 from pyrtu.core.rules import LengthRule
 from pyrtu.core.timing import check_seconds
-from pyrtu.drivers._portname import PYRTU_SCHEMES, RTU_TCP_SCHEME, TCP_SCHEME, url_scheme
+from pyrtu.drivers._portname import (
+    MBAP_SCHEMES,
+    MBAPS_SCHEME,
+    PYRTU_SCHEMES,
+    RTU_TCP_SCHEME,
+    TCP_SCHEME,
+    url_scheme,
+)
 from pyrtu.pdu.requests import Call
 
 
 def scheme_of(port: object) -> str | None:
-    """``"tcp"`` or ``"rtu+tcp"`` for those URLs; None for a serial port (a path, a
+    """``"tcp"``, ``"mbaps"`` or ``"rtu+tcp"`` for those URLs; None for a serial port (a path, a
     pyserial URL or object).  ValueError for a URL no one opens (`url_scheme`:
     ``udp://...: unsupported scheme udp://; supported: tcp://, ...``)."""
     scheme = url_scheme(port)
     return scheme if scheme in PYRTU_SCHEMES else None
+
+
+def check_tls(transport: Transport, tls: object) -> Any:
+    """``tls``: the `ssl.SSLContext` of an ``mbaps://`` port (required there, and
+    nowhere else); ValueError/TypeError naming ``tls``."""
+    if transport.tls:
+        import ssl  # (only where TLS is asked for)
+
+        if not isinstance(tls, ssl.SSLContext):
+            raise (ValueError if tls is None else TypeError)(
+                "tls: an mbaps:// port needs the client's TLS context, "
+                "tls=pyrtu.security.tls.client_context(cert, key, ca)"
+                + ("" if tls is None else f", not {type(tls).__name__}")
+            )
+    elif tls is not None:
+        raise ValueError("tls: only an mbaps:// port takes a TLS context")
+    return tls
 
 
 def check_retries(retries: object) -> int:
@@ -45,9 +78,53 @@ def check_in_flight(value: object, tcp: bool) -> int:
     if value < 1 or (value != 1 and not tcp):
         raise ValueError(
             f"max_in_flight must be 1 on a serial line, not {value} "
-            "(only tcp:// ports keep several requests on the wire)"
+            "(only tcp:// and mbaps:// ports keep several requests on the wire)"
         )
     return value
+
+
+@dataclass(frozen=True)
+class Transport:
+    """One row of `TRANSPORTS`: what a port string's scheme opens.  ``sync`` and
+    ``aio`` name the link classes of `pyrtu.Master` and `pyrtu.drivers.aio.AsyncMaster`
+    (``"module:Class"``, imported when such a port is opened); each has
+    ``open(port, line, options, max_in_flight)``."""
+
+    scheme: str | None
+    what: str
+    sync: str
+    aio: str
+    #: whether an asyncio master keeps several requests on the wire (``max_in_flight``)
+    pipelines: bool = False
+    #: whether it takes a TLS context (``tls=``, required)
+    tls: bool = False
+    #: the inter-frame silence when ``t35`` is not given (None: the line's own)
+    t35: float | None = None
+
+    def link_class(self, asyncio: bool) -> Any:
+        module, _, name = (self.aio if asyncio else self.sync).partition(":")
+        return getattr(importlib.import_module(module), name)
+
+
+_SERIAL = "pyrtu.drivers.master:SerialLink"
+_RTU_TCP = "pyrtu.drivers.master:RtuOverTcpLink"
+_TCP, _AIO_TCP = "pyrtu.tcp.link:TcpLink", "pyrtu.tcp.link:AsyncTcpLink"
+#: the transports, by the scheme of the port string (None: a serial port: a device
+#: path, a pyserial object or a pyserial URL).  A new transport is a module with its
+#: link classes and one row here (and its scheme in `PYRTU_SCHEMES`)
+TRANSPORTS: dict[str | None, Transport] = {
+    None: Transport(None, "a serial line, RTU or ASCII", _SERIAL, _SERIAL),
+    RTU_TCP_SCHEME: Transport(RTU_TCP_SCHEME, "RTU frames over TCP", _RTU_TCP, _RTU_TCP, t35=0.0),
+    TCP_SCHEME: Transport(TCP_SCHEME, "Modbus TCP", _TCP, _AIO_TCP, pipelines=True),
+    MBAPS_SCHEME: Transport(
+        MBAPS_SCHEME, "Modbus/TCP Security (TLS)", _TCP, _AIO_TCP, pipelines=True, tls=True
+    ),
+}
+
+
+def transport_of(port: object) -> Transport:
+    """The row of ``port`` (ValueError for a URL no one opens, as `scheme_of`)."""
+    return TRANSPORTS[scheme_of(port)]
 
 
 class Link(Protocol):
@@ -73,12 +150,18 @@ class Link(Protocol):
 
 
 __all__ = [
+    "MBAPS_SCHEME",
+    "MBAP_SCHEMES",
     "RTU_TCP_SCHEME",
     "TCP_SCHEME",
+    "TRANSPORTS",
     "Call",
     "Link",
+    "Transport",
     "check_in_flight",
     "check_retries",
     "check_seconds",
+    "check_tls",
     "scheme_of",
+    "transport_of",
 ]

@@ -2,7 +2,8 @@
 
 The port string picks the master's link (`pyrtu.drivers.links`): a serial line, RTU or
 ASCII (a device path, a pyserial object or URL), ``rtu+tcp://host:port`` (RTU
-frames over a socket, ``t35`` 0 unless given) or ``tcp://host:port`` (Modbus TCP,
+frames over a socket, ``t35`` 0 unless given), ``tcp://host:port`` (Modbus TCP) or
+``mbaps://host[:802]`` (Modbus TCP in TLS, with ``tls=``; both
 `pyrtu.tcp.link`).  The request methods are one table (`pyrtu.pdu.requests`)
 shared with `pyrtu.drivers.aio.AsyncMaster` and the poller; ``transact`` runs one with
 the answer's end time.
@@ -38,7 +39,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Iterable, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pyrtu import pdu as pdus
 from pyrtu.core import _backend
@@ -47,13 +48,12 @@ from pyrtu.core.line import LineConfig, adopt_port_format, line_from
 from pyrtu.core.rules import LengthRule, RuleTable, check_rules
 from pyrtu.drivers import xfer_runners
 from pyrtu.drivers.links import (
-    RTU_TCP_SCHEME,
-    TCP_SCHEME,
     Link,
     check_in_flight,
     check_retries,
     check_seconds,
-    scheme_of,
+    check_tls,
+    transport_of,
 )
 from pyrtu.drivers.port import Port, open_line_port
 from pyrtu.drivers.sync_io import run_sync
@@ -61,6 +61,9 @@ from pyrtu.pdu import requests as request_table
 from pyrtu.pdu.errors import PortError
 from pyrtu.pdu.requests import Call, Request, Rules, Steps
 from pyrtu.protocol.client import ClientProtocol
+
+if TYPE_CHECKING:
+    from pyrtu.tcp.link import TcpLink
 
 _monotonic = time.monotonic
 
@@ -80,6 +83,13 @@ def _of_proto(name: str, settable: bool = False) -> Any:
 class SerialLink:
     """A serial line as a master's link (`pyrtu.drivers.links`): the port and the client
     protocol.  Every option is checked before the port is opened."""
+
+    @classmethod
+    def open(
+        cls, port: Any, line: LineConfig, options: dict[str, Any], max_in_flight: int
+    ) -> SerialLink:
+        """The link of `pyrtu.drivers.links.TRANSPORTS` (``tls`` is None here)."""
+        return SerialLink(port, line, **{k: v for k, v in options.items() if k != "tls"})
 
     def __init__(
         self,
@@ -160,6 +170,18 @@ class SerialLink:
         return f"{self.port.name} {self.mode} {self.port.baudrate} baud"
 
 
+class RtuOverTcpLink(SerialLink):
+    """``rtu+tcp://host:port``: the serial link's RTU frames over a TCP socket."""
+
+    @classmethod
+    def open(
+        cls, port: Any, line: LineConfig, options: dict[str, Any], max_in_flight: int
+    ) -> SerialLink:
+        from pyrtu.tcp import rtu_over_tcp  # (loads the TCP module only when used)
+
+        return super().open(rtu_over_tcp(port), line, options, max_in_flight)
+
+
 class MasterBase:
     """The one master class's shared part (`Master`, and `pyrtu.drivers.aio.AsyncMaster`
     for asyncio): the keywords, the link the port string picks, the properties.
@@ -168,7 +190,10 @@ class MasterBase:
     stopbits, bytesize, mode, timing, t15, t35, rules, max_adu, strict), checked on
     every transport; ``exclusive``: lock the port against other processes (passed
     to open_port); ``max_in_flight``: requests on the wire at once (more than 1
-    only for an `AsyncMaster` on ``tcp://``).
+    only for an `AsyncMaster` on ``tcp://`` or ``mbaps://``); ``tls``: the
+    `ssl.SSLContext` of an ``mbaps://`` port (Modbus/TCP Security, port 802 by default:
+    ``pyrtu.security.tls.client_context(cert, key, ca)``; required there, refused
+    elsewhere).
     """
 
     _link: Link
@@ -199,15 +224,16 @@ class MasterBase:
         line: LineConfig | None = None,
         exclusive: bool = True,
         max_in_flight: int = 1,
+        tls: Any = None,
     ) -> None:
-        scheme = scheme_of(port)
+        transport = transport_of(port)
         cfg = line_from(
             line, baudrate=baudrate, parity=parity, stopbits=stopbits, bytesize=bytesize,
             mode=mode, timing=timing, t15=t15, t35=t35, rules=rules, max_adu=max_adu,
             strict=strict,
         )  # fmt: skip
-        if scheme == RTU_TCP_SCHEME and cfg.t35 is None:
-            cfg = cfg.replace(t35=0.0)  # a socket has no wire timing
+        if transport.t35 is not None and cfg.t35 is None:
+            cfg = cfg.replace(t35=transport.t35)  # a socket has no wire timing
         options = dict(
             timeout=check_seconds("timeout", timeout, positive=True),
             retries=check_retries(retries),
@@ -216,24 +242,16 @@ class MasterBase:
             broadcast_delay=check_seconds("broadcast_delay", broadcast_delay),
             backend=backend,
             exclusive=exclusive,
+            tls=check_tls(transport, tls),
         )
-        in_flight = check_in_flight(max_in_flight, self._PIPELINES and scheme == TCP_SCHEME)
+        in_flight = check_in_flight(max_in_flight, self._PIPELINES and transport.pipelines)
         _backend.backend(backend)  # (checked before a port is opened or connected)
-        self._link = self._open(port, scheme, cfg, options, in_flight)
+        link_class = transport.link_class(self._PIPELINES)
+        self._link = self._open(link_class.open(port, cfg, options, in_flight))
 
-    def _open(
-        self, port: Any, scheme: str | None, line: LineConfig, options: dict[str, Any],
-        max_in_flight: int,
-    ) -> Link:  # fmt: skip
+    def _open(self, link: Any) -> Link:
+        """Take the link the port string's transport opened (`pyrtu.drivers.links`)."""
         raise NotImplementedError
-
-    @staticmethod
-    def _serial(port: Any, scheme: str | None, line: LineConfig, options: Any) -> SerialLink:
-        if scheme == RTU_TCP_SCHEME:
-            from pyrtu.tcp import rtu_over_tcp  # (loads the TCP module only when used)
-
-            port = rtu_over_tcp(port)
-        return SerialLink(port, line, **options)
 
     # what the link answers for, read by name (declared here only, see `pyrtu.drivers.links.Link`)
     line = Forward[LineConfig](
@@ -277,20 +295,11 @@ class Master(MasterBase):
     """A Modbus master on one serial line, or on ``tcp://`` / ``rtu+tcp://`` (see the
     module docstring and `MasterBase` for the keywords)."""
 
-    def _open(
-        self, port: Any, scheme: str | None, line: LineConfig, options: dict[str, Any],
-        max_in_flight: int,
-    ) -> Link:  # fmt: skip
+    def _open(self, link: Any) -> Link:
         self._lock = threading.RLock()
-        if scheme == TCP_SCHEME:
-            from pyrtu.tcp.link import TcpLink  # (loads the TCP module only when used)
-
-            self._conn: TcpLink | SerialLink = TcpLink(
-                port, options["timeout"], options["retries"], options["backend"]
-            )
-        else:
-            self._conn = self._serial(port, scheme, line, options)
-        return self._conn
+        self._conn: TcpLink | SerialLink = link
+        opened: Link = link
+        return opened
 
     # ----------------------------------------------------------------- plumbing
 

@@ -9,6 +9,7 @@ import asyncio
 import contextlib
 import logging
 import socket
+import ssl
 import struct
 import time
 from typing import Protocol
@@ -16,6 +17,8 @@ from typing import Protocol
 from pyrtu.core import _backend
 from pyrtu.core.frames import FrameKind
 from pyrtu.drivers._ptimer import rearm
+from pyrtu.security.policy import Identity
+from pyrtu.security.tls import TlsSetupError, peer_identity
 from pyrtu.tcp.sockets import set_nodelay
 
 from ._live import Liveness
@@ -31,6 +34,7 @@ class Owner(Protocol):
     counters: dict[str, int]
 
     def _opened(self, conn: _Connection) -> None: ...
+    def _tls_failed(self, conn: _Connection, reason: str) -> None: ...
     def _closed(self, conn: _Connection) -> None: ...
     def _request(self, conn: _Connection, transaction: int, unit: int, pdu: bytes) -> None: ...
 
@@ -56,10 +60,17 @@ class _Connection(asyncio.Protocol):
         self.grace: asyncio.TimerHandle | None = None  # a closing connection's reset
         self.live = Liveness(time.monotonic())
         self.buffered = 0  # bytes read that no complete request has taken yet
+        #: who the client is (its address; on TLS its certificate's role and subject)
+        self.identity = Identity("?")
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         assert isinstance(transport, asyncio.Transport)
         self.transport = transport
+        peer = transport.get_extra_info("peername")
+        if isinstance(peer, tuple) and len(peer) >= 2:
+            self.identity = Identity(str(peer[0]), int(peer[1]))
+        elif peer:
+            self.identity = Identity(str(peer))
         sock = transport.get_extra_info("socket")
         set_nodelay(sock)  # asyncio sets it too; said here, not left to its version
         if sock is not None:
@@ -111,7 +122,7 @@ class _Connection(asyncio.Protocol):
             self.gateway.counters["answers_dropped"] += 1
             return
         adu = self.encode(transaction, unit, pdu)
-        t.write(adu)
+        t.write(self.wire(adu))
         if log.isEnabledFor(logging.DEBUG):
             log.debug("connection %d: TX unit %d: %s", self.id, unit, adu.hex(" "))
         if t.get_write_buffer_size() > self.gateway.limits.max_write_buffer:
@@ -122,6 +133,10 @@ class _Connection(asyncio.Protocol):
 
     def encode(self, transaction: int, unit: int, pdu: bytes) -> bytes:
         adu: bytes = self.framer.send(transaction, unit, pdu)
+        return adu
+
+    def wire(self, adu: bytes) -> bytes:
+        """The bytes that carry ``adu`` on the connection (TLS records on TLS)."""
         return adu
 
     def close(self) -> None:
@@ -196,3 +211,89 @@ class _RtuConnection(_Connection):
         adu: bytes = _backend.active.add_crc(bytes((unit,)) + pdu)
         self.rtu.send(adu)
         return adu
+
+
+class _TlsConnection(_Connection):
+    """A client of the TLS listener (MODBUS/TCP Security): TLS records through memory
+    BIOs around the same MBAP framing.  From its first byte until its handshake is
+    done, the connection counts as a request begun: the header timeout ends a
+    handshake never finished, and the table's eviction takes it first.  A handshake
+    that fails (no client certificate, one the CA did not sign, expired, TLS 1.0/1.1,
+    plaintext) is counted and logged once per client and reason, its alert sent, and
+    the connection closed; once done, the identity carries the certificate's subject
+    and role (`pyrtu.security.tls.peer_identity`)."""
+
+    def __init__(self, gateway: Owner, context: ssl.SSLContext) -> None:
+        super().__init__(gateway)
+        self.incoming = ssl.MemoryBIO()
+        self.outgoing = ssl.MemoryBIO()
+        self.tls = context.wrap_bio(self.incoming, self.outgoing, server_side=True)
+        self.handshaken = False
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        super().connection_made(transport)
+        if not self.closed:
+            self.live.partial_since = self.live.connected  # the handshake: a request begun
+
+    def data_received(self, data: bytes) -> None:
+        if self.closed:
+            return
+        self.incoming.write(data)
+        if not self.handshaken and not self._handshake():
+            return
+        plain = bytearray()
+        ended = False  # the client's close_notify: read() returns b""
+        try:
+            while chunk := self.tls.read(65536):
+                plain += chunk
+            ended = True
+        except (ssl.SSLWantReadError, ssl.SSLWantWriteError):
+            pass
+        except ssl.SSLZeroReturnError:
+            ended = True
+        except ssl.SSLError as exc:  # a renegotiation asked for, a record too long...
+            self._flush()
+            self.gateway._tls_failed(self, f"TLS: {exc.reason or exc}")
+            self.close()
+            return
+        self._flush()
+        if plain:
+            super().data_received(bytes(plain))
+        if ended and not self.closed:
+            self.close()
+
+    def _handshake(self) -> bool:
+        """Go on with the handshake; True once it is done (the identity known)."""
+        try:
+            self.tls.do_handshake()
+        except (ssl.SSLWantReadError, ssl.SSLWantWriteError):
+            self._flush()
+            return False
+        except (ssl.SSLError, ValueError) as exc:
+            self._flush()  # the alert, when OpenSSL has one to send
+            reason = getattr(exc, "reason", None) or str(exc)
+            self.gateway._tls_failed(self, f"TLS handshake: {reason}")
+            self.close()
+            return False
+        self._flush()
+        who = self.identity
+        try:
+            self.identity = peer_identity(self.tls, who.address, who.port)
+        except (ValueError, TlsSetupError) as exc:  # a certificate cryptography cannot read
+            self.gateway._tls_failed(self, f"TLS handshake: unreadable client certificate: {exc}")
+            self.close()
+            return False
+        self.handshaken = True
+        self.live.partial_since = None
+        return True
+
+    def _flush(self) -> None:
+        pending = self.outgoing.read()
+        t = self.transport
+        if pending and t is not None and not t.is_closing():
+            t.write(pending)
+
+    def wire(self, adu: bytes) -> bytes:
+        self.tls.write(adu)
+        wrapped: bytes = self.outgoing.read()
+        return wrapped

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 
 from pyrtu.core.timing import check_seconds
 from pyrtu.drivers.reconnect import Backoff
+from pyrtu.security.policy import Identity
 
 #: Defaults of the limits (documented in the README and ``pyrtu gateway --help``).
 MAX_CONNECTIONS = 64
@@ -139,6 +140,8 @@ class Job:
     unit: int  # the unit id of the request (copied into the answer)
     slave: int  # the address on the bus
     pdu: bytes
+    #: who sent it (for the audit trail of writes)
+    who: Identity | None = None
 
 
 class QueueFull(Exception):

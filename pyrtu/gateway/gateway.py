@@ -98,8 +98,11 @@ from pyrtu.pdu.errors import (
     NoResponseError,
     PortError,
 )
+from pyrtu.security.audit import AuditTrail
+from pyrtu.security.policy import Decision, Identity, Policy, beyond_loopback, is_read
+from pyrtu.security.tls import TlsListen
 
-from ._conn import _Connection, _RtuConnection
+from ._conn import _Connection, _RtuConnection, _TlsConnection
 from ._live import HEADER, pick_victim
 from ._plan import (
     CLOSE_GRACE,
@@ -121,6 +124,10 @@ from ._plan import (
 from ._reopen import ReopeningBus, close_bus
 
 log = logging.getLogger("pyrtu.gateway")
+
+#: the (client, role, reason) triples of refused requests already logged; past this
+#: many the memory of them starts again (a log bounded however many clients try)
+DENIALS_REMEMBERED = 4096
 
 #: old names, deprecated (each use warns, naming the new one)
 __getattr__ = renamed(__name__, {"Bus": ("pyrtu.gateway.gateway", "GatewayBus")})
@@ -146,6 +153,24 @@ __all__ = [
     "exception_pdu",
     "parse_units",
 ]
+
+
+#: how often `Gateway.close` cancels a task again whose code swallowed the cancel
+CANCEL_AGAIN = 0.1
+
+
+async def _cancelled(task: asyncio.Task[None]) -> None:
+    """Cancel ``task`` and wait until it ends, cancelling it again every
+    `CANCEL_AGAIN` seconds: a cancel can be lost under it (Python 3.11's
+    ``asyncio.wait_for`` raises its operation's error instead of CancelledError when
+    both come at once, as a bus reopened while the gateway closes: the reopen's
+    ``except OSError`` then takes it, and the worker went on retrying forever; the
+    worker also stops at its next turn once the gateway is not running)."""
+    while not task.done():
+        task.cancel()
+        await asyncio.wait({task}, timeout=CANCEL_AGAIN)
+    if not task.cancelled() and task.exception() is not None:
+        log.debug("task %s ended with %r", task.get_name(), task.exception())
 
 
 class GatewayBus(Protocol):
@@ -237,6 +262,10 @@ class Gateway:
         limits: GatewayLimits | None = None,
         on_bus: Callable[[BusEvent], None] | None = None,
         on_task: Callable[[TaskFailure], None] | None = None,
+        *,
+        policy: Policy | None = None,
+        audit: AuditTrail | None = None,
+        on_denied: Callable[[Identity, Decision], None] | None = None,
     ) -> None:
         if not buses:
             raise ValueError("a gateway needs at least one bus")
@@ -257,6 +286,16 @@ class Gateway:
         self._sweeper: asyncio.Task[None] | None = None
         self.on_bus = on_bus
         self.on_task = on_task
+        #: the access policy of every listener (None: every request is served)
+        self.policy = policy
+        #: where every executed write is recorded (None: nowhere)
+        self.audit = audit
+        #: called once per client address and reason with a refused request's
+        #: identity and `Decision` (the CLI's line on stderr)
+        self.on_denied = on_denied
+        self._denials_logged: set[tuple[str, str | None, str]] = set()
+        #: refused requests by `Decision.kind`
+        self.denied_by: dict[str, int] = {}
         #: called with (bus name, slave, seconds) for every answered transaction of a
         #: bus worker (a response or an exception response; not broadcasts): the
         #: latency histograms of ``--metrics``
@@ -266,6 +305,9 @@ class Gateway:
         self._next_id = 0
         self._server: asyncio.Server | None = None
         self._rtu_server: asyncio.Server | None = None
+        self._tls_server: asyncio.Server | None = None
+        #: the (host, port) of the TLS listener, once started with ``tls``
+        self.tls_address: tuple[str, int] | None = None
         self.address: tuple[str, int] | None = None
         self.rtu_address: tuple[str, int] | None = None
         self.counters = dict.fromkeys(
@@ -291,6 +333,10 @@ class Gateway:
                 "bus_recoveries",
                 "bus_unavailable",
                 "task_failures",
+                "denied",
+                "tls_failures",
+                "audited_writes",
+                "audit_failures",
             ),
             0,
         )
@@ -298,31 +344,58 @@ class Gateway:
     # ---------------------------------------------------------------- running
 
     async def start(
-        self, host: str = "127.0.0.1", port: int = 502, rtu: tuple[str, int] | None = None
+        self,
+        host: str = "127.0.0.1",
+        port: int = 502,
+        rtu: tuple[str, int] | None = None,
+        tls: TlsListen | None = None,
     ) -> Gateway:
         """Listen for Modbus TCP on host:port and, with ``rtu=(host, port)``, for RTU
-        over TCP there (``rtu_address``).  RuntimeError if already started."""
+        over TCP there (``rtu_address``), with ``tls`` (a `TlsListen`) for Modbus/TCP
+        Security there (``tls_address``).  RuntimeError if already started."""
         if self._server is not None:
             raise RuntimeError(f"the gateway already listens on {self.address}")
         check_listen(host, port)
         if rtu is not None:
             check_listen(*rtu)
+        if tls is not None:
+            if not isinstance(tls, TlsListen):
+                raise TypeError(f"tls must be a pyrtu.security.tls.TlsListen, not {tls!r}")
+            check_listen(tls.host, tls.port)
         for state in self._buses:
             await self._open_at_start(state)
         loop = asyncio.get_running_loop()
         server = await loop.create_server(lambda: _Connection(self), host, port)
         sock = server.sockets[0].getsockname()
         self._server, self.address = server, (str(sock[0]), int(sock[1]))
-        if rtu is not None:
-            try:
+        try:
+            if rtu is not None:
                 self._rtu_server = await loop.create_server(lambda: _RtuConnection(self), *rtu)
-            except BaseException:  # no listener left behind half-started
-                server.close()
-                await server.wait_closed()
-                self._server = None
-                raise
-            sock = self._rtu_server.sockets[0].getsockname()
-            self.rtu_address = (str(sock[0]), int(sock[1]))
+                sock = self._rtu_server.sockets[0].getsockname()
+                self.rtu_address = (str(sock[0]), int(sock[1]))
+            if tls is not None:
+                context = tls.context
+                self._tls_server = await loop.create_server(
+                    lambda: _TlsConnection(self, context), tls.host, tls.port
+                )
+                sock = self._tls_server.sockets[0].getsockname()
+                self.tls_address = (str(sock[0]), int(sock[1]))
+        except BaseException:  # no listener left behind half-started
+            for half in (server, self._rtu_server):
+                if half is not None:
+                    half.close()
+                    await half.wait_closed()
+            self._server = self._rtu_server = None
+            raise
+        if self.policy is None:
+            for where in (self.address, self.rtu_address, self.tls_address):
+                if where is not None and beyond_loopback(where[0]):
+                    log.warning(
+                        "listening on %s:%d beyond loopback with no access policy: any "
+                        "client that reaches it may write (give a policy, or read-only)",
+                        *where,
+                    )
+                    break
         self._running = True
         for state in self._buses:
             state.task = self._supervise(
@@ -384,7 +457,7 @@ class Gateway:
 
     async def close(self) -> None:
         self._running = False
-        for server in (self._server, self._rtu_server):
+        for server in (self._server, self._rtu_server, self._tls_server):
             if server is not None:
                 server.close()
         for conn in list(self._connections.values()):
@@ -393,16 +466,11 @@ class Gateway:
         if self._sweeper is not None:
             tasks.append(self._sweeper)
         for task in tasks:
-            task.cancel()
-        for task in tasks:
-            try:
-                await task
-            except asyncio.CancelledError:
-                pass
-        for server in (self._server, self._rtu_server):
+            await _cancelled(task)
+        for server in (self._server, self._rtu_server, self._tls_server):
             if server is not None:
                 await server.wait_closed()
-        self._server = self._rtu_server = self._sweeper = None
+        self._server = self._rtu_server = self._tls_server = self._sweeper = None
         for state in self._buses:
             state.task = None
 
@@ -422,6 +490,7 @@ class Gateway:
             "bus_busy_seconds": [round(s.busy_seconds, 6) for s in self._buses],
             "bus_down": [s.reconnect.down for s in self._buses],
             "bus_outages": [s.reconnect.outages for s in self._buses],
+            "denied_by": dict(self.denied_by),
             "unsent_bytes": sum(
                 c.transport.get_write_buffer_size()
                 for c in self._connections.values()
@@ -439,7 +508,11 @@ class Gateway:
         if not self._running:
             return ["the gateway is not running"]
         problems = []
-        for flag, server in (("listener", self._server), ("RTU listener", self._rtu_server)):
+        for flag, server in (
+            ("listener", self._server),
+            ("RTU listener", self._rtu_server),
+            ("TLS listener", self._tls_server),
+        ):
             if server is not None and not server.is_serving():
                 problems.append(f"the {flag} is closed")
         tasks = [(f"bus {s.name}", s.task) for s in self._buses]
@@ -526,6 +599,12 @@ class Gateway:
         if not 1 <= pdu[0] <= 127:  # [AP] 4.1: function codes 1..127; the rest is no request
             self._answer(conn, transaction, unit, exception_pdu(pdu[0], ILLEGAL_FUNCTION))
             return
+        if self.policy is not None:
+            decision = self.policy.decide(conn.identity, unit, pdu)
+            if not decision.allowed:
+                self._deny(conn, decision)
+                self._answer(conn, transaction, unit, exception_pdu(pdu[0], ILLEGAL_FUNCTION))
+                return
         route = self.routes.route(unit)
         if route is None:
             if unit == 0:
@@ -533,7 +612,9 @@ class Gateway:
                 now = time.monotonic()
                 for state in self._buses:
                     if not state.refuses(now):
-                        self._submit(state, Job(conn.id, transaction, 0, 0, pdu), conn)
+                        self._submit(
+                            state, Job(conn.id, transaction, 0, 0, pdu, conn.identity), conn
+                        )
                 return
             counters["no_route"] += 1
             self._answer(conn, transaction, unit, exception_pdu(pdu[0], GATEWAY_PATH_UNAVAILABLE))
@@ -543,7 +624,59 @@ class Gateway:
             counters["bus_unavailable"] += 1
             self._answer(conn, transaction, unit, exception_pdu(pdu[0], GATEWAY_PATH_UNAVAILABLE))
             return
-        self._submit(state, Job(conn.id, transaction, unit, route[1], pdu), conn)
+        self._submit(state, Job(conn.id, transaction, unit, route[1], pdu, conn.identity), conn)
+
+    def _tls_failed(self, conn: _Connection, reason: str) -> None:
+        """A TLS connection failed (its handshake, or a record after it: a
+        renegotiation asked for, an oversized record; it closes): counted, logged
+        (and handed to ``on_denied`` as kind ``tls_handshake``) once per client and
+        reason (``reason``: "TLS handshake: ..." or "TLS: ...")."""
+        self.counters["tls_failures"] += 1
+        self._say_refused(conn, Decision(False, "tls_handshake", reason))
+
+    def _deny(self, conn: _Connection, decision: Decision) -> None:
+        """A request the policy refuses (answered exception 01 by the caller): counted
+        by kind, logged (and handed to ``on_denied``) once per client and reason."""
+        self.counters["denied"] += 1
+        self.denied_by[decision.kind] = self.denied_by.get(decision.kind, 0) + 1
+        self._say_refused(conn, decision)
+
+    def _say_refused(self, conn: _Connection, decision: Decision) -> None:
+        who = conn.identity
+        key = (who.address, who.role, decision.reason)
+        if key in self._denials_logged:
+            return
+        if len(self._denials_logged) >= DENIALS_REMEMBERED:
+            self._denials_logged.clear()  # bounded: an old pair may be logged again
+        self._denials_logged.add(key)
+        log.warning(
+            "connection %d from %s: refused%s: %s",
+            conn.id,
+            who.describe(),
+            "" if decision.kind == "tls_handshake" else " (exception 01)",
+            decision.reason,
+        )
+        if self.on_denied is not None:
+            try:
+                self.on_denied(who, decision)
+            except Exception:  # the hook's bug: the gateway goes on
+                log.exception("the on_denied hook failed")
+
+    def _audit(self, job: Job, answer: bytes | None) -> None:
+        """Record an executed write in the audit trail (a failure to write it is
+        logged and counted, never a reason to stop serving)."""
+        trail = self.audit
+        if trail is None or is_read(job.pdu):
+            return
+        who = job.who or Identity("?")
+        try:
+            trail.record(who, job.unit, job.pdu, answer, time.time())
+        except (OSError, ValueError) as exc:
+            self.counters["audit_failures"] += 1
+            if self.counters["audit_failures"] == 1:
+                log.error("the audit trail %s cannot be written: %s", trail.name, exc)
+            return
+        self.counters["audited_writes"] += 1
 
     def _submit(self, state: _BusState, job: Job, conn: _Connection) -> None:
         try:
@@ -578,7 +711,7 @@ class Gateway:
         monotonic = time.monotonic
         # the answer PDU, an exception answer as its bytes (see GatewayBus)
         send = getattr(state.bus, "exchange", None) or state.bus.request
-        while True:
+        while self._running:  # (not only the cancel: one can be lost under it, `_cancelled`)
             if state.reopen is not None and state.reconnect.down:
                 await self._reopen(state)
                 continue
@@ -604,6 +737,7 @@ class Gateway:
                     answer = None  # a broadcast: nothing to answer
                 elif not answer:  # the bus got no answer (a local application's silence)
                     answer = self._target_failed(job)
+            self._audit(job, answer)
             now = monotonic()
             state.transactions += 1
             state.busy_seconds += now - started

@@ -16,6 +16,7 @@ from typing import Any
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
 
 from pyrtu.gateway import Gateway
+from pyrtu.security.policy import REFUSAL_KINDS
 
 from .histogram import Latencies
 from .histogram import family as histogram_family
@@ -38,6 +39,7 @@ CONNECTION_ERRORS = (
     ("slow_clients", "slow_client"),
     ("header_timeouts", "header_timeout"),
     ("idle_timeouts", "idle_timeout"),
+    ("tls_failures", "tls_handshake"),
 )
 
 
@@ -52,6 +54,8 @@ def counter_families(prefix: str, stats: Mapping[str, Any]) -> Iterator[Metric]:
         ("connections", "TCP connections accepted"),
         ("answers_dropped", "Answers dropped: their client had gone"),
         ("task_failures", "Times a background task raised (each restarted on the back-off)"),
+        ("audited_writes", "Executed writes recorded in the audit trail (--audit)"),
+        ("audit_failures", "Executed writes the audit trail could not record"),
     ):
         counter = CounterMetricFamily(f"{prefix}_{key}", documentation)
         counter.add_metric([], stats[key])
@@ -65,6 +69,15 @@ def counter_families(prefix: str, stats: Mapping[str, Any]) -> Iterator[Metric]:
     for key, kind in REQUEST_ERRORS:
         errors.add_metric([kind], stats[key])
     yield errors
+    denied = CounterMetricFamily(
+        f"{prefix}_denied",
+        "Requests refused by the access policy (answered exception 01), by reason",
+        labels=["reason"],
+    )
+    by_kind = stats.get("denied_by", {})
+    for kind in (*REFUSAL_KINDS, *sorted(set(by_kind) - set(REFUSAL_KINDS))):
+        denied.add_metric([kind], by_kind.get(kind, 0))
+    yield denied
     closed = CounterMetricFamily(
         f"{prefix}_connection_errors",
         "Connections refused or closed by the gateway, by kind",

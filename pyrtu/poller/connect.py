@@ -30,7 +30,7 @@ from urllib.parse import urlsplit
 from pyrtu.drivers._portname import url_scheme
 
 #: the schemes of the ports that connect over a network (pyrtu's and pyserial's)
-NETWORK_SCHEMES = frozenset({"tcp", "rtu+tcp", "socket", "rfc2217"})
+NETWORK_SCHEMES = frozenset({"tcp", "mbaps", "rtu+tcp", "socket", "rfc2217"})
 
 #: defaults of the ``[connect]`` keys (docs/many-devices.md says why)
 MAX_CONNECTING = 64

@@ -25,7 +25,9 @@ from __future__ import annotations
 import asyncio
 import errno
 import os
+import select
 import socket
+import ssl
 import time
 from typing import Any
 from urllib.parse import urlsplit
@@ -38,11 +40,12 @@ from pyrtu.core._closing import AsyncClosing, Closing
 from pyrtu.core._forward import Forward, Settable
 from pyrtu.core._types import BytesLike
 from pyrtu.drivers import xfer, xfer_runners
-from pyrtu.drivers._portname import RTU_TCP_SCHEME
+from pyrtu.drivers._portname import MBAP_SCHEMES, MBAPS_SCHEME, RTU_TCP_SCHEME
 from pyrtu.drivers._ptimer import rearm
 from pyrtu.pdu.errors import ModbusError, PortError
 from pyrtu.tcp.protocol import TcpClientProtocol, check_timeout
 from pyrtu.tcp.sockets import set_nodelay
+from pyrtu.tcp.tls import MBAPS_PORT, remember, wrap
 
 DEFAULT_PORT = 502
 
@@ -60,11 +63,31 @@ def parse_tcp_url(url: str, schemes: tuple[str, ...] = ("tcp",)) -> tuple[str, i
         raise ValueError(f"{url!r}: the port must be 0..65535") from None
     if not parts.hostname or parts.path not in ("", "/") or parts.query or parts.fragment:
         raise ValueError(f"{url!r}: expected {parts.scheme}://HOST[:PORT]")
-    return parts.hostname, DEFAULT_PORT if port is None else port
+    default = MBAPS_PORT if parts.scheme == MBAPS_SCHEME else DEFAULT_PORT
+    return parts.hostname, default if port is None else port
 
 
-def _where(host: str, port: int) -> str:
-    return f"tcp://[{host}]:{port}" if ":" in host else f"tcp://{host}:{port}"
+def _where(host: str, port: int, scheme: str = "tcp") -> str:
+    return f"{scheme}://[{host}]:{port}" if ":" in host else f"{scheme}://{host}:{port}"
+
+
+def _tls_of(url: str, tls: ssl.SSLContext | None) -> ssl.SSLContext | None:
+    """The TLS context of ``url``: required for ``mbaps://``, refused for ``tcp://``."""
+    mbaps = urlsplit(url).scheme == MBAPS_SCHEME
+    if mbaps and not isinstance(tls, ssl.SSLContext):
+        raise ValueError(
+            f"{url}: tls: an mbaps:// URL needs the client's TLS context "
+            "(pyrtu.security.tls.client_context(cert, key, ca))"
+        )
+    if not mbaps and tls is not None:
+        raise ValueError(f"{url}: tls: only an mbaps:// URL takes a TLS context")
+    return tls
+
+
+def _raise(result: bytes | ModbusError | None) -> bytes | None:
+    if isinstance(result, ModbusError):
+        raise result
+    return result
 
 
 def connect_error(where: str, exc: BaseException, timeout: float) -> PortError:
@@ -75,7 +98,11 @@ def connect_error(where: str, exc: BaseException, timeout: float) -> PortError:
     reason = exc
     if isinstance(exc, serial.SerialException) and isinstance(exc.__context__, OSError):
         reason = exc.__context__  # pyserial's socket:// puts the socket's error in its text
-    if isinstance(reason, TimeoutError | asyncio.TimeoutError):
+    if isinstance(reason, ssl.SSLCertVerificationError):
+        text = f"TLS: the server's certificate: {reason.verify_message or reason.reason}"
+    elif isinstance(reason, ssl.SSLError):  # (its errno is OpenSSL's, not the OS's)
+        text = f"TLS handshake failed: {reason.reason or reason}"
+    elif isinstance(reason, TimeoutError | asyncio.TimeoutError):
         text = f"timed out after {timeout:g} s"
     elif isinstance(reason, socket.gaierror) and reason.strerror:
         text = reason.strerror  # (a resolver's code, not an errno)
@@ -131,10 +158,13 @@ class TcpClient(_ClientState, Closing):
         timeout: float = 1.0,
         connect_timeout: float | None = None,
         backend: str | None = None,
+        tls: ssl.SSLContext | None = None,
     ) -> None:
-        self.host, self.port = parse_tcp_url(url)
-        self.where = _where(self.host, self.port)
+        self.host, self.port = parse_tcp_url(url, MBAP_SCHEMES)
+        self._tls = _tls_of(url, tls)
+        self.where = _where(self.host, self.port, "tcp" if self._tls is None else MBAPS_SCHEME)
         be = _backend.backend(backend)
+        self._closed = False
         self._proto = TcpClientProtocol(timeout=timeout, max_in_flight=1, where=self.where)
         ct = check_timeout(
             timeout if connect_timeout is None else connect_timeout, "connect_timeout"
@@ -144,8 +174,19 @@ class TcpClient(_ClientState, Closing):
         except OSError as exc:
             raise connect_error(self.where, exc, ct) from exc
         set_nodelay(self._sock)
+        if self._tls is not None:  # mbaps://: the handshake within the connect timeout
+            try:
+                self._sock = wrap(self._sock, self._tls, self.host, self.port)
+            except OSError as exc:
+                self._sock.close()
+                raise connect_error(self.where, exc, ct) from exc
+            # blocking, with the timeout as bound: select() sees the records, and a
+            # recv() waits for the rest of a record it has begun; the transaction in
+            # Python (`_tls_transact`): the xfer runners read the socket's descriptor,
+            # under TLS the records, not the PDUs
+            self._sock.settimeout(self._proto.timeout)
+            return
         self._sock.setblocking(False)
-        self._closed = False
         self._runner = xfer_runners.tcp_xfer_runner(be, self._sock)
 
     def request(
@@ -162,6 +203,8 @@ class TcpClient(_ClientState, Closing):
     ) -> tuple[bytes | None, float]:
         """`request`'s answer and when it came (monotonic seconds; now for a
         broadcast): `pyrtu.tcp.link.TcpLink`'s transaction."""
+        if self._tls is not None:
+            return self._tls_transact(unit, pdu, answered, raw)
         proto, runner = self._proto, self._runner
         tid, body, awaited = proto.begin(unit, pdu, answered)
         if self._closed:  # (its descriptor's number may be another file's by now)
@@ -180,7 +223,52 @@ class TcpClient(_ClientState, Closing):
         end = proto.answer_end
         return answer, time.monotonic() if answer is None or end is None else end
 
+    def _tls_transact(
+        self, unit: int, pdu: BytesLike, answered: bool | None, raw: bool
+    ) -> tuple[bytes | None, float]:
+        """`transact` over ``mbaps://``: the protocol's events, fed from the TLS socket."""
+        proto = self._proto
+        now = time.monotonic()
+        tid, data = proto.send_request(unit, pdu, now, answered=answered, raw=raw)
+        try:
+            if self._closed:
+                raise OSError(errno.EBADF, os.strerror(errno.EBADF))
+            self._sock.sendall(data)
+        except OSError as exc:
+            proto.connection_lost(f"send failed: {exc}")
+        while True:
+            done = proto.next_result()
+            if done is not None:
+                if done[0] == tid:
+                    answer = _raise(done[1])
+                    end = proto.answer_end
+                    return answer, time.monotonic() if answer is None or end is None else end
+                continue
+            deadline = proto.deadline()
+            wait = 0.0 if deadline is None else max(0.0, deadline - time.monotonic())
+            readable, _, _ = select.select([self._sock], [], [], wait)
+            now = time.monotonic()
+            if readable:
+                try:
+                    chunk = self._sock.recv(65536)
+                except OSError as exc:
+                    proto.connection_lost(f"receive failed: {exc}")
+                    continue
+                if not chunk:
+                    proto.connection_lost("the server closed the connection")
+                    continue
+                proto.receive_data(chunk, now)
+            else:
+                proto.handle_timer(now)
+
+    @property
+    def session_reused(self) -> bool:
+        """Whether this ``mbaps://`` connection resumed a TLS session (False on tcp://)."""
+        return isinstance(self._sock, ssl.SSLSocket) and bool(self._sock.session_reused)
+
     def close(self) -> None:
+        if self._tls is not None and isinstance(self._sock, ssl.SSLSocket) and not self._closed:
+            remember(self._sock, self._tls, self.host, self.port)
         self._closed = True
         self._sock.close()
 
@@ -252,9 +340,11 @@ class AsyncTcpClient(_ClientState, AsyncClosing):
         timeout: float = 1.0,
         connect_timeout: float | None = None,
         max_in_flight: int = 16,
+        tls: ssl.SSLContext | None = None,
     ) -> AsyncTcpClient:
-        host, port = parse_tcp_url(url)
-        where = _where(host, port)
+        host, port = parse_tcp_url(url, MBAP_SCHEMES)
+        context = _tls_of(url, tls)
+        where = _where(host, port, "tcp" if context is None else MBAPS_SCHEME)
         proto = TcpClientProtocol(timeout=timeout, max_in_flight=max_in_flight, where=where)
         ct = check_timeout(
             timeout if connect_timeout is None else connect_timeout, "connect_timeout"
@@ -262,7 +352,14 @@ class AsyncTcpClient(_ClientState, AsyncClosing):
         loop = asyncio.get_running_loop()
         try:
             _, conn = await asyncio.wait_for(
-                loop.create_connection(lambda: _ClientConnection(proto, where), host, port), ct
+                loop.create_connection(
+                    lambda: _ClientConnection(proto, where),
+                    host,
+                    port,
+                    ssl=context,
+                    server_hostname=None if context is None else host,
+                ),
+                ct,
             )
         except (OSError, asyncio.TimeoutError) as exc:
             raise connect_error(where, exc, ct) from exc

@@ -35,11 +35,13 @@ gateway.  ``add_rule`` is accepted and does nothing.
 from __future__ import annotations
 
 import asyncio
+import ssl
 import time
 from typing import Any
 
 from pyrtu.core.line import LineConfig
 from pyrtu.core.rules import LengthRule
+from pyrtu.drivers._portname import MBAP_SCHEMES
 from pyrtu.drivers.links import check_in_flight
 from pyrtu.pdu.errors import NoResponseError
 from pyrtu.pdu.requests import Call
@@ -97,7 +99,7 @@ class _TcpBase:
         """Length rules are not needed on TCP (the MBAP length ends every answer)."""
 
     def describe(self) -> str:
-        return f"{self.url} Modbus TCP"
+        return f"{self.url} Modbus TCP" + (" in TLS" if self.url.startswith("mbaps") else "")
 
 
 def _result(call: Call, answer: bytes | None, end: float | None) -> tuple[Any, float]:
@@ -110,10 +112,30 @@ class TcpLink(_TcpBase):
     each transaction one call of the ``backend``'s `pyrtu.drivers.xfer.TcpXferRunner`:
     C, csrc/rtu_tcp_io.c, the GIL released, or the twin)."""
 
-    def __init__(self, url: str, timeout: float, retries: int, backend: str | None = None) -> None:
+    @classmethod
+    def open(
+        cls, port: str, line: LineConfig, options: dict[str, Any], max_in_flight: int
+    ) -> TcpLink:
+        """The link of `pyrtu.drivers.links.TRANSPORTS` (``tcp://``, ``mbaps://``)."""
+        return cls(
+            port,
+            options["timeout"],
+            options["retries"],
+            options.get("backend"),
+            tls=options["tls"],
+        )
+
+    def __init__(
+        self,
+        url: str,
+        timeout: float,
+        retries: int,
+        backend: str | None = None,
+        tls: ssl.SSLContext | None = None,
+    ) -> None:
         self.url = url
         self.retries = retries
-        self._client = TcpClient(url, timeout=timeout, backend=backend)
+        self._client = TcpClient(url, timeout=timeout, backend=backend, tls=tls)
 
     @property
     def timeout(self) -> float:
@@ -163,9 +185,24 @@ class AsyncTcpLink(_TcpBase):
     """`pyrtu.drivers.aio.AsyncMaster`'s link on a Modbus TCP connection; connects on the
     first request, keeps up to ``max_in_flight`` requests on the wire."""
 
-    def __init__(self, url: str, timeout: float, retries: int, max_in_flight: int) -> None:
-        parse_tcp_url(url)  # ValueError now, not at the first request
+    @classmethod
+    def open(
+        cls, port: str, line: LineConfig, options: dict[str, Any], max_in_flight: int
+    ) -> AsyncTcpLink:
+        """The link of `pyrtu.drivers.links.TRANSPORTS` (``tcp://``, ``mbaps://``)."""
+        return cls(port, options["timeout"], options["retries"], max_in_flight, options["tls"])
+
+    def __init__(
+        self,
+        url: str,
+        timeout: float,
+        retries: int,
+        max_in_flight: int,
+        tls: ssl.SSLContext | None = None,
+    ) -> None:
+        parse_tcp_url(url, MBAP_SCHEMES)  # ValueError now, not at the first request
         self.url = url
+        self._tls = tls
         self.retries = retries
         self._timeout = timeout
         self._max_in_flight = check_in_flight(max_in_flight, True)
@@ -200,7 +237,10 @@ class AsyncTcpLink(_TcpBase):
             async with self._connecting:
                 if self._client is None:
                     self._client = await AsyncTcpClient.connect(
-                        self.url, timeout=self._timeout, max_in_flight=self._max_in_flight
+                        self.url,
+                        timeout=self._timeout,
+                        max_in_flight=self._max_in_flight,
+                        tls=self._tls,
                     )
         return self._client
 

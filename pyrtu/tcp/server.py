@@ -39,6 +39,9 @@ from pyrtu.drivers.supervise import TaskFailure
 from pyrtu.gateway._plan import check_listen
 from pyrtu.gateway.gateway import Gateway, GatewayLimits
 from pyrtu.protocol.datastore import DataStore
+from pyrtu.security.audit import AuditTrail
+from pyrtu.security.policy import Decision, Identity, Policy
+from pyrtu.security.tls import TlsListen
 
 UNIT_SELF = 0xFF
 #: unit 0 on TCP: the device itself too ([TCP] 4.4.1.2)
@@ -99,13 +102,20 @@ class LocalBus:
 
 class TcpServer(AsyncClosing):
     """Serves ``app`` over Modbus TCP (see the module docstring); ``on_task``: as
-    `Gateway`'s (a background task that raised, restarted on the back-off)."""
+    `Gateway`'s (a background task that raised, restarted on the back-off);
+    ``policy``, ``audit``, ``on_denied``: as `Gateway`'s (the access policy of
+    `pyrtu.security`, exception 01 for a request outside it; the audit trail of
+    executed writes)."""
 
     def __init__(
         self,
         app: Application,
         limits: GatewayLimits | None = None,
         on_task: Callable[[TaskFailure], None] | None = None,
+        *,
+        policy: Policy | None = None,
+        audit: AuditTrail | None = None,
+        on_denied: Callable[[Identity, Decision], None] | None = None,
     ) -> None:
         if not callable(getattr(app, "execute", None)) or not getattr(app, "addresses", None):
             raise TypeError(
@@ -114,7 +124,14 @@ class TcpServer(AsyncClosing):
         self.app = app
         units = {a: a for a in app.addresses}
         units[UNIT_SELF] = units[UNIT_DIRECT] = min(app.addresses)
-        self._gateway = Gateway([(LocalBus(app), units)], limits, on_task=on_task)
+        self._gateway = Gateway(
+            [(LocalBus(app), units)],
+            limits,
+            on_task=on_task,
+            policy=policy,
+            audit=audit,
+            on_denied=on_denied,
+        )
 
     @classmethod
     def for_store(
@@ -122,14 +139,20 @@ class TcpServer(AsyncClosing):
         address: int | Iterable[int] = 1,
         store: DataStore | Mapping[int, DataStore] | None = None,
         limits: GatewayLimits | None = None,
+        *,
+        policy: Policy | None = None,
+        audit: AuditTrail | None = None,
+        on_denied: Callable[[Identity, Decision], None] | None = None,
         **options: Any,
     ) -> TcpServer:
         """A slave on TCP only: the standard functions over ``store`` (``options``: the
-        `pyrtu.Slave` keywords functions, identification, server_id, ...).
+        `pyrtu.Slave` keywords functions, identification, server_id, ...; ``policy``,
+        ``audit`` and ``on_denied`` as in the constructor).
         TypeError/ValueError naming ``address`` or ``store`` when they are wrong."""
         _check_address(address)
         _check_store(store)
-        return cls(SlaveBase(address, store, line=LineConfig(), **options), limits)
+        app = SlaveBase(address, store, line=LineConfig(), **options)
+        return cls(app, limits, policy=policy, audit=audit, on_denied=on_denied)
 
     @property
     def address(self) -> tuple[str, int] | None:
@@ -148,11 +171,20 @@ class TcpServer(AsyncClosing):
         """What keeps the server from serving (empty: it listens, its tasks run)."""
         return self._gateway.health()
 
-    async def start(self, host: str = "127.0.0.1", port: int = 502) -> TcpServer:
-        """Listen on host:port (0: any free port, see ``address``).  RuntimeError if
-        it already listens (close it first); TypeError/ValueError naming ``host`` or
-        ``port`` before anything is bound."""
-        await self._gateway.start(*check_listen(host, port))
+    @property
+    def tls_address(self) -> tuple[str, int] | None:
+        """The (host, port) of the TLS listener, once started with ``tls``."""
+        return self._gateway.tls_address
+
+    async def start(
+        self, host: str = "127.0.0.1", port: int = 502, tls: TlsListen | None = None
+    ) -> TcpServer:
+        """Listen on host:port (0: any free port, see ``address``) and, with ``tls``
+        (`pyrtu.security.tls.TlsListen`: where, and `server_context`), for Modbus/TCP
+        Security (``tls_address``).  RuntimeError if it already listens (close it
+        first); TypeError/ValueError naming ``host`` or ``port`` before anything is
+        bound."""
+        await self._gateway.start(*check_listen(host, port), tls=tls)
         return self
 
     async def serve_forever(self, host: str = "127.0.0.1", port: int = 502) -> None:

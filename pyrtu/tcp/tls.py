@@ -1,0 +1,43 @@
+"""The TLS of an ``mbaps://`` client (Modbus/TCP Security): the socket wrapped where it
+is created, the server's certificate and host name verified by the caller's
+`ssl.SSLContext` (``pyrtu.security.tls.client_context(cert, key, ca)``), and the TLS
+session kept per (context, host, port) so that a reconnect resumes it: an abbreviated
+handshake with no certificate exchange (`session_reused` says whether it did).
+
+asyncio's ``create_connection`` takes no session: the asyncio client's reconnects
+run a full handshake.
+"""
+
+from __future__ import annotations
+
+import socket
+import ssl
+import weakref
+
+#: the port of Modbus/TCP Security (IANA "mbap-s")
+MBAPS_PORT = 802
+
+_sessions: weakref.WeakKeyDictionary[ssl.SSLContext, dict[tuple[str, int], ssl.SSLSession]] = (
+    weakref.WeakKeyDictionary()
+)
+
+
+def wrap(sock: socket.socket, context: ssl.SSLContext, host: str, port: int) -> ssl.SSLSocket:
+    """``sock`` (connected, with its connect timeout) in TLS, its handshake done,
+    resuming the session of the last connection to ``host:port`` with ``context``.
+    `ssl.SSLError` (an OSError) when the handshake fails."""
+    session = _sessions.get(context, {}).get((host, port))
+    wrapped = context.wrap_socket(sock, server_hostname=host, session=session)
+    remember(wrapped, context, host, port)
+    return wrapped
+
+
+def remember(sock: ssl.SSLSocket, context: ssl.SSLContext, host: str, port: int) -> None:
+    """Keep the connection's session for the next one (TLS 1.3 sends its tickets after
+    the handshake: called again before the socket closes, it keeps the latest)."""
+    session = sock.session
+    if session is not None:
+        _sessions.setdefault(context, {})[(host, port)] = session
+
+
+__all__ = ["MBAPS_PORT", "remember", "wrap"]
