@@ -525,3 +525,16 @@ def test_the_options_are_keywords_only(backend: ModuleType) -> None:
     with pytest.raises(TypeError):
         ClientProtocol(LINE, 0.5)  # type: ignore[misc]
     assert ClientProtocol(LINE, backend=backend).timeout == 1.0
+
+
+def test_a_turnaround_estimate_below_zero_is_kept_as_zero(backend: ModuleType) -> None:
+    """The first bytes of an answer read sooner than t3.5 plus their own characters
+    after the request (a slave that does not keep t3.5): the turnaround is 0, not
+    negative."""
+    p = ClientProtocol(LINE, timeout=2.0, backend=backend)
+    answer = crc(backend, struct.pack(">BBBH", 1, 3, 2, 1))
+    end = _sent(p, read_holding_registers(1, 0, 1), 100.0)
+    p.receive_data(answer[:3], end + CHAR)
+    p.receive_data(answer[3:], end + 5 * CHAR)
+    assert p.result() == [1]
+    assert p.turnaround(1) == 0.0

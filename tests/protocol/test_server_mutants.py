@@ -145,3 +145,34 @@ def test_no_nap_in_ascii_even_where_the_address_is_the_colons_code(backend: Modu
     h.now += 1.0
     h.proto.receive_data(request[:5], h.now)
     assert h.proto.wake_at(h.now) is None
+
+
+def test_a_late_read_with_bytes_after_the_request_is_timed_by_its_length(
+    backend: ModuleType,
+) -> None:
+    """The nap's read brings the request's rest and the start of the next frame: the
+    request (FC 03, 8 bytes by its rule) ended at the character rate from the nap's
+    start, and is answered t3.5 after that."""
+    h = Harness(backend)
+    adu = h.adu(read_request())
+    t0 = h.now
+    h.proto.receive_data(adu[:2], t0)
+    at = h.proto.wake_at(t0)
+    assert at == pytest.approx(t0 + 6 * CHAR + T35)
+    h.proto.receive_data(adu[2:] + b"\x02\x03", at)
+    pending = h.proto.pending
+    assert pending is not None and pending.earliest == pytest.approx(t0 + 6 * CHAR + T35)
+
+
+def test_one_nap_per_new_bytes(backend: ModuleType) -> None:
+    """A nap is offered after new bytes only: asked again with none, the driver
+    watches the port (or waits for a deadline)."""
+    h = Harness(backend)
+    adu = h.adu(read_request())
+    t0 = h.now
+    h.proto.receive_data(adu[:2], t0)
+    first = h.proto.next_action(t0)
+    assert type(first).__name__ == "Listen" and first.needed > 0  # type: ignore[attr-defined]
+    h.proto.receive_data(b"", t0 + CHAR)  # the nap ended with nothing read
+    again = h.proto.next_action(t0 + CHAR)
+    assert getattr(again, "needed", 0) == 0
