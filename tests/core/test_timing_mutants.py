@@ -88,7 +88,7 @@ def test_bytesize_and_stopbits() -> None:
             check_bytesize(wrong)
     assert [check_stopbits(v) for v in (1, 1.5, 2)] == [1, 1.5, 2]
     for bad in (0, 3, 2.5):
-        with pytest.raises(ValueError, match="stopbits must be 1, 1.5 or 2"):
+        with pytest.raises(ValueError, match=r"stopbits must be 1, 1\.5 or 2"):
             check_stopbits(bad)
     for wrong in (True, "1", None):
         with pytest.raises(ArgumentTypeError, match="stopbits"):
@@ -97,8 +97,15 @@ def test_bytesize_and_stopbits() -> None:
 
 @pytest.mark.parametrize(
     ("parity", "stopbits", "bytesize", "bits"),
-    [("E", 1, 8, 11), ("O", 1, 8, 11), ("N", 2, 8, 11), ("N", 1, 8, 10), ("E", 2, 8, 12),
-     ("N", 1, 7, 9), ("E", 1, 7, 10)],
+    [
+        ("E", 1, 8, 11),
+        ("O", 1, 8, 11),
+        ("N", 2, 8, 11),
+        ("N", 1, 8, 10),
+        ("E", 2, 8, 12),
+        ("N", 1, 7, 9),
+        ("E", 1, 7, 10),
+    ],
 )
 def test_bits_per_character(parity: str, stopbits: float, bytesize: int, bits: int) -> None:
     """Start bit, data bits, the parity bit, stop bits (Serial Line V1.02 2.5.1)."""
@@ -158,7 +165,7 @@ def test_seconds_to_microseconds() -> None:
         with pytest.raises(ValueError, match=r"^t35 must be a non-negative number of seconds"):
             seconds_to_us(bad, "t35")
     for wrong in (True, "1"):
-        with pytest.raises(ArgumentTypeError, match="^t15 must be"):
+        with pytest.raises(ArgumentTypeError, match=r"^t15 must be"):
             seconds_to_us(wrong, "t15")  # type: ignore[arg-type]
 
 
@@ -168,12 +175,12 @@ def test_check_seconds_bounds() -> None:
     with pytest.raises(ValueError, match=r"^timeout must be a positive number of seconds, not 0$"):
         positive_seconds(0, "timeout")
     for bad in (-1e-9, math.inf, math.nan):
-        with pytest.raises(ValueError, match="^delay must be a non-negative number of seconds"):
+        with pytest.raises(ValueError, match=r"^delay must be a non-negative number of seconds"):
             check_seconds("delay", bad)
-        with pytest.raises(ValueError, match="^timeout must be a positive number"):
+        with pytest.raises(ValueError, match=r"^timeout must be a positive number"):
             positive_seconds(bad, "timeout")
     for wrong in (True, "1", None):
-        with pytest.raises(ArgumentTypeError, match="^delay must be a non-negative"):
+        with pytest.raises(ArgumentTypeError, match=r"^delay must be a non-negative"):
             check_seconds("delay", wrong)
 
 

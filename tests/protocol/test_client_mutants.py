@@ -140,7 +140,9 @@ def test_a_function_whose_answer_length_varies_takes_the_steps(backend: ModuleTy
     assert type(p.next_action(101.0, xfer=True)) is not Xfer
 
 
-@pytest.mark.parametrize(("line", "char", "t35", "early"), [(LINE, CHAR, T35, 0), (FAST, FAST_CHAR, FAST_T35, 1)])
+@pytest.mark.parametrize(
+    ("line", "char", "t35", "early"), [(LINE, CHAR, T35, 0), (FAST, FAST_CHAR, FAST_T35, 1)]
+)
 def test_the_xfer_first_read_is_t35_plus_turnaround_plus_the_answer(
     backend: ModuleType, line: LineConfig, char: float, t35: float, early: int
 ) -> None:
@@ -423,7 +425,6 @@ def test_the_debug_log_names_the_request_and_the_answer_with_their_times(
     messages = [r.getMessage() for r in caplog.records]
     assert f"TX slave 1 fc 3: {adu} (12.500 ms on the line)" in messages
     assert f"RX slave 1 fc 3: {answer[:-2].hex(' ')} (37.500 ms)" in messages
-
 
 
 # --------------------------------------------------- boundaries and endings
