@@ -13,6 +13,7 @@ import pytest
 from test_server_protocol import BAUD, CHAR, T35, Harness, read_request
 
 from pyrtu.core.line import LineConfig
+from pyrtu.protocol.server import Listen
 
 #: a function with no length rule (user-defined, [MB] 5): framed by its CRC or the
 #: silence after it; the slave answers it with exception 1
@@ -94,7 +95,8 @@ def test_a_frame_one_byte_short_naps_one_character(backend: ModuleType) -> None:
     t0 = h.now
     h.proto.receive_data(other[:7], t0)
     assert h.proto.needed() == 1
-    assert h.proto.wake_at(t0) == pytest.approx(t0 + CHAR)
+    action = h.proto.next_action(t0)
+    assert action == Listen(pytest.approx(t0 + CHAR), 1)
 
 
 def test_no_nap_once_a_request_without_a_rule_is_all_in(backend: ModuleType) -> None:
