@@ -13,7 +13,7 @@ import pytest
 from test_server_protocol import BAUD, CHAR, T35, Harness, read_request
 
 from pyrtu.core.line import LineConfig
-from pyrtu.protocol.server import Listen
+from pyrtu.protocol.server import Listen, Reply
 
 #: a function with no length rule (user-defined, [MB] 5): framed by its CRC or the
 #: silence after it; the slave answers it with exception 1
@@ -178,3 +178,33 @@ def test_one_nap_per_new_bytes(backend: ModuleType) -> None:
     h.proto.receive_data(b"", t0 + CHAR)  # the nap ended with nothing read
     again = h.proto.next_action(t0 + CHAR)
     assert getattr(again, "needed", 0) == 0
+
+
+def test_a_request_after_a_late_read_is_timed_by_its_own_end(backend: ModuleType) -> None:
+    """The late read's time stands for the frames all in it only: the next request,
+    read as it comes, is answered t3.5 after its own last byte."""
+    h = Harness(backend)
+    adu = h.adu(read_request())
+    t0 = h.now
+    h.proto.receive_data(adu[:2], t0)
+    at = h.proto.wake_at(t0)
+    assert at is not None
+    h.proto.receive_data(adu[2:], at + 0.0004)
+    out, _ = h.run_until_sent()
+    assert out is not None
+    h.now += 5 * T35
+    end = h.feed(adu)
+    pending = h.proto.pending
+    assert pending is not None and pending.earliest == pytest.approx(end + T35)
+
+
+def test_a_driver_that_writes_ahead_listens_until_then(backend: ModuleType) -> None:
+    """next_action(ahead=...): the response is handed out that long before its time,
+    so the Listen before it ends that long before it."""
+    h = Harness(backend)
+    end = h.feed(h.adu(read_request()))
+    action = h.proto.next_action(end, nap=False, ahead=0.001)
+    assert action == Listen(pytest.approx(end + T35 - 0.001), 0)
+    assert isinstance(action, Listen)
+    reply = h.proto.next_action(action.until, nap=False, ahead=0.001)
+    assert isinstance(reply, Reply) and reply.at == pytest.approx(end + T35)
