@@ -79,3 +79,17 @@ def test_a_results_fields_are_keywords_only() -> None:
 
     with pytest.raises(TypeError):
         result("p", True, "id")  # type: ignore[misc]
+
+
+def test_a_refusal_is_immutable_and_hashable() -> None:
+    import dataclasses
+
+    refusal = Refusal("busy", "queue full", "x")
+    assert hash(refusal) == hash(Refusal("busy", "queue full", "x"))
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        refusal.error = "other"  # type: ignore[misc]
+
+
+def test_a_new_queue_counts_nothing() -> None:
+    q = CommandQueue(size=8, rate=1.0)
+    assert (q.waiting, q.refused, q.expired, q.executed, q.duplicates) == (0, 0, 0, 0, 0)

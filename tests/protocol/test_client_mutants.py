@@ -539,3 +539,21 @@ def test_a_turnaround_estimate_below_zero_is_kept_as_zero(backend: ModuleType) -
     p.receive_data(answer[3:], end + 5 * CHAR)
     assert p.result() == [1]
     assert p.turnaround(1) == 0.0
+
+
+def test_an_answer_all_in_the_first_read_of_an_xfer_ends_at_that_read(
+    backend: ModuleType,
+) -> None:
+    """The Xfer's first read brought the whole answer (a later read, nothing): its last
+    byte came by the first read, whose time (in whole microseconds) is the answer's."""
+    call, answer = _answers(backend)[2]
+    p = ClientProtocol(LINE, timeout=2.0, backend=backend)
+    transact(p, call, answer, 100.0)
+    p.start(*call, now=101.0)
+    plan = p.next_action(101.0, xfer=True)
+    assert type(plan) is Xfer
+    end = 101.0 + len(plan.data) * CHAR
+    first_t = end + plan.first_wake
+    p.xfer_done(101.0, end, answer, len(answer), first_t, first_t + 0.01)
+    done = p.next_action(first_t + 0.01)
+    assert type(done) is Done and done.end == round(first_t * 1_000_000) / 1e6
