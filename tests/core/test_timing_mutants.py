@@ -189,3 +189,12 @@ def test_overrides() -> None:
     assert apply_overrides(base, None, None) == base
     assert apply_overrides(base, 0.002, None) == Timing(1146, 2000, 4010)
     assert apply_overrides(base, None, 0.005) == Timing(1146, 1719, 5000)
+
+
+def test_a_timing_is_immutable_and_hashable() -> None:
+    import dataclasses
+
+    t = Timing(1146, 1719, 4010)
+    assert hash(t) == hash(compute_timing(9600, 11))
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        t.char_us = 1  # type: ignore[misc]
