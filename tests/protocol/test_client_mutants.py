@@ -401,6 +401,9 @@ def test_an_abandoned_xfer_keeps_the_latest_byte_read(backend: ModuleType) -> No
     before = p.last_rx
     p.abandoned_xfer(101.0, 101.01, 101.02)
     assert p.last_rx == 101.01
+    # nothing heard since the cancel: the abandoned answer's deadline, timeout after
+    # the request's end
+    assert p.late_answer_over_at() == pytest.approx(101.5, abs=1e-9)
     p.abandoned_xfer(102.0, 0.0, 102.02)  # nothing read
     assert p.last_rx == 101.01 and before < 101.0
 
