@@ -560,3 +560,14 @@ def test_an_answer_all_in_the_first_read_of_an_xfer_ends_at_that_read(
     p.xfer_done(101.0, end, answer, len(answer), first_t, first_t + 0.01)
     done = p.next_action(first_t + 0.01)
     assert type(done) is Done and done.end == round(first_t * 1_000_000) / 1e6
+
+
+def test_a_request_after_a_broadcast_without_delay_keeps_t35(backend: ModuleType) -> None:
+    """No broadcast turnaround asked for: the next request still waits t3.5 after the
+    broadcast's end (frames are separated by t3.5, Serial Line V1.02 2.5.1.1)."""
+    p = ClientProtocol(LINE, timeout=0.5, broadcast_delay=0.0, backend=backend)
+    end = _sent(p, (0, write_register(0, 3, 7).pdu, None), 100.0)
+    assert type(p.next_action(end)) is Done
+    p.start(*read_holding_registers(1, 0, 1), now=end)
+    assert p.state is ClientState.QUIET
+    assert p.deadline() == pytest.approx(end + T35, abs=1e-9)
