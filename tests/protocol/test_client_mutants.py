@@ -149,15 +149,14 @@ def test_the_xfer_first_read_is_t35_plus_turnaround_plus_the_answer(
     """The first read where the whole answer can be in: t3.5 + the slave's learned
     turnaround + the answer's characters (one fewer on a line faster than 0.5 ms a
     character, where a timed wake-up is late by about one)."""
-    call, answer = _answers(backend)[2]  # 9 bytes
     p = ClientProtocol(line, timeout=2.0, backend=backend)
-    transact(p, call, answer, 100.0, split=3)
+    now = _learn(p, 1, 0.004, 100.0)  # an answer of 7 bytes, 4 ms or so past t3.5
     turn = p.turnaround(1)
-    assert turn is not None
-    p.start(*call, now=101.0)
-    plan = p.next_action(101.0, xfer=True)
+    assert turn is not None and turn > 0.003
+    p.start(*read_holding_registers(1, 0, 1), now=now)
+    plan = p.next_action(now, xfer=True)
     assert type(plan) is Xfer
-    assert plan.first_wake == pytest.approx(t35 + turn + (len(answer) - early) * char, abs=1e-9)
+    assert plan.first_wake == pytest.approx(t35 + turn + (7 - early) * char, abs=1e-9)
 
 
 def test_an_xfer_on_a_quiet_line_is_sent_at_once_early_on_the_clock(backend: ModuleType) -> None:
