@@ -93,3 +93,11 @@ def test_a_refusal_is_immutable_and_hashable() -> None:
 def test_a_new_queue_counts_nothing() -> None:
     q = CommandQueue(size=8, rate=1.0)
     assert (q.waiting, q.refused, q.expired, q.executed, q.duplicates) == (0, 0, 0, 0, 0)
+
+
+@pytest.mark.parametrize("value", [True, False, 1.0, None])
+def test_an_enum_takes_a_label_or_its_number_only(value: object) -> None:
+    mode = Point("d.mode", "line", 1, "holding", 0, enum=["off", "heat"], writable=True)
+    assert check_value(mode, "heat").words == [1] and check_value(mode, 0).words == [0]
+    with pytest.raises(ValueError, match=r'value must be one of "off", "heat"'):
+        check_value(mode, value)
