@@ -208,3 +208,19 @@ def test_a_driver_that_writes_ahead_listens_until_then(backend: ModuleType) -> N
     assert isinstance(action, Listen)
     reply = h.proto.next_action(action.until, nap=False, ahead=0.001)
     assert isinstance(reply, Reply) and reply.at == pytest.approx(end + T35)
+
+
+def test_the_debug_log_names_the_request_and_the_answer(
+    backend: ModuleType, caplog: pytest.LogCaptureFixture
+) -> None:
+    import logging
+
+    caplog.set_level(logging.DEBUG, logger="pyrtu.drivers.slave")
+    h = Harness(backend)
+    request = h.adu(read_request(count=1))
+    h.feed(request)
+    out, _ = h.run_until_sent()
+    assert out is not None
+    messages = [r.getMessage() for r in caplog.records if r.name == "pyrtu.drivers.slave"]
+    assert f"RX unit 1: {request.hex(' ')}" in messages
+    assert f"TX unit 1: {out.hex(' ')}" in messages
