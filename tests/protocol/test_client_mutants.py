@@ -570,3 +570,34 @@ def test_a_request_after_a_broadcast_without_delay_keeps_t35(backend: ModuleType
     p.start(*read_holding_registers(1, 0, 1), now=end)
     assert p.state is ClientState.QUIET
     assert p.deadline() == pytest.approx(end + T35, abs=1e-9)
+
+
+def test_every_retry_is_sent(backend: ModuleType) -> None:
+    """retries=2: the request goes three times before NoResponseError."""
+    p = ClientProtocol(LINE, timeout=0.1, retries=2, backend=backend)
+    p.start(*read_holding_registers(1, 0, 1), now=100.0)
+    now = 100.0
+    for _ in range(3):
+        while p.state is ClientState.QUIET:
+            at = p.deadline()
+            assert at is not None
+            now = max(now, at)
+            p.handle_timer(now)
+        p.wait_done(b"", now)
+        end = now + 8 * CHAR
+        p.transmitted(end, now)
+        now = end + 0.1
+        p.handle_timer(now)
+    with pytest.raises(NoResponseError):
+        p.result()
+    c = p.counters
+    assert (c["requests"], c["retries"], c["timeouts"]) == (3, 2, 3)
+
+
+def test_bytes_after_a_broadcasts_echo_are_stale(backend: ModuleType) -> None:
+    p = ClientProtocol(LINE, timeout=0.5, echo=True, backend=backend)
+    end = _sent(p, (0, write_register(0, 3, 7).pdu, None), 100.0)
+    adu = crc(backend, bytes.fromhex("000600030007"))
+    p.receive_data(adu + b"\x55\x66", end + 0.001)  # the echo, then 2 bytes of noise
+    assert type(p.next_action(end + 0.001)) is Done
+    assert p.counters["discarded_stale"] == 2
