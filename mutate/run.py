@@ -18,6 +18,7 @@ Two kinds of mutants, both run in a copy of the tree (build/mutate/), never in i
     python mutate/run.py generated [TARGET ...] # cosmic-ray over the targets (all)
     python mutate/run.py generated --jobs 2     # targets in parallel, a tree copy each
     python mutate/run.py generated --survivors plan  # re-judge only the last survivors
+    python mutate/run.py generated --rest plan --budget 20  # judge more of them
     python mutate/run.py report plan            # docs/MUTATION.md from the last run
 
 `--budget MINUTES` bounds each module's run: cosmic-ray takes the mutants in random
@@ -25,7 +26,10 @@ order, so the ones judged when the time is up are a random sample; the report sa
 how many were not run (and `--survivors` later judges the survivors of the sample).
 
 `--survivors` reuses a target's last session: the killed mutants stay killed, and
-only the survivors run again against the current tests/ (copied anew).  That is
+only the survivors run again against the current tests/ (copied anew).  `--rest`
+reuses it too: the verdicts stay, and the mutants a budget left unjudged run (a
+further sample, within the budget), so that a target's figure grows to cover most
+mutants run by run (run `--survivors` first: a survivor stays one until then).  That is
 sound only when the mutated modules are unchanged and the target's test files only
 grew since the session; the run checks both and refuses otherwise.
 """
@@ -269,12 +273,13 @@ def _equivalents() -> list[dict[str, str]]:
     return list(tomllib.loads((HERE / "equivalent.toml").read_text()).get("equivalent", []))
 
 
-def _survivors_again(tree: Path, target: Target) -> None:
+def _survivors_again(tree: Path, target: Target, rest: bool = False) -> None:
     """The tree copied anew, the last session's survivors pending again.
 
     Refused (SystemExit) unless every mutated module is the one the session mutated
     and the session's test files are all among the target's test files now: then a
     mutant the session killed is still killed, and only the survivors need a run.
+    With ``rest``, the verdicts all stay, and the mutants not judged yet are pending.
     """
     import sqlite3
 
@@ -303,7 +308,9 @@ def _survivors_again(tree: Path, target: Target) -> None:
     for session in sorted(tree.glob("cr-*.sqlite")):  # all checked: now re-open them
         with sqlite3.connect(session) as db:
             # the mutants a budget left unjudged stay so (not a new sample): parked
-            # until the survivors are judged (`_unpark`)
+            # until the survivors are judged (`_unpark`); with `rest` only they run
+            if rest:
+                continue
             db.execute(
                 "INSERT INTO work_results (job_id, worker_outcome, output) SELECT job_id,"
                 " 'SKIPPED', ? FROM work_items WHERE job_id NOT IN"
@@ -349,18 +356,21 @@ def _exec(cr: Path, tree: Path, config: Path, session: Path, module: str, budget
         raise SystemExit(f"mutate: cosmic-ray exec failed on {module} (exit {code})")
 
 
-def _run_target(target: Target, survivors: bool = False, budget: float = 0.0) -> Path:
+def _run_target(
+    target: Target, survivors: bool = False, budget: float = 0.0, rest: bool = False
+) -> Path:
     """cosmic-ray over one target in a tree copy of its own; the session's JSON dump.
 
     With `survivors`, the last session's survivors only (see `_survivors_again`);
-    with `budget`, at most that many minutes a module (see `_exec`).
+    with `rest`, its mutants not judged yet; with `budget`, at most that many
+    minutes a module (see `_exec`).
     """
     from cosmic_ray.work_db import WorkDB, use_db  # the tool, installed by make mutate
     from cosmic_ray.work_item import WorkerOutcome, WorkResult
 
     tree = WORK / f"tree-{target.name}"
-    if survivors:
-        _survivors_again(tree, target)
+    if survivors or rest:
+        _survivors_again(tree, target, rest)
     else:
         _copy_tree(tree)
     out = WORK / f"{target.name}.jsonl"
@@ -392,7 +402,7 @@ def _run_target(target: Target, survivors: bool = False, budget: float = 0.0) ->
             '[cosmic-ray.distributor]\nname = "local"\n'
         )
         cr = Path(sys.executable).with_name("cosmic-ray")
-        if not survivors:
+        if not (survivors or rest):
             subprocess.run(
                 [cr, "init", config.name, session.name], cwd=tree, check=True, env=_env(tree)
             )
@@ -482,12 +492,14 @@ def _summarise(target: Target) -> Summary:
     return Summary(target.name, counts, survivors)
 
 
-def run_generated(names: list[str], jobs: int, survivors: bool = False, budget: float = 0.0) -> int:
+def run_generated(
+    names: list[str], jobs: int, survivors: bool = False, budget: float = 0.0, rest: bool = False
+) -> int:
     import concurrent.futures
 
     targets = [t for t in _targets() if not names or t.name in names]
     with concurrent.futures.ThreadPoolExecutor(max_workers=jobs) as pool:
-        list(pool.map(lambda t: _run_target(t, survivors, budget), targets))
+        list(pool.map(lambda t: _run_target(t, survivors, budget, rest), targets))
     return report([t.name for t in targets])
 
 
@@ -556,6 +568,11 @@ def main() -> int:
         help="re-judge only the last session's survivors (modules unchanged, tests only grown)",
     )
     generated.add_argument(
+        "--rest",
+        action="store_true",
+        help="judge the mutants the last session's budget left unjudged (its verdicts kept)",
+    )
+    generated.add_argument(
         "--budget",
         type=float,
         default=0.0,
@@ -569,7 +586,9 @@ def main() -> int:
         return run_faults(args.names)
     if args.kind == "report":
         return report(args.names)
-    return run_generated(args.names, args.jobs, args.survivors, args.budget)
+    if args.rest and args.survivors:
+        parser.error("--rest and --survivors are two runs: --survivors first")
+    return run_generated(args.names, args.jobs, args.survivors, args.budget, args.rest)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,226 @@
+"""The server protocol's decisions that the mutation run (docs/MUTATION.md) found
+untested: a request of a function without a rule read late after a nap (timed by
+its CRC at the character rate), that function's last length as the nap's guess, a
+nap for the last byte of a frame, no nap with a request all in, the echo's window.
+Expected times from Serial Line V1.02 (a frame is one continuous stream, 2.5.1.1;
+t3.5 before the answer), never read back from the protocol; on both backends."""
+
+from __future__ import annotations
+
+from types import ModuleType
+
+import pytest
+from test_server_protocol import BAUD, CHAR, T35, Harness, read_request
+
+from pyrtu.core.line import LineConfig
+from pyrtu.protocol.server import Listen, Reply
+
+#: a function with no length rule (user-defined, [MB] 5): framed by its CRC or the
+#: silence after it; the slave answers it with exception 1
+SHORT = b"\x01\x41\xaa\xbb"  # 6 bytes with the CRC
+LONG = b"\x01\x41\xaa\xbb\xcc\xdd"  # 8
+
+
+def _answered(h: Harness) -> float:
+    """The silence after the request runs: when its answer is due."""
+    deadline = h.proto.deadline()
+    assert deadline is not None
+    h.proto.handle_timer(deadline)
+    pending = h.proto.pending
+    assert pending is not None and pending.exception == 1
+    return pending.earliest
+
+
+def test_a_late_read_of_a_request_without_a_rule_is_timed_by_its_crc(
+    backend: ModuleType,
+) -> None:
+    """After an 8-byte request the nap from the address alone is sized for 8 bytes; a
+    6-byte request of a function with no rule comes instead: its end is where its
+    CRC checks, at the character rate from the nap's start."""
+    h = Harness(backend)
+    h.feed(h.adu(read_request()))
+    h.run_until_sent()
+    h.now += 5 * T35
+    adu = h.adu(SHORT)
+    t0 = h.now
+    h.proto.receive_data(adu[:1], t0)
+    at = h.proto.wake_at(t0)
+    assert at == pytest.approx(t0 + 7 * CHAR + T35)
+    h.proto.receive_data(adu[1:], at)
+    assert _answered(h) == pytest.approx(t0 + 5 * CHAR + T35, abs=2e-6)
+
+
+def test_a_function_without_a_rule_naps_for_its_last_length(backend: ModuleType) -> None:
+    h = Harness(backend)
+    h.feed(h.adu(LONG))
+    h.run_until_sent()
+    h.now += 5 * T35
+    adu = h.adu(LONG)
+    t0 = h.now
+    h.proto.receive_data(adu[:2], t0)
+    assert h.proto.wake_at(t0) == pytest.approx(t0 + 6 * CHAR + T35)
+
+
+def test_a_shorter_request_than_its_functions_last_is_timed_by_its_crc(
+    backend: ModuleType,
+) -> None:
+    h = Harness(backend)
+    h.feed(h.adu(LONG))
+    h.run_until_sent()
+    h.now += 5 * T35
+    adu = h.adu(SHORT)
+    t0 = h.now
+    h.proto.receive_data(adu[:2], t0)
+    at = h.proto.wake_at(t0)
+    assert at == pytest.approx(t0 + 6 * CHAR + T35)  # the last length: 8
+    h.proto.receive_data(adu[2:], at)
+    assert _answered(h) == pytest.approx(t0 + 4 * CHAR + T35, abs=2e-6)
+
+
+def test_another_function_without_a_rule_has_no_length_guess(backend: ModuleType) -> None:
+    h = Harness(backend)
+    h.feed(h.adu(LONG))
+    h.run_until_sent()
+    h.now += 5 * T35
+    t0 = h.now
+    h.proto.receive_data(h.adu(b"\x01\x42\xaa\xbb")[:2], t0)
+    at = h.proto.wake_at(t0)
+    # not 0x41's 8 bytes: at most the least rest of a frame (address, function, CRC)
+    assert at is None or at <= t0 + 2 * CHAR + 1e-9
+
+
+def test_a_frame_one_byte_short_naps_one_character(backend: ModuleType) -> None:
+    h = Harness(backend)
+    other = h.adu(read_request(unit=2))
+    t0 = h.now
+    h.proto.receive_data(other[:7], t0)
+    assert h.proto.needed() == 1
+    action = h.proto.next_action(t0)
+    assert action == Listen(pytest.approx(t0 + CHAR), 1)
+
+
+def test_no_nap_once_a_request_without_a_rule_is_all_in(backend: ModuleType) -> None:
+    """Its last length is all in: nothing to sleep through (the silence ends it)."""
+    h = Harness(backend)
+    h.feed(h.adu(LONG))
+    h.run_until_sent()
+    h.now += 5 * T35
+    t0 = h.now
+    h.proto.receive_data(h.adu(LONG), t0)
+    assert h.proto.wake_at(t0) is None
+
+
+def _echoed(h: Harness) -> tuple[bytes, float]:
+    h.feed(h.adu(read_request()))
+    out = h.proto.data_to_send(h.proto.deadline() or h.now)
+    assert out is not None
+    end = h.now + 0.05
+    h.proto.transmitted(end)
+    return out, end
+
+
+def test_an_echo_within_twice_its_wire_time_and_200_ms_is_dropped(backend: ModuleType) -> None:
+    h = Harness(backend, echo=True)
+    out, end = _echoed(h)
+    h.proto.receive_data(out, end + 2 * len(out) * CHAR + 0.2 - 1e-6)
+    h.proto.handle_timer(end + 1.0)
+    assert h.proto.counters["echo_dropped"] == 1
+
+
+def test_an_echo_later_than_its_window_is_a_frame_seen(backend: ModuleType) -> None:
+    h = Harness(backend, echo=True)
+    out, end = _echoed(h)
+    h.proto.receive_data(out, end + 2 * len(out) * CHAR + 0.2 + 0.001)
+    h.proto.handle_timer(end + 1.0)
+    assert h.proto.counters["echo_dropped"] == 0
+    assert h.app.line.counters["bus_message_count"] == 2
+
+
+def test_no_nap_in_ascii_even_where_the_address_is_the_colons_code(backend: ModuleType) -> None:
+    """ASCII frames end at their delimiter, not at a length: no nap, even for slave 58
+    (0x3A, ':'), whose frames begin with bytes that read as its own address."""
+    line = LineConfig(baudrate=BAUD, parity="N", mode="ascii")
+    h = Harness(backend, line, address=58)
+    request = h.adu(read_request(unit=58))
+    h.feed(request)
+    assert h.run_until_sent()[0] is not None
+    h.now += 1.0
+    h.proto.receive_data(request[:5], h.now)
+    assert h.proto.wake_at(h.now) is None
+
+
+def test_a_late_read_with_bytes_after_the_request_is_timed_by_its_length(
+    backend: ModuleType,
+) -> None:
+    """The nap's read brings the request's rest and the start of the next frame: the
+    request (FC 03, 8 bytes by its rule) ended at the character rate from the nap's
+    start, and is answered t3.5 after that."""
+    h = Harness(backend)
+    adu = h.adu(read_request())
+    t0 = h.now
+    h.proto.receive_data(adu[:2], t0)
+    at = h.proto.wake_at(t0)
+    assert at == pytest.approx(t0 + 6 * CHAR + T35)
+    h.proto.receive_data(adu[2:] + b"\x02\x03", at)
+    pending = h.proto.pending
+    assert pending is not None and pending.earliest == pytest.approx(t0 + 6 * CHAR + T35)
+
+
+def test_one_nap_per_new_bytes(backend: ModuleType) -> None:
+    """A nap is offered after new bytes only: asked again with none, the driver
+    watches the port (or waits for a deadline)."""
+    h = Harness(backend)
+    adu = h.adu(read_request())
+    t0 = h.now
+    h.proto.receive_data(adu[:2], t0)
+    first = h.proto.next_action(t0)
+    assert type(first).__name__ == "Listen" and first.needed > 0  # type: ignore[attr-defined]
+    h.proto.receive_data(b"", t0 + CHAR)  # the nap ended with nothing read
+    again = h.proto.next_action(t0 + CHAR)
+    assert getattr(again, "needed", 0) == 0
+
+
+def test_a_request_after_a_late_read_is_timed_by_its_own_end(backend: ModuleType) -> None:
+    """The late read's time stands for the frames all in it only: the next request,
+    read as it comes, is answered t3.5 after its own last byte."""
+    h = Harness(backend)
+    adu = h.adu(read_request())
+    t0 = h.now
+    h.proto.receive_data(adu[:2], t0)
+    at = h.proto.wake_at(t0)
+    assert at is not None
+    h.proto.receive_data(adu[2:], at + 0.0004)
+    out, _ = h.run_until_sent()
+    assert out is not None
+    h.now += 5 * T35
+    end = h.feed(adu)
+    pending = h.proto.pending
+    assert pending is not None and pending.earliest == pytest.approx(end + T35)
+
+
+def test_a_driver_that_writes_ahead_listens_until_then(backend: ModuleType) -> None:
+    """next_action(ahead=...): the response is handed out that long before its time,
+    so the Listen before it ends that long before it."""
+    h = Harness(backend)
+    end = h.feed(h.adu(read_request()))
+    action = h.proto.next_action(end, nap=False, ahead=0.001)
+    assert action == Listen(pytest.approx(end + T35 - 0.001), 0)
+    assert isinstance(action, Listen)
+    reply = h.proto.next_action(action.until, nap=False, ahead=0.001)
+    assert isinstance(reply, Reply) and reply.at == pytest.approx(end + T35)
+
+
+def test_the_debug_log_names_the_request_and_the_answer(
+    backend: ModuleType, caplog: pytest.LogCaptureFixture
+) -> None:
+    import logging
+
+    caplog.set_level(logging.DEBUG, logger="pyrtu.drivers.slave")
+    h = Harness(backend)
+    request = h.adu(read_request(count=1))
+    h.feed(request)
+    out, _ = h.run_until_sent()
+    assert out is not None
+    messages = [r.getMessage() for r in caplog.records if r.name == "pyrtu.drivers.slave"]
+    assert f"RX unit 1: {request.hex(' ')}" in messages
+    assert f"TX unit 1: {out.hex(' ')}" in messages
