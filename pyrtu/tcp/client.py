@@ -188,21 +188,62 @@ class TcpClient(_ClientState, Closing):
         return f"TcpClient({self.where!r})"
 
 
-class _ClientConnection(asyncio.Protocol):
-    def __init__(self, proto: TcpClientProtocol, where: str) -> None:
+class _ClientConnection(asyncio.BufferedProtocol):
+    """The event loop's side of an `AsyncTcpClient`: the socket is read straight
+    into the scanner's buffer (no bytes object per read: asyncio's plain
+    `asyncio.Protocol` allocates 256 KiB for each), one scan per read (C:
+    rtu_tcp_scan) finds the whole ADUs, and the answer of the one request in flight
+    resolves its future here; several in flight (pipelined), late answers and bad
+    headers go through the protocol's results."""
+
+    def __init__(self, proto: TcpClientProtocol, where: str, scanner: xfer.TcpScanner) -> None:
         self.proto = proto
         self.where = where
         self.transport: asyncio.Transport | None = None
+        self.loop: asyncio.AbstractEventLoop | None = None
         self.waiters: dict[int, asyncio.Future[bytes | None]] = {}
         self.timer: asyncio.TimerHandle | None = None
+        self.timer_at = 0.0  # when the timer fires (monotonic seconds)
+        self.scan = scanner.scan
+        self.buf = scanner.buf
+        self.view = memoryview(scanner.buf)
+        self.n = 0  # bytes in buf: the start of an ADU not read whole yet
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         assert isinstance(transport, asyncio.Transport)
         self.transport = transport
+        self.loop = asyncio.get_running_loop()
 
-    def data_received(self, data: bytes) -> None:
-        self.proto.receive_data(data, time.monotonic())
-        self.dispatch()
+    def get_buffer(self, sizehint: int) -> memoryview:
+        return self.view[self.n :]
+
+    def buffer_updated(self, nbytes: int) -> None:
+        now = time.monotonic()
+        proto = self.proto
+        n = self.n + nbytes
+        if proto.broken is not None:  # (the stream is lost: nothing more is read)
+            self.n = 0
+            return
+        tid = proto.sole_tid()
+        scan = self.scan(n, max(tid, 0))
+        used = scan.used
+        if tid >= 0 and used and used == scan.ans_len:  # the one answer awaited, alone
+            result = proto.take_answer(tid, self.buf[6], bytes(self.view[7:used]), now)
+            fut = self.waiters.pop(tid, None)
+            if fut is not None and not fut.done():
+                if isinstance(result, ModbusError):
+                    fut.set_exception(result)
+                else:
+                    fut.set_result(result)
+        elif used or scan.error:
+            proto.receive_scanned(bytes(self.view[:used]), used, scan.error, now)
+            self.dispatch()
+        if used:
+            rest = n - used
+            if rest:
+                self.buf[:rest] = bytes(self.view[used:n])  # a partial ADU stays
+            n = rest
+        self.n = 0 if proto.broken is not None else n
 
     def eof_received(self) -> bool | None:
         self.proto.connection_lost("the server closed the connection")
@@ -212,6 +253,9 @@ class _ClientConnection(asyncio.Protocol):
     def connection_lost(self, exc: Exception | None) -> None:
         self.proto.connection_lost(str(exc) if exc else "connection closed")
         self.dispatch()
+        if self.timer is not None:
+            self.timer.cancel()
+            self.timer = None
 
     def on_timer(self) -> None:
         self.timer = None
@@ -231,11 +275,19 @@ class _ClientConnection(asyncio.Protocol):
         self.arm()
 
     def arm(self) -> None:
-        self.timer = rearm(self.timer, self.proto.deadline(), self.on_timer)
+        """A timer for the first deadline of the requests in flight, unless one
+        fires before it (an answered request's: it finds nothing expired and
+        arms the next; so a transaction answered in time touches no timer)."""
+        when = self.proto.deadline()
+        if when is not None and (self.timer is None or when < self.timer_at):
+            self.timer = rearm(self.timer, when, self.on_timer)
+            self.timer_at = when
 
 
 class AsyncTcpClient(_ClientState, AsyncClosing):
-    """An asyncio Modbus TCP client: up to ``max_in_flight`` requests on the wire at once."""
+    """An asyncio Modbus TCP client: up to ``max_in_flight`` requests on the wire at
+    once.  ``backend``: whose scan reads the answers (`pyrtu.drivers.xfer.TcpScanner`:
+    C, rtu_tcp_scan, or ``"python"``: the twin)."""
 
     def __init__(self, conn: _ClientConnection, host: str, port: int, max_in_flight: int) -> None:
         self._conn = conn
@@ -252,17 +304,22 @@ class AsyncTcpClient(_ClientState, AsyncClosing):
         timeout: float = 1.0,
         connect_timeout: float | None = None,
         max_in_flight: int = 16,
+        backend: str | None = None,
     ) -> AsyncTcpClient:
         host, port = parse_tcp_url(url)
         where = _where(host, port)
         proto = TcpClientProtocol(timeout=timeout, max_in_flight=max_in_flight, where=where)
+        scanner = xfer_runners.tcp_scanner(_backend.backend(backend))
         ct = check_timeout(
             timeout if connect_timeout is None else connect_timeout, "connect_timeout"
         )
         loop = asyncio.get_running_loop()
         try:
             _, conn = await asyncio.wait_for(
-                loop.create_connection(lambda: _ClientConnection(proto, where), host, port), ct
+                loop.create_connection(
+                    lambda: _ClientConnection(proto, where, scanner), host, port
+                ),
+                ct,
             )
         except (OSError, asyncio.TimeoutError) as exc:
             raise connect_error(where, exc, ct) from exc
@@ -278,21 +335,28 @@ class AsyncTcpClient(_ClientState, AsyncClosing):
         returned as its PDU (function code | 0x80, exception code).  Cancelling the
         await forgets the request (a late answer is dropped)."""
         conn = self._conn
+        proto = conn.proto
         async with self._window:
             now = time.monotonic()
-            tid, data = conn.proto.send_request(unit, pdu, now, answered=answered, raw=raw)
-            fut: asyncio.Future[bytes | None] = asyncio.get_running_loop().create_future()
+            tid, data = proto.send_request(unit, pdu, now, answered=answered, raw=raw)
+            assert conn.loop is not None
+            fut: asyncio.Future[bytes | None] = conn.loop.create_future()
             conn.waiters[tid] = fut
-            if conn.transport is None or conn.transport.is_closing():
-                conn.proto.connection_lost("the connection is closed")
+            transport = conn.transport
+            if transport is None or transport.is_closing():
+                proto.connection_lost("the connection is closed")
+                conn.dispatch()
             else:
-                conn.transport.write(data)
-            conn.dispatch()
+                transport.write(data)
+                if proto.has_results():  # a broadcast's None
+                    conn.dispatch()
+                elif conn.timer is None or now + proto.timeout < conn.timer_at:
+                    conn.arm()
             try:
                 return await fut
             except asyncio.CancelledError:
                 conn.waiters.pop(tid, None)
-                conn.proto.cancel(tid)
+                proto.cancel(tid)
                 raise
 
     async def close(self) -> None:

@@ -161,9 +161,17 @@ class TcpLink(_TcpBase):
 
 class AsyncTcpLink(_TcpBase):
     """`pyrtu.drivers.aio.AsyncMaster`'s link on a Modbus TCP connection; connects on the
-    first request, keeps up to ``max_in_flight`` requests on the wire."""
+    first request, keeps up to ``max_in_flight`` requests on the wire; ``backend``:
+    whose scan reads the answers (C, rtu_tcp_scan, or the twin)."""
 
-    def __init__(self, url: str, timeout: float, retries: int, max_in_flight: int) -> None:
+    def __init__(
+        self,
+        url: str,
+        timeout: float,
+        retries: int,
+        max_in_flight: int,
+        backend: str | None = None,
+    ) -> None:
         parse_tcp_url(url)  # ValueError now, not at the first request
         self.url = url
         self.retries = retries
@@ -171,6 +179,7 @@ class AsyncTcpLink(_TcpBase):
         self._max_in_flight = check_in_flight(max_in_flight, True)
         self._client: AsyncTcpClient | None = None
         self._connecting: asyncio.Lock | None = None
+        self._backend = backend
 
     @property
     def timeout(self) -> float:
@@ -200,12 +209,15 @@ class AsyncTcpLink(_TcpBase):
             async with self._connecting:
                 if self._client is None:
                     self._client = await AsyncTcpClient.connect(
-                        self.url, timeout=self._timeout, max_in_flight=self._max_in_flight
+                        self.url,
+                        timeout=self._timeout,
+                        max_in_flight=self._max_in_flight,
+                        backend=self._backend,
                     )
         return self._client
 
     async def transact(self, call: Call) -> tuple[Any, float]:
-        client = await self._connected()
+        client = self._client or await self._connected()
         answered, raw = call.decode is not None, call.decode is answer_pdu
         for attempt in range(self.retries + 1):
             try:
