@@ -227,7 +227,8 @@ class _ClientConnection(asyncio.BufferedProtocol):
         tid = proto.sole_tid()
         scan = self.scan(n, max(tid, 0))
         used = scan.used
-        if tid >= 0 and used and used == scan.ans_len:  # the one answer awaited, alone
+        if tid >= 0 and used and used == scan.ans_len and not scan.error:
+            # the one answer awaited, alone: its future resolved here
             result = proto.take_answer(tid, self.buf[6], bytes(self.view[7:used]), now)
             fut = self.waiters.pop(tid, None)
             if fut is not None and not fut.done():
