@@ -27,6 +27,7 @@ import errno
 import os
 import socket
 import time
+from collections import deque
 from typing import Any
 from urllib.parse import urlsplit
 
@@ -285,6 +286,43 @@ class _ClientConnection(asyncio.BufferedProtocol):
             self.timer_at = when
 
 
+class _Window:
+    """The turns of an `AsyncTcpClient`'s requests: ``free`` of ``max_in_flight``
+    on the wire; the others wait in order (as an `asyncio.Semaphore`, without its
+    coroutines on the common path: a caller with a free turn takes it without an
+    await)."""
+
+    __slots__ = ("free", "queue")
+
+    def __init__(self, size: int) -> None:
+        self.free = size
+        self.queue: deque[asyncio.Future[None]] = deque()
+
+    async def wait_turn(self, loop: asyncio.AbstractEventLoop) -> None:
+        """Wait until `release` hands this caller a turn."""
+        fut: asyncio.Future[None] = loop.create_future()
+        self.queue.append(fut)
+        try:
+            await fut
+        except asyncio.CancelledError:
+            if fut.cancelled():
+                if fut in self.queue:
+                    self.queue.remove(fut)
+            else:
+                self.release()  # handed a turn, then cancelled: the next one's
+            raise
+
+    def release(self) -> None:
+        """A turn is over: the first caller still waiting gets it, else it is free."""
+        queue = self.queue
+        while queue:
+            fut = queue.popleft()
+            if not fut.done():
+                fut.set_result(None)
+                return
+        self.free += 1
+
+
 class AsyncTcpClient(_ClientState, AsyncClosing):
     """An asyncio Modbus TCP client: up to ``max_in_flight`` requests on the wire at
     once.  ``backend``: whose scan reads the answers (`pyrtu.drivers.xfer.TcpScanner`:
@@ -295,7 +333,7 @@ class AsyncTcpClient(_ClientState, AsyncClosing):
         self._proto = conn.proto
         self.host, self.port = host, port
         self.where = conn.where
-        self._window = asyncio.Semaphore(max_in_flight)
+        self._window = _Window(max_in_flight)
 
     @classmethod
     async def connect(
@@ -337,7 +375,13 @@ class AsyncTcpClient(_ClientState, AsyncClosing):
         await forgets the request (a late answer is dropped)."""
         conn = self._conn
         proto = conn.proto
-        async with self._window:
+        window = self._window
+        if window.free and not window.queue:  # (a turn at once: no await)
+            window.free -= 1
+        else:
+            assert conn.loop is not None
+            await window.wait_turn(conn.loop)
+        try:
             now = time.monotonic()
             tid, data = proto.send_request(unit, pdu, now, answered=answered, raw=raw)
             assert conn.loop is not None
@@ -359,6 +403,8 @@ class AsyncTcpClient(_ClientState, AsyncClosing):
                 conn.waiters.pop(tid, None)
                 proto.cancel(tid)
                 raise
+        finally:
+            window.release()
 
     async def close(self) -> None:
         transport = self._conn.transport

@@ -262,3 +262,60 @@ def test_async_master_reads_with_its_backends_scan(
             assert twin == (backend.BACKEND == "python")
 
     asyncio.run(main())
+
+
+def test_requests_wait_their_turn_and_a_cancelled_one_is_never_sent(
+    scripted: Callable[[Callable[[socket.socket], None]], int],
+) -> None:
+    """``max_in_flight=1``: a second and third request wait for the first's answer;
+    the second, cancelled while it waits, never goes out; the third does."""
+    seen: list[int] = []
+
+    def script(conn: socket.socket) -> None:
+        for _ in range(2):
+            ((tid, unit, _),) = read_requests(conn, 1)
+            seen.append(unit)
+            conn.sendall(adu(tid, unit, VALUES))
+        conn.recv(1)
+
+    port = scripted(script)
+
+    async def main() -> None:
+        c = await AsyncTcpClient.connect(f"tcp://127.0.0.1:{port}", timeout=2.0, max_in_flight=1)
+        async with c:
+            first = asyncio.ensure_future(c.request(1, READ))
+            second = asyncio.ensure_future(c.request(2, READ))
+            third = asyncio.ensure_future(c.request(3, READ))
+            await asyncio.sleep(0)  # all three started: the first on the wire
+            second.cancel()
+            assert await first == VALUES and await third == VALUES
+            with pytest.raises(asyncio.CancelledError):
+                await second
+            assert c.counters["requests"] == 2
+
+    asyncio.run(main())
+    assert seen == [1, 3]
+
+
+def test_a_turn_handed_to_a_cancelled_waiter_passes_on() -> None:
+    """The window of turns: a waiter cancelled after `release` handed it the turn
+    (before it ran) passes the turn on, so no turn is lost."""
+    from pyrtu.tcp.client import _Window
+
+    async def main() -> None:
+        loop = asyncio.get_running_loop()
+        window = _Window(1)
+        window.free -= 1  # the turn is taken
+        second = asyncio.ensure_future(window.wait_turn(loop))
+        third = asyncio.ensure_future(window.wait_turn(loop))
+        await asyncio.sleep(0)
+        window.release()  # to the second ...
+        second.cancel()  # ... which is cancelled before it runs
+        await asyncio.wait_for(third, 2.0)  # the third has the turn
+        with pytest.raises(asyncio.CancelledError):
+            await second
+        assert window.free == 0 and not window.queue
+        window.release()
+        assert window.free == 1
+
+    asyncio.run(main())
