@@ -500,12 +500,25 @@ TCP_MASTER_ROWS = {
 }
 
 
-def _tcp_master(data: Data) -> dict[str, dict[str, Any]]:
-    """The rows of bench_tcp_master.py by name: median CPU µs per transaction and tps."""
+#: bench/bench_tcp_async.py's rows, as TCP_MASTER_ROWS
+TCP_ASYNC_ROWS = {
+    "test_libmodbus": "libmodbus C client",
+    "test_pyrtu_async[pyrtu async c]": 'pyrtu `AsyncMaster("tcp://")`, C core',
+    "test_pyrtu_async[pyrtu async twin]": 'pyrtu `AsyncMaster("tcp://")`, the twin',
+    "test_pyrtu_async[pyrtu async 8 in flight]": (
+        'pyrtu `AsyncMaster("tcp://", max_in_flight=8)`, C core, 8 awaited at once '
+        "(1/25 of the reads: libmodbus's server answers a batch in about 40 ms, Nagle)"
+    ),
+    "test_pymodbus_async": "pymodbus `AsyncModbusTcpClient`",
+}
+
+
+def _tcp_rows(data: Data, names: dict[str, str]) -> dict[str, dict[str, Any]]:
+    """The rows of a TCP client benchmark by name: median CPU µs per transaction and tps."""
     out: dict[str, dict[str, Any]] = {}
     for b in data["benchmarks"]:
         info = b.get("extra_info", {})
-        if b["name"] in TCP_MASTER_ROWS and info.get("cpu_us_per_tx"):
+        if b["name"] in names and info.get("cpu_us_per_tx"):
             out[b["name"]] = {
                 "cpu": statistics.median(info["cpu_us_per_tx"]),
                 "cpu_all": info["cpu_us_per_tx"],
@@ -515,20 +528,14 @@ def _tcp_master(data: Data) -> dict[str, dict[str, Any]]:
     return out
 
 
-def tcpmaster_body(data: Data) -> Lines:
-    rows = _tcp_master(data)
-    n = next(iter(rows.values()))["n"] if rows else 0
+def _tcp_master(data: Data) -> dict[str, dict[str, Any]]:
+    return _tcp_rows(data, TCP_MASTER_ROWS)
+
+
+def _tcp_table(rows: dict[str, dict[str, Any]], names: dict[str, str], peer: str) -> Lines:
     base = rows.get("test_libmodbus", {}).get("cpu")
-    peer = rows.get("test_pymodbus", {}).get("cpu")
-    out = [
-        "bench/bench_tcp_master.py: the sync Modbus TCP clients against libmodbus's TCP "
-        f"server on 127.0.0.1, one after the other in one run; {n} reads of 10 holding "
-        "registers (FC 03) per round, 5 rounds each; CPU per transaction is each client's "
-        "own (the libmodbus client's CLOCK_PROCESS_CPUTIME_ID, this process's "
-        "`time.process_time` for the Python clients), the median over the rounds.",
-        "",
-    ]
-    out += table(
+    theirs = rows.get(peer, {}).get("cpu")
+    return table(
         [
             "client",
             "CPU µs per transaction",
@@ -544,20 +551,20 @@ def tcpmaster_body(data: Data) -> Lines:
                 " / ".join(f"{x:.1f}" for x in rows[name]["cpu_all"]),
                 f"{rows[name]['tps']:,.0f}",
                 f"{rows[name]['cpu'] / base:.2f}" if base else "",
-                f"{rows[name]['cpu'] / peer:.2f}" if peer else "",
+                f"{rows[name]['cpu'] / theirs:.2f}" if theirs else "",
             ]
-            for name, label in TCP_MASTER_ROWS.items()
+            for name, label in names.items()
             if name in rows
         ),
     )
-    return out
 
 
-def tcpmaster_targets(data: Data) -> list[tuple[str, str]]:
-    rows = _tcp_master(data)
-    ours = rows.get("test_pyrtu[pyrtu c]", {}).get("cpu")
+def _tcp_targets(
+    rows: dict[str, dict[str, Any]], ours_name: str, bounds: tuple[tuple[str, float], ...]
+) -> list[tuple[str, str]]:
+    ours = rows.get(ours_name, {}).get("cpu")
     out = []
-    for other, bound in (("test_libmodbus", 1.5), ("test_pymodbus", 0.5)):
+    for other, bound in bounds:
         theirs = rows.get(other, {}).get("cpu")
         if ours is None or theirs is None:
             out.append((NOT_MEASURED, "-"))
@@ -567,6 +574,48 @@ def tcpmaster_targets(data: Data) -> list[tuple[str, str]]:
             (f"{ours:.1f} µs against {theirs:.1f} µs: {ratio:.2f}x", verdict(ratio <= bound))
         )
     return out
+
+
+def tcpmaster_body(data: Data) -> Lines:
+    rows = _tcp_master(data)
+    n = next(iter(rows.values()))["n"] if rows else 0
+    out = [
+        "bench/bench_tcp_master.py: the sync Modbus TCP clients against libmodbus's TCP "
+        f"server on 127.0.0.1, one after the other in one run; {n} reads of 10 holding "
+        "registers (FC 03) per round, 5 rounds each; CPU per transaction is each client's "
+        "own (the libmodbus client's CLOCK_PROCESS_CPUTIME_ID, this process's "
+        "`time.process_time` for the Python clients), the median over the rounds.",
+        "",
+    ]
+    return out + _tcp_table(rows, TCP_MASTER_ROWS, "test_pymodbus")
+
+
+def tcpmaster_targets(data: Data) -> list[tuple[str, str]]:
+    return _tcp_targets(
+        _tcp_master(data), "test_pyrtu[pyrtu c]", (("test_libmodbus", 1.5), ("test_pymodbus", 0.5))
+    )
+
+
+def tcpasync_body(data: Data) -> Lines:
+    rows = _tcp_rows(data, TCP_ASYNC_ROWS)
+    n = next(iter(rows.values()))["n"] if rows else 0
+    out = [
+        "bench/bench_tcp_async.py: the asyncio Modbus TCP clients (and libmodbus's C "
+        "client) against libmodbus's TCP server on 127.0.0.1, one after the other in one "
+        f"run; {n} reads of 10 holding registers (FC 03) per round, 5 rounds each, one "
+        "request at a time unless said; asyncio's default event loop; CPU per "
+        "transaction as in the sync section, the median over the rounds.",
+        "",
+    ]
+    return out + _tcp_table(rows, TCP_ASYNC_ROWS, "test_pymodbus_async")
+
+
+def tcpasync_targets(data: Data) -> list[tuple[str, str]]:
+    return _tcp_targets(
+        _tcp_rows(data, TCP_ASYNC_ROWS),
+        "test_pyrtu_async[pyrtu async c]",
+        (("test_libmodbus", 3.0), ("test_pymodbus_async", 0.5)),
+    )
 
 
 def slave_body(data: Data) -> Lines:
@@ -1365,6 +1414,18 @@ SECTIONS: tuple[Section, ...] = (
             "sync `Master` over tcp:// CPU per transaction <= 1.5x the libmodbus client (issue 30)",
             "sync `Master` over tcp:// CPU per transaction <= 0.5x pymodbus's sync client "
             "(issue 30)",
+        ),
+    ),
+    Section(
+        "tcpasync",
+        "Asyncio master over Modbus TCP",
+        tcpasync_body,
+        tcpasync_targets,
+        (
+            "`AsyncMaster` over tcp://, one request at a time: CPU per transaction <= 3x "
+            "the libmodbus client (issue 30)",
+            "`AsyncMaster` over tcp://, one request at a time: CPU per transaction <= 0.5x "
+            "pymodbus's `AsyncModbusTcpClient` (issue 30)",
         ),
     ),
     Section(

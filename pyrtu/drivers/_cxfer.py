@@ -183,4 +183,20 @@ class TcpXferRunner:
         return TcpXferReport(x.status, x.start * 1e-9, x.end * 1e-9, data, scan, x.err, x.stage)
 
 
-__all__ = ["AsyncXferRunner", "TcpXferRunner", "XferRunner"]
+class TcpScanner:
+    """rtu_tcp_scan (csrc/rtu_tcp.c) over a receive buffer of its own
+    (`pyrtu.drivers.xfer.TcpScanner`): one C call per scan, no copy."""
+
+    def __init__(self, capacity: int = TCP_CAPACITY) -> None:
+        self.buf = bytearray(capacity)
+        self._c = ffi.from_buffer("uint8_t[]", self.buf)
+        self._new = ffi.new
+        self._scan = lib.rtu_tcp_scan
+
+    def scan(self, n: int, tid: int) -> TcpScan:
+        s = self._new("rtu_tcp_scan_result *")  # (zeroed: scanned from 0)
+        self._scan(self._c, n, tid, s)
+        return s  # type: ignore[no-any-return]
+
+
+__all__ = ["AsyncXferRunner", "TcpScanner", "TcpXferRunner", "XferRunner"]

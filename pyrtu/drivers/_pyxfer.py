@@ -46,7 +46,7 @@ from pyrtu.drivers.xfer import (
 )
 
 _now = time.monotonic
-__all__ = ["AsyncXferRunner", "TcpXferRunner", "XferRunner", "tcp_scan"]
+__all__ = ["AsyncXferRunner", "TcpScanner", "TcpXferRunner", "XferRunner", "tcp_scan"]
 _AGAIN = (errno.EAGAIN, errno.EWOULDBLOCK, errno.EINTR)
 
 
@@ -308,6 +308,20 @@ def tcp_scan(buf: bytes | bytearray, n: int, tid: int, scan: TcpScan) -> TcpScan
                 late_after += 1
         used += 6 + length
     return TcpScan(used, ans_off, ans_len, late, late_after, error)
+
+
+_NOTHING_SCANNED = TcpScan()
+
+
+class TcpScanner:
+    """`tcp_scan` over a receive buffer of its own (`pyrtu.drivers.xfer.TcpScanner`;
+    the twin of pyrtu/drivers/_cxfer.py's)."""
+
+    def __init__(self, capacity: int = TCP_CAPACITY) -> None:
+        self.buf = bytearray(capacity)
+
+    def scan(self, n: int, tid: int) -> TcpScan:
+        return tcp_scan(self.buf, n, tid, _NOTHING_SCANNED)
 
 
 class TcpXferRunner:

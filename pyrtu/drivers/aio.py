@@ -421,12 +421,12 @@ def _install(cls: type[AsyncMaster]) -> None:
         build, post = req.build, req.post
 
         async def run(self: AsyncMaster, slave: Any, *args: Any, **kwargs: Any) -> Any:
-            if build is not None and self._tcp is None:
-                # one transaction on a serial link (the hot path): `transact` without
-                # the answer's end time, which the method does not return
-                value = await self._run(
-                    request_table.call_of(req, slave, args, kwargs, self._link.address)
-                )
+            if build is not None:
+                # one transaction (the hot path): `transact` without the answer's
+                # end time, which the method does not return
+                call = request_table.call_of(req, slave, args, kwargs, self._link.address)
+                tcp = self._tcp
+                value = await self._run(call) if tcp is None else (await tcp.transact(call))[0]
                 return value if post is None else post(value)
             return (await self.transact(req, slave, *args, **kwargs))[0]
 

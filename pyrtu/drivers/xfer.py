@@ -184,6 +184,20 @@ class TcpXferRunner(Protocol):
     def report(self) -> TcpXferReport: ...
 
 
+class TcpScanner(Protocol):
+    """The scan of an event loop's Modbus TCP client (C: rtu_tcp_scan of
+    csrc/rtu_tcp.c through pyrtu/drivers/_cxfer.py; the twin: `tcp_scan` of
+    pyrtu/drivers/_pyxfer.py) over a receive buffer of its own, ``buf`` (the
+    connection reads into it; it is never resized)."""
+
+    buf: bytearray
+
+    def scan(self, n: int, tid: int) -> TcpScan:
+        """``buf[:n]`` scanned from 0 for the answer to ``tid`` (C: the
+        rtu_tcp_scan_result itself, whose fields are `TcpScan`'s)."""
+        ...
+
+
 def check_plan(plan: XferPlan) -> None:
     """The values both backends refuse, with the same messages."""
     ex = plan.xfer

@@ -8,7 +8,7 @@ from __future__ import annotations
 import socket
 from types import ModuleType
 
-from pyrtu.drivers.xfer import AsyncXferRunner, TcpXferRunner, XferRunner
+from pyrtu.drivers.xfer import AsyncXferRunner, TcpScanner, TcpXferRunner, XferRunner
 
 
 def _impl(backend: ModuleType) -> ModuleType:
@@ -41,4 +41,10 @@ def tcp_xfer_runner(backend: ModuleType, sock: socket.socket) -> TcpXferRunner:
     return runner
 
 
-__all__ = ["async_xfer_runner", "tcp_xfer_runner", "xfer_runner"]
+def tcp_scanner(backend: ModuleType) -> TcpScanner:
+    """A new `TcpScanner` of ``backend``'s kind (an event loop's TCP client's)."""
+    scanner: TcpScanner = _impl(backend).TcpScanner()
+    return scanner
+
+
+__all__ = ["async_xfer_runner", "tcp_scanner", "tcp_xfer_runner", "xfer_runner"]

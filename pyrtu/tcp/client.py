@@ -29,6 +29,7 @@ import select
 import socket
 import ssl
 import time
+from collections import deque
 from typing import Any
 from urllib.parse import urlsplit
 
@@ -276,21 +277,63 @@ class TcpClient(_ClientState, Closing):
         return f"TcpClient({self.where!r})"
 
 
-class _ClientConnection(asyncio.Protocol):
-    def __init__(self, proto: TcpClientProtocol, where: str) -> None:
+class _ClientConnection(asyncio.BufferedProtocol):
+    """The event loop's side of an `AsyncTcpClient`: the socket is read straight
+    into the scanner's buffer (no bytes object per read: asyncio's plain
+    `asyncio.Protocol` allocates 256 KiB for each), one scan per read (C:
+    rtu_tcp_scan) finds the whole ADUs, and the answer of the one request in flight
+    resolves its future here; several in flight (pipelined), late answers and bad
+    headers go through the protocol's results."""
+
+    def __init__(self, proto: TcpClientProtocol, where: str, scanner: xfer.TcpScanner) -> None:
         self.proto = proto
         self.where = where
         self.transport: asyncio.Transport | None = None
+        self.loop: asyncio.AbstractEventLoop | None = None
         self.waiters: dict[int, asyncio.Future[bytes | None]] = {}
         self.timer: asyncio.TimerHandle | None = None
+        self.timer_at = 0.0  # when the timer fires (monotonic seconds)
+        self.scan = scanner.scan
+        self.buf = scanner.buf
+        self.view = memoryview(scanner.buf)
+        self.n = 0  # bytes in buf: the start of an ADU not read whole yet
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         assert isinstance(transport, asyncio.Transport)
         self.transport = transport
+        self.loop = asyncio.get_running_loop()
 
-    def data_received(self, data: bytes) -> None:
-        self.proto.receive_data(data, time.monotonic())
-        self.dispatch()
+    def get_buffer(self, sizehint: int) -> memoryview:
+        return self.view[self.n :]
+
+    def buffer_updated(self, nbytes: int) -> None:
+        now = time.monotonic()
+        proto = self.proto
+        n = self.n + nbytes
+        if proto.broken is not None:  # (the stream is lost: nothing more is read)
+            self.n = 0
+            return
+        tid = proto.sole_tid()
+        scan = self.scan(n, max(tid, 0))
+        used = scan.used
+        if tid >= 0 and used and used == scan.ans_len and not scan.error:
+            # the one answer awaited, alone: its future resolved here
+            result = proto.take_answer(tid, self.buf[6], bytes(self.view[7:used]), now)
+            fut = self.waiters.pop(tid, None)
+            if fut is not None and not fut.done():
+                if isinstance(result, ModbusError):
+                    fut.set_exception(result)
+                else:
+                    fut.set_result(result)
+        elif used or scan.error:
+            proto.receive_scanned(bytes(self.view[:used]), used, scan.error, now)
+            self.dispatch()
+        if used:
+            rest = n - used
+            if rest:
+                self.buf[:rest] = bytes(self.view[used:n])  # a partial ADU stays
+            n = rest
+        self.n = 0 if proto.broken is not None else n
 
     def eof_received(self) -> bool | None:
         self.proto.connection_lost("the server closed the connection")
@@ -300,6 +343,9 @@ class _ClientConnection(asyncio.Protocol):
     def connection_lost(self, exc: Exception | None) -> None:
         self.proto.connection_lost(str(exc) if exc else "connection closed")
         self.dispatch()
+        if self.timer is not None:
+            self.timer.cancel()
+            self.timer = None
 
     def on_timer(self) -> None:
         self.timer = None
@@ -319,18 +365,63 @@ class _ClientConnection(asyncio.Protocol):
         self.arm()
 
     def arm(self) -> None:
-        self.timer = rearm(self.timer, self.proto.deadline(), self.on_timer)
+        """A timer for the first deadline of the requests in flight, unless one
+        fires before it (an answered request's: it finds nothing expired and
+        arms the next; so a transaction answered in time touches no timer)."""
+        when = self.proto.deadline()
+        if when is not None and (self.timer is None or when < self.timer_at):
+            self.timer = rearm(self.timer, when, self.on_timer)
+            self.timer_at = when
+
+
+class _Window:
+    """The turns of an `AsyncTcpClient`'s requests: ``free`` of ``max_in_flight``
+    on the wire; the others wait in order (as an `asyncio.Semaphore`, without its
+    coroutines on the common path: a caller with a free turn takes it without an
+    await)."""
+
+    __slots__ = ("free", "queue")
+
+    def __init__(self, size: int) -> None:
+        self.free = size
+        self.queue: deque[asyncio.Future[None]] = deque()
+
+    async def wait_turn(self, loop: asyncio.AbstractEventLoop) -> None:
+        """Wait until `release` hands this caller a turn."""
+        fut: asyncio.Future[None] = loop.create_future()
+        self.queue.append(fut)
+        try:
+            await fut
+        except asyncio.CancelledError:
+            if fut.cancelled():
+                if fut in self.queue:
+                    self.queue.remove(fut)
+            else:
+                self.release()  # handed a turn, then cancelled: the next one's
+            raise
+
+    def release(self) -> None:
+        """A turn is over: the first caller still waiting gets it, else it is free."""
+        queue = self.queue
+        while queue:
+            fut = queue.popleft()
+            if not fut.done():
+                fut.set_result(None)
+                return
+        self.free += 1
 
 
 class AsyncTcpClient(_ClientState, AsyncClosing):
-    """An asyncio Modbus TCP client: up to ``max_in_flight`` requests on the wire at once."""
+    """An asyncio Modbus TCP client: up to ``max_in_flight`` requests on the wire at
+    once.  ``backend``: whose scan reads the answers (`pyrtu.drivers.xfer.TcpScanner`:
+    C, rtu_tcp_scan, or ``"python"``: the twin)."""
 
     def __init__(self, conn: _ClientConnection, host: str, port: int, max_in_flight: int) -> None:
         self._conn = conn
         self._proto = conn.proto
         self.host, self.port = host, port
         self.where = conn.where
-        self._window = asyncio.Semaphore(max_in_flight)
+        self._window = _Window(max_in_flight)
 
     @classmethod
     async def connect(
@@ -340,12 +431,14 @@ class AsyncTcpClient(_ClientState, AsyncClosing):
         timeout: float = 1.0,
         connect_timeout: float | None = None,
         max_in_flight: int = 16,
+        backend: str | None = None,
         tls: ssl.SSLContext | None = None,
     ) -> AsyncTcpClient:
         host, port = parse_tcp_url(url, MBAP_SCHEMES)
         context = _tls_of(url, tls)
         where = _where(host, port, "tcp" if context is None else MBAPS_SCHEME)
         proto = TcpClientProtocol(timeout=timeout, max_in_flight=max_in_flight, where=where)
+        scanner = xfer_runners.tcp_scanner(_backend.backend(backend))
         ct = check_timeout(
             timeout if connect_timeout is None else connect_timeout, "connect_timeout"
         )
@@ -353,7 +446,7 @@ class AsyncTcpClient(_ClientState, AsyncClosing):
         try:
             _, conn = await asyncio.wait_for(
                 loop.create_connection(
-                    lambda: _ClientConnection(proto, where),
+                    lambda: _ClientConnection(proto, where, scanner),
                     host,
                     port,
                     ssl=context,
@@ -375,22 +468,37 @@ class AsyncTcpClient(_ClientState, AsyncClosing):
         returned as its PDU (function code | 0x80, exception code).  Cancelling the
         await forgets the request (a late answer is dropped)."""
         conn = self._conn
-        async with self._window:
+        proto = conn.proto
+        window = self._window
+        if window.free and not window.queue:  # (a turn at once: no await)
+            window.free -= 1
+        else:
+            assert conn.loop is not None
+            await window.wait_turn(conn.loop)
+        try:
             now = time.monotonic()
-            tid, data = conn.proto.send_request(unit, pdu, now, answered=answered, raw=raw)
-            fut: asyncio.Future[bytes | None] = asyncio.get_running_loop().create_future()
+            tid, data = proto.send_request(unit, pdu, now, answered=answered, raw=raw)
+            assert conn.loop is not None
+            fut: asyncio.Future[bytes | None] = conn.loop.create_future()
             conn.waiters[tid] = fut
-            if conn.transport is None or conn.transport.is_closing():
-                conn.proto.connection_lost("the connection is closed")
+            transport = conn.transport
+            if transport is None or transport.is_closing():
+                proto.connection_lost("the connection is closed")
+                conn.dispatch()
             else:
-                conn.transport.write(data)
-            conn.dispatch()
+                transport.write(data)
+                if proto.has_results():  # a broadcast's None
+                    conn.dispatch()
+                elif conn.timer is None or now + proto.timeout < conn.timer_at:
+                    conn.arm()
             try:
                 return await fut
             except asyncio.CancelledError:
                 conn.waiters.pop(tid, None)
-                conn.proto.cancel(tid)
+                proto.cancel(tid)
                 raise
+        finally:
+            window.release()
 
     async def close(self) -> None:
         transport = self._conn.transport

@@ -183,14 +183,22 @@ class TcpLink(_TcpBase):
 
 class AsyncTcpLink(_TcpBase):
     """`pyrtu.drivers.aio.AsyncMaster`'s link on a Modbus TCP connection; connects on the
-    first request, keeps up to ``max_in_flight`` requests on the wire."""
+    first request, keeps up to ``max_in_flight`` requests on the wire; ``backend``:
+    whose scan reads the answers (C, rtu_tcp_scan, or the twin)."""
 
     @classmethod
     def open(
         cls, port: str, line: LineConfig, options: dict[str, Any], max_in_flight: int
     ) -> AsyncTcpLink:
         """The link of `pyrtu.drivers.links.TRANSPORTS` (``tcp://``, ``mbaps://``)."""
-        return cls(port, options["timeout"], options["retries"], max_in_flight, options["tls"])
+        return cls(
+            port,
+            options["timeout"],
+            options["retries"],
+            max_in_flight,
+            options["tls"],
+            options.get("backend"),
+        )
 
     def __init__(
         self,
@@ -199,6 +207,7 @@ class AsyncTcpLink(_TcpBase):
         retries: int,
         max_in_flight: int,
         tls: ssl.SSLContext | None = None,
+        backend: str | None = None,
     ) -> None:
         parse_tcp_url(url, MBAP_SCHEMES)  # ValueError now, not at the first request
         self.url = url
@@ -208,6 +217,7 @@ class AsyncTcpLink(_TcpBase):
         self._max_in_flight = check_in_flight(max_in_flight, True)
         self._client: AsyncTcpClient | None = None
         self._connecting: asyncio.Lock | None = None
+        self._backend = backend
 
     @property
     def timeout(self) -> float:
@@ -241,6 +251,7 @@ class AsyncTcpLink(_TcpBase):
                         timeout=self._timeout,
                         max_in_flight=self._max_in_flight,
                         tls=self._tls,
+                        backend=self._backend,
                     )
         return self._client
 
@@ -249,7 +260,7 @@ class AsyncTcpLink(_TcpBase):
         await self._connected()
 
     async def transact(self, call: Call) -> tuple[Any, float]:
-        client = await self._connected()
+        client = self._client or await self._connected()
         answered, raw = call.decode is not None, call.decode is answer_pdu
         for attempt in range(self.retries + 1):
             try:

@@ -58,7 +58,7 @@ log = logging.getLogger("pyrtu.drivers.master")
 _MBAP = struct.Struct(">HHHB")  # transaction id, protocol id (0), length, unit id
 
 
-@dataclass
+@dataclass(slots=True)
 class _Pending:
     unit: int
     function: int
@@ -158,22 +158,30 @@ class TcpClientProtocol:
         Raises before anything is sent: ValueError/TypeError for bad arguments,
         RuntimeError when ``max_in_flight`` requests already wait or the connection
         is broken."""
-        body = check_header_args(0, unit, pdu)
+        if (
+            type(pdu) is bytes
+            and 0 < len(pdu) <= MAX_PDU
+            and type(unit) is int
+            and 0 <= unit <= 255
+        ):
+            body = pdu  # (what the masters' request table builds: checked already)
+        else:
+            body = check_header_args(0, unit, pdu)
         if self.broken is not None:
             raise PortError(self.where, f"the connection is unusable: {self.broken}")
         if len(self._pending) >= self.max_in_flight:
             raise RuntimeError(f"{self.max_in_flight} requests already in flight")
         tid = self._next_tid()
-        data: bytes = self._framer.send(tid, unit, body)
-        self.counters["requests"] += 1
-        broadcast = unit == 0 if answered is None else not answered
-        if broadcast:
-            self.counters["broadcasts"] += 1
+        data = _MBAP.pack(tid, 0, len(body) + 1, unit) + body  # (3.1.3: the MBAP ADU)
+        counters = self.counters
+        counters["requests"] += 1
+        if unit == 0 if answered is None else not answered:  # a broadcast
+            counters["broadcasts"] += 1
             self._results.append((tid, None))
         else:
-            self._pending[tid] = _Pending(unit, data[7], now + self.timeout, raw, now)
+            self._pending[tid] = _Pending(unit, body[0], now + self.timeout, raw, now)
         if log.isEnabledFor(logging.DEBUG):
-            log.debug("TX unit %d fc %d tid %d: %s", unit, data[7], tid, data.hex(" "))
+            log.debug("TX unit %d fc %d tid %d: %s", unit, body[0], tid, data.hex(" "))
         return tid, data
 
     def receive_data(self, data: BytesLike, now: float) -> None:
@@ -192,33 +200,64 @@ class TcpClientProtocol:
             self.connection_lost("the server closed the connection")
 
     def _answer(self, tid: int, unit: int, kind: FrameKind, pdu: bytes, now: float) -> None:
+        # (kind: FrameKind.EXCEPTION exactly when the function code has bit 7 set)
+        result = self.take_answer(tid, unit, pdu, now)
+        if result is not None:
+            self._results.append((tid, result))
+
+    def take_answer(
+        self, tid: int, unit: int, pdu: bytes, now: float
+    ) -> bytes | ModbusError | None:
+        """The result of an answer read at ``now`` (counted and logged, as
+        `receive_data` does): the response PDU, an exception response's PDU
+        (``raw``) or the error; None for a late one (no request ``tid`` in flight:
+        dropped).  The event loop's client calls it for the one answer a read
+        brought (`sole_tid`), and resolves the awaiting future itself."""
         pending = self._pending.pop(tid, None)
         if log.isEnabledFor(logging.DEBUG):
             if pending is None:
                 _log_late(tid, _MBAP.pack(tid, 0, len(pdu) + 1, unit) + pdu)
             else:
                 self._log_answer(tid, unit, pdu, (now - pending.sent) * 1e3)
+        counters = self.counters
         if pending is None:
-            self.counters["late"] += 1
-            return
+            counters["late"] += 1
+            return None
         self.answer_end = now
         fc = pending.function
         if unit != pending.unit or pdu[0] & 0x7F != fc:
-            self.counters["frame_errors"] += 1
-            self._results.append((tid, _mismatch(pending.unit, fc, unit, pdu[0])))
-            return
-        if kind is FrameKind.EXCEPTION:
-            self.counters["exceptions"] += 1
+            counters["frame_errors"] += 1
+            return _mismatch(pending.unit, fc, unit, pdu[0])
+        if pdu[0] & 0x80:  # an exception response
+            counters["exceptions"] += 1
             if len(pdu) != 2:
-                self.counters["frame_errors"] += 1
-                self._results.append((tid, _short_exception(len(pdu), unit, fc)))
-            elif pending.raw:
-                self._results.append((tid, pdu))
-            else:
-                self._results.append((tid, ExceptionResponseError(unit, fc, pdu[1])))
+                counters["frame_errors"] += 1
+                return _short_exception(len(pdu), unit, fc)
+            if pending.raw:
+                return pdu
+            return ExceptionResponseError(unit, fc, pdu[1])
+        counters["responses"] += 1
+        return pdu
+
+    def sole_tid(self) -> int:
+        """The transaction id of the one request in flight, or -1 (none, or several)."""
+        pending = self._pending
+        return next(iter(pending)) if len(pending) == 1 else -1
+
+    def receive_scanned(self, data: bytes, used: int, error: int, now: float) -> None:
+        """What a scan of the bytes read found (`pyrtu.drivers.xfer.TcpScanner`):
+        ``data[:used]`` whole ADUs, each an answer as `receive_data` takes them (in
+        order); ``error``: an invalid header after them (`MBAP_ERROR_BY_CODE`'s
+        index, 0: none), which ends the connection."""
+        if self.broken is not None:
             return
-        self.counters["responses"] += 1
-        self._results.append((tid, pdu))
+        for adu in _adus(data, 0, used):
+            tid = adu[0] << 8 | adu[1]
+            result = self.take_answer(tid, adu[6], adu[7:], now)
+            if result is not None:
+                self._results.append((tid, result))
+        if error:
+            self._fail_all(_bad_header(MBAP_ERROR_BY_CODE[error]))
 
     def _fail_all(self, error: ModbusError) -> None:
         self.broken = error
@@ -247,6 +286,10 @@ class TcpClientProtocol:
     def cancel(self, tid: int) -> None:
         """Forget a request (its caller gave up): a late answer is dropped."""
         self._pending.pop(tid, None)
+
+    def has_results(self) -> bool:
+        """Whether `next_result` has one."""
+        return bool(self._results)
 
     def next_result(self) -> Result | None:
         return self._results.popleft() if self._results else None
