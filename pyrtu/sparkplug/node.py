@@ -19,7 +19,13 @@ outbox as point updates.  A value read while the node is born and nothing older
 waits is published at once (DDATA, by alias, QoS 0); everything else waits in the
 outbox and is published in order once the node is born again, flagged
 ``is_historical`` (it is older than the values the births carry).  A record is
-released from the outbox once written to the connection.  A slave that stops
+released from the outbox once the broker has confirmed it: QoS 0 has no
+acknowledgement, so after a publication the node sends an UNSUBSCRIBE of a filter
+it never subscribed to (`BARRIER`), and its UNSUBACK, which a broker sends after
+handling every packet before it on the connection, confirms every record
+published before it (one such barrier awaits its answer at a time).  Records not
+confirmed when the connection ends (written to a socket the broker never read)
+are published again after the next births, historical, in order.  A slave that stops
 answering, or a port that fails, gets a DDEATH; its first value afterwards a
 DBIRTH.  Records of a device that is dead when their turn comes are passed by
 (``unforwarded``: a DDATA of a dead device would break the session's rules).
@@ -69,6 +75,9 @@ log = logging.getLogger("pyrtu.sparkplug")
 
 _BATCH = 64  # records of the backlog published per turn of the loop
 _PER_MESSAGE = 64  # metrics per DDATA of the backlog
+#: the topic filter the node unsubscribes from (never subscribed to) to have the
+#: broker confirm what it published before (see the module doc)
+BARRIER = "pyrtu/sparkplug/delivered"
 
 
 class EdgeNode(AsyncService):
@@ -102,6 +111,8 @@ class EdgeNode(AsyncService):
         self._born = False  # NBIRTH published on this connection
         self._dborn: set[str] = set()  # devices with a DBIRTH since the NBIRTH
         self._cursor = 0  # every record up to this seq is published or passed by
+        #: the barrier awaiting its answer: (its link, its mid, the cursor it confirms)
+        self._barrier: tuple[MqttLink, int, int] | None = None
         self._live_from = 0  # records below this seq are historical
         self._pump_soon: asyncio.Handle | None = None  # the next batch of the backlog
         self._lost_ev: asyncio.Event | None = None
@@ -163,6 +174,7 @@ class EdgeNode(AsyncService):
         self._tasks = []
         link = self._link
         if link is not None and link.connected:
+            await self._confirmed(link, 2.0)
             self._say_death(link)
             for _ in range(100):
                 if link.pending_writes == 0:
@@ -306,7 +318,7 @@ class EdgeNode(AsyncService):
         link = self._link
         if self._born and seq == self._cursor + 1 and link is not None and link.connected:
             self._publish_records([(seq, rec)], link)  # live: at once, not after the fsync
-            ob.ack(self._cursor)
+            self._confirm(link)
 
     # ------------------------------------------------------------------ publishing
 
@@ -333,11 +345,50 @@ class EdgeNode(AsyncService):
         if not batch:
             return
         self._publish_records(batch, link)
-        ob.ack(self._cursor)
-        if self._flusher is not None:
-            self._flusher.poke()
+        self._confirm(link)
         if len(batch) == _BATCH:
             self._pump_soon = asyncio.get_running_loop().call_soon(self._pump)
+
+    def _confirm(self, link: MqttLink) -> None:
+        """Have the broker confirm what was published up to the cursor (a barrier,
+        see the module doc), unless a barrier awaits its answer already (its answer
+        sends the next one) or nothing waits for confirmation."""
+        ob, client = self._outbox, link.client
+        if self._barrier is not None or ob is None or client is None or not link.connected:
+            return
+        if self._cursor <= ob.acked:
+            return
+        client.on_unsubscribe = self._barrier_answered
+        rc, mid = client.unsubscribe(BARRIER)
+        if rc == paho.MQTT_ERR_SUCCESS and mid is not None:
+            self._barrier = (link, mid, self._cursor)
+
+    def _barrier_answered(
+        self, client: Any, userdata: Any, mid: int, reasons: Any, props: Any
+    ) -> None:
+        """The broker's UNSUBACK: every record up to the barrier's cursor is confirmed."""
+        barrier, ob = self._barrier, self._outbox
+        if barrier is None or barrier[1] != mid or barrier[0].client is not client:
+            return
+        self._barrier = None
+        if ob is not None:
+            ob.ack(barrier[2])
+            if self._flusher is not None:
+                self._flusher.poke()
+        link = self._link
+        if link is barrier[0]:
+            self._confirm(link)
+
+    async def _confirmed(self, link: MqttLink, patience: float) -> None:
+        """Until the broker has confirmed every record published (at most
+        ``patience`` s: what is not confirmed then is published again next time)."""
+        ob = self._outbox
+        give_up = time.monotonic() + patience
+        while ob is not None and link.connected and time.monotonic() < give_up:
+            self._confirm(link)
+            if self._barrier is None and self._cursor <= ob.acked:
+                return
+            await asyncio.sleep(0.002)
 
     def _publish_records(self, batch: list[tuple[int, bytes]], link: MqttLink) -> None:
         """DDATA for ``batch`` (seq order), consecutive records of one device in one
@@ -577,6 +628,11 @@ class EdgeNode(AsyncService):
         link, self._link = self._link, None
         if link is not None and link.connected:
             link.close(graceful=False)
+        # what the broker did not confirm is published again after the next births
+        # (historical: older than the values they carry)
+        self._barrier = None
+        if self._outbox is not None:
+            self._cursor = self._outbox.acked
         self._born = False
         self._dborn.clear()
         self.host.online = False
