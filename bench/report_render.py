@@ -1125,6 +1125,111 @@ def outbox_targets(data: Data) -> list[tuple[str, str]]:
     ]
 
 
+def sparkplug_body(data: Data) -> Lines:
+    out = [
+        "The Sparkplug B edge node (bench/bench_sparkplug.py), each part with its own "
+        "mosquitto on a free loopback port; the host application is the tests' "
+        "(tests/sparkplug/sparkplug_host.py, its own protobuf decoder). One run on a "
+        "machine loaded by other work (load average at the start "
+        f"{data['load_avg_1m_start']:.2f}, at the end {data['load_avg_1m_end']:.2f}).",
+        "",
+    ]
+    if "outage" in data:
+        o = data["outage"]
+        out += [
+            f"### Broker SIGKILLed for {o['outage_s']:g} s, the primary host online throughout",
+            "",
+            "A simulated CFW701 on the virtual bus changes two registers (each value held "
+            "until the drive has served two reads of it: the ground truth is what the drive "
+            "served); the broker is killed, down "
+            f"{o['down_s']:.1f} s, started again (births {o['births_after_restart_s']:.2f} s "
+            "later, once the host said online again); per metric, against the values produced:",
+            "",
+        ]
+        out += table(
+            ["metric", "produced", "lost", "twice", "out of order", "live", "historical"],
+            (
+                [name, str(t["produced"]), str(t["lost"]), str(t["twice"]),
+                 str(t["out_of_order"]), str(t["live"]), str(t["historical"])]
+                for name, t in o["per_metric"].items()
+            ),
+        )  # fmt: skip
+        out.append("")
+    if "rebirth" in data:
+        rb = data["rebirth"]
+        out += [
+            "### Rebirth",
+            "",
+            f"NCMD `Node Control/Rebirth` published to the last DBIRTH received, {rb['n']} "
+            f"times (NBIRTH {rb['nbirth_bytes']} B, DBIRTHs "
+            f"{' + '.join(str(b) for b in rb['dbirth_bytes'])} B): p50 "
+            f"**{rb['ms']['p50']:.1f} ms**, p95 {rb['ms']['p95']:.1f} ms, max "
+            f"{rb['ms']['max']:.1f} ms.",
+            "",
+        ]
+    if "big" in data:
+        b = data["big"]
+        out += [
+            f"### A DBIRTH of {b['metrics']:,} metrics",
+            "",
+            f"{b['bytes']:,} bytes; built in {b['build_ms']:.0f} ms; node started to DBIRTH "
+            f"received {1e3 * b['start_to_dbirth_s']:.0f} ms; decoded by the host's decoder "
+            f"in {b['host_decode_ms']:.0f} ms, by protobuf in {b['protobuf_decode_ms']:.1f} "
+            f"ms; a Rebirth of it p50 {b['rebirth_ms']['p50']:.0f} ms, max "
+            f"{b['rebirth_ms']['max']:.0f} ms (its configuration loaded in "
+            f"{b['config_load_s']:.1f} s).",
+            "",
+        ]
+    if "throughput" in data:
+        t = data["throughput"]
+        out += [
+            "### Throughput against the JSON bridge (QoS 0)",
+            "",
+            f"{t['updates']:,} updates of the same 200 points (4 devices of 50) fed to each, "
+            f"{t['rounds']} alternate rounds into one mosquitto; updates/s until the last is "
+            "acknowledged (the JSON bridge: written to the socket; the edge node: confirmed "
+            "by the broker).",
+            "",
+        ]
+        out += table(
+            ["output", "updates/s (median)", "CPU µs/update", "rounds"],
+            (
+                [name, fmt_num(t[key]["per_s"]), fmt_num(t[key]["cpu_us"]),
+                 ", ".join(str(x) for x in t[key]["rounds"])]
+                for name, key in (("Sparkplug edge node", "sparkplug"), ("JSON bridge", "json"))
+            ),
+        )  # fmt: skip
+        out += ["", f"Ratio {t['ratio']:.2f} (rounds: {t['round_ratios']})."]
+    return out
+
+
+def sparkplug_targets(data: Data) -> list[tuple[str, str]]:
+    out: list[tuple[str, str]] = []
+    o = data.get("outage")
+    if o is not None:
+        ts = o["per_metric"].values()
+        lost, twice = sum(t["lost"] for t in ts), sum(t["twice"] for t in ts)
+        disorder = sum(t["out_of_order"] for t in ts)
+        out.append((
+            f"{lost} lost, {twice} twice, {disorder} out of order ({o['outage_s']:g} s)",
+            verdict(lost == twice == disorder == 0),
+        ))  # fmt: skip
+    rb = data.get("rebirth")
+    if rb is not None:
+        out.append((f"p50 **{rb['ms']['p50']:.1f} ms**, p95 {rb['ms']['p95']:.1f} ms",
+                    verdict(rb["ms"]["p95"] <= 100)))  # fmt: skip
+    b = data.get("big")
+    if b is not None:
+        out.append((f"{b['metrics']:,} metrics, {b['bytes']:,} B, received and decoded",
+                    verdict(b["metrics"] == 10_000)))  # fmt: skip
+    t = data.get("throughput")
+    if t is not None:
+        out.append((f"**{fmt_num(t['sparkplug']['per_s'])}/s** vs JSON "
+                    f"{fmt_num(t['json']['per_s'])}/s ({t['ratio']:.2f}x)",
+                    verdict(t["ratio"] >= 1.0)))  # fmt: skip
+    return out
+
+
 def setrt_body(data: Data) -> Lines:
     out = [
         "An MQTT client publishes a set of a CV100's main setting (QoS 1) and times it until "
@@ -1490,6 +1595,18 @@ SECTIONS: tuple[Section, ...] = (
         outbox_body,
         outbox_targets,
         ("outbox appends with fsync batches >= 20,000 records/s",),
+    ),
+    Section(
+        "sparkplug",
+        "Sparkplug B edge node",
+        sparkplug_body,
+        sparkplug_targets,
+        (
+            "sparkplug: broker SIGKILLed 30 s, host online: 0 lost, 0 twice, order kept",
+            "sparkplug: Rebirth answered within 100 ms plus the DBIRTHs' wire time (p95)",
+            "sparkplug: a 10,000-metric DBIRTH published and decoded",
+            "sparkplug: throughput (QoS 0) at least the JSON bridge's",
+        ),
     ),
     Section(
         "decode",

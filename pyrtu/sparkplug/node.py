@@ -113,6 +113,8 @@ class EdgeNode(AsyncService):
         self._cursor = 0  # every record up to this seq is published or passed by
         #: the barrier awaiting its answer: (its link, its mid, the cursor it confirms)
         self._barrier: tuple[MqttLink, int, int] | None = None
+        self._live: list[tuple[int, PointUpdate]] = []  # live values of this turn
+        self._live_soon: asyncio.Handle | None = None
         self._live_from = 0  # records below this seq are historical
         self._pump_soon: asyncio.Handle | None = None  # the next batch of the backlog
         self._lost_ev: asyncio.Event | None = None
@@ -284,6 +286,7 @@ class EdgeNode(AsyncService):
         dev = self.session.by_slave.get((bus, slave))
         if dev is None or dev.id not in self._alive:
             return
+        self._flush_live()  # its last values (stale) before its DDEATH
         self._alive.discard(dev.id)
         link = self._link
         if self._born and dev.id in self._dborn and link is not None and link.connected:
@@ -306,7 +309,8 @@ class EdgeNode(AsyncService):
         ob = self._outbox
         if ob is None:
             return
-        rec = encode_update(PointUpdate(point.name, value, read_at, quality))
+        update = PointUpdate(point.name, value, read_at, quality)
+        rec = encode_update(update)
         try:
             seq = ob.append(rec, time.monotonic())
         except (OutboxError, ValueError) as e:
@@ -316,9 +320,34 @@ class EdgeNode(AsyncService):
         if self._flusher is not None:
             self._flusher.poke()
         link = self._link
-        if self._born and seq == self._cursor + 1 and link is not None and link.connected:
-            self._publish_records([(seq, rec)], link)  # live: at once, not after the fsync
-            self._confirm(link)
+        after = self._live[-1][0] if self._live else self._cursor
+        if self._born and seq == after + 1 and link is not None and link.connected:
+            # live: at the end of this turn of the loop (not after the fsync), with
+            # the turn's other live values in as few DDATA as the devices allow
+            self._live.append((seq, update))
+            if self._live_soon is None:
+                self._live_soon = asyncio.get_running_loop().call_soon(self._publish_live)
+
+    def _flush_live(self) -> None:
+        """The live values waiting for the end of the turn, now (before a birth or
+        a death, which must follow them)."""
+        if self._live_soon is not None:
+            self._live_soon.cancel()
+            self._publish_live()
+
+    def _publish_live(self) -> None:
+        """The live values of this turn, unless the pump or a lost connection came
+        first (those the pump published are not published again)."""
+        self._live_soon = None
+        batch, self._live = self._live, []
+        link = self._link
+        if not self._born or link is None or not link.connected:
+            return
+        batch = [(seq, u) for seq, u in batch if seq > self._cursor]
+        if not batch or batch[0][0] != self._cursor + 1:
+            return  # the pump publishes them, in order
+        self._publish_records(batch, link)
+        self._confirm(link)
 
     # ------------------------------------------------------------------ publishing
 
@@ -390,7 +419,9 @@ class EdgeNode(AsyncService):
                 return
             await asyncio.sleep(0.002)
 
-    def _publish_records(self, batch: list[tuple[int, bytes]], link: MqttLink) -> None:
+    def _publish_records(
+        self, batch: list[tuple[int, bytes]] | list[tuple[int, PointUpdate]], link: MqttLink
+    ) -> None:
         """DDATA for ``batch`` (seq order), consecutive records of one device in one
         message; records of a dead device or no point passed by."""
         group: list[tuple[MetricDef, LatestValue]] = []
@@ -398,7 +429,7 @@ class EdgeNode(AsyncService):
         for seq, rec in batch:
             self._cursor = seq
             try:
-                update = decode_update(rec)
+                update = rec if isinstance(rec, PointUpdate) else decode_update(rec)
             except UpdateError as e:  # a JSON mode's record, left in this outbox
                 if not self.counts["foreign_records"]:
                     log.error("sparkplug: outbox record %d is no point update (%s): passed by "
@@ -435,6 +466,7 @@ class EdgeNode(AsyncService):
         historical from now on."""
         ob = self._outbox
         assert ob is not None
+        self._flush_live()
         self._live_from = ob.next_seq
         link.publish(self.session.nbirth_topic, self.session.nbirth(time.time()), 0, False)
         self.counts["nbirth"] += 1
@@ -469,6 +501,7 @@ class EdgeNode(AsyncService):
 
     def _say_death(self, link: MqttLink) -> None:
         """The NDEATH published by the node itself (an intentional disconnect)."""
+        self._flush_live()
         body = self.session.ndeath(self.session.bdseq, time.time())
         link.publish(self.session.ndeath_topic, body, 1, False)
         link.write_now()
@@ -631,6 +664,7 @@ class EdgeNode(AsyncService):
         # what the broker did not confirm is published again after the next births
         # (historical: older than the values they carry)
         self._barrier = None
+        self._live = []
         if self._outbox is not None:
             self._cursor = self._outbox.acked
         self._born = False
