@@ -37,8 +37,6 @@ from mqtt_broker import Broker  # noqa: E402
 from outage import WATCHED, Feeder, aliases, outage_rig, received, tally  # noqa: E402
 from sparkplug_host import Host, decode, encode_metric, encode_payload  # noqa: E402
 
-from pyrtu.bridge import parse_bridge_config  # noqa: E402
-from pyrtu.bridge.bridge import Bridge  # noqa: E402
 from pyrtu.drivers._loopthread import LoopThread  # noqa: E402
 from pyrtu.drivers.aio import run as aio_run  # noqa: E402
 from pyrtu.poller import Update  # noqa: E402
@@ -140,8 +138,7 @@ def big_dbirth(tmp: Path, metrics: int = 10_000) -> dict[str, Any]:
     published at connect, received by the host and decoded (the host's own
     decoder, and protobuf's); a Rebirth of it timed as above."""
     points = "".join(
-        f'[[point]]\nname = "m{i}"\nbus = "line"\nslave = 9\ntable = "holding"\n'
-        f"address = {i}\n"
+        f'[[point]]\nname = "m{i}"\nbus = "line"\nslave = 9\ntable = "holding"\naddress = {i}\n'
         for i in range(metrics)
     )
     with Broker(tmp) as broker:

@@ -16,7 +16,8 @@ then one whose slave answers and port is up), all QoS 0, never retained.
 
 The poller's values go through the `Reporter` (report by exception) into the
 outbox as point updates.  A value read while the node is born and nothing older
-waits is published at once (DDATA, by alias, QoS 0); everything else waits in the
+waits is published at the end of the loop's turn (DDATA, by alias, QoS 0; the
+turn's live values of one device in one message); everything else waits in the
 outbox and is published in order once the node is born again, flagged
 ``is_historical`` (it is older than the values the births carry).  A record is
 released from the outbox once the broker has confirmed it: QoS 0 has no

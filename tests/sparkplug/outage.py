@@ -11,6 +11,7 @@ host received in DDATA (live or historical): lost, received twice, out of order.
 from __future__ import annotations
 
 import contextlib
+import itertools
 import struct
 import threading
 import time
@@ -176,7 +177,7 @@ def tally(produced: list[int], got: list[tuple[int, bool]]) -> dict[str, int]:
         seen.add(v)
     position = {v: i for i, v in enumerate(produced)}
     first = [position[v] for v in dict.fromkeys(values)]
-    out_of_order = sum(1 for a, b in zip(first, first[1:], strict=False) if b < a)
+    out_of_order = sum(1 for a, b in itertools.pairwise(first) if b < a)
     return {
         "produced": len(produced),
         "lost": len(want - seen),

@@ -28,9 +28,17 @@ def main() -> None:
             value = m.value
             if isinstance(value, bytes):
                 value = value.hex()
-            metrics.append({"name": m.name, "alias": m.alias, "datatype": int(m.datatype),
-                            "value": value, "timestamp": m.timestamp,
-                            "is_historical": m.is_historical, "is_null": m.is_null})
+            metrics.append(
+                {
+                    "name": m.name,
+                    "alias": m.alias,
+                    "datatype": int(m.datatype),
+                    "value": value,
+                    "timestamp": m.timestamp,
+                    "is_historical": m.is_historical,
+                    "is_null": m.is_null,
+                }
+            )
         out.append({"seq": getattr(p, "seq", None), "timestamp": p.timestamp, "metrics": metrics})
     json.dump(out, sys.stdout)
 
