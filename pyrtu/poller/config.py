@@ -66,7 +66,15 @@ from pyrtu.drivers.links import RTU_TCP_SCHEME, TCP_SCHEME, scheme_of
 
 from .connect import ConnectLimits, connect_limits
 from .plan import Limits, Wire
-from .points import HA_KEYS, Point, PointError, check_unique, encode_point_value, overlap_problem
+from .points import (
+    HA_KEYS,
+    Point,
+    PointError,
+    RegisterIndex,
+    check_unique,
+    encode_point_value,
+    overlap_problem,
+)
 from .schedule import BACKOFF, MAX_BACKOFF
 
 if sys.version_info >= (3, 11):
@@ -286,14 +294,14 @@ class PollerConfig:
                     f'{self.source}: point[{i}] ("{p.name}"): takes {p.size} registers, '
                     f"more than slave {p.slave} reads per request ({most})"
                 )
-        placed: dict[tuple[str, int, str], list[tuple[int, Point]]] = {}
+        placed: dict[tuple[str, int, str], RegisterIndex] = {}
         for i, p in enumerate(self.points):
-            mine = placed.setdefault((p.bus, p.slave, p.table), [])
-            for _, q in mine:
+            mine = placed.setdefault((p.bus, p.slave, p.table), RegisterIndex())
+            for _, q in mine.overlapping(p):
                 problem = overlap_problem(q, p)
                 if problem:
                     raise ConfigError(f'{self.source}: point[{i}] ("{p.name}"): address: {problem}')
-            mine.append((i, p))
+            mine.add(i, p)
 
 
 # ---------------------------------------------------------------------- TOML
@@ -610,6 +618,7 @@ def template_points(
     if every is not None:
         defaults["interval"] = every
     points: list[Point] = []
+    placed: dict[str, RegisterIndex] = {}  # by table
     hints: dict[str, dict[str, Any]] = {}
     for i, raw in enumerate(template.points):
         name = raw.get("name")
@@ -633,7 +642,9 @@ def template_points(
             if k not in own and not (carried is None or carried is False or carried == ""):
                 own[k] = carried
         _check_hints(loader, i, label, point, own)
-        _check_overlap(loader, i, label, point, points)
+        mine = placed.setdefault(point.table, RegisterIndex())
+        _check_overlap(loader, i, label, point, mine)
+        mine.add(i, point)
         if prefix:
             point = replace(point, name=f"{prefix}.{point.name}")
         points.append(point)
@@ -677,14 +688,12 @@ def _check_hints(loader: _Loader, i: int, label: str, point: Point, own: Mapping
 
 
 def _check_overlap(
-    loader: _Loader, i: int, label: str, point: Point, earlier: Sequence[Point]
+    loader: _Loader, i: int, label: str, point: Point, earlier: RegisterIndex
 ) -> None:
-    """ConfigError when ``point`` shares addresses with an earlier point of another
-    type or width (the same registers read as the same type, an alias, are fine; so
-    are bit fields of one register)."""
-    for j, other in enumerate(earlier):
-        if other.table != point.table or other.end <= point.address or point.end <= other.address:
-            continue
+    """ConfigError when ``point`` shares addresses with an earlier point of its table
+    (``earlier``) of another type or width (the same registers read as the same type,
+    an alias, are fine; so are bit fields of one register)."""
+    for j, other in earlier.overlapping(point):
         same = (other.address, other.size, other.type) == (point.address, point.size, point.type)
         fields = getattr(point, "bit", None) is not None or getattr(point, "bits", None) not in (
             None,

@@ -16,6 +16,7 @@ once (its type, bit or field, "no value" markers, labels, scale).
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -461,6 +462,36 @@ def overlap_problem(a: Point, b: Point) -> str | None:
     )
 
 
+class RegisterIndex:
+    """The points of one table (of one slave) by address: which earlier points share
+    registers with a new one, found without comparing it to every point (a
+    configuration of thousands of points is checked in linear time, not quadratic)."""
+
+    def __init__(self) -> None:
+        self._starts: list[int] = []  # sorted
+        self._entries: list[tuple[int, int, Point]] = []  # (start, rank, point), as _starts
+        self._widest = 0
+
+    def add(self, rank: int, point: Point) -> None:
+        """Note ``point``, the ``rank``-th of its configuration."""
+        at = bisect.bisect_right(self._starts, point.address)
+        self._starts.insert(at, point.address)
+        self._entries.insert(at, (point.address, rank, point))
+        self._widest = max(self._widest, point.size)
+
+    def overlapping(self, point: Point) -> list[tuple[int, Point]]:
+        """The points noted before that share a register with ``point``, as
+        (rank, point) in the order they were noted."""
+        low = bisect.bisect_left(self._starts, point.address - self._widest + 1)
+        high = bisect.bisect_left(self._starts, point.end)
+        found = [
+            (rank, other)
+            for _start, rank, other in self._entries[low:high]
+            if other.end > point.address
+        ]
+        return sorted(found, key=lambda entry: entry[0])
+
+
 def check_unique(points: Sequence[Point]) -> None:
     """ValueError naming the first duplicated point name."""
     seen: set[str] = set()
@@ -621,6 +652,7 @@ __all__ = [
     "Encoded",
     "Point",
     "PointError",
+    "RegisterIndex",
     "Value",
     "check_unique",
     "encode_point",
