@@ -9,12 +9,11 @@ the import fail when the C core is missing.  ``pyrtu.BACKEND`` says which runs;
 
 from __future__ import annotations
 
-import importlib
-import importlib.util
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from pyrtu import _startup  # noqa: F401  (first: Ctrl-C while the pyrtu command starts)
 from pyrtu.core import _backend
+from pyrtu.core._lazy import lazy_attributes
 from pyrtu.core.ascii import decode_ascii, encode_ascii
 from pyrtu.core.crcshapes import Crc16, crc16_bytes, crc16_swapped
 from pyrtu.core.frames import ErrorReason, Frame, FrameKind, FrameList
@@ -91,16 +90,10 @@ _LAZY = {
 }
 
 
-def __getattr__(name: str) -> Any:
-    """``pyrtu.Poller``, ``pyrtu.AsyncMaster``, ``pyrtu.AsyncSlave`` and the submodules
-    (``pyrtu.data``, ``pyrtu.aio``, ...) on first use: ``import pyrtu`` loads neither the
-    poller nor asyncio, and the paths the documentation shows work after it alone."""
-    home = _LAZY.get(name)
-    if home is not None:
-        return getattr(importlib.import_module(home), name)
-    if not name.startswith("__") and importlib.util.find_spec(f"{__name__}.{name}"):
-        return importlib.import_module(f"{__name__}.{name}")
-    raise AttributeError(f"module 'pyrtu' has no attribute {name!r}")
+#: ``pyrtu.Poller``, ``pyrtu.AsyncMaster``, ``pyrtu.AsyncSlave`` and the submodules
+#: (``pyrtu.data``, ``pyrtu.aio``, ...) on first use: ``import pyrtu`` loads neither the
+#: poller nor asyncio, and the paths the documentation shows work after it alone
+__getattr__ = lazy_attributes(__name__, _LAZY)
 
 
 __all__ = [

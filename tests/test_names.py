@@ -25,6 +25,7 @@ TWINS: dict[str, set[str]] = {
     "XferRunner": {"drivers/xfer.py", "drivers/_cxfer.py", "drivers/_pyxfer.py"},
     "AsyncXferRunner": {"drivers/xfer.py", "drivers/_cxfer.py", "drivers/_pyxfer.py"},
     "TcpXferRunner": {"drivers/xfer.py", "drivers/_cxfer.py", "drivers/_pyxfer.py"},
+    "TcpScanner": {"drivers/xfer.py", "drivers/_cxfer.py", "drivers/_pyxfer.py"},
 }
 #: duplicates not yet renamed (issue 28, item 5: outside this change's files), each
 #: with the concepts it names

@@ -18,6 +18,8 @@ See ``docs/BRIDGE.md``.  The MQTT client is paho-mqtt (``pip install pyrtu[bridg
 
 from __future__ import annotations
 
+from pyrtu.core._lazy import lazy_attributes
+
 from .config import (
     BridgeConfig,
     MqttConfig,
@@ -39,10 +41,8 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str) -> object:
-    # the driver needs paho-mqtt; the configuration (pyrtu bridge --check) does not
-    if name in ("Bridge", "BridgeEvent"):
-        from . import bridge
-
-        return getattr(bridge, name)
-    raise AttributeError(f"module 'pyrtu.bridge' has no attribute {name!r}")
+#: ``Bridge`` and ``BridgeEvent`` (the driver needs paho-mqtt; the configuration, for
+#: ``pyrtu bridge --check``, does not) and the submodules, on first use
+__getattr__ = lazy_attributes(
+    __name__, {"Bridge": "pyrtu.bridge.bridge", "BridgeEvent": "pyrtu.bridge.bridge"}
+)

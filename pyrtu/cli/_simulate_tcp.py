@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
-import resource
 import sys
 import threading
 from collections.abc import Callable, Sequence
@@ -79,6 +78,8 @@ def open_files_for(ports: int) -> None:
     """Let the process open a listening socket and a client's per port: the soft
     limit of open files raised to what that needs (up to the hard limit).
     ValueError naming ``--tcp`` when the hard limit is too low."""
+    import resource  # (POSIX only: pyrtu's CLI imports on Windows too)
+
     need = 2 * ports + _SPARE_FILES
     soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
     if soft == resource.RLIM_INFINITY or soft >= need:

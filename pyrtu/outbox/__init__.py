@@ -11,3 +11,8 @@ An output encodes what it stores (`updates` for a point update; the JSON bridge 
 its own record form, read by every pyrtu since the format's version 1) and decodes it
 when it publishes.  See docs/DESIGN.md.
 """
+
+from pyrtu.core._lazy import lazy_attributes
+
+#: the submodules on first use (``pyrtu.outbox.outbox`` after ``import pyrtu``)
+__getattr__ = lazy_attributes(__name__)

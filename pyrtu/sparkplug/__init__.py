@@ -11,3 +11,8 @@
 
 Needs ``paho-mqtt`` and ``protobuf``: ``pip install 'pyrtu[sparkplug]'``.
 """
+
+from pyrtu.core._lazy import lazy_attributes
+
+#: the submodules on first use (``pyrtu.sparkplug.payload`` after ``import pyrtu``)
+__getattr__ = lazy_attributes(__name__)
