@@ -110,6 +110,9 @@ BENCHMARKS: tuple[Benchmark, ...] = (
     Benchmark("decode", ("bench/bench_decode.py",), quick=("--rounds", "10")),
     Benchmark("bridge", ("bench/bench_bridge.py",), quick=("--outage", "10", "--rounds", "3")),
     Benchmark("outbox", ("bench/bench_outbox.py",), quick=("--runs", "3")),
+    Benchmark(
+        "mbaps", ("bench/bench_mbaps.py",), quick=("--transactions", "500", "--connects", "30")
+    ),
     Benchmark("setrt", ("bench/bench_set_roundtrip.py",), quick=("--sets", "100")),
     Benchmark("compat", ("bench/bench_compat.py",)),
     Benchmark("capture", ("bench/bench_capture.py",), quick=("--sizes", "10,50")),
