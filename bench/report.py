@@ -115,6 +115,9 @@ BENCHMARKS: tuple[Benchmark, ...] = (
         ("bench/bench_sparkplug.py",),
         quick=("--outage", "10", "--rounds", "3", "--rebirths", "10"),
     ),
+    Benchmark(
+        "mbaps", ("bench/bench_mbaps.py",), quick=("--transactions", "500", "--connects", "30")
+    ),
     Benchmark("setrt", ("bench/bench_set_roundtrip.py",), quick=("--sets", "100")),
     Benchmark("compat", ("bench/bench_compat.py",)),
     Benchmark("capture", ("bench/bench_capture.py",), quick=("--sizes", "10,50")),

@@ -30,7 +30,7 @@ ALLOWED: dict[str, set[str]] = {
     "compat": PDU | {"compat"},
     "security": PDU | {"security"},
     "gateway": TRANSPORTS | {"security", "gateway"},
-    "poller": TRANSPORTS | {"devices", "poller"},
+    "poller": TRANSPORTS | {"security", "devices", "poller"},
     "outbox": TRANSPORTS | {"devices", "poller", "outbox"},
     "bridge": TRANSPORTS | {"devices", "poller", "outbox", "bridge"},
     "sparkplug": TRANSPORTS | {"devices", "poller", "outbox", "bridge", "sparkplug"},

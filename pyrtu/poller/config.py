@@ -62,7 +62,14 @@ from pyrtu.devices.registry import (
     read_text_file,
 )
 from pyrtu.drivers._portname import first_duplicate
-from pyrtu.drivers.links import RTU_TCP_SCHEME, TCP_SCHEME, scheme_of
+from pyrtu.drivers.links import (
+    MBAP_SCHEMES,
+    MBAPS_SCHEME,
+    RTU_TCP_SCHEME,
+    check_tls,
+    scheme_of,
+    transport_of,
+)
 
 from .connect import ConnectLimits, connect_limits
 from .plan import Limits, Wire
@@ -91,6 +98,9 @@ class ConfigError(ValueError):
 MASTER_KEYS = ("baudrate", "parity", "stopbits", "bytesize", "timeout", "retries", "t15", "t35",
                "timing", "mode", "echo", "broadcast_delay", "max_adu", "strict")  # fmt: skip
 POLLER_KEYS = ("share", "offline_after", "backoff", "max_backoff")
+#: an ``mbaps://`` bus's TLS files (PEM; relative to the configuration file): its
+#: certificate, its key and the CA the server's certificate must be signed by
+TLS_KEYS = ("tls_cert", "tls_key", "tls_ca")
 LIMIT_KEYS = ("max_registers", "max_bits", "max_adu", "max_gap")
 POINT_KEYS = tuple(f.name for f in fields(Point) if f.init)
 
@@ -142,6 +152,12 @@ class Bus:
     backoff: float = BACKOFF
     max_backoff: float = MAX_BACKOFF
     limits: Limits = field(default_factory=Limits)
+    #: an ``mbaps://`` bus's client context (`pyrtu.security.tls.client_context`;
+    #: required there, refused elsewhere), passed to the master as ``tls``
+    tls: Any = field(default=None, compare=False)
+    #: the files it was made of (``tls_cert``, ``tls_key``, ``tls_ca``), when a
+    #: configuration file named them: a bus is the same bus with the same files
+    tls_files: tuple[str, str, str] | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name:
@@ -159,6 +175,7 @@ class Bus:
             raise ValueError(f"port: {str(exc).removeprefix(f'{self.port}: ')}") from None
         if scheme == RTU_TCP_SCHEME:
             line.setdefault("t35", 0.0)  # as the master: a socket has no wire timing
+        check_tls(transport_of(self.port), self.tls)
         object.__setattr__(self, "_line", make_line(line))
         if not (_real(self.share) and 0 < self.share <= 1):
             raise ValueError(f"share: must be a fraction in (0, 1], not {self.share!r}")
@@ -180,13 +197,16 @@ class Bus:
     def master_options(self) -> dict[str, Any]:
         """The bus's Master keywords other than the line's (the master is opened with
         ``line=bus.line`` and these: the line is checked once, here)."""
-        return {k: v for k, v in self.master.items() if k not in LINE_KEYS}
+        options = {k: v for k, v in self.master.items() if k not in LINE_KEYS}
+        if self.tls is not None:
+            options["tls"] = self.tls
+        return options
 
     def wire(self) -> Wire:
         """The bus's wire model from its line (an estimated turnaround of t3.5 until
-        the slaves' are measured); a ``tcp://`` bus's is `Wire.tcp` (its round trip,
-        no character time)."""
-        if scheme_of(self.port) == TCP_SCHEME:
+        the slaves' are measured); a ``tcp://`` or ``mbaps://`` bus's is `Wire.tcp`
+        (its round trip, no character time)."""
+        if scheme_of(self.port) in MBAP_SCHEMES:
             return Wire.tcp()
         line = self.line
         return Wire(
@@ -198,11 +218,11 @@ class Bus:
 
 
 def unit_problem(bus: Bus, slave: object) -> str | None:
-    """What is wrong with ``slave`` on ``bus`` (None: nothing): a ``tcp://`` bus
-    takes unit ids 0..255 (0: the TCP device itself, 255 and 248..254: what is
+    """What is wrong with ``slave`` on ``bus`` (None: nothing): a ``tcp://`` (or
+    ``mbaps://``) bus takes unit ids 0..255 (0: the TCP device itself, 255 and 248..254: what is
     behind it, as `pyrtu.Master` on TCP does), a serial bus (and ``rtu+tcp://``)
     1..247 (0 is the broadcast: no answer to poll)."""
-    tcp = isinstance(bus.port, str) and scheme_of(bus.port) == TCP_SCHEME
+    tcp = isinstance(bus.port, str) and scheme_of(bus.port) in MBAP_SCHEMES
     lo, hi = (0, 255) if tcp else (1, 247)
     if isinstance(slave, bool) or not isinstance(slave, int) or not lo <= slave <= hi:
         why = " on a Modbus TCP bus" if tcp else f" on serial bus {bus.name!r} (0..255 on tcp://)"
@@ -472,19 +492,67 @@ class _Loader:
 
     def bus(self, i: int, t: Mapping[str, Any]) -> Bus:
         label = f"bus[{i}]" + (f' ("{t["name"]}")' if isinstance(t.get("name"), str) else "")
-        known = ("name", "port", *MASTER_KEYS, *POLLER_KEYS, *LIMIT_KEYS)
+        known = ("name", "port", *MASTER_KEYS, *POLLER_KEYS, *LIMIT_KEYS, *TLS_KEYS)
         self.check_keys("bus", i, label, t, known, ("name", "port"), t)
         master = {k: t[k] for k in MASTER_KEYS if k in t}
         poller = {k: t[k] for k in POLLER_KEYS if k in t}
         limits = self.limits("bus", i, label, t)
         if not isinstance(t["port"], str):
             raise self.fail("bus", i, label, "port", f"must be a string, not {t['port']!r}")
+        tls, files = self.bus_tls(i, label, t)
         try:
-            bus = Bus(t["name"], t["port"], master, limits=limits, **poller)
+            bus = Bus(t["name"], t["port"], master, limits=limits, tls=tls, tls_files=files,
+                      **poller)  # fmt: skip
         except ValueError as e:
             key, _, msg = str(e).partition(": ")
             raise self.fail("bus", i, label, key if key in known else None, msg or str(e)) from None
         return bus
+
+    def bus_tls(
+        self, i: int, label: str, t: Mapping[str, Any]
+    ) -> tuple[Any, tuple[str, str, str] | None]:
+        """An ``mbaps://`` bus's client context from its ``tls_*`` files (relative to
+        the configuration file), and the files; (None, None) for another port.
+        ConfigError at the key: one missing, given for another port, a file that
+        does not exist or does not hold what it should."""
+        given = [k for k in TLS_KEYS if k in t]
+        try:
+            mbaps = scheme_of(t["port"]) == MBAPS_SCHEME
+        except ValueError:  # an unknown scheme: said by Bus, at the port
+            mbaps = False
+        if not mbaps:
+            if given:
+                raise self.fail(
+                    "bus", i, label, given[0],
+                    f"only an mbaps:// port takes TLS files, not {t['port']!r}",
+                )  # fmt: skip
+            return None, None
+        missing = [k for k in TLS_KEYS if k not in t]
+        if missing:
+            raise self.fail(
+                "bus", i, label, None,
+                f"{missing[0]}: missing (an mbaps:// port needs {', '.join(TLS_KEYS)}:"
+                " its certificate, its key and the CA of the server's certificate)",
+            )  # fmt: skip
+        paths: list[str] = []
+        for k in TLS_KEYS:
+            value = t[k]
+            if not isinstance(value, str) or not value:
+                raise self.fail("bus", i, label, k, f"must be a file name, not {value!r}")
+            paths.append(str(self.base / value) if self.base is not None else value)
+        from pyrtu.security.tls import TlsSetupError, client_context
+
+        cert, key, ca = paths
+        try:
+            context = client_context(cert, key, ca)
+        except TlsSetupError as exc:
+            k = f"tls_{exc.option}" if f"tls_{exc.option}" in TLS_KEYS else "tls_cert"
+            named = dict(zip(TLS_KEYS, paths, strict=True))
+            detail = str(exc).replace("--tls-cert", "tls_cert").replace("--tls-key", "tls_key")
+            detail = detail.replace("--tls-ca", "tls_ca")
+            detail = detail.removeprefix(f"{k} {named[k]}: ")
+            raise self.fail("bus", i, label, k, f"{named[k]}: {detail}") from None
+        return context, (cert, key, ca)
 
     def limits(self, array: str, i: int, label: str, t: Mapping[str, Any]) -> Limits:
         try:

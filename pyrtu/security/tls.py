@@ -29,14 +29,30 @@ _UTF8STRING = 0x0C
 
 
 class TlsSetupError(ValueError):
-    """A certificate, key or CA file that cannot be used (the message names it)."""
+    """A certificate, key or CA file that cannot be used (the message names it;
+    ``option`` is which of the three: ``"cert"``, ``"key"`` or ``"ca"``)."""
+
+    def __init__(self, message: str, option: str = "") -> None:
+        super().__init__(message)
+        self.option = option
 
 
-def _check_file(flag: str, path: str | Path) -> str:
+def _check_file(prefix: str, option: str, path: str | Path) -> str:
     p = Path(path)
     if not p.is_file():
-        raise TlsSetupError(f"{flag} {path}: no such file")
+        raise TlsSetupError(f"{prefix}{option} {path}: no such file", option)
     return str(p)
+
+
+def _check_certificate(prefix: str, path: str) -> None:
+    """TlsSetupError unless ``path`` holds a PEM certificate (loaded as OpenSSL loads
+    a CA file: any certificate in it counts)."""
+    scratch = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)
+    try:
+        scratch.load_verify_locations(cafile=path)
+    except (ssl.SSLError, OSError) as exc:
+        message = f"{prefix}cert {path}: not a certificate (PEM): {exc}"
+        raise TlsSetupError(message, "cert") from None
 
 
 def _context(
@@ -49,20 +65,22 @@ def _context(
     context.minimum_version = ssl.TLSVersion.TLSv1_2
     context.options |= ssl.OP_NO_RENEGOTIATION | ssl.OP_NO_COMPRESSION
     context.verify_mode = ssl.CERT_REQUIRED
-    cert_file = _check_file(f"{prefix}cert", cert)
-    key_file = _check_file(f"{prefix}key", key)
-    ca_file = _check_file(f"{prefix}ca", ca)
+    cert_file = _check_file(prefix, "cert", cert)
+    key_file = _check_file(prefix, "key", key)
+    ca_file = _check_file(prefix, "ca", ca)
+    _check_certificate(prefix, cert_file)
     try:
         context.load_cert_chain(cert_file, key_file)
-    except (ssl.SSLError, OSError) as exc:
+    except (ssl.SSLError, OSError) as exc:  # the certificate is one: its key is not
         raise TlsSetupError(
             f"{prefix}cert {cert} / {prefix}key {key}: not a certificate and its key "
-            f"(PEM): {exc.strerror or exc}"
+            f"(PEM): {exc.strerror or exc}",
+            "key",
         ) from None
     try:
         context.load_verify_locations(cafile=ca_file)
     except (ssl.SSLError, OSError) as exc:
-        raise TlsSetupError(f"{prefix}ca {ca}: not a CA certificate (PEM): {exc}") from None
+        raise TlsSetupError(f"{prefix}ca {ca}: not a CA certificate (PEM): {exc}", "ca") from None
     return context
 
 

@@ -1,0 +1,314 @@
+"""Modbus/TCP Security's cost on the client (issue 31's targets), in one run against
+one pyrtu TLS listener (a `TcpServer` with a plain and a TLS listener, in a process
+of its own so that only the client's CPU is counted here).
+
+    python bench/bench_mbaps.py [--transactions 2000] [--rounds 5] [--connects 200] [--json FILE]
+
+1. CPU per transaction of the sync `pyrtu.Master` on an established connection:
+   ``mbaps://`` against plain ``tcp://`` (target: at most 1.5x), reads of 10 holding
+   registers, ``--rounds`` interleaved rounds of ``--transactions`` each, the median
+   round.  To say where a difference comes from, the same on ``tcp://`` with the
+   pure-Python backend (the path an ``mbaps://`` transaction takes is Python: the
+   C runner reads a socket's descriptor, under TLS the records are the ssl module's),
+   and the ssl module's own cost of one request and answer of the same sizes
+   (``sendall`` + ``recv`` on an established TLS connection to a TLS echo, no Modbus).
+2. CPU of the client per connect (TCP connect and TLS handshake, measured around
+   `pyrtu.tcp.TcpClient`'s constructor): a reconnect resuming the TLS session against
+   a full handshake (target: at most 0.3x), the median of ``--connects`` each,
+   interleaved; on TLS 1.3 (what pyrtu negotiates) and TLS 1.2 (the minimum), since
+   TLS 1.3's resumption still runs an ECDHE exchange (psk_dhe_ke) while TLS 1.2's
+   abbreviated handshake runs none.
+
+Certificates: made here with tests/tls_certs.py (P-256 ECDSA, as the tests').
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import datetime
+import json
+import multiprocessing
+import platform
+import socket
+import ssl
+import statistics
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from multiprocessing.connection import Connection
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))
+
+from tls_certs import Pki, make_pki  # noqa: E402
+
+from pyrtu import DataStore, Master, PortError  # noqa: E402
+from pyrtu.security.tls import TlsListen, client_context, server_context  # noqa: E402
+from pyrtu.tcp import TcpClient  # noqa: E402
+from pyrtu.tcp.server import TcpServer  # noqa: E402
+from pyrtu.tcp.tls import _sessions  # noqa: E402
+
+TARGET_TRANSACTION = 1.5
+TARGET_RESUME = 0.3
+#: a read of 10 holding registers: request ADU 12 bytes, answer ADU 29 bytes
+REQUEST = bytes.fromhex("00010000000601030000000a")
+ANSWER_BYTES = 29
+
+
+def serve(folder: str, pipe: Connection) -> None:
+    """The listener's process: a `TcpServer` (plain and TLS) and a TLS echo of one
+    answer's size per request; sends the three ports, runs until the pipe closes."""
+    pki = _pki_of(Path(folder))
+
+    async def main() -> None:
+        store = DataStore()
+        store.holding_registers.add_range(0, list(range(100)))
+        server = TcpServer.for_store(1, store)
+        context = server_context(pki.server.cert, pki.server.key, pki.ca.path)
+        await server.start("127.0.0.1", 0, tls=TlsListen("127.0.0.1", 0, context))
+
+        async def echo(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+            try:
+                while await reader.readexactly(len(REQUEST)):
+                    writer.write(bytes(ANSWER_BYTES))
+            except (asyncio.IncompleteReadError, ConnectionError, ssl.SSLError):
+                pass
+            writer.close()
+
+        echo_server = await asyncio.start_server(echo, "127.0.0.1", 0, ssl=context)
+        plain_echo = await asyncio.start_server(echo, "127.0.0.1", 0)
+        assert server.address is not None and server.tls_address is not None
+        ports = (server.address[1], server.tls_address[1], echo_server.sockets[0].getsockname()[1],
+                 plain_echo.sockets[0].getsockname()[1])  # fmt: skip
+        pipe.send(ports)
+        loop = asyncio.get_running_loop()
+        await loop.run_in_executor(None, _wait_closed, pipe)
+        await server.close()
+        echo_server.close()
+        plain_echo.close()
+
+    asyncio.run(main())
+
+
+def _wait_closed(pipe: Connection) -> None:
+    try:
+        pipe.recv()
+    except EOFError:
+        pass
+
+
+_PKI: dict[Path, Pki] = {}
+
+
+def _pki_of(folder: Path) -> Pki:
+    """The certificates in ``folder`` (made once, by the parent, before the fork)."""
+    if folder not in _PKI:
+        _PKI[folder] = make_pki(folder)
+    return _PKI[folder]
+
+
+def cpu_per_call(call: Callable[[], object], n: int) -> float:
+    """Seconds of this process's CPU per ``call()``, over ``n`` calls."""
+    start = time.process_time()
+    for _ in range(n):
+        call()
+    return (time.process_time() - start) / n
+
+
+def transactions(
+    args: argparse.Namespace, pki: Pki, ports: tuple[int, int, int, int]
+) -> dict[str, Any]:
+    plain, tls_port, echo_port, plain_echo_port = ports
+    context = client_context(pki.operator.cert, pki.operator.key, pki.ca.path)
+    masters = {
+        "tcp (C core)": Master(f"tcp://127.0.0.1:{plain}", timeout=5.0),
+        "tcp (Python backend)": Master(f"tcp://127.0.0.1:{plain}", timeout=5.0, backend="python"),
+        "mbaps": Master(f"mbaps://localhost:{tls_port}", tls=context, timeout=5.0),
+    }
+    raw = context.wrap_socket(
+        socket.create_connection(("127.0.0.1", echo_port)), server_hostname="localhost"
+    )
+    raw.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    bare = socket.create_connection(("127.0.0.1", plain_echo_port))
+    bare.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+
+    def echo(sock: socket.socket) -> Callable[[], None]:
+        def once() -> None:
+            sock.sendall(REQUEST)
+            got = 0
+            while got < ANSWER_BYTES:
+                got += len(sock.recv(65536))
+
+        return once
+
+    calls: dict[str, Callable[[], object]] = {
+        name: (lambda m=m: m.read_holding_registers(1, 0, 10)) for name, m in masters.items()
+    }
+    calls["ssl sendall+recv alone"] = echo(raw)
+    calls["socket sendall+recv alone"] = echo(bare)
+    for name, m in masters.items():
+        assert m.read_holding_registers(1, 0, 10) == list(range(10)), name
+    rounds: dict[str, list[float]] = {name: [] for name in calls}
+    for _ in range(args.rounds):
+        for name, call in calls.items():
+            cpu_per_call(call, args.transactions // 10)  # warm
+            rounds[name].append(cpu_per_call(call, args.transactions))
+    for m in masters.values():
+        m.close()
+    raw.close()
+    bare.close()
+    us = {name: statistics.median(v) * 1e6 for name, v in rounds.items()}
+    ratio = us["mbaps"] / us["tcp (C core)"]
+    return {
+        "us_per_transaction": us,
+        "rounds_us": {name: [x * 1e6 for x in v] for name, v in rounds.items()},
+        "ratio": ratio,
+        "ratio_python_backend": us["mbaps"] / us["tcp (Python backend)"],
+        "ok": ratio <= TARGET_TRANSACTION,
+    }
+
+
+def connect_once(url: str, context: ssl.SSLContext, failures: list[str]) -> tuple[float, bool]:
+    """Client CPU of one connect (TCP and TLS handshake), and whether it resumed the
+    session; then one transaction (TLS 1.3 sends its session tickets after the
+    handshake) and the close.  A reset under load is counted and tried again."""
+    for attempt in range(3):
+        start = time.process_time()
+        try:
+            client = TcpClient(url, timeout=5.0, tls=context)
+        except PortError as exc:
+            failures.append(str(exc))
+            if attempt == 2:
+                raise
+            continue
+        break
+    cpu = time.process_time() - start
+    client.request(1, REQUEST[7:])
+    again = client.session_reused
+    client.close()
+    return cpu, again
+
+
+def connects(args: argparse.Namespace, pki: Pki, plain: int, tls_port: int) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    url = f"mbaps://localhost:{tls_port}"
+    for version in ("TLSv1.3", "TLSv1.2"):
+        context = client_context(pki.operator.cert, pki.operator.key, pki.ca.path)
+        context.maximum_version = ssl.TLSVersion[version.replace(".", "_")]
+        full: list[float] = []
+        resumed: list[float] = []
+        reused = 0
+        failures: list[str] = []
+        connect_once(url, context, failures)  # a first session to resume
+        for _ in range(args.connects):
+            _sessions.pop(context, None)  # forgotten: a full handshake
+            cpu, again = connect_once(url, context, failures)
+            assert not again
+            full.append(cpu)
+            # the session of the one before: resumed
+            cpu, again = connect_once(url, context, failures)
+            reused += again
+            resumed.append(cpu)
+        # the floors under both: the TCP connect (and pyrtu's client) alone, and
+        # OpenSSL's per-connection setup (SSL_new from the context: no handshake)
+        tcp_floor: list[float] = []
+        setup: list[float] = []
+        for _ in range(args.connects):
+            start = time.process_time()
+            client = TcpClient(f"tcp://127.0.0.1:{plain}", timeout=5.0)
+            tcp_floor.append(time.process_time() - start)
+            client.close()
+            sock = socket.create_connection(("127.0.0.1", tls_port))
+            start = time.process_time()
+            wrapped = context.wrap_socket(
+                sock, server_hostname="localhost", do_handshake_on_connect=False
+            )
+            setup.append(time.process_time() - start)
+            wrapped.close()
+        ratio = statistics.median(resumed) / statistics.median(full)
+        floor = statistics.median(tcp_floor) + statistics.median(setup)
+        out[version] = {
+            "full_us": statistics.median(full) * 1e6,
+            "resumed_us": statistics.median(resumed) * 1e6,
+            "tcp_connect_us": statistics.median(tcp_floor) * 1e6,
+            "ssl_setup_us": statistics.median(setup) * 1e6,
+            "handshake_ratio": (statistics.median(resumed) - floor)
+            / (statistics.median(full) - floor),
+            "resumed_share": reused / args.connects,
+            "failed_connects": failures,
+            "ratio": ratio,
+            "ok": ratio <= TARGET_RESUME and reused == args.connects,
+        }
+    return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
+    ap.add_argument("--transactions", type=int, default=2000, help="per round and client")
+    ap.add_argument("--rounds", type=int, default=5)
+    ap.add_argument("--connects", type=int, default=200, help="of each kind, per TLS version")
+    ap.add_argument("--json", type=Path, help="also write the figures here")
+    args = ap.parse_args()
+    started = time.monotonic()
+    with tempfile.TemporaryDirectory() as folder:
+        pki = _pki_of(Path(folder))
+        parent, child = multiprocessing.get_context("fork").Pipe()
+        proc = multiprocessing.get_context("fork").Process(target=serve, args=(folder, child))
+        proc.start()
+        try:
+            ports: tuple[int, int, int, int] = parent.recv()
+            trans = transactions(args, pki, ports)
+            conn = connects(args, pki, ports[0], ports[1])
+        finally:
+            parent.close()
+            proc.join(30)
+            if proc.is_alive():
+                proc.terminate()
+    lines = [f"CPU per transaction, sync Master, read of 10 registers (median of {args.rounds} "
+             f"rounds of {args.transactions}):"]  # fmt: skip
+    for name, us in trans["us_per_transaction"].items():
+        lines.append(f"  {name:28} {us:8.1f} us")
+    lines.append(
+        f"  mbaps / tcp (C core): {trans['ratio']:.2f}x (target <= {TARGET_TRANSACTION}x: "
+        f"{'met' if trans['ok'] else 'MISSED'}); mbaps / tcp (Python backend): "
+        f"{trans['ratio_python_backend']:.2f}x"
+    )
+    lines.append(f"Client CPU per connect (median of {args.connects} each):")
+    for version, r in conn.items():
+        lines.append(
+            f"  {version}: full handshake {r['full_us']:.0f} us, resumed {r['resumed_us']:.0f} us"
+            f" ({r['resumed_share']:.0%} resumed): {r['ratio']:.2f}x (target <= {TARGET_RESUME}x:"
+            f" {'met' if r['ok'] else 'MISSED'})"
+        )
+        lines.append(
+            "    under both: TCP connect (pyrtu's TcpClient on tcp://) "
+            f"{r['tcp_connect_us']:.0f} us,"
+            f" SSL object setup {r['ssl_setup_us']:.0f} us; the handshakes alone: "
+            f"{r['handshake_ratio']:.2f}x"
+        )
+    print("\n".join(lines))
+    if args.json:
+        doc = {
+            "transactions": trans,
+            "connects": conn,
+            "settings": {
+                "transactions": args.transactions,
+                "rounds": args.rounds,
+                "connects": args.connects,
+            },
+            "openssl": ssl.OPENSSL_VERSION,
+            "python": platform.python_version(),
+            "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+            "seconds": time.monotonic() - started,
+        }
+        args.json.write_text(json.dumps(doc, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
