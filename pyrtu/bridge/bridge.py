@@ -38,17 +38,17 @@ import logging
 import ssl
 import time
 from collections import deque
-from collections.abc import Awaitable, Callable
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from pyrtu.core._closing import AsyncService
 from pyrtu.drivers.reconnect import Backoff, Reconnect
-from pyrtu.drivers.supervise import cause, supervise
+from pyrtu.drivers.supervise import cause
 
 from ..outbox._sync import Flusher
 from ..outbox.outbox import Outbox, OutboxError, OutboxLimits
 from ..outbox.report import Reporter
+from ..outbox.service import OutboxService
 from ..poller import Point, PointDropped, Poller, PortState, SlaveState, TaskFailed, Update
 from ..poller.points import Value
 from .commands import CommandQueue
@@ -88,9 +88,11 @@ class BridgeEvent:
         return {"event": self.kind, "time": round(self.time, 6), **self.detail}
 
 
-class Bridge(AsyncService):
+class Bridge(OutboxService):
     """The bridge of one edge (see the module docstring).  ``config``: a
     `BridgeConfig` or a TOML path; ``master``: as `Poller`'s."""
+
+    WHAT = "the bridge"
 
     def __init__(self, config: BridgeConfig | str, *, master: Any = "aio") -> None:
         if isinstance(config, str):
@@ -224,54 +226,15 @@ class Bridge(AsyncService):
         ob.close()
         self._outbox = None
 
-    async def run(self, duration: float | None = None) -> None:
-        """Start, run for ``duration`` seconds (None: until cancelled or a fatal error
-        such as refused credentials, raised), stop."""
-        await self.start()
-        assert self._stop is not None
-        try:
-            if duration is None:
-                await self._stop.wait()
-            else:
-                try:
-                    await asyncio.wait_for(self._stop.wait(), duration)
-                except TimeoutError:
-                    pass
-        finally:
-            await self.stop()
-        if self.fatal is not None:
-            raise self.fatal
-
-    @property
-    def halted(self) -> asyncio.Event:
-        """Set when the bridge cannot go on (`fatal` says why); made by `start`."""
-        assert self._stop is not None, "start the bridge first"
-        return self._stop
-
     def on_event(self, callback: Callable[[BridgeEvent], None]) -> None:
         """Call ``callback(event)`` for every `BridgeEvent` (on the loop)."""
         self._event_cbs.append(callback)
 
     # ------------------------------------------------------------------ supervision
 
-    def _supervise(
-        self,
-        name: str,
-        body: Callable[[], Awaitable[None]],
-        cleanup: Callable[[], None] | None = None,
-    ) -> asyncio.Task[None]:
-        """Run ``body`` as the task ``name`` under `pyrtu.drivers.supervise`: when it
-        raises, report it (`task_failed`), run ``cleanup`` and start it again after
-        the shared back-off."""
+    def _backoff(self) -> Backoff:
         m = self.config.mqtt
-        return supervise(
-            name,
-            body,
-            lambda f: self.task_failed(f.task, f.error, f.retry_in, f.first),
-            backoff=Backoff(m.backoff, m.max_backoff),
-            running=lambda: self._running,
-            cleanup=cleanup,
-        )
+        return Backoff(m.backoff, m.max_backoff)
 
     def task_failed(
         self, task: str, error: BaseException, retry_in: float, first: bool = True

@@ -5,6 +5,7 @@ Sparkplug B edge node) shares between the poller and its broker.
 `outbox`      `Outbox`: the durable, bounded on-disk log of updates awaiting delivery
 `report`      `Reporter`: report by exception, qualities (good, stale, bad)
 `updates`     `PointUpdate`: a point's value as an outbox record, for any output
+`service`     `OutboxService`: an output's run, halt and supervised tasks
 ============  =====================================================================
 
 An output encodes what it stores (`updates` for a point update; the JSON bridge keeps

@@ -48,14 +48,12 @@ import asyncio
 import logging
 import ssl
 import time
-from collections.abc import Awaitable, Callable
 from typing import Any
 
 import paho.mqtt.client as paho
 
-from pyrtu.core._closing import AsyncService
 from pyrtu.drivers.reconnect import Backoff, Reconnect
-from pyrtu.drivers.supervise import cause, supervise
+from pyrtu.drivers.supervise import cause
 
 from ..bridge.commands import CommandQueue
 from ..bridge.mqtt import BrokerRefused, Credentials, MqttLink
@@ -64,6 +62,7 @@ from ..bridge.writes import SetWriter
 from ..outbox._sync import Flusher
 from ..outbox.outbox import Outbox, OutboxError, OutboxLimits
 from ..outbox.report import Reporter
+from ..outbox.service import OutboxService
 from ..outbox.updates import PointUpdate, UpdateError, decode_update, encode_update
 from ..poller import Point, PointDropped, Poller, PortState, SlaveState, TaskFailed, Update
 from ..poller.points import Value
@@ -81,8 +80,10 @@ _PER_MESSAGE = 64  # metrics per DDATA of the backlog
 BARRIER = "pyrtu/sparkplug/delivered"
 
 
-class EdgeNode(AsyncService):
+class EdgeNode(OutboxService):
     """The Sparkplug edge node of one bridge configuration (see the module doc)."""
+
+    WHAT = "the edge node"
 
     def __init__(self, config: SparkplugConfig, *, master: Any = "aio") -> None:
         self.spb = config
@@ -191,39 +192,9 @@ class EdgeNode(AsyncService):
         ob.close()
         self._outbox = None
 
-    async def run(self, duration: float | None = None) -> None:
-        await self.start()
-        assert self._stop is not None
-        try:
-            if duration is None:
-                await self._stop.wait()
-            else:
-                try:
-                    await asyncio.wait_for(self._stop.wait(), duration)
-                except TimeoutError:
-                    pass
-        finally:
-            await self.stop()
-        if self.fatal is not None:
-            raise self.fatal
-
-    @property
-    def halted(self) -> asyncio.Event:
-        assert self._stop is not None, "start the edge node first"
-        return self._stop
-
-    def _supervise(
-        self, name: str, body: Callable[[], Awaitable[None]], cleanup: Callable[[], None]
-    ) -> asyncio.Task[None]:
+    def _backoff(self) -> Backoff:
         m = self.config.mqtt
-        return supervise(
-            name,
-            body,
-            lambda f: self.task_failed(f.task, f.error, f.retry_in, f.first),
-            backoff=Backoff(m.backoff, m.max_backoff),
-            running=lambda: self._running,
-            cleanup=cleanup,
-        )
+        return Backoff(m.backoff, m.max_backoff)
 
     def task_failed(
         self, task: str, error: BaseException, retry_in: float, first: bool = True
