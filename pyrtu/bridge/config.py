@@ -39,7 +39,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import re
 import socket
 import sys
 from collections.abc import Mapping
@@ -48,6 +47,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
+from ..core._tomlpos import locate
 from ..core.timing import check_seconds
 from ..poller import ConfigError, PollerConfig
 from ..poller.config import _Loader, _locate, read_config_text
@@ -256,19 +256,8 @@ _NO_OPTIONS = PointOptions()
 
 def _where(text: str, source: str, table: str, key: str | None) -> str:
     """``source:line`` of ``key`` in the single table ``[table]`` (or its header)."""
-    lines = text.splitlines()
-    header = re.compile(r"^\s*\[\s*" + re.escape(table) + r"\s*\]")
-    for n, line in enumerate(lines):
-        if header.match(line):
-            if key is not None:
-                want = re.compile(r"^\s*" + re.escape(key) + r"\s*=")
-                for m in range(n + 1, len(lines)):
-                    if lines[m].lstrip().startswith("["):
-                        break
-                    if want.match(lines[m]):
-                        return f"{source}:{m + 1}"
-            return f"{source}:{n + 1}"
-    return source
+    line = locate(text, table, key)
+    return source if line is None else f"{source}:{line}"
 
 
 def _error(where: str, label: str, msg: str) -> ConfigError:

@@ -41,6 +41,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from pyrtu.core._tomlpos import locate
+
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover - Python 3.10
@@ -116,34 +118,6 @@ def check_hint(key: str, value: object) -> str | None:
         ok = isinstance(value, bool | str) or _real(value)
         return None if ok else f"must be a number, true/false or a string, not {value!r}"
     return "unknown key"
-
-
-def locate(text: str, table: str, key: str | None, array_index: int | None = None) -> int | None:
-    """The line (1-based) of ``key`` in ``[table]`` (``array_index``: in the n-th
-    ``[[table]]``), or of the header; an inline table's key is found on its line."""
-    if array_index is None:
-        header = re.compile(r"^\s*\[\s*" + re.escape(table) + r"\s*\]")
-    else:
-        header = re.compile(r"^\s*\[\[\s*" + re.escape(table) + r"\s*\]\]")
-    lines = text.splitlines()
-    seen = -1
-    for n, line in enumerate(lines):
-        if not header.match(line):
-            continue
-        seen += 1
-        if array_index is not None and seen != array_index:
-            continue
-        if key is None:
-            return n + 1
-        first = key.split(".")[0]
-        want = re.compile(r"^\s*" + re.escape(first) + r"\s*=")
-        for m in range(n + 1, len(lines)):
-            if lines[m].lstrip().startswith("["):
-                break
-            if want.match(lines[m]):
-                return m + 1
-        return n + 1
-    return None
 
 
 @dataclass(frozen=True)

@@ -50,6 +50,7 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, TypeGuard
 
+from pyrtu.core._tomlpos import locate
 from pyrtu.core.line import LineConfig, split_field_error
 from pyrtu.devices.registry import (
     POINT_HINT_KEYS,
@@ -330,24 +331,7 @@ class PollerConfig:
 def _locate(text: str, array: str, index: int, key: str | None) -> int | None:
     """The line (1-based) of ``key`` in the ``index``-th ``[[array]]`` table of
     ``text`` (or of the table header), None when it cannot be found."""
-    header = re.compile(r"^\s*\[\[\s*" + re.escape(array) + r"\s*\]\]")
-    any_header = re.compile(r"^\s*\[")
-    lines = text.splitlines()
-    seen = -1
-    for n, line in enumerate(lines):
-        if header.match(line):
-            seen += 1
-            if seen == index:
-                if key is None:
-                    return n + 1
-                want = re.compile(r"^\s*" + re.escape(key) + r"\s*=")
-                for m in range(n + 1, len(lines)):
-                    if any_header.match(lines[m]):
-                        break
-                    if want.match(lines[m]):
-                        return m + 1
-                return n + 1
-    return None
+    return locate(text, array, key, index)
 
 
 class _Loader:

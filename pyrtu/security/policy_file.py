@@ -23,6 +23,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from pyrtu.core._tomlpos import locate
 from pyrtu.pdu.functions import FUNCTION_NAMES
 
 from .policy import TABLES, Network, Policy, Rule, networks, parse_ranges
@@ -38,29 +39,6 @@ _CODES = {name: code for code, name in FUNCTION_NAMES.items()}
 
 class PolicyError(ValueError):
     """A policy file that cannot be used (the message names file:line: key)."""
-
-
-def _rule_line(text: str, index: int, key: str | None) -> int | None:
-    """The line (1-based) of ``key`` in the ``index``-th ``[[rule]]`` of ``text`` (or
-    of its header)."""
-    lines = text.splitlines()
-    header = re.compile(r"^\s*\[\[\s*rule\s*\]\]")
-    seen = -1
-    for n, line in enumerate(lines):
-        if not header.match(line):
-            continue
-        seen += 1
-        if seen != index:
-            continue
-        if key is not None:
-            want = re.compile(r"^\s*" + re.escape(key) + r"\s*=")
-            for m in range(n + 1, len(lines)):
-                if lines[m].lstrip().startswith("["):
-                    break
-                if want.match(lines[m]):
-                    return m + 1
-        return n + 1
-    return None
 
 
 def _strings(value: object) -> list[str]:
@@ -159,7 +137,7 @@ def parse_policy(text: str, source: str = "<policy>") -> Policy:
         raise PolicyError(f"{where}: not valid TOML: {exc}") from None
 
     def fail(index: int, key: str | None, message: str) -> PolicyError:
-        line = _rule_line(text, index, key)
+        line = locate(text, "rule", key, index)
         where = f"{source}:{line}" if line else source
         return PolicyError(f"{where}: rule[{index}]: " + (f"{key}: " if key else "") + message)
 
