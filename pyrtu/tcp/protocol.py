@@ -143,6 +143,22 @@ class TcpClientProtocol:
                 return self._tid
         raise RuntimeError("no free transaction id")  # unreachable: max_in_flight < 65536
 
+    def _request_body(self, unit: int, pdu: BytesLike) -> bytes:
+        """``pdu`` as bytes for ``unit``; ValueError/TypeError for bad arguments,
+        PortError when the connection is broken, before anything is sent."""
+        if (
+            type(pdu) is bytes
+            and 0 < len(pdu) <= MAX_PDU
+            and type(unit) is int
+            and 0 <= unit <= 255
+        ):
+            body = pdu  # (what the masters' request table builds: checked already)
+        else:
+            body = check_header_args(0, unit, pdu)
+        if self.broken is not None:
+            raise PortError(self.where, f"the connection is unusable: {self.broken}")
+        return body
+
     def send_request(
         self,
         unit: int,
@@ -158,17 +174,7 @@ class TcpClientProtocol:
         Raises before anything is sent: ValueError/TypeError for bad arguments,
         RuntimeError when ``max_in_flight`` requests already wait or the connection
         is broken."""
-        if (
-            type(pdu) is bytes
-            and 0 < len(pdu) <= MAX_PDU
-            and type(unit) is int
-            and 0 <= unit <= 255
-        ):
-            body = pdu  # (what the masters' request table builds: checked already)
-        else:
-            body = check_header_args(0, unit, pdu)
-        if self.broken is not None:
-            raise PortError(self.where, f"the connection is unusable: {self.broken}")
+        body = self._request_body(unit, pdu)
         if len(self._pending) >= self.max_in_flight:
             raise RuntimeError(f"{self.max_in_flight} requests already in flight")
         tid = self._next_tid()
@@ -301,17 +307,7 @@ class TcpClientProtocol:
         transaction id, the PDU as bytes and whether an answer is awaited; counted
         and logged as `send_request` does, with the same errors before anything is
         sent.  Its I/O is one `TcpXferRunner.call`; then `answered` or `settle`."""
-        if (
-            type(pdu) is bytes
-            and 0 < len(pdu) <= MAX_PDU
-            and type(unit) is int
-            and 0 <= unit <= 255
-        ):
-            body = pdu  # (what the masters' request table builds: checked already)
-        else:
-            body = check_header_args(0, unit, pdu)
-        if self.broken is not None:
-            raise PortError(self.where, f"the connection is unusable: {self.broken}")
+        body = self._request_body(unit, pdu)
         tid = self._tid = (self._tid + 1) & 0xFFFF
         counters = self.counters
         counters["requests"] += 1
