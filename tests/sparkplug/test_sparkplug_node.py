@@ -467,6 +467,50 @@ def test_bridge_sigkill_the_will_is_the_ndeath_with_the_births_bdseq(tmp_path: P
             host.close()
 
 
+@pytest.mark.parametrize("how", ["sigterm", "sigint", "duration"])
+def test_the_bridge_ends_on_a_signal_and_on_its_duration_with_its_ndeath(
+    tmp_path: Path, how: str
+) -> None:
+    """``pyrtu bridge`` in Sparkplug mode ends with status 0 on SIGTERM, SIGINT and
+    ``--duration``, and says its NDEATH itself (the NBIRTH's bdSeq) before it goes."""
+    with Broker(tmp_path) as broker, drives() as (bus, _sim):
+        path = tmp_path / "b.toml"
+        path.write_text(config(broker.url, bus.paths[0], tmp_path / "ob"))  # type: ignore[attr-defined]
+        host = Host(broker)
+        argv = [sys.executable, "-m", "pyrtu", "bridge", "--config", str(path)]
+        if how == "duration":
+            argv += ["--duration", "3"]
+        proc = subprocess.Popen(
+            argv,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)},
+        )
+        try:
+            host.wait(lambda: len(host.of("NBIRTH")) == 1, "the NBIRTH")
+            if how != "duration":
+                proc.send_signal(signal.SIGTERM if how == "sigterm" else signal.SIGINT)
+            code = proc.wait(30)  # a safety net, not a measure
+            assert proc.stderr is not None
+            err = proc.stderr.read().decode()
+            assert code == 0, err
+            assert "Traceback" not in err
+            # its own NDEATH, then (MQTT 5 DISCONNECT with reason 0x04, as
+            # tck-id-payloads-ndeath-will-message-publisher-disconnect-mqtt50 requires)
+            # the will the broker sends: the same message twice
+            host.wait(lambda: len(host.of("NDEATH")) == 2, "its NDEATH and its will")
+            (birth,) = host.of("NBIRTH")
+            bd = {m.name: m for m in birth.decoded().metrics}["bdSeq"].raw
+            for death in host.of("NDEATH"):
+                (metric,) = death.decoded().metrics
+                assert (metric.name, metric.raw) == ("bdSeq", bd)
+        finally:
+            if proc.poll() is None:
+                os.kill(proc.pid, signal.SIGKILL)
+                proc.wait(10)
+            host.close()
+
+
 def test_broker_sigkill_and_restart_a_new_session_with_births(tmp_path: Path) -> None:
     """A broker SIGKILLed and restarted: the node connects again with a new bdSeq
     (one more per CONNECT sent, tck-id-topics-nbirth-bdseq-increment) and births
