@@ -90,6 +90,8 @@ class Tally:
     #: ("gateway", 0) for the gateway's answers
     waiting: dict[tuple[str, int], list[Fault]] = field(default_factory=lambda: defaultdict(list))
     event_log: list[str] = field(default_factory=list)
+    #: slaves whose last "slave" event from the poller said offline
+    offline: set[int] = field(default_factory=set)
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def success(self, key: tuple[str, int], t: float) -> None:
@@ -301,6 +303,8 @@ def read_poller(
         else:
             kind = obj.get("event") or obj.get("type") or ("summary" if obj.get("summary") else "?")
             with tally.lock:
+                if kind == "slave":
+                    (tally.offline.discard if obj["online"] else tally.offline.add)(obj["slave"])
                 tally.events[str(kind)] += 1
                 if kind != "summary":
                     tally.event_log.append(f"{time.time():.3f} {line.strip()}")
@@ -483,6 +487,7 @@ def phase(baud: int, args: argparse.Namespace, out: dict[str, Any]) -> None:
         "abusers_closed_by_gateway": tally.abuser_closed,
         "all_alive_at_end": alive,
         "exit_codes": codes,
+        "slaves_offline_at_stop": sorted(tally.offline),
         "rss_kb_start": {kk: v[0] for kk, v in mem0.items()},
         "rss_kb_end": {kk: v[0] for kk, v in mem1.items()},
         "rss_kb_peak": {kk: v[1] for kk, v in mem1.items()},
@@ -502,9 +507,10 @@ def phase(baud: int, args: argparse.Namespace, out: dict[str, Any]) -> None:
 
 
 def settle(injected: list[Fault], tally: Tally) -> bool:
-    """True when every fault injected has recovered."""
+    """True when every fault injected has recovered and the poller counts every slave
+    online again (a slave offline at the end would make it exit 4, rightly)."""
     with tally.lock:
-        return all(f.recovered for f in injected)
+        return all(f.recovered for f in injected) and not tally.offline
 
 
 def main(argv: list[str] | None = None) -> int:

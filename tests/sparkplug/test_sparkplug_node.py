@@ -408,6 +408,7 @@ def test_primary_host_offline_store_and_forward_historical_and_rebirth(tmp_path:
 
         host.wait(lambda: historical(al)[-1:] == [values[-1]], "the whole backlog")
         host.wait(lambda: len(host.of("NBIRTH")) == 3, "the rebirth")
+        host.wait(lambda: len(host.of("DBIRTH")) == 6, "the rebirth's DBIRTHs")
         assert historical(al) == values  # in order, none lost, none twice
         assert historical(dal) == decels
         nb = [{m.name: m for m in b.decoded().metrics}["bdSeq"].raw for b in host.of("NBIRTH")]
