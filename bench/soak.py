@@ -457,7 +457,10 @@ def phase(baud: int, args: argparse.Namespace, out: dict[str, Any]) -> None:
         alive = {name: p.poll() is None for name, p in procs.items()}
     finally:
         stop.set()
-        codes = {name: stop_proc(p) for name, p in procs.items()}
+        # the masters first (the poller, the gateway), then the drives they poll: a
+        # drive stopped first would be a slave offline at the poller's end (exit 4)
+        order = sorted(procs, key=lambda name: name.startswith("drive"))
+        codes = {name: stop_proc(procs[name]) for name in order}
         bus_p.close()
         bus_g.close()
     rec = [f.recovery for f in injected if f.recovery is not None]
