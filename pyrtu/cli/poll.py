@@ -36,6 +36,7 @@ from pyrtu.cli.common import (
     CommandSpec,
     add_duration_option,
     add_json_option,
+    add_seconds_option,
     add_serial_options,
     count,
     emit,
@@ -44,7 +45,6 @@ from pyrtu.cli.common import (
     guarded,
     message_of,
     open_master,
-    positive_seconds,
     stop_on_signals,
 )
 from pyrtu.cli.io import ReadResult, add_read_arguments, check_read, is_bits, read_values, show
@@ -185,12 +185,11 @@ def _configure(p: argparse.ArgumentParser) -> None:
         help="stop after N (1 or more)",
     )
     add_duration_option(g)
-    g.add_argument(
+    add_seconds_option(
+        g,
         "-i",
         "--interval",
-        type=positive_seconds,
         default=1.0,
-        metavar="SECONDS",
         help="time between reports (default 1 s)",
     )
     add_json_option(p, "one JSON line per report")
