@@ -366,6 +366,12 @@ def add_duration_option(g: Any, help: str = "stop after this time") -> None:
     add_seconds_option(g, "-d", "--duration", default=None, help=help)
 
 
+def add_count_option(g: Any, help: str = "stop after N (1 or more)", dest: str = "count") -> None:
+    """``-n/--count N`` (default None: no limit), shared by the commands that can stop
+    after N of what they do."""
+    g.add_argument("-n", "--count", dest=dest, type=count, default=None, metavar="N", help=help)
+
+
 def add_json_option(p: argparse.ArgumentParser, what: str = "one JSON document") -> None:
     p.add_argument("--json", action="store_true", help=f"output for scripts: {what} on stdout")
 

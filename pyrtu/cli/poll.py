@@ -34,11 +34,11 @@ from pyrtu.cli.common import (
     EXIT_OK,
     EXIT_PORT,
     CommandSpec,
+    add_count_option,
     add_duration_option,
     add_json_option,
     add_seconds_option,
     add_serial_options,
-    count,
     emit,
     exit_code_table,
     finite_float,
@@ -175,15 +175,7 @@ def _configure(p: argparse.ArgumentParser) -> None:
         metavar="HZ",
         help="transactions per second (default 10; 0: back to back)",
     )
-    g.add_argument(
-        "-n",
-        "--count",
-        dest="polls",
-        type=count,
-        default=None,
-        metavar="N",
-        help="stop after N (1 or more)",
-    )
+    add_count_option(g, dest="polls")
     add_duration_option(g)
     add_seconds_option(
         g,
