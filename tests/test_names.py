@@ -18,7 +18,6 @@ PACKAGE = ROOT / "pyrtu"
 #: class name -> the modules that define it, each module's class one concept's twin
 TWINS: dict[str, set[str]] = {
     # the backends: the C binding and its pure-Python twin
-    "Framer": {"core/_cext.py", "core/_pure/__init__.py"},
     "_Core": {"core/_cext.py", "core/_pure/__init__.py"},
     "_MbapCore": {"core/_cext.py", "core/_pure/__init__.py"},
     # the xfer step: its contract (drivers/xfer.py) and its two implementations

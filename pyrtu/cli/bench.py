@@ -30,11 +30,11 @@ from pyrtu.cli.common import (
     EXIT_OK,
     EXIT_USAGE,
     add_json_option,
+    add_seconds_option,
     add_serial_options,
     add_slave_option,
     bounded_int,
     emit,
-    positive_seconds,
     register_address,
     serial_kwargs,
 )
@@ -88,11 +88,10 @@ def _configure(p: argparse.ArgumentParser) -> None:
         metavar="LIST",
         help=f"what the suite measures: {','.join(PARTS)} (default all; none: the line check only)",
     )
-    p.add_argument(
+    add_seconds_option(
+        p,
         "--budget",
-        type=positive_seconds,
         default=1.5,
-        metavar="SECONDS",
         help="time per measurement (default 1.5 s: the suite in well under a minute)",
     )
     p.add_argument("--quick", action="store_true", help="0.3 s per measurement (a rough look)")

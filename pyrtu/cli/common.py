@@ -301,12 +301,12 @@ def add_serial_options(
     g.add_argument("--stopbits", type=stopbits, default=1, metavar="1|1.5|2", help="(default 1)")
     g.add_argument("--bytesize", type=bytesize, default=8, metavar="7|8", help="(default 8)")
     g.add_argument("--mode", type=mode, default="rtu", metavar="rtu|ascii", help="(default rtu)")
-    g.add_argument(
+    add_seconds_option(
+        g,
         "--t35",
-        type=seconds,
         default=None,
-        metavar="SECONDS",
         help="inter-frame silence (default: 3.5 characters, 1.75 ms above 19200 baud; 0: off)",
+        parse=seconds,
     )
     g.add_argument(
         "--timing",
@@ -317,12 +317,11 @@ def add_serial_options(
     )
     add_exclusive_option(g)
     if timeout is not None:
-        g.add_argument(
+        add_seconds_option(
+            g,
             "-o",
             "--timeout",
-            type=positive_seconds,
             default=None if timeout_by_port else timeout,
-            metavar="SECONDS",
             help=f"response timeout (default {timeout_by_port or f'{timeout:g} s'}; "
             "500ms works too)",
         )
@@ -349,12 +348,28 @@ def add_exclusive_option(g: Any) -> None:
     )
 
 
+def add_seconds_option(
+    g: Any,
+    *flags: str,
+    default: float | None,
+    help: str,
+    parse: Callable[[str], float] = positive_seconds,
+) -> None:
+    """An option that takes a time, ``SECONDS`` (``1.5``, ``500ms``: the units `seconds`
+    reads), read by ``parse`` (default: more than 0)."""
+    g.add_argument(*flags, type=parse, default=default, metavar="SECONDS", help=help)
+
+
 def add_duration_option(g: Any, help: str = "stop after this time") -> None:
     """``-d/--duration SECONDS`` (default None: until a signal), shared by the commands
     that run until stopped."""
-    g.add_argument(
-        "-d", "--duration", type=positive_seconds, default=None, metavar="SECONDS", help=help
-    )
+    add_seconds_option(g, "-d", "--duration", default=None, help=help)
+
+
+def add_count_option(g: Any, help: str = "stop after N (1 or more)", dest: str = "count") -> None:
+    """``-n/--count N`` (default None: no limit), shared by the commands that can stop
+    after N of what they do."""
+    g.add_argument("-n", "--count", dest=dest, type=count, default=None, metavar="N", help=help)
 
 
 def add_json_option(p: argparse.ArgumentParser, what: str = "one JSON document") -> None:

@@ -39,9 +39,9 @@ from pyrtu.cli.common import (
     EXIT_OK,
     MAX_BAUDRATE,
     CommandSpec,
+    add_seconds_option,
     baudrate,
     message_of,
-    positive_seconds,
     stop_on_signals,
 )
 from pyrtu.cli.live_view import LiveView
@@ -92,19 +92,17 @@ DRIVES = (
 
 
 def configure(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
+    add_seconds_option(
+        p,
         "-d",
         "--duration",
-        type=positive_seconds,
         default=12.0,
-        metavar="SECONDS",
         help="length of the run (default 12 s)",
     )
-    p.add_argument(
+    add_seconds_option(
+        p,
         "--accel",
-        type=positive_seconds,
         default=10.0,
-        metavar="SECONDS",
         help="the CFW701's acceleration time P100, 0 to 66 Hz (default 10 s)",
     )
     p.add_argument(
@@ -115,12 +113,11 @@ def configure(p: argparse.ArgumentParser) -> None:
         metavar="BAUD",
         help=f"(default 19200; at most {MAX_BAUDRATE})",
     )
-    p.add_argument(
+    add_seconds_option(
+        p,
         "-i",
         "--interval",
-        type=positive_seconds,
         default=1.0,
-        metavar="SECONDS",
         help="time between blocks of plain lines (default 1 s)",
     )
     p.add_argument(

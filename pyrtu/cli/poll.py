@@ -34,17 +34,17 @@ from pyrtu.cli.common import (
     EXIT_OK,
     EXIT_PORT,
     CommandSpec,
+    add_count_option,
     add_duration_option,
     add_json_option,
+    add_seconds_option,
     add_serial_options,
-    count,
     emit,
     exit_code_table,
     finite_float,
     guarded,
     message_of,
     open_master,
-    positive_seconds,
     stop_on_signals,
 )
 from pyrtu.cli.io import ReadResult, add_read_arguments, check_read, is_bits, read_values, show
@@ -175,22 +175,13 @@ def _configure(p: argparse.ArgumentParser) -> None:
         metavar="HZ",
         help="transactions per second (default 10; 0: back to back)",
     )
-    g.add_argument(
-        "-n",
-        "--count",
-        dest="polls",
-        type=count,
-        default=None,
-        metavar="N",
-        help="stop after N (1 or more)",
-    )
+    add_count_option(g, dest="polls")
     add_duration_option(g)
-    g.add_argument(
+    add_seconds_option(
+        g,
         "-i",
         "--interval",
-        type=positive_seconds,
         default=1.0,
-        metavar="SECONDS",
         help="time between reports (default 1 s)",
     )
     add_json_option(p, "one JSON line per report")

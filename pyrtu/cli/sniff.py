@@ -32,10 +32,10 @@ from pyrtu.cli._subcommand import subcommand
 from pyrtu.cli.common import (
     EXIT_OK,
     SignalStop,
+    add_count_option,
     add_duration_option,
     add_json_option,
     add_serial_options,
-    count,
     emit,
     framing_kwargs,
     serial_kwargs,
@@ -392,7 +392,7 @@ def _configure(p: argparse.ArgumentParser) -> None:
     src.add_argument("-c", "--capture", metavar="FILE", help="decode a capture file instead")
     src.add_argument("--example", action="store_true", help="decode a built-in sample capture")
     add_profile_option(p, "decode for this device template (pyrtu template list)")
-    p.add_argument("-n", "--count", type=count, metavar="N", help="stop after N frames (1 or more)")
+    add_count_option(p, "stop after N frames (1 or more)")
     add_duration_option(p)
     add_json_option(p, "one JSON line per frame, then a summary line")
     add_serial_options(p, timeout=None)

@@ -15,25 +15,10 @@ from types import ModuleType
 from typing import Any
 
 from pyrtu.core._rtu_core import ffi, lib
-from pyrtu.core._types import BytesLike, crc_seed
+from pyrtu.core._types import BACKEND_NAMES, BytesLike, crc_seed
 from pyrtu.core.frames import FrameList, LazyFrames
-from pyrtu.core.framing import (
-    Event,
-    FramerBase,
-    as_bytes,
-    check_core_limits,
-    counters_dict,
-    make_char_timing,
-    make_parse_stream,
-)
-from pyrtu.core.mbap import (
-    MbapEvent,
-    MbapFrameList,
-    make_encode_mbap,
-    make_mbap_framer,
-    make_parse_tcp_stream,
-    mbap_counters_dict,
-)
+from pyrtu.core.framing import Event, as_bytes, backend_framing, check_core_limits, counters_dict
+from pyrtu.core.mbap import MbapEvent, MbapFrameList, backend_mbap, mbap_counters_dict
 from pyrtu.core.options import CoreOptions, flush_us_for
 from pyrtu.core.timing import Timing
 
@@ -44,23 +29,7 @@ POSIX_IO: bool = hasattr(lib, "rtu_xfer_io_run") and hasattr(lib, "rtu_vbus_io_r
 NO_TIME = -(2**63)
 INT64_MAX = 2**63 - 1
 
-__all__ = [
-    "BACKEND",
-    "CRCFAST",
-    "POSIX_IO",
-    "Framer",
-    "add_crc",
-    "char_timing",
-    "check_crc",
-    "crc16",
-    "crc16_path",
-    "crc16_paths",
-    "ffi",
-    "lib",
-    "lrc",
-    "parse_stream",
-    "request_predictor",
-]
+__all__ = [*BACKEND_NAMES, "CRCFAST", "POSIX_IO", "ffi", "lib"]
 
 _PATHS = {
     "bytewise": lib.RTU_CRC_BYTEWISE,
@@ -283,14 +252,6 @@ class _Core:
         return list(c.frames), list(c.discarded), int(c.discard_events)
 
 
-class Framer(FramerBase):
-    __doc__ = FramerBase.__doc__
-    BACKEND = BACKEND
-
-    def _make_core(self, options: CoreOptions) -> _Core:
-        return _Core(options)
-
-
 class _Blocks:
     """Entry ``i`` of a parse spread over C arrays ``[(array, count), ...]``."""
 
@@ -399,8 +360,7 @@ def _timing(options: CoreOptions) -> Timing:
     return Timing(int(cfg.timing.char_us), int(cfg.timing.t15_us), int(cfg.timing.t35_us))
 
 
-parse_stream = make_parse_stream(_parse)
-char_timing = make_char_timing(_timing)
+Framer, parse_stream, char_timing = backend_framing(BACKEND, _Core, _parse, _timing)
 
 
 # ---- Modbus TCP: MBAP framing (csrc/rtu_mbap.c) ----------------------------
@@ -466,7 +426,6 @@ def _parse_tcp(role: int, data: bytes) -> CMbapFrameList:
     return CMbapFrameList(data, blocks, counters)
 
 
-MbapFramer = make_mbap_framer(BACKEND, _MbapCore, _mbap_encode)
-parse_tcp_stream = make_parse_tcp_stream(_parse_tcp)
-encode_mbap = make_encode_mbap(_mbap_encode)
-__all__ += ["MbapFramer", "encode_mbap", "parse_tcp_stream"]
+MbapFramer, parse_tcp_stream, encode_mbap = backend_mbap(
+    BACKEND, _MbapCore, _mbap_encode, _parse_tcp
+)

@@ -11,7 +11,7 @@ import numbers
 import operator
 from collections import deque
 from collections.abc import Callable, Iterable, Sequence
-from typing import TYPE_CHECKING, Generic, Protocol, TypeVar
+from typing import TYPE_CHECKING, Generic, NamedTuple, Protocol, TypeVar
 
 from pyrtu.core._types import BytesLike
 from pyrtu.core.feed import feed_all
@@ -400,3 +400,32 @@ def make_char_timing(compute: Callable[[CoreOptions], Timing]) -> Callable[..., 
         return compute(options)
 
     return public(char_timing)
+
+
+class FramingNames(NamedTuple):
+    """The public RTU names of a backend (`backend_framing`)."""
+
+    Framer: type[FramerBase]
+    parse_stream: Callable[..., FrameList]
+    char_timing: Callable[..., Timing]
+
+
+def backend_framing(
+    backend: str,
+    make_core: Callable[[CoreOptions], FramerCore],
+    parse: StreamParser,
+    compute: Callable[[CoreOptions], Timing],
+) -> FramingNames:
+    """The public Framer class, parse_stream and char_timing of a backend, around its
+    ``make_core(options)``, its ``parse(options, data, ...)`` and its ``compute(options)``."""
+
+    class Framer(FramerBase):
+        __doc__ = FramerBase.__doc__
+        BACKEND = backend
+
+        def _make_core(self, options: CoreOptions) -> FramerCore:
+            return make_core(options)
+
+    Framer.__qualname__ = Framer.__name__
+    Framer.__module__ = make_core.__module__  # the backend's module
+    return FramingNames(Framer, make_parse_stream(parse), make_char_timing(compute))

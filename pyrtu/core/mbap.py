@@ -14,7 +14,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 from pyrtu.core._types import BytesLike
 from pyrtu.core.feed import feed_all
@@ -314,3 +314,27 @@ def make_encode_mbap(
         return encode(transaction, unit, check_header_args(transaction, unit, pdu))
 
     return public(encode_mbap)
+
+
+class MbapNames(NamedTuple):
+    """The public MBAP names of a backend (`backend_mbap`)."""
+
+    MbapFramer: type[MbapFramerBase]
+    parse_tcp_stream: Callable[..., MbapFrameList]
+    encode_mbap: Callable[[int, int, BytesLike], bytes]
+
+
+def backend_mbap(
+    backend: str,
+    make_core: Callable[[int], MbapCore],
+    encode: Callable[[int, int, bytes], bytes],
+    parse: Callable[[int, bytes], MbapFrameList],
+) -> MbapNames:
+    """The public MbapFramer class, parse_tcp_stream and encode_mbap of a backend, around
+    its ``make_core(role)``, its ``encode(transaction, unit, pdu)`` and its
+    ``parse(role, data)``."""
+    return MbapNames(
+        make_mbap_framer(backend, make_core, encode),
+        make_parse_tcp_stream(parse),
+        make_encode_mbap(encode),
+    )

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 from pyrtu.core.rules import BONFIGLIOLI
 
-from .common import FlagWord, MasterLike, s16, s32, scaled, u16, u32, unscaled
+from .common import FlagWord, MasterLike, flag, s16, s32, scaled, u16, u32, unscaled
 
 FC_READ_32 = 100
 FC_WRITE_32 = 101
@@ -375,40 +375,22 @@ def next_state(state: DriveState, word: int) -> tuple[DriveState, int | None]:
 class VectronStatus(FlagWord):
     """Status word 411 decoded."""
 
-    ready: bool = False
-    switched_on: bool = False
-    operation_enabled: bool = False
-    fault: bool = False
-    voltage: bool = False  # ACT: "voltage disabled"; ACU: "voltage enabled" (mains on)
-    quick_stop: bool = False  # 1 = no quick stop active (DRIVECOM)
-    starting_lockout: bool = False
-    warning: bool = False
-    remote: bool = False
-    reference_reached: bool = False
-    limit_active: bool = False
-    warning2: bool = False
+    ready: bool = flag(0)
+    switched_on: bool = flag(1)
+    operation_enabled: bool = flag(2)
+    fault: bool = flag(3)
+    voltage: bool = flag(4)  # ACT: "voltage disabled"; ACU: "voltage enabled" (mains on)
+    quick_stop: bool = flag(5)  # 1 = no quick stop active (DRIVECOM)
+    starting_lockout: bool = flag(6)
+    warning: bool = flag(7)
+    remote: bool = flag(9)
+    reference_reached: bool = flag(10)
+    limit_active: bool = flag(11)
+    warning2: bool = flag(15)
 
     @classmethod
     def decode(cls, word: int) -> VectronStatus:
-        names = (
-            "ready",
-            "switched_on",
-            "operation_enabled",
-            "fault",
-            "voltage",
-            "quick_stop",
-            "starting_lockout",
-            "warning",
-            "",
-            "remote",
-            "reference_reached",
-            "limit_active",
-            "",
-            "",
-            "",
-            "warning2",
-        )
-        return cls(word, **{n: bool(word >> i & 1) for i, n in enumerate(names) if n})
+        return cls(word, **cls.flags_in(word))
 
     @property
     def state(self) -> DriveState:

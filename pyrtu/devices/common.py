@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, fields
-from typing import Protocol
+from dataclasses import dataclass, field, fields
+from typing import Any, Protocol
 
 from pyrtu.core.rules import LengthRule
 
@@ -83,14 +83,36 @@ def masked_flags(word: int, masks: Mapping[str, int]) -> dict[str, bool]:
     return {name: bool(word & mask) for name, mask in masks.items()}
 
 
+def flag(bit: int) -> Any:
+    """A boolean field of a `FlagWord` that is bit ``bit`` of its word (default False):
+    the field list is the word's one bit table (`FlagWord.flags_in`, `FlagWord.flag_bits`)."""
+    return field(default=False, metadata={"bit": bit})
+
+
 @dataclass(frozen=True)
 class FlagWord:
     """Base for decoded status/control words: boolean fields plus the raw ``word``.
 
-    `active` lists the fields that are set; ``str()`` joins them for people.
+    `active` lists the fields that are set; ``str()`` joins them for people.  Fields
+    declared with `flag` carry their bit: `flags_in` reads them from a word, `flag_bits`
+    puts them back.
     """
 
     word: int
+
+    @classmethod
+    def flags_in(cls, word: int) -> dict[str, bool]:
+        """``{field: bool}`` for the `flag` fields, from their bits in ``word``."""
+        bits = {f.name: f.metadata["bit"] for f in fields(cls) if "bit" in f.metadata}
+        return {name: bool(word >> bit & 1) for name, bit in bits.items()}
+
+    def flag_bits(self) -> int:
+        """The word with the bits of the `flag` fields that are set."""
+        word = 0
+        for f in fields(self):
+            if "bit" in f.metadata and getattr(self, f.name):
+                word |= 1 << f.metadata["bit"]
+        return word
 
     def active(self) -> list[str]:
         return [f.name for f in fields(self) if f.name != "word" and getattr(self, f.name) is True]

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 from pyrtu.core.rules import CV100 as CV100_RULES
 
-from .common import FlagWord, MasterLike, masked_flags, masked_word, u16
+from .common import FlagWord, MasterLike, flag, masked_flags, masked_word, u16
 
 #: function-code group -> high byte of the register address (section 5)
 GROUPS: Mapping[str, int] = {
@@ -285,41 +285,24 @@ _CW2_MASKS = {
 
 @dataclass(frozen=True)
 class StatusWord1(FlagWord):
-    running: bool = False
-    reverse: bool = False
-    at_reference: bool = False
-    serial_control: bool = False
-    serial_setting: bool = False
-    alarm: bool = False
+    running: bool = flag(0)
+    reverse: bool = flag(1)
+    at_reference: bool = flag(2)
+    serial_control: bool = flag(3)
+    serial_setting: bool = flag(4)
+    alarm: bool = flag(7)
     code: int = 0  # bits 15..8: fault (alarm bit 0) or alarm (bit 7 = 1) code; 0 = normal
 
     @classmethod
     def decode(cls, word: int) -> StatusWord1:
-        return cls(
-            word,
-            bool(word & 1),
-            bool(word & 2),
-            bool(word & 4),
-            bool(word & 8),
-            bool(word & 16),
-            bool(word & 0x80),
-            word >> 8 & 0xFF,
-        )
+        return cls(word, code=word >> 8 & 0xFF, **cls.flags_in(word))
 
     @property
     def fault(self) -> bool:
         return not self.alarm and self.code != 0
 
     def encode(self) -> int:
-        return (
-            self.running
-            | self.reverse << 1
-            | self.at_reference << 2
-            | self.serial_control << 3
-            | self.serial_setting << 4
-            | self.alarm << 7
-            | (self.code & 0xFF) << 8
-        )
+        return self.flag_bits() | (self.code & 0xFF) << 8
 
 
 STATUS_2_BITS: Mapping[int, str] = {

@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from pyrtu.core._text import read_text_file
 from pyrtu.core._tomlpos import locate
 
 if sys.version_info >= (3, 11):
@@ -386,20 +387,6 @@ def parse_template(
         name or keys["model"].lower(), source, text, points=tuple(points), path=path,
         builtin=builtin, **keys,
     )  # fmt: skip
-
-
-def read_text_file(path: str | Path, error: type[ValueError]) -> str:
-    """The text of a UTF-8 file; ``error`` names the file when it is missing, unreadable
-    or not UTF-8 (the template loader's and the poller's configuration loader's words)."""
-    p = Path(path)
-    try:
-        return p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise error(f"{p}: no such file") from None
-    except UnicodeDecodeError as e:
-        raise error(f"{p}: not UTF-8 text ({e.reason} at byte {e.start})") from None
-    except OSError as e:
-        raise error(f"{p}: cannot read: {e.strerror or e}") from None
 
 
 def load_template(path: str | Path, name: str = "", builtin: bool = False) -> Template:

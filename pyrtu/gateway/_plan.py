@@ -7,6 +7,7 @@ from collections import OrderedDict, deque
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
+from pyrtu.core._text import number_ranges
 from pyrtu.core.timing import check_seconds
 from pyrtu.drivers.reconnect import Backoff
 from pyrtu.security.policy import Identity
@@ -84,19 +85,14 @@ def check_listen(host: object, port: object) -> tuple[str, int]:
 
 def parse_units(text: str) -> frozenset[int]:
     """Serial addresses from ``"1-10,20,30-31"`` (1..247; 0 is the broadcast)."""
-    units: set[int] = set()
-    for part in text.split(","):
-        part = part.strip()
-        lo_text, sep, hi_text = part.partition("-")
-        try:
-            lo = int(lo_text, 0)
-            hi = int(hi_text, 0) if sep else lo
-        except ValueError:
-            raise ValueError(f"unit ids: {part!r} is not a number or a range A-B") from None
-        if not (1 <= lo <= hi <= 247):
-            raise ValueError(f"unit ids: {part!r} is outside 1..247 or not ascending")
-        units.update(range(lo, hi + 1))
-    return frozenset(units)
+    ranges = number_ranges(
+        text,
+        1,
+        247,
+        not_a_range="unit ids: {part!r} is not a number or a range A-B",
+        outside="unit ids: {part!r} is outside 1..247 or not ascending",
+    )
+    return frozenset(unit for units in ranges for unit in units)
 
 
 class Routes:

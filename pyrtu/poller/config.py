@@ -50,6 +50,7 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, TypeGuard
 
+from pyrtu.core._text import read_text_file
 from pyrtu.core._tomlpos import locate
 from pyrtu.core.line import LineConfig, split_field_error
 from pyrtu.devices.registry import (
@@ -60,7 +61,6 @@ from pyrtu.devices.registry import (
     find_template,
     is_file_reference,
     names,
-    read_text_file,
 )
 from pyrtu.drivers._portname import first_duplicate
 from pyrtu.drivers.links import (

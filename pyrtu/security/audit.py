@@ -34,6 +34,15 @@ from pyrtu.pdu.functions import (
 from .policy import Identity
 
 
+def _registers(pdu: bytes, at: int) -> dict[str, Any] | None:
+    """The registers a write carries from ``at``: address, count, byte count, then the
+    values (FC 16; FC 23's write half); None when the counts do not match the PDU."""
+    address, count, nbytes = struct.unpack_from(">HHB", pdu, at)
+    if nbytes != 2 * count or len(pdu) != at + 5 + nbytes:
+        return None
+    return {"address": address, "values": list(struct.unpack_from(f">{count}H", pdu, at + 5))}
+
+
 def _values(pdu: bytes) -> dict[str, Any]:
     """The addresses and values a write carries (the PDU in hex when it is no
     write this module knows, or too short)."""
@@ -53,22 +62,12 @@ def _values(pdu: bytes) -> dict[str, Any]:
                 bits = [bool(data[i // 8] >> (i % 8) & 1) for i in range(count)]
                 return {"address": address, "values": bits}
         if function == WRITE_MULTIPLE_REGISTERS and size >= 6:
-            address, count, nbytes = struct.unpack_from(">HHB", pdu, 1)
-            if nbytes == 2 * count and size == 6 + nbytes:
-                return {
-                    "address": address,
-                    "values": list(struct.unpack_from(f">{count}H", pdu, 6)),
-                }
+            return _registers(pdu, 1) or {"pdu": pdu.hex()}
         if function == MASK_WRITE_REGISTER and size == 7:
             address, and_mask, or_mask = struct.unpack_from(">HHH", pdu, 1)
             return {"address": address, "and_mask": and_mask, "or_mask": or_mask}
         if function == READ_WRITE_REGISTERS and size >= 10:
-            address, count, nbytes = struct.unpack_from(">HHB", pdu, 5)
-            if nbytes == 2 * count and size == 10 + nbytes:
-                return {
-                    "address": address,
-                    "values": list(struct.unpack_from(f">{count}H", pdu, 10)),
-                }
+            return _registers(pdu, 5) or {"pdu": pdu.hex()}
     except struct.error:  # pragma: no cover - the sizes are checked above
         pass
     return {"pdu": pdu.hex()}

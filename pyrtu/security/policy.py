@@ -28,6 +28,7 @@ import struct
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
+from pyrtu.core._text import number_ranges
 from pyrtu.pdu.functions import (
     DIAGNOSTICS,
     ENCAPSULATED_INTERFACE,
@@ -173,19 +174,13 @@ def accesses(pdu: bytes) -> tuple[Access, ...]:
 
 def parse_ranges(text: str) -> tuple[range, ...]:
     """``"0-99,200,300-309"`` as ranges (inclusive bounds 0..65535); ValueError."""
-    ranges = []
-    for part in text.split(","):
-        part = part.strip()
-        low_text, dash, high_text = part.partition("-")
-        try:
-            low = int(low_text, 0)
-            high = int(high_text, 0) if dash else low
-        except ValueError:
-            raise ValueError(f"expected ADDRESS or FIRST-LAST, not {part!r}") from None
-        if not 0 <= low <= high <= 65535:
-            raise ValueError(f"expected addresses 0..65535, first <= last, not {part!r}")
-        ranges.append(range(low, high + 1))
-    return tuple(ranges)
+    return number_ranges(
+        text,
+        0,
+        65535,
+        not_a_range="expected ADDRESS or FIRST-LAST, not {part!r}",
+        outside="expected addresses 0..65535, first <= last, not {part!r}",
+    )
 
 
 @dataclass(frozen=True)

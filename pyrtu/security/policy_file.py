@@ -23,6 +23,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from pyrtu.core._text import read_text_file
 from pyrtu.core._tomlpos import locate
 from pyrtu.pdu.functions import FUNCTION_NAMES
 
@@ -163,14 +164,7 @@ def parse_policy(text: str, source: str = "<policy>") -> Policy:
 def load_policy(path: str | Path) -> Policy:
     """A policy from a TOML file; `PolicyError` names the file on any problem."""
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise PolicyError(f"{p}: no such file") from None
-    except UnicodeDecodeError as exc:
-        raise PolicyError(f"{p}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
-    except OSError as exc:
-        raise PolicyError(f"{p}: cannot read: {exc.strerror or exc}") from None
+    text = read_text_file(p, PolicyError)
     return parse_policy(text, str(p))
 
 

@@ -157,6 +157,32 @@ def test_cv100_control_word_2_and_status_words() -> None:
     assert cv100.flags_word(["failure", "accelerating"], cv100.STATUS_3_BITS) == 1 << 12 | 1 << 3
 
 
+#: the manuals' bit tables: CV100 status word 1 (section 6.1) and Vectron status word 411
+CV100_STATUS_1_BITS = {
+    0: "running", 1: "reverse", 2: "at_reference", 3: "serial_control", 4: "serial_setting",
+    7: "alarm",
+}  # fmt: skip
+VECTRON_STATUS_BITS = {
+    0: "ready", 1: "switched_on", 2: "operation_enabled", 3: "fault", 4: "voltage",
+    5: "quick_stop", 6: "starting_lockout", 7: "warning", 9: "remote", 10: "reference_reached",
+    11: "limit_active", 15: "warning2",
+}  # fmt: skip
+
+
+def test_each_status_flag_is_its_bit_of_the_word() -> None:
+    for bit in range(16):
+        one = 1 << bit
+        cv = cv100.StatusWord1.decode(one)
+        assert cv.active() == ([CV100_STATUS_1_BITS[bit]] if bit in CV100_STATUS_1_BITS else [])
+        assert cv.code == one >> 8
+        assert cv.encode() == (one if bit in CV100_STATUS_1_BITS or bit >= 8 else 0)
+        vectron = bonfiglioli.VectronStatus.decode(one)
+        assert vectron.word == one
+        expected = [VECTRON_STATUS_BITS[bit]] if bit in VECTRON_STATUS_BITS else []
+        assert vectron.active() == expected
+    assert cv100.StatusWord1(0, running=True, alarm=True, code=0x12).encode() == 0x1281
+
+
 def test_cv100_scalings() -> None:
     assert cv100.raw_hz(50) == 0x1388 and cv100.hz(0x1388) == 50.0
     assert cv100.raw_seconds(30) == 0x012C and cv100.seconds(0x0064) == 10.0

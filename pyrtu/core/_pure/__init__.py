@@ -6,45 +6,28 @@ from array import array
 from collections.abc import Callable, Sequence
 
 from pyrtu.core._pure import mbap as _mbap_core
-from pyrtu.core._pure.crc import add_crc, check_crc, crc16, crc16_path, crc16_paths, lrc
+from pyrtu.core._pure.crc import (  # noqa: F401 (the crc names of BACKEND_NAMES)
+    add_crc,
+    check_crc,
+    crc16,
+    crc16_path,
+    crc16_paths,
+    lrc,
+)
 from pyrtu.core._pure.framer import CoreFramer
 from pyrtu.core._pure.head import Config
 from pyrtu.core._pure.predict import DIR_REQUEST, make_rules, predict
 from pyrtu.core._pure.stream import CoreParser, Entry
+from pyrtu.core._types import BACKEND_NAMES
 from pyrtu.core.frames import FrameList
-from pyrtu.core.framing import (
-    FramerBase,
-    check_core_limits,
-    counters_dict,
-    make_char_timing,
-    make_parse_stream,
-)
-from pyrtu.core.mbap import (
-    MbapEvent,
-    MbapFrameList,
-    make_encode_mbap,
-    make_mbap_framer,
-    make_parse_tcp_stream,
-    mbap_counters_dict,
-)
+from pyrtu.core.framing import backend_framing, check_core_limits, counters_dict
+from pyrtu.core.mbap import MbapEvent, MbapFrameList, backend_mbap, mbap_counters_dict
 from pyrtu.core.options import CoreOptions, flush_us_for
 from pyrtu.core.timing import Timing, compute_timing
 
 BACKEND = "python"
 
-__all__ = [
-    "BACKEND",
-    "Framer",
-    "add_crc",
-    "char_timing",
-    "check_crc",
-    "crc16",
-    "crc16_path",
-    "crc16_paths",
-    "lrc",
-    "parse_stream",
-    "request_predictor",
-]
+__all__ = list(BACKEND_NAMES)
 
 
 def _config(options: CoreOptions) -> Config:
@@ -94,14 +77,6 @@ class _Core(CoreFramer):
         return self.frames, self.discarded, self.discard_events
 
 
-class Framer(FramerBase):
-    __doc__ = FramerBase.__doc__
-    BACKEND = BACKEND
-
-    def _make_core(self, options: CoreOptions) -> _Core:
-        return _Core(options)
-
-
 class PyFrameList(FrameList):
     def __init__(self, data: bytes, entries: list[Entry], counters: dict[str, int]) -> None:
         super().__init__(data, len(entries))
@@ -126,8 +101,7 @@ def _timing(options: CoreOptions) -> Timing:
     return Timing(cfg.char_us, cfg.t15_us, cfg.t35_us)
 
 
-parse_stream = make_parse_stream(_parse)
-char_timing = make_char_timing(_timing)
+Framer, parse_stream, char_timing = backend_framing(BACKEND, _Core, _parse, _timing)
 
 
 # ---- Modbus TCP: MBAP framing (the twin of csrc/rtu_mbap.c) -----------------
@@ -178,7 +152,6 @@ def _parse_tcp(role: int, data: bytes) -> PyMbapFrameList:
     return PyMbapFrameList(data, entries, counters)
 
 
-MbapFramer = make_mbap_framer(BACKEND, _MbapCore, _mbap_core.encode)
-parse_tcp_stream = make_parse_tcp_stream(_parse_tcp)
-encode_mbap = make_encode_mbap(_mbap_core.encode)
-__all__ += ["MbapFramer", "encode_mbap", "parse_tcp_stream"]
+MbapFramer, parse_tcp_stream, encode_mbap = backend_mbap(
+    BACKEND, _MbapCore, _mbap_core.encode, _parse_tcp
+)
