@@ -7,11 +7,13 @@ set commands back to the drives.
         await asyncio.sleep(3600)
 
 The poller hands every value it reads to the `Reporter` (report by exception,
-qualities); what is to be published becomes an outbox record (its sequence number
-is the outbox's) and is published at once when the broker is connected and nothing
-older waits, else later from the outbox, in order, flagged ``historical`` when
-it waited through an outage (a connection lost, or a previous run's backlog; not
-the values read before the first connection of a run).  The
+qualities); what is to be published becomes an outbox record, a point update
+(`pyrtu.outbox.updates`; its sequence number is the outbox's), made a topic and
+a payload when it is published (`Topics.render`), and is published at once when
+the broker is connected and nothing older waits, else later from the outbox, in
+order, flagged ``historical`` when it waited through an outage (a connection
+lost, or a previous run's backlog; not the values read before the first
+connection of a run).  The
 outbox forgets a record once the broker acknowledged it and everything before it.
 A connection that ends is reported once and retried with the shared back-off
 (`pyrtu.drivers.reconnect`); the polls go on meanwhile.  On every connection the edge's
@@ -49,22 +51,14 @@ from ..outbox._sync import Flusher
 from ..outbox.outbox import Outbox, OutboxError, OutboxLimits
 from ..outbox.report import Reporter
 from ..outbox.service import OutboxService
+from ..outbox.updates import PointUpdate, encode_update
 from ..poller import Point, PointDropped, Poller, PortState, SlaveState, TaskFailed, Update
 from ..poller.points import Value
 from .commands import CommandQueue
 from .config import BridgeConfig, load_bridge_config
 from .delivery import DeliveryWindow
 from .mqtt import BrokerRefused, Credentials, MqttLink
-from .topics import (
-    OFFLINE,
-    ONLINE,
-    Topics,
-    bus_payload,
-    payload,
-    record,
-    split_record,
-    unpublishable,
-)
+from .topics import OFFLINE, ONLINE, Topics, Unpublishable, bus_payload, payload
 from .writes import SetWriter
 
 log = logging.getLogger("pyrtu.bridge")
@@ -106,18 +100,18 @@ class Bridge(OutboxService):
         )
         self.commands = CommandQueue(m.command_queue, m.write_rate)
         self.writer = SetWriter(self)
-        self._topic = {p.name: self.topics.point[p.name] for p in config.poller.points}
         self._outbox: Outbox | None = None
         self._link: MqttLink | None = None
         self._window = DeliveryWindow(m.inflight)
         self._reconnect = Reconnect(Backoff(m.backoff, m.max_backoff))
-        self._live: deque[tuple[int, bytes, float]] = deque()
+        #: (seq, record, its update, when read) of the records not yet published
+        self._live: deque[tuple[int, bytes, PointUpdate, float]] = deque()
         self._live_base = 0  # every record from this seq on is in _live or published
         self._cursor = 0  # the last seq handed to the client on this connection
         self._historical_below = 0  # records below this seq are published as historical
         self._start_seq = 0  # records below it are a previous run's (historical)
         self._was_connected = False  # a connection of this run existed (then was lost)
-        self._latest: dict[str, tuple[int, bytes]] = {}  # topic -> (seq, body) last appended
+        self._latest: dict[str, tuple[int, PointUpdate]] = {}  # point -> the last appended
         self._slaves: dict[tuple[str, int], bool] = {}
         self._ports: dict[str, PortState] = {}  # the last port event of each bus
         self._port_down: set[str] = set()
@@ -352,8 +346,8 @@ class Bridge(OutboxService):
         ob = self._outbox
         if ob is None:
             return
-        topic = self._topic[point.name]
-        rec = record(topic, point, value, read_at, quality)
+        update = PointUpdate(point.name, value, read_at, quality)
+        rec = encode_update(update)
         now = time.monotonic()
         try:
             seq = ob.append(rec, now)
@@ -368,10 +362,9 @@ class Bridge(OutboxService):
             self._outbox_down = False
             log.warning("bridge: the outbox accepts updates again")
         self.appended += 1
-        body = rec[len(topic) + 1 :]
-        self._latest[topic] = (seq, body)
+        self._latest[point.name] = (seq, update)
         live = self._live
-        live.append((seq, rec, time.time() if read_at is None else read_at))
+        live.append((seq, rec, update, time.time() if read_at is None else read_at))
         if len(live) > _LIVE:
             live.popleft()
             self._live_base = live[0][0]
@@ -401,8 +394,8 @@ class Bridge(OutboxService):
             if self._cursor + 1 >= self._live_base:
                 if not live:
                     break
-                seq, rec, read_at = live.popleft()
-                self._send(link, seq, rec, read_at, qos)
+                seq, rec, update, read_at = live.popleft()
+                self._send(link, seq, rec, read_at, qos, update)
                 continue
             batch = ob.pending(min(_BATCH, win.window - len(win)), after=self._cursor)
             if not batch:
@@ -416,16 +409,27 @@ class Bridge(OutboxService):
         # to the kernel now: a live value waits for no timer and no other task
         link.write_now()
 
-    def _send(self, link: MqttLink, seq: int, rec: bytes, read_at: float, qos: int) -> None:
-        problem = unpublishable(rec)
-        if problem is not None:
-            self._set_aside(seq, rec, problem)
+    def _send(
+        self,
+        link: MqttLink,
+        seq: int,
+        rec: bytes,
+        read_at: float,
+        qos: int,
+        update: PointUpdate | None = None,
+    ) -> None:
+        """Publish a record (``update``: what it holds, when known): its topic and
+        payload made now (`Topics.render`)."""
+        topics = self.topics
+        try:
+            topic, body = topics.render(rec) if update is None else topics.render_update(update)
+        except Unpublishable as e:
+            self._set_aside(seq, rec, str(e), e.topic)
             return
-        topic, body = split_record(rec)
         try:
             mid = link.publish(topic, payload(body, seq, seq < self._historical_below), qos, True)
         except ValueError as e:  # the client refuses it (its size, its topic): for ever
-            self._set_aside(seq, rec, f"the MQTT client refuses it: {e}")
+            self._set_aside(seq, rec, f"the MQTT client refuses it: {e}", topic)
             return
         self._cursor = seq
         if mid < 0:
@@ -433,11 +437,11 @@ class Bridge(OutboxService):
             return
         self._window.sent(seq, mid, read_at, rec)
 
-    def _set_aside(self, seq: int, rec: bytes, problem: str) -> None:
+    def _set_aside(self, seq: int, rec: bytes, problem: str, topic: str) -> None:
         """A record that can never be published: quarantined, and passed by as if
         delivered."""
         self._cursor = seq
-        self._keep_aside(seq, rec, problem)
+        self._keep_aside(seq, rec, problem, topic)
         if self._window.skipped(seq) and not self._ack_pending:
             self._ack_pending = True
             asyncio.get_running_loop().call_soon(self._commit_acks)
@@ -447,13 +451,14 @@ class Bridge(OutboxService):
         is quarantined, not counted as delivered and forgotten."""
         found = self._window.record(mid)
         if found is not None:
-            self._keep_aside(*found, f"the broker refused it: {reason}")
+            seq, rec = found
+            self._keep_aside(seq, rec, f"the broker refused it: {reason}", self.topics.name(rec))
 
-    def _keep_aside(self, seq: int, rec: bytes, problem: str) -> None:
-        """Copy a record aside (`Outbox.quarantine`), counted, reported once per topic."""
+    def _keep_aside(self, seq: int, rec: bytes, problem: str, topic: str) -> None:
+        """Copy a record aside (`Outbox.quarantine`), counted, reported once per
+        ``topic`` (what the report calls it)."""
         ob = self._outbox
         assert ob is not None
-        topic = rec.partition(b"\n")[0].decode("utf-8", "backslashreplace")
         try:
             ob.quarantine(seq, rec, problem)
         except OutboxError as e:  # it cannot be kept either: said, and passed by
@@ -602,8 +607,9 @@ class Bridge(OutboxService):
         self._historical_below = ob.next_seq if self._was_connected else self._start_seq
         self._was_connected = True
         qos = self.config.mqtt.qos
-        for topic, (seq, body) in self._latest.items():
+        for seq, update in self._latest.values():
             if seq < oldest:  # delivered before: published again for the retained copy
+                topic, body = self.topics.render_update(update)
                 link.publish(topic, payload(body, seq, False), qos, True)
         if self.config.mqtt.discovery:
             from .discovery import configs

@@ -402,11 +402,11 @@ class EdgeNode(OutboxService):
             self._cursor = seq
             try:
                 update = rec if isinstance(rec, PointUpdate) else decode_update(rec)
-            except UpdateError as e:  # a JSON mode's record, left in this outbox
+            except UpdateError as e:  # an earlier pyrtu's JSON mode's record
                 if not self.counts["foreign_records"]:
                     log.error("sparkplug: outbox record %d is no point update (%s): passed by "
-                              "(a backlog of the JSON mode?); the others are counted in "
-                              "foreign_records", seq, e)  # fmt: skip
+                              "(a backlog of an earlier pyrtu's JSON mode?); the others are "
+                              "counted in foreign_records", seq, e)  # fmt: skip
                 self.counts["foreign_records"] += 1
                 continue
             found = self.session.metric.get(update.point)
