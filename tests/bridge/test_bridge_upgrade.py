@@ -82,6 +82,24 @@ def drain(cfg: BridgeConfig, sub: Client, count: int) -> dict[str, Any]:
     return stats
 
 
+def test_the_golden_files_are_the_ones_written_once() -> None:
+    """Their sha256 as tests/outbox/data/README.md gives them (never regenerated)."""
+    import hashlib
+    import re
+
+    readme = (GOLDEN.parent / "README.md").read_text(encoding="utf-8")
+    listed = dict(
+        (name, digest)
+        for digest, name in re.findall(r"^([0-9a-f]{64})  (bridge-json-v1/\S+)$", readme, re.M)
+    )
+    on_disk = {
+        str(p.relative_to(GOLDEN.parent)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in GOLDEN.rglob("*")
+        if p.is_file() and p.name != "bridge.toml.in"
+    }
+    assert on_disk == listed and len(listed) == 3
+
+
 def test_the_golden_outbox_holds_records_of_the_previous_form(tmp_path: Path) -> None:
     shutil.copytree(GOLDEN / "outbox", tmp_path / "outbox")
     with Outbox(tmp_path / "outbox") as ob:
