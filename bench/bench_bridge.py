@@ -43,7 +43,7 @@ from paho.mqtt.enums import CallbackAPIVersion  # noqa: E402
 
 from pyrtu.bridge import parse_bridge_config  # noqa: E402
 from pyrtu.bridge.bridge import Bridge  # noqa: E402
-from pyrtu.bridge.topics import payload, record, split_record  # noqa: E402
+from pyrtu.bridge.topics import body, payload  # noqa: E402
 from pyrtu.drivers.aio import run as aio_run  # noqa: E402
 from pyrtu.poller import Point, Poller, SlaveState, Update  # noqa: E402
 
@@ -132,10 +132,7 @@ def bare_rate(port: int, qos: int, n: int, callback: bool = True) -> dict[str, f
     properties per message; the bridge does without it at QoS 0)."""
     pts = _points(200)
     topics = [f"pyrtu/bench/bus/{p.slave}/{p.name}" for p in pts]
-    bodies = [
-        split_record(record(topics[i % 200], pts[i % 200], i, time.time(), "good"))[1]
-        for i in range(200)
-    ]
+    bodies = [body(pts[i % 200], i, time.time(), "good") for i in range(200)]
     c = paho.Client(CallbackAPIVersion.VERSION2, client_id="bare", protocol=paho.MQTTv5)
     c.max_inflight_messages_set(0)
     c.max_queued_messages_set(0)

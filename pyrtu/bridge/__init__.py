@@ -2,13 +2,14 @@
 
 ============  =====================================================================
 `config`      `MqttConfig`, `PointOptions`, `BridgeConfig`; `load_bridge_config`
-`topics`      topic names, the payload of a value, outbox records
+`topics`      topic names, the payload of a value made from a point update
 `report`      `Reporter`: report by exception, qualities (good, stale, bad)
 `commands`    set commands: parsing, checks, expiry, idempotence, rate limits
 `delivery`    `DeliveryWindow`: publications awaiting the broker's acknowledgement
 `outbox`      `Outbox`: the durable, bounded on-disk log between poller and broker
 `mqtt`        `MqttLink`: one MQTT 5 connection (paho-mqtt) on the asyncio loop
 `writes`      `SetWriter`: commands to the drives, read-back, results
+`output`      `MqttOutput`: what the JSON bridge and the Sparkplug edge node share
 `bridge`      `Bridge`: all of it on the poller
 `discovery`   Home Assistant MQTT discovery
 ============  =====================================================================

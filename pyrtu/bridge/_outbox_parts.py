@@ -1,27 +1,6 @@
-"""Deprecated path: this module lives in `pyrtu.outbox._parts` (the northbound-neutral
-outbox, shared by every output).  Each name used here warns (`DeprecationWarning`)
-naming its new path."""
-
-from __future__ import annotations
+"""Deprecated path of `pyrtu.outbox._parts`: each of its names warns, naming the new path."""
 
 from pyrtu.core._deprecated import moved
+from pyrtu.outbox import _parts as moved_to
 
-__getattr__ = moved(
-    __name__,
-    "pyrtu.outbox._parts",
-    [
-        "INDEX_STRIDE",
-        "OutboxError",
-        "OutboxFull",
-        "OutboxLimits",
-        "RESERVE",
-        "Segment",
-        "WRITE_CHUNK",
-        "active_reader",
-        "check_int",
-        "error",
-        "io_error",
-        "lock_directory",
-        "recover_segment",
-    ],
-)
+__getattr__ = moved(__name__, moved_to.__name__, moved_to.__all__)

@@ -1,9 +1,6 @@
-"""Deprecated path: this module lives in `pyrtu.outbox._quarantine` (the northbound-neutral
-outbox, shared by every output).  Each name used here warns (`DeprecationWarning`)
-naming its new path."""
-
-from __future__ import annotations
+"""Deprecated path of `pyrtu.outbox._quarantine`: each of its names warns, naming the new path."""
 
 from pyrtu.core._deprecated import moved
+from pyrtu.outbox import _quarantine as moved_to
 
-__getattr__ = moved(__name__, "pyrtu.outbox._quarantine", ["QUARANTINE_NAME", "Quarantine"])
+__getattr__ = moved(__name__, moved_to.__name__, moved_to.__all__)

@@ -7,11 +7,13 @@ set commands back to the drives.
         await asyncio.sleep(3600)
 
 The poller hands every value it reads to the `Reporter` (report by exception,
-qualities); what is to be published becomes an outbox record (its sequence number
-is the outbox's) and is published at once when the broker is connected and nothing
-older waits, else later from the outbox, in order, flagged ``historical`` when
-it waited through an outage (a connection lost, or a previous run's backlog; not
-the values read before the first connection of a run).  The
+qualities); what is to be published becomes an outbox record, a point update
+(`pyrtu.outbox.updates`; its sequence number is the outbox's), made a topic and
+a payload when it is published (`Topics.render`), and is published at once when
+the broker is connected and nothing older waits, else later from the outbox, in
+order, flagged ``historical`` when it waited through an outage (a connection
+lost, or a previous run's backlog; not the values read before the first
+connection of a run).  The
 outbox forgets a record once the broker acknowledged it and everything before it.
 A connection that ends is reported once and retried with the shared back-off
 (`pyrtu.drivers.reconnect`); the polls go on meanwhile.  On every connection the edge's
@@ -35,37 +37,23 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import ssl
 import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from pyrtu.drivers.reconnect import Backoff, Reconnect
+from pyrtu.drivers.reconnect import Outage
 from pyrtu.drivers.supervise import cause
 
-from ..outbox._sync import Flusher
-from ..outbox.outbox import Outbox, OutboxError, OutboxLimits
-from ..outbox.report import Reporter
-from ..outbox.service import OutboxService
-from ..poller import Point, PointDropped, Poller, PortState, SlaveState, TaskFailed, Update
-from ..poller.points import Value
-from .commands import CommandQueue
+from ..outbox.outbox import Outbox, OutboxError
+from ..outbox.updates import PointUpdate
+from ..poller import PointDropped, PortState, SlaveState, TaskFailed, Update
 from .config import BridgeConfig, load_bridge_config
 from .delivery import DeliveryWindow
-from .mqtt import BrokerRefused, Credentials, MqttLink
-from .topics import (
-    OFFLINE,
-    ONLINE,
-    Topics,
-    bus_payload,
-    payload,
-    record,
-    split_record,
-    unpublishable,
-)
-from .writes import SetWriter
+from .mqtt import MqttLink
+from .output import MqttOutput
+from .topics import OFFLINE, ONLINE, Unpublishable, bus_payload, payload
 
 log = logging.getLogger("pyrtu.bridge")
 
@@ -88,7 +76,7 @@ class BridgeEvent:
         return {"event": self.kind, "time": round(self.time, 6), **self.detail}
 
 
-class Bridge(OutboxService):
+class Bridge(MqttOutput):
     """The bridge of one edge (see the module docstring).  ``config``: a
     `BridgeConfig` or a TOML path; ``master``: as `Poller`'s."""
 
@@ -97,27 +85,16 @@ class Bridge(OutboxService):
     def __init__(self, config: BridgeConfig | str, *, master: Any = "aio") -> None:
         if isinstance(config, str):
             config = load_bridge_config(config)
-        self.config = config
-        m = config.mqtt
-        self.topics = Topics(config)
-        self.poller = Poller(config.poller, master=master, changes_only=False)
-        self.reporter = Reporter(
-            config.poller.points, {p.name: config.max_age(p.name) for p in config.poller.points}
-        )
-        self.commands = CommandQueue(m.command_queue, m.write_rate)
-        self.writer = SetWriter(self)
-        self._topic = {p.name: self.topics.point[p.name] for p in config.poller.points}
-        self._outbox: Outbox | None = None
-        self._link: MqttLink | None = None
-        self._window = DeliveryWindow(m.inflight)
-        self._reconnect = Reconnect(Backoff(m.backoff, m.max_backoff))
-        self._live: deque[tuple[int, bytes, float]] = deque()
+        super().__init__(config, master)
+        self._window = DeliveryWindow(config.mqtt.inflight)
+        #: (seq, record, its update, when read) of the records not yet published
+        self._live: deque[tuple[int, bytes, PointUpdate, float]] = deque()
         self._live_base = 0  # every record from this seq on is in _live or published
         self._cursor = 0  # the last seq handed to the client on this connection
         self._historical_below = 0  # records below this seq are published as historical
         self._start_seq = 0  # records below it are a previous run's (historical)
         self._was_connected = False  # a connection of this run existed (then was lost)
-        self._latest: dict[str, tuple[int, bytes]] = {}  # topic -> (seq, body) last appended
+        self._latest: dict[str, tuple[int, PointUpdate]] = {}  # point -> the last appended
         self._slaves: dict[tuple[str, int], bool] = {}
         self._ports: dict[str, PortState] = {}  # the last port event of each bus
         self._port_down: set[str] = set()
@@ -125,15 +102,9 @@ class Bridge(OutboxService):
         self._bus_unseen: set[str] = {b.name for b in config.poller.buses}
         self._resume: set[tuple[str, int]] = set()
         self._event_cbs: list[Callable[[BridgeEvent], None]] = []
-        self._tasks: list[asyncio.Task[None]] = []
         self._polling = False  # start(poll=True): the poller runs
-        self._flusher: Flusher | None = None
         self._ack_pending = False
-        self._lost_ev: asyncio.Event | None = None  # made in start (loop-bound)
         self._acked_seq = 0  # every record up to this seq is acknowledged
-        self._stop: asyncio.Event | None = None
-        self.fatal: BaseException | None = None
-        self._running = False
         self._t0 = time.monotonic()
         self.appended = 0
         self.refused = 0  # updates the outbox did not accept (disk full, budget)
@@ -143,7 +114,6 @@ class Bridge(OutboxService):
         self._quarantined_topics: set[str] = set()  # reported once each
         self.task_failures = 0  # background tasks that raised (each restarted)
         self.final_stats: dict[str, Any] = {}
-        self._credentials: Credentials | None = None
 
     # ------------------------------------------------------------------ life cycle
 
@@ -154,38 +124,19 @@ class Bridge(OutboxService):
         ``poll=False``: no poller; values come through `feed`."""
         if self._running:
             return
-        m = self.config.mqtt
-        self._credentials = Credentials.load(m)  # OSError: a file that cannot be used
-        limits = OutboxLimits(
-            max_bytes=m.outbox_max_bytes,
-            fsync_interval=m.fsync_interval,
-            segment_bytes=min(8 << 20, m.outbox_max_bytes // 4),
-            policy="refuse" if m.outbox_policy == "refuse" else "drop-oldest",
-        )
-        self._outbox = Outbox(m.outbox, limits)
-        self._flusher = Flusher(self._outbox, self._flushed)
-        self._flusher.start()  # the fsyncs on their own thread
-        self._live_base = self._start_seq = self._outbox.next_seq
-        self._was_connected = False
-        self._acked_seq = self._outbox.acked
-        self._stop = asyncio.Event()
-        self._lost_ev = asyncio.Event()
-        self.poller.on_event(self.feed)
+        await self._open_mqtt(poll, self._opened)
         self._polling = poll
-        try:
-            if poll:
-                await self.poller.start()
-        except BaseException:
-            await self._flusher.stop()
-            self._outbox.close()
-            self._outbox = None
-            raise
         self._running = True
         self._t0 = time.monotonic()
         self._tasks = [
             self._supervise("pyrtu-bridge-mqtt", self._connector, self._link_gone),
             self._supervise("pyrtu-bridge-stats", self._stats_loop),
         ]
+
+    def _opened(self, ob: Outbox) -> None:
+        self._live_base = self._start_seq = ob.next_seq
+        self._was_connected = False
+        self._acked_seq = ob.acked
 
     async def stop(self, drain: float = 5.0) -> None:
         """Stop polling, publish what waits (up to ``drain`` seconds while the broker
@@ -203,14 +154,7 @@ class Bridge(OutboxService):
             self._pump()
             await asyncio.sleep(0.01)
             flusher.submit()
-        for t in self._tasks:
-            t.cancel()
-        for t, outcome in zip(
-            self._tasks, await asyncio.gather(*self._tasks, return_exceptions=True), strict=True
-        ):
-            if isinstance(outcome, Exception):  # _supervise reports its failures: a bug
-                log.error("bridge: task %s ended with %r", t.get_name(), outcome)
-        self._tasks = []
+        await self._cancel_tasks()
         link = self._link
         if link is not None and link.connected:
             link.publish(self.topics.edge_status, OFFLINE, 1, True)
@@ -221,20 +165,16 @@ class Bridge(OutboxService):
             link.close(graceful=True)
         self._link = None
         self._commit_acks()
-        await flusher.stop()  # the last batch, then the thread joined
+        await self._close_outbox(self._final_stats)
+
+    def _final_stats(self) -> None:
         self.final_stats = self.stats()
-        ob.close()
-        self._outbox = None
 
     def on_event(self, callback: Callable[[BridgeEvent], None]) -> None:
         """Call ``callback(event)`` for every `BridgeEvent` (on the loop)."""
         self._event_cbs.append(callback)
 
     # ------------------------------------------------------------------ supervision
-
-    def _backoff(self) -> Backoff:
-        m = self.config.mqtt
-        return Backoff(m.backoff, m.max_backoff)
 
     def task_failed(
         self, task: str, error: BaseException, retry_in: float, first: bool = True
@@ -340,43 +280,25 @@ class Bridge(OutboxService):
             doc = bus_payload("up" if ev.up else "down", ev.port, ev.error, ev.since, ev.time)
         link.publish(t, doc, 1, True)
 
-    def publish_value(self, point: Point, value: Value | None, read_at: float) -> None:
-        """Publish a value read now (a write's read-back) whatever its deadband,
-        unless it is the value last published (a poll may have read it first)."""
-        if self.reporter.update(point, value, read_at, time.monotonic(), exact=True):
-            self._append(point, value, read_at, "bad" if value is None else "good")
+    def _store_refused(self, error: Exception) -> None:
+        self.refused += 1
+        if not self._outbox_down:
+            self._outbox_down = True
+            log.error("bridge: the outbox refuses updates: %s", error)
+            self._emit("outbox_error", message=str(error))
 
-    def _append(
-        self, point: Point, value: Value | None, read_at: float | None, quality: str
-    ) -> None:
-        ob = self._outbox
-        if ob is None:
-            return
-        topic = self._topic[point.name]
-        rec = record(topic, point, value, read_at, quality)
-        now = time.monotonic()
-        try:
-            seq = ob.append(rec, now)
-        except (OutboxError, ValueError) as e:
-            self.refused += 1
-            if not self._outbox_down:
-                self._outbox_down = True
-                log.error("bridge: the outbox refuses updates: %s", e)
-                self._emit("outbox_error", message=str(e))
-            return
+    def _stored(self, seq: int, rec: bytes, update: PointUpdate) -> None:
         if self._outbox_down:
             self._outbox_down = False
             log.warning("bridge: the outbox accepts updates again")
         self.appended += 1
-        body = rec[len(topic) + 1 :]
-        self._latest[topic] = (seq, body)
+        self._latest[update.point] = (seq, update)
         live = self._live
-        live.append((seq, rec, time.time() if read_at is None else read_at))
+        read_at = time.time() if update.time is None else update.time
+        live.append((seq, rec, update, read_at))
         if len(live) > _LIVE:
             live.popleft()
             self._live_base = live[0][0]
-        if self._flusher is not None:
-            self._flusher.poke()
         self._pump()
 
     # ------------------------------------------------------------------ publishing
@@ -401,8 +323,8 @@ class Bridge(OutboxService):
             if self._cursor + 1 >= self._live_base:
                 if not live:
                     break
-                seq, rec, read_at = live.popleft()
-                self._send(link, seq, rec, read_at, qos)
+                seq, rec, update, read_at = live.popleft()
+                self._send(link, seq, rec, read_at, qos, update)
                 continue
             batch = ob.pending(min(_BATCH, win.window - len(win)), after=self._cursor)
             if not batch:
@@ -416,16 +338,27 @@ class Bridge(OutboxService):
         # to the kernel now: a live value waits for no timer and no other task
         link.write_now()
 
-    def _send(self, link: MqttLink, seq: int, rec: bytes, read_at: float, qos: int) -> None:
-        problem = unpublishable(rec)
-        if problem is not None:
-            self._set_aside(seq, rec, problem)
+    def _send(
+        self,
+        link: MqttLink,
+        seq: int,
+        rec: bytes,
+        read_at: float,
+        qos: int,
+        update: PointUpdate | None = None,
+    ) -> None:
+        """Publish a record (``update``: what it holds, when known): its topic and
+        payload made now (`Topics.render`)."""
+        topics = self.topics
+        try:
+            topic, body = topics.render(rec) if update is None else topics.render_update(update)
+        except Unpublishable as e:
+            self._set_aside(seq, rec, str(e), e.topic)
             return
-        topic, body = split_record(rec)
         try:
             mid = link.publish(topic, payload(body, seq, seq < self._historical_below), qos, True)
         except ValueError as e:  # the client refuses it (its size, its topic): for ever
-            self._set_aside(seq, rec, f"the MQTT client refuses it: {e}")
+            self._set_aside(seq, rec, f"the MQTT client refuses it: {e}", topic)
             return
         self._cursor = seq
         if mid < 0:
@@ -433,11 +366,11 @@ class Bridge(OutboxService):
             return
         self._window.sent(seq, mid, read_at, rec)
 
-    def _set_aside(self, seq: int, rec: bytes, problem: str) -> None:
+    def _set_aside(self, seq: int, rec: bytes, problem: str, topic: str) -> None:
         """A record that can never be published: quarantined, and passed by as if
         delivered."""
         self._cursor = seq
-        self._keep_aside(seq, rec, problem)
+        self._keep_aside(seq, rec, problem, topic)
         if self._window.skipped(seq) and not self._ack_pending:
             self._ack_pending = True
             asyncio.get_running_loop().call_soon(self._commit_acks)
@@ -447,13 +380,14 @@ class Bridge(OutboxService):
         is quarantined, not counted as delivered and forgotten."""
         found = self._window.record(mid)
         if found is not None:
-            self._keep_aside(*found, f"the broker refused it: {reason}")
+            seq, rec = found
+            self._keep_aside(seq, rec, f"the broker refused it: {reason}", self.topics.name(rec))
 
-    def _keep_aside(self, seq: int, rec: bytes, problem: str) -> None:
-        """Copy a record aside (`Outbox.quarantine`), counted, reported once per topic."""
+    def _keep_aside(self, seq: int, rec: bytes, problem: str, topic: str) -> None:
+        """Copy a record aside (`Outbox.quarantine`), counted, reported once per
+        ``topic`` (what the report calls it)."""
         ob = self._outbox
         assert ob is not None
-        topic = rec.partition(b"\n")[0].decode("utf-8", "backslashreplace")
         try:
             ob.quarantine(seq, rec, problem)
         except OutboxError as e:  # it cannot be kept either: said, and passed by
@@ -503,51 +437,38 @@ class Bridge(OutboxService):
 
     # ------------------------------------------------------------------ the connection
 
-    async def _connector(self) -> None:
-        m = self.config.mqtt
-        assert self._lost_ev is not None
-        while self._running:
-            wait = self._reconnect.wait(time.monotonic())
-            if wait > 0:
-                await asyncio.sleep(wait)
-            link = MqttLink(
-                m,
-                self.topics.edge_status,
-                on_message=self.writer.on_message,
-                on_ack=self._on_ack,
-                on_lost=self._on_lost,
-                credentials=self._credentials,
-                on_refused=self._on_refused,
-            )
-            try:
-                await link.connect()
-            except (BrokerRefused, ssl.SSLError, ssl.CertificateError) as e:
-                self._fatal(e)
-                return
-            except (OSError, TimeoutError, ConnectionError) as e:
-                if self._reconnect.failed(time.monotonic(), e):
-                    log.warning("bridge: broker %s unreachable: %s (retrying)", m.broker, e)
-                    self._emit("broker_down", broker=m.broker, error=str(e) or type(e).__name__)
-                continue
-            outage = self._reconnect.recovered(time.monotonic())
-            if outage is not None:
-                log.warning("bridge: broker %s back after %.1f s", m.broker, outage.duration or 0)
-            self.reconnects += 1
-            self._link = link
-            self._lost_ev.clear()
-            self._on_connected(link)
-            self._emit(
-                "broker_up",
-                broker=m.broker,
-                down_s=None if outage is None else round(outage.duration or 0, 3),
-            )
-            await self._lost_ev.wait()
-            self._link_gone()
-            if self._running:
-                now = time.monotonic()
-                if self._reconnect.failed(now, "connection lost"):
-                    log.warning("bridge: lost the broker %s (retrying)", m.broker)
-                    self._emit("broker_down", broker=m.broker, error="connection lost")
+    def _new_link(self) -> MqttLink:
+        return MqttLink(
+            self.config.mqtt,
+            self.topics.edge_status,
+            on_message=self.writer.on_message,
+            on_ack=self._on_ack,
+            on_lost=self._on_lost,
+            credentials=self._credentials,
+            on_refused=self._on_refused,
+        )
+
+    def _unreachable(self, e: BaseException) -> None:
+        broker = self.config.mqtt.broker
+        log.warning("bridge: broker %s unreachable: %s (retrying)", broker, e)
+        self._emit("broker_down", broker=broker, error=str(e) or type(e).__name__)
+
+    def _connected_to(self, link: MqttLink, outage: Outage | None) -> None:
+        broker = self.config.mqtt.broker
+        if outage is not None:
+            log.warning("bridge: broker %s back after %.1f s", broker, outage.duration or 0)
+        self.reconnects += 1
+        self._on_connected(link)
+        self._emit(
+            "broker_up",
+            broker=broker,
+            down_s=None if outage is None else round(outage.duration or 0, 3),
+        )
+
+    def _broker_lost(self) -> None:
+        broker = self.config.mqtt.broker
+        log.warning("bridge: lost the broker %s (retrying)", broker)
+        self._emit("broker_down", broker=broker, error="connection lost")
 
     def _link_gone(self) -> None:
         """The connection ended (or its task failed): what was handed to the client
@@ -559,28 +480,14 @@ class Bridge(OutboxService):
         live = self._live
         self._live_base = max(self._live_base, live[0][0] if live else self._next_seq())
 
-    def _on_lost(self, reason: str) -> None:
-        if self._lost_ev is not None:
-            self._lost_ev.set()
-
     def _next_seq(self) -> int:
         return self._outbox.next_seq if self._outbox is not None else 0
 
     def _fatal(self, e: BaseException) -> None:
-        if isinstance(e, ssl.SSLCertVerificationError):
-            e = ConnectionRefusedError(
-                f"broker {self.config.mqtt.broker}: its certificate does not verify: "
-                f"{e.verify_message or e}"
-            )
-        elif isinstance(e, ssl.SSLError | ssl.CertificateError) and not isinstance(
-            e, BrokerRefused
-        ):
-            e = ConnectionRefusedError(f"broker {self.config.mqtt.broker}: TLS: {e}")
+        """The broker refused the bridge for good (`dial`): reported, halted."""
         log.error("bridge: %s", e)
-        self.fatal = e
         self._emit("fatal", message=str(e))
-        if self._stop is not None:
-            self._stop.set()
+        self._halt(e)
 
     def _on_connected(self, link: MqttLink) -> None:
         """Status, slaves, the latest values the backlog does not hold, subscriptions,
@@ -602,8 +509,9 @@ class Bridge(OutboxService):
         self._historical_below = ob.next_seq if self._was_connected else self._start_seq
         self._was_connected = True
         qos = self.config.mqtt.qos
-        for topic, (seq, body) in self._latest.items():
+        for seq, update in self._latest.values():
             if seq < oldest:  # delivered before: published again for the retained copy
+                topic, body = self.topics.render_update(update)
                 link.publish(topic, payload(body, seq, False), qos, True)
         if self.config.mqtt.discovery:
             from .discovery import configs

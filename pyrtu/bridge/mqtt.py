@@ -14,6 +14,10 @@ the broker's delayed acknowledgement of the previous packet.  Afterwards the
 loop reads the socket, writes when paho has bytes queued, and pings every
 keepalive; ``on_lost`` is called once when the connection ends.
 
+`dial` is one attempt of an output's connection loop: the back-off waited out, a
+link made and connected, its failure sorted into one no retry cures (the output
+halts) and one a retry may (reported once per run of failures).
+
 Publications are written at the end of the loop's turn, all of the turn's in one
 send; `MqttLink.write_now` writes them at once instead (the bridge's live values:
 no timer, no wait for the other tasks of the turn), up to `IMMEDIATE` times a turn,
@@ -25,6 +29,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import ssl
+import time
 from collections import deque
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
@@ -36,6 +41,8 @@ from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 from paho.mqtt.reasoncodes import ReasonCode
 from paho.mqtt.subscribeoptions import SubscribeOptions
+
+from pyrtu.drivers.reconnect import Reconnect
 
 from ..tcp.sockets import set_nodelay
 from .config import MqttConfig
@@ -514,12 +521,55 @@ class MqttLink:
         self._on_message(msg)
 
 
+def fatal_error(e: BaseException, broker: str) -> BaseException:
+    """What to report of a connection failure no retry cures: a certificate that
+    does not verify and other TLS errors as `ConnectionRefusedError` naming the
+    broker; `BrokerRefused` (it names the broker) as it is."""
+    if isinstance(e, ssl.SSLCertVerificationError):
+        return ConnectionRefusedError(
+            f"broker {broker}: its certificate does not verify: {e.verify_message or e}"
+        )
+    if isinstance(e, ssl.SSLError | ssl.CertificateError) and not isinstance(e, BrokerRefused):
+        return ConnectionRefusedError(f"broker {broker}: TLS: {e}")
+    return e
+
+
+async def dial(
+    make_link: Callable[[], MqttLink],
+    reconnect: Reconnect,
+    *,
+    fatal: Callable[[BaseException], None],
+    unreachable: Callable[[BaseException], None],
+) -> MqttLink | None:
+    """One attempt of an output's connection loop: wait out ``reconnect``'s
+    back-off, make a link and connect it; the link when connected, else None after
+    telling ``fatal`` (a refusal no retry cures: the credentials, the certificate,
+    TLS; as `fatal_error` reports it) or, when the failure begins a run of them
+    (`Reconnect.failed`), ``unreachable`` (the broker down, a timeout)."""
+    wait = reconnect.wait(time.monotonic())
+    if wait > 0:
+        await asyncio.sleep(wait)
+    link = make_link()
+    try:
+        await link.connect()
+    except (BrokerRefused, ssl.SSLError, ssl.CertificateError) as e:
+        fatal(fatal_error(e, link.cfg.broker))
+        return None
+    except (OSError, TimeoutError, ConnectionError) as e:
+        if reconnect.failed(time.monotonic(), e):
+            unreachable(e)
+        return None
+    return link
+
+
 __all__ = [
     "FATAL",
     "BrokerRefused",
     "Credentials",
     "MqttLink",
     "TlsHandshakeFailed",
+    "dial",
+    "fatal_error",
     "publish_properties",
     "tls_context",
 ]

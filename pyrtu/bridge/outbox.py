@@ -1,11 +1,6 @@
-"""Deprecated path: this module lives in `pyrtu.outbox.outbox` (the northbound-neutral
-outbox, shared by every output).  Each name used here warns (`DeprecationWarning`)
-naming its new path."""
-
-from __future__ import annotations
+"""Deprecated path of `pyrtu.outbox.outbox`: each of its names warns, naming the new path."""
 
 from pyrtu.core._deprecated import moved
+from pyrtu.outbox import outbox as moved_to
 
-__getattr__ = moved(
-    __name__, "pyrtu.outbox.outbox", ["Outbox", "OutboxError", "OutboxFull", "OutboxLimits"]
-)
+__getattr__ = moved(__name__, moved_to.__name__, moved_to.__all__)

@@ -23,12 +23,18 @@ wire (the Unix time of the answer's last byte), ``quality`` is ``good``, ``stale
 number (from the outbox: strictly increasing across restarts).  A value published
 from the backlog after an outage also carries ``"historical": true``.
 
-In the outbox a record is the topic, a newline, and the payload without its
-sequence number and closing brace (`record`); `payload` completes it when it is
-published.  Every name that becomes a topic level (the edge, the buses, the
-points without a ``topic``, and so the devices whose points' names begin with
-theirs) is one (`topic_problem`: no ``/``, no wildcard, no NUL nor other
-control character); a record that can never be published (`unpublishable`) is
+In the outbox a value is a point update (`pyrtu.outbox.updates`: the point's
+name, value, time, quality; no topic, no JSON of this mode); `Topics.render`
+makes it a topic and a payload body (`body`: the payload without its sequence
+number and closing brace) when it is published, and `payload` completes it.
+An outbox written by an earlier pyrtu (before point updates, issue 33.2) holds
+records of the topic, a newline and that body (`split_record`): they are
+published as they are, as the pyrtu that wrote them would have.  Every name that
+becomes a topic level (the edge, the buses, the points without a ``topic``, and
+so the devices whose points' names begin with theirs) is one (`topic_problem`:
+no ``/``, no wildcard, no NUL nor other control character); a record that can
+never be published (`Unpublishable`: a damaged one, one of a point this
+configuration does not have, an older record whose topic no broker accepts) is
 set aside by the bridge (`pyrtu.outbox.outbox.Outbox.quarantine`).
 """
 
@@ -39,6 +45,7 @@ import math
 import re
 from typing import Protocol
 
+from ..outbox.updates import PointUpdate, UpdateError, decode_update, is_update
 from ..poller import Point, PollerConfig
 from ..poller.values import faithful_value
 
@@ -126,6 +133,7 @@ class Topics:
         #: the filter that catches set commands of the default layout (and typos of them)
         self.set_filter = f"{self.base}/+/+/+/set"
         self.point: dict[str, str] = {}
+        self._points: dict[str, Point] = {}
         self.set: dict[str, str] = {}  # set topic -> point name
         self.slave_status: dict[tuple[str, int], str] = {}
         self.bus_status: dict[str, str] = {}
@@ -165,7 +173,41 @@ class Topics:
             claim(t + "/set", f"point {p.name!r}'s set topic")
             claim(t + "/set/result", f"point {p.name!r}'s result topic")
             self.point[p.name] = t
+            self._points[p.name] = p
             self.set[t + "/set"] = p.name
+
+    def render_update(self, update: PointUpdate) -> tuple[str, bytes]:
+        """(topic, payload body) of a point update; `Unpublishable` for a point this
+        configuration does not have (a record of another configuration's run)."""
+        point = self._points.get(update.point)
+        if point is None:
+            raise Unpublishable(
+                f"point {update.point!r} is not in this configuration", update.point
+            )
+        return self.point[update.point], body(point, update.value, update.time, update.quality)
+
+    def render(self, rec: bytes) -> tuple[str, bytes]:
+        """(topic, payload body) of an outbox record: a point update (`render_update`)
+        or a record of an earlier pyrtu (`split_record`); `Unpublishable` when it can
+        never be published."""
+        if is_update(rec):
+            try:
+                update = decode_update(rec)
+            except UpdateError as e:
+                raise Unpublishable(str(e), "a damaged point update") from None
+            return self.render_update(update)
+        problem = unpublishable(rec)
+        if problem is not None:
+            topic = rec.partition(b"\n")[0].decode("utf-8", "backslashreplace")
+            raise Unpublishable(problem, topic)
+        return split_record(rec)
+
+    def name(self, rec: bytes) -> str:
+        """What a report calls a record: its topic, or what stands for it."""
+        try:
+            return self.render(rec)[0]
+        except Unpublishable as e:
+            return e.topic
 
     def extra_set_topics(self) -> list[str]:
         """The set topics `set_filter` does not catch (overridden topics)."""
@@ -189,25 +231,36 @@ def _json_value(value: object) -> str:
     return json.dumps(value, ensure_ascii=False)
 
 
-def record(topic: str, point: Point, value: object, time: float | None, quality: str) -> bytes:
-    """The outbox record of a point's value (see the module docstring): the value as
-    its shortest faithful decimal (`pyrtu.poller.values`); ``time`` None: never read
-    (JSON null)."""
+class Unpublishable(ValueError):
+    """A record that can never be published: why, and ``topic``, what a report
+    calls it (its topic, or what stands for one)."""
+
+    def __init__(self, reason: str, topic: str) -> None:
+        super().__init__(reason)
+        self.topic = topic
+
+
+def body(point: Point, value: object, time: float | None, quality: str) -> bytes:
+    """A point's payload without its sequence number and closing brace (see the
+    module docstring): the value as its shortest faithful decimal
+    (`pyrtu.poller.values`); ``time`` None: never read (JSON null)."""
     shown = faithful_value(point, value) if isinstance(value, float) else value
     when = "null" if time is None else repr(time)
-    return (f'{topic}\n{{"value":{_json_value(shown)},"time":{when},"quality":"{quality}"').encode()
+    return f'{{"value":{_json_value(shown)},"time":{when},"quality":"{quality}"'.encode()
 
 
 def split_record(rec: bytes) -> tuple[str, bytes]:
-    """(topic, payload without seq and closing brace) of an outbox record."""
+    """(topic, payload body) of an outbox record of an earlier pyrtu (the topic, a
+    newline, the body)."""
     nl = rec.index(b"\n")
     return rec[:nl].decode(), rec[nl + 1 :]
 
 
 def unpublishable(rec: bytes) -> str | None:
-    """Why an outbox record can never be published (None: it can): no topic, or
-    one no broker accepts (`topic_problem`), such as a record written by a run
-    whose configuration let a wildcard into a point's name."""
+    """Why an outbox record of an earlier pyrtu (`split_record`) can never be
+    published (None: it can): no topic, or one no broker accepts (`topic_problem`),
+    such as a record written by a run whose configuration let a wildcard into a
+    point's name."""
     nl = rec.find(b"\n")
     if nl < 0:
         return "no topic (the record has no newline)"
@@ -240,9 +293,10 @@ __all__ = [
     "ONLINE",
     "QUALITIES",
     "Topics",
+    "Unpublishable",
+    "body",
     "bus_payload",
     "payload",
-    "record",
     "split_record",
     "topic_problem",
     "unpublishable",

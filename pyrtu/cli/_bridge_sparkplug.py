@@ -7,11 +7,10 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import signal
 import sys
 from typing import Any
 
-from pyrtu.cli.common import EXIT_OK, EXIT_PORT, EXIT_USAGE, emit, report_error
+from pyrtu.cli.common import EXIT_OK, EXIT_USAGE, emit, report_error
 
 
 def run_sparkplug(path: str, bridge: Any, args: argparse.Namespace) -> int:
@@ -19,6 +18,7 @@ def run_sparkplug(path: str, bridge: Any, args: argparse.Namespace) -> int:
     ``[sparkplug]`` table read from ``path``)."""
     from pathlib import Path
 
+    from pyrtu.cli.bridge import checked, config_error
     from pyrtu.poller import ConfigError
     from pyrtu.poller.config import read_config_text
     from pyrtu.sparkplug.config import sparkplug_config
@@ -27,10 +27,7 @@ def run_sparkplug(path: str, bridge: Any, args: argparse.Namespace) -> int:
         text = read_config_text(path)
         cfg = sparkplug_config(bridge, bridge.sparkplug, text, Path(path).resolve().parent)
     except ConfigError as e:
-        print(f"pyrtu bridge: config error: {e}", file=sys.stderr)
-        if args.json:
-            emit({"ok": False, "error": "usage", "exit_code": EXIT_USAGE, "message": str(e)})
-        return EXIT_USAGE
+        return config_error(e, args)
     if args.check is not None:
         doc = {
             "ok": True,
@@ -43,14 +40,12 @@ def run_sparkplug(path: str, bridge: Any, args: argparse.Namespace) -> int:
             "devices": [d.id for d in cfg.devices],
             "metrics": sum(len(d.metrics) for d in cfg.devices),
         }
-        if args.json:
-            emit(doc)
-        else:
-            print(
-                f"{path}: ok: Sparkplug edge node {cfg.group_id}/{cfg.edge_node_id}, "
-                f"{len(cfg.devices)} devices, {doc['metrics']} metrics, broker {bridge.mqtt.broker}"
-            )
-        return EXIT_OK
+        return checked(
+            args,
+            doc,
+            f"{path}: ok: Sparkplug edge node {cfg.group_id}/{cfg.edge_node_id}, "
+            f"{len(cfg.devices)} devices, {doc['metrics']} metrics, broker {bridge.mqtt.broker}",
+        )
     if args.metrics is not None:
         print("pyrtu bridge: error: --metrics is not available with [sparkplug]", file=sys.stderr)
         return EXIT_USAGE
@@ -73,40 +68,15 @@ def run_sparkplug(path: str, bridge: Any, args: argparse.Namespace) -> int:
 
 
 async def _serve(cfg: Any, args: argparse.Namespace) -> int:
-    from pyrtu.outbox.outbox import OutboxError
-    from pyrtu.pdu.errors import PortError
+    from pyrtu.cli.bridge import as_port_error, serve_output
     from pyrtu.sparkplug.node import EdgeNode
 
     node = EdgeNode(cfg)
-    stop = asyncio.Event()
-    loop = asyncio.get_running_loop()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        loop.add_signal_handler(sig, stop.set)
-    try:
-        try:
-            await node.start()
-        except OutboxError as e:
-            print(f"pyrtu bridge: outbox error: {e}", file=sys.stderr)
-            return EXIT_PORT
-        except (OSError, ValueError) as e:
-            if isinstance(e, PortError):
-                raise
-            print(f"pyrtu bridge: error: {e}", file=sys.stderr)
-            return EXIT_PORT
-        waits = [asyncio.ensure_future(stop.wait()), asyncio.ensure_future(node.halted.wait())]
-        try:
-            await asyncio.wait(waits, timeout=args.duration, return_when=asyncio.FIRST_COMPLETED)
-        finally:
-            for w in waits:
-                w.cancel()
-        await node.stop()
-    finally:
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            loop.remove_signal_handler(sig)
+    failed = await serve_output(node, asyncio.Event(), args.duration, node.stop)
+    if failed is not None:
+        return failed
     if node.fatal is not None:
-        fatal = node.fatal
-        error = fatal if isinstance(fatal, OSError) else ConnectionRefusedError(str(fatal))
-        return report_error("bridge", error, args.json)
+        return report_error("bridge", as_port_error(node.fatal), args.json)
     if args.json:
         emit({"event": "end", **node.stats()})
     return EXIT_OK

@@ -30,7 +30,8 @@ import argparse
 import asyncio
 import signal
 import sys
-from typing import Any
+from collections.abc import Awaitable, Callable
+from typing import TYPE_CHECKING, Any
 
 from pyrtu.cli._subcommand import subcommand
 from pyrtu.cli.common import (
@@ -43,6 +44,9 @@ from pyrtu.cli.common import (
     seconds,
 )
 from pyrtu.metrics.address import add_metrics_option, open_metrics
+
+if TYPE_CHECKING:
+    from pyrtu.outbox.service import OutboxService
 
 
 def _configure(p: argparse.ArgumentParser) -> None:
@@ -69,6 +73,25 @@ def _configure(p: argparse.ArgumentParser) -> None:
     add_metrics_option(p)
 
 
+def config_error(e: Exception, args: argparse.Namespace) -> int:
+    """A configuration error (file, line and key) said, with ``--json`` as an error
+    document too: exit 2."""
+    print(f"pyrtu bridge: config error: {e}", file=sys.stderr)
+    if args.json:
+        emit({"ok": False, "error": "usage", "exit_code": EXIT_USAGE, "message": str(e)})
+    return EXIT_USAGE
+
+
+def checked(args: argparse.Namespace, doc: dict[str, Any], line: str) -> int:
+    """``--check``'s verdict on a valid configuration: ``doc`` with ``--json``,
+    else ``line``; exit 0."""
+    if args.json:
+        emit(doc)
+    else:
+        print(line)
+    return EXIT_OK
+
+
 def _run(args: argparse.Namespace) -> int:
     from pyrtu.poller import ConfigError
 
@@ -81,10 +104,7 @@ def _run(args: argparse.Namespace) -> int:
     try:
         cfg = load_bridge_config(path)
     except ConfigError as e:
-        print(f"pyrtu bridge: config error: {e}", file=sys.stderr)
-        if args.json:
-            emit({"ok": False, "error": "usage", "exit_code": EXIT_USAGE, "message": str(e)})
-        return EXIT_USAGE
+        return config_error(e, args)
     if cfg.sparkplug is not None:  # the Sparkplug B edge node (docs/sparkplug.md)
         from pyrtu.cli._bridge_sparkplug import run_sparkplug
 
@@ -100,14 +120,12 @@ def _run(args: argparse.Namespace) -> int:
             "buses": len(cfg.poller.buses),
             "writable": sum(1 for p in cfg.poller.points if p.writable),
         }
-        if args.json:
-            emit(doc)
-        else:
-            print(
-                f"{path}: ok: {doc['points']} points on {doc['buses']} buses, "
-                f"{doc['writable']} writable, broker {m.broker}, edge {m.edge!r}"
-            )
-        return EXIT_OK
+        return checked(
+            args,
+            doc,
+            f"{path}: ok: {doc['points']} points on {doc['buses']} buses, "
+            f"{doc['writable']} writable, broker {m.broker}, edge {m.edge!r}",
+        )
     try:
         import paho.mqtt.client  # noqa: F401
     except ImportError:
@@ -128,13 +146,55 @@ def _run(args: argparse.Namespace) -> int:
             args.metrics_server.close()
 
 
+async def serve_output(
+    output: OutboxService,
+    stop: asyncio.Event,
+    duration: float | None,
+    finish: Callable[[], Awaitable[None]],
+    started: Callable[[], None] | None = None,
+) -> int | None:
+    """Start a northbound output (the JSON bridge, the Sparkplug edge node), run it
+    until SIGINT or SIGTERM (or ``stop`` set otherwise), ``duration`` or its halt,
+    then ``finish()`` (its stop).  EXIT_PORT, said, when it cannot start (the
+    outbox, a file, the poller's ports: a `PortError` is raised, for `guarded` to
+    report); None once it ran (its ``fatal`` says whether it halted)."""
+    from pyrtu.outbox.outbox import OutboxError
+    from pyrtu.pdu.errors import PortError
+
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    try:
+        try:
+            await output.start()
+        except OutboxError as e:
+            print(f"pyrtu bridge: outbox error: {e}", file=sys.stderr)
+            return EXIT_PORT
+        except (OSError, ValueError) as e:
+            if isinstance(e, PortError):  # reported by guarded, as every command does
+                raise
+            print(f"pyrtu bridge: error: {e}", file=sys.stderr)
+            return EXIT_PORT
+        if started is not None:
+            started()
+        waits = [asyncio.ensure_future(stop.wait()), asyncio.ensure_future(output.halted.wait())]
+        try:
+            await asyncio.wait(waits, timeout=duration, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            for w in waits:
+                w.cancel()
+        await finish()
+    finally:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.remove_signal_handler(sig)
+    return None
+
+
 async def _serve(cfg: Any, args: argparse.Namespace) -> int:
     from pyrtu.bridge.bridge import Bridge, BridgeEvent
-    from pyrtu.outbox.outbox import OutboxError
 
     bridge = Bridge(cfg)
     stop = asyncio.Event()
-    loop = asyncio.get_running_loop()
     closed = False
     broker_error = ""  # the last connection failure reported
 
@@ -154,39 +214,20 @@ async def _serve(cfg: Any, args: argparse.Namespace) -> int:
             closed = True  # | head: stop quietly
             stop.set()
 
-    bridge.on_event(on_event)
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        loop.add_signal_handler(sig, stop.set)
-    try:
-        try:
-            await bridge.start()
-        except OutboxError as e:
-            print(f"pyrtu bridge: outbox error: {e}", file=sys.stderr)
-            return EXIT_PORT
-        except OSError as e:
-            from pyrtu.pdu.errors import PortError
-
-            if isinstance(e, PortError):  # reported by guarded, as every command does
-                raise
-            print(f"pyrtu bridge: error: {e}", file=sys.stderr)
-            return EXIT_PORT
+    def started() -> None:
         if args.metrics_server is not None:
             from pyrtu.metrics.bridge import BridgeSource
 
-            args.metrics_server.serve(BridgeSource(bridge, loop))
-        fatal = bridge.halted
-        waits = [asyncio.ensure_future(stop.wait()), asyncio.ensure_future(fatal.wait())]
-        try:
-            await asyncio.wait(waits, timeout=args.duration, return_when=asyncio.FIRST_COMPLETED)
-        finally:
-            for w in waits:
-                w.cancel()
-        await bridge.stop(drain=args.drain)
-    finally:
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            loop.remove_signal_handler(sig)
+            args.metrics_server.serve(BridgeSource(bridge, asyncio.get_running_loop()))
+
+    bridge.on_event(on_event)
+    failed = await serve_output(
+        bridge, stop, args.duration, lambda: bridge.stop(drain=args.drain), started
+    )
+    if failed is not None:
+        return failed
     if bridge.fatal is not None:
-        return report_error("bridge", _as_port_error(bridge.fatal), args.json and not closed)
+        return report_error("bridge", as_port_error(bridge.fatal), args.json and not closed)
     if args.json and not closed:
         try:
             emit({"event": "end", **bridge.final_stats})
@@ -202,7 +243,8 @@ async def _serve(cfg: Any, args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _as_port_error(e: BaseException) -> BaseException:
+def as_port_error(e: BaseException) -> BaseException:
+    """An output's fatal error as the OSError `report_error` maps to exit 3."""
     return e if isinstance(e, OSError) else ConnectionRefusedError(str(e))
 
 
@@ -216,4 +258,4 @@ COMMANDS = (
     ),
 )
 
-__all__ = ["COMMANDS"]
+__all__ = ["COMMANDS", "as_port_error", "checked", "config_error", "serve_output"]

@@ -8,9 +8,10 @@ Sparkplug B edge node) shares between the poller and its broker.
 `service`     `OutboxService`: an output's run, halt and supervised tasks
 ============  =====================================================================
 
-An output encodes what it stores (`updates` for a point update; the JSON bridge keeps
-its own record form, read by every pyrtu since the format's version 1) and decodes it
-when it publishes.  See docs/DESIGN.md.
+Every output stores point updates (`updates`) and makes of each what it publishes
+(a topic and a JSON payload, a Sparkplug metric) when it publishes it; the JSON
+bridge still delivers the records of its earlier form (a topic and a payload) that
+an earlier pyrtu left in an outbox.  See docs/DESIGN.md.
 """
 
 from pyrtu.core._lazy import lazy_attributes

@@ -242,3 +242,31 @@ def scan(
                 break
         yield Item(off, cand, -1, 0.0, None)
         off = cand
+
+
+__all__ = [
+    "CRC",
+    "FORMAT_VERSION",
+    "MAX_SEQ",
+    "REC_HEAD",
+    "REC_MAGIC",
+    "REC_PRE",
+    "SEGMENT_NAME",
+    "SEG_HEAD",
+    "SEG_MAGIC",
+    "STATE",
+    "STATE_MAGIC",
+    "STATE_SIZE",
+    "STATE_SLOTS",
+    "CursorState",
+    "Item",
+    "cursor_version",
+    "decode_state",
+    "encode_record",
+    "encode_state",
+    "parse_segment_header",
+    "scan",
+    "segment_header",
+    "segment_name",
+    "segment_version",
+]

@@ -211,3 +211,20 @@ def active_reader(fd: int, written: int, buf: bytearray) -> Callable[[int, int],
         return data
 
     return read
+
+
+__all__ = [
+    "INDEX_STRIDE",
+    "RESERVE",
+    "WRITE_CHUNK",
+    "OutboxError",
+    "OutboxFull",
+    "OutboxLimits",
+    "Segment",
+    "active_reader",
+    "check_int",
+    "error",
+    "io_error",
+    "lock_directory",
+    "recover_segment",
+]

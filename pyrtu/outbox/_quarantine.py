@@ -1,17 +1,18 @@
 """The outbox's quarantine: records that can never be published, moved aside.
 
-A record whose topic no broker accepts (a wildcard, NUL or control character: an
-outbox written by a run whose configuration allowed it) or that the MQTT client
-refuses would otherwise stay first in line for ever, blocking every record behind
-it.  `Quarantine.add` copies it, one JSON line per record, to ``quarantine.jsonl``
-in the outbox's directory::
+A record that cannot be published (one of a point the output does not have, an
+earlier record whose topic no broker accepts: a wildcard, NUL or control
+character, or one the MQTT client or the broker refuses) would otherwise stay
+first in line for ever, blocking every record behind it.  `Quarantine.add` copies
+it, one JSON line per record, to ``quarantine.jsonl`` in the outbox's directory::
 
-    {"seq": 17, "time": 1732550400.1, "reason": "...", "record": "topic\\n{...}"}
+    {"seq": 17, "time": 1732550400.1, "reason": "...", "record": "\\u0000pu1[...]"}
 
-(``record``: the record as text, or ``record_base64`` when it is not UTF-8); the
-caller then passes it by as if delivered.  `sync` makes the lines durable; the
-outbox calls it before its ack cursor passes them, so a crash loses none (it may
-copy a record twice: the same ``seq``).  The segment files are not changed.
+(``record``: the record as text, a point update or an earlier pyrtu's topic and
+payload, or ``record_base64`` when it is not UTF-8); the caller then passes it by
+as if delivered.  `sync` makes the lines durable; the outbox calls it before its
+ack cursor passes them, so a crash loses none (it may copy a record twice: the
+same ``seq``).  The segment files are not changed.
 """
 
 from __future__ import annotations

@@ -1,16 +1,17 @@
 """A point update as an outbox record, in no output's shape (sans-I/O).
 
-An output that stores point updates (the Sparkplug edge node) appends
-`encode_update` records and reads them back with `decode_update`; what it publishes
-(a topic, a payload, an alias) is its own business, derived when it publishes, so
-that a record outlives a change of the output's naming.  A record is::
+Every output (the JSON bridge, the Sparkplug edge node) appends `encode_update`
+records and reads them back with `decode_update`; what it publishes (a topic and a
+payload, an alias) is its own business, derived when it publishes, so that a
+record outlives a change of the output's naming and a backlog one output left is
+published by another.  A record is::
 
     b"\\x00pu1" JSON [point name, value, time read, quality]
 
-The leading NUL tells it from the JSON bridge's records, which begin with an MQTT
-topic (and no topic holds a NUL).  ``value``: a bool, int, float (NaN and the
-infinities as JSON's extensions), str or null; ``time``: Unix seconds or null (never
-read); ``quality``: ``good``, ``stale`` or ``bad``.
+The leading NUL tells it from the records of earlier pyrtus' JSON bridge, which
+begin with an MQTT topic (and no topic holds a NUL). ``value``: a bool, int, float
+(NaN and the infinities as JSON's extensions), str or null; ``time``: Unix seconds
+or null (never read); ``quality``: ``good``, ``stale`` or ``bad``.
 """
 
 from __future__ import annotations

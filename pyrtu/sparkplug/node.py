@@ -46,25 +46,19 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import ssl
 import time
 from typing import Any
 
 import paho.mqtt.client as paho
 
-from pyrtu.drivers.reconnect import Backoff, Reconnect
+from pyrtu.drivers.reconnect import Outage
 from pyrtu.drivers.supervise import cause
 
-from ..bridge.commands import CommandQueue
-from ..bridge.mqtt import BrokerRefused, Credentials, MqttLink
-from ..bridge.topics import Topics
-from ..bridge.writes import SetWriter
-from ..outbox._sync import Flusher
-from ..outbox.outbox import Outbox, OutboxError, OutboxLimits
-from ..outbox.report import Reporter
-from ..outbox.service import OutboxService
-from ..outbox.updates import PointUpdate, UpdateError, decode_update, encode_update
-from ..poller import Point, PointDropped, Poller, PortState, SlaveState, TaskFailed, Update
+from ..bridge.mqtt import MqttLink
+from ..bridge.output import MqttOutput
+from ..outbox.outbox import Outbox, OutboxError
+from ..outbox.updates import PointUpdate, UpdateError, decode_update
+from ..poller import Point, PointDropped, PortState, SlaveState, TaskFailed, Update
 from ..poller.points import Value
 from .config import SparkplugConfig
 from .metrics import NODE_REBIRTH, DeviceDef, MetricDef, get_value
@@ -80,29 +74,17 @@ _PER_MESSAGE = 64  # metrics per DDATA of the backlog
 BARRIER = "pyrtu/sparkplug/delivered"
 
 
-class EdgeNode(OutboxService):
+class EdgeNode(MqttOutput):
     """The Sparkplug edge node of one bridge configuration (see the module doc)."""
 
     WHAT = "the edge node"
 
     def __init__(self, config: SparkplugConfig, *, master: Any = "aio") -> None:
         self.spb = config
-        self.config = config.bridge
-        m = self.config.mqtt
-        self.topics = Topics(self.config)
-        self.poller = Poller(self.config.poller, master=master, changes_only=False)
-        points = self.config.poller.points
-        self.reporter = Reporter(points, {p.name: self.config.max_age(p.name) for p in points})
-        self.commands = CommandQueue(m.command_queue, m.write_rate)
-        self.writer = SetWriter(self)
+        super().__init__(config.bridge, master)
         self.session = EdgeSession(config)
         self.host = HostState()
         self._bdseq = BdSeqStore(config.bdseq_file)
-        self._outbox: Outbox | None = None
-        self._flusher: Flusher | None = None
-        self._link: MqttLink | None = None
-        self._reconnect = Reconnect(Backoff(m.backoff, m.max_backoff))
-        self._credentials: Credentials | None = None
         self._latest: dict[str, LatestValue] = {}
         #: devices not known dead (every one at first: the NBIRTH is followed by every
         #: DBIRTH, tck-id-payloads-dbirth-order; a slave that does not answer gets its
@@ -119,11 +101,6 @@ class EdgeNode(OutboxService):
         self._live_soon: asyncio.Handle | None = None
         self._live_from = 0  # records below this seq are historical
         self._pump_soon: asyncio.Handle | None = None  # the next batch of the backlog
-        self._lost_ev: asyncio.Event | None = None
-        self._stop: asyncio.Event | None = None
-        self._tasks: list[asyncio.Task[None]] = []
-        self._running = False
-        self.fatal: BaseException | None = None
         self.counts: dict[str, int] = {
             "connects": 0, "nbirth": 0, "dbirth": 0, "ddeath": 0, "ddata": 0,
             "metrics_live": 0, "metrics_historical": 0, "unforwarded": 0, "rebirths": 0,
@@ -137,33 +114,14 @@ class EdgeNode(OutboxService):
         """Open the outbox, start the poller and the connection (in the background)."""
         if self._running:
             return
-        m = self.config.mqtt
-        self._credentials = Credentials.load(m)
         self._bdseq.load()  # a damaged file refused now, not at the first connect
-        limits = OutboxLimits(
-            max_bytes=m.outbox_max_bytes,
-            fsync_interval=m.fsync_interval,
-            segment_bytes=min(8 << 20, m.outbox_max_bytes // 4),
-            policy="refuse" if m.outbox_policy == "refuse" else "drop-oldest",
-        )
-        self._outbox = Outbox(m.outbox, limits)
-        self._flusher = Flusher(self._outbox, self._flushed)
-        self._flusher.start()
-        self._cursor = self._outbox.acked
-        self._live_from = self._outbox.next_seq
-        self._stop = asyncio.Event()
-        self._lost_ev = asyncio.Event()
-        self.poller.on_event(self.feed)
-        try:
-            if poll:
-                await self.poller.start()
-        except BaseException:
-            await self._flusher.stop()
-            self._outbox.close()
-            self._outbox = None
-            raise
+        await self._open_mqtt(poll, self._opened)
         self._running = True
         self._tasks = [self._supervise("pyrtu-sparkplug-mqtt", self._connector, self._link_gone)]
+
+    def _opened(self, ob: Outbox) -> None:
+        self._cursor = ob.acked
+        self._live_from = ob.next_seq
 
     async def stop(self) -> None:
         """Stop polling; NDEATH, disconnect; flush and close the outbox."""
@@ -172,10 +130,7 @@ class EdgeNode(OutboxService):
         self._running = False
         await self.poller.stop()
         await self.writer.stop()
-        for t in self._tasks:
-            t.cancel()
-        await asyncio.gather(*self._tasks, return_exceptions=True)
-        self._tasks = []
+        await self._cancel_tasks()
         link = self._link
         if link is not None and link.connected:
             await self._confirmed(link, 2.0)
@@ -186,15 +141,7 @@ class EdgeNode(OutboxService):
                 await asyncio.sleep(0.002)
             link.close(graceful=True, with_will=True)
         self._link = None
-        ob, flusher = self._outbox, self._flusher
-        assert ob is not None and flusher is not None
-        await flusher.stop()
-        ob.close()
-        self._outbox = None
-
-    def _backoff(self) -> Backoff:
-        m = self.config.mqtt
-        return Backoff(m.backoff, m.max_backoff)
+        await self._close_outbox()
 
     def task_failed(
         self, task: str, error: BaseException, retry_in: float, first: bool = True
@@ -272,25 +219,13 @@ class EdgeNode(OutboxService):
     def publish_value(self, point: Point, value: Value | None, read_at: float) -> None:
         """A write's read-back: published in the next DDATA whatever its deadband."""
         self._latest[point.name] = LatestValue(value, read_at, "bad" if value is None else "good")
-        if self.reporter.update(point, value, read_at, time.monotonic(), exact=True):
-            self._append(point, value, read_at, "bad" if value is None else "good")
+        super().publish_value(point, value, read_at)
 
-    def _append(
-        self, point: Point, value: Value | None, read_at: float | None, quality: str
-    ) -> None:
-        ob = self._outbox
-        if ob is None:
-            return
-        update = PointUpdate(point.name, value, read_at, quality)
-        rec = encode_update(update)
-        try:
-            seq = ob.append(rec, time.monotonic())
-        except (OutboxError, ValueError) as e:
-            self.counts["refused"] += 1
-            log.error("sparkplug: the outbox refuses an update: %s", e)
-            return
-        if self._flusher is not None:
-            self._flusher.poke()
+    def _store_refused(self, error: Exception) -> None:
+        self.counts["refused"] += 1
+        log.error("sparkplug: the outbox refuses an update: %s", error)
+
+    def _stored(self, seq: int, rec: bytes, update: PointUpdate) -> None:
         link = self._link
         after = self._live[-1][0] if self._live else self._cursor
         if self._born and seq == after + 1 and link is not None and link.connected:
@@ -402,11 +337,11 @@ class EdgeNode(OutboxService):
             self._cursor = seq
             try:
                 update = rec if isinstance(rec, PointUpdate) else decode_update(rec)
-            except UpdateError as e:  # a JSON mode's record, left in this outbox
+            except UpdateError as e:  # an earlier pyrtu's JSON mode's record
                 if not self.counts["foreign_records"]:
                     log.error("sparkplug: outbox record %d is no point update (%s): passed by "
-                              "(a backlog of the JSON mode?); the others are counted in "
-                              "foreign_records", seq, e)  # fmt: skip
+                              "(a backlog of an earlier pyrtu's JSON mode?); the others are "
+                              "counted in foreign_records", seq, e)  # fmt: skip
                 self.counts["foreign_records"] += 1
                 continue
             found = self.session.metric.get(update.point)
@@ -577,57 +512,40 @@ class EdgeNode(OutboxService):
 
     # ------------------------------------------------------------------ the connection
 
-    async def _connector(self) -> None:
-        m = self.config.mqtt
-        assert self._lost_ev is not None
-        while self._running:
-            wait = self._reconnect.wait(time.monotonic())
-            if wait > 0:
-                await asyncio.sleep(wait)
-            bdseq = self._bdseq.take()
-            self.session.bdseq = bdseq
-            link = MqttLink(
-                m,
-                self.session.ndeath_topic,
-                on_message=self._on_message,
-                on_ack=lambda mid: None,
-                on_lost=self._on_lost,
-                credentials=self._credentials,
-                will=(self.session.ndeath(bdseq, time.time()), False),
-            )
-            try:
-                await link.connect()
-            except (BrokerRefused, ssl.SSLError, ssl.CertificateError) as e:
-                log.error("sparkplug: %s", e)
-                self.fatal = e
-                if self._stop is not None:
-                    self._stop.set()
-                return
-            except (OSError, TimeoutError, ConnectionError) as e:
-                if self._reconnect.failed(time.monotonic(), e):
-                    log.warning("sparkplug: broker %s unreachable: %s (retrying)", m.broker, e)
-                continue
-            self._reconnect.recovered(time.monotonic())
-            self.counts["connects"] += 1
-            self._link = link
-            self._lost_ev.clear()
-            self.writer.connected(link)
-            subs = [self.session.ncmd_topic, self.session.dcmd_filter]
-            if self.session.state_topic is not None:
-                subs.append(self.session.state_topic)
-            link.subscribe(subs)
-            if self.session.state_topic is None:
-                self._births(link)
-            elif self.host.online:
-                pass  # the retained STATE (subscribed above) says whether it still is
-            await self._lost_ev.wait()
-            self._link_gone()
-            if self._running and self._reconnect.failed(time.monotonic(), "connection lost"):
-                log.warning("sparkplug: lost the broker %s (retrying)", m.broker)
+    def _new_link(self) -> MqttLink:
+        """A link whose will is the NDEATH of a new bdSeq (one per CONNECT sent)."""
+        bdseq = self._bdseq.take()
+        self.session.bdseq = bdseq
+        return MqttLink(
+            self.config.mqtt,
+            self.session.ndeath_topic,
+            on_message=self._on_message,
+            on_ack=lambda mid: None,
+            on_lost=self._on_lost,
+            credentials=self._credentials,
+            will=(self.session.ndeath(bdseq, time.time()), False),
+        )
 
-    def _on_lost(self, reason: str) -> None:
-        if self._lost_ev is not None:
-            self._lost_ev.set()
+    def _fatal(self, e: BaseException) -> None:
+        log.error("sparkplug: %s", e)
+        self._halt(e)
+
+    def _unreachable(self, e: BaseException) -> None:
+        log.warning("sparkplug: broker %s unreachable: %s (retrying)", self.config.mqtt.broker, e)
+
+    def _connected_to(self, link: MqttLink, outage: Outage | None) -> None:
+        self.counts["connects"] += 1
+        self.writer.connected(link)
+        subs = [self.session.ncmd_topic, self.session.dcmd_filter]
+        if self.session.state_topic is not None:
+            subs.append(self.session.state_topic)
+        link.subscribe(subs)
+        if self.session.state_topic is None:
+            self._births(link)
+        # else the retained STATE (subscribed above) says whether the host is online
+
+    def _broker_lost(self) -> None:
+        log.warning("sparkplug: lost the broker %s (retrying)", self.config.mqtt.broker)
 
     def _link_gone(self) -> None:
         link, self._link = self._link, None

@@ -19,6 +19,7 @@ from pyrtu.bridge.delivery import DeliveryWindow
 from pyrtu.bridge.topics import unpublishable
 from pyrtu.drivers.aio import run as aio_run
 from pyrtu.outbox.outbox import Outbox
+from pyrtu.outbox.updates import PointUpdate, decode_update, encode_update
 
 #: a safety net, not a measurement: conditions are awaited, never timed
 PATIENCE = 20.0
@@ -201,5 +202,62 @@ def test_a_publication_the_broker_refuses_is_set_aside_not_counted_delivered(
     (reported,) = [e.detail for e in events if e.kind == "quarantined"]
     assert reported["topic"] == "pyrtu/e1/bus/1/p1" and "0x87" in str(reported["reason"])
     (line,) = [json.loads(x) for x in (directory / "quarantine.jsonl").read_text().splitlines()]
-    assert line["record"].startswith('pyrtu/e1/bus/1/p1\n{"value":11,')
+    # the record as stored: the point update (its topic is made when it is published)
+    assert decode_update(line["record"].encode()) == PointUpdate("p1", 11, 1700000000.5, "good")
     assert line["seq"] == reported["seq"]
+
+
+def test_updates_of_points_this_configuration_lacks_are_set_aside(tmp_path: Path) -> None:
+    """Point updates (#33.2) whose point the configuration no longer has (renamed
+    since they were stored), and a damaged one: set aside with the reason, counted,
+    reported once each; the updates around them are published with the topics of
+    today's configuration."""
+    directory = tmp_path / "ob"
+    stored = [
+        encode_update(PointUpdate("p0", 1, 1700000000.5, "good")),
+        encode_update(PointUpdate("gone", 2, 1700000000.5, "good")),
+        encode_update(PointUpdate("p1", 3, 1700000000.5, "stale")),
+        b"\x00pu1[damaged",
+        encode_update(PointUpdate("gone", 5, 1700000000.5, "good")),
+        encode_update(PointUpdate("p2", None, None, "stale")),
+    ]
+    with Outbox(directory) as ob:
+        for r in stored:
+            ob.append(r, 1.0)
+    with Broker(tmp_path) as broker:
+        cfg = parse_bridge_config(config(broker.url, directory), "b.toml")
+        sub = Client(broker, ["pyrtu/e1/#"])
+        events: list[BridgeEvent] = []
+
+        async def main() -> dict[str, object]:
+            bridge = Bridge(cfg)
+            bridge.on_event(events.append)
+            await bridge.start(poll=False)
+            try:
+                await until(lambda: bridge.stats()["outbox_depth"] == 0, "the outbox acked")
+                return bridge.stats()
+            finally:
+                await bridge.stop()
+
+        stats = aio_run(main())
+        sub.wait(lambda: sub.on("pyrtu/e1/bus/1/p2"), "p2")
+        sub.close()
+    got = {t: p for t, p, *_ in sub.messages if t.split("/")[-1] in ("p0", "p1", "p2")}
+    assert got == {
+        "pyrtu/e1/bus/1/p0": b'{"value":1,"time":1700000000.5,"quality":"good","seq":1,'
+        b'"historical":true}',
+        "pyrtu/e1/bus/1/p1": b'{"value":3,"time":1700000000.5,"quality":"stale","seq":3,'
+        b'"historical":true}',
+        "pyrtu/e1/bus/1/p2": b'{"value":null,"time":null,"quality":"stale","seq":6,'
+        b'"historical":true}',
+    }
+    assert stats["quarantined"] == 3
+    reported = [e.detail for e in events if e.kind == "quarantined"]
+    assert [(d["seq"], d["topic"]) for d in reported] == [
+        (2, "gone"),
+        (4, "a damaged point update"),
+    ]  # once per name
+    assert "point 'gone' is not in this configuration" in str(reported[0]["reason"])
+    lines = [json.loads(x) for x in (directory / "quarantine.jsonl").read_text().splitlines()]
+    assert [x["seq"] for x in lines] == [2, 4, 5]
+    assert [x["record"].encode() for x in lines] == [stored[1], stored[3], stored[4]]

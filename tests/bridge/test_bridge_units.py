@@ -10,7 +10,7 @@ import pytest
 
 from pyrtu.bridge.commands import CommandQueue, Refusal, TokenBucket, check_value, parse, result
 from pyrtu.bridge.delivery import DeliveryWindow
-from pyrtu.bridge.topics import payload, record, split_record
+from pyrtu.bridge.topics import body, payload, split_record
 from pyrtu.outbox.report import Reporter
 from pyrtu.poller import Point
 
@@ -72,18 +72,18 @@ def test_a_bus_down_makes_every_point_of_the_bus_stale_once() -> None:
 
 
 def test_payloads_and_records() -> None:
-    rec = record("p/e/line/1/d.speed", SPEED, 30.5, 1700000000.25, "good")
-    topic, body = split_record(rec)
-    assert topic == "p/e/line/1/d.speed"
-    doc = json.loads(payload(body, 42, False))
+    part = body(SPEED, 30.5, 1700000000.25, "good")
+    doc = json.loads(payload(part, 42, False))
     assert doc == {"value": 30.5, "time": 1700000000.25, "quality": "good", "seq": 42}
-    assert json.loads(payload(body, 42, True))["historical"] is True
-    never = json.loads(payload(split_record(record("t", SPEED, None, None, "stale"))[1], 3, False))
+    assert json.loads(payload(part, 42, True))["historical"] is True
+    never = json.loads(payload(body(SPEED, None, None, "stale"), 3, False))
     assert never == {"value": None, "time": None, "quality": "stale", "seq": 3}
     for v in (None, float("nan"), True, 7, 'text "q"', -1.5e-7):
-        d = json.loads(payload(split_record(record("t", SPEED, v, 1.0, "stale"))[1], 1, False))
+        d = json.loads(payload(body(SPEED, v, 1.0, "stale"), 1, False))
         want = None if v is None or v != v else v
         assert d["value"] == want and d["quality"] == "stale"
+    # a record of an earlier pyrtu: the topic, a newline, the body
+    assert split_record(b"p/e/line/1/d.speed\n" + part) == ("p/e/line/1/d.speed", part)
 
 
 @pytest.mark.parametrize(

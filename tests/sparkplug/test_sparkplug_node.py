@@ -7,6 +7,7 @@ Each test names the tck-id statements of the specification it checks
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import os
 import signal
@@ -558,3 +559,31 @@ def test_a_json_mode_backlog_in_the_outbox_is_passed_by_and_counted(
         r.host.wait(lambda: r.node.counts["foreign_records"] == 3, "the old records passed by")
         r.host.wait(lambda: r.node.stats()["outbox_depth"] == 0, "released")
     assert len([x for x in caplog.records if "no point update" in x.getMessage()]) == 1
+
+
+def test_a_broker_whose_certificate_does_not_verify_halts_the_node_naming_it(
+    tmp_path: Path,
+) -> None:
+    """An ``mqtts://`` broker whose certificate the node does not trust (the
+    system's CAs only): the node halts with the JSON mode's message, naming the
+    broker (`pyrtu.bridge.mqtt.fatal_error`), and publishes nothing in plain text."""
+    from pyrtu.drivers.aio import run as aio_run
+
+    with Broker(tmp_path, tls=True) as broker, drives() as (bus, _sims):
+        path = tmp_path / "b.toml"
+        path.write_text(config(broker.url, bus.paths[0], tmp_path / "ob"))
+        node = EdgeNode(load_sparkplug_config(path))
+
+        async def main() -> None:
+            await node.start(poll=False)
+            try:
+                await asyncio.wait_for(node.halted.wait(), 30)
+            finally:
+                await node.stop()
+
+        aio_run(main())
+    assert isinstance(node.fatal, ConnectionRefusedError)
+    assert f"broker {broker.url.split('://')[1]}: its certificate does not verify" in str(
+        node.fatal
+    )
+    assert node.counts["nbirth"] == 0
