@@ -23,6 +23,7 @@ from typing import Any
 from mqtt_broker import Broker
 from sparkplug_host import DT, Host
 from test_sparkplug_node import BAUD, config
+from waiting import ANSWER_TIMEOUT
 
 from pyrtu.devices import CFW701Simulator, weg
 from pyrtu.drivers._loopthread import LoopThread
@@ -129,6 +130,9 @@ def outage_rig(tmp: Path, interval: float = 0.02) -> Iterator[OutageRig]:
         sim.serve(bus.paths[1], 1, baudrate=BAUD, parity="N")
         text = config(broker.url, bus.paths[0], tmp / "ob", 'primary_host_id = "scada"')
         text = text.replace("interval = 0.05", f"interval = {interval}")
+        # the test is about the broker: a slave declared offline under a loaded
+        # machine (DDEATH, DBIRTH) would republish its unchanged values, live
+        text = text.replace("timeout = 0.1", f"timeout = {ANSWER_TIMEOUT}")
         # one drive: the CV100 of the shared configuration is left out
         head, _sep, rest = text.partition('[[device]]\nbus = "line"\nslave = 5')
         text = head + rest.partition("\n\n")[2]
