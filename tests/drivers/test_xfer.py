@@ -295,18 +295,27 @@ def test_a_response_with_spin_is_written_at_its_time(
 ) -> None:
     """``spin``: the last of the wait before the write is on the clock, not a sleep
     (which overshoots by a wake-up's latency): never before its time, and at the
-    median within a quarter character at 115200 baud of it."""
+    median of a round of 15 writes within a quarter character at 115200 baud of it.
+    A loaded machine can hold the thread off the CPU for a whole round (a wake-up
+    late by a third of a millisecond: no spin makes up for it): up to 20 rounds,
+    one of which must be on time.  Without the spin no round is (a sleep's wake-up
+    is late by tens of µs every time: about 80 µs on this VM)."""
     device, line = pty
     answer = answer_of(2, backend)
     ex = xfer_runners.xfer_runner(backend)
-    late = []
-    for _ in range(15):
-        at = time.monotonic() + 0.003
-        r = ex.run(plan(line, False, answer, at, CHAR, look=False, spin=xfer.SPIN_MAX))
-        assert r.status == xfer.ANSWER and r.start >= at
-        assert os.read(device, 64) == answer
-        late.append(r.start - at)
-    assert sorted(late)[len(late) // 2] < CHAR / 4
+    medians = []
+    for _round in range(20):
+        late = []
+        for _ in range(15):
+            at = time.monotonic() + 0.003
+            r = ex.run(plan(line, False, answer, at, CHAR, look=False, spin=xfer.SPIN_MAX))
+            assert r.status == xfer.ANSWER and r.start >= at
+            assert os.read(device, 64) == answer
+            late.append(r.start - at)
+        medians.append(sorted(late)[len(late) // 2])
+        if medians[-1] < CHAR / 4:
+            break
+    assert medians[-1] < CHAR / 4, [f"{m * 1e6:.1f} us" for m in medians]
 
 
 @pytest.mark.wall_clock  # bounded by half the xfer's deadline
