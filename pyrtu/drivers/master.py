@@ -181,6 +181,14 @@ class RtuOverTcpLink(SerialLink):
 
         return super().open(rtu_over_tcp(port), line, options, max_in_flight)
 
+    @staticmethod
+    def check_port(port: str) -> None:
+        """ValueError naming ``port`` unless it is ``rtu+tcp://HOST[:PORT]``."""
+        from pyrtu.drivers._portname import RTU_TCP_SCHEME
+        from pyrtu.tcp.client import parse_tcp_url
+
+        parse_tcp_url(port, (RTU_TCP_SCHEME,))
+
 
 class MasterBase:
     """The one master class's shared part (`Master`, and `pyrtu.drivers.aio.AsyncMaster`

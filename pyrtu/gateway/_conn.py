@@ -109,6 +109,12 @@ class _Connection(asyncio.Protocol):
     def eof_received(self) -> bool | None:
         return None  # close our side too
 
+    def refuse(self) -> None:
+        """The gateway's table is full: closed at once (nothing was written to it)."""
+        self.closed = True
+        assert self.transport is not None
+        self.transport.abort()
+
     def connection_lost(self, exc: Exception | None) -> None:
         self.closed = True
         if self.grace is not None:
