@@ -184,10 +184,9 @@ class RtuOverTcpLink(SerialLink):
     @staticmethod
     def check_port(port: str) -> None:
         """ValueError naming ``port`` unless it is ``rtu+tcp://HOST[:PORT]``."""
-        from pyrtu.drivers._portname import RTU_TCP_SCHEME
-        from pyrtu.tcp.client import parse_tcp_url
+        from pyrtu.tcp.client import parse_rtu_tcp_url
 
-        parse_tcp_url(port, (RTU_TCP_SCHEME,))
+        parse_rtu_tcp_url(port)
 
 
 class MasterBase:

@@ -32,6 +32,7 @@ class Owner(Protocol):
 
     limits: GatewayLimits
     counters: dict[str, int]
+    _connections: dict[int, _Connection]
 
     def _opened(self, conn: _Connection) -> None: ...
     def _tls_failed(self, conn: _Connection, reason: str) -> None: ...

@@ -13,8 +13,8 @@ address and port the datagram came from), its writes go into the audit trail, it
 requests have their own queue in the fair queue (0x06 busy past
 ``max_queued_per_connection``), the idle timeout forgets it (a later datagram makes
 it anew), and it counts against ``max_connections`` (a newcomer to a full table
-evicts the longest idle peer or connection, else its datagram is dropped and counted
-as ``refused``).  Answers go back to the address the request came from, with its
+evicts the longest idle UDP peer, else what the gateway's rule picks, else its
+datagram is dropped and counted as ``refused``).  Answers go back to the address the request came from, with its
 transaction id and unit id ([TCP] 3.1.3); an answer the socket cannot take at once
 beyond ``max_write_buffer`` bytes is dropped (``answers_dropped``), as a client that
 does not read is reset on TCP.
@@ -31,6 +31,7 @@ from pyrtu.core import _backend
 from pyrtu.security.policy import Identity
 
 from ._conn import Owner, _Connection
+from ._live import pick_victim
 
 log = logging.getLogger("pyrtu.gateway")
 
@@ -93,6 +94,7 @@ class UdpListener(asyncio.DatagramProtocol):
             return
         peer = self.peers.get(addr)
         if peer is None or peer.closed:
+            self._make_room()
             peer = UdpPeer(self.gateway, self, addr)
             self.gateway._opened(peer)
             if peer.closed:  # refused: the table is full of peers and connections at work
@@ -102,6 +104,22 @@ class UdpListener(asyncio.DatagramProtocol):
             log.debug("UDP peer %d: RX unit %d: %s", peer.id, frame.unit, frame.adu.hex(" "))
         peer.live.data(time.monotonic(), False, True)
         self.gateway._request(peer, frame.transaction, frame.unit, frame.pdu)
+
+    def _make_room(self) -> None:
+        """In a full table, a newcomer takes the place of the idlest UDP peer first
+        (`pick_victim` among the peers), so that datagrams from ever new addresses
+        (easy to forge) do not evict the TCP connections; only when no peer can go
+        does the gateway's own rule (`Gateway._opened`) pick among all."""
+        gateway = self.gateway
+        if len(gateway._connections) < gateway.limits.max_connections:
+            return
+        victim_id = pick_victim((p.id, p.live, False) for p in self.peers.values())
+        if victim_id is None:
+            return
+        victim = next(p for p in self.peers.values() if p.id == victim_id)
+        gateway.counters["evicted"] += 1
+        log.info("UDP peer %d (%s) gives way to a new one", victim.id, victim.identity.describe())
+        victim.close()
 
     def _bad(self, data: bytes, addr: Any) -> None:
         self.gateway.counters["bad_datagrams"] += 1

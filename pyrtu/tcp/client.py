@@ -118,10 +118,15 @@ def connect_error(where: str, exc: BaseException, timeout: float) -> PortError:
 _SOCKET_CONNECT_TIMEOUT: float = POLL_TIMEOUT
 
 
+def parse_rtu_tcp_url(url: str) -> tuple[str, int]:
+    """(host, port) of ``rtu+tcp://host[:port]``; ValueError naming the URL."""
+    return parse_tcp_url(url, (RTU_TCP_SCHEME,))
+
+
 def rtu_over_tcp(url: str) -> Any:
     """A pyserial object over TCP for ``rtu+tcp://host[:port]``: RTU frames (CRC kept)
     to a serial device server; no wire timing, so use it with ``t35=0``."""
-    host, port = parse_tcp_url(url, (RTU_TCP_SCHEME,))
+    host, port = parse_rtu_tcp_url(url)
     netloc = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
     try:
         link = serial.serial_for_url(f"socket://{netloc}", timeout=0)

@@ -292,6 +292,49 @@ def test_udp_clients_are_connections_of_the_table() -> None:
     asyncio.run(main())
 
 
+def test_udp_newcomers_evict_udp_peers_before_tcp_connections() -> None:
+    """A full table of an idle TCP connection and an idle UDP peer: a datagram from a
+    new address takes the UDP peer's place, the TCP client stays connected."""
+
+    class App:
+        addresses = frozenset({1})
+
+        def execute(self, unit: int, request: bytes) -> bytes | None:
+            return bytes([request[0], 2, 0, 9])
+
+    async def main() -> None:
+        loop = asyncio.get_running_loop()
+        gateway = Gateway([(LocalBus(App()), {1: 1})], GatewayLimits(max_connections=2))
+        await gateway.start("127.0.0.1", 0, udp=("127.0.0.1", 0))
+        assert gateway.address is not None and gateway.udp_address is not None
+        request = struct.pack(">BHH", 3, 0, 1)
+        reader, writer = await asyncio.open_connection(*gateway.address)
+        socks = [socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(2)]
+        try:
+            writer.write(adu(1, 1, request))
+            assert await asyncio.wait_for(reader.readexactly(11), TIMEOUT) == adu(
+                1, 1, bytes([3, 2, 0, 9])
+            )
+            for tid, s in enumerate(socks, 2):  # the first peer idle, then a newcomer
+                s.setblocking(False)
+                await loop.sock_sendto(s, adu(tid, 1, request), gateway.udp_address)
+                answer = await asyncio.wait_for(loop.sock_recv(s, 512), TIMEOUT)
+                assert answer == adu(tid, 1, bytes([3, 2, 0, 9]))
+            assert gateway.counters["evicted"] == 1
+            writer.write(adu(9, 1, request))  # the TCP client was not evicted
+            assert await asyncio.wait_for(reader.readexactly(11), TIMEOUT) == adu(
+                9, 1, bytes([3, 2, 0, 9])
+            )
+            assert gateway.stats()["open_connections"] == 2
+        finally:
+            writer.close()
+            for s in socks:
+                s.close()
+            await gateway.close()
+
+    asyncio.run(main())
+
+
 def test_bad_listen_arguments_name_themselves() -> None:
     async def main() -> None:
         server = TcpServer.for_store(1, store())
