@@ -14,10 +14,10 @@ requests have their own queue in the fair queue (0x06 busy past
 ``max_queued_per_connection``), the idle timeout forgets it (a later datagram makes
 it anew), and it counts against ``max_connections`` (a newcomer to a full table
 evicts the longest idle UDP peer, else what the gateway's rule picks, else its
-datagram is dropped and counted as ``refused``).  Answers go back to the address the request came from, with its
-transaction id and unit id ([TCP] 3.1.3); an answer the socket cannot take at once
-beyond ``max_write_buffer`` bytes is dropped (``answers_dropped``), as a client that
-does not read is reset on TCP.
+datagram is dropped and counted as ``refused``).  Answers go back to the address the
+request came from, with its transaction id and unit id ([TCP] 3.1.3); an answer the
+socket cannot take at once beyond ``max_write_buffer`` bytes is dropped
+(``answers_dropped``), as a client that does not read is reset on TCP.
 """
 
 from __future__ import annotations
