@@ -204,9 +204,11 @@ class TcpServer(AsyncClosing):
         await self._gateway.start(host, port, tls=tls, udp=udp)
         return self
 
-    async def serve_forever(self, host: str = "127.0.0.1", port: int = 502) -> None:
-        check_listen(host, port)
-        await self.start(host, port)
+    async def serve_forever(
+        self, host: str = "127.0.0.1", port: int | None = 502, udp: tuple[str, int] | None = None
+    ) -> None:
+        """`start` (``udp`` as there), then serve until cancelled, then `close`."""
+        await self.start(host, port, udp=udp)
         try:
             await asyncio.Event().wait()
         finally:

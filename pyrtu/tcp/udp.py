@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import select
+import selectors
 import socket
 import time
 from collections.abc import Callable, Sequence
@@ -144,6 +144,8 @@ class UdpLink(_UdpBase):
             self._sock.close()
             raise connect_error(self.where, exc, timeout) from exc
         self._sock.setblocking(False)
+        self._readable = selectors.DefaultSelector()  # (any descriptor number, not select()'s)
+        self._readable.register(self._sock, selectors.EVENT_READ)
 
     def transact(self, call: Call) -> tuple[Any, float]:
         answered, raw = call.decode is not None, call.decode is answer_pdu
@@ -164,14 +166,14 @@ class UdpLink(_UdpBase):
             raise PortError(self.where, "the master is closed")
         tid, data = proto.send_request(unit, pdu, time.monotonic(), answered=answered, raw=raw)
         self._send(tid, data)
-        sock = self._sock
+        wait = self._readable.select
         while True:
             while (done := proto.next_result()) is not None:
                 if done[0] == tid:
                     return _answer_of(done[1])
             deadline = proto.deadline()
             assert deadline is not None  # (its request is in flight: no result yet)
-            readable, _, _ = select.select([sock], [], [], max(0.0, deadline - time.monotonic()))
+            readable = wait(max(0.0, deadline - time.monotonic()))
             now = time.monotonic()
             if readable:
                 self._read(tid, now)
@@ -207,8 +209,10 @@ class UdpLink(_UdpBase):
             self._proto.receive_datagram(data, now, self._parse)
 
     def close(self) -> None:
-        self._closed = True
-        self._sock.close()
+        if not self._closed:
+            self._closed = True
+            self._readable.close()
+            self._sock.close()
 
 
 class _Endpoint(Awaiting, asyncio.DatagramProtocol):

@@ -358,3 +358,23 @@ def test_bad_listen_arguments_name_themselves() -> None:
         await server.close()
 
     asyncio.run(main())
+
+
+def test_serve_forever_over_udp_only() -> None:
+    async def main() -> None:
+        server = TcpServer.for_store(1, store())
+        task = asyncio.create_task(server.serve_forever("127.0.0.1", None, udp=("127.0.0.1", 0)))
+        await wait_for(lambda: server.udp_address is not None, "the UDP listener", 20)
+        assert server.address is None and server.udp_address is not None
+        loop = asyncio.get_running_loop()
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.setblocking(False)
+            await loop.sock_sendto(s, adu(3, 1, struct.pack(">BHH", 4, 1, 2)), server.udp_address)
+            answer = await asyncio.wait_for(loop.sock_recv(s, 512), TIMEOUT)
+        assert answer == adu(3, 1, struct.pack(">BBHH", 4, 4, 201, 202))
+        task.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await task
+        assert server.health() == ["the gateway is not running"]
+
+    asyncio.run(main())
