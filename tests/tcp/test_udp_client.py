@@ -351,7 +351,8 @@ def test_without_retries_a_lost_request_is_no_response(pymodbus_udp: int) -> Non
         with Master(relay.url, timeout=0.5, retries=0) as m:
             with pytest.raises(NoResponseError, match=r"within 0\.5 s"):
                 m.read_holding_registers(1, 0, 1)
-            assert m.read_holding_registers(1, 0, 1) == pattern.holdings(1, 0, 1)  # then fine
+            m.timeout = TIMEOUT  # (the next one is answered: the timeout only bounds a failure)
+            assert m.read_holding_registers(1, 0, 1) == pattern.holdings(1, 0, 1)
     finally:
         relay.close()
 
