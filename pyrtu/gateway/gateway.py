@@ -379,7 +379,9 @@ class Gateway:
         stays None), one of the others must be given.  RuntimeError if already
         started; TypeError/ValueError naming the argument before anything listens."""
         if self._listeners():
-            raise RuntimeError(f"the gateway already listens on {self.address}")
+            listening = (self.address, self.rtu_address, self.tls_address, self.udp_address)
+            text = ", ".join("{}:{}".format(*at) for at in listening if at is not None)
+            raise RuntimeError(f"the gateway already listens on {text}")
         if port is not None:
             check_listen(host, port)
         elif rtu is None and tls is None and udp is None:
@@ -395,6 +397,7 @@ class Gateway:
         for state in self._buses:
             await self._open_at_start(state)
         loop = asyncio.get_running_loop()
+        self.address = self.rtu_address = self.tls_address = self.udp_address = None
 
         def bound(server: asyncio.Server) -> tuple[str, int]:
             sock = server.sockets[0].getsockname()

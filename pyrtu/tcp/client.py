@@ -136,7 +136,7 @@ def rtu_over_tcp(url: str) -> Any:
     return link
 
 
-class ClientState:
+class TcpClientState:
     """What a TCP client reads from (and sets on) its protocol."""
 
     _proto: TcpClientProtocol
@@ -152,7 +152,7 @@ class ClientState:
         return dict(self._proto.counters)
 
 
-class TcpClient(ClientState, Closing):
+class TcpClient(TcpClientState, Closing):
     """A blocking Modbus TCP client: one request at a time on one connection.  Each
     transaction's I/O is one call of the backend's `pyrtu.drivers.xfer.TcpXferRunner`
     (C: csrc/rtu_tcp_io.c, the GIL released; ``backend="python"``: the twin)."""
@@ -391,7 +391,7 @@ class _ClientConnection(Awaiting, asyncio.BufferedProtocol):
         self.stop_timer()
 
 
-class Window:
+class RequestWindow:
     """The turns of an `AsyncTcpClient`'s requests: ``free`` of ``max_in_flight``
     on the wire; the others wait in order (as an `asyncio.Semaphore`, without its
     coroutines on the common path: a caller with a free turn takes it without an
@@ -428,7 +428,7 @@ class Window:
         self.free += 1
 
 
-class AsyncTcpClient(ClientState, AsyncClosing):
+class AsyncTcpClient(TcpClientState, AsyncClosing):
     """An asyncio Modbus TCP client: up to ``max_in_flight`` requests on the wire at
     once.  ``backend``: whose scan reads the answers (`pyrtu.drivers.xfer.TcpScanner`:
     C, rtu_tcp_scan, or ``"python"``: the twin)."""
@@ -438,7 +438,7 @@ class AsyncTcpClient(ClientState, AsyncClosing):
         self._proto = conn.proto
         self.host, self.port = host, port
         self.where = conn.where
-        self._window = Window(max_in_flight)
+        self._window = RequestWindow(max_in_flight)
 
     @classmethod
     async def connect(

@@ -56,7 +56,14 @@ from pyrtu.drivers.links import check_in_flight
 from pyrtu.pdu.errors import ModbusError, NoResponseError, PortError
 from pyrtu.pdu.requests import Call
 from pyrtu.protocol.client_actions import answer_pdu
-from pyrtu.tcp.client import Awaiting, ClientState, Window, connect_error, parse_tcp_url, where_of
+from pyrtu.tcp.client import (
+    Awaiting,
+    RequestWindow,
+    TcpClientState,
+    connect_error,
+    parse_tcp_url,
+    where_of,
+)
 from pyrtu.tcp.link import _TcpBase
 from pyrtu.tcp.protocol import TcpClientProtocol
 
@@ -88,7 +95,7 @@ def _answer_of(result: bytes | ModbusError | None) -> bytes | None:
     return result
 
 
-class _UdpBase(ClientState, _TcpBase):
+class _UdpBase(TcpClientState, _TcpBase):
     """What both UDP links share: the URL, the protocol, the counters."""
 
     what = "Modbus over UDP"
@@ -291,7 +298,7 @@ class AsyncUdpLink(_UdpBase):
     ) -> None:
         super().__init__(url, timeout, retries, check_in_flight(max_in_flight, True))
         self._parse: Parse = _backend.backend(backend).parse_tcp_stream
-        self._window = Window(max_in_flight)
+        self._window = RequestWindow(max_in_flight)
         self._endpoint: _Endpoint | None = None
         self._opening: asyncio.Lock | None = None
 
