@@ -25,7 +25,15 @@ PACKAGE = ROOT / "pyrtu"
 #: search no longer finds the tree (it once globbed paths that had moved away)
 MIN_PRIVATE_MODULES = 35
 #: methods the framework calls, not the project (asyncio.Protocol's callbacks)
-CALLBACKS = {"connection_made", "eof_received", "pause_writing", "resume_writing"}
+#: (and asyncio.DatagramProtocol's)
+CALLBACKS = {
+    "connection_made",
+    "eof_received",
+    "pause_writing",
+    "resume_writing",
+    "datagram_received",
+    "error_received",
+}
 
 
 def _private_modules() -> list[Path]:

@@ -147,6 +147,11 @@ class ServerGroup:
         return self.servers[0].tls_address if self.servers else None
 
     @property
+    def udp_address(self) -> tuple[str, int] | None:
+        """The first port's UDP listener's (none on a range: ``--udp`` takes one port)."""
+        return self.servers[0].udp_address if self.servers else None
+
+    @property
     def counters(self) -> dict[str, int]:
         total: dict[str, int] = {}
         for server in self.servers:
@@ -173,14 +178,16 @@ class TcpThread:
         self,
         app: Any,
         host: str,
-        port: int,
+        port: int | None,
         on_task: Callable[[TaskFailure], None] | None = None,
         tls: TlsListen | None = None,
+        udp: tuple[str, int] | None = None,
         **security: Any,
     ) -> None:
-        # security: TcpServer's policy, audit and on_denied (pyrtu.cli._security)
+        # security: TcpServer's policy, audit and on_denied (pyrtu.cli._security);
+        # port None: no Modbus TCP listener (--udp alone)
         self.server: TcpServer | ServerGroup = TcpServer(app, on_task=on_task, **security)
-        self._begin([(self.server, port)], host, tls)
+        self._begin([(self.server, port)], host, tls, udp)
 
     @classmethod
     def many(
@@ -197,10 +204,16 @@ class TcpThread:
         self = cls.__new__(cls)
         servers = [TcpServer(app, on_task=on_task, **security) for app in apps]
         self.server = ServerGroup(servers)
-        self._begin(list(zip(servers, ports, strict=True)), host, None)
+        self._begin(list(zip(servers, ports, strict=True)), host, None, None)
         return self
 
-    def _begin(self, listen: Sequence[tuple[Any, int]], host: str, tls: TlsListen | None) -> None:
+    def _begin(
+        self,
+        listen: Sequence[tuple[Any, int | None]],
+        host: str,
+        tls: TlsListen | None,
+        udp: tuple[str, int] | None,
+    ) -> None:
         self.loop = asyncio.new_event_loop()
         self.loop.set_exception_handler(self._unhandled)
         self._listen = [server for server, _ in listen]
@@ -209,7 +222,7 @@ class TcpThread:
         self._thread = threading.Thread(target=self._main, name="pyrtu-simulate-tcp", daemon=True)
         self._thread.start()
         try:
-            starting = _start_all(listen, host, tls)
+            starting = _start_all(listen, host, tls, udp)
             asyncio.run_coroutine_threadsafe(starting, self.loop).result(60)
         except BaseException:
             self.stop()
@@ -242,8 +255,8 @@ class TcpThread:
         return None if self._thread.is_alive() else self._failure
 
     @property
-    def address(self) -> tuple[str, int]:
-        assert self.server.address is not None
+    def address(self) -> tuple[str, int] | None:
+        """The (host, port) of the (first) Modbus TCP listener; None with --udp alone."""
         return self.server.address
 
     def stop(self) -> None:
@@ -253,25 +266,51 @@ class TcpThread:
         if not self._thread.is_alive():  # it died: nothing runs the loop any more
             self.loop.close()
             return
-        started = [server for server in self._listen if server.address is not None]
-        if started:
-            asyncio.run_coroutine_threadsafe(_close_all(started), self.loop).result(30)
+        # (a server never started closes as nothing: each closes what it listens on)
+        asyncio.run_coroutine_threadsafe(_close_all(self._listen), self.loop).result(30)
         self.loop.call_soon_threadsafe(self.loop.stop)
         self._thread.join(30)
         self.loop.close()
 
 
 async def _start_all(
-    listen: Sequence[tuple[TcpServer, int]], host: str, tls: TlsListen | None
+    listen: Sequence[tuple[TcpServer, int | None]],
+    host: str,
+    tls: TlsListen | None,
+    udp: tuple[str, int] | None,
 ) -> None:
     """Start each server on its port, in order (the first with the TLS listener of
-    ``tls``, if any); a port that cannot be bound is an OSError naming it (and why)."""
+    ``tls`` and the UDP listener of ``udp``, if any); a port that cannot be bound is
+    an OSError naming its flag and the port (and why)."""
     for rank, (server, port) in enumerate(listen):
+        also = (tls, udp) if rank == 0 else (None, None)
         try:
-            await server.start(host, port, tls=tls if rank == 0 else None)
+            await server.start(host, port, tls=also[0], udp=also[1])
         except OSError as exc:
             reason = exc.strerror or str(exc)
-            raise OSError(exc.errno, f"--tcp: cannot listen on {host}:{port}: {reason}") from exc
+            flag, (at_host, at_port) = _unbound(server, host, port, *also)
+            raise OSError(
+                exc.errno, f"{flag}: cannot listen on {at_host}:{at_port}: {reason}"
+            ) from exc
+
+
+def _unbound(
+    server: TcpServer,
+    host: str,
+    port: int | None,
+    tls: TlsListen | None,
+    udp: tuple[str, int] | None,
+) -> tuple[str, tuple[str, int | None]]:
+    """The flag and address of the listener ``server.start`` could not bind: the first
+    given and not bound (they are bound in this order)."""
+    for flag, at, bound in (
+        ("--tcp", None if port is None else (host, port), server.address),
+        ("--tls-listen", None if tls is None else (tls.host, tls.port), server.tls_address),
+        ("--udp", udp, server.udp_address),
+    ):
+        if at is not None and bound is None:
+            return flag, at
+    return "--tcp", (host, port)
 
 
 async def _close_all(servers: Sequence[TcpServer]) -> None:

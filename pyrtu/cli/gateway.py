@@ -1,14 +1,16 @@
 """``pyrtu gateway --listen HOST:PORT --port SERIAL[=UNITS] ...``: Modbus TCP to RTU.
 
 Many Modbus TCP clients share the serial buses behind one listener (and, with
---listen-rtu, clients speaking RTU over TCP on a second one): one
+--listen-rtu, clients speaking RTU over TCP on a second one; with --udp-listen,
+Modbus over UDP clients, one ADU per datagram): one
 transaction at a time per bus at full wire rate (t3.5 between frames, no fixed
 pause), a fair queue per bus (connections served in turn), the unit id as the
 slave address.  ``--port`` may be repeated, each with the unit ids it carries
 (``--port /dev/ttyUSB0=1-10 --port /dev/ttyUSB1=11-20,30``; one ``--port``
 without ``=`` carries 1-247); ``--port tcp://HOST:PORT=UNITS`` forwards to
 another Modbus TCP server, ``--port mbaps://HOST[:802]=UNITS`` to a Modbus/TCP
-Security one (with --port-tls-cert, --port-tls-key, --port-tls-ca).  All serial
+Security one (with --port-tls-cert, --port-tls-key, --port-tls-ca), ``--port
+udp://HOST:PORT=UNITS`` to a Modbus over UDP one.  All serial
 buses share the serial options.
 
 Answers of the gateway itself (Application Protocol 7): exception 0x0A for a
@@ -69,6 +71,7 @@ from pyrtu.cli.common import (
     serial_kwargs,
     stop_when_stdout_closes,
 )
+from pyrtu.drivers.links import transport_of
 from pyrtu.drivers.supervise import TaskFailure
 from pyrtu.metrics.address import add_metrics_option, open_metrics
 from pyrtu.pdu.errors import PortBusyError
@@ -101,14 +104,16 @@ def listen_address(text: str) -> tuple[str, int]:
 
 
 def bus_spec(text: str) -> BusSpec:
-    """SERIAL or SERIAL=UNITS (unit ids ``1-10,20``)."""
+    """SERIAL or SERIAL=UNITS (unit ids ``1-10,20``); a URL its transport cannot open
+    (``udp://`` without a host...) is refused here, before anything opens."""
     port, sep, units = text.rpartition("=")
     if not sep:
-        return BusSpec(text, None)
-    if not port:
+        port, units = text, ""
+    elif not port:
         raise argparse.ArgumentTypeError(f"expected SERIAL=UNITS, not {text!r}")
     try:
-        return BusSpec(port, gateways.parse_units(units))
+        transport_of(port).check_port(port)
+        return BusSpec(port, gateways.parse_units(units) if sep else None)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
@@ -155,6 +160,11 @@ def _configure(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--listen-rtu", type=listen_address, metavar="HOST:PORT",
         help="also listen for RTU over TCP (RTU frames with their CRC, no MBAP header)",
+    )  # fmt: skip
+    p.add_argument(
+        "--udp-listen", type=listen_address, metavar="HOST:PORT",
+        help="also listen for Modbus over UDP (one MBAP ADU per datagram; the client's "
+        "address is its identity for --policy)",
     )  # fmt: skip
     p.add_argument(
         "-p", "--port", required=True, action="append", type=bus_spec, metavar="SERIAL[=UNITS]",
@@ -319,13 +329,17 @@ async def _serve(args: argparse.Namespace) -> dict[str, Any]:
         )
         host, port = args.listen
         try:
-            await gw.start(host, port, rtu=args.listen_rtu, tls=security.tls)
+            await gw.start(host, port, rtu=args.listen_rtu, tls=security.tls, udp=args.udp_listen)
         except OSError as exc:
-            flag = "--listen" if gw.address is None else "--listen-rtu"
-            if gw.address is not None and args.listen_rtu is None:
-                flag = "--tls-listen"
+            listeners = (
+                ("--listen", args.listen, gw.address),
+                ("--listen-rtu", args.listen_rtu, gw.rtu_address),
+                ("--tls-listen", security.tls, gw.tls_address),
+                ("--udp-listen", args.udp_listen, gw.udp_address),
+            )  # (started in this order: the first given and not bound failed)
+            flag = next((f for f, given, bound in listeners if given and bound is None), "--listen")
             raise OSError(exc.errno, f"{flag}: {exc.strerror}") from exc
-        security.warn_if_open([gw.address, gw.rtu_address, gw.tls_address])
+        security.warn_if_open([gw.address, gw.rtu_address, gw.tls_address, gw.udp_address])
         stop = asyncio.Event()
         loop = asyncio.get_running_loop()
         for sig in (signal.SIGINT, signal.SIGTERM):
@@ -386,12 +400,14 @@ def _ready(args: argparse.Namespace, gw: gateways.Gateway) -> None:
     buses = [s.port for s in args.port]
     rtu = None if gw.rtu_address is None else "{}:{}".format(*gw.rtu_address)
     tls = None if gw.tls_address is None else "{}:{}".format(*gw.tls_address)
+    udp = None if gw.udp_address is None else "{}:{}".format(*gw.udp_address)
     if args.json:
         emit({"type": "ready", "listen": f"{host}:{port}", "listen_rtu": rtu,
-              "listen_tls": tls, "buses": buses})  # fmt: skip
+              "listen_tls": tls, "listen_udp": udp, "buses": buses})  # fmt: skip
     else:
         also = f" (RTU over TCP on {rtu})" if rtu else ""
         also += f" (Modbus/TCP Security on {tls})" if tls else ""
+        also += f" (Modbus over UDP on {udp})" if udp else ""
         print(
             f"pyrtu gateway: listening on {host}:{port}{also}, buses {', '.join(buses)}; "
             "Ctrl-C to stop",

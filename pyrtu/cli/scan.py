@@ -47,7 +47,8 @@ from pyrtu.cli.common import (
     register_address,
 )
 from pyrtu.cli.live_view import fit_line, terminal_size
-from pyrtu.drivers._portname import RTU_TCP_SCHEME, TCP_SCHEME, url_scheme
+from pyrtu.drivers._portname import NETWORK_SCHEMES, RTU_TCP_SCHEME, url_scheme
+from pyrtu.drivers.links import transport_of
 
 if TYPE_CHECKING:
     from pyrtu.drivers.master import Master
@@ -55,7 +56,6 @@ if TYPE_CHECKING:
 #: the default --timeout on a serial line, and on a network port (`NETWORK_SCHEMES`)
 SERIAL_TIMEOUT = 0.1
 NETWORK_TIMEOUT = 1.0
-NETWORK_SCHEMES = frozenset((TCP_SCHEME, RTU_TCP_SCHEME, "socket", "rfc2217"))
 #: RTU (or ASCII) frames over a socket: the serial format is the far end's
 _RAW_SOCKET_SCHEMES = frozenset((RTU_TCP_SCHEME, "socket"))
 #: a unit id no slave can have (serial addresses are 1..247; 248..255 are reserved)
@@ -178,7 +178,7 @@ def _configure(p: argparse.ArgumentParser) -> None:
         p,
         timeout=SERIAL_TIMEOUT,
         timeout_by_port=f"{SERIAL_TIMEOUT:g} s on a serial line, {NETWORK_TIMEOUT:g} s on "
-        "tcp://, rtu+tcp://, socket://, rfc2217://: more than a gateway's bus timeout",
+        "tcp://, udp://, rtu+tcp://, socket://, rfc2217://: more than a gateway's bus timeout",
     )
 
 
@@ -190,8 +190,9 @@ def default_timeout(scheme: str | None) -> float:
 def _describe(args: argparse.Namespace, scheme: str | None) -> str:
     """How the port is reached, for the header: the serial format of a serial line
     (and rfc2217://, which sets it), not of a socket."""
-    if scheme == TCP_SCHEME:
-        return "Modbus TCP"
+    transport = transport_of(args.port)
+    if transport.mbap:  # Modbus TCP, Modbus over UDP...
+        return transport.what
     if scheme in _RAW_SOCKET_SCHEMES:
         return f"{args.mode.upper()} over TCP"
     return describe_format(args)
@@ -253,7 +254,7 @@ def _run(args: argparse.Namespace) -> int:
             flush=True,
         )
     with open_master(args) as master:
-        if scheme == TCP_SCHEME:
+        if transport_of(args.port).mbap:  # a device that answers every unit id?
             every = _probe_entry(master, RESERVED_UNIT, args)
         for slave in addresses if every is None else ():
             if progress:

@@ -51,8 +51,14 @@ open files is raised to a socket per port and per client where the hard limit
 allows (else exit 2).  The counters, ``--watch`` and ``--metrics`` add up the
 ports'.
 
-With ``--tcp``, ``--policy FILE``, ``--read-only`` and ``--audit FILE|-`` guard the
-TCP listener as they guard ``pyrtu gateway``'s (docs/security.md).
+``--udp HOST:PORT`` serves the drive over Modbus over UDP (one MBAP ADU per
+datagram, as pymodbus's ``ModbusUdpClient`` and Home Assistant's ``type: udp``
+send it), beside ``--tcp`` or alone; a datagram that is not one whole Modbus ADU is
+dropped and counted.
+
+With ``--tcp`` or ``--udp``, ``--policy FILE``, ``--read-only`` and ``--audit
+FILE|-`` guard the listeners as they guard ``pyrtu gateway``'s (docs/security.md;
+a UDP client's identity is the address its datagrams come from).
 
 With ``--metrics HOST:PORT``: Prometheus metrics on /metrics (the drives'
 counters, each port's state, with ``--tcp`` the connected clients) and a health
@@ -198,6 +204,14 @@ def _configure(p: argparse.ArgumentParser) -> None:
         "HOST:FIRST-LAST: a device on every port of the range (without --port)",
     )
     p.add_argument(
+        "--udp",
+        type=listen_address,
+        metavar="HOST:PORT",
+        help="also (or only) serve the drive over Modbus over UDP (one MBAP ADU per "
+        "datagram, as pymodbus's UDP client sends); the client's address is its identity "
+        "for --policy",
+    )
+    p.add_argument(
         "-a",
         "--address",
         type=int,
@@ -246,8 +260,8 @@ def _run(args: argparse.Namespace) -> int:
     if not 1 <= address <= 247:
         raise ValueError(f"--address: a slave address is 1..247, not {address}")
     ports: list[str] = args.port or []
-    if not ports and args.tcp is None:
-        raise ValueError("give --port PATH, --tcp HOST:PORT or both")
+    if not ports and args.tcp is None and args.udp is None:
+        raise ValueError("give --port PATH, --tcp HOST:PORT, --udp HOST:PORT or several")
     twice = first_duplicate(ports)
     if twice is not None:
         a, b = ports[twice[0]], ports[twice[1]]
@@ -258,14 +272,19 @@ def _run(args: argparse.Namespace) -> int:
         raise ValueError(
             "--tcp: a range of ports serves a device of its own on each port: give no --port"
         )
-    if len(ports) > 1 and args.tcp is not None:
-        raise ValueError("--tcp serves one drive: give it with a single --port")
+    for flag, given in (("--tcp", args.tcp), ("--udp", args.udp)):
+        if len(ports) > 1 and given is not None:
+            raise ValueError(f"{flag} serves one drive: give it with a single --port")
+    if len(tcp_ports) > 1 and args.udp is not None:
+        raise ValueError("--udp serves one device: give --tcp a single HOST:PORT")
     if len(tcp_ports) > 1:
         open_files_for(len(tcp_ports))
-    if args.tcp is None and (args.policy or args.read_only or args.audit or args.tls_listen):
+    if args.tcp is None and args.udp is None and (args.policy or args.read_only or args.audit):
         raise ValueError(
-            "--policy, --read-only, --audit and --tls-listen go with --tcp: give --tcp HOST:PORT"
+            "--policy, --read-only and --audit go with --tcp or --udp: give --tcp HOST:PORT"
         )
+    if args.tcp is None and args.tls_listen:
+        raise ValueError("--tls-listen goes with --tcp: give --tcp HOST:PORT")
     if len(tcp_ports) > 1 and args.tls_listen:
         raise ValueError("--tls-listen serves one device: give --tcp a single HOST:PORT")
     security = open_security(args, "simulate")  # exit 2 on a bad policy, before a port opens
@@ -296,14 +315,17 @@ def _run(args: argparse.Namespace) -> int:
         try:
             if ports:
                 drive = DriveThread(lambda: _watched(args, sim.serve(ports[0], address, **options)))
-            if args.tcp is not None:
+            if args.tcp is not None or args.udp is not None:
                 app = drive.slave if drive is not None else tcp_only_slave(sim, address)
-                host, port, _ = args.tcp
+                host, port, _ = args.tcp or (args.udp[0], None, None)
                 tcp = TcpThread(app, host, port, on_task=lambda f: _task_failed(args, f),
-                                tls=security.tls, **security.server_kwargs())  # fmt: skip
-                args.tcp = (*tcp.address, tcp.address[1])  # the port bound (0: any free port)
+                                tls=security.tls, udp=args.udp,
+                                **security.server_kwargs())  # fmt: skip
+                if tcp.address is not None:  # the port bound (0: any free port)
+                    args.tcp = (*tcp.address, tcp.address[1])
                 args.tls_bound = tcp.server.tls_address
-                security.warn_if_open([tcp.address, args.tls_bound])
+                args.udp_bound = tcp.server.udp_address
+                security.warn_if_open([tcp.address, args.tls_bound, args.udp_bound])
         except BaseException:
             sim.close()
             raise
@@ -531,6 +553,8 @@ def _ready(args: argparse.Namespace, device: str, address: int, functions: list[
     fmt = f"{describe_format(args)} {args.mode.upper()}" if args.ports else None
     tls = getattr(args, "tls_bound", None)
     also = {} if tls is None else {"tls": "{}:{}".format(*tls)}  # --tls-listen
+    udp = getattr(args, "udp_bound", None)
+    also.update({} if udp is None else {"udp": _tcp_text((*udp, udp[1]))})  # --udp
     if args.json:
         emit(
             {
@@ -549,7 +573,8 @@ def _ready(args: argparse.Namespace, device: str, address: int, functions: list[
     else:
         where = [f" on {args.port}, {fmt}"] if fmt else [""]
         where += [f"Modbus TCP on {tcp}"] if tcp else []
-        where += [f"Modbus/TCP Security on {also['tls']}"] if also else []
+        where += [f"Modbus/TCP Security on {also['tls']}"] if "tls" in also else []
+        where += [f"Modbus over UDP on {also['udp']}"] if "udp" in also else []
         print(
             f"pyrtu simulate: {args.title} at address {address}{', '.join(where)} "
             f"(functions {', '.join(map(str, functions))}); Ctrl-C to stop",

@@ -1,14 +1,15 @@
 """Port names: which URL schemes open, and whether two names are the same port.
 
-A port name with ``://`` is a URL: pyrtu's own ``tcp://`` (Modbus TCP) and
-``rtu+tcp://`` (RTU frames over TCP), or one of pyserial's (``socket://``,
+A port name with ``://`` is a URL: pyrtu's own ``tcp://`` (Modbus TCP),
+``rtu+tcp://`` (RTU frames over TCP), ``mbaps://`` (Modbus TCP in TLS) and ``udp://``
+(Modbus over UDP), or one of pyserial's (``socket://``,
 ``rfc2217://``, ``loop://``...: the handlers pyserial finds).  `url_scheme` says
 which, and refuses any other before anything is opened, naming the supported
 schemes::
 
     url_scheme("tcp://plc:502")         # "tcp"
-    url_scheme("udp://plc:502")         # ValueError: udp://plc:502: unsupported scheme
-                                        # udp://; supported: tcp://, rtu+tcp://, ...
+    url_scheme("quic://plc:502")        # ValueError: quic://plc:502: unsupported scheme
+                                        # quic://; supported: tcp://, rtu+tcp://, ...
 
 A process that opens one serial port twice gets "busy: another program holds it"
 from the exclusive lock at the second open, which blames somebody else for a
@@ -35,8 +36,10 @@ from collections.abc import Iterable
 __all__ = [
     "MBAPS_SCHEME",
     "MBAP_SCHEMES",
+    "NETWORK_SCHEMES",
     "RTU_TCP_SCHEME",
     "TCP_SCHEME",
+    "UDP_SCHEME",
     "first_duplicate",
     "port_key",
     "same_port",
@@ -45,13 +48,17 @@ __all__ = [
 ]
 
 #: pyrtu's own URL schemes (`pyrtu.drivers.links`): Modbus TCP, RTU frames over TCP,
-#: Modbus/TCP Security (Modbus TCP in TLS)
+#: Modbus/TCP Security (Modbus TCP in TLS), Modbus over UDP
 TCP_SCHEME = "tcp"
 RTU_TCP_SCHEME = "rtu+tcp"
 MBAPS_SCHEME = "mbaps"
-PYRTU_SCHEMES = (TCP_SCHEME, RTU_TCP_SCHEME, MBAPS_SCHEME)
+UDP_SCHEME = "udp"
+PYRTU_SCHEMES = (TCP_SCHEME, RTU_TCP_SCHEME, MBAPS_SCHEME, UDP_SCHEME)
 #: the schemes of MBAP links (`pyrtu.tcp.link`): plain, or in TLS
 MBAP_SCHEMES = (TCP_SCHEME, MBAPS_SCHEME)
+#: the schemes of the ports that reach a host over a network: pyrtu's own (each a
+#: transport of `pyrtu.drivers.links.TRANSPORTS`) and pyserial's
+NETWORK_SCHEMES = frozenset({*PYRTU_SCHEMES, "socket", "rfc2217"})
 
 
 def url_scheme(port: object, own: tuple[str, ...] = PYRTU_SCHEMES) -> str | None:

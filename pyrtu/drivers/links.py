@@ -4,15 +4,22 @@
 the port string picks the link object they drive from one table, `TRANSPORTS` (by
 `scheme_of`; the masters hold no branch on the scheme): a serial line
 (`pyrtu.drivers.master.SerialLink`: a device path, a pyserial object or URL;
-`RtuOverTcpLink`: ``rtu+tcp://`` RTU frames over a socket), or Modbus TCP
+`RtuOverTcpLink`: ``rtu+tcp://`` RTU frames over a socket), Modbus TCP
 (``tcp://``, or in TLS ``mbaps://`` with a ``tls`` context: `pyrtu.tcp.link.TcpLink`
-/ `AsyncTcpLink`, imported only when such a port is opened, so ``import pyrtu``
-loads neither TCP nor asyncio).
+/ `AsyncTcpLink`) or Modbus over UDP (``udp://``: `pyrtu.tcp.udp.UdpLink` /
+`AsyncUdpLink`), each imported only when such a port is opened, so ``import pyrtu``
+loads neither TCP nor asyncio.
 
 Adding a transport is one module with its link classes (a sync one for `Master`, an
 asyncio one for `AsyncMaster`, each with ``open(port, line, options, max_in_flight)``,
-answering `Link`) and one `Transport` row naming them, with its scheme in
-``PYRTU_SCHEMES``.
+answering `Link`; the asyncio one's ``transact``, ``connect`` and ``close`` are
+coroutines; a static ``check_port(port)`` for a URL, so that a bad one is a usage
+error before anything opens) and one `Transport` row naming them, with its scheme in
+``PYRTU_SCHEMES``.  What the rest of pyrtu needs to know of a transport is in its
+row, not in a branch on the scheme: whether it pipelines, takes TLS, its default
+``t35``, whether it carries MBAP ADUs (unit ids 0..255 as on Modbus TCP, no wire
+timing: the poller's `unit_problem` and `Wire`), so the poller, the bridge and
+every command that takes ``--port`` open the new scheme with no other change.
 
 A link answers for the master's properties (`Link`), maps the unit ids its
 transport allows (``address``, see `pyrtu.pdu.requests.Steps`) and runs one
@@ -34,15 +41,16 @@ from pyrtu.drivers._portname import (
     PYRTU_SCHEMES,
     RTU_TCP_SCHEME,
     TCP_SCHEME,
+    UDP_SCHEME,
     url_scheme,
 )
 from pyrtu.pdu.requests import Call
 
 
 def scheme_of(port: object) -> str | None:
-    """``"tcp"``, ``"mbaps"`` or ``"rtu+tcp"`` for those URLs; None for a serial port (a path, a
-    pyserial URL or object).  ValueError for a URL no one opens (`url_scheme`:
-    ``udp://...: unsupported scheme udp://; supported: tcp://, ...``)."""
+    """``"tcp"``, ``"mbaps"``, ``"rtu+tcp"`` or ``"udp"`` for those URLs; None for a serial
+    port (a path, a pyserial URL or object).  ValueError for a URL no one opens
+    (`url_scheme`: ``quic://...: unsupported scheme quic://; supported: tcp://, ...``)."""
     scheme = url_scheme(port)
     return scheme if scheme in PYRTU_SCHEMES else None
 
@@ -71,14 +79,15 @@ def check_retries(retries: object) -> int:
 
 
 def check_in_flight(value: object, tcp: bool) -> int:
-    """``max_in_flight``: requests on the wire at once; only an asyncio master on
-    ``tcp://`` keeps more than one."""
+    """``max_in_flight``: requests on the wire at once; only an asyncio master on a
+    transport that pipelines (`Transport.pipelines`: ``tcp://``...) keeps more than one."""
     if isinstance(value, bool) or not isinstance(value, int):
         raise TypeError(f"max_in_flight must be an integer, not {value!r}")
     if value < 1 or (value != 1 and not tcp):
+        ports = " and ".join(f"{row.scheme}://" for row in TRANSPORTS.values() if row.pipelines)
         raise ValueError(
             f"max_in_flight must be 1 on a serial line, not {value} "
-            "(only tcp:// and mbaps:// ports keep several requests on the wire)"
+            f"(only {ports} ports keep several requests on the wire)"
         )
     return value
 
@@ -100,25 +109,46 @@ class Transport:
     tls: bool = False
     #: the inter-frame silence when ``t35`` is not given (None: the line's own)
     t35: float | None = None
+    #: whether it carries MBAP ADUs: unit ids 0..255 (0: the device itself, 248..255:
+    #: what is behind it), no wire timing (the poller's `Wire.tcp`), its asyncio link
+    #: opening its socket at the first request (or ``connect``), not when made
+    mbap: bool = False
 
     def link_class(self, asyncio: bool) -> Any:
         module, _, name = (self.aio if asyncio else self.sync).partition(":")
         return getattr(importlib.import_module(module), name)
 
+    def check_port(self, port: object) -> None:
+        """ValueError naming ``port`` when its link cannot open it (a URL without a
+        host, a port outside 0..65535...), before anything is opened: what a
+        configuration file or a command line says at once (the link's
+        ``check_port``; a serial port has none: its open says what is wrong)."""
+        check = getattr(self.link_class(False), "check_port", None)
+        if check is not None:
+            check(port)
+
 
 _SERIAL = "pyrtu.drivers.master:SerialLink"
 _RTU_TCP = "pyrtu.drivers.master:RtuOverTcpLink"
 _TCP, _AIO_TCP = "pyrtu.tcp.link:TcpLink", "pyrtu.tcp.link:AsyncTcpLink"
+_UDP, _AIO_UDP = "pyrtu.tcp.udp:UdpLink", "pyrtu.tcp.udp:AsyncUdpLink"
 #: the transports, by the scheme of the port string (None: a serial port: a device
 #: path, a pyserial object or a pyserial URL).  A new transport is a module with its
 #: link classes and one row here (and its scheme in `PYRTU_SCHEMES`)
 TRANSPORTS: dict[str | None, Transport] = {
     None: Transport(None, "a serial line, RTU or ASCII", _SERIAL, _SERIAL),
     RTU_TCP_SCHEME: Transport(RTU_TCP_SCHEME, "RTU frames over TCP", _RTU_TCP, _RTU_TCP, t35=0.0),
-    TCP_SCHEME: Transport(TCP_SCHEME, "Modbus TCP", _TCP, _AIO_TCP, pipelines=True),
+    TCP_SCHEME: Transport(TCP_SCHEME, "Modbus TCP", _TCP, _AIO_TCP, pipelines=True, mbap=True),
     MBAPS_SCHEME: Transport(
-        MBAPS_SCHEME, "Modbus/TCP Security (TLS)", _TCP, _AIO_TCP, pipelines=True, tls=True
+        MBAPS_SCHEME,
+        "Modbus/TCP Security (TLS)",
+        _TCP,
+        _AIO_TCP,
+        pipelines=True,
+        tls=True,
+        mbap=True,
     ),
+    UDP_SCHEME: Transport(UDP_SCHEME, "Modbus over UDP", _UDP, _AIO_UDP, pipelines=True, mbap=True),
 }
 
 
@@ -155,6 +185,7 @@ __all__ = [
     "RTU_TCP_SCHEME",
     "TCP_SCHEME",
     "TRANSPORTS",
+    "UDP_SCHEME",
     "Call",
     "Link",
     "Transport",

@@ -181,6 +181,13 @@ class RtuOverTcpLink(SerialLink):
 
         return super().open(rtu_over_tcp(port), line, options, max_in_flight)
 
+    @staticmethod
+    def check_port(port: str) -> None:
+        """ValueError naming ``port`` unless it is ``rtu+tcp://HOST[:PORT]``."""
+        from pyrtu.tcp.client import parse_rtu_tcp_url
+
+        parse_rtu_tcp_url(port)
+
 
 class MasterBase:
     """The one master class's shared part (`Master`, and `pyrtu.drivers.aio.AsyncMaster`

@@ -32,6 +32,7 @@ class Owner(Protocol):
 
     limits: GatewayLimits
     counters: dict[str, int]
+    _connections: dict[int, _Connection]
 
     def _opened(self, conn: _Connection) -> None: ...
     def _tls_failed(self, conn: _Connection, reason: str) -> None: ...
@@ -108,6 +109,12 @@ class _Connection(asyncio.Protocol):
 
     def eof_received(self) -> bool | None:
         return None  # close our side too
+
+    def refuse(self) -> None:
+        """The gateway's table is full: closed at once (nothing was written to it)."""
+        self.closed = True
+        assert self.transport is not None
+        self.transport.abort()
 
     def connection_lost(self, exc: Exception | None) -> None:
         self.closed = True

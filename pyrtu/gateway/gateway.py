@@ -68,6 +68,12 @@ answered 0x0B (gateway target device failed to respond) unless its answer was
 already being written; requests for the bus meanwhile wait in its queue (0x06 once
 it is full) and are served when the worker is back; the other buses carry on.
 
+With ``udp=(host, port)`` the gateway also listens for Modbus over UDP (one ADU
+per datagram, `pyrtu.gateway._udp`): each client address is a connection of the
+table (policy, audit, fair queue, idle timeout and eviction as for TCP); a datagram
+that is not one whole valid ADU is dropped and counted (``bad_datagrams``).  With
+``port=None`` the gateway has no Modbus TCP listener (another one must be given).
+
 Clients that do not talk cannot hold the connection table (`pyrtu.gateway._live`):
 a request must be complete within ``header_timeout`` (5 s) of its first byte, a
 connection with no request for ``idle_timeout`` (120 s) and nothing waiting is
@@ -122,6 +128,7 @@ from ._plan import (
     parse_units,
 )
 from ._reopen import ReopeningBus, close_bus
+from ._udp import UdpListener
 
 log = logging.getLogger("pyrtu.gateway")
 
@@ -157,6 +164,16 @@ __all__ = [
 
 #: how often `Gateway.close` cancels a task again whose code swallowed the cancel
 CANCEL_AGAIN = 0.1
+
+
+def _check_pair(name: str, where: object) -> None:
+    """``where``: a (host, port) to listen on; TypeError/ValueError naming ``name``."""
+    if not isinstance(where, tuple) or len(where) != 2:
+        raise TypeError(f"{name} must be a (host, port) pair, not {where!r}")
+    try:
+        check_listen(*where)
+    except (TypeError, ValueError) as exc:
+        raise type(exc)(f"{name}: {exc}") from None
 
 
 async def _cancelled(task: asyncio.Task[None]) -> None:
@@ -306,8 +323,11 @@ class Gateway:
         self._server: asyncio.Server | None = None
         self._rtu_server: asyncio.Server | None = None
         self._tls_server: asyncio.Server | None = None
+        self._udp: UdpListener | None = None
         #: the (host, port) of the TLS listener, once started with ``tls``
         self.tls_address: tuple[str, int] | None = None
+        #: the (host, port) of the UDP listener, once started with ``udp``
+        self.udp_address: tuple[str, int] | None = None
         self.address: tuple[str, int] | None = None
         self.rtu_address: tuple[str, int] | None = None
         self.counters = dict.fromkeys(
@@ -335,6 +355,7 @@ class Gateway:
                 "task_failures",
                 "denied",
                 "tls_failures",
+                "bad_datagrams",
                 "audited_writes",
                 "audit_failures",
             ),
@@ -346,49 +367,70 @@ class Gateway:
     async def start(
         self,
         host: str = "127.0.0.1",
-        port: int = 502,
+        port: int | None = 502,
         rtu: tuple[str, int] | None = None,
         tls: TlsListen | None = None,
+        udp: tuple[str, int] | None = None,
     ) -> Gateway:
         """Listen for Modbus TCP on host:port and, with ``rtu=(host, port)``, for RTU
         over TCP there (``rtu_address``), with ``tls`` (a `TlsListen`) for Modbus/TCP
-        Security there (``tls_address``).  RuntimeError if already started."""
-        if self._server is not None:
-            raise RuntimeError(f"the gateway already listens on {self.address}")
-        check_listen(host, port)
+        Security there (``tls_address``), with ``udp=(host, port)`` for Modbus over UDP
+        there (``udp_address``); ``port=None``: no Modbus TCP listener (``address``
+        stays None), one of the others must be given.  RuntimeError if already
+        started; TypeError/ValueError naming the argument before anything listens."""
+        if self._listeners():
+            listening = (self.address, self.rtu_address, self.tls_address, self.udp_address)
+            text = ", ".join("{}:{}".format(*at) for at in listening if at is not None)
+            raise RuntimeError(f"the gateway already listens on {text}")
+        if port is not None:
+            check_listen(host, port)
+        elif rtu is None and tls is None and udp is None:
+            raise ValueError("port: None (no Modbus TCP listener) needs rtu, tls or udp")
         if rtu is not None:
-            check_listen(*rtu)
+            _check_pair("rtu", rtu)
         if tls is not None:
             if not isinstance(tls, TlsListen):
                 raise TypeError(f"tls must be a pyrtu.security.tls.TlsListen, not {tls!r}")
             check_listen(tls.host, tls.port)
+        if udp is not None:
+            _check_pair("udp", udp)
         for state in self._buses:
             await self._open_at_start(state)
         loop = asyncio.get_running_loop()
-        server = await loop.create_server(lambda: _Connection(self), host, port)
-        sock = server.sockets[0].getsockname()
-        self._server, self.address = server, (str(sock[0]), int(sock[1]))
+        self.address = self.rtu_address = self.tls_address = self.udp_address = None
+
+        def bound(server: asyncio.Server) -> tuple[str, int]:
+            sock = server.sockets[0].getsockname()
+            return str(sock[0]), int(sock[1])
+
         try:
+            if port is not None:
+                self._server = await loop.create_server(lambda: _Connection(self), host, port)
+                self.address = bound(self._server)
             if rtu is not None:
                 self._rtu_server = await loop.create_server(lambda: _RtuConnection(self), *rtu)
-                sock = self._rtu_server.sockets[0].getsockname()
-                self.rtu_address = (str(sock[0]), int(sock[1]))
+                self.rtu_address = bound(self._rtu_server)
             if tls is not None:
                 context = tls.context
                 self._tls_server = await loop.create_server(
                     lambda: _TlsConnection(self, context), tls.host, tls.port
                 )
-                sock = self._tls_server.sockets[0].getsockname()
-                self.tls_address = (str(sock[0]), int(sock[1]))
+                self.tls_address = bound(self._tls_server)
+            if udp is not None:
+                transport, self._udp = await loop.create_datagram_endpoint(
+                    lambda: UdpListener(self), local_addr=udp
+                )
+                sock = transport.get_extra_info("sockname")
+                self.udp_address = (str(sock[0]), int(sock[1]))
         except BaseException:  # no listener left behind half-started
-            for half in (server, self._rtu_server):
-                if half is not None:
-                    half.close()
-                    await half.wait_closed()
-            self._server = self._rtu_server = None
+            for half in self._listeners():
+                half.close()
+                await half.wait_closed()
+            # (the addresses bound stay: which is None says which listener failed)
+            self._server = self._rtu_server = self._tls_server = self._udp = None
             raise
         if self.policy is None:
-            for where in (self.address, self.rtu_address, self.tls_address):
+            for where in (self.address, self.rtu_address, self.tls_address, self.udp_address):
                 if where is not None and beyond_loopback(where[0]):
                     log.warning(
                         "listening on %s:%d beyond loopback with no access policy: any "
@@ -455,11 +497,16 @@ class Gateway:
             except Exception:
                 log.exception("connection %d: answering after the failure failed", conn.id)
 
+    def _listeners(self) -> list[asyncio.Server | UdpListener]:
+        """The listeners started (each has ``close``, ``wait_closed``, ``is_serving``)."""
+        found = (self._server, self._rtu_server, self._tls_server, self._udp)
+        return [listener for listener in found if listener is not None]
+
     async def close(self) -> None:
         self._running = False
-        for server in (self._server, self._rtu_server, self._tls_server):
-            if server is not None:
-                server.close()
+        listeners = self._listeners()
+        for server in listeners:
+            server.close()
         for conn in list(self._connections.values()):
             conn.close()
         tasks = [s.task for s in self._buses if s.task is not None]
@@ -467,10 +514,9 @@ class Gateway:
             tasks.append(self._sweeper)
         for task in tasks:
             await _cancelled(task)
-        for server in (self._server, self._rtu_server, self._tls_server):
-            if server is not None:
-                await server.wait_closed()
-        self._server = self._rtu_server = self._tls_server = self._sweeper = None
+        for server in listeners:
+            await server.wait_closed()
+        self._server = self._rtu_server = self._tls_server = self._udp = self._sweeper = None
         for state in self._buses:
             state.task = None
 
@@ -512,6 +558,7 @@ class Gateway:
             ("listener", self._server),
             ("RTU listener", self._rtu_server),
             ("TLS listener", self._tls_server),
+            ("UDP listener", self._udp),
         ):
             if server is not None and not server.is_serving():
                 problems.append(f"the {flag} is closed")
@@ -533,9 +580,7 @@ class Gateway:
         if len(self._connections) >= self.limits.max_connections and not self._evict():
             self.counters["refused"] += 1
             log.info("connection refused: %d open", len(self._connections))
-            conn.closed = True
-            assert conn.transport is not None
-            conn.transport.abort()  # nothing was written to it: a plain close
+            conn.refuse()
             return
         self._next_id += 1
         conn.id = self._next_id

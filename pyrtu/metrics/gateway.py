@@ -31,7 +31,8 @@ REQUEST_ERRORS = (
     ("no_route", "no_route"),
     ("bus_unavailable", "bus_unavailable"),
 )
-#: (counter, ``kind`` label) of the connections closed or refused by the gateway
+#: (counter, ``kind`` label) of the connections closed or refused by the gateway (and
+#: the UDP listener's datagrams dropped for not being one Modbus ADU)
 CONNECTION_ERRORS = (
     ("refused", "refused"),
     ("evicted", "evicted"),
@@ -40,6 +41,7 @@ CONNECTION_ERRORS = (
     ("header_timeouts", "header_timeout"),
     ("idle_timeouts", "idle_timeout"),
     ("tls_failures", "tls_handshake"),
+    ("bad_datagrams", "bad_datagram"),
 )
 
 

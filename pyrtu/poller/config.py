@@ -63,14 +63,7 @@ from pyrtu.devices.registry import (
     names,
 )
 from pyrtu.drivers._portname import first_duplicate
-from pyrtu.drivers.links import (
-    MBAP_SCHEMES,
-    MBAPS_SCHEME,
-    RTU_TCP_SCHEME,
-    check_tls,
-    scheme_of,
-    transport_of,
-)
+from pyrtu.drivers.links import check_tls, transport_of
 
 from .connect import ConnectLimits, connect_limits
 from .plan import Limits, Wire
@@ -171,12 +164,13 @@ class Bus:
                 raise ValueError(f"{k}: {wrong}")
         line = dict(self.master)
         try:
-            scheme = scheme_of(self.port)
-        except ValueError as exc:  # a URL scheme no one opens
+            transport = transport_of(self.port)
+            transport.check_port(self.port)  # (a URL without a host, a port too high...)
+        except ValueError as exc:  # a URL scheme no one opens, a URL it cannot open
             raise ValueError(f"port: {str(exc).removeprefix(f'{self.port}: ')}") from None
-        if scheme == RTU_TCP_SCHEME:
-            line.setdefault("t35", 0.0)  # as the master: a socket has no wire timing
-        check_tls(transport_of(self.port), self.tls)
+        if transport.t35 is not None:
+            line.setdefault("t35", transport.t35)  # as the master: a socket has no wire timing
+        check_tls(transport, self.tls)
         object.__setattr__(self, "_line", make_line(line))
         if not (_real(self.share) and 0 < self.share <= 1):
             raise ValueError(f"share: must be a fraction in (0, 1], not {self.share!r}")
@@ -205,9 +199,10 @@ class Bus:
 
     def wire(self) -> Wire:
         """The bus's wire model from its line (an estimated turnaround of t3.5 until
-        the slaves' are measured); a ``tcp://`` or ``mbaps://`` bus's is `Wire.tcp`
-        (its round trip, no character time)."""
-        if scheme_of(self.port) in MBAP_SCHEMES:
+        the slaves' are measured); an MBAP bus's (``tcp://``, ``mbaps://``, ``udp://``:
+        `pyrtu.drivers.links.Transport.mbap`) is `Wire.tcp` (its round trip, no
+        character time)."""
+        if transport_of(self.port).mbap:
             return Wire.tcp()
         line = self.line
         return Wire(
@@ -219,14 +214,20 @@ class Bus:
 
 
 def unit_problem(bus: Bus, slave: object) -> str | None:
-    """What is wrong with ``slave`` on ``bus`` (None: nothing): a ``tcp://`` (or
-    ``mbaps://``) bus takes unit ids 0..255 (0: the TCP device itself, 255 and 248..254: what is
-    behind it, as `pyrtu.Master` on TCP does), a serial bus (and ``rtu+tcp://``)
-    1..247 (0 is the broadcast: no answer to poll)."""
-    tcp = isinstance(bus.port, str) and scheme_of(bus.port) in MBAP_SCHEMES
+    """What is wrong with ``slave`` on ``bus`` (None: nothing): an MBAP bus
+    (``tcp://``, ``mbaps://``, ``udp://``: `pyrtu.drivers.links.Transport.mbap`) takes
+    unit ids 0..255 (0: the TCP device itself, 255 and 248..254: what is behind it,
+    as `pyrtu.Master` on TCP does), a serial bus (and ``rtu+tcp://``) 1..247 (0 is
+    the broadcast: no answer to poll)."""
+    transport = transport_of(bus.port)
+    tcp = transport.mbap
     lo, hi = (0, 255) if tcp else (1, 247)
     if isinstance(slave, bool) or not isinstance(slave, int) or not lo <= slave <= hi:
-        why = " on a Modbus TCP bus" if tcp else f" on serial bus {bus.name!r} (0..255 on tcp://)"
+        why = (
+            f" on a {transport.what} bus"
+            if tcp
+            else f" on serial bus {bus.name!r} (0..255 on tcp://)"
+        )
         return f"must be an integer {lo}..{hi}{why}, not {slave!r}"
     return None
 
@@ -501,7 +502,7 @@ class _Loader:
         does not exist or does not hold what it should."""
         given = [k for k in TLS_KEYS if k in t]
         try:
-            mbaps = scheme_of(t["port"]) == MBAPS_SCHEME
+            mbaps = transport_of(t["port"]).tls
         except ValueError:  # an unknown scheme: said by Bus, at the port
             mbaps = False
         if not mbaps:

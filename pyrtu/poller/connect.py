@@ -27,10 +27,7 @@ from dataclasses import dataclass, fields
 from typing import Any
 from urllib.parse import urlsplit
 
-from pyrtu.drivers._portname import url_scheme
-
-#: the schemes of the ports that connect over a network (pyrtu's and pyserial's)
-NETWORK_SCHEMES = frozenset({"tcp", "mbaps", "rtu+tcp", "socket", "rfc2217"})
+from pyrtu.drivers._portname import NETWORK_SCHEMES, url_scheme
 
 #: defaults of the ``[connect]`` keys (docs/many-devices.md says why)
 MAX_CONNECTING = 64
@@ -91,8 +88,8 @@ def connect_limits(table: Mapping[str, Any]) -> ConnectLimits:
 
 
 def network_host(port: object) -> str | None:
-    """The host a bus's port connects to (``tcp://``, ``rtu+tcp://``, pyserial's
-    ``socket://`` and ``rfc2217://``), None for a local port (a device path)."""
+    """The host a bus's port connects to (``tcp://``, ``rtu+tcp://``, ``udp://``...,
+    pyserial's ``socket://`` and ``rfc2217://``), None for a local port (a device path)."""
     try:
         scheme = url_scheme(port)
     except ValueError:

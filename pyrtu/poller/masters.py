@@ -17,8 +17,9 @@ import functools
 from collections.abc import Callable
 from typing import Any, Protocol
 
-from pyrtu.drivers._portname import MBAP_SCHEMES, url_scheme
+from pyrtu.drivers._portname import url_scheme
 from pyrtu.drivers.aio import AsyncMaster
+from pyrtu.drivers.links import transport_of
 from pyrtu.drivers.master import Master
 from pyrtu.pdu import requests as request_table
 from pyrtu.pdu.errors import ModbusError, PortBusyError, PortError
@@ -93,13 +94,18 @@ FACTORIES = {"aio": open_async_master, "thread": open_thread_master}
 
 def _blocking_open(factory: Callable[[Bus], AsyncMasterLike], bus: Bus) -> bool:
     """Whether ``factory(bus)`` may wait on the network: the sync master's open (a
-    blocking TCP connect) and the asyncio master's on a network port other than
-    ``tcp://`` and ``mbaps://`` (which connect at the first request): ``rtu+tcp://``,
+    blocking TCP connect) and the asyncio master's on a network port other than an
+    MBAP one (``tcp://``, ``mbaps://``, ``udp://``: `pyrtu.drivers.links.Transport.mbap`,
+    whose asyncio link opens its socket at the first request): ``rtu+tcp://``,
     ``socket://`` (pyserial connects as it opens)."""
     if factory is open_thread_master:
         return True
     scheme = url_scheme(bus.port) if isinstance(bus.port, str) else None
-    return factory is open_async_master and scheme in NETWORK_SCHEMES and scheme not in MBAP_SCHEMES
+    return (
+        factory is open_async_master
+        and scheme in NETWORK_SCHEMES
+        and not transport_of(bus.port).mbap
+    )
 
 
 async def open_master(factory: Callable[[Bus], AsyncMasterLike], bus: Bus) -> AsyncMasterLike:

@@ -68,7 +68,7 @@ def parse_tcp_url(url: str, schemes: tuple[str, ...] = ("tcp",)) -> tuple[str, i
     return parts.hostname, default if port is None else port
 
 
-def _where(host: str, port: int, scheme: str = "tcp") -> str:
+def where_of(host: str, port: int, scheme: str = "tcp") -> str:
     return f"{scheme}://[{host}]:{port}" if ":" in host else f"{scheme}://{host}:{port}"
 
 
@@ -118,10 +118,15 @@ def connect_error(where: str, exc: BaseException, timeout: float) -> PortError:
 _SOCKET_CONNECT_TIMEOUT: float = POLL_TIMEOUT
 
 
+def parse_rtu_tcp_url(url: str) -> tuple[str, int]:
+    """(host, port) of ``rtu+tcp://host[:port]``; ValueError naming the URL."""
+    return parse_tcp_url(url, (RTU_TCP_SCHEME,))
+
+
 def rtu_over_tcp(url: str) -> Any:
     """A pyserial object over TCP for ``rtu+tcp://host[:port]``: RTU frames (CRC kept)
     to a serial device server; no wire timing, so use it with ``t35=0``."""
-    host, port = parse_tcp_url(url, (RTU_TCP_SCHEME,))
+    host, port = parse_rtu_tcp_url(url)
     netloc = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
     try:
         link = serial.serial_for_url(f"socket://{netloc}", timeout=0)
@@ -131,7 +136,7 @@ def rtu_over_tcp(url: str) -> Any:
     return link
 
 
-class _ClientState:
+class TcpClientState:
     """What a TCP client reads from (and sets on) its protocol."""
 
     _proto: TcpClientProtocol
@@ -147,7 +152,7 @@ class _ClientState:
         return dict(self._proto.counters)
 
 
-class TcpClient(_ClientState, Closing):
+class TcpClient(TcpClientState, Closing):
     """A blocking Modbus TCP client: one request at a time on one connection.  Each
     transaction's I/O is one call of the backend's `pyrtu.drivers.xfer.TcpXferRunner`
     (C: csrc/rtu_tcp_io.c, the GIL released; ``backend="python"``: the twin)."""
@@ -163,7 +168,7 @@ class TcpClient(_ClientState, Closing):
     ) -> None:
         self.host, self.port = parse_tcp_url(url, MBAP_SCHEMES)
         self._tls = _tls_of(url, tls)
-        self.where = _where(self.host, self.port, "tcp" if self._tls is None else MBAPS_SCHEME)
+        self.where = where_of(self.host, self.port, "tcp" if self._tls is None else MBAPS_SCHEME)
         be = _backend.backend(backend)
         self._closed = False
         self._proto = TcpClientProtocol(timeout=timeout, max_in_flight=1, where=self.where)
@@ -277,7 +282,50 @@ class TcpClient(_ClientState, Closing):
         return f"TcpClient({self.where!r})"
 
 
-class _ClientConnection(asyncio.BufferedProtocol):
+class Awaiting:
+    """The futures of an asyncio client's requests in flight (TCP: `AsyncTcpClient`;
+    UDP: `pyrtu.tcp.udp.AsyncUdpLink`): each resolved from the protocol's results,
+    one timer for the first deadline."""
+
+    def __init__(self, proto: TcpClientProtocol) -> None:
+        self.proto = proto
+        self.waiters: dict[int, asyncio.Future[bytes | None]] = {}
+        self.timer: asyncio.TimerHandle | None = None
+        self.timer_at = 0.0  # when the timer fires (monotonic seconds)
+
+    def on_timer(self) -> None:
+        self.timer = None
+        self.proto.handle_timer(time.monotonic())
+        self.dispatch()
+
+    def dispatch(self) -> None:
+        while (done := self.proto.next_result()) is not None:
+            tid, result = done
+            fut = self.waiters.pop(tid, None)
+            if fut is None or fut.done():
+                continue
+            if isinstance(result, ModbusError):
+                fut.set_exception(result)
+            else:
+                fut.set_result(result)
+        self.arm()
+
+    def arm(self) -> None:
+        """A timer for the first deadline of the requests in flight, unless one
+        fires before it (an answered request's: it finds nothing expired and
+        arms the next; so a transaction answered in time touches no timer)."""
+        when = self.proto.deadline()
+        if when is not None and (self.timer is None or when < self.timer_at):
+            self.timer = rearm(self.timer, when, self.on_timer)
+            self.timer_at = when
+
+    def stop_timer(self) -> None:
+        if self.timer is not None:
+            self.timer.cancel()
+            self.timer = None
+
+
+class _ClientConnection(Awaiting, asyncio.BufferedProtocol):
     """The event loop's side of an `AsyncTcpClient`: the socket is read straight
     into the scanner's buffer (no bytes object per read: asyncio's plain
     `asyncio.Protocol` allocates 256 KiB for each), one scan per read (C:
@@ -286,13 +334,10 @@ class _ClientConnection(asyncio.BufferedProtocol):
     headers go through the protocol's results."""
 
     def __init__(self, proto: TcpClientProtocol, where: str, scanner: xfer.TcpScanner) -> None:
-        self.proto = proto
+        super().__init__(proto)
         self.where = where
         self.transport: asyncio.Transport | None = None
         self.loop: asyncio.AbstractEventLoop | None = None
-        self.waiters: dict[int, asyncio.Future[bytes | None]] = {}
-        self.timer: asyncio.TimerHandle | None = None
-        self.timer_at = 0.0  # when the timer fires (monotonic seconds)
         self.scan = scanner.scan
         self.buf = scanner.buf
         self.view = memoryview(scanner.buf)
@@ -343,38 +388,10 @@ class _ClientConnection(asyncio.BufferedProtocol):
     def connection_lost(self, exc: Exception | None) -> None:
         self.proto.connection_lost(str(exc) if exc else "connection closed")
         self.dispatch()
-        if self.timer is not None:
-            self.timer.cancel()
-            self.timer = None
-
-    def on_timer(self) -> None:
-        self.timer = None
-        self.proto.handle_timer(time.monotonic())
-        self.dispatch()
-
-    def dispatch(self) -> None:
-        while (done := self.proto.next_result()) is not None:
-            tid, result = done
-            fut = self.waiters.pop(tid, None)
-            if fut is None or fut.done():
-                continue
-            if isinstance(result, ModbusError):
-                fut.set_exception(result)
-            else:
-                fut.set_result(result)
-        self.arm()
-
-    def arm(self) -> None:
-        """A timer for the first deadline of the requests in flight, unless one
-        fires before it (an answered request's: it finds nothing expired and
-        arms the next; so a transaction answered in time touches no timer)."""
-        when = self.proto.deadline()
-        if when is not None and (self.timer is None or when < self.timer_at):
-            self.timer = rearm(self.timer, when, self.on_timer)
-            self.timer_at = when
+        self.stop_timer()
 
 
-class _Window:
+class RequestWindow:
     """The turns of an `AsyncTcpClient`'s requests: ``free`` of ``max_in_flight``
     on the wire; the others wait in order (as an `asyncio.Semaphore`, without its
     coroutines on the common path: a caller with a free turn takes it without an
@@ -411,7 +428,7 @@ class _Window:
         self.free += 1
 
 
-class AsyncTcpClient(_ClientState, AsyncClosing):
+class AsyncTcpClient(TcpClientState, AsyncClosing):
     """An asyncio Modbus TCP client: up to ``max_in_flight`` requests on the wire at
     once.  ``backend``: whose scan reads the answers (`pyrtu.drivers.xfer.TcpScanner`:
     C, rtu_tcp_scan, or ``"python"``: the twin)."""
@@ -421,7 +438,7 @@ class AsyncTcpClient(_ClientState, AsyncClosing):
         self._proto = conn.proto
         self.host, self.port = host, port
         self.where = conn.where
-        self._window = _Window(max_in_flight)
+        self._window = RequestWindow(max_in_flight)
 
     @classmethod
     async def connect(
@@ -436,7 +453,7 @@ class AsyncTcpClient(_ClientState, AsyncClosing):
     ) -> AsyncTcpClient:
         host, port = parse_tcp_url(url, MBAP_SCHEMES)
         context = _tls_of(url, tls)
-        where = _where(host, port, "tcp" if context is None else MBAPS_SCHEME)
+        where = where_of(host, port, "tcp" if context is None else MBAPS_SCHEME)
         proto = TcpClientProtocol(timeout=timeout, max_in_flight=max_in_flight, where=where)
         scanner = xfer_runners.tcp_scanner(_backend.backend(backend))
         ct = check_timeout(

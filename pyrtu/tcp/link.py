@@ -49,10 +49,10 @@ from pyrtu.protocol.client_actions import answer_pdu
 from pyrtu.tcp.client import AsyncTcpClient, TcpClient, parse_tcp_url
 
 NO_LINE = (
-    "{url}: a Modbus TCP master has no serial line (line and port are a serial "
+    "{url}: a {what} master has no serial line (line and port are a serial "
     "master's; see url, timeout, retries)"
 )
-NO_PORT = "{url}: a Modbus TCP master has no serial port (see url)"
+NO_PORT = "{url}: a {what} master has no serial port (see url)"
 
 #: the slave the argument checks shared with the serial master (0..247) see in
 #: place of a unit id only TCP allows
@@ -60,19 +60,22 @@ _STAND_IN = 1
 
 
 class _TcpBase:
-    """What both TCP links answer for a serial master's line properties."""
+    """What both TCP links (and the UDP ones, `pyrtu.tcp.udp`) answer for a serial
+    master's line properties."""
 
     url: str
     timeout: float
     retries: int
+    #: the transport, in the words of `describe` and the AttributeErrors
+    what = "Modbus TCP"
 
     @property
     def line(self) -> LineConfig:
-        raise AttributeError(NO_LINE.format(url=self.url))
+        raise AttributeError(NO_LINE.format(url=self.url, what=self.what))
 
     @property
     def port(self) -> Any:
-        raise AttributeError(NO_PORT.format(url=self.url))
+        raise AttributeError(NO_PORT.format(url=self.url, what=self.what))
 
     # no wire timing, no echo: the master keeps no silence, a broadcast returns at once
     mode = "tcp"
@@ -87,6 +90,11 @@ class _TcpBase:
             return _STAND_IN, slave
         return slave, None
 
+    @staticmethod
+    def check_port(port: str) -> None:
+        """ValueError naming ``port`` unless it is ``tcp://`` or ``mbaps://HOST[:PORT]``."""
+        parse_tcp_url(port, MBAP_SCHEMES)
+
     def count_bad(self) -> None:
         self._counters()["frame_errors"] = self._counters().get("frame_errors", 0) + 1
 
@@ -99,7 +107,7 @@ class _TcpBase:
         """Length rules are not needed on TCP (the MBAP length ends every answer)."""
 
     def describe(self) -> str:
-        return f"{self.url} Modbus TCP" + (" in TLS" if self.url.startswith("mbaps") else "")
+        return f"{self.url} {self.what}" + (" in TLS" if self.url.startswith("mbaps") else "")
 
 
 def _result(call: Call, answer: bytes | None, end: float | None) -> tuple[Any, float]:

@@ -34,12 +34,13 @@ import logging
 import os
 import struct
 from collections import deque
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from pyrtu.core import _backend
 from pyrtu.core._types import BytesLike
 from pyrtu.core.frames import FrameKind
-from pyrtu.core.mbap import MAX_PDU, MBAP_ERROR_BY_CODE, check_header_args
+from pyrtu.core.mbap import MAX_PDU, MBAP_ERROR_BY_CODE, MbapFrame, check_header_args
 from pyrtu.core.timing import positive_seconds
 from pyrtu.drivers import xfer
 from pyrtu.drivers.xfer import TcpXferRunner
@@ -245,6 +246,27 @@ class TcpClientProtocol:
         counters["responses"] += 1
         return pdu
 
+    def receive_datagram(
+        self, data: BytesLike, now: float, parse: Callable[[bytes, str], Sequence[MbapFrame]]
+    ) -> bool:
+        """One datagram read (Modbus over UDP, `pyrtu.tcp.udp`: one whole ADU per
+        datagram, framed by ``parse``: a backend's ``parse_tcp_stream``, C or the
+        twin): an answer as `receive_data` takes it.  Anything but exactly one
+        valid ADU (a bad header, a length field that does not end the datagram) is
+        dropped and counted (``frame_errors``): False.  Nothing is broken by it, as
+        there is no stream to lose."""
+        raw = bytes(data)
+        frames = parse(raw, "master")
+        frame = frames[0] if len(frames) == 1 else None
+        if frame is None or frame.error is not None or len(frame.adu) != len(raw):
+            self.counters["frame_errors"] += 1
+            log.debug("RX datagram not one whole ADU, dropped: %s", raw.hex(" "))
+            return False
+        result = self.take_answer(frame.transaction, frame.unit, frame.pdu, now)
+        if result is not None:
+            self._results.append((frame.transaction, result))
+        return True
+
     def sole_tid(self) -> int:
         """The transaction id of the one request in flight, or -1 (none, or several)."""
         pending = self._pending
@@ -275,6 +297,17 @@ class TcpClientProtocol:
         """The connection ended: every request in flight fails with `PortError`."""
         if self.broken is None:
             self._fail_all(PortError(self.where, reason))
+
+    def refused(self, reason: str) -> None:
+        """No answer will come to what is in flight (Modbus over UDP: the host said
+        ICMP port unreachable): each request fails with `NoResponseError` naming
+        ``reason`` (counted as ``timeouts``: no answer came, as when its deadline
+        passes); nothing is broken (a retry may be answered)."""
+        for tid in sorted(self._pending):
+            p = self._pending.pop(tid)
+            self.counters["timeouts"] += 1
+            text = f"no answer from unit {p.unit} (function {p.function}): {reason}"
+            self._results.append((tid, NoResponseError(text, p.unit, p.function)))
 
     def deadline(self) -> float | None:
         """When the oldest request in flight times out, or None."""

@@ -10,6 +10,10 @@ answer to unit 0).  So on TCP, unit 0 is not a broadcast: it is executed by the
 lowest address and answered.  Any other unit id gets exception 0x0A (gateway path
 unavailable).
 
+``await server.start(host, port, udp=(host, port))`` also serves Modbus over UDP
+(one MBAP ADU per datagram, as pymodbus's ``ModbusUdpServer``), with the same policy,
+audit trail and queue; ``port=None`` serves UDP only.
+
 It is the gateway's machinery (`pyrtu.gateway`) with the application in place of
 a serial bus: many connections, each read by an `MbapFramer` (a bad header closes
 that connection only), requests executed one at a time through the fair queue,
@@ -176,20 +180,35 @@ class TcpServer(AsyncClosing):
         """The (host, port) of the TLS listener, once started with ``tls``."""
         return self._gateway.tls_address
 
+    @property
+    def udp_address(self) -> tuple[str, int] | None:
+        """The (host, port) of the UDP listener, once started with ``udp``."""
+        return self._gateway.udp_address
+
     async def start(
-        self, host: str = "127.0.0.1", port: int = 502, tls: TlsListen | None = None
+        self,
+        host: str = "127.0.0.1",
+        port: int | None = 502,
+        tls: TlsListen | None = None,
+        udp: tuple[str, int] | None = None,
     ) -> TcpServer:
         """Listen on host:port (0: any free port, see ``address``) and, with ``tls``
         (`pyrtu.security.tls.TlsListen`: where, and `server_context`), for Modbus/TCP
-        Security (``tls_address``).  RuntimeError if it already listens (close it
-        first); TypeError/ValueError naming ``host`` or ``port`` before anything is
-        bound."""
-        await self._gateway.start(*check_listen(host, port), tls=tls)
+        Security (``tls_address``), with ``udp=(host, port)`` for Modbus over UDP
+        (``udp_address``: one ADU per datagram, the client's address its identity for
+        the policy; `pyrtu.gateway._udp`); ``port=None``: UDP (or TLS) only.
+        RuntimeError if it already listens (close it first); TypeError/ValueError
+        naming ``host``, ``port`` or ``udp`` before anything is bound."""
+        if port is not None:
+            check_listen(host, port)
+        await self._gateway.start(host, port, tls=tls, udp=udp)
         return self
 
-    async def serve_forever(self, host: str = "127.0.0.1", port: int = 502) -> None:
-        check_listen(host, port)
-        await self.start(host, port)
+    async def serve_forever(
+        self, host: str = "127.0.0.1", port: int | None = 502, udp: tuple[str, int] | None = None
+    ) -> None:
+        """`start` (``udp`` as there), then serve until cancelled, then `close`."""
+        await self.start(host, port, udp=udp)
         try:
             await asyncio.Event().wait()
         finally:

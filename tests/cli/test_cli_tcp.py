@@ -357,34 +357,35 @@ def test_a_scheme_nobody_opens_is_a_usage_error_naming_the_supported_ones(
     tmp_path: Path,
 ) -> None:
     for argv in (
-        ("read", "udp://127.0.0.1:502", "0"),
-        ("scan", "udp://127.0.0.1:502"),
-        ("gateway", "--listen", "127.0.0.1:0", "--port", "udp://127.0.0.1:502=1"),
+        ("read", "quic://127.0.0.1:502", "0"),
+        ("scan", "quic://127.0.0.1:502"),
+        ("gateway", "--listen", "127.0.0.1:0", "--port", "quic://127.0.0.1:502=1"),
     ):
         r = pyrtu(*argv)
         assert r.code == 2, (argv, r.err)
-        assert "udp://127.0.0.1:502: unsupported scheme udp://; supported: tcp://, rtu+tcp://" in (
-            r.err
+        assert (
+            "quic://127.0.0.1:502: unsupported scheme quic://; supported: tcp://, rtu+tcp://"
+            in (r.err)
         )
         # pyserial's URL handlers (pyserial's documentation, "URL Handlers")
         assert all(s in r.err for s in ("socket://", "rfc2217://", "loop://")), r.err
         assert "refused" not in r.err and "Traceback" not in r.err
-    sniff = pyrtu("sniff", "udp://127.0.0.1:502", "--duration", "1")
-    assert sniff.code == 2 and "unsupported scheme udp://; supported: " in sniff.err
+    sniff = pyrtu("sniff", "quic://127.0.0.1:502", "--duration", "1")
+    assert sniff.code == 2 and "unsupported scheme quic://; supported: " in sniff.err
     assert "tcp://" not in sniff.err.split("supported: ")[1]  # a serial port: pyserial's only
     config = tmp_path / "points.toml"
     config.write_text(
-        '[[bus]]\nname = "b"\nport = "udp://127.0.0.1:502"\n\n'
+        '[[bus]]\nname = "b"\nport = "quic://127.0.0.1:502"\n\n'
         '[[point]]\nname = "x"\nbus = "b"\nslave = 1\ntable = "holding"\naddress = 0\n'
     )
     r = pyrtu("poll", "--config", config, "--duration", "1")
     assert r.code == 2
-    assert f'{config.name}:3: bus[0] ("b"): port: unsupported scheme udp://' in r.err, r.err
+    assert f'{config.name}:3: bus[0] ("b"): port: unsupported scheme quic://' in r.err, r.err
 
 
 def test_the_api_refuses_a_scheme_before_opening_anything() -> None:
-    with pytest.raises(ValueError, match=r"^udp://h:1: unsupported scheme udp://; supported: "):
-        pyrtu_api.Master("udp://h:1")
+    with pytest.raises(ValueError, match=r"^quic://h:1: unsupported scheme quic://; supported: "):
+        pyrtu_api.Master("quic://h:1")
     with pytest.raises(ValueError, match="unsupported scheme tcp://"):
         open_port("tcp://127.0.0.1:502")  # a serial port: Master opens tcp://
 

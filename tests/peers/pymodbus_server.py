@@ -4,7 +4,8 @@
     python tests/peers/pymodbus_server.py HOST:PORT SLAVE --tcp
 
 ``--tcp``: a Modbus TCP server (ModbusTcpServer) on HOST:PORT instead, serving
-unit SLAVE (and the unit ids 0 and 255 some clients use for a plain server).
+unit SLAVE (and the unit ids 0 and 255 some clients use for a plain server);
+``--udp``: the same over UDP (ModbusUdpServer: one MBAP ADU per datagram).
 
 Opens PORT as 8N1 (pseudo-terminals refuse parity) and serves slave address
 SLAVE only; requests for other addresses are ignored, as on a shared bus.
@@ -47,7 +48,7 @@ from pymodbus import FramerType
 from pymodbus import __version__ as pymodbus_version
 from pymodbus.client.mixin import ModbusClientMixin
 from pymodbus.pdu import ModbusPDU
-from pymodbus.server import ModbusSerialServer, ModbusTcpServer
+from pymodbus.server import ModbusSerialServer, ModbusTcpServer, ModbusUdpServer
 
 try:  # pymodbus >= 3.10
     from pymodbus.pdu.device import ModbusDeviceIdentification
@@ -175,7 +176,7 @@ async def serve(port: str, slave: int, baudrate: int, ascii_mode: bool = False) 
     print("STATS " + " ".join(f"{k}={v}" for k, v in stats.items()), flush=True)
 
 
-async def serve_tcp(address: str, slave: int) -> None:
+async def serve_tcp(address: str, slave: int, udp: bool = False) -> None:
     host, _, port = address.rpartition(":")
     stats = {"requests": 0, "responses": 0}
 
@@ -183,7 +184,7 @@ async def serve_tcp(address: str, slave: int) -> None:
         stats["responses" if sending else "requests"] += 1
         return pdu
 
-    server = ModbusTcpServer(
+    server = (ModbusUdpServer if udp else ModbusTcpServer)(
         [make_device(slave), make_device_as(slave, 255)],
         address=(host, int(port)),
         identity=ModbusDeviceIdentification(info=dict(IDENTITY)),  # type: ignore[no-untyped-call]
@@ -213,11 +214,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--baud", type=int, default=115200)
     parser.add_argument("--ascii", action="store_true", help="Modbus ASCII instead of RTU")
     parser.add_argument("--tcp", action="store_true", help="Modbus TCP on HOST:PORT")
+    parser.add_argument("--udp", action="store_true", help="Modbus over UDP on HOST:PORT")
     args = parser.parse_args(argv)
     if not 1 <= args.slave <= 247:
         parser.error("slave must be 1..247")
-    if args.tcp:
-        asyncio.run(serve_tcp(args.port, args.slave))
+    if args.tcp or args.udp:
+        asyncio.run(serve_tcp(args.port, args.slave, udp=args.udp))
         return 0
     asyncio.run(serve(args.port, args.slave, args.baud, args.ascii))
     return 0

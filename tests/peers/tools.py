@@ -212,11 +212,11 @@ def libmodbus_server(
 
 
 def pymodbus_server(port: str, slave: int, *, baudrate: int = 115200, mode: str = "rtu") -> Peer:
-    """The pymodbus server on `port`, RTU, ASCII or TCP (``mode="tcp"``, `port` is
-    HOST:PORT) (not started: use ``with``)."""
+    """The pymodbus server on `port`, RTU, ASCII, TCP or UDP (``mode="tcp"`` or
+    ``"udp"``, `port` is HOST:PORT) (not started: use ``with``)."""
     argv: list[str | Path] = [sys.executable, PEERS / "pymodbus_server.py", port, str(slave)]
     argv += ["--baud", str(baudrate), *(["--ascii"] if mode == "ascii" else [])]
-    argv += ["--tcp"] if mode == "tcp" else []
+    argv += [f"--{mode}"] if mode in ("tcp", "udp") else []
     return Peer(f"pymodbus-server-{slave}", argv)
 
 

@@ -300,11 +300,11 @@ def test_requests_wait_their_turn_and_a_cancelled_one_is_never_sent(
 def test_a_turn_handed_to_a_cancelled_waiter_passes_on() -> None:
     """The window of turns: a waiter cancelled after `release` handed it the turn
     (before it ran) passes the turn on, so no turn is lost."""
-    from pyrtu.tcp.client import _Window
+    from pyrtu.tcp.client import RequestWindow
 
     async def main() -> None:
         loop = asyncio.get_running_loop()
-        window = _Window(1)
+        window = RequestWindow(1)
         window.free -= 1  # the turn is taken
         second = asyncio.ensure_future(window.wait_turn(loop))
         third = asyncio.ensure_future(window.wait_turn(loop))

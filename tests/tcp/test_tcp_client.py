@@ -149,7 +149,7 @@ def test_urls() -> None:
     assert parse_tcp_url("tcp://127.0.0.1:5020") == ("127.0.0.1", 5020)
     assert parse_tcp_url("tcp://plc") == ("plc", 502)
     assert parse_tcp_url("tcp://[::1]:15") == ("::1", 15)
-    for bad in ("udp://h:1", "tcp://:5", "tcp://h:99999", "tcp://h:1/x", "h:1"):
+    for bad in ("quic://h:1", "tcp://:5", "tcp://h:99999", "tcp://h:1/x", "h:1"):
         with pytest.raises(ValueError, match="tcp://"):
             parse_tcp_url(bad)
 
