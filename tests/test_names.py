@@ -2,8 +2,8 @@
 name unless they are one concept's twins (the C backend and its pure-Python twin, a
 contract and its implementations), and no module is imported under a one-letter alias.
 
-The duplicates still standing are listed here with what tells them apart; a new one
-fails until it is renamed or, being a twin, listed.
+A new duplicate fails until it is renamed or, being a twin (or one concept in each
+drive's profile), listed.
 """
 
 from __future__ import annotations
@@ -26,14 +26,11 @@ TWINS: dict[str, set[str]] = {
     "TcpXferRunner": {"drivers/xfer.py", "drivers/_cxfer.py", "drivers/_pyxfer.py"},
     "TcpScanner": {"drivers/xfer.py", "drivers/_cxfer.py", "drivers/_pyxfer.py"},
 }
-#: duplicates not yet renamed (issue 28, item 5: outside this change's files), each
-#: with the concepts it names
-KNOWN: dict[str, set[str]] = {
-    # the serial server protocol's application, and the TCP server's (a subset: no
-    # watchdog_expired)
-    "Application": {"protocol/server.py", "tcp/server.py"},
-    # a CLI command, a drive's command word (two profiles)
-    "Command": {"cli/app.py", "devices/bonfiglioli.py", "devices/cv100.py"},
+#: one concept in each of the drives' own profiles (the drive's vocabulary, from its
+#: manual): the same name for the same concept, one class per drive
+PER_DRIVE: dict[str, set[str]] = {
+    # a drive's command word (the CLI's command is a Subcommand)
+    "Command": {"devices/bonfiglioli.py", "devices/cv100.py"},
 }
 
 
@@ -57,10 +54,10 @@ def test_no_two_classes_share_a_name() -> None:
     unexpected = {
         name: sorted(homes)
         for name, homes in shared.items()
-        if homes != TWINS.get(name) and homes != KNOWN.get(name)
+        if homes != TWINS.get(name) and homes != PER_DRIVE.get(name)
     }
     assert not unexpected, f"one name for two classes: {unexpected}"
-    gone = sorted((set(TWINS) | set(KNOWN)) - set(shared))
+    gone = sorted((set(TWINS) | set(PER_DRIVE)) - set(shared))
     assert not gone, f"listed duplicates that are gone (take them off the list): {gone}"
 
 

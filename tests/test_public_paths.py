@@ -41,6 +41,8 @@ DEPRECATED: dict[tuple[str, str], tuple[str, str]] = {
     ("pyrtu.bridge.outbox", "OutboxLimits"): ("pyrtu.outbox.outbox", "OutboxLimits"),
     ("pyrtu.bridge.report", "Reporter"): ("pyrtu.outbox.report", "Reporter"),
     ("pyrtu.bridge.report", "Report"): ("pyrtu.outbox.report", "Report"),
+    ("pyrtu.cli", "Command"): ("pyrtu.cli.app", "Subcommand"),
+    ("pyrtu.cli.app", "Command"): ("pyrtu.cli.app", "Subcommand"),
 }
 
 ROOT = Path(__file__).resolve().parent.parent

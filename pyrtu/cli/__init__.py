@@ -35,6 +35,10 @@ module             commands
 The exit codes are those of `pyrtu.cli.common` (``pyrtu --help`` lists them).
 """
 
-from pyrtu.cli.app import COMMANDS, Command, build_parser, command, main, register
+from pyrtu.cli.app import COMMANDS, Subcommand, build_parser, command, main, register
+from pyrtu.core._deprecated import renamed
 
-__all__ = ["COMMANDS", "Command", "build_parser", "command", "main", "register"]
+__all__ = ["COMMANDS", "Subcommand", "build_parser", "command", "main", "register"]
+
+#: the name before issue 28's one name per concept (a drive's command word is a Command)
+__getattr__ = renamed(__name__, {"Command": ("pyrtu.cli.app", "Subcommand")})

@@ -20,15 +20,16 @@ from pyrtu.cli.common import (
     exit_code_table,
     silence_stdout,
 )
+from pyrtu.core._deprecated import renamed
 
-__all__ = ["COMMANDS", "Command", "build_parser", "command", "main", "register"]
+__all__ = ["COMMANDS", "Subcommand", "build_parser", "command", "main", "register"]
 
 Configure = Callable[[argparse.ArgumentParser], None]
 Run = Callable[[argparse.Namespace], int]
 
 
 @dataclass(frozen=True)
-class Command:
+class Subcommand:
     """A ``pyrtu`` subcommand."""
 
     name: str
@@ -39,14 +40,14 @@ class Command:
 
 
 #: The registered subcommands, in the order they are listed by ``--help``.
-COMMANDS: dict[str, Command] = {}
+COMMANDS: dict[str, Subcommand] = {}
 
 
 def register(
     name: str, help: str, configure: Configure, run: Run, description: str | None = None
-) -> Command:
+) -> Subcommand:
     """Add (or replace) a subcommand."""
-    cmd = Command(name, help, configure, run, description)
+    cmd = Subcommand(name, help, configure, run, description)
     COMMANDS[name] = cmd
     return cmd
 
@@ -164,3 +165,6 @@ def _register_builtins() -> None:
 
 
 _register_builtins()
+
+#: the name before issue 28's one name per concept (a drive's command word is a Command)
+__getattr__ = renamed(__name__, {"Command": ("pyrtu.cli.app", "Subcommand")})

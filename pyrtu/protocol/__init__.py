@@ -19,7 +19,15 @@ from pyrtu.protocol.client import ClientProtocol
 from pyrtu.protocol.client_actions import Action, ClientState, Done, Send, Wait, Xfer
 
 # the server (slave) side: requests in, answers out at their time
-from pyrtu.protocol.server import Application, Idle, Listen, Reply, ServerAction, ServerProtocol
+from pyrtu.protocol.server import (
+    Application,
+    Idle,
+    Listen,
+    Reply,
+    ServerAction,
+    ServerProtocol,
+    WatchedApplication,
+)
 
 __all__ = [
     "Action",
@@ -34,6 +42,7 @@ __all__ = [
     "ServerAction",
     "ServerProtocol",
     "Wait",
+    "WatchedApplication",
     "Xfer",
 ]
 

@@ -81,7 +81,8 @@ COUNTER_NAMES = (
 
 
 class Application(Protocol):
-    """What the protocol asks of the slave behind it."""
+    """What a server asks of the slave behind it: the serial `ServerProtocol` and the
+    TCP server (`pyrtu.tcp.server.TcpServer`) alike."""
 
     #: the addresses served (read for every frame: a device may change its own)
     addresses: frozenset[int]
@@ -89,6 +90,11 @@ class Application(Protocol):
     def execute(self, unit: int, request: bytes) -> bytes | None:
         """The response PDU of ``request`` for ``unit`` (0: broadcast), or None."""
         ...
+
+
+class WatchedApplication(Application, Protocol):
+    """An `Application` told when the serial line's watchdog expires (what the
+    serial protocol asks of the slave behind it)."""
 
     def watchdog_expired(self) -> None:
         """No valid request for the watchdog time."""
@@ -188,7 +194,7 @@ class ServerProtocol:
     def __init__(
         self,
         line: LineConfig,
-        app: Application,
+        app: WatchedApplication,
         *,
         backend: ModuleType | str | None = None,
         state: LineState | None = None,
@@ -568,4 +574,5 @@ __all__ = [
     "Response",
     "ServerAction",
     "ServerProtocol",
+    "WatchedApplication",
 ]

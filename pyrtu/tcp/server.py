@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import asyncio
 from collections.abc import Callable, Iterable, Mapping
-from typing import Any, Protocol
+from typing import Any
 
 from pyrtu.core._closing import AsyncClosing
 from pyrtu.core.line import LineConfig
@@ -43,6 +43,7 @@ from pyrtu.drivers.supervise import TaskFailure
 from pyrtu.gateway._plan import check_listen
 from pyrtu.gateway.gateway import Gateway, GatewayLimits
 from pyrtu.protocol.datastore import DataStore
+from pyrtu.protocol.server import Application
 from pyrtu.security.audit import AuditTrail
 from pyrtu.security.policy import Decision, Identity, Policy
 from pyrtu.security.tls import TlsListen
@@ -78,16 +79,6 @@ def _check_store(store: object) -> None:
     raise TypeError(
         f"store must be a DataStore or a mapping address -> DataStore, not {type(store).__name__}"
     )
-
-
-class Application(Protocol):
-    """What the server asks of the slave behind it (`pyrtu.Slave` and the others)."""
-
-    addresses: frozenset[int]
-
-    def execute(self, unit: int, request: bytes) -> bytes | None:
-        """The response PDU of ``request`` for ``unit`` (0: broadcast), or None."""
-        ...
 
 
 class LocalBus:
