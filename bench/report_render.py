@@ -858,9 +858,9 @@ def many_body(data: Data) -> Lines:
         "answered.  *waited for a CPU*: of the time the poller had work, the part it "
         "waited for a CPU (its run-queue wait, /proc/self/schedstat): well above zero, the "
         "machine was too loaded for the run to measure the poller.  *latency*: of the "
-        f"reads, median and 99th percentile.  *silent*, *refusing*: device {data['bad_device']} replaced by a port "
-        "that accepts and never answers, or that refuses; *others*: the other devices' "
-        "periods against the healthy run's.",
+        "reads, median and 99th percentile.  *silent*, *refusing*: device "
+        f"{data['bad_device']} replaced by a port that accepts and never answers, or that "
+        "refuses; *others*: the other devices' periods against the healthy run's.",
         "",
     ]
     rows = []

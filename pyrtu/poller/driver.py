@@ -114,7 +114,8 @@ class _BusRun:
         tick = self.tick
         if not tick or not math.isfinite(deadline):
             return deadline
-        return max(deadline, math.ceil(deadline / tick) * tick)
+        # (a deadline a rounding error past a grid point wakes on that point: max)
+        return max(deadline, math.ceil(deadline / tick - 1e-6) * tick)
 
     def port_state(self) -> str:
         """``down`` (an outage is on), ``up`` (a transaction went through and none
