@@ -386,7 +386,7 @@ class Poller(AsyncService):
                     timer.cancel()
             run.inflight = run.inflight_future = None
             if events:
-                self._dispatch(events)
+                self._dispatch(events, run)
 
     def _task_failed(self, run: _BusRun, failure: TaskFailure) -> None:
         """The bus task raised: count it; the first failure of a run is logged (with
@@ -515,17 +515,22 @@ class Poller(AsyncService):
             return (req.slave, req.address, list(req.values))
         return (req.slave, req.address, req.count)
 
-    def _dispatch(self, events: list[Event]) -> None:
+    def _dispatch(self, events: list[Event], run: _BusRun | None = None) -> None:
+        """Deliver ``events``; ``run``: the bus whose scheduler made them all (its
+        updates counted once for the batch, not per value)."""
         now = time.monotonic()
         offer, changes_only, runs = self._tracker.offer, self.changes_only, self._runs
+        update_cbs = self._update_cbs
+        read = 0
         for ev in events:
             if isinstance(ev, Update):
-                self._values_read += 1
-                runs[ev.point.bus].values += 1
+                read += 1
+                if run is None:
+                    runs[ev.point.bus].values += 1
                 if not offer(ev, now) and changes_only:
                     continue
                 self._updates += 1
-                for cb in self._update_cbs:
+                for cb in update_cbs:
                     self._call(cb, ev)
             elif isinstance(ev, PortState):
                 log.warning("%s", describe_port(ev))
@@ -538,6 +543,9 @@ class Poller(AsyncService):
             for q, only_updates in self._subscribers:
                 if not only_updates or isinstance(ev, Update):
                     self._put(q, ev)
+        self._values_read += read
+        if run is not None:
+            run.values += read
 
     def _put(self, q: asyncio.Queue[Event | None], ev: Event | None) -> None:
         if q.full():  # a consumer that does not keep up loses the oldest events
