@@ -28,7 +28,9 @@ configuration's `ConnectLimits` (``[connect]``: connects in progress at once in
 the poller and per host, the pace of the start, the jitter of the reconnects;
 `pyrtu.poller.connect`, docs/many-devices.md): each is opened by its own task,
 the ``rank``-th one ``rank / start_rate`` seconds after the start (its polls take
-that phase), so a thousand devices neither connect nor poll in one burst.
+that phase), so a thousand devices neither connect nor poll in one burst.  Their
+polls wake on a grid of 1 % of the bus's shortest interval (at most 10 ms,
+`wake_tick`): the buses due within one tick share one wake-up of the loop.
 
 A bus task that raises anything else (a fault of the poller itself) is supervised
 (`pyrtu.drivers.supervise`): logged once with its cause, reported (`TaskFailed`),
