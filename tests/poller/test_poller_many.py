@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import itertools
 import json
+import math
 import random
 import resource
 import selectors
@@ -28,6 +29,7 @@ from pyrtu.drivers.aio import run as aio_run
 from pyrtu.poller import Bus, ConfigError, Point, Poller, PortState, make_config, parse_config
 from pyrtu.poller.connect import ConnectLimits
 from pyrtu.poller.driver import wake_tick
+from pyrtu.poller.events import Tracker, Update
 from pyrtu.protocol.datastore import DataStore
 from pyrtu.tcp.server import TcpServer
 
@@ -470,3 +472,25 @@ def test_a_refusing_device_is_retried_on_its_back_off_and_holds_no_connect() -> 
             break
         allowed += 1
     assert 6 <= attempts <= allowed, (attempts, allowed, elapsed)
+
+
+def test_change_only_delivery_skips_no_change_and_keeps_every_one() -> None:
+    """A value read again unchanged is recognised without `Point.changed` (the
+    common case): what `Tracker.offer` delivers is still exactly what the rule of
+    docs/POLLER.md says, equal values of another type and NaN included."""
+    plain = Point("p", "b", 1, "holding", 0)
+    banded = Point("q", "b", 1, "holding", 1, deadband=2)
+    nan = math.nan
+    cases = [
+        (plain, [5, 5, 6, 6, True, 1, 1.0, 1.0, 0.0, -0.0, nan, nan, 2.5, "a", "a", "b"],
+         [True, False, True, False, True, True, True, False, True, False, True, False, True,
+          True, False, True]),
+        # within the deadband of the last *delivered* value, more than it, exactly it
+        (banded, [10, 12, 13, 11, 16, 16.0, 18.0], [True, False, True, False, True, True, False]),
+    ]  # fmt: skip
+    for point, values, delivered in cases:
+        tracker = Tracker()
+        got = [tracker.offer(Update(point, v, 0.0), float(i)) for i, v in enumerate(values)]
+        assert got == delivered, (point.name, values)
+        assert tracker.last(point.name) == Update(point, values[-1], 0.0)
+        assert tracker.age(point.name, 100.0) == 100.0 - (len(values) - 1)
