@@ -21,13 +21,20 @@ after ``--warmup`` (every device connected and polling):
   before the configuration was loaded, per device; and how much it grew over
   the second half of the measurement (bounded memory: nothing kept per
   transaction beyond each slave's last 1024 latencies);
-* the ramp: seconds from the start until every device (but a bad one) answered.
+* the ramp: seconds from the start until every device (but the bad one) answered;
+* its time waiting for a CPU while it could run (``/proc/self/schedstat``'s run
+  queue wait), as a part of the time it had work (that wait and its CPU time): a
+  figure taken on a loaded machine says so (a poller that waited most of its time
+  for a CPU falls behind for want of one, not of anything it waits on);
+* the latency of the reads (median, 99th percentile), their timeouts and the
+  ports' outages.
 
 The warm-up (``--warmup``) begins once every device answered.
 
-At 1 Hz the run is repeated with device 500 silent (a socket of this script's
-that accepts and never answers) and with it refusing (a port nothing listens
-on): the other devices' periods are compared with the healthy run's.
+At the first rate the run is repeated with the device in the middle of the
+range (500 of 1,000) silent (a socket of this script's that accepts and never
+answers) and with it refusing (a port nothing listens on; ``--bad`` picks which):
+the other devices' periods are compared with the healthy run's.
 
 bench/report.py runs it (``--json``) for bench/RESULTS.md; the summary goes to stdout.
 """
@@ -53,7 +60,6 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
-BAD = 500  # the device made silent or refusing (its rank in the range)
 TIMEOUT = 1.0  # each bus's timeout (a silent device's reads end after it)
 
 
@@ -91,8 +97,14 @@ def cpu_seconds() -> float:
 # ---------------------------------------------------------------- the poller process
 
 
-def child(config: str, warmup: float, seconds: float, out: Path) -> None:
-    """Run the poller of ``config``; write what it measured on itself to ``out``."""
+def run_queue_s() -> float:
+    """Seconds this process's thread waited for a CPU while it could run (Linux)."""
+    return int(Path("/proc/self/schedstat").read_text().split()[1]) / 1e9
+
+
+def child(config: str, warmup: float, seconds: float, out: Path, bad: str | None) -> None:
+    """Run the poller of ``config`` (``bad``: the bus that never answers, if any);
+    write what it measured on itself to ``out``."""
     from pyrtu.drivers.aio import run as aio_run
     from pyrtu.poller import Poller, PortState, load_config
 
@@ -106,12 +118,14 @@ def child(config: str, warmup: float, seconds: float, out: Path) -> None:
     measuring = False
     clock = time.monotonic
     first: dict[str, float] = {}
+    latencies: list[float] = []
 
     def answered(bus: str, slave: int, seconds: float) -> None:
         if bus not in first:
             first[bus] = clock()
         if measuring:
             answers[bus].append(clock())
+            latencies.append(seconds)
 
     outages: list[str] = []
 
@@ -129,18 +143,20 @@ def child(config: str, warmup: float, seconds: float, out: Path) -> None:
         started = clock()
         await poller.start()
         try:
-            # every device but a bad one answered (at most a minute), then the warm-up
-            while len(first) < len(buses) - 1 and clock() < started + 60:
+            # every device but the bad one answered (at most a minute), then the warm-up
+            needed = [name for name in buses if name != bad]
+            while clock() < started + 60 and not all(name in first for name in needed):
                 await asyncio.sleep(0.05)
-            ramp = max(first.values()) - started if first else None
+            answering = [first[name] for name in needed if name in first]
+            ramp = max(answering) - started if len(answering) == len(needed) else None
             await asyncio.sleep(warmup)
             rss_start = rss_kib()
             measuring = True
-            cpu0, t0 = cpu_seconds(), clock()
+            cpu0, t0, queued0 = cpu_seconds(), clock(), run_queue_s()
             await asyncio.sleep(seconds / 2)
             rss_mid = rss_kib()
             await asyncio.sleep(seconds / 2)
-            cpu1, t1 = cpu_seconds(), clock()
+            cpu1, t1, queued1 = cpu_seconds(), clock(), run_queue_s()
             measuring = False
             rss_end = rss_kib()
             summary = poller.summary()
@@ -148,12 +164,15 @@ def child(config: str, warmup: float, seconds: float, out: Path) -> None:
             await poller.stop()
         return {
             "cpu_s": cpu1 - cpu0,
+            "run_queue_s": queued1 - queued0,
+            "unanswered_at_ramp": len(needed) - len(answering),
             "wall_s": t1 - t0,
             "rss_before_kib": before,
             "rss_start_kib": rss_start,
             "rss_end_kib": rss_end,
             "ports_down": sum(1 for b in summary["buses"] if b["port_state"] == "down"),
             "outages": outages,
+            "timeouts": sum(s["timeouts"] for s in summary["slaves"]),
             "ramp_s": ramp,
             "rss_mid_kib": rss_mid,
         }
@@ -167,6 +186,15 @@ def child(config: str, warmup: float, seconds: float, out: Path) -> None:
             gaps[name] = max(b - a for a, b in itertools.pairwise(times)) / interval
         else:
             periods[name] = gaps[name] = None
+    latencies.sort()
+    result["latency_ms"] = (
+        {
+            q: 1000 * latencies[min(len(latencies) - 1, int(len(latencies) * f))]
+            for q, f in (("p50", 0.5), ("p99", 0.99))
+        }
+        if latencies
+        else None
+    )
     result.update(interval=interval, periods=periods, gaps=gaps,
                   answers={n: len(t) for n, t in answers.items()})  # fmt: skip
     out.write_text(json.dumps(result))
@@ -240,9 +268,16 @@ def start_devices(template: Path, devices: int) -> tuple[subprocess.Popen[str], 
 
 
 def run_poller(
-    urls: list[str], registers: int, rate: float, warmup: float, seconds: float, sim: int
+    urls: list[str],
+    registers: int,
+    rate: float,
+    warmup: float,
+    seconds: float,
+    sim: int,
+    bad: int | None = None,
 ) -> dict[str, Any]:
-    """One poller process over ``urls``: what it measured, with the simulator's CPU."""
+    """One poller process over ``urls`` (``bad``: the rank of the device that never
+    answers, if any): what it measured, with the simulator's CPU."""
     with tempfile.TemporaryDirectory(prefix="pyrtu-many-") as tmp:
         config = Path(tmp) / "many.toml"
         config.write_text(config_text(urls, registers, 1.0 / rate))
@@ -253,7 +288,8 @@ def run_poller(
         t0 = time.monotonic()
         done = subprocess.run(
             [sys.executable, __file__, "--child", str(config), "--warmup", str(warmup),
-             "--seconds", str(seconds), "--out", str(out)],
+             "--seconds", str(seconds), "--out", str(out),
+             *(() if bad is None else ("--bad-bus", f"d{bad}"))],
             env=env, capture_output=True, text=True, timeout=warmup + seconds + 300, check=False,
         )  # fmt: skip
         wall = time.monotonic() - t0
@@ -274,6 +310,8 @@ def judge(result: dict[str, Any], devices: int, skip: int | None = None) -> dict
     per_device = (result["rss_start_kib"] - result["rss_before_kib"]) / devices
     return {
         "cpu_pct": 100.0 * result["cpu_s"] / result["wall_s"],
+        # of the time the poller had work, the part it waited for a CPU
+        "run_queue_pct": 100.0 * result["run_queue_s"] / (result["run_queue_s"] + result["cpu_s"]),
         "seconds": result["wall_s"],
         "devices_measured": len(measured),
         "devices_unmeasured": len(periods) - len(measured),
@@ -285,17 +323,27 @@ def judge(result: dict[str, Any], devices: int, skip: int | None = None) -> dict
         "rss_per_device_kib": per_device,
         "rss_growth_kib": result["rss_end_kib"] - result["rss_mid_kib"],
         "ramp_s": result["ramp_s"],
+        "unanswered_at_ramp": result["unanswered_at_ramp"],
         "rss_kib": result["rss_start_kib"],
         "simulator_cpu_pct": result["simulator_cpu_pct"],
         "ports_down": result["ports_down"],
+        "outages": len(result["outages"]),
+        "timeouts": result["timeouts"],
+        "latency_ms": result["latency_ms"],
     }
+
+
+def bad_device(devices: int) -> int:
+    """The rank of the device made silent or refusing: the middle of the range."""
+    return devices // 2
 
 
 def compare(base: dict[str, Any], bad: dict[str, Any], devices: int) -> dict[str, Any]:
     """The others' periods with the bad device against the healthy run's."""
     ratios = []
+    skip = bad_device(devices)
     for i in range(devices):
-        if i == BAD:
+        if i == skip:
             continue
         a, b = base["periods"][f"d{i}"], bad["periods"][f"d{i}"]
         if a is not None and b is not None:
@@ -305,7 +353,7 @@ def compare(base: dict[str, Any], bad: dict[str, Any], devices: int) -> dict[str
         "others_worst_ratio": max(ratios, key=lambda r: abs(r - 1.0)),
         "others_within_5pct": sum(1 for r in ratios if abs(r - 1.0) <= 0.05),
         "others": len(ratios),
-        "bad_answers": bad["answers"][f"d{BAD}"],
+        "bad_answers": bad["answers"][f"d{skip}"],
     }
 
 
@@ -322,14 +370,16 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
                 print(f"bench_many_devices: {args.devices} devices at {rate:g} Hz", flush=True)
                 raw = run_poller(urls, args.registers, rate, args.warmup, args.seconds, sim.pid)
                 entry: dict[str, Any] = {"healthy": judge(raw, args.devices)}
-                if rate == args.rates[0] and args.devices > BAD:
-                    for kind, port in (("silent", silent.port), ("refusing", refused_port())):
-                        print(f"bench_many_devices: device {BAD} {kind}", flush=True)
+                skip = bad_device(args.devices)
+                if rate == args.rates[0] and args.devices >= 2:
+                    for kind in args.bad:
+                        port = silent.port if kind == "silent" else refused_port()
+                        print(f"bench_many_devices: device {skip} {kind}", flush=True)
                         bad_urls = list(urls)
-                        bad_urls[BAD] = f"tcp://127.0.0.1:{port}"
+                        bad_urls[skip] = f"tcp://127.0.0.1:{port}"
                         bad = run_poller(bad_urls, args.registers, rate, args.warmup,
-                                         args.seconds, sim.pid)  # fmt: skip
-                        entry[kind] = {**judge(bad, args.devices, BAD),
+                                         args.seconds, sim.pid, skip)  # fmt: skip
+                        entry[kind] = {**judge(bad, args.devices, skip),
                                        **compare(raw, bad, args.devices)}  # fmt: skip
                 runs[f"{rate:g}"] = entry
         finally:
@@ -347,13 +397,21 @@ def summary(doc: dict[str, Any]) -> str:
     lines = [f"{doc['devices']} devices x {doc['registers']} registers, {doc['seconds']:g} s"]
     for rate, entry in doc["runs"].items():
         for kind, f in entry.items():
+            ramp = (
+                f"{f['ramp_s']:.1f} s"
+                if f["ramp_s"] is not None
+                else f"not within 60 s ({f['unanswered_at_ramp']} not yet)"
+            )
             line = (
-                f"{rate:>4} Hz {kind:9} CPU {f['cpu_pct']:5.1f} % of a core; period "
+                f"{rate:>4} Hz {kind:9} CPU {f['cpu_pct']:5.1f} % of a core (waited for one "
+                f"{f['run_queue_pct']:.0f} % of the time it had work); period "
                 f"median {f['period_median']:.3f}, worst {f['period_max']:.3f} of the interval "
                 f"({f['within_10pct']}/{f['devices_measured']} within 10 %), largest gap "
                 f"{f['gap_max']:.2f}; {f['rss_per_device_kib']:.1f} KiB per device "
                 f"(grew {f['rss_growth_kib']} KiB); simulator {f['simulator_cpu_pct']:.0f} %; "
-                f"all answering after {f['ramp_s']:.1f} s"
+                f"all answering after {ramp}; latency p50/p99 "
+                f"{f['latency_ms']['p50']:.1f}/{f['latency_ms']['p99']:.1f} ms; "
+                f"{f['timeouts']} timeouts, {f['outages']} outages"
             )
             if "others_median_ratio" in f:
                 line += (
@@ -373,16 +431,25 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=20.0, help="measured, per run")
     ap.add_argument("--warmup", type=float, default=4.0, help="before measuring, per run")
     ap.add_argument("--quick", action="store_true", help="--seconds 8 --warmup 3")
+    ap.add_argument(
+        "--bad",
+        default="silent,refusing",
+        help="the runs with one bad device at the first rate: silent, refusing (none: no such run)",
+    )
     ap.add_argument("--json", type=Path, default=None, help="also save the figures here")
     ap.add_argument("--child", help=argparse.SUPPRESS)
+    ap.add_argument("--bad-bus", help=argparse.SUPPRESS)
     ap.add_argument("--out", type=Path, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child is not None:
-        child(args.child, args.warmup, args.seconds, args.out)
+        child(args.child, args.warmup, args.seconds, args.out, args.bad_bus)
         return
     if args.quick:
         args.seconds, args.warmup = 8.0, 3.0
     args.rates = [float(r) for r in args.rates.split(",")]
+    args.bad = [] if args.bad == "none" else args.bad.split(",")
+    if any(kind not in ("silent", "refusing") for kind in args.bad):
+        ap.error(f"--bad: silent, refusing or none, not {','.join(args.bad)!r}")
     runs = measure(args)
     doc = {
         "command": shlex.join(["python", "bench/bench_many_devices.py", *sys.argv[1:]]),
@@ -390,7 +457,7 @@ def main() -> None:
         "registers": args.registers,
         "seconds": args.seconds,
         "warmup": args.warmup,
-        "bad_device": BAD,
+        "bad_device": bad_device(args.devices),
         "runs": runs,
     }
     print(summary(doc))

@@ -855,9 +855,12 @@ def many_body(data: Data) -> Lines:
         "gap* the longest single one.  *memory*: the process's RSS with the poller "
         "running less before its configuration was loaded, per device; *grew*: over the "
         "second half of the measurement.  *ramp*: from the start until every device "
-        f"answered.  *silent*, *refusing*: device {data['bad_device']} replaced by a port "
-        "that accepts and never answers, or that refuses; *others*: the other devices' "
-        "periods against the healthy run's.",
+        "answered.  *waited for a CPU*: of the time the poller had work, the part it "
+        "waited for a CPU (its run-queue wait, /proc/self/schedstat): well above zero, the "
+        "machine was too loaded for the run to measure the poller.  *latency*: of the "
+        "reads, median and 99th percentile.  *silent*, *refusing*: device "
+        f"{data['bad_device']} replaced by a port that accepts and never answers, or that "
+        "refuses; *others*: the other devices' periods against the healthy run's.",
         "",
     ]
     rows = []
@@ -874,6 +877,7 @@ def many_body(data: Data) -> Lines:
                     f"{rate} Hz",
                     kind,
                     f"{f['cpu_pct']:.1f} %",
+                    "-" if "run_queue_pct" not in f else f"{f['run_queue_pct']:.0f} %",
                     f"{f['period_median']:.3f} / {f['period_max']:.3f}"
                     if f["period_median"] is not None
                     else "-",
@@ -882,6 +886,9 @@ def many_body(data: Data) -> Lines:
                     f"{f['rss_per_device_kib']:.1f} KiB",
                     f"{f['rss_growth_kib']} KiB",
                     "-" if f["ramp_s"] is None else f"{f['ramp_s']:.1f} s",
+                    "-"
+                    if f.get("latency_ms") is None
+                    else f"{f['latency_ms']['p50']:.1f} / {f['latency_ms']['p99']:.1f} ms",
                     f"{f['simulator_cpu_pct']:.0f} %",
                     others,
                 ]
@@ -891,12 +898,14 @@ def many_body(data: Data) -> Lines:
             "rate",
             "run",
             "poller CPU",
+            "waited for a CPU",
             "period median / worst",
             "within 10 %",
             "largest gap",
             "memory per device",
             "grew",
             "ramp",
+            "latency",
             "simulator CPU",
             "others",
         ],

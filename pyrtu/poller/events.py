@@ -234,13 +234,19 @@ class Tracker:
 
     def offer(self, update: Update, seen: float) -> bool:
         """``seen``: the sample's time on the clock `age` is asked on."""
-        name = update.point.name
+        point = update.point
+        name, new = point.name, update.value
         self._seen[name] = seen
         self._latest[name] = update
-        if name not in self._delivered or update.point.changed(self._delivered[name], update.value):
-            self._delivered[name] = update.value
-            return True
-        return False
+        delivered = self._delivered
+        if name in delivered:
+            old = delivered[name]
+            # the common case first: the value delivered last, again (no change
+            # under any deadband: `Point.changed` is False for an equal value)
+            if (type(old) is type(new) and old == new) or not point.changed(old, new):
+                return False
+        delivered[name] = new
+        return True
 
     def age(self, name: str, now: float) -> float | None:
         """Seconds since the point was last read (None: never)."""

@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import itertools
 import json
+import math
 import random
 import resource
 import selectors
@@ -27,6 +28,8 @@ from pyrtu.drivers.aio import SELECT_LIMIT, new_event_loop
 from pyrtu.drivers.aio import run as aio_run
 from pyrtu.poller import Bus, ConfigError, Point, Poller, PortState, make_config, parse_config
 from pyrtu.poller.connect import ConnectLimits
+from pyrtu.poller.driver import wake_tick
+from pyrtu.poller.events import Tracker, Update
 from pyrtu.protocol.datastore import DataStore
 from pyrtu.tcp.server import TcpServer
 
@@ -384,3 +387,110 @@ def test_fifty_devices_one_silent_one_refusing_one_slow_the_others_keep_their_pe
         assert max(gaps) < 4 * INTERVAL, (i, gaps)
     # each healthy device's period: its interval (a loaded machine: within 25 %)
     assert all(0.75 <= p <= 1.25 for p in periods), periods
+
+
+# ---------------------------------------------------------------- wake-ups shared
+
+
+def test_network_polls_wake_on_a_grid_of_their_interval() -> None:
+    """A thousand devices at 1 Hz started a millisecond apart would wake the loop a
+    thousand times a second, one bus each: a network bus's polls wake on a grid of
+    1 % of its shortest interval (at most 10 ms), so those due within one tick
+    share a wake-up; a local bus's wake at their due time."""
+    assert wake_tick(1.0) == 0.01
+    assert wake_tick(0.5) == 0.005
+    assert wake_tick(2.0) == 0.01  # at most 10 ms
+    buses = [Bus("t", "tcp://127.0.0.1:1502"), Bus("s", "/dev/pyrtu-no-such-port")]
+    points = [
+        Point("t.x", "t", 1, "holding", 0, interval=2.0),
+        Point("t.y", "t", 1, "holding", 1, interval=0.5),  # the shortest: its 1 %
+        Point("s.x", "s", 1, "holding", 0, interval=0.5),
+    ]
+    poller = Poller(make_config(buses, points))
+    network, local = poller._runs["t"], poller._runs["s"]
+    assert network.tick == 0.005 and local.tick == 0.0
+    # the boundaries: on a grid point (as the arithmetic of due times gives it) at
+    # once, just past it the next one, just before it that one
+    assert network.wake_at(100.005) == 100.005
+    assert network.wake_at(0.1 + 0.2) == 0.1 + 0.2  # 0.30000000000000004: on 0.300
+    assert network.wake_at(100.0051) == pytest.approx(100.010, abs=1e-9)
+    assert network.wake_at(100.0049) == pytest.approx(100.005, abs=1e-9)
+    assert local.wake_at(100.0051) == 100.0051
+    assert network.wake_at(float("-inf")) == float("-inf")  # something due now
+
+
+@pytest.mark.wall_clock
+def test_a_refusing_device_is_retried_on_its_back_off_and_holds_no_connect() -> None:
+    """A device that refuses is tried again only after its back-off (no jitter:
+    0.1 s doubling to 0.4 s, so never more often than that schedule allows), and
+    with one connect at a time in the whole poller the healthy devices still
+    connect and poll: the refusal gives its slot back at once."""
+    store = DataStore()
+    store.holding_registers.add_range(0, [5])
+    with socket.socket() as gone:
+        gone.bind(("127.0.0.1", 0))
+        refusing = int(gone.getsockname()[1])
+    waits = [0.1, 0.2, 0.4]  # then 0.4 each time
+    limits = ConnectLimits(max_connecting=1, max_connecting_per_host=1, jitter=0.0)
+
+    async def main() -> tuple[int, float, dict[str, int]]:
+        servers = [await TcpServer.for_store(1, store).start("127.0.0.1", 0) for _ in range(4)]
+        buses = [Bus(f"b{i}", "tcp://{}:{}".format(*s.address), {"timeout": 2.0})
+                 for i, s in enumerate(servers)]  # fmt: skip
+        buses.append(
+            Bus("bad", f"tcp://127.0.0.1:{refusing}", {"timeout": 2.0}, backoff=0.1,
+                max_backoff=0.4)
+        )  # fmt: skip
+        answers = {b.name: 0 for b in buses}
+
+        def answered(bus: str, slave: int, seconds: float) -> None:
+            answers[bus] += 1
+
+        poller = Poller(make_config(buses, points_of(buses, 0.1)), connect=limits)
+        poller.on_latency(answered)
+        try:
+            async with poller:
+                bad = poller._runs["bad"].reconnect  # (start makes it anew)
+                await until(lambda: bad.outage is not None and bad.outage.attempts >= 6,
+                            "six attempts to connect to the refusing port")  # fmt: skip
+                await until(lambda: min(answers[f"b{i}"] for i in range(4)) >= 20,
+                            "20 reads of every healthy device")  # fmt: skip
+                outage = bad.outage
+                assert outage is not None
+                return outage.attempts, time.monotonic() - outage.since, answers
+        finally:
+            for s in servers:
+                await s.close()
+
+    attempts, elapsed, answers = asyncio.run(main())
+    assert answers["bad"] == 0
+    # the k-th attempt after the first comes no sooner than the sum of k waits
+    allowed, passed = 1, 0.0
+    while True:
+        passed += waits[min(allowed - 1, len(waits) - 1)]
+        if passed > elapsed:
+            break
+        allowed += 1
+    assert 6 <= attempts <= allowed, (attempts, allowed, elapsed)
+
+
+def test_change_only_delivery_skips_no_change_and_keeps_every_one() -> None:
+    """A value read again unchanged is recognised without `Point.changed` (the
+    common case): what `Tracker.offer` delivers is still exactly what the rule of
+    docs/POLLER.md says, equal values of another type and NaN included."""
+    plain = Point("p", "b", 1, "holding", 0)
+    banded = Point("q", "b", 1, "holding", 1, deadband=2)
+    nan = math.nan
+    cases = [
+        (plain, [5, 5, 6, 6, True, 1, 1.0, 1.0, 0.0, -0.0, nan, nan, 2.5, "a", "a", "b"],
+         [True, False, True, False, True, True, True, False, True, False, True, False, True,
+          True, False, True]),
+        # within the deadband of the last *delivered* value, more than it, exactly it
+        (banded, [10, 12, 13, 11, 16, 16.0, 18.0], [True, False, True, False, True, True, False]),
+    ]  # fmt: skip
+    for point, values, delivered in cases:
+        tracker = Tracker()
+        got = [tracker.offer(Update(point, v, 0.0), float(i)) for i, v in enumerate(values)]
+        assert got == delivered, (point.name, values)
+        assert tracker.last(point.name) == Update(point, values[-1], 0.0)
+        assert tracker.age(point.name, 100.0) == 100.0 - (len(values) - 1)
