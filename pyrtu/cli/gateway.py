@@ -154,8 +154,9 @@ def _limit(text: str) -> int:
 
 def _configure(p: argparse.ArgumentParser) -> None:
     p.add_argument(
-        "-l", "--listen", required=True, type=listen_address, metavar="HOST:PORT",
-        help="address to listen on for Modbus TCP clients (port 0: any free port)",
+        "-l", "--listen", type=listen_address, metavar="HOST:PORT",
+        help="address to listen on for Modbus TCP clients (port 0: any free port); "
+        "leave it out for a gateway with only --tls-listen (or --listen-rtu, --udp-listen)",
     )  # fmt: skip
     p.add_argument(
         "--listen-rtu", type=listen_address, metavar="HOST:PORT",
@@ -306,6 +307,8 @@ async def _connect(spec: BusSpec, args: argparse.Namespace) -> Any:
 
 
 async def _serve(args: argparse.Namespace) -> dict[str, Any]:
+    if all(a is None for a in (args.listen, args.listen_rtu, args.tls_listen, args.udp_listen)):
+        raise ValueError("give one of --listen, --tls-listen, --listen-rtu or --udp-listen")
     units = _routes(args.port, args.unit_map)
     limits = gateways.GatewayLimits(
         max_connections=args.max_connections,
@@ -327,7 +330,7 @@ async def _serve(args: argparse.Namespace) -> dict[str, Any]:
             on_task=lambda failure: _task_failed(args, failure),
             **security.server_kwargs(),
         )
-        host, port = args.listen
+        host, port = args.listen if args.listen is not None else ("127.0.0.1", None)
         try:
             await gw.start(host, port, rtu=args.listen_rtu, tls=security.tls, udp=args.udp_listen)
         except OSError as exc:
@@ -395,22 +398,23 @@ def _task_failed(args: argparse.Namespace, failure: TaskFailure) -> None:
 
 
 def _ready(args: argparse.Namespace, gw: gateways.Gateway) -> None:
-    assert gw.address is not None
-    host, port = gw.address
+    def text(at: tuple[str, int] | None) -> str | None:
+        return None if at is None else "{}:{}".format(*at)
+
     buses = [s.port for s in args.port]
-    rtu = None if gw.rtu_address is None else "{}:{}".format(*gw.rtu_address)
-    tls = None if gw.tls_address is None else "{}:{}".format(*gw.tls_address)
-    udp = None if gw.udp_address is None else "{}:{}".format(*gw.udp_address)
+    plain, rtu, tls, udp = (text(at) for at in (gw.address, gw.rtu_address, gw.tls_address,
+                                                 gw.udp_address))  # fmt: skip
     if args.json:
-        emit({"type": "ready", "listen": f"{host}:{port}", "listen_rtu": rtu,
+        emit({"type": "ready", "listen": plain, "listen_rtu": rtu,
               "listen_tls": tls, "listen_udp": udp, "buses": buses})  # fmt: skip
     else:
-        also = f" (RTU over TCP on {rtu})" if rtu else ""
-        also += f" (Modbus/TCP Security on {tls})" if tls else ""
-        also += f" (Modbus over UDP on {udp})" if udp else ""
+        kinds = (("Modbus TCP", plain), ("RTU over TCP", rtu), ("Modbus/TCP Security", tls),
+                 ("Modbus over UDP", udp))  # fmt: skip
+        first, *rest = [(kind, at) for kind, at in kinds if at is not None]
+        also = "".join(f" ({kind} on {at})" for kind, at in rest)
+        where = first[1] if first[0] == "Modbus TCP" else f"{first[1]} ({first[0]})"
         print(
-            f"pyrtu gateway: listening on {host}:{port}{also}, buses {', '.join(buses)}; "
-            "Ctrl-C to stop",
+            f"pyrtu gateway: listening on {where}{also}, buses {', '.join(buses)}; Ctrl-C to stop",
             file=sys.stderr,
             flush=True,
         )

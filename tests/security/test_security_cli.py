@@ -281,3 +281,33 @@ def test_gateway_port_tls_options_need_an_mbaps_port(pki) -> None:  # type: igno
     assert r.returncode == 2 and "--port-tls-ca is for an mbaps:// --port" in r.stderr
     r = run("gateway", "--listen", "127.0.0.1:0", "--port", "mbaps://127.0.0.1:1")
     assert r.returncode == 2 and "needs --port-tls-cert, --port-tls-key, --port-tls-ca" in r.stderr
+
+
+def test_gateway_with_only_a_tls_listener(  # type: ignore[no-untyped-def]
+    procs: list[subprocess.Popen[str]], pki
+) -> None:
+    """No --listen: the gateway listens for Modbus/TCP Security only (no plaintext
+    port at all, not even on loopback); an mbaps:// client with a certificate the CA
+    signed is served through it, and its ready line says there is no plain listener."""
+    from pyrtu import Master
+    from pyrtu.security.tls import client_context
+
+    sim, ready = start("simulate", "cfw100", "--tcp", "127.0.0.1:0")
+    procs.append(sim)
+    gw, gw_ready = start("gateway", "--tls-listen", "127.0.0.1:0", *tls_options(pki),
+                         "--port", f"tcp://{ready['tcp']}=1")  # fmt: skip
+    procs.append(gw)
+    assert gw_ready["listen"] is None and gw_ready["listen_rtu"] is None
+    port = str(gw_ready["listen_tls"]).rsplit(":", 1)[1]
+    context = client_context(pki.operator.cert, pki.operator.key, pki.ca.path)
+    with Master(f"mbaps://localhost:{port}", tls=context, timeout=5.0) as m:
+        m.write_register(1, 683, 1234)
+        assert m.read_holding_registers(1, 683, 1) == [1234]
+    stop(gw)
+
+
+def test_gateway_with_no_listener_exits_2_naming_the_flags() -> None:
+    r = run("gateway", "--port", "tcp://127.0.0.1:1")
+    assert r.returncode == 2, r.stderr
+    assert "give one of --listen, --tls-listen, --listen-rtu or --udp-listen" in r.stderr
+    assert "Traceback" not in r.stderr and r.stdout == ""
