@@ -42,6 +42,7 @@ from pyrtu.cli.common import (
     emit,
     report_error,
     seconds,
+    stop_when_stdout_closes,
 )
 from pyrtu.metrics.address import add_metrics_option, open_metrics
 
@@ -164,6 +165,7 @@ async def serve_output(
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
+    unwatch = stop_when_stdout_closes(loop, stop)  # | head: its reader gone, it ends
     try:
         try:
             await output.start()
@@ -185,6 +187,7 @@ async def serve_output(
                 w.cancel()
         await finish()
     finally:
+        unwatch()
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.remove_signal_handler(sig)
     return None

@@ -469,12 +469,14 @@ def test_bridge_sigkill_the_will_is_the_ndeath_with_the_births_bdseq(tmp_path: P
             host.close()
 
 
-@pytest.mark.parametrize("how", ["sigterm", "sigint", "duration"])
+@pytest.mark.parametrize("how", ["sigterm", "sigint", "duration", "closed-pipe"])
 def test_the_bridge_ends_on_a_signal_and_on_its_duration_with_its_ndeath(
     tmp_path: Path, how: str
 ) -> None:
-    """``pyrtu bridge`` in Sparkplug mode ends with status 0 on SIGTERM, SIGINT and
-    ``--duration``, and says its NDEATH itself (the NBIRTH's bdSeq) before it goes."""
+    """``pyrtu bridge`` in Sparkplug mode ends with status 0 on SIGTERM, SIGINT,
+    ``--duration`` and its output pipe closed by its reader (``| head``: it writes
+    nothing before its end, so it watches the pipe), and says its NDEATH itself (the
+    NBIRTH's bdSeq) before it goes."""
     with Broker(tmp_path) as broker, drives() as (bus, _sim):
         path = tmp_path / "b.toml"
         path.write_text(config(broker.url, bus.paths[0], tmp_path / "ob"))  # type: ignore[attr-defined]
@@ -484,13 +486,16 @@ def test_the_bridge_ends_on_a_signal_and_on_its_duration_with_its_ndeath(
             argv += ["--duration", "3"]
         proc = subprocess.Popen(
             argv,
-            stdout=subprocess.DEVNULL,
+            stdout=subprocess.PIPE if how == "closed-pipe" else subprocess.DEVNULL,
             stderr=subprocess.PIPE,
             env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)},
         )
         try:
             host.wait(lambda: len(host.of("NBIRTH")) == 1, "the NBIRTH")
-            if how != "duration":
+            if how == "closed-pipe":
+                assert proc.stdout is not None
+                proc.stdout.close()  # the reader gone
+            elif how != "duration":
                 proc.send_signal(signal.SIGTERM if how == "sigterm" else signal.SIGINT)
             code = proc.wait(30)  # a safety net, not a measure
             assert proc.stderr is not None
