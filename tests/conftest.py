@@ -10,8 +10,10 @@ Python library) fails CI instead of quietly leaving its tests out.  The C core:
 
 from __future__ import annotations
 
+import asyncio
 import os
-from collections.abc import Generator
+import threading
+from collections.abc import Generator, Iterator
 from types import ModuleType
 
 import pytest
@@ -106,3 +108,16 @@ def both() -> tuple[ModuleType, ModuleType]:
     if "c" not in pyrtu.available_backends():
         missing()
     return pyrtu.backend("c"), pyrtu.backend("python")
+
+
+@pytest.fixture
+def loop() -> Iterator[asyncio.AbstractEventLoop]:
+    """An event loop running on a thread of its own (servers under test on it, the
+    test's clients in the test's thread: `asyncio.run_coroutine_threadsafe`)."""
+    loop = asyncio.new_event_loop()
+    thread = threading.Thread(target=loop.run_forever, daemon=True)
+    thread.start()
+    yield loop
+    loop.call_soon_threadsafe(loop.stop)
+    thread.join(10)
+    loop.close()

@@ -12,9 +12,7 @@ import json
 import logging
 import socket
 import struct
-import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -35,17 +33,6 @@ name = "neighbour"
 clients = ["127.0.0.2/32"]
 read_only = true
 """
-
-
-@pytest.fixture
-def loop() -> Iterator[asyncio.AbstractEventLoop]:
-    loop = asyncio.new_event_loop()
-    thread = threading.Thread(target=loop.run_forever, daemon=True)
-    thread.start()
-    yield loop
-    loop.call_soon_threadsafe(loop.stop)
-    thread.join(10)
-    loop.close()
 
 
 def store() -> DataStore:
