@@ -25,8 +25,14 @@ Two kinds of mutants, both run in a copy of the tree (build/mutate/), never in i
 order, so the ones judged when the time is up are a random sample; the report says
 how many were not run (and `--survivors` later judges the survivors of the sample).
 
+A mutant inside an annotation is not run (`_annotation_spans`: every target module
+has `from __future__ import annotations`, so an annotation is a string nothing
+evaluates).  A run that cosmic-ray stopped at the target's timeout counts as
+incompetent, not killed (a loaded machine makes a slow run, no kill).
+
 `--survivors` reuses a target's last session: the killed mutants stay killed, and
-only the survivors run again against the current tests/ (copied anew).  `--rest`
+only the survivors (and the runs that timed out) run again against the current
+tests/ (copied anew).  `--rest`
 reuses it too: the verdicts stay, and the mutants a budget left unjudged run (a
 further sample, within the budget), so that a target's figure grows to cover most
 mutants run by run (run `--survivors` first: a survivor stays one until then).  That is
@@ -37,6 +43,7 @@ grew since the session; the run checks both and refuses otherwise.
 from __future__ import annotations
 
 import argparse
+import ast
 import json
 import os
 import shlex
@@ -167,6 +174,12 @@ def _pytest(tests: list[str]) -> list[str]:
         "-q",
         "-p",
         "no:cacheprovider",
+        # hypothesis works without its pytest plugin, whose import (2 s on a loaded
+        # machine) is most of a short run: a test file that uses it imports it
+        "-p",
+        "no:hypothesispytest",
+        "-p",
+        "no:benchmark",
         "-m",
         "not rss",
         *tests,
@@ -317,8 +330,16 @@ def _survivors_again(tree: Path, target: Target, rest: bool = False) -> None:
                 " (SELECT job_id FROM work_results)",
                 (_PARKED,),
             )
-            db.execute("DELETE FROM work_results WHERE test_outcome = 'SURVIVED'")
+            # the survivors, and the runs that timed out (under load: judged again)
+            db.execute(
+                "DELETE FROM work_results WHERE test_outcome = 'SURVIVED' OR output = ?",
+                (_TIMEOUT,),
+            )
 
+
+#: cosmic-ray's output for a test run it stopped at the target's timeout (it counts
+#: it as killed; here it is incompetent: on a loaded machine a slow run is no kill)
+_TIMEOUT = "timeout"
 
 _PARKED = "not run: parked while the survivors are judged again"
 
@@ -354,6 +375,53 @@ def _exec(cr: Path, tree: Path, config: Path, session: Path, module: str, budget
         return
     if code != 0:
         raise SystemExit(f"mutate: cosmic-ray exec failed on {module} (exit {code})")
+
+
+_IN_ANNOTATION = "in an annotation, never evaluated"
+
+
+def _annotation_spans(path: Path) -> list[tuple[tuple[int, int], tuple[int, int]]]:
+    """Where the annotations of the module at `path` are, as ((line, column), (line,
+    column)) spans in characters, when it never evaluates them: with `from __future__
+    import annotations` an annotation is a string, and nothing in pyrtu evaluates one
+    (no get_type_hints), so a mutant inside it (`int | None` to `int & None`) changes
+    nothing.  Empty for a module without that import (its annotations run)."""
+    source = path.read_text()
+    module = ast.parse(source)
+    if not any(
+        isinstance(node, ast.ImportFrom)
+        and node.module == "__future__"
+        and any(alias.name == "annotations" for alias in node.names)
+        for node in module.body
+    ):
+        return []
+    lines = source.splitlines()
+
+    def column(line: int, offset: int) -> int:  # ast counts UTF-8 bytes, cosmic-ray characters
+        return len(lines[line - 1].encode()[:offset].decode(errors="ignore"))
+
+    spans = []
+    for node in ast.walk(module):
+        found: list[ast.expr | None] = []
+        if isinstance(node, ast.arg):
+            found.append(node.annotation)
+        elif isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            found.append(node.returns)
+        elif isinstance(node, ast.AnnAssign):
+            found.append(node.annotation)
+        for expr in found:
+            if expr is not None and expr.end_lineno is not None and expr.end_col_offset is not None:
+                spans.append(
+                    (
+                        (expr.lineno, column(expr.lineno, expr.col_offset)),
+                        (expr.end_lineno, column(expr.end_lineno, expr.end_col_offset)),
+                    )
+                )
+    return spans
+
+
+def _inside(spans: list[tuple[tuple[int, int], tuple[int, int]]], pos: tuple[int, int]) -> bool:
+    return any(start <= tuple(pos) < end for start, end in spans)
 
 
 def _run_target(
@@ -406,16 +474,27 @@ def _run_target(
             subprocess.run(
                 [cr, "init", config.name, session.name], cwd=tree, check=True, env=_env(tree)
             )
+            spans = _annotation_spans(tree / module)
             with use_db(str(session), WorkDB.Mode.open) as db:
-                skip = [
-                    item.job_id
-                    for item in db.pending_work_items
-                    if item.mutations[0].operator_name not in OPERATORS
-                ]
-                db.set_multiple_results(
-                    skip,
-                    WorkResult(output="operator not kept", worker_outcome=WorkerOutcome.SKIPPED),
-                )
+                items = list(db.pending_work_items)
+                for skip, why in (
+                    (
+                        [i.job_id for i in items if i.mutations[0].operator_name not in OPERATORS],
+                        "operator not kept",
+                    ),
+                    (
+                        [
+                            i.job_id
+                            for i in items
+                            if i.mutations[0].operator_name in OPERATORS
+                            and _inside(spans, i.mutations[0].start_pos)
+                        ],
+                        _IN_ANNOTATION,
+                    ),
+                ):
+                    db.set_multiple_results(
+                        skip, WorkResult(output=why, worker_outcome=WorkerOutcome.SKIPPED)
+                    )
         _exec(cr, tree, config, session, module, budget)
         if survivors:
             _unpark(session)
@@ -468,7 +547,7 @@ def _summarise(target: Target) -> Summary:
         line = mutation["start_pos"][0]
         text = _line(tree, module, line)
         outcome = result["test_outcome"]
-        if result["worker_outcome"] in ("exception", "abnormal"):
+        if result["worker_outcome"] in ("exception", "abnormal") or result["output"] == _TIMEOUT:
             outcome = "incompetent"
         if outcome == "survived":
             match = next(
