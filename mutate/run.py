@@ -282,7 +282,7 @@ def _targets() -> list[Target]:
     return [Target(name=name, **spec) for name, spec in data["target"].items()]
 
 
-def _equivalents() -> list[dict[str, str]]:
+def _equivalents() -> list[dict[str, object]]:
     return list(tomllib.loads((HERE / "equivalent.toml").read_text()).get("equivalent", []))
 
 
@@ -530,6 +530,30 @@ class Summary:
         return self.counts["killed"] / judged if judged else 0.0
 
 
+def _is(entry: dict[str, object], mutation: dict[str, object], text: str, diff: str) -> bool:
+    """Whether an entry of mutate/equivalent.toml names this mutant: its module,
+    operator and line's text, and where the line alone is ambiguous (the same text in
+    two functions, two operators of a kind on one line, a number moved up or down)
+    the optional `definition` (the enclosing function, cosmic-ray's
+    definition_name), `column` (where the mutated token starts) and `mutated` (the
+    line as the mutant has it)."""
+    start = mutation["start_pos"]
+    assert isinstance(start, list)
+    mutated = [
+        line[1:].strip()
+        for line in diff.splitlines()
+        if line.startswith("+") and not line.startswith("+++")
+    ]
+    return (
+        entry["module"] == mutation["module_path"]
+        and entry["operator"] == mutation["operator_name"]
+        and str(entry["line"]).strip() == text
+        and entry.get("definition", mutation["definition_name"]) == mutation["definition_name"]
+        and entry.get("column", start[1]) == start[1]
+        and ("mutated" not in entry or [str(entry["mutated"]).strip()] == mutated)
+    )
+
+
 def _summarise(target: Target) -> Summary:
     tree = WORK / f"tree-{target.name}"
     equivalents = _equivalents()
@@ -551,13 +575,7 @@ def _summarise(target: Target) -> Summary:
             outcome = "incompetent"
         if outcome == "survived":
             match = next(
-                (
-                    e
-                    for e in equivalents
-                    if e["module"] == module
-                    and e["operator"] == mutation["operator_name"]
-                    and e["line"].strip() == text
-                ),
+                (e for e in equivalents if _is(e, mutation, text, result.get("diff") or "")),
                 None,
             )
             if match is not None:

@@ -51,3 +51,86 @@ def test_a_frame_after_a_silence_bounds_the_wait_when_the_head_bounds_nothing(
     f.receive_data(b"\x01\x03", 1.010)  # 10 ms later: past t3.5 (4 ms), short of 50
     assert f.next_event() is None
     assert f.needed() == 5 - 2
+
+
+def test_an_unknown_frame_after_a_silence_leaves_the_heads_bound(backend: ModuleType) -> None:
+    """The head "01 10" (Write Multiple registers, [AP] 6.12: 9 bytes at least, or
+    another slave's 8-byte answer) needs 6 more; after a t3.5 silence come two bytes
+    of a frame with no length rule (0x5A): it bounds nothing, and the head's own
+    bound stands (8 - 4 bytes: the two count towards the head too)."""
+    f = backend.Framer("slave", baudrate=9600)
+    f.receive_data(b"\x01\x10", 1.0)
+    assert f.next_event() is None
+    assert f.needed() == 8 - 2
+    f.receive_data(b"\x01\x5a", 1.010)  # 10 ms later: past t3.5 (4 ms), short of 50
+    assert f.next_event() is None
+    assert f.needed() == 8 - 4
+
+
+def test_a_deadline_past_the_int64_range_is_no_timer(backend: ModuleType) -> None:
+    """Times are int64 microseconds that saturate, as in the C core (csrc/rtu_internal.h):
+    bytes at the last representable millisecond, their t3.5 lies past 2**63 - 1 us,
+    so there is no timer (never a deadline in the past, nor one beyond the range)."""
+    f = backend.Framer("slave", baudrate=9600)
+    last = (2**63 - 1) / 1e6 - 0.001  # 1 ms before the end: t3.5 (4 ms) runs past it
+    f.receive_data(b"\x01\x03", last)
+    assert f.next_event() is None
+    assert f.timer() is None
+
+
+def test_a_monitor_calls_a_silence_framed_mei_frame_a_request(backend: ModuleType) -> None:
+    """Function 43 is a request ([AP] 6.19-6.21); MEI type 13 (CANopen General
+    Reference) has no length rule, so the frame ends by its silence: a monitor
+    that awaits no answer calls it a request (the function has a request rule),
+    not unknown."""
+    f = backend.Framer("monitor", baudrate=9600)
+    adu = bytes(backend.add_crc(b"\x01\x2b\x0d\x00\x01\x02"))
+    f.receive_data(adu, 1.0)
+    f.handle_timer(1.1)
+    ev = f.next_event()
+    assert ev is not None and ev.error is None and ev.adu == adu
+    assert str(ev.kind) == "request"
+
+
+def test_a_complete_length_with_a_wrong_crc_does_not_end_the_wait(backend: ModuleType) -> None:
+    """Eight bytes "01 03 10 00 ...": as a read request (8 bytes, [AP] 6.3) they are
+    all in but their CRC is wrong; as another slave's answer its count says 16 data
+    bytes, 5 + 16 = 21 in all: 13 more are needed, not 0."""
+    f = backend.Framer("slave", baudrate=9600)
+    head = b"\x01\x03\x10" + bytes(5)
+    assert bytes(backend.add_crc(head[:6]))[6:] != head[6:]  # not a request
+    f.receive_data(head, 1.0)
+    assert f.next_event() is None
+    assert f.needed() == 21 - 8
+
+
+def test_the_bound_looks_through_two_silences(backend: ModuleType) -> None:
+    """An answer that claims 255 data bytes (5 + 255 = 260, kept in lenient mode with
+    max_adu 1024), a t3.5 silence, two bytes of a frame with no length rule (0x5A),
+    another silence, then "01 03": the start of an answer of 5 bytes at least.  The
+    frame after the second silence may end first: 3 more, not the first's 253."""
+    f = backend.Framer("master", baudrate=9600, max_adu=1024)
+    f.receive_data(b"\x01\x03\xff", 1.0)
+    assert f.needed() == 260 - 3
+    f.receive_data(b"\x01\x5a", 1.010)  # each 10 ms later: past t3.5 (4 ms), short of 50
+    assert f.needed() == 260 - 5
+    f.receive_data(b"\x01\x03", 1.020)
+    assert f.next_event() is None
+    assert f.needed() == 5 - 2
+
+
+def test_a_gap_shorter_than_t35_begins_no_frame(backend: ModuleType) -> None:
+    """Lenient mode: "01 10" waits for its count byte; a read request follows after
+    2.5 characters of silence (above t1.5, below t3.5: [SL] 2.5.1.1 begins a frame
+    only after t3.5).  Nothing is framed until the silence after it; then the two
+    bytes go (their CRC fails wherever they end) and the request is framed."""
+    char = 11 / 9600
+    f = backend.Framer("slave", baudrate=9600)
+    f.receive_data(b"\x01\x10", 1.0)
+    request = bytes(backend.add_crc(b"\x01\x03\x00\x00\x00\x01"))
+    end = 1.0 + (2.5 + len(request)) * char
+    f.receive_data(request, end)
+    assert f.next_event() is None
+    f.handle_timer(end + 0.1)
+    events = [(str(ev.kind), ev.adu) for ev in f.events()]
+    assert events == [("discard", b"\x01\x10"), ("request", request)]
