@@ -134,3 +134,44 @@ def test_a_gap_shorter_than_t35_begins_no_frame(backend: ModuleType) -> None:
     f.handle_timer(end + 0.1)
     events = [(str(ev.kind), ev.adu) for ev in f.events()]
     assert events == [("discard", b"\x01\x10"), ("request", request)]
+
+
+def test_strict_a_gap_after_the_first_byte_discards_the_frame(backend: ModuleType) -> None:
+    """Strict mode, [SL] 2.5.1.1: a silence of more than t1.5 between two characters
+    makes the frame incomplete, to be discarded, even right after its first byte
+    (2.5 characters here, below t3.5: no new frame)."""
+    char = 11 / 9600
+    f = backend.Framer("slave", baudrate=9600, strict=True)
+    request = bytes(backend.add_crc(b"\x01\x03\x00\x00\x00\x01"))
+    f.receive_data(request[:1], 1.0)
+    end = 1.0 + (2.5 + len(request) - 1) * char
+    f.receive_data(request[1:], end)
+    f.handle_timer(end + 0.1)
+    events = [(str(ev.kind), ev.error, ev.adu) for ev in f.events()]
+    assert events == [("discard", "t1.5", request)]
+
+
+def test_a_frame_after_a_short_gap_and_a_silence_is_found_at_once(backend: ModuleType) -> None:
+    """Lenient mode: "01 10" waits for its count byte; 2.5 characters later (a gap,
+    no frame start) comes one stray byte, then after a t3.5 silence a whole read
+    request: it is framed as its last byte arrives (the bytes before go), the gap
+    before it skipped on the way, with no timer needed."""
+    char = 11 / 9600
+    f = backend.Framer("slave", baudrate=9600)
+    f.receive_data(b"\x01\x10", 1.0)
+    stray = 1.0 + 3.5 * char
+    f.receive_data(b"\xaa", stray)
+    request = bytes(backend.add_crc(b"\x01\x03\x00\x00\x00\x01"))
+    f.receive_data(request, stray + (5 + len(request)) * char)
+    events = [(str(ev.kind), ev.adu) for ev in f.events()]
+    assert events == [("discard", b"\x01\x10\xaa"), ("request", request)]
+
+
+def test_a_slave_address_above_127_is_no_exception_code(backend: ModuleType) -> None:
+    """The exception bit is the function code's ([AP] 7), not the address's: at slave
+    129 "81 0B" may be a Get Comm Event Counter request (4 bytes, [AP] 6.9), so 2
+    more bytes, not the 6 of its 8-byte answer."""
+    f = backend.Framer("slave", baudrate=9600)
+    f.receive_data(b"\x81\x0b", 1.0)
+    assert f.next_event() is None
+    assert f.needed() == 4 - 2
