@@ -175,3 +175,51 @@ def test_a_slave_address_above_127_is_no_exception_code(backend: ModuleType) -> 
     f.receive_data(b"\x81\x0b", 1.0)
     assert f.next_event() is None
     assert f.needed() == 4 - 2
+
+
+def test_a_function_with_only_an_answer_rule_is_framed_by_its_length(
+    backend: ModuleType,
+) -> None:
+    """A vendor function whose requests have no rule but whose answers are 6 bytes: a
+    slave that hears one (another slave's answer) frames it by that length at once,
+    a response, without waiting for the silence."""
+    f = backend.Framer("slave", baudrate=9600, rules={0x41: (None, LengthRule.fixed(6))})
+    adu = bytes(backend.add_crc(b"\x01\x41\xaa\xbb"))
+    f.receive_data(adu, 1.0)
+    assert [(str(ev.kind), ev.adu) for ev in f.events()] == [("response", adu)]
+
+
+def test_positions_keep_counting_across_a_reset(backend: ModuleType) -> None:
+    """reset() drops the buffered bytes (counted as truncated) but not their place in
+    the stream: the request after 3 dropped bytes starts at offset 3."""
+    f = backend.Framer("slave", baudrate=9600)
+    f.receive_data(b"\x01\x03\x00", 1.0)
+    f.reset()
+    request = bytes(backend.add_crc(b"\x01\x03\x00\x00\x00\x01"))
+    f.receive_data(request, 1.5)
+    assert [(str(ev.kind), ev.offset) for ev in f.events()] == [("request", 3)]
+    assert f.counters["discarded_truncated"] == 3
+
+
+def test_strict_gaps_around_a_stray_byte_agree_with_the_c_core(
+    both: tuple[ModuleType, ModuleType],
+) -> None:
+    """Strict mode: a stray byte, a gap above t1.5, three bytes of a read request, a
+    second such gap, its rest.  The request has a t1.5 gap inside ([SL] 2.5.1.1):
+    not a frame; and the twin reports the discarded bytes as the C core does."""
+    char = 11 / 9600
+    seen = []
+    for backend in both:
+        f = backend.Framer("slave", baudrate=9600, strict=True)
+        request = bytes(backend.add_crc(b"\x01\x03\x00\x00\x00\x01"))
+        t = 1.0
+        f.receive_data(b"\x07", t)
+        t += (2.5 + 3) * char
+        f.receive_data(request[:3], t)
+        t += (2.5 + 5) * char
+        f.receive_data(request[3:], t)
+        f.handle_timer(t + 0.1)
+        seen.append([(str(ev.kind), ev.error, ev.offset, ev.adu) for ev in f.events()])
+    c_events, twin_events = seen
+    assert all(kind == "discard" for kind, *_ in c_events)
+    assert twin_events == c_events
