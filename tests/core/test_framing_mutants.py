@@ -223,3 +223,34 @@ def test_strict_gaps_around_a_stray_byte_agree_with_the_c_core(
     c_events, twin_events = seen
     assert all(kind == "discard" for kind, *_ in c_events)
     assert twin_events == c_events
+
+
+def test_the_cores_reset_counts_only_the_bytes_left_unresolved(backend: ModuleType) -> None:
+    """The core interface the client and the pymodbus framer drive directly (feed,
+    poll, reset): a request and 3 more bytes fed, the request polled, then reset
+    before the next poll: the 3 bytes not yet resolved are counted as truncated,
+    not the request's 8 with them."""
+    core = backend.Framer("slave", baudrate=9600).core
+    request = bytes(backend.add_crc(b"\x01\x03\x00\x00\x00\x01"))
+    assert core.feed(request + b"\x01\x03\x00", 1_000_000) == 11
+    event = core.poll()
+    assert event is not None and event[6] == request
+    core.reset()
+    _frames, discarded, _runs = core.counts()
+    assert list(discarded) == [0, 0, 0, 0, 0, 3]  # by reason: ..., truncated
+
+
+def test_strict_a_gap_before_a_frame_is_not_inside_it(backend: ModuleType) -> None:
+    """Strict mode: a stray byte, a gap above t1.5 (below t3.5), then a whole read
+    request.  The gap ends the stray byte's bytes, not the request's ([SL] 2.5.1.1
+    discards a frame with a gap between two of its characters): the byte goes, the
+    request is framed."""
+    char = 11 / 9600
+    f = backend.Framer("slave", baudrate=9600, strict=True)
+    request = bytes(backend.add_crc(b"\x01\x03\x00\x00\x00\x01"))
+    f.receive_data(b"\x07", 1.0)
+    end = 1.0 + (2.5 + len(request)) * char
+    f.receive_data(request, end)
+    f.handle_timer(end + 0.1)
+    events = [(str(ev.kind), ev.adu) for ev in f.events()]
+    assert events == [("discard", b"\x07"), ("request", request)]
