@@ -254,3 +254,66 @@ def test_strict_a_gap_before_a_frame_is_not_inside_it(backend: ModuleType) -> No
     f.handle_timer(end + 0.1)
     events = [(str(ev.kind), ev.adu) for ev in f.events()]
     assert events == [("discard", b"\x07"), ("request", request)]
+
+
+def test_a_flush_silence_after_the_timer_still_drops_the_waiting_bytes(
+    backend: ModuleType,
+) -> None:
+    """Lenient mode: "01 10" waits for its count byte; the timer notes the t3.5 silence
+    after it (5 ms: the head waits on); the next bytes come 200 ms later, past the
+    flush timeout (50 ms): that silence drops the two bytes at once (truncated),
+    and the new bytes start afresh."""
+    f = backend.Framer("slave", baudrate=9600)
+    f.receive_data(b"\x01\x10", 1.0)
+    f.handle_timer(1.005)
+    assert f.next_event() is None
+    f.receive_data(b"\x01\x03", 1.2)
+    assert [(str(ev.kind), ev.error, ev.adu) for ev in f.events()] == [
+        ("discard", "truncated", b"\x01\x10")
+    ]
+    assert f.needed() == 5 - 2
+
+
+def test_a_silence_behind_a_waiting_head_still_ends_the_frame_before_it(
+    backend: ModuleType,
+) -> None:
+    """Lenient mode: a stray byte, then a whole request of a function whose length no
+    rule gives (43 / MEI 13, [AP] 6.19), so the head waits (it could be an 8-byte
+    Read Coils request); after a t3.5 silence one more byte; at the flush timeout
+    the stray byte goes, the request is framed by the silence after it (which
+    outlives the stray byte's discard), and the lone byte goes."""
+    char = 11 / 9600
+    f = backend.Framer("slave", baudrate=9600)
+    request = bytes(backend.add_crc(b"\x01\x2b\x0d\x00"))
+    f.receive_data(b"\x01" + request, 1.0)
+    f.receive_data(b"\xe2", 1.0 + 28 * char)
+    assert f.next_event() is None
+    f.handle_timer(1.25)
+    events = [(str(ev.kind), ev.offset, ev.adu) for ev in f.events()]
+    assert events == [("discard", 0, b"\x01"), ("request", 1, request), ("discard", 7, b"\xe2")]
+
+
+def test_a_t35_of_one_microsecond_still_detects_silences(backend: ModuleType) -> None:
+    """t3.5 set to 1 us (0 turns silence detection off, docs: pyrtu/core/line.py): a
+    frame of a function without a length rule ends at the next silence."""
+    f = backend.Framer("slave", baudrate=9600, t15=0, t35=1e-6)
+    adu = bytes(backend.add_crc(b"\x01\x5a\xaa\xbb"))
+    f.receive_data(adu, 1.0)
+    assert f.next_event() is None
+    f.receive_data(b"\x01\x03", 1.010)
+    assert [(str(ev.kind), ev.adu) for ev in f.events()] == [("request", adu)]
+
+
+def test_the_core_takes_no_byte_until_polled_after_a_closing_silence(
+    backend: ModuleType,
+) -> None:
+    """csrc/rtu.h: rtu_framer_feed returns how many bytes it took; after a silence that
+    ends what is buffered, none, again and again, until a poll resolved it."""
+    core = backend.Framer("slave", baudrate=9600).core
+    assert core.feed(b"\x01\x5a", 1_000_000) == 2
+    assert core.feed(b"\x01\x03", 2_000_000) == 0  # a second of silence: poll first
+    assert core.feed(b"\x01\x03", 2_000_000) == 0
+    event = core.poll()
+    assert event is not None and event[6] == b"\x01\x5a"  # dropped: truncated
+    assert core.poll() is None
+    assert core.feed(b"\x01\x03", 2_000_000) == 2
