@@ -317,3 +317,20 @@ def test_the_core_takes_no_byte_until_polled_after_a_closing_silence(
     assert event is not None and event[6] == b"\x01\x5a"  # dropped: truncated
     assert core.poll() is None
     assert core.feed(b"\x01\x03", 2_000_000) == 2
+
+
+def test_a_long_read_of_noise_is_one_discard_run_as_in_the_c_core(
+    both: tuple[ModuleType, ModuleType],
+) -> None:
+    """1500 bytes of noise in one read (more than the 1024 of the longest ADU): the
+    twin's buffer holds twice max_adu's limit as the C core's does (RTU_FRAMER_CAP),
+    so both take the read at once and report one run of discarded bytes, the last
+    255 kept (a frame up to max_adu may still end in them)."""
+    junk = bytes((i * 97 + 13) % 256 for i in range(1500))
+    seen = []
+    for backend in both:
+        f = backend.Framer("slave", baudrate=9600)
+        f.receive_data(junk, 2.0)
+        seen.append([(str(ev.kind), ev.offset, len(ev.adu)) for ev in f.events()])
+    assert seen[0] == [("discard", 0, 1500 - 255)]
+    assert seen[1] == seen[0]
