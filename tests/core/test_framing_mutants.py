@@ -319,18 +319,34 @@ def test_the_core_takes_no_byte_until_polled_after_a_closing_silence(
     assert core.feed(b"\x01\x03", 2_000_000) == 2
 
 
-def test_a_long_read_of_noise_is_one_discard_run_as_in_the_c_core(
+def test_a_long_read_of_noise_is_taken_as_the_c_core_takes_it(
     both: tuple[ModuleType, ModuleType],
 ) -> None:
-    """1500 bytes of noise in one read (more than the 1024 of the longest ADU): the
-    twin's buffer holds twice max_adu's limit as the C core's does (RTU_FRAMER_CAP),
-    so both take the read at once and report one run of discarded bytes, the last
-    255 kept (a frame up to max_adu may still end in them)."""
-    junk = bytes((i * 97 + 13) % 256 for i in range(1500))
+    """2100 bytes of noise in one read: the twin's buffer holds twice the longest ADU
+    (2048 bytes) as the C core's does (RTU_FRAMER_CAP), so both take 2048 at once,
+    discard all but the last 255 (a frame up to max_adu may still end in them) as
+    one run, then take the rest: the same discard runs, at the same offsets."""
+    junk = bytes((i * 97 + 13) % 256 for i in range(2100))
     seen = []
     for backend in both:
         f = backend.Framer("slave", baudrate=9600)
         f.receive_data(junk, 2.0)
         seen.append([(str(ev.kind), ev.offset, len(ev.adu)) for ev in f.events()])
-    assert seen[0] == [("discard", 0, 1500 - 255)]
+    assert seen[0] == [("discard", 0, 2048 - 255), ("discard", 2048 - 255, 2100 - 2048)]
     assert seen[1] == seen[0]
+
+
+def test_a_master_needs_only_address_and_function_to_await_an_answer(
+    backend: ModuleType,
+) -> None:
+    """The request context is its first two bytes (address and function): sent alone,
+    they set it as a whole ADU does (the shortest answer: 5 bytes, [AP] 7)."""
+    f = backend.Framer("master", baudrate=9600)
+    f.send(b"\x01\x03")
+    assert f.needed() == 5
+
+
+def test_a_fifo_answers_byte_count_is_two_bytes_big_endian() -> None:
+    """Read FIFO Queue ([AP] 6.18): address, 0x18, a 2-byte byte count (big-endian),
+    then that many bytes, then the CRC: a count of 0x0102 is 258 bytes, 264 in all."""
+    assert predict(RULES, DIR_RESPONSE, b"\x01\x18\x01\x02", 4) == (PRED_LENGTH, 6 + 258)
