@@ -350,3 +350,29 @@ def test_a_fifo_answers_byte_count_is_two_bytes_big_endian() -> None:
     """Read FIFO Queue ([AP] 6.18): address, 0x18, a 2-byte byte count (big-endian),
     then that many bytes, then the CRC: a count of 0x0102 is 258 bytes, 264 in all."""
     assert predict(RULES, DIR_RESPONSE, b"\x01\x18\x01\x02", 4) == (PRED_LENGTH, 6 + 258)
+
+
+def test_single_writes_are_framed_by_their_length_at_once(backend: ModuleType) -> None:
+    """Write Single Coil and Write Single Register ([AP] 6.5, 6.6): request and answer
+    are 8 bytes, so each is framed as its last byte arrives, no silence needed."""
+    for function in (5, 6):
+        adu = bytes(backend.add_crc(bytes((1, function, 0, 1, 0xFF, 0))))
+        slave = backend.Framer("slave", baudrate=9600)
+        slave.receive_data(adu, 1.0)
+        assert [(str(ev.kind), ev.adu) for ev in slave.events()] == [("request", adu)]
+        master = backend.Framer("master", baudrate=9600)
+        master.send(adu)
+        master.receive_data(adu, 1.1)  # the echo of the request: the answer
+        assert [(str(ev.kind), ev.adu) for ev in master.events()] == [("response", adu)]
+
+
+def test_an_mei_request_needs_its_third_byte_to_decide(backend: ModuleType) -> None:
+    """Function 43 ([AP] 6.19-6.21): its MEI type, the third byte, decides the length,
+    so "01 2B" needs that byte and a CRC at least: 3 more (with a vendor's 64-byte
+    answer to function 43, the request side alone bounds it)."""
+    f = backend.Framer("slave", baudrate=9600)
+    f.receive_data(b"\x01\x2b", 1.0)
+    assert f.needed() == 3
+    f = backend.Framer("slave", baudrate=9600, rules={43: (None, LengthRule.fixed(64))})
+    f.receive_data(b"\x01\x2b", 1.0)
+    assert f.needed() == 3
