@@ -330,11 +330,33 @@ def _survivors_again(tree: Path, target: Target, rest: bool = False) -> None:
                 " (SELECT job_id FROM work_results)",
                 (_PARKED,),
             )
-            # the survivors, and the runs that timed out (under load: judged again)
-            db.execute(
-                "DELETE FROM work_results WHERE test_outcome = 'SURVIVED' OR output = ?",
-                (_TIMEOUT,),
-            )
+            # the survivors, and the runs that timed out (under load: judged again);
+            # not the survivors mutate/equivalent.toml explains (no test can kill one)
+            equivalents = _equivalents()
+            again = [
+                job
+                for job, module, operator, row, col, definition, diff in db.execute(
+                    "SELECT r.job_id, m.module_path, m.operator_name, m.start_pos_row,"
+                    " m.start_pos_col, m.definition_name, r.diff FROM work_results r"
+                    " JOIN mutation_specs m USING (job_id) WHERE r.test_outcome = 'SURVIVED'"
+                )
+                if not any(
+                    _is(
+                        e,
+                        {
+                            "module_path": module,
+                            "operator_name": operator,
+                            "start_pos": [row, col],
+                            "definition_name": definition,
+                        },
+                        _line(tree, module, row),
+                        diff or "",
+                    )
+                    for e in equivalents
+                )
+            ]
+            db.executemany("DELETE FROM work_results WHERE job_id = ?", [(j,) for j in again])
+            db.execute("DELETE FROM work_results WHERE output = ?", (_TIMEOUT,))
 
 
 #: cosmic-ray's output for a test run it stopped at the target's timeout (it counts
