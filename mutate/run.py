@@ -19,6 +19,7 @@ Two kinds of mutants, both run in a copy of the tree (build/mutate/), never in i
     python mutate/run.py generated --jobs 2     # targets in parallel, a tree copy each
     python mutate/run.py generated --survivors plan  # re-judge only the last survivors
     python mutate/run.py generated --rest plan --budget 20  # judge more of them
+    python mutate/run.py listed server          # re-judge the survivors the page lists
     python mutate/run.py report plan            # docs/MUTATION.md from the last run
 
 `--budget MINUTES` bounds each module's run: cosmic-ray takes the mutants in random
@@ -46,6 +47,7 @@ import argparse
 import ast
 import json
 import os
+import re
 import shlex
 import shutil
 import subprocess
@@ -446,6 +448,23 @@ def _inside(spans: list[tuple[tuple[int, int], tuple[int, int]]], pos: tuple[int
     return any(start <= tuple(pos) < end for start, end in spans)
 
 
+def _baseline(tree: Path, target: Target) -> None:
+    """The tests pass on the true code (else every mutant is "killed"): SystemExit if not."""
+    base = subprocess.run(
+        _pytest(target.tests),
+        cwd=tree,
+        env=_env(tree),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    if base.returncode != 0 or " passed" not in base.stdout.splitlines()[-1]:
+        raise SystemExit(
+            f"mutate: {target.name}: the tests fail on the true code:\n"
+            + "\n".join(base.stdout.splitlines()[-20:])
+        )
+
+
 def _run_target(
     target: Target, survivors: bool = False, budget: float = 0.0, rest: bool = False
 ) -> Path:
@@ -469,20 +488,7 @@ def _run_target(
         config = tree / f"cr-{stem}.toml"
         session = tree / f"cr-{stem}.sqlite"
         command = shlex.join(_pytest(target.tests))
-        # the baseline: the tests pass on the true code (else every mutant is "killed")
-        base = subprocess.run(
-            _pytest(target.tests),
-            cwd=tree,
-            env=_env(tree),
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-        )
-        if base.returncode != 0 or " passed" not in base.stdout.splitlines()[-1]:
-            raise SystemExit(
-                f"mutate: {target.name}: the tests fail on the true code:\n"
-                + "\n".join(base.stdout.splitlines()[-20:])
-            )
+        _baseline(tree, target)
         config.write_text(
             "[cosmic-ray]\n"
             f'module-path = "{module}"\n'
@@ -622,6 +628,100 @@ def run_generated(
     return report([t.name for t in targets])
 
 
+_LISTED = re.compile(
+    r"^- `(?P<module>[^:`]+):(?P<line>\d+)` (?P<operator>\S+) \(#(?P<occurrence>\d+)\): "
+    r"`(?P<text>.*)`$"
+)
+
+
+def run_listed(names: list[str]) -> int:
+    """Judge again the survivors docs/MUTATION.md lists for targets whose session is
+    gone (a run on another machine): each is made anew by cosmic-ray (module,
+    operator, occurrence; refused unless its line still reads as listed) and run
+    against the tests as they are now.  The row keeps the sample's other figures: a
+    survivor now killed moves to killed, one mutate/equivalent.toml explains to
+    equivalent."""
+    from cosmic_ray.work_db import WorkDB, use_db
+    from cosmic_ray.work_item import WorkerOutcome, WorkResult
+
+    text = REPORT.read_text()
+    summaries = []
+    for target in [t for t in _targets() if t.name in names]:
+        row = next(line for line in text.splitlines() if line.startswith(f"| `{target.name}` |"))
+        cells = [c.strip() for c in row.split("|")[2:7]]
+        counts = dict(zip(("killed", "survived", "equivalent", "incompetent", "not run"),
+                          map(int, cells), strict=True))  # fmt: skip
+        section = text.split(f"### `{target.name}`\n", 1)[1].split("\n### ", 1)[0]
+        listed = [m.groupdict() for m in map(_LISTED.match, section.splitlines()) if m]
+        tree = WORK / f"tree-{target.name}-listed"
+        _copy_tree(tree)
+        _baseline(tree, target)
+        cr = Path(sys.executable).with_name("cosmic-ray")
+        judged: list[dict[str, object]] = []
+        for module in sorted({str(x["module"]) for x in listed}):
+            mine = [x for x in listed if x["module"] == module]
+            for x in mine:
+                if _line(tree, module, int(x["line"])) != x["text"]:
+                    raise SystemExit(f"mutate: {module}:{x['line']} changed since the run")
+            stem = module.replace("/", "_").removesuffix(".py")
+            config, session = tree / f"cr-{stem}.toml", tree / f"cr-{stem}.sqlite"
+            command = json.dumps(shlex.join(_pytest(target.tests)))
+            config.write_text(
+                f'[cosmic-ray]\nmodule-path = "{module}"\ntimeout = {target.timeout}\n'
+                f"excluded-modules = []\ntest-command = {command}\n"
+                '[cosmic-ray.distributor]\nname = "local"\n'
+            )
+            subprocess.run(
+                [cr, "init", config.name, session.name], cwd=tree, check=True, env=_env(tree)
+            )
+            wanted = {(x["operator"], int(x["occurrence"])) for x in mine}
+            with use_db(str(session), WorkDB.Mode.open) as db:
+                other = [
+                    i.job_id
+                    for i in db.pending_work_items
+                    if (i.mutations[0].operator_name, i.mutations[0].occurrence) not in wanted
+                ]
+                db.set_multiple_results(
+                    other, WorkResult(output="not listed", worker_outcome=WorkerOutcome.SKIPPED)
+                )
+            _exec(cr, tree, config, session, module, 0)
+            dump = subprocess.run(
+                [cr, "dump", session.name],
+                cwd=tree,
+                check=True,
+                env=_env(tree),
+                stdout=subprocess.PIPE,
+                text=True,
+            ).stdout
+            judged += [json.loads(line) for line in dump.splitlines()]
+        equivalents = _equivalents()
+        survivors = []
+        for item, result in judged:
+            if result is None or result["worker_outcome"] == "skipped":
+                continue
+            mutation = item["mutations"][0]
+            line_text = _line(tree, mutation["module_path"], mutation["start_pos"][0])
+            counts["survived"] -= 1
+            if (
+                result["worker_outcome"] in ("exception", "abnormal")
+                or result["output"] == _TIMEOUT
+            ):
+                counts["incompetent"] += 1
+            elif result["test_outcome"] == "killed":
+                counts["killed"] += 1
+            elif any(_is(e, mutation, line_text, result.get("diff") or "") for e in equivalents):
+                counts["equivalent"] += 1
+            else:
+                counts["survived"] += 1
+                survivors.append(
+                    f"`{mutation['module_path']}:{mutation['start_pos'][0]}` "
+                    f"{mutation['operator_name']} (#{mutation['occurrence']}): `{line_text}`"
+                )
+        summaries.append(Summary(target.name, counts, survivors))
+    _write_report(summaries, note="survivors re-judged")
+    return 0
+
+
 def report(names: list[str]) -> int:
     """docs/MUTATION.md from the targets' last runs (build/mutate/), with
     mutate/equivalent.toml as it is now."""
@@ -641,9 +741,9 @@ def report(names: list[str]) -> int:
     return 0
 
 
-def _write_report(summaries: list[Summary]) -> None:
+def _write_report(summaries: list[Summary], note: str = "") -> None:
     """docs/MUTATION.md: the figures of the targets run now; other targets' rows kept."""
-    stamp = time.strftime("%Y-%m-%d", time.gmtime())
+    stamp = time.strftime("%Y-%m-%d", time.gmtime()) + (f" ({note})" if note else "")
     rows = {}
     sections = {}
     if REPORT.exists():
@@ -698,6 +798,10 @@ def main() -> int:
         metavar="MINUTES",
         help="stop each module's run after MINUTES: a random sample of its mutants is judged",
     )
+    listed = sub.add_parser(
+        "listed", help="judge again the survivors docs/MUTATION.md lists (no session needed)"
+    )
+    listed.add_argument("names", nargs="+")
     again = sub.add_parser("report", help="docs/MUTATION.md from the targets' last runs")
     again.add_argument("names", nargs="*")
     args = parser.parse_args()
@@ -705,6 +809,8 @@ def main() -> int:
         return run_faults(args.names)
     if args.kind == "report":
         return report(args.names)
+    if args.kind == "listed":
+        return run_listed(args.names)
     if args.rest and args.survivors:
         parser.error("--rest and --survivors are two runs: --survivors first")
     return run_generated(args.names, args.jobs, args.survivors, args.budget, args.rest)
