@@ -433,3 +433,23 @@ def test_every_public_function_is_framed_by_its_length(backend: ModuleType) -> N
         master.receive_data(answer, 1.1)
         got = [(str(ev.kind), ev.adu) for ev in master.events()]
         assert got == [("response", answer)], function
+
+
+def test_a_vendor_count_rule_bounds_the_wait_with_its_own_tail(backend: ModuleType) -> None:
+    """A vendor request whose count byte sits at offset 4 with 6 bytes after the
+    counted part: before the count is in, the shortest frame is 4 + 1 + 0 + 6 = 11
+    bytes, so "01 41" needs 9 more (its tail, not a CRC's 2)."""
+    f = backend.Framer("slave", baudrate=9600, rules={0x41: (LengthRule.counted(4, 1, 1, 6), None)})
+    f.receive_data(b"\x01\x41", 1.0)
+    assert f.needed() == 11 - 2
+
+
+def test_a_monitor_takes_the_echo_of_an_odd_function_as_the_answer(backend: ModuleType) -> None:
+    """A monitor hears Write Single Coil (function 5, [AP] 6.5) and then the same 8
+    bytes again: the slave's echo, its answer (a request and its answer are the same
+    length here, so only the request just seen tells them apart)."""
+    f = backend.Framer("monitor", baudrate=9600)
+    request = bytes(backend.add_crc(b"\x01\x05\x00\x01\xff\x00"))
+    f.receive_data(request, 1.0)
+    f.receive_data(request, 1.1)
+    assert [str(ev.kind) for ev in f.events()] == ["request", "response"]
