@@ -453,3 +453,25 @@ def test_a_monitor_takes_the_echo_of_an_odd_function_as_the_answer(backend: Modu
     f.receive_data(request, 1.0)
     f.receive_data(request, 1.1)
     assert [str(ev.kind) for ev in f.events()] == ["request", "response"]
+
+
+def test_a_t15_of_one_microsecond_still_detects_gaps(backend: ModuleType) -> None:
+    """Strict mode with t1.5 set to 1 us (0 turns it off): a gap of 0.5 ms inside a
+    read request makes it incomplete ([SL] 2.5.1.1): discarded, reason t1.5."""
+    char = 11 / 9600
+    f = backend.Framer("slave", baudrate=9600, strict=True, t15=1e-6, t35=0.004)
+    request = bytes(backend.add_crc(b"\x01\x03\x00\x00\x00\x01"))
+    f.receive_data(request[:4], 1.0)
+    f.receive_data(request[4:], 1.0 + 0.0005 + 4 * char)
+    f.handle_timer(1.1)
+    assert [(str(ev.kind), ev.error) for ev in f.events()] == [("discard", "t1.5")]
+
+
+def test_three_bytes_whose_crc_checks_are_no_frame(backend: ModuleType) -> None:
+    """An RTU frame is at least address, function and CRC: 4 bytes ([SL] 2.5.1.2).
+    An address and its own CRC (3 bytes) that end at a silence are discarded."""
+    f = backend.Framer("slave", baudrate=9600)
+    three = bytes(backend.add_crc(b"\x01"))
+    f.receive_data(three, 1.0)
+    f.handle_timer(1.1)
+    assert [str(ev.kind) for ev in f.events()] == ["discard"]
