@@ -334,6 +334,16 @@ def test_a_long_read_of_noise_is_taken_as_the_c_core_takes_it(
         seen.append([(str(ev.kind), ev.offset, len(ev.adu)) for ev in f.events()])
     assert seen[0] == [("discard", 0, 2048 - 255), ("discard", 2048 - 255, 2100 - 2048)]
     assert seen[1] == seen[0]
+    # the same after one byte went before: the buffer is all free again (compacted)
+    seen = []
+    for backend in both:
+        f = backend.Framer("slave", baudrate=9600)
+        f.receive_data(b"\x07", 1.0)
+        f.handle_timer(1.1)
+        f.receive_data(junk, 2.0)
+        seen.append([(str(ev.kind), ev.offset, len(ev.adu)) for ev in f.events()])
+    assert seen[0][1:] == [("discard", 1, 2048 - 255), ("discard", 1 + 2048 - 255, 2100 - 2048)]
+    assert seen[1] == seen[0]
 
 
 def test_a_master_needs_only_address_and_function_to_await_an_answer(
