@@ -19,14 +19,21 @@ Two kinds of mutants, both run in a copy of the tree (build/mutate/), never in i
     python mutate/run.py generated --jobs 2     # targets in parallel, a tree copy each
     python mutate/run.py generated --survivors plan  # re-judge only the last survivors
     python mutate/run.py generated --rest plan --budget 20  # judge more of them
+    python mutate/run.py listed server          # re-judge the survivors the page lists
     python mutate/run.py report plan            # docs/MUTATION.md from the last run
 
 `--budget MINUTES` bounds each module's run: cosmic-ray takes the mutants in random
 order, so the ones judged when the time is up are a random sample; the report says
 how many were not run (and `--survivors` later judges the survivors of the sample).
 
+A mutant inside an annotation is not run (`_annotation_spans`: every target module
+has `from __future__ import annotations`, so an annotation is a string nothing
+evaluates).  A run that cosmic-ray stopped at the target's timeout counts as
+incompetent, not killed (a loaded machine makes a slow run, no kill).
+
 `--survivors` reuses a target's last session: the killed mutants stay killed, and
-only the survivors run again against the current tests/ (copied anew).  `--rest`
+only the survivors (and the runs that timed out) run again against the current
+tests/ (copied anew).  `--rest`
 reuses it too: the verdicts stay, and the mutants a budget left unjudged run (a
 further sample, within the budget), so that a target's figure grows to cover most
 mutants run by run (run `--survivors` first: a survivor stays one until then).  That is
@@ -37,8 +44,10 @@ grew since the session; the run checks both and refuses otherwise.
 from __future__ import annotations
 
 import argparse
+import ast
 import json
 import os
+import re
 import shlex
 import shutil
 import subprocess
@@ -167,6 +176,12 @@ def _pytest(tests: list[str]) -> list[str]:
         "-q",
         "-p",
         "no:cacheprovider",
+        # hypothesis works without its pytest plugin, whose import (2 s on a loaded
+        # machine) is most of a short run: a test file that uses it imports it
+        "-p",
+        "no:hypothesispytest",
+        "-p",
+        "no:benchmark",
         "-m",
         "not rss",
         *tests,
@@ -269,7 +284,7 @@ def _targets() -> list[Target]:
     return [Target(name=name, **spec) for name, spec in data["target"].items()]
 
 
-def _equivalents() -> list[dict[str, str]]:
+def _equivalents() -> list[dict[str, object]]:
     return list(tomllib.loads((HERE / "equivalent.toml").read_text()).get("equivalent", []))
 
 
@@ -317,8 +332,38 @@ def _survivors_again(tree: Path, target: Target, rest: bool = False) -> None:
                 " (SELECT job_id FROM work_results)",
                 (_PARKED,),
             )
-            db.execute("DELETE FROM work_results WHERE test_outcome = 'SURVIVED'")
+            # the survivors, and the runs that timed out (under load: judged again);
+            # not the survivors mutate/equivalent.toml explains (no test can kill one)
+            equivalents = _equivalents()
+            again = [
+                job
+                for job, module, operator, row, col, definition, diff in db.execute(
+                    "SELECT r.job_id, m.module_path, m.operator_name, m.start_pos_row,"
+                    " m.start_pos_col, m.definition_name, r.diff FROM work_results r"
+                    " JOIN mutation_specs m USING (job_id) WHERE r.test_outcome = 'SURVIVED'"
+                )
+                if not any(
+                    _is(
+                        e,
+                        {
+                            "module_path": module,
+                            "operator_name": operator,
+                            "start_pos": [row, col],
+                            "definition_name": definition,
+                        },
+                        _line(tree, module, row),
+                        diff or "",
+                    )
+                    for e in equivalents
+                )
+            ]
+            db.executemany("DELETE FROM work_results WHERE job_id = ?", [(j,) for j in again])
+            db.execute("DELETE FROM work_results WHERE output = ?", (_TIMEOUT,))
 
+
+#: cosmic-ray's output for a test run it stopped at the target's timeout (it counts
+#: it as killed; here it is incompetent: on a loaded machine a slow run is no kill)
+_TIMEOUT = "timeout"
 
 _PARKED = "not run: parked while the survivors are judged again"
 
@@ -356,6 +401,70 @@ def _exec(cr: Path, tree: Path, config: Path, session: Path, module: str, budget
         raise SystemExit(f"mutate: cosmic-ray exec failed on {module} (exit {code})")
 
 
+_IN_ANNOTATION = "in an annotation, never evaluated"
+
+
+def _annotation_spans(path: Path) -> list[tuple[tuple[int, int], tuple[int, int]]]:
+    """Where the annotations of the module at `path` are, as ((line, column), (line,
+    column)) spans in characters, when it never evaluates them: with `from __future__
+    import annotations` an annotation is a string, and nothing in pyrtu evaluates one
+    (no get_type_hints), so a mutant inside it (`int | None` to `int & None`) changes
+    nothing.  Empty for a module without that import (its annotations run)."""
+    source = path.read_text()
+    module = ast.parse(source)
+    if not any(
+        isinstance(node, ast.ImportFrom)
+        and node.module == "__future__"
+        and any(alias.name == "annotations" for alias in node.names)
+        for node in module.body
+    ):
+        return []
+    lines = source.splitlines()
+
+    def column(line: int, offset: int) -> int:  # ast counts UTF-8 bytes, cosmic-ray characters
+        return len(lines[line - 1].encode()[:offset].decode(errors="ignore"))
+
+    spans = []
+    for node in ast.walk(module):
+        found: list[ast.expr | None] = []
+        if isinstance(node, ast.arg):
+            found.append(node.annotation)
+        elif isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            found.append(node.returns)
+        elif isinstance(node, ast.AnnAssign):
+            found.append(node.annotation)
+        for expr in found:
+            if expr is not None and expr.end_lineno is not None and expr.end_col_offset is not None:
+                spans.append(
+                    (
+                        (expr.lineno, column(expr.lineno, expr.col_offset)),
+                        (expr.end_lineno, column(expr.end_lineno, expr.end_col_offset)),
+                    )
+                )
+    return spans
+
+
+def _inside(spans: list[tuple[tuple[int, int], tuple[int, int]]], pos: tuple[int, int]) -> bool:
+    return any(start <= tuple(pos) < end for start, end in spans)
+
+
+def _baseline(tree: Path, target: Target) -> None:
+    """The tests pass on the true code (else every mutant is "killed"): SystemExit if not."""
+    base = subprocess.run(
+        _pytest(target.tests),
+        cwd=tree,
+        env=_env(tree),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    if base.returncode != 0 or " passed" not in base.stdout.splitlines()[-1]:
+        raise SystemExit(
+            f"mutate: {target.name}: the tests fail on the true code:\n"
+            + "\n".join(base.stdout.splitlines()[-20:])
+        )
+
+
 def _run_target(
     target: Target, survivors: bool = False, budget: float = 0.0, rest: bool = False
 ) -> Path:
@@ -379,20 +488,7 @@ def _run_target(
         config = tree / f"cr-{stem}.toml"
         session = tree / f"cr-{stem}.sqlite"
         command = shlex.join(_pytest(target.tests))
-        # the baseline: the tests pass on the true code (else every mutant is "killed")
-        base = subprocess.run(
-            _pytest(target.tests),
-            cwd=tree,
-            env=_env(tree),
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-        )
-        if base.returncode != 0 or " passed" not in base.stdout.splitlines()[-1]:
-            raise SystemExit(
-                f"mutate: {target.name}: the tests fail on the true code:\n"
-                + "\n".join(base.stdout.splitlines()[-20:])
-            )
+        _baseline(tree, target)
         config.write_text(
             "[cosmic-ray]\n"
             f'module-path = "{module}"\n'
@@ -406,16 +502,27 @@ def _run_target(
             subprocess.run(
                 [cr, "init", config.name, session.name], cwd=tree, check=True, env=_env(tree)
             )
+            spans = _annotation_spans(tree / module)
             with use_db(str(session), WorkDB.Mode.open) as db:
-                skip = [
-                    item.job_id
-                    for item in db.pending_work_items
-                    if item.mutations[0].operator_name not in OPERATORS
-                ]
-                db.set_multiple_results(
-                    skip,
-                    WorkResult(output="operator not kept", worker_outcome=WorkerOutcome.SKIPPED),
-                )
+                items = list(db.pending_work_items)
+                for skip, why in (
+                    (
+                        [i.job_id for i in items if i.mutations[0].operator_name not in OPERATORS],
+                        "operator not kept",
+                    ),
+                    (
+                        [
+                            i.job_id
+                            for i in items
+                            if i.mutations[0].operator_name in OPERATORS
+                            and _inside(spans, i.mutations[0].start_pos)
+                        ],
+                        _IN_ANNOTATION,
+                    ),
+                ):
+                    db.set_multiple_results(
+                        skip, WorkResult(output=why, worker_outcome=WorkerOutcome.SKIPPED)
+                    )
         _exec(cr, tree, config, session, module, budget)
         if survivors:
             _unpark(session)
@@ -451,6 +558,30 @@ class Summary:
         return self.counts["killed"] / judged if judged else 0.0
 
 
+def _is(entry: dict[str, object], mutation: dict[str, object], text: str, diff: str) -> bool:
+    """Whether an entry of mutate/equivalent.toml names this mutant: its module,
+    operator and line's text, and where the line alone is ambiguous (the same text in
+    two functions, two operators of a kind on one line, a number moved up or down)
+    the optional `definition` (the enclosing function, cosmic-ray's
+    definition_name), `column` (where the mutated token starts) and `mutated` (the
+    line as the mutant has it)."""
+    start = mutation["start_pos"]
+    assert isinstance(start, list)
+    mutated = [
+        line[1:].strip()
+        for line in diff.splitlines()
+        if line.startswith("+") and not line.startswith("+++")
+    ]
+    return (
+        entry["module"] == mutation["module_path"]
+        and entry["operator"] == mutation["operator_name"]
+        and str(entry["line"]).strip() == text
+        and entry.get("definition", mutation["definition_name"]) == mutation["definition_name"]
+        and entry.get("column", start[1]) == start[1]
+        and ("mutated" not in entry or [str(entry["mutated"]).strip()] == mutated)
+    )
+
+
 def _summarise(target: Target) -> Summary:
     tree = WORK / f"tree-{target.name}"
     equivalents = _equivalents()
@@ -468,17 +599,11 @@ def _summarise(target: Target) -> Summary:
         line = mutation["start_pos"][0]
         text = _line(tree, module, line)
         outcome = result["test_outcome"]
-        if result["worker_outcome"] in ("exception", "abnormal"):
+        if result["worker_outcome"] in ("exception", "abnormal") or result["output"] == _TIMEOUT:
             outcome = "incompetent"
         if outcome == "survived":
             match = next(
-                (
-                    e
-                    for e in equivalents
-                    if e["module"] == module
-                    and e["operator"] == mutation["operator_name"]
-                    and e["line"].strip() == text
-                ),
+                (e for e in equivalents if _is(e, mutation, text, result.get("diff") or "")),
                 None,
             )
             if match is not None:
@@ -503,6 +628,100 @@ def run_generated(
     return report([t.name for t in targets])
 
 
+_LISTED = re.compile(
+    r"^- `(?P<module>[^:`]+):(?P<line>\d+)` (?P<operator>\S+) \(#(?P<occurrence>\d+)\): "
+    r"`(?P<text>.*)`$"
+)
+
+
+def run_listed(names: list[str]) -> int:
+    """Judge again the survivors docs/MUTATION.md lists for targets whose session is
+    gone (a run on another machine): each is made anew by cosmic-ray (module,
+    operator, occurrence; refused unless its line still reads as listed) and run
+    against the tests as they are now.  The row keeps the sample's other figures: a
+    survivor now killed moves to killed, one mutate/equivalent.toml explains to
+    equivalent."""
+    from cosmic_ray.work_db import WorkDB, use_db
+    from cosmic_ray.work_item import WorkerOutcome, WorkResult
+
+    text = REPORT.read_text()
+    summaries = []
+    for target in [t for t in _targets() if t.name in names]:
+        row = next(line for line in text.splitlines() if line.startswith(f"| `{target.name}` |"))
+        cells = [c.strip() for c in row.split("|")[2:7]]
+        counts = dict(zip(("killed", "survived", "equivalent", "incompetent", "not run"),
+                          map(int, cells), strict=True))  # fmt: skip
+        section = text.split(f"### `{target.name}`\n", 1)[1].split("\n### ", 1)[0]
+        listed = [m.groupdict() for m in map(_LISTED.match, section.splitlines()) if m]
+        tree = WORK / f"tree-{target.name}-listed"
+        _copy_tree(tree)
+        _baseline(tree, target)
+        cr = Path(sys.executable).with_name("cosmic-ray")
+        judged: list[dict[str, object]] = []
+        for module in sorted({str(x["module"]) for x in listed}):
+            mine = [x for x in listed if x["module"] == module]
+            for x in mine:
+                if _line(tree, module, int(x["line"])) != x["text"]:
+                    raise SystemExit(f"mutate: {module}:{x['line']} changed since the run")
+            stem = module.replace("/", "_").removesuffix(".py")
+            config, session = tree / f"cr-{stem}.toml", tree / f"cr-{stem}.sqlite"
+            command = json.dumps(shlex.join(_pytest(target.tests)))
+            config.write_text(
+                f'[cosmic-ray]\nmodule-path = "{module}"\ntimeout = {target.timeout}\n'
+                f"excluded-modules = []\ntest-command = {command}\n"
+                '[cosmic-ray.distributor]\nname = "local"\n'
+            )
+            subprocess.run(
+                [cr, "init", config.name, session.name], cwd=tree, check=True, env=_env(tree)
+            )
+            wanted = {(x["operator"], int(x["occurrence"])) for x in mine}
+            with use_db(str(session), WorkDB.Mode.open) as db:
+                other = [
+                    i.job_id
+                    for i in db.pending_work_items
+                    if (i.mutations[0].operator_name, i.mutations[0].occurrence) not in wanted
+                ]
+                db.set_multiple_results(
+                    other, WorkResult(output="not listed", worker_outcome=WorkerOutcome.SKIPPED)
+                )
+            _exec(cr, tree, config, session, module, 0)
+            dump = subprocess.run(
+                [cr, "dump", session.name],
+                cwd=tree,
+                check=True,
+                env=_env(tree),
+                stdout=subprocess.PIPE,
+                text=True,
+            ).stdout
+            judged += [json.loads(line) for line in dump.splitlines()]
+        equivalents = _equivalents()
+        survivors = []
+        for item, result in judged:
+            if result is None or result["worker_outcome"] == "skipped":
+                continue
+            mutation = item["mutations"][0]
+            line_text = _line(tree, mutation["module_path"], mutation["start_pos"][0])
+            counts["survived"] -= 1
+            if (
+                result["worker_outcome"] in ("exception", "abnormal")
+                or result["output"] == _TIMEOUT
+            ):
+                counts["incompetent"] += 1
+            elif result["test_outcome"] == "killed":
+                counts["killed"] += 1
+            elif any(_is(e, mutation, line_text, result.get("diff") or "") for e in equivalents):
+                counts["equivalent"] += 1
+            else:
+                counts["survived"] += 1
+                survivors.append(
+                    f"`{mutation['module_path']}:{mutation['start_pos'][0]}` "
+                    f"{mutation['operator_name']} (#{mutation['occurrence']}): `{line_text}`"
+                )
+        summaries.append(Summary(target.name, counts, survivors))
+    _write_report(summaries, note="survivors re-judged")
+    return 0
+
+
 def report(names: list[str]) -> int:
     """docs/MUTATION.md from the targets' last runs (build/mutate/), with
     mutate/equivalent.toml as it is now."""
@@ -522,9 +741,9 @@ def report(names: list[str]) -> int:
     return 0
 
 
-def _write_report(summaries: list[Summary]) -> None:
+def _write_report(summaries: list[Summary], note: str = "") -> None:
     """docs/MUTATION.md: the figures of the targets run now; other targets' rows kept."""
-    stamp = time.strftime("%Y-%m-%d", time.gmtime())
+    stamp = time.strftime("%Y-%m-%d", time.gmtime()) + (f" ({note})" if note else "")
     rows = {}
     sections = {}
     if REPORT.exists():
@@ -579,6 +798,10 @@ def main() -> int:
         metavar="MINUTES",
         help="stop each module's run after MINUTES: a random sample of its mutants is judged",
     )
+    listed = sub.add_parser(
+        "listed", help="judge again the survivors docs/MUTATION.md lists (no session needed)"
+    )
+    listed.add_argument("names", nargs="+")
     again = sub.add_parser("report", help="docs/MUTATION.md from the targets' last runs")
     again.add_argument("names", nargs="*")
     args = parser.parse_args()
@@ -586,6 +809,8 @@ def main() -> int:
         return run_faults(args.names)
     if args.kind == "report":
         return report(args.names)
+    if args.kind == "listed":
+        return run_listed(args.names)
     if args.rest and args.survivors:
         parser.error("--rest and --survivors are two runs: --survivors first")
     return run_generated(args.names, args.jobs, args.survivors, args.budget, args.rest)

@@ -198,3 +198,10 @@ def test_a_timing_is_immutable_and_hashable() -> None:
     assert hash(t) == hash(compute_timing(9600, 11))
     with pytest.raises(dataclasses.FrozenInstanceError):
         t.char_us = 1  # type: ignore[misc]
+
+
+def test_the_default_character_format_is_8e1() -> None:
+    """Serial Line V1.02 2.5.1: an RTU character is 8 data bits with even parity by
+    default and one stop bit: start + 8 + parity + stop = 11 bits."""
+    assert bits_per_char() == 11
+    assert bits_per_char("E") == bits_per_char("E", 1) == bits_per_char("E", 1, 8) == 11

@@ -205,6 +205,38 @@ def test_the_probe_asks_the_smallest_point_of_the_slave() -> None:
     assert req.cost == pytest.approx(0.004 + 8 * 0.001 + 6 * 0.001)
 
 
+def test_a_slave_without_points_is_probed_with_holding_register_0() -> None:
+    """docs/POLLER.md: a slave known only from writes and on-demand reads has no
+    point to probe with: one holding register at address 0 (any answer, exception
+    responses included, brings it back)."""
+    sched = BusScheduler("b", [pt(0)], WIRE, offline_after=1)
+    write = sched.submit_write(9, "holding", 7, [1])
+    assert take(sched, 0.0) is write
+    (state,) = sched.on_failure(write, silent(write), 0.125)
+    assert isinstance(state, SlaveState) and (state.slave, state.online) == (9, False)
+    now = 0.125
+    while True:
+        req = take(sched, now)
+        if req.kind == "probe":
+            break
+        now += 0.125
+        sched.on_response(req, [0], now)
+        deadline = sched.deadline()
+        now = max(now, deadline if deadline is not None else now)
+    assert (req.slave, req.table, req.address, req.count, req.function) == (9, "holding", 0, 1, 3)
+
+
+def test_a_requests_repr_shows_its_fields_not_the_schedulers_task() -> None:
+    """A poll carries the scheduler's private task (its due time, its place in the
+    heap): a log line printing the request shows what goes on the wire, not that."""
+    sched = BusScheduler("b", [pt(0)], WIRE)
+    poll = take(sched, 0.0)
+    assert poll.task is not None
+    text = repr(poll)
+    assert text.startswith("ScheduledRequest(kind='poll', slave=1, table='holding', address=0,")
+    assert "task" not in text and "_Task" not in text
+
+
 # -- costs and figures ---------------------------------------------------------------------
 
 

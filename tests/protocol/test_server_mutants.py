@@ -224,3 +224,44 @@ def test_the_debug_log_names_the_request_and_the_answer(
     messages = [r.getMessage() for r in caplog.records if r.name == "pyrtu.drivers.slave"]
     assert f"RX unit 1: {request.hex(' ')}" in messages
     assert f"TX unit 1: {out.hex(' ')}" in messages
+
+
+def test_a_late_read_of_a_frame_short_of_its_rules_length_is_timed_by_the_read(
+    backend: ModuleType,
+) -> None:
+    """The nap after "01 03" is sized for the 8-byte read request; the read brings 4
+    bytes whose CRC checks on the 6 so far (a request cut short, not the 8 bytes of
+    its rule).  No request of this slave ends in them by its length, so nothing says
+    they came at the character rate: they are timed by the read, and the silence
+    that ends the frame counts from there (t3.5 after the read, [SL] 2.5.1.1)."""
+    h = Harness(backend)
+    short = h.adu(b"\x01\x03\x00\x00")  # 6 bytes, its CRC right
+    t0 = h.now
+    h.proto.receive_data(short[:2], t0)
+    at = h.proto.wake_at(t0)
+    assert at is not None
+    h.proto.receive_data(short[2:], at)
+    assert h.proto.deadline() == pytest.approx(at + T35)
+    out, _ = h.run_until_sent()
+    assert out == h.adu(b"\x01\x83\x03")  # served: ILLEGAL DATA VALUE ([AP] 7)
+
+
+def test_a_new_request_in_a_late_read_after_a_head_too_short_to_predict(
+    backend: ModuleType,
+) -> None:
+    """ "01 17" (Read/Write Multiple registers, its length not known before byte 11)
+    is left by a master that gave up; the nap's read, late, brings a whole new
+    request, Read Exception Status (FC 07, 4 bytes).  No request ends in the read
+    by its length, so it is timed by the read: a t3.5 silence before it, where a new
+    frame may begin ([SL] 2.5.1.1), and FC 07 is answered t3.5 after the read, not
+    after the lenient framer gives up on the first head."""
+    h = Harness(backend)
+    t0 = h.now
+    h.proto.receive_data(b"\x01\x17", t0)
+    at = h.proto.wake_at(t0)
+    assert at is not None
+    read = at + 5 * T35  # the driver read late
+    h.proto.receive_data(h.adu(b"\x01\x07"), read)
+    pending = h.proto.pending
+    assert pending is not None and pending.adu[:2] == b"\x01\x07"
+    assert pending.earliest == pytest.approx(read + T35)
