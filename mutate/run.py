@@ -375,6 +375,18 @@ def _unpark(session: Path) -> None:
         db.execute("DELETE FROM work_results WHERE output = ?", (_PARKED,))
 
 
+def _dump(cr: Path, tree: Path, session: Path) -> str:
+    """cosmic-ray's JSON lines of ``session``: each mutant and its verdict."""
+    return subprocess.run(
+        [cr, "dump", session.name],
+        cwd=tree,
+        check=True,
+        env=_env(tree),
+        stdout=subprocess.PIPE,
+        text=True,
+    ).stdout
+
+
 def _exec(cr: Path, tree: Path, config: Path, session: Path, module: str, budget: float) -> None:
     """`cosmic-ray exec`, stopped after `budget` minutes (0: none) with the mutated
     module put back as it was (cosmic-ray mutates it on disk); the mutants not yet
@@ -526,14 +538,7 @@ def _run_target(
         _exec(cr, tree, config, session, module, budget)
         if survivors:
             _unpark(session)
-        dump = subprocess.run(
-            [cr, "dump", session.name],
-            cwd=tree,
-            check=True,
-            env=_env(tree),
-            stdout=subprocess.PIPE,
-            text=True,
-        ).stdout
+        dump = _dump(cr, tree, session)
         with out.open("a" if module != target.modules[0] else "w") as f:
             f.write(dump)
     return out
@@ -685,14 +690,7 @@ def run_listed(names: list[str]) -> int:
                     other, WorkResult(output="not listed", worker_outcome=WorkerOutcome.SKIPPED)
                 )
             _exec(cr, tree, config, session, module, 0)
-            dump = subprocess.run(
-                [cr, "dump", session.name],
-                cwd=tree,
-                check=True,
-                env=_env(tree),
-                stdout=subprocess.PIPE,
-                text=True,
-            ).stdout
+            dump = _dump(cr, tree, session)
             judged += [json.loads(line) for line in dump.splitlines()]
         equivalents = _equivalents()
         survivors = []
