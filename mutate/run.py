@@ -50,8 +50,10 @@ import os
 import re
 import shlex
 import shutil
+import signal
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -308,6 +310,8 @@ def _survivors_again(tree: Path, target: Target, rest: bool = False) -> None:
         config = tree / f"cr-{stem}.toml"
         session = tree / f"cr-{stem}.sqlite"
         if not session.exists():
+            if rest:  # a run stopped before this module began: all of it is the rest
+                continue
             raise SystemExit(f"mutate: {target.name}: no session for {module} to re-judge")
         if mutated.get(module) != (ROOT / module).read_bytes():
             raise SystemExit(
@@ -387,19 +391,29 @@ def _dump(cr: Path, tree: Path, session: Path) -> str:
     ).stdout
 
 
-def _exec(cr: Path, tree: Path, config: Path, session: Path, module: str, budget: float) -> None:
-    """`cosmic-ray exec`, stopped after `budget` minutes (0: none) with the mutated
-    module put back as it was (cosmic-ray mutates it on disk); the mutants not yet
-    run stay pending in the session."""
-    import signal
+#: set when the run is stopped (Ctrl-C, SIGTERM): every target's `_exec` stops its
+#: cosmic-ray and puts its module back, whichever thread it runs on (--jobs)
+_STOPPING = threading.Event()
 
+
+def _exec(cr: Path, tree: Path, config: Path, session: Path, module: str, budget: float) -> None:
+    """`cosmic-ray exec`, stopped after `budget` minutes (0: none) or when the run is
+    stopped (`_STOPPING`), with the mutated module put back as it was (cosmic-ray
+    mutates it on disk); the mutants not yet run stay pending in the session, for
+    `--rest`."""
     original = (tree / module).read_bytes()
     proc = subprocess.Popen(
         [cr, "exec", config.name, session.name], cwd=tree, env=_env(tree), start_new_session=True
     )
-    try:
-        code = proc.wait(timeout=budget * 60 or None)
-    except subprocess.TimeoutExpired:
+    deadline = time.monotonic() + budget * 60 if budget else None
+    while True:
+        try:
+            code = proc.wait(timeout=1.0)
+            break
+        except subprocess.TimeoutExpired:
+            late = deadline is not None and time.monotonic() >= deadline
+            if not (late or _STOPPING.is_set()):
+                continue
         os.killpg(proc.pid, signal.SIGTERM)
         try:
             proc.wait(timeout=30)
@@ -407,6 +421,8 @@ def _exec(cr: Path, tree: Path, config: Path, session: Path, module: str, budget
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
         (tree / module).write_bytes(original)
+        if _STOPPING.is_set():
+            raise SystemExit(f"mutate: {module}: stopped; `--rest` judges what is left")
         print(f"mutate: {module}: stopped after {budget:g} min; the rest is not run")
         return
     if code != 0:
@@ -510,7 +526,7 @@ def _run_target(
             '[cosmic-ray.distributor]\nname = "local"\n'
         )
         cr = Path(sys.executable).with_name("cosmic-ray")
-        if not (survivors or rest):
+        if not (survivors or rest) or (rest and not session.exists()):
             subprocess.run(
                 [cr, "init", config.name, session.name], cwd=tree, check=True, env=_env(tree)
             )
@@ -803,6 +819,14 @@ def main() -> int:
     again = sub.add_parser("report", help="docs/MUTATION.md from the targets' last runs")
     again.add_argument("names", nargs="*")
     args = parser.parse_args()
+
+    # Ctrl-C or SIGTERM: each target's cosmic-ray is stopped and its mutated module put
+    # back (`_exec`), so that `--rest` can go on from the sessions
+    def stopping(signum: int, frame: object) -> None:
+        _STOPPING.set()
+
+    signal.signal(signal.SIGINT, stopping)
+    signal.signal(signal.SIGTERM, stopping)
     if args.kind == "faults":
         return run_faults(args.names)
     if args.kind == "report":
