@@ -17,7 +17,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from cli_helpers import Background, pyrtu
+from cli_helpers import ROOT, Background, pyrtu
 from mqtt_broker import Broker
 from sparkplug_host import Host, encode_metric, encode_payload
 
@@ -49,6 +49,7 @@ fsync_interval = 0.05
 
 [sparkplug]
 group_id = "{group}"
+{sparkplug}
 
 [[bus]]
 name = "line"
@@ -80,11 +81,14 @@ interval = 0.05
 """
 
 
-def write_config(tmp: Path, url: str, port: str, credentials: str = "") -> Path:
+def write_config(
+    tmp: Path, url: str, port: str, credentials: str = "", sparkplug: str = ""
+) -> Path:
     path = tmp / "b.toml"
     path.write_text(
         CONFIG.format(url=url, edge=EDGE, outbox=tmp / "ob", credentials=credentials,
-                      group=GROUP, port=port, baud=BAUD, ref=weg.P_REFERENCE)
+                      group=GROUP, sparkplug=sparkplug, port=port, baud=BAUD,
+                      ref=weg.P_REFERENCE)
     )  # fmt: skip
     return path
 
@@ -178,6 +182,9 @@ def test_the_edge_node_scraped_counts_what_the_broker_carried(tmp_path: Path) ->
             assert got[("pyrtu_poll_points", frozenset({("bus", "line")}))] >= 1
             assert get(f"http://{address}/healthz") == (200, "ok\n")
             assert got[("pyrtu_healthy", frozenset())] == 1
+            listed = (ROOT / "docs" / "METRICS.md").read_text(encoding="utf-8")
+            for name in {n for n, _ in got if n.startswith(("pyrtu_sparkplug", "pyrtu_bridge"))}:
+                assert f"`{name}`" in listed, f"{name} is not in docs/METRICS.md"
 
             # commands: two refused by the node, one through the set path to the drive
             dcmd = f"spBv1.0/{GROUP}/DCMD/{EDGE}"
@@ -281,6 +288,41 @@ def test_the_password_is_in_no_scrape_and_no_health_line(tmp_path: Path) -> None
     assert "pyrtu_sparkplug_messages_total" in said and "not connected" in said
     for hidden in (PASSWORD, str(secret)):
         assert hidden not in said
+
+
+def test_health_says_the_node_waits_for_its_primary_host(tmp_path: Path) -> None:
+    """With ``primary_host_id``: connected, not born while the host has said nothing
+    or says offline (503 naming it), born and healthy while it says online."""
+    address = f"127.0.0.1:{free_port()}"
+    with Broker(tmp_path) as broker, vbus.VirtualBus(2, baudrate=BAUD, parity="N") as bus:
+        sim = CFW701Simulator()
+        sim.serve(bus.paths[1], 1, baudrate=BAUD, parity="N")
+        host = Host(broker, "scada")
+        config = write_config(
+            tmp_path, broker.url, bus.paths[0], sparkplug='primary_host_id = "scada"'
+        )
+        node = Background("bridge", "--config", config, "--metrics", address)
+        waits = "primary host scada offline: the node waits to be born"
+        try:
+            until(lambda: serving(address), "the endpoint")
+            until(lambda: sample(address, "pyrtu_bridge_broker_connected") == 1, "connected")
+            until(lambda: waits in get(f"http://{address}/healthz")[1], "the host named")
+            assert get(f"http://{address}/healthz")[0] == 503
+            assert sample(address, "pyrtu_sparkplug_born") == 0
+            assert messages(address, "NBIRTH") == 0 and not host.of("NBIRTH")
+            host.state(True)
+            host.wait(lambda: host.of("NBIRTH"), "the NBIRTH")
+            until(lambda: get(f"http://{address}/healthz") == (200, "ok\n"), "healthy")
+            assert sample(address, "pyrtu_sparkplug_born") == 1
+            host.state(False)
+            until(lambda: sample(address, "pyrtu_sparkplug_host_offline_total") == 1, "counted")
+            until(lambda: waits in get(f"http://{address}/healthz")[1], "waiting again")
+            assert sample(address, "pyrtu_sparkplug_born") == 0
+        finally:
+            code = stop(node)
+            host.close()
+            sim.close()
+    assert code == 0, node.err
 
 
 @pytest.mark.parametrize("value", ["127.0.0.1", "127.0.0.1:0", "127.0.0.1:70000", "[::1:9100"])
