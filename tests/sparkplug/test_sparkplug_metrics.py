@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import signal
 import socket
+import subprocess
+import sys
 import time
 import urllib.error
 import urllib.request
@@ -17,7 +19,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from cli_helpers import ROOT, Background, pyrtu
+from cli_helpers import ROOT, Background, env, pyrtu
 from mqtt_broker import Broker
 from sparkplug_host import Host, encode_metric, encode_payload
 
@@ -56,8 +58,8 @@ name = "line"
 port = "{port}"
 baudrate = {baud}
 parity = "N"
-timeout = 0.1
-offline_after = 2
+timeout = 0.5
+offline_after = 3
 backoff = 0.1
 max_backoff = 0.4
 
@@ -208,13 +210,13 @@ def test_the_edge_node_scraped_counts_what_the_broker_carried(tmp_path: Path) ->
             host.wait(lambda: len(host.of("NBIRTH")) == 2, "the second NBIRTH")
             until(lambda: sample(address, "pyrtu_sparkplug_rebirths_total") == 1, "a rebirth")
             until(lambda: messages(address, "NBIRTH") == 2, "two NBIRTHs")
-            until(lambda: messages(address, "DBIRTH") == len(host.of("DBIRTH")) == 2, "DBIRTHs")
+            until(lambda: messages(address, "DBIRTH") == len(host.of("DBIRTH")) >= 2, "DBIRTHs")
 
             # the drive silent: its DDEATH, then no more data: every DDATA and metric
             # the host received is counted, and the broker confirmed every record
             sim.close()
             host.wait(lambda: host.of("DDEATH", "weg"), "the DDEATH")
-            until(lambda: messages(address, "DDEATH") == 1, "the DDEATH counted")
+            until(lambda: messages(address, "DDEATH") == len(host.of("DDEATH")), "DDEATHs")
             alive = ("pyrtu_sparkplug_device_alive", frozenset({("device", "weg")}))
             until(lambda: samples(address)[alive] == 0, "the device dead")
             ddata = host.of("DDATA", "weg")
@@ -349,3 +351,23 @@ def test_a_metrics_port_in_use_exits_2_before_anything_opens(tmp_path: Path) -> 
     (line,) = done.err.splitlines()
     assert line.startswith(f"pyrtu bridge: error: --metrics: cannot listen on 127.0.0.1:{port}")
     assert not (tmp_path / "ob").exists() and not (tmp_path / "ob.bdseq").exists()
+
+
+def test_without_the_prometheus_client_the_extra_is_named(tmp_path: Path) -> None:
+    """prometheus_client hidden (an import that fails, as where it is not installed):
+    exit 2, one line naming ``--metrics`` and the extra, nothing opened."""
+    config = write_config(tmp_path, "mqtt://127.0.0.1:1", "/dev/pyrtu-no-such-port")
+    argv = ["bridge", "--config", str(config), "--metrics", "127.0.0.1:9", "-d", "1"]
+    code = (
+        "import sys; sys.modules['prometheus_client'] = None\n"
+        "from pyrtu.cli import main\n"
+        f"sys.exit(main({argv!r}))\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], cwd=ROOT, env=env(), capture_output=True, text=True,
+        timeout=60,
+    )  # fmt: skip
+    assert done.returncode == 2, done.stderr
+    (line,) = done.stderr.splitlines()
+    assert "--metrics" in line and "pip install 'pyrtu[metrics]'" in line, line
+    assert not (tmp_path / "ob").exists()
