@@ -1,16 +1,21 @@
 """``pyrtu bridge`` with a ``[sparkplug]`` table: the Sparkplug B edge node
 (`pyrtu.sparkplug.node.EdgeNode`; docs/sparkplug.md).  Exit status as the JSON
-mode's: 2 for a configuration error or a missing library, 3 when a port or the
-outbox cannot be opened or the broker refuses the credentials."""
+mode's: 2 for a configuration error, a missing library or a ``--metrics`` that
+cannot be served, 3 when a port or the outbox cannot be opened or the broker
+refuses the credentials.  ``--metrics HOST:PORT``: the edge node's metrics
+(`pyrtu.metrics.sparkplug`) and health, as the JSON mode's."""
 
 from __future__ import annotations
 
 import argparse
 import asyncio
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pyrtu.cli.common import EXIT_OK, EXIT_USAGE, emit, report_error
+
+if TYPE_CHECKING:
+    from pyrtu.metrics.server import Source
 
 
 def run_sparkplug(path: str, bridge: Any, args: argparse.Namespace) -> int:
@@ -46,9 +51,6 @@ def run_sparkplug(path: str, bridge: Any, args: argparse.Namespace) -> int:
             f"{path}: ok: Sparkplug edge node {cfg.group_id}/{cfg.edge_node_id}, "
             f"{len(cfg.devices)} devices, {doc['metrics']} metrics, broker {bridge.mqtt.broker}",
         )
-    if args.metrics is not None:
-        print("pyrtu bridge: error: --metrics is not available with [sparkplug]", file=sys.stderr)
-        return EXIT_USAGE
     import importlib.util
 
     for module, package in (("paho.mqtt.client", "paho-mqtt"), ("google.protobuf", "protobuf")):
@@ -62,17 +64,24 @@ def run_sparkplug(path: str, bridge: Any, args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
             return EXIT_USAGE
-    from pyrtu.drivers.aio import run as aio_run
+    from pyrtu.cli.bridge import run_output
 
-    return int(aio_run(_serve(cfg, args)))
+    return run_output(args, lambda: _serve(cfg, args), len(bridge.poller.buses))
 
 
 async def _serve(cfg: Any, args: argparse.Namespace) -> int:
-    from pyrtu.cli.bridge import as_port_error, serve_output
+    from pyrtu.cli.bridge import as_port_error, serve_output, serving_metrics
     from pyrtu.sparkplug.node import EdgeNode
 
     node = EdgeNode(cfg)
-    failed = await serve_output(node, asyncio.Event(), args.duration, node.stop)
+
+    def source(loop: asyncio.AbstractEventLoop) -> Source:
+        from pyrtu.metrics.sparkplug import SparkplugSource
+
+        return SparkplugSource(node, loop)
+
+    started = serving_metrics(args, source)
+    failed = await serve_output(node, asyncio.Event(), args.duration, node.stop, started)
     if failed is not None:
         return failed
     if node.fatal is not None:

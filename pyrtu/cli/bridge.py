@@ -30,7 +30,7 @@ import argparse
 import asyncio
 import signal
 import sys
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Coroutine
 from typing import TYPE_CHECKING, Any
 
 from pyrtu.cli._subcommand import subcommand
@@ -47,6 +47,7 @@ from pyrtu.cli.common import (
 from pyrtu.metrics.address import add_metrics_option, open_metrics
 
 if TYPE_CHECKING:
+    from pyrtu.metrics.server import Source
     from pyrtu.outbox.service import OutboxService
 
 
@@ -136,15 +137,39 @@ def _run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return EXIT_USAGE
+    return run_output(args, lambda: _serve(cfg, args), len(cfg.poller.buses))
+
+
+def run_output(
+    args: argparse.Namespace, serve: Callable[[], Coroutine[Any, Any, int]], buses: int
+) -> int:
+    """``serve()`` (a northbound output's run: the JSON bridge's, the Sparkplug
+    edge node's) on the event loop, with the server of ``--metrics`` bound first,
+    before anything opens (`MetricsError`, exit 2, when it cannot be), as
+    ``args.metrics_server`` (None without the option; `serving_metrics` has it
+    answer), and closed at the end."""
     from pyrtu.drivers.aio import run as aio_run
 
-    args.metrics_server = open_metrics(args.metrics, "bridge")  # before anything opens
+    args.metrics_server = open_metrics(args.metrics, "bridge")
     try:
         # (a socket per bus: beyond what select() takes, the epoll loop)
-        return int(aio_run(_serve(cfg, args), descriptors=len(cfg.poller.buses)))
+        return int(aio_run(serve(), descriptors=buses))
     finally:
         if args.metrics_server is not None:
             args.metrics_server.close()
+
+
+def serving_metrics(
+    args: argparse.Namespace, source: Callable[[asyncio.AbstractEventLoop], Source]
+) -> Callable[[], None]:
+    """`serve_output`'s ``started``: the server of ``--metrics`` (if any, from
+    `run_output`) answers from then on from ``source(loop)``."""
+
+    def started() -> None:
+        if args.metrics_server is not None:
+            args.metrics_server.serve(source(asyncio.get_running_loop()))
+
+    return started
 
 
 async def serve_output(
@@ -217,15 +242,18 @@ async def _serve(cfg: Any, args: argparse.Namespace) -> int:
             closed = True  # | head: stop quietly
             stop.set()
 
-    def started() -> None:
-        if args.metrics_server is not None:
-            from pyrtu.metrics.bridge import BridgeSource
+    def source(loop: asyncio.AbstractEventLoop) -> Source:
+        from pyrtu.metrics.bridge import BridgeSource
 
-            args.metrics_server.serve(BridgeSource(bridge, asyncio.get_running_loop()))
+        return BridgeSource(bridge, loop)
 
     bridge.on_event(on_event)
     failed = await serve_output(
-        bridge, stop, args.duration, lambda: bridge.stop(drain=args.drain), started
+        bridge,
+        stop,
+        args.duration,
+        lambda: bridge.stop(drain=args.drain),
+        serving_metrics(args, source),
     )
     if failed is not None:
         return failed
@@ -261,4 +289,12 @@ COMMANDS = (
     ),
 )
 
-__all__ = ["COMMANDS", "as_port_error", "checked", "config_error", "serve_output"]
+__all__ = [
+    "COMMANDS",
+    "as_port_error",
+    "checked",
+    "config_error",
+    "run_output",
+    "serve_output",
+    "serving_metrics",
+]

@@ -24,17 +24,14 @@ from .poller import families as poller_families
 from .poller import snapshot as poller_snapshot
 from .server import on_loop
 
-#: (metric, help, `Bridge.stats` key) of the bridge's counters
-COUNTERS = (
-    ("pyrtu_bridge_updates", "Records appended to the outbox (values to publish)", "updates"),
-    ("pyrtu_bridge_published", "Records handed to the MQTT client", "published"),
-    ("pyrtu_bridge_acknowledged", "Records the broker acknowledged", "acknowledged"),
+#: (metric, help, stats key) of the counters both MQTT outputs keep (the JSON
+#: bridge and the Sparkplug edge node, `pyrtu.metrics.sparkplug`)
+OUTPUT_COUNTERS = (
     (
         "pyrtu_bridge_outbox_dropped",
         "Records dropped: the outbox full (drop-oldest) or refusing (refuse)",
         "drops",
     ),
-    ("pyrtu_bridge_quarantined", "Records no broker accepts, set aside", "quarantined"),
     ("pyrtu_bridge_broker_connections", "Connections to the broker made", "connections"),
     ("pyrtu_bridge_broker_outages", "Outages of the broker connection", "outages"),
     (
@@ -43,18 +40,28 @@ COUNTERS = (
         "task_failures",
     ),
 )
+#: (metric, help, `Bridge.stats` key) of the JSON bridge's own counters
+COUNTERS = (
+    ("pyrtu_bridge_updates", "Records appended to the outbox (values to publish)", "updates"),
+    ("pyrtu_bridge_published", "Records handed to the MQTT client", "published"),
+    ("pyrtu_bridge_acknowledged", "Records the broker acknowledged", "acknowledged"),
+    ("pyrtu_bridge_quarantined", "Records no broker accepts, set aside", "quarantined"),
+)
 #: the set commands' counters of `Bridge.stats` (``commands``), as ``result`` labels
 COMMAND_RESULTS = ("received", "ignored", "executed", "expired", "duplicates", "busy", "failed")
 
 
-def families(stats: dict[str, Any]) -> Iterator[Metric]:
-    """The bridge's own families from `Bridge.stats`."""
+def output_families(stats: dict[str, Any]) -> Iterator[Metric]:
+    """The families of an MQTT output, either mode, from its figures keyed as
+    `Bridge.stats`'s: ``connected``, ``connections``, ``outages``, ``drops``,
+    ``task_failures``, ``outbox_depth``, ``outbox_bytes``, ``oldest_unsent_s``,
+    ``commands`` (`SetWriter.stats`)."""
     connected = GaugeMetricFamily(
         "pyrtu_bridge_broker_connected", "1 while connected to the MQTT broker"
     )
     connected.add_metric([], 1 if stats["connected"] else 0)
     yield connected
-    for name, documentation, key in COUNTERS:
+    for name, documentation, key in OUTPUT_COUNTERS:
         counter = CounterMetricFamily(name, documentation)
         counter.add_metric([], stats[key])
         yield counter
@@ -83,6 +90,15 @@ def families(stats: dict[str, Any]) -> Iterator[Metric]:
     yield waiting
 
 
+def families(stats: dict[str, Any]) -> Iterator[Metric]:
+    """The bridge's own families from `Bridge.stats`."""
+    yield from output_families(stats)
+    for name, documentation, key in COUNTERS:
+        counter = CounterMetricFamily(name, documentation)
+        counter.add_metric([], stats[key])
+        yield counter
+
+
 class BridgeSource(PollerSource):
     """``pyrtu bridge``'s `pyrtu.metrics.server.Source`: its poller's metrics
     (`PollerSource`) and the bridge's own."""
@@ -104,4 +120,4 @@ class BridgeSource(PollerSource):
         return problems
 
 
-__all__ = ["BridgeSource", "families"]
+__all__ = ["BridgeSource", "families", "output_families"]

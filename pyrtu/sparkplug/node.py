@@ -564,19 +564,55 @@ class EdgeNode(MqttOutput):
     # ------------------------------------------------------------------ figures
 
     def stats(self) -> dict[str, Any]:
+        """The node's figures (JSON-ready; no secret in them)."""
         ob = self._outbox
+        oldest = ob.oldest_time if ob is not None else None
         return {
             "group_id": self.spb.group_id,
             "edge_node_id": self.spb.edge_node_id,
-            "connected": self._link is not None and self._link.connected,
+            "connected": self._connected(),
             "born": self._born,
             "bdseq": self.session.bdseq,
             "devices_alive": sorted(self._alive),
             "outbox_depth": ob.depth if ob is not None else 0,
+            "outbox_bytes": ob.bytes_used if ob is not None else 0,
+            "oldest_unsent_s": (
+                None if oldest is None else round(max(0.0, time.monotonic() - oldest), 3)
+            ),
+            "outbox_dropped": ob.dropped if ob is not None else 0,
+            "outages": self._reconnect.outages,
             **self.counts,
             "dcmd_refused": dict(self.dcmd_refused),
             "commands": self.writer.stats(),
         }
+
+    def health(self) -> list[str]:
+        """What keeps the node from doing its work, one line each (empty: it polls,
+        its tasks run, the outbox is open, the broker connected and the node born):
+        the poller's problems (`Poller.health`), a fatal error, the outbox closed, a
+        task not running, the broker not connected, the primary host offline (the
+        node publishes nothing until it is back).  No secret in the lines: the
+        broker's URL has none."""
+        if not self._running:
+            return ["the edge node is not running"]
+        problems = list(self.poller.health())
+        if self.fatal is not None:
+            problems.append(f"fatal: {self.fatal}")
+        if self._outbox is None:
+            problems.append("the outbox is closed")
+        for task in self._tasks:
+            if task.done():
+                problems.append(f"task {task.get_name()} is not running")
+        if not self._connected():
+            problems.append(f"broker {self.config.mqtt.broker} not connected")
+        elif not self._born and self.spb.primary_host_id:
+            problems.append(
+                f"primary host {self.spb.primary_host_id} offline: the node waits to be born"
+            )
+        return problems
+
+    def _connected(self) -> bool:
+        return self._link is not None and self._link.connected
 
 
 __all__ = ["EdgeNode"]

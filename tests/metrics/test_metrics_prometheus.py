@@ -8,9 +8,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
 from cli_helpers import Background
 from metrics_helpers import BAUD, SERIAL, next_json, serving, stop, until, write_poll_config
-from mqtt_broker import Broker
+from mqtt_broker import Broker, Client
 from prometheus_server import Prometheus, free_port
 
 from pyrtu import Master
@@ -192,3 +193,91 @@ def test_the_bridge_scraped_outbox_and_broker(tmp_path: Path) -> None:
             sim.close()
     assert code == 0
     assert PASSWORD not in "".join(bridge.err)
+
+
+SPARKPLUG = """
+[defaults]
+max_age = 0.2
+[mqtt]
+url = "{url}"
+edge = "e1"
+outbox = "{outbox}"
+backoff = 0.1
+max_backoff = 0.5
+username = "edge"
+password = "{password}"
+[sparkplug]
+group_id = "plant1"
+[[bus]]
+name = "line"
+port = "{port}"
+baudrate = {baud}
+parity = "N"
+timeout = 0.1
+offline_after = 2
+[[device]]
+bus = "line"
+slave = 1
+profile = "cfw701"
+name = "weg"
+interval = 0.05
+"""
+
+
+def test_the_sparkplug_edge_node_scraped_births_data_and_outbox(tmp_path: Path) -> None:
+    """``pyrtu bridge`` with ``[sparkplug]``: the births Prometheus stored are the
+    ones a subscriber of the broker received; the broker killed: disconnected, not
+    born, a backlog that ages, unhealthy; the password in no series."""
+    pytest.importorskip("google.protobuf", reason="protobuf is not installed (pyrtu[sparkplug])")
+    address = f"127.0.0.1:{free_port()}"
+    watcher_password = "w4tch-Pq2"
+    with (
+        Broker(tmp_path, users={"edge": PASSWORD, "watcher": watcher_password}) as broker,
+        VirtualBus(2, baudrate=BAUD, parity="N") as bus,
+    ):
+        sim = CFW701Simulator()
+        sim.serve(bus.paths[1], 1, baudrate=BAUD, parity="N")
+        watcher = Client(broker, ["spBv1.0/#"], username="watcher", password=watcher_password)
+        config = tmp_path / "bridge.toml"
+        config.write_text(
+            SPARKPLUG.format(url=broker.url, outbox=tmp_path / "ob", password=PASSWORD,
+                             port=bus.paths[0], baud=BAUD)
+        )  # fmt: skip
+        node = Background("bridge", "--config", config, "--metrics", address)
+        try:
+            until(lambda: serving(address), "the endpoint")
+            with Prometheus(tmp_path, [address]) as prom:
+                prom.wait("pyrtu_sparkplug_born", lambda v: v == 1, "born")
+                births = "spBv1.0/plant1/{}/e1"
+                prom.wait(
+                    'pyrtu_sparkplug_messages_total{type="NBIRTH"}',
+                    lambda v: v == len(watcher.on(births.format("NBIRTH"))) == 1,
+                    "the NBIRTH the watcher received",
+                )
+                prom.wait(
+                    'pyrtu_sparkplug_messages_total{type="DBIRTH"}',
+                    lambda v: v == len(watcher.on(births.format("DBIRTH") + "/weg")) >= 1,
+                    "the DBIRTH the watcher received",
+                )
+                prom.wait('pyrtu_sparkplug_messages_total{type="DDATA"}', lambda v: v >= 3, "data")
+                prom.wait('pyrtu_sparkplug_device_alive{device="weg"}', lambda v: v == 1, "it")
+                prom.wait('pyrtu_poll_responses_total{slave="1"}', lambda v: v >= 5, "polled")
+                prom.wait("pyrtu_healthy", lambda v: v == 1, "healthy")
+                broker.kill()  # the values (max_age 0.2 s) pile up in the outbox
+                prom.wait("pyrtu_bridge_broker_connected", lambda v: v == 0, "disconnected")
+                prom.wait("pyrtu_sparkplug_born", lambda v: v == 0, "not born")
+                prom.wait("pyrtu_bridge_outbox_depth", lambda v: v >= 10, "a backlog")
+                prom.wait("pyrtu_bridge_outbox_oldest_age_seconds", lambda v: v >= 0.5, "its age")
+                prom.wait("pyrtu_healthy", lambda v: v == 0, "unhealthy")
+                stored = prom.query('{job="pyrtu"}')
+                assert stored and all(
+                    PASSWORD not in key and PASSWORD not in value
+                    for labels, _ in stored
+                    for key, value in labels.items()
+                )
+        finally:
+            code = stop(node)
+            watcher.close()
+            sim.close()
+    assert code == 0, node.err
+    assert PASSWORD not in "".join(node.err)

@@ -265,11 +265,6 @@ def test_a_config_error_exits_2_with_file_line_and_key(tmp_path: Path) -> None:
     assert "Traceback" not in out.stderr
 
 
-def test_metrics_is_refused_in_sparkplug_mode(tmp_path: Path) -> None:
-    out = _cli("--config", str(_toml(tmp_path)), "--metrics", "127.0.0.1:0")
-    assert out.returncode == 2 and "--metrics is not available with [sparkplug]" in out.stderr
-
-
 def test_two_metrics_whose_names_differ_only_in_case_are_refused(tmp_path: Path) -> None:
     path = _toml(tmp_path)
     path.write_text(
