@@ -1,5 +1,6 @@
 """The asyncio Modbus TCP client's reads (issue 30.1): the socket is read into the
-scanner's buffer and scanned (C: rtu_tcp_scan; the twin), on both backends, against
+scanner's buffer (the one answer awaited, alone in a read, told by its header; any
+other read scanned, C: rtu_tcp_scan; the twin), on both backends, against
 scripted servers on 127.0.0.1 that cut, join and spoil the answers' bytes.  The
 expected bytes are built with `struct` from the MBAP layout (Messaging on TCP/IP
 Implementation Guide V1.0b, 3.1.3), not by pyrtu."""
