@@ -426,7 +426,7 @@ def _install(cls: type[AsyncMaster]) -> None:
                 # end time, which the method does not return
                 call = request_table.call_of(req, slave, args, kwargs, self._link.address)
                 tcp = self._tcp
-                value = await self._run(call) if tcp is None else (await tcp.transact(call))[0]
+                value = await self._run(call) if tcp is None else await tcp.value(call)
                 return value if post is None else post(value)
             return (await self.transact(req, slave, *args, **kwargs))[0]
 

@@ -28,6 +28,7 @@ import os
 import select
 import socket
 import ssl
+import struct
 import time
 from collections import deque
 from typing import Any
@@ -40,6 +41,7 @@ from pyrtu.core import _backend
 from pyrtu.core._closing import AsyncClosing, Closing
 from pyrtu.core._forward import Forward, Settable
 from pyrtu.core._types import BytesLike
+from pyrtu.core.mbap import MAX_LENGTH, MIN_LENGTH
 from pyrtu.drivers import xfer, xfer_runners
 from pyrtu.drivers._portname import MBAP_SCHEMES, MBAPS_SCHEME, RTU_TCP_SCHEME
 from pyrtu.drivers._ptimer import rearm
@@ -49,6 +51,8 @@ from pyrtu.tcp.sockets import set_nodelay
 from pyrtu.tcp.tls import MBAPS_PORT, remember, wrap
 
 DEFAULT_PORT = 502
+_monotonic = time.monotonic
+_HEAD = struct.Struct(">HHH")  # an MBAP header's transaction id, protocol id, length
 
 
 def parse_tcp_url(url: str, schemes: tuple[str, ...] = ("tcp",)) -> tuple[str, int]:
@@ -328,10 +332,11 @@ class Awaiting:
 class _ClientConnection(Awaiting, asyncio.BufferedProtocol):
     """The event loop's side of an `AsyncTcpClient`: the socket is read straight
     into the scanner's buffer (no bytes object per read: asyncio's plain
-    `asyncio.Protocol` allocates 256 KiB for each), one scan per read (C:
-    rtu_tcp_scan) finds the whole ADUs, and the answer of the one request in flight
-    resolves its future here; several in flight (pipelined), late answers and bad
-    headers go through the protocol's results."""
+    `asyncio.Protocol` allocates 256 KiB for each); the answer of the one request in
+    flight, alone in a read, is told by its header and resolves its future here; any
+    other read is scanned (C: rtu_tcp_scan; the twin) for its whole ADUs: several in
+    flight (pipelined), late answers and bad headers go through the protocol's
+    results."""
 
     def __init__(self, proto: TcpClientProtocol, where: str, scanner: xfer.TcpScanner) -> None:
         super().__init__(proto)
@@ -349,36 +354,58 @@ class _ClientConnection(Awaiting, asyncio.BufferedProtocol):
         self.loop = asyncio.get_running_loop()
 
     def get_buffer(self, sizehint: int) -> memoryview:
-        return self.view[self.n :]
+        n = self.n
+        return self.view[n:] if n else self.view
 
     def buffer_updated(self, nbytes: int) -> None:
-        now = time.monotonic()
+        now = _monotonic()
         proto = self.proto
         n = self.n + nbytes
         if proto.broken is not None:  # (the stream is lost: nothing more is read)
             self.n = 0
             return
         tid = proto.sole_tid()
-        scan = self.scan(n, max(tid, 0))
-        used = scan.used
-        if tid >= 0 and used and used == scan.ans_len and not scan.error:
-            # the one answer awaited, alone: its future resolved here
-            result = proto.take_answer(tid, self.buf[6], bytes(self.view[7:used]), now)
-            fut = self.waiters.pop(tid, None)
-            if fut is not None and not fut.done():
-                if isinstance(result, ModbusError):
-                    fut.set_exception(result)
-                else:
-                    fut.set_result(result)
-        elif used or scan.error:
-            proto.receive_scanned(bytes(self.view[:used]), used, scan.error, now)
-            self.dispatch()
+        used = 0
+        if tid >= 0 and n >= 6:
+            # the common read: the answer of the one request in flight, one whole
+            # ADU and nothing after it, told by its header alone (as the scan below
+            # finds it: used == ans_len == n, no error)
+            got, protocol, length = _HEAD.unpack_from(self.buf)
+            if got == tid and not protocol and MIN_LENGTH <= length <= MAX_LENGTH:
+                used = n if n == 6 + length else 0
+        if not used:  # anything else: the backend's scan (C: rtu_tcp_scan)
+            scan = self.scan(n, tid if tid >= 0 else 0)
+            used = scan.used
+            if tid < 0 or not used or used != scan.ans_len or scan.error:
+                if used or scan.error:
+                    proto.receive_scanned(bytes(self.view[:used]), used, scan.error, now)
+                    self.dispatch()
+                self._keep(n, used)
+                return
+        # the one answer awaited, alone: its future resolved here
+        result = proto.take_answer(tid, self.buf[6], bytes(self.view[7:used]), now)
+        fut = self.waiters.pop(tid, None)
+        if fut is not None and not fut.done():
+            if type(result) is bytes:  # (the common end: a response)
+                fut.set_result(result)
+            elif isinstance(result, ModbusError):
+                fut.set_exception(result)
+            else:
+                fut.set_result(result)
+        if used == n:
+            self.n = 0
+        else:
+            self._keep(n, used)
+
+    def _keep(self, n: int, used: int) -> None:
+        """After a read (``n`` bytes in the buffer, ``used`` of them resolved): the
+        partial ADU after them moves to the buffer's start."""
         if used:
             rest = n - used
             if rest:
                 self.buf[:rest] = bytes(self.view[used:n])  # a partial ADU stays
             n = rest
-        self.n = 0 if proto.broken is not None else n
+        self.n = 0 if self.proto.broken is not None else n
 
     def eof_received(self) -> bool | None:
         self.proto.connection_lost("the server closed the connection")
@@ -439,6 +466,8 @@ class AsyncTcpClient(TcpClientState, AsyncClosing):
         self.host, self.port = host, port
         self.where = conn.where
         self._window = RequestWindow(max_in_flight)
+        assert conn.loop is not None  # (connected: connection_made ran)
+        self._loop = conn.loop
 
     @classmethod
     async def connect(
@@ -484,38 +513,49 @@ class AsyncTcpClient(TcpClientState, AsyncClosing):
         exception response raises `ExceptionResponseError`, or with ``raw=True`` is
         returned as its PDU (function code | 0x80, exception code).  Cancelling the
         await forgets the request (a late answer is dropped)."""
-        conn = self._conn
-        proto = conn.proto
         window = self._window
         if window.free and not window.queue:  # (a turn at once: no await)
             window.free -= 1
         else:
-            assert conn.loop is not None
-            await window.wait_turn(conn.loop)
+            await window.wait_turn(self._loop)
         try:
-            now = time.monotonic()
-            tid, data = proto.send_request(unit, pdu, now, answered=answered, raw=raw)
-            assert conn.loop is not None
-            fut: asyncio.Future[bytes | None] = conn.loop.create_future()
-            conn.waiters[tid] = fut
-            transport = conn.transport
-            if transport is None or transport.is_closing():
-                proto.connection_lost("the connection is closed")
-                conn.dispatch()
-            else:
-                transport.write(data)
-                if proto.has_results():  # a broadcast's None
-                    conn.dispatch()
-                elif conn.timer is None or now + proto.timeout < conn.timer_at:
-                    conn.arm()
+            tid, fut = self._send(unit, pdu, answered, raw)
             try:
                 return await fut
             except asyncio.CancelledError:
-                conn.waiters.pop(tid, None)
-                proto.cancel(tid)
+                self._forget(tid)
                 raise
         finally:
             window.release()
+
+    def _send(
+        self, unit: int, pdu: BytesLike, answered: bool | None, raw: bool
+    ) -> tuple[int, asyncio.Future[bytes | None]]:
+        """A request on the wire (its turn taken): its transaction id and the future
+        its result resolves (`request`'s, and `pyrtu.tcp.link.AsyncTcpLink`'s, which
+        awaits it without a coroutine of this client's in between)."""
+        conn = self._conn
+        proto = conn.proto
+        now = _monotonic()
+        tid, data = proto.send_request(unit, pdu, now, answered=answered, raw=raw)
+        fut: asyncio.Future[bytes | None] = self._loop.create_future()
+        conn.waiters[tid] = fut
+        transport = conn.transport
+        if transport is None or transport.is_closing():
+            proto.connection_lost("the connection is closed")
+            conn.dispatch()
+        else:
+            transport.write(data)
+            if proto.has_results():  # a broadcast's None
+                conn.dispatch()
+            elif conn.timer is None or now + proto.timeout < conn.timer_at:
+                conn.arm()
+        return tid, fut
+
+    def _forget(self, tid: int) -> None:
+        """The await of request ``tid`` was cancelled: a late answer is dropped."""
+        self._conn.waiters.pop(tid, None)
+        self._conn.proto.cancel(tid)
 
     async def close(self) -> None:
         transport = self._conn.transport

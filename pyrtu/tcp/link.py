@@ -110,11 +110,6 @@ class _TcpBase:
         return f"{self.url} {self.what}" + (" in TLS" if self.url.startswith("mbaps") else "")
 
 
-def _result(call: Call, answer: bytes | None, end: float | None) -> tuple[Any, float]:
-    value = None if call.decode is None or answer is None else call.decode(answer)
-    return value, time.monotonic() if end is None or answer is None else end
-
-
 class TcpLink(_TcpBase):
     """`pyrtu.Master`'s link on a Modbus TCP connection (blocking, one at a time;
     each transaction one call of the ``backend``'s `pyrtu.drivers.xfer.TcpXferRunner`:
@@ -268,17 +263,44 @@ class AsyncTcpLink(_TcpBase):
         await self._connected()
 
     async def transact(self, call: Call) -> tuple[Any, float]:
+        value = await self.value(call)
+        # (pipelined: this answer's time is the latest read when the await resumed;
+        # a broadcast's, now)
+        end = None if self._client is None else self._client._proto.answer_end
+        return value, time.monotonic() if end is None or call.decode is None else end
+
+    async def value(self, call: Call) -> Any:
+        """The decoded answer of ``call`` (`transact`'s value; the request methods'
+        path): `AsyncTcpClient.request`, its turn and future awaited here (one
+        coroutine less per transaction), retried after `NoResponseError`."""
         client = self._client or await self._connected()
-        answered, raw = call.decode is not None, call.decode is answer_pdu
-        for attempt in range(self.retries + 1):
+        slave, pdu, decode = call
+        answered, raw = decode is not None, decode is answer_pdu
+        window = client._window
+        retries = self.retries
+        while True:
+            if window.free and not window.queue:  # (a turn at once: no await)
+                window.free -= 1
+            else:
+                await window.wait_turn(client._loop)
             try:
-                answer = await client.request(call.slave, call.pdu, answered=answered, raw=raw)
-                break
-            except NoResponseError:
-                if attempt == self.retries:
+                tid, fut = client._send(slave, pdu, answered, raw)
+                try:
+                    answer = await fut
+                except asyncio.CancelledError:
+                    client._forget(tid)
                     raise
-        # (pipelined: this answer's time is the latest read when the await resumed)
-        return _result(call, answer, client.last_answer_time)
+            except NoResponseError:
+                if not retries:
+                    raise
+                retries -= 1
+                continue
+            finally:
+                if window.queue:
+                    window.release()
+                else:  # (`RequestWindow.release` with no one waiting)
+                    window.free += 1
+            return None if decode is None or answer is None else decode(answer)
 
     async def close(self) -> None:
         if self._client is not None:

@@ -35,7 +35,6 @@ import os
 import struct
 from collections import deque
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 
 from pyrtu.core import _backend
 from pyrtu.core._types import BytesLike
@@ -59,13 +58,11 @@ log = logging.getLogger("pyrtu.drivers.master")
 _MBAP = struct.Struct(">HHHB")  # transaction id, protocol id (0), length, unit id
 
 
-@dataclass(slots=True)
-class _Pending:
-    unit: int
-    function: int
-    deadline: float
-    raw: bool = False  # an exception response is the result, as its PDU
-    sent: float = 0.0  # when it was sent (for the log)
+#: a request in flight: (unit, function, deadline, raw, sent): ``raw``: an exception
+#: response is the result, as its PDU; ``sent``: when it was sent (for the log).  A
+#: plain tuple: one is made per transaction, without a Python ``__init__``.
+_Pending = tuple[int, int, float, bool, float]
+_DEADLINE = 2  # (its index)
 
 
 def check_timeout(timeout: object, name: str = "timeout") -> float:
@@ -175,10 +172,23 @@ class TcpClientProtocol:
         Raises before anything is sent: ValueError/TypeError for bad arguments,
         RuntimeError when ``max_in_flight`` requests already wait or the connection
         is broken."""
-        body = self._request_body(unit, pdu)
-        if len(self._pending) >= self.max_in_flight:
+        if (
+            type(pdu) is bytes
+            and 0 < len(pdu) <= MAX_PDU
+            and type(unit) is int
+            and 0 <= unit <= 255
+            and self.broken is None
+        ):
+            body = pdu  # (`_request_body`'s common case, without its call)
+        else:
+            body = self._request_body(unit, pdu)
+        pending = self._pending
+        if len(pending) >= self.max_in_flight:
             raise RuntimeError(f"{self.max_in_flight} requests already in flight")
-        tid = self._next_tid()
+        tid = (self._tid + 1) & 0xFFFF
+        if tid in pending:  # (wrapped around to one still in flight: the next free)
+            tid = self._next_tid()
+        self._tid = tid
         data = _MBAP.pack(tid, 0, len(body) + 1, unit) + body  # (3.1.3: the MBAP ADU)
         counters = self.counters
         counters["requests"] += 1
@@ -186,7 +196,7 @@ class TcpClientProtocol:
             counters["broadcasts"] += 1
             self._results.append((tid, None))
         else:
-            self._pending[tid] = _Pending(unit, body[0], now + self.timeout, raw, now)
+            pending[tid] = (unit, body[0], now + self.timeout, raw, now)
         if log.isEnabledFor(logging.DEBUG):
             log.debug("TX unit %d fc %d tid %d: %s", unit, body[0], tid, data.hex(" "))
         return tid, data
@@ -221,26 +231,25 @@ class TcpClientProtocol:
         dropped).  The event loop's client calls it for the one answer a read
         brought (`sole_tid`), and resolves the awaiting future itself."""
         pending = self._pending.pop(tid, None)
-        if log.isEnabledFor(logging.DEBUG):
-            if pending is None:
-                _log_late(tid, _MBAP.pack(tid, 0, len(pdu) + 1, unit) + pdu)
-            else:
-                self._log_answer(tid, unit, pdu, (now - pending.sent) * 1e3)
         counters = self.counters
         if pending is None:
+            if log.isEnabledFor(logging.DEBUG):
+                _log_late(tid, _MBAP.pack(tid, 0, len(pdu) + 1, unit) + pdu)
             counters["late"] += 1
             return None
+        asked, fc, _, raw, sent = pending
+        if log.isEnabledFor(logging.DEBUG):
+            self._log_answer(tid, unit, pdu, (now - sent) * 1e3)
         self.answer_end = now
-        fc = pending.function
-        if unit != pending.unit or pdu[0] & 0x7F != fc:
+        if unit != asked or pdu[0] & 0x7F != fc:
             counters["frame_errors"] += 1
-            return _mismatch(pending.unit, fc, unit, pdu[0])
+            return _mismatch(asked, fc, unit, pdu[0])
         if pdu[0] & 0x80:  # an exception response
             counters["exceptions"] += 1
             if len(pdu) != 2:
                 counters["frame_errors"] += 1
                 return _short_exception(len(pdu), unit, fc)
-            if pending.raw:
+            if raw:
                 return pdu
             return ExceptionResponseError(unit, fc, pdu[1])
         counters["responses"] += 1
@@ -304,23 +313,23 @@ class TcpClientProtocol:
         ``reason`` (counted as ``timeouts``: no answer came, as when its deadline
         passes); nothing is broken (a retry may be answered)."""
         for tid in sorted(self._pending):
-            p = self._pending.pop(tid)
+            unit, fc, *_ = self._pending.pop(tid)
             self.counters["timeouts"] += 1
-            text = f"no answer from unit {p.unit} (function {p.function}): {reason}"
-            self._results.append((tid, NoResponseError(text, p.unit, p.function)))
+            text = f"no answer from unit {unit} (function {fc}): {reason}"
+            self._results.append((tid, NoResponseError(text, unit, fc)))
 
     def deadline(self) -> float | None:
         """When the oldest request in flight times out, or None."""
         if not self._pending:
             return None
-        return min(p.deadline for p in self._pending.values())
+        return min(p[_DEADLINE] for p in self._pending.values())
 
     def handle_timer(self, now: float) -> None:
-        expired = [tid for tid, p in self._pending.items() if p.deadline <= now]
+        expired = [tid for tid, p in self._pending.items() if p[_DEADLINE] <= now]
         for tid in expired:
-            p = self._pending.pop(tid)
+            unit, fc, *_ = self._pending.pop(tid)
             self.counters["timeouts"] += 1
-            self._results.append((tid, _no_answer(p.unit, p.function, self.timeout)))
+            self._results.append((tid, _no_answer(unit, fc, self.timeout)))
 
     def cancel(self, tid: int) -> None:
         """Forget a request (its caller gave up): a late answer is dropped."""

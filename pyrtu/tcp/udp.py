@@ -337,6 +337,10 @@ class AsyncUdpLink(_UdpBase):
         # (pipelined: this answer's time is the latest read when the await resumed)
         return _result(call, answer, self._proto.answer_end)
 
+    async def value(self, call: Call) -> Any:
+        """`transact`'s value (the request methods' path, as on ``tcp://``)."""
+        return (await self.transact(call))[0]
+
     async def _request(
         self, endpoint: _Endpoint, unit: int, pdu: bytes, answered: bool, raw: bool
     ) -> bytes | None:

@@ -1,5 +1,6 @@
 """The asyncio Modbus TCP client's reads (issue 30.1): the socket is read into the
-scanner's buffer and scanned (C: rtu_tcp_scan; the twin), on both backends, against
+scanner's buffer (the one answer awaited, alone in a read, told by its header; any
+other read scanned, C: rtu_tcp_scan; the twin), on both backends, against
 scripted servers on 127.0.0.1 that cut, join and spoil the answers' bytes.  The
 expected bytes are built with `struct` from the MBAP layout (Messaging on TCP/IP
 Implementation Guide V1.0b, 3.1.3), not by pyrtu."""
@@ -17,7 +18,7 @@ from types import ModuleType
 
 import pytest
 
-from pyrtu import ExceptionResponseError, NoResponseError, PortError
+from pyrtu import ExceptionResponseError, FrameError, NoResponseError, PortError
 from pyrtu.drivers.aio import AsyncMaster
 from pyrtu.tcp import AsyncTcpClient
 
@@ -201,6 +202,87 @@ def test_a_bad_header_after_the_answer_ends_the_connection(
             await asyncio.wait_for(broken(), 10.0)
             with pytest.raises(PortError, match=r"unusable: bad MBAP header .*protocol"):
                 await c.request(1, READ)
+
+    asyncio.run(main())
+
+
+USER_FC = 0x41  # a user-defined function code (Application Protocol 5): any PDU back
+
+
+def test_an_answer_alone_in_a_read_at_the_header_limits(
+    backend: ModuleType, scripted: Callable[[Callable[[socket.socket], None]], int]
+) -> None:
+    """Answers each alone in a read (the client tells them by their header, without
+    a scan): a 253-byte PDU (length field 254, the most, 3.1.3) is the answer; a
+    lone ADU of another transaction is late (dropped, counted) and the answer after
+    it, alone too, is the result; a 1-byte PDU (length 2, the least) is one too."""
+    longest = bytes([USER_FC]) + bytes(range(252))
+
+    def script(conn: socket.socket) -> None:
+        ((tid, unit, pdu),) = read_requests(conn, 1)
+        assert pdu == bytes([USER_FC])
+        conn.sendall(adu(tid, unit, longest))
+        ((tid, unit, _),) = read_requests(conn, 1)
+        conn.sendall(adu(tid ^ 1, unit, VALUES))
+        time.sleep(0.05)  # (TCP_NODELAY: read by itself, as a rule; either way late)
+        conn.sendall(adu(tid, unit, VALUES))
+        ((tid, unit, _),) = read_requests(conn, 1)
+        conn.sendall(adu(tid, unit, bytes([USER_FC])))
+        conn.recv(1)  # until the client closes
+
+    port = scripted(script)
+
+    async def main() -> None:
+        c = await AsyncTcpClient.connect(
+            f"tcp://127.0.0.1:{port}", timeout=2.0, max_in_flight=1, backend=backend.BACKEND
+        )
+        async with c:
+            assert len(adu(0, 1, longest)) == 6 + 254
+            assert await c.request(1, bytes([USER_FC])) == longest
+            assert await c.request(1, READ) == VALUES
+            assert await c.request(1, bytes([USER_FC])) == bytes([USER_FC])
+            assert c.counters["late"] == 1 and c.counters["responses"] == 3
+
+    asyncio.run(main())
+
+
+@pytest.mark.parametrize(
+    ("spoil", "reason"),
+    [
+        (lambda tid: adu(tid, 1, VALUES, protocol=1), "protocol"),
+        (lambda tid: adu(tid, 1, bytes([USER_FC]) + bytes(253)), "length"),  # length 255
+        (lambda tid: adu(tid, 1, b""), "length"),  # length 1: a unit id, no PDU
+    ],
+    ids=["protocol id 1", "length 255", "length 1"],
+)
+def test_a_bad_header_alone_in_a_read_ends_the_connection(
+    backend: ModuleType,
+    scripted: Callable[[Callable[[socket.socket], None]], int],
+    spoil: Callable[[int], bytes],
+    reason: str,
+) -> None:
+    """The awaited transaction id on a header the guide does not allow (3.1.3:
+    protocol id 0; length 2..254), its bytes all in one read: not an answer; the
+    request fails with the bad header and the connection is unusable."""
+
+    def script(conn: socket.socket) -> None:
+        ((tid, _, _),) = read_requests(conn, 1)
+        conn.sendall(spoil(tid))
+        conn.recv(1)  # until the client closes
+
+    port = scripted(script)
+
+    async def main() -> None:
+        c = await AsyncTcpClient.connect(
+            f"tcp://127.0.0.1:{port}", timeout=2.0, max_in_flight=1, backend=backend.BACKEND
+        )
+        async with c:
+            with pytest.raises(FrameError, match=f"bad MBAP header .*{reason}"):
+                # (bounded: a header taken for an answer could leave the await hanging)
+                await asyncio.wait_for(c.request(1, bytes([USER_FC])), 10.0)
+            with pytest.raises(PortError, match=f"unusable: bad MBAP header .*{reason}"):
+                await c.request(1, READ)
+            assert c.counters["responses"] == 0 and c.counters["late"] == 0
 
     asyncio.run(main())
 
