@@ -11,9 +11,11 @@ bench/bench_tcp_master.py), on 127.0.0.1; every client reads 10 holding register
 
 * ``libmodbus``: tests/peers/libmodbus_client.c's ``bench`` (its own CPU time);
 * ``pyrtu async c``: ``await AsyncMaster("tcp://...").read_holding_registers``, one
-  request at a time (``max_in_flight=1``, the default), on the C core (the answers
-  scanned by rtu_tcp_scan);
-* ``pyrtu async twin``: the same with ``backend="python"``;
+  request at a time (``max_in_flight=1``, the default), on the C core (a read holding
+  one whole answer to the one request in flight is taken by its MBAP header; any
+  other read is scanned by rtu_tcp_scan);
+* ``pyrtu async twin``: the same with ``backend="python"`` (the twin's scan: so only
+  the reads the header alone does not settle differ from the C core's);
 * ``pyrtu async 8 in flight``: the C core with ``max_in_flight=8``, the reads
   awaited 8 at a time (``asyncio.gather``; libmodbus's server answers pipelined
   requests in order, but its accepted socket keeps Nagle's algorithm on, so each
