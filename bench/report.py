@@ -102,6 +102,12 @@ BENCHMARKS: tuple[Benchmark, ...] = (
         json_flag="--benchmark-json",
         joined=True,
     ),
+    Benchmark(
+        "tcpserver",
+        (*PYTEST, "bench/bench_tcp_server.py", *BENCH_SETTINGS),
+        json_flag="--benchmark-json",
+        joined=True,
+    ),
     Benchmark("slave", ("bench/run_slave.py",)),
     Benchmark("wake", ("bench/wake_floor.py",)),
     Benchmark("gateway", ("bench/run_gateway.py", "--no-write"), quick=("--seconds", "2")),

@@ -618,6 +618,61 @@ def tcpasync_targets(data: Data) -> list[tuple[str, str]]:
     )
 
 
+#: bench/bench_tcp_server.py's rows: pytest-benchmark name -> the server it measures
+TCP_SERVER_ROWS = {
+    "test_server[libmodbus]": "libmodbus C server",
+    "test_server[pyrtu]": "pyrtu `TcpServer`, C core",
+    "test_server[pymodbus]": "pymodbus `ModbusTcpServer` (asyncio)",
+}
+
+
+def tcpserver_body(data: Data) -> Lines:
+    rows = _tcp_rows(data, TCP_SERVER_ROWS)
+    n = next(iter(rows.values()))["n"] if rows else 0
+    base = rows.get("test_server[libmodbus]", {}).get("cpu")
+    theirs = rows.get("test_server[pymodbus]", {}).get("cpu")
+    out = [
+        "bench/bench_tcp_server.py: libmodbus's C client against each Modbus TCP server "
+        f"in turn, each server in a process of its own on 127.0.0.1; {n} reads of 10 "
+        "holding registers (FC 03) per round, every answer checked by the client, 5 "
+        "rounds each after an untimed warm-up; CPU per answered read is the server "
+        "process's (user + system, all threads, from the kernel's per-process CPU clock) "
+        "over the client's run divided by the reads; the Python servers on asyncio's "
+        "default event loop.",
+        "",
+    ]
+    return out + table(
+        [
+            "server",
+            "CPU µs per answered read, per round",
+            "median",
+            "reads/s",
+            "x libmodbus server",
+            "x pymodbus server",
+        ],
+        (
+            [
+                label,
+                " / ".join(f"{x:.1f}" for x in rows[name]["cpu_all"]),
+                f"{rows[name]['cpu']:.1f}",
+                f"{rows[name]['tps']:,.0f}",
+                f"{rows[name]['cpu'] / base:.2f}" if base else "",
+                f"{rows[name]['cpu'] / theirs:.2f}" if theirs else "",
+            ]
+            for name, label in TCP_SERVER_ROWS.items()
+            if name in rows
+        ),
+    )
+
+
+def tcpserver_targets(data: Data) -> list[tuple[str, str]]:
+    return _tcp_targets(
+        _tcp_rows(data, TCP_SERVER_ROWS),
+        "test_server[pyrtu]",
+        (("test_server[libmodbus]", 2.0), ("test_server[pymodbus]", 0.25)),
+    )
+
+
 def slave_body(data: Data) -> Lines:
     out = [
         "The slaves on the virtual bus (bench/run_slave.py): the slave in a process of its "
@@ -1588,6 +1643,16 @@ SECTIONS: tuple[Section, ...] = (
             "the libmodbus client (issue 30)",
             "`AsyncMaster` over tcp://, one request at a time: CPU per transaction <= 0.5x "
             "pymodbus's `AsyncModbusTcpClient` (issue 30)",
+        ),
+    ),
+    Section(
+        "tcpserver",
+        "Modbus TCP servers",
+        tcpserver_body,
+        tcpserver_targets,
+        (
+            "`TcpServer` CPU per answered read <= 2x libmodbus's server (issue 30)",
+            "`TcpServer` CPU per answered read <= 0.25x pymodbus's server (issue 30)",
         ),
     ),
     Section(
