@@ -309,10 +309,8 @@ def _survivors_again(tree: Path, target: Target, rest: bool = False) -> None:
         stem = module.replace("/", "_").removesuffix(".py")
         config = tree / f"cr-{stem}.toml"
         session = tree / f"cr-{stem}.sqlite"
-        if not session.exists():
-            if rest:  # a run stopped before this module began: all of it is the rest
-                continue
-            raise SystemExit(f"mutate: {target.name}: no session for {module} to re-judge")
+        if not session.exists():  # a run stopped before this module began: no
+            continue  # survivor to judge again; with `rest`, all of it is the rest
         if mutated.get(module) != (ROOT / module).read_bytes():
             raise SystemExit(
                 f"mutate: {target.name}: {module} changed since the session; run it in full"
@@ -511,10 +509,13 @@ def _run_target(
     else:
         _copy_tree(tree)
     out = WORK / f"{target.name}.jsonl"
+    out.write_text("")
     for module in target.modules:
         stem = module.replace("/", "_").removesuffix(".py")
         config = tree / f"cr-{stem}.toml"
         session = tree / f"cr-{stem}.sqlite"
+        if survivors and not session.exists():
+            continue  # a module the stopped run never began: `--rest` runs it
         command = shlex.join(_pytest(target.tests))
         _baseline(tree, target)
         config.write_text(
@@ -555,7 +556,7 @@ def _run_target(
         if survivors:
             _unpark(session)
         dump = _dump(cr, tree, session)
-        with out.open("a" if module != target.modules[0] else "w") as f:
+        with out.open("a") as f:
             f.write(dump)
     return out
 
