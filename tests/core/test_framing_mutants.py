@@ -485,3 +485,52 @@ def test_three_bytes_whose_crc_checks_are_no_frame(backend: ModuleType) -> None:
     f.receive_data(three, 1.0)
     f.handle_timer(1.1)
     assert [str(ev.kind) for ev in f.events()] == ["discard"]
+
+
+def test_a_read_request_exactly_max_adu_long_is_framed(backend: ModuleType) -> None:
+    """A length equal to max_adu is within it: with max_adu 8 the read request of
+    [AP] 6.3 ("11 03 00 6B 00 03", CRC 76 87 as the spec prints it) is framed as its
+    last byte arrives, not refused as too long."""
+    request = bytes.fromhex("11 03 00 6B 00 03 76 87")
+    f = backend.Framer("slave", baudrate=9600, max_adu=8)
+    f.receive_data(request, 1.0)
+    assert [(str(ev.kind), ev.error, ev.adu) for ev in f.events()] == [("request", None, request)]
+
+
+def test_a_deadline_one_microsecond_below_the_int64_range_is_a_timer(
+    backend: ModuleType,
+) -> None:
+    """The core's times are int64 microseconds (csrc/rtu_internal.h); INT64_MAX, 2**63 - 1,
+    means no timer.  Bytes whose t3.5 ends at 2**63 - 2 have that deadline; one
+    microsecond later it would be INT64_MAX itself: none.  t3.5 at 9600 baud, 11 bits a
+    character ([SL] 2.5.1.1): 3.5 x 11 / 9600 s, 4010 us to the microsecond."""
+    t35_us = round(3.5 * 11 * 1_000_000 / 9600)
+    assert t35_us == 4010
+    core = backend.Framer("slave", baudrate=9600).core
+    assert core.feed(b"\x01\x03", 2**63 - 2 - t35_us) == 2
+    assert core.deadline() == 2**63 - 2
+    core = backend.Framer("slave", baudrate=9600).core
+    assert core.feed(b"\x01\x03", 2**63 - 1 - t35_us) == 2
+    assert core.deadline() is None
+
+
+def test_a_silence_at_the_end_of_a_full_window_agrees_with_the_c_core(
+    both: tuple[ModuleType, ModuleType],
+) -> None:
+    """The core driven directly, polled only at the end: with max_adu 4, "01 10" and its
+    CRC, a timer past t3.5, two more bytes: the silence mark sits exactly at the end
+    of the 4-byte window, the bytes after it make the window closed.  The twin
+    resolves these bytes as the C core does."""
+    seen = []
+    for backend in both:
+        core = backend.Framer("slave", baudrate=9600, max_adu=4).core
+        four = bytes(backend.add_crc(b"\x01\x10"))
+        assert core.feed(four, 1_000_000) == 4
+        core.handle_timer(1_010_000)  # 10 ms: past t3.5 (4 ms), short of the flush (50)
+        assert core.feed(b"\x01\x03", 1_012_000) == 2
+        events = []
+        while (event := core.poll()) is not None:
+            events.append(event)
+        seen.append(events)
+    c_events, twin_events = seen
+    assert c_events and twin_events == c_events
