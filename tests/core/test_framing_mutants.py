@@ -534,3 +534,14 @@ def test_a_silence_at_the_end_of_a_full_window_agrees_with_the_c_core(
         seen.append(events)
     c_events, twin_events = seen
     assert c_events and twin_events == c_events
+
+
+def test_a_request_past_max_adu_still_lets_the_answer_be_framed(backend: ModuleType) -> None:
+    """A slave hears another slave's Write Multiple Registers answer ([AP] 6.12:
+    "11 10 00 01 00 02", 8 bytes with its CRC).  Read as a request its "count" (the
+    CRC's low byte) runs past max_adu 8: ruled out, the answer is tried next and
+    framed as its last byte arrives, with no silence."""
+    answer = bytes(backend.add_crc(bytes.fromhex("11 10 00 01 00 02")))
+    f = backend.Framer("slave", baudrate=9600, max_adu=8)
+    f.receive_data(answer, 1.0)
+    assert [(str(ev.kind), ev.adu) for ev in f.events()] == [("response", answer)]
