@@ -545,3 +545,13 @@ def test_a_request_past_max_adu_still_lets_the_answer_be_framed(backend: ModuleT
     f = backend.Framer("slave", baudrate=9600, max_adu=8)
     f.receive_data(answer, 1.0)
     assert [(str(ev.kind), ev.adu) for ev in f.events()] == [("response", answer)]
+
+
+def test_a_shortest_frame_exactly_max_adu_long_bounds_the_wait(backend: ModuleType) -> None:
+    """Write Single Register ([AP] 6.6): request and answer are 8 bytes.  With max_adu 8
+    a slave that has "11 06" still needs 6 bytes: a length equal to max_adu bounds
+    the wait as any shorter one does."""
+    f = backend.Framer("slave", baudrate=9600, max_adu=8)
+    f.receive_data(b"\x11\x06", 1.0)
+    assert f.next_event() is None
+    assert f.needed() == 8 - 2
