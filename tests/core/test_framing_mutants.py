@@ -555,3 +555,24 @@ def test_a_shortest_frame_exactly_max_adu_long_bounds_the_wait(backend: ModuleTy
     f.receive_data(b"\x11\x06", 1.0)
     assert f.next_event() is None
     assert f.needed() == 8 - 2
+
+
+def test_silence_marks_past_a_discarded_byte_are_kept(backend: ModuleType) -> None:
+    """Lenient mode: a stray byte, a t3.5 silence, six bytes "01 03 00 01" and their CRC
+    (short of a read request's 8: they wait), another t3.5 silence, a read request.
+    Three pieces delimited by silences ([SL] 2.5.1.1), resolved as the request's last
+    byte arrives: the stray byte goes; the six bytes are a frame by their CRC, ended
+    by the second silence (which must outlive the stray byte's discard); then the
+    request (a slave calls what a silence frames a request)."""
+    char = 11 / 9600
+    six = bytes(backend.add_crc(b"\x01\x03\x00\x01"))
+    request = bytes(backend.add_crc(b"\x01\x03\x00\x00\x00\x01"))
+    f = backend.Framer("slave", baudrate=9600)
+    t = 1.0
+    f.receive_data(b"\x07", t)
+    t += (5 + len(six)) * char  # 5 characters of silence: past t3.5, short of the flush
+    f.receive_data(six, t)
+    t += (5 + len(request)) * char
+    f.receive_data(request, t)
+    events = [(str(ev.kind), ev.offset, ev.adu) for ev in f.events()]
+    assert events == [("discard", 0, b"\x07"), ("request", 1, six), ("request", 7, request)]
