@@ -576,3 +576,20 @@ def test_silence_marks_past_a_discarded_byte_are_kept(backend: ModuleType) -> No
     f.receive_data(request, t)
     events = [(str(ev.kind), ev.offset, ev.adu) for ev in f.events()]
     assert events == [("discard", 0, b"\x07"), ("request", 1, six), ("request", 7, request)]
+
+
+def test_the_core_takes_bytes_again_once_a_closing_silence_is_resolved(
+    backend: ModuleType,
+) -> None:
+    """csrc/rtu.h: after a silence that closes the buffered bytes the core takes no byte
+    until they are resolved; once a poll has resolved them all (here the read request
+    of [AP] 6.3, "11 03 00 6B 00 03 76 87", one event), the next bytes are taken at
+    once, before any further poll."""
+    request = bytes.fromhex("11 03 00 6B 00 03 76 87")
+    core = backend.Framer("slave", baudrate=9600).core
+    assert core.feed(request, 1_000_000) == 8
+    core.handle_timer(2_000_000)  # a second of silence: past the flush timeout, closed
+    assert core.feed(request, 2_000_000) == 0
+    event = core.poll()
+    assert event is not None and event[6] == request
+    assert core.feed(request, 3_000_000) == 8
