@@ -7,6 +7,7 @@ itself bounds nothing but a frame begins after a t3.5 silence behind it."""
 from __future__ import annotations
 
 from types import ModuleType
+from typing import Any
 
 from pyrtu.core._pure.predict import (
     DIR_REQUEST,
@@ -593,3 +594,47 @@ def test_the_core_takes_bytes_again_once_a_closing_silence_is_resolved(
     event = core.poll()
     assert event is not None and event[6] == request
     assert core.feed(request, 3_000_000) == 8
+
+
+def _events(core: Any) -> list[tuple[int, int, bytes]]:
+    """(kind, error, bytes) of every event the core has ready (Framer.core's poll)."""
+    out = []
+    while (event := core.poll()) is not None:
+        out.append((event[2], event[3], event[6]))
+    return out
+
+
+def test_a_timer_at_the_flush_deadline_closes_the_waiting_bytes(backend: ModuleType) -> None:
+    """Lenient mode, flush timeout 20 ms: "01 10" waits for its count byte; the timer
+    at t3.5 notes the silence and sets the next deadline, the flush: a silence of
+    exactly the flush timeout drops the bytes (truncated), one microsecond less
+    does not."""
+    for now, dropped in ((1_020_000, True), (1_019_999, False)):
+        core = backend.Framer("slave", baudrate=9600, flush_timeout=0.02).core
+        assert core.feed(b"\x01\x10", 1_000_000) == 2
+        assert _events(core) == []
+        core.handle_timer(1_005_000)  # past t3.5 (4010 us)
+        assert _events(core) == []
+        assert core.deadline() == 1_020_000
+        core.handle_timer(now)
+        assert [adu for _kind, _error, adu in _events(core)] == ([b"\x01\x10"] if dropped else [])
+
+
+def test_bytes_after_exactly_the_flush_timeout_start_afresh(backend: ModuleType) -> None:
+    """Lenient mode, flush timeout 20 ms: "01 10" waits for its count byte; one more
+    byte whose silence before it (its arrival less one character, 11 bits at 9600
+    baud: 1146 us, less the last arrival) is exactly the flush timeout: the waiting
+    bytes go first (truncated), then the byte is taken; one microsecond less and
+    it joins them."""
+    char_us = round(11 * 1_000_000 / 9600)
+    for silence, dropped in ((20_000, True), (19_999, False)):
+        core = backend.Framer("slave", baudrate=9600, flush_timeout=0.02).core
+        assert core.feed(b"\x01\x10", 1_000_000) == 2
+        assert _events(core) == []
+        now = 1_000_000 + char_us + silence
+        took = core.feed(b"\x07", now)
+        events = _events(core)
+        if took == 0:
+            took = core.feed(b"\x07", now)
+        assert took == 1
+        assert [adu for _kind, _error, adu in events] == ([b"\x01\x10"] if dropped else [])
