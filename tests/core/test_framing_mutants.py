@@ -638,3 +638,14 @@ def test_bytes_after_exactly_the_flush_timeout_start_afresh(backend: ModuleType)
             took = core.feed(b"\x07", now)
         assert took == 1
         assert [adu for _kind, _error, adu in events] == ([b"\x01\x10"] if dropped else [])
+
+
+def test_reset_forgets_the_awaited_answer(backend: ModuleType) -> None:
+    """reset() drops the request context too (pyrtu.Framer.reset): a master that sent a
+    read request awaits an answer of 5 bytes at least ([AP] 7: an exception
+    answer); after reset() it awaits nothing."""
+    f = backend.Framer("master", baudrate=9600)
+    f.send(bytes.fromhex("11 03 00 6B 00 03 76 87"))
+    assert f.needed() == 5
+    f.reset()
+    assert f.needed() == 0
