@@ -559,24 +559,33 @@ def test_a_shortest_frame_exactly_max_adu_long_bounds_the_wait(backend: ModuleTy
 
 
 def test_silence_marks_past_a_discarded_byte_are_kept(backend: ModuleType) -> None:
-    """Lenient mode: a stray byte, a t3.5 silence, six bytes "01 03 00 01" and their CRC
-    (short of a read request's 8: they wait), another t3.5 silence, a read request.
-    Three pieces delimited by silences ([SL] 2.5.1.1), resolved as the request's last
-    byte arrives: the stray byte goes; the six bytes are a frame by their CRC, ended
-    by the second silence (which must outlive the stray byte's discard); then the
-    request (a slave calls what a silence frames a request)."""
+    """Lenient mode: a read request to slave 17 ([AP] 6.3), a stray byte, a t3.5 silence,
+    six bytes "01 03 00 01" and their CRC (short of a read request's 8: they wait),
+    another t3.5 silence, a read request to slave 1.  Pieces delimited by silences
+    ([SL] 2.5.1.1), resolved as the last byte arrives: the stray byte goes; the six
+    bytes are a frame by their CRC, ended by the second silence (which must outlive
+    the stray byte's discard; a slave calls what a silence frames a request); then
+    the request."""
     char = 11 / 9600
+    first = bytes.fromhex("11 03 00 6B 00 03 76 87")
     six = bytes(backend.add_crc(b"\x01\x03\x00\x01"))
     request = bytes(backend.add_crc(b"\x01\x03\x00\x00\x00\x01"))
     f = backend.Framer("slave", baudrate=9600)
     t = 1.0
+    f.receive_data(first, t)
+    t += 5 * char  # 5 characters of silence: past t3.5, short of the flush
     f.receive_data(b"\x07", t)
-    t += (5 + len(six)) * char  # 5 characters of silence: past t3.5, short of the flush
+    t += (5 + len(six)) * char
     f.receive_data(six, t)
     t += (5 + len(request)) * char
     f.receive_data(request, t)
     events = [(str(ev.kind), ev.offset, ev.adu) for ev in f.events()]
-    assert events == [("discard", 0, b"\x07"), ("request", 1, six), ("request", 7, request)]
+    assert events == [
+        ("request", 0, first),
+        ("discard", 8, b"\x07"),
+        ("request", 9, six),
+        ("request", 15, request),
+    ]
 
 
 def test_the_core_takes_bytes_again_once_a_closing_silence_is_resolved(
@@ -649,3 +658,14 @@ def test_reset_forgets_the_awaited_answer(backend: ModuleType) -> None:
     assert f.needed() == 5
     f.reset()
     assert f.needed() == 0
+
+
+def test_a_t15_of_zero_detects_no_gap(backend: ModuleType) -> None:
+    """Strict mode with t1.5 set to 0, which turns gap detection off (pyrtu/core/line.py):
+    a read request with 0.5 ms of silence inside is framed, not discarded."""
+    char = 11 / 9600
+    f = backend.Framer("slave", baudrate=9600, strict=True, t15=0, t35=0.004)
+    request = bytes(backend.add_crc(b"\x01\x03\x00\x00\x00\x01"))
+    f.receive_data(request[:4], 1.0)
+    f.receive_data(request[4:], 1.0 + 0.0005 + 4 * char)
+    assert [(str(ev.kind), ev.adu) for ev in f.events()] == [("request", request)]
