@@ -6,6 +6,7 @@ itself bounds nothing but a frame begins after a t3.5 silence behind it."""
 
 from __future__ import annotations
 
+import signal
 from types import ModuleType
 from typing import Any
 
@@ -669,3 +670,37 @@ def test_a_t15_of_zero_detects_no_gap(backend: ModuleType) -> None:
     f.receive_data(request[:4], 1.0)
     f.receive_data(request[4:], 1.0 + 0.0005 + 4 * char)
     assert [(str(ev.kind), ev.adu) for ev in f.events()] == [("request", request)]
+
+
+def _stuck(signum: int, frame: object) -> None:
+    raise TimeoutError("the framer did not return (a loop that never ends)")
+
+
+def test_a_silence_mark_behind_the_head_begins_no_later_frame(backend: ModuleType) -> None:
+    """Lenient mode: a stray byte, a t3.5 silence, then in one read four bytes 5A (no
+    length rule), "5A 10" (slave 90's Write Multiple Registers request, [AP] 6.12: 9
+    bytes at least) and "01 5A" with its CRC.  At the t3.5 timer the bytes before
+    "5A 10" go one by one (their lengths fail), and "5A 10 ..." waits for its count
+    byte: the silence mark it has left behind begins no frame inside it, not even one
+    that would end exactly at its end.  At the flush, "5A 10" goes, and "01 5A ..."
+    is a frame by its CRC.  (A guard stops a framer that would loop for ever.)"""
+    char = 11 / 9600
+    tail = bytes(backend.add_crc(b"\x01\x5a"))
+    rest = b"\x5a" * 4 + b"\x5a\x10" + tail
+    end = 1.0 + (5 + len(rest)) * char  # 5 characters of silence after the stray byte
+    f = backend.Framer("slave", baudrate=9600)
+    old = signal.signal(signal.SIGALRM, _stuck)
+    signal.setitimer(signal.ITIMER_REAL, 5.0)
+    try:
+        f.receive_data(b"\x07", 1.0)
+        f.receive_data(rest, end)
+        assert f.next_event() is None
+        f.handle_timer(end + 0.005)  # past t3.5 (4 ms), short of the flush (50)
+        at_t35 = [(str(ev.kind), ev.offset, ev.adu) for ev in f.events()]
+        f.handle_timer(end + 1.0)
+        at_flush = [(str(ev.kind), ev.offset, ev.adu) for ev in f.events()]
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
+    assert at_t35 == [("discard", 0, b"\x07" + b"\x5a" * 4)]
+    assert at_flush == [("discard", 5, b"\x5a\x10"), ("request", 7, tail)]
