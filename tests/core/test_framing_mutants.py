@@ -704,3 +704,14 @@ def test_a_silence_mark_behind_the_head_begins_no_later_frame(backend: ModuleTyp
         signal.signal(signal.SIGALRM, old)
     assert at_t35 == [("discard", 0, b"\x07" + b"\x5a" * 4)]
     assert at_flush == [("discard", 5, b"\x5a\x10"), ("request", 7, tail)]
+
+
+def test_a_t35_of_zero_ends_no_frame_by_a_silence(backend: ModuleType) -> None:
+    """t3.5 set to 0 turns silence detection off (pyrtu/core/line.py): a frame of a
+    function without a length rule is not ended by the 10 ms of silence before the
+    next bytes (with t3.5 of 1 us it is: test_a_t35_of_one_microsecond_...)."""
+    f = backend.Framer("slave", baudrate=9600, t15=0, t35=0)
+    adu = bytes(backend.add_crc(b"\x01\x5a\xaa\xbb"))
+    f.receive_data(adu, 1.0)
+    f.receive_data(b"\x01\x03", 1.010)
+    assert f.next_event() is None
