@@ -94,6 +94,19 @@ def test_a_monitor_calls_a_silence_framed_mei_frame_a_request(backend: ModuleTyp
     assert str(ev.kind) == "request"
 
 
+def test_a_device_id_answer_exactly_at_the_limit_walks_on() -> None:
+    """Read Device Identification answer ([AP] 6.21): 8 bytes, then objects (id, length,
+    value).  Three of 255 bytes and one of 243 bring it to exactly 1024 bytes, not
+    past the limit: the walk goes on to the fifth object (1 byte): 1027, with the
+    CRC 1029."""
+    head = bytes((1, 0x2B, 0x0E, 1, 1, 0, 0, 5))
+    objects = b"".join(bytes((i, 255)) + bytes(255) for i in range(3))
+    objects += bytes((3, 243)) + bytes(243) + bytes((4, 1, 0))
+    adu = head + objects
+    assert len(head + objects[:-3]) == 1024
+    assert predict(RULES, DIR_RESPONSE, adu, len(adu)) == (PRED_LENGTH, 1027 + 2)
+
+
 def test_a_complete_length_with_a_wrong_crc_does_not_end_the_wait(backend: ModuleType) -> None:
     """Eight bytes "01 03 10 00 ...": as a read request (8 bytes, [AP] 6.3) they are
     all in but their CRC is wrong; as another slave's answer its count says 16 data
