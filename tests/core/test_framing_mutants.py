@@ -6,7 +6,9 @@ itself bounds nothing but a frame begins after a t3.5 silence behind it."""
 
 from __future__ import annotations
 
+import signal
 from types import ModuleType
+from typing import Any
 
 from pyrtu.core._pure.predict import (
     DIR_REQUEST,
@@ -90,6 +92,19 @@ def test_a_monitor_calls_a_silence_framed_mei_frame_a_request(backend: ModuleTyp
     ev = f.next_event()
     assert ev is not None and ev.error is None and ev.adu == adu
     assert str(ev.kind) == "request"
+
+
+def test_a_device_id_answer_exactly_at_the_limit_walks_on() -> None:
+    """Read Device Identification answer ([AP] 6.21): 8 bytes, then objects (id, length,
+    value).  Three of 255 bytes and one of 243 bring it to exactly 1024 bytes, not
+    past the limit: the walk goes on to the fifth object (1 byte): 1027, with the
+    CRC 1029."""
+    head = bytes((1, 0x2B, 0x0E, 1, 1, 0, 0, 5))
+    objects = b"".join(bytes((i, 255)) + bytes(255) for i in range(3))
+    objects += bytes((3, 243)) + bytes(243) + bytes((4, 1, 0))
+    adu = head + objects
+    assert len(head + objects[:-3]) == 1024
+    assert predict(RULES, DIR_RESPONSE, adu, len(adu)) == (PRED_LENGTH, 1027 + 2)
 
 
 def test_a_complete_length_with_a_wrong_crc_does_not_end_the_wait(backend: ModuleType) -> None:
@@ -485,3 +500,231 @@ def test_three_bytes_whose_crc_checks_are_no_frame(backend: ModuleType) -> None:
     f.receive_data(three, 1.0)
     f.handle_timer(1.1)
     assert [str(ev.kind) for ev in f.events()] == ["discard"]
+
+
+def test_a_read_request_exactly_max_adu_long_is_framed(backend: ModuleType) -> None:
+    """A length equal to max_adu is within it: with max_adu 8 the read request of
+    [AP] 6.3 ("11 03 00 6B 00 03", CRC 76 87 as the spec prints it) is framed as its
+    last byte arrives, not refused as too long."""
+    request = bytes.fromhex("11 03 00 6B 00 03 76 87")
+    f = backend.Framer("slave", baudrate=9600, max_adu=8)
+    f.receive_data(request, 1.0)
+    assert [(str(ev.kind), ev.error, ev.adu) for ev in f.events()] == [("request", None, request)]
+
+
+def test_a_deadline_one_microsecond_below_the_int64_range_is_a_timer(
+    backend: ModuleType,
+) -> None:
+    """The core's times are int64 microseconds (csrc/rtu_internal.h); INT64_MAX, 2**63 - 1,
+    means no timer.  Bytes whose t3.5 ends at 2**63 - 2 have that deadline; one
+    microsecond later it would be INT64_MAX itself: none.  t3.5 at 9600 baud, 11 bits a
+    character ([SL] 2.5.1.1): 3.5 x 11 / 9600 s, 4010 us to the microsecond."""
+    t35_us = round(3.5 * 11 * 1_000_000 / 9600)
+    assert t35_us == 4010
+    core = backend.Framer("slave", baudrate=9600).core
+    assert core.feed(b"\x01\x03", 2**63 - 2 - t35_us) == 2
+    assert core.deadline() == 2**63 - 2
+    core = backend.Framer("slave", baudrate=9600).core
+    assert core.feed(b"\x01\x03", 2**63 - 1 - t35_us) == 2
+    assert core.deadline() is None
+
+
+def test_a_silence_at_the_end_of_a_full_window_agrees_with_the_c_core(
+    both: tuple[ModuleType, ModuleType],
+) -> None:
+    """The core driven directly, polled only at the end: with max_adu 4, "01 10" and its
+    CRC, a timer past t3.5, two more bytes: the silence mark sits exactly at the end
+    of the 4-byte window, the bytes after it make the window closed.  The twin
+    resolves these bytes as the C core does."""
+    seen = []
+    for backend in both:
+        core = backend.Framer("slave", baudrate=9600, max_adu=4).core
+        four = bytes(backend.add_crc(b"\x01\x10"))
+        assert core.feed(four, 1_000_000) == 4
+        core.handle_timer(1_010_000)  # 10 ms: past t3.5 (4 ms), short of the flush (50)
+        assert core.feed(b"\x01\x03", 1_012_000) == 2
+        events = []
+        while (event := core.poll()) is not None:
+            events.append(event)
+        seen.append(events)
+    c_events, twin_events = seen
+    assert c_events and twin_events == c_events
+
+
+def test_a_request_past_max_adu_still_lets_the_answer_be_framed(backend: ModuleType) -> None:
+    """A slave hears another slave's Write Multiple Registers answer ([AP] 6.12:
+    "11 10 00 01 00 02", 8 bytes with its CRC).  Read as a request its "count" (the
+    CRC's low byte) runs past max_adu 8: ruled out, the answer is tried next and
+    framed as its last byte arrives, with no silence."""
+    answer = bytes(backend.add_crc(bytes.fromhex("11 10 00 01 00 02")))
+    f = backend.Framer("slave", baudrate=9600, max_adu=8)
+    f.receive_data(answer, 1.0)
+    assert [(str(ev.kind), ev.adu) for ev in f.events()] == [("response", answer)]
+
+
+def test_a_shortest_frame_exactly_max_adu_long_bounds_the_wait(backend: ModuleType) -> None:
+    """Write Single Register ([AP] 6.6): request and answer are 8 bytes.  With max_adu 8
+    a slave that has "11 06" still needs 6 bytes: a length equal to max_adu bounds
+    the wait as any shorter one does."""
+    f = backend.Framer("slave", baudrate=9600, max_adu=8)
+    f.receive_data(b"\x11\x06", 1.0)
+    assert f.next_event() is None
+    assert f.needed() == 8 - 2
+
+
+def test_silence_marks_past_a_discarded_byte_are_kept(backend: ModuleType) -> None:
+    """Lenient mode: a read request to slave 17 ([AP] 6.3), a stray byte, a t3.5 silence,
+    six bytes "01 03 00 01" and their CRC (short of a read request's 8: they wait),
+    another t3.5 silence, a read request to slave 1.  Pieces delimited by silences
+    ([SL] 2.5.1.1), resolved as the last byte arrives: the stray byte goes; the six
+    bytes are a frame by their CRC, ended by the second silence (which must outlive
+    the stray byte's discard; a slave calls what a silence frames a request); then
+    the request."""
+    char = 11 / 9600
+    first = bytes.fromhex("11 03 00 6B 00 03 76 87")
+    six = bytes(backend.add_crc(b"\x01\x03\x00\x01"))
+    request = bytes(backend.add_crc(b"\x01\x03\x00\x00\x00\x01"))
+    f = backend.Framer("slave", baudrate=9600)
+    t = 1.0
+    f.receive_data(first, t)
+    t += 5 * char  # 5 characters of silence: past t3.5, short of the flush
+    f.receive_data(b"\x07", t)
+    t += (5 + len(six)) * char
+    f.receive_data(six, t)
+    t += (5 + len(request)) * char
+    f.receive_data(request, t)
+    events = [(str(ev.kind), ev.offset, ev.adu) for ev in f.events()]
+    assert events == [
+        ("request", 0, first),
+        ("discard", 8, b"\x07"),
+        ("request", 9, six),
+        ("request", 15, request),
+    ]
+
+
+def test_the_core_takes_bytes_again_once_a_closing_silence_is_resolved(
+    backend: ModuleType,
+) -> None:
+    """csrc/rtu.h: after a silence that closes the buffered bytes the core takes no byte
+    until they are resolved; once a poll has resolved them all (here the read request
+    of [AP] 6.3, "11 03 00 6B 00 03 76 87", one event), the next bytes are taken at
+    once, before any further poll."""
+    request = bytes.fromhex("11 03 00 6B 00 03 76 87")
+    core = backend.Framer("slave", baudrate=9600).core
+    assert core.feed(request, 1_000_000) == 8
+    core.handle_timer(2_000_000)  # a second of silence: past the flush timeout, closed
+    assert core.feed(request, 2_000_000) == 0
+    event = core.poll()
+    assert event is not None and event[6] == request
+    assert core.feed(request, 3_000_000) == 8
+
+
+def _events(core: Any) -> list[tuple[int, int, bytes]]:
+    """(kind, error, bytes) of every event the core has ready (Framer.core's poll)."""
+    out = []
+    while (event := core.poll()) is not None:
+        out.append((event[2], event[3], event[6]))
+    return out
+
+
+def test_a_timer_at_the_flush_deadline_closes_the_waiting_bytes(backend: ModuleType) -> None:
+    """Lenient mode, flush timeout 20 ms: "01 10" waits for its count byte; the timer
+    at t3.5 notes the silence and sets the next deadline, the flush: a silence of
+    exactly the flush timeout drops the bytes (truncated), one microsecond less
+    does not."""
+    for now, dropped in ((1_020_000, True), (1_019_999, False)):
+        core = backend.Framer("slave", baudrate=9600, flush_timeout=0.02).core
+        assert core.feed(b"\x01\x10", 1_000_000) == 2
+        assert _events(core) == []
+        core.handle_timer(1_005_000)  # past t3.5 (4010 us)
+        assert _events(core) == []
+        assert core.deadline() == 1_020_000
+        core.handle_timer(now)
+        assert [adu for _kind, _error, adu in _events(core)] == ([b"\x01\x10"] if dropped else [])
+
+
+def test_bytes_after_exactly_the_flush_timeout_start_afresh(backend: ModuleType) -> None:
+    """Lenient mode, flush timeout 20 ms: "01 10" waits for its count byte; one more
+    byte whose silence before it (its arrival less one character, 11 bits at 9600
+    baud: 1146 us, less the last arrival) is exactly the flush timeout: the waiting
+    bytes go first (truncated), then the byte is taken; one microsecond less and
+    it joins them."""
+    char_us = round(11 * 1_000_000 / 9600)
+    for silence, dropped in ((20_000, True), (19_999, False)):
+        core = backend.Framer("slave", baudrate=9600, flush_timeout=0.02).core
+        assert core.feed(b"\x01\x10", 1_000_000) == 2
+        assert _events(core) == []
+        now = 1_000_000 + char_us + silence
+        took = core.feed(b"\x07", now)
+        events = _events(core)
+        if took == 0:
+            took = core.feed(b"\x07", now)
+        assert took == 1
+        assert [adu for _kind, _error, adu in events] == ([b"\x01\x10"] if dropped else [])
+
+
+def test_reset_forgets_the_awaited_answer(backend: ModuleType) -> None:
+    """reset() drops the request context too (pyrtu.Framer.reset): a master that sent a
+    read request awaits an answer of 5 bytes at least ([AP] 7: an exception
+    answer); after reset() it awaits nothing."""
+    f = backend.Framer("master", baudrate=9600)
+    f.send(bytes.fromhex("11 03 00 6B 00 03 76 87"))
+    assert f.needed() == 5
+    f.reset()
+    assert f.needed() == 0
+
+
+def test_a_t15_of_zero_detects_no_gap(backend: ModuleType) -> None:
+    """Strict mode with t1.5 set to 0, which turns gap detection off (pyrtu/core/line.py):
+    a read request with 0.5 ms of silence inside is framed, not discarded."""
+    char = 11 / 9600
+    f = backend.Framer("slave", baudrate=9600, strict=True, t15=0, t35=0.004)
+    request = bytes(backend.add_crc(b"\x01\x03\x00\x00\x00\x01"))
+    f.receive_data(request[:4], 1.0)
+    f.receive_data(request[4:], 1.0 + 0.0005 + 4 * char)
+    assert [(str(ev.kind), ev.adu) for ev in f.events()] == [("request", request)]
+
+
+def _stuck(signum: int, frame: object) -> None:
+    raise TimeoutError("the framer did not return (a loop that never ends)")
+
+
+def test_a_silence_mark_behind_the_head_begins_no_later_frame(backend: ModuleType) -> None:
+    """Lenient mode: a stray byte, a t3.5 silence, then in one read four bytes 5A (no
+    length rule), "5A 10" (slave 90's Write Multiple Registers request, [AP] 6.12: 9
+    bytes at least) and "01 5A" with its CRC.  At the t3.5 timer the bytes before
+    "5A 10" go one by one (their lengths fail), and "5A 10 ..." waits for its count
+    byte: the silence mark it has left behind begins no frame inside it, not even one
+    that would end exactly at its end.  At the flush, "5A 10" goes, and "01 5A ..."
+    is a frame by its CRC.  (A guard stops a framer that would loop for ever.)"""
+    char = 11 / 9600
+    tail = bytes(backend.add_crc(b"\x01\x5a"))
+    rest = b"\x5a" * 4 + b"\x5a\x10" + tail
+    end = 1.0 + (5 + len(rest)) * char  # 5 characters of silence after the stray byte
+    f = backend.Framer("slave", baudrate=9600)
+    old = signal.signal(signal.SIGALRM, _stuck)
+    signal.setitimer(signal.ITIMER_REAL, 5.0)
+    try:
+        f.receive_data(b"\x07", 1.0)
+        f.receive_data(rest, end)
+        assert f.next_event() is None
+        f.handle_timer(end + 0.005)  # past t3.5 (4 ms), short of the flush (50)
+        at_t35 = [(str(ev.kind), ev.offset, ev.adu) for ev in f.events()]
+        f.handle_timer(end + 1.0)
+        at_flush = [(str(ev.kind), ev.offset, ev.adu) for ev in f.events()]
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
+    assert at_t35 == [("discard", 0, b"\x07" + b"\x5a" * 4)]
+    assert at_flush == [("discard", 5, b"\x5a\x10"), ("request", 7, tail)]
+
+
+def test_a_t35_of_zero_ends_no_frame_by_a_silence(backend: ModuleType) -> None:
+    """t3.5 set to 0 turns silence detection off (pyrtu/core/line.py): a frame of a
+    function without a length rule is not ended by the 10 ms of silence before the
+    next bytes (with t3.5 of 1 us it is: test_a_t35_of_one_microsecond_...)."""
+    f = backend.Framer("slave", baudrate=9600, t15=0, t35=0)
+    adu = bytes(backend.add_crc(b"\x01\x5a\xaa\xbb"))
+    f.receive_data(adu, 1.0)
+    f.receive_data(b"\x01\x03", 1.010)
+    assert f.next_event() is None
