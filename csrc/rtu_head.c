@@ -215,7 +215,7 @@ rtu_verdict rtu_try_head(const rtu_config *cfg, const rtu_context *ctx, const rt
     /* 3. Wait, when a candidate may still complete or a silence may still
      * delimit the head; but a valid frame right after a t3.5 gap wins over an
      * incomplete one before it (lenient mode keeps bytes across gaps). */
-    if (!v->closed && (can_wait || (v->timed && !v->silent_end && n < cfg->max_adu))) {
+    if (!v->closed && (can_wait || (v->timed && !v->silent_end && n <= cfg->max_adu))) {
         for (size_t i = 0; allow_skip && i < v->nmarks; i++) {
             const uint64_t rel = v->marks[i].pos - v->base;
             if (rel >= n) {

@@ -10,6 +10,9 @@ import signal
 from types import ModuleType
 from typing import Any
 
+import pytest
+from vectors import crc_bitwise
+
 from pyrtu.core._pure.predict import (
     DIR_REQUEST,
     DIR_RESPONSE,
@@ -21,6 +24,7 @@ from pyrtu.core._pure.predict import (
 from pyrtu.core.rules import LengthRule
 
 RULES = make_rules({})
+MAX_RTU_ADU = 256  # [SL] 2.5.1: the longest RTU frame, the framer's default max_adu
 
 
 def test_one_byte_needs_the_function_code() -> None:
@@ -339,15 +343,19 @@ def test_a_long_read_of_noise_is_taken_as_the_c_core_takes_it(
 ) -> None:
     """2100 bytes of noise in one read: the twin's buffer holds twice the longest ADU
     (2048 bytes) as the C core's does (RTU_FRAMER_CAP), so both take 2048 at once,
-    discard all but the last 255 (a frame up to max_adu may still end in them) as
-    one run, then take the rest: the same discard runs, at the same offsets."""
+    discard all but the last 256 (a frame up to max_adu, 256 bytes by [SL] 2.5.1, may
+    still end in them) as one run, then take the rest: the same discard runs, at the
+    same offsets."""
     junk = bytes((i * 97 + 13) % 256 for i in range(2100))
     seen = []
     for backend in both:
         f = backend.Framer("slave", baudrate=9600)
         f.receive_data(junk, 2.0)
         seen.append([(str(ev.kind), ev.offset, len(ev.adu)) for ev in f.events()])
-    assert seen[0] == [("discard", 0, 2048 - 255), ("discard", 2048 - 255, 2100 - 2048)]
+    assert seen[0] == [
+        ("discard", 0, 2048 - MAX_RTU_ADU),
+        ("discard", 2048 - MAX_RTU_ADU, 2100 - 2048),
+    ]
     assert seen[1] == seen[0]
     # the same after one byte went before: the buffer is all free again (compacted)
     seen = []
@@ -357,7 +365,10 @@ def test_a_long_read_of_noise_is_taken_as_the_c_core_takes_it(
         f.handle_timer(1.1)
         f.receive_data(junk, 2.0)
         seen.append([(str(ev.kind), ev.offset, len(ev.adu)) for ev in f.events()])
-    assert seen[0][1:] == [("discard", 1, 2048 - 255), ("discard", 1 + 2048 - 255, 2100 - 2048)]
+    assert seen[0][1:] == [
+        ("discard", 1, 2048 - MAX_RTU_ADU),
+        ("discard", 1 + 2048 - MAX_RTU_ADU, 2100 - 2048),
+    ]
     assert seen[1] == seen[0]
 
 
@@ -728,3 +739,41 @@ def test_a_t35_of_zero_ends_no_frame_by_a_silence(backend: ModuleType) -> None:
     f.receive_data(adu, 1.0)
     f.receive_data(b"\x01\x03", 1.010)
     assert f.next_event() is None
+
+
+def _with_crc(body: bytes) -> bytes:
+    crc = crc_bitwise(body)  # [SL] 6.2.2 bit by bit: nothing from pyrtu
+    return body + bytes((crc & 0xFF, crc >> 8))
+
+
+@pytest.mark.parametrize("max_adu", [8, MAX_RTU_ADU])
+def test_a_frame_exactly_max_adu_long_that_only_its_silence_ends_is_framed(
+    backend: ModuleType, max_adu: int
+) -> None:
+    """Function 0x5A has no length rule: only the t3.5 silence after it ends the frame
+    ([SL] 2.5.1.1).  A frame exactly max_adu long (at the default, 256 bytes: the
+    longest RTU frame [SL] 2.5.1 allows) waits for that silence as a shorter one does,
+    and is framed whole; it was discarded byte by byte (the window full, the core
+    stopped waiting one byte early)."""
+    frame = _with_crc(b"\x01\x5a" + bytes(max_adu - 4))
+    assert len(frame) == max_adu
+    f = backend.Framer("slave", baudrate=9600, max_adu=max_adu)
+    f.receive_data(frame, 1.0)
+    assert f.next_event() is None  # no silence yet: it waits
+    f.handle_timer(1.1)  # 100 ms: past t3.5 and the flush
+    assert [(str(ev.kind), ev.adu) for ev in f.events()] == [("request", frame)]
+    # the same bytes in one capture, ended by the capture's end
+    frames = backend.parse_stream(frame, role="slave", baudrate=9600, max_adu=max_adu)
+    assert [bytes(fr.adu) for fr in frames] == [frame]
+
+
+def test_a_frame_one_byte_past_max_adu_is_still_discarded(backend: ModuleType) -> None:
+    """The boundary's other side: 9 bytes with max_adu 8 never make a frame."""
+    frame = _with_crc(b"\x01\x5a" + bytes(5))
+    assert len(frame) == 9
+    f = backend.Framer("slave", baudrate=9600, max_adu=8)
+    f.receive_data(frame, 1.0)
+    f.handle_timer(1.1)
+    events = f.events()
+    assert events and all(str(ev.kind) == "discard" for ev in events)
+    assert b"".join(bytes(ev.adu) for ev in events) == frame

@@ -220,7 +220,7 @@ def try_head(cfg: Config, ctx: Context, v: View, allow_skip: bool) -> tuple[int,
         if cfg.strict:
             break
 
-    if not v.closed and (can_wait or (v.timed and not v.silent_end and n < cfg.max_adu)):
+    if not v.closed and (can_wait or (v.timed and not v.silent_end and n <= cfg.max_adu)):
         if allow_skip:
             for rel, sub in _later_heads(v, n):
                 if try_head(cfg, ctx, sub, False)[0] == ACT_FRAME:
