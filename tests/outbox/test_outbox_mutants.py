@@ -7,9 +7,13 @@ Sizes from the format (pyrtu/outbox/_format.py: a 16-byte segment header, a
 
 from __future__ import annotations
 
+import contextlib
+import os
 import struct
 import zlib
 from pathlib import Path
+
+import pytest
 
 from pyrtu.outbox import _format as fmt
 from pyrtu.outbox.outbox import Outbox, OutboxLimits
@@ -66,3 +70,128 @@ def test_sequence_numbers_end_at_the_largest_signed_64_bit_integer() -> None:
     data = b"\x00" * 16 + _record(top, 1.0, b"last") + _record(top + 1, 2.0, b"past")
     items = list(fmt.scan(lambda off, n: data[off : off + n], 16, len(data), last_seq=0))
     assert [(i.seq, i.payload) for i in items] == [(top, b"last"), (-1, None)]
+
+
+# -- what an open and a closed Outbox show ------------------------------------------
+
+
+def test_repr_shows_depth_and_next_seq_while_open_and_closed_after(tmp_path: Path) -> None:
+    d = tmp_path / "ob"
+    box = Outbox(d, OutboxLimits(max_bytes=4 * SEGMENT, segment_bytes=SEGMENT))
+    box.append(b"one", now=1.0)
+    box.append(b"two", now=2.0)
+    assert repr(box) == f"<Outbox {str(d)!r} depth=2 next_seq=3>"
+    box.close()
+    assert repr(box) == f"<Outbox {str(d)!r} closed>"
+
+
+# -- resources: a deleted segment is not held open -----------------------------------
+
+
+def _held_deleted(directory: Path) -> list[str]:
+    """The files of `directory` this process holds open though they are deleted (their
+    disk space is not freed while a descriptor holds them)."""
+    held = []
+    for fd in os.listdir("/proc/self/fd"):
+        with contextlib.suppress(OSError):
+            target = os.readlink(f"/proc/self/fd/{fd}")
+            if target.startswith(str(directory)) and target.endswith(" (deleted)"):
+                held.append(target)
+    return held
+
+
+def test_an_acked_segment_read_before_frees_its_disk_space(tmp_path: Path) -> None:
+    """A sealed segment read by `pending` (its descriptor kept for the next read) and
+    then acked is deleted and its descriptor closed: nothing holds its blocks."""
+    d = tmp_path / "ob"
+    with Outbox(d, OutboxLimits(max_bytes=8 * SEGMENT, segment_bytes=SEGMENT)) as box:
+        for i in range(3):
+            box.append(bytes([i]) * PAYLOAD, now=float(i))  # one segment each
+        box.flush()
+        assert [seq for seq, _ in box.pending(1)] == [1]  # read from the sealed 1st
+        box.ack(1)
+        assert not (d / fmt.segment_name(1)).exists()
+        assert _held_deleted(d) == []
+        assert [seq for seq, _ in box.pending(1)] == [2]  # read from the sealed 2nd
+        box.ack(2)
+        assert _held_deleted(d) == []
+        assert box.pending(5) == [(3, b"\x02" * PAYLOAD)]
+
+
+# -- costs the bridge pays at every append, ack and metrics scrape -----------------
+
+
+def test_appends_after_a_flush_reach_the_file_only_at_the_next_flush(tmp_path: Path) -> None:
+    """Appends are buffered and written in batches (at a flush, or 256 KiB): a record
+    that starts a new segment right after a flush does not make the next appends
+    write, the new segment file stays empty until the flush writes it in one go."""
+    d = tmp_path / "ob"
+    with Outbox(d, OutboxLimits(max_bytes=8 * SEGMENT, segment_bytes=SEGMENT)) as box:
+        box.append(b"\x00" * PAYLOAD, now=0.0)  # fills the first segment
+        box.flush()
+        second = d / fmt.segment_name(2)
+        for seq in (2, 3, 4):
+            assert box.append(b"x" * 10, now=float(seq)) == seq
+            assert second.stat().st_size == 0
+        box.flush()
+        data = second.read_bytes()
+        assert len(data) == 16 + 3 * (28 + 10)
+        assert struct.unpack_from("<8sQ", data) == (b"pyrtuOB\x01", 2)
+        assert [REC_PRE.unpack_from(data, 16 + i * 38)[2] for i in range(3)] == [2, 3, 4]
+
+
+def test_oldest_time_is_read_from_disk_once_per_ack_cursor(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """stats() (every metrics scrape) asks oldest_time: it reads the oldest unacked
+    record once, then again only when the ack cursor moves; an ack that moves
+    nothing (the same number again, or a lower one) keeps what was read."""
+    reads: list[int] = []
+    real_pread = os.pread
+
+    def pread(fd: int, n: int, off: int) -> bytes:
+        reads.append(off)
+        return real_pread(fd, n, off)
+
+    with Outbox(tmp_path / "ob", OutboxLimits(max_bytes=8 * SEGMENT, segment_bytes=SEGMENT)) as box:
+        for seq in (1, 2, 3):
+            box.append(b"r" * 10, now=10.0 + seq)
+        box.flush()  # written: the records are read back with pread
+        box.ack(1)
+        monkeypatch.setattr(os, "pread", pread)
+        assert box.oldest_time == 12.0 and reads
+        reads.clear()
+        assert box.oldest_time == 12.0 and box.stats()["oldest_time"] == 12.0
+        box.ack(1)
+        box.ack(0)
+        assert box.oldest_time == 12.0
+        assert reads == []
+        box.ack(2)
+        assert box.oldest_time == 13.0 and reads
+
+
+def test_a_segment_dropped_before_its_first_flush_leaves_the_others_synced(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """drop-oldest deletes a sealed segment whose fsync is still due: its descriptor
+    is closed at once, and the next flush fdatasyncs every segment that is left
+    (the files are named by the descriptors the real fdatasync is given)."""
+    synced: list[str] = []
+    real_fdatasync = os.fdatasync
+
+    def fdatasync(fd: int) -> None:
+        synced.append(os.path.basename(os.readlink(f"/proc/self/fd/{fd}")))
+        real_fdatasync(fd)
+
+    d = tmp_path / "ob"
+    with Outbox(d, OutboxLimits(max_bytes=3 * SEGMENT, segment_bytes=SEGMENT)) as box:
+        for i in range(3):
+            box.append(bytes([i]) * PAYLOAD, now=float(i))  # segments 1, 2, 3; no flush
+        monkeypatch.setattr(os, "fdatasync", fdatasync)
+        box.append(b"\x03" * PAYLOAD, now=3.0)  # drops segment 1
+        assert box.dropped == 1 and not (d / fmt.segment_name(1)).exists()
+        assert _held_deleted(d) == []
+        box.flush()
+        segs = sorted(name for name in synced if name.endswith(".seg"))
+        assert segs == [fmt.segment_name(seq) for seq in (2, 3, 4)]
+        assert [seq for seq, _ in box.pending(5)] == [2, 3, 4]
