@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import stat
 import struct
 import zlib
 from pathlib import Path
@@ -195,3 +196,52 @@ def test_a_segment_dropped_before_its_first_flush_leaves_the_others_synced(
         segs = sorted(name for name in synced if name.endswith(".seg"))
         assert segs == [fmt.segment_name(seq) for seq in (2, 3, 4)]
         assert [seq for seq, _ in box.pending(5)] == [2, 3, 4]
+
+
+# -- what the outbox leaves behind in the process and on disk -------------------------
+
+
+def _open_fds() -> set[str]:
+    return set(os.listdir("/proc/self/fd"))
+
+
+def test_open_and_close_leave_the_process_descriptors_as_they_were(tmp_path: Path) -> None:
+    """An Outbox closes every descriptor it opened and none it did not (stdin, stdout
+    stay open): never appended to, written and read, reopened, and refused at open
+    (its cursor a directory)."""
+    d = tmp_path / "ob"
+    limits = OutboxLimits(max_bytes=8 * SEGMENT, segment_bytes=SEGMENT)
+    before = _open_fds()
+    assert {"0", "1", "2"} <= before
+    Outbox(d, limits).close()  # nothing appended: no active segment ever
+    assert _open_fds() == before
+    with Outbox(d, limits) as box:
+        for i in range(3):
+            box.append(bytes([i]) * PAYLOAD, now=float(i))
+        box.flush()
+        assert [seq for seq, _ in box.pending(2)] == [1, 2]  # sealed segments read
+    assert _open_fds() == before
+    with Outbox(d, limits) as box:  # recovered: the last segment reopened
+        assert box.depth == 3
+    assert _open_fds() == before
+    bad = tmp_path / "bad"
+    (bad / "cursor").mkdir(parents=True)
+    with pytest.raises(OSError, match="cursor"):
+        Outbox(bad, limits)
+    assert _open_fds() == before
+
+
+def test_the_outbox_files_are_created_readable_by_all_writable_by_the_owner(
+    tmp_path: Path,
+) -> None:
+    """The cursor and the segment files are made with mode 0o644 (less the umask):
+    no execute bit, no write for others."""
+    old = os.umask(0o022)
+    try:
+        d = tmp_path / "ob"
+        with Outbox(d, OutboxLimits(max_bytes=8 * SEGMENT, segment_bytes=SEGMENT)) as box:
+            box.append(b"one", now=1.0)
+        for name in ("cursor", fmt.segment_name(1)):
+            assert stat.S_IMODE((d / name).stat().st_mode) == 0o644, name
+    finally:
+        os.umask(old)
