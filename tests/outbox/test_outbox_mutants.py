@@ -245,3 +245,97 @@ def test_the_outbox_files_are_created_readable_by_all_writable_by_the_owner(
             assert stat.S_IMODE((d / name).stat().st_mode) == 0o644, name
     finally:
         os.umask(old)
+
+
+# -- restarts: where the numbers and the records go on ------------------------------
+
+
+def _records_in(path: Path) -> list[tuple[int, bytes]]:
+    """(seq, payload) of every record of a segment file, decoded by the layout."""
+    data = path.read_bytes()
+    out, off = [], 16
+    while off < len(data):
+        _magic, n, seq, _time = REC_PRE.unpack_from(data, off)
+        out.append((seq, data[off + 28 : off + 28 + n]))
+        off += 28 + n
+    return out
+
+
+def test_a_clean_restart_goes_on_in_the_last_segment(tmp_path: Path) -> None:
+    """Reopened after close(), the outbox appends to its last segment file (not a new
+    one each restart): the records follow on in it, no new file appears."""
+    d = tmp_path / "ob"
+    limits = OutboxLimits(max_bytes=8 * SEGMENT, segment_bytes=SEGMENT)
+    with Outbox(d, limits) as box:
+        box.append(b"\x00" * PAYLOAD, now=0.0)  # segment 1, full
+        box.append(b"two", now=2.0)  # segment 2
+    with Outbox(d, limits) as box:
+        assert box.append(b"three", now=3.0) == 3
+    assert sorted(p.name for p in d.glob("*.seg")) == [fmt.segment_name(1), fmt.segment_name(2)]
+    assert _records_in(d / fmt.segment_name(2)) == [(2, b"two"), (3, b"three")]
+
+
+def test_after_a_crash_the_next_number_starts_a_new_segment(tmp_path: Path) -> None:
+    """A crash leaves the cursor's reserved block ahead of the last record (here:
+    records 1 and 2, reserved 100, built by the layout): the numbers go on at 100,
+    in a new segment named by it, and an ack inside the gap still leaves 100 pending."""
+    d = tmp_path / "ob"
+    d.mkdir()
+    (d / "cursor").write_bytes(_slot(1, 0, 100, 0) + bytes(512))
+    seg = struct.pack("<8sQ", b"pyrtuOB\x01", 1) + _record(1, 1.0, b"a") + _record(2, 2.0, b"b")
+    (d / fmt.segment_name(1)).write_bytes(seg)
+    with Outbox(d, OutboxLimits(max_bytes=8 * SEGMENT, segment_bytes=SEGMENT)) as box:
+        assert box.next_seq == 100 and box.depth == 2
+        assert box.append(b"c", now=3.0) == 100
+        box.flush()
+        assert _records_in(d / fmt.segment_name(100)) == [(100, b"c")]
+        assert _records_in(d / fmt.segment_name(1)) == [(1, b"a"), (2, b"b")]
+        box.ack(50)  # every record up to 50 is delivered: 1 and 2
+        assert box.depth == 1 and box.pending(5) == [(100, b"c")]
+
+
+def test_an_opened_outbox_has_its_next_numbers_reserved_on_disk(tmp_path: Path) -> None:
+    """Opening reserves the next numbers in the cursor (read here by the layout), so
+    the first appends write nothing to it."""
+    d = tmp_path / "ob"
+    with Outbox(d, OutboxLimits(max_bytes=8 * SEGMENT, segment_bytes=SEGMENT)) as box:
+        cursor = (d / "cursor").read_bytes()
+        slots = [SLOT.unpack_from(cursor, off) for off in (0, 512)]
+        _magic, _gen, acked, reserved, _dropped = max(s for s in slots if s[0] == b"OBc1")
+        assert acked == 0 and reserved > box.next_seq == 1
+        for seq in range(1, 11):
+            assert box.append(b"r", now=float(seq)) == seq
+        assert (d / "cursor").read_bytes() == cursor
+
+
+def test_the_budget_counts_the_header_of_the_segment_a_record_starts(tmp_path: Path) -> None:
+    """max_bytes 3080: two full segments (2048 bytes) and a third of 16 + 28 + 476 =
+    520 leave 512 bytes; a record of 28 + 480 = 508 bytes would fit them, but it does
+    not fit the third segment (1024 bytes), so it starts a fourth, which needs its
+    16-byte header too: 524 > 512, the oldest segment is dropped for it."""
+    d = tmp_path / "ob"
+    with Outbox(d, OutboxLimits(max_bytes=3080, segment_bytes=SEGMENT)) as box:
+        box.append(b"\x00" * PAYLOAD, now=0.0)
+        box.append(b"\x01" * PAYLOAD, now=1.0)
+        box.append(b"\x02" * 476, now=2.0)
+        assert box.bytes_used == 2 * SEGMENT + 520 and box.dropped == 0
+        assert box.append(b"\x03" * 480, now=3.0) == 4
+        assert box.dropped == 1 and not (d / fmt.segment_name(1)).exists()
+        assert box.bytes_used == SEGMENT + 520 + 524 <= 3080
+        box.flush()
+        assert box.bytes_used == sum(p.stat().st_size for p in d.glob("*.seg"))
+
+
+def test_appends_are_written_once_256_kib_are_buffered_not_later(tmp_path: Path) -> None:
+    """At most 256 KiB of appended records wait in memory: a 16-byte header and 5461
+    records of 28 + 20 bytes are exactly 262144 bytes, still unwritten; the next
+    append writes them (and buffers itself)."""
+    d = tmp_path / "ob"
+    with Outbox(d, OutboxLimits(max_bytes=1 << 21, segment_bytes=1 << 20)) as box:
+        for seq in range(1, 5462):
+            box.append(b"\x07" * 20, now=float(seq))
+        first = d / fmt.segment_name(1)
+        assert first.stat().st_size == 0
+        box.append(b"\x07" * 20, now=5462.0)
+        assert first.stat().st_size == 16 + 5461 * 48 == 1 << 18
+        assert _records_in(first)[-1] == (5461, b"\x07" * 20)
