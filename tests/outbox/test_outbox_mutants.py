@@ -287,11 +287,14 @@ def test_after_a_crash_the_next_number_starts_a_new_segment(tmp_path: Path) -> N
     with Outbox(d, OutboxLimits(max_bytes=8 * SEGMENT, segment_bytes=SEGMENT)) as box:
         assert box.next_seq == 100 and box.depth == 2
         assert box.append(b"c", now=3.0) == 100
+        assert box.append(b"\x04" * PAYLOAD, now=4.0) == 101  # segment 101
         box.flush()
         assert _records_in(d / fmt.segment_name(100)) == [(100, b"c")]
         assert _records_in(d / fmt.segment_name(1)) == [(1, b"a"), (2, b"b")]
+        after_gap = [(100, b"c"), (101, b"\x04" * PAYLOAD)]
+        assert box.pending(5, after=2) == after_gap  # from inside the gap
         box.ack(50)  # every record up to 50 is delivered: 1 and 2
-        assert box.depth == 1 and box.pending(5) == [(100, b"c")]
+        assert box.depth == 2 and box.pending(5) == after_gap
 
 
 def test_an_opened_outbox_has_its_next_numbers_reserved_on_disk(tmp_path: Path) -> None:
@@ -338,4 +341,83 @@ def test_appends_are_written_once_256_kib_are_buffered_not_later(tmp_path: Path)
         assert first.stat().st_size == 0
         box.append(b"\x07" * 20, now=5462.0)
         assert first.stat().st_size == 16 + 5461 * 48 == 1 << 18
+        box.append(b"\x07" * 20, now=5463.0)  # buffered again, with 5462
+        assert first.stat().st_size == 1 << 18
         assert _records_in(first)[-1] == (5461, b"\x07" * 20)
+
+
+def test_the_budget_is_kept_to_the_byte_when_dropping_several_segments(
+    tmp_path: Path,
+) -> None:
+    """max_bytes 2048 and three segments of 16 + 28 + 500 = 544 bytes (1632): a record
+    of 28 + 917 bytes starts a fourth segment, 961 bytes; dropping the oldest leaves
+    it one byte short (1088 + 961 = 2049), so the second goes too."""
+    d = tmp_path / "ob"
+    with Outbox(d, OutboxLimits(max_bytes=2048, segment_bytes=SEGMENT)) as box:
+        for i in range(3):
+            box.append(bytes([i]) * 500, now=float(i))
+        assert box.bytes_used == 3 * 544
+        assert box.append(b"\x03" * 917, now=3.0) == 4
+        assert box.dropped == 2 and box.bytes_used == 544 + 961
+        box.flush()
+        assert [seq for seq, _ in box.pending(5)] == [3, 4]
+
+
+def test_a_record_damaged_on_disk_while_open_is_counted_with_its_bytes(
+    tmp_path: Path,
+) -> None:
+    """A flushed record whose payload is then damaged on disk is skipped by pending,
+    counted once in corrupt, and its 28 + 10 bytes in corrupt_bytes."""
+    d = tmp_path / "ob"
+    with Outbox(d, OutboxLimits(max_bytes=8 * SEGMENT, segment_bytes=SEGMENT)) as box:
+        for seq in (1, 2, 3):
+            box.append(bytes([seq]) * 10, now=float(seq))
+        box.flush()
+        seg = d / fmt.segment_name(1)
+        with open(seg, "r+b") as f:  # record 2: at 16 + 38, its payload at +28
+            f.seek(16 + 38 + 28 + 4)
+            f.write(b"\xff")
+        for _ in range(2):
+            assert box.pending(5) == [(1, b"\x01" * 10), (3, b"\x03" * 10)]
+        assert (box.corrupt, box.corrupt_bytes) == (1, 38)
+
+
+def test_pending_goes_on_where_the_last_one_stopped(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A publisher asks pending(n, after=last) over and over: each call reads on from
+    the end of the record the previous one returned (not again from the segment's
+    start), also after an ack deleted an older segment, and opens a sealed segment
+    once.  Asking again from an earlier number (the last one returned, or the first)
+    still returns every record from it."""
+    reads: list[int] = []
+    opened: list[str] = []
+    real_pread, real_open = os.pread, os.open
+
+    def pread(fd: int, n: int, off: int) -> bytes:
+        reads.append(off)
+        return real_pread(fd, n, off)
+
+    def os_open(path: str | os.PathLike[str], flags: int, mode: int = 0o777) -> int:
+        opened.append(os.path.basename(path))
+        return real_open(path, flags, mode)
+
+    d = tmp_path / "ob"
+    with Outbox(d, OutboxLimits(max_bytes=8 * SEGMENT, segment_bytes=SEGMENT)) as box:
+        box.append(b"\x00" * PAYLOAD, now=0.0)  # segment 1
+        for seq in range(2, 22):  # segment 2: records of 28 + 10 bytes from offset 16
+            box.append(bytes([seq]) * 10, now=float(seq))
+        box.append(b"\x16" * PAYLOAD, now=22.0)  # segment 22
+        box.flush()
+        monkeypatch.setattr(os, "pread", pread)
+        monkeypatch.setattr(os, "open", os_open)
+        assert box.pending(3, after=1) == [(s, bytes([s]) * 10) for s in (2, 3, 4)]
+        box.ack(1)  # segment 1 goes
+        for first in (5, 8, 11):
+            reads.clear()
+            got = box.pending(3, after=first - 1)
+            assert got == [(s, bytes([s]) * 10) for s in range(first, first + 3)]
+            assert reads[0] == 16 + (first - 2) * 38  # where record `first` starts
+        assert opened.count(fmt.segment_name(2)) == 1
+        assert box.pending(2, after=12) == [(13, b"\x0d" * 10), (14, b"\x0e" * 10)]
+        assert box.pending(2) == [(2, b"\x02" * 10), (3, b"\x03" * 10)]
