@@ -275,10 +275,21 @@ def test_a_clean_restart_goes_on_in_the_last_segment(tmp_path: Path) -> None:
     assert _records_in(d / fmt.segment_name(2)) == [(2, b"two"), (3, b"three")]
 
 
-def test_after_a_crash_the_next_number_starts_a_new_segment(tmp_path: Path) -> None:
+def test_after_a_crash_the_next_number_starts_a_new_segment(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """A crash leaves the cursor's reserved block ahead of the last record (here:
     records 1 and 2, reserved 100, built by the layout): the numbers go on at 100,
-    in a new segment named by it, and an ack inside the gap still leaves 100 pending."""
+    in a new segment named by it; asked for the records after 2 (inside the gap), the
+    outbox reads none of the segment before the gap, and an ack inside the gap still
+    leaves 100 pending."""
+    read_from: list[str] = []
+    real_pread = os.pread
+
+    def pread(fd: int, n: int, off: int) -> bytes:
+        read_from.append(os.path.basename(os.readlink(f"/proc/self/fd/{fd}")))
+        return real_pread(fd, n, off)
+
     d = tmp_path / "ob"
     d.mkdir()
     (d / "cursor").write_bytes(_slot(1, 0, 100, 0) + bytes(512))
@@ -292,7 +303,10 @@ def test_after_a_crash_the_next_number_starts_a_new_segment(tmp_path: Path) -> N
         assert _records_in(d / fmt.segment_name(100)) == [(100, b"c")]
         assert _records_in(d / fmt.segment_name(1)) == [(1, b"a"), (2, b"b")]
         after_gap = [(100, b"c"), (101, b"\x04" * PAYLOAD)]
+        monkeypatch.setattr(os, "pread", pread)
         assert box.pending(5, after=2) == after_gap  # from inside the gap
+        assert fmt.segment_name(1) not in read_from
+        assert fmt.segment_name(100) in read_from
         box.ack(50)  # every record up to 50 is delivered: 1 and 2
         assert box.depth == 2 and box.pending(5) == after_gap
 
