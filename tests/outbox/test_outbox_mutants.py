@@ -435,3 +435,91 @@ def test_pending_goes_on_where_the_last_one_stopped(
         assert opened.count(fmt.segment_name(2)) == 1
         assert box.pending(2, after=12) == [(13, b"\x0d" * 10), (14, b"\x0e" * 10)]
         assert box.pending(2) == [(2, b"\x02" * 10), (3, b"\x03" * 10)]
+
+
+# -- segments: when one is full, sealed, deleted, not made ----------------------------
+
+
+def test_a_record_that_fills_its_segment_to_the_last_byte_goes_in_it(tmp_path: Path) -> None:
+    """16 + (28 + 476) * 2 = 1024: the second record fits the segment exactly."""
+    d = tmp_path / "ob"
+    with Outbox(d, OutboxLimits(max_bytes=8 * SEGMENT, segment_bytes=SEGMENT)) as box:
+        box.append(b"\x01" * 476, now=1.0)
+        box.append(b"\x02" * 476, now=2.0)
+        assert box.bytes_used == SEGMENT
+        box.append(b"\x03", now=3.0)  # the next one starts a second segment
+    assert sorted(p.name for p in d.glob("*.seg")) == [fmt.segment_name(1), fmt.segment_name(3)]
+    assert [seq for seq, _ in _records_in(d / fmt.segment_name(1))] == [1, 2]
+
+
+def test_a_segment_acked_while_active_goes_when_the_next_one_starts(tmp_path: Path) -> None:
+    """Every record of the active segment acked: it stays while it takes appends, and
+    is deleted as soon as a record starts the next segment."""
+    d = tmp_path / "ob"
+    with Outbox(d, OutboxLimits(max_bytes=8 * SEGMENT, segment_bytes=SEGMENT)) as box:
+        box.append(b"a", now=1.0)
+        box.append(b"b", now=2.0)
+        box.flush()
+        box.ack(2)
+        assert (d / fmt.segment_name(1)).exists() and box.depth == 0
+        box.append(b"\x03" * PAYLOAD, now=3.0)  # does not fit: a new segment
+        assert not (d / fmt.segment_name(1)).exists()
+        assert box.bytes_used == SEGMENT and box.depth == 1
+
+
+def test_dropping_a_partly_acked_segment_counts_its_unacked_records(tmp_path: Path) -> None:
+    """Segment 1 holds records 1..10 (16 + 10 * 38 = 396 bytes), 4 of them acked;
+    two full segments follow; the next full one drops segment 1: 6 records lost."""
+    d = tmp_path / "ob"
+    with Outbox(d, OutboxLimits(max_bytes=3 * SEGMENT, segment_bytes=SEGMENT)) as box:
+        for seq in range(1, 11):
+            box.append(bytes([seq]) * 10, now=float(seq))
+        box.append(b"\x0b" * PAYLOAD, now=11.0)
+        box.append(b"\x0c" * PAYLOAD, now=12.0)
+        box.flush()
+        box.ack(4)
+        assert box.depth == 8 and box.dropped == 0
+        box.append(b"\x0d" * PAYLOAD, now=13.0)
+        assert box.dropped == 6 and box.depth == 3 and box.acked == 10
+
+
+def test_a_segment_that_cannot_be_made_loses_nothing_and_leaks_nothing(tmp_path: Path) -> None:
+    """The next segment's name is taken (by a directory): the append that needs it
+    fails naming it, the records before are kept, close() releases exactly what was
+    opened, and once the name is free the outbox goes on."""
+    d = tmp_path / "ob"
+    limits = OutboxLimits(max_bytes=8 * SEGMENT, segment_bytes=SEGMENT)
+    before = _open_fds()
+    box = Outbox(d, limits)
+    box.append(b"\x01" * PAYLOAD, now=1.0)
+    (d / fmt.segment_name(2)).mkdir()
+    with pytest.raises(OSError, match=fmt.segment_name(2)):
+        box.append(b"two", now=2.0)
+    box.close()
+    assert _open_fds() == before
+    (d / fmt.segment_name(2)).rmdir()
+    with Outbox(d, limits) as box:
+        assert box.pending(5) == [(1, b"\x01" * PAYLOAD)]
+        assert box.append(b"two", now=2.0) == 2
+
+
+def test_short_writes_are_continued_where_they_stopped(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """pwrite may write fewer bytes than asked (POSIX): here at most 50 a call, for
+    real; the outbox writes the rest after them, and the file holds every record."""
+    real_pwrite = os.pwrite
+
+    def pwrite(fd: int, data: bytes, off: int) -> int:
+        return real_pwrite(fd, bytes(data[:50]), off)
+
+    d = tmp_path / "ob"
+    with Outbox(d, OutboxLimits(max_bytes=8 * SEGMENT, segment_bytes=SEGMENT)) as box:
+        monkeypatch.setattr(os, "pwrite", pwrite)
+        for seq in range(1, 6):
+            box.append(bytes([seq]) * 40, now=float(seq))
+        box.flush()
+        monkeypatch.undo()
+    assert _records_in(d / fmt.segment_name(1)) == [(s, bytes([s]) * 40) for s in range(1, 6)]
+    with Outbox(d, OutboxLimits(max_bytes=8 * SEGMENT, segment_bytes=SEGMENT)) as box:
+        assert box.corrupt == 0 and [seq for seq, _ in box.pending(9)] == [1, 2, 3, 4, 5]
