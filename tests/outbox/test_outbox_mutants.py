@@ -523,3 +523,26 @@ def test_short_writes_are_continued_where_they_stopped(
     assert _records_in(d / fmt.segment_name(1)) == [(s, bytes([s]) * 40) for s in range(1, 6)]
     with Outbox(d, OutboxLimits(max_bytes=8 * SEGMENT, segment_bytes=SEGMENT)) as box:
         assert box.corrupt == 0 and [seq for seq, _ in box.pending(9)] == [1, 2, 3, 4, 5]
+
+
+def test_the_number_at_the_end_of_the_reserved_block_is_reserved_before_use(
+    tmp_path: Path,
+) -> None:
+    """Every number handed out is below the cursor's `reserved` (the format's promise:
+    none is reused after a crash).  Opening reserves a block ahead; the append that
+    reaches its end, exactly, writes a new block to the cursor (read by the layout)
+    before it returns that number."""
+
+    def reserved() -> int:
+        cursor = (d / "cursor").read_bytes()
+        slots = [SLOT.unpack_from(cursor, off) for off in (0, 512)]
+        return max(s for s in slots if s[0] == b"OBc1")[3]
+
+    d = tmp_path / "ob"
+    with Outbox(d) as box:  # no flush: only the appends reserve
+        end = reserved()
+        for _ in range(end - 1):
+            box.append(b"", now=0.0)
+        assert box.next_seq == end and reserved() == end
+        assert box.append(b"", now=0.0) == end
+        assert reserved() > end
