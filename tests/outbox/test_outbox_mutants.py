@@ -536,7 +536,7 @@ def test_the_number_at_the_end_of_the_reserved_block_is_reserved_before_use(
     def reserved() -> int:
         cursor = (d / "cursor").read_bytes()
         slots = [SLOT.unpack_from(cursor, off) for off in (0, 512)]
-        return max(s for s in slots if s[0] == b"OBc1")[3]
+        return int(max(s for s in slots if s[0] == b"OBc1")[3])
 
     d = tmp_path / "ob"
     with Outbox(d) as box:  # no flush: only the appends reserve
