@@ -8,6 +8,7 @@ Sizes from the format (pyrtu/outbox/_format.py: a 16-byte segment header, a
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import stat
 import struct
@@ -435,6 +436,7 @@ def test_pending_goes_on_where_the_last_one_stopped(
         assert opened.count(fmt.segment_name(2)) == 1
         assert box.pending(2, after=12) == [(13, b"\x0d" * 10), (14, b"\x0e" * 10)]
         assert box.pending(2) == [(2, b"\x02" * 10), (3, b"\x03" * 10)]
+        assert box.pending(1, after=0) == [(2, b"\x02" * 10)]  # 0: from the first
 
 
 # -- segments: when one is full, sealed, deleted, not made ----------------------------
@@ -546,3 +548,28 @@ def test_the_number_at_the_end_of_the_reserved_block_is_reserved_before_use(
         assert box.next_seq == end and reserved() == end
         assert box.append(b"", now=0.0) == end
         assert reserved() > end
+
+
+# -- the outbox's own API around the quarantine --------------------------------------
+
+
+def test_quarantine_takes_sequence_numbers_from_1_and_refuses_once_closed(
+    tmp_path: Path,
+) -> None:
+    """quarantine(seq, record, reason) copies a record to quarantine.jsonl (read back
+    with json); seq 1 is the first there is, 0 is refused naming `seq`; a closed
+    Outbox refuses, and the copies made are on disk."""
+    d = tmp_path / "ob"
+    box = Outbox(d, OutboxLimits(max_bytes=8 * SEGMENT, segment_bytes=SEGMENT))
+    box.append(b"topic+#\npayload", now=1.0)
+    box.quarantine(1, b"topic+#\npayload", "a wildcard")
+    with pytest.raises(ValueError, match="seq"):
+        box.quarantine(0, b"x", "no such record")
+    assert box.quarantined == 1
+    box.ack(1)
+    box.close()
+    with pytest.raises(ValueError, match="closed"):
+        box.quarantine(1, b"again", "closed")
+    (line,) = box.quarantine_path.read_text().splitlines()
+    doc = json.loads(line)
+    assert (doc["seq"], doc["reason"], doc["record"]) == (1, "a wildcard", "topic+#\npayload")
