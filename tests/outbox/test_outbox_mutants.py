@@ -13,6 +13,7 @@ import os
 import stat
 import struct
 import zlib
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -573,3 +574,19 @@ def test_quarantine_takes_sequence_numbers_from_1_and_refuses_once_closed(
     (line,) = box.quarantine_path.read_text().splitlines()
     doc = json.loads(line)
     assert (doc["seq"], doc["reason"], doc["record"]) == (1, "a wildcard", "topic+#\npayload")
+
+
+def _reading(data: bytes) -> Callable[[int, int], bytes]:
+    return lambda off, n: data[off : off + n]
+
+
+def test_a_record_whose_magic_straddles_two_chunks_is_found() -> None:
+    """Resynchronising, the scan looks for the next record's magic chunk by chunk
+    (64 bytes, from the byte after the bad one at 16): a magic split 3 + 1, 2 + 2
+    or 1 + 3 bytes across the end of the first chunk (at 81), or just after it, is
+    found all the same."""
+    record = _record(7, 7.0, bytes(range(30)))
+    for at in (78, 79, 80, 81):
+        data = b"\x00" * 16 + b"\xee" * (at - 16) + record
+        items = list(fmt.scan(_reading(data), 16, len(data), last_seq=0, chunk=64))
+        assert [(i.off, i.end, i.seq) for i in items] == [(16, at, -1), (at, len(data), 7)], at
