@@ -590,3 +590,20 @@ def test_a_record_whose_magic_straddles_two_chunks_is_found() -> None:
         data = b"\x00" * 16 + b"\xee" * (at - 16) + record
         items = list(fmt.scan(_reading(data), 16, len(data), last_seq=0, chunk=64))
         assert [(i.off, i.end, i.seq) for i in items] == [(16, at, -1), (at, len(data), 7)], at
+
+
+def test_an_outbox_opened_with_stdin_closed_closes_descriptor_0_too(tmp_path: Path) -> None:
+    """A daemon may run with stdin closed: the outbox's first file then gets
+    descriptor 0, which close() must release like any other."""
+    saved = os.dup(0)
+    os.close(0)
+    try:
+        box = Outbox(tmp_path / "ob", OutboxLimits(max_bytes=8 * SEGMENT, segment_bytes=SEGMENT))
+        assert os.readlink("/proc/self/fd/0") == str(tmp_path / "ob")  # its directory
+        box.append(b"x", now=1.0)
+        box.close()
+        with pytest.raises(OSError):  # (listing /proc/self/fd would take 0 itself)
+            os.fstat(0)
+    finally:
+        os.dup2(saved, 0)
+        os.close(saved)
