@@ -607,3 +607,36 @@ def test_an_outbox_opened_with_stdin_closed_closes_descriptor_0_too(tmp_path: Pa
     finally:
         os.dup2(saved, 0)
         os.close(saved)
+
+
+def test_a_scan_reads_each_stretch_once_and_no_further_than_its_end() -> None:
+    """Three records of 28 + 36 bytes after the header (16..208), chunks of 150
+    bytes: one read for the first two records and the third's header start, one for
+    the rest, and that one asks only for the 64 bytes up to the end."""
+    data = b"\x00" * 16 + b"".join(_record(s, float(s), bytes([s]) * 36) for s in (1, 2, 3))
+    reads: list[tuple[int, int]] = []
+
+    def read(off: int, n: int) -> bytes:
+        reads.append((off, n))
+        return data[off : off + n]
+
+    items = list(fmt.scan(read, 16, len(data), last_seq=0, chunk=150))
+    assert [(i.off, i.end, i.seq) for i in items] == [(16, 80, 1), (80, 144, 2), (144, 208, 3)]
+    assert reads == [(16, 150), (144, 64)]
+
+
+def test_a_segment_cut_short_while_open_counts_the_bytes_left_of_its_record(
+    tmp_path: Path,
+) -> None:
+    """Records 1..3 (28 + 10 bytes each, at 16, 54, 92) in a sealed segment whose
+    file is then cut 10 bytes into record 3: pending returns 1, 2 and the record of
+    the next segment, and counts the 10 bytes left of record 3 as one bad region."""
+    d = tmp_path / "ob"
+    with Outbox(d, OutboxLimits(max_bytes=8 * SEGMENT, segment_bytes=SEGMENT)) as box:
+        for seq in (1, 2, 3):
+            box.append(bytes([seq]) * 10, now=float(seq))
+        box.append(b"\x04" * PAYLOAD, now=4.0)  # does not fit: segment 4
+        box.flush()
+        os.truncate(d / fmt.segment_name(1), 92 + 10)
+        assert [seq for seq, _ in box.pending(9)] == [1, 2, 4]
+        assert (box.corrupt, box.corrupt_bytes) == (1, 10)
