@@ -640,3 +640,16 @@ def test_a_segment_cut_short_while_open_counts_the_bytes_left_of_its_record(
         os.truncate(d / fmt.segment_name(1), 92 + 10)
         assert [seq for seq, _ in box.pending(9)] == [1, 2, 4]
         assert (box.corrupt, box.corrupt_bytes) == (1, 10)
+
+
+def test_a_limit_far_beyond_the_backlog_returns_all_of_it(tmp_path: Path) -> None:
+    """pending(2**21) (more than any backlog here) over a 64 KiB segment: every
+    record, in order."""
+    d = tmp_path / "ob"
+    with Outbox(d, OutboxLimits(max_bytes=1 << 18, segment_bytes=1 << 16)) as box:
+        for seq in range(1, 501):
+            box.append(seq.to_bytes(2, "big") * 50, now=float(seq))
+        box.flush()
+        got = box.pending(1 << 21)
+        assert [seq for seq, _ in got] == list(range(1, 501))
+        assert all(rec == seq.to_bytes(2, "big") * 50 for seq, rec in got)
