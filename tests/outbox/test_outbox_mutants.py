@@ -653,3 +653,21 @@ def test_a_limit_far_beyond_the_backlog_returns_all_of_it(tmp_path: Path) -> Non
         got = box.pending(1 << 21)
         assert [seq for seq, _ in got] == list(range(1, 501))
         assert all(rec == seq.to_bytes(2, "big") * 50 for seq, rec in got)
+
+
+@pytest.mark.parametrize("at", [0, 512])
+def test_a_cursor_whose_newest_slot_alone_is_of_a_newer_format_is_refused(
+    tmp_path: Path, at: int
+) -> None:
+    """A newer pyrtu that saved the cursor once leaves one slot of its version (the
+    other still ours): refused as that version, whichever slot it wrote."""
+    d = tmp_path / "ob"
+    Outbox(d, OutboxLimits(max_bytes=8 * SEGMENT, segment_bytes=SEGMENT)).close()
+    cursor = bytearray((d / "cursor").read_bytes())
+    assert len(cursor) == 512 + 40  # slots of 36 bytes and a CRC-32
+    _magic, _gen, acked, reserved, dropped = SLOT.unpack_from(cursor, at)
+    body = SLOT.pack(b"OBc2", 99, acked, reserved, dropped)
+    cursor[at : at + 40] = body + struct.pack("<I", zlib.crc32(body))
+    (d / "cursor").write_bytes(bytes(cursor))
+    with pytest.raises(OSError, match="cursor is in outbox format version 2"):
+        Outbox(d, OutboxLimits(max_bytes=8 * SEGMENT, segment_bytes=SEGMENT))
