@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 
 from pyrtu.outbox import _format as fmt
-from pyrtu.outbox.outbox import Outbox, OutboxLimits
+from pyrtu.outbox.outbox import Outbox, OutboxFull, OutboxLimits
 
 SEGMENT = 1024
 #: one record fills a segment: 16 + 28 + 980 = 1024 bytes
@@ -671,3 +671,29 @@ def test_a_cursor_whose_newest_slot_alone_is_of_a_newer_format_is_refused(
     (d / "cursor").write_bytes(bytes(cursor))
     with pytest.raises(OSError, match="cursor is in outbox format version 2"):
         Outbox(d, OutboxLimits(max_bytes=8 * SEGMENT, segment_bytes=SEGMENT))
+
+
+def test_refuse_takes_records_again_up_to_the_budget_once_a_segment_is_freed(
+    tmp_path: Path,
+) -> None:
+    """Policy "refuse": full at 3008 bytes (three segments of 16 + 7 * 128 and a
+    fourth of 16 + 2 * 128), a record of 28 + 36 bytes that would fit the 64 left is
+    refused; delivery frees the first segment, and the outbox is an ordinary one
+    again: back at 3008 bytes, that record fits, and is taken."""
+    limits = OutboxLimits(max_bytes=3 * SEGMENT, segment_bytes=SEGMENT, policy="refuse")
+    with Outbox(tmp_path / "ob", limits) as box:
+        accepted = []
+        with pytest.raises(OutboxFull):
+            for _ in range(100):
+                accepted.append(box.append(b"r" * 100, now=0.0))
+        assert len(accepted) == 23 and box.bytes_used == 3008
+        with pytest.raises(OutboxFull):
+            box.append(b"s" * 36, now=0.0)
+        box.flush()
+        box.ack(7)  # the first segment delivered: it goes
+        assert box.bytes_used == 3008 - 912
+        for _ in range(7):
+            box.append(b"r" * 100, now=0.0)
+        assert box.bytes_used == 3008
+        assert box.append(b"s" * 36, now=0.0) == 31
+        assert box.bytes_used == 3 * SEGMENT
