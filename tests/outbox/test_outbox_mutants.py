@@ -78,12 +78,15 @@ def test_sequence_numbers_end_at_the_largest_signed_64_bit_integer() -> None:
 # -- what an open and a closed Outbox show ------------------------------------------
 
 
-def test_repr_shows_depth_and_next_seq_while_open_and_closed_after(tmp_path: Path) -> None:
+def test_repr_and_the_ack_range_name_the_numbers(tmp_path: Path) -> None:
     d = tmp_path / "ob"
     box = Outbox(d, OutboxLimits(max_bytes=4 * SEGMENT, segment_bytes=SEGMENT))
     box.append(b"one", now=1.0)
     box.append(b"two", now=2.0)
     assert repr(box) == f"<Outbox {str(d)!r} depth=2 next_seq=3>"
+    with pytest.raises(ValueError) as info:
+        box.ack(3)
+    assert str(info.value) == "seq must be in 0..2 (appended so far), got 3"
     box.close()
     assert repr(box) == f"<Outbox {str(d)!r} closed>"
 
