@@ -700,3 +700,23 @@ def test_refuse_takes_records_again_up_to_the_budget_once_a_segment_is_freed(
         assert box.bytes_used == 3008
         assert box.append(b"s" * 36, now=0.0) == 31
         assert box.bytes_used == 3 * SEGMENT
+
+
+def test_flush_is_due_at_exactly_fsync_records_appends(tmp_path: Path) -> None:
+    """fsync_records=3, fsync_interval an hour: two appends make no flush due, the
+    third does; after the flush, again only the third."""
+    limits = OutboxLimits(
+        max_bytes=8 * SEGMENT, segment_bytes=SEGMENT, fsync_records=3, fsync_interval=3600.0
+    )
+    with Outbox(tmp_path / "ob", limits) as box:
+        for _ in range(2):
+            box.append(b"r", now=0.0)
+            assert not box.flush_due(1.0)
+        box.append(b"r", now=0.0)
+        assert box.flush_due(1.0)
+        box.flush()
+        for _ in range(2):
+            box.append(b"r", now=2.0)
+            assert not box.flush_due(3.0)
+        box.append(b"r", now=2.0)
+        assert box.flush_due(3.0)
