@@ -720,3 +720,21 @@ def test_flush_is_due_at_exactly_fsync_records_appends(tmp_path: Path) -> None:
             assert not box.flush_due(3.0)
         box.append(b"r", now=2.0)
         assert box.flush_due(3.0)
+
+
+def test_a_record_replayed_at_the_start_of_a_segment_is_never_delivered(
+    tmp_path: Path,
+) -> None:
+    """Segment 3 (built by the layout) begins with a checksummed copy of record 2 of
+    segment 1, then record 3: numbers only go up, so the copy is damage, counted
+    once, and record 2 is delivered once."""
+    d = tmp_path / "ob"
+    d.mkdir()
+    head = struct.Struct("<8sQ")
+    one = head.pack(b"pyrtuOB\x01", 1) + _record(1, 1.0, b"a") + _record(2, 2.0, b"b")
+    three = head.pack(b"pyrtuOB\x01", 3) + _record(2, 2.0, b"b") + _record(3, 3.0, b"c")
+    (d / fmt.segment_name(1)).write_bytes(one)
+    (d / fmt.segment_name(3)).write_bytes(three)
+    with Outbox(d, OutboxLimits(max_bytes=8 * SEGMENT, segment_bytes=SEGMENT)) as box:
+        assert box.pending(9) == [(1, b"a"), (2, b"b"), (3, b"c")]
+        assert box.corrupt == 1 and box.depth == 3
