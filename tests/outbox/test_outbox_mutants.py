@@ -206,8 +206,22 @@ def test_a_segment_dropped_before_its_first_flush_leaves_the_others_synced(
 # -- what the outbox leaves behind in the process and on disk -------------------------
 
 
-def _open_fds() -> set[str]:
-    return set(os.listdir("/proc/self/fd"))
+def _open_fds(directory: Path) -> tuple[list[str], list[str]]:
+    """What stdin, stdout and stderr are open on, and the files under `directory`
+    this process holds open (other tests' threads may open and close files of
+    their own meanwhile: those are not looked at)."""
+    std = []
+    for fd in (0, 1, 2):
+        try:
+            std.append(os.readlink(f"/proc/self/fd/{fd}"))
+        except OSError:
+            std.append("closed")
+    held = []
+    for name in os.listdir("/proc/self/fd"):
+        with contextlib.suppress(OSError):
+            if os.readlink(f"/proc/self/fd/{name}").startswith(str(directory)):
+                held.append(name)
+    return std, held
 
 
 def test_open_and_close_leave_the_process_descriptors_as_they_were(tmp_path: Path) -> None:
@@ -216,24 +230,24 @@ def test_open_and_close_leave_the_process_descriptors_as_they_were(tmp_path: Pat
     (its cursor a directory)."""
     d = tmp_path / "ob"
     limits = OutboxLimits(max_bytes=8 * SEGMENT, segment_bytes=SEGMENT)
-    before = _open_fds()
-    assert {"0", "1", "2"} <= before
+    before = _open_fds(tmp_path)
+    assert "closed" not in before[0] and before[1] == []
     Outbox(d, limits).close()  # nothing appended: no active segment ever
-    assert _open_fds() == before
+    assert _open_fds(tmp_path) == before
     with Outbox(d, limits) as box:
         for i in range(3):
             box.append(bytes([i]) * PAYLOAD, now=float(i))
         box.flush()
         assert [seq for seq, _ in box.pending(2)] == [1, 2]  # sealed segments read
-    assert _open_fds() == before
+    assert _open_fds(tmp_path) == before
     with Outbox(d, limits) as box:  # recovered: the last segment reopened
         assert box.depth == 3
-    assert _open_fds() == before
+    assert _open_fds(tmp_path) == before
     bad = tmp_path / "bad"
     (bad / "cursor").mkdir(parents=True)
     with pytest.raises(OSError, match="cursor"):
         Outbox(bad, limits)
-    assert _open_fds() == before
+    assert _open_fds(tmp_path) == before
 
 
 def test_the_outbox_files_are_created_readable_by_all_writable_by_the_owner(
@@ -495,14 +509,14 @@ def test_a_segment_that_cannot_be_made_loses_nothing_and_leaks_nothing(tmp_path:
     opened, and once the name is free the outbox goes on."""
     d = tmp_path / "ob"
     limits = OutboxLimits(max_bytes=8 * SEGMENT, segment_bytes=SEGMENT)
-    before = _open_fds()
+    before = _open_fds(tmp_path)
     box = Outbox(d, limits)
     box.append(b"\x01" * PAYLOAD, now=1.0)
     (d / fmt.segment_name(2)).mkdir()
     with pytest.raises(OSError, match=fmt.segment_name(2)):
         box.append(b"two", now=2.0)
     box.close()
-    assert _open_fds() == before
+    assert _open_fds(tmp_path) == before
     (d / fmt.segment_name(2)).rmdir()
     with Outbox(d, limits) as box:
         assert box.pending(5) == [(1, b"\x01" * PAYLOAD)]
