@@ -1,9 +1,14 @@
-"""The outbox where the mutation run (docs/MUTATION.md) found it untested: the
-budget at its exact boundary (with drop-oldest, a record that needs exactly the
-room of the oldest segment drops that one segment, not two), a record found at the
-very start of a chunk when resynchronising, and the largest sequence number.
+"""The outbox where the mutation runs (docs/MUTATION.md) found it untested: the
+budget at its exact boundaries (a record needing exactly the oldest segment's room,
+one byte more, a new segment's header; "refuse" taking records again), a record
+found at the very start of a chunk or straddling two when resynchronising, the
+largest sequence number, the reserved block's end, restarts and crash gaps, what
+an Outbox leaves behind (descriptors, deleted files held open, file modes), the
+costs the bridge pays at each call (batched writes, reads resumed at the hint,
+oldest_time read once per ack cursor), short writes, damage found while open.
 Sizes from the format (pyrtu/outbox/_format.py: a 16-byte segment header, a
-28-byte record header)."""
+28-byte record header, 40-byte cursor slots at 0 and 512); files built or read
+here are laid out with struct from that module's docstring, not by its code."""
 
 from __future__ import annotations
 
