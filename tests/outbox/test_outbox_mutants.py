@@ -7,8 +7,8 @@ an Outbox leaves behind (descriptors, deleted files held open, file modes), the
 costs the bridge pays at each call (batched writes, reads resumed at the hint,
 oldest_time read once per ack cursor), short writes, damage found while open.
 Sizes from the format (pyrtu/outbox/_format.py: a 16-byte segment header, a
-28-byte record header, 40-byte cursor slots at 0 and 512); files built or read
-here are laid out with struct from that module's docstring, not by its code."""
+28-byte record header, 40-byte cursor slots at 0 and 512); the bytes of files
+built or read here are laid out with struct from that module's docstring."""
 
 from __future__ import annotations
 
