@@ -68,3 +68,17 @@ def test_a_damaged_record_is_refused(body: bytes) -> None:
 def test_an_unknown_quality_is_refused_when_encoding() -> None:
     with pytest.raises(ValueError, match="quality must be one of good, stale, bad"):
         encode_update(PointUpdate("p", 1, 1.0, "fine"))
+
+
+def test_text_is_stored_as_utf_8_not_escaped() -> None:
+    """A name or a string value outside ASCII is stored as its UTF-8 bytes (the record
+    as long as the text), not as \\u escapes."""
+    rec = encode_update(PointUpdate("température", "état é", 1.0, "good"))
+    assert rec == b"\x00pu1" + '["température","état é",1.0,"good"]'.encode()
+    assert decode_update(rec).value == "état é"
+
+
+@pytest.mark.parametrize("time", [b"Infinity", b"-Infinity", b"NaN"])
+def test_a_time_that_is_no_finite_number_is_refused(time: bytes) -> None:
+    with pytest.raises(UpdateError, match="bad time"):
+        decode_update(b'\x00pu1["p",1,' + time + b',"good"]')
