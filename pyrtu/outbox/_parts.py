@@ -119,7 +119,7 @@ class OutboxLimits:
 class Segment:
     """What memory holds of one segment file: its range, size and a sparse index."""
 
-    __slots__ = ("bad", "count", "first", "idx_off", "idx_seq", "last", "path", "size")
+    __slots__ = ("bad", "count", "first", "gaps", "idx_off", "idx_seq", "last", "path", "size")
 
     def __init__(self, path: Path, first: int) -> None:
         self.path = path
@@ -130,12 +130,17 @@ class Segment:
         self.idx_seq = array("q")  # sparse index: the record of idx_seq[i] is at idx_off[i]
         self.idx_off = array("q")
         self.bad: set[int] = set()  # offsets of bad regions already counted
+        # sequence numbers missing between its valid records (records damaged on
+        # disk, found by a restart's scan), as (first, last) ranges in order
+        self.gaps: list[tuple[int, int]] = []
 
     def note(self, seq: int, off: int, end: int) -> None:
         """A valid record [off, end) with sequence number `seq` follows the others."""
         if off - (self.idx_off[-1] if self.idx_off else 0) >= INDEX_STRIDE:
             self.idx_seq.append(seq)
             self.idx_off.append(off)
+        if seq > self.last + 1:
+            self.gaps.append((self.last + 1, seq - 1))
         self.last = seq
         self.count += 1
         self.size = end
@@ -146,10 +151,14 @@ class Segment:
         return self.idx_off[i] if i >= 0 else fmt.SEG_HEAD.size
 
     def acked_in(self, acked: int) -> int:
-        """How many of its records have sequence numbers <= acked (exact unless gaps)."""
+        """How many of its records have sequence numbers <= acked (the numbers of
+        damaged records, `gaps`, not counted)."""
         if acked >= self.last:
             return self.count
-        return max(0, min(self.count, acked - self.first + 1))
+        if acked < self.first:
+            return 0
+        missing = sum(min(hi, acked) - lo + 1 for lo, hi in self.gaps if lo <= acked)
+        return acked - self.first + 1 - missing
 
 
 def recover_segment(

@@ -776,3 +776,32 @@ def test_a_record_replayed_at_the_start_of_a_segment_is_never_delivered(
     with Outbox(d, OutboxLimits(max_bytes=8 * SEGMENT, segment_bytes=SEGMENT)) as box:
         assert box.pending(9) == [(1, b"a"), (2, b"b"), (3, b"c")]
         assert box.corrupt == 1 and box.depth == 3
+
+
+@pytest.mark.parametrize("damaged", [1, 3])
+def test_depth_and_oldest_time_skip_the_numbers_of_records_damaged_before_a_restart(
+    tmp_path: Path, damaged: int
+) -> None:
+    """Records 1..5 in one segment (10-byte payloads: 38 bytes each after the 16-byte
+    header), one of them damaged on disk while the outbox is closed: the restart's
+    scan drops it, so 4 remain.  Acked up to 4, only record 5 is pending: depth 1 and
+    the oldest time 5's, as pending() says (a damaged number was counted as an acked
+    record, depth 0 and no oldest time, so the bridge's drain stopped with record 5
+    still waiting)."""
+    d = tmp_path / "ob"
+    limits = OutboxLimits(max_bytes=8 * SEGMENT, segment_bytes=SEGMENT)
+    with Outbox(d, limits) as box:
+        for seq in range(1, 6):
+            box.append(bytes([seq]) * 10, now=float(seq))
+    with open(d / fmt.segment_name(1), "r+b") as f:
+        f.seek(16 + (damaged - 1) * 38 + 28 + 4)  # a byte of its payload
+        f.write(b"\xff")
+    with Outbox(d, limits) as box:
+        assert box.depth == 4
+        assert box.oldest_time == (2.0 if damaged == 1 else 1.0)
+        box.ack(4)
+        assert box.pending(10) == [(5, b"\x05" * 10)]
+        assert box.depth == 1
+        assert box.oldest_time == 5.0
+        box.ack(5)
+        assert box.depth == 0 and box.oldest_time is None
