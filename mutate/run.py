@@ -339,9 +339,10 @@ def _survivors_again(tree: Path, target: Target, rest: bool = False) -> None:
             equivalents = _equivalents()
             again = [
                 job
-                for job, module, operator, row, col, definition, diff in db.execute(
-                    "SELECT r.job_id, m.module_path, m.operator_name, m.start_pos_row,"
-                    " m.start_pos_col, m.definition_name, r.diff FROM work_results r"
+                for job, module, operator, occurrence, row, col, definition, diff in db.execute(
+                    "SELECT r.job_id, m.module_path, m.operator_name, m.occurrence,"
+                    " m.start_pos_row, m.start_pos_col, m.definition_name, r.diff"
+                    " FROM work_results r"
                     " JOIN mutation_specs m USING (job_id) WHERE r.test_outcome = 'SURVIVED'"
                 )
                 if not any(
@@ -350,6 +351,7 @@ def _survivors_again(tree: Path, target: Target, rest: bool = False) -> None:
                         {
                             "module_path": module,
                             "operator_name": operator,
+                            "occurrence": occurrence,
                             "start_pos": [row, col],
                             "definition_name": definition,
                         },
@@ -585,7 +587,8 @@ def _is(entry: dict[str, object], mutation: dict[str, object], text: str, diff: 
     operator and line's text, and where the line alone is ambiguous (the same text in
     two functions, two operators of a kind on one line, a number moved up or down)
     the optional `definition` (the enclosing function, cosmic-ray's
-    definition_name), `column` (where the mutated token starts) and `mutated` (the
+    definition_name), `column` (where the mutated token starts), `occurrence`
+    (cosmic-ray's count of the operator's sites in the module) and `mutated` (the
     line as the mutant has it)."""
     start = mutation["start_pos"]
     assert isinstance(start, list)
@@ -600,6 +603,7 @@ def _is(entry: dict[str, object], mutation: dict[str, object], text: str, diff: 
         and str(entry["line"]).strip() == text
         and entry.get("definition", mutation["definition_name"]) == mutation["definition_name"]
         and entry.get("column", start[1]) == start[1]
+        and entry.get("occurrence", mutation["occurrence"]) == mutation["occurrence"]
         and ("mutated" not in entry or [str(entry["mutated"]).strip()] == mutated)
     )
 

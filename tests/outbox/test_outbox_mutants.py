@@ -805,3 +805,19 @@ def test_depth_and_oldest_time_skip_the_numbers_of_records_damaged_before_a_rest
         assert box.oldest_time == 5.0
         box.ack(5)
         assert box.depth == 0 and box.oldest_time is None
+
+
+def test_a_torn_first_slot_does_not_hide_a_newer_format_in_the_second(tmp_path: Path) -> None:
+    """The first cursor slot torn (its CRC-32 no longer matches), the second written by
+    a newer pyrtu (format version 2): the outbox is refused as that version, not read
+    as an empty or torn cursor of ours."""
+    d = tmp_path / "ob"
+    Outbox(d, OutboxLimits(max_bytes=8 * SEGMENT, segment_bytes=SEGMENT)).close()
+    cursor = bytearray((d / "cursor").read_bytes())
+    _magic, _gen, acked, reserved, dropped = SLOT.unpack_from(cursor, 512)
+    body = SLOT.pack(b"OBc2", 99, acked, reserved, dropped)
+    cursor[512 : 512 + 40] = body + struct.pack("<I", zlib.crc32(body))
+    cursor[36] ^= 0xFF  # slot 0's CRC-32: torn
+    (d / "cursor").write_bytes(bytes(cursor))
+    with pytest.raises(OSError, match="cursor is in outbox format version 2"):
+        Outbox(d, OutboxLimits(max_bytes=8 * SEGMENT, segment_bytes=SEGMENT))
