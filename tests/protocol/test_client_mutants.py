@@ -690,3 +690,27 @@ def test_a_full_length_table_keeps_its_entries_when_a_known_length_repeats(
     now += 0.1
     p.start(*read_holding_registers(1, 1, 1), now=now)
     assert type(p.next_action(now, xfer=True)) is Xfer  # another request, still known
+
+
+def test_the_settling_time_is_20_ms_on_a_fast_line(backend: ModuleType) -> None:
+    # docs/POLLER.md: 20 ms or 3 x t3.5, the longer; at 9600 8N1 3 x t3.5 is
+    # 3 x 3.5 x 10 / 9600 s (10.9 ms): 20 ms
+    assert 3 * 3.5 * 10 / 9600 < 0.02
+    p = ClientProtocol(LINE, timeout=2.0, backend=backend)
+    p.start(*read_holding_registers(1, 0, 1), now=10.0)
+    p.wait_done(b"", 10.0)
+    p.transmitted(10.1, 10.0)
+    p.abort(10.2)
+    p.receive_data(b"\x01", 10.3)  # heard since the abort
+    assert p.late_answer_over_at() == pytest.approx(10.3 + 0.02, abs=1e-9)
+
+
+def test_next_action_hands_out_an_xfer_only_when_the_driver_says_it_can(
+    backend: ModuleType,
+) -> None:
+    call, answer = _answers(backend)[2]
+    p = ClientProtocol(LINE, timeout=2.0, backend=backend)
+    transact(p, call, answer, 100.0)  # its answer's length learned
+    p.start(*call, now=101.0)
+    assert type(p.next_action(101.0)) is Wait  # a look for stale input first
+    assert type(p.next_action(101.0, xfer=True)) is Xfer
