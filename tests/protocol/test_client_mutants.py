@@ -708,9 +708,9 @@ def test_the_settling_time_is_20_ms_on_a_fast_line(backend: ModuleType) -> None:
 def test_next_action_hands_out_an_xfer_only_when_the_driver_says_it_can(
     backend: ModuleType,
 ) -> None:
-    call, answer = _answers(backend)[2]
+    answer = crc(backend, struct.pack(">BBBHH", 1, 3, 4, 7, 8))  # [MB] 6.3
     p = ClientProtocol(LINE, timeout=2.0, backend=backend)
-    transact(p, call, answer, 100.0)  # its answer's length learned
-    p.start(*call, now=101.0)
+    transact(p, read_holding_registers(1, 0, 2), answer, 100.0)  # its length learned
+    p.start(*read_holding_registers(1, 0, 2), now=101.0)
     assert type(p.next_action(101.0)) is Wait  # a look for stale input first
     assert type(p.next_action(101.0, xfer=True)) is Xfer
