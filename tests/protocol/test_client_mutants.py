@@ -33,7 +33,7 @@ from pyrtu.pdu.requests import (
     write_register,
     write_registers,
 )
-from pyrtu.protocol.client import ClientProtocol, ClientState, Done, Wait
+from pyrtu.protocol.client import ClientProtocol, ClientState, Done, Send, Wait
 from pyrtu.protocol.client_actions import Xfer
 
 LINE = LineConfig(baudrate=9600, parity="N")
@@ -714,3 +714,25 @@ def test_next_action_hands_out_an_xfer_only_when_the_driver_says_it_can(
     p.start(*read_holding_registers(1, 0, 2), now=101.0)
     assert type(p.next_action(101.0)) is Wait  # a look for stale input first
     assert type(p.next_action(101.0, xfer=True)) is Xfer
+
+
+@pytest.mark.parametrize("mode", ["ascii", "rtu"])
+def test_stale_input_just_before_the_request_means_another_look(
+    backend: ModuleType, mode: str
+) -> None:
+    """The look for pending input before the request found stale bytes: the request
+    goes only after a look that finds none (ASCII keeps no silence, so the line is
+    ready again at once; on RTU the timeout has passed: send anyway)."""
+    line = LineConfig(baudrate=9600, parity="N", mode=mode)
+    p = ClientProtocol(line, timeout=2.0, backend=backend)
+    p.start(*read_holding_registers(1, 0, 1), now=10.0)
+    assert p.state is ClientState.SEND
+    step = p.next_action(10.0)
+    assert type(step) is Wait and step.until == 10.0  # the look for stale input
+    at = 10.0 if mode == "ascii" else 12.0  # RTU: at the timeout (see above)
+    p.wait_done(b"\x00\x01", at)  # it found some
+    assert p.state is ClientState.SEND
+    step = p.next_action(at)
+    assert type(step) is Wait and step.until == at  # look again
+    p.wait_done(b"", at)  # nothing more
+    assert type(p.next_action(at)) is Send
