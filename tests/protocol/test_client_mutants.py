@@ -33,7 +33,7 @@ from pyrtu.pdu.requests import (
     write_register,
     write_registers,
 )
-from pyrtu.protocol.client import ClientProtocol, ClientState, Done, Wait
+from pyrtu.protocol.client import ClientProtocol, ClientState, Done, Send, Wait
 from pyrtu.protocol.client_actions import Xfer
 
 LINE = LineConfig(baudrate=9600, parity="N")
@@ -601,3 +601,138 @@ def test_bytes_after_a_broadcasts_echo_are_stale(backend: ModuleType) -> None:
     p.receive_data(adu + b"\x55\x66", end + 0.001)  # the echo, then 2 bytes of noise
     assert type(p.next_action(end + 0.001)) is Done
     assert p.counters["discarded_stale"] == 2
+
+
+# ---------------------------------------- full run of 2026-11-28: boundaries
+
+
+def test_done_is_true_only_once_the_transaction_is_done(backend: ModuleType) -> None:
+    p = ClientProtocol(LINE, timeout=2.0, backend=backend)
+    assert not p.done
+    p.start(*write_register(0, 1, 5), now=10.0)  # a broadcast: no answer awaited
+    assert not p.done
+    p.wait_done(b"", 10.0)
+    assert not p.done
+    p.transmitted(10.0 + 8 * CHAR, 10.0)
+    assert p.done
+    assert p.result() is None
+    assert not p.done
+
+
+def test_a_babbling_line_lets_the_request_go_exactly_at_the_timeout(backend: ModuleType) -> None:
+    # t3.5 at 9600 8N1: 3.5 x 10 bits / 9600 (Serial Line V1.02 2.5.1.1)
+    t35 = 3.5 * 10 / 9600
+    p = ClientProtocol(LINE, timeout=2.0, backend=backend)
+    p.start(*read_holding_registers(1, 0, 1), now=10.0)  # gives up waiting at 12.0
+    p.receive_data(b"\x00", 11.0)  # noise: the silence starts again
+    assert p.deadline() == pytest.approx(11.0 + t35, abs=1e-6)  # QUIET: t3.5 after it
+    p.receive_data(b"\x00", 11.999)  # its t3.5 ends after 12.0
+    assert 11.999 + t35 > 12.0
+    assert p.deadline() == 12.0
+    p.handle_timer(11.9999)
+    assert p.deadline() == 12.0  # still QUIET
+    p.handle_timer(12.0)  # exactly at the timeout: send anyway
+    assert p.state is ClientState.SEND
+
+
+def test_a_byte_read_at_the_instant_of_the_abort_is_not_heard_since(backend: ModuleType) -> None:
+    # late_answer_over_at: a settling time after a byte heard *since* the abort, else
+    # the abandoned answer's deadline (timeout after the request's end)
+    p = ClientProtocol(LINE, timeout=2.0, backend=backend)
+    p.start(*read_holding_registers(1, 0, 1), now=10.0)
+    p.wait_done(b"", 10.0)
+    p.transmitted(10.01, 10.0)
+    p.receive_data(b"\x01", 10.05)  # the answer's first byte
+    p.abort(10.05)  # given up on at the same instant
+    assert p.late_answer_over_at() == pytest.approx(10.01 + 2.0, abs=1e-9)
+
+
+def test_the_settling_time_is_three_t35_on_a_slow_line(backend: ModuleType) -> None:
+    # docs/POLLER.md: the settling pause is 20 ms or 3 x t3.5; at 1200 8N1 t3.5 is
+    # 3.5 x 10 / 1200 s (29.2 ms, kept in whole microseconds): 87.5 ms
+    slow = LineConfig(baudrate=1200, parity="N")
+    settle = 3 * 3.5 * 10 / 1200
+    p = ClientProtocol(slow, timeout=2.0, backend=backend)
+    p.start(*read_holding_registers(1, 0, 1), now=10.0)
+    p.wait_done(b"", 10.0)
+    p.transmitted(10.1, 10.0)
+    p.abort(10.2)
+    p.receive_data(b"\x01", 10.3)  # heard since the abort
+    assert p.late_answer_over_at() == pytest.approx(10.3 + settle, abs=3e-6)
+
+
+def test_the_framer_timer_does_not_fire_before_its_deadline(backend: ModuleType) -> None:
+    p = ClientProtocol(LINE, timeout=2.0, backend=backend)
+    end = _sent(p, read_holding_registers(1, 0, 1), 10.0)
+    p.receive_data(b"\x01\x03\x02", end + 0.05)  # a fragment: 3 of the answer's 7 bytes
+    while p.counters["discarded_bytes"] == 0:  # the framer's timers (t3.5, then its flush)
+        at = p.deadline()
+        assert at is not None and at < end + 2.0  # not the timeout
+        p.handle_timer(at - 0.4e-6)  # before the deadline, though it rounds to it in us
+        assert p.deadline() == at and p.counters["discarded_bytes"] == 0
+        p.handle_timer(at)
+    assert p.counters["discarded_bytes"] == 3
+    assert p.state is ClientState.ANSWER
+
+
+def test_a_full_length_table_keeps_its_entries_when_a_known_length_repeats(
+    backend: ModuleType,
+) -> None:
+    """The table of 4096 learned answer lengths starts again only to learn a new
+    length: an answer of the length already known changes nothing."""
+    p = ClientProtocol(LINE, timeout=2.0, backend=backend)
+    answer = crc(backend, struct.pack(">BBBH", 1, 3, 2, 5))
+    now = 100.0
+    for address in range(4096):
+        transact(p, read_holding_registers(1, address, 1), answer, now)
+        now += 0.1
+    transact(p, read_holding_registers(1, 5, 1), answer, now)  # by the steps, same length
+    now += 0.1
+    p.start(*read_holding_registers(1, 1, 1), now=now)
+    assert type(p.next_action(now, xfer=True)) is Xfer  # another request, still known
+
+
+def test_the_settling_time_is_20_ms_on_a_fast_line(backend: ModuleType) -> None:
+    # docs/POLLER.md: 20 ms or 3 x t3.5, the longer; at 9600 8N1 3 x t3.5 is
+    # 3 x 3.5 x 10 / 9600 s (10.9 ms): 20 ms
+    assert 3 * 3.5 * 10 / 9600 < 0.02
+    p = ClientProtocol(LINE, timeout=2.0, backend=backend)
+    p.start(*read_holding_registers(1, 0, 1), now=10.0)
+    p.wait_done(b"", 10.0)
+    p.transmitted(10.1, 10.0)
+    p.abort(10.2)
+    p.receive_data(b"\x01", 10.3)  # heard since the abort
+    assert p.late_answer_over_at() == pytest.approx(10.3 + 0.02, abs=1e-9)
+
+
+def test_next_action_hands_out_an_xfer_only_when_the_driver_says_it_can(
+    backend: ModuleType,
+) -> None:
+    answer = crc(backend, struct.pack(">BBBHH", 1, 3, 4, 7, 8))  # [MB] 6.3
+    p = ClientProtocol(LINE, timeout=2.0, backend=backend)
+    transact(p, read_holding_registers(1, 0, 2), answer, 100.0)  # its length learned
+    p.start(*read_holding_registers(1, 0, 2), now=101.0)
+    assert type(p.next_action(101.0)) is Wait  # a look for stale input first
+    assert type(p.next_action(101.0, xfer=True)) is Xfer
+
+
+@pytest.mark.parametrize("mode", ["ascii", "rtu"])
+def test_stale_input_just_before_the_request_means_another_look(
+    backend: ModuleType, mode: str
+) -> None:
+    """The look for pending input before the request found stale bytes: the request
+    goes only after a look that finds none (ASCII keeps no silence, so the line is
+    ready again at once; on RTU the timeout has passed: send anyway)."""
+    line = LineConfig(baudrate=9600, parity="N", mode=mode)
+    p = ClientProtocol(line, timeout=2.0, backend=backend)
+    p.start(*read_holding_registers(1, 0, 1), now=10.0)
+    assert p.state is ClientState.SEND
+    step = p.next_action(10.0)
+    assert type(step) is Wait and step.until == 10.0  # the look for stale input
+    at = 10.0 if mode == "ascii" else 12.0  # RTU: at the timeout (see above)
+    p.wait_done(b"\x00\x01", at)  # it found some
+    assert p.state is ClientState.SEND
+    step = p.next_action(at)
+    assert type(step) is Wait and step.until == at  # look again
+    p.wait_done(b"", at)  # nothing more
+    assert type(p.next_action(at)) is Send
