@@ -265,8 +265,8 @@ def test_umodbus_server_framed_by_pyrtu(junk: str) -> None:
     from pyrtu.compat.umodbus import PyrtuRTUServer
 
     req = add_crc(b"\x01\x03\x00\x00\x00\x02")
-    got = {}
-    for name, cls, ids in (("stock", RTUServer, None), ("pyrtu", PyrtuRTUServer, {1})):
+
+    def serve(cls: Any, ids: set[int] | None) -> tuple[bytes, bytes]:
         with (
             VirtualBus(2, baudrate=BAUD, parity="N") as bus,
             umodbus_server(bus.paths[1], cls, ids),
@@ -274,12 +274,19 @@ def test_umodbus_server_framed_by_pyrtu(junk: str) -> None:
         ):
             assert bus.wait_clients(1)
             time.sleep(0.05)
-            got[name] = request_then_read(master, JUNK[junk] + req, 9)
+            first = request_then_read(master, JUNK[junk] + req, 9)
             # and a clean request after it (the server is still in step)
             time.sleep(0.05)
-            got[name + " next"] = request_then_read(master, req, 9)
-    assert got["stock"] != _reply(req)  # what stock loses
-    assert got["pyrtu"] == _reply(req) and got["pyrtu next"] == _reply(req)
+            return first, request_then_read(master, req, 9)
+
+    # what stock loses: it frames by its read's timing, so a scheduler that splits the
+    # junk from the request into two reads can save it once; of five tries, one lost
+    # shows the case is the one pyrtu must get right
+    stock = []
+    while len(stock) < 5 and (not stock or stock[-1] == _reply(req)):
+        stock.append(serve(RTUServer, None)[0])
+    assert stock[-1] != _reply(req), stock
+    assert serve(PyrtuRTUServer, {1}) == (_reply(req), _reply(req))
 
 
 # ================================================================ modbus_tk
