@@ -5,6 +5,7 @@ alone names no serial format.  Real virtual buses, real ``python -m pyrtu``."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import signal
 import time
@@ -14,7 +15,7 @@ from typing import Any
 import pytest
 from cli_helpers import Background, pyrtu
 
-from pyrtu import FrameError, Master, NoResponseError
+from pyrtu import ExceptionResponseError, FrameError, Master, NoResponseError
 from pyrtu.devices import weg
 from pyrtu.vbus import VirtualBus
 
@@ -163,7 +164,11 @@ def test_two_simulators_at_one_address_are_warned_about(other: str) -> None:
                 next_json(bg, "ready")
             with Master(bus.paths[0], BAUD, parity="N", timeout=0.3) as m:
                 for _ in range(5):
-                    reads(m, 7)  # garbled or not: the master asks
+                    # garbled or not: the master asks; the ACU has no register 680, and
+                    # when a loaded machine lets its exception answer come first, that
+                    # is an answer too
+                    with contextlib.suppress(ExceptionResponseError):
+                        reads(m, 7)
             warnings = [next_json(bg, "warning", timeout=5) for bg in sims[1:]]
             for bg in sims:
                 bg.proc.send_signal(signal.SIGTERM)
