@@ -22,9 +22,10 @@ ROOT = Path(__file__).resolve().parents[1]
 TIMEOUT = 30.0
 
 
-def poll_weg(timeout: float) -> str:
+def poll_weg(timeout: float, bus: str = "") -> str:
     """A ``pyrtu poll --config`` file: the bus "line1" on ``{port}`` (to be formatted)
-    at 115200 8N1, this timeout, a short back-off; a CFW701 "weg" at 1 every 50 ms."""
+    at 115200 8N1, this timeout, a short back-off (``bus``: more lines of its table);
+    a CFW701 "weg" at 1 every 50 ms."""
     return f"""\
 [[bus]]
 name = "line1"
@@ -32,7 +33,7 @@ port = "{{port}}"
 baudrate = 115200
 parity = "N"
 timeout = {timeout}
-backoff = 0.1
+{bus}backoff = 0.1
 max_backoff = 0.4
 
 [[device]]

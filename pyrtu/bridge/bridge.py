@@ -303,9 +303,6 @@ class Bridge(MqttOutput):
 
     # ------------------------------------------------------------------ publishing
 
-    def _connected(self) -> bool:
-        return self._link is not None and self._link.connected
-
     def _pump(self) -> None:
         """Hand records to the client in sequence order while the window has room,
         and write them to the socket at once (`MqttLink.write_now`)."""
@@ -559,19 +556,7 @@ class Bridge(MqttOutput):
         polls, its tasks run, the outbox is open and the broker connected): the
         poller's problems (`Poller.health`), a fatal error, the broker not
         connected (no secret in the lines: the broker's URL has none)."""
-        if not self._running:
-            return ["the bridge is not running"]
-        problems = list(self.poller.health()) if self._polling else []
-        if self.fatal is not None:
-            problems.append(f"fatal: {self.fatal}")
-        if self._outbox is None:
-            problems.append("the outbox is closed")
-        for task in self._tasks:
-            if task.done():
-                problems.append(f"task {task.get_name()} is not running")
-        if not self._connected():
-            problems.append(f"broker {self.config.mqtt.broker} not connected")
-        return problems
+        return self._problems("bridge", self._polling)
 
     async def _stats_loop(self) -> None:
         import json

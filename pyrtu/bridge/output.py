@@ -71,7 +71,30 @@ class MqttOutput(OutboxService):
         )
         await self._open(m.outbox, limits, poll, opened)
 
+    def _problems(self, what: str, polling: bool) -> list[str]:
+        """What keeps the output (``what``: "bridge", "edge node") from doing its
+        work, one line each, as both outputs see it: not running, the poller's
+        problems (`Poller.health`, when ``polling``), a fatal error, the outbox
+        closed, a task not running, the broker not connected (no secret in the
+        lines: the broker's URL has none)."""
+        if not self._running:
+            return [f"the {what} is not running"]
+        problems = list(self.poller.health()) if polling else []
+        if self.fatal is not None:
+            problems.append(f"fatal: {self.fatal}")
+        if self._outbox is None:
+            problems.append("the outbox is closed")
+        for task in self._tasks:
+            if task.done():
+                problems.append(f"task {task.get_name()} is not running")
+        if not self._connected():
+            problems.append(f"broker {self.config.mqtt.broker} not connected")
+        return problems
+
     # ------------------------------------------------------------------ the connection
+
+    def _connected(self) -> bool:
+        return self._link is not None and self._link.connected
 
     def _new_link(self) -> MqttLink:
         """A link to the broker for the next attempt (its will, its callbacks)."""

@@ -593,26 +593,12 @@ class EdgeNode(MqttOutput):
         task not running, the broker not connected, the primary host offline (the
         node publishes nothing until it is back).  No secret in the lines: the
         broker's URL has none."""
-        if not self._running:
-            return ["the edge node is not running"]
-        problems = list(self.poller.health())
-        if self.fatal is not None:
-            problems.append(f"fatal: {self.fatal}")
-        if self._outbox is None:
-            problems.append("the outbox is closed")
-        for task in self._tasks:
-            if task.done():
-                problems.append(f"task {task.get_name()} is not running")
-        if not self._connected():
-            problems.append(f"broker {self.config.mqtt.broker} not connected")
-        elif not self._born and self.spb.primary_host_id:
+        problems = self._problems("edge node", True)
+        if self._running and self._connected() and not self._born and self.spb.primary_host_id:
             problems.append(
                 f"primary host {self.spb.primary_host_id} offline: the node waits to be born"
             )
         return problems
-
-    def _connected(self) -> bool:
-        return self._link is not None and self._link.connected
 
 
 __all__ = ["EdgeNode"]

@@ -7,74 +7,30 @@ certificates refused with a clear message."""
 
 from __future__ import annotations
 
-import contextlib
 import json
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import pytest
+from bridge_configs import BAUD, OUTAGE, drives, mqtt_table, weg_on_line
 from mqtt_broker import Broker, Client, Gate
 from waiting import wait_for
 
 from pyrtu.bridge import parse_bridge_config
 from pyrtu.bridge.bridge import Bridge, BridgeEvent
 from pyrtu.bridge.mqtt import BrokerRefused
-from pyrtu.devices import CFW701Simulator, CV100Simulator, DriveSimulator
+from pyrtu.devices import CFW701Simulator, CV100Simulator
 from pyrtu.drivers.aio import run as aio_run
 
-vbus = pytest.importorskip("pyrtu.vbus")
-
-BAUD = 115200
 #: a safety net, not a measurement: conditions are awaited, never timed
 PATIENCE = 30.0
 
 
-@contextlib.contextmanager
-def drives() -> Iterator[tuple[Any, list[DriveSimulator]]]:
-    """Drop 0: the bridge; drop 1: a CFW701 at 1; drop 2: a CV100 at 5."""
-    with vbus.VirtualBus(3, baudrate=BAUD, parity="N") as bus:
-        sims: list[DriveSimulator] = [CFW701Simulator(), CV100Simulator()]
-        for drop, (sim, addr) in enumerate(zip(sims, (1, 5), strict=True), start=1):
-            sim.serve(bus.paths[drop], addr, baudrate=BAUD, parity="N")
-        try:
-            yield bus, sims
-        finally:
-            for sim in sims:
-                with contextlib.suppress(Exception):
-                    sim.close()
-
-
-def weg_on_line(port: str, interval: float, bus: str = "") -> str:
-    """The bridge configurations' bus "line" on ``port`` (``bus``: more lines of its
-    table) with the CFW701 "weg" at 1 polled every ``interval``."""
-    return f"""[[bus]]
-name = "line"
-port = "{port}"
-baudrate = {BAUD}
-parity = "N"
-timeout = 0.1
-{bus}[[device]]
-bus = "line"
-slave = 1
-profile = "cfw701"
-name = "weg"
-interval = {interval}
-"""
-
-
 def toml(url: str, port: str, outbox: Path, mqtt: str = "", interval: float = 0.05) -> str:
-    backoff = "offline_after = 2\nbackoff = 0.1\nmax_backoff = 0.4\n"
     return f"""
-[mqtt]
-url = "{url}"
-edge = "e1"
-outbox = "{outbox}"
-backoff = 0.1
-max_backoff = 0.5
-{mqtt}
-{weg_on_line(port, interval, backoff)}[[device]]
+{mqtt_table(url, outbox, mqtt)}
+{weg_on_line(port, interval, OUTAGE)}[[device]]
 bus = "line"
 slave = 5
 profile = "cv100"

@@ -19,9 +19,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from bridge_configs import weg_on_line
 from cli_helpers import kill_after_each_test
 from mqtt_broker import Broker, Client
-from test_bridge_broker import weg_on_line
 
 from pyrtu.devices import CFW701Simulator
 

@@ -14,10 +14,10 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from bridge_configs import weg_on_line
 from mqtt_broker import Broker, Client
 from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
-from test_bridge_broker import weg_on_line
 
 from pyrtu.bridge import parse_bridge_config
 from pyrtu.bridge.bridge import Bridge

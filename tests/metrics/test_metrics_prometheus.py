@@ -9,6 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from bridge_configs import mqtt_table, weg_on_line
 from cli_helpers import Background
 from metrics_helpers import BAUD, SERIAL, next_json, serving, stop, until, write_poll_config
 from mqtt_broker import Broker, Client
@@ -127,33 +128,37 @@ def test_simulate_tcp_scraped_counts_requests_and_clients(tmp_path: Path) -> Non
     assert code == 0
 
 
-BRIDGE = """
-[defaults]
-max_age = 0.2
-[mqtt]
-url = "{url}"
-edge = "e1"
-outbox = "{outbox}"
-backoff = 0.1
-max_backoff = 0.5
-username = "edge"
-password = "{password}"
-[[bus]]
-name = "line"
-port = "{port}"
-baudrate = {baud}
-parity = "N"
-timeout = 0.1
-offline_after = 2
-[[device]]
-bus = "line"
-slave = 1
-profile = "cfw701"
-name = "weg"
-interval = 0.05
-"""
+def bridge_config(url: str, outbox: Path, port: str, sparkplug: bool = False) -> str:
+    """The bridge's configuration (``sparkplug``: in Sparkplug B mode): the CFW701
+    polled every 50 ms, its values published at least every 0.2 s (``max_age``),
+    the broker's user "edge" with its password."""
+    login = f'username = "edge"\npassword = "{PASSWORD}"\n'
+    spb = '[sparkplug]\ngroup_id = "plant1"\n' if sparkplug else ""
+    line = weg_on_line(port, 0.05, "offline_after = 2\n")
+    return f"[defaults]\nmax_age = 0.2\n{mqtt_table(url, outbox, login)}{spb}{line}"
+
+
 #: the MQTT password: in no label, no value, no health line
 PASSWORD = "s3cret-Zq81"
+
+
+def broker_killed(prom: Prometheus, broker: Broker, *zero: str) -> None:
+    """The broker killed: what Prometheus stores says disconnected (and each of
+    ``zero`` 0), a backlog in the outbox (values published at least every 0.2 s
+    pile up) that ages, unhealthy; the password in none of its series."""
+    broker.kill()
+    prom.wait("pyrtu_bridge_broker_connected", lambda v: v == 0, "disconnected")
+    for name in zero:
+        prom.wait(name, lambda v: v == 0, f"{name} 0")
+    prom.wait("pyrtu_bridge_outbox_depth", lambda v: v >= 10, "a backlog")
+    prom.wait("pyrtu_bridge_outbox_oldest_age_seconds", lambda v: v >= 0.5, "its age")
+    prom.wait("pyrtu_healthy", lambda v: v == 0, "unhealthy")
+    stored = prom.query('{job="pyrtu"}')
+    assert stored and all(
+        PASSWORD not in key and PASSWORD not in value
+        for labels, _ in stored
+        for key, value in labels.items()
+    )
 
 
 def test_the_bridge_scraped_outbox_and_broker(tmp_path: Path) -> None:
@@ -165,10 +170,7 @@ def test_the_bridge_scraped_outbox_and_broker(tmp_path: Path) -> None:
         sim = CFW701Simulator()
         sim.serve(bus.paths[1], 1, baudrate=BAUD, parity="N")
         config = tmp_path / "bridge.toml"
-        config.write_text(
-            BRIDGE.format(url=broker.url, outbox=tmp_path / "ob", password=PASSWORD,
-                          port=bus.paths[0], baud=BAUD)
-        )  # fmt: skip
+        config.write_text(bridge_config(broker.url, tmp_path / "ob", bus.paths[0]))
         bridge = Background("bridge", "--config", config, "--metrics", address, "--drain", "0")
         try:
             until(lambda: serving(address), "the endpoint")
@@ -177,51 +179,12 @@ def test_the_bridge_scraped_outbox_and_broker(tmp_path: Path) -> None:
                 prom.wait("pyrtu_bridge_acknowledged_total", lambda v: v >= 5, "acknowledged")
                 prom.wait('pyrtu_poll_responses_total{slave="1"}', lambda v: v >= 5, "polled")
                 prom.wait("pyrtu_healthy", lambda v: v == 1, "it")
-                broker.kill()  # the updates (max_age 0.2 s) pile up in the outbox
-                prom.wait("pyrtu_bridge_broker_connected", lambda v: v == 0, "disconnected")
-                prom.wait("pyrtu_bridge_outbox_depth", lambda v: v >= 10, "a backlog")
-                prom.wait("pyrtu_bridge_outbox_oldest_age_seconds", lambda v: v >= 0.5, "its age")
-                prom.wait("pyrtu_healthy", lambda v: v == 0, "unhealthy")
-                stored = prom.query('{job="pyrtu"}')
-                assert stored and all(
-                    PASSWORD not in key and PASSWORD not in value
-                    for labels, _ in stored
-                    for key, value in labels.items()
-                )
+                broker_killed(prom, broker)
         finally:
             code = stop(bridge)
             sim.close()
     assert code == 0
     assert PASSWORD not in "".join(bridge.err)
-
-
-SPARKPLUG = """
-[defaults]
-max_age = 0.2
-[mqtt]
-url = "{url}"
-edge = "e1"
-outbox = "{outbox}"
-backoff = 0.1
-max_backoff = 0.5
-username = "edge"
-password = "{password}"
-[sparkplug]
-group_id = "plant1"
-[[bus]]
-name = "line"
-port = "{port}"
-baudrate = {baud}
-parity = "N"
-timeout = 0.1
-offline_after = 2
-[[device]]
-bus = "line"
-slave = 1
-profile = "cfw701"
-name = "weg"
-interval = 0.05
-"""
 
 
 def test_the_sparkplug_edge_node_scraped_births_data_and_outbox(tmp_path: Path) -> None:
@@ -239,10 +202,7 @@ def test_the_sparkplug_edge_node_scraped_births_data_and_outbox(tmp_path: Path) 
         sim.serve(bus.paths[1], 1, baudrate=BAUD, parity="N")
         watcher = Client(broker, ["spBv1.0/#"], username="watcher", password=watcher_password)
         config = tmp_path / "bridge.toml"
-        config.write_text(
-            SPARKPLUG.format(url=broker.url, outbox=tmp_path / "ob", password=PASSWORD,
-                             port=bus.paths[0], baud=BAUD)
-        )  # fmt: skip
+        config.write_text(bridge_config(broker.url, tmp_path / "ob", bus.paths[0], sparkplug=True))
         node = Background("bridge", "--config", config, "--metrics", address)
         try:
             until(lambda: serving(address), "the endpoint")
@@ -263,18 +223,7 @@ def test_the_sparkplug_edge_node_scraped_births_data_and_outbox(tmp_path: Path) 
                 prom.wait('pyrtu_sparkplug_device_alive{device="weg"}', lambda v: v == 1, "it")
                 prom.wait('pyrtu_poll_responses_total{slave="1"}', lambda v: v >= 5, "polled")
                 prom.wait("pyrtu_healthy", lambda v: v == 1, "healthy")
-                broker.kill()  # the values (max_age 0.2 s) pile up in the outbox
-                prom.wait("pyrtu_bridge_broker_connected", lambda v: v == 0, "disconnected")
-                prom.wait("pyrtu_sparkplug_born", lambda v: v == 0, "not born")
-                prom.wait("pyrtu_bridge_outbox_depth", lambda v: v >= 10, "a backlog")
-                prom.wait("pyrtu_bridge_outbox_oldest_age_seconds", lambda v: v >= 0.5, "its age")
-                prom.wait("pyrtu_healthy", lambda v: v == 0, "unhealthy")
-                stored = prom.query('{job="pyrtu"}')
-                assert stored and all(
-                    PASSWORD not in key and PASSWORD not in value
-                    for labels, _ in stored
-                    for key, value in labels.items()
-                )
+                broker_killed(prom, broker, "pyrtu_sparkplug_born")
         finally:
             code = stop(node)
             watcher.close()

@@ -249,15 +249,22 @@ def test_a_learned_length_never_wakes_before_the_bytes_needed(backend: ModuleTyp
     assert action.until == pytest.approx(end + T35 + turn + 4 * CHAR, abs=1e-9)
 
 
-def test_the_answer_lengths_are_remembered_for_4096_requests(backend: ModuleType) -> None:
-    """The learned answer lengths are a bounded table: 4096 requests, then it starts
-    again (the 4097th request's length is learned in an empty table)."""
+def full_table(backend: ModuleType) -> tuple[ClientProtocol, bytes, float]:
+    """A client that learned the answer lengths of 4096 requests (a read of one
+    register at each of addresses 0..4095), the answer it had, the time after."""
     p = ClientProtocol(LINE, timeout=2.0, backend=backend)
     answer = crc(backend, struct.pack(">BBBH", 1, 3, 2, 5))
     now = 100.0
     for address in range(4096):
         transact(p, read_holding_registers(1, address, 1), answer, now)
         now += 0.1
+    return p, answer, now
+
+
+def test_the_answer_lengths_are_remembered_for_4096_requests(backend: ModuleType) -> None:
+    """The learned answer lengths are a bounded table: 4096 requests, then it starts
+    again (the 4097th request's length is learned in an empty table)."""
+    p, answer, now = full_table(backend)
     p.start(*read_holding_registers(1, 0, 1), now=now)
     assert type(p.next_action(now, xfer=True)) is Xfer  # the first still known
     p.abort(now)
@@ -647,12 +654,22 @@ def test_a_byte_read_at_the_instant_of_the_abort_is_not_heard_since(backend: Mod
     assert p.late_answer_over_at() == pytest.approx(10.01 + 2.0, abs=1e-9)
 
 
-def test_the_settling_time_is_three_t35_on_a_slow_line(backend: ModuleType) -> None:
-    # docs/POLLER.md: the settling pause is 20 ms or 3 x t3.5; at 1200 8N1 t3.5 is
-    # 3.5 x 10 / 1200 s (29.2 ms, kept in whole microseconds): 87.5 ms
-    slow = LineConfig(baudrate=1200, parity="N")
-    settle = 3 * 3.5 * 10 / 1200
-    p = ClientProtocol(slow, timeout=2.0, backend=backend)
+@pytest.mark.parametrize(
+    ("baudrate", "settle"),
+    [
+        # docs/POLLER.md: the settling pause is 20 ms or 3 x t3.5, the longer; at 1200
+        # 8N1 t3.5 is 3.5 x 10 / 1200 s (29.2 ms, kept in whole microseconds): 87.5 ms
+        (1200, 3 * 3.5 * 10 / 1200),
+        # at 9600 8N1 3 x t3.5 is 3 x 3.5 x 10 / 9600 s (10.9 ms): 20 ms
+        (9600, 0.02),
+    ],
+)
+def test_the_settling_time_is_three_t35_or_20_ms_the_longer(
+    backend: ModuleType, baudrate: int, settle: float
+) -> None:
+    assert max(3 * 3.5 * 10 / baudrate, 0.02) == settle  # the table above, by the rule
+    line = LineConfig(baudrate=baudrate, parity="N")
+    p = ClientProtocol(line, timeout=2.0, backend=backend)
     p.start(*read_holding_registers(1, 0, 1), now=10.0)
     p.wait_done(b"", 10.0)
     p.transmitted(10.1, 10.0)
@@ -680,29 +697,11 @@ def test_a_full_length_table_keeps_its_entries_when_a_known_length_repeats(
 ) -> None:
     """The table of 4096 learned answer lengths starts again only to learn a new
     length: an answer of the length already known changes nothing."""
-    p = ClientProtocol(LINE, timeout=2.0, backend=backend)
-    answer = crc(backend, struct.pack(">BBBH", 1, 3, 2, 5))
-    now = 100.0
-    for address in range(4096):
-        transact(p, read_holding_registers(1, address, 1), answer, now)
-        now += 0.1
+    p, answer, now = full_table(backend)
     transact(p, read_holding_registers(1, 5, 1), answer, now)  # by the steps, same length
     now += 0.1
     p.start(*read_holding_registers(1, 1, 1), now=now)
     assert type(p.next_action(now, xfer=True)) is Xfer  # another request, still known
-
-
-def test_the_settling_time_is_20_ms_on_a_fast_line(backend: ModuleType) -> None:
-    # docs/POLLER.md: 20 ms or 3 x t3.5, the longer; at 9600 8N1 3 x t3.5 is
-    # 3 x 3.5 x 10 / 9600 s (10.9 ms): 20 ms
-    assert 3 * 3.5 * 10 / 9600 < 0.02
-    p = ClientProtocol(LINE, timeout=2.0, backend=backend)
-    p.start(*read_holding_registers(1, 0, 1), now=10.0)
-    p.wait_done(b"", 10.0)
-    p.transmitted(10.1, 10.0)
-    p.abort(10.2)
-    p.receive_data(b"\x01", 10.3)  # heard since the abort
-    assert p.late_answer_over_at() == pytest.approx(10.3 + 0.02, abs=1e-9)
 
 
 def test_next_action_hands_out_an_xfer_only_when_the_driver_says_it_can(

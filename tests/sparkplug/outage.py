@@ -20,9 +20,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from bridge_configs import BAUD
 from mqtt_broker import Broker
 from sparkplug_host import DT, Host
-from test_sparkplug_node import BAUD, config
+from test_sparkplug_node import config
 from waiting import ANSWER_TIMEOUT
 
 from pyrtu.devices import CFW701Simulator, weg

@@ -12,131 +12,52 @@ import signal
 import socket
 import subprocess
 import sys
-import time
-import urllib.error
-import urllib.request
-from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+from bridge_configs import BAUD, mqtt_table, vbus, weg_on_line
 from cli_helpers import ROOT, Background, env, pyrtu
-from mqtt_broker import Broker
+from mqtt_broker import Broker, free_port
 from sparkplug_host import Host, encode_metric, encode_payload
 
 pytest.importorskip("google.protobuf", reason="protobuf is not installed (pyrtu[sparkplug])")
 pytest.importorskip("prometheus_client", reason="pip install 'pyrtu[metrics]'")
 
-from prometheus_client.parser import text_string_to_metric_families
+from metrics_helpers import get, sample, samples, serving, until
 
 from pyrtu.devices import CFW701Simulator, weg
 
-vbus = pytest.importorskip("pyrtu.vbus")
-
-BAUD = 115200
 GROUP, EDGE = "plant1", "e1"
-#: a safety net for the conditions awaited, never a measurement
-PATIENCE = 30.0
 #: the MQTT password: in no label, no value, no health line, no message
 PASSWORD = "spb-Kx93-never-shown"
 
-CONFIG = """
-[mqtt]
-url = "{url}"
-edge = "{edge}"
-outbox = "{outbox}"
-backoff = 0.1
-max_backoff = 0.5
-fsync_interval = 0.05
-{credentials}
-
-[sparkplug]
-group_id = "{group}"
-{sparkplug}
-
-[[bus]]
-name = "line"
-port = "{port}"
-baudrate = {baud}
-parity = "N"
-timeout = 0.5
-offline_after = 3
-backoff = 0.1
-max_backoff = 0.4
-
-[[device]]
-bus = "line"
-slave = 1
-profile = "cfw701"
-name = "weg"
-interval = 0.05
-
-[[point]]
-name = "weg.ref"
-bus = "line"
-slave = 1
-table = "holding"
-address = {ref}
-writable = true
-min = 0
-max = 8192
-interval = 0.05
-"""
+#: the bus's outages: offline after three missed polls of 0.5 s
+OUTAGES = "offline_after = 3\nbackoff = 0.1\nmax_backoff = 0.4\n"
 
 
 def write_config(
     tmp: Path, url: str, port: str, credentials: str = "", sparkplug: str = ""
 ) -> Path:
     path = tmp / "b.toml"
-    path.write_text(
-        CONFIG.format(url=url, edge=EDGE, outbox=tmp / "ob", credentials=credentials,
-                      group=GROUP, sparkplug=sparkplug, port=port, baud=BAUD,
-                      ref=weg.P_REFERENCE)
-    )  # fmt: skip
+    mqtt = mqtt_table(url, tmp / "ob", f"fsync_interval = 0.05\n{credentials}\n", EDGE)
+    path.write_text(f"""{mqtt}
+[sparkplug]
+group_id = "{GROUP}"
+{sparkplug}
+
+{weg_on_line(port, 0.05, OUTAGES, timeout=0.5)}
+[[point]]
+name = "weg.ref"
+bus = "line"
+slave = 1
+table = "holding"
+address = {weg.P_REFERENCE}
+writable = true
+min = 0
+max = 8192
+interval = 0.05
+""")
     return path
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def get(url: str) -> tuple[int, str]:
-    """The status and body of a GET (an HTTP error status too)."""
-    try:
-        with urllib.request.urlopen(url, timeout=10) as answer:
-            return answer.status, answer.read().decode()
-    except urllib.error.HTTPError as error:
-        return error.code, error.read().decode()
-
-
-def samples(address: str) -> dict[tuple[str, frozenset[tuple[str, str]]], float]:
-    """Every sample of ``http://address/metrics``: (name, labels) -> value."""
-    status, body = get(f"http://{address}/metrics")
-    assert status == 200, body
-    return {
-        (s.name, frozenset(s.labels.items())): s.value
-        for family in text_string_to_metric_families(body)
-        for s in family.samples
-    }
-
-
-def sample(address: str, name: str, **labels: str) -> float | None:
-    return samples(address).get((name, frozenset(labels.items())))
-
-
-def serving(address: str) -> bool:
-    try:
-        return get(f"http://{address}/metrics")[0] == 200
-    except OSError:
-        return False
-
-
-def until(condition: Callable[[], bool], what: str) -> None:
-    give_up = time.monotonic() + PATIENCE
-    while not condition():
-        assert time.monotonic() < give_up, f"gave up waiting for {what}"
-        time.sleep(0.05)
 
 
 def messages(address: str, kind: str) -> float | None:

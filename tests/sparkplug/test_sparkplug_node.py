@@ -18,6 +18,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from bridge_configs import BAUD, OUTAGE, drives, mqtt_table, weg_on_line
 from mqtt_broker import Broker
 from sparkplug_host import DT, Host, Message, encode_metric, encode_payload
 
@@ -28,45 +29,19 @@ from pyrtu.drivers._loopthread import LoopThread
 from pyrtu.sparkplug.config import load_sparkplug_config
 from pyrtu.sparkplug.node import EdgeNode
 
-vbus = pytest.importorskip("pyrtu.vbus")
-
-BAUD = 115200
 GROUP, EDGE = "plant1", "e1"
 ACCEL, DECEL = weg.P_ACCEL_TIME, weg.P_DECEL_TIME
 
 
 def config(url: str, port: str, outbox: Path, sparkplug: str = "") -> str:
+    more = "command_expiry = 5\nfsync_interval = 0.05\n"
     return f"""
-[mqtt]
-url = "{url}"
-edge = "{EDGE}"
-outbox = "{outbox}"
-backoff = 0.1
-max_backoff = 0.5
-command_expiry = 5
-fsync_interval = 0.05
-
+{mqtt_table(url, outbox, more, EDGE)}
 [sparkplug]
 group_id = "{GROUP}"
 {sparkplug}
 
-[[bus]]
-name = "line"
-port = "{port}"
-baudrate = {BAUD}
-parity = "N"
-timeout = 0.1
-offline_after = 2
-backoff = 0.1
-max_backoff = 0.4
-
-[[device]]
-bus = "line"
-slave = 1
-profile = "cfw701"
-name = "weg"
-interval = 0.05
-
+{weg_on_line(port, 0.05, OUTAGE)}
 [[device]]
 bus = "line"
 slave = 5
@@ -112,21 +87,6 @@ class Rig:
         self.broker, self.bus, self.weg, self.node, self.host, self.path = (
             broker, bus, weg_sim, node, host, path)  # fmt: skip
         self.sims: list[object] = []
-
-
-@contextlib.contextmanager
-def drives() -> Iterator[tuple[object, list[object]]]:
-    """Drop 0: the edge node; drop 1: a CFW701 at 1; drop 2: a CV100 at 5."""
-    with vbus.VirtualBus(3, baudrate=BAUD, parity="N") as bus:
-        sims = [CFW701Simulator(), CV100Simulator()]
-        for drop, (sim, addr) in enumerate(zip(sims, (1, 5), strict=True), start=1):
-            sim.serve(bus.paths[drop], addr, baudrate=BAUD, parity="N")
-        try:
-            yield bus, sims  # type: ignore[misc]
-        finally:
-            for sim in sims:
-                with contextlib.suppress(Exception):
-                    sim.close()
 
 
 @contextlib.contextmanager

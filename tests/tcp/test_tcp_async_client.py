@@ -46,6 +46,15 @@ def read_requests(conn: socket.socket, count: int) -> list[tuple[int, int, bytes
     return out
 
 
+async def connect(port: int, backend: ModuleType, max_in_flight: int = 1) -> AsyncTcpClient:
+    """A client of the scripted server on ``port``, on ``backend``'s core (a 2 s
+    timeout: a safety net, never a measurement)."""
+    return await AsyncTcpClient.connect(
+        f"tcp://127.0.0.1:{port}", timeout=2.0, max_in_flight=max_in_flight,
+        backend=backend.BACKEND,
+    )  # fmt: skip
+
+
 @pytest.fixture
 def scripted() -> Iterator[Callable[[Callable[[socket.socket], None]], int]]:
     """``start(script)``: a server on a free port whose one connection ``script``
@@ -109,9 +118,7 @@ def test_an_answer_cut_anywhere_and_late_answers_before_it(
     port = scripted(script)
 
     async def main() -> None:
-        c = await AsyncTcpClient.connect(
-            f"tcp://127.0.0.1:{port}", timeout=2.0, max_in_flight=1, backend=backend.BACKEND
-        )
+        c = await connect(port, backend)
         async with c:
             for _ in range(1 + len(cuts)):
                 assert await c.request(1, READ) == VALUES
@@ -151,9 +158,7 @@ def test_pipelined_answers_in_one_read_in_any_order(
     port = scripted(script)
 
     async def main() -> None:
-        c = await AsyncTcpClient.connect(
-            f"tcp://127.0.0.1:{port}", timeout=2.0, max_in_flight=4, backend=backend.BACKEND
-        )
+        c = await connect(port, backend, 4)
         async with c:
             got = await asyncio.gather(
                 *(c.request(unit, READ) for unit in (5, 6, 7, 8)), return_exceptions=True
@@ -189,9 +194,7 @@ def test_a_bad_header_after_the_answer_ends_the_connection(
     port = scripted(script)
 
     async def main() -> None:
-        c = await AsyncTcpClient.connect(
-            f"tcp://127.0.0.1:{port}", timeout=2.0, max_in_flight=1, backend=backend.BACKEND
-        )
+        c = await connect(port, backend)
         async with c:
             assert await c.request(1, READ) == VALUES
 
@@ -233,9 +236,7 @@ def test_an_answer_alone_in_a_read_at_the_header_limits(
     port = scripted(script)
 
     async def main() -> None:
-        c = await AsyncTcpClient.connect(
-            f"tcp://127.0.0.1:{port}", timeout=2.0, max_in_flight=1, backend=backend.BACKEND
-        )
+        c = await connect(port, backend)
         async with c:
             assert len(adu(0, 1, longest)) == 6 + 254
             assert await c.request(1, bytes([USER_FC])) == longest
@@ -273,9 +274,7 @@ def test_a_bad_header_alone_in_a_read_ends_the_connection(
     port = scripted(script)
 
     async def main() -> None:
-        c = await AsyncTcpClient.connect(
-            f"tcp://127.0.0.1:{port}", timeout=2.0, max_in_flight=1, backend=backend.BACKEND
-        )
+        c = await connect(port, backend)
         async with c:
             with pytest.raises(FrameError, match=f"bad MBAP header .*{reason}"):
                 # (bounded: a header taken for an answer could leave the await hanging)

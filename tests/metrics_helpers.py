@@ -13,7 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from cli_helpers import Background
+from cli_helpers import Background, poll_weg
 from prometheus_client.parser import text_string_to_metric_families
 
 #: a safety net for conditions awaited, never a measurement
@@ -37,24 +37,7 @@ def stop(bg: Background) -> int:
     return bg.finish().code
 
 
-POLL_CONFIG = """\
-[[bus]]
-name = "line1"
-port = "{port}"
-baudrate = 115200
-parity = "N"
-timeout = 0.05
-offline_after = 2
-backoff = 0.1
-max_backoff = 0.4
-
-[[device]]
-bus = "line1"
-slave = 1
-profile = "cfw701"
-name = "weg"
-interval = 0.05
-"""
+POLL_CONFIG = poll_weg(0.05, "offline_after = 2\n")
 
 
 def write_poll_config(directory: Path, port: str) -> Path:
