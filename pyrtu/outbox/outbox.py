@@ -108,6 +108,9 @@ class Outbox(Flushing):
         self._total = 0
         self._hint: tuple[int, Segment, int] | None = None  # (seq, segment, offset)
         self._oldest: tuple[int, float] | None = None  # (acked, oldest_time) cache
+        #: (first, last): durable records after every readable one, none of which can
+        #: be read (damaged on disk since written): the ack reaching first - 1 passes them
+        self._unreadable: tuple[int, int] | None = None
         self.appended = 0  # records appended since this Outbox was opened
         self.corrupt = 0  # bad regions (torn tail, bad checksum) found and skipped
         self.corrupt_bytes = 0
@@ -426,13 +429,30 @@ class Outbox(Flushing):
         if limit == 0 or start > self._durable_seq:
             return out
         chunk = min(1 << 20, max(4096, limit * 256))
+        last = start - 1
         for seg, item in self._records(start, self._durable_seq, chunk):
             assert item.payload is not None
             out.append((item.seq, item.payload))
             self._hint = (item.seq + 1, seg, item.end)
+            last = item.seq
             if len(out) >= limit:
                 break
+        else:  # every durable record read: those after the last one found cannot be
+            self._pass_unreadable(last + 1, self._durable_seq)
         return out
+
+    def _pass_unreadable(self, first: int, last: int) -> None:
+        """Durable records first..last can never be delivered: none of them reads (each
+        damaged on disk since it was written, counted in `corrupt`, or a number a
+        restart's scan found missing).  The acks pass them, now if every record before
+        them is acked, else with the ack that reaches first - 1: `depth` and a drain
+        wait for no record that can never be delivered."""
+        if first > last:
+            return
+        if self._acked >= first - 1:
+            self.ack(last)
+        else:
+            self._unreadable = (first, last)
 
     def ack(self, seq: int) -> None:
         """Every record with a sequence number <= seq is delivered.
@@ -447,6 +467,10 @@ class Outbox(Flushing):
             raise ValueError(f"seq must be in 0..{self._next_seq - 1} (appended so far), got {seq}")
         if self._closed:
             raise ValueError("ack on a closed Outbox")
+        unreadable = self._unreadable
+        if unreadable is not None and seq >= unreadable[0] - 1:
+            seq = max(seq, unreadable[1])  # and the unreadable records after it
+            self._unreadable = None
         if seq <= self._acked:
             return
         self._quarantine.sync()  # what was set aside is on disk before the cursor passes it

@@ -89,6 +89,55 @@ def test_corruption_while_open_is_skipped_and_counted_once(tmp_path: Path) -> No
         assert ob.corrupt == 1
 
 
+@pytest.mark.parametrize("bad", [[100], [98, 99, 100], list(range(1, 101))])
+def test_records_damaged_while_open_after_the_last_readable_one_are_passed_by_the_acks(
+    tmp_path: Path, bad: list[int]
+) -> None:
+    """Records damaged on disk while the outbox is open (a payload byte flipped), with
+    no readable record after them: they can never be delivered, so the ack of the
+    last readable one passes them (all of them damaged: at once); the depth falls to
+    0, no oldest time, nothing pending (the depth stayed at the number damaged, and a
+    drain waited for records it could never send).  A record appended after them is
+    delivered as usual."""
+    d = tmp_path / "ob"
+    with Outbox(d, OutboxLimits(max_bytes=1 << 22, segment_bytes=1 << 20)) as ob:
+        fill(ob, 100)
+        ob.flush()
+        (seg,) = segments(d)
+        for seq in bad:
+            _flip(seg, _offset_of(seg, seq) + fmt.REC_HEAD.size)
+        good = [s for s in range(1, 101) if s not in bad]
+        assert [s for s, _ in everything(ob)] == good
+        assert ob.corrupt >= 1
+        if good:
+            assert ob.acked == 0 and ob.depth == 100
+            ob.ack(good[-1])
+        assert ob.acked == 100 and ob.depth == 0 and ob.oldest_time is None
+        assert ob.pending(10) == []
+        assert ob.append(b"next", 1.0) == 101
+        ob.flush()
+        assert ob.pending(10) == [(101, b"next")] and ob.depth == 1
+
+
+def test_an_unreadable_tail_is_passed_only_by_the_ack_reaching_it(tmp_path: Path) -> None:
+    """Record 100 damaged while open, 1..99 handed out in two batches: an ack of 50
+    leaves 51..99 and nothing of 100 acked (depth 50); the ack of 99 passes 100."""
+    d = tmp_path / "ob"
+    with Outbox(d, OutboxLimits(max_bytes=1 << 22, segment_bytes=1 << 20)) as ob:
+        fill(ob, 100)
+        ob.flush()
+        (seg,) = segments(d)
+        _flip(seg, _offset_of(seg, 100) + fmt.REC_HEAD.size)
+        assert [s for s, _ in ob.pending(60)] == list(range(1, 61))
+        assert [s for s, _ in ob.pending(60, after=60)] == list(range(61, 100))
+        ob.ack(50)
+        assert ob.acked == 50 and ob.depth == 50
+        ob.ack(98)
+        assert ob.acked == 98 and ob.depth == 2
+        ob.ack(99)
+        assert ob.acked == 100 and ob.depth == 0
+
+
 def test_garbage_tail_and_bad_cursor_file(tmp_path: Path) -> None:
     d, seg = _one_segment(tmp_path)
     with Outbox(d) as ob:
