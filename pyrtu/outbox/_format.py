@@ -173,8 +173,8 @@ class _Chunks:
         k = len(pattern)
         while off + k <= self.end:
             v = self.view(off, min(self.chunk, self.end - off))
-            if v is None:
-                return -1
+            if v is None:  # the file is shorter than we were told: `end` is its end
+                continue  # now (strictly lower), and the bytes it has are searched
             buf, i = v
             n = min(self.chunk, self.end - off)
             j = buf.find(pattern, i, i + n)
@@ -235,8 +235,10 @@ def scan(
         cand = off
         while True:
             cand = ch.find(REC_MAGIC, cand + 1)
-            if cand < 0:
-                yield Item(off, max(off, ch.end), -1, 0.0, None)
+            if cand < 0:  # a bad region to the end: a torn tail, to where the file
+                ch.view(off, ch.end - off)  # ends if it is shorter than we were told
+                if ch.end > off:  # (none if it ends here)
+                    yield Item(off, ch.end, -1, 0.0, None)
                 return
             if _record_at(ch, cand, last_seq, max_seq) is not None:
                 break

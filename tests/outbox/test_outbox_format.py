@@ -6,7 +6,9 @@ from __future__ import annotations
 import os
 import random
 import shutil
+import struct
 import tempfile
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -136,6 +138,60 @@ def test_an_unreadable_tail_is_passed_only_by_the_ack_reaching_it(tmp_path: Path
         assert ob.acked == 98 and ob.depth == 2
         ob.ack(99)
         assert ob.acked == 100 and ob.depth == 0
+
+
+def _rec(seq: int, now: float, payload: bytes) -> bytes:
+    """A record as the format's header documents it: magic, length, sequence
+    number, time (REC_PRE), then the CRC-32 of all that and the payload."""
+    pre = struct.pack("<4sIqd", b"\xb7OBr", len(payload), seq, now)
+    return pre + struct.pack("<I", zlib.crc32(pre + payload)) + payload
+
+
+@pytest.mark.parametrize("chunk", [28, 64, 100, 4096])
+@pytest.mark.parametrize("told", [0, 1, 38, 5000])
+def test_a_scan_told_a_larger_end_than_the_file_has_finds_every_record_it_has(
+    chunk: int, told: int
+) -> None:
+    """Record 1, one bad byte, records 2 and 3, in a file ``told`` bytes shorter than
+    the scan is told (a file cut short while open): after the bad byte the scan
+    still finds 2 and 3 in the bytes that exist, whatever the chunk, and reports no
+    bad region where the file simply ends (it gave the valid records after a bad
+    region up as a torn tail when its read came up short)."""
+    head = b"\0" * 16
+    one, two, three = _rec(1, 1.0, b"a" * 10), _rec(2, 2.0, b"b" * 10), _rec(3, 3.0, b"c" * 10)
+    data = head + one + b"\xee" + two + three
+    items = list(
+        fmt.scan(lambda off, n: data[off : off + n], 16, len(data) + told, last_seq=0, chunk=chunk)
+    )
+    a = 16 + len(one)
+    assert [(i.off, i.end, i.seq) for i in items] == [
+        (16, a, 1),
+        (a, a + 1, -1),
+        (a + 1, a + 1 + len(two), 2),
+        (a + 1 + len(two), len(data), 3),
+    ]
+    assert [i.payload for i in items] == [b"a" * 10, None, b"b" * 10, b"c" * 10]
+
+
+def test_a_sealed_segment_cut_short_while_open_keeps_the_records_it_still_has(
+    tmp_path: Path,
+) -> None:
+    """A sealed segment with a record damaged, then cut short on disk while the
+    outbox is open (its last record cut in half): pending still delivers every
+    record the file has after the damaged one; only the cut record is lost."""
+    d = tmp_path / "ob"
+    with Outbox(d, OutboxLimits(max_bytes=1 << 20, segment_bytes=4096)) as ob:
+        fill(ob, 300)  # several segments of 4 KiB
+        ob.flush()
+        first = segments(d)[0]
+        data = first.read_bytes()
+        seqs = [i.seq for i in fmt.scan(lambda o, n: data[o : o + n], 16, len(data), last_seq=0)]
+        assert len(seqs) >= 10 and seqs[0] == 1
+        _flip(first, _offset_of(first, 3) + fmt.REC_HEAD.size)
+        cut = _offset_of(first, seqs[-1]) + 10
+        os.truncate(first, cut)
+        got = [s for s, _ in everything(ob)]
+        assert got == [s for s in range(1, 301) if s not in (3, seqs[-1])]
 
 
 def test_garbage_tail_and_bad_cursor_file(tmp_path: Path) -> None:
