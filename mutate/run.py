@@ -420,6 +420,7 @@ def _exec(cr: Path, tree: Path, config: Path, session: Path, module: str, budget
         except subprocess.TimeoutExpired:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
+        _stop_test_runs(tree)
         (tree / module).write_bytes(original)
         if _STOPPING.is_set():
             raise SystemExit(f"mutate: {module}: stopped; `--rest` judges what is left")
@@ -427,6 +428,22 @@ def _exec(cr: Path, tree: Path, config: Path, session: Path, module: str, budget
         return
     if code != 0:
         raise SystemExit(f"mutate: cosmic-ray exec failed on {module} (exit {code})")
+
+
+def _stop_test_runs(tree: Path) -> None:
+    """Stop the test run cosmic-ray left in ``tree``: it starts each in a session of
+    its own (to kill it at the timeout), which stopping cosmic-ray leaves running (a
+    mutant that hangs would run on unsupervised).  Linux: every process whose working
+    directory is the tree, with its process group."""
+    root = tree.resolve()
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            if Path(os.readlink(entry / "cwd")) == root:
+                os.killpg(os.getpgid(int(entry.name)), signal.SIGKILL)
+        except OSError:  # gone meanwhile, or not ours to read
+            continue
 
 
 _IN_ANNOTATION = "in an annotation, never evaluated"
