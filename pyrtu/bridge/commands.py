@@ -69,7 +69,8 @@ def result(
     method: str | None = None,
 ) -> bytes:
     """The JSON of a result: ``{"ok": true, "point", "id", "value", "time"}`` (the
-    value read back after the write; with ``"rounded": {"requested", "written",
+    value read back after the write, null where that is not a number, as on the
+    point's topic; with ``"rounded": {"requested", "written",
     "resolution"}`` when a scaled point took the value rounded to its resolution, and
     ``"method"``, ``mask_write`` (FC 22) or ``read_modify_write``, for a bit or field
     of a register) or
@@ -80,8 +81,9 @@ def result(
     doc: dict[str, Any] = {"ok": ok, "point": point}
     if id is not None:
         doc["id"] = id
-    if ok:
-        doc["value"] = value
+    if ok:  # a value read back that is not a number (NaN, infinite): null, as on its topic
+        finite = not isinstance(value, float) or math.isfinite(value)
+        doc["value"] = value if finite else None
         doc["time"] = time
         if rounded is not None:
             doc["rounded"] = rounded

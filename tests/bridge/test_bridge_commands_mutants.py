@@ -5,9 +5,20 @@ bool's values, the token bucket's wait and its burst, the ids remembered (the la
 
 from __future__ import annotations
 
+import json
+import math
+
 import pytest
 
-from pyrtu.bridge.commands import CommandQueue, Refusal, SetCommand, TokenBucket, check_value, parse
+from pyrtu.bridge.commands import (
+    CommandQueue,
+    Refusal,
+    SetCommand,
+    TokenBucket,
+    check_value,
+    parse,
+    result,
+)
 from pyrtu.poller import Point
 
 REF = Point("d.ref", "line", 1, "holding", 683, type="int16")
@@ -101,3 +112,48 @@ def test_an_enum_takes_a_label_or_its_number_only(value: object) -> None:
     assert check_value(mode, "heat").words == [1] and check_value(mode, 0).words == [0]
     with pytest.raises(ValueError, match=r'value must be one of "off", "heat"'):
         check_value(mode, value)
+
+
+#: a point with a range, as docs/BRIDGE.md's `min`/`max` keys give it: both ends taken
+RANGED = Point("d.speed", "line", 1, "holding", 100, type="int16", min=-50, max=1500)
+
+
+@pytest.mark.parametrize("value", [-50, 1500, -50.0, 1500.0])
+def test_a_value_exactly_at_min_or_max_is_taken(value: float) -> None:
+    assert check_value(RANGED, value).value == value
+
+
+@pytest.mark.parametrize(("value", "word"), [(-51, "below"), (1501, "above"), (1500.5, "above")])
+def test_a_value_just_outside_min_or_max_is_refused(value: float, word: str) -> None:
+    with pytest.raises(ValueError, match=word):
+        check_value(RANGED, value)
+
+
+def test_the_payload_limit_and_retained_flag_are_keywords_only() -> None:
+    with pytest.raises(TypeError):
+        parse(b"1", 64, False)  # type: ignore[misc]
+
+
+def _strict_json(data: bytes) -> object:
+    """JSON as RFC 8259 has it: NaN and Infinity are not values."""
+
+    def refuse(name: str) -> object:
+        raise AssertionError(f"{name} in {data!r}: not JSON")
+
+    return json.loads(data, parse_constant=refuse)
+
+
+@pytest.mark.parametrize("read_back", [math.nan, math.inf, -math.inf])
+def test_a_write_whose_read_back_is_not_a_number_is_ok_with_a_null_value(
+    read_back: float,
+) -> None:
+    """The write was answered, the read-back of a float point is NaN or infinite (a
+    device's own not-a-number): the result is ok, its value null, as the point's
+    topic publishes it (it raised, and the write was reported failed)."""
+    doc = _strict_json(result("d.temp", True, id="7", value=read_back, time=1.5))
+    assert doc == {"ok": True, "point": "d.temp", "id": "7", "value": None, "time": 1.5}
+
+
+def test_a_results_numbers_are_kept() -> None:
+    doc = _strict_json(result("d.temp", True, value=21.5, time=2.0))
+    assert doc == {"ok": True, "point": "d.temp", "value": 21.5, "time": 2.0}
