@@ -140,6 +140,25 @@ def test_an_unreadable_tail_is_passed_only_by_the_ack_reaching_it(tmp_path: Path
         assert ob.acked == 100 and ob.depth == 0
 
 
+def test_unreadable_records_after_one_in_flight_wait_for_its_ack(tmp_path: Path) -> None:
+    """Records 6..10 damaged while open; 1..5 handed out, 4 acked, 5 in flight (a
+    publish cursor at 5): nothing after the cursor reads, yet the acks stay at 4
+    (record 5 is not delivered yet) until 5 is acked, which passes 6..10 too."""
+    d = tmp_path / "ob"
+    with Outbox(d, OutboxLimits(max_bytes=1 << 22, segment_bytes=1 << 20)) as ob:
+        fill(ob, 10)
+        ob.flush()
+        (seg,) = segments(d)
+        for seq in range(6, 11):
+            _flip(seg, _offset_of(seg, seq) + fmt.REC_HEAD.size)
+        assert [s for s, _ in ob.pending(5)] == [1, 2, 3, 4, 5]
+        ob.ack(4)
+        assert ob.pending(10, after=5) == []
+        assert ob.acked == 4 and ob.depth == 6
+        ob.ack(5)
+        assert ob.acked == 10 and ob.depth == 0
+
+
 def _rec(seq: int, now: float, payload: bytes) -> bytes:
     """A record as the format's header documents it: magic, length, sequence
     number, time (REC_PRE), then the CRC-32 of all that and the payload."""
