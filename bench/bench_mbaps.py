@@ -4,20 +4,25 @@ of its own so that only the client's CPU is counted here).
 
     python bench/bench_mbaps.py [--transactions 2000] [--rounds 5] [--connects 200] [--json FILE]
 
+Both paths of the sync client's TLS are measured: the C core over OpenSSL
+(csrc/rtu_tls_io.c: the handshake and each transaction in C, the GIL released) and
+the Python ssl fallback (``backend="python"``; what runs where the C core was built
+without OpenSSL).  The targets are the C path's.
+
 1. CPU per transaction of the sync `pyrtu.Master` on an established connection:
-   ``mbaps://`` against plain ``tcp://`` (target: at most 1.5x), reads of 10 holding
-   registers, ``--rounds`` interleaved rounds of ``--transactions`` each, the median
-   round.  To say where a difference comes from, the same on ``tcp://`` with the
-   pure-Python backend (the path an ``mbaps://`` transaction takes is Python: the
-   C runner reads a socket's descriptor, under TLS the records are the ssl module's),
-   and the ssl module's own cost of one request and answer of the same sizes
-   (``sendall`` + ``recv`` on an established TLS connection to a TLS echo, no Modbus).
+   ``mbaps://`` (C TLS, and the fallback) against plain ``tcp://`` (target: at most
+   1.5x), reads of 10 holding registers, ``--rounds`` interleaved rounds of
+   ``--transactions`` each, the median round.  To say where a difference comes
+   from, the same on ``tcp://`` with the pure-Python backend (the fallback's
+   transaction is Python over the ssl module), and the ssl module's own cost of one
+   request and answer of the same sizes (``sendall`` + ``recv`` on an established
+   TLS connection to a TLS echo, no Modbus).
 2. CPU of the client per connect (TCP connect and TLS handshake, measured around
-   `pyrtu.tcp.TcpClient`'s constructor): a reconnect resuming the TLS session against
-   a full handshake (target: at most 0.3x), the median of ``--connects`` each,
-   interleaved; on TLS 1.3 (what pyrtu negotiates) and TLS 1.2 (the minimum), since
-   TLS 1.3's resumption still runs an ECDHE exchange (psk_dhe_ke) while TLS 1.2's
-   abbreviated handshake runs none.
+   `pyrtu.tcp.TcpClient`'s constructor), on each path: a reconnect resuming the TLS
+   session against a full handshake (target: at most 0.3x), the median of
+   ``--connects`` each, interleaved; on TLS 1.3 (what pyrtu negotiates) and TLS 1.2
+   (the minimum), since TLS 1.3's resumption still runs an ECDHE exchange
+   (psk_dhe_ke) while TLS 1.2's abbreviated handshake runs none.
 
 Certificates: made here with tests/tls_certs.py (P-256 ECDSA, as the tests').
 """
