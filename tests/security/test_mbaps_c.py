@@ -40,9 +40,22 @@ needs_openssl = pytest.mark.skipif(OPENSSL is None, reason="needs Debian's opens
 
 
 @pytest.fixture(autouse=True)
-def c_tls() -> None:
+def c_tls(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
+    """Every test here runs the C path (its handshakes counted: a test that ended on
+    the Python fallback fails), but the one about the build without it."""
     if not _tls.available(pyrtu.backend("c") if "c" in pyrtu.available_backends() else pyrtu):
         missing("the C core's TLS (OpenSSL) is not built here")
+    handshakes = []
+    connect = _tls.CTlsContext.connect
+
+    def counted(self: _tls.CTlsContext, fd: int, host: str, port: int, timeout: float) -> object:
+        handshakes.append(host)
+        return connect(self, fd, host, port, timeout)
+
+    monkeypatch.setattr(_tls.CTlsContext, "connect", counted)
+    yield
+    if "without_openssl" not in request.node.name:
+        assert handshakes, "the C path did not run"
 
 
 @pytest.fixture(scope="module")
