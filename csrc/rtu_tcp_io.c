@@ -153,6 +153,7 @@ static int scanned(rtu_tcp_xfer *x)
 int rtu_tcp_xfer_run(rtu_tcp_xfer *x)
 {
     short want = POLLIN; /* what the next wait waits for (a TLS read may need to write) */
+    int starved = 0;     /* the last read found too little: wait, whatever the layer holds */
     if (x == NULL || x->fd < 0 || x->buf == NULL || x->cap < RTU_TCP_MIN_CAP || x->n > x->cap ||
         x->scan.used > x->n || x->timeout_ns < 0 || x->tid > 0xFFFF || x->unit > 0xFF)
         return RTU_EINVAL;
@@ -180,8 +181,10 @@ int rtu_tcp_xfer_run(rtu_tcp_xfer *x)
     for (;;) {
         ptrdiff_t got;
         /* step 3: wait for input until the deadline (none when the layer holds
-         * bytes already), then read all there is */
-        if (x->io == NULL || x->io->pending(x->io) == 0) {
+         * bytes already: a whole record may be there, which poll does not see;
+         * but after a read that found only part of one, the rest is awaited),
+         * then read all there is */
+        if (x->io == NULL || starved || x->io->pending(x->io) == 0) {
             int r = wait_until(x->fd, want, x->deadline);
             if (r < 0)
                 return failed(x, RTU_TCP_STAGE_RECEIVE, errno);
@@ -191,6 +194,7 @@ int rtu_tcp_xfer_run(rtu_tcp_xfer *x)
             }
         }
         want = POLLIN;
+        starved = 0;
         if (x->cap - x->n < RTU_MBAP_MAX_ADU) {
             /* full of late answers: keep the unresolved bytes only */
             size_t keep = x->n - x->scan.used;
@@ -210,6 +214,8 @@ int rtu_tcp_xfer_run(rtu_tcp_xfer *x)
             return RTU_OK;
         } else if (errno != EAGAIN && errno != EWOULDBLOCK) {
             return failed(x, RTU_TCP_STAGE_RECEIVE, errno);
+        } else {
+            starved = 1;
         }
     }
 }

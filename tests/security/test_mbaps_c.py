@@ -352,3 +352,88 @@ c.close()
     )  # fmt: skip
     assert run.returncode == 0, run.stderr[-3000:]
     assert run.stdout.strip() == struct.pack(">BBHH", 3, 4, 0x1234, 0xBEEF).hex()
+
+
+class HalfRecordServer:
+    """A TLS server (Python's ssl over memory BIOs, so that the test decides which
+    bytes go on the wire): the handshake, the request read, then the answer's TLS
+    record sent only in part (its first half) and nothing more."""
+
+    def __init__(self, pki: Pki) -> None:
+        self.context = server_context(pki.server.cert, pki.server.key, pki.ca.path)
+        self.listener = socket.create_server(("127.0.0.1", 0))
+        self.port: int = self.listener.getsockname()[1]
+        self.done = threading.Event()
+        self.sent_half = threading.Event()
+        self.thread = threading.Thread(target=self._serve, daemon=True)
+        self.thread.start()
+
+    def _pump(self, conn: socket.socket, incoming: ssl.MemoryBIO, out: ssl.MemoryBIO) -> bool:
+        conn.sendall(out.read())
+        data = conn.recv(65536)
+        incoming.write(data)
+        return bool(data)
+
+    def _serve(self) -> None:
+        conn, _ = self.listener.accept()
+        with conn:
+            incoming, out = ssl.MemoryBIO(), ssl.MemoryBIO()
+            tls = self.context.wrap_bio(incoming, out, server_side=True)
+            while True:
+                try:
+                    tls.do_handshake()
+                    break
+                except ssl.SSLWantReadError:
+                    if not self._pump(conn, incoming, out):
+                        return
+            request = b""
+            while len(request) < 12:  # a read of holding registers: 12 bytes of ADU
+                try:
+                    request += tls.read(65536)
+                except ssl.SSLWantReadError:
+                    if not self._pump(conn, incoming, out):
+                        return
+            conn.sendall(out.read())
+            tid = request[:2]  # the answer the Application Protocol gives (6.3)
+            tls.write(tid + bytes((0, 0, 0, 5, 1, 3, 2, 0x12, 0x34)))
+            record = out.read()
+            conn.sendall(record[: len(record) // 2])
+            self.sent_half.set()
+            self.done.wait(30)
+
+    def close(self) -> None:
+        self.done.set()
+        self.thread.join(10)
+        self.listener.close()
+
+
+@pytest.mark.wall_clock
+def test_half_a_record_then_silence_times_out_within_the_deadline(pki: Pki) -> None:
+    """Part of the answer's TLS record is in OpenSSL's read-ahead buffer (there is
+    something buffered, not a whole record): the client waits on the socket for the
+    rest until the deadline, neither spinning past it nor answering early."""
+    server = HalfRecordServer(pki)
+    outcome: list[object] = []
+
+    def client() -> None:
+        c = TcpClient(f"mbaps://localhost:{server.port}", tls=operator(pki), timeout=0.5)
+        try:
+            start = time.monotonic()
+            try:
+                c.request(1, bytes((3, 0, 0, 0, 1)))
+            except NoResponseError as exc:
+                outcome.append(exc)
+            outcome.append(time.monotonic() - start)
+        finally:
+            c.close()
+
+    runner = threading.Thread(target=client, daemon=True)
+    try:
+        runner.start()
+        runner.join(20)
+        assert not runner.is_alive(), "the client did not give up at its deadline"
+    finally:
+        server.close()
+    assert server.sent_half.is_set()
+    assert isinstance(outcome[0], NoResponseError), outcome
+    assert isinstance(outcome[1], float) and 0.5 <= outcome[1] < 0.5 + 2.0, outcome
