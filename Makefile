@@ -15,6 +15,9 @@ APT_PACKAGES := libmodbus-dev pkg-config socat mosquitto mosquitto-clients strac
 APT_PACKAGES += mingw-w64
 # GNU time: bench/bench_capture.py's peak RSS of a child (its own, not its forking parent's)
 APT_PACKAGES += time
+# OpenSSL's headers: the C core's TLS of mbaps:// (csrc/rtu_tls_io.c; without them
+# the core builds without it and mbaps:// runs over Python's ssl module)
+APT_PACKAGES += libssl-dev
 # The C sources make format-c formats and make lint checks (.clang-format).
 C_SOURCES := $(wildcard csrc/*.c csrc/*.h csrc/python/*.c fuzz/*.c fuzz/*.h tests/core/csrc/*.c)
 CLANG_FORMAT ?= $(shell command -v clang-format || command -v clang-format-14 || echo clang-format)

@@ -4,20 +4,25 @@ of its own so that only the client's CPU is counted here).
 
     python bench/bench_mbaps.py [--transactions 2000] [--rounds 5] [--connects 200] [--json FILE]
 
+Both paths of the sync client's TLS are measured: the C core over OpenSSL
+(csrc/rtu_tls_io.c: the handshake and each transaction in C, the GIL released) and
+the Python ssl fallback (``backend="python"``; what runs where the C core was built
+without OpenSSL).  The targets are the C path's.
+
 1. CPU per transaction of the sync `pyrtu.Master` on an established connection:
-   ``mbaps://`` against plain ``tcp://`` (target: at most 1.5x), reads of 10 holding
-   registers, ``--rounds`` interleaved rounds of ``--transactions`` each, the median
-   round.  To say where a difference comes from, the same on ``tcp://`` with the
-   pure-Python backend (the path an ``mbaps://`` transaction takes is Python: the
-   C runner reads a socket's descriptor, under TLS the records are the ssl module's),
-   and the ssl module's own cost of one request and answer of the same sizes
-   (``sendall`` + ``recv`` on an established TLS connection to a TLS echo, no Modbus).
+   ``mbaps://`` (C TLS, and the fallback) against plain ``tcp://`` (target: at most
+   1.5x), reads of 10 holding registers, ``--rounds`` interleaved rounds of
+   ``--transactions`` each, the median round.  To say where a difference comes
+   from, the same on ``tcp://`` with the pure-Python backend (the fallback's
+   transaction is Python over the ssl module), and the ssl module's own cost of one
+   request and answer of the same sizes (``sendall`` + ``recv`` on an established
+   TLS connection to a TLS echo, no Modbus).
 2. CPU of the client per connect (TCP connect and TLS handshake, measured around
-   `pyrtu.tcp.TcpClient`'s constructor): a reconnect resuming the TLS session against
-   a full handshake (target: at most 0.3x), the median of ``--connects`` each,
-   interleaved; on TLS 1.3 (what pyrtu negotiates) and TLS 1.2 (the minimum), since
-   TLS 1.3's resumption still runs an ECDHE exchange (psk_dhe_ke) while TLS 1.2's
-   abbreviated handshake runs none.
+   `pyrtu.tcp.TcpClient`'s constructor), on each path: a reconnect resuming the TLS
+   session against a full handshake (target: at most 0.3x), the median of
+   ``--connects`` each, interleaved; on TLS 1.3 (what pyrtu negotiates) and TLS 1.2
+   (the minimum), since TLS 1.3's resumption still runs an ECDHE exchange
+   (psk_dhe_ke) while TLS 1.2's abbreviated handshake runs none.
 
 Certificates: made here with tests/tls_certs.py (P-256 ECDSA, as the tests').
 """
@@ -48,11 +53,20 @@ sys.path.insert(0, str(ROOT / "tests"))
 from tls_certs import Pki, make_pki  # noqa: E402
 
 from pyrtu import DataStore, Master, PortError  # noqa: E402
+from pyrtu.core import _backend  # noqa: E402
+from pyrtu.core import _tls as ctls  # noqa: E402
 from pyrtu.security.tls import TlsListen, client_context, server_context  # noqa: E402
 from pyrtu.tcp import TcpClient  # noqa: E402
 from pyrtu.tcp.server import TcpServer  # noqa: E402
-from pyrtu.tcp.tls import _sessions  # noqa: E402
+from pyrtu.tcp.tls import forget_sessions  # noqa: E402
 
+#: the two paths of an mbaps:// client: the C core over OpenSSL (csrc/rtu_tls_io.c),
+#: and the Python ssl module (the fallback: what ``backend="python"`` runs, and every
+#: backend where the C core was built without OpenSSL), named by the backend that
+#: picks them (and the client's ``tls_path`` says)
+PATHS = ("c", "python")
+PATH_NAMES = {"c": "C TLS", "python": "Python ssl fallback"}
+C_TLS = "c" in _backend.available_backends() and ctls.available(_backend.backend("c"))
 TARGET_TRANSACTION = 1.5
 TARGET_RESUME = 0.3
 #: a read of 10 holding registers: request ADU 12 bytes, answer ADU 29 bytes
@@ -128,7 +142,10 @@ def transactions(
     masters = {
         "tcp (C core)": Master(f"tcp://127.0.0.1:{plain}", timeout=5.0),
         "tcp (Python backend)": Master(f"tcp://127.0.0.1:{plain}", timeout=5.0, backend="python"),
-        "mbaps": Master(f"mbaps://localhost:{tls_port}", tls=context, timeout=5.0),
+        "mbaps (C TLS)": Master(f"mbaps://localhost:{tls_port}", tls=context, timeout=5.0),
+        "mbaps (Python ssl fallback)": Master(
+            f"mbaps://localhost:{tls_port}", tls=context, timeout=5.0, backend="python"
+        ),
     }
     raw = context.wrap_socket(
         socket.create_connection(("127.0.0.1", echo_port)), server_hostname="localhost"
@@ -163,24 +180,28 @@ def transactions(
     raw.close()
     bare.close()
     us = {name: statistics.median(v) * 1e6 for name, v in rounds.items()}
-    ratio = us["mbaps"] / us["tcp (C core)"]
+    ratio = us["mbaps (C TLS)"] / us["tcp (C core)"]
     return {
         "us_per_transaction": us,
         "rounds_us": {name: [x * 1e6 for x in v] for name, v in rounds.items()},
         "ratio": ratio,
-        "ratio_python_backend": us["mbaps"] / us["tcp (Python backend)"],
+        "ratio_fallback": us["mbaps (Python ssl fallback)"] / us["tcp (C core)"],
+        "ratio_python_backend": us["mbaps (Python ssl fallback)"] / us["tcp (Python backend)"],
+        "c_tls": C_TLS,
         "ok": ratio <= TARGET_TRANSACTION,
     }
 
 
-def connect_once(url: str, context: ssl.SSLContext, failures: list[str]) -> tuple[float, bool]:
+def connect_once(
+    url: str, context: ssl.SSLContext, failures: list[str], backend: str
+) -> tuple[float, bool]:
     """Client CPU of one connect (TCP and TLS handshake), and whether it resumed the
     session; then one transaction (TLS 1.3 sends its session tickets after the
     handshake) and the close.  A reset under load is counted and tried again."""
     for attempt in range(3):
         start = time.process_time()
         try:
-            client = TcpClient(url, timeout=5.0, tls=context)
+            client = TcpClient(url, timeout=5.0, tls=context, backend=backend)
         except PortError as exc:
             failures.append(str(exc))
             if attempt == 2:
@@ -190,6 +211,7 @@ def connect_once(url: str, context: ssl.SSLContext, failures: list[str]) -> tupl
     cpu = time.process_time() - start
     client.request(1, REQUEST[7:])
     again = client.session_reused
+    assert client.tls_path == backend, (client.tls_path, backend)
     client.close()
     return cpu, again
 
@@ -197,21 +219,23 @@ def connect_once(url: str, context: ssl.SSLContext, failures: list[str]) -> tupl
 def connects(args: argparse.Namespace, pki: Pki, plain: int, tls_port: int) -> dict[str, Any]:
     out: dict[str, Any] = {}
     url = f"mbaps://localhost:{tls_port}"
-    for version in ("TLSv1.3", "TLSv1.2"):
+    for version, backend in [(v, b) for v in ("TLSv1.3", "TLSv1.2") for b in PATHS]:
+        if backend == "c" and not C_TLS:
+            continue
         context = client_context(pki.operator.cert, pki.operator.key, pki.ca.path)
         context.maximum_version = ssl.TLSVersion[version.replace(".", "_")]
         full: list[float] = []
         resumed: list[float] = []
         reused = 0
         failures: list[str] = []
-        connect_once(url, context, failures)  # a first session to resume
+        connect_once(url, context, failures, backend)  # a first session to resume
         for _ in range(args.connects):
-            _sessions.pop(context, None)  # forgotten: a full handshake
-            cpu, again = connect_once(url, context, failures)
+            forget_sessions(context)  # forgotten: a full handshake
+            cpu, again = connect_once(url, context, failures, backend)
             assert not again
             full.append(cpu)
             # the session of the one before: resumed
-            cpu, again = connect_once(url, context, failures)
+            cpu, again = connect_once(url, context, failures, backend)
             reused += again
             resumed.append(cpu)
         # the floors under both: the TCP connect (and pyrtu's client) alone, and
@@ -232,7 +256,7 @@ def connects(args: argparse.Namespace, pki: Pki, plain: int, tls_port: int) -> d
             wrapped.close()
         ratio = statistics.median(resumed) / statistics.median(full)
         floor = statistics.median(tcp_floor) + statistics.median(setup)
-        out[version] = {
+        out[f"{version} ({PATH_NAMES[backend]})"] = {
             "full_us": statistics.median(full) * 1e6,
             "resumed_us": statistics.median(resumed) * 1e6,
             "tcp_connect_us": statistics.median(tcp_floor) * 1e6,
@@ -274,9 +298,11 @@ def main() -> int:
     for name, us in trans["us_per_transaction"].items():
         lines.append(f"  {name:28} {us:8.1f} us")
     lines.append(
-        f"  mbaps / tcp (C core): {trans['ratio']:.2f}x (target <= {TARGET_TRANSACTION}x: "
-        f"{'met' if trans['ok'] else 'MISSED'}); mbaps / tcp (Python backend): "
+        f"  mbaps (C TLS) / tcp (C core): {trans['ratio']:.2f}x (target <= {TARGET_TRANSACTION}x: "
+        f"{'met' if trans['ok'] else 'MISSED'}); the fallback / tcp (C core): "
+        f"{trans['ratio_fallback']:.2f}x, / tcp (Python backend): "
         f"{trans['ratio_python_backend']:.2f}x"
+        + ("" if C_TLS else " (C TLS not built: both mbaps rows are the fallback)")
     )
     lines.append(f"Client CPU per connect (median of {args.connects} each):")
     for version, r in conn.items():

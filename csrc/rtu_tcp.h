@@ -66,6 +66,19 @@ int rtu_tcp_scan(const uint8_t *buf, size_t n, unsigned tid, rtu_tcp_scan_result
 #define RTU_TCP_REQ_CAP 260
 #define RTU_TCP_MIN_CAP 520
 
+/* A layer between the transaction and its socket (MODBUS/TCP Security: TLS,
+ * csrc/rtu_tls_io.c); x->io NULL: the socket itself (send/recv).  Each moves
+ * bytes without blocking: > 0 bytes moved; 0 the peer closed (recv only); < 0
+ * with errno set: EAGAIN (or EWOULDBLOCK) to wait for *want (POLLIN or POLLOUT:
+ * a TLS write may need to read and a read to write), any other errno an error.
+ * `pending`: bytes the layer holds already (decrypted, not yet read): no wait. */
+typedef struct rtu_tcp_io rtu_tcp_io;
+struct rtu_tcp_io {
+    ptrdiff_t (*send)(rtu_tcp_io *io, const uint8_t *data, size_t len, short *want);
+    ptrdiff_t (*recv)(rtu_tcp_io *io, uint8_t *data, size_t len, short *want);
+    size_t (*pending)(rtu_tcp_io *io);
+};
+
 typedef struct {
     /* what the caller decided */
     int fd;             /* the connected socket (non-blocking) */
@@ -92,6 +105,7 @@ typedef struct {
     size_t n;         /* bytes in buf (from 0): late ADUs, the answer, the rest */
     rtu_tcp_scan_result scan;
     uint8_t answer[RTU_TCP_REQ_CAP - 7]; /* rtu_tcp_xfer_call: the answer's PDU */
+    rtu_tcp_io *io;                      /* NULL: send/recv on fd; else the layer on it (TLS) */
 } rtu_tcp_xfer;
 
 /* Run one transaction (RTU_OK: x->status says how it ended); RTU_EINVAL for a

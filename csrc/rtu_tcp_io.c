@@ -18,6 +18,10 @@
  *   4. the answer's unit and function are checked against the request's ([TCP]
  *      3.1.3: the server copies the unit id; [AP] 7: an exception response is
  *      the function code + 0x80), the caller maps what differs to its error.
+ * With x->io (MODBUS/TCP Security: the TLS of csrc/rtu_tls_io.c) the bytes go
+ * through its send/recv and the waits are for what it wants (a TLS read may
+ * need the socket writable); bytes it holds decrypted already are read without
+ * a wait.
  * A signal (EINTR) ends the wait early (RTU_TCP_INTERRUPTED) so that Python runs
  * its handler; the caller then calls again with send = 0 to wait on.
  */
@@ -95,7 +99,9 @@ static int transmit(rtu_tcp_xfer *x)
     x->req[6] = (uint8_t)x->unit;
     memcpy(x->req + RTU_MBAP_HEADER_LEN, x->pdu, x->pdu_len);
     while (done < len) {
-        ssize_t w = send(x->fd, x->req + done, len - done, MSG_NOSIGNAL);
+        short want = POLLOUT;
+        ptrdiff_t w = x->io != NULL ? x->io->send(x->io, x->req + done, len - done, &want)
+                                    : send(x->fd, x->req + done, len - done, MSG_NOSIGNAL);
         if (w > 0) {
             done += (size_t)w;
             continue;
@@ -108,7 +114,7 @@ static int transmit(rtu_tcp_xfer *x)
             x->status = RTU_TCP_TIMEOUT; /* no room for the request in time */
             return 1;
         }
-        if (wait_until(x->fd, POLLOUT, x->deadline) < 0 && errno != EINTR) {
+        if (wait_until(x->fd, want, x->deadline) < 0 && errno != EINTR) {
             failed(x, RTU_TCP_STAGE_SEND, errno);
             return 1;
         }
@@ -146,6 +152,8 @@ static int scanned(rtu_tcp_xfer *x)
 
 int rtu_tcp_xfer_run(rtu_tcp_xfer *x)
 {
+    short want = POLLIN; /* what the next wait waits for (a TLS read may need to write) */
+    int starved = 0;     /* the last read found too little: wait, whatever the layer holds */
     if (x == NULL || x->fd < 0 || x->buf == NULL || x->cap < RTU_TCP_MIN_CAP || x->n > x->cap ||
         x->scan.used > x->n || x->timeout_ns < 0 || x->tid > 0xFFFF || x->unit > 0xFF)
         return RTU_EINVAL;
@@ -171,15 +179,22 @@ int rtu_tcp_xfer_run(rtu_tcp_xfer *x)
     if (scanned(x))
         return RTU_OK;
     for (;;) {
-        ssize_t got;
-        /* step 3: wait for input until the deadline, then read all there is */
-        int r = wait_until(x->fd, POLLIN, x->deadline);
-        if (r < 0)
-            return failed(x, RTU_TCP_STAGE_RECEIVE, errno);
-        if (r == 0) {
-            x->status = RTU_TCP_TIMEOUT;
-            return RTU_OK;
+        ptrdiff_t got;
+        /* step 3: wait for input until the deadline (none when the layer holds
+         * bytes already: a whole record may be there, which poll does not see;
+         * but after a read that found only part of one, the rest is awaited),
+         * then read all there is */
+        if (x->io == NULL || starved || x->io->pending(x->io) == 0) {
+            int r = wait_until(x->fd, want, x->deadline);
+            if (r < 0)
+                return failed(x, RTU_TCP_STAGE_RECEIVE, errno);
+            if (r == 0) {
+                x->status = RTU_TCP_TIMEOUT;
+                return RTU_OK;
+            }
         }
+        want = POLLIN;
+        starved = 0;
         if (x->cap - x->n < RTU_MBAP_MAX_ADU) {
             /* full of late answers: keep the unresolved bytes only */
             size_t keep = x->n - x->scan.used;
@@ -187,7 +202,8 @@ int rtu_tcp_xfer_run(rtu_tcp_xfer *x)
             x->n = keep;
             x->scan.used = 0;
         }
-        got = recv(x->fd, x->buf + x->n, x->cap - x->n, 0);
+        got = x->io != NULL ? x->io->recv(x->io, x->buf + x->n, x->cap - x->n, &want)
+                            : recv(x->fd, x->buf + x->n, x->cap - x->n, 0);
         if (got > 0) {
             x->n += (size_t)got;
             x->end = now_ns();
@@ -198,6 +214,8 @@ int rtu_tcp_xfer_run(rtu_tcp_xfer *x)
             return RTU_OK;
         } else if (errno != EAGAIN && errno != EWOULDBLOCK) {
             return failed(x, RTU_TCP_STAGE_RECEIVE, errno);
+        } else {
+            starved = 1;
         }
     }
 }

@@ -27,6 +27,7 @@ must not cost them the C core (setup.py would fall back to the slow twin).
 import os
 import pathlib
 import re
+import subprocess
 import sys
 
 from cffi import FFI
@@ -41,6 +42,34 @@ POSIX_IO = os.environ.get("PYRTU_POSIX_IO", "0" if sys.platform == "win32" else 
 _POSIX_CDEF = re.compile(r"/\* ---- POSIX I/O .*?/\* ---- end of POSIX I/O ---- \*/", re.S)
 
 
+#: the TLS of an mbaps:// client (csrc/rtu_tls_io.c, over the system's OpenSSL) is
+#: compiled where OpenSSL's development files are found (``pkg-config openssl``;
+#: Debian: libssl-dev) on a POSIX build; elsewhere, or with PYRTU_TLS=0, it and its
+#: declarations (the "TLS" section of _cdef.h) are left out and ``mbaps://`` runs
+#: over Python's ssl module (pyrtu/tcp/tls.py)
+TLS_SOURCE = "rtu_tls_io.c"
+_TLS_CDEF = re.compile(r"/\* ---- TLS .*?/\* ---- end of TLS ---- \*/", re.S)
+
+
+def openssl_flags() -> tuple[list[str], list[str]] | None:
+    """(compile, link) flags of the system's OpenSSL (pkg-config), None without it."""
+    if not POSIX_IO or os.environ.get("PYRTU_TLS", "1") == "0":
+        return None
+    try:
+        cflags = subprocess.run(
+            ["pkg-config", "--cflags", "openssl"], capture_output=True, text=True, check=True
+        ).stdout.split()
+        libs = subprocess.run(
+            ["pkg-config", "--libs", "openssl"], capture_output=True, text=True, check=True
+        ).stdout.split()
+    except (OSError, subprocess.CalledProcessError):
+        return None
+    return cflags, libs
+
+
+OPENSSL = openssl_flags()
+
+
 def is_posix_io(path: pathlib.Path) -> bool:
     """A POSIX-only file of csrc/ (the naming rule; tests/core/test_portable_core.py
     checks that the POSIX headers appear only in these)."""
@@ -49,12 +78,19 @@ def is_posix_io(path: pathlib.Path) -> bool:
 
 def core_sources() -> list[pathlib.Path]:
     """The csrc/*.c files compiled into the core on this platform."""
-    return [p for p in sorted(CSRC.glob("*.c")) if POSIX_IO or not is_posix_io(p)]
+    return [
+        p
+        for p in sorted(CSRC.glob("*.c"))
+        if (POSIX_IO or not is_posix_io(p)) and (OPENSSL is not None or p.name != TLS_SOURCE)
+    ]
 
 
 def core_cdef() -> str:
-    """_cdef.h, without its POSIX I/O sections where those files are not compiled."""
+    """_cdef.h, without its POSIX I/O sections where those files are not compiled
+    (and without its TLS section where OpenSSL is not found)."""
     text = (HERE / "_cdef.h").read_text()
+    if OPENSSL is None:
+        text = _TLS_CDEF.sub("", text)
     return text if POSIX_IO else _POSIX_CDEF.sub("", text)
 
 
@@ -93,17 +129,20 @@ _BINDING = """
 #include "rtu_vbus.h"
 #include "rtu_xfer.h"
 #include "rtu_tcp.h"
+%s
 static uint16_t rtu_crc16_bytes(const char *data, size_t len, uint16_t crc)
 {
     return rtu_crc16((const uint8_t *)data, len, crc);
 }
 """
 
+_BINDING %= '#include "rtu_tls.h"' if OPENSSL is not None else ""
+
 ffibuilder.set_source(
     "pyrtu.core._rtu_core",
     _BINDING,
     sources=[os.path.relpath(p, ROOT) for p in core_sources()],
     include_dirs=[os.path.relpath(CSRC, ROOT)],
-    extra_compile_args=_flags,
-    extra_link_args=_link,
+    extra_compile_args=_flags + ([] if OPENSSL is None else OPENSSL[0]),
+    extra_link_args=_link + ([] if OPENSSL is None else OPENSSL[1]),
 )

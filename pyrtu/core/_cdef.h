@@ -327,6 +327,7 @@ void rtu_xfer_worker_stop(rtu_xfer_worker *w);
 #define RTU_TCP_STAGE_RECEIVE 2
 #define RTU_TCP_REQ_CAP 260
 #define RTU_TCP_MIN_CAP 520
+typedef struct rtu_tcp_io rtu_tcp_io;
 typedef struct {
     int fd;
     int send;
@@ -348,9 +349,41 @@ typedef struct {
     size_t n;
     rtu_tcp_scan_result scan;
     uint8_t answer[253];
+    rtu_tcp_io *io;
 } rtu_tcp_xfer;
 int rtu_tcp_xfer_run(rtu_tcp_xfer *x);
 int rtu_tcp_xfer_call(rtu_tcp_xfer *x, unsigned tid, unsigned unit, const char *pdu,
                       size_t pdu_len, int awaited, int64_t timeout_ns);
 int rtu_tcp_xfer_word(rtu_tcp_xfer *x);
 /* ---- end of POSIX I/O ---- */
+
+/* ---- TLS (csrc/rtu_tls_io.c, over OpenSSL): left out where OpenSSL is not found ---- */
+/* csrc/rtu_tls.h: the TLS of an mbaps:// client */
+typedef struct rtu_tls_ctx rtu_tls_ctx;
+typedef struct rtu_tls_conn rtu_tls_conn;
+typedef struct rtu_tls_session rtu_tls_session;
+#define RTU_TLS_DONE 0
+#define RTU_TLS_TIMEOUT 1
+#define RTU_TLS_VERIFY 2
+#define RTU_TLS_FAILED 3
+#define RTU_TLS_CLOSED 4
+#define RTU_TLS_ERRNO 5
+#define RTU_TLS_INTERRUPTED 6
+#define RTU_TLS_V1_2 0x0303
+#define RTU_TLS_V1_3 0x0304
+int rtu_tls_ctx_new(rtu_tls_ctx **out, const char *cert, const char *key, const char *ca,
+                    int min_version, int max_version, char *err, size_t errlen);
+void rtu_tls_ctx_free(rtu_tls_ctx *ctx);
+int rtu_tls_conn_new(rtu_tls_conn **out, rtu_tls_ctx *ctx, int fd, const char *host,
+                     rtu_tls_session *session);
+void rtu_tls_conn_free(rtu_tls_conn *c);
+void rtu_tls_close_notify(rtu_tls_conn *c);
+int rtu_tls_handshake(rtu_tls_conn *c, int64_t timeout_ns);
+const char *rtu_tls_conn_message(rtu_tls_conn *c);
+int rtu_tls_conn_errno(rtu_tls_conn *c);
+int rtu_tls_conn_reused(rtu_tls_conn *c);
+int rtu_tls_conn_version(rtu_tls_conn *c);
+rtu_tcp_io *rtu_tls_conn_io(rtu_tls_conn *c);
+rtu_tls_session *rtu_tls_conn_session(rtu_tls_conn *c);
+void rtu_tls_session_free(rtu_tls_session *s);
+/* ---- end of TLS ---- */

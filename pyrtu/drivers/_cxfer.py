@@ -151,10 +151,12 @@ class TcpXferRunner:
     (csrc/rtu_tcp_io.c; `pyrtu.drivers.xfer.TcpXferRunner`) on the non-blocking
     socket ``sock`` (the caller's: it closes it)."""
 
-    def __init__(self, sock: socket.socket) -> None:
+    def __init__(self, sock: socket.socket, io: Any = None) -> None:
         x = ffi.new("rtu_tcp_xfer *")
         self._keep = ffi.new("char[]", TCP_CAPACITY)  # (char: ffi.unpack gives bytes)
         x.fd, x.buf, x.cap = sock.fileno(), ffi.cast("uint8_t *", self._keep), TCP_CAPACITY
+        if io is not None:  # a layer on the socket: mbaps://'s TLS (pyrtu/core/_tls.py)
+            x.io = io
         self._x = x
         self._call = lib.rtu_tcp_xfer_call
         self.answer = ffi.buffer(x.answer)

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import socket
 from types import ModuleType
+from typing import Any
 
 from pyrtu.drivers.xfer import AsyncXferRunner, TcpScanner, TcpXferRunner, XferRunner
 
@@ -34,10 +35,16 @@ def async_xfer_runner(backend: ModuleType) -> AsyncXferRunner:
     return ax
 
 
-def tcp_xfer_runner(backend: ModuleType, sock: socket.socket) -> TcpXferRunner:
+def tcp_xfer_runner(backend: ModuleType, sock: socket.socket, io: Any = None) -> TcpXferRunner:
     """A new `TcpXferRunner` of ``backend``'s kind on the connected, non-blocking
-    ``sock`` (C: csrc/rtu_tcp_io.c on its descriptor)."""
-    runner: TcpXferRunner = _impl(backend).TcpXferRunner(sock)
+    ``sock`` (C: csrc/rtu_tcp_io.c on its descriptor; ``io``: a C layer on it, the
+    TLS of `pyrtu.core._tls.CTlsConnection.io`, C only)."""
+    if io is not None:
+        from pyrtu.drivers import _cxfer
+
+        runner: TcpXferRunner = _cxfer.TcpXferRunner(sock, io)
+        return runner
+    runner = _impl(backend).TcpXferRunner(sock)
     return runner
 
 

@@ -19,6 +19,8 @@ import ssl
 from dataclasses import dataclass
 from pathlib import Path
 
+from pyrtu.core._tls import FileContext
+
 from .policy import Identity
 
 #: the role extension of MODBUS/TCP Security
@@ -61,7 +63,7 @@ def _context(
     side = (
         ssl.PROTOCOL_TLS_SERVER if purpose is ssl.Purpose.CLIENT_AUTH else ssl.PROTOCOL_TLS_CLIENT
     )
-    context = ssl.SSLContext(side)
+    context = FileContext(side) if purpose is ssl.Purpose.SERVER_AUTH else ssl.SSLContext(side)
     context.minimum_version = ssl.TLSVersion.TLSv1_2
     context.options |= ssl.OP_NO_RENEGOTIATION | ssl.OP_NO_COMPRESSION
     context.verify_mode = ssl.CERT_REQUIRED
@@ -81,6 +83,8 @@ def _context(
         context.load_verify_locations(cafile=ca_file)
     except (ssl.SSLError, OSError) as exc:
         raise TlsSetupError(f"{prefix}ca {ca}: not a CA certificate (PEM): {exc}", "ca") from None
+    if isinstance(context, FileContext):
+        context.remember_files(cert_file, key_file, ca_file)
     return context
 
 
@@ -92,7 +96,8 @@ def server_context(cert: str | Path, key: str | Path, ca: str | Path) -> ssl.SSL
 
 def client_context(cert: str | Path, key: str | Path, ca: str | Path) -> ssl.SSLContext:
     """The context of an ``mbaps://`` client: its certificate and key, the CA the
-    server's certificate must be signed by; the server's host name is checked."""
+    server's certificate must be signed by; the server's host name is checked.  The
+    sync client runs it in C (pyrtu/core/_tls.py) where the C core has OpenSSL."""
     context = _context(ssl.Purpose.SERVER_AUTH, cert, key, ca, "--tls-")
     context.check_hostname = True
     return context

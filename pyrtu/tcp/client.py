@@ -38,8 +38,10 @@ import serial
 from serial.urlhandler.protocol_socket import POLL_TIMEOUT
 
 from pyrtu.core import _backend
+from pyrtu.core import _tls as _ctls
 from pyrtu.core._closing import AsyncClosing, Closing
 from pyrtu.core._forward import Forward, Settable
+from pyrtu.core._tls import CTlsConnection, CTlsError
 from pyrtu.core._types import BytesLike
 from pyrtu.core.mbap import MAX_LENGTH, MIN_LENGTH
 from pyrtu.drivers import xfer, xfer_runners
@@ -103,7 +105,13 @@ def connect_error(where: str, exc: BaseException, timeout: float) -> PortError:
     reason = exc
     if isinstance(exc, serial.SerialException) and isinstance(exc.__context__, OSError):
         reason = exc.__context__  # pyserial's socket:// puts the socket's error in its text
-    if isinstance(reason, ssl.SSLCertVerificationError):
+    if isinstance(reason, CTlsError):  # (the C path's, in the ssl module's words)
+        text = (
+            f"TLS: the server's certificate: {reason.message}"
+            if reason.kind == "verify"
+            else f"TLS handshake failed: {reason.message}"
+        )
+    elif isinstance(reason, ssl.SSLCertVerificationError):
         text = f"TLS: the server's certificate: {reason.verify_message or reason.reason}"
     elif isinstance(reason, ssl.SSLError):  # (its errno is OpenSSL's, not the OS's)
         text = f"TLS handshake failed: {reason.reason or reason}"
@@ -184,7 +192,19 @@ class TcpClient(TcpClientState, Closing):
         except OSError as exc:
             raise connect_error(self.where, exc, ct) from exc
         set_nodelay(self._sock)
-        if self._tls is not None:  # mbaps://: the handshake within the connect timeout
+        self._ctls: CTlsConnection | None = None
+        accelerated = None if self._tls is None else _ctls.accelerator(self._tls, be)
+        if accelerated is not None:  # mbaps:// in C: the handshake, then tcp://'s runner
+            self._sock.setblocking(False)
+            try:
+                self._ctls = accelerated.connect(self._sock.fileno(), self.host, self.port, ct)
+            except OSError as exc:
+                self._sock.close()
+                raise connect_error(self.where, exc, ct) from exc
+            self._accelerated = accelerated
+            self._runner = xfer_runners.tcp_xfer_runner(be, self._sock, self._ctls.io)
+            return
+        if self._tls is not None:  # mbaps:// in Python: the handshake within the connect timeout
             try:
                 self._sock = wrap(self._sock, self._tls, self.host, self.port)
             except OSError as exc:
@@ -213,7 +233,7 @@ class TcpClient(TcpClientState, Closing):
     ) -> tuple[bytes | None, float]:
         """`request`'s answer and when it came (monotonic seconds; now for a
         broadcast): `pyrtu.tcp.link.TcpLink`'s transaction."""
-        if self._tls is not None:
+        if self._tls is not None and self._ctls is None:
             return self._tls_transact(unit, pdu, answered, raw)
         proto, runner = self._proto, self._runner
         tid, body, awaited = proto.begin(unit, pdu, answered)
@@ -274,10 +294,24 @@ class TcpClient(TcpClientState, Closing):
     @property
     def session_reused(self) -> bool:
         """Whether this ``mbaps://`` connection resumed a TLS session (False on tcp://)."""
+        if self._ctls is not None:
+            return self._ctls.reused
         return isinstance(self._sock, ssl.SSLSocket) and bool(self._sock.session_reused)
 
+    @property
+    def tls_path(self) -> str | None:
+        """Who runs this ``mbaps://`` connection's TLS: ``"c"`` (the C core over OpenSSL,
+        csrc/rtu_tls_io.c) or ``"python"`` (the ssl module); None on tcp://."""
+        if self._tls is None:
+            return None
+        return "c" if self._ctls is not None else "python"
+
     def close(self) -> None:
-        if self._tls is not None and isinstance(self._sock, ssl.SSLSocket) and not self._closed:
+        if self._ctls is not None:
+            if not self._closed:  # (TLS 1.3: the tickets came after the handshake)
+                self._accelerated.keep(self.host, self.port, self._ctls)
+            self._ctls.close()
+        elif self._tls is not None and isinstance(self._sock, ssl.SSLSocket) and not self._closed:
             remember(self._sock, self._tls, self.host, self.port)
         self._closed = True
         self._sock.close()

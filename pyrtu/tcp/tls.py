@@ -5,7 +5,9 @@ session kept per (context, host, port) so that a reconnect resumes it: an abbrev
 handshake with no certificate exchange (`session_reused` says whether it did).
 
 asyncio's ``create_connection`` takes no session: the asyncio client's reconnects
-run a full handshake.
+run a full handshake.  The sync client runs this path only where the C core cannot
+(pyrtu/core/_tls.py: the C core over OpenSSL does the handshake, keeps its own
+sessions and runs the transaction with the GIL released).
 """
 
 from __future__ import annotations
@@ -13,6 +15,8 @@ from __future__ import annotations
 import socket
 import ssl
 import weakref
+
+from pyrtu.core import _tls as _ctls
 
 #: the port of Modbus/TCP Security (IANA "mbap-s")
 MBAPS_PORT = 802
@@ -32,6 +36,13 @@ def wrap(sock: socket.socket, context: ssl.SSLContext, host: str, port: int) -> 
     return wrapped
 
 
+def forget_sessions(context: ssl.SSLContext) -> None:
+    """The sessions kept for ``context`` forgotten, on both paths (Python's ssl here, the
+    C core's, pyrtu/core/_tls.py): the next connects run a full handshake."""
+    _sessions.pop(context, None)
+    _ctls.forget_sessions(context)
+
+
 def remember(sock: ssl.SSLSocket, context: ssl.SSLContext, host: str, port: int) -> None:
     """Keep the connection's session for the next one (TLS 1.3 sends its tickets after
     the handshake: called again before the socket closes, it keeps the latest)."""
@@ -40,4 +51,4 @@ def remember(sock: ssl.SSLSocket, context: ssl.SSLContext, host: str, port: int)
         _sessions.setdefault(context, {})[(host, port)] = session
 
 
-__all__ = ["MBAPS_PORT", "remember", "wrap"]
+__all__ = ["MBAPS_PORT", "forget_sessions", "remember", "wrap"]

@@ -36,7 +36,7 @@ def test_posix_headers_only_in_the_io_files() -> None:
     is the truth: exactly those files of csrc/ include POSIX headers."""
     posix = {p.name for p in CSRC.glob("*.[ch]") if POSIX_HEADERS.search(p.read_text())}
     named = {p.name for p in CSRC.glob("*.c") if p.name.endswith("_io.c")}
-    assert posix == named == {"rtu_vbus_io.c", "rtu_xfer_io.c", "rtu_tcp_io.c"}
+    assert posix == named == {"rtu_vbus_io.c", "rtu_xfer_io.c", "rtu_tcp_io.c", "rtu_tls_io.c"}
 
 
 def _env(**extra: str) -> dict[str, str]:
@@ -77,10 +77,12 @@ from pyrtu.vbus import _cvbus
 assert pyrtu.__file__.startswith(__import__("sys").argv[1]), pyrtu.__file__
 assert pyrtu.BACKEND == "c" and cext.POSIX_IO is False
 for name in ("rtu_xfer_io_run", "rtu_xfer_worker_start", "rtu_vbus_io_run", "rtu_vbus_io_init",
-             "rtu_tcp_xfer_run", "rtu_tcp_xfer_call"):
+             "rtu_tcp_xfer_run", "rtu_tcp_xfer_call", "rtu_tls_ctx_new", "rtu_tls_handshake"):
     assert not hasattr(cext.lib, name), name
 assert xfer_runners._impl(cext) is _pyxfer
 assert _cvbus.available is False
+from pyrtu.core import _tls
+assert not _tls.available(cext)  # (mbaps:// over Python's ssl module)
 assert cext.CRCFAST is not None and pyrtu.crc16(b"123456789") == 0x4B37
 (frame,) = pyrtu.parse_stream(b"\x01\x03\x00\x00\x00\x0a\xc5\xcd", role="slave")
 assert (frame.address, frame.function) == (1, 3), frame

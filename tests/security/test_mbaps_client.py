@@ -11,9 +11,12 @@ import threading
 from collections.abc import Iterator
 
 import pytest
+from c_core import missing
 from tls_certs import Pki, make_pki
 
+import pyrtu
 from pyrtu import DataStore, Master, PortError
+from pyrtu.core import _tls
 from pyrtu.drivers.aio import AsyncMaster
 from pyrtu.security import parse_policy
 from pyrtu.security.tls import TlsListen, client_context, server_context
@@ -21,6 +24,19 @@ from pyrtu.tcp import TcpClient
 from pyrtu.tcp.server import TcpServer
 
 POLICY = '[[rule]]\nroles = "operator"\n\n[[rule]]\nroles = "viewer"\nread_only = true\n'
+
+
+@pytest.fixture(autouse=True, params=["c", "python"])
+def tls_path(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
+    """Every test on both paths of the sync client's TLS: the C core over OpenSSL
+    (csrc/rtu_tls_io.c) and the Python ssl fallback (what runs where the C core was
+    built without OpenSSL: `pyrtu.core._tls.accelerator` finds no C context)."""
+    if request.param == "c":
+        if not _tls.available(pyrtu.backend()):
+            missing("the C core's TLS (OpenSSL) is not built here")
+    else:
+        monkeypatch.setattr(_tls, "accelerator", lambda context, backend: None)
+    return str(request.param)
 
 
 @pytest.fixture(scope="module")
@@ -80,11 +96,12 @@ def test_async_master_over_mbaps(server: tuple[TcpServer, DataStore, int], pki: 
 
 
 def test_reconnect_resumes_the_tls_session(
-    server: tuple[TcpServer, DataStore, int], pki: Pki
+    server: tuple[TcpServer, DataStore, int], pki: Pki, tls_path: str
 ) -> None:
     _, _, port = server
     context = client_context(pki.operator.cert, pki.operator.key, pki.ca.path)
     first = TcpClient(f"mbaps://localhost:{port}", tls=context, timeout=5.0)
+    assert first.tls_path == tls_path
     assert first.request(1, bytes((3, 0, 0, 0, 1))) == bytes((3, 2, 0, 100))
     assert not first.session_reused
     first.close()
