@@ -3,6 +3,7 @@ hypothesis-generated segment and cursor files (pyrtu.outbox._format)."""
 
 from __future__ import annotations
 
+import itertools
 import os
 import random
 import shutil
@@ -381,3 +382,41 @@ def test_a_cursor_slot_with_huge_numbers_is_not_trusted(tmp_path: Path) -> None:
     with Outbox(d) as ob:
         assert ob.acked == 10 and ob.next_seq == 101
         assert ob.append(b"x", 0.0) == 101
+
+
+def _slot(gen: int, acked: int) -> bytes:
+    """A cursor slot as the format's docstring gives it: magic "OBc1", gen, acked,
+    reserved, dropped (little-endian 64-bit), then the CRC-32 of those 36 bytes."""
+    body = struct.pack("<4sQQQQ", b"OBc1", gen, acked, 0, 0)
+    return body + struct.pack("<I", zlib.crc32(body))
+
+
+@pytest.mark.parametrize("torn", [1, 4, 39])
+def test_a_cursor_whose_second_slot_is_torn_reads_its_first(torn: int) -> None:
+    """Slot 0 whole, slot 1 (at 512) cut ``torn`` bytes short of its 40: the version
+    and the state are slot 0's, the torn slot ignored (not read past the data)."""
+    data = _slot(4, 17).ljust(512, b"\0") + _slot(5, 18)[:-torn]
+    assert fmt.cursor_version(data) == 1
+    assert fmt.decode_state(data) == fmt.CursorState(4, 17, 0, 0)
+
+
+def test_a_scan_from_the_middle_of_a_segment_never_goes_back() -> None:
+    """A scan started after records 1 and 2 (as pending starts at an index offset),
+    with only 2 stray bytes after them: one bad region of those 2 bytes, nothing
+    before where it started (records 1 and 2 lie behind it)."""
+    data = b"\0" * 16 + _rec(1, 1.0, b"a") + _rec(2, 2.0, b"b") + b"\xee\xee"
+    start = len(data) - 2
+    items = itertools.islice(
+        fmt.scan(lambda off, n: data[off : off + n], start, len(data), last_seq=0), 5
+    )
+    assert [(i.off, i.end, i.seq) for i in items] == [(start, len(data), -1)]
+
+
+def test_a_segment_header_is_its_first_16_bytes() -> None:
+    """ "pyrtuOB" + version 1, then the first sequence number (little-endian 64-bit):
+    parsed from exactly 16 bytes or more (a whole file's start); fewer: no header."""
+    head = struct.pack("<8sQ", b"pyrtuOB\x01", 42)
+    assert fmt.parse_segment_header(head) == 42
+    assert fmt.parse_segment_header(head + b"\xb7OBr") == 42
+    assert fmt.parse_segment_header(head[:15]) is None
+    assert fmt.parse_segment_header(b"") is None
