@@ -12,8 +12,9 @@ from types import ModuleType
 import pytest
 from test_server_protocol import BAUD, CHAR, T35, Harness, read_request
 
+from pyrtu import pdu as pdus
 from pyrtu.core.line import LineConfig
-from pyrtu.protocol.server import Listen, Reply
+from pyrtu.protocol.server import Idle, Listen, Reply
 
 #: a function with no length rule (user-defined, [MB] 5): framed by its CRC or the
 #: silence after it; the slave answers it with exception 1
@@ -265,3 +266,102 @@ def test_a_new_request_in_a_late_read_after_a_head_too_short_to_predict(
     pending = h.proto.pending
     assert pending is not None and pending.adu[:2] == b"\x01\x07"
     assert pending.earliest == pytest.approx(read + T35)
+
+
+def test_next_actions_options_are_keyword_only(backend: ModuleType) -> None:
+    """``lead``, ``nap`` and ``ahead`` are keyword-only (the signature's ``*``): a
+    driver passing them by position is refused, not read as another option."""
+    h = Harness(backend)
+    with pytest.raises(TypeError):
+        h.proto.next_action(h.now, 0.0)  # type: ignore[call-arg]
+    assert h.proto.next_action(h.now, lead=0.0, nap=True, ahead=0.0) == Idle()
+
+
+def test_the_guess_from_the_address_alone_is_at_most_8_bytes(backend: ModuleType) -> None:
+    """After a 9-byte request (a function with no rule, 5 data bytes), a new frame's
+    address alone naps for 8 bytes at most, the longest FC 01..06 request ([AP]
+    6.1-6.6: address, function, 4 bytes, CRC), not for the last request's 9."""
+    h = Harness(backend)
+    h.feed(h.adu(b"\x01\x41\xaa\xbb\xcc\xdd\xee"))  # 9 bytes with the CRC
+    h.run_until_sent()
+    h.now += 5 * T35
+    t0 = h.now
+    h.proto.receive_data(b"\x01", t0)
+    assert h.proto.wake_at(t0) == pytest.approx(t0 + (8 - 1) * CHAR + T35)
+
+
+def test_a_new_request_read_a_flush_timeout_after_an_abandoned_head(
+    backend: ModuleType,
+) -> None:
+    """ "01 03" (an 8-byte read by its rule) is left by a master that gave up; the
+    nap's read comes late, after more than the flush timeout, and brings a whole new
+    read request.  Counted from the old head, the rule's 8 bytes do not end in a
+    checking CRC: no request ends in the read by its length, so all of it is timed by
+    the read.  The silence before it drops the old head (lenient mode, `flush_timeout`)
+    and the new request is answered t3.5 after the read ([SL] 2.5.1.1)."""
+    flush = 0.02
+    line = LineConfig(baudrate=BAUD, parity="N", flush_timeout=flush)
+    h = Harness(backend, line)
+    t0 = h.now
+    h.proto.receive_data(b"\x01\x03", t0)
+    assert h.proto.wake_at(t0) is not None
+    read = t0 + 2 * flush  # the driver read late
+    h.proto.receive_data(h.adu(read_request(count=2)), read)
+    pending = h.proto.pending
+    assert pending is not None
+    assert pending.adu == h.adu(b"\x01" + pdus.registers_response(3, [1000, 1001]))
+    assert pending.earliest == pytest.approx(read + T35)
+
+
+def test_the_watchdog_trips_at_exactly_its_time_in_next_action(backend: ModuleType) -> None:
+    """The watchdog's time is a deadline like any other: asked at exactly that time,
+    next_action lets it act (the time up to ``now`` acts, ``now`` included)."""
+    tripped: list[object] = []
+    watchdog = 0.5
+    h = Harness(backend, watchdog=watchdog)
+    h.app.on_watchdog = tripped.append
+    end = h.feed(h.adu(read_request()))  # a valid request: framed at its last byte
+    h.run_until_sent()
+    h.proto.next_action(end + watchdog)
+    assert tripped == [h.app] and h.proto.counters["watchdog_trips"] == 1
+
+
+def test_a_request_framed_by_its_silence_is_answered_at_exactly_that_time(
+    backend: ModuleType,
+) -> None:
+    """A function with no rule is framed by the t3.5 silence after it, when its answer
+    is due as well ([SL] 2.5.1.1): next_action at exactly that time hands it out."""
+    h = Harness(backend)
+    end = h.feed(h.adu(SHORT))
+    due = h.proto.deadline()
+    assert due is not None and due == pytest.approx(end + T35, abs=2e-6)
+    action = h.proto.next_action(due)
+    assert action == Reply(h.adu(b"\x01\xc1\x01"), pytest.approx(end + T35, abs=2e-6))
+
+
+def test_a_late_read_too_short_to_end_a_request_is_timed_by_the_read(
+    backend: ModuleType,
+) -> None:
+    """The nap after "01" brings only "03" (fewer than the 4 bytes of the shortest
+    ADU, [SL] 2.5.1.1: no request ends in it), so it is timed by the read, not by the
+    character rate from the nap's start.  The rest of the request comes less than the
+    flush timeout after that read, but more than it after the nap's start: the frame
+    holds (lenient mode drops a frame only after a silence of the flush timeout) and
+    is answered t3.5 after its last byte."""
+    flush = 0.02
+    line = LineConfig(baudrate=BAUD, parity="N", flush_timeout=flush)
+    h = Harness(backend, line)
+    adu = h.adu(read_request())
+    t0 = h.now
+    h.proto.receive_data(adu[:1], t0)
+    assert h.proto.wake_at(t0) is not None
+    read = t0 + 0.75 * flush  # the driver read late
+    h.proto.receive_data(adu[1:2], read)
+    end = read + 0.75 * flush  # 1.5 flush timeouts after the nap's start
+    # (its 6 bytes at the character rate: the first began 6 characters before the end)
+    assert end - 6 * CHAR - read < flush <= end - 6 * CHAR - (t0 + CHAR)
+    h.now = end
+    h.proto.receive_data(adu[2:], end)
+    out, at = h.run_until_sent()
+    assert out is not None and out[:2] == b"\x01\x03"
+    assert at == pytest.approx(end + T35)
