@@ -365,3 +365,26 @@ def test_a_late_read_too_short_to_end_a_request_is_timed_by_the_read(
     out, at = h.run_until_sent()
     assert out is not None and out[:2] == b"\x01\x03"
     assert at == pytest.approx(end + T35)
+
+
+@pytest.mark.parametrize(("margin", "count"), [(-20e-6, 1), (20e-6, 2)])
+def test_damaged_messages_count_apart_from_a_t35_silence_between_them(
+    backend: ModuleType, margin: float, count: int
+) -> None:
+    """Two damaged messages ("55 aa 13": no function, no CRC) count as two
+    communication errors (FC 08 sub-function 0x0C) when a t3.5 silence separates
+    them ([SL] 2.5.1.1: frames are told apart by it), and as the pieces of one
+    just under it.  8E1: 11 bits a character, t3.5 = 3.5 characters at 9600 baud."""
+    char = 11 / 9600
+    t35 = 3.5 * char
+    h = Harness(backend, LineConfig(baudrate=9600, parity="E"))
+    h.feed(b"\x55\xaa\x13", char)
+    h.now += t35 + margin + char  # the next message's first byte ends a character on
+    h.proto.receive_data(b"\x55", h.now)
+    h.feed(b"\xaa\x13", char)
+    h.now += 10 * t35
+    h.proto.handle_timer(h.now)
+    h.now = h.proto.deadline() or h.now
+    h.proto.handle_timer(h.now)
+    assert h.proto.deadline() is None  # both messages are over
+    assert h.app.line.counters["bus_communication_error_count"] == count
