@@ -388,3 +388,119 @@ def test_damaged_messages_count_apart_from_a_t35_silence_between_them(
     h.proto.handle_timer(h.now)
     assert h.proto.deadline() is None  # both messages are over
     assert h.app.line.counters["bus_communication_error_count"] == count
+
+
+def test_a_broadcasts_address_alone_naps_for_the_last_length_with_no_turnaround(
+    backend: ModuleType,
+) -> None:
+    """A broadcast (address 0, [SL] 2.1) is a request to this slave too: from its
+    address alone the nap is sized for the last request's 8 bytes, with no
+    turnaround after it (a broadcast is never answered)."""
+    h = Harness(backend)
+    h.feed(h.adu(read_request()))
+    h.run_until_sent()
+    h.now += 5 * T35
+    t0 = h.now
+    h.proto.receive_data(b"\x00", t0)
+    assert h.proto.wake_at(t0) == pytest.approx(t0 + (8 - 1) * CHAR)
+
+
+def _long_write_head() -> bytes:
+    """The first 7 bytes of Write Multiple Registers of 100 registers ([AP] 6.12):
+    209 bytes on the wire, about 218 ms at 9600 baud."""
+    return b"\x01\x10\x00\x00\x00\x64\xc8"
+
+
+def test_a_nap_lasts_at_most_25_ms_half_the_default_flush_timeout(backend: ModuleType) -> None:
+    """docs/MASTER_SLAVE.md: "a nap lasts at most half the framer's flush timeout",
+    25 ms by default, exactly."""
+    h = Harness(backend)
+    t0 = h.now
+    h.proto.receive_data(_long_write_head(), t0)
+    action = h.proto.next_action(t0)
+    assert isinstance(action, Listen)
+    assert action.until == pytest.approx(t0 + 0.025, abs=1e-9)
+    assert action.needed == int(0.025 / CHAR)  # the bytes that come in it
+
+
+def test_a_nap_lasts_at_most_half_the_flush_timeout_given(backend: ModuleType) -> None:
+    h = Harness(backend, LineConfig(baudrate=BAUD, parity="N", flush_timeout=0.02))
+    t0 = h.now
+    h.proto.receive_data(_long_write_head(), t0)
+    assert h.proto.wake_at(t0) == pytest.approx(t0 + 0.01, abs=1e-9)
+
+
+def test_a_request_all_in_a_late_read_after_another_is_timed_by_the_read(
+    backend: ModuleType,
+) -> None:
+    """The nap's read brings the rest of a read request and a whole Read Exception
+    Status (FC 07, 4 bytes) after it.  The first is stamped at the character rate
+    from the nap's start; the second came at some time in the nap, so it counts from
+    the read: answered t3.5 after it, and it replaces the first's answer (the master
+    moved on)."""
+    h = Harness(backend)
+    first = h.adu(read_request())
+    t0 = h.now
+    h.proto.receive_data(first[:2], t0)
+    at = h.proto.wake_at(t0)
+    assert at is not None
+    read = at + 0.002
+    h.proto.receive_data(first[2:] + h.adu(b"\x01\x07"), read)
+    pending = h.proto.pending
+    assert pending is not None and pending.adu[:2] == b"\x01\x07"
+    assert pending.earliest == pytest.approx(read + T35)
+    assert h.app.line.counters["slave_no_response_count"] == 1
+
+
+def test_writing_ahead_with_no_response_waiting_listens_until_the_framers_time(
+    backend: ModuleType,
+) -> None:
+    """``ahead`` moves only a response's time: with none waiting, a driver that
+    writes ahead listens until the framer's deadline (the t3.5 silence that ends a
+    request with no rule)."""
+    h = Harness(backend)
+    end = h.feed(h.adu(SHORT))
+    action = h.proto.next_action(end, nap=False, ahead=0.001)
+    assert action == Listen(pytest.approx(end + T35, abs=2e-6), 0)
+
+
+def test_a_framers_time_before_the_answers_is_kept(backend: ModuleType) -> None:
+    """Noise after a request, while its answer waits for response_delay: the framer's
+    t3.5 after the noise comes first, and the driver listens until then."""
+    h = Harness(backend, response_delay=0.05)
+    end = h.feed(h.adu(read_request()))
+    noise = end + 2 * CHAR
+    h.proto.receive_data(b"\xff", noise)
+    action = h.proto.next_action(noise, nap=False)
+    assert action == Listen(pytest.approx(noise + T35, abs=2e-6), 0)
+
+
+def test_another_slaves_address_naps_for_the_shortest_adu_after_served_frames(
+    backend: ModuleType,
+) -> None:
+    """Address alone of a frame to another slave, after this slave served a request
+    (bytes already framed): the nap is for the rest of the shortest ADU, function and
+    CRC, 3 characters ([SL] 2.5.1.1: 4 bytes at least)."""
+    h = Harness(backend)
+    h.feed(h.adu(read_request()))
+    h.run_until_sent()
+    h.now += 5 * T35
+    t0 = h.now
+    h.proto.receive_data(b"\x02", t0)
+    assert h.proto.needed() == 3
+    assert h.proto.wake_at(t0) == pytest.approx(t0 + 3 * CHAR)
+
+
+def test_a_rest_that_fits_the_longest_nap_exactly_is_napped_for_whole(
+    backend: ModuleType,
+) -> None:
+    """A broadcast Write Multiple Coils of 104 coils ([AP] 6.11: 13 data bytes, 22
+    bytes on the wire; not answered, so no turnaround) after its first 7 bytes: 15
+    to come, and the longest nap (half the flush timeout) is exactly 15 characters:
+    the nap is for all of them, not cut as a longer frame's nap is."""
+    flush = 2 * 15 * CHAR
+    h = Harness(backend, LineConfig(baudrate=BAUD, parity="N", flush_timeout=flush))
+    t0 = h.now
+    h.proto.receive_data(b"\x00\x0f\x00\x00\x00\x68\x0d", t0)
+    action = h.proto.next_action(t0)
+    assert action == Listen(pytest.approx(t0 + 15 * CHAR, abs=1e-9), 15)
