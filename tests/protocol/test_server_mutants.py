@@ -464,14 +464,16 @@ def test_writing_ahead_with_no_response_waiting_listens_until_the_framers_time(
     assert action == Listen(pytest.approx(end + T35, abs=2e-6), 0)
 
 
-def test_a_framers_time_before_the_answers_is_kept(backend: ModuleType) -> None:
+@pytest.mark.parametrize("ahead", [0.0, 0.001])
+def test_a_framers_time_before_the_answers_is_kept(backend: ModuleType, ahead: float) -> None:
     """Noise after a request, while its answer waits for response_delay: the framer's
-    t3.5 after the noise comes first, and the driver listens until then."""
+    t3.5 after the noise comes first, and the driver listens until then (writing
+    ahead or not: ``ahead`` moves the answer's time only)."""
     h = Harness(backend, response_delay=0.05)
     end = h.feed(h.adu(read_request()))
     noise = end + 2 * CHAR
     h.proto.receive_data(b"\xff", noise)
-    action = h.proto.next_action(noise, nap=False)
+    action = h.proto.next_action(noise, nap=False, ahead=ahead)
     assert action == Listen(pytest.approx(noise + T35, abs=2e-6), 0)
 
 
