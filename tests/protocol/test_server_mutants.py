@@ -10,11 +10,11 @@ from __future__ import annotations
 from types import ModuleType
 
 import pytest
-from test_server_protocol import BAUD, CHAR, T35, Harness, read_request
+from test_server_protocol import BAUD, CHAR, LINE, T35, Harness, read_request
 
 from pyrtu import pdu as pdus
 from pyrtu.core.line import LineConfig
-from pyrtu.protocol.server import Idle, Listen, Reply
+from pyrtu.protocol.server import Idle, Listen, Reply, ServerProtocol
 
 #: a function with no length rule (user-defined, [MB] 5): framed by its CRC or the
 #: silence after it; the slave answers it with exception 1
@@ -506,3 +506,43 @@ def test_a_rest_that_fits_the_longest_nap_exactly_is_napped_for_whole(
     h.proto.receive_data(b"\x00\x0f\x00\x00\x00\x68\x0d", t0)
     action = h.proto.next_action(t0)
     assert action == Listen(pytest.approx(t0 + 15 * CHAR, abs=1e-9), 15)
+
+
+def test_the_servers_options_are_keyword_only(backend: ModuleType) -> None:
+    """``backend``, ``state``, ``echo``, ``response_delay`` and ``watchdog`` are
+    keyword-only (the signature's ``*``): passed by position they are refused."""
+    app = Harness(backend).app
+    with pytest.raises(TypeError):
+        ServerProtocol(LINE, app, backend)  # type: ignore[misc]
+    assert ServerProtocol(LINE, app, backend=backend).backend is backend
+
+
+def test_needed_is_0_in_ascii(backend: ModuleType) -> None:
+    """ASCII frames end at their delimiter, not at a length: no lower bound on the
+    bytes still to come, even with fewer than 4 in (":01")."""
+    h = Harness(backend, LineConfig(baudrate=BAUD, parity="N", mode="ascii"))
+    h.proto.receive_data(b":01", h.now)
+    assert h.proto.needed() == 0
+
+
+def test_a_new_request_in_a_late_read_after_a_head_without_a_rule(
+    backend: ModuleType,
+) -> None:
+    """ "01 41" (no rule; its last request was 8 bytes long) is left by a master that
+    gave up; the nap's read, late, brings a whole Read Exception Status (FC 07, 4
+    bytes).  No CRC checks at any end of the old head, so no request ends in the read
+    by it: the read is timed by the read, a t3.5 silence before it ([SL] 2.5.1.1),
+    and FC 07 is answered t3.5 after the read."""
+    h = Harness(backend)
+    h.feed(h.adu(LONG))
+    h.run_until_sent()
+    h.now += 5 * T35
+    t0 = h.now
+    h.proto.receive_data(b"\x01\x41", t0)
+    at = h.proto.wake_at(t0)
+    assert at == pytest.approx(t0 + 6 * CHAR + T35)
+    read = at + 5 * T35  # the driver read late
+    h.proto.receive_data(h.adu(b"\x01\x07"), read)
+    pending = h.proto.pending
+    assert pending is not None and pending.adu[:2] == b"\x01\x07"
+    assert pending.earliest == pytest.approx(read + T35)
