@@ -546,3 +546,48 @@ def test_a_new_request_in_a_late_read_after_a_head_without_a_rule(
     pending = h.proto.pending
     assert pending is not None and pending.adu[:2] == b"\x01\x07"
     assert pending.earliest == pytest.approx(read + T35)
+
+
+def _crc16(data: bytes) -> int:
+    """CRC-16/MODBUS ([SL] 6.2.2), bit by bit: its low byte goes first on the wire."""
+    crc = 0xFFFF
+    for byte in data:
+        crc ^= byte
+        for _ in range(8):
+            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
+    return crc
+
+
+def test_a_late_read_is_timed_by_a_whole_crc_not_by_its_high_byte(
+    backend: ModuleType,
+) -> None:
+    """A 7-byte request of a function with no rule whose 4th byte is the high byte of
+    the CRC of "01 41" (and its 3rd not the low one): "01 41 aa HH" is no frame, and
+    the request's end is where its whole CRC checks, 7 bytes, at the character rate
+    from the nap's start."""
+    head = b"\x01\x41"
+    high = _crc16(head) >> 8
+    low = _crc16(head) & 0xFF
+    message = head + bytes(((low + 1) & 0xFF, high, 0xCC))
+    h = Harness(backend)
+    h.feed(h.adu(read_request()))
+    h.run_until_sent()
+    h.now += 5 * T35
+    adu = h.adu(message)
+    assert len(adu) == 7 and _crc16(adu) == 0
+    t0 = h.now
+    h.proto.receive_data(adu[:1], t0)
+    at = h.proto.wake_at(t0)
+    assert at == pytest.approx(t0 + 7 * CHAR + T35)  # the last length: 8
+    h.proto.receive_data(adu[1:], at)
+    assert _answered(h) == pytest.approx(t0 + 6 * CHAR + T35, abs=2e-6)
+
+
+def test_a_request_exactly_max_adu_long_naps_for_its_length(backend: ModuleType) -> None:
+    """max_adu 8: a read request (8 bytes, [AP] 6.3) is exactly the longest ADU
+    accepted, so it is napped for by its length and the turnaround."""
+    h = Harness(backend, LineConfig(baudrate=BAUD, parity="N", max_adu=8))
+    adu = h.adu(read_request())
+    t0 = h.now
+    h.proto.receive_data(adu[:2], t0)
+    assert h.proto.wake_at(t0) == pytest.approx(t0 + 6 * CHAR + T35)
