@@ -591,3 +591,28 @@ def test_a_request_exactly_max_adu_long_naps_for_its_length(backend: ModuleType)
     t0 = h.now
     h.proto.receive_data(adu[:2], t0)
     assert h.proto.wake_at(t0) == pytest.approx(t0 + 6 * CHAR + T35)
+
+
+def test_an_echo_at_exactly_the_end_of_its_window_is_dropped(backend: ModuleType) -> None:
+    h = Harness(backend, echo=True)
+    out, end = _echoed(h)
+    h.proto.receive_data(out, end + 2 * len(out) * CHAR + 0.2)
+    h.proto.handle_timer(end + 1.0)
+    assert h.proto.counters["echo_dropped"] == 1
+
+
+def test_a_stray_byte_dropped_before_a_request_is_not_its_address(backend: ModuleType) -> None:
+    """A stray byte (0x05, another slave's address) after a served request, dropped
+    by the silence after it; then a request's address alone: the nap is guessed from
+    this slave's last request (8 bytes), the stray byte is no part of the frame."""
+    h = Harness(backend)
+    h.feed(h.adu(read_request()))
+    h.run_until_sent()
+    h.now += 5 * T35
+    h.proto.receive_data(b"\x05", h.now)
+    assert h.run_until_sent()[0] is None  # the silences after it drop it
+    assert h.proto.deadline() is None
+    h.now += 5 * T35
+    t0 = h.now
+    h.proto.receive_data(b"\x01", t0)
+    assert h.proto.wake_at(t0) == pytest.approx(t0 + (8 - 1) * CHAR + T35)
