@@ -32,6 +32,7 @@
 #endif
 
 #include "rtu.h"
+#include "rtu_clock.h"
 #include "rtu_tcp.h"
 
 #if defined(__unix__) || defined(__APPLE__)
@@ -46,36 +47,6 @@
 #ifndef MSG_NOSIGNAL
 #define MSG_NOSIGNAL 0 /* (macOS: SIGPIPE is ignored by Python anyway) */
 #endif
-
-static int64_t now_ns(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (int64_t)ts.tv_sec * 1000000000 + ts.tv_nsec;
-}
-
-/* Wait for `events` on fd until `t` (absolute CLOCK_MONOTONIC ns), to the
- * nanosecond where ppoll() exists: >0 ready, 0 the time came, <0 error (errno). */
-static int wait_until(int fd, short events, int64_t t)
-{
-    struct pollfd p;
-    int64_t rel = t - now_ns();
-    p.fd = fd;
-    p.events = events;
-    p.revents = 0;
-    if (rel < 0)
-        rel = 0;
-#if defined(__linux__)
-    {
-        struct timespec ts;
-        ts.tv_sec = (time_t)(rel / 1000000000);
-        ts.tv_nsec = (long)(rel % 1000000000);
-        return ppoll(&p, 1, &ts, NULL);
-    }
-#else
-    return poll(&p, 1, (int)((rel + 999999) / 1000000));
-#endif
-}
 
 static int failed(rtu_tcp_xfer *x, int stage, int err)
 {
@@ -110,11 +81,11 @@ static int transmit(rtu_tcp_xfer *x)
             failed(x, RTU_TCP_STAGE_SEND, errno);
             return 1;
         }
-        if (now_ns() >= x->deadline) {
+        if (rtu_now_ns() >= x->deadline) {
             x->status = RTU_TCP_TIMEOUT; /* no room for the request in time */
             return 1;
         }
-        if (wait_until(x->fd, want, x->deadline) < 0 && errno != EINTR) {
+        if (rtu_wait_fd(x->fd, want, x->deadline) < 0 && errno != EINTR) {
             failed(x, RTU_TCP_STAGE_SEND, errno);
             return 1;
         }
@@ -167,7 +138,7 @@ int rtu_tcp_xfer_run(rtu_tcp_xfer *x)
         memset(&x->scan, 0, sizeof x->scan);
         x->err = x->stage = 0;
         x->end = 0;
-        x->start = now_ns();
+        x->start = rtu_now_ns();
         x->deadline = x->start + x->timeout_ns;
         if (transmit(x))
             return RTU_OK;
@@ -185,7 +156,7 @@ int rtu_tcp_xfer_run(rtu_tcp_xfer *x)
          * but after a read that found only part of one, the rest is awaited),
          * then read all there is */
         if (x->io == NULL || starved || x->io->pending(x->io) == 0) {
-            int r = wait_until(x->fd, want, x->deadline);
+            int r = rtu_wait_fd(x->fd, want, x->deadline);
             if (r < 0)
                 return failed(x, RTU_TCP_STAGE_RECEIVE, errno);
             if (r == 0) {
@@ -206,7 +177,7 @@ int rtu_tcp_xfer_run(rtu_tcp_xfer *x)
                             : recv(x->fd, x->buf + x->n, x->cap - x->n, 0);
         if (got > 0) {
             x->n += (size_t)got;
-            x->end = now_ns();
+            x->end = rtu_now_ns();
             if (scanned(x))
                 return RTU_OK;
         } else if (got == 0) {

@@ -32,6 +32,7 @@
 #endif
 
 #include "rtu.h"
+#include "rtu_clock.h"
 #include "rtu_tls.h"
 
 #include <errno.h>
@@ -59,34 +60,6 @@ struct rtu_tls_conn {
     SSL_SESSION *latest; /* the latest resumable session the server gave */
     char message[256];
 };
-
-static int64_t now_ns(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (int64_t)ts.tv_sec * 1000000000 + ts.tv_nsec;
-}
-
-static int wait_until(int fd, short events, int64_t t)
-{
-    struct pollfd p;
-    int64_t rel = t - now_ns();
-    p.fd = fd;
-    p.events = events;
-    p.revents = 0;
-    if (rel < 0)
-        rel = 0;
-#if defined(__linux__)
-    {
-        struct timespec ts;
-        ts.tv_sec = (time_t)(rel / 1000000000);
-        ts.tv_nsec = (long)(rel % 1000000000);
-        return ppoll(&p, 1, &ts, NULL);
-    }
-#else
-    return poll(&p, 1, (int)((rel + 999999) / 1000000));
-#endif
-}
 
 /* OpenSSL's error queue, its first reason, into buf (and the queue emptied) */
 static void take_errors(char *buf, size_t len, const char *fallback)
@@ -304,7 +277,7 @@ int rtu_tls_handshake(rtu_tls_conn *c, int64_t timeout_ns)
         return RTU_EINVAL;
     if (c->done)
         return RTU_TLS_DONE;
-    deadline = now_ns() + timeout_ns;
+    deadline = rtu_now_ns() + timeout_ns;
     for (;;) {
         int r, e;
         short want;
@@ -347,7 +320,7 @@ int rtu_tls_handshake(rtu_tls_conn *c, int64_t timeout_ns)
             take_errors(c->message, sizeof c->message, "handshake failed");
             return RTU_TLS_FAILED;
         }
-        r = wait_until(c->fd, want, deadline);
+        r = rtu_wait_fd(c->fd, want, deadline);
         if (r < 0) {
             if (errno == EINTR)
                 return RTU_TLS_INTERRUPTED;

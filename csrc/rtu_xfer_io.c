@@ -25,6 +25,7 @@
 #endif
 
 #include "rtu.h"
+#include "rtu_clock.h"
 #include "rtu_xfer.h"
 
 #if defined(__unix__) || defined(__APPLE__)
@@ -41,25 +42,18 @@
 #include <sys/prctl.h>
 #endif
 
-static int64_t now_ns(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (int64_t)ts.tv_sec * 1000000000 + ts.tv_nsec;
-}
-
 /* Sleep until `t` (absolute); 0, or EINTR when a signal came first. */
 static int sleep_until(int64_t t)
 {
 #if defined(__linux__)
     struct timespec ts;
-    if (t <= now_ns())
+    if (t <= rtu_now_ns())
         return 0;
     ts.tv_sec = (time_t)(t / 1000000000);
     ts.tv_nsec = (long)(t % 1000000000);
     return clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL);
 #else
-    int64_t rel = t - now_ns();
+    int64_t rel = t - rtu_now_ns();
     struct timespec ts;
     if (rel <= 0)
         return 0;
@@ -74,39 +68,9 @@ static int sleep_until(int64_t t)
  * latency (rtu_xfer.spin_ns). */
 static void spin_until(int64_t t)
 {
-    int64_t now = now_ns();
+    int64_t now = rtu_now_ns();
     while (now < t)
-        now = now_ns();
-}
-
-/* poll() the n descriptors until `t` (absolute; a past `t`: a look), to the
- * nanosecond where ppoll() exists.  >0 ready, 0 the time came, <0 error (errno;
- * EINTR: a signal). */
-static int poll_until(struct pollfd *p, nfds_t n, int64_t t)
-{
-    int64_t rel = t - now_ns();
-    if (rel < 0)
-        rel = 0;
-#if defined(__linux__)
-    {
-        struct timespec ts;
-        ts.tv_sec = (time_t)(rel / 1000000000);
-        ts.tv_nsec = (long)(rel % 1000000000);
-        return ppoll(p, n, &ts, NULL);
-    }
-#else
-    return poll(p, n, (int)((rel + 999999) / 1000000));
-#endif
-}
-
-/* Wait for `events` on fd until `t` (see poll_until). */
-static int wait_fd(int fd, short events, int64_t t)
-{
-    struct pollfd p;
-    p.fd = fd;
-    p.events = events;
-    p.revents = 0;
-    return poll_until(&p, 1, t);
+        now = rtu_now_ns();
 }
 
 /* Read what the descriptor has into buf; 1 bytes came, 0 none (EAGAIN), -1 done
@@ -120,7 +84,7 @@ static int take(rtu_xfer *x, int readable)
     if (got > 0) {
         x->n += (size_t)got;
         x->reads++;
-        x->last_t = now_ns();
+        x->last_t = rtu_now_ns();
         return 1;
     }
     if (got < 0 && (errno == EAGAIN || errno == EWOULDBLOCK || errno == EINTR))
@@ -151,7 +115,7 @@ static int transmit(rtu_xfer *x)
 {
     size_t done = 0;
     int64_t limit;
-    x->start = now_ns();
+    x->start = rtu_now_ns();
     /* a full output buffer (flow control) may hold the write up to twice its time
      * on the line and a second, as the Python port does */
     limit = x->start + 1000000000 + 2 * (int64_t)x->req_len * x->char_ns;
@@ -163,11 +127,11 @@ static int transmit(rtu_xfer *x)
         }
         if (w < 0 && errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR)
             return failed(x, RTU_XFER_STAGE_WRITE);
-        if (now_ns() >= limit) {
+        if (rtu_now_ns() >= limit) {
             errno = ETIMEDOUT;
             return failed(x, RTU_XFER_STAGE_WRITE);
         }
-        if (wait_fd(x->fd, POLLOUT, limit) < 0 && errno != EINTR)
+        if (rtu_wait_fd(x->fd, POLLOUT, limit) < 0 && errno != EINTR)
             return failed(x, RTU_XFER_STAGE_WRITE);
     }
     if (x->drain) {
@@ -177,7 +141,7 @@ static int transmit(rtu_xfer *x)
         }
     }
     x->sent = 1;
-    x->end = now_ns();
+    x->end = rtu_now_ns();
     if (x->drain && x->end < x->start + (int64_t)x->req_len * x->char_ns)
         x->end = x->start + (int64_t)x->req_len * x->char_ns;
     return RTU_OK;
@@ -209,8 +173,8 @@ static int pause_until(rtu_xfer *x, int64_t t)
 {
     if (x->cancel_fd < 0)
         return sleep_until(t) != 0;
-    while (now_ns() < t) {
-        int r = wait_fd(x->cancel_fd, POLLIN, t);
+    while (rtu_now_ns() < t) {
+        int r = rtu_wait_fd(x->cancel_fd, POLLIN, t);
         if (r > 0) {
             x->status = RTU_XFER_CANCELLED;
             return 1;
@@ -237,7 +201,7 @@ static int wait_input(rtu_xfer *x, int64_t t)
         p[1].revents = 0;
         n = 2;
     }
-    r = poll_until(p, n, t);
+    r = rtu_poll_until(p, n, t);
     if (r < 0) {
         if (errno != EINTR)
             failed(x, RTU_XFER_STAGE_READ);
@@ -272,7 +236,7 @@ int rtu_xfer_io_run(rtu_xfer *x)
         return RTU_OK; /* a signal or a cancel: nothing sent */
     spin_until(x->send_at);
     if (x->look) {
-        r = wait_fd(x->fd, POLLIN, 0);
+        r = rtu_wait_fd(x->fd, POLLIN, 0);
         if (r > 0) {
             if (take(x, 1) < 0)
                 return RTU_OK;
