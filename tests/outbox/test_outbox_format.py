@@ -420,3 +420,34 @@ def test_a_segment_header_is_its_first_16_bytes() -> None:
     assert fmt.parse_segment_header(head + b"\xb7OBr") == 42
     assert fmt.parse_segment_header(head[:15]) is None
     assert fmt.parse_segment_header(b"") is None
+
+
+@pytest.mark.parametrize("damage", ["crc", "magic", "number"])
+def test_a_cursor_whose_first_slot_is_bad_reads_its_second(damage: str) -> None:
+    """Slot 0 with a wrong checksum, or a whole slot (its checksum right) of another
+    magic ("OBc2") or with a number above 2**63 - 1 (none this format writes): slot
+    1 (at 512) is the state, slot 0 passed over."""
+    if damage == "crc":
+        first = _slot(4, 17)[:-1] + b"\x00"
+    else:
+        magic, acked = (b"OBc2", 17) if damage == "magic" else (b"OBc1", 2**63)
+        body = struct.pack("<4sQQQQ", magic, 4, acked, 0, 0)
+        first = body + struct.pack("<I", zlib.crc32(body))
+    data = first.ljust(512, b"\0") + _slot(3, 16)
+    assert fmt.decode_state(data) == fmt.CursorState(3, 16, 0, 0)
+
+
+@pytest.mark.parametrize(("head", "version"), [
+    (b"pyrtuOB\x02" + b"\x00" * 8, 2),  # a whole header of version 2
+    (b"pyrtuOB\x02" + b"\x00" * 12, 2),  # more bytes than the header: its version
+    (b"pyrtuOB\x02" + b"\x00" * 7, 1),  # one byte short: no header (the current one)
+    (b"pyrtuOB\x02", 1),
+])  # fmt: skip
+def test_a_segment_version_is_read_from_a_whole_header_only(head: bytes, version: int) -> None:
+    assert fmt.segment_version(head) == version
+
+
+def test_a_scans_numbers_are_keywords_only() -> None:
+    data = b"\0" * 16
+    with pytest.raises(TypeError):
+        fmt.scan(lambda off, n: data[off : off + n], 16, 16, 0)  # type: ignore[misc]
