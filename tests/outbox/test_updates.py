@@ -82,3 +82,12 @@ def test_text_is_stored_as_utf_8_not_escaped() -> None:
 def test_a_time_that_is_no_finite_number_is_refused(time: bytes) -> None:
     with pytest.raises(UpdateError, match="bad time"):
         decode_update(b'\x00pu1["p",1,' + time + b',"good"]')
+
+
+def test_a_point_update_is_immutable_and_hashable() -> None:
+    """A value read at a time: equal updates are one (a set holds it once) and none
+    changes after it is made (it may sit in an outbox or a queue meanwhile)."""
+    update = PointUpdate("d.speed", 1500, 10.5, "good")
+    assert {update, PointUpdate("d.speed", 1500, 10.5, "good")} == {update}
+    with pytest.raises(AttributeError):
+        update.value = 0  # type: ignore[misc]
