@@ -10,8 +10,9 @@ arithmetic, never from the scheduler."""
 from __future__ import annotations
 
 import pytest
+from test_poller_schedule_edges import WIRE, pt, silent
 
-from pyrtu.pdu.errors import ExceptionResponseError, FrameError, NoResponseError
+from pyrtu.pdu.errors import ExceptionResponseError, FrameError
 from pyrtu.poller import (
     BusScheduler,
     Limits,
@@ -25,22 +26,10 @@ from pyrtu.poller import (
 )
 from pyrtu.poller.events import Event
 
-#: 1 ms a character, t3.5 of 4 ms, no turnaround: round figures
-WIRE = Wire(0.001, 0.004)
 #: a read of one holding register: t3.5, the 8-byte request, the 7-byte answer
 READ_ONE = 0.004 + 8 * 0.001 + 7 * 0.001
 #: 0.25 s a character, t3.5 of 1 s: a read of one register holds the wire 4.75 s
 SLOW = Wire(0.25, 1.0)
-
-
-def pt(address: int, name: str | None = None, **kw: object) -> Point:
-    fields: dict[str, object] = dict(bus="b", slave=1, table="holding", interval=1.0)
-    fields.update(kw)
-    return Point(name or f"s{fields['slave']}.{address}", address=address, **fields)  # type: ignore[arg-type]
-
-
-def silent(req: ScheduledRequest) -> NoResponseError:
-    return NoResponseError("no answer", req.slave, req.function)
 
 
 def hole(req: ScheduledRequest) -> ExceptionResponseError:
