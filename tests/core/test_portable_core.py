@@ -19,7 +19,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from c_core import missing
+from c_core import build_variant, missing
 
 ROOT = Path(__file__).resolve().parents[2]
 CSRC = ROOT / "csrc"
@@ -36,13 +36,17 @@ def test_posix_headers_only_in_the_io_files() -> None:
     is the truth: exactly those files of csrc/ include POSIX headers."""
     posix = {p.name for p in CSRC.glob("*.[ch]") if POSIX_HEADERS.search(p.read_text())}
     named = {p.name for p in CSRC.glob("*.c") if p.name.endswith("_io.c")}
-    assert posix == named == {
-        "rtu_vbus_io.c",
-        "rtu_xfer_io.c",
-        "rtu_tcp_io.c",
-        "rtu_tls_io.c",
-        "rtu_clock_io.c",
-    }
+    assert (
+        posix
+        == named
+        == {
+            "rtu_vbus_io.c",
+            "rtu_xfer_io.c",
+            "rtu_tcp_io.c",
+            "rtu_tls_io.c",
+            "rtu_clock_io.c",
+        }
+    )
 
 
 def _env(**extra: str) -> dict[str, str]:
@@ -59,20 +63,7 @@ def windows_set(tmp_path_factory: pytest.TempPathFactory) -> Path:
     cc = shutil.which(os.environ.get("CC", "cc"))
     if cc is None:
         missing("no C compiler here")
-    base = tmp_path_factory.mktemp("portable")
-    lib = base / "lib"
-    cmd = [sys.executable, "setup.py", "-q", "build_ext", "--build-lib", str(lib)]
-    cmd += ["--build-temp", str(base / "temp"), "--force"]
-    env = _env(PYRTU_POSIX_IO="0", PYRTU_REQUIRE_C="1", PYRTU_STRICT_BUILD="1")
-    out = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
-    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
-    shutil.copytree(
-        ROOT / "pyrtu",
-        lib / "pyrtu",
-        ignore=shutil.ignore_patterns("*.so", "__pycache__"),
-        dirs_exist_ok=True,
-    )
-    return lib
+    return build_variant(tmp_path_factory.mktemp("portable"), 600, PYRTU_POSIX_IO="0")
 
 
 PROBE = r"""

@@ -24,7 +24,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from c_core import missing
+from c_core import build_variant, missing
 from tls_certs import DAY, NOW, Pair, Pki, make_pki
 
 import pyrtu
@@ -313,20 +313,7 @@ def test_the_build_without_openssl_runs_mbaps_in_python(
     csrc/rtu_tls_io.c, and ``mbaps://`` runs over Python's ssl module."""
     if shutil.which(os.environ.get("CC", "cc")) is None:
         missing("no C compiler here")
-    lib = tmp_path / "lib"
-    env = {k: v for k, v in os.environ.items() if not k.startswith("PYRTU_")}
-    env.pop("PYTHONPATH", None)
-    env.update(PYRTU_TLS="0", PYRTU_REQUIRE_C="1", PYRTU_STRICT_BUILD="1")
-    cmd = [sys.executable, "setup.py", "-q", "build_ext", "--build-lib", str(lib)]
-    cmd += ["--build-temp", str(tmp_path / "temp"), "--force"]
-    out = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
-    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
-    shutil.copytree(
-        ROOT / "pyrtu",
-        lib / "pyrtu",
-        ignore=shutil.ignore_patterns("*.so", "__pycache__"),
-        dirs_exist_ok=True,
-    )
+    lib = build_variant(tmp_path, PYRTU_TLS="0")
     probe = f"""
 import sys
 sys.path.insert(0, {str(ROOT / "tests")!r})
