@@ -1,10 +1,11 @@
 """Each profile method against its simulator over the virtual RS-485 bus: one
 `pyrtu.Master` on drop 0 and the six simulated drives on the other drops of one
-shared bus (RTU), plus the ASCII variants.  Real time, short ramps."""
+shared bus (RTU), plus the ASCII variants.  The bus runs in real time; the drives'
+model runs on one `ManualClock`, which `_wait` moves, so a ramp or a holding time ends
+when the test says, however loaded the machine (CI lost a 0.3 s sleep to load)."""
 
 from __future__ import annotations
 
-import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -26,6 +27,7 @@ from pyrtu.devices import (
     DriveState,
     ErrorAction,
     InterfaceStatus,
+    ManualClock,
     WegSimulator,
     bonfiglioli,
     cv100,
@@ -49,15 +51,18 @@ class Bus:
     acu: ACUSimulator
 
 
+CLOCK = ManualClock(1000.0)
+
+
 @pytest.fixture(scope="module")
 def bus() -> Iterator[Bus]:
     sims = {
-        "cfw100": CFW100Simulator(state="stopped"),
-        "cfw320": CFW320Simulator(),
-        "cfw701": CFW701Simulator(),
-        "cv100": CV100Simulator(state="stopped"),
-        "act": ACTSimulator(fault_lock_time=0.2),
-        "acu": ACUSimulator(fault_lock_time=0.2),
+        "cfw100": CFW100Simulator(state="stopped", clock=CLOCK),
+        "cfw320": CFW320Simulator(clock=CLOCK),
+        "cfw701": CFW701Simulator(clock=CLOCK),
+        "cv100": CV100Simulator(state="stopped", clock=CLOCK),
+        "act": ACTSimulator(fault_lock_time=0.2, clock=CLOCK),
+        "acu": ACUSimulator(fault_lock_time=0.2, clock=CLOCK),
     }
     with VirtualBus(1 + len(sims), baudrate=BAUD, parity="N") as vbus:
         for drop, (name, sim) in enumerate(sims.items(), start=1):
@@ -72,7 +77,8 @@ def bus() -> Iterator[Bus]:
 
 
 def _wait(seconds: float) -> None:
-    time.sleep(seconds)
+    """The drives' time moves on by ``seconds`` (their model catches up on the next telegram)."""
+    CLOCK.advance(seconds)
 
 
 # -- WEG ----------------------------------------------------------------------------------
@@ -259,7 +265,9 @@ def test_vectron_profile_state_machine(bus: Bus, name: str, cls: type[ACT]) -> N
     drive.write(638, 0.1)  # holding time
     drive.quick_stop()
     assert drive.state() is DriveState.QUICK_STOP
-    _wait(0.3)  # 30 Hz at 300 Hz/s, then the holding time
+    _wait(0.19)  # 30 Hz at 300 Hz/s is 0.1 s, then the holding time of 0.1 s
+    assert drive.state() is DriveState.QUICK_STOP
+    _wait(0.02)
     assert drive.state() is DriveState.STARTING_LOCKOUT and drive.frequency_hz() == 0.0
     assert drive.start(30) is DriveState.OPERATION_ENABLED
     drive.disable_voltage()  # coasts at once
