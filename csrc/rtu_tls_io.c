@@ -197,6 +197,7 @@ static ptrdiff_t tls_send(rtu_tcp_io *io, const uint8_t *data, size_t len, short
     int ok;
     ERR_clear_error();
     errno = 0;
+    c->message[0] = '\0'; /* (this call's words only: rtu_tls_conn_message) */
     ok = SSL_write_ex(c->ssl, data, len, &moved);
     return outcome(c, ok, moved, want);
 }
@@ -208,6 +209,7 @@ static ptrdiff_t tls_recv(rtu_tcp_io *io, uint8_t *data, size_t len, short *want
     int ok;
     ERR_clear_error();
     errno = 0;
+    c->message[0] = '\0'; /* (this call's words only: rtu_tls_conn_message) */
     ok = SSL_read_ex(c->ssl, data, len, &moved);
     return outcome(c, ok, moved, want);
 }

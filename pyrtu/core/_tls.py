@@ -118,7 +118,7 @@ class CTlsConnection:
             while status == lib.RTU_TLS_INTERRUPTED:  # a signal's handler ran (or raised)
                 status = lib.rtu_tls_handshake(self.conn, int(timeout * 1e9))
             if status != lib.RTU_TLS_DONE:
-                message = ffi.string(lib.rtu_tls_conn_message(self.conn)).decode(errors="replace")
+                message = self.message()
                 if status == lib.RTU_TLS_TIMEOUT:
                     raise TimeoutError(message)
                 if status == lib.RTU_TLS_ERRNO:
@@ -133,6 +133,13 @@ class CTlsConnection:
         self.version = {0x0303: "TLSv1.2", 0x0304: "TLSv1.3"}.get(
             lib.rtu_tls_conn_version(self.conn), ""
         )
+
+    def message(self) -> str:
+        """OpenSSL's words for the connection's last error (empty: none of its own)."""
+        if self.conn is None:
+            return ""
+        text: bytes = self._ffi.string(self._lib.rtu_tls_conn_message(self.conn))
+        return text.decode(errors="replace")
 
     @property
     def reused(self) -> bool:

@@ -11,6 +11,7 @@ import math
 import os
 import socket
 import weakref
+from collections.abc import Callable
 from typing import Any
 
 from pyrtu.core._rtu_core import ffi, lib
@@ -18,6 +19,7 @@ from pyrtu.drivers._pipes import drain, poke
 from pyrtu.drivers.xfer import (
     CAPACITY,
     TCP_CAPACITY,
+    TCP_ERRNO,
     TcpScan,
     TcpXferReport,
     XferPlan,
@@ -151,12 +153,15 @@ class TcpXferRunner:
     (csrc/rtu_tcp_io.c; `pyrtu.drivers.xfer.TcpXferRunner`) on the non-blocking
     socket ``sock`` (the caller's: it closes it)."""
 
-    def __init__(self, sock: socket.socket, io: Any = None) -> None:
+    def __init__(
+        self, sock: socket.socket, io: Any = None, why: Callable[[], str] | None = None
+    ) -> None:
         x = ffi.new("rtu_tcp_xfer *")
         self._keep = ffi.new("char[]", TCP_CAPACITY)  # (char: ffi.unpack gives bytes)
         x.fd, x.buf, x.cap = sock.fileno(), ffi.cast("uint8_t *", self._keep), TCP_CAPACITY
         if io is not None:  # a layer on the socket: mbaps://'s TLS (pyrtu/core/_tls.py)
             x.io = io
+        self._why = why  # the layer's words for an error of its own (TLS: OpenSSL's)
         self._x = x
         self._call = lib.rtu_tcp_xfer_call
         self.answer = ffi.buffer(x.answer)
@@ -182,7 +187,10 @@ class TcpXferRunner:
         s = x.scan
         scan = TcpScan(s.used, s.ans_off, s.ans_len, s.late, s.late_after, s.error)
         data = ffi.unpack(self._keep, x.n) if x.n else b""
-        return TcpXferReport(x.status, x.start * 1e-9, x.end * 1e-9, data, scan, x.err, x.stage)
+        why = self._why() if self._why is not None and x.status == TCP_ERRNO else ""
+        return TcpXferReport(
+            x.status, x.start * 1e-9, x.end * 1e-9, data, scan, x.err, x.stage, why
+        )
 
 
 class TcpScanner:

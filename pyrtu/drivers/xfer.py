@@ -159,6 +159,10 @@ class TcpXferReport(NamedTuple):
     """the errno of TCP_ERRNO"""
     stage: int
     """STAGE_SEND or STAGE_RECEIVE of TCP_ERRNO"""
+    why: str = ""
+    """the layer's own words for ``err`` where it has them (mbaps://'s TLS in C:
+    OpenSSL's reason for an EPROTO, "decryption failed or bad record mac"); empty:
+    the system's (os.strerror)"""
 
 
 class TcpXferRunner(Protocol):

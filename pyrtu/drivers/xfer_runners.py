@@ -6,6 +6,7 @@ backend (``backend=`` of the constructors)."""
 from __future__ import annotations
 
 import socket
+from collections.abc import Callable
 from types import ModuleType
 from typing import Any
 
@@ -35,14 +36,20 @@ def async_xfer_runner(backend: ModuleType) -> AsyncXferRunner:
     return ax
 
 
-def tcp_xfer_runner(backend: ModuleType, sock: socket.socket, io: Any = None) -> TcpXferRunner:
+def tcp_xfer_runner(
+    backend: ModuleType,
+    sock: socket.socket,
+    io: Any = None,
+    why: Callable[[], str] | None = None,
+) -> TcpXferRunner:
     """A new `TcpXferRunner` of ``backend``'s kind on the connected, non-blocking
     ``sock`` (C: csrc/rtu_tcp_io.c on its descriptor; ``io``: a C layer on it, the
-    TLS of `pyrtu.core._tls.CTlsConnection.io`, C only)."""
+    TLS of `pyrtu.core._tls.CTlsConnection.io`, C only, and ``why`` its words for
+    an error of its own, `TcpXferReport.why`)."""
     if io is not None:
         from pyrtu.drivers import _cxfer
 
-        runner: TcpXferRunner = _cxfer.TcpXferRunner(sock, io)
+        runner: TcpXferRunner = _cxfer.TcpXferRunner(sock, io, why)
         return runner
     runner = _impl(backend).TcpXferRunner(sock)
     return runner

@@ -202,7 +202,9 @@ class TcpClient(TcpClientState, Closing):
                 self._sock.close()
                 raise connect_error(self.where, exc, ct) from exc
             self._accelerated = accelerated
-            self._runner = xfer_runners.tcp_xfer_runner(be, self._sock, self._ctls.io)
+            self._runner = xfer_runners.tcp_xfer_runner(
+                be, self._sock, self._ctls.io, self._ctls.message
+            )
             return
         if self._tls is not None:  # mbaps:// in Python: the handshake within the connect timeout
             try:

@@ -409,7 +409,7 @@ class TcpClientProtocol:
             self.connection_lost("the server closed the connection")
         elif status == xfer.TCP_ERRNO:
             what = "send" if r.stage == xfer.STAGE_SEND else "receive"
-            self.connection_lost(f"{what} failed: {OSError(r.err, os.strerror(r.err))}")
+            self.connection_lost(f"{what} failed: {OSError(r.err, r.why or os.strerror(r.err))}")
         else:
             raise RuntimeError(f"TCP xfer status {status}")  # (INTERRUPTED: resumed first)
         assert self.broken is not None

@@ -42,7 +42,8 @@ needs_openssl = pytest.mark.skipif(OPENSSL is None, reason="needs Debian's opens
 @pytest.fixture(autouse=True)
 def c_tls(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
     """Every test here runs the C path (its handshakes counted: a test that ended on
-    the Python fallback fails), but the one about the build without it."""
+    the Python fallback fails), but the one about the build without it and the
+    fallback's side of a comparison (``[python]``)."""
     if not _tls.available(pyrtu.backend("c") if "c" in pyrtu.available_backends() else pyrtu):
         missing("the C core's TLS (OpenSSL) is not built here")
     handshakes = []
@@ -54,7 +55,7 @@ def c_tls(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> It
 
     monkeypatch.setattr(_tls.CTlsContext, "connect", counted)
     yield
-    if "without_openssl" not in request.node.name:
+    if "without_openssl" not in request.node.name and "[python]" not in request.node.name:
         assert handshakes, "the C path did not run"
 
 
@@ -344,9 +345,11 @@ c.close()
 class HalfRecordServer:
     """A TLS server (Python's ssl over memory BIOs, so that the test decides which
     bytes go on the wire): the handshake, the request read, then the answer's TLS
-    record sent only in part (its first half) and nothing more."""
+    record sent only in part (its first half) and nothing more; ``damaged``: the
+    whole record instead, its last byte (of the AEAD tag) changed."""
 
-    def __init__(self, pki: Pki) -> None:
+    def __init__(self, pki: Pki, *, damaged: bool = False) -> None:
+        self.damaged = damaged
         self.context = server_context(pki.server.cert, pki.server.key, pki.ca.path)
         self.listener = socket.create_server(("127.0.0.1", 0))
         self.port: int = self.listener.getsockname()[1]
@@ -384,7 +387,10 @@ class HalfRecordServer:
             tid = request[:2]  # the answer the Application Protocol gives (6.3)
             tls.write(tid + bytes((0, 0, 0, 5, 1, 3, 2, 0x12, 0x34)))
             record = out.read()
-            conn.sendall(record[: len(record) // 2])
+            if self.damaged:
+                conn.sendall(record[:-1] + bytes((record[-1] ^ 0x01,)))
+            else:
+                conn.sendall(record[: len(record) // 2])
             self.sent_half.set()
             self.done.wait(30)
 
@@ -424,3 +430,25 @@ def test_half_a_record_then_silence_times_out_within_the_deadline(pki: Pki) -> N
     assert server.sent_half.is_set()
     assert isinstance(outcome[0], NoResponseError), outcome
     assert isinstance(outcome[1], float) and 0.5 <= outcome[1] < 0.5 + 2.0, outcome
+
+
+@pytest.mark.parametrize("backend", ["c", "python"])
+def test_a_damaged_record_is_reported_in_openssl_s_words(pki: Pki, backend: str) -> None:
+    """An answer whose TLS record fails its integrity check ends the connection with
+    OpenSSL's reason ("decryption failed or bad record mac", the text of
+    SSL_R_DECRYPTION_FAILED_OR_BAD_RECORD_MAC), on the C path as on the Python ssl
+    fallback: not the bare "Protocol error" of EPROTO."""
+    server = HalfRecordServer(pki, damaged=True)
+    try:
+        c = TcpClient(
+            f"mbaps://localhost:{server.port}", tls=operator(pki), timeout=5.0, backend=backend
+        )
+        try:
+            assert c.tls_path == backend
+            with pytest.raises(PortError, match="bad record mac") as exc:
+                c.request(1, bytes((3, 0, 0, 0, 1)))
+            assert "receive failed" in str(exc.value), exc.value
+        finally:
+            c.close()
+    finally:
+        server.close()
