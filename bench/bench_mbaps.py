@@ -24,6 +24,16 @@ without OpenSSL).  The targets are the C path's.
    (the minimum), since TLS 1.3's resumption still runs an ECDHE exchange
    (psk_dhe_ke) while TLS 1.2's abbreviated handshake runs none.
 
+3. The reference for 2.: OpenSSL's own client, ``openssl s_time`` (``-new`` against
+   ``-reuse``, each TLS version, ``--stime-rounds`` interleaved rounds of
+   ``--stime-seconds``) against ``openssl s_server -www`` with the same certificates
+   (client certificate required).  s_time counts its user CPU only (``connections/user
+   sec``), so our client's user CPU per connect is given beside it (from
+   `resource.getrusage`, the mean over the ``--connects``); and s_time's user +
+   system CPU (the target's measure), from `resource.getrusage` of the children
+   over each round: what OpenSSL itself reaches on this machine is the floor of any
+   client built on it.
+
 Certificates: made here with tests/tls_certs.py (P-256 ECDSA, as the tests').
 """
 
@@ -35,9 +45,13 @@ import datetime
 import json
 import multiprocessing
 import platform
+import re
+import resource
+import shutil
 import socket
 import ssl
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -192,14 +206,19 @@ def transactions(
     }
 
 
+def _user_cpu() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_utime
+
+
 def connect_once(
-    url: str, context: ssl.SSLContext, failures: list[str], backend: str
+    url: str, context: ssl.SSLContext, failures: list[str], backend: str, user: list[float]
 ) -> tuple[float, bool]:
     """Client CPU of one connect (TCP and TLS handshake), and whether it resumed the
     session; then one transaction (TLS 1.3 sends its session tickets after the
-    handshake) and the close.  A reset under load is counted and tried again."""
+    handshake) and the close.  A reset under load is counted and tried again.
+    ``user``: the connect's user CPU alone is appended (s_time's measure)."""
     for attempt in range(3):
-        start = time.process_time()
+        start, start_user = time.process_time(), _user_cpu()
         try:
             client = TcpClient(url, timeout=5.0, tls=context, backend=backend)
         except PortError as exc:
@@ -209,6 +228,7 @@ def connect_once(
             continue
         break
     cpu = time.process_time() - start
+    user.append(_user_cpu() - start_user)
     client.request(1, REQUEST[7:])
     again = client.session_reused
     assert client.tls_path == backend, (client.tls_path, backend)
@@ -226,16 +246,18 @@ def connects(args: argparse.Namespace, pki: Pki, plain: int, tls_port: int) -> d
         context.maximum_version = ssl.TLSVersion[version.replace(".", "_")]
         full: list[float] = []
         resumed: list[float] = []
+        full_user: list[float] = []
+        resumed_user: list[float] = []
         reused = 0
         failures: list[str] = []
-        connect_once(url, context, failures, backend)  # a first session to resume
+        connect_once(url, context, failures, backend, [])  # a first session to resume
         for _ in range(args.connects):
             forget_sessions(context)  # forgotten: a full handshake
-            cpu, again = connect_once(url, context, failures, backend)
+            cpu, again = connect_once(url, context, failures, backend, full_user)
             assert not again
             full.append(cpu)
             # the session of the one before: resumed
-            cpu, again = connect_once(url, context, failures, backend)
+            cpu, again = connect_once(url, context, failures, backend, resumed_user)
             reused += again
             resumed.append(cpu)
         # the floors under both: the TCP connect (and pyrtu's client) alone, and
@@ -264,6 +286,10 @@ def connects(args: argparse.Namespace, pki: Pki, plain: int, tls_port: int) -> d
             "handshake_ratio": (statistics.median(resumed) - floor)
             / (statistics.median(full) - floor),
             "resumed_share": reused / args.connects,
+            # user CPU alone (getrusage: sampled, so the mean over all, not a median)
+            "full_user_us": statistics.fmean(full_user) * 1e6,
+            "resumed_user_us": statistics.fmean(resumed_user) * 1e6,
+            "user_ratio": statistics.fmean(resumed_user) / statistics.fmean(full_user),
             "failed_connects": failures,
             "ratio": ratio,
             "ok": ratio <= TARGET_RESUME and reused == args.connects,
@@ -271,11 +297,77 @@ def connects(args: argparse.Namespace, pki: Pki, plain: int, tls_port: int) -> d
     return out
 
 
+_S_TIME = re.compile(r"(\d+) connections in [\d.]+s; ([\d.]+) connections/user sec")
+
+
+def openssl_reference(args: argparse.Namespace, pki: Pki) -> dict[str, Any] | None:
+    """OpenSSL's own client (``openssl s_time``) connecting anew and resuming, against
+    ``openssl s_server -www`` with the same certificates: user CPU per connect (s_time's
+    measure) on each TLS version, the median of ``--stime-rounds`` interleaved rounds.
+    None where the openssl binary is missing."""
+    openssl = shutil.which("openssl")
+    if openssl is None:
+        return None
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    files = ["-CAfile", str(pki.ca.path)]
+    server = subprocess.Popen(
+        [openssl, "s_server", "-quiet", "-www", "-accept", f"127.0.0.1:{port}", "-Verify", "1",
+         "-cert", str(pki.server.cert), "-key", str(pki.server.key), *files],
+        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 10.0
+        while True:
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=1.0).close()
+                break
+            except OSError:
+                if time.monotonic() > deadline or server.poll() is not None:
+                    raise RuntimeError("openssl s_server did not start") from None
+                time.sleep(0.05)
+        out: dict[str, Any] = {}
+        for version, flag in (("TLSv1.3", "-tls1_3"), ("TLSv1.2", "-tls1_2")):
+            us: dict[str, list[float]] = {"new": [], "reuse": []}
+            total: dict[str, list[float]] = {"new": [], "reuse": []}
+            for _ in range(args.stime_rounds):
+                for mode in us:
+                    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+                    run = subprocess.run(
+                        [openssl, "s_time", "-connect", f"localhost:{port}", f"-{mode}",
+                         "-time", f"{args.stime_seconds:g}", "-cert", str(pki.operator.cert),
+                         "-key", str(pki.operator.key), *files, flag, "-www", "/"],
+                        capture_output=True, text=True, timeout=args.stime_seconds + 60,
+                    )  # fmt: skip
+                    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+                    found = _S_TIME.search(run.stdout)
+                    if found is None:
+                        raise RuntimeError(f"openssl s_time -{mode}: {run.stdout[-500:]}")
+                    us[mode].append(1e6 / float(found.group(2)))
+                    # its user + system CPU, the target's measure (the process's start
+                    # and end included: a few ms over thousands of connects)
+                    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+                    total[mode].append(cpu / int(found.group(1)) * 1e6)
+            new, reuse = statistics.median(us["new"]), statistics.median(us["reuse"])
+            new_cpu, reuse_cpu = statistics.median(total["new"]), statistics.median(total["reuse"])
+            out[version] = {"new_user_us": new, "reuse_user_us": reuse, "ratio": reuse / new,
+                            "new_cpu_us": new_cpu, "reuse_cpu_us": reuse_cpu,
+                            "cpu_ratio": reuse_cpu / new_cpu,
+                            "rounds_us": us, "rounds_cpu_us": total}  # fmt: skip
+        return out
+    finally:
+        server.terminate()
+        server.wait(10)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
     ap.add_argument("--transactions", type=int, default=2000, help="per round and client")
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--connects", type=int, default=200, help="of each kind, per TLS version")
+    ap.add_argument("--stime-rounds", type=int, default=3, help="of openssl s_time, each kind")
+    ap.add_argument("--stime-seconds", type=float, default=3.0, help="per s_time round")
     ap.add_argument("--json", type=Path, help="also write the figures here")
     args = ap.parse_args()
     started = time.monotonic()
@@ -288,6 +380,7 @@ def main() -> int:
             ports: tuple[int, int, int, int] = parent.recv()
             trans = transactions(args, pki, ports)
             conn = connects(args, pki, ports[0], ports[1])
+            reference = openssl_reference(args, pki)
         finally:
             parent.close()
             proc.join(30)
@@ -315,17 +408,29 @@ def main() -> int:
             "    under both: TCP connect (pyrtu's TcpClient on tcp://) "
             f"{r['tcp_connect_us']:.0f} us,"
             f" SSL object setup {r['ssl_setup_us']:.0f} us; the handshakes alone: "
-            f"{r['handshake_ratio']:.2f}x"
+            f"{r['handshake_ratio']:.2f}x; user CPU alone: full {r['full_user_us']:.0f} us, "
+            f"resumed {r['resumed_user_us']:.0f} us: {r['user_ratio']:.2f}x"
+        )
+    if reference is None:
+        lines.append("openssl s_time: no openssl binary here")
+    for version, r in (reference or {}).items():
+        lines.append(
+            f"  openssl s_time, {version} (user CPU): new {r['new_user_us']:.0f} us, "
+            f"reuse {r['reuse_user_us']:.0f} us: {r['ratio']:.2f}x; user + system: new "
+            f"{r['new_cpu_us']:.0f} us, reuse {r['reuse_cpu_us']:.0f} us: {r['cpu_ratio']:.2f}x"
         )
     print("\n".join(lines))
     if args.json:
         doc = {
             "transactions": trans,
             "connects": conn,
+            "openssl_s_time": reference,
             "settings": {
                 "transactions": args.transactions,
                 "rounds": args.rounds,
                 "connects": args.connects,
+                "stime_rounds": args.stime_rounds,
+                "stime_seconds": args.stime_seconds,
             },
             "openssl": ssl.OPENSSL_VERSION,
             "python": platform.python_version(),

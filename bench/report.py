@@ -122,7 +122,12 @@ BENCHMARKS: tuple[Benchmark, ...] = (
         quick=("--outage", "10", "--rounds", "3", "--rebirths", "10"),
     ),
     Benchmark(
-        "mbaps", ("bench/bench_mbaps.py",), quick=("--transactions", "500", "--connects", "30")
+        "mbaps",
+        ("bench/bench_mbaps.py",),
+        quick=(
+            *("--transactions", "500", "--connects", "30"),
+            *("--stime-rounds", "1", "--stime-seconds", "1"),
+        ),
     ),
     Benchmark("setrt", ("bench/bench_set_roundtrip.py",), quick=("--sets", "100")),
     Benchmark("compat", ("bench/bench_compat.py",)),
