@@ -3,6 +3,7 @@ in the schedule, a slave's health, the bus's figures."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from .events import SlaveStats
@@ -42,6 +43,8 @@ class _Task:
     alive: bool = True
     suspended: bool = False
     seq: int = 0
+    #: the block's previous answer (its registers or bits): the same again is `Unchanged`
+    raw: Sequence[int] | Sequence[bool] | None = None
 
 
 @dataclass

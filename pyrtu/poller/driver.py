@@ -58,7 +58,16 @@ from pyrtu.pdu.errors import ExceptionResponseError, PortError
 
 from .config import Bus, ConfigError, Device, PollerConfig, load_config, make_config
 from .connect import ConnectGate, ConnectLimits, network_host
-from .events import BusReport, Event, PortState, SlaveStats, TaskFailed, Tracker, Update
+from .events import (
+    BusReport,
+    Event,
+    PortState,
+    SlaveStats,
+    TaskFailed,
+    Tracker,
+    Unchanged,
+    Update,
+)
 from .masters import BY_FUNCTION, FACTORIES, AsyncMasterLike, is_port_error, open_master
 from .points import Point, Value, encode_point, encode_point_value
 from .schedule import BusScheduler, ScheduledRequest
@@ -140,6 +149,16 @@ def wake_tick(interval: float) -> float:
     devices at 1 Hz, started a millisecond apart, wake the loop a hundred times a
     second rather than a thousand (each wake-up costs tens of microseconds)."""
     return min(interval * WAKE_FRACTION, WAKE_TICK)
+
+
+def _samples(ev: Event | Unchanged) -> list[Event | Unchanged]:
+    """``ev`` as the events it stands for: an `Unchanged` block's `Update` events."""
+    out: list[Event | Unchanged] = []
+    if isinstance(ev, Unchanged):
+        out += ev.updates()
+    else:
+        out.append(ev)
+    return out
 
 
 class Poller(AsyncService):
@@ -355,6 +374,7 @@ class Poller(AsyncService):
                 continue
             fut = run.pending.pop(req.tag, None) if req.tag else None
             run.inflight, run.inflight_future = req, fut
+            events: list[Event] | list[Event | Unchanged]
             due = sched.offline_due(req)
             timer = None if due is None else asyncio.get_running_loop().call_later(
                 max(0.0, due - clock()), self._silent, run, req)  # fmt: skip
@@ -517,14 +537,22 @@ class Poller(AsyncService):
             return (req.slave, req.address, list(req.values))
         return (req.slave, req.address, req.count)
 
-    def _dispatch(self, events: list[Event], run: _BusRun | None = None) -> None:
+    def _dispatch(self, events: Sequence[Event | Unchanged], run: _BusRun | None = None) -> None:
         """Deliver ``events``; ``run``: the bus whose scheduler made them all (its
-        updates counted once for the batch, not per value)."""
+        updates counted once for the batch, not per value).  An `Unchanged` block is
+        noted as read, no value of it delivered, when only changes are; otherwise
+        its samples are delivered as the block's `Update` events would be."""
         now = time.monotonic()
         offer, changes_only, runs = self._tracker.offer, self.changes_only, self._runs
         update_cbs = self._update_cbs
         read = 0
+        if not changes_only and any(type(ev) is Unchanged for ev in events):
+            events = [u for ev in events for u in _samples(ev)]
         for ev in events:
+            if isinstance(ev, Unchanged):  # (only changes delivered: none of these changed)
+                read += len(ev.points)  # (a scheduler's: with its bus's run)
+                self._tracker.reread(ev.points, now, ev.time)
+                continue
             if isinstance(ev, Update):
                 read += 1
                 if run is None:

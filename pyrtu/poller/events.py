@@ -9,6 +9,7 @@ Every event but `Update` has ``as_dict()``: its ``pyrtu poll --json`` line, with
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any, ClassVar
 
@@ -146,6 +147,26 @@ class TaskFailed:
 Event = Update | PortState | SlaveState | PointDropped | Overload | TaskFailed
 
 
+@dataclass(frozen=True, slots=True)
+class Unchanged:
+    """Not an event of the API: what a scheduler says (for the driver alone) when a
+    poll block answered exactly the registers (or bits) of its previous answer.
+    Decoding is a function of them, so none of its points changed: nothing to
+    decode, nothing to deliver when only changes are (the driver's `Tracker.reread`
+    notes the read); ``data`` and ``address`` decode them where every sample is
+    delivered."""
+
+    points: tuple[Point, ...]
+    data: Sequence[int] | Sequence[bool]
+    address: int
+    time: float
+
+    def updates(self) -> list[Update]:
+        """The points' samples, as the block's answer gives them."""
+        data, address, stamp = self.data, self.address, self.time
+        return [Update(p, p.decode(data, address), stamp) for p in self.points]
+
+
 def percentile(sorted_values: list[float], q: float) -> float | None:
     """Nearest-rank percentile (``q`` in 0..100) of sorted values; None if empty."""
     if not sorted_values:
@@ -231,6 +252,9 @@ class Tracker:
         self._delivered: dict[str, Value | None] = {}
         self._seen: dict[str, float] = {}
         self._latest: dict[str, Update] = {}
+        #: the stamp of a point's latest read when it came after its latest sample in
+        #: ``_latest`` (`reread`: the value again, no `Update` made for it)
+        self._reread: dict[str, float] = {}
 
     def offer(self, update: Update, seen: float) -> bool:
         """``seen``: the sample's time on the clock `age` is asked on."""
@@ -248,6 +272,23 @@ class Tracker:
         delivered[name] = new
         return True
 
+    def reread(self, points: Sequence[Point], seen: float, stamp: float) -> None:
+        """``points`` read again with the values of their latest samples (a block that
+        answered what it answered before: `Unchanged`), at ``stamp``; ``seen`` as in
+        `offer`.  Nothing to deliver: only their age and their latest sample's time
+        move on."""
+        seen_at, reread = self._seen, self._reread
+        for p in points:
+            seen_at[p.name] = seen
+            reread[p.name] = stamp
+
+    def _current(self, update: Update) -> Update:
+        """``update`` (a point's latest sample) with the time of a later `reread`."""
+        stamp = self._reread.get(update.point.name)
+        if stamp is None or stamp <= update.time:
+            return update
+        return Update(update.point, update.value, stamp)
+
     def age(self, name: str, now: float) -> float | None:
         """Seconds since the point was last read (None: never)."""
         t = self._seen.get(name)
@@ -255,11 +296,13 @@ class Tracker:
 
     def latest(self) -> dict[str, Update]:
         """The last sample of every point read so far."""
-        return dict(self._latest)
+        current = self._current
+        return {name: current(u) for name, u in self._latest.items()}
 
     def last(self, name: str) -> Update | None:
         """The last sample of one point (None: never read)."""
-        return self._latest.get(name)
+        update = self._latest.get(name)
+        return None if update is None else self._current(update)
 
     def __len__(self) -> int:
         """How many points were read at least once."""

@@ -65,6 +65,7 @@ from .events import (
     PointDropped,
     SlaveState,
     SlaveStats,
+    Unchanged,
     Update,
 )
 from .plan import FUNCTIONS, Block, Cuts, Limits, Wire, chunks, gaps, plan, split
@@ -369,11 +370,12 @@ class BusScheduler:
 
     def on_response(
         self, req: ScheduledRequest, data: Sequence[int] | Sequence[bool] | None, now: float
-    ) -> list[Event]:
+    ) -> list[Event | Unchanged]:
         """A transaction answered (``data``: the registers or bits read; None for a
-        write).  Returns the events: an `Update` for every point of a poll block,
-        `SlaveState` when the slave comes back, `Overload` when the bus's state
-        changes."""
+        write).  Returns the events: an `Update` for every point of a poll block
+        (or, when the block answered exactly what it answered last time, one
+        `Unchanged` for them all: nothing decoded), `SlaveState` when the slave
+        comes back, `Overload` when the bus's state changes."""
         busy = self._end(req, now)
         h = self._health[req.slave]
         st = self._stats.slaves[req.slave]
@@ -382,15 +384,22 @@ class BusScheduler:
         if self.observe is not None:
             self.observe(req.slave, busy)
         self._turnaround(req, busy, h)
-        events: list[Event] = self._back(req, h, st, now)
-        came_back = bool(events)  # (a SlaveState: the load is checked now)
+        back = self._back(req, h, st, now)
+        came_back = bool(back)  # (a SlaveState: the load is checked now)
+        events: list[Event | Unchanged] = []
+        events += back
         if req.kind == POLL and req.block is not None and data is not None:
             b = req.block
             stamp = now + self.stamp_offset
             dropped, address = self._dropped, b.address
-            events += [
-                Update(p, p.decode(data, address), stamp) for p in b.points if p.name not in dropped
-            ]
+            points = [p for p in b.points if p.name not in dropped]
+            task = req.task
+            if task is not None and task.raw == data:
+                events.append(Unchanged(tuple(points), data, address, stamp))
+            else:
+                if task is not None:
+                    task.raw = data
+                events += [Update(p, p.decode(data, address), stamp) for p in points]
             self._requeue(req)
         self._check_load(now, events, came_back)
         return events
@@ -573,7 +582,9 @@ class BusScheduler:
 
     # ------------------------------------------------------------------ figures
 
-    def _check_load(self, now: float, events: list[Event], state: bool | None = None) -> None:
+    def _check_load(
+        self, now: float, events: list[Event] | list[Event | Unchanged], state: bool | None = None
+    ) -> None:
         """Every 16 transactions, and when a slave's state changed (``state``; None:
         a `SlaveState` among ``events``), an `Overload` event when the bus's load
         crossed 1."""
