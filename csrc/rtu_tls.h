@@ -67,8 +67,11 @@ int rtu_tls_conn_new(rtu_tls_conn **out, rtu_tls_ctx *ctx, int fd, const char *h
 /* Frees c without any I/O (the socket may be closed, its number another file's) */
 void rtu_tls_conn_free(rtu_tls_conn *c);
 /* Sends close_notify ([SEC]: a TLS closure alert before the TCP close) once,
- * not waiting for the server's; nothing after a fatal error or a handshake not
- * done.  Call it while the socket is open, before rtu_tls_conn_free. */
+ * not waiting for the server's; nothing after a handshake not done.  On a
+ * connection that broke (no alert can go) it marks the closure done instead, so
+ * that the session stays resumable (RFC 5246 7.2.1); a fatal TLS alert has made
+ * it non-resumable already.  Call it while the socket is open, before
+ * rtu_tls_conn_free. */
 void rtu_tls_close_notify(rtu_tls_conn *c);
 
 /* Run (or go on with, after RTU_TLS_INTERRUPTED) the handshake until done or

@@ -363,8 +363,19 @@ void rtu_tls_session_free(rtu_tls_session *s) { SSL_SESSION_free((SSL_SESSION *)
 
 void rtu_tls_close_notify(rtu_tls_conn *c)
 {
-    if (c == NULL || c->ssl == NULL || !c->done || c->broken)
+    if (c == NULL || c->ssl == NULL || !c->done)
         return;
+    if (c->broken) {
+        /* The connection ended without a closure alert (reset, a broken pipe, the
+         * server gone): its session stays resumable.  RFC 5246 7.2.1: "as of TLS
+         * 1.1, failure to properly close a connection no longer requires that a
+         * session not be resumed"; RFC 8446 ties no session to the closure.  A fatal
+         * alert (sent or received) has made the session non-resumable already
+         * (SSL_CTX_remove_session); without this mark SSL_free would do the same to
+         * every session whose connection did not send close_notify. */
+        SSL_set_shutdown(c->ssl, SSL_get_shutdown(c->ssl) | SSL_SENT_SHUTDOWN);
+        return;
+    }
     /* once, without waiting for the server's (the socket is non-blocking) */
     ERR_clear_error();
     (void)SSL_shutdown(c->ssl);

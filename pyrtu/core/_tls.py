@@ -22,8 +22,11 @@ through the connection's `CTlsConnection.io` layer.
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import ssl
 import weakref
+from collections.abc import Iterator
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -32,9 +35,29 @@ from typing import Any
 _VERSIONS = {ssl.TLSVersion.TLSv1_2: 0x0303, ssl.TLSVersion.TLSv1_3: 0x0304}
 
 
+#: the TLS session for the connect under way in this task (`resuming`)
+_RESUME: contextvars.ContextVar[ssl.SSLSession | None] = contextvars.ContextVar(
+    "pyrtu_tls_resume", default=None
+)
+
+
+@contextlib.contextmanager
+def resuming(session: ssl.SSLSession | None) -> Iterator[None]:
+    """Within the block, a `FileContext`'s client connection made in this task (or
+    thread) resumes ``session``: asyncio's ``create_connection`` takes no session,
+    and calls the context's ``wrap_bio`` in the task that awaits it."""
+    token = _RESUME.set(session)
+    try:
+        yield
+    finally:
+        _RESUME.reset(token)
+
+
 class FileContext(ssl.SSLContext):
     """An `ssl.SSLContext` that remembers the PEM files of its certificate, key and CA,
-    so that the C core can make its own OpenSSL context from the same files."""
+    so that the C core can make its own OpenSSL context from the same files; its
+    client connections over memory BIOs (asyncio's) resume the session `resuming`
+    names."""
 
     cert_file: str
     key_file: str
@@ -42,6 +65,18 @@ class FileContext(ssl.SSLContext):
 
     def remember_files(self, cert: str | Path, key: str | Path, ca: str | Path) -> None:
         self.cert_file, self.key_file, self.ca_file = str(cert), str(key), str(ca)
+
+    def wrap_bio(
+        self,
+        incoming: ssl.MemoryBIO,
+        outgoing: ssl.MemoryBIO,
+        server_side: bool = False,
+        server_hostname: str | bytes | None = None,
+        session: ssl.SSLSession | None = None,
+    ) -> ssl.SSLObject:
+        if session is None and not server_side:
+            session = _RESUME.get()
+        return super().wrap_bio(incoming, outgoing, server_side, server_hostname, session)
 
 
 class CTlsError(OSError):
@@ -195,4 +230,5 @@ __all__ = [
     "accelerator",
     "available",
     "forget_sessions",
+    "resuming",
 ]

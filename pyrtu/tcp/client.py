@@ -50,7 +50,7 @@ from pyrtu.drivers._ptimer import rearm
 from pyrtu.pdu.errors import ModbusError, PortError
 from pyrtu.tcp.protocol import TcpClientProtocol, check_timeout
 from pyrtu.tcp.sockets import set_nodelay
-from pyrtu.tcp.tls import MBAPS_PORT, remember, wrap
+from pyrtu.tcp.tls import MBAPS_PORT, remember, session_of, wrap
 
 DEFAULT_PORT = 502
 _monotonic = time.monotonic
@@ -181,45 +181,69 @@ class TcpClient(TcpClientState, Closing):
         self.host, self.port = parse_tcp_url(url, MBAP_SCHEMES)
         self._tls = _tls_of(url, tls)
         self.where = where_of(self.host, self.port, "tcp" if self._tls is None else MBAPS_SCHEME)
-        be = _backend.backend(backend)
-        self._closed = False
+        self._backend = _backend.backend(backend)
+        self._closed = True  # (until `_open` connects)
         self._proto = TcpClientProtocol(timeout=timeout, max_in_flight=1, where=self.where)
-        ct = check_timeout(
+        self._connect_timeout = check_timeout(
             timeout if connect_timeout is None else connect_timeout, "connect_timeout"
         )
+        self._open()
+
+    def _open(self) -> None:
+        """Connect (TCP, then the TLS handshake of ``mbaps://``, resuming the session
+        of the last connection to the server); `PortError` when it cannot."""
+        ct, be = self._connect_timeout, self._backend
         try:
-            self._sock = socket.create_connection((self.host, self.port), timeout=ct)
+            sock = socket.create_connection((self.host, self.port), timeout=ct)
         except OSError as exc:
             raise connect_error(self.where, exc, ct) from exc
-        set_nodelay(self._sock)
+        set_nodelay(sock)
+        self._sock = sock
         self._ctls: CTlsConnection | None = None
         accelerated = None if self._tls is None else _ctls.accelerator(self._tls, be)
         if accelerated is not None:  # mbaps:// in C: the handshake, then tcp://'s runner
-            self._sock.setblocking(False)
+            sock.setblocking(False)
             try:
-                self._ctls = accelerated.connect(self._sock.fileno(), self.host, self.port, ct)
+                self._ctls = accelerated.connect(sock.fileno(), self.host, self.port, ct)
             except OSError as exc:
-                self._sock.close()
+                sock.close()
                 raise connect_error(self.where, exc, ct) from exc
             self._accelerated = accelerated
-            self._runner = xfer_runners.tcp_xfer_runner(
-                be, self._sock, self._ctls.io, self._ctls.message
-            )
-            return
-        if self._tls is not None:  # mbaps:// in Python: the handshake within the connect timeout
+            self._runner = xfer_runners.tcp_xfer_runner(be, sock, self._ctls.io, self._ctls.message)
+        elif self._tls is not None:  # mbaps:// in Python: the handshake within the connect timeout
             try:
-                self._sock = wrap(self._sock, self._tls, self.host, self.port)
+                self._sock = wrap(sock, self._tls, self.host, self.port)
             except OSError as exc:
-                self._sock.close()
+                sock.close()
                 raise connect_error(self.where, exc, ct) from exc
             # blocking, with the timeout as bound: select() sees the records, and a
             # recv() waits for the rest of a record it has begun; the transaction in
             # Python (`_tls_transact`): the xfer runners read the socket's descriptor,
             # under TLS the records, not the PDUs
             self._sock.settimeout(self._proto.timeout)
-            return
-        self._sock.setblocking(False)
-        self._runner = xfer_runners.tcp_xfer_runner(be, self._sock)
+        else:
+            sock.setblocking(False)
+            self._runner = xfer_runners.tcp_xfer_runner(be, sock)
+        self._closed = False
+
+    @property
+    def broken(self) -> bool:
+        """Whether the connection is unusable (the server closed it, a send or receive
+        failed, a bad header came, or `close` ran): `reconnect` makes a new one."""
+        return self._closed or self._proto.broken is not None
+
+    def reconnect(self) -> None:
+        """A new connection to the same server in place of this one (after the server
+        closed it, or it failed): the same counters and transaction ids, the TLS
+        session resumed on ``mbaps://``.  `PortError` when it cannot connect; the
+        client is left unconnected (`broken`), the error its reason."""
+        self.close()
+        self._proto.reset()
+        try:
+            self._open()
+        except PortError as exc:
+            self._proto.connection_lost(str(exc).removeprefix(f"{self.where}: "))
+            raise
 
     def request(
         self, unit: int, pdu: BytesLike, *, answered: bool | None = None, raw: bool = False
@@ -309,11 +333,12 @@ class TcpClient(TcpClientState, Closing):
         return "c" if self._ctls is not None else "python"
 
     def close(self) -> None:
-        if self._ctls is not None:
-            if not self._closed:  # (TLS 1.3: the tickets came after the handshake)
-                self._accelerated.keep(self.host, self.port, self._ctls)
+        if self._closed:
+            return
+        if self._ctls is not None:  # (TLS 1.3: the tickets came after the handshake)
+            self._accelerated.keep(self.host, self.port, self._ctls)
             self._ctls.close()
-        elif self._tls is not None and isinstance(self._sock, ssl.SSLSocket) and not self._closed:
+        elif self._tls is not None and isinstance(self._sock, ssl.SSLSocket):
             remember(self._sock, self._tls, self.host, self.port)
         self._closed = True
         self._sock.close()
@@ -491,12 +516,72 @@ class RequestWindow:
         self.free += 1
 
 
+class _Dial:
+    """How an `AsyncTcpClient` connects, kept for its reconnects: where, the TLS
+    context (``mbaps://``: the session of the last connection to the server resumed,
+    through `pyrtu.core._tls.resuming`), the connect timeout, the backend."""
+
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        context: ssl.SSLContext | None,
+        connect_timeout: float,
+        backend: Any,
+    ) -> None:
+        self.host, self.port = host, port
+        self.context = context
+        self.connect_timeout = connect_timeout
+        self.backend = backend
+
+    async def open(self, proto: TcpClientProtocol) -> _ClientConnection:
+        """A connection for ``proto``; `PortError` when it cannot be made."""
+        host, port, context, ct = self.host, self.port, self.context, self.connect_timeout
+        where = proto.where
+        scanner = xfer_runners.tcp_scanner(self.backend)
+        loop = asyncio.get_running_loop()
+        session = None if context is None else session_of(context, host, port)
+        try:
+            with _ctls.resuming(session):
+                _, conn = await asyncio.wait_for(
+                    loop.create_connection(
+                        lambda: _ClientConnection(proto, where, scanner),
+                        host,
+                        port,
+                        ssl=context,
+                        server_hostname=None if context is None else host,
+                    ),
+                    ct,
+                )
+        except (OSError, asyncio.TimeoutError) as exc:
+            raise connect_error(where, exc, ct) from exc
+        transport = conn.transport
+        set_nodelay(transport.get_extra_info("socket") if transport else None)
+        if transport is not None:
+            self.keep_session(transport)
+        return conn
+
+    def keep_session(self, transport: asyncio.BaseTransport) -> None:
+        """Keep the connection's TLS session for the next connect (TLS 1.2: there
+        after the handshake; TLS 1.3: after the tickets, so again at the close)."""
+        tls = transport.get_extra_info("ssl_object")
+        if self.context is not None and tls is not None:
+            remember(tls, self.context, self.host, self.port)
+
+
 class AsyncTcpClient(TcpClientState, AsyncClosing):
     """An asyncio Modbus TCP client: up to ``max_in_flight`` requests on the wire at
     once.  ``backend``: whose scan reads the answers (`pyrtu.drivers.xfer.TcpScanner`:
     C, rtu_tcp_scan, or ``"python"``: the twin)."""
 
-    def __init__(self, conn: _ClientConnection, host: str, port: int, max_in_flight: int) -> None:
+    def __init__(
+        self,
+        conn: _ClientConnection,
+        host: str,
+        port: int,
+        max_in_flight: int,
+        dial: _Dial | None = None,
+    ) -> None:
         self._conn = conn
         self._proto = conn.proto
         self.host, self.port = host, port
@@ -504,6 +589,7 @@ class AsyncTcpClient(TcpClientState, AsyncClosing):
         self._window = RequestWindow(max_in_flight)
         assert conn.loop is not None  # (connected: connection_made ran)
         self._loop = conn.loop
+        self._dial = dial
 
     @classmethod
     async def connect(
@@ -520,26 +606,49 @@ class AsyncTcpClient(TcpClientState, AsyncClosing):
         context = _tls_of(url, tls)
         where = where_of(host, port, "tcp" if context is None else MBAPS_SCHEME)
         proto = TcpClientProtocol(timeout=timeout, max_in_flight=max_in_flight, where=where)
-        scanner = xfer_runners.tcp_scanner(_backend.backend(backend))
         ct = check_timeout(
             timeout if connect_timeout is None else connect_timeout, "connect_timeout"
         )
-        loop = asyncio.get_running_loop()
+        dial = _Dial(host, port, context, ct, _backend.backend(backend))
+        return cls(await dial.open(proto), host, port, max_in_flight, dial)
+
+    @property
+    def broken(self) -> bool:
+        """Whether the connection is unusable (the server closed it, it failed, a bad
+        header came, or `close` ran): `reconnect` makes a new one."""
+        transport = self._conn.transport
+        return self._proto.broken is not None or transport is None or transport.is_closing()
+
+    async def reconnect(self) -> None:
+        """A new connection to the same server in place of this one (after the server
+        closed it, or it failed): the same counters, the TLS session resumed on
+        ``mbaps://``.  `PortError` when it cannot connect; the client is left
+        unconnected (`broken`), the error its reason."""
+        dial = self._dial
+        if dial is None:
+            raise RuntimeError(f"{self.where}: a client not made by connect() cannot reconnect")
+        old, proto = self._conn, self._proto
+        await self.close()
+        proto.connection_lost("reconnecting")  # (what was in flight fails, if anything)
+        old.dispatch()
+        old.stop_timer()
+        # the old connection's late events (its close) go to a protocol of its own
+        old.proto = TcpClientProtocol(timeout=proto.timeout, max_in_flight=1, where=self.where)
+        proto.reset()
         try:
-            _, conn = await asyncio.wait_for(
-                loop.create_connection(
-                    lambda: _ClientConnection(proto, where, scanner),
-                    host,
-                    port,
-                    ssl=context,
-                    server_hostname=None if context is None else host,
-                ),
-                ct,
-            )
-        except (OSError, asyncio.TimeoutError) as exc:
-            raise connect_error(where, exc, ct) from exc
-        set_nodelay(conn.transport.get_extra_info("socket") if conn.transport else None)
-        return cls(conn, host, port, max_in_flight)
+            self._conn = await dial.open(proto)
+        except PortError as exc:
+            proto.connection_lost(str(exc).removeprefix(f"{self.where}: "))
+            raise
+        assert self._conn.loop is not None
+        self._loop = self._conn.loop
+
+    @property
+    def session_reused(self) -> bool:
+        """Whether this ``mbaps://`` connection resumed a TLS session (False on tcp://)."""
+        transport = self._conn.transport
+        tls = None if transport is None else transport.get_extra_info("ssl_object")
+        return bool(tls is not None and tls.session_reused)
 
     async def request(
         self, unit: int, pdu: BytesLike, *, answered: bool | None = None, raw: bool = False
@@ -596,6 +705,8 @@ class AsyncTcpClient(TcpClientState, AsyncClosing):
     async def close(self) -> None:
         transport = self._conn.transport
         if transport is not None:
+            if self._dial is not None:  # (TLS 1.3: the tickets came after the handshake)
+                self._dial.keep_session(transport)
             transport.close()
         await asyncio.sleep(0)
 

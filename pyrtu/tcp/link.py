@@ -35,15 +35,18 @@ gateway.  ``add_rule`` is accepted and does nothing.
 from __future__ import annotations
 
 import asyncio
+import logging
 import ssl
 import time
+from collections.abc import Awaitable, Callable
 from typing import Any
 
 from pyrtu.core.line import LineConfig
 from pyrtu.core.rules import LengthRule
 from pyrtu.drivers._portname import MBAP_SCHEMES
 from pyrtu.drivers.links import check_in_flight
-from pyrtu.pdu.errors import NoResponseError
+from pyrtu.drivers.reconnect import Backoff, Reconnect
+from pyrtu.pdu.errors import NoResponseError, PortError
 from pyrtu.pdu.requests import Call
 from pyrtu.protocol.client_actions import answer_pdu
 from pyrtu.tcp.client import AsyncTcpClient, TcpClient, parse_tcp_url
@@ -54,9 +57,68 @@ NO_LINE = (
 )
 NO_PORT = "{url}: a {what} master has no serial port (see url)"
 
+#: the masters' logger (`pyrtu.tcp.protocol`'s frames go to it too)
+log = logging.getLogger("pyrtu.drivers.master")
+
 #: the slave the argument checks shared with the serial master (0..247) see in
 #: place of a unit id only TCP allows
 _STAND_IN = 1
+
+
+class Revival:
+    """When a TCP master's link reconnects after its connection broke (the server
+    closed it or restarted, the network failed): at the next request, then on the
+    back-off of `pyrtu.drivers.reconnect` while the server stays away; a request
+    between two attempts fails at once, saying when the next one is due.  The
+    first failed attempt of an outage is logged once (warning), the reconnect that
+    ends it too (info).  Nothing is reconnected once the master is closed."""
+
+    def __init__(self, where: str, backoff: Backoff | None = None) -> None:
+        self.where = where
+        self.reconnect = Reconnect(backoff)
+        self.closed = False
+
+    def _before(self) -> float:
+        if self.closed:
+            raise PortError(self.where, "the master is closed")
+        now = time.monotonic()
+        r = self.reconnect
+        if not r.due(now):
+            assert r.outage is not None
+            raise PortError(
+                self.where,
+                f"not connected ({r.outage.error}); the next attempt in {r.wait(now):.2f} s",
+            )
+        return now
+
+    def _failed(self, now: float, exc: PortError) -> None:
+        if self.reconnect.failed(now, exc):
+            log.warning("%s; reconnecting on the back-off", exc)
+
+    def _worked(self) -> None:
+        outage = self.reconnect.recovered(time.monotonic())
+        if outage is not None:
+            log.info("%s: reconnected after %d failed attempts", self.where, outage.attempts)
+
+    def attempt(self, reconnect: Callable[[], None]) -> None:
+        """``reconnect`` now if it is due; `PortError` when it fails or is not due."""
+        now = self._before()
+        try:
+            reconnect()
+        except PortError as exc:
+            self._failed(now, exc)
+            raise
+        self._worked()
+
+    async def attempt_async(self, reconnect: Callable[[], Awaitable[None]]) -> None:
+        """`attempt` for an asyncio client's ``reconnect``."""
+        now = self._before()
+        try:
+            await reconnect()
+        except PortError as exc:
+            self._failed(now, exc)
+            raise
+        self._worked()
 
 
 class _TcpBase:
@@ -139,6 +201,7 @@ class TcpLink(_TcpBase):
         self.url = url
         self.retries = retries
         self._client = TcpClient(url, timeout=timeout, backend=backend, tls=tls)
+        self._revive = Revival(self._client.where)
 
     @property
     def timeout(self) -> float:
@@ -162,6 +225,8 @@ class TcpLink(_TcpBase):
     def transact(self, call: Call) -> tuple[Any, float]:
         slave, pdu, decode = call
         args = (slave, pdu, decode is not None, decode is answer_pdu)
+        if self._client.broken:
+            self._revive.attempt(self._client.reconnect)
         try:
             answer, end = self._client.transact(*args)
         except NoResponseError:
@@ -181,6 +246,7 @@ class TcpLink(_TcpBase):
         raise AssertionError("unreachable")  # (retries > 0: the loop returns or raises)
 
     def close(self) -> None:
+        self._revive.closed = True
         self._client.close()
 
 
@@ -221,6 +287,7 @@ class AsyncTcpLink(_TcpBase):
         self._client: AsyncTcpClient | None = None
         self._connecting: asyncio.Lock | None = None
         self._backend = backend
+        self._revive = Revival(url)
 
     @property
     def timeout(self) -> float:
@@ -244,7 +311,10 @@ class AsyncTcpLink(_TcpBase):
         return None if self._client is None else self._client.last_answer_time
 
     async def _connected(self) -> AsyncTcpClient:
-        if self._client is None:
+        """The connection: made at the first request, made again (on `Revival`'s
+        back-off) at a request after it broke."""
+        client = self._client
+        if client is None or client.broken:
             if self._connecting is None:
                 self._connecting = asyncio.Lock()
             async with self._connecting:
@@ -256,7 +326,10 @@ class AsyncTcpLink(_TcpBase):
                         tls=self._tls,
                         backend=self._backend,
                     )
-        return self._client
+                elif self._client.broken:
+                    await self._revive.attempt_async(self._client.reconnect)
+            client = self._client
+        return client
 
     async def connect(self) -> None:
         """Connect now (not at the first request); nothing when connected."""
@@ -273,7 +346,9 @@ class AsyncTcpLink(_TcpBase):
         """The decoded answer of ``call`` (`transact`'s value; the request methods'
         path): `AsyncTcpClient.request`, its turn and future awaited here (one
         coroutine less per transaction), retried after `NoResponseError`."""
-        client = self._client or await self._connected()
+        client = self._client
+        if client is None or client.broken:
+            client = await self._connected()
         slave, pdu, decode = call
         answered, raw = decode is not None, decode is answer_pdu
         window = client._window
@@ -303,8 +378,9 @@ class AsyncTcpLink(_TcpBase):
             return None if decode is None or answer is None else decode(answer)
 
     async def close(self) -> None:
+        self._revive.closed = True
         if self._client is not None:
             await self._client.close()
 
 
-__all__ = ["AsyncTcpLink", "TcpLink"]
+__all__ = ["AsyncTcpLink", "Revival", "TcpLink"]

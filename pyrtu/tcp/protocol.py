@@ -307,6 +307,15 @@ class TcpClientProtocol:
         if self.broken is None:
             self._fail_all(PortError(self.where, reason))
 
+    def reset(self) -> None:
+        """A new connection in place of the old one (a reconnect): nothing in flight,
+        nothing broken, nothing half read; the counters and the transaction ids go
+        on.  What was in flight failed when the old connection ended."""
+        self._framer = _backend.active.MbapFramer("master")
+        self._pending.clear()
+        self._results.clear()
+        self.broken = None
+
     def refused(self, reason: str) -> None:
         """No answer will come to what is in flight (Modbus over UDP: the host said
         ICMP port unreachable): each request fails with `NoResponseError` naming

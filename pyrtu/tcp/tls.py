@@ -4,10 +4,12 @@ is created, the server's certificate and host name verified by the caller's
 session kept per (context, host, port) so that a reconnect resumes it: an abbreviated
 handshake with no certificate exchange (`session_reused` says whether it did).
 
-asyncio's ``create_connection`` takes no session: the asyncio client's reconnects
-run a full handshake.  The sync client runs this path only where the C core cannot
-(pyrtu/core/_tls.py: the C core over OpenSSL does the handshake, keeps its own
-sessions and runs the transaction with the GIL released).
+The asyncio client resumes through the same store: asyncio's ``create_connection``
+takes no session, so the client hands it to `pyrtu.core._tls.FileContext.wrap_bio`
+for the connect under way (`pyrtu.core._tls.resuming`; a context made otherwise
+than by ``client_context`` runs full handshakes).  The sync client runs this path
+only where the C core cannot (pyrtu/core/_tls.py: the C core over OpenSSL does the
+handshake, keeps its own sessions and runs the transaction with the GIL released).
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ def wrap(sock: socket.socket, context: ssl.SSLContext, host: str, port: int) -> 
     """``sock`` (connected, with its connect timeout) in TLS, its handshake done,
     resuming the session of the last connection to ``host:port`` with ``context``.
     `ssl.SSLError` (an OSError) when the handshake fails."""
-    session = _sessions.get(context, {}).get((host, port))
+    session = session_of(context, host, port)
     wrapped = context.wrap_socket(sock, server_hostname=host, session=session)
     remember(wrapped, context, host, port)
     return wrapped
@@ -43,7 +45,14 @@ def forget_sessions(context: ssl.SSLContext) -> None:
     _ctls.forget_sessions(context)
 
 
-def remember(sock: ssl.SSLSocket, context: ssl.SSLContext, host: str, port: int) -> None:
+def session_of(context: ssl.SSLContext, host: str, port: int) -> ssl.SSLSession | None:
+    """The session to resume on the next connection to ``host:port`` with ``context``."""
+    return _sessions.get(context, {}).get((host, port))
+
+
+def remember(
+    sock: ssl.SSLSocket | ssl.SSLObject, context: ssl.SSLContext, host: str, port: int
+) -> None:
     """Keep the connection's session for the next one (TLS 1.3 sends its tickets after
     the handshake: called again before the socket closes, it keeps the latest)."""
     session = sock.session
@@ -51,4 +60,4 @@ def remember(sock: ssl.SSLSocket, context: ssl.SSLContext, host: str, port: int)
         _sessions.setdefault(context, {})[(host, port)] = session
 
 
-__all__ = ["MBAPS_PORT", "forget_sessions", "remember", "wrap"]
+__all__ = ["MBAPS_PORT", "forget_sessions", "remember", "session_of", "wrap"]

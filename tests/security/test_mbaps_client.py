@@ -1,11 +1,14 @@
 """``mbaps://`` on `pyrtu.Master`, `pyrtu.drivers.aio.AsyncMaster` and the TCP clients:
 the client's certificate presented, the server's certificate and host name verified,
-TLS 1.2 at least, the TLS session resumed on reconnect (sync client).  The server is
-pyrtu's TLS listener (test_tls_listener.py checks it against independent clients)."""
+TLS 1.2 at least, the TLS session resumed on reconnect (the sync and the asyncio
+client).  The server is pyrtu's TLS listener (test_tls_listener.py checks it against
+independent clients)."""
 
 from __future__ import annotations
 
 import asyncio
+import os
+import socket
 import ssl
 import threading
 from collections.abc import Iterator
@@ -156,3 +159,66 @@ def test_mbaps_needs_tls_and_tls_needs_mbaps(pki: Pki) -> None:
     with pytest.raises(TypeError, match=r"tls: .*not str"):
         Master("mbaps://localhost", tls="ca.pem")
     assert context.minimum_version >= ssl.TLSVersion.TLSv1_2 and context.check_hostname
+
+
+def fail_under(sock: socket.socket) -> None:
+    """The connection fails under its TLS layer (as when the network or the server
+    goes): both directions of the socket shut through a descriptor of its own (an
+    SSLSocket's own ``shutdown`` would drop its TLS object first)."""
+    raw = socket.socket(fileno=os.dup(sock.fileno()))
+    raw.shutdown(socket.SHUT_RDWR)
+    raw.close()
+
+
+def test_the_master_reconnects_resuming_the_tls_session(
+    server: tuple[TcpServer, DataStore, int], pki: Pki, tls_path: str
+) -> None:
+    _, _, port = server
+    context = client_context(pki.operator.cert, pki.operator.key, pki.ca.path)
+    with Master(f"mbaps://localhost:{port}", tls=context, timeout=5.0) as m:
+        assert m.read_holding_registers(1, 0, 1) == [100]
+        client = m._link._client
+        assert client.tls_path == tls_path and not client.session_reused
+        fail_under(client._sock)
+        with pytest.raises(PortError):
+            m.read_holding_registers(1, 0, 1)
+        assert m.read_holding_registers(1, 1, 1) == [101]  # a new connection
+        assert client.session_reused and client.tls_path == tls_path
+        assert m.counters["requests"] == 3 and m.counters["responses"] == 2
+
+
+@pytest.mark.parametrize(
+    "version", [ssl.TLSVersion.TLSv1_2, ssl.TLSVersion.TLSv1_3], ids=["TLSv1.2", "TLSv1.3"]
+)
+def test_the_asyncio_client_reconnects_resuming_the_tls_session(
+    server: tuple[TcpServer, DataStore, int], pki: Pki, version: ssl.TLSVersion
+) -> None:
+    _, _, port = server
+    context = client_context(pki.operator.cert, pki.operator.key, pki.ca.path)
+    context.maximum_version = version
+
+    async def main() -> None:
+        async with AsyncMaster(f"mbaps://localhost:{port}", tls=context, timeout=5.0) as m:
+            assert await m.read_holding_registers(1, 0, 1) == [100]
+            client = m._link._client
+            assert client is not None and not client.session_reused
+            transport = client._conn.transport
+            assert transport is not None
+            fail_under(transport.get_extra_info("socket"))
+            await asyncio.sleep(0.2)  # the loop hears it
+            assert client.broken
+            assert await m.read_holding_registers(1, 1, 1) == [101]  # reconnected
+            assert m._link._client is client and client.session_reused
+            ssl_object = client._conn.transport.get_extra_info("ssl_object")
+            assert ssl_object.version() == version.name.replace("v1_", "v1.")
+        # a second master with the same context resumes too (the sessions are the
+        # context's, kept per host and port), one with another context does not
+        async with AsyncMaster(f"mbaps://localhost:{port}", tls=context, timeout=5.0) as m:
+            assert await m.read_holding_registers(1, 2, 1) == [102]
+            assert m._link._client is not None and m._link._client.session_reused
+        other = client_context(pki.operator.cert, pki.operator.key, pki.ca.path)
+        async with AsyncMaster(f"mbaps://localhost:{port}", tls=other, timeout=5.0) as m:
+            assert await m.read_holding_registers(1, 2, 1) == [102]
+            assert m._link._client is not None and not m._link._client.session_reused
+
+    asyncio.run(main())
