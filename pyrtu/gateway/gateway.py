@@ -199,7 +199,11 @@ class GatewayBus(Protocol):
     ``exchange``, of the same shape, which the gateway calls when a bus has it: an
     exception raised is a target that failed to respond (0x0B).  A bus may also
     have ``async reopen()``, which the gateway calls to bring it back after a
-    `PortError` (raising `PortError` or `OSError` while the port is still gone)."""
+    `PortError` (raising `PortError` or `OSError` while the port is still gone); and
+    ``transact_now(slave, pdu)``, the same transaction as a plain call when it never
+    waits (a local application: `pyrtu.tcp.server.LocalBus`), which the gateway runs
+    in the request's own callback while the bus is idle (no task switch per request;
+    queued behind the others otherwise, as any request)."""
 
     async def request(self, slave: int, pdu: bytes) -> bytes | None: ...
 
@@ -244,6 +248,8 @@ class _BusState:
     reopen: object = field(default=None)
     #: the request the worker is serving, until its answer is being written
     current: Job | None = None
+    #: the bus's transaction as a plain call (`GatewayBus`'s ``transact_now``), or None
+    now: Callable[[int, bytes], bytes | None] | None = None
 
     def wake(self) -> None:
         waiter = self.waiter
@@ -297,6 +303,7 @@ class Gateway:
                 _bus_name(bus, index),
                 Reconnect(lim.backoff),
                 reopen=getattr(bus, "reopen", None),
+                now=getattr(bus, "transact_now", None),
             )
             for index, (bus, _) in enumerate(buses)
         ]
@@ -724,6 +731,18 @@ class Gateway:
         self.counters["audited_writes"] += 1
 
     def _submit(self, state: _BusState, job: Job, conn: _Connection) -> None:
+        if state.now is not None and state.waiter is not None and not state.queue:
+            # an idle bus whose transaction is a call: served here, in the order it
+            # came (nothing is queued or under way before it)
+            conn.live.outstanding += 1
+            started = time.monotonic()
+            try:
+                answer = state.now(job.slave, job.pdu)
+            except Exception as exc:
+                self._finish(state, job, self._failed(state, job, exc), False, started)
+            else:
+                self._finish(state, job, *self._settle(state, job, answer), started)
+            return
         try:
             state.queue.submit(job)
         except QueueFull as exc:
@@ -752,7 +771,6 @@ class Gateway:
         loop = asyncio.get_running_loop()
         queue = state.queue
         connections = self._connections
-        counters = self.counters
         monotonic = time.monotonic
         # the answer PDU, an exception answer as its bytes (see GatewayBus)
         send = getattr(state.bus, "exchange", None) or state.bus.request
@@ -769,34 +787,45 @@ class Gateway:
                 continue
             state.current = job
             started = monotonic()
-            answered = False
             try:
                 answer = await send(job.slave, job.pdu)
             except Exception as exc:  # (CancelledError is no Exception: it ends the worker)
-                answer = self._failed(state, job, exc)
+                self._finish(state, job, self._failed(state, job, exc), False, started)
             else:
-                answered = bool(answer) and job.slave != 0
-                if state.reconnect.down:  # a request let through while down worked
-                    self._recovered(state)
-                if job.slave == 0:
-                    answer = None  # a broadcast: nothing to answer
-                elif not answer:  # the bus got no answer (a local application's silence)
-                    answer = self._target_failed(job)
-            self._audit(job, answer)
-            now = monotonic()
-            state.transactions += 1
-            state.busy_seconds += now - started
-            if answered and self.on_latency is not None:
-                self.on_latency(state.name, job.slave, now - started)
-            state.current = None  # from here its answer is being written
-            conn = connections.get(job.conn)
-            if conn is None:
-                if answer is not None:
-                    counters["answers_dropped"] += 1
-                continue
-            conn.live.answered(now)
+                self._finish(state, job, *self._settle(state, job, answer), started)
+
+    def _settle(
+        self, state: _BusState, job: Job, answer: bytes | None
+    ) -> tuple[bytes | None, bool]:
+        """A transaction's answer as the client gets it, and whether the bus answered."""
+        answered = bool(answer) and job.slave != 0
+        if state.reconnect.down:  # a request let through while down worked
+            self._recovered(state)
+        if job.slave == 0:
+            return None, answered  # a broadcast: nothing to answer
+        if not answer:  # the bus got no answer (a local application's silence)
+            return self._target_failed(job), answered
+        return answer, answered
+
+    def _finish(
+        self, state: _BusState, job: Job, answer: bytes | None, answered: bool, started: float
+    ) -> None:
+        """After a transaction: audited, counted, its answer written to its client."""
+        self._audit(job, answer)
+        now = time.monotonic()
+        state.transactions += 1
+        state.busy_seconds += now - started
+        if answered and self.on_latency is not None:
+            self.on_latency(state.name, job.slave, now - started)
+        state.current = None  # from here its answer is being written
+        conn = self._connections.get(job.conn)
+        if conn is None:
             if answer is not None:
-                self._answer(conn, job.transaction, job.unit, answer)
+                self.counters["answers_dropped"] += 1
+            return
+        conn.live.answered(now)
+        if answer is not None:
+            self._answer(conn, job.transaction, job.unit, answer)
 
     async def _open_at_start(self, state: _BusState) -> None:
         """Open a `ReopeningBus` not opened yet.  A port that is not there (or a TCP

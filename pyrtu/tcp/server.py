@@ -88,11 +88,17 @@ class LocalBus:
     def __init__(self, app: Application) -> None:
         self.app = app
 
-    async def request(self, slave: int, pdu: bytes) -> bytes | None:
+    def transact_now(self, slave: int, pdu: bytes) -> bytes | None:
         """The answer PDU (an exception answer too, as bytes); None: no answer (a
-        broadcast, listen-only mode, a handler that stays silent)."""
+        broadcast, listen-only mode, a handler that stays silent).  A plain call: the
+        gateway runs it in the request's callback while the bus is idle."""
         response = self.app.execute(slave, pdu)
         return None if slave == 0 else response
+
+    async def request(self, slave: int, pdu: bytes) -> bytes | None:
+        """`transact_now`, awaited (the gateway's worker, for a request queued behind
+        others)."""
+        return self.transact_now(slave, pdu)
 
 
 class TcpServer(AsyncClosing):
