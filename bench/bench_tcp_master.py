@@ -14,7 +14,9 @@ TCP_MASTER_N times per round, each answer checked against the register pattern:
 * ``pyrtu c``: ``Master("tcp://...").read_holding_registers`` on the C core (the
   transaction one call of csrc/rtu_tcp_io.c, the GIL released);
 * ``pyrtu twin``: the same with ``backend="python"`` (pyrtu/drivers/_pyxfer.py);
-* ``pymodbus``: pymodbus's ``ModbusTcpClient.read_holding_registers``.
+* ``pymodbus``: pymodbus's ``ModbusTcpClient.read_holding_registers``;
+* ``c transaction alone``: the floor under ``pyrtu c``, its transaction's one C
+  call (`pyrtu.drivers.xfer.TcpXferRunner.call`) in a loop, nothing else.
 
 For the Python clients CPU is this process's (``time.process_time``) over the loop.
 pytest-benchmark's own statistics are the wall time of a round; the figures that
@@ -120,6 +122,32 @@ def test_pyrtu(benchmark: Any, server: tuple[str, int], backend: str) -> None:
         _rounds(benchmark, lambda: _timed(read))
         assert m.read_holding_registers(UNIT, ADDRESS, COUNT) == EXPECTED
         assert m.counters["responses"] == WARMUP + ROUNDS * N + 1
+
+
+def test_c_transaction_alone(benchmark: Any, server: tuple[str, int]) -> None:
+    """The floor under ``pyrtu c``: the transaction's one C call alone (send, wait,
+    read the whole answer: csrc/rtu_tcp_io.c's three system calls, the GIL released),
+    the same request each time, no Python around it but the call: what any client
+    on this machine pays for a transaction over the loopback."""
+    import pyrtu
+    from pyrtu.tcp import TcpClient
+
+    if "c" not in pyrtu.available_backends():
+        pytest.skip("the c backend is not available")
+    host, port = server
+    with TcpClient(f"tcp://{host}:{port}", timeout=2.0, backend="c") as client:
+        runner = client._runner
+        body = bytes((3, 0, ADDRESS, 0, COUNT))
+        call = runner.call
+        expected = (1 + 1 + 2 * COUNT) << 8  # (the answer's PDU length; status: answered)
+        for _ in range(WARMUP):
+            assert call(1, UNIT, body, True, 2.0) == expected
+
+        def read() -> None:
+            call(1, UNIT, body, True, 2.0)
+
+        _rounds(benchmark, lambda: _timed(read))
+        assert call(1, UNIT, body, True, 2.0) == expected
 
 
 def test_pymodbus(benchmark: Any, server: tuple[str, int]) -> None:

@@ -497,6 +497,7 @@ TCP_MASTER_ROWS = {
     "test_pyrtu[pyrtu c]": 'pyrtu `Master("tcp://")`, C core',
     "test_pyrtu[pyrtu twin]": 'pyrtu `Master("tcp://")`, the twin',
     "test_pymodbus": "pymodbus `ModbusTcpClient` (sync)",
+    "test_c_transaction_alone": "the floor: pyrtu's C transaction alone (one call, no Python)",
 }
 
 
