@@ -628,17 +628,18 @@ class AsyncTcpClient(TcpClientState, AsyncClosing):
         if dial is None:
             raise RuntimeError(f"{self.where}: a client not made by connect() cannot reconnect")
         old, proto = self._conn, self._proto
-        await self.close()
         proto.connection_lost("reconnecting")  # (what was in flight fails, if anything)
         old.dispatch()
         old.stop_timer()
         # the old connection's late events (its close) go to a protocol of its own
         old.proto = TcpClientProtocol(timeout=proto.timeout, max_in_flight=1, where=self.where)
+        await self.close()
         proto.reset()
         try:
             self._conn = await dial.open(proto)
         except PortError as exc:
             proto.connection_lost(str(exc).removeprefix(f"{self.where}: "))
+            old.proto = proto  # (broken: the requests say why; late events change nothing)
             raise
         assert self._conn.loop is not None
         self._loop = self._conn.loop

@@ -11,6 +11,7 @@ byte as on ``tcp://``; and the build without OpenSSL (PYRTU_TLS=0) running
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import os
 import shutil
 import socket
@@ -348,13 +349,18 @@ class HalfRecordServer:
     record sent only in part (its first half) and nothing more; ``damaged``: the
     whole record instead, its last byte (of the AEAD tag) changed."""
 
-    def __init__(self, pki: Pki, *, damaged: bool = False) -> None:
+    def __init__(self, pki: Pki, *, damaged: bool = False, then_handshake: bool = False) -> None:
         self.damaged = damaged
+        #: a second connection after the first closes: its handshake alone, whether
+        #: it resumed a session told by `resumed` (set once it is done)
+        self.then_handshake = then_handshake
+        self.resumed: bool | None = None
         self.context = server_context(pki.server.cert, pki.server.key, pki.ca.path)
         self.listener = socket.create_server(("127.0.0.1", 0))
         self.port: int = self.listener.getsockname()[1]
         self.done = threading.Event()
         self.sent_half = threading.Event()
+        self.handshaken = threading.Event()
         self.thread = threading.Thread(target=self._serve, daemon=True)
         self.thread.start()
 
@@ -392,12 +398,63 @@ class HalfRecordServer:
             else:
                 conn.sendall(record[: len(record) // 2])
             self.sent_half.set()
+            if not self.then_handshake:
+                self.done.wait(30)
+                return
+            conn.settimeout(30)
+            with contextlib.suppress(OSError):
+                while conn.recv(65536):  # until the client closes
+                    pass
+        conn, _ = self.listener.accept()
+        with conn:
+            incoming, out = ssl.MemoryBIO(), ssl.MemoryBIO()
+            tls = self.context.wrap_bio(incoming, out, server_side=True)
+            while True:
+                try:
+                    tls.do_handshake()
+                    break
+                except ssl.SSLWantReadError:
+                    if not self._pump(conn, incoming, out):
+                        return
+            conn.sendall(out.read())
+            self.resumed = tls.session_reused
+            self.handshaken.set()
             self.done.wait(30)
 
     def close(self) -> None:
         self.done.set()
         self.thread.join(10)
         self.listener.close()
+
+
+def test_a_fatal_alert_ends_the_session_a_broken_connection_does_not(pki: Pki) -> None:
+    """A reconnect resumes the session of a connection that broke without a closure
+    (RFC 5246 7.2.1; pyrtu marks its closure done: rtu_tls_close_notify), but not of
+    one that ended in a fatal TLS alert: a record that fails its integrity check
+    (bad_record_mac, RFC 8446 6.2).  The C path; both connections to one server
+    context, whose tickets would resume."""
+    for damaged, resumes in ((True, False), (False, True)):
+        server = HalfRecordServer(pki, damaged=damaged, then_handshake=True)
+        try:
+            url = f"mbaps://localhost:{server.port}"
+            c = TcpClient(url, tls=operator(pki), timeout=0.5, backend="c")
+            try:
+                assert c.tls_path == "c" and not c.session_reused
+                with pytest.raises((PortError, NoResponseError)) as exc:
+                    c.request(1, bytes((3, 0, 0, 0, 1)))
+                assert ("bad record mac" in str(exc.value)) == damaged, exc.value
+                if not damaged:  # half a record, then silence: the connection is given up
+                    c._sock.shutdown(socket.SHUT_RDWR)
+                    with pytest.raises(PortError):
+                        c.request(1, bytes((3, 0, 0, 0, 1)))
+                assert c.broken
+                c.reconnect()
+                assert server.handshaken.wait(10)
+                assert c.session_reused == resumes and server.resumed == resumes
+            finally:
+                c.close()
+        finally:
+            server.close()
 
 
 @pytest.mark.wall_clock

@@ -19,7 +19,7 @@ from pyrtu import DataStore, Master, PortError
 from pyrtu.drivers.aio import AsyncMaster
 from pyrtu.drivers.reconnect import Backoff, Reconnect
 from pyrtu.pdu.errors import ExceptionResponseError
-from pyrtu.tcp import TcpClient
+from pyrtu.tcp import AsyncTcpClient, TcpClient
 from pyrtu.tcp.protocol import TcpClientProtocol
 from pyrtu.tcp.server import TcpServer
 
@@ -179,5 +179,40 @@ def test_the_async_master_reconnects_after_the_server_restarted(server: Restarta
             assert m.counters["requests"] == 3 and m.counters["responses"] == 2
         with pytest.raises(PortError, match="the master is closed"):
             await m.read_holding_registers(1, 0, 1)
+
+    asyncio.run(main())
+
+
+def test_the_asyncio_client_reconnects_in_place(server: Restartable) -> None:
+    """`AsyncTcpClient.reconnect`: a request in flight fails (it may have been sent),
+    the counters go on; a server that stays away leaves it broken, saying why."""
+
+    async def main() -> None:
+        silent = socket.create_server(("127.0.0.1", 0))  # accepts (its backlog), never answers
+        try:
+            url = f"tcp://127.0.0.1:{silent.getsockname()[1]}"
+            client = await AsyncTcpClient.connect(url, timeout=5.0)
+            pending = asyncio.ensure_future(client.request(1, READ_0))
+            await asyncio.sleep(0.05)
+            assert not pending.done()
+            await client.reconnect()
+            with pytest.raises(PortError, match="reconnecting"):
+                await pending
+            assert not client.broken and client.counters["requests"] == 1
+            silent.close()
+            with pytest.raises(PortError, match="cannot connect"):
+                await client.reconnect()
+            assert client.broken
+            with pytest.raises(PortError, match=r"unusable: .*cannot connect"):
+                await client.request(1, READ_0)
+            await client.close()
+        finally:
+            silent.close()
+        good = await AsyncTcpClient.connect(f"tcp://127.0.0.1:{server.port}", timeout=5.0)
+        assert await good.request(1, READ_0) == bytes((3, 2, 0x03, 0xE8))
+        await good.reconnect()
+        assert await good.request(1, READ_0) == bytes((3, 2, 0x03, 0xE8))
+        assert good.counters["requests"] == 2 and good.counters["responses"] == 2
+        await good.close()
 
     asyncio.run(main())
