@@ -91,6 +91,14 @@ def _posix_fd(ser: Any) -> int | None:
     return fd
 
 
+def failed(what: str, exc: BaseException) -> str:
+    """``"<what> failed: <why>"``, said once: pyserial's own messages often begin
+    with it already ("read failed: socket disconnected")."""
+    text = str(exc)
+    prefix = f"{what} failed: "
+    return text if text.startswith(prefix) else prefix + text
+
+
 def read_fd(port: Port, fd: int, readable: bool) -> bytes:
     """What the port's descriptor has now, in one read, without a poll first: pyserial
     keeps it non-blocking (VMIN = VTIME = 0), so no input is b"".  ``readable``: poll()
@@ -101,7 +109,7 @@ def read_fd(port: Port, fd: int, readable: bool) -> bytes:
     except BlockingIOError:
         return b""
     except OSError as exc:
-        raise PortError(port.name, f"read failed: {exc}") from exc
+        raise PortError(port.name, failed("read", exc)) from exc
     if not data and readable:
         raise PortError(port.name, "the device reports data but returns none (disconnected?)")
     return data
@@ -153,7 +161,7 @@ class Port:
         try:
             return bool(self._poll.poll(timeout * 1000.0 if timeout > 0 else 0))
         except (OSError, ValueError) as exc:
-            raise PortError(self.name, f"read failed: {exc}") from exc
+            raise PortError(self.name, failed("read", exc)) from exc
 
     def _read_generic(self, timeout: float) -> bytes:
         ser = self.serial
@@ -172,7 +180,7 @@ class Port:
                     data += bytes(ser.read(waiting))
             return data
         except (serial.SerialException, OSError) as exc:
-            raise PortError(self.name, f"read failed: {exc}") from exc
+            raise PortError(self.name, failed("read", exc)) from exc
 
     # ------------------------------------------------------------------ writing
 
@@ -214,14 +222,14 @@ class Port:
         except BlockingIOError:
             return 0
         except OSError as exc:
-            raise PortError(self.name, f"write failed: {exc}") from exc
+            raise PortError(self.name, failed("write", exc)) from exc
 
     def _write_generic(self, data: bytes) -> None:
         try:
             self.serial.write(data)
             self.serial.flush()
         except (serial.SerialException, OSError) as exc:
-            raise PortError(self.name, f"write failed: {exc}") from exc
+            raise PortError(self.name, failed("write", exc)) from exc
 
     def close(self) -> None:
         if self.closed:

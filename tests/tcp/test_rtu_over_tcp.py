@@ -4,6 +4,7 @@ on 127.0.0.1 to a pseudo-terminal, with a real slave (pyrtu, libmodbus) on the p
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -56,3 +57,25 @@ def test_bad_urls_and_refused_connections() -> None:
         rtu_over_tcp("tcp://127.0.0.1:1")
     with pytest.raises(PortError, match="cannot connect"):
         rtu_over_tcp(f"rtu+tcp://127.0.0.1:{free_tcp_port()}")
+
+
+def test_a_device_server_that_goes_away_is_said_once(tmp_path: Path) -> None:
+    """The device server closes the connection: the request fails with a `PortError`
+    saying "read failed" (or "write failed") once, with pyserial's reason, not
+    "read failed: read failed: socket disconnected"."""
+    link = tmp_path / "serial"
+    with socat_pty_over_tcp(link) as port:
+        url = f"rtu+tcp://127.0.0.1:{port}"
+        with pyrtu_slave_process(str(link), 3, t35=0):
+            m = Master(url, t35=0, timeout=1.0)
+            assert m.read_holding_registers(3, 10, 2) == pattern.holdings(3, 10, 2)
+    try:
+        with pytest.raises(PortError) as info:
+            m.read_holding_registers(3, 10, 2)
+        text = str(info.value)
+        assert text.startswith(f"socket://127.0.0.1:{port}: "), text
+        reason = text.removeprefix(f"socket://127.0.0.1:{port}: ")
+        assert re.match(r"(read|write) failed: ", reason), text
+        assert reason.count("failed: ") == 1, text
+    finally:
+        m.close()
