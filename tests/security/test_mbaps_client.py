@@ -205,7 +205,10 @@ def test_the_asyncio_client_reconnects_resuming_the_tls_session(
             transport = client._conn.transport
             assert transport is not None
             fail_under(transport.get_extra_info("socket"))
-            await asyncio.sleep(0.2)  # the loop hears it
+            for _ in range(1000):  # the loop hears it (within 10 s)
+                if client.broken:
+                    break
+                await asyncio.sleep(0.01)
             assert client.broken
             assert await m.read_holding_registers(1, 1, 1) == [101]  # reconnected
             assert m._link._client is client and client.session_reused

@@ -9,6 +9,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import socket
+import time
 from collections.abc import Iterator
 from types import ModuleType
 
@@ -46,6 +47,16 @@ class Restartable:
         assert self.server is not None
         asyncio.run_coroutine_threadsafe(self.server.close(), self.loop).result(10)
         self.server = None
+
+
+async def until_broken(client: AsyncTcpClient | None, within: float = 10.0) -> None:
+    """Wait (at most ``within`` seconds) until the event loop has heard the
+    connection end."""
+    assert client is not None
+    deadline = time.monotonic() + within
+    while not client.broken:
+        assert time.monotonic() < deadline, "the connection's end was never heard"
+        await asyncio.sleep(0.01)
 
 
 @pytest.fixture
@@ -166,7 +177,7 @@ def test_the_async_master_reconnects_after_the_server_restarted(server: Restarta
         async with AsyncMaster(f"tcp://127.0.0.1:{server.port}", timeout=2.0) as m:
             assert await m.read_holding_registers(1, 0, 2) == [1000, 1001]
             server.stop()
-            await asyncio.sleep(0.1)  # the loop hears the server close
+            await until_broken(m._link._client)  # the loop hears the server close
             with pytest.raises(PortError, match="cannot connect"):
                 await m.read_holding_registers(1, 0, 2)
             with pytest.raises(PortError, match="the next attempt in"):
