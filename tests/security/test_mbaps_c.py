@@ -370,56 +370,66 @@ class HalfRecordServer:
         incoming.write(data)
         return bool(data)
 
+    def _handshake(
+        self, conn: socket.socket
+    ) -> tuple[ssl.SSLObject, ssl.MemoryBIO, ssl.MemoryBIO] | None:
+        """A TLS connection on ``conn``, its handshake done (None: the client left)."""
+        incoming, out = ssl.MemoryBIO(), ssl.MemoryBIO()
+        tls = self.context.wrap_bio(incoming, out, server_side=True)
+        while True:
+            try:
+                tls.do_handshake()
+                return tls, incoming, out
+            except ssl.SSLWantReadError:
+                if not self._pump(conn, incoming, out):
+                    return None
+
     def _serve(self) -> None:
-        conn, _ = self.listener.accept()
-        with conn:
-            incoming, out = ssl.MemoryBIO(), ssl.MemoryBIO()
-            tls = self.context.wrap_bio(incoming, out, server_side=True)
-            while True:
-                try:
-                    tls.do_handshake()
-                    break
-                except ssl.SSLWantReadError:
-                    if not self._pump(conn, incoming, out):
-                        return
-            request = b""
-            while len(request) < 12:  # a read of holding registers: 12 bytes of ADU
-                try:
-                    request += tls.read(65536)
-                except ssl.SSLWantReadError:
-                    if not self._pump(conn, incoming, out):
-                        return
-            conn.sendall(out.read())
-            tid = request[:2]  # the answer the Application Protocol gives (6.3)
-            tls.write(tid + bytes((0, 0, 0, 5, 1, 3, 2, 0x12, 0x34)))
-            record = out.read()
-            if self.damaged:
-                conn.sendall(record[:-1] + bytes((record[-1] ^ 0x01,)))
-            else:
-                conn.sendall(record[: len(record) // 2])
-            self.sent_half.set()
-            if not self.then_handshake:
-                self.done.wait(30)
-                return
-            conn.settimeout(30)
-            with contextlib.suppress(OSError):
-                while conn.recv(65536):  # until the client closes
-                    pass
-        conn, _ = self.listener.accept()
-        with conn:
-            incoming, out = ssl.MemoryBIO(), ssl.MemoryBIO()
-            tls = self.context.wrap_bio(incoming, out, server_side=True)
-            while True:
-                try:
-                    tls.do_handshake()
-                    break
-                except ssl.SSLWantReadError:
-                    if not self._pump(conn, incoming, out):
-                        return
-            conn.sendall(out.read())
-            self.resumed = tls.session_reused
-            self.handshaken.set()
-            self.done.wait(30)
+        for first in (True, False):
+            conn, _ = self.listener.accept()
+            with conn:
+                made = self._handshake(conn)
+                if made is None:
+                    return
+                tls, incoming, out = made
+                if not first:  # (then_handshake): the handshake alone
+                    conn.sendall(out.read())
+                    self.resumed = tls.session_reused
+                    self.handshaken.set()
+                    self.done.wait(30)
+                    return
+                if not self._answer_badly(conn, tls, incoming, out):
+                    return
+                if not self.then_handshake:
+                    self.done.wait(30)
+                    return
+                conn.settimeout(30)
+                with contextlib.suppress(OSError):
+                    while conn.recv(65536):  # until the client closes
+                        pass
+
+    def _answer_badly(
+        self, conn: socket.socket, tls: ssl.SSLObject, incoming: ssl.MemoryBIO, out: ssl.MemoryBIO
+    ) -> bool:
+        """Read the request, then send half of its answer's record, or all of it
+        damaged; False if the client left first."""
+        request = b""
+        while len(request) < 12:  # a read of holding registers: 12 bytes of ADU
+            try:
+                request += tls.read(65536)
+            except ssl.SSLWantReadError:
+                if not self._pump(conn, incoming, out):
+                    return False
+        conn.sendall(out.read())
+        tid = request[:2]  # the answer the Application Protocol gives (6.3)
+        tls.write(tid + bytes((0, 0, 0, 5, 1, 3, 2, 0x12, 0x34)))
+        record = out.read()
+        if self.damaged:
+            conn.sendall(record[:-1] + bytes((record[-1] ^ 0x01,)))
+        else:
+            conn.sendall(record[: len(record) // 2])
+        self.sent_half.set()
+        return True
 
     def close(self) -> None:
         self.done.set()
