@@ -580,7 +580,7 @@ class AsyncTcpClient(TcpClientState, AsyncClosing):
         host: str,
         port: int,
         max_in_flight: int,
-        dial: _Dial | None = None,
+        dial: _Dial,
     ) -> None:
         self._conn = conn
         self._proto = conn.proto
@@ -625,8 +625,6 @@ class AsyncTcpClient(TcpClientState, AsyncClosing):
         ``mbaps://``.  `PortError` when it cannot connect; the client is left
         unconnected (`broken`), the error its reason."""
         dial = self._dial
-        if dial is None:
-            raise RuntimeError(f"{self.where}: a client not made by connect() cannot reconnect")
         old, proto = self._conn, self._proto
         proto.connection_lost("reconnecting")  # (what was in flight fails, if anything)
         old.dispatch()
@@ -706,8 +704,7 @@ class AsyncTcpClient(TcpClientState, AsyncClosing):
     async def close(self) -> None:
         transport = self._conn.transport
         if transport is not None:
-            if self._dial is not None:  # (TLS 1.3: the tickets came after the handshake)
-                self._dial.keep_session(transport)
+            self._dial.keep_session(transport)  # (TLS 1.3: the tickets came after the handshake)
             transport.close()
         await asyncio.sleep(0)
 
