@@ -11,6 +11,7 @@ so both backends raise the same exceptions.
 
 from __future__ import annotations
 
+import struct
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -27,6 +28,9 @@ MIN_LENGTH = 2  # unit id + a PDU of at least the function code
 MAX_LENGTH = 254  # unit id + a PDU of 253 bytes (Application Protocol 4.1)
 MAX_PDU = MAX_LENGTH - 1
 MAX_ADU = 6 + MAX_LENGTH
+#: an MBAP header and its unit id ([TCP] 3.1.3): transaction id, protocol id (0),
+#: length (unit id + PDU), unit id; ``pack(tid, 0, len(pdu) + 1, unit) + pdu`` is the ADU
+MBAP_HEADER = struct.Struct(">HHHB")
 
 
 # (offset, length, kind, error, adu)

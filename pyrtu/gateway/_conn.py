@@ -16,7 +16,7 @@ from typing import Protocol
 
 from pyrtu.core import _backend
 from pyrtu.core.frames import FrameKind
-from pyrtu.core.mbap import MAX_LENGTH, MAX_PDU, MIN_LENGTH
+from pyrtu.core.mbap import MAX_LENGTH, MAX_PDU, MBAP_HEADER, MIN_LENGTH
 from pyrtu.drivers._ptimer import rearm
 from pyrtu.security.policy import Identity
 from pyrtu.security.tls import TlsSetupError, peer_identity
@@ -26,8 +26,6 @@ from ._live import Liveness
 from ._plan import GatewayLimits
 
 log = logging.getLogger("pyrtu.gateway")
-#: an MBAP header and the unit id: transaction id, protocol id, length, unit id
-_MBAP = struct.Struct(">HHHB")
 
 
 class Owner(Protocol):
@@ -92,7 +90,7 @@ class _Connection(asyncio.Protocol):
             # the common read: one whole request and nothing else, nothing buffered
             # before it: told by its header alone, as the framer would ([TCP] 3.1.3:
             # protocol id 0; [AP] 4.1: a length of 2..254 covering the rest)
-            transaction, protocol, length, unit = _MBAP.unpack_from(data)
+            transaction, protocol, length, unit = MBAP_HEADER.unpack_from(data)
             if size == 6 + length and not protocol and length <= MAX_LENGTH:
                 if log.isEnabledFor(logging.DEBUG):
                     log.debug("connection %d: RX unit %d: %s", self.id, unit, data.hex(" "))
@@ -156,7 +154,7 @@ class _Connection(asyncio.Protocol):
 
     def encode(self, transaction: int, unit: int, pdu: bytes) -> bytes:
         if 1 <= len(pdu) <= MAX_PDU:  # (the request's own transaction and unit ids)
-            return _MBAP.pack(transaction, 0, len(pdu) + 1, unit) + pdu
+            return MBAP_HEADER.pack(transaction, 0, len(pdu) + 1, unit) + pdu
         adu: bytes = self.framer.send(transaction, unit, pdu)  # (it says what is wrong)
         return adu
 

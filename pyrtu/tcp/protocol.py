@@ -32,14 +32,19 @@ from __future__ import annotations
 
 import logging
 import os
-import struct
 from collections import deque
 from collections.abc import Callable, Sequence
 
 from pyrtu.core import _backend
 from pyrtu.core._types import BytesLike
 from pyrtu.core.frames import FrameKind
-from pyrtu.core.mbap import MAX_PDU, MBAP_ERROR_BY_CODE, MbapFrame, check_header_args
+from pyrtu.core.mbap import (
+    MAX_PDU,
+    MBAP_ERROR_BY_CODE,
+    MBAP_HEADER,
+    MbapFrame,
+    check_header_args,
+)
 from pyrtu.core.timing import positive_seconds
 from pyrtu.drivers import xfer
 from pyrtu.drivers.xfer import TcpXferRunner
@@ -55,7 +60,6 @@ Result = tuple[int, bytes | ModbusError | None]
 
 #: the logger of the masters' frames (as `pyrtu.protocol.client`'s on a serial line)
 log = logging.getLogger("pyrtu.drivers.master")
-_MBAP = struct.Struct(">HHHB")  # transaction id, protocol id (0), length, unit id
 
 
 #: a request in flight: (unit, function, deadline, raw, sent): ``raw``: an exception
@@ -189,7 +193,7 @@ class TcpClientProtocol:
         if tid in pending:  # (wrapped around to one still in flight: the next free)
             tid = self._next_tid()
         self._tid = tid
-        data = _MBAP.pack(tid, 0, len(body) + 1, unit) + body  # (3.1.3: the MBAP ADU)
+        data = MBAP_HEADER.pack(tid, 0, len(body) + 1, unit) + body  # (3.1.3: the MBAP ADU)
         counters = self.counters
         counters["requests"] += 1
         if unit == 0 if answered is None else not answered:  # a broadcast
@@ -234,7 +238,7 @@ class TcpClientProtocol:
         counters = self.counters
         if pending is None:
             if log.isEnabledFor(logging.DEBUG):
-                _log_late(tid, _MBAP.pack(tid, 0, len(pdu) + 1, unit) + pdu)
+                _log_late(tid, MBAP_HEADER.pack(tid, 0, len(pdu) + 1, unit) + pdu)
             counters["late"] += 1
             return None
         asked, fc, _, raw, sent = pending
@@ -366,7 +370,7 @@ class TcpClientProtocol:
         if not awaited:
             counters["broadcasts"] += 1
         if log.isEnabledFor(logging.DEBUG):
-            data = _MBAP.pack(tid, 0, len(body) + 1, unit) + body
+            data = MBAP_HEADER.pack(tid, 0, len(body) + 1, unit) + body
             log.debug("TX unit %d fc %d tid %d: %s", unit, body[0], tid, data.hex(" "))
         return tid, body, awaited
 
@@ -381,7 +385,7 @@ class TcpClientProtocol:
 
     @staticmethod
     def _log_answer(tid: int, unit: int, pdu: bytes, ms: float) -> None:
-        adu = (_MBAP.pack(tid, 0, len(pdu) + 1, unit) + pdu).hex(" ")
+        adu = (MBAP_HEADER.pack(tid, 0, len(pdu) + 1, unit) + pdu).hex(" ")
         log.debug("RX unit %d fc %d tid %d: %s (%.3f ms)", unit, pdu[0], tid, adu, ms)
 
     def settle(
