@@ -121,6 +121,16 @@ def tcp_seeds() -> list[bytes]:
     return seeds
 
 
+def mux_seeds() -> list[bytes]:
+    """The TCP seeds for the mux (see fuzz_mux.c): the same streams, after a byte of
+    flags (the server shuts its end; timeout 0; a second transaction) in place of
+    the read sizes, and a seed for the pieces."""
+    seeds = []
+    for k, seed in enumerate(tcp_seeds()):
+        seeds.append(seed[:3] + bytes([k % 8, 7 + k]) + seed[4:])
+    return seeds
+
+
 def vbus_seeds() -> list[bytes]:
     """The manuals' telegrams as request/answer transactions on a 2-drop wire at 115200
     baud (see fuzz_vbus.c): transmit on drop 0 then 1, a service after each."""
@@ -144,6 +154,7 @@ HARNESSES = {
     "mbap": mbap_seeds,
     "vbus": vbus_seeds,
     "tcp": tcp_seeds,
+    "mux": mux_seeds,
 }
 
 

@@ -357,6 +357,37 @@ int rtu_tcp_xfer_call(rtu_tcp_xfer *x, unsigned tid, unsigned unit, const char *
 int rtu_tcp_xfer_word(rtu_tcp_xfer *x);
 /* ---- end of POSIX I/O ---- */
 
+/* ---- POSIX I/O (csrc/rtu_*_io.c): left out where there is none (_build_core.py) ---- */
+/* csrc/rtu_mux.h: many Modbus TCP client connections on one I/O thread */
+typedef struct {
+    uint64_t token;
+    uint32_t conn;
+    int32_t status;
+    int32_t err;
+    int32_t stage;
+    uint32_t late;
+    uint32_t tid;
+    int64_t start;
+    int64_t end;
+    uint32_t len;
+    uint8_t adu[254];
+} rtu_mux_done;
+typedef struct rtu_mux rtu_mux;
+size_t rtu_mux_size(uint32_t nconns);
+int rtu_mux_init(rtu_mux *m, uint32_t nconns);
+void rtu_mux_destroy(rtu_mux *m);
+int rtu_mux_fd(const rtu_mux *m);
+int rtu_mux_attach(rtu_mux *m, uint32_t conn, int fd);
+int rtu_mux_detach(rtu_mux *m, uint32_t conn);
+int rtu_mux_submit(rtu_mux *m, uint32_t conn, uint64_t token, unsigned tid, unsigned unit,
+                   const char *pdu, size_t pdu_len, int awaited, int64_t timeout_ns);
+int rtu_mux_service(rtu_mux *m);
+int64_t rtu_mux_deadline(const rtu_mux *m);
+size_t rtu_mux_take(rtu_mux *m, rtu_mux_done *out, size_t cap);
+int rtu_mux_errno(const rtu_mux *m);
+uint64_t rtu_mux_services(const rtu_mux *m);
+/* ---- end of POSIX I/O ---- */
+
 /* ---- TLS (csrc/rtu_tls_io.c, over OpenSSL): left out where OpenSSL is not found ---- */
 /* csrc/rtu_tls.h: the TLS of an mbaps:// client */
 typedef struct rtu_tls_ctx rtu_tls_ctx;

@@ -1,5 +1,6 @@
 """Modbus TCP: the clients (`pyrtu.tcp.client`), the sans-I/O client protocol
-(`pyrtu.tcp.protocol`), a master's ``tcp://`` links (`pyrtu.tcp.link`) and the socket
+(`pyrtu.tcp.protocol`), a master's ``tcp://`` links (`pyrtu.tcp.link`), many client
+connections behind one descriptor (`pyrtu.tcp.mux`: the poller's) and the socket
 options (`pyrtu.tcp.sockets`).
 """
 

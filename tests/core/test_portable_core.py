@@ -44,6 +44,7 @@ def test_posix_headers_only_in_the_io_files() -> None:
             "rtu_xfer_io.c",
             "rtu_tcp_io.c",
             "rtu_tls_io.c",
+            "rtu_mux_io.c",
             "rtu_clock_io.c",
         }
     )
