@@ -82,7 +82,7 @@ class Bridge(MqttOutput):
 
     WHAT = "the bridge"
 
-    def __init__(self, config: BridgeConfig | str, *, master: Any = "aio") -> None:
+    def __init__(self, config: BridgeConfig | str, *, master: Any = "auto") -> None:
         if isinstance(config, str):
             config = load_bridge_config(config)
         super().__init__(config, master)

@@ -9,6 +9,7 @@ Layers, sans-I/O up to the driver (time is an input everywhere below `driver`):
 `schedule`    `BusScheduler`: EDF per bus, writes first, slave health, load
 `events`      `Update`, `PortState`, `SlaveState`, `PointDropped`, `Overload`, `TaskFailed`
 `driver`      `Poller`: asyncio, one task per bus, ports reopened on back-off
+`muxdrive`    the plain ``tcp://`` buses' transactions on one `pyrtu.tcp.mux.TcpMux`
 `thread`      `PollerThread`: the poller on a thread of its own, for sync scripts
 ============  =================================================================================
 

@@ -5,10 +5,12 @@ again after a network blip): `ConnectLimits` says how many connects may be in
 progress at once in the whole poller (``max_connecting``) and to one host
 (``max_connecting_per_host``), how fast the network buses start
 (``start_rate``: their first connects, and so the phase of their polls, spread
-evenly, one bus every ``1 / start_rate`` seconds) and how much the reconnect waits
+evenly, one bus every ``1 / start_rate`` seconds), how much the reconnect waits
 of a network bus are spread (``jitter``, a fraction of `pyrtu.drivers.reconnect`'s
-wait, for every network bus).  In TOML, a ``[connect]`` table with those keys;
-`ConnectGate` enforces the two bounds on the poller's event loop.
+wait, for every network bus) and how late a network bus's poll may be for the
+sake of a wake-up shared with others (``lateness``).  In TOML, a ``[connect]``
+table with those keys; `ConnectGate` enforces the two bounds on the poller's
+event loop.
 
 A connect holds its slots only while the connection is being made (at most the
 bus's timeout): a device that refuses gives them back at once, one that never
@@ -34,6 +36,7 @@ MAX_CONNECTING = 64
 MAX_CONNECTING_PER_HOST = 8
 START_RATE = 1000.0
 JITTER = 0.5
+LATENESS = 0.025
 
 
 def _count(name: str, value: object) -> int:
@@ -55,6 +58,10 @@ class ConnectLimits:
     start_rate: float = START_RATE
     #: the reconnect wait of a network bus, spread by +- this fraction of it
     jitter: float = JITTER
+    #: how late a network bus's poll may be, as a fraction of its shortest interval
+    #: (and in seconds, for an interval over a second): its polls wake on a grid
+    #: of that step, shared with the other buses (`pyrtu.poller.driver.wake_tick`)
+    lateness: float = LATENESS
 
     def __post_init__(self) -> None:
         _count("max_connecting", self.max_connecting)
@@ -67,6 +74,9 @@ class ConnectLimits:
         j = self.jitter
         if isinstance(j, bool) or not isinstance(j, int | float) or not 0 <= j < 1:
             raise ValueError(f"jitter: must be a fraction in [0, 1), not {j!r}")
+        late = self.lateness
+        if isinstance(late, bool) or not isinstance(late, int | float) or not 0 < late <= 0.5:
+            raise ValueError(f"lateness: must be a fraction in (0, 0.5], not {late!r}")
 
     def start_offset(self, rank: int) -> float:
         """Seconds after the start at which the ``rank``-th network bus (0: the first)

@@ -29,8 +29,9 @@ the poller and per host, the pace of the start, the jitter of the reconnects;
 `pyrtu.poller.connect`, docs/many-devices.md): each is opened by its own task,
 the ``rank``-th one ``rank / start_rate`` seconds after the start (its polls take
 that phase), so a thousand devices neither connect nor poll in one burst.  Their
-polls wake on a grid of 1 % of the bus's shortest interval (at most 10 ms,
-`wake_tick`): the buses due within one tick share one wake-up of the loop.
+polls wake on a grid of ``lateness`` (2.5 %) of the bus's shortest interval (at
+most 25 ms, `wake_tick`): the buses due within one tick share one wake-up of the
+loop.  The plain ``tcp://`` ones run on the poller's mux (`pyrtu.poller.muxdrive`).
 
 A bus task that raises anything else (a fault of the poller itself) is supervised
 (`pyrtu.drivers.supervise`): logged once with its cause, reported (`TaskFailed`),
@@ -43,10 +44,8 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import math
 import time
 from collections.abc import AsyncIterator, Callable, Iterable, Sequence
-from dataclasses import dataclass, field
 from functools import partial
 from typing import Any
 
@@ -56,8 +55,9 @@ from pyrtu.drivers.supervise import TaskFailure, supervise
 from pyrtu.pdu.codecs import apply_masks
 from pyrtu.pdu.errors import ExceptionResponseError, PortError
 
+from .busrun import BusRun
 from .config import Bus, ConfigError, Device, PollerConfig, load_config, make_config
-from .connect import ConnectGate, ConnectLimits, network_host
+from .connect import LATENESS, ConnectGate, ConnectLimits, network_host
 from .events import (
     BusReport,
     Event,
@@ -69,6 +69,7 @@ from .events import (
     Update,
 )
 from .masters import BY_FUNCTION, FACTORIES, AsyncMasterLike, is_port_error, open_master
+from .muxdrive import MuxDriver, collect_tick, on_mux
 from .points import Point, Value, encode_point, encode_point_value
 from .schedule import BusScheduler, ScheduledRequest
 from .thread import PollerThread
@@ -92,63 +93,15 @@ def describe_task_failed(ev: TaskFailed) -> str:
     return f"bus {ev.bus}: task {ev.task} failed: {ev.error} (restarting in {ev.retry_in:.2f} s)"
 
 
-@dataclass
-class _BusRun:
-    bus: Bus
-    sched: BusScheduler
-    reconnect: Reconnect
-    master: AsyncMasterLike | None = None
-    wake: asyncio.Event = field(default_factory=asyncio.Event)
-    pending: dict[int, asyncio.Future[Any]] = field(default_factory=dict)
-    task: asyncio.Task[None] | None = None
-    worked: bool = False  # a transaction went through the port since start
-    values: int = 0  # values read on this bus since start
-    task_failures: int = 0  # times the bus task raised (each restarted) since start
-    # the transaction the bus task is in, and the write or read waiting on it
-    inflight: ScheduledRequest | None = None
-    inflight_future: asyncio.Future[Any] | None = None
-    #: the host a network bus connects to (None: a local port)
-    host: str | None = None
-    #: when a network bus may first connect (monotonic seconds; the start's stagger)
-    start_at: float = 0.0
-    #: a network bus's polls wake on this grid of the monotonic clock (seconds; 0:
-    #: at their due time), so that buses due within one tick share one wake-up
-    tick: float = 0.0
-
-    @property
-    def port(self) -> str:
-        return str(self.bus.port)
-
-    def wake_at(self, deadline: float) -> float:
-        """When the bus wakes for something due at ``deadline``: a network bus's
-        next grid point of its `tick` at or after it, a local bus's ``deadline``."""
-        tick = self.tick
-        if not tick or not math.isfinite(deadline):
-            return deadline
-        # (a deadline a rounding error past a grid point wakes on that point: max)
-        return max(deadline, math.ceil(deadline / tick - 1e-6) * tick)
-
-    def port_state(self) -> str:
-        """``down`` (an outage is on), ``up`` (a transaction went through and none
-        failed since) or ``unknown`` (nothing went through yet)."""
-        if self.reconnect.down:
-            return "down"
-        return "up" if self.worked else "unknown"
-
-
-#: the grid a network bus's polls wake on, as a fraction of its shortest interval
-WAKE_FRACTION = 0.01
-#: the coarsest grid (a poll is at most this late for the sake of a shared wake-up)
-WAKE_TICK = 0.01
-
-
-def wake_tick(interval: float) -> float:
+def wake_tick(interval: float, lateness: float = LATENESS) -> float:
     """The grid the polls of a network bus whose shortest interval is ``interval``
-    wake on: 1 % of it, at most 10 ms.  Its polls keep their beat (each is due an
-    interval after the last was due) and are at most a tick late; a thousand
-    devices at 1 Hz, started a millisecond apart, wake the loop a hundred times a
-    second rather than a thousand (each wake-up costs tens of microseconds)."""
-    return min(interval * WAKE_FRACTION, WAKE_TICK)
+    wake on: ``lateness`` (`ConnectLimits.lateness`, 2.5 %) of it, of a second at
+    most (25 ms).  Its polls keep their beat (each is due an interval after the
+    last was due) and are at most a tick late; a thousand devices at 1 Hz, started
+    a millisecond apart, wake the loop forty times a second rather than a thousand
+    (each wake-up costs tens of microseconds, and a batch of answers is cheaper
+    per answer than one alone: docs/many-devices.md)."""
+    return lateness * min(interval, 1.0)
 
 
 def _samples(ev: Event | Unchanged) -> list[Event | Unchanged]:
@@ -165,9 +118,11 @@ class Poller(AsyncService):
     """Keeps declared points fresh on many buses (see the module docstring).
 
     ``config``: a `PollerConfig` (`load_config`, `make_config`) or a TOML path;
-    or ``buses``/``points``/``devices`` directly.  ``master``: ``"aio"`` (the
-    default: `pyrtu.drivers.aio.AsyncMaster`), ``"thread"`` (a sync `pyrtu.Master` on a
-    worker thread per bus) or a function ``Bus -> master``.
+    or ``buses``/``points``/``devices`` directly.  ``master``: ``"auto"`` (the
+    default: the plain ``tcp://`` buses on the poller's mux, `pyrtu.poller.muxdrive`,
+    one descriptor for all of them, csrc/rtu_mux_io.c; the others as ``"aio"``),
+    ``"aio"`` (`pyrtu.drivers.aio.AsyncMaster` on every bus), ``"thread"`` (a sync
+    `pyrtu.Master` on a worker thread per bus) or a function ``Bus -> master``.
     ``changes_only``: deliver a value only when it changed beyond its deadband.
     ``connect``: how network buses connect (None: the configuration's
     ``[connect]``, `ConnectLimits`' defaults without one).
@@ -180,7 +135,7 @@ class Poller(AsyncService):
         buses: Iterable[Bus] = (),
         points: Iterable[Point] = (),
         devices: Iterable[Device] = (),
-        master: MasterFactory | str = "aio",
+        master: MasterFactory | str = "auto",
         changes_only: bool = True,
         connect: ConnectLimits | None = None,
     ) -> None:
@@ -198,10 +153,14 @@ class Poller(AsyncService):
             raise TypeError(f"connect must be ConnectLimits, not {type(connect).__name__}")
         self.connect_limits = connect if connect is not None else config.connect
         self._gate = ConnectGate(self.connect_limits)
+        self._auto = master == "auto"
+        self._mux: MuxDriver | None = None
         if isinstance(master, str):
-            if master not in FACTORIES:
-                raise ValueError(f"master must be one of {', '.join(FACTORIES)}, not {master!r}")
-            self._factory: MasterFactory = FACTORIES[master]
+            if master not in ("auto", *FACTORIES):
+                raise ValueError(
+                    f"master must be one of auto, {', '.join(FACTORIES)}, not {master!r}"
+                )
+            self._factory: MasterFactory = FACTORIES["aio" if self._auto else master]
         else:
             self._factory = master
         self._points = {p.name: p for p in config.points}
@@ -209,7 +168,7 @@ class Poller(AsyncService):
         self._update_cbs: list[Callable[[Update], None]] = []
         self._event_cbs: list[Callable[[Event], None]] = []
         self._subscribers: list[tuple[asyncio.Queue[Event | None], bool]] = []
-        self._runs: dict[str, _BusRun] = {}
+        self._runs: dict[str, BusRun] = {}
         self._running = False
         self._t0 = time.monotonic()
         self._offset = time.time() - time.monotonic()
@@ -242,9 +201,10 @@ class Poller(AsyncService):
             host = network_host(bus.port)
             jitter = Backoff.jitter if host is None else self.connect_limits.jitter
             backoff = Backoff(initial=bus.backoff, maximum=bus.max_backoff, jitter=jitter)
-            run = self._runs[bus.name] = _BusRun(bus, sched, Reconnect(backoff), host=host)
+            run = self._runs[bus.name] = BusRun(bus, sched, Reconnect(backoff), host=host)
+            run.on_mux = self._auto and on_mux(bus)
             if host is not None and mine:
-                run.tick = wake_tick(min(p.interval for p in mine))
+                run.tick = wake_tick(min(p.interval for p in mine), self.connect_limits.lateness)
 
     # ------------------------------------------------------------------ life cycle
 
@@ -271,12 +231,16 @@ class Poller(AsyncService):
                 rank += 1
         self._running = True
         try:
+            mine = [run for run in self._runs.values() if run.on_mux]
+            if mine:
+                self._mux = MuxDriver(self, len(mine), collect_tick(r.tick for r in mine))
             for run in self._runs.values():
                 if run.host is None:
                     await self._open(run)
         except BaseException:
             self._running = False
             await self._close_masters()
+            await self._close_mux()
             raise
         self._t0 = now
         for run in self._runs.values():
@@ -315,13 +279,19 @@ class Poller(AsyncService):
                     fut.cancel()
             run.pending.clear()
         await self._close_masters()
+        await self._close_mux()
         for q, _ in self._subscribers:
             self._put(q, None)
 
     async def _close_masters(self) -> None:
         await asyncio.gather(*(self._close_master(r) for r in self._runs.values()))
 
-    async def _close_master(self, run: _BusRun) -> None:
+    async def _close_mux(self) -> None:
+        mux, self._mux = self._mux, None
+        if mux is not None:
+            await mux.close()
+
+    async def _close_master(self, run: BusRun) -> None:
         """Close the bus's master, waiting at most its timeout and a second (a
         transaction a thread master is in the middle of ends within its timeout)."""
         master, run.master = run.master, None
@@ -349,8 +319,10 @@ class Poller(AsyncService):
 
     @property
     def descriptors(self) -> int:
-        """The ports and connections the poller watches (one per bus): what picks
-        its event loop (`pyrtu.drivers.aio.new_event_loop`)."""
+        """The ports and connections the poller opens (one per bus): what picks
+        its event loop (`pyrtu.drivers.aio.new_event_loop`: the buses on the mux
+        are watched through one descriptor, but their sockets' numbers count
+        against a select() loop's limit all the same)."""
         return len(self._runs)
 
     def running(self) -> PollerThread:
@@ -359,7 +331,10 @@ class Poller(AsyncService):
 
     # ------------------------------------------------------------------ the bus loop
 
-    async def _run_bus(self, run: _BusRun) -> None:
+    async def _run_bus(self, run: BusRun) -> None:
+        if run.on_mux:
+            await self._run_mux_bus(run)
+            return
         sched = run.sched
         clock = time.monotonic
         while self._running:
@@ -410,7 +385,18 @@ class Poller(AsyncService):
             if events:
                 self._dispatch(events, run)
 
-    def _task_failed(self, run: _BusRun, failure: TaskFailure) -> None:
+    async def _run_mux_bus(self, run: BusRun) -> None:
+        """A bus on the mux: open and connect it, then let the mux drive its
+        transactions until its connection fails (`MuxDriver.drive`)."""
+        while self._running:
+            if run.master is None:
+                await self._reopen(run)
+                continue
+            assert self._mux is not None
+            error = await self._mux.drive(run)
+            await self._port_failed(run, error)
+
+    def _task_failed(self, run: BusRun, failure: TaskFailure) -> None:
         """The bus task raised: count it; the first failure of a run is logged (with
         the traceback at debug level) and reported (`TaskFailed`); the transaction it
         was in is failed (its poll block stays due)."""
@@ -430,11 +416,11 @@ class Poller(AsyncService):
             self._dispatch([TaskFailed(run.bus.name, failure.task, failure.cause,
                                        failure.retry_in, now)])  # fmt: skip
 
-    def _silent(self, run: _BusRun, req: ScheduledRequest) -> None:
+    def _silent(self, run: BusRun, req: ScheduledRequest) -> None:
         """``req`` still unanswered at `BusScheduler.offline_due`: its slave is offline."""
         self._dispatch(run.sched.on_silence(req, time.monotonic()))
 
-    async def _nap_until(self, run: _BusRun, deadline: float | None) -> None:
+    async def _nap_until(self, run: BusRun, deadline: float | None) -> None:
         """`_nap` until ``deadline`` (monotonic seconds; None: until woken), a
         network bus's rounded up to its `wake_tick` grid: the buses due within one
         tick wake together (one wake-up of the loop, not one each)."""
@@ -443,7 +429,7 @@ class Poller(AsyncService):
             return
         await self._nap(run, run.wake_at(deadline) - time.monotonic())
 
-    async def _nap(self, run: _BusRun, delay: float | None) -> None:
+    async def _nap(self, run: BusRun, delay: float | None) -> None:
         """Sleep ``delay`` seconds (None: until woken), or until a submit or `stop`
         wakes the bus."""
         run.wake.clear()
@@ -460,7 +446,7 @@ class Poller(AsyncService):
             finally:
                 timer.cancel()
 
-    async def _open(self, run: _BusRun) -> None:
+    async def _open(self, run: BusRun) -> None:
         """Open the bus's master; a port that fails begins (or continues) an outage.
         Other errors are raised while the poller starts, and count as port failures
         once it runs (a bus task never dies of them).  A network bus's open and
@@ -470,7 +456,11 @@ class Poller(AsyncService):
                 run.master = await open_master(self._factory, run.bus)
                 return
             async with self._gate.slot(run.host):
-                run.master = await open_master(self._factory, run.bus)
+                factory = self._factory
+                if run.on_mux:
+                    assert self._mux is not None
+                    factory = self._mux.open
+                run.master = await open_master(factory, run.bus)
                 connect = getattr(run.master, "connect", None)
                 if connect is not None:  # (a master that connects at its first request)
                     await connect()
@@ -479,7 +469,7 @@ class Poller(AsyncService):
                 raise
             await self._port_failed(run, exc)
 
-    async def _reopen(self, run: _BusRun) -> None:
+    async def _reopen(self, run: BusRun) -> None:
         """While the port is down: fail the writes and reads asked meanwhile, wait
         for the back-off, then try to open the port again.  A network bus's first
         open waits for its place in the start (the writes asked meanwhile wait)."""
@@ -494,7 +484,7 @@ class Poller(AsyncService):
         if self._running:
             await self._open(run)
 
-    def _fail_urgent(self, run: _BusRun) -> None:
+    def _fail_urgent(self, run: BusRun) -> None:
         outage = run.reconnect.outage
         error = "the port is down" if outage is None else f"the port is down: {outage.error}"
         for req in run.sched.take_urgent():
@@ -502,7 +492,7 @@ class Poller(AsyncService):
             if fut is not None and not fut.done():
                 fut.set_exception(PortError(run.port, error))
 
-    async def _port_failed(self, run: _BusRun, exc: BaseException) -> None:
+    async def _port_failed(self, run: BusRun, exc: BaseException) -> None:
         """The port failed: close it; the first failure of an outage is reported
         (one `PortState` event, one log line), the next attempts are not."""
         now = time.monotonic()
@@ -516,7 +506,7 @@ class Poller(AsyncService):
             self._dispatch([ev])
         await self._close_master(run)
 
-    def _port_ok(self, run: _BusRun, now: float) -> None:
+    def _port_ok(self, run: BusRun, now: float) -> None:
         """A transaction went through the port (answered or not): an outage ends."""
         run.worked = True
         if run.reconnect.down:
@@ -537,7 +527,7 @@ class Poller(AsyncService):
             return (req.slave, req.address, list(req.values))
         return (req.slave, req.address, req.count)
 
-    def _dispatch(self, events: Sequence[Event | Unchanged], run: _BusRun | None = None) -> None:
+    def _dispatch(self, events: Sequence[Event | Unchanged], run: BusRun | None = None) -> None:
         """Deliver ``events``; ``run``: the bus whose scheduler made them all (its
         updates counted once for the batch, not per value).  An `Unchanged` block is
         noted as read, no value of it delivered, when only changes are; otherwise
@@ -741,7 +731,7 @@ class Poller(AsyncService):
         if not self._running:
             raise RuntimeError("the poller is not running (start it first)")
 
-    def _submit(self, run: _BusRun, reqs: Sequence[ScheduledRequest]) -> list[asyncio.Future[Any]]:
+    def _submit(self, run: BusRun, reqs: Sequence[ScheduledRequest]) -> list[asyncio.Future[Any]]:
         loop = asyncio.get_running_loop()
         futs = []
         for r in reqs:
@@ -749,6 +739,8 @@ class Poller(AsyncService):
             run.pending[r.tag] = fut
             futs.append(fut)
         run.wake.set()
+        if self._mux is not None and run.on_mux:
+            self._mux.kick(run)
         return futs
 
     async def write(self, name: str, value: object) -> str:
@@ -826,7 +818,7 @@ class Poller(AsyncService):
             out += await f
         return out
 
-    def _run_of(self, bus: str) -> _BusRun:
+    def _run_of(self, bus: str) -> BusRun:
         try:
             return self._runs[bus]
         except KeyError:

@@ -255,6 +255,10 @@ class Tracker:
         #: the stamp of a point's latest read when it came after its latest sample in
         #: ``_latest`` (`reread`: the value again, no `Update` made for it)
         self._reread: dict[str, float] = {}
+        #: a block's points reread together (`reread` with the same ``points``
+        #: tuple): [points, seen, stamp] shared by them, moved once per read
+        self._groups: dict[int, list[Any]] = {}
+        self._group_of: dict[str, list[Any]] = {}
 
     def offer(self, update: Update, seen: float) -> bool:
         """``seen``: the sample's time on the clock `age` is asked on."""
@@ -277,21 +281,42 @@ class Tracker:
         answered what it answered before: `Unchanged`), at ``stamp``; ``seen`` as in
         `offer`.  Nothing to deliver: only their age and their latest sample's time
         move on."""
+        group = self._groups.get(id(points))
+        if group is not None and group[0] is points:  # (the same block as before)
+            group[1], group[2] = seen, stamp
+            return
         seen_at, reread = self._seen, self._reread
         for p in points:
             seen_at[p.name] = seen
             reread[p.name] = stamp
+        if type(points) is tuple:  # the points follow the tuple's next rereads
+            group = [points, seen, stamp]
+            self._groups[id(points)] = group
+            for p in points:
+                self._group_of[p.name] = group
+
+    def _seen_at(self, name: str) -> float | None:
+        """When point ``name`` was last read on the `age` clock (None: never)."""
+        t = self._seen.get(name)
+        group = self._group_of.get(name)
+        if group is not None and t is not None and group[1] > t:
+            return float(group[1])
+        return t
 
     def _current(self, update: Update) -> Update:
         """``update`` (a point's latest sample) with the time of a later `reread`."""
-        stamp = self._reread.get(update.point.name)
+        name = update.point.name
+        stamp = self._reread.get(name)
+        group = self._group_of.get(name)
+        if group is not None and (stamp is None or group[2] > stamp):
+            stamp = group[2]
         if stamp is None or stamp <= update.time:
             return update
         return Update(update.point, update.value, stamp)
 
     def age(self, name: str, now: float) -> float | None:
         """Seconds since the point was last read (None: never)."""
-        t = self._seen.get(name)
+        t = self._seen_at(name)
         return None if t is None else now - t
 
     def latest(self) -> dict[str, Update]:

@@ -392,7 +392,7 @@ class BusScheduler:
             b = req.block
             stamp = now + self.stamp_offset
             dropped, address = self._dropped, b.address
-            points = [p for p in b.points if p.name not in dropped]
+            points = b.points if not dropped else [p for p in b.points if p.name not in dropped]
             task = req.task
             if task is not None and task.raw == data:
                 events.append(Unchanged(tuple(points), data, address, stamp))

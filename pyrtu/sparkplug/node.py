@@ -79,7 +79,7 @@ class EdgeNode(MqttOutput):
 
     WHAT = "the edge node"
 
-    def __init__(self, config: SparkplugConfig, *, master: Any = "aio") -> None:
+    def __init__(self, config: SparkplugConfig, *, master: Any = "auto") -> None:
         self.spb = config
         super().__init__(config.bridge, master)
         self.session = EdgeSession(config)

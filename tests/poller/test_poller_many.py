@@ -49,17 +49,17 @@ POINT = '[[point]]\nname = "x"\nbus = "t"\nslave = 1\ntable = "holding"\naddress
 
 def test_connect_defaults_without_a_table() -> None:
     cfg = parse_config(BUS + POINT, "p.toml")
-    assert cfg.connect == ConnectLimits(64, 8, 1000.0, 0.5)
+    assert cfg.connect == ConnectLimits(64, 8, 1000.0, 0.5, 0.025)
 
 
 def test_connect_table_read() -> None:
     text = (
         "[connect]\nmax_connecting = 1\nmax_connecting_per_host = 1\n"
-        "start_rate = 0.5\njitter = 0.0\n\n" + BUS + POINT
+        "start_rate = 0.5\njitter = 0.0\nlateness = 0.5\n\n" + BUS + POINT
     )
     cfg = parse_config(text, "p.toml")
-    # the boundaries: one connect at a time, no jitter
-    assert cfg.connect == ConnectLimits(1, 1, 0.5, 0.0)
+    # the boundaries: one connect at a time, no jitter, the most lateness
+    assert cfg.connect == ConnectLimits(1, 1, 0.5, 0.0, 0.5)
     assert cfg.connect.start_offset(3) == 6.0  # the 4th network bus: 3 / 0.5 s
     assert ConnectLimits(jitter=0.999).jitter == 0.999
     assert ConnectLimits(start_rate=float("inf")).start_offset(999) == 0.0
@@ -74,6 +74,9 @@ def test_connect_table_read() -> None:
         ("start_rate = nan", "start_rate: must be a positive number of buses a second, not nan"),
         ("jitter = 1", "jitter: must be a fraction in [0, 1), not 1"),
         ("jitter = -0.1", "jitter: must be a fraction in [0, 1), not -0.1"),
+        ("lateness = 0", "lateness: must be a fraction in (0, 0.5], not 0"),
+        ("lateness = 0.51", "lateness: must be a fraction in (0, 0.5], not 0.51"),
+        ("lateness = true", "lateness: must be a fraction in (0, 0.5], not True"),
         ("retries = 3", "retries: unknown key (known: max_connecting, max_connecting_per_host"),
     ],
 )
@@ -335,9 +338,11 @@ def devices(tmp_path: Path) -> Iterator[int]:
 
 
 @pytest.mark.wall_clock
+@pytest.mark.parametrize("master", ["auto", "aio"])
 def test_fifty_devices_one_silent_one_refusing_one_slow_the_others_keep_their_period(
-    devices: int, slow_ports: Callable[[str], SlowPort]
+    devices: int, slow_ports: Callable[[str], SlowPort], master: str
 ) -> None:
+    """On the mux (``auto``: `pyrtu.poller.muxdrive`) and on a master per bus."""
     silent = socket.socket()
     silent.bind(("127.0.0.1", 0))
     silent.listen(8)  # accepts (the kernel does), never reads, never answers
@@ -361,7 +366,10 @@ def test_fifty_devices_one_silent_one_refusing_one_slow_the_others_keep_their_pe
     downs: list[str] = []
 
     async def main() -> None:
-        poller = Poller(make_config(buses, points), connect=ConnectLimits(max_connecting=4))
+        poller = Poller(
+            make_config(buses, points), connect=ConnectLimits(max_connecting=4), master=master
+        )
+        assert {r.on_mux for r in poller._runs.values()} == {master == "auto"}
         poller.on_latency(lambda bus, slave, seconds: answers[bus].append(time.monotonic()))
         poller.on_event(
             lambda ev: downs.append(ev.bus) if isinstance(ev, PortState) and not ev.up else None
@@ -395,18 +403,20 @@ def test_fifty_devices_one_silent_one_refusing_one_slow_the_others_keep_their_pe
 def test_network_polls_wake_on_a_grid_of_their_interval() -> None:
     """A thousand devices at 1 Hz started a millisecond apart would wake the loop a
     thousand times a second, one bus each: a network bus's polls wake on a grid of
-    1 % of its shortest interval (at most 10 ms), so those due within one tick
-    share a wake-up; a local bus's wake at their due time."""
-    assert wake_tick(1.0) == 0.01
-    assert wake_tick(0.5) == 0.005
-    assert wake_tick(2.0) == 0.01  # at most 10 ms
+    ``lateness`` (2.5 %) of its shortest interval (at most 25 ms), so those due
+    within one tick share a wake-up; a local bus's wake at their due time."""
+    assert wake_tick(1.0) == 0.025
+    assert wake_tick(0.5) == 0.0125
+    assert wake_tick(2.0) == 0.025  # at most a second's
+    assert wake_tick(0.5, 0.01) == 0.005 and wake_tick(60.0, 0.01) == 0.01
     buses = [Bus("t", "tcp://127.0.0.1:1502"), Bus("s", "/dev/pyrtu-no-such-port")]
     points = [
         Point("t.x", "t", 1, "holding", 0, interval=2.0),
         Point("t.y", "t", 1, "holding", 1, interval=0.5),  # the shortest: its 1 %
         Point("s.x", "s", 1, "holding", 0, interval=0.5),
     ]
-    poller = Poller(make_config(buses, points))
+    assert Poller(make_config(buses, points))._runs["t"].tick == 0.0125
+    poller = Poller(make_config(buses, points), connect=ConnectLimits(lateness=0.01))
     network, local = poller._runs["t"], poller._runs["s"]
     assert network.tick == 0.005 and local.tick == 0.0
     # the boundaries: on a grid point (as the arithmetic of due times gives it) at
