@@ -1,7 +1,8 @@
 """A thousand Modbus TCP devices polled by one poller process (issue 30, item 3).
 
     python bench/bench_many_devices.py [--devices 1000] [--registers 30]
-        [--rates 1,10] [--seconds 20] [--warmup 4] [--quick] [--json FILE]
+        [--rates 1,10] [--seconds 20] [--warmup 4] [--quick] [--also KINDS]
+        [--json FILE]
 
 The devices: one ``pyrtu simulate --template T --tcp 127.0.0.1:FIRST-LAST``
 process (a device of ``--registers`` holding registers on every port of the
@@ -9,11 +10,16 @@ range; its own process, its CPU is not the poller's).  The poller: a `Poller` in
 a process of its own (this script with ``--child``), on the event loop ``pyrtu
 poll --config`` runs (`pyrtu.drivers.aio.run` with the configuration's
 descriptors), one ``tcp://`` bus per device and one read of all its registers
-every ``1 / rate`` seconds.  That process measures itself over ``--seconds``
+every ``1 / rate`` seconds, the buses on the poller's mux (``master="auto"``:
+`pyrtu.poller.muxdrive`).  At every rate the healthy run is repeated with every
+bus on an `AsyncMaster` of its own (``own masters``: ``master="aio"``, the path
+before the mux) and with ``[connect] lateness = 0.01`` (``lateness 1 %``: the
+polls' wake-up grid of 1 % of the interval, not 2.5 %), like for like in one run
+(``--also``).  That process measures itself over ``--seconds``
 after ``--warmup`` (every device connected and polling):
 
-* its CPU time (user + system, `resource.getrusage`) over the wall time: % of
-  one core;
+* its CPU time (user + system, `resource.getrusage`, every thread) over the wall
+  time: % of one core; and its event loop's thread's alone (``time.thread_time``);
 * every device's achieved period (the mean gap between its answered reads, from
   `Poller.on_latency`) over its interval: the worst device, the median, and the
   largest single gap;
@@ -61,6 +67,12 @@ from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
 TIMEOUT = 1.0  # each bus's timeout (a silent device's reads end after it)
+#: the healthy run again, the poller otherwise (``--also``): every bus on an
+#: `AsyncMaster` of its own (no mux), and the mux with polls at most 1 % late
+ALSO: dict[str, dict[str, Any]] = {
+    "own masters": {"master": "aio"},
+    "lateness 1 %": {"lateness": 0.01},
+}
 
 
 def template_text(registers: int) -> str:
@@ -72,9 +84,14 @@ def template_text(registers: int) -> str:
     return "\n".join(lines)
 
 
-def config_text(urls: list[str], registers: int, interval: float) -> str:
-    """One ``tcp://`` bus per device, its registers as points read every ``interval``."""
+def config_text(
+    urls: list[str], registers: int, interval: float, lateness: float | None = None
+) -> str:
+    """One ``tcp://`` bus per device, its registers as points read every ``interval``
+    (``lateness``: the ``[connect]`` key, None: its default)."""
     out = [f'[defaults]\ninterval = {interval}\ntable = "holding"\nslave = 1\n']
+    if lateness is not None:
+        out.append(f"[connect]\nlateness = {lateness}\n")
     for i, url in enumerate(urls):
         out.append(f'[[bus]]\nname = "d{i}"\nport = "{url}"\ntimeout = {TIMEOUT}\n')
         for r in range(registers):
@@ -102,7 +119,9 @@ def run_queue_s() -> float:
     return int(Path("/proc/self/schedstat").read_text().split()[1]) / 1e9
 
 
-def child(config: str, warmup: float, seconds: float, out: Path, bad: str | None) -> None:
+def child(
+    config: str, warmup: float, seconds: float, out: Path, bad: str | None, master: str
+) -> None:
     """Run the poller of ``config`` (``bad``: the bus that never answers, if any);
     write what it measured on itself to ``out``."""
     from pyrtu.drivers.aio import run as aio_run
@@ -135,7 +154,7 @@ def child(config: str, warmup: float, seconds: float, out: Path, bad: str | None
 
     async def main() -> dict[str, Any]:
         nonlocal measuring
-        poller = Poller(cfg)
+        poller = Poller(cfg, master=master)
         poller.on_latency(answered)
         poller.on_event(event)
         import asyncio
@@ -153,10 +172,12 @@ def child(config: str, warmup: float, seconds: float, out: Path, bad: str | None
             rss_start = rss_kib()
             measuring = True
             cpu0, t0, queued0 = cpu_seconds(), clock(), run_queue_s()
+            loop0 = time.thread_time()
             await asyncio.sleep(seconds / 2)
             rss_mid = rss_kib()
             await asyncio.sleep(seconds / 2)
             cpu1, t1, queued1 = cpu_seconds(), clock(), run_queue_s()
+            loop1 = time.thread_time()
             measuring = False
             rss_end = rss_kib()
             summary = poller.summary()
@@ -164,6 +185,7 @@ def child(config: str, warmup: float, seconds: float, out: Path, bad: str | None
             await poller.stop()
         return {
             "cpu_s": cpu1 - cpu0,
+            "loop_cpu_s": loop1 - loop0,
             "run_queue_s": queued1 - queued0,
             "unanswered_at_ramp": len(needed) - len(answering),
             "wall_s": t1 - t0,
@@ -275,12 +297,15 @@ def run_poller(
     seconds: float,
     sim: int,
     bad: int | None = None,
+    master: str = "auto",
+    lateness: float | None = None,
 ) -> dict[str, Any]:
     """One poller process over ``urls`` (``bad``: the rank of the device that never
-    answers, if any): what it measured, with the simulator's CPU."""
+    answers, if any; ``master``: `Poller`'s; ``lateness``: the ``[connect]`` key):
+    what it measured, with the simulator's CPU."""
     with tempfile.TemporaryDirectory(prefix="pyrtu-many-") as tmp:
         config = Path(tmp) / "many.toml"
-        config.write_text(config_text(urls, registers, 1.0 / rate))
+        config.write_text(config_text(urls, registers, 1.0 / rate, lateness))
         out = Path(tmp) / "child.json"
         env = dict(os.environ)
         env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH")) if p)
@@ -288,7 +313,7 @@ def run_poller(
         t0 = time.monotonic()
         done = subprocess.run(
             [sys.executable, __file__, "--child", str(config), "--warmup", str(warmup),
-             "--seconds", str(seconds), "--out", str(out),
+             "--seconds", str(seconds), "--out", str(out), "--master", master,
              *(() if bad is None else ("--bad-bus", f"d{bad}"))],
             env=env, capture_output=True, text=True, timeout=warmup + seconds + 300, check=False,
         )  # fmt: skip
@@ -310,6 +335,7 @@ def judge(result: dict[str, Any], devices: int, skip: int | None = None) -> dict
     per_device = (result["rss_start_kib"] - result["rss_before_kib"]) / devices
     return {
         "cpu_pct": 100.0 * result["cpu_s"] / result["wall_s"],
+        "loop_cpu_pct": 100.0 * result["loop_cpu_s"] / result["wall_s"],
         # of the time the poller had work, the part it waited for a CPU
         "run_queue_pct": 100.0 * result["run_queue_s"] / (result["run_queue_s"] + result["cpu_s"]),
         "seconds": result["wall_s"],
@@ -370,6 +396,12 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
                 print(f"bench_many_devices: {args.devices} devices at {rate:g} Hz", flush=True)
                 raw = run_poller(urls, args.registers, rate, args.warmup, args.seconds, sim.pid)
                 entry: dict[str, Any] = {"healthy": judge(raw, args.devices)}
+                for kind, how in ALSO.items():  # the same devices, the poller otherwise
+                    if kind in args.also:
+                        print(f"bench_many_devices: {kind}", flush=True)
+                        other = run_poller(urls, args.registers, rate, args.warmup,
+                                           args.seconds, sim.pid, **how)  # fmt: skip
+                        entry[kind] = judge(other, args.devices)
                 skip = bad_device(args.devices)
                 if rate == args.rates[0] and args.devices >= 2:
                     for kind in args.bad:
@@ -403,7 +435,8 @@ def summary(doc: dict[str, Any]) -> str:
                 else f"not within 60 s ({f['unanswered_at_ramp']} not yet)"
             )
             line = (
-                f"{rate:>4} Hz {kind:9} CPU {f['cpu_pct']:5.1f} % of a core (waited for one "
+                f"{rate:>4} Hz {kind:12} CPU {f['cpu_pct']:5.1f} % of a core "
+                f"({f['loop_cpu_pct']:.1f} % in the event loop's thread; waited for one "
                 f"{f['run_queue_pct']:.0f} % of the time it had work); period "
                 f"median {f['period_median']:.3f}, worst {f['period_max']:.3f} of the interval "
                 f"({f['within_10pct']}/{f['devices_measured']} within 10 %), largest gap "
@@ -436,18 +469,27 @@ def main() -> None:
         default="silent,refusing",
         help="the runs with one bad device at the first rate: silent, refusing (none: no such run)",
     )
+    ap.add_argument(
+        "--also",
+        default=",".join(ALSO),
+        help=f"the healthy runs again, the poller otherwise: {', '.join(ALSO)} (none: no such run)",
+    )
     ap.add_argument("--json", type=Path, default=None, help="also save the figures here")
     ap.add_argument("--child", help=argparse.SUPPRESS)
     ap.add_argument("--bad-bus", help=argparse.SUPPRESS)
+    ap.add_argument("--master", default="auto", help=argparse.SUPPRESS)
     ap.add_argument("--out", type=Path, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child is not None:
-        child(args.child, args.warmup, args.seconds, args.out, args.bad_bus)
+        child(args.child, args.warmup, args.seconds, args.out, args.bad_bus, args.master)
         return
     if args.quick:
         args.seconds, args.warmup = 8.0, 3.0
     args.rates = [float(r) for r in args.rates.split(",")]
     args.bad = [] if args.bad == "none" else args.bad.split(",")
+    args.also = [] if args.also == "none" else args.also.split(",")
+    if any(kind not in ALSO for kind in args.also):
+        ap.error(f"--also: {', '.join(ALSO)} or none, not {','.join(args.also)!r}")
     if any(kind not in ("silent", "refusing") for kind in args.bad):
         ap.error(f"--bad: silent, refusing or none, not {','.join(args.bad)!r}")
     runs = measure(args)

@@ -904,9 +904,13 @@ def many_body(data: Data) -> Lines:
         f"{data['devices']} Modbus TCP devices of {data['registers']} registers, one "
         "`pyrtu simulate --tcp 127.0.0.1:FIRST-LAST` process, polled by one poller process "
         "(bench/bench_many_devices.py: a `tcp://` bus per device, one read of all its "
-        f"registers per interval), measured for {data['seconds']:g} s after every device "
-        f"answered and {data['warmup']:g} s more.  *CPU*: the poller process's user + "
-        "system time over the wall time, % of one core.  *period*: each device's mean gap "
+        "registers per interval, the buses on the poller's mux; *own masters*: the same "
+        "with an `AsyncMaster` per bus, as before the mux; *lateness 1 %*: the mux with "
+        "the polls' wake-up grid at 1 % of the interval, not 2.5 %), measured for "
+        f"{data['seconds']:g} s after every device answered and {data['warmup']:g} s "
+        "more.  *CPU*: the poller process's user + system time over the wall time, % of "
+        "one core (every thread); *loop*: its event loop's thread's alone.  *period*: "
+        "each device's mean gap "
         "between answered reads over its interval (median and worst device), *largest "
         "gap* the longest single one.  *memory*: the process's RSS with the poller "
         "running less before its configuration was loaded, per device; *grew*: over the "
@@ -933,6 +937,7 @@ def many_body(data: Data) -> Lines:
                     f"{rate} Hz",
                     kind,
                     f"{f['cpu_pct']:.1f} %",
+                    "-" if "loop_cpu_pct" not in f else f"{f['loop_cpu_pct']:.1f} %",
                     "-" if "run_queue_pct" not in f else f"{f['run_queue_pct']:.0f} %",
                     f"{f['period_median']:.3f} / {f['period_max']:.3f}"
                     if f["period_median"] is not None
@@ -954,6 +959,7 @@ def many_body(data: Data) -> Lines:
             "rate",
             "run",
             "poller CPU",
+            "loop",
             "waited for a CPU",
             "period median / worst",
             "within 10 %",
