@@ -56,7 +56,7 @@ from pyrtu.pdu.requests import Call, answer_pdu
 from pyrtu.tcp.client import connect_error, parse_tcp_url, where_of
 from pyrtu.tcp.link import TcpLink
 from pyrtu.tcp.mux import MuxDone, TcpMux
-from pyrtu.tcp.mux_backends import open_mux
+from pyrtu.tcp.mux_backends import available, open_mux
 from pyrtu.tcp.protocol import TcpClientProtocol
 from pyrtu.tcp.sockets import set_nodelay
 
@@ -102,13 +102,15 @@ def collect_tick(ticks: Iterable[float]) -> float:
 
 def on_mux(bus: Bus) -> bool:
     """Whether ``bus`` runs on the mux: a plain ``tcp://`` bus (no TLS) whose master
-    keywords are only ``timeout`` and ``retries``."""
+    keywords are only ``timeout`` and ``retries``, where there is a mux (not on a
+    platform whose only selector is select(): `pyrtu.tcp.mux_backends.available`)."""
     port = bus.port
     return (
         isinstance(port, str)
         and url_scheme(port) == "tcp"
         and bus.tls is None
         and set(bus.master_options) <= MUX_KEYS
+        and available()
     )
 
 

@@ -4,10 +4,13 @@ over csrc/rtu_mux_io.c) where the core is built with epoll, else the twin
 
 from __future__ import annotations
 
+import functools
+
 from pyrtu.core._backend import backend
 from pyrtu.tcp.mux import TcpMux
 
 
+@functools.cache
 def available(name: str | None = None) -> bool:
     """Whether backend ``name`` (None: the active one) has a mux here: C where
     there is ``epoll`` (Linux), the twin where the selector has a descriptor

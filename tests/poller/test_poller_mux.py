@@ -21,7 +21,7 @@ import pytest
 from waiting import wait_for
 
 from pyrtu.pdu.errors import NoResponseError
-from pyrtu.poller import Bus, Point, Poller, TaskFailed, make_config
+from pyrtu.poller import Bus, Point, Poller, TaskFailed, make_config, muxdrive
 from pyrtu.poller.events import Event
 from pyrtu.poller.muxdrive import collect_tick, on_mux
 
@@ -115,6 +115,17 @@ def test_plain_tcp_buses_run_on_the_mux_the_others_on_their_own_master() -> None
     assert {n: r.on_mux for n, r in auto._runs.items()} == {"a": True, "c": False}
     aio = Poller(make_config(buses, points), master="aio")
     assert not any(r.on_mux for r in aio._runs.values())
+
+
+def test_without_a_mux_here_every_bus_has_a_master_of_its_own(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Where there is no mux (a platform whose only selector is select()), ``auto``
+    gives the tcp:// buses an `AsyncMaster` each."""
+    monkeypatch.setattr(muxdrive, "available", lambda: False)
+    bus = Bus("a", "tcp://127.0.0.1:1502", {})
+    poller = Poller(make_config([bus], [Point("a.x", "a", 1, "holding", 0)]))
+    assert not poller._runs["a"].on_mux
 
 
 def test_the_collection_grid_is_the_finest_wake_grid() -> None:
