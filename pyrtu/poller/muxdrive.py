@@ -45,7 +45,7 @@ import logging
 import math
 import socket
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 from typing import Any, Protocol
 
 from pyrtu.drivers._portname import url_scheme
@@ -381,7 +381,7 @@ class MuxDriver:
             self._loop.call_soon(self._ready)  # (ended at once: no descriptor says so)
         else:
             self._gap = 1
-            self._collect_after(time.monotonic())
+            self._collect_by(self._grid_after(time.monotonic()))
 
     def _settled(self, d: _Drive) -> None:
         """``d``'s transaction is no longer in flight."""
@@ -391,11 +391,12 @@ class MuxDriver:
             if not self._urgent:
                 self._loop.remove_reader(self.mux.fd)
 
-    def _collect_after(self, now: float) -> None:
-        """Collect at the `_gap`-th grid point after ``now`` (or at the first
-        timeout, if that is sooner), unless a collection is due sooner."""
-        tick = self._tick
-        at = (math.floor(now / tick + 1e-6) + self._gap) * tick
+    def _grid_after(self, now: float) -> float:
+        """The `_gap`-th grid point after ``now``."""
+        return (math.floor(now / self._tick + 1e-6) + self._gap) * self._tick
+
+    def _collect_by(self, at: float) -> None:
+        """Have the mux collected at ``at``, unless a collection is due sooner."""
         if at >= self._collect_at:
             return
         if self._collect is not None:
@@ -405,7 +406,8 @@ class MuxDriver:
 
     def _collected(self) -> None:
         """A collection's tick: the answers and timeouts; the next tick while
-        transactions are in flight (further apart after one that found none)."""
+        transactions are in flight (further apart after one that found none,
+        never past the first timeout's grid point)."""
         self._collect, self._collect_at = None, float("inf")
         found = self._ready()
         deadline = self.mux.deadline()
@@ -413,13 +415,8 @@ class MuxDriver:
             return
         self._gap = 1 if found else min(self._gap * 2, MAX_GAP)
         now = time.monotonic()
-        self._collect_after(now)
-        if deadline < self._collect_at:  # (never past the first timeout)
-            if self._collect is not None:
-                self._collect.cancel()
-            at = math.ceil(deadline / self._tick - 1e-6) * self._tick
-            self._collect_at = max(at, now)
-            self._collect = self._loop.call_at(self._collect_at, self._collected)
+        due = max(math.ceil(deadline / self._tick - 1e-6) * self._tick, now)
+        self._collect_by(min(self._grid_after(now), due))
 
     def _sleep(self, d: _Drive, at: float) -> None:
         d.wake_seq = seq = next(self._wake_seqs)
@@ -562,10 +559,4 @@ class MuxDriver:
         self._step(d, time.monotonic())
 
 
-def mux_factory(driver: Callable[[], MuxDriver]) -> Callable[[Bus], MuxBus]:
-    """A master factory (`pyrtu.poller.driver.MasterFactory`) opening `MuxBus`es on
-    the driver ``driver()`` returns (the poller's, made when it starts)."""
-    return lambda bus: driver().open(bus)
-
-
-__all__ = ["MUX_KEYS", "MuxBus", "MuxDriver", "mux_factory", "on_mux"]
+__all__ = ["MUX_KEYS", "MuxBus", "MuxDriver", "on_mux"]
