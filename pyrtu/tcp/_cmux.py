@@ -6,11 +6,36 @@ from __future__ import annotations
 
 import os
 import socket
+import struct
 
 from pyrtu.core._rtu_core import ffi, lib
 from pyrtu.tcp.mux import MuxDone, MuxError, refused
 
 _NONE = 2**63 - 1
+
+#: an rtu_mux_done record's fields as their bytes lie (csrc/rtu_mux.h), with
+#: their `struct` codes; checked against the compiler's layout at import
+_FIELDS = (("token", "Q"), ("conn", "I"), ("status", "i"), ("err", "i"), ("stage", "i"),
+           ("late", "I"), ("tid", "I"), ("start", "q"), ("end", "q"), ("len", "I"),
+           ("adu", "254s"))  # fmt: skip
+_RECORD = struct.Struct("=" + "".join(code for _, code in _FIELDS))
+
+
+def _record_layout() -> int:
+    """The record's size in an array (ImportError when `_RECORD` is not the
+    compiler's layout: the extension and this module disagree)."""
+    offset = 0
+    for name, code in _FIELDS:
+        if ffi.offsetof("rtu_mux_done", name) != offset:
+            raise ImportError(f"rtu_mux_done.{name} is not at byte {offset}: rebuild pyrtu")
+        offset += struct.calcsize("=" + code)
+    size: int = ffi.sizeof("rtu_mux_done")
+    if size < _RECORD.size:
+        raise ImportError("rtu_mux_done is smaller than its fields: rebuild pyrtu")
+    return size
+
+
+_SIZE = _record_layout()
 
 
 def supported() -> bool:
@@ -66,13 +91,13 @@ class CMux:
         timeout: float,
         awaited: bool = True,
     ) -> bool:
+        # (a NaN timeout is refused: no comparison holds for it)
         if not (0 <= token < 2**64 and 0 <= conn < 2**32 and 0 <= tid <= 0xFFFF
-                and 0 <= unit <= 0xFF and 0 <= timeout < 9e9):  # fmt: skip
+                and 0 <= unit <= 0xFF and timeout >= 0):  # fmt: skip
             rc = -1  # (what C would refuse, refused before cffi's own conversions)
         else:
-            rc = lib.rtu_mux_submit(
-                self._m, conn, token, tid, unit, pdu, len(pdu), awaited, int(timeout * 1e9)
-            )
+            ns = int(timeout * 1e9) if timeout < 9e9 else _NONE  # (9e9 s on: no deadline)
+            rc = lib.rtu_mux_submit(self._m, conn, token, tid, unit, pdu, len(pdu), awaited, ns)
         if rc not in (0, 1):
             raise refused(conn, tid, unit, pdu, timeout)
         return rc == 1
@@ -89,14 +114,18 @@ class CMux:
         return None if t == _NONE else t * 1e-9
 
     def take(self) -> list[MuxDone]:
-        out = self._out
-        n = lib.rtu_mux_take(self._m, out, self.capacity)
+        n = lib.rtu_mux_take(self._m, self._out, self.capacity)
+        if not n:
+            return []
+        raw = ffi.buffer(self._out, n * _SIZE)  # (one view of every record, unpacked whole)
         done = []
-        buf = ffi.buffer
+        unpack, size = _RECORD.unpack_from, _SIZE
         for i in range(n):
-            d = out[i]
-            done.append(MuxDone(d.token, d.conn, d.status, d.err, d.stage, d.late, d.tid,
-                                d.start * 1e-9, d.end * 1e-9, buf(d.adu, d.len)[:]))  # fmt: skip
+            token, conn, status, err, stage, late, tid, start, end, length, adu = unpack(
+                raw, i * size
+            )
+            done.append(MuxDone(token, conn, status, err, stage, late, tid, start * 1e-9,
+                                end * 1e-9, adu[:length]))  # fmt: skip
         return done
 
     @property

@@ -143,8 +143,10 @@ class PyMux:
         awaited: bool = True,
     ) -> bool:
         k = self._conns.get(conn)
-        if (k is None or k.busy or k.queued or not 0 <= tid <= 0xFFFF
-                or not 0 <= unit <= 0xFF or not 1 <= len(pdu) <= 253 or timeout < 0):  # fmt: skip
+        # (a NaN timeout is refused: no comparison holds for it)
+        if (k is None or k.busy or k.queued or not 0 <= token < 2**64 or not 0 <= tid <= 0xFFFF
+                or not 0 <= unit <= 0xFF or not 1 <= len(pdu) <= 253
+                or not timeout >= 0):  # fmt: skip
             raise refused(conn, tid, unit, pdu, timeout)
         now = time.monotonic()
         del k.buf[: k.used]

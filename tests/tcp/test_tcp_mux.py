@@ -258,9 +258,13 @@ def test_what_the_mux_refuses(mux: TcpMux, pair: tuple[int, socket.socket]) -> N
     assert [(d.status, d.adu) for d in records(mux)] == [(TCP_ANSWER, bytes((0, 7, 0x55)))]
     for bad in [(conn, 1, 0x10000, 1, READ), (conn, 1, 1, 256, READ), (conn, 1, 1, 1, b""),
                 (conn, 1, -1, 1, READ), (conn, 1, 1, -1, READ),
-                (conn, 1, 1, 1, bytes(254)), (3, 1, 1, 1, READ)]:  # fmt: skip
+                (conn, 1, 1, 1, bytes(254)), (3, 1, 1, 1, READ), (conn, -1, 1, 1, READ),
+                (conn, 2**64, 1, 1, READ), (-1, 1, 1, 1, READ),
+                (2**32, 1, 1, 1, READ)]:  # fmt: skip
         with pytest.raises(ValueError, match="refused"):
             mux.submit(*bad, 1.0)
+    with pytest.raises(ValueError, match="refused"):
+        mux.submit(conn, 1, 1, 1, READ, float("nan"))
     mux.submit(conn, 1, 1, 1, READ, 2.0)
     with pytest.raises(ValueError, match="still in a transaction"):
         mux.submit(conn, 2, 2, 1, READ, 2.0)  # one in flight at a time
@@ -347,6 +351,12 @@ def test_the_requests_bounds(mux: TcpMux, pair: tuple[int, socket.socket]) -> No
     assert (d.token, d.status) == (2**63, TCP_TIMEOUT)
     with pytest.raises(ValueError, match="refused"):
         mux.submit(conn, 1, 1, 1, READ, -0.001)
+    # the largest token; a timeout past what a 64-bit count of nanoseconds holds
+    assert not mux.submit(conn, 2**64 - 1, 1, 1, READ, 1e10)
+    assert peer.recv(300) == adu(1, 1, READ)
+    peer.sendall(adu(1, 1, ANSWER))
+    (d,) = records(mux)
+    assert (d.token, d.status, d.adu) == (2**64 - 1, TCP_ANSWER, bytes((1,)) + ANSWER)
 
 
 def test_late_answers_while_idle_are_counted_in_the_next_transaction(
