@@ -14,6 +14,17 @@ template's ``address`` (the manual's examples').  Put it on a drop of ``pyrtu vb
 (with ``--parity N``:
 pseudo-terminals carry no parity) or on a real port.
 
+``--vary SECONDS`` makes a template's values change: every SECONDS (from the
+start), each point no client can write (a measured value: not ``writable``, or
+in the input registers or discrete inputs) takes the next step of a ramp, the
+same on every device: a number goes up by one count of its register (``scale``
+in its units) and wraps from the top of its ``min``..``max`` (else of what its
+register holds) to the bottom; a bool toggles; an enum takes its next value; a
+string keeps its value.  With ``--tcp HOST:FIRST-LAST`` every device of the range
+steps at the same instants (``pyrtu.cli._simulate_template``).  The drives of the
+manuals compute their values: ``--vary`` with one of them is a usage error, as is
+a time that is not above 0 (exit 2, naming ``--vary``, before a port opens).
+
 Runs until SIGINT/SIGTERM or ``--duration``, then prints the counters;
 ``--watch`` prints the drive's frequency and status word every second.
 
@@ -91,6 +102,7 @@ from pyrtu.cli.common import (
     EXIT_PORT,
     add_duration_option,
     add_json_option,
+    add_seconds_option,
     add_serial_options,
     describe_format,
     emit,
@@ -123,11 +135,16 @@ def find_device(args: argparse.Namespace) -> Any:
 
 
 def make_simulator(
-    device: Any, state: str | None = None, mode: str = "rtu", values: Any = None
+    device: Any,
+    state: str | None = None,
+    mode: str = "rtu",
+    values: Any = None,
+    vary: float | None = None,
 ) -> Any:
     """The simulator of template ``device`` (a `Template`, or a registry name): its
     drive simulator where it has one (``state`` where that has states), else a
-    `TemplateSimulator` with ``values``."""
+    `TemplateSimulator` with ``values`` (``vary``: its measured values step every
+    ``vary`` seconds)."""
     from pyrtu.devices.registry import find_template
 
     template = find_template(device) if isinstance(device, str) else device
@@ -137,9 +154,10 @@ def make_simulator(
             raise ValueError(f"--state: the {template.name} template has no states")
         from pyrtu.cli._simulate_template import TemplateSimulator
 
-        return TemplateSimulator(template, values, mode=mode)
-    if values is not None:
-        raise ValueError(f"--values: the {template.name} simulator computes its values")
+        return TemplateSimulator(template, values, mode=mode, vary=vary)
+    for flag, given in (("--values", values), ("--vary", vary)):
+        if given is not None:
+            raise ValueError(f"{flag}: the {template.name} simulator computes its values")
     options: dict[str, Any] = {}
     params = inspect.signature(cls).parameters
     if state is not None:
@@ -223,6 +241,13 @@ def _configure(p: argparse.ArgumentParser) -> None:
         choices=["manual", "stopped"],
         help="WEG and CV100: start in the state of the manual's examples (default) or stopped",
     )
+    add_seconds_option(
+        p,
+        "--vary",
+        default=None,
+        help="every SECONDS, each measured value (a point no client can write) takes the "
+        "next step of its ramp within its min..max (templates, not the drives' simulators)",
+    )
     add_duration_option(p)
     p.add_argument("--watch", action="store_true", help="print frequency and status every second")
     add_json_option(p, "JSON lines: ready, status (--watch), stopped")
@@ -295,9 +320,10 @@ def _run(args: argparse.Namespace) -> int:
     if args.t35 is not None:
         options["t35"] = args.t35
     values = None
+    for flag, given in (("--values", args.values), ("--vary", args.vary)):
+        if given is not None and template.hook("simulator") is not None:
+            raise ValueError(f"{flag}: the {device} simulator computes its values")
     if args.values is not None:
-        if template.hook("simulator") is not None:
-            raise ValueError(f"--values: the {device} simulator computes its values")
         from pyrtu.cli._simulate_template import read_values
         from pyrtu.poller.config import template_points
 
@@ -308,7 +334,7 @@ def _run(args: argparse.Namespace) -> int:
         return _run_many(args, template, address, ports, options)
     if len(tcp_ports) > 1:
         return _run_tcp_range(args, template, address, tcp_ports, security)
-    sim = make_simulator(template, args.state, args.mode, values)
+    sim = make_simulator(template, args.state, args.mode, values, args.vary)
     with stop_on_signals() as stop:  # before the "ready" line: a signal after it stops cleanly
         tcp = None
         drive = None
@@ -352,7 +378,9 @@ def _run_many(
 ) -> int:
     """One drive per port, served by `DriveLoop` (one event loop, one thread)."""
     device: str = template.name
-    sims = [make_simulator(template, args.state, args.mode, args.values_of) for _ in ports]
+    sims = [
+        make_simulator(template, args.state, args.mode, args.values_of, args.vary) for _ in ports
+    ]
     with stop_on_signals() as stop:
         drives = DriveLoop(
             lambda i: sims[i].make_async_slave(ports[i], address, **options), len(ports)
@@ -386,7 +414,9 @@ def _run_tcp_range(
     with stop_on_signals() as stop:
         try:
             for _ in tcp_ports:
-                sims.append(make_simulator(template, args.state, args.mode, args.values_of))
+                sims.append(
+                    make_simulator(template, args.state, args.mode, args.values_of, args.vary)
+                )
             apps = [tcp_only_slave(sim, address) for sim in sims]
             tcp = TcpThread.many(apps, host, tcp_ports, on_task=lambda f: _task_failed(args, f),
                                  **security.server_kwargs())  # fmt: skip
