@@ -42,12 +42,17 @@ class PointUpdate:
     quality: str
 
 
+#: ``json.dumps(x, separators=(",", ":"), ensure_ascii=False)``, its encoder made
+#: once (`json.dumps` makes one per call when given options: a record per update)
+_COMPACT = json.JSONEncoder(separators=(",", ":"), ensure_ascii=False).encode
+
+
 def encode_update(update: PointUpdate) -> bytes:
     """The outbox record of ``update``."""
     if update.quality not in QUALITIES:
         raise ValueError(f"quality must be one of {', '.join(QUALITIES)}, not {update.quality!r}")
     body = [update.point, update.value, update.time, update.quality]
-    return UPDATE_MARK + json.dumps(body, separators=(",", ":"), ensure_ascii=False).encode()
+    return UPDATE_MARK + _COMPACT(body).encode()
 
 
 def is_update(record: bytes) -> bool:
