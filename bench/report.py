@@ -113,6 +113,7 @@ BENCHMARKS: tuple[Benchmark, ...] = (
     Benchmark("gateway", ("bench/run_gateway.py", "--no-write"), quick=("--seconds", "2")),
     Benchmark("poller", ("bench/bench_poller.py", "--no-write"), quick=("--seconds", "3")),
     Benchmark("many", ("bench/bench_many_devices.py",), quick=("--quick",)),
+    Benchmark("manybridge", ("bench/bench_many_bridge.py",), quick=("--quick",)),
     Benchmark("decode", ("bench/bench_decode.py",), quick=("--rounds", "10")),
     Benchmark("bridge", ("bench/bench_bridge.py",), quick=("--outage", "10", "--rounds", "3")),
     Benchmark("outbox", ("bench/bench_outbox.py",), quick=("--runs", "3")),
