@@ -15,7 +15,12 @@ every ``1 / rate`` seconds, the buses on the poller's mux (``master="auto"``:
 bus on an `AsyncMaster` of its own (``own masters``: ``master="aio"``, the path
 before the mux) and with ``[connect] lateness = 0.01`` (``lateness 1 %``: the
 polls' wake-up grid of 1 % of the interval, not 2.5 %), like for like in one run
-(``--also``).  That process measures itself over ``--seconds``
+(``--also``).  ``--also`` may also name runs not made by default: ``lateness 5 %``
+and ``lateness 10 %`` (wider grids), and ``breakdown``: the healthy run with the
+event loop thread's time per answered read split by where it goes (the mux
+driver's wake-up and collection callbacks, and inside them the C calls submit,
+service and take: `time.thread_time` around each call, which itself costs a
+little).  That process measures itself over ``--seconds``
 after ``--warmup`` (every device connected and polling):
 
 * its CPU time (user + system, `resource.getrusage`, every thread) over the wall
@@ -62,6 +67,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -73,6 +79,22 @@ ALSO: dict[str, dict[str, Any]] = {
     "own masters": {"master": "aio"},
     "lateness 1 %": {"lateness": 0.01},
 }
+#: runs ``--also`` may name that it does not run by default: wider wake-up grids, and
+#: the healthy run with the event loop's time split by where it goes (``breakdown``)
+MORE: dict[str, dict[str, Any]] = {
+    "lateness 5 %": {"lateness": 0.05},
+    "lateness 10 %": {"lateness": 0.1},
+    "breakdown": {"breakdown": True},
+}
+#: the parts ``breakdown`` times in the poller process (`time.thread_time` around
+#: each call): the mux driver's two callbacks, and the C calls inside them
+BREAKDOWN = (
+    ("wake", "pyrtu.poller.muxdrive", "MuxDriver", "_wake"),
+    ("collect", "pyrtu.poller.muxdrive", "MuxDriver", "_collected"),
+    ("submit", "pyrtu.tcp._cmux", "CMux", "submit"),
+    ("service", "pyrtu.tcp._cmux", "CMux", "service"),
+    ("take", "pyrtu.tcp._cmux", "CMux", "take"),
+)
 
 
 def template_text(registers: int) -> str:
@@ -119,11 +141,42 @@ def run_queue_s() -> float:
     return int(Path("/proc/self/schedstat").read_text().split()[1]) / 1e9
 
 
+def timed_parts(measuring: Callable[[], bool]) -> dict[str, float]:
+    """`BREAKDOWN`'s calls wrapped: the thread time spent in each, while
+    ``measuring()``, added up in the dict returned (seconds)."""
+    import importlib
+
+    spent = {name: 0.0 for name, *_ in BREAKDOWN}
+    clock = time.thread_time
+
+    def timed(name: str, f: Callable[..., Any]) -> Callable[..., Any]:
+        def call(*args: Any, **kwargs: Any) -> Any:
+            t0 = clock()
+            try:
+                return f(*args, **kwargs)
+            finally:
+                if measuring():
+                    spent[name] += clock() - t0
+
+        return call
+
+    for name, module, cls, method in BREAKDOWN:
+        owner = getattr(importlib.import_module(module), cls)
+        setattr(owner, method, timed(name, getattr(owner, method)))
+    return spent
+
+
 def child(
-    config: str, warmup: float, seconds: float, out: Path, bad: str | None, master: str
+    config: str,
+    warmup: float,
+    seconds: float,
+    out: Path,
+    bad: str | None,
+    master: str,
+    breakdown: bool = False,
 ) -> None:
     """Run the poller of ``config`` (``bad``: the bus that never answers, if any);
-    write what it measured on itself to ``out``."""
+    write what it measured on itself to ``out`` (``breakdown``: with `timed_parts`)."""
     from pyrtu.drivers.aio import run as aio_run
     from pyrtu.poller import Poller, PortState, load_config
 
@@ -147,6 +200,7 @@ def child(
             latencies.append(seconds)
 
     outages: list[str] = []
+    spent = timed_parts(lambda: measuring) if breakdown else None
 
     def event(ev: Any) -> None:
         if isinstance(ev, PortState) and not ev.up:
@@ -197,6 +251,7 @@ def child(
             "timeouts": sum(s["timeouts"] for s in summary["slaves"]),
             "ramp_s": ramp,
             "rss_mid_kib": rss_mid,
+            "spent_s": spent,
         }
 
     result = aio_run(main(), descriptors=len(cfg.buses))
@@ -299,6 +354,7 @@ def run_poller(
     bad: int | None = None,
     master: str = "auto",
     lateness: float | None = None,
+    breakdown: bool = False,
 ) -> dict[str, Any]:
     """One poller process over ``urls`` (``bad``: the rank of the device that never
     answers, if any; ``master``: `Poller`'s; ``lateness``: the ``[connect]`` key):
@@ -314,7 +370,8 @@ def run_poller(
         done = subprocess.run(
             [sys.executable, __file__, "--child", str(config), "--warmup", str(warmup),
              "--seconds", str(seconds), "--out", str(out), "--master", master,
-             *(() if bad is None else ("--bad-bus", f"d{bad}"))],
+             *(() if bad is None else ("--bad-bus", f"d{bad}")),
+             *(("--breakdown",) if breakdown else ())],
             env=env, capture_output=True, text=True, timeout=warmup + seconds + 300, check=False,
         )  # fmt: skip
         wall = time.monotonic() - t0
@@ -333,7 +390,16 @@ def judge(result: dict[str, Any], devices: int, skip: int | None = None) -> dict
     gaps = [result["gaps"][n] for n in names]
     measured = [p for p in periods if p is not None]
     per_device = (result["rss_start_kib"] - result["rss_before_kib"]) / devices
+    answered = sum(result["answers"].values())
+    spent = result.get("spent_s")
     return {
+        # ``breakdown``: µs of the loop's thread per answered read, by part
+        "breakdown_us": None
+        if not spent or not answered
+        else {
+            **{name: 1e6 * s / answered for name, s in spent.items()},
+            "loop": 1e6 * result["loop_cpu_s"] / answered,
+        },
         "cpu_pct": 100.0 * result["cpu_s"] / result["wall_s"],
         "loop_cpu_pct": 100.0 * result["loop_cpu_s"] / result["wall_s"],
         # of the time the poller had work, the part it waited for a CPU
@@ -396,7 +462,7 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
                 print(f"bench_many_devices: {args.devices} devices at {rate:g} Hz", flush=True)
                 raw = run_poller(urls, args.registers, rate, args.warmup, args.seconds, sim.pid)
                 entry: dict[str, Any] = {"healthy": judge(raw, args.devices)}
-                for kind, how in ALSO.items():  # the same devices, the poller otherwise
+                for kind, how in {**ALSO, **MORE}.items():  # the same devices, otherwise
                     if kind in args.also:
                         print(f"bench_many_devices: {kind}", flush=True)
                         other = run_poller(urls, args.registers, rate, args.warmup,
@@ -446,6 +512,10 @@ def summary(doc: dict[str, Any]) -> str:
                 f"{f['latency_ms']['p50']:.1f}/{f['latency_ms']['p99']:.1f} ms; "
                 f"{f['timeouts']} timeouts, {f['outages']} outages"
             )
+            if f.get("breakdown_us"):
+                line += "; µs per read: " + ", ".join(
+                    f"{k} {v:.1f}" for k, v in f["breakdown_us"].items()
+                )
             if "others_median_ratio" in f:
                 line += (
                     f"; others' periods x{f['others_median_ratio']:.4f} (worst "
@@ -472,24 +542,27 @@ def main() -> None:
     ap.add_argument(
         "--also",
         default=",".join(ALSO),
-        help=f"the healthy runs again, the poller otherwise: {', '.join(ALSO)} (none: no such run)",
+        help=f"the healthy runs again, the poller otherwise: {', '.join(ALSO)} (the default), "
+        f"{', '.join(MORE)} (none: no such run)",
     )
     ap.add_argument("--json", type=Path, default=None, help="also save the figures here")
     ap.add_argument("--child", help=argparse.SUPPRESS)
     ap.add_argument("--bad-bus", help=argparse.SUPPRESS)
+    ap.add_argument("--breakdown", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--master", default="auto", help=argparse.SUPPRESS)
     ap.add_argument("--out", type=Path, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child is not None:
-        child(args.child, args.warmup, args.seconds, args.out, args.bad_bus, args.master)
+        child(args.child, args.warmup, args.seconds, args.out, args.bad_bus, args.master,
+              args.breakdown)  # fmt: skip
         return
     if args.quick:
         args.seconds, args.warmup = 8.0, 3.0
     args.rates = [float(r) for r in args.rates.split(",")]
     args.bad = [] if args.bad == "none" else args.bad.split(",")
     args.also = [] if args.also == "none" else args.also.split(",")
-    if any(kind not in ALSO for kind in args.also):
-        ap.error(f"--also: {', '.join(ALSO)} or none, not {','.join(args.also)!r}")
+    if any(kind not in ALSO and kind not in MORE for kind in args.also):
+        ap.error(f"--also: {', '.join([*ALSO, *MORE])} or none, not {','.join(args.also)!r}")
     if any(kind not in ("silent", "refusing") for kind in args.bad):
         ap.error(f"--bad: silent, refusing or none, not {','.join(args.bad)!r}")
     runs = measure(args)
