@@ -82,6 +82,7 @@ def one(template: Path) -> Iterator[tuple[Background, int]]:
         bg.kill()
 
 
+@pytest.mark.wall_clock
 def test_each_measured_value_takes_the_next_step_of_its_ramp_every_period(
     one: tuple[Background, int],
 ) -> None:
