@@ -56,7 +56,6 @@ import contextlib
 import itertools
 import json
 import os
-import random
 import shlex
 import shutil
 import signal
@@ -72,6 +71,7 @@ BENCH = Path(__file__).resolve().parent
 ROOT = BENCH.parent
 sys.path[:0] = [str(ROOT / "tests"), str(ROOT / "tests" / "sparkplug")]
 
+from bench_many_devices import proc_cpu, start_devices, template_text  # noqa: E402
 from mqtt_broker import Broker  # noqa: E402
 from sparkplug_host import decode  # noqa: E402
 
@@ -81,16 +81,6 @@ GROUP = "bench"
 VARY = 0.5  # the simulator's step (--vary), s: two a poll
 INTERVAL = 1.0  # every point's poll interval, s
 KINDS = ("json", "sparkplug")
-
-
-def template_text(registers: int) -> str:
-    """A device of ``registers`` holding registers 0.. (uint16 points r0, r1...), none
-    writable: every one a measured value that ``--vary`` steps."""
-    lines = ["[device]", 'vendor = "pyrtu bench"', 'model = "many"', "address = 1", ""]
-    for i in range(registers):
-        lines += ["[[point]]", f'name = "r{i}"', 'table = "holding"', f"address = {i}"]
-        lines += [f"initial = {(i * 37) % 65536}", ""]
-    return "\n".join(lines)
 
 
 def config_text(url: str, outbox: Path, first: int, devices: int, registers: int, kind: str) -> str:
@@ -116,12 +106,6 @@ def env() -> dict[str, str]:
     return e
 
 
-def proc_cpu(pid: int) -> float:
-    """CPU seconds (user + system) of process ``pid`` so far, from /proc."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
 def rss_kib(pid: int) -> int:
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
         if line.startswith("VmRSS:"):
@@ -131,30 +115,6 @@ def rss_kib(pid: int) -> int:
 
 def load_avg() -> float:
     return float(Path("/proc/loadavg").read_text().split()[0])
-
-
-def start_devices(template: Path, devices: int, vary: float) -> tuple[subprocess.Popen[str], int]:
-    """``pyrtu simulate --vary VARY`` on ``devices`` consecutive free ports: (process,
-    first port)."""
-    low = int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
-    err = ""
-    for _ in range(20):  # below the ephemeral ports: no connection of anyone's holds them
-        first = random.randrange(10000, max(10001, low - devices))
-        spec = f"127.0.0.1:{first}-{first + devices - 1}"
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "pyrtu", "simulate", "--template", str(template),
-             "--tcp", spec, "--vary", f"{vary:g}", "--json"],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env(),
-        )  # fmt: skip
-        assert proc.stdout is not None
-        line = proc.stdout.readline()
-        if line and json.loads(line).get("type") == "ready":
-            return proc, first
-        proc.wait(30)
-        err = proc.stderr.read() if proc.stderr else ""
-        if "cannot listen" not in err:
-            raise RuntimeError(f"pyrtu simulate did not start: {err.strip()}")
-    raise RuntimeError(f"no free range of ports found for pyrtu simulate: {err.strip()}")
 
 
 def stop(proc: subprocess.Popen[Any], timeout: float = 30) -> None:
@@ -327,7 +287,7 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
         tmp.mkdir(parents=True, exist_ok=True)
         template = tmp / "many.toml"
         template.write_text(template_text(args.registers))
-        sim, first = start_devices(template, args.devices, args.vary)
+        sim, first = start_devices(template, args.devices, "--vary", f"{args.vary:g}")
         try:
             runs = {}
             for kind in args.kinds:

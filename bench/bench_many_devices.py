@@ -319,8 +319,9 @@ def proc_cpu(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def start_devices(template: Path, devices: int) -> tuple[subprocess.Popen[str], int]:
-    """``pyrtu simulate`` on ``devices`` consecutive free ports: (process, first port)."""
+def start_devices(template: Path, devices: int, *options: str) -> tuple[subprocess.Popen[str], int]:
+    """``pyrtu simulate`` on ``devices`` consecutive free ports (with ``options``, as
+    ``--vary 0.5``): (process, first port)."""
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH")) if p)
     low = int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
@@ -330,7 +331,7 @@ def start_devices(template: Path, devices: int) -> tuple[subprocess.Popen[str], 
         spec = f"127.0.0.1:{first}-{first + devices - 1}"
         proc = subprocess.Popen(
             [sys.executable, "-m", "pyrtu", "simulate", "--template", str(template),
-             "--tcp", spec, "--json"],
+             "--tcp", spec, *options, "--json"],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
         )  # fmt: skip
         assert proc.stdout is not None
