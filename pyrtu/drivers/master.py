@@ -179,7 +179,14 @@ class RtuOverTcpLink(SerialLink):
     ) -> SerialLink:
         from pyrtu.tcp import rtu_over_tcp  # (loads the TCP module only when used)
 
-        return super().open(rtu_over_tcp(port), line, options, max_in_flight)
+        sock = rtu_over_tcp(port)
+        try:
+            link = super().open(sock, line, options, max_in_flight)
+        except BaseException:
+            sock.close()  # (an option refused: the connection made for it goes)
+            raise
+        link.port.owned = True  # made here, not handed in: the master's close closes it
+        return link
 
     @staticmethod
     def check_port(port: str) -> None:

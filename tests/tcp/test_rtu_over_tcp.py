@@ -4,7 +4,9 @@ on 127.0.0.1 to a pseudo-terminal, with a real slave (pyrtu, libmodbus) on the p
 
 from __future__ import annotations
 
+import asyncio
 import re
+import socket
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -18,7 +20,7 @@ from peers.tools import (
     socat_pty_over_tcp,
 )
 
-from pyrtu import ExceptionResponseError, Master, PortError
+from pyrtu import AsyncMaster, ExceptionResponseError, Master, PortError
 from pyrtu.tcp import rtu_over_tcp
 
 pytest_plugins = ["peers.fixtures"]
@@ -50,6 +52,33 @@ def test_master_over_rtu_tcp(
         with pytest.raises(ExceptionResponseError):
             m.read_holding_registers(3, 60000, 2)
         assert m.counters["crc_errors"] == 0
+
+
+def test_closing_the_master_closes_its_connection() -> None:
+    """A master made from an ``rtu+tcp://`` URL owns the connection it made: its
+    close (and the end of its ``with``) ends it at once, for `Master` and for
+    `AsyncMaster` (the peer reads the end of the stream, no collection awaited)."""
+    with socket.create_server(("127.0.0.1", 0)) as listener:
+        url = f"rtu+tcp://127.0.0.1:{listener.getsockname()[1]}"
+        listener.settimeout(5)
+        masters: list[object] = []  # referenced after: the close ends it, not a collection
+        with Master(url, t35=0, timeout=0.5) as m:
+            masters.append(m)
+            peer, _ = listener.accept()
+        with peer:
+            peer.settimeout(5)
+            assert peer.recv(16) == b""
+
+        async def with_async() -> None:
+            async with AsyncMaster(url, t35=0, timeout=0.5) as am:
+                masters.append(am)
+
+        asyncio.run(with_async())
+        peer, _ = listener.accept()
+        with peer:
+            peer.settimeout(5)
+            assert peer.recv(16) == b""
+        assert len(masters) == 2
 
 
 def test_bad_urls_and_refused_connections() -> None:
