@@ -71,7 +71,13 @@ BENCH = Path(__file__).resolve().parent
 ROOT = BENCH.parent
 sys.path[:0] = [str(ROOT / "tests"), str(ROOT / "tests" / "sparkplug")]
 
-from bench_many_devices import proc_cpu, start_devices, template_text  # noqa: E402
+from bench_many_devices import (  # noqa: E402
+    child_env,
+    proc_cpu,
+    rss_kib,
+    start_devices,
+    template_text,
+)
 from mqtt_broker import Broker  # noqa: E402
 from sparkplug_host import decode  # noqa: E402
 
@@ -98,23 +104,6 @@ def config_text(url: str, outbox: Path, first: int, devices: int, registers: int
         for r in range(registers):
             out.append(f'[[point]]\nname = "d{i}.r{r}"\nbus = "d{i}"\naddress = {r}\n')
     return "\n".join(out)
-
-
-def env() -> dict[str, str]:
-    e = dict(os.environ)
-    e["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), e.get("PYTHONPATH")) if p)
-    return e
-
-
-def rss_kib(pid: int) -> int:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1])
-    raise RuntimeError(f"no VmRSS in /proc/{pid}/status")
-
-
-def load_avg() -> float:
-    return float(Path("/proc/loadavg").read_text().split()[0])
 
 
 def stop(proc: subprocess.Popen[Any], timeout: float = 30) -> None:
@@ -222,7 +211,7 @@ def run(kind: str, args: argparse.Namespace, sim: subprocess.Popen[str], first: 
             with open(bridge_err, "w") as err:
                 bridge = subprocess.Popen(
                     [sys.executable, "-m", "pyrtu", "bridge", "--config", str(config)],
-                    stdout=subprocess.DEVNULL, stderr=err, env=env(),
+                    stdout=subprocess.DEVNULL, stderr=err, env=child_env(),
                 )  # fmt: skip
             try:
                 started = time.monotonic()
@@ -234,7 +223,7 @@ def run(kind: str, args: argparse.Namespace, sim: subprocess.Popen[str], first: 
                     time.sleep(0.2)
                 first_value = time.monotonic() - started
                 time.sleep(args.warmup)
-                load0 = load_avg()
+                load0 = os.getloadavg()[0]
                 pids = {"bridge": bridge.pid, "mosquitto": broker.proc.pid, "simulator": sim.pid}
                 cpu0 = {k: proc_cpu(p) for k, p in pids.items()}
                 t0, m0 = time.time(), time.monotonic()
@@ -244,7 +233,7 @@ def run(kind: str, args: argparse.Namespace, sim: subprocess.Popen[str], first: 
                 t1, m1 = time.time(), time.monotonic()
                 cpu1 = {k: proc_cpu(p) for k, p in pids.items()}
                 rss_end = rss_kib(bridge.pid)
-                load1 = load_avg()
+                load1 = os.getloadavg()[0]
                 time.sleep(1.0)  # the window's last messages written
             finally:
                 stop(bridge)

@@ -121,11 +121,20 @@ def config_text(
     return "\n".join(out)
 
 
-def rss_kib() -> int:
-    for line in Path("/proc/self/status").read_text().splitlines():
+def rss_kib(pid: int | str = "self") -> int:
+    """The resident memory (``VmRSS``) of process ``pid`` (this one by default), KiB."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
         if line.startswith("VmRSS:"):
             return int(line.split()[1])
-    raise RuntimeError("no VmRSS in /proc/self/status")
+    raise RuntimeError(f"no VmRSS in /proc/{pid}/status")
+
+
+def child_env() -> dict[str, str]:
+    """This environment, with this tree first on ``PYTHONPATH``: what the processes
+    started here (the simulator, the poller, the bridge) import pyrtu from."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH")) if p)
+    return env
 
 
 def cpu_seconds() -> float:
@@ -322,8 +331,7 @@ def proc_cpu(pid: int) -> float:
 def start_devices(template: Path, devices: int, *options: str) -> tuple[subprocess.Popen[str], int]:
     """``pyrtu simulate`` on ``devices`` consecutive free ports (with ``options``, as
     ``--vary 0.5``): (process, first port)."""
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH")) if p)
+    env = child_env()
     low = int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
     err = ""
     for _ in range(20):  # below the ephemeral ports: no connection of anyone's holds them
@@ -364,8 +372,7 @@ def run_poller(
         config = Path(tmp) / "many.toml"
         config.write_text(config_text(urls, registers, 1.0 / rate, lateness))
         out = Path(tmp) / "child.json"
-        env = dict(os.environ)
-        env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH")) if p)
+        env = child_env()
         sim0 = proc_cpu(sim)
         t0 = time.monotonic()
         done = subprocess.run(
