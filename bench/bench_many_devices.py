@@ -550,8 +550,9 @@ def main() -> None:
     ap.add_argument(
         "--also",
         default=",".join(ALSO),
+        # the kinds name percentages; argparse formats help with %
         help=f"the healthy runs again, the poller otherwise: {', '.join(ALSO)} (the default), "
-        f"{', '.join(MORE)} (none: no such run)",
+        f"{', '.join(MORE)} (none: no such run)".replace("%", "%%"),
     )
     ap.add_argument("--json", type=Path, default=None, help="also save the figures here")
     ap.add_argument("--child", help=argparse.SUPPRESS)

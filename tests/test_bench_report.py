@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import re
+import subprocess
 import sys
 from pathlib import Path
 from typing import Any
@@ -138,3 +139,22 @@ def test_a_benchmark_that_did_not_run_leaves_its_targets_not_measured(tmp_path: 
     rows = [line for line in text.splitlines() if line.startswith("| ") and "](#" in line]
     assert rows and all(f"| {report_render.NOT_MEASURED} | - |" in line for line in rows)
     assert "The benchmark failed (exit status 1)" in sections(text)["Framer and stream parser"]
+
+
+SCRIPTS = sorted(
+    p.relative_to(ROOT).as_posix()
+    for p in [*BENCH.glob("*.py"), *BENCH.glob("investigations/*.py")]
+    if "argparse" in p.read_text()
+)
+
+
+@pytest.mark.parametrize("script", SCRIPTS)
+def test_every_bench_script_answers_help(script: str) -> None:
+    """``--help`` prints the usage and exits 0 (argparse formats help texts with ``%``:
+    one unescaped in a help text made ``--help`` a traceback)."""
+    done = subprocess.run(
+        [sys.executable, script, "--help"], cwd=ROOT, capture_output=True, text=True,
+        timeout=60,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.startswith("usage:"), done.stdout[:200]
