@@ -28,6 +28,13 @@ bus says ``up``, each point comes back ``good`` with its next read and each slav
 ``online`` with its first value (or, if it no longer answers, stays ``offline``
 when the poller says so).
 
+With ``messages = "device"`` the records are published in device messages
+(`_take`): the records handed over in one pump, consecutive records of one slave
+(no point twice, at most `_PER_MESSAGE`) in one message, acknowledged together
+(`DeliveryWindow.sent_group`); the live values are pumped at the end of the
+loop's turn, so that a poll's changes, which the poller delivers in one turn,
+make one message.
+
 Every background task (the connection, the stats, the writers) is supervised: a
 failure is logged once with its cause, reported (``task_failed``), counted and the
 task started again after the shared back-off (`pyrtu.drivers.supervise`).
@@ -53,12 +60,13 @@ from .config import BridgeConfig, load_bridge_config
 from .delivery import DeliveryWindow
 from .mqtt import MqttLink
 from .output import MqttOutput
-from .topics import OFFLINE, ONLINE, Unpublishable, bus_payload, payload
+from .topics import OFFLINE, ONLINE, Unpublishable, bus_payload, device_payload, payload
 
 log = logging.getLogger("pyrtu.bridge")
 
 _LIVE = 8192  # records kept in memory for the live path (more: read back from disk)
 _BATCH = 512  # records read from the outbox at a time
+_PER_MESSAGE = 1000  # the most points of one device message (messages = "device")
 
 
 @dataclass(frozen=True, slots=True)
@@ -114,6 +122,14 @@ class Bridge(MqttOutput):
         self._quarantined_topics: set[str] = set()  # reported once each
         self.task_failures = 0  # background tasks that raised (each restarted)
         self.final_stats: dict[str, Any] = {}
+        # messages = "device": the device message being made (`_take`), its topic,
+        # its records (seq, record, when read), its entries and their points' names
+        self._grouped = config.mqtt.messages == "device"
+        self._group: list[tuple[int, bytes, float]] = []
+        self._group_topic = ""
+        self._group_entries: list[bytes] = []
+        self._group_points: set[str] = set()
+        self._pump_soon: asyncio.Handle | None = None  # the live values' pump, this turn
 
     # ------------------------------------------------------------------ life cycle
 
@@ -155,6 +171,9 @@ class Bridge(MqttOutput):
             await asyncio.sleep(0.01)
             flusher.submit()
         await self._cancel_tasks()
+        if self._pump_soon is not None:
+            self._pump_soon.cancel()
+            self._pump_soon = None
         link = self._link
         if link is not None and link.connected:
             link.publish(self.topics.edge_status, OFFLINE, 1, True)
@@ -299,13 +318,21 @@ class Bridge(MqttOutput):
         if len(live) > _LIVE:
             live.popleft()
             self._live_base = live[0][0]
+        if not self._grouped:
+            self._pump()
+        elif self._pump_soon is None:  # at the end of the turn: the poll's other values
+            self._pump_soon = asyncio.get_running_loop().call_soon(self._pump_live)
+
+    def _pump_live(self) -> None:
+        self._pump_soon = None
         self._pump()
 
     # ------------------------------------------------------------------ publishing
 
     def _pump(self) -> None:
-        """Hand records to the client in sequence order while the window has room,
-        and write them to the socket at once (`MqttLink.write_now`)."""
+        """Hand records to the client in sequence order while the window has room
+        (in device messages with ``messages = "device"``: `_take`), and write them
+        to the socket at once (`MqttLink.write_now`)."""
         link = self._link
         if link is None or not link.connected:
             return
@@ -314,16 +341,19 @@ class Bridge(MqttOutput):
         live = self._live
         ob = self._outbox
         assert ob is not None
-        while not win.full:
+        grouped = self._grouped
+        send = self._take if grouped else self._send
+        while self._room():
             while live and live[0][0] <= self._cursor:
                 live.popleft()
             if self._cursor + 1 >= self._live_base:
                 if not live:
                     break
                 seq, rec, update, read_at = live.popleft()
-                self._send(link, seq, rec, read_at, qos, update)
+                send(link, seq, rec, read_at, qos, update)
                 continue
-            batch = ob.pending(min(_BATCH, win.window - len(win)), after=self._cursor)
+            wanted = _BATCH if grouped else min(_BATCH, win.window - len(win))
+            batch = ob.pending(wanted, after=self._cursor)
             if not batch:
                 break  # the rest is not durable yet: after the next flush
             for seq, rec in batch:
@@ -331,9 +361,19 @@ class Bridge(MqttOutput):
                     # nothing older is left on disk (dropped): _live has the rest
                     self._cursor = max(self._cursor, self._live_base - 1)
                     break
-                self._send(link, seq, rec, 0.0, qos)
+                if grouped and not self._room():
+                    break
+                send(link, seq, rec, 0.0, qos)
+        if grouped:
+            self._publish_group(link, qos)
         # to the kernel now: a live value waits for no timer and no other task
         link.write_now()
+
+    def _room(self) -> bool:
+        """Room in the window for one more publication (the device message being
+        made counts as one)."""
+        win = self._window
+        return len(win) + (1 if self._group else 0) < win.window
 
     def _send(
         self,
@@ -363,6 +403,69 @@ class Bridge(MqttOutput):
             return
         self._window.sent(seq, mid, read_at, rec)
 
+    def _take(
+        self,
+        link: MqttLink,
+        seq: int,
+        rec: bytes,
+        read_at: float,
+        qos: int,
+        update: PointUpdate | None = None,
+    ) -> None:
+        """Put a record (``update``: what it holds, when known) in the device
+        message being made (``messages = "device"``), which is published first when
+        the record is another slave's, or of a point it holds already, or would make
+        it longer than `_PER_MESSAGE`; or when the record is to be set aside (so
+        that the window's order stays the outbox's).  An earlier pyrtu's record
+        (a topic and a payload) is published as it was (`_send`)."""
+        topics = self.topics
+        try:
+            if update is None:
+                update = topics.update(rec)
+                if update is None:
+                    self._publish_group(link, qos)
+                    self._send(link, seq, rec, read_at, qos)
+                    return
+            body = topics.render_update(update)[1]
+        except Unpublishable as e:
+            self._publish_group(link, qos)
+            self._set_aside(seq, rec, str(e), e.topic)
+            return
+        name = update.point
+        device = topics.device_of[name]
+        if self._group and (
+            device != self._group_topic
+            or name in self._group_points
+            or len(self._group) >= _PER_MESSAGE
+        ):
+            self._publish_group(link, qos)
+        self._group_topic = device
+        self._group_points.add(name)
+        self._group.append((seq, rec, read_at))
+        entry = payload(body, seq, seq < self._historical_below)
+        self._group_entries.append(topics.json_name[name] + b":" + entry)
+        self._cursor = seq
+
+    def _publish_group(self, link: MqttLink, qos: int) -> None:
+        """Publish the device message being made (not retained: it holds the
+        changes of a poll, not the device's state), if any."""
+        group = self._group
+        if not group:
+            return
+        topic, entries = self._group_topic, self._group_entries
+        self._group, self._group_entries, self._group_points = [], [], set()
+        records = [(seq, rec) for seq, rec, _ in group]
+        try:
+            mid = link.publish(topic, device_payload(entries), qos, False)
+        except ValueError as e:  # the client refuses it (its size): for ever
+            for seq, rec in records:
+                self._set_aside(seq, rec, f"the MQTT client refuses it: {e}", topic)
+            return
+        if mid < 0:
+            self.publish_errors += 1
+            return
+        self._window.sent_group(mid, group[0][2], records)
+
     def _set_aside(self, seq: int, rec: bytes, problem: str, topic: str) -> None:
         """A record that can never be published: quarantined, and passed by as if
         delivered."""
@@ -375,9 +478,7 @@ class Bridge(MqttOutput):
     def _on_refused(self, mid: int, reason: str) -> None:
         """The broker refused a publication (its acknowledgement follows): a record's
         is quarantined, not counted as delivered and forgotten."""
-        found = self._window.record(mid)
-        if found is not None:
-            seq, rec = found
+        for seq, rec in self._window.records(mid):
             self._keep_aside(seq, rec, f"the broker refused it: {reason}", self.topics.name(rec))
 
     def _keep_aside(self, seq: int, rec: bytes, problem: str, topic: str) -> None:
@@ -506,8 +607,10 @@ class Bridge(MqttOutput):
         self._historical_below = ob.next_seq if self._was_connected else self._start_seq
         self._was_connected = True
         qos = self.config.mqtt.qos
-        for seq, update in self._latest.values():
-            if seq < oldest:  # delivered before: published again for the retained copy
+        # delivered before: published again for the retained copy (device messages
+        # are not retained: none is published twice)
+        for seq, update in () if self._grouped else self._latest.values():
+            if seq < oldest:
                 topic, body = self.topics.render_update(update)
                 link.publish(topic, payload(body, seq, False), qos, True)
         if self.config.mqtt.discovery:

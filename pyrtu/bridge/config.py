@@ -64,6 +64,11 @@ POINT_KEYS = ("topic", "max_age")
 PROFILE_DEFAULTS = ("writable", "min", "max")
 
 
+#: the forms of the JSON bridge's value messages (``[mqtt]`` ``messages``): a message
+#: per point update, or one per device per poll
+MESSAGES = ("point", "device")
+
+
 def _real(v: object) -> bool:
     return not isinstance(v, bool) and isinstance(v, int | float) and math.isfinite(v)
 
@@ -95,7 +100,10 @@ class MqttConfig:
     (seconds a set command without an MQTT 5 expiry stays valid); ``write_rate``
     (writes per second per slave); ``command_queue`` (commands waiting, all
     slaves); ``inflight`` (publications awaiting the broker's acknowledgement);
-    ``discovery`` (Home Assistant MQTT discovery under ``discovery_prefix``).
+    ``discovery`` (Home Assistant MQTT discovery under ``discovery_prefix``);
+    ``messages`` (``point``: a retained message per point update; ``device``: one
+    message per device per poll, ``{prefix}/{edge}/{bus}/{slave}/values``, not
+    retained: docs/BRIDGE.md, "Device messages").
     """
 
     url: str
@@ -125,6 +133,7 @@ class MqttConfig:
     max_backoff: float = 30.0
     discovery: bool = False
     discovery_prefix: str = "homeassistant"
+    messages: str = "point"
 
     def __post_init__(self) -> None:
         u = urlsplit(self.url) if isinstance(self.url, str) else None
@@ -184,6 +193,15 @@ class MqttConfig:
             raise ValueError(f"max_backoff: must be at least backoff, not {self.max_backoff!r}")
         if not isinstance(self.discovery, bool):
             raise ValueError(f"discovery: must be true or false, not {self.discovery!r}")
+        if self.messages not in MESSAGES:
+            raise ValueError(
+                f"messages: must be {' or '.join(map(repr, MESSAGES))}, not {self.messages!r}"
+            )
+        if self.messages == "device" and self.discovery:
+            raise ValueError(
+                "messages: 'device' with discovery: Home Assistant reads each point's "
+                "retained value on its own topic (messages = 'point')"
+            )
 
     @property
     def tls(self) -> bool:
@@ -453,10 +471,23 @@ def parse_bridge_config(
     raw_devices = doc.get("device")
     devices: list[Any] = raw_devices if isinstance(raw_devices, list) else []
     _check_levels(text, source, poller, options, n_profile, devices)
+    if sparkplug_t is not None and mqtt.messages != "point":
+        raise _error(
+            _where(text, source, "mqtt", "messages"),
+            "mqtt",
+            f"messages: {mqtt.messages!r} is the JSON bridge's; a [sparkplug] edge node "
+            "publishes a device's changes in one DDATA already (leave messages out)",
+        )
     cfg = BridgeConfig(poller, mqtt, options, source, drives, sparkplug_t)
     try:  # the topics must be distinct and valid
         Topics(cfg)
     except ValueError as e:
+        if str(e).startswith("messages: "):  # a device messages' topic taken
+            raise _error(
+                _where(text, source, "mqtt", "messages"),
+                "mqtt",
+                f"{e} (rename that point, or give it a topic of its own)",
+            ) from None
         raise ConfigError(f"{source}: {e}") from None
     return cfg
 
@@ -493,6 +524,7 @@ def make_bridge_config(
 
 __all__ = [
     "FILE_KEYS",
+    "MESSAGES",
     "MQTT_KEYS",
     "POINT_KEYS",
     "BridgeConfig",

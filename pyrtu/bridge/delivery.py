@@ -7,8 +7,13 @@ acknowledgement, which may come for any message id; `DeliveryWindow.contiguous` 
 highest seq up to which every publication has been acknowledged: what the outbox
 may forget.  `reset` forgets the publications in flight (the connection ended):
 they are published again from the outbox, with the same sequence numbers.
-A publication keeps its record until acknowledged (`record`: what to set aside
-when the broker refuses it).  `DeliveryWindow.skipped` records a record passed by
+A publication keeps its record until acknowledged (`records`: what to set aside
+when the broker refuses it).  A device message (``messages = "device"``,
+`DeliveryWindow.sent_group`) is one publication of several records, consecutive in
+the outbox's order (what lies between them was set aside before it): its
+acknowledgement acknowledges every one of them, so it stands in the order at
+its last record's seq, and `contiguous` never passes a record of a message
+awaiting its acknowledgement.  `DeliveryWindow.skipped` records a record passed by
 unpublished (set aside: it never can be): it counts as acknowledged in its
 place, neither holding `contiguous` back nor moving it past a publication still
 in flight.
@@ -27,7 +32,7 @@ class _Sent:
     seq: int
     read_at: float  # Unix time the value was read off the wire (0: unknown)
     done: bool = False
-    record: bytes = b""
+    records: list[tuple[int, bytes]] | None = None  # (seq, record) of what it carries
 
 
 class DeliveryWindow:
@@ -50,16 +55,22 @@ class DeliveryWindow:
         return len(self._order) >= self.window
 
     def sent(self, seq: int, mid: int, read_at: float, record: bytes = b"") -> None:
-        s = _Sent(seq, read_at, False, record)
+        """The publication ``mid`` of one record."""
+        self.sent_group(mid, read_at, [(seq, record)])
+
+    def sent_group(self, mid: int, read_at: float, records: list[tuple[int, bytes]]) -> None:
+        """The publication ``mid`` of ``records`` (seq order, consecutive in the
+        outbox's: see the module docstring), the first read at ``read_at``."""
+        s = _Sent(records[-1][0], read_at, False, records)
         self._order.append(s)
         self._by_mid[mid] = s
         self.published += 1
 
-    def record(self, mid: int) -> tuple[int, bytes] | None:
-        """(seq, record) of a publication awaiting its acknowledgement (None: no
-        record's, such as a status)."""
+    def records(self, mid: int) -> list[tuple[int, bytes]]:
+        """(seq, record) of what a publication awaiting its acknowledgement carries
+        (none: no record's, such as a status)."""
         s = self._by_mid.get(mid)
-        return None if s is None else (s.seq, s.record)
+        return [] if s is None or s.records is None else s.records
 
     def skipped(self, seq: int) -> bool:
         """A record passed by, in its place in the order, as if acknowledged; True
@@ -73,7 +84,7 @@ class DeliveryWindow:
         if s is None:
             return False  # not a point's record (status, result, stats)
         s.done = True
-        s.record = b""
+        s.records = None
         self.acknowledged += 1
         if s.read_at:
             self.latencies.append(now - s.read_at)

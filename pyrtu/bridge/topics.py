@@ -10,6 +10,9 @@ Topics, under ``{prefix}/{edge}``:
 ``{prefix}/{edge}/{bus}/{slave}/status``   ``online`` / ``offline`` per slave, retained
                                            (``offline`` too while the bus's port is down)
 ``{prefix}/{edge}/{bus}/{slave}/{point}``  a point's value (or its ``topic``), retained
+``{prefix}/{edge}/{bus}/{slave}/values``   with ``messages = "device"`` instead: the
+                                           slave's changed points, one message per
+                                           poll (`device_payload`), not retained
 ``{point topic}/set``                      a command to write a writable point
 ``{point topic}/set/result``               the result when the command names no
                                            MQTT 5 response topic
@@ -27,6 +30,9 @@ In the outbox a value is a point update (`pyrtu.outbox.updates`: the point's
 name, value, time, quality; no topic, no JSON of this mode); `Topics.render`
 makes it a topic and a payload body (`body`: the payload without its sequence
 number and closing brace) when it is published, and `payload` completes it.
+With ``messages = "device"`` the records are grouped when published: consecutive
+point updates of one slave, no point twice, make one message whose ``points``
+object maps each point's name to its own payload (`device_payload`).
 An outbox written by an earlier pyrtu (before point updates, issue 33.2) holds
 records of the topic, a newline and that body (`split_record`): they are
 published as they are, as the pyrtu that wrote them would have.  Every name that
@@ -60,6 +66,8 @@ class _Mqtt(Protocol):
     def prefix(self) -> str: ...
     @property
     def edge(self) -> str: ...
+    @property
+    def messages(self) -> str: ...
 
 
 class _Config(Protocol):
@@ -117,6 +125,8 @@ def topic_problem(text: object, *, levels: bool = False) -> str | None:
 
 
 QUALITIES = ("good", "stale", "bad")
+#: the last level of a slave's device messages' topic (``messages = "device"``)
+DEVICE_LEVEL = "values"
 ONLINE = b"online"
 OFFLINE = b"offline"
 
@@ -137,6 +147,12 @@ class Topics:
         self.set: dict[str, str] = {}  # set topic -> point name
         self.slave_status: dict[tuple[str, int], str] = {}
         self.bus_status: dict[str, str] = {}
+        #: ``messages = "device"``: (bus, slave) -> the topic of its device messages
+        self.device: dict[tuple[str, int], str] = {}
+        #: ``messages = "device"``: point name -> its slave's device messages' topic
+        self.device_of: dict[str, str] = {}
+        #: point name -> the name as a JSON string (a key of a device message)
+        self.json_name: dict[str, bytes] = {}
         owner: dict[str, str] = {self.edge_status: "the edge status", self.stats: "the stats"}
 
         def claim(topic: str, what: str) -> None:
@@ -175,6 +191,14 @@ class Topics:
             self.point[p.name] = t
             self._points[p.name] = p
             self.set[t + "/set"] = p.name
+        if m.messages == "device":
+            for bus, slave in self.slave_status:
+                t = f"{self.base}/{bus}/{slave}/{DEVICE_LEVEL}"
+                claim(t, f"messages: the device messages of slave {slave} on {bus}")
+                self.device[(bus, slave)] = t
+            for p in cfg.poller.points:
+                self.device_of[p.name] = self.device[(p.bus, p.slave)]
+                self.json_name[p.name] = json.dumps(p.name, ensure_ascii=False).encode()
 
     def render_update(self, update: PointUpdate) -> tuple[str, bytes]:
         """(topic, payload body) of a point update; `Unpublishable` for a point this
@@ -186,15 +210,23 @@ class Topics:
             )
         return self.point[update.point], body(point, update.value, update.time, update.quality)
 
+    @staticmethod
+    def update(rec: bytes) -> PointUpdate | None:
+        """The point update an outbox record holds (None: a record of an earlier
+        pyrtu, `split_record`); `Unpublishable` when it is a damaged one."""
+        if not is_update(rec):
+            return None
+        try:
+            return decode_update(rec)
+        except UpdateError as e:
+            raise Unpublishable(str(e), "a damaged point update") from None
+
     def render(self, rec: bytes) -> tuple[str, bytes]:
         """(topic, payload body) of an outbox record: a point update (`render_update`)
         or a record of an earlier pyrtu (`split_record`); `Unpublishable` when it can
         never be published."""
-        if is_update(rec):
-            try:
-                update = decode_update(rec)
-            except UpdateError as e:
-                raise Unpublishable(str(e), "a damaged point update") from None
+        update = self.update(rec)
+        if update is not None:
             return self.render_update(update)
         problem = unpublishable(rec)
         if problem is not None:
@@ -287,7 +319,15 @@ def payload(body: bytes, seq: int, historical: bool) -> bytes:
     return body + b',"seq":%d}' % seq
 
 
+def device_payload(entries: list[bytes]) -> bytes:
+    """A device message's payload: ``{"points":{NAME:PAYLOAD,...}}`` of ``entries``,
+    each a point's name as a JSON string, a colon and its point payload (`payload`),
+    in sequence order."""
+    return b'{"points":{' + b",".join(entries) + b"}}"
+
+
 __all__ = [
+    "DEVICE_LEVEL",
     "MAX_TOPIC",
     "OFFLINE",
     "ONLINE",
@@ -296,6 +336,7 @@ __all__ = [
     "Unpublishable",
     "body",
     "bus_payload",
+    "device_payload",
     "payload",
     "split_record",
     "topic_problem",
