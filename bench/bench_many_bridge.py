@@ -5,7 +5,7 @@ core").
 
     python bench/bench_many_bridge.py [--devices 1000] [--registers 30]
         [--seconds 20] [--warmup 8] [--vary 0.5] [--quick]
-        [--kinds json,sparkplug] [--json FILE]
+        [--kinds json,json-device,sparkplug] [--json FILE]
 
 Four processes, each its own: the devices, one ``pyrtu simulate --template T
 --tcp 127.0.0.1:FIRST-LAST --vary 0.5`` (a device of ``--registers`` holding
@@ -22,16 +22,20 @@ on change (report by exception, no deadband, QoS 1, the durable outbox: the
 defaults of ``[mqtt]``); and a ``mosquitto_sub`` (C) subscribed to the values,
 writing each message's receipt time (and payload) to a file.
 
-``json`` is the bridge's JSON topics (a message per point); ``sparkplug`` the same
-configuration with a ``[sparkplug]`` table: the Sparkplug B edge node, whose DDATA
-messages carry a device's changed points as metrics (decoded here by the tests'
-own decoder, tests/sparkplug/sparkplug_host.py, no code of pyrtu).
+``json`` is the bridge's JSON topics (a message per point); ``json-device`` the
+same with ``messages = "device"`` in ``[mqtt]``: one message per device per poll,
+``{"points": {NAME: {"value", "time", "quality", "seq"}}}`` on
+``pyrtu/bench/{bus}/1/values`` (decoded here with the json module); ``sparkplug``
+the same configuration with a ``[sparkplug]`` table: the Sparkplug B edge node,
+whose DDATA messages carry a device's changed points as metrics (decoded here by
+the tests' own decoder, tests/sparkplug/sparkplug_host.py, no code of pyrtu).
 
 After the first value arrives and ``--warmup`` seconds more (every device
 connected and polled), the script measures over ``--seconds``:
 
-* points published per second: the value messages (JSON) or DDATA metrics
-  (Sparkplug) the subscriber received with a receipt time in the window, counted
+* points published per second: the value messages (JSON), the points of the
+  device messages (JSON device messages) or DDATA metrics (Sparkplug) the
+  subscriber received with a receipt time in the window, counted
   by the subscriber, not by the bridge (mosquitto's ``$SYS`` count of the PUBLISH
   packets it received leaves out retained ones, the JSON bridge's values);
 * whether every change was published: every point published about once a
@@ -86,13 +90,16 @@ EDGE = "bench"
 GROUP = "bench"
 VARY = 0.5  # the simulator's step (--vary), s: two a poll
 INTERVAL = 1.0  # every point's poll interval, s
-KINDS = ("json", "sparkplug")
+KINDS = ("json", "json-device", "sparkplug")
 
 
 def config_text(url: str, outbox: Path, first: int, devices: int, registers: int, kind: str) -> str:
     """The bridge's configuration: one ``tcp://`` bus per device, its registers as
-    points polled every second (``kind`` sparkplug: with a ``[sparkplug]`` table)."""
+    points polled every second (``kind`` json-device: a message per device per poll;
+    sparkplug: with a ``[sparkplug]`` table)."""
     out = [f'[mqtt]\nurl = "{url}"\nedge = "{EDGE}"\noutbox = "{outbox}"\n']
+    if kind == "json-device":
+        out.append('messages = "device"\n')
     if kind == "sparkplug":
         out.append(f'[sparkplug]\ngroup_id = "{GROUP}"\n')
     out.append(f'[defaults]\ninterval = {INTERVAL}\ntable = "holding"\nslave = 1\n')
@@ -151,6 +158,28 @@ def json_points(path: Path, t0: float, t1: float) -> tuple[int, dict[str, list[i
     return count, values
 
 
+def device_points(path: Path, t0: float, t1: float) -> tuple[int, int, dict[str, list[int]]]:
+    """The device messages and their points received in the window (``%U %t %p``
+    lines), and each point's values, in order (by point name; a point twice in a
+    message, or a message without points, is an error)."""
+    messages = points = 0
+    values: dict[str, list[int]] = {}
+    with open(path) as f:
+        for line in f:
+            t, topic, body = line.rstrip("\n").split(" ", 2)
+            if not t0 <= float(t) < t1:
+                continue
+            messages += 1
+            pairs = json.loads(body, object_pairs_hook=list)[0][1]
+            names = [name for name, _ in pairs]
+            if not names or len(set(names)) != len(names):
+                raise RuntimeError(f"{topic}: a message without points or a point twice: {body}")
+            for name, doc in pairs:
+                points += 1
+                values.setdefault(name, []).append(dict(doc)["value"])
+    return messages, points, values
+
+
 def sparkplug_points(path: Path, t0: float, t1: float) -> tuple[int, int, dict[str, list[int]]]:
     """The DDATA messages and their metrics received in the window (``%U %t %x``
     lines), and each metric's values, in order (by device topic and alias)."""
@@ -199,11 +228,11 @@ def run(kind: str, args: argparse.Namespace, sim: subprocess.Popen[str], first: 
     config = work / "bridge.toml"
     config.write_text(config_text(broker.url, work / "outbox", first, args.devices,
                                   args.registers, kind))  # fmt: skip
-    topic, fmt = (
-        (f"pyrtu/{EDGE}/+/+/+", "%U %t %p")
-        if kind == "json"
-        else (f"spBv1.0/{GROUP}/DDATA/{EDGE}/+", "%U %t %x")
-    )
+    topic, fmt = {
+        "json": (f"pyrtu/{EDGE}/+/+/+", "%U %t %p"),
+        "json-device": (f"pyrtu/{EDGE}/+/+/values", "%U %t %p"),
+        "sparkplug": (f"spBv1.0/{GROUP}/DDATA/{EDGE}/+", "%U %t %x"),
+    }[kind]
     assert broker.proc is not None
     try:
         with subscriber(broker.port, topic, values_out, fmt):
@@ -254,6 +283,10 @@ def run(kind: str, args: argparse.Namespace, sim: subprocess.Popen[str], first: 
         count, values = json_points(values_out, t0, t1)
         result["messages_per_s"] = count / (t1 - t0)
         result["points_per_s"] = count / (t1 - t0)
+    elif kind == "json-device":
+        messages, points, values = device_points(values_out, t0, t1)
+        result["messages_per_s"] = messages / (t1 - t0)
+        result["points_per_s"] = points / (t1 - t0)
     else:
         messages, metrics, values = sparkplug_points(values_out, t0, t1)
         result["messages_per_s"] = messages / (t1 - t0)
@@ -294,9 +327,9 @@ def summary(doc: dict[str, Any]) -> str:
     ]
     for kind, r in doc["runs"].items():
         cpu, st = r["cpu_pct"], r["steps"]
-        per = "message" if kind == "json" else "DDATA"
+        per = {"json": "message", "json-device": "device message"}.get(kind, "DDATA")
         lines.append(
-            f"{kind:9} {r['points_per_s']:8,.0f} points/s ({r['messages_per_s']:,.0f} "
+            f"{kind:11} {r['points_per_s']:8,.0f} points/s ({r['messages_per_s']:,.0f} "
             f"{per}s/s) of {r['offered_per_s']:,.0f} "
             f"offered; CPU bridge {cpu['bridge']:.0f} %, mosquitto {cpu['mosquitto']:.0f} %, "
             f"simulator {cpu['simulator']:.0f} % of a core "

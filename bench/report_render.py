@@ -1614,6 +1614,12 @@ def mbaps_targets(data: Data) -> list[tuple[str, str]]:
 
 #: the target's rate: 1,000 devices x 30 registers, each changed at every poll (1 Hz)
 MANYBRIDGE_RATE = 30_000
+#: bench_many_bridge's kinds, as the table names them
+MANYBRIDGE_OUTPUTS = {
+    "json": "JSON bridge",
+    "json-device": "JSON bridge, device messages",
+    "sparkplug": "Sparkplug B edge node",
+}
 
 
 def manybridge_body(data: Data) -> Lines:
@@ -1626,8 +1632,10 @@ def manybridge_body(data: Data) -> Lines:
         "of its own, each in its own process (bench/bench_many_bridge.py); measured for "
         f"{data['seconds']:g} s after the first value and {data['warmup']:g} s more.  "
         "*points/s*: counted by a `mosquitto_sub` (C) subscribed to the values, not by the "
-        "bridge: JSON messages, or the metrics of the edge node's DDATA messages (decoded by "
-        "the tests' own Sparkplug decoder).  *CPU*: each process's user + system time over "
+        "bridge: JSON messages, the points of the JSON bridge's device messages "
+        '(`messages = "device"`: one message per device per poll), or the metrics of the '
+        "edge node's DDATA messages (decoded by the tests' own Sparkplug decoder).  *CPU*: "
+        "each process's user + system time over "
         "the wall time (/proc/PID/stat), % of one core; *µs per point*: the bridge's CPU "
         "(its poller's included) per point published.  *points*: the points published in "
         "the window, and the fewest and most values of one; *too far apart*: consecutive "
@@ -1640,7 +1648,7 @@ def manybridge_body(data: Data) -> Lines:
         cpu, st = r["cpu_pct"], r["steps"]
         rows.append(
             [
-                "JSON bridge" if kind == "json" else "Sparkplug B edge node",
+                MANYBRIDGE_OUTPUTS.get(kind, kind),
                 f"{r['points_per_s']:,.0f}",
                 f"{r['messages_per_s']:,.0f}",
                 f"{cpu['bridge']:.0f} %",
@@ -1674,19 +1682,27 @@ def manybridge_body(data: Data) -> Lines:
 
 def manybridge_targets(data: Data) -> list[tuple[str, str]]:
     runs = data["runs"]
-    if "json" not in runs:
+    json_kinds = [k for k in ("json", "json-device") if k in runs]
+    if not json_kinds:
         return [(NOT_MEASURED, "-")]
     parts = []
-    for kind, name in (("json", "JSON bridge"), ("sparkplug", "edge node")):
+    for kind, name in (
+        ("json", "JSON bridge"),
+        ("json-device", "JSON bridge with device messages"),
+        ("sparkplug", "edge node"),
+    ):
         r = runs.get(kind)
         if r is not None:
             parts.append(
                 f"{name} **{r['points_per_s']:,.0f} points/s** on "
                 f"**{r['cpu_pct']['bridge']:.0f} %** of a core"
             )
-    j = runs["json"]
-    # 99 %: the polls themselves may run up to 1 % late
-    ok = j["points_per_s"] >= 0.99 * MANYBRIDGE_RATE and j["cpu_pct"]["bridge"] <= 100.0
+    # the JSON bridge meets it in one of its forms; 99 %: the polls themselves may
+    # run up to 1 % late
+    ok = any(
+        runs[k]["points_per_s"] >= 0.99 * MANYBRIDGE_RATE and runs[k]["cpu_pct"]["bridge"] <= 100.0
+        for k in json_kinds
+    )
     return [("; ".join(parts), verdict(ok))]
 
 
