@@ -235,8 +235,12 @@ class Topics:
         return split_record(rec)
 
     def name(self, rec: bytes) -> str:
-        """What a report calls a record: its topic, or what stands for it."""
+        """What a report calls a record: its topic (with ``messages = "device"``, a
+        point update's is its slave's device messages'), or what stands for it."""
         try:
+            update = self.update(rec)
+            if update is not None and update.point in self.device_of:
+                return self.device_of[update.point]
             return self.render(rec)[0]
         except Unpublishable as e:
             return e.topic

@@ -92,6 +92,24 @@ OLD = [
 ]
 
 
+class OrderedWindow(DeliveryWindow):
+    """The bridge's window, recording the seq each publication or record passed by
+    stands at: the outbox's order, or an acknowledgement could commit a record of a
+    message still awaiting its own."""
+
+    def __init__(self, window: int) -> None:
+        super().__init__(window)
+        self.order: list[int] = []
+
+    def sent_group(self, mid: int, read_at: float, records: list[tuple[int, bytes]]) -> None:
+        self.order.append(records[-1][0])
+        super().sent_group(mid, read_at, records)
+
+    def skipped(self, seq: int) -> bool:
+        self.order.append(seq)
+        return super().skipped(seq)
+
+
 def test_a_previous_runs_backlog_in_device_messages(tmp_path: Path) -> None:
     directory = tmp_path / "ob"
     with Outbox(directory) as ob:
@@ -101,8 +119,11 @@ def test_a_previous_runs_backlog_in_device_messages(tmp_path: Path) -> None:
         sub = Client(broker, ["pyrtu/e1/#"])
         events: list[BridgeEvent] = []
 
+        window = OrderedWindow(cfg.mqtt.inflight)
+
         async def main() -> dict[str, Any]:
             bridge = Bridge(cfg)
+            bridge._window = window
             bridge.on_event(events.append)
             await bridge.start(poll=False)
             try:
@@ -141,6 +162,8 @@ def test_a_previous_runs_backlog_in_device_messages(tmp_path: Path) -> None:
         b'"seq":2,"historical":true}}}'
     )
     assert stats["quarantined"] == 2 and stats["drops"] == 0
+    # each message at its last record, each record set aside in its place
+    assert window.order == [2, 3, 5, 6, 7, 8, 9, 10, 11, 12]
     lines = [json.loads(x) for x in (directory / "quarantine.jsonl").read_text().splitlines()]
     assert [x["seq"] for x in lines] == [6, 11]
     assert decode_update(lines[0]["record"].encode()) == PointUpdate("gone", 6, T0 + 1, "good")
@@ -230,9 +253,11 @@ def test_a_device_message_the_broker_refuses_sets_aside_every_record_it_carries(
         cfg = parse_bridge_config(config(broker.url, directory), "b.toml")
         pts = {p.name: p for p in cfg.poller.points}
         sub = Client(broker, ["pyrtu/e1/#"])
+        events: list[BridgeEvent] = []
 
         async def main() -> dict[str, Any]:
             bridge = Bridge(cfg)
+            bridge.on_event(events.append)
             await bridge.start(poll=False)
             try:
                 await until(lambda: bridge.stats()["connected"], "connected")
@@ -256,7 +281,11 @@ def test_a_device_message_the_broker_refuses_sets_aside_every_record_it_carries(
         (2, "p0"),
         (3, "p1"),
     ]
-    assert all("0x87" in x["reason"] or "authorized" in x["reason"] for x in lines)
+    assert all("0x87" in x["reason"] for x in lines)
+    # reported once, by the topic the broker refused
+    assert [(e.detail["seq"], e.detail["topic"]) for e in events if e.kind == "quarantined"] == [
+        (2, "pyrtu/e1/bus/1/values")
+    ]
 
 
 def test_a_device_message_is_acknowledged_for_every_record_it_carries() -> None:
@@ -422,3 +451,46 @@ def test_every_step_of_every_register_arrives_once_in_order_in_device_messages(
         assert times == sorted(times) and times[-1] - times[0] >= (len(times) - 2) * STEP * 0.8
     # a poll's changes in one message: almost every message holds the device's 30
     assert sum(s == REGISTERS for s in sizes) >= 0.9 * len(sizes), sizes
+
+
+def test_a_set_command_with_device_messages(tmp_path: Path) -> None:
+    """A set command goes to the point's set topic as in the default form; its
+    result too; the value read back comes in the slave's device message, and
+    nothing on the point's own topic."""
+    from test_bridge_writes import BASE, BAUD, ref, vbus
+    from test_bridge_writes import config as writes_config
+
+    from pyrtu.devices import CFW701Simulator
+    from pyrtu.drivers._loopthread import LoopThread
+
+    with Broker(tmp_path) as broker, vbus.VirtualBus(2, baudrate=BAUD, parity="N") as bus:
+        sim = CFW701Simulator()
+        sim.serve(bus.paths[1], 1, baudrate=BAUD, parity="N")
+        try:
+            text = writes_config(broker.url, bus.paths[0], tmp_path / "ob", 'messages = "device"')
+            bridge = Bridge(parse_bridge_config(text, "b.toml"))
+            thread = LoopThread("bridge", bridge.start, bridge.stop)
+            thread.start()
+            try:
+                with Client(broker, ["pyrtu/e1/#"]) as cl:
+
+                    def refs() -> list[object]:
+                        return [
+                            json.loads(p)["points"]["weg.ref"]["value"]
+                            for p in cl.on(f"{BASE}/values")
+                            if b'"weg.ref"' in p
+                        ]
+
+                    cl.wait(lambda: bool(refs()), "the reference's first value")
+                    cl.publish(f"{BASE}/weg.ref/set", b'{"value": 1000, "id": "a1"}')
+                    cl.wait(lambda: bool(cl.on(f"{BASE}/weg.ref/set/result")), "the result")
+                    (res,) = [json.loads(p) for p in cl.on(f"{BASE}/weg.ref/set/result")]
+                    assert res == {"ok": True, "point": "weg.ref", "id": "a1", "value": 1000,
+                                   "time": res["time"]}  # fmt: skip
+                    assert ref(sim) == 1000
+                    cl.wait(lambda: refs()[-1] == 1000, "the value read back")
+                    assert cl.on(f"{BASE}/weg.ref") == []
+            finally:
+                thread.stop()
+        finally:
+            sim.close()
