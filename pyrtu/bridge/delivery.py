@@ -44,8 +44,8 @@ class DeliveryWindow:
         self._by_mid: dict[int, _Sent] = {}
         self.contiguous: int | None = None
         self.latencies: deque[float] = deque(maxlen=4096)
-        self.published = 0
-        self.acknowledged = 0
+        self.published = 0  # records handed to the client (a device message: each of them)
+        self.acknowledged = 0  # records the broker acknowledged
 
     def __len__(self) -> int:
         return len(self._order)
@@ -64,7 +64,7 @@ class DeliveryWindow:
         s = _Sent(records[-1][0], read_at, False, records)
         self._order.append(s)
         self._by_mid[mid] = s
-        self.published += 1
+        self.published += len(records)
 
     def records(self, mid: int) -> list[tuple[int, bytes]]:
         """(seq, record) of what a publication awaiting its acknowledgement carries
@@ -84,8 +84,8 @@ class DeliveryWindow:
         if s is None:
             return False  # not a point's record (status, result, stats)
         s.done = True
+        self.acknowledged += len(s.records or ())
         s.records = None
-        self.acknowledged += 1
         if s.read_at:
             self.latencies.append(now - s.read_at)
         return self._advance()
