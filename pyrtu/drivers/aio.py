@@ -26,6 +26,9 @@ Cancelling an ``await`` leaves the bus consistent: the protocol notes that a
 late answer may come, and the next transaction waits it out before sending;
 ``close()`` waits it out too before the port is closed (the next master to open
 the port would transmit over it).
+
+A port that fails is closed and reopened at a later request on the back-off, as
+`pyrtu.Master`'s (`pyrtu.drivers.master.SerialLink.ready`).
 """
 
 from __future__ import annotations
@@ -221,23 +224,41 @@ class AsyncMaster(MasterBase):
 
     async def _run(self, call: Call) -> Any:
         async with self._lock:
-            port = self.port
-            if port.closed:
-                raise PortError(port.name, "the master is closed")
-            if self._ax_over is not None:
-                await self._xfer_over()
-            proto = self._proto
-            slave, pdu, decode = call
-            proto.start(slave, pdu, decode, _monotonic())
-            if self._fd is not None and not port.has_wire:
-                # a repeated request is one Xfer, awaited by this task (one
-                # wake-up); other steps run in the loop's callbacks (the first action,
-                # SEND or QUIET, changes nothing: asked again there)
-                first = proto.next_action(_monotonic(), True)
-                if not isinstance(first, Xfer):
-                    return await self._run_callbacks(proto)
-                return await self._run_task(proto, first)
-            return await self._run_task(proto)
+            link = self._serial_link
+            if self.port.closed:  # closed by the user, or it failed
+                link.ready()  # `PortError`, or the port reopened (`LinkRevival`)
+                self._reopened()
+            try:
+                return await self._run_call(call)
+            except PortError:
+                link.failed()  # (its reader and timers are gone: the port may close)
+                raise
+
+    def _reopened(self) -> None:
+        """The link reopened its port after it failed: the new descriptor."""
+        port = self.port
+        self._fd = port.fd
+        self._inflight = None  # (a thread read of the old port, failed with it)
+        if self._fd is None and self._reader is None:
+            self._reader = ThreadPoolExecutor(1, thread_name_prefix=f"pyrtu-read-{port.name}")
+
+    async def _run_call(self, call: Call) -> Any:
+        """One transaction on the open port (`_run` holds the lock)."""
+        port = self.port
+        if self._ax_over is not None:
+            await self._xfer_over()
+        proto = self._proto
+        slave, pdu, decode = call
+        proto.start(slave, pdu, decode, _monotonic())
+        if self._fd is not None and not port.has_wire:
+            # a repeated request is one Xfer, awaited by this task (one
+            # wake-up); other steps run in the loop's callbacks (the first action,
+            # SEND or QUIET, changes nothing: asked again there)
+            first = proto.next_action(_monotonic(), True)
+            if not isinstance(first, Xfer):
+                return await self._run_callbacks(proto)
+            return await self._run_task(proto, first)
+        return await self._run_task(proto)
 
     async def _run_task(self, proto: ClientProtocol, action: Any = None) -> Any:
         """The protocol's actions as this task's loop (``action``: the first one,
@@ -334,7 +355,8 @@ class AsyncMaster(MasterBase):
             return
         async with self._lock:
             await self._xfer_over()
-            await self._late_answer_over()
+            if not self.port.closed:  # (a port that failed was closed then)
+                await self._late_answer_over()
             self._close_now()
 
     async def _late_answer_over(self) -> None:
@@ -362,7 +384,7 @@ class AsyncMaster(MasterBase):
                 self._ax_loop.remove_reader(self._ax.fd)
             self._ax.close()  # (idle: close waited for the xfer under way)
             self._ax = self._ax_loop = None
-        self.port.close()
+        self._serial_link.close()
         if self._reader is not None:
             self._reader.shutdown(wait=False, cancel_futures=True)
 

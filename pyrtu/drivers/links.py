@@ -25,11 +25,18 @@ A link answers for the master's properties (`Link`), maps the unit ids its
 transport allows (``address``, see `pyrtu.pdu.requests.Steps`) and runs one
 transaction: ``transact(call) -> (value, end_time)``, ``end_time`` being when the
 answer's last byte came (monotonic seconds; now for a broadcast).
+
+A link whose port or connection failed comes back on the one retry schedule
+(`pyrtu.drivers.reconnect`) through a `LinkRevival`: a serial line reopens its port
+(the same path and options), a TCP link reconnects.
 """
 
 from __future__ import annotations
 
 import importlib
+import logging
+import time
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -44,7 +51,12 @@ from pyrtu.drivers._portname import (
     UDP_SCHEME,
     url_scheme,
 )
+from pyrtu.drivers.reconnect import Backoff, Reconnect
+from pyrtu.pdu.errors import PortError
 from pyrtu.pdu.requests import Call
+
+#: the masters' logger
+log = logging.getLogger("pyrtu.drivers.master")
 
 
 def scheme_of(port: object) -> str | None:
@@ -157,6 +169,73 @@ def transport_of(port: object) -> Transport:
     return TRANSPORTS[scheme_of(port)]
 
 
+class LinkRevival:
+    """When a master's link comes back after its port or connection failed (a USB
+    adapter pulled out, a server restarted): at the next request, then on the
+    back-off of `pyrtu.drivers.reconnect` while it stays away; a request between two
+    attempts fails at once with a `PortError` naming ``where`` and saying when the
+    next attempt is due (``down``: what the link is meanwhile, "not open" for a
+    serial port).  The first failed attempt of an outage is logged once (warning),
+    the attempt that ends it too (info); ``verb``: "reopen" (a serial port) or
+    "reconnect".  Nothing is attempted once the master is closed (``closed``)."""
+
+    def __init__(
+        self,
+        where: str,
+        backoff: Backoff | None = None,
+        *,
+        verb: str = "reconnect",
+        down: str = "not connected",
+    ) -> None:
+        self.where = where
+        self.reconnect = Reconnect(backoff)
+        self.closed = False
+        self._verb = verb
+        self._down = down
+
+    def _before(self) -> float:
+        if self.closed:
+            raise PortError(self.where, "the master is closed")
+        now = time.monotonic()
+        r = self.reconnect
+        if not r.due(now):
+            assert r.outage is not None
+            raise PortError(
+                self.where,
+                f"{self._down} ({r.outage.error}); the next attempt in {r.wait(now):.2f} s",
+            )
+        return now
+
+    def _failed(self, now: float, exc: PortError) -> None:
+        if self.reconnect.failed(now, exc):
+            log.warning("%s; %sing on the back-off", exc, self._verb)
+
+    def _worked(self) -> None:
+        outage = self.reconnect.recovered(time.monotonic())
+        if outage is not None:
+            log.info("%s: %sed after %d failed attempts", self.where, self._verb, outage.attempts)
+
+    def attempt(self, revive: Callable[[], None]) -> None:
+        """``revive`` now if it is due; `PortError` when it fails or is not due."""
+        now = self._before()
+        try:
+            revive()
+        except PortError as exc:
+            self._failed(now, exc)
+            raise
+        self._worked()
+
+    async def attempt_async(self, revive: Callable[[], Awaitable[None]]) -> None:
+        """`attempt` for an asyncio link's ``revive``."""
+        now = self._before()
+        try:
+            await revive()
+        except PortError as exc:
+            self._failed(now, exc)
+            raise
+        self._worked()
+
+
 class Link(Protocol):
     """What a master calls on its transport (besides ``transact``, sync or async).
 
@@ -188,6 +267,7 @@ __all__ = [
     "UDP_SCHEME",
     "Call",
     "Link",
+    "LinkRevival",
     "Transport",
     "check_in_flight",
     "check_retries",

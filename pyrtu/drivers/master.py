@@ -32,13 +32,19 @@ valid within ``timeout`` after the end of transmission: `NoResponseError`.
 Exception responses return at once as `ExceptionResponseError`.  ``retries``
 repeats a transaction after `NoResponseError` and `FrameError` (not after an
 exception response).
+
+A port that fails (a USB adapter pulled out: EIO) is closed and reopened at a later
+request, the same path with the same line and options, on the back-off of
+`pyrtu.drivers.reconnect` (`SerialLink.ready`, `pyrtu.drivers.links.LinkRevival`); a
+request while it is away raises `PortError` at once, saying when the next attempt is.
+A pyserial object handed in is the caller's: not reopened.
 """
 
 from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING, Any
 
 from pyrtu import pdu as pdus
@@ -49,6 +55,7 @@ from pyrtu.core.rules import LengthRule, RuleTable, check_rules
 from pyrtu.drivers import xfer_runners
 from pyrtu.drivers.links import (
     Link,
+    LinkRevival,
     check_in_flight,
     check_retries,
     check_seconds,
@@ -104,7 +111,7 @@ class SerialLink:
         backend: str | None,
         exclusive: bool,
     ) -> None:
-        be = _backend.backend(backend)
+        be = self._backend = _backend.backend(backend)
         self.port: Port = open_line_port(port, line, rs485, exclusive)
         self.proto = ClientProtocol(
             adopt_port_format(line, self.port),
@@ -116,6 +123,15 @@ class SerialLink:
         )
         #: a repeated request's xfer: its transaction in one call (see pyrtu.drivers.sync_io)
         self.xfer_runner = xfer_runners.xfer_runner(be) if self.port.fd is not None else None
+        #: the port opened again after it failed: the same path, line and options
+        #: (None: a pyserial object the user opened, not ours to open again)
+        self._opener: Callable[[], Port] | None = None
+        if isinstance(port, str):
+            path = port
+            self._opener = lambda: open_line_port(path, self.proto.line, rs485, exclusive)
+        #: whether the port failed (closed, reopened at a later request on the back-off)
+        self.broken = False
+        self._revive = LinkRevival(self.port.name, verb="reopen", down="not open")
 
     line = _of_proto("line")
     t35 = _of_proto("gap")
@@ -154,12 +170,39 @@ class SerialLink:
 
     def transact(self, call: Call) -> tuple[Any, float]:
         """One transaction (blocking)."""
-        port = self.port
-        if port.closed:
-            raise PortError(port.name, "the master is closed")
-        return run_sync(port, self.proto, call, self.xfer_runner), self.end_of(call)
+        self.ready()
+        try:
+            return run_sync(self.port, self.proto, call, self.xfer_runner), self.end_of(call)
+        except PortError:
+            self.failed()
+            raise
+
+    def ready(self) -> None:
+        """Before a transaction: `PortError` once the master is closed; a port that
+        failed is reopened if its next attempt is due (`LinkRevival`), else
+        `PortError` at once, saying when it is."""
+        if self._revive.closed:
+            raise PortError(self.port.name, "the master is closed")
+        if self.broken:
+            self._revive.attempt(self._reopen)
+
+    def failed(self) -> None:
+        """A transaction failed with `PortError` (the device gone: EIO...): the port is
+        closed, to be reopened at a later request (not a pyserial object the user
+        opened: its calls go on failing, or working if it comes back by itself)."""
+        if self._opener is not None:
+            self.broken = True
+            self.port.close()
+
+    def _reopen(self) -> None:
+        assert self._opener is not None
+        self.port = self._opener()
+        self.broken = False
+        if self.port.fd is not None and self.xfer_runner is None:
+            self.xfer_runner = xfer_runners.xfer_runner(self._backend)
 
     def close(self) -> None:
+        self._revive.closed = True
         self.port.close()
 
     @property
@@ -360,7 +403,8 @@ class Master(MasterBase):
             return self._link.counters
 
     def close(self) -> None:
-        """Close the port (a pyserial object passed in is left open)."""
+        """Close the port (a pyserial object passed in is left open); a closed master
+        stays closed (its port is not reopened)."""
         with self._lock:
             self._conn.close()
 

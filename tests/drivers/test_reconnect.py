@@ -1,12 +1,16 @@
-"""The shared retry schedule (pyrtu.drivers.reconnect): report once, back off, recover."""
+"""The shared retry schedule (pyrtu.drivers.reconnect): report once, back off, recover;
+and a master's link on it (`LinkRevival`)."""
 
 from __future__ import annotations
 
+import logging
 import random
 
 import pytest
 
+from pyrtu.drivers.links import LinkRevival
 from pyrtu.drivers.reconnect import Backoff, Reconnect
+from pyrtu.pdu.errors import PortError
 
 
 def test_first_failure_is_reported_once_and_waits_grow_to_the_maximum() -> None:
@@ -51,3 +55,51 @@ def test_jitter_spreads_waits_within_bounds() -> None:
 def test_bad_backoff_names_the_argument(kw: dict[str, object], exc: type, word: str) -> None:
     with pytest.raises(exc, match=word):
         Backoff(**kw)  # type: ignore[arg-type]
+
+
+def test_a_link_revival_says_when_the_next_attempt_is_and_logs_once(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """`LinkRevival`, a master's link on that schedule: the first attempt at once, then
+    none until it is due (a `PortError` saying when), one warning per outage, one info
+    when it ends; in a TCP link's words by default, a serial port's when asked."""
+    caplog.set_level(logging.INFO, logger="pyrtu.drivers.master")
+    attempts: list[str] = []
+
+    def fails() -> None:
+        attempts.append("fails")
+        raise PortError("/dev/ttyUSB0", "cannot open: gone")
+
+    revival = LinkRevival(
+        "/dev/ttyUSB0",
+        Backoff(initial=60.0, maximum=60.0, jitter=0.0),
+        verb="reopen",
+        down="not open",
+    )
+    with pytest.raises(PortError, match="cannot open: gone"):
+        revival.attempt(fails)
+    for _ in range(2):
+        with pytest.raises(
+            PortError,
+            match=r"^/dev/ttyUSB0: not open \(/dev/ttyUSB0: cannot open: gone\); "
+            r"the next attempt in (59|60)\.\d\d s$",
+        ):
+            revival.attempt(fails)
+    assert attempts == ["fails"]
+    revival.reconnect._retry_at = 0.0  # due
+    revival.attempt(lambda: attempts.append("works"))
+    assert attempts == ["fails", "works"] and not revival.reconnect.down
+    logged = [(r.levelno, r.getMessage()) for r in caplog.records]
+    assert logged == [
+        (logging.WARNING, "/dev/ttyUSB0: cannot open: gone; reopening on the back-off"),
+        (logging.INFO, "/dev/ttyUSB0: reopened after 1 failed attempts"),
+    ]
+    revival.closed = True
+    with pytest.raises(PortError, match="the master is closed"):
+        revival.attempt(lambda: attempts.append("closed"))
+    tcp = LinkRevival("tcp://h:502", Backoff(initial=60.0, maximum=60.0, jitter=0.0))
+    with pytest.raises(PortError):
+        tcp.attempt(fails)
+    with pytest.raises(PortError, match=r"^tcp://h:502: not connected \(.*\); the next attempt in"):
+        tcp.attempt(fails)
+    assert "reconnecting on the back-off" in caplog.records[-1].getMessage()
