@@ -35,18 +35,15 @@ gateway.  ``add_rule`` is accepted and does nothing.
 from __future__ import annotations
 
 import asyncio
-import logging
 import ssl
 import time
-from collections.abc import Awaitable, Callable
 from typing import Any
 
 from pyrtu.core.line import LineConfig
 from pyrtu.core.rules import LengthRule
 from pyrtu.drivers._portname import MBAP_SCHEMES
-from pyrtu.drivers.links import check_in_flight
-from pyrtu.drivers.reconnect import Backoff, Reconnect
-from pyrtu.pdu.errors import NoResponseError, PortError
+from pyrtu.drivers.links import LinkRevival, check_in_flight
+from pyrtu.pdu.errors import NoResponseError
 from pyrtu.pdu.requests import Call
 from pyrtu.protocol.client_actions import answer_pdu
 from pyrtu.tcp.client import AsyncTcpClient, TcpClient, parse_tcp_url
@@ -57,68 +54,10 @@ NO_LINE = (
 )
 NO_PORT = "{url}: a {what} master has no serial port (see url)"
 
-#: the masters' logger (`pyrtu.tcp.protocol`'s frames go to it too)
-log = logging.getLogger("pyrtu.drivers.master")
 
 #: the slave the argument checks shared with the serial master (0..247) see in
 #: place of a unit id only TCP allows
 _STAND_IN = 1
-
-
-class Revival:
-    """When a TCP master's link reconnects after its connection broke (the server
-    closed it or restarted, the network failed): at the next request, then on the
-    back-off of `pyrtu.drivers.reconnect` while the server stays away; a request
-    between two attempts fails at once, saying when the next one is due.  The
-    first failed attempt of an outage is logged once (warning), the reconnect that
-    ends it too (info).  Nothing is reconnected once the master is closed."""
-
-    def __init__(self, where: str, backoff: Backoff | None = None) -> None:
-        self.where = where
-        self.reconnect = Reconnect(backoff)
-        self.closed = False
-
-    def _before(self) -> float:
-        if self.closed:
-            raise PortError(self.where, "the master is closed")
-        now = time.monotonic()
-        r = self.reconnect
-        if not r.due(now):
-            assert r.outage is not None
-            raise PortError(
-                self.where,
-                f"not connected ({r.outage.error}); the next attempt in {r.wait(now):.2f} s",
-            )
-        return now
-
-    def _failed(self, now: float, exc: PortError) -> None:
-        if self.reconnect.failed(now, exc):
-            log.warning("%s; reconnecting on the back-off", exc)
-
-    def _worked(self) -> None:
-        outage = self.reconnect.recovered(time.monotonic())
-        if outage is not None:
-            log.info("%s: reconnected after %d failed attempts", self.where, outage.attempts)
-
-    def attempt(self, reconnect: Callable[[], None]) -> None:
-        """``reconnect`` now if it is due; `PortError` when it fails or is not due."""
-        now = self._before()
-        try:
-            reconnect()
-        except PortError as exc:
-            self._failed(now, exc)
-            raise
-        self._worked()
-
-    async def attempt_async(self, reconnect: Callable[[], Awaitable[None]]) -> None:
-        """`attempt` for an asyncio client's ``reconnect``."""
-        now = self._before()
-        try:
-            await reconnect()
-        except PortError as exc:
-            self._failed(now, exc)
-            raise
-        self._worked()
 
 
 class _TcpBase:
@@ -201,7 +140,7 @@ class TcpLink(_TcpBase):
         self.url = url
         self.retries = retries
         self._client = TcpClient(url, timeout=timeout, backend=backend, tls=tls)
-        self._revive = Revival(self._client.where)
+        self._revive = LinkRevival(self._client.where)
 
     @property
     def timeout(self) -> float:
@@ -287,7 +226,7 @@ class AsyncTcpLink(_TcpBase):
         self._client: AsyncTcpClient | None = None
         self._connecting: asyncio.Lock | None = None
         self._backend = backend
-        self._revive = Revival(url)
+        self._revive = LinkRevival(url)
 
     @property
     def timeout(self) -> float:
@@ -311,7 +250,7 @@ class AsyncTcpLink(_TcpBase):
         return None if self._client is None else self._client.last_answer_time
 
     async def _connected(self) -> AsyncTcpClient:
-        """The connection: made at the first request, made again (on `Revival`'s
+        """The connection: made at the first request, made again (on `LinkRevival`'s
         back-off) at a request after it broke."""
         client = self._client
         if client is None or client.broken:
@@ -383,4 +322,4 @@ class AsyncTcpLink(_TcpBase):
             await self._client.close()
 
 
-__all__ = ["AsyncTcpLink", "Revival", "TcpLink"]
+__all__ = ["AsyncTcpLink", "TcpLink"]
