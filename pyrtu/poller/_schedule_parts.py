@@ -14,7 +14,7 @@ _WRITE_FUNCTIONS = {("coils", True): 5, ("coils", False): 15, ("holding", True):
                     ("holding", False): 16}  # fmt: skip
 
 
-@dataclass(eq=False)
+@dataclass(eq=False, slots=True)
 class ScheduledRequest:
     """One transaction to perform.  ``kind``: poll, probe, write, read.  Reads:
     ``count`` registers or bits of ``table`` at ``address``; writes: ``values``
@@ -34,7 +34,7 @@ class ScheduledRequest:
     task: _Task | None = field(default=None, repr=False)
 
 
-@dataclass(eq=False)
+@dataclass(eq=False, slots=True)
 class _Task:
     block: Block
     due: float
@@ -45,9 +45,14 @@ class _Task:
     seq: int = 0
     #: the block's previous answer (its registers or bits): the same again is `Unchanged`
     raw: Sequence[int] | Sequence[bool] | None = None
+    #: the seconds of the block's request and answer on the wire, without the
+    #: turnaround (`Wire.read`; the wire of a scheduler does not change)
+    frames: float = 0.0
+    #: the block's function code (`Block.function`, looked up once)
+    function: int = 0
 
 
-@dataclass
+@dataclass(slots=True)
 class _Health:
     failures: int = 0
     offline: bool = False

@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
-from typing import Any, ClassVar
+from typing import Any, ClassVar, NamedTuple
 
 from .points import Point, Value
 from .values import faithful_value
@@ -147,14 +147,13 @@ class TaskFailed:
 Event = Update | PortState | SlaveState | PointDropped | Overload | TaskFailed
 
 
-@dataclass(frozen=True, slots=True)
-class Unchanged:
+class Unchanged(NamedTuple):
     """Not an event of the API: what a scheduler says (for the driver alone) when a
     poll block answered exactly the registers (or bits) of its previous answer.
     Decoding is a function of them, so none of its points changed: nothing to
     decode, nothing to deliver when only changes are (the driver's `Tracker.reread`
     notes the read); ``data`` and ``address`` decode them where every sample is
-    delivered."""
+    delivered.  (A named tuple: one is made for nearly every poll.)"""
 
     points: tuple[Point, ...]
     data: Sequence[int] | Sequence[bool]

@@ -461,7 +461,8 @@ class MuxDriver:
                 continue  # (its bus stopped being driven meanwhile)
             del drives[rec.token]
             d.token = 0
-            self._settled(d)
+            if d.urgent:
+                self._settled(d)
             try:
                 self._ended(d, rec)
             except Exception as exc:  # a fault of the poller: the bus task's supervision
@@ -549,7 +550,8 @@ class MuxDriver:
             poller._port_ok(run, now)
             events: Any = sched.on_failure(req, error, now)
         else:
-            poller._port_ok(run, time.monotonic())
+            if not run.worked or run.reconnect.down:  # (else nothing for it to do)
+                poller._port_ok(run, time.monotonic())
             events = sched.on_response(req, value, end)
             if fut is not None and not fut.done():
                 fut.set_result(value)

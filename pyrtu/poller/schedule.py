@@ -142,6 +142,7 @@ class BusScheduler:
         self._urgent: list[ScheduledRequest] = []
         self._confirm: int | None = None  # the slave whose failure is to be confirmed
         self._health: dict[int, _Health] = {}
+        self._offline_count = 0  # how many of them are offline (none: no probe to look for)
         self._stats = _Stats()
         self._overloaded = False
         self._load = 0.0
@@ -181,6 +182,8 @@ class BusScheduler:
 
     def _add_task(self, block: Block, due: float) -> None:
         task = _Task(block, due, self._cost(block))
+        task.frames = self.wire.read(block.table, block.count, 0.0)
+        task.function = block.function
         task.suspended = self._slave(block.slave).offline
         self._tasks.append(task)
         if not task.suspended:
@@ -300,10 +303,12 @@ class BusScheduler:
             task.due = now if nxt + interval < now else nxt
         task.seq = -1
         b = task.block
-        return ScheduledRequest(POLL, b.slave, b.table, b.address, b.count, b.function, (), b,
+        return ScheduledRequest(POLL, b.slave, b.table, b.address, b.count, task.function, (), b,
                        issued=now, cost=task.cost, task=task)  # fmt: skip
 
     def _due_probe(self, now: float) -> ScheduledRequest | None:
+        if not self._offline_count:
+            return None
         best: tuple[float, int] | None = None
         for slave, h in self._health.items():
             if h.offline and not h.probing and h.probe_due <= now:
@@ -331,6 +336,8 @@ class BusScheduler:
             heapq.heappop(heap)
         if heap:
             best = heap[0][0]
+        if not self._offline_count:
+            return best
         for h in self._health.values():
             if h.offline and not h.probing and (best is None or h.probe_due < best):
                 best = h.probe_due
@@ -343,22 +350,25 @@ class BusScheduler:
         latency = max(0.0, now - req.issued)
         # only what falls inside the statistics' window counts (a transaction in
         # flight when the window started counts from its start)
-        start = self._stats.started
+        stats = self._stats
+        start = stats.started
         issued = req.issued if start is None else max(req.issued, start)
         busy = max(0.0, now - issued)
         # the silence of t3.5 after the previous frame is wire time too: the part of
-        # it that passed before this request was issued is not inside ``busy``
-        if self._prev_end is not None:
+        # it that passed before this request was issued is not inside ``busy`` (none
+        # on TCP, where t3.5 is 0)
+        t35 = self.wire.t35
+        if t35 and self._prev_end is not None:
             after = self._prev_end if start is None else max(self._prev_end, start)
-            busy += min(self.wire.t35, max(0.0, issued - after))
+            busy += min(t35, max(0.0, issued - after))
         self._prev_end = now
         self._ended += 1
-        self._stats.busy += busy
-        self._stats.transactions += 1
-        st = self._stats.slaves.get(req.slave)
+        stats.busy += busy
+        stats.transactions += 1
+        st = stats.slaves.get(req.slave)
         if st is None:
             self._slave(req.slave)
-            st = self._stats.slaves[req.slave]
+            st = stats.slaves[req.slave]
         st.requests += 1
         st.busy += busy
         return latency
@@ -407,7 +417,8 @@ class BusScheduler:
     def _turnaround(self, req: ScheduledRequest, busy: float, h: _Health) -> None:
         if req.kind == WRITE:
             return
-        frames = self.wire.read(req.table, req.count, 0.0)
+        task = req.task
+        frames = task.frames if task is not None else self.wire.read(req.table, req.count, 0.0)
         ta = max(0.0, busy - frames)
         h.turnaround = ta if h.turnaround is None else 0.9 * h.turnaround + 0.1 * ta
 
@@ -421,6 +432,7 @@ class BusScheduler:
         if not h.offline:
             return [] if was else [SlaveState(self.bus, req.slave, True, now + self.stamp_offset)]
         h.offline = False
+        self._offline_count -= 1
         for task in self._tasks:
             if task.alive and task.block.slave == req.slave and task.suspended:
                 task.suspended = False
@@ -482,6 +494,7 @@ class BusScheduler:
 
     def _offline(self, slave: int, h: _Health, st: SlaveStats, busy: float, now: float) -> Event:
         h.offline = True
+        self._offline_count += 1
         h.silent_from = None
         st.online = False
         h.backoff = self.backoff

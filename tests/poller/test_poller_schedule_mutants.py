@@ -538,3 +538,26 @@ def test_the_deadline_skips_an_offline_slaves_blocks() -> None:
     assert (req.slave, req.address) == (2, 500)
     sched.on_failure(req, silent(req), 0.046875)
     assert sched.deadline() == 0.046875 + 0.5
+
+
+def test_probes_are_found_again_after_every_return() -> None:
+    """The scheduler counts its offline slaves to skip looking for probes when there
+    are none (the common case, on every request): offline, back, offline again, the
+    probe is due each time (backoff 5 s after the failure, docs/POLLER.md); and back
+    for good, the count is 0 (nothing is looked for)."""
+    points = [pt(0, slave=1, interval=10.0), pt(0, slave=2, interval=10.0)]
+    sched = BusScheduler("b", points, WIRE, offline_after=1, share=1, backoff=5, max_backoff=5)
+    now = 0.0
+    for _ in range(2):
+        for slave in (1, 2):
+            req = take(sched, now)
+            assert (req.kind, req.slave) == ("poll", slave)
+            now += 0.125
+            sched.on_failure(req, silent(req), now)  # offline, probed 5 s later
+        assert sched.deadline() == now - 0.125 + 5  # slave 1's probe
+        for slave in (1, 2):
+            probe = take(sched, now + 5)
+            assert (probe.kind, probe.slave) == ("probe", slave)
+            sched.on_response(probe, [0], now + 5.0625)
+        now += 5.0625
+    assert sched._offline_count == 0  # (white box: the count the probes are looked for by)
