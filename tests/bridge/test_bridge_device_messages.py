@@ -21,8 +21,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from cli_helpers import Background, free_port_range, pyrtu
+from cli_helpers import Background, pyrtu
 from mqtt_broker import Broker, Client, Gate
+from test_bridge_many_changes import DEVICES, REGISTERS, STEP, bridge_text, simulated
 from waiting import wait_for
 
 from pyrtu.bridge import parse_bridge_config
@@ -354,49 +355,16 @@ def test_configuration_errors_exit_2_at_their_line_before_anything_connects(
         listener.close()
 
 
-DEVICES = 20
-REGISTERS = 30
-STEP = 0.5  # the simulator's --vary
-POLL = 0.1  # the bridge's interval: five polls a step
-
-
-def template_text() -> str:
-    lines = ["[device]", 'vendor = "test"', 'model = "many"', "address = 1", ""]
-    for r in range(REGISTERS):
-        lines += ["[[point]]", f'name = "r{r}"', 'table = "holding"', f"address = {r}",
-                  f"initial = {r * 100}", ""]  # fmt: skip
-    return "\n".join(lines)
-
-
-def bridge_text(url: str, outbox: Path, first: int) -> str:
-    out = [f'[mqtt]\nurl = "{url}"\nedge = "many"\noutbox = "{outbox}"\nmessages = "device"\n',
-           f'[defaults]\ninterval = {POLL}\ntable = "holding"\nslave = 1\n']  # fmt: skip
-    for i in range(DEVICES):
-        out.append(f'[[bus]]\nname = "d{i}"\nport = "tcp://127.0.0.1:{first + i}"\n')
-        out += [
-            f'[[point]]\nname = "d{i}.r{r}"\nbus = "d{i}"\naddress = {r}\n'
-            for r in range(REGISTERS)
-        ]
-    return "\n".join(out)
-
-
 def test_every_step_of_every_register_arrives_once_in_order_in_device_messages(
     tmp_path: Path,
 ) -> None:
     """Twenty simulated Modbus TCP devices of thirty registers stepping every half
     second, polled five times a step: every step of every register arrives once,
     in order, in its device's messages, most of them a poll's thirty changes."""
-    template = tmp_path / "many.toml"
-    template.write_text(template_text())
-    first = free_port_range(DEVICES)
-    spec = f"127.0.0.1:{first}-{first + DEVICES - 1}"
-    sim = Background("simulate", "--template", template, "--tcp", spec, "--vary", str(STEP),
-                     "--json")  # fmt: skip
-    try:
-        json.loads(sim.line(timeout=60))
+    with simulated(tmp_path) as first:
         with Broker(tmp_path) as broker, Client(broker, ["pyrtu/many/#"]) as sub:
             config_path = tmp_path / "bridge.toml"
-            config_path.write_text(bridge_text(broker.url, tmp_path / "outbox", first))
+            config_path.write_text(bridge_text(broker.url, tmp_path / "outbox", first, "device"))
             bridge = Background("bridge", "--config", config_path)
             try:
 
@@ -417,8 +385,6 @@ def test_every_step_of_every_register_arrives_once_in_order_in_device_messages(
             finally:
                 bridge.kill()
             received = list(sub.messages)
-    finally:
-        sim.kill()
     per_point: dict[str, list[tuple[int, float, int]]] = {}
     seqs: list[int] = []
     sizes: list[int] = []

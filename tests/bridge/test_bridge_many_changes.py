@@ -7,9 +7,11 @@ register published once, in order."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import signal
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 from cli_helpers import Background, free_port_range
@@ -29,8 +31,11 @@ def template_text() -> str:
     return "\n".join(lines)
 
 
-def bridge_text(url: str, outbox: Path, first: int) -> str:
-    out = [f'[mqtt]\nurl = "{url}"\nedge = "many"\noutbox = "{outbox}"\n',
+def bridge_text(url: str, outbox: Path, first: int, messages: str = "point") -> str:
+    """The bridge's configuration: a ``tcp://`` bus per device, every register a point
+    (``messages``: the ``[mqtt]`` key)."""
+    out = [f'[mqtt]\nurl = "{url}"\nedge = "many"\noutbox = "{outbox}"\n'
+           f'messages = "{messages}"\n',
            f'[defaults]\ninterval = {POLL}\ntable = "holding"\nslave = 1\n']  # fmt: skip
     for i in range(DEVICES):
         out.append(f'[[bus]]\nname = "d{i}"\nport = "tcp://127.0.0.1:{first + i}"\n')
@@ -41,7 +46,10 @@ def bridge_text(url: str, outbox: Path, first: int) -> str:
     return "\n".join(out)
 
 
-def test_every_step_of_every_register_is_published_once_in_order(tmp_path: Path) -> None:
+@contextlib.contextmanager
+def simulated(tmp_path: Path) -> Iterator[int]:
+    """The devices: one ``pyrtu simulate --tcp`` range whose registers step every
+    `STEP`, answering; its first port (killed at the end)."""
     template = tmp_path / "many.toml"
     template.write_text(template_text())
     first = free_port_range(DEVICES)
@@ -50,6 +58,13 @@ def test_every_step_of_every_register_is_published_once_in_order(tmp_path: Path)
                      "--json")  # fmt: skip
     try:
         json.loads(sim.line(timeout=60))
+        yield first
+    finally:
+        sim.kill()
+
+
+def test_every_step_of_every_register_is_published_once_in_order(tmp_path: Path) -> None:
+    with simulated(tmp_path) as first:
         with Broker(tmp_path) as broker, Client(broker, ["pyrtu/many/+/1/+"]) as sub:
             config = tmp_path / "bridge.toml"
             config.write_text(bridge_text(broker.url, tmp_path / "outbox", first))
@@ -87,5 +102,3 @@ def test_every_step_of_every_register_is_published_once_in_order(tmp_path: Path)
         lasts = {got[f"pyrtu/many/d{i}/1/d{i}.r{r}"][-1] - r * 100 for i in range(DEVICES)
                  for r in range(REGISTERS)}  # fmt: skip
         assert max(lasts) - min(lasts) <= 1, lasts
-    finally:
-        sim.kill()
