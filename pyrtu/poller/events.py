@@ -8,7 +8,7 @@ Every event but `Update` has ``as_dict()``: its ``pyrtu poll --json`` line, with
 
 from __future__ import annotations
 
-from collections import deque
+from array import array
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any, ClassVar, NamedTuple
@@ -178,10 +178,16 @@ def percentile(sorted_values: list[float], q: float) -> float | None:
 _SLAVE_COUNTS = ("bus", "slave", "requests", "responses", "timeouts", "exceptions", "frame_errors")
 
 
+#: how many of a slave's latest latencies its percentiles are taken over
+LATENCY_WINDOW = 1024
+
+
 @dataclass
 class SlaveStats:
     """Counts of one slave's transactions, the wire time they took (``busy``,
-    seconds) and their latencies (the last 1024)."""
+    seconds) and their latencies (``latencies``: seconds, the latest last; the
+    percentiles are of the last `LATENCY_WINDOW`, and at most twice that many are
+    kept, 8 bytes each: `note_latency`)."""
 
     bus: str
     slave: int
@@ -192,14 +198,23 @@ class SlaveStats:
     frame_errors: int = 0
     online: bool | None = None
     busy: float = 0.0
-    latencies: deque[float] = field(default_factory=lambda: deque(maxlen=1024))
+    latencies: array[float] = field(default_factory=lambda: array("d"))
 
     @property
     def success_rate(self) -> float | None:
         return self.responses / self.requests if self.requests else None
 
+    def note_latency(self, seconds: float) -> None:
+        """An answered transaction's latency; the oldest go in bulk, when twice the
+        window is reached (a thousand devices keep no float object per answer)."""
+        latencies = self.latencies
+        latencies.append(seconds)
+        if len(latencies) >= 2 * LATENCY_WINDOW:
+            del latencies[:-LATENCY_WINDOW]
+
     def latency(self, q: float) -> float | None:
-        return percentile(sorted(self.latencies), q)
+        """The ``q`` percentile (nearest rank) of the last `LATENCY_WINDOW` latencies."""
+        return percentile(sorted(self.latencies[-LATENCY_WINDOW:]), q)
 
     def as_dict(self) -> dict[str, Any]:
         p50, p99 = self.latency(50), self.latency(99)

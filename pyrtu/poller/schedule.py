@@ -390,7 +390,7 @@ class BusScheduler:
         h = self._health[req.slave]
         st = self._stats.slaves[req.slave]
         st.responses += 1
-        st.latencies.append(busy)
+        st.note_latency(busy)
         if self.observe is not None:
             self.observe(req.slave, busy)
         self._turnaround(req, busy, h)
@@ -452,7 +452,7 @@ class BusScheduler:
         events: list[Event] = []
         if isinstance(error, ExceptionResponseError) and not error.no_device_answered:
             st.exceptions += 1
-            st.latencies.append(busy)
+            st.note_latency(busy)
             if self.observe is not None:
                 self.observe(req.slave, busy)
             self._turnaround(req, busy, h)

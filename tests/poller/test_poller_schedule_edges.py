@@ -433,3 +433,23 @@ def test_a_block_not_yet_read_is_not_lagging() -> None:
     req = take(sched, 1.25)  # due 0.5: 0.75 late, more than the interval
     sched.on_response(req, [0], 1.3125)
     assert sched.lagging() == ("s1.0",)
+
+
+def test_the_latency_percentiles_are_of_the_last_1024_and_at_most_2047_are_kept() -> None:
+    """docs/POLLER.md: a slave's latency percentiles are over its last 1024 answers;
+    the older go in bulk when 2048 are reached (1024 kept).  Latencies 0, 1, 2... so
+    the window's nearest-rank p0 is its oldest, p100 its newest, p50 the 512th."""
+    from pyrtu.poller import SlaveStats
+
+    st = SlaveStats("b", 1)
+    assert st.latency(50) is None
+    for i in range(1024):
+        st.note_latency(float(i))
+    assert (st.latency(0), st.latency(50), st.latency(100)) == (0.0, 511.0, 1023.0)
+    for i in range(1024, 2047):
+        st.note_latency(float(i))
+    assert len(st.latencies) == 2047  # one short of the trim: all kept
+    assert (st.latency(0), st.latency(100)) == (1023.0, 2046.0)  # the last 1024
+    st.note_latency(2047.0)
+    assert list(st.latencies) == [float(i) for i in range(1024, 2048)]
+    assert (st.latency(0), st.latency(50), st.latency(100)) == (1024.0, 1535.0, 2047.0)
