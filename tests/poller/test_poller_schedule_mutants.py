@@ -561,3 +561,20 @@ def test_probes_are_found_again_after_every_return() -> None:
             sched.on_response(probe, [0], now + 5.0625)
         now += 5.0625
     assert sched._offline_count == 0  # (white box: the count the probes are looked for by)
+
+
+def test_a_probes_answer_measures_the_slaves_turnaround() -> None:
+    """A probe has no task of the schedule: its frames are the wire's for a read of
+    one register (t3.5 4 ms, the 8-byte request, the 7-byte answer at 1 ms a
+    character: 19 ms, `Wire.read`), and what its transaction took beyond them is the
+    turnaround the slave's blocks then cost (docs/POLLER.md, "Load").  Answered
+    25 ms after it was issued: 25 - 19 = 6 ms; its block of one register every 10 s
+    then costs 4 + 8 + 6 + 7 = 25 ms (the probe's own time), a load of 0.0025."""
+    sched = BusScheduler("b", [pt(0, interval=10.0)], WIRE, offline_after=1, share=1,
+                         backoff=5, max_backoff=5)  # fmt: skip
+    req = take(sched, 0.0)
+    sched.on_failure(req, silent(req), 0.125)  # offline, probed 5 s later
+    probe = take(sched, 5.125)
+    assert probe.kind == "probe"
+    sched.on_response(probe, [0], 5.15)
+    assert sched.load() == pytest.approx(0.025 / 10.0)

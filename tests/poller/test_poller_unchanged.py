@@ -145,3 +145,16 @@ def test_every_sample_delivered_an_unchanged_block_is_delivered_decoded() -> Non
     assert by_name == {"u": {7}, "i": {-2}, "f": {21.5}}
     times = sorted({u.time for u in got if u.point.name == "u"})
     assert len(times) == reads  # a sample per read, each with its own time
+
+
+def test_an_unchanged_block_names_its_points_by_the_blocks_own_tuple() -> None:
+    """Every `Unchanged` of a block carries the block's own tuple of points, the same
+    object each time: the tracker keeps one group per block by it (`Tracker.reread`),
+    so a thousand devices' rereads cost a lookup each and nothing accumulates."""
+    sched = BusScheduler("b", POINTS, WIRE)
+    answer(sched, list(REGS), 0.0)
+    (a,) = answer(sched, list(REGS), 1.0)
+    (b,) = answer(sched, list(REGS), 2.0)
+    assert isinstance(a, Unchanged) and isinstance(b, Unchanged)
+    assert type(a.points) is tuple and a.points is b.points
+    assert a.points is sched.blocks[0].points
