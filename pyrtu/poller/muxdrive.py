@@ -461,8 +461,7 @@ class MuxDriver:
                 continue  # (its bus stopped being driven meanwhile)
             del drives[rec.token]
             d.token = 0
-            if d.urgent:
-                self._settled(d)
+            self._settled(d)
             try:
                 self._ended(d, rec)
             except Exception as exc:  # a fault of the poller: the bus task's supervision
