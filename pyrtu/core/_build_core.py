@@ -130,6 +130,7 @@ _BINDING = """
 #include "rtu_xfer.h"
 #include "rtu_tcp.h"
 #include "rtu_mux.h"
+#include "rtu_image.h"
 %s
 static uint16_t rtu_crc16_bytes(const char *data, size_t len, uint16_t crc)
 {
