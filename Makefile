@@ -158,7 +158,7 @@ CLANG ?= clang-14
 FUZZ_SECONDS ?= 300
 FUZZ_CI_SECONDS ?= 10
 FUZZ_ARGS ?=
-FUZZ_HARNESSES := stream framer predict crc mbap vbus tcp mux image
+FUZZ_HARNESSES := stream framer predict crc mbap vbus tcp mux image serve
 FUZZ_DIR := build/fuzz
 FUZZ_CFLAGS := -std=c99 -g -O2 -Wall -Wextra -Werror -Icsrc \
   -fsanitize=fuzzer,address,undefined -fno-sanitize-recover=undefined

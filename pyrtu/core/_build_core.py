@@ -131,6 +131,7 @@ _BINDING = """
 #include "rtu_tcp.h"
 #include "rtu_mux.h"
 #include "rtu_image.h"
+#include "rtu_serve.h"
 %s
 static uint16_t rtu_crc16_bytes(const char *data, size_t len, uint16_t crc)
 {

@@ -412,6 +412,54 @@ int rtu_mux_errno(const rtu_mux *m);
 uint64_t rtu_mux_services(const rtu_mux *m);
 /* ---- end of POSIX I/O ---- */
 
+/* ---- POSIX I/O (csrc/rtu_*_io.c): left out where there is none (_build_core.py) ---- */
+/* csrc/rtu_serve.h: the server engine, a thread serving a Modbus TCP server's clients */
+#define RTU_SERVE_IN_CAP ...
+#define RTU_SERVE_OUT_CAP ...
+#define RTU_SERVE_REQUEST ...
+#define RTU_SERVE_CLOSED ...
+#define RTU_SERVE_BAD_HEADER ...
+#define RTU_SERVE_STALLED ...
+typedef struct rtu_serve rtu_serve;
+typedef struct {
+    uint32_t conn;
+    int32_t kind;
+    int32_t err;
+    uint32_t len;
+    int64_t at;
+    uint8_t adu[260];
+} rtu_serve_event;
+typedef struct {
+    int64_t connected;
+    int64_t last_request;
+    int64_t partial_since;
+    uint64_t answered;
+    uint32_t unsent;
+    uint32_t handed;
+} rtu_serve_conn_state;
+typedef struct {
+    uint64_t requests;
+    uint64_t answered;
+    uint64_t handed;
+    uint64_t by_function[5];
+} rtu_serve_stats;
+size_t rtu_serve_size(uint32_t capacity);
+int rtu_serve_init(rtu_serve *s, uint32_t capacity, uint32_t max_unsent);
+void rtu_serve_destroy(rtu_serve *s);
+int rtu_serve_errno(const rtu_serve *s);
+int rtu_serve_fd(const rtu_serve *s);
+void rtu_images_lock(void);
+void rtu_images_unlock(void);
+int rtu_serve_route(rtu_serve *s, unsigned unit, const rtu_image *img);
+void rtu_serve_defer_all(rtu_serve *s, int on);
+int rtu_serve_attach(rtu_serve *s, uint32_t conn, int fd);
+int rtu_serve_detach(rtu_serve *s, uint32_t conn);
+int rtu_serve_send(rtu_serve *s, uint32_t conn, const uint8_t *adu, size_t len);
+size_t rtu_serve_take(rtu_serve *s, rtu_serve_event *out, size_t cap);
+int rtu_serve_conn(rtu_serve *s, uint32_t conn, rtu_serve_conn_state *st);
+int rtu_serve_stats_get(rtu_serve *s, rtu_serve_stats *out);
+/* ---- end of POSIX I/O ---- */
+
 /* ---- TLS (csrc/rtu_tls_io.c, over OpenSSL): left out where OpenSSL is not found ---- */
 /* csrc/rtu_tls.h: the TLS of an mbaps:// client */
 typedef struct rtu_tls_ctx rtu_tls_ctx;
