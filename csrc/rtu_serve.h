@@ -8,8 +8,9 @@
  * MODBUS Application Protocol Specification V1.1b3.
  *
  * The caller (the gateway, Python) allocates the state (rtu_serve_size bytes for
- * `capacity` connections), calls rtu_serve_init (which starts the thread), routes
- * units to images, and attaches each accepted socket to a free connection slot.
+ * `capacity` connections), calls rtu_serve_init (which starts the thread), and
+ * attaches each accepted socket to a free connection slot with its server's
+ * routes (unit id -> image): one serve may carry the connections of many servers.
  * The thread then, for each connection, in request order:
  *   - frames the requests by their MBAP header ([TCP] 3.1.3; an invalid one is a
  *     BAD_HEADER event and the connection is read no more);
@@ -39,7 +40,7 @@
  *
  * Linux only (epoll, eventfd, pthreads); elsewhere rtu_serve_size is 0, the other
  * functions return RTU_EUNSUPPORTED (rtu_serve_take 0, rtu_serve_fd -1,
- * rtu_serve_destroy and rtu_serve_defer_all nothing), and the asyncio server runs.
+ * rtu_serve_destroy nothing), and the asyncio server runs.
  */
 #ifndef RTU_SERVE_H
 #define RTU_SERVE_H
@@ -77,20 +78,20 @@ int rtu_serve_fd(const rtu_serve *s);
 void rtu_images_lock(void);
 void rtu_images_unlock(void);
 
-/* unit 0..255 -> the image its reads are answered from (checked: RTU_EINVAL unless
- * rtu_image_check passes; the image's memory must live until it is routed away or
- * the serve destroyed); NULL: every request to that unit goes to Python (the
- * default for all units).  Once it returns, the thread no longer uses the image
- * routed before. */
-int rtu_serve_route(rtu_serve *s, unsigned unit, const rtu_image *img);
-/* on: every request goes to Python (listen-only mode, DEBUG logging). */
-void rtu_serve_defer_all(rtu_serve *s, int on);
-
 /* Serve connection slot `conn` (< capacity, free) on `fd`, a connected stream
  * socket the serve owns from now on (set non-blocking here; closed at detach or
- * destroy).  RTU_OK; RTU_EINVAL (a bad slot, a busy one, not a stream socket, or
- * epoll refuses it: the caller keeps the descriptor). */
-int rtu_serve_attach(rtu_serve *s, uint32_t conn, int fd);
+ * destroy).  `routes`: the caller's 256 entries, unit id -> the image its reads are
+ * answered from (NULL entry: every request to that unit goes to Python; NULL
+ * routes: every request), unchanged and alive while the connection is attached
+ * (the servers of one serve share it, each connection with its server's routes);
+ * `defer`: as rtu_serve_defer.  RTU_OK; RTU_EINVAL (a bad slot, a busy one, not a
+ * stream socket, epoll refuses it, or an image rtu_image_check refuses: the caller
+ * keeps the descriptor). */
+int rtu_serve_attach(rtu_serve *s, uint32_t conn, int fd, const rtu_image *const *routes,
+                     int defer);
+/* on: every request of `conn` goes to Python (listen-only mode, hooks, DEBUG
+ * logging), from its next request on; RTU_EINVAL if not attached. */
+int rtu_serve_defer(rtu_serve *s, uint32_t conn, int on);
 /* Stop serving it, close its fd, drop its events not yet taken; RTU_EINVAL if not
  * attached. */
 int rtu_serve_detach(rtu_serve *s, uint32_t conn);
@@ -126,13 +127,14 @@ typedef struct {
 size_t rtu_serve_take(rtu_serve *s, rtu_serve_event *out, size_t cap);
 
 typedef struct {
-    int64_t connected;     /* attached (CLOCK_MONOTONIC ns) */
-    int64_t last_request;  /* the last complete request (0: none yet) */
-    int64_t partial_since; /* the read that brought the first byte of the request being
+    int64_t connected;       /* attached (CLOCK_MONOTONIC ns) */
+    int64_t last_request;    /* the last complete request (0: none yet) */
+    int64_t partial_since;   /* the read that brought the first byte of the request being
                               received (0: none) */
-    uint64_t answered;     /* requests the engine answered itself */
-    uint32_t unsent;       /* answer bytes not yet written */
-    uint32_t handed;       /* 1 while a REQUEST of it waits for rtu_serve_send */
+    uint64_t answered;       /* requests the engine answered itself */
+    uint64_t by_function[5]; /* [f]: ... of function f (1..4) */
+    uint32_t unsent;         /* answer bytes not yet written */
+    uint32_t handed;         /* 1 while a REQUEST of it waits for rtu_serve_send */
 } rtu_serve_conn_state;
 
 /* RTU_EINVAL if `conn` is not attached. */

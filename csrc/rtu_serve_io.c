@@ -84,19 +84,22 @@ void rtu_images_unlock(void) {}
 #define MAGIC 0x53525645u    /* "SRVE": rtu_serve_init set the memory up */
 
 typedef struct {
-    int fd;          /* -1: not attached */
-    uint32_t gen;    /* attaches so far: an epoll event of an earlier one is stale */
-    int watching;    /* in the epoll set */
-    uint32_t events; /* ... for these */
-    int handed;      /* a REQUEST event of it waits for rtu_serve_send */
-    int taken;       /* ... and rtu_serve_take moved it out */
-    int dead;        /* an ending event (CLOSED, BAD_HEADER, STALLED) was queued: no
+    int fd;                         /* -1: not attached */
+    uint32_t gen;                   /* attaches so far: an epoll event of an earlier one is stale */
+    int watching;                   /* in the epoll set */
+    uint32_t events;                /* ... for these */
+    int handed;                     /* a REQUEST event of it waits for rtu_serve_send */
+    int taken;                      /* ... and rtu_serve_take moved it out */
+    int dead;                       /* an ending event (CLOSED, BAD_HEADER, STALLED) was queued: no
                         more reading or scanning */
-    int broken;      /* the socket failed: nothing more is sent either */
-    int eof;         /* recv returned 0 */
-    int blocked;     /* the scan stopped: the output had no room for an answer */
-    int resume;      /* in the resume list (its scan to run again in the thread) */
-    int32_t rnext;   /* the resume list */
+    int broken;                     /* the socket failed: nothing more is sent either */
+    int eof;                        /* recv returned 0 */
+    int blocked;                    /* the scan stopped: the output had no room for an answer */
+    int resume;                     /* in the resume list (its scan to run again in the thread) */
+    int defer;                      /* every request to Python (rtu_serve_defer) */
+    const rtu_image *const *routes; /* unit id -> image (the caller's 256), or NULL */
+    uint64_t by_function[5];        /* answered by the engine, by function (1..4) */
+    int32_t rnext;                  /* the resume list */
     int64_t connected, last_request, partial_since, last_read;
     uint64_t answered;
     size_t in_n, in_used;   /* in[0 .. in_used) resolved, in[in_used .. in_n) not yet */
@@ -114,14 +117,12 @@ struct rtu_serve {
     int wakefd; /* the thread's */
     int err;
     int stop;
-    int defer_all;
     int running; /* the thread was started (and not yet joined) */
     pthread_t thread;
     pthread_mutex_t mu;
     int32_t rhead, rtail; /* the resume list */
     size_t qhead, qlen, qcap;
     rtu_serve_stats stats;
-    const rtu_image *routes[256];
     serve_conn *conns;
     rtu_serve_event *queue;
 };
@@ -296,7 +297,7 @@ static void scan(rtu_serve *s, uint32_t c, int64_t now)
         s->stats.requests++;
         k->last_request = k->last_read; /* (nothing is read while a scan waits) */
         k->partial_since = 0;
-        img = s->defer_all ? NULL : s->routes[adu[6]];
+        img = k->defer || k->routes == NULL ? NULL : k->routes[adu[6]];
         if (img != NULL) {
             size_t n = 0;
             uint8_t *o = k->out + k->out_n;
@@ -317,6 +318,7 @@ static void scan(rtu_serve *s, uint32_t c, int64_t now)
                 k->answered++;
                 s->stats.answered++;
                 s->stats.by_function[adu[7]]++; /* (rtu_image_answer: FC 1..4 only) */
+                k->by_function[adu[7]]++;
             }
         }
         if (rc != RTU_OK) { /* Python's: one REQUEST event, then nothing until its answer */
@@ -600,38 +602,41 @@ int rtu_serve_errno(const rtu_serve *s) { return s == NULL ? 0 : s->err; }
 
 int rtu_serve_fd(const rtu_serve *s) { return s == NULL || s->magic != MAGIC ? -1 : s->evfd; }
 
-int rtu_serve_route(rtu_serve *s, unsigned unit, const rtu_image *img)
+int rtu_serve_defer(rtu_serve *s, uint32_t conn, int on)
 {
     int rc = RTU_OK;
-    if (s == NULL || s->magic != MAGIC || unit > 255)
+    if (s == NULL || s->magic != MAGIC || conn >= s->capacity)
         return RTU_EINVAL;
     pthread_mutex_lock(&s->mu);
-    if (img != NULL) {
-        rtu_images_lock();
-        rc = rtu_image_check(img);
-        rtu_images_unlock();
-    }
-    if (rc == RTU_OK)
-        s->routes[unit] = img;
+    if (s->conns[conn].fd < 0)
+        rc = RTU_EINVAL;
+    else
+        s->conns[conn].defer = on != 0;
     pthread_mutex_unlock(&s->mu);
     return rc;
 }
 
-void rtu_serve_defer_all(rtu_serve *s, int on)
+/* Every image `routes` names passes rtu_image_check (the images lock held). */
+static int routes_ok(const rtu_image *const *routes)
 {
-    if (s == NULL || s->magic != MAGIC)
-        return;
-    pthread_mutex_lock(&s->mu);
-    s->defer_all = on != 0;
-    pthread_mutex_unlock(&s->mu);
+    int u, rc = RTU_OK;
+    if (routes == NULL)
+        return RTU_OK;
+    rtu_images_lock();
+    for (u = 0; u < 256 && rc == RTU_OK; u++)
+        if (routes[u] != NULL)
+            rc = rtu_image_check(routes[u]);
+    rtu_images_unlock();
+    return rc;
 }
 
-int rtu_serve_attach(rtu_serve *s, uint32_t conn, int fd)
+int rtu_serve_attach(rtu_serve *s, uint32_t conn, int fd, const rtu_image *const *routes, int defer)
 {
     serve_conn *k;
     int type = 0, flags, rc = RTU_OK;
     socklen_t tl = sizeof type;
-    if (s == NULL || s->magic != MAGIC || conn >= s->capacity || fd < 0)
+    if (s == NULL || s->magic != MAGIC || conn >= s->capacity || fd < 0 ||
+        routes_ok(routes) != RTU_OK)
         return RTU_EINVAL;
     pthread_mutex_lock(&s->mu);
     k = &s->conns[conn];
@@ -643,6 +648,8 @@ int rtu_serve_attach(rtu_serve *s, uint32_t conn, int fd)
         memset(k, 0, offsetof(serve_conn, in)); /* (the buffers need no clearing) */
         k->gen = gen;
         k->rnext = NONE;
+        k->routes = routes;
+        k->defer = defer != 0;
         k->fd = fd;
         k->connected = now_ns();
         watch(s, conn);
@@ -757,6 +764,7 @@ int rtu_serve_conn(rtu_serve *s, uint32_t conn, rtu_serve_conn_state *st)
         st->last_request = k->last_request;
         st->partial_since = k->partial_since;
         st->answered = k->answered;
+        memcpy(st->by_function, k->by_function, sizeof st->by_function);
         st->unsent = (uint32_t)(k->out_n - k->out_head);
         st->handed = k->handed ? 1u : 0u;
     }
@@ -808,25 +816,21 @@ int rtu_serve_fd(const rtu_serve *s)
     return -1;
 }
 
-int rtu_serve_route(rtu_serve *s, unsigned unit, const rtu_image *img)
+int rtu_serve_defer(rtu_serve *s, uint32_t conn, int on)
 {
     (void)s;
-    (void)unit;
-    (void)img;
+    (void)conn;
+    (void)on;
     return RTU_EUNSUPPORTED;
 }
 
-void rtu_serve_defer_all(rtu_serve *s, int on)
-{
-    (void)s;
-    (void)on;
-}
-
-int rtu_serve_attach(rtu_serve *s, uint32_t conn, int fd)
+int rtu_serve_attach(rtu_serve *s, uint32_t conn, int fd, const rtu_image *const *routes, int defer)
 {
     (void)s;
     (void)conn;
     (void)fd;
+    (void)routes;
+    (void)defer;
     return RTU_EUNSUPPORTED;
 }
 

@@ -4,7 +4,7 @@
  *
  * [TCP] MODBUS Messaging on TCP/IP Implementation Guide V1.0b, 3.1.3.
  *
- * Input: byte 0 flags (bit 0: defer_all; bit 1: the client shuts its end after
+ * Input: byte 0 flags (bit 0: the connection defers every request; bit 1: the client shuts its end after
  * the stream; bit 2: unit 0xFF routed to the image too; bit 3: connection slot
  * 1 in place of 0; bit 4: a small send buffer on the engine's end, so that its
  * answers wait and it stops reading), byte 1 seeds the sizes of the pieces the stream is written
@@ -49,6 +49,7 @@ static rtu_serve *serve;
 static uint16_t hr[210], coils[100], ir[20];
 static rtu_image_range hr_ranges[2], coil_ranges[1], ir_ranges[1];
 static rtu_image image;
+static const rtu_image *routes[256]; /* the connection's: unit 1 (and maybe 0xFF) */
 
 static uint8_t stream[STREAM_CAP];
 static uint8_t expect[OUT_CAP]; /* the bytes the client must read */
@@ -187,10 +188,9 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             ir[i] = (uint16_t)(vseed >> 4);
     }
     rtu_images_unlock();
-    if (rtu_serve_route(serve, 1, &image) != RTU_OK ||
-        rtu_serve_route(serve, 0xFF, (flags & 4) ? &image : NULL) != RTU_OK)
-        FUZZ_FAIL("route");
-    rtu_serve_defer_all(serve, flags & 1);
+    memset(routes, 0, sizeof routes);
+    routes[1] = &image;
+    routes[0xFF] = (flags & 4) ? &image : NULL;
     n = make_stream(&in);
 
     /* this file's framing of the stream, and what must come back */
@@ -240,9 +240,9 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         int small = 2048;
         setsockopt(sv[0], SOL_SOCKET, SO_SNDBUF, &small, sizeof small);
     }
-    if (rtu_serve_attach(serve, conn, sv[0]) != RTU_OK)
+    if (rtu_serve_attach(serve, conn, sv[0], routes, flags & 1) != RTU_OK)
         FUZZ_FAIL("attach");
-    if (rtu_serve_attach(serve, conn, sv[0]) != RTU_EINVAL)
+    if (rtu_serve_attach(serve, conn, sv[0], routes, 0) != RTU_EINVAL)
         FUZZ_FAIL("attached twice");
 
     give_up = now_ms() + 5000;

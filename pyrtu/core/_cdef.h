@@ -434,6 +434,7 @@ typedef struct {
     int64_t last_request;
     int64_t partial_since;
     uint64_t answered;
+    uint64_t by_function[5];
     uint32_t unsent;
     uint32_t handed;
 } rtu_serve_conn_state;
@@ -450,9 +451,9 @@ int rtu_serve_errno(const rtu_serve *s);
 int rtu_serve_fd(const rtu_serve *s);
 void rtu_images_lock(void);
 void rtu_images_unlock(void);
-int rtu_serve_route(rtu_serve *s, unsigned unit, const rtu_image *img);
-void rtu_serve_defer_all(rtu_serve *s, int on);
-int rtu_serve_attach(rtu_serve *s, uint32_t conn, int fd);
+int rtu_serve_attach(rtu_serve *s, uint32_t conn, int fd, const rtu_image *const *routes,
+                     int defer);
+int rtu_serve_defer(rtu_serve *s, uint32_t conn, int on);
 int rtu_serve_detach(rtu_serve *s, uint32_t conn);
 int rtu_serve_send(rtu_serve *s, uint32_t conn, const uint8_t *adu, size_t len);
 size_t rtu_serve_take(rtu_serve *s, rtu_serve_event *out, size_t cap);

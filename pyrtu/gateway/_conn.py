@@ -152,6 +152,11 @@ class _Connection(asyncio.Protocol):
             _reset(t)
             self.closed = True  # read none of its requests still in the chunk
 
+    def unsent(self) -> int:
+        """Answer bytes written and not yet taken by the client."""
+        t = self.transport
+        return 0 if t is None else t.get_write_buffer_size()
+
     def encode(self, transaction: int, unit: int, pdu: bytes) -> bytes:
         if 1 <= len(pdu) <= MAX_PDU:  # (the request's own transaction and unit ids)
             return MBAP_HEADER.pack(transaction, 0, len(pdu) + 1, unit) + pdu

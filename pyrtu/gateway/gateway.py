@@ -109,6 +109,7 @@ from pyrtu.security.policy import Decision, Identity, Policy, beyond_loopback, i
 from pyrtu.security.tls import TlsListen
 
 from ._conn import _Connection, _RtuConnection, _TlsConnection
+from ._engine import EngineConnection, ServerEngine
 from ._live import HEADER, pick_victim
 from ._plan import (
     CLOSE_GRACE,
@@ -324,6 +325,10 @@ class Gateway:
         #: bus worker (a response or an exception response; not broadcasts): the
         #: latency histograms of ``--metrics``
         self.on_latency: Callable[[str, int, float], None] | None = None
+        #: the C engine of the plain listener (`pyrtu.gateway._engine`: a `TcpServer`
+        #: sets the factory before `start`), None: Python reads every connection
+        self.engine_factory: Callable[[], ServerEngine] | None = None
+        self.engine: ServerEngine | None = None
         self._running = False
         self._connections: dict[int, _Connection] = {}
         self._next_id = 0
@@ -412,7 +417,13 @@ class Gateway:
 
         try:
             if port is not None:
-                self._server = await loop.create_server(lambda: _Connection(self), host, port)
+                if self.engine_factory is not None:
+                    engine = self.engine = self.engine_factory()
+                    self._server = await loop.create_server(
+                        lambda: EngineConnection(self, engine), host, port
+                    )
+                else:
+                    self._server = await loop.create_server(lambda: _Connection(self), host, port)
                 self.address = bound(self._server)
             if rtu is not None:
                 self._rtu_server = await loop.create_server(lambda: _RtuConnection(self), *rtu)
@@ -435,6 +446,9 @@ class Gateway:
                 await half.wait_closed()
             # (the addresses bound stay: which is None says which listener failed)
             self._server = self._rtu_server = self._tls_server = self._udp = None
+            if self.engine is not None:
+                self.engine.close()
+                self.engine = None
             raise
         if self.policy is None:
             for where in (self.address, self.rtu_address, self.tls_address, self.udp_address):
@@ -516,6 +530,9 @@ class Gateway:
             server.close()
         for conn in list(self._connections.values()):
             conn.close()
+        if self.engine is not None:
+            self.engine.close()
+            self.engine = None
         tasks = [s.task for s in self._buses if s.task is not None]
         if self._sweeper is not None:
             tasks.append(self._sweeper)
@@ -535,6 +552,8 @@ class Gateway:
 
     def stats(self) -> dict[str, object]:
         """Counters, open connections, queue lengths and bus occupancy."""
+        if self.engine is not None:
+            self.engine.sync()
         return {
             **self.counters,
             "open_connections": len(self._connections),
@@ -544,11 +563,7 @@ class Gateway:
             "bus_down": [s.reconnect.down for s in self._buses],
             "bus_outages": [s.reconnect.outages for s in self._buses],
             "denied_by": dict(self.denied_by),
-            "unsent_bytes": sum(
-                c.transport.get_write_buffer_size()
-                for c in self._connections.values()
-                if c.transport is not None
-            ),
+            "unsent_bytes": sum(c.unsent() for c in self._connections.values()),
         }
 
     def bus_names(self) -> list[str]:
@@ -597,14 +612,9 @@ class Gateway:
     def _evict(self) -> bool:
         """Make room for a newcomer in the full table (`pick_victim`); False if every
         connection has work in progress."""
-        victim_id = pick_victim(
-            (
-                c.id,
-                c.live,
-                c.transport is not None and c.transport.get_write_buffer_size() > 0,
-            )
-            for c in self._connections.values()
-        )
+        if self.engine is not None:
+            self.engine.refresh()
+        victim_id = pick_victim((c.id, c.live, c.unsent() > 0) for c in self._connections.values())
         if victim_id is None:
             return False
         victim = self._connections[victim_id]
@@ -623,6 +633,10 @@ class Gateway:
     def _sweep(self, now: float) -> None:
         """Close the connections whose header or idle timeout has passed."""
         lim = self.limits
+        if self.engine is not None:
+            self.engine.refresh()
+            self.engine.sync()
+            self.engine.defer_if_needed()
         for conn in list(self._connections.values()):
             why = conn.live.expired(now, lim.header_timeout, lim.idle_timeout)
             if why is None:

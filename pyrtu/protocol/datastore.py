@@ -19,6 +19,13 @@ Semantics of a request (the behaviour the WEG and Bonfiglioli manuals give):
 A request may span adjacent ranges; each range applies its own rules.
 ``get``/``set`` are for the owner (a simulator): no read-only check, no
 validator, no callback.  All access goes through the store's lock.
+
+A store served by `pyrtu.tcp.server.TcpServer` on the C core also has an *image*
+(`pyrtu.protocol._image.StoreImage`): a copy of its tables in C memory from which
+the server's C engine answers plain reads without Python.  The changes made while
+the store's lock is held reach the image in one step when its outermost holder
+releases it, so a reader of the image sees all of them or none, as a reader
+holding the lock would.
 """
 
 from __future__ import annotations
@@ -28,7 +35,7 @@ import itertools
 import threading
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 from pyrtu.pdu.errors import SlaveException
 
@@ -56,10 +63,57 @@ class _Range:
 _Segment = tuple[_Range, int, int]
 
 
+class Mirror(Protocol):
+    """What the store's lock keeps current (`pyrtu.protocol._image.StoreImage`)."""
+
+    def changed(self) -> bool:
+        """Whether the tables changed since the last `update` (their versions)."""
+
+    def update(self) -> None:
+        """Copy the tables' changes (called with the store's lock held)."""
+
+
+class StoreLock:
+    """The store's lock: a `threading.RLock` (``with store.lock:``, re-entrant); with
+    a `Mirror` attached, the outermost release first brings it up to date (one
+    step for every change made under the lock)."""
+
+    __slots__ = ("_depth", "_lock", "mirror")
+
+    def __init__(self) -> None:
+        self._lock = threading.RLock()
+        self._depth = 0  # (only its holder changes it)
+        self.mirror: Mirror | None = None
+
+    def acquire(self, blocking: bool = True, timeout: float = -1) -> bool:
+        got = self._lock.acquire(blocking, timeout)
+        if got:
+            self._depth += 1
+        return got
+
+    def release(self) -> None:
+        """RuntimeError when not held by this thread (as `threading.RLock`)."""
+        lock = self._lock
+        if not lock._is_owned():  # type: ignore[attr-defined]
+            raise RuntimeError("cannot release un-acquired lock")
+        self._depth -= 1
+        try:
+            if not self._depth and self.mirror is not None and self.mirror.changed():
+                self.mirror.update()
+        finally:
+            lock.release()
+
+    def __enter__(self) -> bool:
+        return self.acquire()
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
+
 class Table:
     """One table: a sparse map of address ranges, each with its own rules."""
 
-    def __init__(self, name: str, bits: bool, lock: threading.RLock, limit: int = 0xFFFF) -> None:
+    def __init__(self, name: str, bits: bool, lock: StoreLock, limit: int = 0xFFFF) -> None:
         self.name = name
         self.bits = bits
         self.limit = limit
@@ -279,7 +333,7 @@ class DataStore:
     """Coils, discrete inputs, holding registers, input registers (and files)."""
 
     def __init__(self) -> None:
-        self.lock = threading.RLock()
+        self.lock = StoreLock()
         self.coils = Table("coils", True, self.lock)
         self.discrete_inputs = Table("discrete_inputs", True, self.lock)
         self.holding_registers = Table("holding_registers", False, self.lock)
@@ -320,4 +374,4 @@ class DataStore:
             raise ValueError(f"no table {name!r}; tables: {', '.join(tables)}") from None
 
 
-__all__ = ["DataStore", "Table"]
+__all__ = ["DataStore", "Mirror", "StoreLock", "Table"]

@@ -91,10 +91,11 @@ class LineState:
     def not_answered(self) -> None:
         self.counters["slave_no_response_count"] += 1
 
-    def completed(self, function: int) -> None:
-        """A request executed without an exception (answered or broadcast)."""
+    def completed(self, function: int, times: int = 1) -> None:
+        """A request executed without an exception (answered or broadcast); ``times``
+        such requests (the TCP server's engine reports them in batches)."""
         if function not in _NOT_COUNTED:
-            self.event_counter = (self.event_counter + 1) & 0xFFFF
+            self.event_counter = (self.event_counter + times) & 0xFFFF
 
     def answered(self, exception_code: int | None) -> None:
         event = EVENT_SEND | (EVENT_LISTEN_ONLY if self.listen_only else 0)

@@ -40,6 +40,7 @@ from pyrtu.core._closing import AsyncClosing
 from pyrtu.core.line import LineConfig
 from pyrtu.drivers.slave_base import SlaveBase
 from pyrtu.drivers.supervise import TaskFailure
+from pyrtu.gateway._engine import ServerEngine, eligible
 from pyrtu.gateway._plan import check_listen
 from pyrtu.gateway.gateway import Gateway, GatewayLimits
 from pyrtu.protocol.datastore import DataStore
@@ -106,7 +107,12 @@ class TcpServer(AsyncClosing):
     `Gateway`'s (a background task that raised, restarted on the back-off);
     ``policy``, ``audit``, ``on_denied``: as `Gateway`'s (the access policy of
     `pyrtu.security`, exception 01 for a request outside it; the audit trail of
-    executed writes)."""
+    executed writes).
+
+    ``engine`` (default True): on the C core (Linux), a `pyrtu.Slave`'s reads on the
+    Modbus TCP listener are answered by a C thread from a copy of its DataStore,
+    without Python per request (`pyrtu.gateway._engine`); everything else is
+    executed as before.  ``engine_refused`` says why a server runs without it."""
 
     def __init__(
         self,
@@ -117,11 +123,14 @@ class TcpServer(AsyncClosing):
         policy: Policy | None = None,
         audit: AuditTrail | None = None,
         on_denied: Callable[[Identity, Decision], None] | None = None,
+        engine: bool = True,
     ) -> None:
         if not callable(getattr(app, "execute", None)) or not getattr(app, "addresses", None):
             raise TypeError(
                 f"app must have execute(unit, pdu) and addresses, not {type(app).__name__}"
             )
+        if not isinstance(engine, bool):
+            raise TypeError(f"engine must be True or False, not {engine!r}")
         self.app = app
         units = {a: a for a in app.addresses}
         units[UNIT_SELF] = units[UNIT_DIRECT] = min(app.addresses)
@@ -133,6 +142,16 @@ class TcpServer(AsyncClosing):
             audit=audit,
             on_denied=on_denied,
         )
+        #: why the C engine does not serve this app (None: it does, on the C core)
+        self.engine_refused: str | None = eligible(app) if engine else "engine=False"
+        if self.engine_refused is None:
+            assert isinstance(app, SlaveBase)
+            gateway = self._gateway
+
+            def count_bus(n: int) -> None:
+                gateway._buses[0].transactions += n
+
+            gateway.engine_factory = lambda: ServerEngine(gateway, app, units, count_bus)
 
     @classmethod
     def for_store(
@@ -144,16 +163,17 @@ class TcpServer(AsyncClosing):
         policy: Policy | None = None,
         audit: AuditTrail | None = None,
         on_denied: Callable[[Identity, Decision], None] | None = None,
+        engine: bool = True,
         **options: Any,
     ) -> TcpServer:
         """A slave on TCP only: the standard functions over ``store`` (``options``: the
         `pyrtu.Slave` keywords functions, identification, server_id, ...; ``policy``,
-        ``audit`` and ``on_denied`` as in the constructor).
+        ``audit``, ``on_denied`` and ``engine`` as in the constructor).
         TypeError/ValueError naming ``address`` or ``store`` when they are wrong."""
         _check_address(address)
         _check_store(store)
         app = SlaveBase(address, store, line=LineConfig(), **options)
-        return cls(app, limits, policy=policy, audit=audit, on_denied=on_denied)
+        return cls(app, limits, policy=policy, audit=audit, on_denied=on_denied, engine=engine)
 
     @property
     def address(self) -> tuple[str, int] | None:

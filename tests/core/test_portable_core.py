@@ -45,6 +45,7 @@ def test_posix_headers_only_in_the_io_files() -> None:
             "rtu_tcp_io.c",
             "rtu_tls_io.c",
             "rtu_mux_io.c",
+            "rtu_serve_io.c",
             "rtu_clock_io.c",
         }
     )

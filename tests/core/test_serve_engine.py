@@ -109,21 +109,22 @@ class Engine:
         assert lib.rtu_serve_init(self.s, capacity, max_unsent) == lib.RTU_OK
         self.out = ffi.new("rtu_serve_event[]", 16)
         self.images: list[Image] = []
+        #: the routes every connection attached here carries (set before attaching)
+        self.routes = ffi.new("const rtu_image *[256]")
 
-    def route(self, unit: int, image: Image | None) -> int:
+    def route(self, unit: int, image: Image | None) -> None:
+        """Unit ``unit`` to ``image`` for the connections attached from now on."""
         if image is not None:
             self.images.append(image)  # alive as long as the engine
-        return int(
-            self.lib.rtu_serve_route(self.s, unit, self.ffi.NULL if image is None else image.img)
-        )
+        self.routes[unit] = self.ffi.NULL if image is None else image.img
 
-    def attach(self, conn: int, sndbuf: int = 0) -> socket.socket:
+    def attach(self, conn: int, sndbuf: int = 0, defer: int = 0) -> socket.socket:
         """A socket pair, its server end attached as ``conn``: the client end."""
         client, server = socket.socketpair()
         if sndbuf:
             server.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, sndbuf)
         fd = server.detach()
-        assert self.lib.rtu_serve_attach(self.s, conn, fd) == self.lib.RTU_OK
+        assert self.lib.rtu_serve_attach(self.s, conn, fd, self.routes, defer) == self.lib.RTU_OK
         client.settimeout(PATIENCE)
         return client
 
@@ -202,7 +203,7 @@ def silent(sock: socket.socket, seconds: float = SILENCE) -> bool:
 
 def test_plain_reads_answered_without_an_event(engine: Engine) -> None:
     image = holding_image()
-    assert engine.route(1, image) == engine.lib.RTU_OK
+    engine.route(1, image)
     before = time.monotonic_ns()
     client = engine.attach(0)
     for tid, pdu in enumerate(
@@ -350,21 +351,24 @@ def test_a_unit_without_an_image_and_exceptions_are_handed_over(engine: Engine) 
         assert engine.send(0, exception) == engine.lib.RTU_OK
         assert recv_adu(client) == exception
     assert engine.stats() == (5, 0, 5, [0] * 5)
-    engine.route(1, None)  # routed away: every request is Python's again
+    assert engine.lib.rtu_serve_defer(engine.s, 0, 1) == engine.lib.RTU_OK  # Python's again
     client.sendall(adu(9, 1, read_pdu(3, 0, 1)))
     assert [k for _, k, *_ in engine.take()] == [REQUEST]
 
 
-def test_defer_all(engine: Engine) -> None:
+def test_defer(engine: Engine) -> None:
     image = holding_image()
     engine.route(1, image)
-    client = engine.attach(0)
+    client = engine.attach(0, defer=1)  # deferring from the start
+    other = engine.attach(1)  # its neighbour is not
     read = adu(1, 1, read_pdu(3, 0, 1))
-    engine.lib.rtu_serve_defer_all(engine.s, 1)
+    other.sendall(read)
+    assert recv_adu(other) == image.answer(1, read)
     client.sendall(read)
-    [(_, kind, _, got, _)] = engine.take()
-    assert (kind, got) == (REQUEST, read)
-    engine.lib.rtu_serve_defer_all(engine.s, 0)
+    [(conn, kind, _, got, _)] = engine.take()
+    assert (conn, kind, got) == (0, REQUEST, read)
+    assert engine.lib.rtu_serve_defer(engine.s, 0, 0) == engine.lib.RTU_OK
+    assert engine.lib.rtu_serve_defer(engine.s, 2, 0) == engine.lib.RTU_EINVAL  # not attached
     client.sendall(read)  # (behind the handed one)
     assert silent(client, 0.05)
     assert engine.send(0, b"x" * 7 + b"\x03") == engine.lib.RTU_OK  # Python's own answer
@@ -442,7 +446,7 @@ def test_a_socket_error_is_closed_with_its_errno(engine: Engine) -> None:
         peer = socket.create_connection(client.getsockname())
         server, _ = client.accept()
         fd = server.detach()
-        assert engine.lib.rtu_serve_attach(engine.s, 0, fd) == engine.lib.RTU_OK
+        assert engine.lib.rtu_serve_attach(engine.s, 0, fd, engine.routes, 0) == engine.lib.RTU_OK
         peer.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
         peer.close()  # a reset
         [(_, kind, err, _, _)] = engine.take()
@@ -508,9 +512,9 @@ def test_detach_closes_the_socket_and_drops_its_events(engine: Engine) -> None:
     assert lib.rtu_serve_detach(engine.s, 2) == lib.RTU_OK
     assert not engine.waiting() and engine.take(0) == []
     # the slot again, on a new socket (its generation: nothing of the old one)
-    again = engine.attach(1)
     image = holding_image()
     engine.route(5, image)
+    again = engine.attach(1)
     request = adu(4, 5, read_pdu(3, 0, 1))
     again.sendall(request)
     assert recv_adu(again) == image.answer(5, request)
@@ -521,21 +525,39 @@ def test_attach_refuses(engine: Engine) -> None:
     engine.attach(0)
     a, b = socket.socketpair()
     with a, b:
-        assert lib.rtu_serve_attach(engine.s, 0, b.fileno()) == lib.RTU_EINVAL  # busy
-        assert lib.rtu_serve_attach(engine.s, 4, b.fileno()) == lib.RTU_EINVAL  # capacity 4
-        assert lib.rtu_serve_attach(engine.s, 1, -1) == lib.RTU_EINVAL
+        assert (
+            lib.rtu_serve_attach(engine.s, 0, b.fileno(), engine.routes, 0) == lib.RTU_EINVAL
+        )  # busy
+        assert (
+            lib.rtu_serve_attach(engine.s, 4, b.fileno(), engine.routes, 0) == lib.RTU_EINVAL
+        )  # capacity 4
+        assert lib.rtu_serve_attach(engine.s, 1, -1, engine.routes, 0) == lib.RTU_EINVAL
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp:
-        assert lib.rtu_serve_attach(engine.s, 1, udp.fileno()) == lib.RTU_EINVAL
+        assert lib.rtu_serve_attach(engine.s, 1, udp.fileno(), engine.routes, 0) == lib.RTU_EINVAL
     assert lib.rtu_serve_detach(engine.s, 3) == lib.RTU_EINVAL
     assert lib.rtu_serve_stats_get(engine.s, engine.ffi.NULL) == lib.RTU_EINVAL
 
 
-def test_route_refuses(engine: Engine) -> None:
+def test_attach_refuses_routes_to_a_bad_image(engine: Engine) -> None:
     lib = engine.lib
-    assert engine.route(256, holding_image()) == lib.RTU_EINVAL
     bad = Image([[], [], [(5, PLAIN, [1]), (0, PLAIN, [1])], []])  # unsorted
-    assert engine.route(1, bad) == lib.RTU_EINVAL
-    assert engine.route(1, None) == lib.RTU_OK
+    engine.route(7, bad)
+    a, b = socket.socketpair()
+    with a, b:
+        assert lib.rtu_serve_attach(engine.s, 0, b.fileno(), engine.routes, 0) == lib.RTU_EINVAL
+        engine.route(7, None)
+        assert lib.rtu_serve_attach(engine.s, 0, b.fileno(), engine.routes, 0) == lib.RTU_OK
+        # no routes at all: every request is Python's
+        c, d = socket.socketpair()
+        with c:
+            assert lib.rtu_serve_attach(engine.s, 1, d.detach(), engine.ffi.NULL, 0) == lib.RTU_OK
+            request = adu(1, 1, read_pdu(3, 0, 1))
+            c.sendall(request)
+            [(conn, kind, _, got, _)] = engine.take()
+            assert (conn, kind, got) == (1, REQUEST, request)
+        assert lib.rtu_serve_detach(engine.s, 1) == lib.RTU_OK
+        assert lib.rtu_serve_detach(engine.s, 0) == lib.RTU_OK
+        b.detach()  # (the engine closed it)
 
 
 def test_init_refuses_and_sizes() -> None:
@@ -639,7 +661,9 @@ def test_loopback_tcp_and_exact_stats(engine: Engine) -> None:
         for conn in range(2):
             c = socket.create_connection(listener.getsockname(), timeout=PATIENCE)
             server, _ = listener.accept()
-            assert engine.lib.rtu_serve_attach(engine.s, conn, server.detach()) == 0
+            assert (
+                engine.lib.rtu_serve_attach(engine.s, conn, server.detach(), engine.routes, 0) == 0
+            )
             clients.append(c)
         plan = [(1, 3), (0, 1), (1, 4), (0, 3), (9, 3)]  # (unit, fc); unit 9: Python's
         for conn, c in enumerate(clients):
@@ -653,6 +677,8 @@ def test_loopback_tcp_and_exact_stats(engine: Engine) -> None:
                     assert recv_adu(c) == got
                 else:
                     assert recv_adu(c) == image.answer(unit, request)
+            st = engine.state(conn)  # this connection's own figures
+            assert (st.answered, list(st.by_function)) == (4, [0, 1, 0, 2, 1])
             c.close()
             [(got_conn, kind, err, _, _)] = engine.take()
             assert (got_conn, kind, err) == (conn, CLOSED, 0)

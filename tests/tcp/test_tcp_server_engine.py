@@ -1,0 +1,403 @@
+"""`TcpServer`'s C engine (pyrtu/gateway/_engine.py, csrc/rtu_serve_io.c): plain reads
+answered without Python, everything else as before.
+
+Each test runs with the engine and without it (``engine=False``: every request in
+Python), and expects the same from both; the engine's own figures say which
+requests it answered.  Real clients on 127.0.0.1: pyrtu's masters, raw sockets
+with requests built here with ``struct`` ([TCP] 3.1.3, [AP] 6.1-6.6)."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import socket
+import struct
+import threading
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+
+from pyrtu import ExceptionResponseError, Master
+from pyrtu.drivers.aio import AsyncMaster
+from pyrtu.gateway import GatewayLimits
+from pyrtu.protocol._image import available
+from pyrtu.protocol.datastore import DataStore
+from pyrtu.tcp.server import TcpServer
+
+pytestmark = pytest.mark.skipif(not available(), reason="the C core has no engine here")
+
+ENGINE = [pytest.param(True, id="engine"), pytest.param(False, id="python")]
+
+
+def store_of(n: int = 100) -> DataStore:
+    store = DataStore()
+    store.holding_registers.add_range(0, [(i * 7) & 0xFFFF for i in range(n)])
+    store.input_registers.add_range(0, [(i * 11) & 0xFFFF for i in range(n)])
+    store.coils.add_range(0, [i % 3 == 0 for i in range(n)])
+    store.discrete_inputs.add_range(0, [i % 5 == 0 for i in range(n)])
+    return store
+
+
+class Served:
+    """A server on an event loop in a thread; ``calls``: the requests Python executed
+    (`Gateway._request`, counted on the way through)."""
+
+    def __init__(self, server: TcpServer) -> None:
+        self.server = server
+        self.loop = asyncio.new_event_loop()
+        self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
+        self.thread.start()
+        self.calls: list[bytes] = []
+        gateway = server._gateway
+        original = gateway._request
+
+        def counted(conn: Any, transaction: int, unit: int, pdu: bytes) -> None:
+            self.calls.append(pdu)
+            original(conn, transaction, unit, pdu)
+
+        gateway._request = counted  # type: ignore[method-assign]
+        self.run(server.start("127.0.0.1", 0))
+        assert server.address is not None
+        self.address = server.address
+        self.url = f"tcp://127.0.0.1:{server.address[1]}"
+
+    def run(self, coro: Any) -> Any:
+        return asyncio.run_coroutine_threadsafe(coro, self.loop).result(10)
+
+    def call(self, fn: Any) -> Any:
+        async def on_loop() -> Any:
+            return fn()
+
+        return self.run(on_loop())
+
+    def close(self) -> None:
+        self.run(self.server.close())
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self.thread.join(10)
+        self.loop.close()
+
+
+@pytest.fixture
+def serve() -> Iterator[Any]:
+    made: list[Served] = []
+
+    def start(server: TcpServer) -> Served:
+        s = Served(server)
+        made.append(s)
+        return s
+
+    yield start
+    for s in made:
+        s.close()
+
+
+def request(tid: int, unit: int, pdu: bytes) -> bytes:
+    return struct.pack(">HHHB", tid, 0, len(pdu) + 1, unit) + pdu
+
+
+def read_adu(sock: socket.socket) -> bytes:
+    head = b""
+    while len(head) < 7:
+        got = sock.recv(7 - len(head))
+        assert got, "the server closed the connection"
+        head += got
+    (length,) = struct.unpack_from(">H", head, 4)
+    body = b""
+    while len(body) < length - 1:
+        got = sock.recv(length - 1 - len(body))
+        assert got, "the server closed the connection"
+        body += got
+    return head + body
+
+
+def connect(address: tuple[str, int]) -> socket.socket:
+    s = socket.create_connection(address, timeout=5)
+    s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    return s
+
+
+@pytest.mark.parametrize("engine", ENGINE)
+def test_reads_of_the_four_tables(serve: Any, engine: bool) -> None:
+    store = store_of()
+    s = serve(TcpServer.for_store(1, store, engine=engine))
+    assert (s.server.engine_refused is None) == engine
+    with Master(s.url, timeout=2.0) as m:
+        for _ in range(3):
+            assert m.read_holding_registers(1, 3, 10) == [(i * 7) & 0xFFFF for i in range(3, 13)]
+            assert m.read_input_registers(1, 90, 10) == [(i * 11) & 0xFFFF for i in range(90, 100)]
+            assert m.read_coils(1, 5, 17) == [i % 3 == 0 for i in range(5, 22)]
+            assert m.read_discrete_inputs(1, 0, 100) == [i % 5 == 0 for i in range(100)]
+            assert m.read_holding_registers(255, 0, 1) == [0]  # the device itself
+    # the engine's reads never reached Python; without it, every one did
+    assert len(s.calls) == (0 if engine else 15)
+    stats = s.call(s.server.stats)
+    assert stats["requests"] == stats["answers"] == 15
+    assert stats["bus_transactions"] == [15]
+    # FC 11's event counter counts them too ([AP] 6.9: successful requests)
+    with Master(s.url, timeout=2.0) as m:
+        assert m.get_comm_event_counter(1)[1] == 15
+
+
+@pytest.mark.parametrize("engine", ENGINE)
+def test_what_the_engine_does_not_answer_python_does(serve: Any, engine: bool) -> None:
+    store = store_of()
+    written: list[tuple[int, list[int]]] = []
+    store.holding_registers.add_range(
+        200, [0, 0], on_write=lambda a, v: written.append((a, list(v)))
+    )
+    store.input_registers.add_range(300, [5], on_read=lambda a, n: None)
+    s = serve(TcpServer.for_store(1, store, engine=engine))
+    with Master(s.url, timeout=2.0) as m:
+        m.write_register(1, 200, 77)
+        assert written == [(200, [77])]
+        assert m.read_holding_registers(1, 200, 2) == [77, 0]
+        assert m.read_input_registers(1, 300, 1) == [5]  # a range with on_read: Python's
+        with pytest.raises(ExceptionResponseError) as e:
+            m.read_holding_registers(1, 99, 2)  # past the range: exception 2
+        assert e.value.code == 2
+        with pytest.raises(ExceptionResponseError) as e:
+            m.read_holding_registers(1, 150, 1)  # in no range
+        assert e.value.code == 2
+    handed = [p[0] for p in s.calls]
+    if engine:  # the write, the read of the held range, the two exceptions
+        assert handed == [6, 4, 3, 3]
+    else:
+        assert handed == [6, 3, 4, 3, 3]
+
+
+@pytest.mark.parametrize("engine", ENGINE)
+def test_quantity_bounds_exactly_at_them(serve: Any, engine: bool) -> None:
+    """[AP] 6.1/6.3: 1..2000 bits, 1..125 registers; one past is exception 3."""
+    store = DataStore()
+    store.holding_registers.add_range(0, [1] * 200)
+    store.coils.add_range(0, [True] * 2100)
+    s = serve(TcpServer.for_store(1, store, engine=engine))
+    sock = connect(s.address)
+    try:
+        for fc, quantity, expected in [
+            (3, 125, bytes([3, 250]) + b"\x00\x01" * 125),
+            (3, 126, bytes([0x83, 3])),
+            (3, 0, bytes([0x83, 3])),
+            (1, 2000, bytes([1, 250]) + b"\xff" * 250),
+            (1, 2001, bytes([0x81, 3])),
+        ]:
+            sock.sendall(request(9, 1, struct.pack(">BHH", fc, 0, quantity)))
+            answer = read_adu(sock)
+            assert answer[:2] == b"\x00\x09" and answer[6] == 1
+            assert answer[7:] == expected, (fc, quantity)
+    finally:
+        sock.close()
+
+
+@pytest.mark.parametrize("engine", ENGINE)
+def test_answers_keep_the_order_of_pipelined_requests(serve: Any, engine: bool) -> None:
+    """A write the engine hands to Python and the reads sent behind it in one segment:
+    the reads see the write, the answers come back in request order."""
+    s = serve(TcpServer.for_store(1, store_of(), engine=engine))
+    sock = connect(s.address)
+    try:
+        burst = b"".join(
+            [
+                request(1, 1, struct.pack(">BHH", 3, 10, 1)),
+                request(2, 1, struct.pack(">BHH", 6, 10, 4242)),
+                request(3, 1, struct.pack(">BHH", 3, 10, 1)),
+                request(4, 1, struct.pack(">BHH", 4, 0, 2)),
+                request(5, 1, struct.pack(">BHHBH", 16, 11, 1, 2, 99)),
+                request(6, 1, struct.pack(">BHH", 3, 10, 2)),
+            ]
+        )
+        sock.sendall(burst)
+        answers = [read_adu(sock) for _ in range(6)]
+    finally:
+        sock.close()
+    assert [struct.unpack_from(">H", a)[0] for a in answers] == [1, 2, 3, 4, 5, 6]
+    assert answers[0][7:] == bytes([3, 2]) + struct.pack(">H", 70)
+    assert answers[1][7:] == struct.pack(">BHH", 6, 10, 4242)
+    assert answers[2][7:] == bytes([3, 2]) + struct.pack(">H", 4242)
+    assert answers[3][7:] == bytes([4, 4]) + struct.pack(">HH", 0, 11)
+    assert answers[4][7:] == struct.pack(">BHH", 16, 11, 1)
+    assert answers[5][7:] == bytes([3, 4]) + struct.pack(">HH", 4242, 99)
+
+
+@pytest.mark.parametrize("engine", ENGINE)
+def test_a_change_made_under_the_lock_is_seen_whole(serve: Any, engine: bool) -> None:
+    """The owner changes two registers together, under the store's lock, while a
+    client reads both: it never sees one changed without the other."""
+    store = store_of()
+    s = serve(TcpServer.for_store(1, store, engine=engine))
+    stop = threading.Event()
+
+    def writer() -> None:
+        x = 0
+        while not stop.is_set():
+            x = (x + 1) & 0xFFFF
+            with store.lock:
+                store.holding_registers.set(20, x)
+                store.holding_registers.set(21, x)
+
+    t = threading.Thread(target=writer)
+    t.start()
+    seen = set()
+    try:
+        with Master(s.url, timeout=2.0) as m:
+            for _ in range(300):
+                a, b = m.read_holding_registers(1, 20, 2)
+                assert a == b
+                seen.add(a)
+    finally:
+        stop.set()
+        t.join(10)
+    assert len(seen) > 1  # (the values did change meanwhile)
+
+
+@pytest.mark.parametrize("engine", ENGINE)
+def test_listen_only_and_hooks_take_effect_at_once(serve: Any, engine: bool) -> None:
+    """FC 08 sub-function 04 ([AP] 6.8.1: listen-only mode) is executed by Python (a
+    TCP server's slave answers nothing to it: exception 0x0B from the gateway); the
+    read pipelined right behind it is Python's too, as every request while the mode
+    holds; a hook added later sees every request."""
+    store = store_of()
+    s = serve(TcpServer.for_store(1, store, engine=engine))
+    sock = connect(s.address)
+    try:
+        sock.sendall(
+            request(1, 1, struct.pack(">BHH", 8, 4, 0))
+            + request(2, 1, struct.pack(">BHH", 3, 0, 1))
+        )
+        first, second = read_adu(sock), read_adu(sock)
+    finally:
+        sock.close()
+    assert first == request(1, 1, bytes([0x88, 0x0B]))
+    assert second == request(2, 1, bytes([3, 2, 0, 0]))
+    assert [p[0] for p in s.calls] == [8, 3]
+    assert s.call(lambda: s.server.app.listen_only)
+    seen: list[bytes] = []
+    s.call(lambda: s.server.app.on_request(lambda unit, pdu: seen.append(pdu)))
+    s.call(lambda: setattr(s.server.app.line, "listen_only", False))
+    with Master(s.url, timeout=2.0) as m:
+        assert m.read_holding_registers(1, 1, 1) == [7]
+    assert seen == [bytes.fromhex("0300010001")]
+    assert [p[0] for p in s.calls] == [8, 3, 3]
+
+
+@pytest.mark.parametrize("engine", ENGINE)
+def test_a_bad_header_closes_that_connection_only(serve: Any, engine: bool) -> None:
+    s = serve(TcpServer.for_store(1, store_of(), engine=engine))
+    bad = connect(s.address)
+    with Master(s.url, timeout=2.0) as m:
+        bad.sendall(struct.pack(">HHHB", 1, 1, 6, 1) + struct.pack(">BHH", 3, 0, 1))  # protocol 1
+        bad.settimeout(5)
+        assert bad.recv(100) == b""  # closed
+        bad.close()
+        assert m.read_holding_registers(1, 2, 1) == [14]
+    counters = s.call(lambda: s.server.counters)
+    assert counters["bad_headers"] == 1
+
+
+@pytest.mark.parametrize("engine", ENGINE)
+def test_the_table_frees_closed_and_silent_connections(serve: Any, engine: bool) -> None:
+    """A client that closes leaves the table; one that stops talking is closed by the
+    idle timeout, one that sends half a request by the header timeout; a full
+    table gives the idle one's slot to a newcomer."""
+    limits = GatewayLimits(max_connections=2, idle_timeout=0.4, header_timeout=0.4)
+    s = serve(TcpServer.for_store(1, store_of(), limits, engine=engine))
+    a = connect(s.address)
+    a.sendall(request(1, 1, struct.pack(">BHH", 3, 0, 1)))
+    read_adu(a)
+    a.close()
+    deadline = time.monotonic() + 5
+    while s.call(lambda: s.server.stats()["open_connections"]) and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert s.call(lambda: s.server.stats()["open_connections"]) == 0
+    idle, half = connect(s.address), connect(s.address)
+    idle.sendall(request(2, 1, struct.pack(">BHH", 3, 0, 1)))
+    read_adu(idle)
+    half.sendall(request(3, 1, struct.pack(">BHH", 3, 0, 1))[:5])
+    idle.settimeout(5)
+    half.settimeout(5)
+    assert half.recv(10) == b""  # the header timeout
+    assert idle.recv(10) == b""  # the idle timeout
+    counters = s.call(lambda: s.server.counters)
+    assert counters["header_timeouts"] == 1 and counters["idle_timeouts"] == 1
+    idle.close()
+    half.close()
+
+
+@pytest.mark.parametrize("engine", ENGINE)
+def test_a_newcomer_takes_the_slot_of_the_idle_one(serve: Any, engine: bool) -> None:
+    limits = GatewayLimits(max_connections=1, idle_timeout=0, header_timeout=0)
+    s = serve(TcpServer.for_store(1, store_of(), limits, engine=engine))
+    old = connect(s.address)
+    old.sendall(request(1, 1, struct.pack(">BHH", 3, 0, 1)))
+    read_adu(old)
+    with Master(s.url, timeout=2.0) as m:
+        assert m.read_holding_registers(1, 3, 1) == [21]
+    old.settimeout(5)
+    assert old.recv(10) == b""
+    old.close()
+    assert s.call(lambda: s.server.counters)["evicted"] == 1
+
+
+@pytest.mark.parametrize("engine", ENGINE)
+def test_an_async_master_pipelining_reads_and_writes(serve: Any, engine: bool) -> None:
+    store = store_of()
+    s = serve(TcpServer.for_store(1, store, engine=engine))
+
+    async def go() -> list[Any]:
+        async with AsyncMaster(s.url, timeout=2.0, max_in_flight=8) as m:
+            out: list[Any] = []
+            for k in range(20):
+                out += await asyncio.gather(
+                    m.write_register(1, 50, k),
+                    m.read_holding_registers(1, 50, 1),
+                    m.read_input_registers(1, 1, 2),
+                    m.read_coils(1, 0, 4),
+                )
+            return out
+
+    got = asyncio.run(go())
+    for k in range(20):
+        assert got[4 * k + 1] == [k]  # the write ahead of it, on the same connection
+        assert got[4 * k + 2] == [11, 22]
+        assert got[4 * k + 3] == [True, False, False, True]
+    assert store.holding_registers.get(50) == 19
+
+
+def test_engine_refused_says_why() -> None:
+    assert TcpServer.for_store(1, store_of(), engine=False).engine_refused == "engine=False"
+    twin = TcpServer.for_store(1, store_of(), backend="python")
+    assert twin.engine_refused == "the slave runs on the pure-Python backend"
+    custom = TcpServer.for_store(1, store_of())
+    assert custom.engine_refused is None
+    with pytest.raises(TypeError, match="engine"):
+        TcpServer.for_store(1, store_of(), engine=1)  # type: ignore[arg-type]
+
+
+def _threads() -> int:
+    return len(os.listdir("/proc/self/task"))
+
+
+def test_the_servers_of_a_loop_share_one_engine_that_stops_with_the_last(serve: Any) -> None:
+    before = _threads()
+    first = serve(TcpServer.for_store(1, store_of()))
+    second = TcpServer.for_store(2, store_of(10))
+    first.run(second.start("127.0.0.1", 0))
+    assert _threads() == before + 2  # the loop's thread and one engine, not two
+    engines = [s._gateway.engine for s in (first.server, second)]
+    assert engines[0] is not None and engines[1] is not None
+    assert engines[0].engine is engines[1].engine
+    assert second.address is not None
+    with Master(first.url, timeout=2.0) as a, Master(
+        f"tcp://127.0.0.1:{second.address[1]}", timeout=2.0
+    ) as b:
+        assert a.read_holding_registers(1, 1, 1) == [7]
+        assert b.read_holding_registers(2, 9, 1) == [63]
+        with pytest.raises(ExceptionResponseError):
+            b.read_holding_registers(1, 0, 1)  # unit 1 is the first server's, not its
+    first.run(second.close())
+    assert not engines[0].engine.closed  # the first server still uses it
+    first.run(first.server.close())
+    assert engines[0].engine.closed
+    assert _threads() == before + 1  # the engine's thread joined
