@@ -21,7 +21,13 @@ bench/bench_tcp_master.py), on 127.0.0.1; every client reads 10 holding register
   requests in order, but its accepted socket keeps Nagle's algorithm on, so each
   batch's later answers wait for the client's delayed ACK: about 40 ms a batch;
   this row reads N / 25 per round to keep the run short, CPU still per transaction);
-* ``pymodbus async``: ``await AsyncModbusTcpClient.read_holding_registers``.
+* ``pymodbus async``: ``await AsyncModbusTcpClient.read_holding_registers``;
+* ``asyncio floor``: not a Modbus client, the floor under any client that awaits
+  each answer on an asyncio event loop: a bare ``asyncio.Protocol`` writing the
+  request (built once with ``struct``, its transaction id counted) and a future
+  resolved in ``data_received`` once the whole answer is in, the answer compared
+  with the one the pattern gives.  What it costs is the event loop's and the
+  kernel's alone.
 
 Every asyncio client runs on asyncio's default event loop (``asyncio.new_event_loop``),
 one loop per client; CPU is this process's (``time.process_time``) over the
@@ -35,6 +41,7 @@ from __future__ import annotations
 
 import asyncio
 import os
+import struct
 import sys
 import time
 from collections.abc import Awaitable, Callable, Iterator
@@ -202,3 +209,57 @@ def test_pymodbus_async(
         _rounds(benchmark, lambda: _timed(loop, batch))
     finally:
         loop.run_until_complete(stop())
+
+
+def test_asyncio_floor(
+    benchmark: Any, server: tuple[str, int], loop: asyncio.AbstractEventLoop
+) -> None:
+    host, port = server
+    # [TCP] 3.1.3 / [AP] 6.3: the read and its answer, built here from the pattern
+    pdu = struct.pack(">BHH", 3, ADDRESS, COUNT)
+    tail = struct.pack(">HHB", 0, 1 + len(pdu), UNIT) + pdu
+    answer_pdu = struct.pack(f">BB{COUNT}H", 3, 2 * COUNT, *EXPECTED)
+    answer_tail = struct.pack(">HHB", 0, 1 + len(answer_pdu), UNIT) + answer_pdu
+    size = 2 + len(answer_tail)
+
+    class Floor(asyncio.Protocol):
+        def __init__(self) -> None:
+            self.got = b""
+            self.done: asyncio.Future[bytes] | None = None
+
+        def connection_made(self, transport: asyncio.BaseTransport) -> None:
+            assert isinstance(transport, asyncio.Transport)
+            self.transport = transport
+
+        def data_received(self, data: bytes) -> None:
+            self.got += data
+            if len(self.got) >= size and self.done is not None:
+                self.done.set_result(self.got)
+                self.got = b""
+
+    async def connect() -> tuple[asyncio.Transport, Floor]:
+        t, p = await loop.create_connection(Floor, host, port)
+        return t, p
+
+    transport, floor = loop.run_until_complete(connect())
+    tid = 0
+
+    async def read() -> None:
+        nonlocal tid
+        tid = (tid + 1) & 0xFFFF
+        head = struct.pack(">H", tid)
+        floor.done = loop.create_future()
+        transport.write(head + tail)
+        got = await floor.done
+        assert got == head + answer_tail, got
+
+    async def warm() -> None:
+        for _ in range(WARMUP):
+            await read()
+
+    try:
+        loop.run_until_complete(warm())
+        _rounds(benchmark, lambda: _timed(loop, read))
+    finally:
+        transport.close()
+        loop.run_until_complete(asyncio.sleep(0.05))  # (the server takes one client at a time)

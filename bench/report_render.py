@@ -511,6 +511,10 @@ TCP_ASYNC_ROWS = {
         "(1/25 of the reads: libmodbus's server answers a batch in about 40 ms, Nagle)"
     ),
     "test_pymodbus_async": "pymodbus `AsyncModbusTcpClient`",
+    "test_asyncio_floor": (
+        "the floor: asyncio's round trip alone (a bare Protocol writing the request, "
+        "a future resolved with the answer; no Modbus)"
+    ),
 }
 
 
@@ -624,6 +628,9 @@ TCP_SERVER_ROWS = {
     "test_server[libmodbus]": "libmodbus C server",
     "test_server[pyrtu]": "pyrtu `TcpServer`, C core",
     "test_server[pymodbus]": "pymodbus `ModbusTcpServer` (asyncio)",
+    "test_server[floor]": (
+        "the floor: asyncio's alone (a bare Protocol writing the one answer, built once; no Modbus)"
+    ),
 }
 
 

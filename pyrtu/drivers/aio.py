@@ -28,12 +28,14 @@ late answer may come, and the next transaction waits it out before sending;
 the port would transmit over it).
 
 A port that fails is closed and reopened at a later request on the back-off, as
-`pyrtu.Master`'s (`pyrtu.drivers.master.SerialLink.ready`).
+`pyrtu.Master`'s (`pyrtu.drivers.master.SerialLink.ready`); an ``rtu+tcp://``
+connection is made again the same way, its connect on a worker thread.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import functools
 import sys
 import time
@@ -78,6 +80,10 @@ class AsyncMaster(MasterBase):
         self._serial_link = link
         self._proto = link.proto
         self._fd = link.port.fd
+        #: the port ``_fd`` is of (the link reopens a port that failed: a new one)
+        self._known_port = link.port
+        #: the link's reopen on a worker thread (`_ready`)
+        self._reopening: asyncio.Future[None] | None = None
         # a repeated request's Xfer on a thread of the backend's (see _submit)
         self._ax: xfer.AsyncXferRunner | None = None
         self._ax_call: Callable[[xfer.XferResult], None] | None = None
@@ -226,7 +232,8 @@ class AsyncMaster(MasterBase):
         async with self._lock:
             link = self._serial_link
             if self.port.closed:  # closed by the user, or it failed
-                link.ready()  # `PortError`, or the port reopened (`LinkRevival`)
+                await self._ready(link)  # `PortError`, or the port reopened (`LinkRevival`)
+            if link.port is not self._known_port:
                 self._reopened()
             try:
                 return await self._run_call(call)
@@ -234,9 +241,30 @@ class AsyncMaster(MasterBase):
                 link.failed()  # (its reader and timers are gone: the port may close)
                 raise
 
+    async def _ready(self, link: SerialLink) -> None:
+        """`SerialLink.ready`; a reopen that waits on the network (an ``rtu+tcp://``
+        connect) runs on a worker thread, not holding up the loop: a cancel leaves
+        it to end there, and the next request (or `close`) waits for it."""
+        loop = asyncio.get_running_loop()
+        fut = self._reopening
+        if fut is None or fut.done() or fut.get_loop() is not loop:
+            if not (link.reopen_blocks and link.reopen_due()):
+                link.ready()  # (no attempt due, or one that does not wait)
+                return
+            fut = self._reopening = loop.run_in_executor(None, link.ready)
+        await asyncio.shield(fut)
+
+    async def _reopen_over(self) -> None:
+        """Wait for a reopen a cancelled request left on its worker thread (its port
+        is closed with the master's, not left open after it)."""
+        fut, self._reopening = self._reopening, None
+        if fut is not None and not fut.done() and fut.get_loop() is asyncio.get_running_loop():
+            with contextlib.suppress(Exception):
+                await asyncio.shield(fut)
+
     def _reopened(self) -> None:
         """The link reopened its port after it failed: the new descriptor."""
-        port = self.port
+        port = self._known_port = self.port
         self._fd = port.fd
         self._inflight = None  # (a thread read of the old port, failed with it)
         if self._fd is None and self._reader is None:
@@ -355,6 +383,7 @@ class AsyncMaster(MasterBase):
             return
         async with self._lock:
             await self._xfer_over()
+            await self._reopen_over()
             if not self.port.closed:  # (a port that failed was closed then)
                 await self._late_answer_over()
             self._close_now()

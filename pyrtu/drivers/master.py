@@ -37,7 +37,9 @@ A port that fails (a USB adapter pulled out: EIO) is closed and reopened at a la
 request, the same path with the same line and options, on the back-off of
 `pyrtu.drivers.reconnect` (`SerialLink.ready`, `pyrtu.drivers.links.LinkRevival`); a
 request while it is away raises `PortError` at once, saying when the next attempt is.
-A pyserial object handed in is the caller's: not reopened.
+An ``rtu+tcp://`` connection the device server closed or reset is made again the same
+way (`RtuOverTcpLink`), as a ``tcp://`` link reconnects.  A pyserial object handed in
+is the caller's: not reopened.
 """
 
 from __future__ import annotations
@@ -96,7 +98,7 @@ class SerialLink:
         cls, port: Any, line: LineConfig, options: dict[str, Any], max_in_flight: int
     ) -> SerialLink:
         """The link of `pyrtu.drivers.links.TRANSPORTS` (``tls`` is None here)."""
-        return SerialLink(port, line, **{k: v for k, v in options.items() if k != "tls"})
+        return cls(port, line, **{k: v for k, v in options.items() if k != "tls"})
 
     def __init__(
         self,
@@ -110,28 +112,41 @@ class SerialLink:
         broadcast_delay: float,
         backend: str | None,
         exclusive: bool,
+        opener: Callable[[LineConfig], Port] | None = None,
     ) -> None:
         be = self._backend = _backend.backend(backend)
-        self.port: Port = open_line_port(port, line, rs485, exclusive)
-        self.proto = ClientProtocol(
-            adopt_port_format(line, self.port),
-            timeout=timeout,
-            retries=retries,
-            echo=bool(echo),
-            broadcast_delay=broadcast_delay,
-            backend=be,
+        #: opens the port with a line's format, again after it failed: the same path
+        #: (or ``rtu+tcp://`` URL: `RtuOverTcpLink`) and options (None: a pyserial object
+        #: the user opened, not ours to open again)
+        self._opener = opener
+        if opener is None and isinstance(port, str):
+            path = port
+            self._opener = lambda cfg: open_line_port(path, cfg, rs485, exclusive)
+        opened = self._opener
+        self.port: Port = (
+            open_line_port(port, line, rs485, exclusive) if opened is None else opened(line)
         )
+        try:
+            self.proto = ClientProtocol(
+                adopt_port_format(line, self.port),
+                timeout=timeout,
+                retries=retries,
+                echo=bool(echo),
+                broadcast_delay=broadcast_delay,
+                backend=be,
+            )
+        except BaseException:
+            self.port.close()  # (an option refused: a port opened for it goes)
+            raise
         #: a repeated request's xfer: its transaction in one call (see pyrtu.drivers.sync_io)
         self.xfer_runner = xfer_runners.xfer_runner(be) if self.port.fd is not None else None
-        #: the port opened again after it failed: the same path, line and options
-        #: (None: a pyserial object the user opened, not ours to open again)
-        self._opener: Callable[[], Port] | None = None
-        if isinstance(port, str):
-            path = port
-            self._opener = lambda: open_line_port(path, self.proto.line, rs485, exclusive)
         #: whether the port failed (closed, reopened at a later request on the back-off)
         self.broken = False
         self._revive = LinkRevival(self.port.name, verb="reopen", down="not open")
+
+    #: whether reopening the port waits on the network (an asyncio master does it
+    #: on a worker thread, not on its event loop)
+    reopen_blocks = False
 
     line = _of_proto("line")
     t35 = _of_proto("gap")
@@ -186,6 +201,12 @@ class SerialLink:
         if self.broken:
             self._revive.attempt(self._reopen)
 
+    def reopen_due(self) -> bool:
+        """Whether `ready` would try to reopen the port now (it failed, and its next
+        attempt is due), not return or raise at once."""
+        revive = self._revive
+        return self.broken and not revive.closed and revive.reconnect.due(_monotonic())
+
     def failed(self) -> None:
         """A transaction failed with `PortError` (the device gone: EIO...): the port is
         closed, to be reopened at a later request (not a pyserial object the user
@@ -196,7 +217,7 @@ class SerialLink:
 
     def _reopen(self) -> None:
         assert self._opener is not None
-        self.port = self._opener()
+        self.port = self._opener(self.proto.line)
         self.broken = False
         if self.port.fd is not None and self.xfer_runner is None:
             self.xfer_runner = xfer_runners.xfer_runner(self._backend)
@@ -214,21 +235,36 @@ class SerialLink:
 
 
 class RtuOverTcpLink(SerialLink):
-    """``rtu+tcp://host:port``: the serial link's RTU frames over a TCP socket."""
+    """``rtu+tcp://host:port``: the serial link's RTU frames over a TCP socket.  A
+    connection that fails (the device server closed or reset it, or is unreachable)
+    is closed and made again at a later request, to the same URL with the same line
+    and options, on the back-off (`SerialLink.ready`, `LinkRevival`), as a ``tcp://``
+    link reconnects."""
+
+    reopen_blocks = True  # a connect: up to pyserial's socket:// timeout
 
     @classmethod
     def open(
         cls, port: Any, line: LineConfig, options: dict[str, Any], max_in_flight: int
     ) -> SerialLink:
-        from pyrtu.tcp import rtu_over_tcp  # (loads the TCP module only when used)
+        url: str = port
+        rs485, exclusive = options["rs485"], options["exclusive"]
 
-        sock = rtu_over_tcp(port)
-        try:
-            link = super().open(sock, line, options, max_in_flight)
-        except BaseException:
-            sock.close()  # (an option refused: the connection made for it goes)
-            raise
-        link.port.owned = True  # made here, not handed in: the master's close closes it
+        def connect(cfg: LineConfig) -> Port:
+            from pyrtu.tcp import rtu_over_tcp  # (loads the TCP module only when used)
+
+            sock = rtu_over_tcp(url)
+            try:
+                opened = open_line_port(sock, cfg, rs485, exclusive)
+            except BaseException:
+                sock.close()  # (an option refused: the connection made for it goes)
+                raise
+            opened.owned = True  # made here, not handed in: the master's close closes it
+            return opened
+
+        options = {k: v for k, v in options.items() if k != "tls"}
+        link = cls(url, line, opener=connect, **options)
+        link._revive = LinkRevival(url)  # as a tcp:// link's: "reconnect", "not connected"
         return link
 
     @staticmethod

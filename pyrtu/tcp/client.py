@@ -36,6 +36,7 @@ from urllib.parse import urlsplit
 
 import serial
 from serial.urlhandler.protocol_socket import POLL_TIMEOUT
+from serial.urlhandler.protocol_socket import Serial as _PySerialSocket
 
 from pyrtu.core import _backend
 from pyrtu.core import _tls as _ctls
@@ -135,13 +136,34 @@ def parse_rtu_tcp_url(url: str) -> tuple[str, int]:
     return parse_tcp_url(url, (RTU_TCP_SCHEME,))
 
 
+class _SocketLine(_PySerialSocket):  # type: ignore[misc]  # (pyserial is untyped)
+    """pyserial's ``socket://`` whose close does not sleep: pyserial's sleeps 0.3 s
+    after it ("in case of quick reconnects"), on the caller's thread, an asyncio
+    master's event loop when a device server goes away; a master reconnects on its
+    own back-off (`pyrtu.drivers.links.LinkRevival`)."""
+
+    _socket: socket.socket | None
+    is_open: bool
+
+    def close(self) -> None:
+        sock = self._socket
+        if self.is_open and sock is not None:
+            self._socket = None
+            try:
+                sock.shutdown(socket.SHUT_RDWR)
+            except OSError:  # (the peer reset it, or it never connected)
+                pass
+            sock.close()
+        self.is_open = False
+
+
 def rtu_over_tcp(url: str) -> Any:
     """A pyserial object over TCP for ``rtu+tcp://host[:port]``: RTU frames (CRC kept)
     to a serial device server; no wire timing, so use it with ``t35=0``."""
     host, port = parse_rtu_tcp_url(url)
     netloc = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
     try:
-        link = serial.serial_for_url(f"socket://{netloc}", timeout=0)
+        link = _SocketLine(f"socket://{netloc}", timeout=0)
     except (serial.SerialException, OSError) as exc:
         raise connect_error(url, exc, _SOCKET_CONNECT_TIMEOUT) from exc
     set_nodelay(getattr(link, "_socket", None))  # pyserial's socket:// does not
