@@ -28,7 +28,10 @@ hooks, while its gateway has a policy, an audit trail or a latency observer
 
 `EngineConnection` is the listener's protocol: accepted by asyncio as any
 connection, then its reading paused and a duplicate of its socket handed to the
-engine; asyncio's transport stays for closing it.
+engine; asyncio's transport stays for closing it.  A connection accepted while its
+server hands everything to Python (a drive simulator's ``on_request`` hook, that
+runs its model at every telegram, or a policy) is served by asyncio alone, as
+without an engine: the engine would only add a hop.
 """
 
 from __future__ import annotations
@@ -36,27 +39,28 @@ from __future__ import annotations
 import asyncio
 import logging
 import os
+import threading
 import weakref
 from collections.abc import Callable, Mapping
-from typing import Any, Protocol
+from typing import Any, ClassVar, Protocol
 
 from pyrtu.core import _backend
 from pyrtu.core.mbap import MBAP_HEADER
 from pyrtu.drivers.slave_base import SlaveBase
 from pyrtu.protocol._image import StoreImage, available
-
 from pyrtu.security.audit import AuditTrail
 from pyrtu.security.policy import Policy
 
 from ._conn import Owner, _Connection, _reset
 
 
-class Gateway(Owner, Protocol):
+class EngineOwner(Owner, Protocol):
     """What the engine asks of the gateway (`pyrtu.gateway.gateway.Gateway`)."""
 
     policy: Policy | None
     audit: AuditTrail | None
     on_latency: Callable[[str, int, float], None] | None
+
 
 log = logging.getLogger("pyrtu.gateway")
 
@@ -89,7 +93,7 @@ def eligible(app: object) -> str | None:
 class Engine:
     """One rtu_serve thread for the TcpServers of an event loop (`of`)."""
 
-    _by_loop: weakref.WeakKeyDictionary[asyncio.AbstractEventLoop, Engine] = (
+    _by_loop: ClassVar[weakref.WeakKeyDictionary[asyncio.AbstractEventLoop, Engine]] = (
         weakref.WeakKeyDictionary()
     )
 
@@ -193,17 +197,21 @@ class ServerEngine:
 
     def __init__(
         self,
-        owner: Gateway,
+        owner: EngineOwner,
         app: SlaveBase,
         units: Mapping[int, int],
-        count_bus: Callable[[int], None],
     ) -> None:
         c = _backend.C
         assert c is not None
         ffi = c.ffi
         self.owner = owner
         self.app = app
-        self._count_bus = count_bus
+        #: what the engine answered on this server's connections, by function too
+        #: (`sync`; from any thread: under ``_figures``)
+        self.answered = 0
+        self.by_function = [0] * 5
+        self._figures = threading.RLock()
+        self._on_line = [0] * 5  # (of by_function: counted in the slave's event counter)
         self.engine = Engine.of(asyncio.get_running_loop())
         self.engine.users += 1
         self.closed = False
@@ -236,22 +244,34 @@ class ServerEngine:
             for conn in self.conns:
                 conn.defer(defer)
 
-    def count(self, answered: int, by_function: list[int]) -> None:
-        """What the engine answered for one of this server's connections: into the
-        gateway's counters, the bus's transactions, the slave's event counter."""
-        counters = self.owner.counters
-        counters["requests"] += answered
-        counters["answers"] += answered
-        self._count_bus(answered)
-        line = self.app.line
-        for fc in READS:
-            if by_function[fc]:
-                line.completed(fc, by_function[fc])
-
     def sync(self) -> None:
-        """Bring the figures up to date (`count` for every connection's news)."""
-        for conn in self.conns:
-            conn.sync()
+        """Bring ``answered`` and ``by_function`` up to date (any thread)."""
+        with self._figures:
+            for conn in list(self.conns):
+                conn.sync()
+
+    def merge(self, figures: dict[str, Any]) -> None:
+        """Add what the engine answered to the gateway's ``figures`` (its counters or
+        `Gateway.stats`): requests, answers, the bus's transactions (any thread)."""
+        self.sync()
+        answered = self.answered
+        if "requests" in figures:
+            figures["requests"] += answered
+            figures["answers"] += answered
+        if "bus_transactions" in figures:
+            figures["bus_transactions"] = [figures["bus_transactions"][0] + answered]
+
+    def count_on_line(self) -> None:
+        """The slave's event counter (FC 11) brought up to date with the engine's
+        answers (any thread; the loop's before it executes a request)."""
+        with self._figures:
+            self.sync()
+            line = self.app.line
+            for fc in READS:
+                n = self.by_function[fc] - self._on_line[fc]
+                if n:
+                    self._on_line[fc] += n
+                    line.completed(fc, n)
 
     def refresh(self) -> None:
         """Every connection's liveness from the engine (before a sweep or eviction)."""
@@ -273,7 +293,7 @@ class EngineConnection(_Connection):
     asyncio's transport, paused, stays to close it (and serves it when the engine
     has no slot free)."""
 
-    def __init__(self, gateway: Gateway, server: ServerEngine) -> None:
+    def __init__(self, gateway: EngineOwner, server: ServerEngine) -> None:
         super().__init__(gateway)
         self.server = server
         self.slot: int | None = None
@@ -288,8 +308,11 @@ class EngineConnection(_Connection):
         if sock is None:
             return  # (no socket to share: served by this protocol, as any connection)
         assert isinstance(transport, asyncio.Transport)
-        transport.pause_reading()
         server = self.server
+        server.defer_if_needed()
+        if server.deferring:
+            return  # (every request would be Python's: served by this protocol, no hop)
+        transport.pause_reading()
         self.slot = server.engine.attach(
             self, os.dup(sock.fileno()), server.routes, server.deferring
         )
@@ -308,7 +331,7 @@ class EngineConnection(_Connection):
             transaction, _, _, unit = MBAP_HEADER.unpack_from(adu)
             if log.isEnabledFor(logging.DEBUG):
                 log.debug("connection %d: RX unit %d: %s", self.id, unit, adu.hex(" "))
-            self.server.sync()  # (FC 11's event counter, as it stands)
+            self.server.count_on_line()  # (FC 11's event counter, as it stands)
             try:
                 gateway._request(self, transaction, unit, adu[7:])
             except Exception:  # (a fault of the gateway's: as asyncio's transport does
@@ -349,18 +372,24 @@ class EngineConnection(_Connection):
             self.server.engine.defer(self.slot, on)
 
     def sync(self) -> None:
-        """What the engine answered on this connection since the last call, counted."""
-        if self.slot is None:
+        """What the engine answered on this connection since the last call, added to
+        its server's figures (under the server's ``_figures`` lock)."""
+        slot = self.slot
+        if slot is None:
             return
-        st = self.server.engine.state(self.slot)
+        engine = self.server.engine
+        st = engine._ffi.new("rtu_serve_conn_state *")  # (its own: any thread)
+        if engine._lib.rtu_serve_conn(engine._s, slot, st) != 0:
+            return  # (detached meanwhile: counted then)
         answered = int(st.answered) - self._seen
         if answered:
             self._seen += answered
-            news = [0] * 5
+            server = self.server
+            server.answered += answered
             for fc in READS:
-                news[fc] = int(st.by_function[fc]) - self._seen_by_function[fc]
-                self._seen_by_function[fc] += news[fc]
-            self.server.count(answered, news)
+                n = int(st.by_function[fc]) - self._seen_by_function[fc]
+                self._seen_by_function[fc] += n
+                server.by_function[fc] += n
 
     def refresh(self) -> None:
         """The liveness the engine saw: its last complete request, the request it is
@@ -384,10 +413,12 @@ class EngineConnection(_Connection):
 
     def _detach(self) -> None:
         if self.slot is not None:
-            self.sync()  # (its last figures, before the engine forgets them)
-            self.server.conns.discard(self)
-            self.server.engine.detach(self.slot)
-            self.slot = None
+            server = self.server
+            with server._figures:  # (its last figures, before the engine forgets them)
+                self.sync()
+                server.conns.discard(self)
+                server.engine.detach(self.slot)
+                self.slot = None
 
     def close(self) -> None:
         self._detach()

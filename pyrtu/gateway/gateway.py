@@ -552,9 +552,7 @@ class Gateway:
 
     def stats(self) -> dict[str, object]:
         """Counters, open connections, queue lengths and bus occupancy."""
-        if self.engine is not None:
-            self.engine.sync()
-        return {
+        stats: dict[str, object] = {
             **self.counters,
             "open_connections": len(self._connections),
             "queued": [len(s.queue) for s in self._buses],
@@ -565,6 +563,10 @@ class Gateway:
             "denied_by": dict(self.denied_by),
             "unsent_bytes": sum(c.unsent() for c in self._connections.values()),
         }
+        if self.engine is not None:
+            self.engine.count_on_line()
+            self.engine.merge(stats)
+        return stats
 
     def bus_names(self) -> list[str]:
         """The buses' names, in the order of `stats`' per-bus lists."""
@@ -635,7 +637,7 @@ class Gateway:
         lim = self.limits
         if self.engine is not None:
             self.engine.refresh()
-            self.engine.sync()
+            self.engine.count_on_line()
             self.engine.defer_if_needed()
         for conn in list(self._connections.values()):
             why = conn.live.expired(now, lim.header_timeout, lim.idle_timeout)

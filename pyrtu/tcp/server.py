@@ -147,11 +147,7 @@ class TcpServer(AsyncClosing):
         if self.engine_refused is None:
             assert isinstance(app, SlaveBase)
             gateway = self._gateway
-
-            def count_bus(n: int) -> None:
-                gateway._buses[0].transactions += n
-
-            gateway.engine_factory = lambda: ServerEngine(gateway, app, units, count_bus)
+            gateway.engine_factory = lambda: ServerEngine(gateway, app, units)
 
     @classmethod
     def for_store(
@@ -182,7 +178,11 @@ class TcpServer(AsyncClosing):
 
     @property
     def counters(self) -> dict[str, int]:
-        return dict(self._gateway.counters)
+        counters = dict(self._gateway.counters)
+        engine = self._gateway.engine
+        if engine is not None:
+            engine.merge(counters)
+        return counters
 
     def stats(self) -> dict[str, object]:
         """The gateway's `Gateway.stats`: counters, open connections (on the loop)."""

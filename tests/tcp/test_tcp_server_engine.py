@@ -389,9 +389,10 @@ def test_the_servers_of_a_loop_share_one_engine_that_stops_with_the_last(serve: 
     assert engines[0] is not None and engines[1] is not None
     assert engines[0].engine is engines[1].engine
     assert second.address is not None
-    with Master(first.url, timeout=2.0) as a, Master(
-        f"tcp://127.0.0.1:{second.address[1]}", timeout=2.0
-    ) as b:
+    with (
+        Master(first.url, timeout=2.0) as a,
+        Master(f"tcp://127.0.0.1:{second.address[1]}", timeout=2.0) as b,
+    ):
         assert a.read_holding_registers(1, 1, 1) == [7]
         assert b.read_holding_registers(2, 9, 1) == [63]
         with pytest.raises(ExceptionResponseError):
@@ -401,3 +402,19 @@ def test_the_servers_of_a_loop_share_one_engine_that_stops_with_the_last(serve: 
     first.run(first.server.close())
     assert engines[0].engine.closed
     assert _threads() == before + 1  # the engine's thread joined
+
+
+def test_a_server_that_hands_everything_to_python_serves_without_the_engine(serve: Any) -> None:
+    """A slave with an ``on_request`` hook (as `pyrtu simulate`'s drives have) when the
+    client connects: its connection is asyncio's, as without an engine."""
+    server = TcpServer.for_store(1, store_of())
+    seen: list[bytes] = []
+    server.app.on_request(lambda unit, pdu: seen.append(pdu))
+    s = serve(server)
+    engine = s.server._gateway.engine
+    assert engine is not None
+    with Master(s.url, timeout=2.0) as m:
+        assert m.read_holding_registers(1, 2, 1) == [14]
+        assert s.call(lambda: len(engine.conns)) == 0  # connected, not the engine's
+        assert s.call(lambda: s.server.stats()["open_connections"]) == 1
+    assert seen == [bytes.fromhex("0300020001")]
