@@ -626,7 +626,7 @@ def tcpasync_targets(data: Data) -> list[tuple[str, str]]:
 #: bench/bench_tcp_server.py's rows: pytest-benchmark name -> the server it measures
 TCP_SERVER_ROWS = {
     "test_server[libmodbus]": "libmodbus C server",
-    "test_server[pyrtu]": "pyrtu `TcpServer`, C core",
+    "test_server[pyrtu]": "pyrtu `TcpServer`, C core (its engine: no Python per read)",
     "test_server[pymodbus]": "pymodbus `ModbusTcpServer` (asyncio)",
     "test_server[floor]": (
         "the floor: asyncio's alone (a bare Protocol writing the one answer, built once; no Modbus)"
