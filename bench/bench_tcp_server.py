@@ -11,7 +11,8 @@ in turn, each in a process of its own on a free 127.0.0.1 port:
 
 * ``libmodbus``: tests/peers/libmodbus_server.c (``modbus_receive`` /
   ``modbus_reply``, one connection at a time), as the master benchmarks use;
-* ``pyrtu``: ``TcpServer.for_store`` (pyrtu.tcp.server) on the C core, serving a
+* ``pyrtu``: ``TcpServer.for_store`` (pyrtu.tcp.server) on the C core (its engine
+  answers the reads in C, no Python per request), serving a
   DataStore of the pattern (bench/run_tcp_server.py ``pyrtu``);
 * ``pymodbus``: pymodbus's asyncio ``ModbusTcpServer`` serving the same tables
   (bench/run_tcp_server.py ``pymodbus``); both Python servers on asyncio's default
