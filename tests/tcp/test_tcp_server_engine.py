@@ -9,12 +9,14 @@ with requests built here with ``struct`` ([TCP] 3.1.3, [AP] 6.1-6.6)."""
 from __future__ import annotations
 
 import asyncio
+import logging
 import os
 import socket
 import struct
 import threading
 import time
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -380,11 +382,11 @@ def _threads() -> int:
 
 
 def test_the_servers_of_a_loop_share_one_engine_that_stops_with_the_last(serve: Any) -> None:
-    before = _threads()
     first = serve(TcpServer.for_store(1, store_of()))
+    with_one = _threads()  # (with the first server's engine)
     second = TcpServer.for_store(2, store_of(10))
     first.run(second.start("127.0.0.1", 0))
-    assert _threads() == before + 2  # the loop's thread and one engine, not two
+    assert _threads() == with_one  # no second engine
     engines = [s._gateway.engine for s in (first.server, second)]
     assert engines[0] is not None and engines[1] is not None
     assert engines[0].engine is engines[1].engine
@@ -401,7 +403,7 @@ def test_the_servers_of_a_loop_share_one_engine_that_stops_with_the_last(serve: 
     assert not engines[0].engine.closed  # the first server still uses it
     first.run(first.server.close())
     assert engines[0].engine.closed
-    assert _threads() == before + 1  # the engine's thread joined
+    assert _threads() == with_one - 1  # the engine's thread joined
 
 
 def test_a_server_that_hands_everything_to_python_serves_without_the_engine(serve: Any) -> None:
@@ -418,3 +420,143 @@ def test_a_server_that_hands_everything_to_python_serves_without_the_engine(serv
         assert s.call(lambda: len(engine.conns)) == 0  # connected, not the engine's
         assert s.call(lambda: s.server.stats()["open_connections"]) == 1
     assert seen == [bytes.fromhex("0300020001")]
+
+
+def test_a_slave_whose_reads_are_its_own_is_not_served_by_the_engine() -> None:
+    custom = TcpServer.for_store(1, store_of())
+    custom.app.register_function(3, lambda slave, unit, pdu: bytes([3, 2, 0, 1]))
+    assert TcpServer(custom.app).engine_refused == "function 3 is the application's own"
+    narrow = TcpServer.for_store(1, store_of(), functions={3, 4, 6, 16})
+    assert narrow.engine_refused == "function 1 is not served"
+
+
+@pytest.mark.parametrize("engine", ENGINE)
+def test_a_client_that_never_reads_its_answers_is_reset(serve: Any, engine: bool) -> None:
+    """The gateway's ``slow_clients``: a client that sends and never reads is reset,
+    with the engine as without it; the others go on."""
+    s = serve(TcpServer.for_store(1, store_of(), engine=engine))
+    stuck = socket.socket()
+    stuck.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1024)
+    stuck.connect(s.address)
+    stuck.setblocking(False)
+    burst = request(1, 1, struct.pack(">BHH", 3, 0, 125)) * 64  # 259-byte answers
+    view, at, reset = memoryview(burst), 0, False
+    give_up = time.monotonic() + 30
+    while time.monotonic() < give_up and not reset:
+        try:
+            at = (at + stuck.send(view[at:])) % len(burst)  # (whole requests, in order)
+        except BlockingIOError:
+            time.sleep(0.005)
+        except (ConnectionResetError, BrokenPipeError):
+            reset = True
+    stuck.close()
+    assert reset, "the client that never reads was not reset"
+    assert s.call(lambda: s.server.counters)["slow_clients"] == 1
+    with Master(s.url, timeout=2.0) as m:
+        assert m.read_holding_registers(1, 4, 1) == [28]
+
+
+@pytest.mark.wall_clock
+@pytest.mark.parametrize("engine", ENGINE)
+def test_a_client_that_talks_is_not_closed_as_idle(serve: Any, engine: bool) -> None:
+    """Idle timeout 0.5 s: a client reading (answered by the engine) or writing
+    (answered by Python) every 0.1 s for 1.5 s keeps its connection; silent, it
+    loses it within the timeout and a sweep."""
+    limits = GatewayLimits(idle_timeout=0.5, header_timeout=0)
+    s = serve(TcpServer.for_store(1, store_of(), limits, engine=engine))
+    for pdu in (struct.pack(">BHH", 3, 0, 1), struct.pack(">BHH", 6, 30, 5)):
+        sock = connect(s.address)
+        try:
+            end = time.monotonic() + 1.5
+            tid = 0
+            while time.monotonic() < end:
+                tid += 1
+                sock.sendall(request(tid, 1, pdu))
+                assert read_adu(sock)[:2] == struct.pack(">H", tid)  # still served
+                time.sleep(0.1)
+            sock.settimeout(3)
+            assert sock.recv(10) == b""  # silent now: closed
+        finally:
+            sock.close()
+    assert s.call(lambda: s.server.counters)["idle_timeouts"] == 2
+
+
+def test_the_figures_count_what_the_engine_answered_while_connected(serve: Any) -> None:
+    store = store_of()
+    s = serve(TcpServer.for_store(1, store))
+    with Master(s.url, timeout=2.0) as m:
+        for _ in range(3):
+            m.read_holding_registers(1, 0, 2)
+        first = s.call(s.server.stats)
+        m.read_coils(1, 0, 8)
+        m.read_input_registers(1, 0, 1)
+        second = s.call(s.server.stats)
+        assert m.get_comm_event_counter(1)[1] == 5  # FC 11, Python's: the 5 before it
+    assert s.calls == [bytes([11])]
+    assert (first["requests"], first["answers"], first["bus_transactions"]) == (3, 3, [3])
+    assert (second["requests"], second["answers"], second["bus_transactions"]) == (5, 5, [5])
+    counters = s.call(lambda: s.server.counters)
+    assert (counters["requests"], counters["answers"]) == (6, 6)  # FC 11 too
+
+
+@pytest.mark.parametrize("engine", ENGINE)
+def test_debug_logging_shows_every_frame(
+    serve: Any, engine: bool, caplog: pytest.LogCaptureFixture
+) -> None:
+    s = serve(TcpServer.for_store(1, store_of(), engine=engine))
+    with caplog.at_level(logging.DEBUG, logger="pyrtu.gateway"):
+        sock = connect(s.address)
+        try:
+            sock.sendall(request(5, 1, struct.pack(">BHH", 3, 0, 1)))
+            assert read_adu(sock) == request(5, 1, bytes([3, 2, 0, 0]))
+            s.call(lambda: None)  # (the loop's callback that wrote it has ended)
+        finally:
+            sock.close()
+    rx = "RX unit 1: 00 05 00 00 00 06 01 03 00 00 00 01"
+    tx = "TX unit 1: 00 05 00 00 00 05 01 03 02 00 00"
+    messages = [r.getMessage() for r in caplog.records]
+    assert any(m.endswith(rx) for m in messages) and any(m.endswith(tx) for m in messages)
+
+
+def test_an_audit_trail_or_a_policy_keeps_every_request_in_python(
+    serve: Any, tmp_path: Path
+) -> None:
+    from pyrtu.security.audit import AuditTrail
+    from pyrtu.security.policy import Policy
+
+    trail = AuditTrail.open(tmp_path / "audit.jsonl")
+    audited = serve(TcpServer.for_store(1, store_of(), audit=trail))
+    policed = serve(TcpServer.for_store(1, store_of(), policy=Policy.read_only()))
+    for s in (audited, policed):
+        with Master(s.url, timeout=2.0) as m:
+            assert m.read_holding_registers(1, 1, 1) == [7]
+        assert s.calls == [bytes.fromhex("0300010001")]
+    trail.close()
+
+
+def test_the_engine_forgets_its_loop_once_stopped(serve: Any) -> None:
+    from pyrtu.gateway._engine import Engine
+
+    s = serve(TcpServer.for_store(1, store_of()))
+    engine = s.server._gateway.engine
+    assert engine is not None and Engine._by_loop.get(s.loop) is engine.engine
+    s.run(s.server.close())
+    assert Engine._by_loop.get(s.loop) is None
+
+
+def test_connections_past_the_engine_s_slots_are_served_by_python(
+    serve: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from pyrtu.gateway import _engine
+
+    monkeypatch.setattr(_engine, "CAPACITY", 2)
+    s = serve(TcpServer.for_store(1, store_of()))
+    socks = [connect(s.address) for _ in range(3)]
+    try:
+        for i, sock in enumerate(socks):
+            sock.sendall(request(i, 1, struct.pack(">BHH", 3, 2, 1)))
+            assert read_adu(sock) == request(i, 1, bytes([3, 2, 0, 14]))
+    finally:
+        for sock in socks:
+            sock.close()
+    assert len(s.calls) == 1  # the third, past the 2 slots
