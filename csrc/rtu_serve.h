@@ -20,7 +20,11 @@
  *   - else hands it to Python as a REQUEST event, and reads or scans nothing more
  *     of that connection until Python's answer comes (rtu_serve_send), so that
  *     answers leave in request order and a connection has at most one REQUEST
- *     event waiting.
+ *     event waiting;
+ *   - while any connection's REQUEST waits for its answer, every request read is
+ *     handed over too: requests are executed in the order they were read across
+ *     connections as well (a read behind a write sees it, as on the asyncio
+ *     server's one thread).
  * Events (REQUEST, CLOSED, BAD_HEADER, STALLED) wait in a queue of 2 x capacity
  * (at most a REQUEST and one ending event per connection: it cannot overflow);
  * rtu_serve_fd is readable while it holds any, and rtu_serve_take moves them out.

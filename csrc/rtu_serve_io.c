@@ -123,6 +123,11 @@ struct rtu_serve {
     int32_t rhead, rtail; /* the resume list */
     size_t qhead, qlen, qcap;
     rtu_serve_stats stats;
+    /* the REQUEST events of every connection not yet answered: while one waits, no
+     * request is answered from an image, so that requests are executed in the order
+     * they were read across connections too (a write handed to Python, then a read
+     * on another connection: the read sees the write), as the asyncio server does */
+    uint32_t handed_now;
     serve_conn *conns;
     rtu_serve_event *queue;
 };
@@ -297,7 +302,7 @@ static void scan(rtu_serve *s, uint32_t c, int64_t now)
         s->stats.requests++;
         k->last_request = k->last_read; /* (nothing is read while a scan waits) */
         k->partial_since = 0;
-        img = k->defer || k->routes == NULL ? NULL : k->routes[adu[6]];
+        img = k->defer || k->routes == NULL || s->handed_now ? NULL : k->routes[adu[6]];
         if (img != NULL) {
             size_t n = 0;
             uint8_t *o = k->out + k->out_n;
@@ -328,6 +333,7 @@ static void scan(rtu_serve *s, uint32_t c, int64_t now)
                 memcpy(e->adu, adu, len);
             }
             k->handed = 1;
+            s->handed_now++;
             k->taken = 0;
             s->stats.handed++;
         }
@@ -693,6 +699,8 @@ int rtu_serve_detach(rtu_serve *s, uint32_t conn)
     close(k->fd);
     k->fd = -1;
     k->gen++;
+    if (k->handed)
+        s->handed_now--;
     k->handed = k->taken = 0;
     pthread_mutex_unlock(&s->mu);
     return RTU_OK;
@@ -713,6 +721,7 @@ int rtu_serve_send(rtu_serve *s, uint32_t conn, const uint8_t *adu, size_t len)
         return RTU_EINVAL;
     }
     k->handed = k->taken = 0;
+    s->handed_now--;
     if (len > 0 && !k->broken) {
         /* room: the scan handed the request over with room for an ADU left, and
          * only writes happened since */

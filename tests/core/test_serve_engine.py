@@ -511,6 +511,8 @@ def test_detach_closes_the_socket_and_drops_its_events(engine: Engine) -> None:
     engine.until(lambda: engine.waiting(), "the event")
     assert lib.rtu_serve_detach(engine.s, 2) == lib.RTU_OK
     assert not engine.waiting() and engine.take(0) == []
+    # keep's request answered: none waits, so the image answers again
+    assert engine.send(0, b"") == lib.RTU_OK
     # the slot again, on a new socket (its generation: nothing of the old one)
     image = holding_image()
     engine.route(5, image)
@@ -683,3 +685,26 @@ def test_loopback_tcp_and_exact_stats(engine: Engine) -> None:
             [(got_conn, kind, err, _, _)] = engine.take()
             assert (got_conn, kind, err) == (conn, CLOSED, 0)
     assert engine.stats() == (10, 8, 2, [0, 2, 0, 4, 2])
+
+
+def test_while_a_request_waits_for_python_every_connection_hands_over(engine: Engine) -> None:
+    """Requests run in the order they were read, across connections too: behind a
+    request handed to Python, another connection's read is handed over as well, and
+    the image answers again once every handed request is answered."""
+    image = holding_image()
+    engine.route(1, image)
+    first, second = engine.attach(0), engine.attach(1)
+    write = adu(1, 1, bytes([6, 0, 0, 0, 9]))
+    read = adu(2, 1, read_pdu(3, 0, 1))
+    first.sendall(write)
+    [(conn, kind, _, got, _)] = engine.take()
+    assert (conn, kind, got) == (0, REQUEST, write)
+    second.sendall(read)
+    [(conn, kind, _, got, _)] = engine.take()
+    assert (conn, kind, got) == (1, REQUEST, read)  # behind the write: Python's
+    assert engine.send(0, write) == engine.lib.RTU_OK
+    assert engine.send(1, read) == engine.lib.RTU_OK
+    assert recv_adu(first) == write and recv_adu(second) == read
+    second.sendall(read)
+    assert recv_adu(second) == image.answer(1, read)  # none waits: the image's
+    assert engine.stats()[:3] == (3, 1, 2)

@@ -12,6 +12,7 @@ import time
 from collections.abc import Iterator
 
 import pytest
+from mbap_wire import read_adu
 from peers import pattern
 from peers.tools import PeerBinaries, libmodbus_script
 
@@ -250,21 +251,6 @@ def _adu(transaction: int, protocol: int, unit: int, body: bytes) -> bytes:
     return struct.pack(">HHHB", transaction, protocol, len(body) + 1, unit) + body
 
 
-def _read_adu(sock: socket.socket) -> bytes:
-    head = b""
-    while len(head) < 6:
-        chunk = sock.recv(6 - len(head))
-        assert chunk, "the server closed the connection"
-        head += chunk
-    rest = b""
-    (length,) = struct.unpack(">H", head[4:6])
-    while len(rest) < length:
-        chunk = sock.recv(length - len(rest))
-        assert chunk, "the server closed the connection"
-        rest += chunk
-    return head + rest
-
-
 def test_requests_read_whole_or_in_pieces_are_answered_alike(running) -> None:  # type: ignore[no-untyped-def]
     """A read holding one whole request is told by its header alone, at the limits
     of [AP] 4.1 / [TCP] 3.1.3 (a length of 2 and of 254); pieces, several requests in
@@ -278,19 +264,19 @@ def test_requests_read_whole_or_in_pieces_are_answered_alike(running) -> None:  
     illegal = bytes((0xC1, 1))  # function 0x41: exception 01, illegal function
     with socket.create_connection((host, int(port)), timeout=5) as s:
         s.sendall(_adu(0x1234, 0, 1, read))
-        assert _read_adu(s) == _adu(0x1234, 0, 1, answer)
+        assert read_adu(s) == _adu(0x1234, 0, 1, answer)
         s.sendall(_adu(7, 0, 1, b"\x41"))  # length 2: the shortest
-        assert _read_adu(s) == _adu(7, 0, 1, illegal)
+        assert read_adu(s) == _adu(7, 0, 1, illegal)
         s.sendall(_adu(8, 0, 0xFF, b"\x41" + bytes(252)))  # length 254: the longest
-        assert _read_adu(s) == _adu(8, 0, 0xFF, illegal)
+        assert read_adu(s) == _adu(8, 0, 0xFF, illegal)
         whole = _adu(9, 0, 1, read)
         s.sendall(whole[:5])  # a header in two pieces
         time.sleep(0.05)
         s.sendall(whole[5:])
-        assert _read_adu(s) == _adu(9, 0, 1, answer)
+        assert read_adu(s) == _adu(9, 0, 1, answer)
         s.sendall(_adu(10, 0, 1, read) + _adu(11, 0, 1, read))  # two in one write
-        assert _read_adu(s) == _adu(10, 0, 1, answer)
-        assert _read_adu(s) == _adu(11, 0, 1, answer)
+        assert read_adu(s) == _adu(10, 0, 1, answer)
+        assert read_adu(s) == _adu(11, 0, 1, answer)
     counters = server.counters
     assert counters["requests"] == 6 and counters["answers"] == 4
     assert counters["exceptions"] == 2 and counters["bad_headers"] == 0

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from mbap_wire import read_adu
 
 from pyrtu import ExceptionResponseError, Master
 from pyrtu.drivers.aio import AsyncMaster
@@ -97,21 +98,6 @@ def serve() -> Iterator[Any]:
 
 def request(tid: int, unit: int, pdu: bytes) -> bytes:
     return struct.pack(">HHHB", tid, 0, len(pdu) + 1, unit) + pdu
-
-
-def read_adu(sock: socket.socket) -> bytes:
-    head = b""
-    while len(head) < 7:
-        got = sock.recv(7 - len(head))
-        assert got, "the server closed the connection"
-        head += got
-    (length,) = struct.unpack_from(">H", head, 4)
-    body = b""
-    while len(body) < length - 1:
-        got = sock.recv(length - 1 - len(body))
-        assert got, "the server closed the connection"
-        body += got
-    return head + body
 
 
 def connect(address: tuple[str, int]) -> socket.socket:
@@ -560,3 +546,23 @@ def test_connections_past_the_engine_s_slots_are_served_by_python(
         for sock in socks:
             sock.close()
     assert len(s.calls) == 1  # the third, past the 2 slots
+
+
+@pytest.mark.parametrize("engine", ENGINE)
+def test_a_read_behind_a_write_on_another_connection_sees_it(serve: Any, engine: bool) -> None:
+    """Requests are executed in the order they are read, across connections too: a
+    write Python executes slowly (its ``on_write`` takes 0.2 s), and a read of the
+    same register sent on another connection while it runs, answers the new value."""
+    store = store_of()
+    store.holding_registers.add_range(400, [1], on_write=lambda a, v: time.sleep(0.2))
+    s = serve(TcpServer.for_store(1, store, engine=engine))
+    writer, reader = connect(s.address), connect(s.address)
+    try:
+        writer.sendall(request(1, 1, struct.pack(">BHH", 6, 400, 2)))
+        time.sleep(0.05)  # (the write is under way)
+        reader.sendall(request(2, 1, struct.pack(">BHH", 3, 400, 1)))
+        assert read_adu(reader) == request(2, 1, bytes([3, 2, 0, 2]))
+        assert read_adu(writer) == request(1, 1, struct.pack(">BHH", 6, 400, 2))
+    finally:
+        writer.close()
+        reader.close()
