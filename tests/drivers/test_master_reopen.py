@@ -23,10 +23,10 @@ from types import ModuleType
 import pytest
 import serial
 from ptylink import PtyLink, make_store
+from revival import schedule
 
 from pyrtu.drivers.aio import AsyncMaster
 from pyrtu.drivers.master import Master
-from pyrtu.drivers.reconnect import Backoff, Reconnect
 from pyrtu.drivers.slave import Slave
 from pyrtu.pdu.errors import PortError
 
@@ -91,13 +91,6 @@ def adapter(tmp_path: Path, backend: ModuleType) -> Iterator[Adapter]:
         yield a
     finally:
         a.close()
-
-
-def schedule(link: object, initial: float) -> Reconnect:
-    """The master's retry schedule, set to ``initial`` seconds between attempts."""
-    reconnect = Reconnect(Backoff(initial=initial, maximum=initial, jitter=0.0))
-    link._revive.reconnect = reconnect  # type: ignore[attr-defined]
-    return reconnect
 
 
 def test_the_master_reopens_its_port_when_the_adapter_returns(

@@ -29,11 +29,11 @@ from types import ModuleType
 import pytest
 from peers.tools import free_tcp_port
 from ptylink import make_store
+from revival import schedule
 from waiting import wait_for
 
 from pyrtu.drivers.aio import AsyncMaster
 from pyrtu.drivers.master import Master
-from pyrtu.drivers.reconnect import Backoff, Reconnect
 from pyrtu.drivers.slave import Slave
 from pyrtu.pdu.errors import PortError
 from pyrtu.poller import Bus, Point, Poller, PortState, Update, make_config
@@ -121,13 +121,6 @@ def server(tmp_path: Path, backend: ModuleType) -> Iterator[DeviceServer]:
         yield s
     finally:
         s.close()
-
-
-def schedule(link: object, initial: float) -> Reconnect:
-    """The master's retry schedule, set to ``initial`` seconds between attempts."""
-    reconnect = Reconnect(Backoff(initial=initial, maximum=initial, jitter=0.0))
-    link._revive.reconnect = reconnect  # type: ignore[attr-defined]
-    return reconnect
 
 
 def test_the_master_reconnects_when_the_device_server_returns(
