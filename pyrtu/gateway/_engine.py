@@ -37,8 +37,10 @@ without an engine: the engine would only add a hop.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import os
+import socket
 import threading
 import weakref
 from collections.abc import Callable, Mapping
@@ -96,14 +98,37 @@ class Engine:
     _by_loop: ClassVar[weakref.WeakKeyDictionary[asyncio.AbstractEventLoop, Engine]] = (
         weakref.WeakKeyDictionary()
     )
+    #: every engine whose thread runs, held until `close` joins it: the thread works
+    #: in the engine's memory (``_mem``), which must not be freed under it, as it
+    #: would be when a loop ended with a server never closed goes
+    _running: ClassVar[set[Engine]] = set()
 
     @classmethod
     def of(cls, loop: asyncio.AbstractEventLoop) -> Engine:
-        """``loop``'s engine, started at the first call (again after it stopped)."""
+        """``loop``'s engine, started at the first call (again after it stopped);
+        the engines of loops closed meanwhile are stopped first (`reap`)."""
+        cls.reap()
         engine = cls._by_loop.get(loop)
         if engine is None or engine.closed:
             engine = cls._by_loop[loop] = cls(loop, CAPACITY)
         return engine
+
+    @classmethod
+    def reap(cls) -> int:
+        """Stop every engine whose event loop was closed with a server still on it
+        (never closed: its thread and its clients' connections would stay for the
+        process's life); how many."""
+        ended = [e for e in cls._running if e._loop.is_closed()]
+        for engine in ended:
+            log.warning(
+                "a TCP server's engine outlived its event loop (a server never closed):"
+                " stopped, %d connection(s) closed",
+                len(engine._conns),
+            )
+            for conn in engine._conns.values():  # (their transports cannot close them)
+                conn.shut()
+            engine.close()
+        return len(ended)
 
     def __init__(self, loop: asyncio.AbstractEventLoop, capacity: int) -> None:
         c = _backend.C
@@ -126,6 +151,7 @@ class Engine:
         self.closed = False
         #: the `ServerEngine`s on it: the thread stops when the last one closes
         self.users = 0
+        Engine._running.add(self)
         loop.add_reader(lib.rtu_serve_fd(self._s), self._ready)
 
     def release(self) -> None:
@@ -184,11 +210,13 @@ class Engine:
         self.closed = True
         if Engine._by_loop.get(self._loop) is self:
             del Engine._by_loop[self._loop]  # (it names the loop: the loop may go)
-        self._loop.remove_reader(self._lib.rtu_serve_fd(self._s))
+        if not self._loop.is_closed():
+            self._loop.remove_reader(self._lib.rtu_serve_fd(self._s))
         for slot in list(self._conns):
             self._conns.pop(slot)
             self._lib.rtu_serve_detach(self._s, slot)
-        self._lib.rtu_serve_destroy(self._s)
+        self._lib.rtu_serve_destroy(self._s)  # (the thread joined: the memory may go)
+        Engine._running.discard(self)
 
 
 class ServerEngine:
@@ -302,15 +330,26 @@ class EngineConnection(_Connection):
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         super().connection_made(transport)  # (the gateway's table: it may refuse it)
-        if self.closed:
+        if not self.closed:
+            # handed over on the next turn of the loop, not now: asyncio starts reading
+            # a socket after connection_made, and some releases (Debian 12's 3.11.2)
+            # do so even when the protocol paused it there (CPython gh-103607)
+            asyncio.get_running_loop().call_soon(self._hand_over)
+
+    def _hand_over(self) -> None:
+        """Reading paused and a duplicate of the socket handed to the engine, unless
+        asyncio read part of a request meanwhile (the part is its: this protocol
+        serves the connection), the server hands everything to Python, or the engine
+        has no slot free."""
+        transport = self.transport
+        if self.closed or transport is None or self.buffered:
             return
         sock = transport.get_extra_info("socket")
         if sock is None:
             return  # (no socket to share: served by this protocol, as any connection)
-        assert isinstance(transport, asyncio.Transport)
         server = self.server
         server.defer_if_needed()
-        if server.deferring:
+        if server.deferring or server.closed:
             return  # (every request would be Python's: served by this protocol, no hop)
         transport.pause_reading()
         self.slot = server.engine.attach(
@@ -423,6 +462,16 @@ class EngineConnection(_Connection):
     def close(self) -> None:
         self._detach()
         super().close()
+
+    def shut(self) -> None:
+        """Its loop closed: the connection shut down at the socket (its peer sees it
+        end; asyncio's transport, whose loop is gone, closes the descriptor when it
+        goes)."""
+        sock = None if self.transport is None else self.transport.get_extra_info("socket")
+        if sock is not None:
+            with contextlib.suppress(OSError):
+                sock.shutdown(socket.SHUT_RDWR)
+        self.closed = True
 
     def reset(self) -> None:
         """Closed with a reset (the client does not read its answers)."""

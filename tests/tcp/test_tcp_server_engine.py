@@ -566,3 +566,80 @@ def test_a_read_behind_a_write_on_another_connection_sees_it(serve: Any, engine:
     finally:
         writer.close()
         reader.close()
+
+
+def test_a_server_whose_loop_closed_without_closing_it_is_stopped_by_the_next(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """A server left running when its event loop ends (never closed) keeps its
+    engine's memory and thread until the next engine starts, which stops it: its
+    client sees the connection closed, and the new server answers."""
+    import gc
+
+    from pyrtu.gateway._engine import Engine
+
+    store = store_of()
+    client: list[socket.socket] = []
+
+    async def started() -> None:
+        server = await TcpServer.for_store(1, store).start("127.0.0.1", 0)
+        assert server.address is not None and server.engine_refused is None
+        sock = await asyncio.get_running_loop().run_in_executor(None, connect, server.address)
+        client.append(sock)
+        await asyncio.get_running_loop().run_in_executor(
+            None, sock.sendall, request(1, 1, struct.pack(">BHH", 3, 1, 1))
+        )
+        assert await asyncio.get_running_loop().run_in_executor(None, read_adu, sock) == (
+            request(1, 1, bytes([3, 2, 0, 7]))
+        )
+
+    asyncio.run(started())  # (its tasks cancelled, the loop closed: the server never)
+    gc.collect()  # (the loop, its server and the engine's Python side: only `_running` holds it)
+    (old,) = [e for e in Engine._running if e._loop.is_closed()]
+    with_old = _threads()
+    sock = client[0]
+    try:
+        # the old engine still answers from its memory (not freed under its thread)
+        sock.sendall(request(2, 1, struct.pack(">BHH", 3, 1, 1)))
+        assert read_adu(sock) == request(2, 1, bytes([3, 2, 0, 7]))
+
+        async def again() -> list[int]:
+            server = await TcpServer.for_store(1, store).start("127.0.0.1", 0)
+            try:
+                async with AsyncMaster(f"tcp://127.0.0.1:{server.address[1]}") as m:
+                    return await m.read_holding_registers(1, 2, 1)
+            finally:
+                await server.close()
+
+        with caplog.at_level(logging.WARNING, logger="pyrtu.gateway"):
+            assert asyncio.run(again()) == [14]
+        assert old.closed and old not in Engine._running
+        assert "outlived its event loop" in caplog.text and "1 connection(s)" in caplog.text
+        assert sock.recv(1) == b""  # its connection closed
+    finally:
+        sock.close()
+    assert _threads() == with_old - 1  # the old engine's thread joined, the new one's too
+
+
+@pytest.mark.parametrize("engine", ENGINE)
+@pytest.mark.parametrize("first", [6, 3], ids=["part-of-a-request", "whole-requests"])
+def test_requests_sent_with_the_connect_are_answered(serve: Any, engine: bool, first: int) -> None:
+    """Bytes the client sends before the server has even accepted it (asyncio may
+    read them before the connection is handed to the engine): part of a request
+    (the rest follows), or two whole requests; every request is answered once, in
+    order, and the connection goes on being answered."""
+    s = serve(TcpServer.for_store(1, store_of(), engine=engine))
+    wire = request(1, 1, struct.pack(">BHH", 3, 1, 1)) + request(2, 1, struct.pack(">BHH", 4, 2, 1))
+    for attempt in range(20):  # (whichever reads them first: both must answer)
+        sock = socket.create_connection(s.address, timeout=5)
+        try:
+            sock.sendall(wire[:first] if first == 6 else wire)
+            if first == 6:
+                time.sleep(0.01)
+                sock.sendall(wire[6:])
+            assert read_adu(sock) == request(1, 1, bytes([3, 2, 0, 7])), attempt
+            assert read_adu(sock) == request(2, 1, bytes([4, 2, 0, 22])), attempt
+            sock.sendall(request(3, 1, struct.pack(">BHH", 3, 9, 1)))
+            assert read_adu(sock) == request(3, 1, bytes([3, 2, 0, 63])), attempt
+        finally:
+            sock.close()
