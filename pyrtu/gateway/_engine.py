@@ -27,11 +27,16 @@ hooks, while its gateway has a policy, an audit trail or a latency observer
 (``--metrics``), or while the gateway's logger is at DEBUG (every frame logged).
 
 `EngineConnection` is the listener's protocol: accepted by asyncio as any
-connection, then its reading paused and a duplicate of its socket handed to the
-engine; asyncio's transport stays for closing it.  A connection accepted while its
-server hands everything to Python (a drive simulator's ``on_request`` hook, that
-runs its model at every telegram, or a policy) is served by asyncio alone, as
-without an engine: the engine would only add a hop.
+connection, then, on the loop's next turn, its reading paused and a duplicate of
+its socket handed to the engine (bytes asyncio read before that, part of a
+request, keep the connection on the Python path); asyncio's transport stays for
+closing it.  An engine's memory lives while its thread runs (`Engine._running`):
+a server left open when its loop ends is stopped when the next engine starts.
+
+A connection accepted while its server hands everything to Python (a drive
+simulator's ``on_request`` hook, that runs its model at every telegram, or a
+policy) is served by asyncio alone, as without an engine: the engine would only
+add a hop.
 """
 
 from __future__ import annotations
