@@ -343,11 +343,18 @@ class EngineConnection(_Connection):
 
     def _hand_over(self) -> None:
         """Reading paused and a duplicate of the socket handed to the engine, unless
-        asyncio read part of a request meanwhile (the part is its: this protocol
-        serves the connection), the server hands everything to Python, or the engine
-        has no slot free."""
+        asyncio read from it meanwhile what is not done with (part of a request, a
+        request whose answer is still to come or still in asyncio's buffer: this
+        protocol serves the connection, so that its answers keep their order), the
+        server hands everything to Python, or the engine has no slot free."""
         transport = self.transport
-        if self.closed or transport is None or self.buffered:
+        if (
+            self.closed
+            or transport is None
+            or self.buffered
+            or self.live.outstanding
+            or transport.get_write_buffer_size()
+        ):
             return
         sock = transport.get_extra_info("socket")
         if sock is None:
