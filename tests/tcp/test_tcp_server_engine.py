@@ -526,8 +526,12 @@ def test_the_engine_forgets_its_loop_once_stopped(serve: Any) -> None:
     s = serve(TcpServer.for_store(1, store_of()))
     engine = s.server._gateway.engine
     assert engine is not None and Engine._by_loop.get(s.loop) is engine.engine
+    fd = engine.engine._lib.rtu_serve_fd(engine.engine._s)
     s.run(s.server.close())
     assert Engine._by_loop.get(s.loop) is None
+    assert engine.engine not in Engine._running
+    # the loop no longer watches the engine's descriptor (closed with it)
+    assert s.call(lambda: s.loop.remove_reader(fd)) is False
 
 
 def test_connections_past_the_engine_s_slots_are_served_by_python(
@@ -596,6 +600,7 @@ def test_a_server_whose_loop_closed_without_closing_it_is_stopped_by_the_next(
     asyncio.run(started())  # (its tasks cancelled, the loop closed: the server never)
     gc.collect()  # (the loop, its server and the engine's Python side: only `_running` holds it)
     (old,) = [e for e in Engine._running if e._loop.is_closed()]
+    (conn,) = old._conns.values()
     with_old = _threads()
     sock = client[0]
     try:
@@ -613,7 +618,7 @@ def test_a_server_whose_loop_closed_without_closing_it_is_stopped_by_the_next(
 
         with caplog.at_level(logging.WARNING, logger="pyrtu.gateway"):
             assert asyncio.run(again()) == [14]
-        assert old.closed and old not in Engine._running
+        assert old.closed and old not in Engine._running and conn.closed
         assert "outlived its event loop" in caplog.text and "1 connection(s)" in caplog.text
         assert sock.recv(1) == b""  # its connection closed
     finally:
