@@ -217,10 +217,9 @@ class Engine:
             del Engine._by_loop[self._loop]  # (it names the loop: the loop may go)
         if not self._loop.is_closed():
             self._loop.remove_reader(self._lib.rtu_serve_fd(self._s))
-        for slot in list(self._conns):
-            self._conns.pop(slot)
-            self._lib.rtu_serve_detach(self._s, slot)
-        self._lib.rtu_serve_destroy(self._s)  # (the thread joined: the memory may go)
+        self._conns.clear()
+        # the thread joined, every connection's descriptor closed: the memory may go
+        self._lib.rtu_serve_destroy(self._s)
         Engine._running.discard(self)
 
 
@@ -348,14 +347,11 @@ class EngineConnection(_Connection):
         protocol serves the connection, so that its answers keep their order), the
         server hands everything to Python, or the engine has no slot free."""
         transport = self.transport
-        if (
-            self.closed
-            or transport is None
-            or self.buffered
-            or self.live.outstanding
-            or transport.get_write_buffer_size()
-        ):
+        assert transport is not None  # (set by connection_made)
+        if self.closed or self.buffered:
             return
+        if self.live.outstanding or transport.get_write_buffer_size():
+            return  # (not reached by a TcpServer's own slave, which answers at once)
         sock = transport.get_extra_info("socket")
         if sock is None:
             return  # (no socket to share: served by this protocol, as any connection)

@@ -629,22 +629,32 @@ def test_a_server_whose_loop_closed_without_closing_it_is_stopped_by_the_next(
 @pytest.mark.parametrize("engine", ENGINE)
 @pytest.mark.parametrize("first", [6, 3], ids=["part-of-a-request", "whole-requests"])
 def test_requests_sent_with_the_connect_are_answered(serve: Any, engine: bool, first: int) -> None:
-    """Bytes the client sends before the server has even accepted it (asyncio may
-    read them before the connection is handed to the engine): part of a request
-    (the rest follows), or two whole requests; every request is answered once, in
-    order, and the connection goes on being answered."""
+    """Bytes the client sends before the server has even accepted it (its loop busy
+    meanwhile): part of a request (the rest follows), or two whole requests.  Every
+    request is answered once, in order, and the connection goes on being answered.
+    asyncio reads none of them: the hand-over on the loop's next turn comes before
+    its first read (a selector loop's reader is queued behind it and cancelled by
+    the pause), so the engine answers them all."""
     s = serve(TcpServer.for_store(1, store_of(), engine=engine))
     wire = request(1, 1, struct.pack(">BHH", 3, 1, 1)) + request(2, 1, struct.pack(">BHH", 4, 2, 1))
-    for attempt in range(20):  # (whichever reads them first: both must answer)
-        sock = socket.create_connection(s.address, timeout=5)
-        try:
-            sock.sendall(wire[:first] if first == 6 else wire)
-            if first == 6:
-                time.sleep(0.01)
-                sock.sendall(wire[6:])
-            assert read_adu(sock) == request(1, 1, bytes([3, 2, 0, 7])), attempt
-            assert read_adu(sock) == request(2, 1, bytes([4, 2, 0, 22])), attempt
-            sock.sendall(request(3, 1, struct.pack(">BHH", 3, 9, 1)))
-            assert read_adu(sock) == request(3, 1, bytes([3, 2, 0, 63])), attempt
-        finally:
-            sock.close()
+    busy = asyncio.run_coroutine_threadsafe(_block(0.3), s.loop)  # (nothing accepted)
+    time.sleep(0.05)
+    sock = socket.create_connection(s.address, timeout=5)
+    try:
+        sock.sendall(wire[:first] if first == 6 else wire)
+        busy.result(5)
+        if first == 6:
+            time.sleep(0.05)
+            sock.sendall(wire[6:])
+        assert read_adu(sock) == request(1, 1, bytes([3, 2, 0, 7]))
+        assert read_adu(sock) == request(2, 1, bytes([4, 2, 0, 22]))
+        sock.sendall(request(3, 1, struct.pack(">BHH", 3, 9, 1)))
+        assert read_adu(sock) == request(3, 1, bytes([3, 2, 0, 63]))
+    finally:
+        sock.close()
+    assert [p[0] for p in s.calls] == ([] if engine else [3, 4, 3])
+
+
+async def _block(seconds: float) -> None:
+    """Hold the event loop (no callback of it runs) for ``seconds``."""
+    time.sleep(seconds)
