@@ -209,6 +209,31 @@ def test_answers_keep_the_order_of_pipelined_requests(serve: Any, engine: bool) 
     assert answers[5][7:] == bytes([3, 4]) + struct.pack(">HH", 4242, 99)
 
 
+TABLES = ["coils", "discrete_inputs", "holding_registers", "input_registers"]
+
+
+@pytest.mark.parametrize("engine", ENGINE)
+@pytest.mark.parametrize("table", TABLES)
+def test_a_change_to_any_one_table_is_read_at_once(serve: Any, engine: bool, table: str) -> None:
+    """The owner changes one value of one table (the others untouched); the next
+    read of that table answers the new value, for each of the four tables."""
+    store = store_of()
+    s = serve(TcpServer.for_store(1, store, engine=engine))
+    read: Any = {
+        "coils": Master.read_coils,
+        "discrete_inputs": Master.read_discrete_inputs,
+        "holding_registers": Master.read_holding_registers,
+        "input_registers": Master.read_input_registers,
+    }[table]
+    bits = table in ("coils", "discrete_inputs")
+    with Master(s.url, timeout=2.0) as m:
+        before = read(m, 1, 7, 1)[0]
+        new: bool | int = (not before) if bits else (int(before) + 1) & 0xFFFF
+        with store.lock:
+            getattr(store, table).set(7, new)
+        assert read(m, 1, 7, 1) == [new]
+
+
 @pytest.mark.parametrize("engine", ENGINE)
 def test_a_change_made_under_the_lock_is_seen_whole(serve: Any, engine: bool) -> None:
     """The owner changes two registers together, under the store's lock, while a
