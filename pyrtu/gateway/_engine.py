@@ -119,12 +119,11 @@ class Engine:
         return engine
 
     @classmethod
-    def reap(cls) -> int:
+    def reap(cls) -> None:
         """Stop every engine whose event loop was closed with a server still on it
         (never closed: its thread and its clients' connections would stay for the
-        process's life); how many."""
-        ended = [e for e in cls._running if e._loop.is_closed()]
-        for engine in ended:
+        process's life)."""
+        for engine in [e for e in cls._running if e._loop.is_closed()]:
             log.warning(
                 "a TCP server's engine outlived its event loop (a server never closed):"
                 " stopped, %d connection(s) closed",
@@ -133,7 +132,6 @@ class Engine:
             for conn in engine._conns.values():  # (their transports cannot close them)
                 conn.shut()
             engine.close()
-        return len(ended)
 
     def __init__(self, loop: asyncio.AbstractEventLoop, capacity: int) -> None:
         c = _backend.C

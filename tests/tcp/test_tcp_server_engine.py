@@ -611,16 +611,14 @@ def test_a_server_whose_loop_closed_without_closing_it_is_stopped_by_the_next(
     client: list[socket.socket] = []
 
     async def started() -> None:
+        loop = asyncio.get_running_loop()
         server = await TcpServer.for_store(1, store).start("127.0.0.1", 0)
         assert server.address is not None and server.engine_refused is None
-        sock = await asyncio.get_running_loop().run_in_executor(None, connect, server.address)
+        sock = await loop.run_in_executor(None, connect, server.address)
         client.append(sock)
-        await asyncio.get_running_loop().run_in_executor(
-            None, sock.sendall, request(1, 1, struct.pack(">BHH", 3, 1, 1))
-        )
-        assert await asyncio.get_running_loop().run_in_executor(None, read_adu, sock) == (
-            request(1, 1, bytes([3, 2, 0, 7]))
-        )
+        await loop.run_in_executor(None, sock.sendall, request(1, 1, struct.pack(">BHH", 3, 1, 1)))
+        answer = await loop.run_in_executor(None, read_adu, sock)
+        assert answer == request(1, 1, bytes([3, 2, 0, 7]))
 
     asyncio.run(started())  # (its tasks cancelled, the loop closed: the server never)
     gc.collect()  # (the loop, its server and the engine's Python side: only `_running` holds it)
@@ -652,8 +650,10 @@ def test_a_server_whose_loop_closed_without_closing_it_is_stopped_by_the_next(
 
 
 @pytest.mark.parametrize("engine", ENGINE)
-@pytest.mark.parametrize("first", [6, 3], ids=["part-of-a-request", "whole-requests"])
-def test_requests_sent_with_the_connect_are_answered(serve: Any, engine: bool, first: int) -> None:
+@pytest.mark.parametrize("partial", [True, False], ids=["part-of-a-request", "whole-requests"])
+def test_requests_sent_with_the_connect_are_answered(
+    serve: Any, engine: bool, partial: bool
+) -> None:
     """Bytes the client sends before the server has even accepted it (its loop busy
     meanwhile): part of a request (the rest follows), or two whole requests.  Every
     request is answered once, in order, and the connection goes on being answered.
@@ -666,9 +666,9 @@ def test_requests_sent_with_the_connect_are_answered(serve: Any, engine: bool, f
     time.sleep(0.05)
     sock = socket.create_connection(s.address, timeout=5)
     try:
-        sock.sendall(wire[:first] if first == 6 else wire)
+        sock.sendall(wire[:6] if partial else wire)
         busy.result(5)
-        if first == 6:
+        if partial:
             time.sleep(0.05)
             sock.sendall(wire[6:])
         assert read_adu(sock) == request(1, 1, bytes([3, 2, 0, 7]))
