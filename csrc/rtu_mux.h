@@ -18,9 +18,14 @@
  *   - rtu_mux_deadline says when the next timeout is due (a timer of the
  *     caller's calls rtu_mux_service then);
  *   - each ended transaction is one rtu_mux_done record in a queue of `nconns`
- *     (one per connection: it cannot overflow), moved out by rtu_mux_take.
+ *     (one per connection: it cannot overflow), moved out by rtu_mux_take;
+ *   - rtu_mux_repeat: the steady state of a poll, the connection's request sent
+ *     again by rtu_mux_service every interval (a new transaction id each time),
+ *     until a transaction ends otherwise than with a plain answer or
+ *     rtu_mux_unrepeat ends it.
  * So a thousand devices cost the event loop one wake-up and three calls per
- * batch of answers, not a callback per socket.
+ * batch of answers, not a callback per socket, and a poll whose answer does not
+ * change costs it no call to send it.
  *
  * The statuses are rtu_tcp.h's RTU_TCP_* (ANSWER, EXCEPTION, MISMATCH, TIMEOUT,
  * CLOSED, ERRNO, BAD_HEADER), with its meanings.  Linux only (epoll); elsewhere
@@ -44,9 +49,16 @@ typedef struct {
     uint32_t tid;   /* the transaction id */
     int64_t start;  /* the send began (CLOCK_MONOTONIC ns) */
     int64_t end;    /* the read that completed the answer returned, or the deadline */
+    uint32_t flags; /* RTU_MUX_REPEATING, RTU_MUX_RESENT */
     uint32_t len;   /* the answer: unit id and PDU (adu[0] the unit), 0 without one */
     uint8_t adu[254];
 } rtu_mux_done;
+
+/* rtu_mux_done.flags: the connection still repeats its request (rtu_mux_repeat)
+ * when the record is taken */
+#define RTU_MUX_REPEATING 1u
+/* ... the transaction was sent by the repeat, not by rtu_mux_submit */
+#define RTU_MUX_RESENT 2u
 
 typedef struct rtu_mux rtu_mux;
 
@@ -74,11 +86,31 @@ int rtu_mux_detach(rtu_mux *m, uint32_t conn);
  * record is not taken. */
 int rtu_mux_submit(rtu_mux *m, uint32_t conn, uint64_t token, unsigned tid, unsigned unit,
                    const char *pdu, size_t pdu_len, int awaited, int64_t timeout_ns);
-/* Read what the ready sockets hold and end the transactions due; the records
- * waiting (>= 0), or RTU_ENOSPC when epoll fails (errno in rtu_mux_errno). */
+/* Connection `conn`'s request (its last rtu_mux_submit, awaited) sent again by
+ * rtu_mux_service from `first_ns` on, every `interval_ns` (1 ns .. 2^60 ns): at
+ * the first service at or after its due time, once the connection's
+ * transaction before has ended and its record is taken; then it is due one
+ * interval after the time it was due, or at once when that is more than an
+ * interval behind (the poller's beat, pyrtu/poller/schedule.py _issue).  Each
+ * is a new transaction: the next transaction id, the submit's timeout and
+ * token; its record says RTU_MUX_RESENT.  A plain answer (RTU_TCP_ANSWER,
+ * nothing late, no error) keeps the repeat going; any other end of a
+ * transaction ends it.  RTU_OK, or RTU_EINVAL (nothing changed)
+ * for a connection not attached, one with no request since it was attached, a
+ * broadcast, one whose record is not taken, or a bad interval. */
+int rtu_mux_repeat(rtu_mux *m, uint32_t conn, int64_t first_ns, int64_t interval_ns);
+/* Connection `conn`'s repeat ends (if it had one): 1 when a transaction is in
+ * flight or its record is not taken yet (that record still comes, without
+ * RTU_MUX_REPEATING), 0 when the connection is idle; RTU_EINVAL for a
+ * connection not attached. */
+int rtu_mux_unrepeat(rtu_mux *m, uint32_t conn);
+/* Read what the ready sockets hold, end the transactions due and send the
+ * repeats due; the records waiting (>= 0), or RTU_ENOSPC when epoll fails
+ * (errno in rtu_mux_errno). */
 int rtu_mux_service(rtu_mux *m);
-/* When the first transaction in flight times out (CLOCK_MONOTONIC ns;
- * INT64_MAX: none in flight). */
+/* When rtu_mux_service is next needed: the first transaction in flight times
+ * out, or the first repeat of an idle connection is due (CLOCK_MONOTONIC ns;
+ * INT64_MAX: neither). */
 int64_t rtu_mux_deadline(const rtu_mux *m);
 /* Move up to `cap` records to `out`; how many. */
 size_t rtu_mux_take(rtu_mux *m, rtu_mux_done *out, size_t cap);

@@ -25,6 +25,12 @@
  * Bytes that come while a connection is idle (a late answer) are read and
  * resolved as late; its end of file or error is kept and ends its next
  * transaction at once.
+ *
+ * A repeat (rtu_mux_repeat) is step 1 again, run by rtu_mux_service for each
+ * idle connection whose repeat is due: the same request with the next
+ * transaction id ([TCP] 3.1.3: the client picks it to pair the answer).  The
+ * due times are an array of their own (8 bytes a connection, scanned whole at
+ * each service: a thousand connections' stay in the cache).
  */
 #if defined(__linux__)
 #define _GNU_SOURCE
@@ -49,7 +55,8 @@
 #define MAX_CONNS 65536u
 #define EVENTS 256
 #define NONE (-1)
-#define BUF_CAP RTU_TCP_MIN_CAP /* two whole ADUs */
+#define BUF_CAP RTU_TCP_MIN_CAP         /* two whole ADUs */
+#define MAX_INTERVAL ((int64_t)1 << 60) /* ns (36 years): due + interval cannot overflow */
 
 typedef struct {
     int fd;          /* -1: not attached */
@@ -68,6 +75,10 @@ typedef struct {
     size_t n, used; /* buf[0 .. used) resolved, buf[used .. n) a partial ADU */
     uint32_t late;
     int32_t prev, next; /* the busy connections, by deadline */
+    int64_t timeout;    /* the last submit's */
+    int repeat;         /* rtu_mux_repeat: its due time in rtu_mux.due */
+    int resent;         /* the transaction in flight was sent by the repeat */
+    int64_t interval;   /* of the repeat */
     uint8_t req[RTU_TCP_REQ_CAP];
     uint8_t buf[BUF_CAP];
 } mux_conn;
@@ -82,6 +93,7 @@ struct rtu_mux {
     mux_conn *conns;
     rtu_mux_done *done;
     uint32_t *done_gen;
+    int64_t *due; /* each connection's next repeat (INT64_MAX: none) */
 };
 
 static int64_t now_ns(void)
@@ -98,7 +110,8 @@ size_t rtu_mux_size(uint32_t nconns)
     if (nconns < 1 || nconns > MAX_CONNS)
         return 0;
     return align16(sizeof(rtu_mux)) + align16(sizeof(mux_conn) * nconns) +
-           align16(sizeof(rtu_mux_done) * nconns) + sizeof(uint32_t) * nconns;
+           align16(sizeof(rtu_mux_done) * nconns) + align16(sizeof(uint32_t) * nconns) +
+           sizeof(int64_t) * nconns;
 }
 
 int rtu_mux_init(rtu_mux *m, uint32_t nconns)
@@ -112,9 +125,11 @@ int rtu_mux_init(rtu_mux *m, uint32_t nconns)
     m->conns = (mux_conn *)(p + align16(sizeof(rtu_mux)));
     m->done = (rtu_mux_done *)(p + align16(sizeof(rtu_mux)) + align16(sizeof(mux_conn) * nconns));
     m->done_gen = (uint32_t *)((uint8_t *)m->done + align16(sizeof(rtu_mux_done) * nconns));
+    m->due = (int64_t *)((uint8_t *)m->done_gen + align16(sizeof(uint32_t) * nconns));
     for (i = 0; i < nconns; i++) {
         m->conns[i].fd = -1;
         m->conns[i].prev = m->conns[i].next = NONE;
+        m->due[i] = INT64_MAX;
     }
     m->head = m->tail = NONE;
     m->epfd = epoll_create1(EPOLL_CLOEXEC);
@@ -191,6 +206,23 @@ static void link_busy(rtu_mux *m, uint32_t c)
         m->head = (int32_t)c;
 }
 
+/* Connection c's repeat, if any, ends. */
+static void unrepeat(rtu_mux *m, uint32_t c)
+{
+    m->conns[c].repeat = 0;
+    m->due[c] = INT64_MAX;
+}
+
+/* The flags of connection c's record (status and err as finish has them, the
+ * answer's length): a repeat goes on only through a plain answer. */
+static uint32_t judge_repeat(rtu_mux *m, uint32_t c, int status, int err, uint32_t len)
+{
+    mux_conn *k = &m->conns[c];
+    if (k->repeat && (status != RTU_TCP_ANSWER || err != 0 || k->late != 0 || len == 0))
+        unrepeat(m, c);
+    return k->resent ? RTU_MUX_RESENT : 0u;
+}
+
 /* End connection c's transaction with a record (the answer, if any, at
  * buf[ans_off .. ans_off + ans_len)). */
 static void finish(rtu_mux *m, uint32_t c, int status, int err, int stage, size_t ans_off,
@@ -219,6 +251,7 @@ static void finish(rtu_mux *m, uint32_t c, int status, int err, int stage, size_
         d->len = (uint32_t)(ans_len - (RTU_MBAP_HEADER_LEN - 1));
         memcpy(d->adu, k->buf + ans_off + RTU_MBAP_HEADER_LEN - 1, d->len);
     }
+    d->flags = judge_repeat(m, c, status, err, d->len);
     m->done_gen[slot] = k->gen;
     k->late = 0;
     k->queued = 1;
@@ -378,6 +411,9 @@ int rtu_mux_attach(rtu_mux *m, uint32_t conn, int fd)
     k->n = k->used = 0;
     k->late = 0;
     k->tid = 0;
+    k->req_len = k->sent = 0;
+    k->resent = 0;
+    unrepeat(m, conn);
     watch(m, conn, EPOLLIN);
     return RTU_OK;
 }
@@ -412,16 +448,43 @@ int rtu_mux_detach(rtu_mux *m, uint32_t conn)
         m->qlen = kept;
         k->queued = 0;
     }
+    unrepeat(m, conn);
     k->fd = -1;
     k->gen++;
     return RTU_OK;
+}
+
+/* Step 1 on idle connection c, whose request is in req: sent as transaction
+ * `tid` at `now`; RTU_OK (in flight) or 1 (ended already: its record waits). */
+static int begin(rtu_mux *m, uint32_t c, unsigned tid, int64_t now)
+{
+    mux_conn *k = &m->conns[c];
+    memmove(k->buf, k->buf + k->used, k->n - k->used);
+    k->n -= k->used;
+    k->used = 0;
+    k->tid = tid;
+    k->start = now;
+    k->deadline = k->timeout > INT64_MAX - now ? INT64_MAX : now + k->timeout;
+    k->busy = 1;
+    link_busy(m, c);
+    if (k->broken) { /* it failed while idle: nothing is sent */
+        finish(m, c, k->broken, k->broken_err, RTU_TCP_STAGE_RECEIVE, 0, 0, now);
+        return 1;
+    }
+    k->req[0] = (uint8_t)(tid >> 8); /* [TCP] 3.1.3: transaction id */
+    k->req[1] = (uint8_t)(tid & 0xFF);
+    k->sent = 0;
+    transmit(m, c, now);
+    if (k->busy)
+        scan(m, c, now); /* bytes read before: a whole answer cannot be among them,
+                            but an invalid header ends it now */
+    return k->busy ? RTU_OK : 1;
 }
 
 int rtu_mux_submit(rtu_mux *m, uint32_t conn, uint64_t token, unsigned tid, unsigned unit,
                    const char *pdu, size_t pdu_len, int awaited, int64_t timeout_ns)
 {
     mux_conn *k;
-    int64_t now;
     if (m == NULL || conn >= m->nconns || pdu == NULL || pdu_len < 1 ||
         pdu_len > RTU_MBAP_MAX_LENGTH - 1 || tid > 0xFFFF || unit > 0xFF || timeout_ns < 0)
         return RTU_EINVAL;
@@ -429,38 +492,68 @@ int rtu_mux_submit(rtu_mux *m, uint32_t conn, uint64_t token, unsigned tid, unsi
     if (k->fd < 0 || k->busy || k->queued) {
         return RTU_EINVAL;
     }
-    now = now_ns();
-    memmove(k->buf, k->buf + k->used, k->n - k->used);
-    k->n -= k->used;
-    k->used = 0;
+    unrepeat(m, conn); /* (a request of its own: a repeat of another ends) */
     k->token = token;
-    k->tid = tid;
     k->unit = unit;
     k->fc = (uint8_t)pdu[0];
-    k->start = now;
-    k->deadline = timeout_ns > INT64_MAX - now ? INT64_MAX : now + timeout_ns;
-    k->busy = 1;
+    k->timeout = timeout_ns;
     k->awaited = awaited != 0;
-    link_busy(m, conn);
-    if (k->broken) { /* it failed while idle: nothing is sent */
-        finish(m, conn, k->broken, k->broken_err, RTU_TCP_STAGE_RECEIVE, 0, 0, now);
-        return 1;
-    }
-    k->req[0] = (uint8_t)(tid >> 8); /* [TCP] 3.1.3: transaction id */
-    k->req[1] = (uint8_t)(tid & 0xFF);
-    k->req[2] = 0; /* protocol id 0: MODBUS */
+    k->req[2] = 0; /* [TCP] 3.1.3: protocol id 0, MODBUS */
     k->req[3] = 0;
     k->req[4] = (uint8_t)((pdu_len + 1) >> 8); /* length: unit id + PDU */
     k->req[5] = (uint8_t)((pdu_len + 1) & 0xFF);
     k->req[6] = (uint8_t)unit;
     memcpy(k->req + RTU_MBAP_HEADER_LEN, pdu, pdu_len);
     k->req_len = RTU_MBAP_HEADER_LEN + pdu_len;
-    k->sent = 0;
-    transmit(m, conn, now);
-    if (k->busy)
-        scan(m, conn, now); /* bytes read before: a whole answer cannot be among them,
-                               but an invalid header ends it now */
-    return k->busy ? RTU_OK : 1;
+    k->resent = 0;
+    return begin(m, conn, tid, now_ns());
+}
+
+int rtu_mux_repeat(rtu_mux *m, uint32_t conn, int64_t first_ns, int64_t interval_ns)
+{
+    mux_conn *k;
+    if (m == NULL || conn >= m->nconns || interval_ns < 1 || interval_ns > MAX_INTERVAL)
+        return RTU_EINVAL;
+    k = &m->conns[conn];
+    if (k->fd < 0 || k->req_len == 0 || !k->awaited || k->queued)
+        return RTU_EINVAL; /* (a record waiting was judged without the repeat) */
+    k->repeat = 1;
+    k->interval = interval_ns;
+    m->due[conn] = first_ns;
+    return RTU_OK;
+}
+
+int rtu_mux_unrepeat(rtu_mux *m, uint32_t conn)
+{
+    mux_conn *k;
+    if (m == NULL || conn >= m->nconns)
+        return RTU_EINVAL;
+    k = &m->conns[conn];
+    if (k->fd < 0)
+        return RTU_EINVAL;
+    unrepeat(m, conn);
+    return k->busy || k->queued;
+}
+
+/* The repeats due by `now` of the idle connections sent (step 1 again). */
+static void resend(rtu_mux *m, int64_t now)
+{
+    uint32_t c;
+    for (c = 0; c < m->nconns; c++) {
+        int64_t due = m->due[c], next;
+        mux_conn *k;
+        if (due > now)
+            continue;
+        k = &m->conns[c];
+        if (k->busy || k->queued)
+            continue; /* (its turn comes once that ends and is taken) */
+        /* its beat (pyrtu/poller/schedule.py _issue): one interval on from when it
+         * was due, or from now when that is more than an interval behind */
+        next = due + k->interval;
+        m->due[c] = next >= now - k->interval ? next : now;
+        k->resent = 1;
+        begin(m, c, (k->tid + 1u) & 0xFFFFu, now);
+    }
 }
 
 size_t rtu_mux_take(rtu_mux *m, rtu_mux_done *out, size_t cap)
@@ -476,7 +569,10 @@ size_t rtu_mux_take(rtu_mux *m, rtu_mux_done *out, size_t cap)
         if (m->done_gen[slot] != m->conns[d->conn].gen)
             continue; /* (cannot be: detach takes its record out) */
         m->conns[d->conn].queued = 0;
-        out[got++] = *d;
+        out[got] = *d;
+        if (m->conns[d->conn].repeat)
+            out[got].flags |= RTU_MUX_REPEATING;
+        got++;
     }
     return got;
 }
@@ -536,14 +632,21 @@ int rtu_mux_service(rtu_mux *m)
             watch(m, c, EPOLLIN);
         }
     }
+    resend(m, now);
     return (int)m->qlen;
 }
 
 int64_t rtu_mux_deadline(const rtu_mux *m)
 {
-    if (m == NULL || m->head == NONE)
+    int64_t first;
+    uint32_t c;
+    if (m == NULL)
         return INT64_MAX;
-    return m->conns[m->head].deadline;
+    first = m->head == NONE ? INT64_MAX : m->conns[m->head].deadline;
+    for (c = 0; c < m->nconns; c++)
+        if (m->due[c] < first && !m->conns[c].busy)
+            first = m->due[c];
+    return first;
 }
 
 int rtu_mux_errno(const rtu_mux *m) { return m == NULL ? 0 : m->err; }
@@ -600,6 +703,22 @@ int rtu_mux_submit(rtu_mux *m, uint32_t conn, uint64_t token, unsigned tid, unsi
     (void)pdu_len;
     (void)awaited;
     (void)timeout_ns;
+    return RTU_EUNSUPPORTED;
+}
+
+int rtu_mux_repeat(rtu_mux *m, uint32_t conn, int64_t first_ns, int64_t interval_ns)
+{
+    (void)m;
+    (void)conn;
+    (void)first_ns;
+    (void)interval_ns;
+    return RTU_EUNSUPPORTED;
+}
+
+int rtu_mux_unrepeat(rtu_mux *m, uint32_t conn)
+{
+    (void)m;
+    (void)conn;
     return RTU_EUNSUPPORTED;
 }
 

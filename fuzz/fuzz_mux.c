@@ -4,7 +4,8 @@
  * Input: byte 0 the transaction id (0..255), byte 1 the unit, byte 2 the
  * function code of the request (1..127), byte 3 flags (bit 0: the server shuts
  * its end after the bytes; bit 1: timeout 0; bit 2: a second transaction after
- * the first ends), byte 4 seeds the sizes of the pieces the bytes come in; the
+ * the first ends; bit 3, without bit 2: the request repeated, rtu_mux_repeat,
+ * due only once the first ended), byte 4 seeds the sizes of the pieces the bytes come in; the
  * rest is what the server sends back ([TCP] MODBUS Messaging on TCP/IP
  * Implementation Guide V1.0b, 3.1.3).
  *
@@ -16,6 +17,8 @@
  * function, with the late ADUs before it counted; BAD_HEADER is the scan's error
  * with no answer before it; CLOSED only once the server shut its end and with no
  * answer or error in the stream; TIMEOUT only with timeout 0 and no answer yet;
+ * a repeat goes on after a plain answer only, and when due it sends the request
+ * again with the next transaction id (or its connection has failed: a record);
  * nothing is read out of bounds (ASan) and the loop never blocks.  A violated
  * invariant aborts (libFuzzer records a crash). */
 #include "fuzz_common.h"
@@ -117,6 +120,8 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         FUZZ_FAIL("submit");
     if (rtu_mux_submit(m, 0, 78, tid, unit, (const char *)pdu, sizeof pdu, 1, 0) != RTU_EINVAL)
         FUZZ_FAIL("a second transaction in flight");
+    if ((flags & 8) && !(flags & 4) && rtu_mux_repeat(m, 0, INT64_MAX / 2, 1) != RTU_OK)
+        FUZZ_FAIL("a repeat refused");
     if (read(sv[1], got, sizeof got) != 7 + (ssize_t)sizeof pdu || be16(got) != tid ||
         be16(got + 2) != 0 || be16(got + 4) != 1 + sizeof pdu || got[6] != unit ||
         memcmp(got + 7, pdu, sizeof pdu) != 0)
@@ -155,6 +160,29 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             FUZZ_FAIL("the next transaction refused: %d", r);
         if (rtu_mux_service(m) < 0)
             FUZZ_FAIL("service");
+    } else if (ended && (flags & 8)) { /* the repeat, due now */
+        int plain = out[0].status == RTU_TCP_ANSWER && out[0].err == 0 && out[0].late == 0 &&
+                    out[0].len > 0;
+        if (out[0].flags != (plain ? RTU_MUX_REPEATING : 0u))
+            FUZZ_FAIL("flags %u for status %d err %d late %u", out[0].flags, out[0].status,
+                      out[0].err, out[0].late);
+        if (plain) {
+            int waiting;
+            ssize_t r;
+            if (rtu_mux_repeat(m, 0, 0, 1) != RTU_OK)
+                FUZZ_FAIL("the repeat refused after a plain answer");
+            waiting = rtu_mux_service(m);
+            r = recv(sv[1], got, sizeof got, MSG_DONTWAIT);
+            if (r > 0) {
+                if (r != 7 + (ssize_t)sizeof pdu || be16(got) != tid + 1 || be16(got + 2) != 0 ||
+                    got[6] != unit || memcmp(got + 7, pdu, sizeof pdu) != 0)
+                    FUZZ_FAIL("the repeat's request is not the ADU with the next id");
+            } else if (waiting != 1) {
+                FUZZ_FAIL("a repeat due neither sent nor ended: %d", waiting);
+            }
+            if (rtu_mux_unrepeat(m, 0) != 1)
+                FUZZ_FAIL("the repeat's transaction is neither in flight nor waiting");
+        }
     }
     if (rtu_mux_detach(m, 0) != RTU_OK || rtu_mux_detach(m, 1) != RTU_OK)
         FUZZ_FAIL("detach");

@@ -123,11 +123,12 @@ def tcp_seeds() -> list[bytes]:
 
 def mux_seeds() -> list[bytes]:
     """The TCP seeds for the mux (see fuzz_mux.c): the same streams, after a byte of
-    flags (the server shuts its end; timeout 0; a second transaction) in place of
-    the read sizes, and a seed for the pieces."""
+    flags (the server shuts its end; timeout 0; a second transaction; a repeat) in
+    place of the read sizes, and a seed for the pieces."""
     seeds = []
     for k, seed in enumerate(tcp_seeds()):
         seeds.append(seed[:3] + bytes([k % 8, 7 + k]) + seed[4:])
+        seeds.append(seed[:3] + bytes([8 | k % 4, 7 + k]) + seed[4:])  # (repeated)
     return seeds
 
 

@@ -393,9 +393,12 @@ typedef struct {
     uint32_t tid;
     int64_t start;
     int64_t end;
+    uint32_t flags;
     uint32_t len;
     uint8_t adu[254];
 } rtu_mux_done;
+#define RTU_MUX_REPEATING 1
+#define RTU_MUX_RESENT 2
 typedef struct rtu_mux rtu_mux;
 size_t rtu_mux_size(uint32_t nconns);
 int rtu_mux_init(rtu_mux *m, uint32_t nconns);
@@ -405,6 +408,8 @@ int rtu_mux_attach(rtu_mux *m, uint32_t conn, int fd);
 int rtu_mux_detach(rtu_mux *m, uint32_t conn);
 int rtu_mux_submit(rtu_mux *m, uint32_t conn, uint64_t token, unsigned tid, unsigned unit,
                    const char *pdu, size_t pdu_len, int awaited, int64_t timeout_ns);
+int rtu_mux_repeat(rtu_mux *m, uint32_t conn, int64_t first_ns, int64_t interval_ns);
+int rtu_mux_unrepeat(rtu_mux *m, uint32_t conn);
 int rtu_mux_service(rtu_mux *m);
 int64_t rtu_mux_deadline(const rtu_mux *m);
 size_t rtu_mux_take(rtu_mux *m, rtu_mux_done *out, size_t cap);

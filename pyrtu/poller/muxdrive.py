@@ -55,7 +55,7 @@ from pyrtu.pdu.errors import NoResponseError
 from pyrtu.pdu.requests import Call, answer_pdu
 from pyrtu.tcp.client import connect_error, parse_tcp_url, where_of
 from pyrtu.tcp.link import TcpLink
-from pyrtu.tcp.mux import MuxDone, TcpMux
+from pyrtu.tcp.mux import REPEATING, RESENT, MuxDone, TcpMux
 from pyrtu.tcp.mux_backends import available, open_mux
 from pyrtu.tcp.protocol import TcpClientProtocol
 from pyrtu.tcp.sockets import set_nodelay
@@ -210,6 +210,7 @@ class _Drive:
         "left",
         "link",
         "polls",
+        "repeat",
         "run",
         "timer",
         "token",
@@ -227,6 +228,9 @@ class _Drive:
         self.timer: asyncio.TimerHandle | None = None  # its offline_due
         self.wake_seq = 0  # its entry in the wake-up heap (0: none)
         self.urgent = False  # someone awaits its transaction in flight
+        #: the mux repeats its poll (`TcpMux.repeat`): ``token`` stays its own and
+        #: ``run.inflight`` the request repeated, between transactions too
+        self.repeat = False
         #: by poll block (its id): the block, its Call, its last answer and value
         #: (the same bytes again: the same value, not decoded again)
         self.polls: dict[int, list[Any]] = {}
@@ -278,7 +282,11 @@ class MuxDriver:
     def kick(self, run: BusRun) -> None:
         """A write or read was submitted to ``run``: step it now if it is idle."""
         d = self._by_run.get(run.bus.name)
-        if d is not None and d.token == 0 and not d.exit.done():
+        if d is None or d.exit.done():
+            return
+        if d.repeat:
+            self._stop_repeat(d)  # (a record still to come: its outcome steps the bus)
+        if d.token == 0:
             d.wake_seq = 0  # (its heap entry goes stale)
             self._loop.call_soon(self._guarded_step, d)
 
@@ -306,6 +314,13 @@ class MuxDriver:
             d.timer.cancel()
             d.timer = None
         run = d.run
+        if d.repeat:
+            self._stop_repeat(d)
+            exit = d.exit
+            if d.token == 0 and not (
+                exit.done() and not exit.cancelled() and isinstance(exit.result(), _Fault)
+            ):  # (a fault in its outcome leaves the request to the bus task's supervision)
+                run.inflight = None
         if d.token:
             self._drives.pop(d.token, None)
             d.token = 0
@@ -363,9 +378,28 @@ class MuxDriver:
                     d.polls.clear()  # (blocks planned again: the old ones go)
                 d.polls[id(block)] = [block, d.call, None, None]
         d.left = d.link.retries
-        self._send(d)
+        if self._send(d) and sched.steady(req):  # the mux sends it on (`_stop_repeat`)
+            assert d.link.conn is not None and req.task is not None
+            self.mux.repeat(d.link.conn, req.task.due, req.task.block.interval)
+            d.repeat = True
 
-    def _send(self, d: _Drive) -> None:
+    def _stop_repeat(self, d: _Drive) -> None:
+        """End ``d``'s repeat.  If its last transaction is over (its record taken),
+        ``d`` has no token any more; else that transaction's record still comes,
+        without `REPEATING`, and its outcome steps the bus."""
+        d.repeat = False
+        link = d.link
+        try:
+            pending = link.conn is not None and self.mux.unrepeat(link.conn)
+        except ValueError:  # (detached already: nothing comes)
+            pending = False
+        if not pending:
+            self._drives.pop(d.token, None)
+            d.token = 0
+            self._settled(d)
+
+    def _send(self, d: _Drive) -> bool:
+        """Submit ``d``'s call; whether it is in flight (False: it ended at once)."""
         call, link = d.call, d.link
         assert call is not None and link.conn is not None
         unit, pdu, decode = call
@@ -379,9 +413,10 @@ class MuxDriver:
                 self._loop.add_reader(self.mux.fd, self._ready)
         if self.mux.submit(link.conn, d.token, tid, unit, body, link.proto.timeout, awaited):
             self._loop.call_soon(self._ready)  # (ended at once: no descriptor says so)
-        else:
-            self._gap = 1
-            self._collect_by(self._grid_after(time.monotonic()))
+            return False
+        self._gap = 1
+        self._collect_by(self._grid_after(time.monotonic()))
+        return True
 
     def _settled(self, d: _Drive) -> None:
         """``d``'s transaction is no longer in flight."""
@@ -459,10 +494,16 @@ class MuxDriver:
             d = drives.get(rec.token)
             if d is None or d.token != rec.token:
                 continue  # (its bus stopped being driven meanwhile)
-            del drives[rec.token]
-            d.token = 0
-            self._settled(d)
+            if not rec.flags & REPEATING:  # (else the repeat goes on: the token stays)
+                del drives[rec.token]
+                d.token = 0
+                d.repeat = False
+                self._settled(d)
             try:
+                if rec.flags & RESENT:  # sent by the repeat: as if by `_step`
+                    d.link.proto.repeated(rec.tid)
+                    assert d.run.inflight is not None
+                    d.run.sched.repeated(d.run.inflight, rec.start)
                 self._ended(d, rec)
             except Exception as exc:  # a fault of the poller: the bus task's supervision
                 self._end(d, _Fault(exc))
@@ -483,6 +524,8 @@ class MuxDriver:
                 if _debug():  # (`pyrtu -vv`: every frame, as the asyncio client logs it)
                     ms = (end - rec.start) * 1e3
                     TcpClientProtocol._log_answer(rec.tid, rec.adu[0], rec.adu[1:], ms)
+                    if d.repeat:  # (its requests are logged only when sent by `_send`)
+                        self._stop_repeat(d)
         else:
             try:
                 raw = call.decode is answer_pdu
@@ -505,6 +548,8 @@ class MuxDriver:
                     value = call.decode(rec.adu[1:])
                 except Exception as exc:  # a malformed answer: the decoder's error
                     error = exc
+                    if d.repeat:
+                        self._stop_repeat(d)
                 else:
                     if poll is not None and poll[0] is req.block:
                         poll[2], poll[3] = rec.adu, value
@@ -554,6 +599,10 @@ class MuxDriver:
             events = sched.on_response(req, value, end)
             if fut is not None and not fut.done():
                 fut.set_result(value)
+        if d.repeat:  # the mux sends the next: the request stays in flight
+            if events:
+                poller._dispatch(events, run)
+            return
         run.inflight = run.inflight_future = None
         if events:
             poller._dispatch(events, run)

@@ -294,6 +294,16 @@ class BusScheduler:
         return best
 
     def _issue(self, task: _Task, now: float) -> ScheduledRequest:
+        self._advance(task, now)
+        b = task.block
+        return ScheduledRequest(POLL, b.slave, b.table, b.address, b.count, task.function, (), b,
+                       issued=now, cost=task.cost, task=task)  # fmt: skip
+
+    @staticmethod
+    def _advance(task: _Task, now: float) -> None:
+        """``task``'s block goes out at ``now``: its beat moves on (one interval from
+        when it was due, or from now when that is more than an interval behind)
+        and it is in flight, out of the schedule (its heap entry stale)."""
         due, interval = task.due, task.block.interval
         task.late = max(0.0, now - due)
         if due > now:  # a confirmation ahead of its time: the beat starts again from now
@@ -302,9 +312,36 @@ class BusScheduler:
             nxt = due + interval
             task.due = now if nxt + interval < now else nxt
         task.seq = -1
-        b = task.block
-        return ScheduledRequest(POLL, b.slave, b.table, b.address, b.count, task.function, (), b,
-                       issued=now, cost=task.cost, task=task)  # fmt: skip
+
+    def steady(self, req: ScheduledRequest) -> bool:
+        """Whether ``req``, a poll just issued, can be sent again at each of its
+        block's due times without this scheduler choosing (`repeated`: the
+        steady state the ``tcp://`` mux keeps in C, `pyrtu.tcp.mux.TcpMux.repeat`):
+        its block is the only one in the schedule and nothing else is waiting (no
+        write or read queued, no failure to confirm, no slave offline)."""
+        task = req.task
+        return (
+            req.kind == POLL
+            and task is not None
+            and not self._urgent
+            and self._confirm is None
+            and not self._offline_count
+            and all(t is task or not t.alive for t in self._tasks)
+        )
+
+    def repeated(self, req: ScheduledRequest, start: float) -> None:
+        """``req``'s block was sent again at ``start`` (by the mux's repeat, not
+        through `next_request`): issued then, its beat moved on as `next_request`
+        moves it; its outcome comes through `on_response` or `on_failure` as any
+        request's."""
+        task = req.task
+        if task is None:
+            raise ValueError("repeated: only a poll block's request is repeated")
+        req.issued = start
+        self._advance(task, start)
+        heap = self._heap  # (its entry from the outcome before, stale now, goes)
+        while heap and heap[0][1] != heap[0][2].seq:
+            heapq.heappop(heap)
 
     def _due_probe(self, now: float) -> ScheduledRequest | None:
         if not self._offline_count:

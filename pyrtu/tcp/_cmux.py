@@ -9,14 +9,14 @@ import socket
 import struct
 
 from pyrtu.core._rtu_core import ffi, lib
-from pyrtu.tcp.mux import MuxDone, MuxError, refused
+from pyrtu.tcp.mux import MuxDone, MuxError, refused, refused_repeat
 
 _NONE = 2**63 - 1
 
 #: an rtu_mux_done record's fields as their bytes lie (csrc/rtu_mux.h), with
 #: their `struct` codes; checked against the compiler's layout at import
 _FIELDS = (("token", "Q"), ("conn", "I"), ("status", "i"), ("err", "i"), ("stage", "i"),
-           ("late", "I"), ("tid", "I"), ("start", "q"), ("end", "q"), ("len", "I"),
+           ("late", "I"), ("tid", "I"), ("start", "q"), ("end", "q"), ("flags", "I"), ("len", "I"),
            ("adu", "254s"))  # fmt: skip
 _RECORD = struct.Struct("=" + "".join(code for _, code in _FIELDS))
 
@@ -102,6 +102,21 @@ class CMux:
             raise refused(conn, tid, unit, pdu, timeout)
         return rc == 1
 
+    def repeat(self, conn: int, first: float, interval: float) -> None:
+        # (what cffi cannot convert, refused before it: C refuses the rest; NaN fails)
+        if not (0 <= conn < 2**32 and -9e9 < first < 9e9 and 0 < interval < 9e9):
+            rc = -1
+        else:
+            rc = lib.rtu_mux_repeat(self._m, conn, int(first * 1e9), int(interval * 1e9))
+        if rc != 0:
+            raise refused_repeat(conn, first, interval)
+
+    def unrepeat(self, conn: int) -> bool:
+        rc = lib.rtu_mux_unrepeat(self._m, conn) if 0 <= conn < 2**32 else -1
+        if rc < 0:
+            raise ValueError(f"connection {conn} of the mux is not attached")
+        return rc == 1
+
     def service(self) -> int:
         n = lib.rtu_mux_service(self._m)
         if n < 0:
@@ -121,11 +136,11 @@ class CMux:
         done = []
         unpack, size = _RECORD.unpack_from, _SIZE
         for i in range(n):
-            token, conn, status, err, stage, late, tid, start, end, length, adu = unpack(
+            token, conn, status, err, stage, late, tid, start, end, flags, length, adu = unpack(
                 raw, i * size
             )
             done.append(MuxDone(token, conn, status, err, stage, late, tid, start * 1e-9,
-                                end * 1e-9, adu[:length]))  # fmt: skip
+                                end * 1e-9, adu[:length], flags))  # fmt: skip
         return done
 
     @property

@@ -26,7 +26,7 @@ from pyrtu.drivers.xfer import (
     TCP_TIMEOUT,
     TcpScan,
 )
-from pyrtu.tcp.mux import MuxDone, MuxError, refused
+from pyrtu.tcp.mux import REPEATING, RESENT, MuxDone, MuxError, refused, refused_repeat
 
 
 def supported() -> bool:
@@ -47,6 +47,7 @@ _TIMESTAMPNS = 35 if sys.platform == "linux" and platform.machine() in (
 _TIMESPEC = struct.Struct("@qq")
 _BUF_CAP = 520  # csrc/rtu_tcp.h RTU_TCP_MIN_CAP: two whole ADUs
 _MAX_ADU = 260
+_MAX_INTERVAL = 2**60  # ns: csrc/rtu_mux_io.c MAX_INTERVAL
 
 
 class _Conn:
@@ -59,13 +60,18 @@ class _Conn:
         "deadline",
         "fc",
         "gen",
+        "interval",
         "late",
         "queued",
+        "repeat",
         "req",
         "req_len",
+        "request",
+        "resent",
         "sock",
         "start",
         "tid",
+        "timeout",
         "token",
         "unit",
         "used",
@@ -78,8 +84,12 @@ class _Conn:
         self.broken = self.broken_err = 0
         self.tid = self.unit = self.fc = self.token = 0
         self.start = self.deadline = 0.0
-        self.req = b""
+        self.req = b""  # what is still to be sent of the request
         self.req_len = 0
+        self.request = b""  # the request ADU, its transaction id to be set
+        self.timeout = 0.0
+        self.repeat = self.resent = False
+        self.interval = 0.0
         self.awaited = True
         self.buf = bytearray()
         self.used = 0
@@ -97,6 +107,7 @@ class PyMux:
         self._free = list(range(capacity - 1, -1, -1))
         self._done: list[MuxDone] = []
         self._deadlines: list[tuple[float, int, int, int]] = []  # (deadline, seq, conn, gen)
+        self._due: dict[int, float] = {}  # each repeating connection's next send
         self._seq = 0
         self._services = 0
         self._closed = False
@@ -127,6 +138,7 @@ class PyMux:
         if k is None:
             return
         self._unwatch(k)
+        self._due.pop(conn, None)
         self._gens[conn] += 1
         self._done = [d for d in self._done if d.conn != conn]
         self._free.append(conn)
@@ -148,23 +160,30 @@ class PyMux:
                 or not 0 <= unit <= 0xFF or not 1 <= len(pdu) <= 253
                 or not timeout >= 0):  # fmt: skip
             raise refused(conn, tid, unit, pdu, timeout)
-        now = time.monotonic()
-        del k.buf[: k.used]
-        k.used = 0
-        k.token, k.tid, k.unit, k.fc = token, tid, unit, pdu[0]
-        k.start, k.deadline = now, now + timeout
-        k.busy, k.awaited = True, awaited
-        self._seq += 1
-        heapq.heappush(self._deadlines, (k.deadline, self._seq, conn, k.gen))
-        if k.broken:  # it failed while idle: nothing is sent
-            self._finish(conn, k, k.broken, k.broken_err, STAGE_RECEIVE, b"", now)
-            return True
-        k.req = _MBAP.pack(tid, 0, len(pdu) + 1, unit) + pdu
-        k.req_len = len(k.req)
-        self._transmit(conn, k, now)
-        if k.busy:
-            self._scan(conn, k, now)
-        return not k.busy
+        self._unrepeat(conn, k)  # (a request of its own: a repeat of another ends)
+        k.token, k.unit, k.fc = token, unit, pdu[0]
+        k.timeout, k.awaited = timeout, awaited
+        k.request = _MBAP.pack(tid, 0, len(pdu) + 1, unit) + pdu
+        k.req_len = len(k.request)
+        k.resent = False
+        return self._begin(conn, k, tid, time.monotonic())
+
+    def repeat(self, conn: int, first: float, interval: float) -> None:
+        k = self._conns.get(conn)
+        # (the C mux's checks: its interval in whole nanoseconds; NaN fails)
+        if (k is None or not k.req_len or not k.awaited or k.queued or not -9e9 < first < 9e9
+                or not 0 < interval < 9e9
+                or not 1 <= int(interval * 1e9) <= _MAX_INTERVAL):  # fmt: skip
+            raise refused_repeat(conn, first, interval)
+        k.repeat, k.interval = True, interval
+        self._due[conn] = first
+
+    def unrepeat(self, conn: int) -> bool:
+        k = self._conns.get(conn)
+        if k is None:
+            raise ValueError(f"connection {conn} of the mux is not attached")
+        self._unrepeat(conn, k)
+        return k.busy or k.queued
 
     def service(self) -> int:
         self._services += 1
@@ -182,17 +201,28 @@ class PyMux:
                 self._transmit(conn, k, now)
             if mask & selectors.EVENT_READ and k.broken == 0:
                 self._receive(conn, k, now)
-        self._expire(time.monotonic())
+        now = time.monotonic()
+        self._expire(now)
+        self._resend(now)
         return len(self._done)
 
     def deadline(self) -> float | None:
         first = self._first()
-        return None if first is None else first[1].deadline
+        at = None if first is None else first[1].deadline
+        conns = self._conns
+        for conn, due in self._due.items():
+            if (at is None or due < at) and not conns[conn].busy:
+                at = due
+        return at
 
     def take(self) -> list[MuxDone]:
         out, self._done = self._done, []
-        for d in out:
-            self._conns[d.conn].queued = False
+        conns = self._conns
+        for i, d in enumerate(out):
+            k = conns[d.conn]
+            k.queued = False
+            if k.repeat:
+                out[i] = d._replace(flags=d.flags | REPEATING)
         return out
 
     @property
@@ -209,6 +239,42 @@ class PyMux:
 
     # ------------------------------------------------------------ the steps
 
+    def _begin(self, conn: int, k: _Conn, tid: int, now: float) -> bool:
+        """Send ``k``'s request (``k.req``, its transaction id not yet in it) as
+        transaction ``tid``; whether it ended already (its record waits)."""
+        del k.buf[: k.used]
+        k.used = 0
+        k.tid = tid
+        k.start, k.deadline = now, now + k.timeout
+        k.busy = True
+        self._seq += 1
+        heapq.heappush(self._deadlines, (k.deadline, self._seq, conn, k.gen))
+        if k.broken:  # it failed while idle: nothing is sent
+            self._finish(conn, k, k.broken, k.broken_err, STAGE_RECEIVE, b"", now)
+            return True
+        k.req = tid.to_bytes(2, "big") + k.request[2:]
+        self._transmit(conn, k, now)
+        if k.busy:
+            self._scan(conn, k, now)
+        return not k.busy
+
+    def _unrepeat(self, conn: int, k: _Conn) -> None:
+        k.repeat = False
+        self._due.pop(conn, None)
+
+    def _resend(self, now: float) -> None:
+        """The repeats due by ``now`` of the idle connections sent."""
+        for conn, due in list(self._due.items()):
+            k = self._conns[conn]
+            if due > now or k.busy or k.queued:
+                continue
+            # its beat: one interval on from when it was due, or from now when that
+            # is more than an interval behind
+            nxt = due + k.interval
+            self._due[conn] = nxt if nxt >= now - k.interval else now
+            k.resent = True
+            self._begin(conn, k, (k.tid + 1) & 0xFFFF, now)
+
     def _unwatch(self, k: _Conn) -> None:
         try:
             self._sel.unregister(k.sock)
@@ -220,8 +286,11 @@ class PyMux:
         k.busy = False
         if k.queued:
             return
+        flags = RESENT if k.resent else 0
+        if k.repeat and (status != TCP_ANSWER or err or k.late or not adu):
+            self._unrepeat(conn, k)  # (only a plain answer keeps it going)
         self._done.append(MuxDone(k.token, conn, status, err, stage, k.late, k.tid, k.start,
-                                  end, adu))  # fmt: skip
+                                  end, adu, flags))  # fmt: skip
         k.late = 0
         k.queued = True
 

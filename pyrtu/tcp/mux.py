@@ -13,6 +13,9 @@ the ended ones over as `MuxDone` records.  `pyrtu.tcp.mux_backends.open_mux`
 makes one.  One transaction per connection is in
 flight at a time.
 
+`TcpMux.repeat` is a poll's steady state: the connection's request sent again
+by `TcpMux.service` every interval, so the event loop makes no call to send it.
+
 So polling a thousand devices costs the event loop one wake-up per batch of
 answers, not a task, a timer and a transport callback per device.
 """
@@ -23,6 +26,12 @@ import socket
 from typing import NamedTuple, Protocol
 
 from pyrtu.drivers.xfer import TCP_CLOSED, TCP_ERRNO, TCP_TIMEOUT
+
+#: `MuxDone.flags` (csrc/rtu_mux.h RTU_MUX_*): the connection still repeats its
+#: request when the record is taken
+REPEATING = 1
+#: ... the transaction was sent by the repeat, not by `TcpMux.submit`
+RESENT = 2
 
 
 class MuxDone(NamedTuple):
@@ -48,6 +57,8 @@ class MuxDone(NamedTuple):
     """when the read that completed the answer returned (or the timeout came)"""
     adu: bytes
     """the answer's unit id and PDU (empty without an answer)"""
+    flags: int = 0
+    """`REPEATING` and `RESENT` (`TcpMux.repeat`)"""
 
     @property
     def broken(self) -> bool:
@@ -63,6 +74,15 @@ def refused(conn: int, tid: int, unit: int, pdu: bytes, timeout: float) -> Value
         f"the mux refused the request (connection {conn}, tid {tid}, unit {unit}, "
         f"{len(pdu)}-byte PDU, timeout {timeout!r}): a bad argument, or a connection "
         "not attached or still in a transaction"
+    )
+
+
+def refused_repeat(conn: int, first: float, interval: float) -> ValueError:
+    """`TcpMux.repeat`'s error, in the same words on both backends."""
+    return ValueError(
+        f"the mux refused to repeat connection {conn} (first {first!r}, interval "
+        f"{interval!r}): a bad interval, a connection not attached, one with no "
+        "request since, a broadcast, or one whose record is not taken"
     )
 
 
@@ -108,14 +128,38 @@ class TcpMux(Protocol):
         and taken."""
         ...
 
+    def repeat(self, conn: int, first: float, interval: float) -> None:
+        """Send ``conn``'s request (its last `submit`'s, awaited) again from
+        ``first`` on, every ``interval`` seconds (1 ns to 2**60 ns), from `service`:
+        at the first service at or after its due time once the transaction before
+        has ended and its record is taken; the next is due one ``interval`` after
+        that due time, or at once when that is more than an interval behind (the
+        poller's beat, `pyrtu.poller.schedule.BusScheduler.next_request`).  Each
+        is a new transaction (the next transaction id, the submit's token and
+        timeout), its record flagged `RESENT`.  A plain answer (TCP_ANSWER,
+        nothing late, no error) keeps the repeat going; any other end of a
+        transaction ends it, as `submit` and `detach` do.  ValueError
+        (nothing changed) for a bad interval, a connection not attached, one
+        with no request since it was attached, a broadcast, or one whose record
+        is not taken."""
+        ...
+
+    def unrepeat(self, conn: int) -> bool:
+        """End ``conn``'s repeat, if any: True when a transaction is in flight or
+        its record is not taken (it still comes, without `REPEATING`), False when
+        the connection is idle.  ValueError for a connection not attached."""
+        ...
+
     def service(self) -> int:
-        """Read what the ready sockets hold and end the transactions due; how many
-        records wait for `take` (MuxError when the descriptor failed)."""
+        """Read what the ready sockets hold, end the transactions due and send the
+        repeats due; how many records wait for `take` (MuxError when the
+        descriptor failed)."""
         ...
 
     def deadline(self) -> float | None:
-        """When the first transaction in flight times out (monotonic seconds; None:
-        none in flight): call `service` then."""
+        """When `service` is next needed: the first transaction in flight times
+        out, or an idle connection's repeat is due (monotonic seconds; None:
+        neither)."""
         ...
 
     def take(self) -> list[MuxDone]:
@@ -132,4 +176,12 @@ class TcpMux(Protocol):
         ...
 
 
-__all__ = ["MuxDone", "MuxError", "TcpMux", "refused"]
+__all__ = [
+    "REPEATING",
+    "RESENT",
+    "MuxDone",
+    "MuxError",
+    "TcpMux",
+    "refused",
+    "refused_repeat",
+]

@@ -374,6 +374,12 @@ class TcpClientProtocol:
             log.debug("TX unit %d fc %d tid %d: %s", unit, body[0], tid, data.hex(" "))
         return tid, body, awaited
 
+    def repeated(self, tid: int) -> None:
+        """A transaction the mux sent again on its own (`pyrtu.tcp.mux.TcpMux.repeat`)
+        as ``tid``: counted as `begin` counts one, and the next id follows it."""
+        self._tid = tid
+        self.counters["requests"] += 1
+
     def answered(self, tid: int, unit: int, pdu: bytes, runner: TcpXferRunner) -> float:
         """The response ``pdu`` the runner's call ended with (TCP_ANSWER, nothing
         late, awaited): counted, logged; when it came."""

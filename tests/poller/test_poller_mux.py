@@ -8,6 +8,7 @@ Messaging on TCP/IP Implementation Guide V1.0b 3.1.3) on a thread."""
 from __future__ import annotations
 
 import asyncio
+import itertools
 import logging
 import socket
 import statistics
@@ -38,6 +39,7 @@ class Scripted:
         self.delay = delay
         self.drop = 0
         self.requests: list[bytes] = []
+        self.tids: list[int] = []  # their transaction ids
         self.sock = socket.socket()
         self.sock.bind(("127.0.0.1", 0))
         self.sock.listen(8)
@@ -70,6 +72,7 @@ class Scripted:
                     tid, _, _, unit = struct.unpack(">HHHB", adu[:7])
                     pdu = adu[7:]
                     self.requests.append(pdu)
+                    self.tids.append(tid)
                     if self.drop:
                         self.drop -= 1
                         continue
@@ -261,3 +264,120 @@ def test_every_frame_is_logged_at_debug_level(
     request = struct.pack(">HHHBBHH", 1, 0, 6, 1, 3, 0, 1).hex(" ")
     answer = struct.pack(">HHHBBBH", 1, 0, 5, 1, 3, 2, 100).hex(" ")
     assert tx[0].endswith(request) and rx[0].startswith(f"RX unit 1 fc 3 tid 1: {answer} (")
+
+
+# ------------------------------------------------------------ the steady state
+
+
+@pytest.fixture
+def sends(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    """The requests the driver submits itself (the mux's repeats not among them)."""
+    sent: list[int] = []
+    real = muxdrive.MuxDriver._send
+
+    def counted(self: muxdrive.MuxDriver, d: Any) -> bool:
+        sent.append(len(sent))
+        return real(self, d)
+
+    monkeypatch.setattr(muxdrive.MuxDriver, "_send", counted)
+    return sent
+
+
+def consecutive(tids: list[int]) -> bool:
+    return all((b - a) & 0xFFFF == 1 for a, b in itertools.pairwise(tids))
+
+
+def test_a_steady_poll_is_sent_by_the_mux_and_every_answer_still_counts(
+    server: Scripted, sends: list[int]
+) -> None:
+    """A lone block answering the same: after its first request the mux repeats it
+    (no submit of the driver's), each answer still reaches ``on_latency`` and the
+    statistics, the transaction ids follow one another, and a changed value is
+    delivered as it comes."""
+    latencies: list[float] = []
+    updates: list[Any] = []
+
+    async def main() -> None:
+        poller = poller_of(server, 0.02)
+        poller.on_latency(lambda bus, slave, seconds: latencies.append(seconds))
+        poller.on_update(updates.append)
+        async with poller:
+            await until(lambda: len(server.requests) >= 10, "ten polls")
+            assert len(sends) == 1  # the first only: the mux sent the rest
+            server.regs[0] = 7
+            await until(lambda: poller.last("t.r0").value == 7, "the changed value")
+            await until(lambda: len(server.requests) >= 30, "twenty more polls")
+            assert len(sends) == 1  # a change does not end the repeat
+        (st,) = poller.summary()["slaves"]
+        assert st["requests"] == st["responses"] == len(latencies)
+        assert len(server.requests) - 1 <= st["requests"] <= len(server.requests)
+
+    asyncio.run(main())
+    # each latency from its own request (a loopback answer), not from the first:
+    # that of the 30th would be 29 intervals
+    assert max(latencies) < 25 * 0.02, latencies
+    assert consecutive(server.tids)
+    assert [u.value for u in updates] == [100, 7]
+
+
+@pytest.mark.parametrize("delay", [0.0, 0.1])
+def test_a_write_during_a_steady_poll_goes_out_and_the_poll_goes_on(
+    server: Scripted, sends: list[int], delay: float
+) -> None:
+    """Whether the repeat is idle or has a transaction in flight (answered after
+    ``delay``, longer than the interval: in flight nearly all the time)."""
+    server.delay = delay
+
+    async def main() -> None:
+        poller = poller_of(server, 0.02)
+        async with poller:
+            await until(lambda: len(server.requests) >= 5, "five polls")
+            await poller.write_registers("t", 1, "holding", 1, [42])
+            assert server.regs[1] == 42
+            n = len(server.requests)
+            await until(lambda: len(server.requests) >= n + 5, "five polls after it")
+            # the write, then one poll of the driver's, the rest the mux's again
+            assert len(sends) == 3
+
+    asyncio.run(main())
+    assert bytes((6, 0, 1, 0, 42)) in server.requests
+    assert consecutive(server.tids)  # the write's id follows the repeats'
+
+
+def test_an_unanswered_repeat_ends_it_and_is_retried_then_the_repeat_resumes(
+    server: Scripted, sends: list[int]
+) -> None:
+    events: list[Event] = []
+
+    async def main() -> None:
+        poller = poller_of(server, 0.05, retries=1, timeout=0.2)
+        poller.on_event(events.append)
+        async with poller:
+            await until(lambda: len(server.requests) >= 4, "four polls")
+            assert len(sends) == 1
+            server.drop = 1  # a repeat goes unanswered: the driver retries it
+            n = len(server.requests)
+            await until(lambda: len(server.requests) >= n + 6, "polls after it")
+            assert len(sends) == 3  # the retry, then the poll that repeats again
+            (st,) = poller.summary()["slaves"]
+            assert st["timeouts"] == 0 and st["responses"] >= n  # (the retry answered)
+
+    asyncio.run(main())
+    assert consecutive(server.tids)
+    assert not [e for e in events if isinstance(e, TaskFailed)]
+
+
+def test_debug_switched_on_during_a_steady_poll_logs_its_frames(
+    server: Scripted, caplog: pytest.LogCaptureFixture, sends: list[int]
+) -> None:
+    async def main() -> None:
+        poller = poller_of(server, 0.02)
+        async with poller:
+            await until(lambda: len(server.requests) >= 5, "five polls")
+            assert len(sends) == 1
+            caplog.set_level(logging.DEBUG, logger="pyrtu.drivers.master")
+            await until(lambda: len(sends) >= 4, "polls the driver sends itself")
+
+    asyncio.run(main())
+    tx = [r.getMessage() for r in caplog.records if r.getMessage().startswith("TX unit 1")]
+    assert len(tx) >= 3

@@ -453,3 +453,63 @@ def test_the_latency_percentiles_are_of_the_last_1024_and_at_most_2047_are_kept(
     st.note_latency(2047.0)
     assert list(st.latencies) == [float(i) for i in range(1024, 2048)]
     assert (st.latency(0), st.latency(50), st.latency(100)) == (1024.0, 1535.0, 2047.0)
+
+
+# -- the steady state the tcp:// mux repeats --------------------------------------------
+
+
+def test_a_repeated_block_keeps_the_beat_next_request_keeps() -> None:
+    """`repeated` (the mux sent the block again by itself) moves the beat as
+    `next_request` does: the dues of the late-block test above, from the same
+    send times."""
+    sched = BusScheduler("b", [pt(0)], WIRE)
+    req = take(sched, 0.0)
+    sched.on_response(req, [0], 0.125)
+    assert sched.deadline() == 1.0
+    for start, due in [(1.5, 2.0), (4.0, 3.0), (4.25, 4.0), (5.5, 5.0), (7.0, 6.0), (8.5, 8.5)]:
+        sched.repeated(req, start)
+        assert req.issued == start
+        assert sched.deadline() is None  # in flight: out of the schedule
+        sched.on_response(req, [0], start + 0.125)
+        assert sched.deadline() == due
+    st = sched.slave_stats()[1]
+    assert (st.requests, st.responses) == (7, 7)
+    assert list(st.latencies) == [0.125] * 7
+
+
+def test_a_repeated_block_keeps_one_entry_in_the_schedule() -> None:
+    sched = BusScheduler("b", [pt(0)], WIRE)
+    req = take(sched, 0.0)
+    sched.on_response(req, [0], 0.125)
+    for i in range(1, 200):
+        sched.repeated(req, float(i))
+        sched.on_response(req, [0], i + 0.125)
+    assert len(sched._heap) == 1  # (each outcome's entry goes at the next repeat)
+    assert take(sched, 200.0).address == 0  # and it is due on its beat
+
+
+def test_a_write_or_read_is_not_repeated() -> None:
+    sched = BusScheduler("b", [pt(0)], WIRE)
+    sched.submit_write(1, "holding", 5, [1])
+    write = take(sched, 0.0)
+    assert not sched.steady(write)
+    with pytest.raises(ValueError, match="only a poll block"):
+        sched.repeated(write, 1.0)
+
+
+def test_only_a_lone_block_with_nothing_waiting_is_steady() -> None:
+    sched = BusScheduler("b", [pt(0)], WIRE, offline_after=1)
+    req = take(sched, 0.0)
+    assert sched.steady(req)
+    sched.submit_read(1, "holding", 7, 1)  # a read queued
+    assert not sched.steady(req)
+    read = take(sched, 0.0)
+    sched.on_response(read, [0], 0.1)
+    assert sched.steady(req)
+    two = BusScheduler("b", [pt(0), pt(500)], WIRE)  # two blocks
+    assert not two.steady(take(two, 0.0))
+    # a slave with no points, offline after a failed write: its probes must go out
+    sched.submit_write(9, "holding", 0, [1])
+    write = take(sched, 0.0)
+    sched.on_failure(write, silent(write), 0.5)
+    assert not sched.steady(req)

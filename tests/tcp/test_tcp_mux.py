@@ -31,7 +31,7 @@ from pyrtu.drivers.xfer import (
     TCP_MISMATCH,
     TCP_TIMEOUT,
 )
-from pyrtu.tcp.mux import MuxDone, TcpMux
+from pyrtu.tcp.mux import REPEATING, RESENT, MuxDone, TcpMux
 from pyrtu.tcp.mux_backends import available, open_mux
 
 READ = bytes((3, 0, 0, 0, 2))  # FC 3, address 0, 2 registers
@@ -555,3 +555,229 @@ def test_a_send_that_fails_ends_the_transaction_with_its_error(
     t0 = time.monotonic()
     assert mux.service() == 0
     assert time.monotonic() - t0 < 0.5  # (a look, not a wait)
+
+
+# ------------------------------------------------------------------ the repeat
+
+
+def nothing_sent(peer: socket.socket) -> bool:
+    """Whether the server's end has nothing to read."""
+    return not select.select([peer], [], [], 0)[0]
+
+
+def answered_once(mux: TcpMux, peer: socket.socket, tid: int, pdu: bytes = ANSWER) -> MuxDone:
+    """The request ``tid`` (read by the server), its answer ``pdu``, its record."""
+    assert peer.recv(260) == adu(tid, 5, READ)
+    peer.sendall(adu(tid, 5, pdu))
+    (d,) = records(mux)
+    return d
+
+
+def wait_until(t: float) -> None:
+    time.sleep(max(0.0, t - time.monotonic()))
+
+
+def test_a_repeat_sends_the_request_again_with_the_next_transaction_id(
+    mux: TcpMux, pair: tuple[int, socket.socket]
+) -> None:
+    conn, peer = pair
+    mux.submit(conn, 77, 0xFFFE, 5, READ, 2.0)
+    mux.repeat(conn, time.monotonic(), 0.05)
+    d = answered_once(mux, peer, 0xFFFE)  # the submit's
+    assert (d.token, d.status, d.flags) == (77, TCP_ANSWER, REPEATING)
+    mux.service()  # (due: sent; the next transaction id)
+    d = answered_once(mux, peer, 0xFFFF)
+    assert (d.token, d.tid, d.flags) == (77, 0xFFFF, REPEATING | RESENT)
+    assert d.adu == bytes((5,)) + ANSWER
+    changed = bytes((3, 4, 0, 1, 0, 2))
+    wait_until(d.start + 0.05)
+    mux.service()
+    d = answered_once(mux, peer, 0, changed)  # (the id wraps to 0)
+    assert (d.tid, d.flags, d.adu) == (0, REPEATING | RESENT, bytes((5,)) + changed)
+
+
+def test_a_repeat_is_sent_when_due_and_keeps_its_beat(
+    mux: TcpMux, pair: tuple[int, socket.socket]
+) -> None:
+    conn, peer = pair
+    mux.submit(conn, 1, 10, 5, READ, 2.0)
+    answered_once(mux, peer, 10)
+    first = time.monotonic() + 0.2
+    mux.repeat(conn, first, 0.3)
+    assert mux.deadline() == pytest.approx(first, abs=1e-6)  # an idle connection's due
+    mux.service()
+    assert nothing_sent(peer)  # not before it is due
+    wait_until(first)
+    mux.service()
+    d = answered_once(mux, peer, 11)
+    assert d.start >= first - 1e-6 and d.flags == REPEATING | RESENT
+    # the next is due one interval after the time this one was due, not after its send
+    assert mux.deadline() == pytest.approx(first + 0.3, abs=1e-6)
+
+
+def test_a_repeat_more_than_an_interval_behind_is_sent_at_once_and_its_beat_starts_again(
+    mux: TcpMux, pair: tuple[int, socket.socket]
+) -> None:
+    conn, peer = pair
+    mux.submit(conn, 1, 10, 5, READ, 2.0)
+    answered_once(mux, peer, 10)
+    mux.repeat(conn, time.monotonic() - 1.0, 0.3)  # three intervals behind
+    mux.service()
+    d = answered_once(mux, peer, 11)
+    assert mux.deadline() == pytest.approx(d.start, abs=1e-6)  # due again at once
+    mux.service()
+    answered_once(mux, peer, 12)
+    # less than an interval behind: the beat goes on from when it was due
+    behind = time.monotonic() - 0.2
+    mux.repeat(conn, behind, 0.3)
+    mux.service()
+    answered_once(mux, peer, 13)
+    assert mux.deadline() == pytest.approx(behind + 0.3, abs=1e-6)
+
+
+@pytest.mark.parametrize("end", ["exception", "timeout", "late", "closed"])
+def test_a_repeat_ends_with_a_transaction_that_is_not_a_plain_answer(
+    mux: TcpMux, pair: tuple[int, socket.socket], end: str
+) -> None:
+    conn, peer = pair
+    mux.submit(conn, 1, 10, 5, READ, 0.3)
+    mux.repeat(conn, time.monotonic(), 0.05)
+    answered_once(mux, peer, 10)
+    mux.service()
+    assert peer.recv(260) == adu(11, 5, READ)
+    if end == "exception":
+        peer.sendall(adu(11, 5, bytes((0x83, 2))))
+    elif end == "late":
+        peer.sendall(adu(10, 5, ANSWER) + adu(11, 5, ANSWER))
+    elif end == "closed":
+        peer.shutdown(socket.SHUT_WR)
+    (d,) = records(mux)
+    status = {"exception": TCP_EXCEPTION, "timeout": TCP_TIMEOUT, "late": TCP_ANSWER,
+              "closed": TCP_CLOSED}[end]  # fmt: skip
+    assert (d.status, d.flags) == (status, RESENT)  # not REPEATING: it ended
+    time.sleep(0.1)
+    mux.service()
+    assert nothing_sent(peer) and mux.take() == [] and mux.deadline() is None
+
+
+def test_unrepeat_says_whether_a_record_is_still_to_come(
+    mux: TcpMux, pair: tuple[int, socket.socket]
+) -> None:
+    conn, peer = pair
+    mux.submit(conn, 1, 10, 5, READ, 2.0)
+    mux.repeat(conn, time.monotonic() + 0.05, 0.05)
+    assert mux.unrepeat(conn) is True  # in flight
+    d = answered_once(mux, peer, 10)
+    assert d.flags == 0
+    time.sleep(0.1)
+    mux.service()
+    assert nothing_sent(peer) and mux.deadline() is None
+    mux.repeat(conn, time.monotonic(), 0.05)
+    mux.service()
+    peer.recv(260)
+    peer.sendall(adu(11, 5, ANSWER))
+    while not mux.service():  # its record waits, not taken
+        select.select([mux.fd], [], [], 1.0)
+    assert mux.unrepeat(conn) is True  # (its record still comes)
+    (d,) = mux.take()
+    assert d.flags == RESENT
+    assert mux.unrepeat(conn) is False  # idle: nothing comes
+    assert mux.take() == []
+
+
+def test_a_repeat_waits_for_the_record_before_it_to_be_taken(
+    mux: TcpMux, pair: tuple[int, socket.socket]
+) -> None:
+    conn, peer = pair
+    mux.submit(conn, 1, 10, 5, READ, 2.0)
+    mux.repeat(conn, time.monotonic(), 0.01)
+    assert peer.recv(260) == adu(10, 5, READ)
+    peer.sendall(adu(10, 5, ANSWER))
+    while not mux.service():
+        select.select([mux.fd], [], [], 1.0)
+    time.sleep(0.03)
+    assert mux.service() == 1
+    assert nothing_sent(peer)  # due, but its record before is not taken
+    assert mux.deadline() is not None and mux.deadline() <= time.monotonic()
+    assert len(mux.take()) == 1
+    mux.service()
+    assert peer.recv(260) == adu(11, 5, READ)
+
+
+def test_a_busy_connections_due_repeat_waits_for_its_answer_or_timeout(
+    mux: TcpMux, pair: tuple[int, socket.socket]
+) -> None:
+    conn, _ = pair
+    mux.submit(conn, 1, 10, 5, READ, 0.3)
+    mux.repeat(conn, time.monotonic() - 0.1, 0.05)  # due, but the submit is in flight
+    due = mux.deadline()
+    assert due is not None and due > time.monotonic() + 0.2  # the timeout's, not the past due
+    (d,) = records(mux)
+    assert d.status == TCP_TIMEOUT
+
+
+def test_a_submit_or_a_detach_ends_the_repeat(mux: TcpMux, pair: tuple[int, socket.socket]) -> None:
+    conn, peer = pair
+    mux.submit(conn, 1, 10, 5, READ, 2.0)
+    answered_once(mux, peer, 10)
+    mux.repeat(conn, time.monotonic() + 0.05, 0.05)
+    mux.submit(conn, 2, 20, 5, READ, 2.0)  # a request of its own
+    d = answered_once(mux, peer, 20)
+    assert d.flags == 0 and mux.deadline() is None
+    mux.repeat(conn, time.monotonic() + 0.05, 0.05)
+    mux.detach(conn)
+    assert mux.deadline() is None
+    with pytest.raises(ValueError, match="not attached"):
+        mux.unrepeat(conn)
+
+
+@pytest.mark.parametrize(
+    ("first", "interval"),
+    [(0.0, 0.0), (0.0, -1.0), (0.0, float("nan")), (float("nan"), 1.0), (0.0, 2.0**60 * 1e-9 * 2),
+     (0.0, 1e-10), (float("inf"), 1.0)],
+)  # fmt: skip
+def test_a_repeat_with_a_bad_time_is_refused(
+    mux: TcpMux, pair: tuple[int, socket.socket], first: float, interval: float
+) -> None:
+    conn, peer = pair
+    mux.submit(conn, 1, 10, 5, READ, 2.0)
+    with pytest.raises(ValueError, match="refused to repeat"):
+        mux.repeat(conn, first, interval)
+    answered_once(mux, peer, 10)
+    assert mux.deadline() is None  # nothing changed
+
+
+def test_a_repeat_needs_an_attached_connection_with_an_awaited_request(
+    mux: TcpMux, pair: tuple[int, socket.socket]
+) -> None:
+    conn, peer = pair
+    with pytest.raises(ValueError, match="refused to repeat"):
+        mux.repeat(conn, 0.0, 1.0)  # no request yet
+    with pytest.raises(ValueError, match="refused to repeat"):
+        mux.repeat(3, 0.0, 1.0)  # not attached
+    with pytest.raises(ValueError, match="not attached"):
+        mux.unrepeat(3)
+    mux.submit(conn, 1, 10, 0, READ, 2.0, awaited=False)  # a broadcast
+    assert [d.status for d in records(mux)] == [TCP_ANSWER]
+    assert peer.recv(260) == adu(10, 0, READ)
+    with pytest.raises(ValueError, match="refused to repeat"):
+        mux.repeat(conn, 0.0, 1.0)
+    mux.submit(conn, 2, 11, 5, READ, 2.0)
+    mux.repeat(conn, 0.0, 1e-9)  # the shortest interval: one nanosecond
+    answered_once(mux, peer, 11)
+
+
+def test_a_repeat_is_refused_while_a_record_waits(
+    mux: TcpMux, pair: tuple[int, socket.socket]
+) -> None:
+    conn, peer = pair
+    mux.submit(conn, 1, 10, 5, READ, 2.0)
+    assert peer.recv(260) == adu(10, 5, READ)
+    peer.sendall(adu(10, 5, ANSWER))
+    while not mux.service():
+        select.select([mux.fd], [], [], 1.0)
+    with pytest.raises(ValueError, match="refused to repeat"):
+        mux.repeat(conn, 0.0, 1.0)  # (that record was judged without it)
+    (d,) = mux.take()
+    assert d.flags == 0
+    mux.repeat(conn, 0.0, 1.0)
