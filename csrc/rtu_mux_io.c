@@ -547,7 +547,7 @@ static void resend(rtu_mux *m, int64_t now)
         k = &m->conns[c];
         if (k->busy || k->queued)
             continue; /* (its turn comes once that ends and is taken) */
-        /* its beat (pyrtu/poller/schedule.py _issue): one interval on from when it
+        /* its beat (pyrtu/poller/schedule.py _advance): one interval on from when it
          * was due, or from now when that is more than an interval behind */
         next = due + k->interval;
         m->due[c] = next >= now - k->interval ? next : now;
