@@ -170,10 +170,10 @@ class PyMux:
 
     def repeat(self, conn: int, first: float, interval: float) -> None:
         k = self._conns.get(conn)
-        # (the C mux's checks: its interval in whole nanoseconds; NaN fails)
+        # (the C mux's checks, its interval in nanoseconds, and CMux's bounds on
+        # ``first``; NaN fails them)
         if (k is None or not k.req_len or not k.awaited or k.queued or not -9e9 < first < 9e9
-                or not 0 < interval < 9e9
-                or not 1 <= int(interval * 1e9) <= _MAX_INTERVAL):  # fmt: skip
+                or not 1 <= interval * 1e9 <= _MAX_INTERVAL):  # fmt: skip
             raise refused_repeat(conn, first, interval)
         k.repeat, k.interval = True, interval
         self._due[conn] = first

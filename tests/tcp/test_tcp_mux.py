@@ -9,6 +9,7 @@ idle, and the calls it refuses."""
 from __future__ import annotations
 
 import errno
+import math
 import select
 import socket
 import struct
@@ -133,8 +134,8 @@ def test_an_answer_is_read_whole_and_handed_over(
     assert mux.service() == 0  # (nothing yet)
     peer.sendall(adu(0x1234, 5, ANSWER))
     (d,) = records(mux)
-    assert (d.token, d.conn, d.status, d.tid, d.late, d.err, d.stage) == (
-        77, conn, TCP_ANSWER, 0x1234, 0, 0, 0)  # fmt: skip
+    assert (d.token, d.conn, d.status, d.tid, d.late, d.err, d.stage, d.flags) == (
+        77, conn, TCP_ANSWER, 0x1234, 0, 0, 0, 0)  # fmt: skip
     assert d.adu == bytes((5,)) + ANSWER
     assert d.start <= d.end <= time.monotonic()
     assert mux.take() == [] and mux.deadline() is None
@@ -736,8 +737,8 @@ def test_a_submit_or_a_detach_ends_the_repeat(mux: TcpMux, pair: tuple[int, sock
 
 @pytest.mark.parametrize(
     ("first", "interval"),
-    [(0.0, 0.0), (0.0, -1.0), (0.0, float("nan")), (float("nan"), 1.0), (0.0, 2.0**60 * 1e-9 * 2),
-     (0.0, 1e-10), (float("inf"), 1.0)],
+    [(0.0, 0.0), (0.0, -1.0), (0.0, float("nan")), (float("nan"), 1.0), (0.0, 1.2e9),
+     (0.0, 1e-10), (float("inf"), 1.0), (-9e9, 1.0), (9e9, 1.0)],
 )  # fmt: skip
 def test_a_repeat_with_a_bad_time_is_refused(
     mux: TcpMux, pair: tuple[int, socket.socket], first: float, interval: float
@@ -784,3 +785,70 @@ def test_a_repeat_is_refused_while_a_record_waits(
     (d,) = mux.take()
     assert d.flags == 0
     mux.repeat(conn, 0.0, 1.0)
+
+
+def test_a_repeat_at_the_bounds_of_its_times_is_taken(
+    mux: TcpMux, pair: tuple[int, socket.socket]
+) -> None:
+    """The first time just inside (-9e9, 9e9) s, the interval from 1 ns to 1e9 s
+    (2**60 ns is the C mux's most: 1.15e9 s)."""
+    conn, peer = pair
+    mux.submit(conn, 1, 10, 5, READ, 2.0)
+    for first in (math.nextafter(-9e9, 0), math.nextafter(9e9, 0)):
+        for interval in (1e-9, 1e9):
+            mux.repeat(conn, first, interval)
+    answered_once(mux, peer, 10)
+
+
+def test_deadline_is_the_first_of_the_timeouts_and_the_idle_repeats(mux: TcpMux) -> None:
+    with served(mux, 3) as (conns, peers):
+        for conn, peer in zip(conns[:2], peers[:2], strict=True):
+            mux.submit(conn, 1, 10, 5, READ, 2.0)
+            answered_once(mux, peer, 10)
+        now = time.monotonic()
+        mux.repeat(conns[0], now + 50, 1.0)
+        mux.repeat(conns[1], now + 30, 1.0)
+        assert mux.deadline() == pytest.approx(now + 30, abs=1e-6)
+        mux.submit(conns[2], 1, 10, 5, READ, 10.0)  # in flight: its timeout is sooner
+        due = mux.deadline()
+        assert due is not None and due < now + 30
+
+
+class _Clock:
+    """`time` as the twin sees it: a clock the test sets."""
+
+    def __init__(self, now: float) -> None:
+        self.now = now
+
+    def monotonic(self) -> float:
+        return self.now
+
+    def time(self) -> float:
+        return self.now
+
+
+@pytest.mark.parametrize(("late", "next_due"), [(2.0, 11.0), (2.5, 12.5)])
+def test_the_twins_repeat_exactly_two_intervals_behind_keeps_its_beat(
+    monkeypatch: pytest.MonkeyPatch, late: float, next_due: float
+) -> None:
+    """The boundary of the beat, on the twin (whose clock a test can set; C reads
+    CLOCK_MONOTONIC): due at 10 every second and sent at 12, the next is due at
+    11, one interval on (11 + 1 is not before 12), as
+    tests/poller/test_poller_schedule_edges.py has the scheduler do; sent at
+    12.5, more than an interval behind, the beat starts again from the send."""
+    from pyrtu.tcp import _pymux
+
+    clock = _Clock(5.0)
+    monkeypatch.setattr(_pymux, "time", clock)
+    mux = _pymux.PyMux(1)
+    try:
+        with served(mux, 1) as ((conn,), (peer,)):
+            mux.submit(conn, 1, 10, 5, READ, 2.0)
+            answered_once(mux, peer, 10)
+            mux.repeat(conn, 10.0, 1.0)
+            clock.now = 10.0 + late
+            mux.service()
+            answered_once(mux, peer, 11)
+            assert mux.deadline() == next_due
+    finally:
+        mux.close()
