@@ -339,8 +339,15 @@ class BusScheduler:
             raise ValueError("repeated: only a poll block's request is repeated")
         req.issued = start
         self._advance(task, start)
-        heap = self._heap  # (its entry from the outcome before, stale now, goes)
-        while heap and heap[0][1] != heap[0][2].seq:
+        self._drop_stale()  # (its entry from the outcome before, stale now, goes)
+
+    def _drop_stale(self) -> None:
+        """The heap's top entries that are no longer due dropped: a block gone, or
+        suspended (its slave offline), or issued since it was pushed."""
+        heap = self._heap
+        while heap and (
+            not heap[0][2].alive or heap[0][2].suspended or heap[0][1] != heap[0][2].seq
+        ):
             heapq.heappop(heap)
 
     def _due_probe(self, now: float) -> ScheduledRequest | None:
@@ -366,11 +373,8 @@ class BusScheduler:
         if self._urgent or self._confirm is not None:
             return float("-inf")
         best: float | None = None
+        self._drop_stale()
         heap = self._heap
-        while heap and (
-            not heap[0][2].alive or heap[0][2].suspended or heap[0][1] != heap[0][2].seq
-        ):
-            heapq.heappop(heap)
         if heap:
             best = heap[0][0]
         if not self._offline_count:

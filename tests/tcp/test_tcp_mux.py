@@ -739,7 +739,7 @@ def test_a_submit_or_a_detach_ends_the_repeat(mux: TcpMux, pair: tuple[int, sock
 @pytest.mark.parametrize(
     ("first", "interval"),
     [(0.0, 0.0), (0.0, -1.0), (0.0, float("nan")), (float("nan"), 1.0), (0.0, 1.2e9),
-     (0.0, 1e-10), (float("inf"), 1.0), (-9e9, 1.0), (9e9, 1.0)],
+     (0.0, 1e-10), (0.0, 0.9999999995e-9), (float("inf"), 1.0), (-9e9, 1.0), (9e9, 1.0)],
 )  # fmt: skip
 def test_a_repeat_with_a_bad_time_is_refused(
     mux: TcpMux, pair: tuple[int, socket.socket], first: float, interval: float
