@@ -240,8 +240,8 @@ class PyMux:
     # ------------------------------------------------------------ the steps
 
     def _begin(self, conn: int, k: _Conn, tid: int, now: float) -> bool:
-        """Send ``k``'s request (``k.req``, its transaction id not yet in it) as
-        transaction ``tid``; whether it ended already (its record waits)."""
+        """Send ``k``'s request (``k.request``) as transaction ``tid``; whether it
+        ended already (its record waits)."""
         del k.buf[: k.used]
         k.used = 0
         k.tid = tid
